@@ -1,0 +1,438 @@
+"""Class-1 tensegrity dynamics in configuration-matrix form (pure NumPy reference path).
+
+This module never imports gymnasium. Everything is in SI units (m, kg, s, N).
+
+Coordinates
+-----------
+Each rod j has a *reference point* ``r_j`` (m) and a unit vector ``b_j`` pointing from
+its node a to its node c. The reference point sits at fraction ``sigma_j`` from node a:
+
+* a free rod is described at its centre of mass (``sigma`` = mass-weighted centre,
+  first mass moment ``f = 0``), exactly the seed's Theorem 5.1 with ``Q = [R B]``;
+* a rod with a constrained end node (``D n = const``) is described at that node
+  (``sigma = 0`` or ``1``), the seed's section 5.4 reduced form with
+  ``r = D^+ rbar + E z``.
+
+Nodes are linear in the configuration (5.17, 5.42):
+``n_a = r + eta_a b``, ``n_c = r + eta_c b`` with ``eta_a = -sigma l``, ``eta_c = (1 - sigma) l``;
+i.e. ``N = Q Psi^T + Y`` with anchors in ``Y``.
+
+The state of a batch of B copies of one structure is ``q`` (B, k, 6) = ``[r, b]`` and
+``qd`` (B, k, 6) = ``[r', b']`` (m, 1, m/s, 1/s).
+
+Equations of motion (per rod; (5.49)-(5.51) of the seed, which reduce to (5.37)/(5.40)
+for a free rod described at its centre of mass)::
+
+    f_r = F_a + F_c                         (sum of nodal forces, N)
+    f_b = eta_a F_a + eta_c F_c             (generalized force on b, N m)
+    w   = |b'|^2 / |b|^2,   P = I - b b^T / |b|^2
+    r'' = A(b) [ f_r - (f/J) P f_b + f w b ]
+    b'' = P f_b / J - (f/J) P r'' - w b
+
+with ``A = E (m I - f^2/J E^T P E)^{-1} E^T`` written branch-free through the projector
+``Pi = E E^T`` onto the allowed directions of the reference point and Sherman-Morrison:
+``A = (Pi - beta u u^T / (alpha + beta |u|^2)) / alpha``, ``u = Pi b/|b|``,
+``alpha = m - f^2/J > 0`` (Lemma 5.1), ``beta = f^2/J``. For a free rod ``A = I/m``; for a
+pinned rod ``A = 0``.
+
+Strings are tension-only (5.20)::
+
+    gamma_i = max(0, k_i (|s_i| - l0_i)/|s_i| + c_i (d|s_i|/dt)/|s_i|)   if |s_i| > l0_i, else 0
+    gamma_i <- max(0, gamma_i + u_i)          (u: force density added by a controller, N/m)
+
+so a string never pushes, damping included, and a slack string carries no force
+(a controller may still pull through it with ``u > 0``). Force densities enter the
+generalized forces linearly (5.21): ``F_Q = [W - N C_S^T Gamma C_S] Psi``.
+
+Strings listed as *active* in :func:`compile_model` have no elastic part: their force
+density is the control input ``u`` alone (clipped at 0: a cable cannot push).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Iterable
+
+import numpy as np
+
+from .structure import Structure, mass_moments
+
+__all__ = ["Model", "State", "compile_model", "initial_state", "node_positions", "node_velocities",
+           "string_state", "force_densities", "nodal_forces", "accelerations", "project", "energy",
+           "kinetic_energy", "potential_energy", "linear_momentum", "angular_momentum", "rod_length_drift",
+           "configuration_matrix", "constraint_violation", "stable_step_estimate"]
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """Compiled, immutable arrays of one structure topology (SI units).
+
+    Shapes: k rods, n nodes, m strings, na anchors.
+    """
+
+    structure: Structure
+    n_nodes: int
+    n_bars: int
+    n_strings: int
+    rod_a: np.ndarray          # (k,) node a of each rod
+    rod_c: np.ndarray          # (k,) node c of each rod
+    length: np.ndarray         # (k,) rod length, m
+    sigma: np.ndarray          # (k,) reference point as fraction from node a
+    mass: np.ndarray           # (k,) kg
+    f: np.ndarray              # (k,) first mass moment about the reference point, kg m
+    J: np.ndarray              # (k,) second mass moment about the reference point, kg m^2
+    eta: np.ndarray            # (k, 2) signed distance of nodes a, c from the reference point, m
+    proj: np.ndarray           # (k, 3, 3) projector Pi = E E^T onto allowed reference-point motion
+    offset: np.ndarray         # (k, 3) fixed part (I - Pi) n0 of the reference point, m
+    constrained: np.ndarray    # (k,) bool: rod has a constrained node
+    anchor_idx: np.ndarray     # (na,) anchor node indices
+    anchor_pos: np.ndarray     # (na, 3) anchor positions, m
+    str_i: np.ndarray          # (m,) first node of each string
+    str_j: np.ndarray          # (m,) second node (s = n_j - n_i)
+    C: np.ndarray              # (m, n) string connectivity C_S (+1 at j, -1 at i)
+    stiffness: np.ndarray      # (m,) N/m (0 for active strings)
+    damping: np.ndarray        # (m,) N s/m (0 for active strings)
+    rest_length: np.ndarray    # (m,) default rest lengths, m
+    active: np.ndarray         # (m,) bool: force-density-controlled strings
+    W0: np.ndarray             # (n, 3) constant external nodal loads (gravity), N
+    gravity: np.ndarray | None
+    has_gravity: bool
+    has_damping: bool
+    com_eta: np.ndarray = field(default=None)  # (k,) signed distance of centre of mass from ref. point, m
+
+    @property
+    def node_velocity_free(self) -> bool:
+        """True if no string is damped (string forces then need no node velocities)."""
+        return not self.has_damping
+
+
+@dataclass(frozen=True, eq=False)
+class State:
+    """Batched state. ``q``, ``qd``: (B, k, 6) arrays ``[r, b]``, ``[r', b']``; ``t``: s."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    t: float = 0.0
+
+    @property
+    def batch_size(self) -> int:
+        return self.q.shape[0]
+
+    def replace(self, **kw) -> "State":
+        return replace(self, **kw)
+
+
+def compile_model(structure: Structure, active_strings: Iterable[int] | None = None) -> Model:
+    """Compile a :class:`Structure` into the arrays the dynamics use.
+
+    ``active_strings``: indices of strings whose force density is a control input
+    (no elastic part). Default: none (all strings elastic)."""
+    s = structure
+    k, n, m = s.n_bars, s.n_nodes, s.n_strings
+    rod_a = s.bars[:, 0].copy()
+    rod_c = s.bars[:, 1].copy()
+    length = s.bar_lengths
+    mp = s.mass_points or (None,) * k
+    sigma = s.com_fraction.copy()
+    proj = np.tile(np.eye(3), (k, 1, 1))
+    offset = np.zeros((k, 3))
+    constrained = np.zeros(k, bool)
+    for j in range(k):
+        for end, node in ((0, rod_a[j]), (1, rod_c[j])):
+            if node in s.node_constraints:
+                D = s.node_constraints[node]
+                sigma[j] = float(end)
+                # projector onto the null space of D (allowed motion)
+                Pi = np.eye(3) - D.T @ np.linalg.solve(D @ D.T, D)
+                Pi[np.abs(Pi) < 1e-15] = 0.0
+                proj[j] = Pi
+                offset[j] = (np.eye(3) - Pi) @ s.nodes[node]
+                constrained[j] = True
+    f = np.zeros(k)
+    J = np.zeros(k)
+    for j in range(k):
+        fj, Jj = mass_moments(length[j], s.bar_mass[j], sigma[j], mp[j])
+        f[j] = 0.0 if not constrained[j] else fj   # free rods: f = 0 exactly at the centre of mass
+        J[j] = Jj
+    eta = np.stack([-sigma * length, (1.0 - sigma) * length], axis=1)
+    com_eta = (s.com_fraction - sigma) * length
+    C = np.zeros((m, n))
+    C[np.arange(m), s.strings[:, 1]] += 1.0
+    C[np.arange(m), s.strings[:, 0]] -= 1.0
+    active = np.zeros(m, bool)
+    if active_strings is not None:
+        idx = np.asarray(list(active_strings), dtype=int)
+        if idx.size and (idx.min() < 0 or idx.max() >= m):
+            bad = idx[(idx < 0) | (idx >= m)][0]
+            raise ValueError(f"active_strings: string {bad} does not exist (there are {m} strings)")
+        active[idx] = True
+    stiffness = np.where(active, 0.0, s.stiffness)
+    damping = np.where(active, 0.0, s.damping)
+    W0 = np.zeros((n, 3))
+    if s.gravity is not None:
+        # a rod's weight m g acts at its centre of mass: equivalent loads at its two nodes
+        com = s.com_fraction
+        W0[rod_a] += ((1.0 - com) * s.bar_mass)[:, None] * s.gravity
+        W0[rod_c] += (com * s.bar_mass)[:, None] * s.gravity
+    anchor_idx = s.anchors
+    arrays = dict(rod_a=rod_a, rod_c=rod_c, length=length, sigma=sigma, mass=s.bar_mass.copy(), f=f, J=J,
+                  eta=eta, proj=proj, offset=offset, constrained=constrained, anchor_idx=anchor_idx,
+                  anchor_pos=s.nodes[anchor_idx].copy(), str_i=s.strings[:, 0].copy(),
+                  str_j=s.strings[:, 1].copy(), C=C, stiffness=stiffness, damping=damping,
+                  rest_length=s.rest_length.copy(), active=active, W0=W0, com_eta=com_eta)
+    for a in arrays.values():
+        a.setflags(write=False)
+    return Model(structure=s, n_nodes=n, n_bars=k, n_strings=m, gravity=s.gravity,
+                 has_gravity=s.gravity is not None and bool(np.any(s.gravity != 0)),
+                 has_damping=bool(np.any(damping > 0)), **arrays)
+
+
+def initial_state(model: Model, batch_size: int = 1, nodes: np.ndarray | None = None,
+                  velocities: np.ndarray | None = None) -> State:
+    """State from node positions (n, 3) or (B, n, 3) and velocities (default: the structure's).
+
+    Rod lengths are taken from the model; ``b`` is normalised."""
+    s = model.structure
+    nodes = s.nodes if nodes is None else np.asarray(nodes, float)
+    vel = s.velocities if velocities is None else np.asarray(velocities, float)
+    if nodes.ndim == 2:
+        nodes = np.broadcast_to(nodes, (batch_size,) + nodes.shape)
+    if vel.ndim == 2:
+        vel = np.broadcast_to(vel, (nodes.shape[0],) + vel.shape)
+    na, nc = nodes[:, model.rod_a], nodes[:, model.rod_c]
+    va, vc = vel[:, model.rod_a], vel[:, model.rod_c]
+    d = nc - na
+    b = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    L = model.length[None, :, None]
+    bd = (vc - va) / L
+    sig = model.sigma[None, :, None]
+    r = na + sig * L * b
+    rd = va + sig * L * bd
+    q = np.concatenate([r, b], axis=-1)
+    qd = np.concatenate([rd, bd], axis=-1)
+    return State(q=np.ascontiguousarray(q), qd=np.ascontiguousarray(qd), t=0.0)
+
+
+def node_positions(model: Model, q: np.ndarray) -> np.ndarray:
+    """(B, n, 3) node positions, m, from q (B, k, 6)."""
+    B = q.shape[0]
+    r, b = q[..., :3], q[..., 3:]
+    N = np.empty((B, model.n_nodes, 3))
+    N[:, model.rod_a] = r + model.eta[None, :, 0, None] * b
+    N[:, model.rod_c] = r + model.eta[None, :, 1, None] * b
+    if model.anchor_idx.size:
+        N[:, model.anchor_idx] = model.anchor_pos
+    return N
+
+
+def node_velocities(model: Model, qd: np.ndarray) -> np.ndarray:
+    """(B, n, 3) node velocities, m/s (anchors: 0)."""
+    B = qd.shape[0]
+    rd, bd = qd[..., :3], qd[..., 3:]
+    V = np.zeros((B, model.n_nodes, 3))
+    V[:, model.rod_a] = rd + model.eta[None, :, 0, None] * bd
+    V[:, model.rod_c] = rd + model.eta[None, :, 1, None] * bd
+    return V
+
+
+def string_state(model: Model, q: np.ndarray, qd: np.ndarray | None = None):
+    """String vectors ``s`` (B, m, 3) = n_j - n_i, lengths (B, m) and, if ``qd`` is
+    given, length rates d|s|/dt (B, m) in m/s (else None)."""
+    N = node_positions(model, q)
+    S = N[:, model.str_j] - N[:, model.str_i]
+    L = np.sqrt(np.einsum("bmi,bmi->bm", S, S))
+    Ld = None
+    if qd is not None:
+        V = node_velocities(model, qd)
+        Sd = V[:, model.str_j] - V[:, model.str_i]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Ld = np.where(L > 0, np.einsum("bmi,bmi->bm", S, Sd) / np.where(L > 0, L, 1.0), 0.0)
+    return S, L, Ld
+
+
+def force_densities(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None):
+    """String force densities gamma (B, m), N/m (tension / length, >= 0). See the module doc."""
+    l0 = model.rest_length if rest_length is None else rest_length
+    S, L, Ld = string_state(model, q, qd if model.has_damping else None)
+    taut = L > l0
+    safeL = np.where(taut, L, 1.0)
+    tension = model.stiffness * (L - l0)
+    if model.has_damping:
+        tension = tension + model.damping * Ld
+    gamma = np.where(taut, np.maximum(tension, 0.0) / safeL, 0.0)
+    if force_density is not None:
+        gamma = np.maximum(gamma + force_density, 0.0)
+    return gamma, S, L
+
+
+def nodal_forces(model: Model, q, qd, rest_length=None, force_density=None, external=None):
+    """Total nodal forces W - N C_S^T Gamma C_S (B, n, 3), N, and gamma (B, m)."""
+    gamma, S, _ = force_densities(model, q, qd, rest_length, force_density)
+    # -C^T (gamma s): node j of string gets -gamma s, node i gets +gamma s
+    F = -np.einsum("mn,bmi->bni", model.C, gamma[..., None] * S)
+    if model.has_gravity:
+        F = F + model.W0
+    if external is not None:
+        F = F + external
+    return F, gamma
+
+
+def _rod_accelerations(model: Model, q, qd, F):
+    r, b = q[..., :3], q[..., 3:]
+    rd, bd = qd[..., :3], qd[..., 3:]
+    Fa, Fc = F[:, model.rod_a], F[:, model.rod_c]
+    fr = Fa + Fc
+    fb = model.eta[None, :, 0, None] * Fa + model.eta[None, :, 1, None] * Fc
+    bb = np.einsum("bki,bki->bk", b, b)[..., None]
+    w = np.einsum("bki,bki->bk", bd, bd)[..., None] / bb
+    Pfb = fb - b * np.einsum("bki,bki->bk", b, fb)[..., None] / bb
+    f = model.f[None, :, None]
+    J = model.J[None, :, None]
+    m = model.mass[None, :, None]
+    h = fr - (f / J) * Pfb + f * w * b
+    # A h with A = (Pi - beta u u^T/(alpha + beta |u|^2)) / alpha, u = Pi b / |b|
+    alpha = m - f * f / J
+    beta = f * f / J
+    Pi = model.proj
+    u = np.einsum("kij,bkj->bki", Pi, b) / np.sqrt(bb)
+    Pih = np.einsum("kij,bkj->bki", Pi, h)
+    uu = np.einsum("bki,bki->bk", u, u)[..., None]
+    uh = np.einsum("bki,bki->bk", u, h)[..., None]
+    rdd = (Pih - beta * u * uh / (alpha + beta * uu)) / alpha
+    Prdd = rdd - b * np.einsum("bki,bki->bk", b, rdd)[..., None] / bb
+    bdd = Pfb / J - (f / J) * Prdd - w * b
+    return np.concatenate([rdd, bdd], axis=-1)
+
+
+def accelerations(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
+                  external=None) -> np.ndarray:
+    """Second derivatives (B, k, 6) ``[r'', b'']`` of the configuration (m/s^2, 1/s^2).
+
+    ``rest_length``: (m,) or (B, m) string rest lengths, m (default the model's).
+    ``force_density``: (m,) or (B, m) force densities added by a controller, N/m.
+    ``external``: (B, n, 3) or (n, 3) external nodal forces, N (gravity is added
+    by the model itself when the structure has it)."""
+    F, _ = nodal_forces(model, q, qd, rest_length, force_density, external)
+    return _rod_accelerations(model, q, qd, F)
+
+
+def project(model: Model, q: np.ndarray, qd: np.ndarray):
+    """Project onto the constraint manifold: ``|b| = 1``, ``b . b' = 0``, the constrained
+    nodes back on their line/plane/point (and their velocity tangent to it).
+    Returns new ``(q, qd)``; free rods' reference points are untouched."""
+    r, b = q[..., :3], q[..., 3:]
+    rd, bd = qd[..., :3], qd[..., 3:]
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    bd = bd - b * np.einsum("bki,bki->bk", b, bd)[..., None]
+    if model.constrained.any():
+        r = model.offset + np.einsum("kij,bkj->bki", model.proj, r)
+        rd = np.einsum("kij,bkj->bki", model.proj, rd)
+    return np.concatenate([r, b], axis=-1), np.concatenate([rd, bd], axis=-1)
+
+
+# ---------------------------------------------------------------------- diagnostics
+def kinetic_energy(model: Model, qd: np.ndarray) -> np.ndarray:
+    """(B,) kinetic energy, J: sum of m|r'|^2/2 + f r'.b' + J|b'|^2/2."""
+    rd, bd = qd[..., :3], qd[..., 3:]
+    return np.sum(0.5 * model.mass * np.einsum("bki,bki->bk", rd, rd)
+                  + model.f * np.einsum("bki,bki->bk", rd, bd)
+                  + 0.5 * model.J * np.einsum("bki,bki->bk", bd, bd), axis=-1)
+
+
+def potential_energy(model: Model, q: np.ndarray, rest_length=None) -> np.ndarray:
+    """(B,) string potential sum k max(0, |s| - l0)^2 / 2 plus gravity potential, J.
+    Active strings (no stiffness) store no energy."""
+    l0 = model.rest_length if rest_length is None else rest_length
+    _, L, _ = string_state(model, q)
+    V = 0.5 * np.sum(model.stiffness * np.maximum(L - l0, 0.0) ** 2, axis=-1)
+    if model.has_gravity:
+        V = V - np.einsum("bni,ni->b", node_positions(model, q), model.W0)
+    return V
+
+
+def energy(model: Model, q, qd, rest_length=None) -> np.ndarray:
+    """(B,) total mechanical energy, J."""
+    return kinetic_energy(model, qd) + potential_energy(model, q, rest_length)
+
+
+def linear_momentum(model: Model, qd: np.ndarray) -> np.ndarray:
+    """(B, 3) linear momentum sum m r' + f b', kg m/s."""
+    rd, bd = qd[..., :3], qd[..., 3:]
+    return np.sum(model.mass[:, None] * rd + model.f[:, None] * bd, axis=1)
+
+
+def angular_momentum(model: Model, q: np.ndarray, qd: np.ndarray, about=None) -> np.ndarray:
+    """(B, 3) angular momentum about ``about`` (3,) or (B, 3) (default: origin), kg m^2/s.
+
+    Per rod: m (r - o) x r' + f ((r - o) x b' + b x r') + J b x b'."""
+    r, b = q[..., :3], q[..., 3:]
+    rd, bd = qd[..., :3], qd[..., 3:]
+    if about is not None:
+        r = r - np.asarray(about)[..., None, :] if np.ndim(about) == 2 else r - about
+    m, f, J = (x[:, None] for x in (model.mass, model.f, model.J))
+    L = m * np.cross(r, rd) + f * (np.cross(r, bd) + np.cross(b, rd)) + J * np.cross(b, bd)
+    return L.sum(axis=1)
+
+
+def center_of_mass(model: Model, q: np.ndarray) -> np.ndarray:
+    """(B, 3) centre of mass of the rods, m."""
+    r, b = q[..., :3], q[..., 3:]
+    com = r + model.com_eta[None, :, None] * b
+    return np.einsum("k,bki->bi", model.mass, com) / model.mass.sum()
+
+
+def rod_length_drift(model: Model, q: np.ndarray) -> np.ndarray:
+    """(B,) max over rods of | |b| - 1 | (relative rod-length error)."""
+    return np.max(np.abs(np.linalg.norm(q[..., 3:], axis=-1) - 1.0), axis=-1)
+
+
+def constraint_violation(model: Model, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    """(B,) largest violation among |b| = 1 (1), b.b' = 0 (1/s) and the node constraints (m)."""
+    b, bd = q[..., 3:], qd[..., 3:]
+    v = np.maximum(rod_length_drift(model, q), np.max(np.abs(np.einsum("bki,bki->bk", b, bd)), axis=-1))
+    if model.constrained.any():
+        r = q[..., :3]
+        resid = r - model.offset - np.einsum("kij,bkj->bki", model.proj, r)
+        v = np.maximum(v, np.max(np.abs(resid), axis=(-1, -2)))
+    return v
+
+
+def configuration_matrix(model: Model, q: np.ndarray):
+    """The seed's notation: ``Q`` (B, 3, 2k) = [R B], ``Psi`` (n, 2k), ``Y`` (3, n) with
+    ``N^T = Q Psi^T + Y`` (nodes as columns, (5.17)). For a free rod, R holds its centre
+    of mass; for a constrained rod, its constrained node."""
+    k = model.n_bars
+    Q = np.concatenate([q[..., :3], q[..., 3:]], axis=1).transpose(0, 2, 1)
+    Psi = np.zeros((model.n_nodes, 2 * k))
+    Psi[model.rod_a, np.arange(k)] = 1.0
+    Psi[model.rod_c, np.arange(k)] = 1.0
+    Psi[model.rod_a, k + np.arange(k)] = model.eta[:, 0]
+    Psi[model.rod_c, k + np.arange(k)] = model.eta[:, 1]
+    Y = np.zeros((3, model.n_nodes))
+    if model.anchor_idx.size:
+        Y[:, model.anchor_idx] = model.anchor_pos.T
+    return Q, Psi, Y
+
+
+def stable_step_estimate(model: Model, state: State | None = None, rest_length=None) -> dict:
+    """Estimate the largest stable time step (s) of the explicit integrators at ``state``
+    (default: the structure's initial state) from the highest natural frequency of the
+    structure linearised there (finite-difference Jacobian of the accelerations,
+    damping ignored). Returns ``{"omega_max": rad/s, "semi_implicit_euler": s, "rk4": s}``
+    using the stability limits ``omega dt < 2`` and ``omega dt < 2.78``."""
+    st = initial_state(model) if state is None else State(state.q[:1], state.qd[:1], state.t)
+    q0, qd0 = st.q, np.zeros_like(st.qd)
+    x0 = q0.reshape(-1)
+    nx = x0.size
+    a0 = accelerations(model, q0, qd0, rest_length).reshape(-1)
+    Jac = np.empty((nx, nx))
+    eps = 1e-7 * max(1.0, float(np.abs(x0).max()))
+    for i in range(nx):
+        x = x0.copy()
+        x[i] += eps
+        Jac[:, i] = (accelerations(model, x.reshape(q0.shape), qd0, rest_length).reshape(-1) - a0) / eps
+    lam = np.linalg.eigvals(Jac)
+    omega = float(np.sqrt(np.max(np.abs(lam)))) if lam.size else 0.0
+    inf = float("inf")
+    return {"omega_max": omega,
+            "semi_implicit_euler": 2.0 / omega if omega > 0 else inf,
+            "rk4": 2.785 / omega if omega > 0 else inf}

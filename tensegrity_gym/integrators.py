@@ -1,0 +1,245 @@
+"""Time integrators for the batched dynamics of :mod:`tensegrity_gym.dynamics`.
+
+Pure functions ``step(model, state, dt, ...) -> State``; no gymnasium import. SI units.
+
+Integrators (select by name):
+
+=======================  =====  ========================================================
+name                     order  notes
+=======================  =====  ========================================================
+``semi_implicit_euler``  1      symplectic Euler: v += dt a(q, v); q += dt v. Energy stays
+                                bounded (no secular drift) without damping.
+``rk4``                  4      classic Runge-Kutta.
+``dop853``               8      adaptive, ``scipy.integrate.solve_ivp`` (reference method).
+``radau``                5      adaptive implicit (stiff strings), ``solve_ivp``.
+=======================  =====  ========================================================
+
+Constraint drift
+----------------
+The equations keep the *second* derivatives of ``|b| = 1``, ``b . b' = 0`` and of the node
+constraints, not the constraints themselves. With ``project=True`` (default for the
+fixed-step methods) each step ends by normalising ``b``, removing the component of ``b'``
+along ``b`` and putting constrained nodes back on their point/line/plane
+(:func:`tensegrity_gym.dynamics.project`). With ``project=False`` nothing is changed and the
+drift is left to be measured (``dynamics.constraint_violation``). The adaptive methods never
+project inside ``solve_ivp``; their drift is set by their tolerances.
+
+Backends
+--------
+``backend="numba"`` runs fused compiled kernels (:mod:`tensegrity_gym._kernels`) for the
+fixed-step methods when there is no callable ``external``; ``"numpy"`` runs the reference
+NumPy path; ``"auto"`` (default) picks numba when it is installed and applicable.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from . import dynamics as dyn
+from .dynamics import Model, State
+
+__all__ = ["INTEGRATORS", "step", "simulate", "IntegratorInfo", "SimulationDiverged"]
+
+
+class SimulationDiverged(FloatingPointError):
+    """Raised when the state stops being finite; the message names time and cause."""
+
+
+@dataclass(frozen=True)
+class IntegratorInfo:
+    name: str
+    order: int
+    adaptive: bool
+    symplectic: bool
+    description: str
+
+
+INTEGRATORS: dict[str, IntegratorInfo] = {
+    "semi_implicit_euler": IntegratorInfo("semi_implicit_euler", 1, False, True, "symplectic Euler"),
+    "rk4": IntegratorInfo("rk4", 4, False, False, "classic 4th-order Runge-Kutta"),
+    "dop853": IntegratorInfo("dop853", 8, True, False, "adaptive Dormand-Prince 8(5,3), scipy"),
+    "radau": IntegratorInfo("radau", 5, True, False, "adaptive implicit Radau IIA, scipy (stiff)"),
+}
+_ALIASES = {"euler": "semi_implicit_euler", "symplectic_euler": "semi_implicit_euler",
+            "semi-implicit-euler": "semi_implicit_euler", "DOP853": "dop853", "Radau": "radau"}
+
+
+def resolve(name: str) -> IntegratorInfo:
+    """The :class:`IntegratorInfo` for a name or alias; ValueError listing the choices otherwise."""
+    key = _ALIASES.get(name, name)
+    if key not in INTEGRATORS:
+        raise ValueError(f"integrator: unknown name {name!r}; choose one of {sorted(INTEGRATORS)}")
+    return INTEGRATORS[key]
+
+
+def _ext(external, q, qd, t):
+    if external is None:
+        return None
+    if callable(external):
+        return external(q, qd, t)
+    return external
+
+
+def _numba_available() -> bool:
+    try:
+        from . import _kernels  # noqa: F401
+    except Exception:  # pragma: no cover - numba missing or broken
+        return False
+    return _kernels.AVAILABLE
+
+
+def _use_numba(backend: str, info: IntegratorInfo, external) -> bool:
+    if backend == "numpy" or info.adaptive or callable(external):
+        return False
+    if backend == "numba":
+        if not _numba_available():
+            raise RuntimeError("backend='numba' requested but numba is not installed")
+        return True
+    if backend != "auto":
+        raise ValueError(f"backend: unknown {backend!r}; choose 'auto', 'numpy' or 'numba'")
+    return _numba_available()
+
+
+def _as_batch(x, B, m, name):
+    if x is None:
+        return None
+    x = np.asarray(x, dtype=float)
+    if x.shape not in ((m,), (B, m)):
+        raise ValueError(f"{name}: expected shape ({m},) or ({B}, {m}), got {x.shape}")
+    return x
+
+
+def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit_euler", *,
+         rest_length=None, force_density=None, external=None, project: bool = True,
+         n_steps: int = 1, backend: str = "auto", rtol: float = 1e-10, atol: float = 1e-12) -> State:
+    """Advance ``state`` by ``n_steps`` steps of ``dt`` seconds.
+
+    Parameters
+    ----------
+    rest_length : (m,) or (B, m) string rest lengths, m. Default: the model's.
+    force_density : (m,) or (B, m) force densities added by a controller, N/m.
+    external : (B, n, 3) nodal forces in N held over the step, or a callable
+        ``external(q, qd, t) -> (B, n, 3)`` evaluated at every stage.
+    project : project onto the constraints after each fixed step (see module doc).
+    backend : "auto", "numpy" or "numba".
+    rtol, atol : tolerances of the adaptive methods.
+    """
+    info = resolve(integrator)
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
+    B, m = state.batch_size, model.n_strings
+    rest_length = _as_batch(rest_length, B, m, "rest_length")
+    force_density = _as_batch(force_density, B, m, "force_density")
+    if info.adaptive:
+        return _adaptive(model, state, dt * n_steps, info, rest_length, force_density, external, rtol, atol)
+    if _use_numba(backend, info, external):
+        from . import _kernels
+        return _kernels.step(model, state, dt, info.name, rest_length=rest_length,
+                             force_density=force_density, external=external, project=project,
+                             n_steps=n_steps)
+    q, qd, t = state.q, state.qd, state.t
+    acc = dyn.accelerations
+    for _ in range(n_steps):
+        if info.name == "semi_implicit_euler":
+            qd = qd + dt * acc(model, q, qd, rest_length, force_density, _ext(external, q, qd, t))
+            q = q + dt * qd
+        else:  # rk4
+            h = 0.5 * dt
+            a1 = acc(model, q, qd, rest_length, force_density, _ext(external, q, qd, t))
+            q2, qd2 = q + h * qd, qd + h * a1
+            a2 = acc(model, q2, qd2, rest_length, force_density, _ext(external, q2, qd2, t + h))
+            q3, qd3 = q + h * qd2, qd + h * a2
+            a3 = acc(model, q3, qd3, rest_length, force_density, _ext(external, q3, qd3, t + h))
+            q4, qd4 = q + dt * qd3, qd + dt * a3
+            a4 = acc(model, q4, qd4, rest_length, force_density, _ext(external, q4, qd4, t + dt))
+            q = q + dt / 6.0 * (qd + 2.0 * qd2 + 2.0 * qd3 + qd4)
+            qd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        if project:
+            q, qd = dyn.project(model, q, qd)
+        t = t + dt
+    return State(q=q, qd=qd, t=t)
+
+
+def _rhs(model, shape, rest_length, force_density, external):
+    half = int(np.prod(shape))
+
+    def f(t, y):
+        q = y[:half].reshape(shape)
+        qd = y[half:].reshape(shape)
+        a = dyn.accelerations(model, q, qd, rest_length, force_density, _ext(external, q, qd, t))
+        return np.concatenate([qd.reshape(-1), a.reshape(-1)])
+    return f
+
+
+def _adaptive(model, state, T, info, rest_length, force_density, external, rtol, atol, t_eval=None):
+    from scipy.integrate import solve_ivp
+    shape = state.q.shape
+    y0 = np.concatenate([state.q.reshape(-1), state.qd.reshape(-1)])
+    method = {"dop853": "DOP853", "radau": "Radau"}[info.name]
+    sol = solve_ivp(_rhs(model, shape, rest_length, force_density, external), (state.t, state.t + T), y0,
+                    method=method, rtol=rtol, atol=atol, t_eval=t_eval)
+    if sol.status < 0:
+        raise SimulationDiverged(f"{info.name} failed at t = {sol.t[-1]:.6g} s: {sol.message}")
+    half = y0.size // 2
+    y = sol.y[:, -1]
+    out = State(q=y[:half].reshape(shape), qd=y[half:].reshape(shape), t=state.t + T)
+    if t_eval is not None:
+        return out, sol
+    return out
+
+
+def simulate(model: Model, state: State, dt: float, n_steps: int, integrator: str = "rk4", *,
+             record_every: int = 1, rest_length=None, force_density=None, external=None,
+             project: bool = True, backend: str = "auto", rtol: float = 1e-10, atol: float = 1e-12,
+             progress: bool = False):
+    """Integrate ``n_steps`` steps of ``dt`` and record every ``record_every``-th state.
+
+    Returns ``(t, q, qd)`` with ``t`` (S,) in s and ``q``, ``qd`` (S, B, k, 6); the first
+    record is the initial state. Adaptive methods integrate the whole span in one
+    ``solve_ivp`` call and report the solution at the record times.
+    Raises :class:`SimulationDiverged` naming the time if the state stops being finite.
+    """
+    info = resolve(integrator)
+    if int(n_steps) != n_steps or n_steps < 0:
+        raise ValueError(f"n_steps: must be a non-negative integer, got {n_steps}")
+    if int(record_every) != record_every or record_every < 1:
+        raise ValueError(f"record_every: must be a positive integer, got {record_every}")
+    n_rec = n_steps // record_every
+    ts = state.t + dt * record_every * np.arange(n_rec + 1)
+    if info.adaptive:
+        B, m = state.batch_size, model.n_strings
+        _, sol = _adaptive(model, state, dt * n_steps, info, _as_batch(rest_length, B, m, "rest_length"),
+                           _as_batch(force_density, B, m, "force_density"), external, rtol, atol,
+                           t_eval=ts)
+        half = sol.y.shape[0] // 2
+        S = sol.y.shape[1]
+        q = sol.y[:half].T.reshape((S,) + state.q.shape)
+        qd = sol.y[half:].T.reshape((S,) + state.q.shape)
+        return sol.t, q, qd
+    qs = np.empty((n_rec + 1,) + state.q.shape)
+    qds = np.empty_like(qs)
+    qs[0], qds[0] = state.q, state.qd
+    bar = None
+    if progress:
+        try:
+            from tqdm import tqdm
+            bar = tqdm(total=n_steps, unit="step", desc=info.name)
+        except ImportError:  # pragma: no cover
+            bar = None
+    st = state
+    for i in range(1, n_rec + 1):
+        st = step(model, st, dt, info.name, rest_length=rest_length, force_density=force_density,
+                  external=external, project=project, n_steps=record_every, backend=backend)
+        if not (np.all(np.isfinite(st.q)) and np.all(np.isfinite(st.qd))):
+            raise SimulationDiverged(
+                f"{info.name}: state became non-finite by t = {st.t:.6g} s (dt = {dt:g} s); "
+                "the step is probably above the stability limit "
+                "(see dynamics.stable_step_estimate) or a string is far too stiff for this step")
+        qs[i], qds[i] = st.q, st.qd
+        if bar is not None:
+            bar.update(record_every)
+    if bar is not None:
+        bar.close()
+    return ts, qs, qds
