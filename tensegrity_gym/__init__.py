@@ -1,0 +1,41 @@
+"""tensegrity_gym: fast, physically exact Gymnasium environments for class-1 tensegrity structures.
+
+Physics (NumPy/numba only, no gymnasium): :mod:`~tensegrity_gym.structure`,
+:mod:`~tensegrity_gym.builders`, :mod:`~tensegrity_gym.dynamics`, :mod:`~tensegrity_gym.integrators`.
+Environments (registered on import): ``TensegrityShape-v0``, ``TensegrityRoll-v0``.
+All quantities in SI units.
+"""
+from .structure import Structure, StructureError, load_json, save_json, from_dict
+from .builders import prism, pinned_rod, constrained_prism, icosahedron, tower, build
+from .dynamics import Model, State, compile_model, initial_state
+from .integrators import step, simulate, INTEGRATORS, SimulationDiverged
+
+__version__ = "0.1.0"
+
+__all__ = ["Structure", "StructureError", "load_json", "save_json", "from_dict", "prism", "pinned_rod",
+           "constrained_prism", "icosahedron", "tower", "build", "Model", "State", "compile_model",
+           "initial_state", "step", "simulate", "INTEGRATORS", "SimulationDiverged", "load_structure"]
+
+
+def load_structure(spec) -> Structure:
+    """A :class:`Structure` from a Structure, a built-in name (``"prism3"``) or a JSON path."""
+    import os
+    if isinstance(spec, Structure):
+        return spec
+    if isinstance(spec, (str, os.PathLike)):
+        s = str(spec)
+        if s.endswith(".json") or os.path.exists(s):
+            return load_json(s)
+        return build(s)
+    raise TypeError(f"structure: expected a Structure, a builder name or a JSON path, got {type(spec).__name__}")
+
+
+def _register() -> None:
+    try:
+        from .envs import register_envs
+    except ImportError:  # pragma: no cover - gymnasium missing
+        return
+    register_envs()
+
+
+_register()
