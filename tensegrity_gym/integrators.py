@@ -12,7 +12,23 @@ name                     order  notes
 ``rk4``                  4      classic Runge-Kutta.
 ``dop853``               8      adaptive, ``scipy.integrate.solve_ivp`` (reference method).
 ``radau``                5      adaptive implicit (stiff strings), ``solve_ivp``.
+``implicit_euler``       1      backward Euler, Newton with a finite-difference Jacobian
+                                (usually one linear solve per step): stable at any dt
+                                for stiff strings; dissipates energy
+                                (:mod:`tensegrity_gym.implicit`).
 =======================  =====  ========================================================
+
+Stability checks
+----------------
+For the explicit fixed-step methods (``semi_implicit_euler``, ``rk4``) the first call of
+:func:`step`/:func:`simulate` with a given (model, integrator, dt) compares ``dt`` with the
+estimated stability limit (:func:`stability_limit`: :func:`tensegrity_gym.dynamics.stable_step_estimate`
+at the structure's initial state, lowered for damped strings; computed once per model and
+cached) and issues a
+:class:`StabilityWarning` naming the limit when ``dt`` exceeds it. Later calls with the same
+(model, integrator, dt) cost one set lookup. :func:`simulate` raises
+:class:`SimulationDiverged` naming the time and the likely cause when the state stops being
+finite.
 
 Constraint drift
 ----------------
@@ -35,16 +51,24 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+import warnings
+import weakref
+
 import numpy as np
 
 from . import dynamics as dyn
 from .dynamics import Model, State
 
-__all__ = ["INTEGRATORS", "step", "simulate", "IntegratorInfo", "SimulationDiverged"]
+__all__ = ["INTEGRATORS", "step", "simulate", "IntegratorInfo", "SimulationDiverged", "StabilityWarning",
+           "stability_limit"]
 
 
 class SimulationDiverged(FloatingPointError):
     """Raised when the state stops being finite; the message names time and cause."""
+
+
+class StabilityWarning(UserWarning):
+    """``dt`` is above the estimated stability limit of an explicit integrator."""
 
 
 @dataclass(frozen=True)
@@ -61,7 +85,11 @@ INTEGRATORS: dict[str, IntegratorInfo] = {
     "rk4": IntegratorInfo("rk4", 4, False, False, "classic 4th-order Runge-Kutta"),
     "dop853": IntegratorInfo("dop853", 8, True, False, "adaptive Dormand-Prince 8(5,3), scipy"),
     "radau": IntegratorInfo("radau", 5, True, False, "adaptive implicit Radau IIA, scipy (stiff)"),
+    "implicit_euler": IntegratorInfo("implicit_euler", 1, False, False,
+                                     "backward Euler, Newton, FD Jacobian (stiff strings, dissipative)"),
 }
+_IMPLICIT = ("implicit_euler",)
+_EXPLICIT = ("semi_implicit_euler", "rk4")
 _ALIASES = {"euler": "semi_implicit_euler", "symplectic_euler": "semi_implicit_euler",
             "semi-implicit-euler": "semi_implicit_euler", "DOP853": "dop853", "Radau": "radau"}
 
@@ -102,6 +130,139 @@ def _use_numba(backend: str, info: IntegratorInfo, external) -> bool:
     return _numba_available()
 
 
+_LIMIT_CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+
+
+def stability_limit(model: Model) -> dict:
+    """Largest stable step (s) of the explicit methods for ``model`` at its initial state,
+    computed once per model and cached: ``{"omega_max": rad/s, "semi_implicit_euler": s,
+    "rk4": s}``. Undamped strings: :func:`dynamics.stable_step_estimate`. Damped strings
+    (``model.has_damping``): the smaller of that and :func:`_damped_limits`, which also
+    accounts for the damping (it lowers the explicit limits, by 6x for 50 N s/m on the
+    default prism)."""
+    est = _LIMIT_CACHE.get(model)
+    if est is None:
+        try:
+            est = dict(dyn.stable_step_estimate(model))
+            if model.has_damping:
+                damped = _damped_limits(model)
+                for name in _EXPLICIT:
+                    est[name] = min(est[name], damped[name])
+        except Exception:  # pragma: no cover - an estimate must never break a simulation
+            est = {"omega_max": float("nan"), "semi_implicit_euler": float("inf"), "rk4": float("inf")}
+        _LIMIT_CACHE[model] = est
+    return est
+
+
+def _damped_limits(model: Model) -> dict:
+    """Explicit stability limits (s) from the eigenvalues ``lam`` of the linearised first-order
+    system ``[[0, I], [K, D]]`` (``K``, ``D`` = d(accelerations)/d(q, qd), finite differences,
+    :func:`tensegrity_gym.implicit.jacobians`) at the initial state at rest.
+
+    RK4: the largest dt with ``|R(dt lam)| <= 1`` for every ``lam`` (``R`` its stability
+    polynomial; bisection). Semi-implicit Euler: each complex pair is a damped oscillator
+    ``x'' = -w0^2 x - c x'`` (``w0 = |lam|``, ``c = -2 Re lam``), stable for
+    ``w0^2 dt^2 + 2 c dt <= 4``, i.e. ``dt <= (sqrt(c^2 + 4 w0^2) - c) / w0^2``; a real
+    ``lam < 0`` (overdamped) gets ``dt <= 0.75 / |lam|``, safe for any overdamped pair."""
+    from .implicit import jacobians
+    st = dyn.initial_state(model)
+    _, K, D = jacobians(model, st.q, np.zeros_like(st.qd))
+    n = K.shape[-1]
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [K[0], D[0]]])
+    lam = np.linalg.eigvals(A)
+    # drop the rigid-body/zero modes (finite-difference noise makes them ~1e-2 instead of 0) and
+    # growing modes (a physical instability is no step limit)
+    lam = lam[(np.abs(lam) > 1e-3 * np.abs(lam).max()) & (lam.real <= 1e-6 * np.abs(lam))]
+    inf = float("inf")
+    if lam.size == 0:
+        return {"semi_implicit_euler": inf, "rk4": inf}
+    cplx = lam[np.abs(lam.imag) > 1e-9 * np.abs(lam)]
+    real = lam[np.abs(lam.imag) <= 1e-9 * np.abs(lam)].real
+    sie = inf
+    if cplx.size:
+        w0 = np.abs(cplx)
+        c = np.maximum(-2.0 * cplx.real, 0.0)
+        sie = float(np.min((np.sqrt(c * c + 4 * w0 * w0) - c) / (w0 * w0)))
+    if np.any(real < 0):
+        sie = min(sie, float(0.75 / np.abs(real[real < 0]).max()))
+    if 2 * n <= 400:
+        # small systems: the exact linear limit, by bisection on the spectral radius of the
+        # semi-implicit Euler step matrix [[I + dt^2 K, dt I + dt^2 D], [dt K, I + dt D]]
+        # between the safe bound above and 8x it
+        I_ = np.eye(n)
+
+        def sie_ok(dt):
+            M = np.block([[I_ + dt * dt * K[0], dt * I_ + dt * dt * D[0]], [dt * K[0], I_ + dt * D[0]]])
+            return bool(np.abs(np.linalg.eigvals(M)).max() <= 1.0 + 1e-3 * dt * float(np.abs(lam).max()))
+
+        lo_s, hi_s = sie, 8.0 * sie
+        if np.isfinite(sie) and sie_ok(lo_s):
+            for _ in range(30):
+                mid = 0.5 * (lo_s + hi_s)
+                lo_s, hi_s = (mid, hi_s) if sie_ok(mid) else (lo_s, mid)
+            sie = lo_s
+
+    def rk4_ok(dt):
+        z = dt * lam
+        return bool(np.all(np.abs(1 + z + z * z / 2 + z ** 3 / 6 + z ** 4 / 24) <= 1 + 1e-6))
+
+    lo, hi = 0.0, 2.9 / float(np.abs(lam).max())   # no step beyond 2.83/|lam| is stable for RK4
+    if rk4_ok(hi):
+        lo = hi
+    else:
+        for _ in range(50):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if rk4_ok(mid) else (lo, mid)
+    return {"semi_implicit_euler": sie, "rk4": lo}
+
+
+def _check_stability(model: Model, info: IntegratorInfo, dt: float, stacklevel: int = 3) -> None:
+    """Warn once per (model, integrator, dt) if an explicit method's dt is above its limit.
+    The (integrator, dt) pairs already checked live in the model's own ``__dict__`` (the frozen
+    dataclass allows it; nothing else reads it), so a repeated call costs one set lookup."""
+    seen = model.__dict__.get("_stability_checked")
+    if seen is None:
+        seen = model.__dict__.setdefault("_stability_checked", set())
+    key = (info.name, dt)
+    if key in seen:
+        return
+    seen.add(key)
+    if info.name not in _EXPLICIT:
+        return
+    limit = stability_limit(model)[info.name]
+    if dt > limit:
+        warnings.warn(StabilityWarning(
+            f"{info.name}: dt = {dt:.4g} s is above the estimated stability limit {limit:.4g} s of this "
+            f"structure (highest natural frequency {stability_limit(model)['omega_max']:.4g} rad/s); "
+            f"use dt <= {limit:.3g} s or integrator='implicit_euler'"),
+            stacklevel=stacklevel)
+
+
+def _divergence_cause(model: Model, info: IntegratorInfo, dt: float, last: State, rest_length) -> str:
+    """A short diagnosis of why a fixed-step run went non-finite, from the last finite state."""
+    if info.name in _EXPLICIT:
+        est = stability_limit(model)
+        limit = est[info.name]
+        if dt > limit:
+            return (f"dt = {dt:g} s is above the estimated stability limit {limit:.3g} s of {info.name} "
+                    f"(highest natural frequency {est['omega_max']:.4g} rad/s): reduce dt or use "
+                    "integrator='implicit_euler'")
+    parts = []
+    try:
+        l0 = model.rest_length if rest_length is None else rest_length
+        _, L, _ = dyn.string_state(model, last.q)
+        strain = np.where(l0 > 0, (L - l0) / np.where(l0 > 0, l0, 1.0), 0.0)
+        i = np.unravel_index(int(np.nanargmax(strain)), strain.shape)[-1]
+        parts.append(f"largest string strain {float(np.nanmax(strain)):.3g} (string {i}, "
+                     f"stiffness {model.stiffness[i]:.3g} N/m)")
+        parts.append(f"largest speed {float(np.nanmax(np.abs(last.qd[..., :3]))):.3g} m/s")
+    except Exception:  # pragma: no cover
+        pass
+    what = ", ".join(parts)
+    return ("a string far too stiff for this step, a huge external/control force or a rod rotating "
+            f"more than about one radian per step (last finite state at t = {last.t:.6g} s: {what})")
+
+
 def _as_batch(x, B, m, name):
     if x is None:
         return None
@@ -134,6 +295,12 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     force_density = _as_batch(force_density, B, m, "force_density")
     if info.adaptive:
         return _adaptive(model, state, dt * n_steps, info, rest_length, force_density, external, rtol, atol)
+    _check_stability(model, info, dt)
+    if info.name in _IMPLICIT:
+        from . import implicit
+        return implicit.step(model, state, dt, info.name, rest_length=rest_length,
+                             force_density=force_density, external=external, project=project,
+                             n_steps=n_steps)
     if _use_numba(backend, info, external):
         from . import _kernels
         return _kernels.step(model, state, dt, info.name, rest_length=rest_length,
@@ -229,14 +396,23 @@ def simulate(model: Model, state: State, dt: float, n_steps: int, integrator: st
         except ImportError:  # pragma: no cover
             bar = None
     st = state
+    _check_stability(model, info, dt)
     for i in range(1, n_rec + 1):
-        st = step(model, st, dt, info.name, rest_length=rest_length, force_density=force_density,
-                  external=external, project=project, n_steps=record_every, backend=backend)
-        if not (np.all(np.isfinite(st.q)) and np.all(np.isfinite(st.qd))):
+        last = st
+        try:
+            st = step(model, st, dt, info.name, rest_length=rest_length, force_density=force_density,
+                      external=external, project=project, n_steps=record_every, backend=backend)
+            finite = bool(np.all(np.isfinite(st.q)) and np.all(np.isfinite(st.qd)))
+            what = "state became non-finite"
+        except (ZeroDivisionError, OverflowError, FloatingPointError) as exc:  # compiled kernels
+            finite, what = False, f"{type(exc).__name__} ({exc})"
+            st = State(q=last.q, qd=last.qd, t=last.t + dt * record_every)
+        if not finite:
             raise SimulationDiverged(
-                f"{info.name}: state became non-finite by t = {st.t:.6g} s (dt = {dt:g} s); "
-                "the step is probably above the stability limit "
-                "(see dynamics.stable_step_estimate) or a string is far too stiff for this step")
+                f"{info.name}: {what} between t = {last.t:.6g} s and t = {st.t:.6g} s "
+                f"(dt = {dt:g} s); likely cause: "
+                + _divergence_cause(model, info, dt, last, _as_batch(rest_length, state.batch_size,
+                                                                       model.n_strings, "rest_length")))
         qs[i], qds[i] = st.q, st.qd
         if bar is not None:
             bar.update(record_every)

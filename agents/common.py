@@ -1,0 +1,391 @@
+"""Helpers shared by :mod:`agents.train` and :mod:`agents.evaluate` (no ``eval`` anywhere).
+
+* parsing of ``--env-kwargs`` / ``--hyperparams`` values and of rl-baselines3-zoo's string
+  forms (``"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"``, ``"lin_3e-4"``) with a
+  restricted AST walker instead of ``eval``;
+* the algorithm registry;
+* env construction: the project's batched vector env through the SB3 adapter when the env id
+  has a ``vector_entry_point``, else SB3's ``make_vec_env``; VecMonitor; VecNormalize;
+* run-directory layout and package versions.
+"""
+from __future__ import annotations
+
+import ast
+import importlib
+import json
+import os
+import platform
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
+
+# ---------------------------------------------------------------------- algorithms
+_SB3_ALGOS = {"a2c": "A2C", "ddpg": "DDPG", "dqn": "DQN", "ppo": "PPO", "sac": "SAC", "td3": "TD3"}
+_CONTRIB_ALGOS = {"tqc": "TQC", "trpo": "TRPO", "ars": "ARS", "crossq": "CrossQ", "qrdqn": "QRDQN"}
+OFF_POLICY = {"ddpg", "dqn", "sac", "td3", "tqc", "crossq", "qrdqn"}
+
+
+def algo_names() -> list[str]:
+    return sorted(_SB3_ALGOS) + sorted(_CONTRIB_ALGOS)
+
+
+def get_algo(name: str):
+    """The SB3 (or sb3-contrib) class of algorithm ``name`` (lower case: ppo, sac, td3, ...)."""
+    key = name.lower()
+    if key in _SB3_ALGOS:
+        return getattr(importlib.import_module("stable_baselines3"), _SB3_ALGOS[key])
+    if key in _CONTRIB_ALGOS:
+        try:
+            mod = importlib.import_module("sb3_contrib")
+        except ImportError:
+            raise ValueError(f"--algo {name}: needs sb3-contrib (pip install sb3-contrib)") from None
+        return getattr(mod, _CONTRIB_ALGOS[key])
+    raise ValueError(f"--algo: unknown {name!r}; choose one of {algo_names()}")
+
+
+# ---------------------------------------------------------------------- safe parsing
+def _torch_name(dotted: str):
+    """Whitelisted names allowed in zoo strings: torch activation / optimizer classes."""
+    import torch
+    parts = dotted.split(".")
+    if parts[0] in ("th", "torch"):
+        parts = parts[1:]
+    if len(parts) == 2 and parts[0] == "nn":
+        obj = getattr(torch.nn, parts[1], None)
+        if isinstance(obj, type) and issubclass(obj, torch.nn.Module):
+            return obj
+    if len(parts) == 2 and parts[0] == "optim":
+        obj = getattr(torch.optim, parts[1], None)
+        if isinstance(obj, type) and issubclass(obj, torch.optim.Optimizer):
+            return obj
+    raise ValueError(f"name {dotted!r} is not allowed here; only torch activation/optimizer classes "
+                     "such as nn.Tanh, nn.ReLU, th.optim.Adam")
+
+
+def safe_literal(text: str) -> Any:
+    """Parse a Python-like literal that may use ``dict(...)`` calls and ``nn.<Activation>`` names.
+
+    Accepts: numbers, strings, True/False/None, lists, tuples, dicts, ``dict(k=v, ...)``,
+    unary minus, and whitelisted torch class names. Anything else (function calls, attribute
+    access on other modules, comprehensions, ...) raises ValueError. Never calls ``eval``.
+    """
+    try:
+        tree = ast.parse(text.strip(), mode="eval").body
+    except SyntaxError as e:
+        raise ValueError(f"cannot parse {text!r}: {e.msg}") from None
+
+    def conv(n):
+        if isinstance(n, ast.Constant):
+            return n.value
+        if isinstance(n, ast.UnaryOp) and isinstance(n.op, (ast.USub, ast.UAdd)):
+            v = conv(n.operand)
+            if not isinstance(v, (int, float)):
+                raise ValueError(f"cannot negate {v!r} in {text!r}")
+            return -v if isinstance(n.op, ast.USub) else v
+        if isinstance(n, ast.List):
+            return [conv(e) for e in n.elts]
+        if isinstance(n, ast.Tuple):
+            return tuple(conv(e) for e in n.elts)
+        if isinstance(n, ast.Dict):
+            return {conv(k): conv(v) for k, v in zip(n.keys, n.values)}
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Name) and n.func.id == "dict" and not n.args:
+            return {kw.arg: conv(kw.value) for kw in n.keywords}
+        if isinstance(n, ast.Name) and n.id in ("True", "False", "None"):
+            return {"True": True, "False": False, "None": None}[n.id]
+        if isinstance(n, (ast.Name, ast.Attribute)):
+            return _torch_name(ast.unparse(n))
+        raise ValueError(f"unsupported expression {ast.unparse(n)!r} in {text!r} (only literals, dict(...) "
+                         "and torch class names are accepted)")
+
+    return conv(tree)
+
+
+def parse_value(text: str) -> Any:
+    """Value of a command-line ``key:value`` / ``key=value``: JSON, else a Python literal, else the string."""
+    s = text.strip()
+    for lit in ({"true": True, "false": False, "null": None, "none": None},):
+        if s.lower() in lit:
+            return lit[s.lower()]
+    try:
+        return json.loads(s)
+    except (json.JSONDecodeError, ValueError):
+        pass
+    try:
+        return ast.literal_eval(s)
+    except (ValueError, SyntaxError):
+        return s
+
+
+def parse_kv_list(items: list[str] | None, sep: str, what: str) -> dict:
+    """``["a:1", "b:rest_length"]`` -> ``{"a": 1, "b": "rest_length"}``; a single JSON object is accepted too."""
+    out: dict = {}
+    if not items:
+        return out
+    if len(items) == 1 and items[0].strip().startswith("{"):
+        try:
+            d = json.loads(items[0])
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{what}: invalid JSON object {items[0]!r}: {e}") from None
+        if not isinstance(d, dict):
+            raise ValueError(f"{what}: expected a JSON object, got {items[0]!r}")
+        return d
+    for item in items:
+        if sep not in item:
+            raise ValueError(f"{what}: expected key{sep}value, got {item!r}")
+        k, v = item.split(sep, 1)
+        k = k.strip()
+        if not k:
+            raise ValueError(f"{what}: empty key in {item!r}")
+        out[k] = parse_value(v)
+    return out
+
+
+# ---------------------------------------------------------------------- hyperparameters (zoo format)
+def load_hyperparams_file(path: str | Path) -> dict:
+    import yaml
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"hyperparameter file {path} does not exist")
+    with open(path) as f:
+        data = yaml.safe_load(f) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a mapping from env id to hyperparameters")
+    return data
+
+
+def hyperparams_for(algo: str, env_id: str, conf_file: str | Path | None = None) -> tuple[dict, str]:
+    """Hyperparameters of ``env_id`` from ``agents/hyperparams/<algo>.yml`` (or ``conf_file``).
+
+    Falls back to the ``default`` entry if present, else ``{}``. Returns (dict, source description).
+    """
+    path = Path(conf_file) if conf_file else HYPERPARAMS_DIR / f"{algo.lower()}.yml"
+    if not path.exists():
+        if conf_file:
+            raise FileNotFoundError(f"--conf-file {path} does not exist")
+        return {}, "SB3 defaults (no hyperparameter file)"
+    data = load_hyperparams_file(path)
+    if env_id in data:
+        return dict(data[env_id] or {}), f"{path}:{env_id}"
+    if "default" in data:
+        return dict(data["default"] or {}), f"{path}:default"
+    return {}, f"SB3 defaults ({env_id} not in {path})"
+
+
+def _schedule(value, key: str):
+    """zoo's ``lin_<x>`` linear schedule (from x to 0), a number, or a callable."""
+    if isinstance(value, str):
+        if value.startswith("lin_"):
+            try:
+                v0 = float(value[4:])
+            except ValueError:
+                raise ValueError(f"{key}: bad linear schedule {value!r} (expected lin_<number>)") from None
+            return _LinearSchedule(v0)
+        try:
+            return float(value)
+        except ValueError:
+            raise ValueError(f"{key}: expected a number or lin_<number>, got {value!r}") from None
+    return value
+
+
+class _LinearSchedule:
+    """Linear schedule from ``initial`` (start of training) to 0 (end); picklable."""
+
+    def __init__(self, initial: float):
+        self.initial = float(initial)
+
+    def __call__(self, progress_remaining: float) -> float:
+        return progress_remaining * self.initial
+
+    def __repr__(self):
+        return f"lin_{self.initial:g}"
+
+
+UNSUPPORTED_ZOO_KEYS = ("frame_stack", "env_wrapper", "vec_env_wrapper", "callback")
+
+
+def resolve_hyperparams(algo: str, hp: dict) -> dict:
+    """Turn a zoo entry into pieces: model kwargs, n_timesteps, n_envs, normalize kwargs, env_kwargs,
+    policy. Raises on keys this trainer does not implement (rather than ignoring them)."""
+    hp = dict(hp)
+    out: dict[str, Any] = {}
+    for k in UNSUPPORTED_ZOO_KEYS:
+        if k in hp:
+            raise ValueError(f"hyperparameter {k!r} (rl-zoo wrapper/callback key) is not supported by "
+                             "agents/train.py; use rl_zoo3.train for it or remove it")
+    out["n_timesteps"] = int(float(hp.pop("n_timesteps", 1e5)))
+    out["n_envs"] = int(hp.pop("n_envs", 1))
+    out["policy"] = hp.pop("policy", "MlpPolicy")
+    out["env_kwargs"] = dict(hp.pop("env_kwargs", {}) or {})
+    norm = hp.pop("normalize", False)
+    if isinstance(norm, str):
+        norm = safe_literal(norm)
+    if norm is True:
+        norm = {}
+    elif norm is False or norm is None:
+        norm = None
+    elif not isinstance(norm, dict):
+        raise ValueError(f"normalize: expected true/false or dict(...), got {norm!r}")
+    if norm is not None and "gamma" in hp and "gamma" not in norm:
+        norm["gamma"] = hp["gamma"]
+    out["normalize"] = norm
+    for key in ("policy_kwargs", "replay_buffer_kwargs"):
+        if key in hp and isinstance(hp[key], str):
+            hp[key] = safe_literal(hp[key])
+    for key in ("learning_rate", "clip_range", "clip_range_vf"):
+        if key in hp:
+            hp[key] = _schedule(hp[key], key)
+    if "train_freq" in hp and isinstance(hp["train_freq"], list):
+        hp["train_freq"] = tuple(hp["train_freq"])
+    if "noise_type" in hp:
+        out["noise"] = (str(hp.pop("noise_type")).strip(), float(hp.pop("noise_std", 0.1)))
+    else:
+        out["noise"] = None
+        hp.pop("noise_std", None)
+    for k in ("n_envs", "n_timesteps"):
+        hp.pop(k, None)
+    out["model_kwargs"] = hp
+    return out
+
+
+def to_yaml_safe(obj):
+    """Config values as plain YAML/JSON types (classes by name, schedules as lin_x)."""
+    if isinstance(obj, dict):
+        return {str(k): to_yaml_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_yaml_safe(v) for v in obj]
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating,)):
+        return float(obj)
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, type):
+        return f"{obj.__module__}.{obj.__qualname__}"
+    if obj is None or isinstance(obj, (bool, int, float, str)):
+        return obj
+    return repr(obj)
+
+
+# ---------------------------------------------------------------------- envs
+def import_env_packages(packages=("tensegrity_gym",)):
+    for p in packages:
+        importlib.import_module(p)
+
+
+def has_vector_entry_point(env_id: str) -> bool:
+    from gymnasium.envs.registration import registry
+    spec = registry.get(env_id)
+    return spec is not None and spec.vector_entry_point is not None
+
+
+def check_env_id(env_id: str):
+    from gymnasium.envs.registration import registry
+    if env_id not in registry:
+        close = [k for k in registry if env_id.lower().split("-")[0] in k.lower()][:5]
+        raise ValueError(f"--env: {env_id!r} is not a registered Gymnasium id"
+                         + (f" (did you mean {close}?)" if close else ""))
+
+
+def probe_info_keys(env_id: str, env_kwargs: dict) -> tuple[list[str], list[str]]:
+    """(scalar numeric info keys of one step, reward_* keys among them) of a single env."""
+    import gymnasium as gym
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        env.reset(seed=0)
+        _, _, _, _, info = env.step(env.action_space.sample())
+    finally:
+        env.close()
+    keys = []
+    for k, v in info.items():
+        if k.startswith("_") or k in ("TimeLimit.truncated", "terminal_observation", "episode"):
+            continue
+        if np.ndim(v) == 0 and isinstance(np.asarray(v).item(), (bool, int, float, np.number)):
+            keys.append(k)
+    return keys, [k for k in keys if k.startswith("reward_")]
+
+
+def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str = "auto",
+             monitor_file: str | None = None, info_keywords: tuple = ()):
+    """A monitored SB3 VecEnv of ``n_envs`` copies of ``env_id``, env i seeded with ``seed + i``.
+
+    ``vec_env``: ``"batched"`` (the env's ``vector_entry_point``: one batched physics call per step,
+    through :func:`tensegrity_gym.envs.common.make_sb3_vec_env`), ``"dummy"``, ``"subproc"``, or
+    ``"auto"`` (batched when available, else dummy).
+    """
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env import VecMonitor, DummyVecEnv, SubprocVecEnv
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+
+    if vec_env == "auto":
+        vec_env = "batched" if has_vector_entry_point(env_id) else "dummy"
+    if vec_env == "batched":
+        if not has_vector_entry_point(env_id):
+            raise ValueError(f"--vec-env batched: {env_id} has no vector_entry_point")
+        from tensegrity_gym.envs.common import make_sb3_vec_env
+        venv = make_sb3_vec_env(gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
+                                             **env_kwargs))
+        venv.seed(seed)
+    elif vec_env in ("dummy", "subproc"):
+        venv = sb3_make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs,
+                                vec_env_cls=DummyVecEnv if vec_env == "dummy" else SubprocVecEnv)
+        # make_vec_env wraps each env in Monitor already; VecMonitor below writes the csv + keywords
+    else:
+        raise ValueError(f"--vec-env: unknown {vec_env!r}; choose auto, batched, dummy or subproc")
+    if monitor_file:
+        os.makedirs(os.path.dirname(monitor_file), exist_ok=True)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "already wrapped with a Monitor" (dummy/subproc)
+        venv = VecMonitor(venv, filename=monitor_file, info_keywords=tuple(info_keywords))
+    return venv, vec_env
+
+
+# ---------------------------------------------------------------------- run metadata
+def package_versions() -> dict:
+    out = {"python": platform.python_version(), "platform": platform.platform()}
+    for name in ("numpy", "scipy", "torch", "stable_baselines3", "sb3_contrib", "gymnasium", "tensegrity_gym",
+                 "rl_zoo3", "numba"):
+        try:
+            mod = importlib.import_module(name)
+            out[name] = getattr(mod, "__version__", "unknown")
+        except Exception:  # noqa: BLE001 -- absent optional package
+            out[name] = None
+    try:
+        import subprocess
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO_ROOT, capture_output=True, text=True,
+                             timeout=5)
+        if rev.returncode == 0:
+            out["git_commit"] = rev.stdout.strip()
+            dirty = subprocess.run(["git", "status", "--porcelain"], cwd=REPO_ROOT, capture_output=True,
+                                   text=True, timeout=5)
+            out["git_dirty"] = bool(dirty.stdout.strip())
+    except Exception:  # noqa: BLE001 -- not a git checkout
+        pass
+    return out
+
+
+def write_json(path: str | Path, data) -> None:
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    with open(tmp, "w") as f:
+        json.dump(to_yaml_safe(data), f, indent=2)
+        f.write("\n")
+    os.replace(tmp, path)
+
+
+def command_line(argv: list[str] | None = None, module: str = "agents.train") -> str:
+    """The command that reproduces this run: ``python -m <module> <argv>`` (``argv`` default sys.argv[1:])."""
+    import shlex
+    if argv is not None:
+        return shlex.join(["python", "-m", module] + [str(a) for a in argv])
+    prog = sys.argv[0]
+    if prog.endswith(os.path.join("agents", "train.py")) or prog.endswith("-m"):
+        head = ["python", "-m", module]
+    else:
+        head = [os.path.basename(sys.executable), prog]
+    return shlex.join(head + sys.argv[1:])

@@ -1,0 +1,587 @@
+"""Evaluate a trained run beside the non-learning baselines and a random policy.
+
+Usage (from the repository root)::
+
+    python -m agents.evaluate results/ppo_shape_rest_length                  # 100 held-out episodes
+    python -m agents.evaluate RUN_DIR --model final --n-episodes 50 --gif --out RUN_DIR/eval_final
+    python -m agents.evaluate RUN_DIR --no-baselines --no-random
+
+``RUN_DIR`` is a directory written by :mod:`agents.train` (``config.yaml`` gives the env id and
+its kwargs; ``best_model.zip`` + ``best_vecnormalize.pkl`` or ``model.zip`` +
+``vecnormalize.pkl`` the policy and its observation normalisation).
+
+Episodes run on **held-out seeds** ``--seed`` (default 1_000_000) + i, i < ``--n-episodes``: far
+from the training seeds (``seed + i``) and the training-time evaluation seeds
+(``seed + 10_000 + i``). Every policy sees the same seeds, hence the same targets / starts.
+When the env has a batched vector env, the episodes of one policy run as one batch (env i
+reset with seed ``--seed + i``, which equals a single env reset with that seed); otherwise one
+single env after another. Actions are deterministic for the trained policy.
+
+Printed table (and ``metrics.json``): mean and std of the return, success rate
+(``info["is_success"]`` at the last step), episode length; for ``TensegrityShape-v0`` the final
+mean and max node error in m and the median final max error as a fraction of the structure's
+height; for ``TensegrityRoll-v0`` the speed (distance rolled / episode duration) in m/s and body
+lengths per second. Figures: ``learning_curve.png`` (evaluation returns and success rate vs
+env steps from ``eval/evaluations.npz``, training episode returns from ``monitor/``),
+``episodes.png`` (shape: error vs time, per-episode final errors; roll: centre-of-mass paths),
+``rollout.gif`` with ``--gif``.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+    __package__ = "agents"
+
+from agents import common  # noqa: E402
+
+HELD_OUT_SEED = 1_000_000
+
+# non-learning baselines per env id: (label, "module:Class"); constructed as Class(env)
+BASELINES = {
+    "TensegrityShape-v0": [("nnls", "tensegrity_gym.baselines:NNLSShapeController")],
+    "TensegrityRoll-v0": [("gait", "tensegrity_gym.baselines:RollingGait")],
+}
+
+
+# ---------------------------------------------------------------------- policies
+class TrainedPolicy:
+    """An SB3 model plus its (frozen) VecNormalize observation statistics; ``predict`` like SB3."""
+
+    def __init__(self, model, vecnormalize=None):
+        self.model = model
+        self.vn = vecnormalize
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        o = np.asarray(obs, np.float32)
+        if self.vn is not None and getattr(self.vn, "norm_obs", False):
+            o = self.vn.normalize_obs(o)
+        return self.model.predict(o, state=state, episode_start=episode_start, deterministic=deterministic)
+
+
+class RandomPolicy:
+    """Uniform random actions in the Box, from its own seeded generator."""
+
+    def __init__(self, action_space, seed: int):
+        self.low, self.high = action_space.low, action_space.high
+        self.rng = np.random.default_rng(seed)
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        obs = np.asarray(obs)
+        shape = self.low.shape if obs.ndim == 1 else (obs.shape[0],) + self.low.shape
+        return self.rng.uniform(self.low, self.high, shape).astype(np.float32), state
+
+
+def load_vecnormalize(path: Path):
+    """VecNormalize statistics from a pickle (no env needed: only ``normalize_obs`` is used)."""
+    with open(path, "rb") as f:
+        vn = pickle.load(f)
+    vn.training = False
+    return vn
+
+
+def resolve_model(run_dir: Path, which: str) -> tuple[Path, Path | None]:
+    """(model zip, vecnormalize pkl or None) of ``which`` = best | final | a path to a zip."""
+    if which == "best":
+        m, v = run_dir / "best_model.zip", run_dir / "best_vecnormalize.pkl"
+        if not m.exists():
+            print(f"note: {m} missing (no evaluation during training); using model.zip")
+            return resolve_model(run_dir, "final")
+    elif which == "final":
+        m, v = run_dir / "model.zip", run_dir / "vecnormalize.pkl"
+    else:
+        m = Path(which)
+        v = m.with_name(m.name.replace("model", "vecnormalize").replace(".zip", ".pkl"))
+        if "rl_model_" in m.name:  # a checkpoint
+            v = m.with_name(m.name.replace("rl_model_", "rl_model_vecnormalize_").replace(".zip", ".pkl"))
+    if not m.exists():
+        raise FileNotFoundError(f"model {m} does not exist")
+    return m, (v if v.exists() else None)
+
+
+def load_trained(run_dir: Path, which: str, device: str = "cpu"):
+    import yaml
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    model_path, vn_path = resolve_model(run_dir, which)
+    if cfg["hyperparams_resolved"].get("normalize") is not None and vn_path is None:
+        raise FileNotFoundError(f"{run_dir}: trained with VecNormalize but its statistics beside {model_path.name} "
+                                "are missing")
+    Algo = common.get_algo(cfg["algo"])
+    model = Algo.load(str(model_path), device=device)
+    vn = load_vecnormalize(vn_path) if vn_path is not None else None
+    return cfg, TrainedPolicy(model, vn), model_path, model
+
+
+# ---------------------------------------------------------------------- rollouts
+def _scalar_infos(info: dict, i: int | None, keys) -> dict:
+    out = {}
+    for k in keys:
+        if k in info:
+            v = info[k] if i is None else info[k][i]
+            out[k] = float(np.asarray(v))
+    return out
+
+
+def run_episodes(env_id: str, env_kwargs: dict, policy_factory, seeds: list[int], record_keys=(),
+                 batched: bool | None = None) -> list[dict]:
+    """Roll out one episode per seed. ``policy_factory(env)`` builds the policy for that env.
+
+    Returns per-episode dicts: ``return``, ``length``, ``final`` (scalar info keys at the last
+    step), ``trace`` (dict key -> (T,) values of ``record_keys`` over the episode, plus ``com``
+    (T, 3) if the info has ``com_position``), ``dt`` (control step, s).
+    """
+    import gymnasium as gym
+    if batched is None:
+        batched = common.has_vector_entry_point(env_id)
+    n = len(seeds)
+    if batched:
+        env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **env_kwargs)
+        policy = policy_factory(env)
+        obs, _ = env.reset(seed=[int(s) for s in seeds])
+        dt = float(getattr(env, "dt", np.nan))
+        ret = np.zeros(n)
+        length = np.zeros(n, int)
+        active = np.ones(n, bool)
+        final: list[dict] = [{} for _ in range(n)]
+        traces: list[dict] = [{k: [] for k in record_keys} | {"com": []} for _ in range(n)]
+        pstate, start = None, np.ones(n, bool)
+        while active.any():
+            act, pstate = policy.predict(obs, state=pstate, episode_start=start, deterministic=True)
+            start = np.zeros(n, bool)
+            obs, rew, term, trunc, info = env.step(act)
+            keys = [k for k in info if not k.startswith("_") and np.ndim(info[k]) == 1]
+            for i in np.flatnonzero(active):
+                ret[i] += float(rew[i])
+                length[i] += 1
+                for k in record_keys:
+                    if k in info:
+                        traces[i][k].append(float(info[k][i]))
+                if "com_position" in info:
+                    traces[i]["com"].append(np.asarray(info["com_position"][i], float).tolist())
+                if term[i] or trunc[i]:
+                    final[i] = _scalar_infos(info, i, keys)
+                    active[i] = False
+        env.close()
+        return [{"seed": int(seeds[i]), "return": float(ret[i]), "length": int(length[i]), "final": final[i],
+                 "trace": traces[i], "dt": dt} for i in range(n)]
+    out = []
+    env = gym.make(env_id, **env_kwargs)
+    policy = policy_factory(env)
+    dt = float(getattr(env.unwrapped, "dt", np.nan))
+    for s in seeds:
+        obs, _ = env.reset(seed=int(s))
+        done, R, L = False, 0.0, 0
+        trace = {k: [] for k in record_keys} | {"com": []}
+        pstate, start = None, np.ones(1, bool)
+        while not done:
+            act, pstate = policy.predict(obs, state=pstate, episode_start=start, deterministic=True)
+            start = np.zeros(1, bool)
+            obs, r, term, trunc, info = env.step(act)
+            R += float(r)
+            L += 1
+            for k in record_keys:
+                if k in info:
+                    trace[k].append(float(info[k]))
+            if "com_position" in info:
+                trace["com"].append(np.asarray(info["com_position"], float).tolist())
+            done = term or trunc
+        keys = [k for k, v in info.items() if np.ndim(v) == 0 and not isinstance(v, (str, dict))]
+        out.append({"seed": int(s), "return": R, "length": L, "final": _scalar_infos(info, None, keys),
+                    "trace": trace, "dt": dt})
+    env.close()
+    return out
+
+
+# ---------------------------------------------------------------------- metrics
+def scene_scales(env_id: str, env_kwargs: dict) -> dict:
+    """Structure height (m) and body length (m) of the env's scene, where it has them."""
+    import gymnasium as gym
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        task = getattr(env.unwrapped, "task", None)
+        out = {}
+        if task is None:
+            return out
+        for name in ("height", "body_length", "success_tolerance"):
+            if hasattr(task, name):
+                out[name] = float(getattr(task, name))
+        if "body_length" not in out and hasattr(task, "structure"):
+            # body length: the largest distance between two nodes of the structure at rest, m
+            nodes = task.structure.nodes
+            out["body_length"] = float(np.max(np.linalg.norm(nodes[:, None] - nodes[None], axis=-1)))
+            out["body_length_definition"] = "largest node-to-node distance of the structure at rest"
+        return out
+    finally:
+        env.close()
+
+
+def summarize(episodes: list[dict], scales: dict) -> dict:
+    R = np.array([e["return"] for e in episodes])
+    L = np.array([e["length"] for e in episodes])
+    m = {"n_episodes": len(episodes), "return_mean": float(R.mean()), "return_std": float(R.std()),
+         "length_mean": float(L.mean())}
+    fin = [e["final"] for e in episodes]
+    if all("is_success" in f for f in fin):
+        m["success_rate"] = float(np.mean([f["is_success"] for f in fin]))
+    if all("diverged" in f for f in fin):
+        m["diverged_rate"] = float(np.mean([f["diverged"] for f in fin]))
+    if all("tracking_error" in f for f in fin):
+        te = np.array([f["tracking_error"] for f in fin])
+        m["final_tracking_error_mean_m"] = float(te.mean())
+        m["final_tracking_error_median_m"] = float(np.median(te))
+    if all("max_node_error" in f for f in fin):
+        me = np.array([f["max_node_error"] for f in fin])
+        m["final_max_node_error_mean_m"] = float(me.mean())
+        m["final_max_node_error_median_m"] = float(np.median(me))
+        m["final_max_node_error_p90_m"] = float(np.percentile(me, 90))
+        if "height" in scales:
+            m["final_max_node_error_median_frac_height"] = float(np.median(me) / scales["height"])
+    dist_key = next((k for k in ("distance_rolled", "distance") if all(k in f for f in fin)), None)
+    if dist_key:
+        d = np.array([f[dist_key] for f in fin])
+        dur = L * np.array([e["dt"] for e in episodes])
+        v = d / dur
+        m["distance_mean_m"] = float(d.mean())
+        m["speed_mean_m_s"] = float(v.mean())
+        m["speed_std_m_s"] = float(v.std())
+        m["speed_min_m_s"] = float(v.min())
+        if "body_length" in scales:
+            m["speed_mean_body_lengths_s"] = float(v.mean() / scales["body_length"])
+    return m
+
+
+def format_table(results: dict) -> str:
+    cols = [("return", lambda m: f"{m['return_mean']:.2f} +- {m['return_std']:.2f}"),
+            ("success", lambda m: f"{100 * m['success_rate']:.0f}%" if "success_rate" in m else "-"),
+            ("final err mean (m)", lambda m: f"{m['final_tracking_error_mean_m']:.2e}"
+             if "final_tracking_error_mean_m" in m else None),
+            ("max err median (m)", lambda m: f"{m['final_max_node_error_median_m']:.2e}"
+             if "final_max_node_error_median_m" in m else None),
+            ("median / height", lambda m: f"{100 * m['final_max_node_error_median_frac_height']:.2f}%"
+             if "final_max_node_error_median_frac_height" in m else None),
+            ("speed (m/s)", lambda m: f"{m['speed_mean_m_s']:.3f} +- {m['speed_std_m_s']:.3f}"
+             if "speed_mean_m_s" in m else None),
+            ("body len/s", lambda m: f"{m['speed_mean_body_lengths_s']:.2f}"
+             if "speed_mean_body_lengths_s" in m else None),
+            ("ep. length", lambda m: f"{m['length_mean']:.0f}")]
+    used = [(name, fn) for name, fn in cols if any(fn(m) is not None for m in results.values())]
+    rows = [["policy"] + [n for n, _ in used]]
+    for pol, m in results.items():
+        rows.append([pol] + [fn(m) or "-" for _, fn in used])
+    w = [max(len(r[j]) for r in rows) for j in range(len(rows[0]))]
+    lines = [" | ".join(c.ljust(w[j]) for j, c in enumerate(r)) for r in rows]
+    lines.insert(1, "-+-".join("-" * x for x in w))
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------- plots
+def load_monitor(files) -> dict:
+    """Episodes of SB3 monitor csv files (several resume segments), ordered in time:
+    dict column -> float array (``r`` return, ``l`` length, ``t`` s, info keywords)."""
+    import csv
+    rows = []
+    for f in files:
+        with open(f) as fh:
+            header = json.loads(fh.readline().lstrip("#"))
+            for row in csv.DictReader(fh):
+                row = {k: (float(v) if v not in ("", "True", "False") else float(v == "True"))
+                       for k, v in row.items()}
+                row["t"] += float(header.get("t_start", 0.0))
+                rows.append(row)
+    rows.sort(key=lambda r: r["t"])
+    keys = set.intersection(*(set(r) for r in rows)) if rows else {"r", "l", "t"}
+    return {k: np.array([r[k] for r in rows]) for k in keys}
+
+
+def plot_learning_curve(run_dir: Path, out: Path, title: str, tol: float | None = None) -> bool:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    ev = run_dir / "eval" / "evaluations.npz"
+    mon = sorted((run_dir / "monitor").glob("*.monitor.csv")) if (run_dir / "monitor").exists() else []
+    if not ev.exists() and not mon:
+        return False
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    ax = axes[0]
+    df = load_monitor(mon) if mon else None
+    if df is not None and len(df["r"]):
+        steps = np.cumsum(df["l"])
+        r = df["r"]
+        k = max(1, len(r) // 25)
+        smooth = np.convolve(r, np.ones(k) / k, mode="valid")
+        ax.plot(steps, r, ".", ms=2, alpha=0.25, color="C0", label="training episodes")
+        ax.plot(steps[k - 1:], smooth, color="C0", label=f"training (mean of {k})")
+    else:
+        df = None
+    if ev.exists():
+        d = np.load(ev)
+        res = d["results"]
+        ax.errorbar(d["timesteps"], res.mean(1), yerr=res.std(1), color="C1", marker="o", ms=3, capsize=2,
+                    label="evaluation (deterministic)")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("episode return")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    ax = axes[1]
+    shown = False
+    if ev.exists():
+        d = np.load(ev)
+        if "successes" in d.files and np.size(d["successes"]):
+            ax.plot(d["timesteps"], 100 * d["successes"].mean(1), "o-", color="C2", ms=3,
+                    label="evaluation success rate")
+            shown = True
+    if df is not None and "is_success" in df:
+        s = df["is_success"]
+        k = max(1, len(s) // 25)
+        ax.plot(steps[k - 1:], 100 * np.convolve(s, np.ones(k) / k, mode="valid"), color="C0",
+                label="training success rate")
+        shown = True
+    if df is not None and "max_node_error" in df:
+        e = df["max_node_error"]
+        k = max(1, len(e) // 25)
+        ax2 = ax.twinx()
+        ax2.plot(steps[k - 1:], np.convolve(e, np.ones(k) / k, mode="valid"), color="C3",
+                 label="training final max node error (m)")
+        ax2.set_yscale("log")
+        ax2.set_ylabel("final max node error (m)", color="C3")
+        if tol is not None:
+            ax2.axhline(tol, color="C3", ls="--", lw=1, label="success tolerance")
+        ax2.legend(fontsize=8, loc="lower left")
+        shown = True
+    if df is not None and "distance_rolled" in df:
+        ax.plot(steps, df["distance_rolled"], ".", ms=2, color="C3", label="training distance rolled (m)")
+        ax.set_ylabel("distance rolled per episode (m)")
+        shown = True
+    else:
+        ax.set_ylabel("success rate (%)")
+    if not shown:
+        ax.axis("off")
+    ax.set_xlabel("env steps")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    for a in axes:
+        a.ticklabel_format(axis="x", style="sci", scilimits=(0, 3))
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def plot_episodes(all_eps: dict, scales: dict, out: Path, title: str) -> bool:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    any_eps = next(iter(all_eps.values()))
+    if any_eps and any_eps[0]["trace"].get("max_node_error"):
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        for j, (pol, eps) in enumerate(all_eps.items()):
+            E = np.array([e["trace"]["max_node_error"] for e in eps if len(e["trace"]["max_node_error"]) ==
+                          len(eps[0]["trace"]["max_node_error"])])
+            t = np.arange(1, E.shape[1] + 1) * eps[0]["dt"]
+            axes[0].plot(t, np.median(E, 0), color=f"C{j}", label=f"{pol} (median)")
+            axes[0].fill_between(t, np.percentile(E, 10, 0), np.percentile(E, 90, 0), color=f"C{j}", alpha=0.2)
+            fin = np.sort([e["final"]["max_node_error"] for e in eps])
+            axes[1].plot(np.arange(1, fin.size + 1) / fin.size * 100, fin, color=f"C{j}", label=pol)
+        for ax in axes:
+            ax.set_yscale("log")
+            if "success_tolerance" in scales:
+                ax.axhline(scales["success_tolerance"], color="k", ls="--", lw=1, label="success tolerance")
+            ax.grid(alpha=0.3, which="both")
+            ax.legend(fontsize=8)
+        axes[0].set_xlabel("time (s)")
+        axes[0].set_ylabel("max node error (m); band: 10-90%")
+        axes[0].set_title(title)
+        axes[1].set_xlabel("episodes (%), sorted")
+        axes[1].set_ylabel("final max node error (m)")
+        fig.tight_layout()
+        fig.savefig(out, dpi=110)
+        plt.close(fig)
+        return True
+    if any_eps and any_eps[0]["trace"].get("com"):
+        fig, ax = plt.subplots(figsize=(6, 5))
+        for j, (pol, eps) in enumerate(all_eps.items()):
+            for i, e in enumerate(eps[:10]):
+                c = np.array(e["trace"]["com"])
+                if c.size:
+                    ax.plot(c[:, 0], c[:, 1], color=f"C{j}", lw=1, alpha=0.8, label=pol if i == 0 else None)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(f"{title}: centre-of-mass paths (10 episodes each)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out, dpi=110)
+        plt.close(fig)
+        return True
+    return False
+
+
+def write_gif(env_id: str, env_kwargs: dict, policy, seed: int, out: Path, max_frames: int = 50,
+              fps: int | None = None, size: int = 256) -> int:
+    """GIF of one episode (every k-th control step so that at most ``max_frames`` frames)."""
+    import gymnasium as gym
+    import imageio.v2 as imageio
+    env = gym.make(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs) \
+        if common.has_vector_entry_point(env_id) else gym.make(env_id, render_mode="rgb_array", **env_kwargs)
+    T = env.spec.max_episode_steps or 1000
+    every = max(1, int(np.ceil(T / max_frames)))
+    obs, _ = env.reset(seed=seed)
+    frames = [env.render()]
+    done, t = False, 0
+    pstate, start = None, np.ones(1, bool)
+    while not done:
+        a, pstate = policy.predict(obs, state=pstate, episode_start=start, deterministic=True)
+        start = np.zeros(1, bool)
+        obs, _, term, trunc, _ = env.step(a)
+        t += 1
+        done = term or trunc
+        if t % every == 0 or done:
+            frames.append(env.render())
+    env_fps = env.metadata.get("render_fps", 30)
+    env.close()
+    imageio.mimsave(out, frames, duration=1000.0 * every / env_fps / (1.0 if fps is None else fps / env_fps),
+                    loop=0)
+    return len(frames)
+
+
+# ---------------------------------------------------------------------- main
+def build_parser():
+    p = argparse.ArgumentParser(prog="python -m agents.evaluate", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", help="run directory written by agents.train")
+    p.add_argument("--model", default="best", help="best (default), final, or a path to a model zip")
+    p.add_argument("--n-episodes", type=int, default=100)
+    p.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default 1000000)")
+    p.add_argument("--out", default=None, help="output directory (default RUN_DIR/evaluation)")
+    p.add_argument("--no-baselines", action="store_true", help="skip the non-learning baselines")
+    p.add_argument("--no-random", action="store_true", help="skip the random policy")
+    p.add_argument("--baseline-episodes", type=int, default=None,
+                   help="episodes for the baselines/random (default = --n-episodes)")
+    p.add_argument("--gif", action="store_true", help="write rollout.gif of the trained policy (seed --seed)")
+    p.add_argument("--env-kwargs", nargs="*", metavar="KEY:VALUE",
+                   help="override env kwargs for evaluation (e.g. backend:numpy)")
+    p.add_argument("--copy-run-files", action="store_true",
+                   help="copy the run's config.yaml, command.txt, versions.json, state.json and the evaluated "
+                        "model (+ VecNormalize statistics, if under 5 MB) into --out (for committed results)")
+    p.add_argument("--num-threads", type=int, default=1)
+    return p
+
+
+def evaluate(argv=None) -> dict:
+    args = build_parser().parse_args(argv)
+    import torch
+    torch.set_num_threads(max(1, args.num_threads))
+    common.import_env_packages(["tensegrity_gym"])
+    run_dir = Path(args.run_dir)
+    if not (run_dir / "config.yaml").exists():
+        raise FileNotFoundError(f"{run_dir}: no config.yaml (not a run directory of agents.train)")
+    if args.n_episodes < 1:
+        raise ValueError(f"--n-episodes: must be >= 1, got {args.n_episodes}")
+    cfg, trained, model_path, model = load_trained(run_dir, args.model)
+    env_id = cfg["env"]
+    env_kwargs = {**cfg["env_kwargs"], **common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs")}
+    out = Path(args.out) if args.out else run_dir / "evaluation"
+    out.mkdir(parents=True, exist_ok=True)
+    seeds = list(range(args.seed, args.seed + args.n_episodes))
+    nb = args.baseline_episodes or args.n_episodes
+    record = ("tracking_error", "max_node_error", "distance_rolled")
+    scales = scene_scales(env_id, env_kwargs)
+
+    policies = {f"{cfg['algo']} (trained)": (lambda env: trained, seeds)}
+    if not args.no_baselines:
+        for label, spec in BASELINES.get(env_id, []):
+            mod, cls = spec.split(":")
+            try:
+                C = getattr(importlib.import_module(mod), cls)
+                import gymnasium as gym
+                probe = gym.make(env_id, **env_kwargs)
+                try:
+                    C(probe)  # raises ValueError if the baseline does not fit this scene / action mode
+                finally:
+                    probe.close()
+            except (ImportError, AttributeError, ValueError) as e:
+                print(f"note: baseline {label} ({spec}) not evaluated: {e}")
+                continue
+            policies[label] = ((lambda C: (lambda env: C(env)))(C), seeds[:nb])
+    if not args.no_random:
+        policies["random"] = (lambda env: RandomPolicy(env.single_action_space if hasattr(env, "single_action_space")
+                                                      else env.action_space, args.seed), seeds[:nb])
+    all_eps, results, timings = {}, {}, {}
+    for name, (factory, sd) in policies.items():
+        t0 = time.time()
+        eps = run_episodes(env_id, env_kwargs, factory, sd, record)
+        timings[name] = time.time() - t0
+        all_eps[name] = eps
+        results[name] = summarize(eps, scales)
+        print(f"  {name}: {len(sd)} episodes in {timings[name]:.1f} s")
+
+    import yaml
+    state = json.loads((run_dir / "state.json").read_text()) if (run_dir / "state.json").exists() else {}
+    table = format_table(results)
+    print(f"\n{env_id} {env_kwargs}  model {model_path} ({model.num_timesteps} training steps)\n"
+          f"held-out seeds {seeds[0]}..{seeds[-1]}\n")
+    print(table)
+    metrics = {
+        "env": env_id, "env_kwargs": env_kwargs, "algo": cfg["algo"], "run_dir": str(run_dir),
+        "model": str(model_path), "model_num_timesteps": int(model.num_timesteps),
+        "training_wall_time_s": state.get("wall_time_s"), "training_status": state.get("status"),
+        "held_out_seeds": [seeds[0], seeds[-1]], "scales": scales, "results": results,
+        "eval_wall_time_s": timings,
+        "train_command": (run_dir / "command.txt").read_text().strip().splitlines()[-1]
+        if (run_dir / "command.txt").exists() else None,
+        "evaluate_command": " ".join(["python", "-m", "agents.evaluate"] + (argv if argv is not None else sys.argv[1:])),
+        "versions": common.package_versions(),
+    }
+    common.write_json(out / "metrics.json", metrics)
+    (out / "table.md").write_text(table + "\n")
+    per_ep = {name: [{"seed": e["seed"], "return": e["return"], "length": e["length"], "final": e["final"]}
+                     for e in eps] for name, eps in all_eps.items()}
+    common.write_json(out / "episodes.json", per_ep)
+    title = f"{env_id} {cfg['algo'].upper()} " + ",".join(f"{k}={v}" for k, v in env_kwargs.items()
+                                                          if k in ("action_mode", "structure"))
+    if plot_learning_curve(run_dir, out / "learning_curve.png", title, scales.get("success_tolerance")):
+        print(f"wrote {out / 'learning_curve.png'}")
+    if plot_episodes(all_eps, scales, out / "episodes.png", title):
+        print(f"wrote {out / 'episodes.png'}")
+    if args.gif:
+        n = write_gif(env_id, env_kwargs, trained, seeds[0], out / "rollout.gif")
+        print(f"wrote {out / 'rollout.gif'} ({n} frames)")
+    if args.copy_run_files and out.resolve() != run_dir.resolve():
+        import shutil
+        for f in ("config.yaml", "command.txt", "versions.json", "state.json"):
+            if (run_dir / f).exists():
+                shutil.copy2(run_dir / f, out / f)
+        vn = resolve_model(run_dir, args.model)[1]
+        if model_path.stat().st_size < 5e6:
+            shutil.copy2(model_path, out / "model.zip")
+            if vn is not None:
+                shutil.copy2(vn, out / "vecnormalize.pkl")
+            print(f"copied the run files and the model ({model_path.stat().st_size / 1e6:.1f} MB) to {out}")
+        else:
+            print(f"copied the run files to {out} (model {model_path.stat().st_size / 1e6:.1f} MB: not copied)")
+    print(f"wrote {out / 'metrics.json'}")
+    return metrics
+
+
+def main(argv=None) -> int:
+    try:
+        evaluate(argv)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,117 @@
+"""Evaluate the open-loop rolling gait (tensegrity_gym.baselines.RollingGait) on TensegrityRoll-v0.
+
+Runs the gait for 100 s of simulated time (5000 control steps at 50 Hz) on flat ground for
+several reset seeds (one batched vector env, no time limit) and reports the speed of the
+centre of mass along the goal (+x) in m/s and in body lengths per second (body length = rod
+length, 0.383 m for the default prism), plus the env's throughput (env steps per second of a
+single env and of the batched vector env, measured here, on this machine).
+
+Writes ``results/roll_baseline.json``. Run: ``python scripts/eval_roll_baseline.py [--seeds 8] [--time 100]``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import gymnasium as gym  # noqa: E402
+
+import tensegrity_gym  # noqa: E402,F401
+from tensegrity_gym.baselines import RollingGait  # noqa: E402
+from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402
+
+
+def evaluate(seeds: int, T: float) -> dict:
+    venv = TensegrityRollVectorEnv(num_envs=seeds, max_episode_steps=None)
+    gait = RollingGait(venv)
+    obs, _ = venv.reset(seed=0)
+    task = venv.task
+    n = int(round(T / task.control_dt))
+    state = None
+    x_hist = []
+    for i in range(n):
+        a, state = gait.predict(obs, state)
+        obs, r, term, trunc, info = venv.step(a)
+        if (i + 1) % int(round(10.0 / task.control_dt)) == 0:
+            x_hist.append(info["distance_rolled"].copy())
+        assert not info["diverged"].any()
+    d = info["distance_rolled"]
+    lateral = info["com_position"][:, 1] - task.start[:, 1]
+    L = task.body_length
+    speed = d / T
+    return {"simulated_time_s": T, "seeds": list(range(seeds)), "reset_noise_scale_m": task.reset_noise_scale,
+            "body_length_m": L, "gait": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in
+                                         dict(amplitude=gait.amplitude, phase=gait.phase, period=gait.period,
+                                              direction=gait.direction, sharpness=gait.sharpness).items()},
+            "distance_m": d.tolist(), "lateral_drift_m": lateral.tolist(),
+            "speed_m_s": {"mean": float(speed.mean()), "std": float(speed.std()), "min": float(speed.min()),
+                          "max": float(speed.max())},
+            "speed_body_lengths_s": {"mean": float(speed.mean() / L), "std": float(speed.std() / L)},
+            "distance_every_10s_m": np.array(x_hist).T.tolist()}
+
+
+def throughput() -> dict:
+    out = {}
+    env = gym.make("TensegrityRoll-v0")
+    env.reset(seed=0)
+    a = np.zeros(env.action_space.shape, np.float32)
+    for _ in range(50):
+        env.step(a)
+    n = 2000
+    t0 = time.perf_counter()
+    for i in range(n):
+        _, _, te, tr, _ = env.step(env.action_space.sample())
+        if te or tr:
+            env.reset()
+    out["single_env_steps_per_s"] = n / (time.perf_counter() - t0)
+    for N in (16, 256):
+        venv = gym.make_vec("TensegrityRoll-v0", num_envs=N, vectorization_mode="vector_entry_point")
+        venv.reset(seed=0)
+        acts = venv.action_space.sample()
+        venv.step(acts)
+        steps = max(20, 4000 // N)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            venv.step(acts)
+        out[f"vector_env_{N}_env_steps_per_s"] = N * steps / (time.perf_counter() - t0)
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--time", type=float, default=100.0, help="simulated seconds")
+    ap.add_argument("--no-bench", action="store_true", help="skip the throughput measurement")
+    args = ap.parse_args()
+    t0 = time.time()
+    res = evaluate(args.seeds, args.time)
+    res["wall_s"] = time.time() - t0
+    if not args.no_bench:
+        res["throughput"] = throughput()
+        res["throughput"]["note"] = ("measured on the machine that ran this script (2 shared cores in "
+                                     "development): control step = 20 physics steps of 1 ms with contact")
+    out = ROOT / "results" / "roll_baseline.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=2))
+    s = res["speed_m_s"]
+    print(f"RollingGait on TensegrityRoll-v0, {args.time:g} s simulated, {args.seeds} seeds")
+    print(f"| quantity | value |\n|---|---|")
+    print(f"| speed along +x | {s['mean']:.4f} m/s (std {s['std']:.4f}, min {s['min']:.4f}, max {s['max']:.4f}) |")
+    print(f"| speed | {res['speed_body_lengths_s']['mean']:.4f} body lengths/s (body length {res['body_length_m']:.3f} m) |")
+    print(f"| distance in {args.time:g} s | {np.mean(res['distance_m']):.3f} m (min {np.min(res['distance_m']):.3f}) |")
+    print(f"| lateral drift | {np.mean(res['lateral_drift_m']):+.3f} m |")
+    for k, v in res.get("throughput", {}).items():
+        if k != "note":
+            print(f"| {k} | {v:.0f} |")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1000 @@
+"""Compiled (numba) kernels for the fixed-step integrators of :mod:`tensegrity_gym.integrators`.
+
+This module reproduces, operation for operation, :func:`tensegrity_gym.dynamics.accelerations`
+followed by the semi-implicit Euler or classic RK4 step of :func:`tensegrity_gym.integrators.step`
+and :func:`tensegrity_gym.dynamics.project` (the NumPy code stays the reference; the two agree
+to round-off, checked in ``tests/test_kernels.py``). It never imports gymnasium. SI units
+throughout (m, kg, s, N).
+
+Why numba: one NumPy call costs about 1 us, and a NumPy step of even the 3-bar prism chains
+dozens of them, so a single-environment step cannot reach MuJoCo's ``mj_step`` rate without a
+compiled kernel. numba compiles the plain loops below with no build step for the user
+(``cache=True`` keeps the machine code on disk between runs) and runs the batch loop on all
+cores with ``prange`` when the batch is large.
+
+Entry points
+------------
+``AVAILABLE``
+    True if numba imports. Without numba, :func:`step` raises ``RuntimeError`` and
+    ``integrators.step(backend="auto")`` uses NumPy.
+:func:`step` ``(model, state, dt, name, *, rest_length, force_density, external, project, n_steps)``
+    Same arguments and result as ``integrators.step`` for ``name`` in
+    ``{"semi_implicit_euler", "rk4"}``; returns a new :class:`~tensegrity_gym.dynamics.State`
+    (the input state is never modified). ``integrators.step`` dispatches here for
+    ``backend="auto"``/``"numba"``.
+:func:`step_inplace` ``(model, q, qd, dt, name="semi_implicit_euler", *, ...)``
+    The fast path for environments: advances preallocated state arrays ``q``, ``qd``
+    (B, k, 6), C-contiguous float64, **in place** and returns nothing. It allocates nothing
+    per call and skips the :class:`State` object; an environment that owns its state arrays
+    should call this. Time is not tracked (the caller adds ``n_steps * dt``).
+
+Inputs (both entry points)
+--------------------------
+``rest_length`` (m,) or (B, m) in m, ``force_density`` (m,) or (B, m) in N/m (added to the
+string force densities, result clipped at 0), ``external`` (n, 3) or (B, n, 3) nodal forces
+in N held constant over the step(s). ``project``: normalise ``b``, remove the component of
+``b'`` along ``b`` and put constrained reference points back on their point/line/plane after
+every step (exactly :func:`tensegrity_gym.dynamics.project`). ``n_steps``: steps taken in
+one call (all inside the compiled loop).
+
+Implementation notes
+--------------------
+* Same formulas as dynamics.py, with two deliberate differences that only move round-off
+  (agreement ~1e-14 relative after hundreds of steps): divisions by per-rod constants and by
+  ``|b|^2`` are multiplications by reciprocals, and forces are accumulated string by string.
+  Slack strings add nothing; ``error_model="numpy"``: a division by zero gives inf/NaN as in
+  NumPy (``integrators.simulate`` then reports the divergence), never a Python exception.
+* Per-model data are packed once into ONE float64 buffer (integers as int64 bit patterns,
+  then the serial scratch; see ``_layout``), cached by ``id(model)`` and dropped when the
+  model is garbage collected: every array argument of a numba call costs ~0.1 us at the
+  boundary, and array views inside a kernel cost reference counting, so the kernels index
+  flat buffers with computed offsets instead.
+* Three compiled entry points, each for ONE explicit signature (C-contiguous float64 arrays;
+  other inputs -- float32, strided or read-only arrays -- are converted at the boundary, never
+  compiled again): ``_run_lean`` (no control arrays: three arguments fewer, the single-env
+  fast path), ``_run_serial`` and ``_run_parallel`` (``prange`` over chunks of the batch, used
+  when a call carries at least ``PARALLEL_MIN_WORK`` units of work). The serial ones compile
+  (or load from numba's disk cache) on the first call, the parallel one on the first large
+  batch. Batches of ``_SOA_MIN_BATCH`` = 16 or more environments run a structure-of-arrays
+  loop (16 environments per SIMD block; bit-identical results to the one-environment loop).
+* numba's threading layer is set to ``workqueue`` unless the user chose one
+  (``NUMBA_THREADING_LAYER``): see the comment at the import. The parallel kernel holds
+  the GIL, so two Python threads never enter the pool at once.
+* Damping work (node velocities, string length rates) is skipped when
+  ``model.has_damping`` is False; gravity loads when ``model.has_gravity`` is False.
+* Shapes are checked inside the kernel (error code -> ``ValueError`` naming the argument),
+  so a wrong shape never reads out of bounds.
+* Cold start: the first call compiles (~25 s per entry point group on the 2-core machine);
+  later processes load the machine code from ``__pycache__`` in about a second.
+"""
+from __future__ import annotations
+
+import math
+import os
+import weakref
+
+import numpy as np
+
+try:  # pragma: no cover - exercised by the import itself
+    import numba
+    from numba import njit, prange
+    AVAILABLE = True
+except Exception:  # pragma: no cover - numba missing or broken
+    numba = None
+    AVAILABLE = False
+
+if AVAILABLE and "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
+    # numba's default picks GNU OpenMP here; on a machine with more runnable threads than cores
+    # (other jobs, or torch's own OpenMP pool during training) each parallel call then waits
+    # ~12-16 ms for a descheduled worker, measured on the 2-core benchmark machine, against
+    # ~0.1 ms with numba's own workqueue pool. Set NUMBA_THREADING_LAYER to choose otherwise.
+    numba.config.THREADING_LAYER = "workqueue"
+
+__all__ = ["AVAILABLE", "step", "step_inplace", "PARALLEL_MIN_WORK", "clear_cache"]
+
+#: a call runs the multi-threaded kernel when B * n_steps * (strings + rods) * (4 for RK4, else 1)
+#: reaches this (about 0.3 ms of single-core work: below it, waking threads costs more than they save,
+#: and much more on a loaded machine). B < 8 is always serial.
+PARALLEL_MIN_WORK = 10_000
+
+# flag bits passed to the kernel
+_RK4 = 1
+_DAMP = 2
+_GRAV = 4
+_FD = 8
+_EXT = 16
+_PROJ = 32
+_CONS = 64
+_L0DEF = 128   # use the model's rest lengths stored in the buffer
+_SOA_MIN_BATCH = 16   # serial calls with at least this many environments use the SIMD (SoA) loop
+
+_ERRORS = {
+    1: "q: expected shape (B, {k}, 6)",
+    2: "qd: expected the same shape as q (B, {k}, 6)",
+    3: "rest_length: expected shape ({m},) or (B, {m})",
+    4: "force_density: expected shape ({m},) or (B, {m})",
+    5: "external: expected shape ({n}, 3) or (B, {n}, 3)",
+    6: "output arrays: expected the same shape as q",
+}
+
+
+_ROD = 24   # slots per rod in the packed buffer
+_STR = 4    # slots per string
+
+
+def _layout(k, m, n):
+    """Offsets into the packed model buffer (float64, 1-D; integer fields hold int64 bit patterns
+    read through an int64 view of the same memory):
+
+    ========  ======  ==============================================================
+    offset    size    content
+    ========  ======  ==============================================================
+    0         3       k, m, n (int)
+    o_rod     24 k    per rod: a, c, constrained (int), eta_a, eta_c, 1/m, 1/J, f/J,
+                      beta = f^2/J, alpha = m - f^2/J, 1/alpha, f, Pi (9), offset (3)
+    o_str     4 m     per string: i, j (int), stiffness, damping
+    o_l0      m       default rest lengths
+    o_W0      3 n     gravity nodal loads
+    o_ws      60 k    10 stage arrays (k, 6) of the integrators (scratch)
+    o_N/V/F   3 n     node positions (anchor rows preset), velocities (anchor rows 0), forces
+    ========  ======  ==============================================================
+    """
+    o_rod = 3
+    o_str = o_rod + _ROD * k
+    o_l0 = o_str + _STR * m
+    o_W0 = o_l0 + m
+    o_ws = o_W0 + 3 * n
+    o_N = o_ws + 60 * k
+    o_V = o_N + 3 * n
+    o_F = o_V + 3 * n
+    end = o_F + 3 * n
+    return (o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, end)
+
+
+if AVAILABLE:
+    # The kernels index one flat float64 buffer ``w`` (model data + scratch, see _layout) with
+    # computed offsets instead of slicing views: every numba array view costs reference-count
+    # traffic that, at B = 1, is larger than the physics of a small structure.
+    _opts = dict(cache=True, fastmath=False, error_model="numpy")
+    _layout_nb = njit(**_opts)(_layout)
+
+    @njit(inline="always", **_opts)
+    def _acc(w, ib, L, k, m, n, oq, oqd, oa, l0, el, fd, ef, ext, ee, flags):
+        """w[oa:oa+6k] = accelerations (k, 6) of the configuration stored at w[oq:], w[oqd:]
+        (dynamics.accelerations for one environment; l0[el], fd[ef], ext[ee] are its rows)."""
+        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, end = L
+        has_damp = (flags & _DAMP) != 0
+        # node positions (and velocities) of rod nodes: n = r + eta b
+        for j in range(k):
+            rj = o_rod + _ROD * j
+            ia = 3 * ib[rj]
+            ic = 3 * ib[rj + 1]
+            ea = w[rj + 3]
+            ec = w[rj + 4]
+            qj = oq + 6 * j
+            for i in range(3):
+                w[o_N + ia + i] = w[qj + i] + ea * w[qj + 3 + i]
+                w[o_N + ic + i] = w[qj + i] + ec * w[qj + 3 + i]
+            if has_damp:
+                vj = oqd + 6 * j
+                for i in range(3):
+                    w[o_V + ia + i] = w[vj + i] + ea * w[vj + 3 + i]
+                    w[o_V + ic + i] = w[vj + i] + ec * w[vj + 3 + i]
+        for p in range(3 * n):
+            w[o_F + p] = 0.0
+        has_fd = (flags & _FD) != 0
+        l0def = (flags & _L0DEF) != 0
+        # strings, tension only: gamma = max(0, k (L - l0)/L + c Ld/L) if L > l0 else 0 (5.20)
+        for s in range(m):
+            ps = o_str + _STR * s
+            si = o_N + 3 * ib[ps]
+            sj = o_N + 3 * ib[ps + 1]
+            s0 = w[sj] - w[si]
+            s1 = w[sj + 1] - w[si + 1]
+            s2 = w[sj + 2] - w[si + 2]
+            Ls = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+            g = 0.0
+            l0s = w[o_l0 + s] if l0def else l0[el, s]
+            if Ls > l0s:
+                tension = w[ps + 2] * (Ls - l0s)
+                if has_damp:
+                    vi = si - o_N + o_V
+                    vj = sj - o_N + o_V
+                    d0 = w[vj] - w[vi]
+                    d1 = w[vj + 1] - w[vi + 1]
+                    d2 = w[vj + 2] - w[vi + 2]
+                    tension = tension + w[ps + 3] * ((s0 * d0 + s1 * d1 + s2 * d2) / Ls)
+                if not (tension < 0.0):     # np.maximum(tension, 0): NaN propagates
+                    g = tension / Ls
+            if has_fd:
+                g = g + fd[ef, s]
+                if g < 0.0:
+                    g = 0.0
+            if g != 0.0:
+                g0 = g * s0
+                g1 = g * s1
+                g2 = g * s2
+                fi = si - o_N + o_F
+                fj = sj - o_N + o_F
+                w[fj] -= g0
+                w[fj + 1] -= g1
+                w[fj + 2] -= g2
+                w[fi] += g0
+                w[fi + 1] += g1
+                w[fi + 2] += g2
+        if (flags & _GRAV) != 0:
+            for p in range(3 * n):
+                w[o_F + p] = w[o_F + p] + w[o_W0 + p]
+        if (flags & _EXT) != 0:
+            for p in range(n):
+                for i in range(3):
+                    w[o_F + 3 * p + i] = w[o_F + 3 * p + i] + ext[ee, p, i]
+        # rods: (5.37)/(5.40) for free rods, (5.49)-(5.51) for constrained ones
+        for j in range(k):
+            rj = o_rod + _ROD * j
+            fa = o_F + 3 * ib[rj]
+            fc = o_F + 3 * ib[rj + 1]
+            ea = w[rj + 3]
+            ec = w[rj + 4]
+            qj = oq + 6 * j
+            vj = oqd + 6 * j
+            aj = oa + 6 * j
+            b0 = w[qj + 3]
+            b1 = w[qj + 4]
+            b2 = w[qj + 5]
+            bd0 = w[vj + 3]
+            bd1 = w[vj + 4]
+            bd2 = w[vj + 5]
+            Fa0 = w[fa]
+            Fa1 = w[fa + 1]
+            Fa2 = w[fa + 2]
+            Fc0 = w[fc]
+            Fc1 = w[fc + 1]
+            Fc2 = w[fc + 2]
+            fr0 = Fa0 + Fc0
+            fr1 = Fa1 + Fc1
+            fr2 = Fa2 + Fc2
+            fb0 = ea * Fa0 + ec * Fc0
+            fb1 = ea * Fa1 + ec * Fc1
+            fb2 = ea * Fa2 + ec * Fc2
+            ibb = 1.0 / (b0 * b0 + b1 * b1 + b2 * b2)
+            wv = (bd0 * bd0 + bd1 * bd1 + bd2 * bd2) * ibb
+            c = (b0 * fb0 + b1 * fb1 + b2 * fb2) * ibb
+            P0 = fb0 - b0 * c
+            P1 = fb1 - b1 * c
+            P2 = fb2 - b2 * c
+            iJ = w[rj + 6]
+            if ib[rj + 2] == 0:
+                # free rod at its centre of mass: f = 0, A = I/m
+                im = w[rj + 5]
+                w[aj] = fr0 * im
+                w[aj + 1] = fr1 * im
+                w[aj + 2] = fr2 * im
+                w[aj + 3] = P0 * iJ - wv * b0
+                w[aj + 4] = P1 * iJ - wv * b1
+                w[aj + 5] = P2 * iJ - wv * b2
+            else:
+                fJ = w[rj + 7]
+                beta = w[rj + 8]
+                alpha = w[rj + 9]
+                ialpha = w[rj + 10]
+                fw = w[rj + 11] * wv         # f w
+                h0 = fr0 - fJ * P0 + fw * b0
+                h1 = fr1 - fJ * P1 + fw * b1
+                h2 = fr2 - fJ * P2 + fw * b2
+                isb = math.sqrt(ibb)
+                pj = rj + 12
+                u0 = (w[pj] * b0 + w[pj + 1] * b1 + w[pj + 2] * b2) * isb
+                u1 = (w[pj + 3] * b0 + w[pj + 4] * b1 + w[pj + 5] * b2) * isb
+                u2 = (w[pj + 6] * b0 + w[pj + 7] * b1 + w[pj + 8] * b2) * isb
+                Ph0 = w[pj] * h0 + w[pj + 1] * h1 + w[pj + 2] * h2
+                Ph1 = w[pj + 3] * h0 + w[pj + 4] * h1 + w[pj + 5] * h2
+                Ph2 = w[pj + 6] * h0 + w[pj + 7] * h1 + w[pj + 8] * h2
+                uu = u0 * u0 + u1 * u1 + u2 * u2
+                uh = u0 * h0 + u1 * h1 + u2 * h2
+                cu = beta * uh / (alpha + beta * uu)
+                r0 = (Ph0 - cu * u0) * ialpha
+                r1 = (Ph1 - cu * u1) * ialpha
+                r2 = (Ph2 - cu * u2) * ialpha
+                br = (b0 * r0 + b1 * r1 + b2 * r2) * ibb
+                w[aj] = r0
+                w[aj + 1] = r1
+                w[aj + 2] = r2
+                w[aj + 3] = P0 * iJ - fJ * (r0 - b0 * br) - wv * b0
+                w[aj + 4] = P1 * iJ - fJ * (r1 - b1 * br) - wv * b1
+                w[aj + 5] = P2 * iJ - fJ * (r2 - b2 * br) - wv * b2
+
+    @njit(inline="always", **_opts)
+    def _project(w, ib, L, k, oq, oqd, any_cons):
+        """In place on w[oq:], w[oqd:]: |b| = 1, b.b' = 0 and constrained reference points back
+        on their point/line/plane with tangent velocity (exactly dynamics.project)."""
+        o_rod = L[0]
+        for j in range(k):
+            qj = oq + 6 * j
+            vj = oqd + 6 * j
+            b0 = w[qj + 3]
+            b1 = w[qj + 4]
+            b2 = w[qj + 5]
+            inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            b0 = b0 * inb
+            b1 = b1 * inb
+            b2 = b2 * inb
+            w[qj + 3] = b0
+            w[qj + 4] = b1
+            w[qj + 5] = b2
+            dot = b0 * w[vj + 3] + b1 * w[vj + 4] + b2 * w[vj + 5]
+            w[vj + 3] = w[vj + 3] - b0 * dot
+            w[vj + 4] = w[vj + 4] - b1 * dot
+            w[vj + 5] = w[vj + 5] - b2 * dot
+            rj = o_rod + _ROD * j
+            if any_cons and ib[rj + 2] != 0:
+                pj = rj + 12
+                oj = rj + 21
+                x0 = w[qj]
+                x1 = w[qj + 1]
+                x2 = w[qj + 2]
+                v0 = w[vj]
+                v1 = w[vj + 1]
+                v2 = w[vj + 2]
+                for i in range(3):
+                    w[qj + i] = w[oj + i] + (w[pj + 3 * i] * x0 + w[pj + 3 * i + 1] * x1 + w[pj + 3 * i + 2] * x2)
+                    w[vj + i] = w[pj + 3 * i] * v0 + w[pj + 3 * i + 1] * v1 + w[pj + 3 * i + 2] * v2
+
+    @njit(**_opts)
+    def _advance_range(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags):
+        """n_steps fixed steps of environments lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e])
+        (which may be the same arrays), using the scratch of w. One call per batch chunk:
+        the physics (_acc, _project) is inlined, so nothing is called per environment."""
+        k6 = 6 * k
+        Q = L[4]
+        QD = Q + k6
+        A1 = QD + k6
+        A2 = A1 + k6
+        A3 = A2 + k6
+        A4 = A3 + k6
+        QS = A4 + k6
+        QD2 = QS + k6
+        QD3 = QD2 + k6
+        QD4 = QD3 + k6
+        rk4 = (flags & _RK4) != 0
+        n_stages = 4 if rk4 else 1
+        do_proj = (flags & _PROJ) != 0
+        any_cons = (flags & _CONS) != 0
+        h = 0.5 * dt
+        c6 = dt / 6.0
+        nl, nf, ne = l0.shape[0], fd.shape[0], ext.shape[0]
+        for e in range(lo, hi):
+            el = e if nl > 1 else 0
+            ef = e if nf > 1 else 0
+            ee = e if ne > 1 else 0
+            for j in range(k):
+                for i in range(6):
+                    w[Q + 6 * j + i] = q[e, j, i]
+                    w[QD + 6 * j + i] = qd[e, j, i]
+            for _ in range(n_steps):
+                oq = Q
+                oqd = QD
+                oa = A1
+                for stage in range(n_stages):
+                    _acc(w, ib, L, k, m, n, oq, oqd, oa, l0, el, fd, ef, ext, ee, flags)
+                    if not rk4:
+                        # semi-implicit Euler: v += dt a(q, v); q += dt v
+                        for p in range(k6):
+                            w[QD + p] = w[QD + p] + dt * w[A1 + p]
+                            w[Q + p] = w[Q + p] + dt * w[QD + p]
+                    elif stage == 0:
+                        for p in range(k6):
+                            w[QS + p] = w[Q + p] + h * w[QD + p]
+                            w[QD2 + p] = w[QD + p] + h * w[A1 + p]
+                        oq, oqd, oa = QS, QD2, A2
+                    elif stage == 1:
+                        for p in range(k6):
+                            w[QS + p] = w[Q + p] + h * w[QD2 + p]
+                            w[QD3 + p] = w[QD + p] + h * w[A2 + p]
+                        oq, oqd, oa = QS, QD3, A3
+                    elif stage == 2:
+                        for p in range(k6):
+                            w[QS + p] = w[Q + p] + dt * w[QD3 + p]
+                            w[QD4 + p] = w[QD + p] + dt * w[A3 + p]
+                        oq, oqd, oa = QS, QD4, A4
+                    else:
+                        for p in range(k6):
+                            w[Q + p] = w[Q + p] + c6 * (w[QD + p] + 2.0 * w[QD2 + p] + 2.0 * w[QD3 + p]
+                                                        + w[QD4 + p])
+                            w[QD + p] = w[QD + p] + c6 * (w[A1 + p] + 2.0 * w[A2 + p] + 2.0 * w[A3 + p]
+                                                         + w[A4 + p])
+                if do_proj:
+                    _project(w, ib, L, k, Q, QD, any_cons)
+            for j in range(k):
+                for i in range(6):
+                    qo[e, j, i] = w[Q + 6 * j + i]
+                    qdo[e, j, i] = w[QD + 6 * j + i]
+
+
+    @njit(inline="always", **_opts)
+    def _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags):
+        """_acc for E environments at once, structure-of-arrays: Qi, Vi, A (k, 6, E), N, V, F,
+        EX (n, 3, E), L0, FD (m, E). The innermost loops run over the environments (SIMD)."""
+        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, end = L
+        has_damp = (flags & _DAMP) != 0
+        for j in range(k):
+            rj = o_rod + _ROD * j
+            ia = ib[rj]
+            ic = ib[rj + 1]
+            ea = w[rj + 3]
+            ec = w[rj + 4]
+            for i in range(3):
+                for e in range(E):
+                    N[ia, i, e] = Qi[j, i, e] + ea * Qi[j, 3 + i, e]
+                    N[ic, i, e] = Qi[j, i, e] + ec * Qi[j, 3 + i, e]
+            if has_damp:
+                for i in range(3):
+                    for e in range(E):
+                        V[ia, i, e] = Vi[j, i, e] + ea * Vi[j, 3 + i, e]
+                        V[ic, i, e] = Vi[j, i, e] + ec * Vi[j, 3 + i, e]
+        F[:] = 0.0
+        has_fd = (flags & _FD) != 0
+        for s in range(m):
+            ps = o_str + _STR * s
+            si = ib[ps]
+            sj = ib[ps + 1]
+            kk = w[ps + 2]
+            cc = w[ps + 3]
+            for e in range(E):
+                s0 = N[sj, 0, e] - N[si, 0, e]
+                s1 = N[sj, 1, e] - N[si, 1, e]
+                s2 = N[sj, 2, e] - N[si, 2, e]
+                Ls = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+                l0s = L0[s, e]
+                tension = kk * (Ls - l0s)
+                if has_damp:
+                    d0 = V[sj, 0, e] - V[si, 0, e]
+                    d1 = V[sj, 1, e] - V[si, 1, e]
+                    d2 = V[sj, 2, e] - V[si, 2, e]
+                    tension = tension + cc * ((s0 * d0 + s1 * d1 + s2 * d2) / Ls)
+                g = tension / Ls
+                if not (Ls > l0s) or tension < 0.0:
+                    g = 0.0
+                if has_fd:
+                    g = g + FD[s, e]
+                    if g < 0.0:
+                        g = 0.0
+                F[sj, 0, e] -= g * s0
+                F[sj, 1, e] -= g * s1
+                F[sj, 2, e] -= g * s2
+                F[si, 0, e] += g * s0
+                F[si, 1, e] += g * s1
+                F[si, 2, e] += g * s2
+        if (flags & _GRAV) != 0:
+            for p in range(n):
+                for i in range(3):
+                    wv = w[o_W0 + 3 * p + i]
+                    for e in range(E):
+                        F[p, i, e] = F[p, i, e] + wv
+        if (flags & _EXT) != 0:
+            for p in range(n):
+                for i in range(3):
+                    for e in range(E):
+                        F[p, i, e] = F[p, i, e] + EX[p, i, e]
+        for j in range(k):
+            rj = o_rod + _ROD * j
+            fa = ib[rj]
+            fc = ib[rj + 1]
+            ea = w[rj + 3]
+            ec = w[rj + 4]
+            im = w[rj + 5]
+            iJ = w[rj + 6]
+            free = ib[rj + 2] == 0
+            fJ = w[rj + 7]
+            beta = w[rj + 8]
+            alpha = w[rj + 9]
+            ialpha = w[rj + 10]
+            fm = w[rj + 11]
+            pj = rj + 12
+            p00, p01, p02 = w[pj], w[pj + 1], w[pj + 2]
+            p10, p11, p12 = w[pj + 3], w[pj + 4], w[pj + 5]
+            p20, p21, p22 = w[pj + 6], w[pj + 7], w[pj + 8]
+            for e in range(E):
+                b0 = Qi[j, 3, e]
+                b1 = Qi[j, 4, e]
+                b2 = Qi[j, 5, e]
+                bd0 = Vi[j, 3, e]
+                bd1 = Vi[j, 4, e]
+                bd2 = Vi[j, 5, e]
+                Fa0 = F[fa, 0, e]
+                Fa1 = F[fa, 1, e]
+                Fa2 = F[fa, 2, e]
+                Fc0 = F[fc, 0, e]
+                Fc1 = F[fc, 1, e]
+                Fc2 = F[fc, 2, e]
+                fr0 = Fa0 + Fc0
+                fr1 = Fa1 + Fc1
+                fr2 = Fa2 + Fc2
+                fb0 = ea * Fa0 + ec * Fc0
+                fb1 = ea * Fa1 + ec * Fc1
+                fb2 = ea * Fa2 + ec * Fc2
+                ibb = 1.0 / (b0 * b0 + b1 * b1 + b2 * b2)
+                wv = (bd0 * bd0 + bd1 * bd1 + bd2 * bd2) * ibb
+                c = (b0 * fb0 + b1 * fb1 + b2 * fb2) * ibb
+                P0 = fb0 - b0 * c
+                P1 = fb1 - b1 * c
+                P2 = fb2 - b2 * c
+                if free:
+                    A[j, 0, e] = fr0 * im
+                    A[j, 1, e] = fr1 * im
+                    A[j, 2, e] = fr2 * im
+                    A[j, 3, e] = P0 * iJ - wv * b0
+                    A[j, 4, e] = P1 * iJ - wv * b1
+                    A[j, 5, e] = P2 * iJ - wv * b2
+                else:
+                    fw = fm * wv
+                    h0 = fr0 - fJ * P0 + fw * b0
+                    h1 = fr1 - fJ * P1 + fw * b1
+                    h2 = fr2 - fJ * P2 + fw * b2
+                    isb = math.sqrt(ibb)
+                    u0 = (p00 * b0 + p01 * b1 + p02 * b2) * isb
+                    u1 = (p10 * b0 + p11 * b1 + p12 * b2) * isb
+                    u2 = (p20 * b0 + p21 * b1 + p22 * b2) * isb
+                    Ph0 = p00 * h0 + p01 * h1 + p02 * h2
+                    Ph1 = p10 * h0 + p11 * h1 + p12 * h2
+                    Ph2 = p20 * h0 + p21 * h1 + p22 * h2
+                    uu = u0 * u0 + u1 * u1 + u2 * u2
+                    uh = u0 * h0 + u1 * h1 + u2 * h2
+                    cu = beta * uh / (alpha + beta * uu)
+                    r0 = (Ph0 - cu * u0) * ialpha
+                    r1 = (Ph1 - cu * u1) * ialpha
+                    r2 = (Ph2 - cu * u2) * ialpha
+                    br = (b0 * r0 + b1 * r1 + b2 * r2) * ibb
+                    A[j, 0, e] = r0
+                    A[j, 1, e] = r1
+                    A[j, 2, e] = r2
+                    A[j, 3, e] = P0 * iJ - fJ * (r0 - b0 * br) - wv * b0
+                    A[j, 4, e] = P1 * iJ - fJ * (r1 - b1 * br) - wv * b1
+                    A[j, 5, e] = P2 * iJ - fJ * (r2 - b2 * br) - wv * b2
+
+    @njit(**_opts)
+    def _advance_soa(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags):
+        """_advance_range for large batches: E environments at a time in structure-of-arrays
+        scratch, so that every inner loop runs over environments and compiles to SIMD code.
+        Same operations in the same order as _advance_range (results agree to the last bit)."""
+        E = 16 if k <= 24 else 8
+        S = np.empty((10, k, 6, E))
+        Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
+        N = np.empty((n, 3, E))
+        o_N = L[5]
+        for p in range(n):                      # anchor rows: fixed positions; rod rows overwritten
+            for i in range(3):
+                for e in range(E):
+                    N[p, i, e] = w[o_N + 3 * p + i]
+        V = np.zeros((n, 3, E))
+        F = np.empty((n, 3, E))
+        L0 = np.empty((m, E))
+        FD = np.zeros((m, E))
+        EX = np.zeros((n, 3, E))
+        rk4 = (flags & _RK4) != 0
+        n_stages = 4 if rk4 else 1
+        do_proj = (flags & _PROJ) != 0
+        any_cons = (flags & _CONS) != 0
+        l0def = (flags & _L0DEF) != 0
+        has_fd = (flags & _FD) != 0
+        has_ext = (flags & _EXT) != 0
+        h = 0.5 * dt
+        c6 = dt / 6.0
+        nl, nf, ne_ = l0.shape[0], fd.shape[0], ext.shape[0]
+        o_l0 = L[2]
+        o_rod = L[0]
+        for c0 in range(lo, hi, E):
+            ne = min(E, hi - c0)
+            for e in range(E):
+                src = c0 + e if e < ne else c0          # pad lanes repeat the first environment
+                for j in range(k):
+                    for i in range(6):
+                        Q[j, i, e] = q[src, j, i]
+                        QD[j, i, e] = qd[src, j, i]
+                for s in range(m):
+                    L0[s, e] = w[o_l0 + s] if l0def else l0[src if nl > 1 else 0, s]
+                if has_fd:
+                    for s in range(m):
+                        FD[s, e] = fd[src if nf > 1 else 0, s]
+                if has_ext:
+                    for p in range(n):
+                        for i in range(3):
+                            EX[p, i, e] = ext[src if ne_ > 1 else 0, p, i]
+            for _ in range(n_steps):
+                Qi = Q
+                Vi = QD
+                A = A1
+                for stage in range(n_stages):
+                    _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags)
+                    if not rk4:
+                        for j in range(k):
+                            for i in range(6):
+                                for e in range(E):
+                                    QD[j, i, e] = QD[j, i, e] + dt * A1[j, i, e]
+                                    Q[j, i, e] = Q[j, i, e] + dt * QD[j, i, e]
+                    elif stage == 0:
+                        for j in range(k):
+                            for i in range(6):
+                                for e in range(E):
+                                    QS[j, i, e] = Q[j, i, e] + h * QD[j, i, e]
+                                    QD2[j, i, e] = QD[j, i, e] + h * A1[j, i, e]
+                        Qi, Vi, A = QS, QD2, A2
+                    elif stage == 1:
+                        for j in range(k):
+                            for i in range(6):
+                                for e in range(E):
+                                    QS[j, i, e] = Q[j, i, e] + h * QD2[j, i, e]
+                                    QD3[j, i, e] = QD[j, i, e] + h * A2[j, i, e]
+                        Qi, Vi, A = QS, QD3, A3
+                    elif stage == 2:
+                        for j in range(k):
+                            for i in range(6):
+                                for e in range(E):
+                                    QS[j, i, e] = Q[j, i, e] + dt * QD3[j, i, e]
+                                    QD4[j, i, e] = QD[j, i, e] + dt * A3[j, i, e]
+                        Qi, Vi, A = QS, QD4, A4
+                    else:
+                        for j in range(k):
+                            for i in range(6):
+                                for e in range(E):
+                                    Q[j, i, e] = Q[j, i, e] + c6 * (QD[j, i, e] + 2.0 * QD2[j, i, e]
+                                                                    + 2.0 * QD3[j, i, e] + QD4[j, i, e])
+                                    QD[j, i, e] = QD[j, i, e] + c6 * (A1[j, i, e] + 2.0 * A2[j, i, e]
+                                                                      + 2.0 * A3[j, i, e] + A4[j, i, e])
+                if do_proj:
+                    for j in range(k):
+                        rj = o_rod + _ROD * j
+                        for e in range(E):
+                            b0 = Q[j, 3, e]
+                            b1 = Q[j, 4, e]
+                            b2 = Q[j, 5, e]
+                            inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+                            b0 = b0 * inb
+                            b1 = b1 * inb
+                            b2 = b2 * inb
+                            Q[j, 3, e] = b0
+                            Q[j, 4, e] = b1
+                            Q[j, 5, e] = b2
+                            dot = b0 * QD[j, 3, e] + b1 * QD[j, 4, e] + b2 * QD[j, 5, e]
+                            QD[j, 3, e] = QD[j, 3, e] - b0 * dot
+                            QD[j, 4, e] = QD[j, 4, e] - b1 * dot
+                            QD[j, 5, e] = QD[j, 5, e] - b2 * dot
+                        if any_cons and ib[rj + 2] != 0:
+                            pj = rj + 12
+                            oj = rj + 21
+                            for e in range(E):
+                                x0 = Q[j, 0, e]
+                                x1 = Q[j, 1, e]
+                                x2 = Q[j, 2, e]
+                                v0 = QD[j, 0, e]
+                                v1 = QD[j, 1, e]
+                                v2 = QD[j, 2, e]
+                                for i in range(3):
+                                    Q[j, i, e] = w[oj + i] + (w[pj + 3 * i] * x0 + w[pj + 3 * i + 1] * x1
+                                                              + w[pj + 3 * i + 2] * x2)
+                                    QD[j, i, e] = w[pj + 3 * i] * v0 + w[pj + 3 * i + 1] * v1 + w[pj + 3 * i + 2] * v2
+            for e in range(ne):
+                for j in range(k):
+                    for i in range(6):
+                        qo[c0 + e, j, i] = Q[j, i, e]
+                        qdo[c0 + e, j, i] = QD[j, i, e]
+
+
+    @njit(**_opts)
+    def _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags):
+        B = q.shape[0]
+        if q.shape[1] != k or q.shape[2] != 6:
+            return 1
+        if qd.shape[0] != B or qd.shape[1] != k or qd.shape[2] != 6:
+            return 2
+        if qo.shape[0] != B or qo.shape[1] != k or qo.shape[2] != 6:
+            return 6
+        if qdo.shape[0] != B or qdo.shape[1] != k or qdo.shape[2] != 6:
+            return 6
+        if (flags & _L0DEF) == 0 and (l0.shape[1] != m or (l0.shape[0] != 1 and l0.shape[0] != B)):
+            return 3
+        if (flags & _FD) != 0 and (fd.shape[1] != m or (fd.shape[0] != 1 and fd.shape[0] != B)):
+            return 4
+        if (flags & _EXT) != 0 and (ext.shape[1] != n or ext.shape[2] != 3
+                                    or (ext.shape[0] != 1 and ext.shape[0] != B)):
+            return 5
+        return 0
+
+    # explicit signatures (no other variant is ever compiled): C-contiguous float64 arrays
+    _f8 = numba.types.float64
+    _a1, _a2, _a3 = (numba.types.Array(_f8, d, "C") for d in (1, 2, 3))
+    _i64 = numba.types.int64
+    _SIG = _i64(_a3, _a3, _a3, _a3, _a1, _a2, _a2, _a3, _f8, _i64, _i64)
+    _SIG_LEAN = _i64(_a3, _a3, _a3, _a3, _a1, _f8, _i64, _i64)
+
+    # Entry points are compiled lazily for ONE explicit signature each (see _compile): the serial
+    # ones on first use of any model, the parallel one on first use of a large batch.
+    @njit(cache=True, fastmath=False, error_model="numpy")   # holds the GIL: it uses the scratch inside buf
+    def _run_serial(q, qd, qo, qdo, buf, l0, fd, ext, dt, n_steps, flags):
+        ib = buf.view(np.int64)
+        k, m, n = ib[0], ib[1], ib[2]
+        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        if err:
+            return err
+        L = _layout_nb(k, m, n)
+        if q.shape[0] >= _SOA_MIN_BATCH:
+            _advance_soa(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags)
+        else:
+            _advance_range(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags)
+        return 0
+
+    @njit(cache=True, fastmath=False, error_model="numpy")
+    def _run_lean(q, qd, qo, qdo, buf, dt, n_steps, flags):
+        """_run_serial with the model's rest lengths and no force density / external force:
+        three array arguments fewer to convert at the Python boundary (single-env fast path)."""
+        ib = buf.view(np.int64)
+        k, m, n = ib[0], ib[1], ib[2]
+        flags = (flags | _L0DEF) & ~(_FD | _EXT)
+        d2 = q[0]                             # placeholders of the right type, never read
+        err = _check(q, qd, qo, qdo, k, m, n, d2, d2, q, flags)
+        if err:
+            return err
+        L = _layout_nb(k, m, n)
+        _advance_range(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], d2, d2, q, dt, n_steps, flags)
+        return 0
+
+    # holds the GIL too: then no two Python threads can be inside the thread pool at once (the
+    # workqueue threading layer, chosen below, does not support concurrent callers)
+    @njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+    def _run_parallel(q, qd, qo, qdo, buf, l0, fd, ext, dt, n_steps, flags):
+        ib0 = buf.view(np.int64)
+        k, m, n = ib0[0], ib0[1], ib0[2]
+        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        if err:
+            return err
+        L = _layout_nb(k, m, n)
+        B = q.shape[0]
+        nch = min(B, max(flags >> 8, 1))       # number of chunks in the high bits of flags
+        for c in prange(nch):
+            # _advance_soa only reads buf and allocates its own scratch: threads share nothing written
+            _advance_soa(buf, ib0, L, k, m, n, q, qd, qo, qdo, c * B // nch, (c + 1) * B // nch, l0, fd, ext,
+                         dt, n_steps, flags)
+        return 0
+
+
+# ---------------------------------------------------------------------- Python side
+_CACHE: dict = {}
+_STEPPERS = {"semi_implicit_euler": 0, "rk4": _RK4}
+
+
+def clear_cache() -> None:
+    """Forget the packed per-model arrays (they are rebuilt on the next call)."""
+    _CACHE.clear()
+
+
+class _Packed:
+    __slots__ = ("buf", "l0", "fd", "ext", "flags", "cost", "__weakref__")
+
+
+def _pack(model):
+    """Pack the model into one float64 buffer (see ``_layout``) plus default control arrays;
+    cached by id(model) for the model's lifetime."""
+    k, n, m = model.n_bars, model.n_nodes, model.n_strings
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, end = _layout(k, m, n)
+    buf = np.zeros(end)
+    ib = buf.view(np.int64)
+    ib[0:3] = (k, m, n)
+    for j in range(k):
+        rj = o_rod + _ROD * j
+        mass, f, J = float(model.mass[j]), float(model.f[j]), float(model.J[j])
+        ib[rj:rj + 3] = (model.rod_a[j], model.rod_c[j], int(bool(model.constrained[j])))
+        alpha = mass - f * f / J
+        buf[rj + 3:rj + 12] = (model.eta[j, 0], model.eta[j, 1], 1.0 / mass, 1.0 / J, f / J, f * f / J, alpha,
+                               1.0 / alpha, f)
+        buf[rj + 12:rj + 21] = model.proj[j].reshape(-1)
+        buf[rj + 21:rj + 24] = model.offset[j]
+    for s in range(m):
+        ps = o_str + _STR * s
+        ib[ps:ps + 2] = (model.str_i[s], model.str_j[s])
+        buf[ps + 2:ps + 4] = (model.stiffness[s], model.damping[s])
+    buf[o_l0:o_l0 + m] = model.rest_length
+    buf[o_W0:o_W0 + 3 * n] = model.W0.reshape(-1)
+    for a, pos in zip(model.anchor_idx, model.anchor_pos):   # anchor rows of the node scratch
+        buf[o_N + 3 * a:o_N + 3 * a + 3] = pos
+    p = _Packed()
+    p.buf = buf
+    p.l0 = np.array(model.rest_length, dtype=np.float64).reshape(1, m)
+    p.fd = np.zeros((1, m))
+    p.ext = np.zeros((1, n, 3))
+    p.cost = m + k
+    p.flags = ((_DAMP if model.has_damping else 0) | (_GRAV if model.has_gravity else 0)
+               | (_CONS if bool(np.any(model.constrained)) else 0))
+    key = id(model)
+    _CACHE[key] = p
+    weakref.finalize(model, _CACHE.pop, key, None)
+    return p
+
+
+def _array(x, ndim, what):
+    """A C-contiguous, writable float64 copy/view of x with a leading batch axis added if needed."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim == ndim - 1:
+        x = x[None]
+    if x.ndim != ndim:
+        raise ValueError(f"{what}: expected a {ndim - 1}- or {ndim}-dimensional array, got shape {x.shape}")
+    if not (x.flags.c_contiguous and x.flags.writeable):
+        x = np.array(x, dtype=np.float64, order="C")
+    return x
+
+
+def _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, inplace):
+    """After a TypeError at the kernel boundary: convert the inputs (C-contiguous, writable
+    float64, batch axis added) and call the general kernel. In place, q and qd must already
+    be writable C-contiguous float64 arrays (B, k, 6)."""
+    if inplace:
+        for x, nm in ((q, "q"), (qd, "qd")):
+            if not (isinstance(x, np.ndarray) and x.dtype == np.float64 and x.ndim == 3
+                    and x.flags.c_contiguous and x.flags.writeable):
+                raise ValueError(f"step_inplace: {nm} must be a writable C-contiguous float64 array (B, k, 6); "
+                                 f"got {type(x).__name__} {getattr(x, 'dtype', '')} {np.shape(x)}")
+        qo, qdo = q, qd
+    else:
+        q, qd = _array(q, 3, "state.q"), _array(qd, 3, "state.qd")
+    l0, fd, ext = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external")
+    if not (isinstance(dt, (int, float, np.floating, np.integer)) and isinstance(n_steps, (int, np.integer))):
+        raise TypeError(f"dt must be a number of seconds and n_steps an integer; got {dt!r}, {n_steps!r}")
+    run = _run_parallel if _parallel(p, q.shape[0], n_steps, flags) else _run_serial
+    return run(q, qd, qo, qdo, p.buf, l0, fd, ext, float(dt), int(n_steps), flags | (_NCHUNK << 8))
+
+
+def _raise(err, model, q, qd, l0, fd, ext):
+    raise ValueError(_ERRORS[err].format(k=model.n_bars, m=model.n_strings, n=model.n_nodes)
+                     + f"; got q {np.shape(q)}, qd {np.shape(qd)}, rest_length {np.shape(l0)}, "
+                     f"force_density {np.shape(fd)}, external {np.shape(ext)}")
+
+
+def _flags(p, name, project):
+    try:
+        flags = p.flags | _STEPPERS[name]
+    except KeyError:
+        raise ValueError(f"integrator: the numba kernels implement {sorted(_STEPPERS)}, got {name!r}") from None
+    return flags | _PROJ if project else flags
+
+
+def _controls(p, flags, rest_length, force_density, external):
+    """Control arrays for the general kernel (defaults from the packed model) and the flags."""
+    l0, fd, ext = p.l0, p.fd, p.ext
+    if rest_length is None:
+        flags |= _L0DEF
+    else:
+        l0 = rest_length if getattr(rest_length, "ndim", 0) == 2 else _array(rest_length, 2, "rest_length")
+    if force_density is not None:
+        fd = force_density if getattr(force_density, "ndim", 0) == 2 else _array(force_density, 2, "force_density")
+        flags |= _FD
+    if external is not None:
+        if callable(external):
+            raise TypeError("external: the numba kernels take an array held over the step; "
+                            "use backend='numpy' for a callable")
+        ext = external if getattr(external, "ndim", 0) == 3 else _array(external, 3, "external")
+        flags |= _EXT
+    return l0, fd, ext, flags
+
+
+_READY = {"serial": False, "parallel": False}
+
+
+def _compile(which: str) -> None:
+    """Compile (or load from numba's on-disk cache) the serial entry points or the parallel one
+    for their single signature, then forbid further compilation: an argument of another type
+    raises TypeError (handled by converting it) instead of compiling a new variant."""
+    if which == "serial":
+        for disp, sig in ((_run_lean, _SIG_LEAN), (_run_serial, _SIG)):
+            disp.compile(sig)
+            disp.disable_compile()
+    else:
+        _run_parallel.compile(_SIG)
+        _run_parallel.disable_compile()
+    _READY[which] = True
+
+
+def _parallel(p, B, n_steps, flags):
+    """True if this call should run the multi-threaded kernel (see PARALLEL_MIN_WORK)."""
+    try:
+        work = B * int(n_steps) * p.cost * (4 if flags & _RK4 else 1)
+    except (TypeError, ValueError):
+        return False
+    if work < PARALLEL_MIN_WORK:
+        return False
+    if not _READY["parallel"]:
+        _compile("parallel")
+    return True
+
+
+def _packed(model):
+    if not AVAILABLE:
+        raise RuntimeError("tensegrity_gym._kernels: numba is not installed; use backend='numpy'")
+    if not _READY["serial"]:
+        _compile("serial")
+    return _pack(model)
+
+
+def step(model, state, dt, name, *, rest_length=None, force_density=None, external=None, project=True,
+         n_steps=1):
+    """Advance ``state`` by ``n_steps`` fixed steps of ``dt`` s with the compiled kernel.
+
+    Same contract as :func:`tensegrity_gym.integrators.step` (``name`` in
+    ``{"semi_implicit_euler", "rk4"}``); returns a new :class:`~tensegrity_gym.dynamics.State`
+    with ``q``, ``qd`` (B, k, 6) and ``t = state.t + n_steps * dt`` (summed step by step, as
+    the NumPy path does). The input state is not modified."""
+    p = _CACHE.get(id(model)) or _packed(model)
+    flags = _flags(p, name, project)
+    q = state.q
+    qd = state.qd
+    qo = np.empty(q.shape)
+    qdo = np.empty(q.shape)
+    big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
+    try:
+        if rest_length is None and force_density is None and external is None and not big:
+            err = _run_lean(q, qd, qo, qdo, p.buf, dt, n_steps, flags)
+        else:
+            l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
+            if big:
+                err = _run_parallel(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags | (_NCHUNK << 8))
+            else:
+                err = _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags)
+    except TypeError:
+        l0, fd, ext, flags = _controls(p, _flags(p, name, project), rest_length, force_density, external)
+        err = _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, False)
+    if err:
+        _raise(err, model, q, qd, rest_length, force_density, external)
+    t = state.t + dt
+    for _ in range(n_steps - 1):
+        t = t + dt
+    return _new_state(qo, qdo, t)
+
+
+def step_inplace(model, q, qd, dt, name="semi_implicit_euler", *, rest_length=None, force_density=None,
+                 external=None, project=True, n_steps=1):
+    """Advance ``q``, ``qd`` (B, k, 6), writable C-contiguous float64 arrays (m, 1, m/s, 1/s),
+    **in place** by ``n_steps`` steps of ``dt`` s. The fast path for environments that own
+    their state arrays: no allocation, no :class:`State`. Other arguments as :func:`step`.
+    Returns None; the caller tracks time."""
+    p = _CACHE.get(id(model)) or _packed(model)
+    flags = _flags(p, name, project)
+    big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
+    try:
+        if rest_length is None and force_density is None and external is None and not big:
+            err = _run_lean(q, qd, q, qd, p.buf, dt, n_steps, flags)
+        else:
+            l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
+            if big:
+                err = _run_parallel(q, qd, q, qd, p.buf, l0, fd, ext, dt, n_steps, flags | (_NCHUNK << 8))
+            else:
+                err = _run_serial(q, qd, q, qd, p.buf, l0, fd, ext, dt, n_steps, flags)
+    except TypeError:
+        l0, fd, ext, flags = _controls(p, _flags(p, name, project), rest_length, force_density, external)
+        err = _slow_call(model, p, q, qd, q, qd, l0, fd, ext, dt, n_steps, flags, True)
+    if err:
+        _raise(err, model, q, qd, rest_length, force_density, external)
+
+
+from .dynamics import State  # noqa: E402  (after the kernels: dynamics never imports this module)
+
+_NCHUNK = 4 * (numba.get_num_threads() if AVAILABLE else 1)   # chunks of the parallel batch loop
+
+
+def _fast_state_ok() -> bool:
+    import dataclasses
+    return (dataclasses.is_dataclass(State) and [f.name for f in dataclasses.fields(State)] == ["q", "qd", "t"]
+            and not hasattr(State, "__post_init__") and not hasattr(State, "__slots__"))
+
+
+if _fast_state_ok():
+    _object_new = object.__new__
+
+    def _new_state(q, qd, t):
+        """State(q=q, qd=qd, t=t) without the frozen dataclass __init__ (3x faster; same object)."""
+        s = _object_new(State)
+        d = s.__dict__
+        d["q"] = q
+        d["qd"] = qd
+        d["t"] = t
+        return s
+else:  # pragma: no cover - State changed shape: use its constructor
+    def _new_state(q, qd, t):
+        return State(q=q, qd=qd, t=t)

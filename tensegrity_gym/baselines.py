@@ -1,0 +1,276 @@
+"""Non-learning controllers with the SB3 ``predict`` interface (SI units).
+
+Each controller is a policy object: ``predict(obs, state=None, episode_start=None,
+deterministic=True) -> (action, state)`` for one observation (obs_dim,) or a batch (B, obs_dim),
+exactly like a Stable-Baselines3 model, so evaluation code can take either.
+
+* :class:`NNLSShapeController` -- for ``TensegrityShape-v0`` (both action modes).
+
+(The rolling gait for ``TensegrityRoll-v0`` is added here as a separate class.)
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import nnls
+
+from . import dynamics as dyn
+from . import statics
+
+__all__ = ["NNLSShapeController", "nnls_force_densities", "RollingGait"]
+
+
+def _task_of(env):
+    """The batched task behind a TensegrityShape env / vector env / wrapper, or the task itself."""
+    for attr in ("task",):
+        if hasattr(env, attr):
+            return getattr(env, attr)
+    un = getattr(env, "unwrapped", None)
+    if un is not None and hasattr(un, "task"):
+        return un.task
+    raise TypeError(f"expected a TensegrityShape env, vector env or ShapeTask, got {type(env).__name__}")
+
+
+def nnls_force_densities(A: np.ndarray, b: np.ndarray, gamma_ref: np.ndarray | None = None,
+                         regularization: float = 1e-6) -> tuple[np.ndarray, float]:
+    """Force densities ``gamma >= 0`` (N/m) minimising ``|A gamma - b|^2 + mu |gamma - gamma_ref|^2``
+    with ``mu = regularization * |A|_F^2 / m`` (a tiny pull toward ``gamma_ref`` that picks a
+    solution where ``A`` is rank-deficient, e.g. at a self-stressed shape). Solved as one NNLS
+    problem (scipy's Lawson-Hanson). Returns ``(gamma, residual_norm of A gamma - b)``.
+    A: (r, m) generalized forces per unit force density (m); b: (r,) N."""
+    r, m = A.shape
+    mu = regularization * float(np.sum(A * A)) / max(m, 1)
+    if mu > 0:
+        ref = np.zeros(m) if gamma_ref is None else np.asarray(gamma_ref, float)
+        M = np.vstack([A, np.sqrt(mu) * np.eye(m)])
+        rhs = np.concatenate([b, np.sqrt(mu) * ref])
+    else:
+        M, rhs = A, b
+    g, _ = nnls(M, rhs, maxiter=50 * m)
+    return g, float(np.linalg.norm(A @ g - b))
+
+
+class NNLSShapeController:
+    """Model-based shape controller for ``TensegrityShape-v0`` (no learning).
+
+    The generalized forces of a class-1 tensegrity are linear in the string force densities
+    (Skelton & de Oliveira ch. 5): at the target shape ``R = A(q*) gamma + w(q*)`` with ``w``
+    the gravity load (:func:`tensegrity_gym.statics.equilibrium_matrix`). The controller
+
+    1. solves the NNLS problem ``min |A_act g + (A_pass gamma_pass + w)|, g >= 0`` for the
+       actuated strings' force densities ``g*`` that make the target an equilibrium (the
+       passive strings keep their elastic force densities at the target);
+    2. ``rest_length`` mode: commands the rest lengths ``l0 = L*(1 - g*/k)`` (``L*`` the target
+       string lengths) -- the elastic structure then settles on the target by itself;
+       ``force_density`` mode: adds PD feedback (the actuated strings have no stiffness of
+       their own): at the *current* shape it solves the NNLS problem for the generalized force
+       of nodal forces ``kp (target - x) - kd v`` (N) plus gravity compensation, pulled
+       toward ``g*``;
+    3. turns the desired control into an action: ``(desired - current) / (max rate * dt_c)``
+       clipped to [-1, 1] (the env's rate limit).
+
+    Parameters
+    ----------
+    env : the env (``gymnasium.make`` result), the vector env or the task: gives the action
+        scaling, the structure, the actuated and tracked strings/nodes.
+    kp : N/m, kd : N s/m -- feedback gains (force-density mode; also used in rest-length mode
+        if ``feedback=True``, through the string force densities).
+    regularization : relative Tikhonov weight of the feedforward NNLS toward the nominal force
+        densities (see :func:`nnls_force_densities`; tiny: only picks a solution where A is singular).
+    feedback_regularization : relative weight of the feedback NNLS toward the feedforward ``g*``
+        (keeps unrealizable components of the PD force from swinging the force densities).
+    feedback : use the PD feedback (default: in force-density mode only).
+    Defaults (kp 100 N/m, kd 20 N s/m, 1e-3) were tuned on 3 training seeds of the default prism.
+    """
+
+    def __init__(self, env, kp: float = 100.0, kd: float = 20.0, regularization: float = 1e-9,
+                 feedback_regularization: float = 1e-3, feedback: bool | None = None):
+        task = _task_of(env)
+        self.task = task
+        self.mode = task.action_mode
+        self.model = task.model
+        self.structure = task.structure
+        self.act = task.actuated
+        self.passive = np.setdiff1d(np.arange(self.structure.n_strings), self.act)
+        self.tracked = task.tracked
+        self.actuation = task.actuation
+        self.kp, self.kd = float(kp), float(kd)
+        self.regularization = float(regularization)
+        self.feedback_regularization = float(feedback_regularization)
+        self.feedback = (self.mode == "force_density") if feedback is None else bool(feedback)
+        self.gamma_ref = task.gamma_nominal[self.act]
+        self.nodes_fixed = task.nodes_nominal.copy()     # pinned nodes and anchors never move
+        layout = {name: sl for name, sl, _ in task.observation_layout()}
+        self._sl = layout
+        self._step = self.actuation.max_rate * self.actuation.control_dt
+
+    # ------------------------------------------------------------------ pieces
+    def _full_nodes(self, tracked_pos: np.ndarray) -> np.ndarray:
+        B = tracked_pos.shape[0]
+        N = np.tile(self.nodes_fixed, (B, 1, 1))
+        N[:, self.tracked] = tracked_pos
+        return N
+
+    def _passive_gamma(self, q: np.ndarray) -> np.ndarray:
+        _, L, _ = dyn.string_state(self.model, q)
+        s = self.structure
+        k, l0 = s.stiffness[self.passive], s.rest_length[self.passive]
+        Lp = L[:, self.passive]
+        return np.where(Lp > l0, k * (Lp - l0) / np.where(Lp > 0, Lp, 1.0), 0.0), L
+
+    def _solve(self, q: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray:
+        """(B, na) force densities of the actuated strings putting generalized force ``extra`` (B, nx)
+        (default 0) on configuration ``q``."""
+        A, w = statics.equilibrium_matrix(self.model, q)
+        gp, _ = self._passive_gamma(q)
+        out = np.zeros((q.shape[0], self.act.size))
+        for i in range(q.shape[0]):
+            rhs = -(w[i] + A[i][:, self.passive] @ gp[i])
+            if extra is not None:
+                rhs = rhs + extra[i]
+            g, _ = nnls_force_densities(A[i][:, self.act], rhs, self.gamma_ref, self.regularization)
+            out[i] = g
+        return out
+
+    def feedforward(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """NNLS force densities (B, na) N/m of the actuated strings at the target (B, nt, 3) and
+        the matching rest lengths (B, na) m."""
+        qt = dyn.initial_state(self.model, nodes=self._full_nodes(target)).q
+        g = self._solve(qt)
+        _, L = self._passive_gamma(qt)
+        k = self.structure.stiffness[self.act]
+        l0 = L[:, self.act] * (1.0 - g / k)
+        return g, l0
+
+    # ------------------------------------------------------------------ policy
+    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+        obs = np.asarray(obs, dtype=np.float64)
+        single = obs.ndim == 1
+        O = obs[None] if single else obs
+        B = O.shape[0]
+        nt = self.tracked.size
+        pos = O[:, self._sl["node_position"]].reshape(B, nt, 3)
+        vel = O[:, self._sl["node_velocity"]].reshape(B, nt, 3)
+        ctrl = O[:, self._sl["control"]]
+        target = O[:, self._sl["target_position"]].reshape(B, nt, 3)
+        g_t, l0_t = self.feedforward(target)
+        if self.feedback:
+            qc = dyn.initial_state(self.model, nodes=self._full_nodes(pos)).q
+            F = np.zeros((B, self.model.n_nodes, 3))
+            F[:, self.tracked] = self.kp * (target - pos) - self.kd * vel
+            rc = statics.ReducedCoordinates(self.model)
+            extra = rc.project_forces(qc, F)
+            # pull toward the feedforward solution instead of the nominal one
+            ref, self.gamma_ref = self.gamma_ref, None
+            try:
+                A, w = statics.equilibrium_matrix(self.model, qc)
+                gp, Lc = self._passive_gamma(qc)
+                g = np.zeros((B, self.act.size))
+                for i in range(B):
+                    rhs = -(w[i] + A[i][:, self.passive] @ gp[i]) + extra[i]
+                    g[i], _ = nnls_force_densities(A[i][:, self.act], rhs, g_t[i], self.feedback_regularization)
+            finally:
+                self.gamma_ref = ref
+            if self.mode == "force_density":
+                desired = g
+            else:
+                k = self.structure.stiffness[self.act]
+                desired = Lc[:, self.act] * (1.0 - g / k)
+        else:
+            desired = g_t if self.mode == "force_density" else l0_t
+        desired = np.clip(desired, self.actuation.low, self.actuation.high)
+        action = np.clip((desired - ctrl) / self._step, -1.0, 1.0).astype(np.float32)
+        return (action[0] if single else action), state
+
+
+# ---------------------------------------------------------------------- TensegrityRoll-v0 gait
+class RollingGait:
+    """Open-loop periodic rest-length gait for ``TensegrityRoll-v0`` (default 3-bar prism, no learning).
+
+    Every string ``s`` of the prism has a symmetry index ``j`` (bottom string j, top string j
+    and vertical string j are carried into string j+1 of their kind by the prism's 3-fold
+    rotation) and a kind (bottom, top, vertical). Its target rest length is a travelling
+    contraction wave around the prism's axis::
+
+        x_s(t)  = t / period - direction * j / 3 - phase[kind]
+        l0_s(t) = l0_s^nominal * (1 - amplitude[kind] * ((1 - cos 2 pi x_s) / 2) ** sharpness)
+
+    so the strings of the side that is about to touch the ground shorten in turn, the centre
+    of mass is pulled past the edge of the support face and the prism rolls from side face to
+    side face. The action is the cable-speed command that moves each rest length toward its
+    target at the motor's limit: ``a = clip((l0_target - l0_current) / (max_cable_speed dt_c), -1, 1)``
+    (the current rest lengths are read from the observation's ``control`` block; the pattern
+    itself is open loop: it depends on time only). The default parameters were found offline by
+    a random search over the wave's parameters (amplitudes, phases, period, sharpness,
+    direction) on flat ground with friction 1: 128 random patterns scored by the distance
+    rolled along +x in 10 s, then three rounds of perturbing the best ones scored over 20, 40
+    and 100 s, and a final check of the five best over 8 reset seeds (100 s each); the chosen
+    pattern rolled 3.3-3.4 m in 100 s on every seed (0.034 m/s, 0.088 body lengths/s). The twisted (chiral) prism does not roll straight: its path curves slowly, and
+    the speed reported by ``scripts/eval_roll_baseline.py`` is the progress along +x.
+
+    ``predict(obs, state=None, episode_start=None, deterministic=True) -> (action, state)`` as a
+    Stable-Baselines3 model; ``state`` is the (B,) int array of control steps since the episode
+    start (pass it back in, as for SB3 recurrent policies; ``None`` = all episodes start now;
+    ``episode_start`` (B,) bool resets those counters).
+
+    Parameters
+    ----------
+    env : a ``TensegrityRoll-v0`` env / vector env / its task, ``action_mode="rest_length"``
+        with the default prism (9 strings, all actuated).
+    amplitude : (3,) relative contraction of the bottom, top and vertical strings (<= 1 - the
+        lower rest-length bound).
+    phase : (3,) phase offsets (cycles) of the three kinds.
+    period : s per cycle of the wave. direction : +1 or -1 (sense of the wave).
+    sharpness : exponent of the raised-cosine pulse (higher: shorter contractions).
+    """
+
+    DEFAULT = dict(amplitude=(0.361, 0.5, 0.5), phase=(0.202, 0.016, 0.974), period=2.4, direction=1,
+                   sharpness=1)
+
+    def __init__(self, env, amplitude=None, phase=None, period: float | None = None,
+                 direction: int | None = None, sharpness: float | None = None):
+        task = _task_of(env)
+        if getattr(task, "action_mode", None) != "rest_length":
+            raise ValueError("RollingGait: needs TensegrityRoll-v0 with action_mode='rest_length'")
+        s = task.structure
+        if s.n_bars != 3 or s.n_strings != 9 or task.actuated.size != 9:
+            raise ValueError("RollingGait: designed for the 3-bar prism with all 9 strings actuated "
+                             f"(got {s.n_bars} rods, {s.n_strings} strings, {task.actuated.size} actuated)")
+        d = self.DEFAULT
+        self.amplitude = np.asarray(d["amplitude"] if amplitude is None else amplitude, float)
+        self.phase = np.asarray(d["phase"] if phase is None else phase, float)
+        self.period = float(d["period"] if period is None else period)
+        self.direction = int(d["direction"] if direction is None else direction)
+        self.sharpness = float(d["sharpness"] if sharpness is None else sharpness)
+        if self.amplitude.shape != (3,) or self.phase.shape != (3,):
+            raise ValueError("RollingGait: amplitude and phase need 3 values (bottom, top, vertical strings)")
+        if not self.period > 0:
+            raise ValueError(f"RollingGait: period must be positive (s), got {period}")
+        self.task = task
+        self.actuation = task.actuation
+        self.nominal = self.actuation.nominal.copy()
+        self.control_dt = task.control_dt
+        self._step = self.actuation.max_rate * self.control_dt
+        self._sym = np.tile(np.arange(3), 3)          # symmetry index of each string
+        self._kind = np.repeat(np.arange(3), 3)       # 0 bottom, 1 top, 2 vertical
+        self._sl = {name: sl for name, sl, _ in task.observation_layout()}["control"]
+
+    def target(self, t) -> np.ndarray:
+        """(B, 9) target rest lengths (m) at times ``t`` (B,) s."""
+        t = np.atleast_1d(np.asarray(t, float))
+        x = t[:, None] / self.period - self.direction * self._sym[None, :] / 3.0 - self.phase[self._kind][None, :]
+        p = ((1.0 - np.cos(2.0 * np.pi * x)) / 2.0) ** self.sharpness
+        tgt = self.nominal[None, :] * (1.0 - self.amplitude[self._kind][None, :] * p)
+        return np.clip(tgt, self.actuation.low, self.actuation.high)
+
+    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+        obs = np.asarray(obs, dtype=np.float64)
+        single = obs.ndim == 1
+        O = obs[None] if single else obs
+        B = O.shape[0]
+        k = np.zeros(B, np.int64) if state is None else np.array(state, dtype=np.int64).reshape(B)
+        if episode_start is not None:
+            k = np.where(np.asarray(episode_start, bool).reshape(B), 0, k)
+        ctrl = O[:, self._sl]
+        tgt = self.target(k * self.control_dt)
+        action = np.clip((tgt - ctrl) / self._step, -1.0, 1.0).astype(np.float32)
+        return (action[0] if single else action), k + 1

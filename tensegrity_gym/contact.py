@@ -1,0 +1,423 @@
+"""Ground contact with Coulomb friction for the rods' end caps (optional physics module).
+
+Pure NumPy (plus an optional numba kernel for speed); never imports gymnasium. SI units:
+m, kg, s, N. Only scenes that model a ground create a :class:`GroundContact` and pay for it;
+the core dynamics (:mod:`tensegrity_gym.dynamics`) know nothing about contact: contact forces
+enter the equations of motion as external nodal forces ``W`` (the seed's (5.21)) through
+``integrators.step(..., external=W)``.
+
+Geometry: where a rod can touch the ground
+------------------------------------------
+The ground is the half-space ``z >= height`` (normal ``+z``). A rod is a capsule: a segment
+between its two nodes, swept by a sphere of radius ``radius`` (the end cap radius, m). The
+signed height of a point of the segment above the plane is *linear* along the segment, so
+its minimum is at one of the two ends: **the end caps (spheres of radius ``radius`` centred
+at the rod's nodes) are exactly where a capsule first touches a plane.** A prism or an
+icosahedron rolls from end cap to end cap, so this is the contact model real 3-bar and 6-bar
+robots (which have rubber end caps) need. A rod lying exactly flat touches along its whole
+length; the two end-cap contacts are then statically equivalent to that line contact for the
+normal force and for the net friction force (Coulomb friction is linear in the normal force
+and every point of a translating rod has the same velocity), so sliding and resting are
+exact. The one thing that differs is the friction *torque* about the vertical of a flat rod
+spinning in place (ends only: ``mu N l/2``; uniform line: ``mu N l/4``): documented
+limitation. Strings are massless and never touch the ground.
+
+Normal force (compliant, never pulling)
+---------------------------------------
+Penetration ``delta = height + radius - z_node`` (m), rate ``delta' = -v_z``. Hunt-Crossley::
+
+    F_n = max(0, k delta^e + min(k delta^e d, c_max) delta')       if delta > 0, else 0
+
+``k`` = ``stiffness`` (N/m^e), ``e`` = ``exponent`` (default 1: a linear spring, k in N/m;
+1.5 = Hertz for a sphere), ``d`` = ``damping`` (s/m). The damping force is proportional to the
+penetration, so the force is continuous at touch-down and lift-off (no impulse on impact and
+no sticky pull); ``max(0, .)`` forbids pulling. Coefficient of restitution for an impact at
+speed ``v``: about ``1 - 2 d v / 3`` for small ``d v`` (Hunt & Crossley 1975). ``c_max`` =
+``max_damping`` (default no cap) bounds the damping coefficient so that an explicit step stays
+stable in fast impacts (where ``k delta^e d`` grows with the penetration).
+
+Friction: Coulomb with a real stick phase
+-----------------------------------------
+Each contact carries an *anchor* (x, y on the ground, m): the point where the cap first
+touched (or last slipped to). A tangential spring-damper pulls the contact back to it::
+
+    xi   = p_t - anchor                                (tangential displacement, m)
+    F_t* = -k_t xi - c_t v_t                            (trial friction force, N)
+    stick: |F_t*| <= mu F_n  ->  F_t = F_t*             (anchor kept)
+    slip : otherwise         ->  F_t = mu F_n F_t*/|F_t*|, anchor slid to p_t + F_t/k_t
+
+so that after a slip the spring alone carries exactly ``mu F_n``. While the contact sticks the
+spring holds it at a bounded offset ``|xi| <= mu F_n / k_t``: **resting bodies do not creep**
+(a purely velocity-regularised friction law would let them creep at a speed proportional to
+the tangential load). While it slides the friction force is exactly ``mu F_n`` against the
+motion (the deceleration of a sliding body is ``mu g``). The anchor is forgotten when the
+cap leaves the ground. ``k_t`` = ``tangential_stiffness`` (N/m), ``c_t`` =
+``tangential_damping`` (N s/m).
+
+Application point. The contact force is applied at the node (the cap's centre) and the
+contact velocity is the node's velocity, so the power of the contact force is exactly
+``F . v_node``: with the stored spring energies (:func:`contact_energy`) the total energy can
+only decrease (checked in ``tests/test_contact.py``). This neglects the couple
+``radius x F_t`` of friction about the cap's centre, a relative error of order
+``radius / rod length`` on the friction's moment on a rod (about 5% for the default
+TensegrityRoll-v0 robot: 2 cm caps on 0.38 m rods).
+
+Coupling with the integrator
+----------------------------
+Contact forces are computed once per physics step from the state at the start of the step
+and held over it (``external=W``): :func:`step` calls :func:`contact_forces` then
+``integrators.step(..., external=W, n_steps=1)`` once per step for the whole batch. For
+``semi_implicit_euler`` this is *exactly* the method applied to the full force (it evaluates
+all forces at the start of the step anyway); for ``rk4`` it is a zero-order hold (first order
+in the contact force), so use ``semi_implicit_euler`` with contact. The anchors (stick/slip
+state) are updated at the same time, once per step, which is what makes the state
+(``ContactState``) a discrete-time state carried by the environment between steps.
+
+Stable time step
+----------------
+A contact adds a stiffness ``k`` (normal, e = 1) and ``k_t`` (tangential) to the node it acts
+on. The smallest effective mass of a rod end is ``m/4`` (a transverse force at the end of a
+uniform rod: ``1/(1/m + (l/2)^2/J)``), so the contact frequency is
+``omega_c = sqrt(k / (m/4))`` and semi-implicit Euler needs ``dt < 2/omega_c`` (less with
+damping: :func:`stable_step`). For the defaults (k = k_t = 1e4 N/m) on the 0.2 kg rods of the
+TensegrityRoll-v0 prism: ``omega_c`` = 447 rad/s, with the strings 509 rad/s, estimated limit
+2.5 ms with damping; measured: stable at 2 ms, unstable at 3 ms. TensegrityRoll-v0 steps at
+1 ms (see ``docs/contact.md``).
+
+State and shapes
+----------------
+``n_c`` contacts = 2 k (both ends of every rod, in the order rod 0 end a, rod 0 end c, rod 1
+end a, ...). :class:`ContactState` holds ``anchor`` (B, n_c, 2) in m and ``active`` (B, n_c)
+bool; :func:`contact_forces` returns ``W`` (B, n, 3) in N and the new state.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import dynamics as dyn
+from . import integrators
+
+__all__ = ["GroundContact", "ContactState", "init_contact_state", "contact_forces", "forces_inplace",
+           "contact_energy",
+           "stable_step", "step", "contact_nodes"]
+
+try:  # optional compiled kernel
+    from numba import njit
+    _NUMBA = True
+except Exception:  # pragma: no cover
+    _NUMBA = False
+
+
+def _positive(v, name, unit, allow_zero=False):
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number ({unit}), got {v!r}") from None
+    if not math.isfinite(x) or x < 0 or (x == 0 and not allow_zero):
+        raise ValueError(f"{name}: must be {'>= 0' if allow_zero else 'positive'} and finite ({unit}), got {v!r}")
+    return x
+
+
+@dataclass(frozen=True)
+class GroundContact:
+    """Parameters of the ground half-space ``z >= height`` and the end caps (SI units).
+
+    Parameters
+    ----------
+    stiffness : normal stiffness k, N/m^exponent (default 1e4 N/m).
+    damping : Hunt-Crossley damping d, s/m (default 10 s/m): F_n = k delta^e (1 + d delta').
+    exponent : e >= 1 (1 = linear spring, 1.5 = Hertz sphere).
+    friction : Coulomb coefficient mu >= 0 (default 1.0, rubber caps on a floor).
+    tangential_stiffness : k_t, N/m (default: ``stiffness``).
+    tangential_damping : c_t, N s/m (default 10 N s/m).
+    radius : end-cap radius, m (default 0.02).
+    height : ground height, m (default 0).
+    max_damping : cap on the normal damping coefficient ``k delta^e d``, N s/m (default inf).
+        An explicit step is unstable once ``c dt / m_eff > 2``; in a fast impact the
+        Hunt-Crossley coefficient grows with the penetration, so envs cap it at
+        ``m_eff / dt`` (TensegrityRoll-v0: 50 N s/m for 0.2 kg rods at 1 ms).
+    backend : "auto" (numba when installed), "numpy" or "numba".
+    """
+
+    stiffness: float = 1e4
+    damping: float = 10.0
+    exponent: float = 1.0
+    friction: float = 1.0
+    tangential_stiffness: float | None = None
+    tangential_damping: float = 10.0
+    radius: float = 0.02
+    height: float = 0.0
+    max_damping: float = math.inf
+    backend: str = "auto"
+
+    def __post_init__(self):
+        s = object.__setattr__
+        s(self, "stiffness", _positive(self.stiffness, "stiffness", "N/m^exponent"))
+        s(self, "damping", _positive(self.damping, "damping", "s/m", allow_zero=True))
+        e = _positive(self.exponent, "exponent", "1")
+        if e < 1:
+            raise ValueError(f"exponent: must be >= 1 (1 linear, 1.5 Hertz), got {self.exponent!r}")
+        s(self, "exponent", e)
+        s(self, "friction", _positive(self.friction, "friction", "1", allow_zero=True))
+        kt = self.stiffness if self.tangential_stiffness is None else self.tangential_stiffness
+        s(self, "tangential_stiffness", _positive(kt, "tangential_stiffness", "N/m"))
+        s(self, "tangential_damping", _positive(self.tangential_damping, "tangential_damping", "N s/m",
+                                                allow_zero=True))
+        s(self, "radius", _positive(self.radius, "radius", "m", allow_zero=True))
+        try:
+            h = float(self.height)
+        except (TypeError, ValueError):
+            raise ValueError(f"height: expected a number (m), got {self.height!r}") from None
+        if not math.isfinite(h):
+            raise ValueError(f"height: must be finite (m), got {self.height!r}")
+        s(self, "height", h)
+        if self.backend not in ("auto", "numpy", "numba"):
+            raise ValueError(f"backend: unknown {self.backend!r}; choose 'auto', 'numpy' or 'numba'")
+        if self.backend == "numba" and not _NUMBA:
+            raise RuntimeError("backend='numba' requested but numba is not installed")
+        cmax = float(self.max_damping)
+        if not cmax > 0:   # NaN or <= 0
+            raise ValueError(f"max_damping: must be positive (N s/m; inf = no cap), got {self.max_damping!r}")
+        s(self, "max_damping", cmax)
+        prm = np.array([self.height, self.radius, self.stiffness, self.damping, self.exponent, self.friction,
+                        self.tangential_stiffness, self.tangential_damping, cmax], float)
+        prm.setflags(write=False)
+        s(self, "_prm", prm)
+        s(self, "_numba", self.backend == "numba" or (self.backend == "auto" and _NUMBA))
+
+    def replace(self, **kw) -> "GroundContact":
+        return replace(self, **kw)
+
+    @property
+    def use_numba(self) -> bool:
+        return self.backend == "numba" or (self.backend == "auto" and _NUMBA)
+
+
+@dataclass(frozen=True, eq=False)
+class ContactState:
+    """Stick/slip state of B x n_c contacts: ``anchor`` (B, n_c, 2) m, ``active`` (B, n_c) bool."""
+
+    anchor: np.ndarray
+    active: np.ndarray
+
+    def copy(self) -> "ContactState":
+        return ContactState(self.anchor.copy(), self.active.copy())
+
+
+def contact_nodes(model: dyn.Model) -> np.ndarray:
+    """(n_c,) node index of each contact: rod 0 node a, rod 0 node c, rod 1 node a, ..."""
+    return np.stack([model.rod_a, model.rod_c], axis=1).reshape(-1)
+
+
+def init_contact_state(model: dyn.Model, batch_size: int = 1) -> ContactState:
+    """No contact active, anchors zero."""
+    nc = 2 * model.n_bars
+    return ContactState(np.zeros((batch_size, nc, 2)), np.zeros((batch_size, nc), bool))
+
+
+# ---------------------------------------------------------------------- NumPy reference
+def _forces_numpy(c: GroundContact, model, q, qd, anchor, active):
+    B = q.shape[0]
+    k = model.n_bars
+    r, b = q[..., :3], q[..., 3:]
+    rd, bd = qd[..., :3], qd[..., 3:]
+    eta = model.eta  # (k, 2)
+    # contact positions / velocities (B, k, 2, 3) -> (B, 2k, 3), order rod j end a, end c
+    P = (r[:, :, None, :] + eta[None, :, :, None] * b[:, :, None, :]).reshape(B, 2 * k, 3)
+    V = (rd[:, :, None, :] + eta[None, :, :, None] * bd[:, :, None, :]).reshape(B, 2 * k, 3)
+    delta = c.height + c.radius - P[..., 2]
+    touch = delta > 0.0
+    dpos = np.where(touch, delta, 0.0)
+    de = dpos if c.exponent == 1.0 else dpos ** c.exponent
+    kd = c.stiffness * de
+    cn = np.minimum(kd * c.damping, c.max_damping)
+    Fn = np.where(touch, np.maximum(kd - cn * V[..., 2], 0.0), 0.0)
+    pt = P[..., :2]
+    anchor = np.where((touch & ~active)[..., None], pt, anchor)
+    xi = pt - anchor
+    Ft = -c.tangential_stiffness * xi - c.tangential_damping * V[..., :2]
+    norm = np.sqrt(np.einsum("bci,bci->bc", Ft, Ft))
+    lim = c.friction * Fn
+    slip = touch & (norm > lim)
+    scale = np.where(slip, lim / np.where(slip, norm, 1.0), 1.0)
+    Ft = Ft * scale[..., None]
+    anchor = np.where(slip[..., None], pt + Ft / c.tangential_stiffness, anchor)
+    Ft = np.where(touch[..., None], Ft, 0.0)
+    Fc = np.concatenate([Ft, Fn[..., None]], axis=-1)  # (B, 2k, 3)
+    W = np.zeros((B, model.n_nodes, 3))
+    W[:, model.rod_a] = Fc[:, 0::2]
+    W[:, model.rod_c] = Fc[:, 1::2]
+    return W, anchor, touch, slip
+
+
+if _NUMBA:
+    @njit(cache=True, nogil=True)
+    def _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm):
+        height, radius, kn, dn, ex, mu, kt, ct = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6], prm[7]
+        cmax = prm[8]
+        B, k = q.shape[0], q.shape[1]
+        for e in range(B):
+            for p in range(W.shape[1]):
+                W[e, p, 0] = 0.0
+                W[e, p, 1] = 0.0
+                W[e, p, 2] = 0.0
+            for j in range(k):
+                for end in range(2):
+                    ci = 2 * j + end
+                    h = eta[j, end]
+                    node = rod_a[j] if end == 0 else rod_c[j]
+                    px = q[e, j, 0] + h * q[e, j, 3]
+                    py = q[e, j, 1] + h * q[e, j, 4]
+                    pz = q[e, j, 2] + h * q[e, j, 5]
+                    delta = height + radius - pz
+                    if not (delta > 0.0):
+                        active[e, ci] = False
+                        slip[e, ci] = False
+                        continue
+                    vx = qd[e, j, 0] + h * qd[e, j, 3]
+                    vy = qd[e, j, 1] + h * qd[e, j, 4]
+                    vz = qd[e, j, 2] + h * qd[e, j, 5]
+                    de = delta if ex == 1.0 else delta ** ex
+                    fs = kn * de
+                    cn = fs * dn
+                    if cn > cmax:
+                        cn = cmax
+                    fn = fs - cn * vz
+                    if fn < 0.0:
+                        fn = 0.0
+                    if not active[e, ci]:
+                        anchor[e, ci, 0] = px
+                        anchor[e, ci, 1] = py
+                    fx = -kt * (px - anchor[e, ci, 0]) - ct * vx
+                    fy = -kt * (py - anchor[e, ci, 1]) - ct * vy
+                    nrm = math.sqrt(fx * fx + fy * fy)
+                    lim = mu * fn
+                    if nrm > lim:
+                        s = lim / nrm
+                        fx *= s
+                        fy *= s
+                        anchor[e, ci, 0] = px + fx / kt
+                        anchor[e, ci, 1] = py + fy / kt
+                        slip[e, ci] = True
+                    else:
+                        slip[e, ci] = False
+                    active[e, ci] = True
+                    W[e, node, 0] += fx
+                    W[e, node, 1] += fy
+                    W[e, node, 2] += fn
+
+
+def contact_forces(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: np.ndarray,
+                   cstate: ContactState, out: np.ndarray | None = None, inplace: bool = False):
+    """Contact forces at the state ``q``, ``qd`` (B, k, 6) and the updated stick/slip state.
+
+    Returns ``(W, new_state, slip)``: ``W`` (B, n, 3) nodal forces in N (normal along +z,
+    friction in x, y), ``new_state`` a :class:`ContactState` (anchors moved on slip, set on
+    touch-down; ``active`` = cap below ``height + radius``) and ``slip`` (B, n_c) bool.
+    With ``inplace=True`` the arrays of ``cstate`` are updated in place (and returned) and
+    ``out`` (B, n, 3) is reused for ``W`` (see :func:`forces_inplace` for the fastest path)."""
+    B = q.shape[0]
+    nc = 2 * model.n_bars
+    if cstate.anchor.shape != (B, nc, 2) or cstate.active.shape != (B, nc):
+        raise ValueError(f"contact state: expected anchor ({B}, {nc}, 2) and active ({B}, {nc}), got "
+                         f"{cstate.anchor.shape} and {cstate.active.shape}")
+    if contact.use_numba:
+        anchor = cstate.anchor if inplace else cstate.anchor.copy()
+        active = cstate.active if inplace else cstate.active.copy()
+        W = out if out is not None else np.empty((B, model.n_nodes, 3))
+        slip = np.empty((B, nc), bool)
+        qc = np.ascontiguousarray(q, dtype=np.float64)
+        qdc = np.ascontiguousarray(qd, dtype=np.float64)
+        _forces_kernel(qc, qdc, model.eta, model.rod_a, model.rod_c, anchor, active, W, slip, contact._prm)
+        return W, (cstate if inplace else ContactState(anchor, active)), slip
+    W, anchor, active, slip = _forces_numpy(contact, model, q, qd, cstate.anchor, cstate.active)
+    if inplace:
+        cstate.anchor[...] = anchor
+        cstate.active[...] = active
+        if out is not None:
+            out[...] = W
+            W = out
+        return W, cstate, slip
+    return W, ContactState(anchor, active), slip
+
+
+def forces_inplace(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: np.ndarray,
+                   cstate: ContactState, W: np.ndarray, slip: np.ndarray) -> None:
+    """Allocation-free :func:`contact_forces` for environments that own their arrays: writes the
+    forces into ``W`` (B, n, 3), the slip flags into ``slip`` (B, n_c) bool and updates ``cstate``
+    in place. ``q``, ``qd``: C-contiguous float64 (B, k, 6). Shapes are the caller's duty."""
+    if contact._numba:
+        _forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, cstate.anchor, cstate.active, W, slip,
+                       contact._prm)
+        return
+    Wn, anchor, active, sl = _forces_numpy(contact, model, q, qd, cstate.anchor, cstate.active)
+    W[...] = Wn
+    cstate.anchor[...] = anchor
+    cstate.active[...] = active
+    slip[...] = sl
+
+
+def contact_energy(contact: GroundContact, model: dyn.Model, q: np.ndarray, cstate: ContactState) -> np.ndarray:
+    """(B,) energy stored in the contact springs, J: normal ``k delta^(e+1)/(e+1)`` plus
+    tangential ``k_t |xi|^2 / 2`` of the active contacts (anchors from ``cstate``)."""
+    B, k = q.shape[0], model.n_bars
+    r, b = q[..., :3], q[..., 3:]
+    P = (r[:, :, None, :] + model.eta[None, :, :, None] * b[:, :, None, :]).reshape(B, 2 * k, 3)
+    delta = np.maximum(contact.height + contact.radius - P[..., 2], 0.0)
+    e = contact.exponent
+    En = contact.stiffness * delta ** (e + 1) / (e + 1)
+    xi = np.where(cstate.active[..., None], P[..., :2] - cstate.anchor, 0.0)
+    Et = 0.5 * contact.tangential_stiffness * np.einsum("bci,bci->bc", xi, xi)
+    return (En + np.where(delta > 0, Et, 0.0)).sum(axis=1)
+
+
+def stable_step(contact: GroundContact, model: dyn.Model) -> dict:
+    """Stability estimate (s) of semi-implicit Euler with ground contact.
+
+    ``omega_c = sqrt(max(k, k_t) / (m_min/4))`` (m_min the lightest rod: the effective mass of a
+    rod end under a transverse force is m/4), combined with the strings' highest frequency
+    ``omega_s`` (:func:`tensegrity_gym.integrators.stability_limit`) as
+    ``omega = sqrt(omega_c^2 + omega_s^2)``. Damping lowers the limit of an explicit method:
+    for a damped oscillator semi-implicit Euler needs ``omega dt < 2 (sqrt(1 + zeta^2) - zeta)``,
+    with ``zeta = c / (2 sqrt(k m_eff))`` and ``c`` the larger of the tangential damping ``c_t``
+    and the Hunt-Crossley damping at rest ``d k delta_rest`` (``delta_rest`` the penetration
+    under a third of the weight per contact). For exponent > 1 the stiffness is the tangent
+    stiffness at ``delta_rest``. Returns ``{"omega_contact", "omega_strings", "omega", "zeta",
+    "undamped": 2/omega, "semi_implicit_euler": damped limit}`` (rad/s, 1, s).
+    For the defaults on the TensegrityRoll-v0 prism (0.2 kg rods): 447, 243, 509 rad/s,
+    zeta 0.45, limit 2.5 ms; measured: stable at 2 ms, unstable at 3 ms (docs/contact.md)."""
+    g = 9.81 if model.gravity is None else float(np.linalg.norm(model.gravity))
+    w = max(model.mass.sum() * g / 3.0, 1e-9)        # N per contact, three caps carrying the weight
+    e = contact.exponent
+    d_rest = float((w / contact.stiffness) ** (1.0 / e))
+    kn = e * contact.stiffness * d_rest ** (e - 1.0)
+    k = max(kn, contact.tangential_stiffness)
+    m_eff = float(model.mass.min()) / 4.0
+    oc = math.sqrt(k / m_eff)
+    c = max(contact.tangential_damping, min(contact.damping * contact.stiffness * d_rest ** e, contact.max_damping))
+    zeta = float(c / (2.0 * math.sqrt(k * m_eff)))
+    os_ = integrators.stability_limit(model)["omega_max"]
+    os_ = 0.0 if not math.isfinite(os_) else os_
+    om = math.sqrt(oc * oc + os_ * os_)
+    return {"omega_contact": oc, "omega_strings": os_, "omega": om, "zeta": zeta, "undamped": 2.0 / om,
+            "semi_implicit_euler": 2.0 * (math.sqrt(1.0 + zeta * zeta) - zeta) / om}
+
+
+def step(model: dyn.Model, contact: GroundContact, state: dyn.State, cstate: ContactState, dt: float,
+         integrator: str = "semi_implicit_euler", n_steps: int = 1, external=None, **inputs):
+    """``n_steps`` physics steps with ground contact: per step, contact forces from the state
+    at its start (batched, :func:`contact_forces`) then ONE ``integrators.step(n_steps=1,
+    external=W + external)`` for the whole batch. ``external``: optional (B, n, 3) extra nodal
+    forces, N, held over every step. ``inputs``: ``rest_length`` / ``force_density`` /
+    ``backend`` / ``project`` as :func:`tensegrity_gym.integrators.step` takes them.
+    Returns ``(state, cstate)`` (new objects; the inputs are not modified)."""
+    cs = cstate.copy()
+    for _ in range(int(n_steps)):
+        W, cs, _ = contact_forces(contact, model, state.q, state.qd, cs, inplace=True)
+        if external is not None:
+            W = W + external
+        state = integrators.step(model, state, dt, integrator, external=W, n_steps=1, **inputs)
+    return state, cs

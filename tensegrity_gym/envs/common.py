@@ -1,0 +1,672 @@
+"""Machinery shared by the tensegrity environments (structure-agnostic). SI units throughout.
+
+Design (brax / dm_control style): every environment is a **batched task** -- one object that
+holds the physics state of B copies of a scene (arrays with a leading batch axis) and
+implements reset of selected copies, actions, one batched physics call per control step,
+observations, reward terms and success. Two thin shells wrap the same task:
+
+* :class:`TaskEnv` (``gymnasium.Env``) -- the task with B = 1;
+* :class:`TaskVectorEnv` (``gymnasium.vector.VectorEnv``) -- the task with B = ``num_envs``,
+  Gymnasium 1.x next-step autoreset, per-env seeding, time limit from the registration;
+* :func:`make_sb3_vec_env` -- an adapter that lets Stable-Baselines3 train on a
+  ``gymnasium.vector.VectorEnv`` directly (SB3 imported lazily).
+
+So the single env and the vector env run one implementation, and a vector env seeded with
+``seed`` reproduces N single envs seeded with ``seed + i``.
+
+Contents
+--------
+``check_action(action, shape, clip=True)``
+    Validates an action: shape, NaN/inf (``ValueError`` naming the index), then clips to
+    [-1, 1] (the Box contract, documented in each env) or, with ``clip=False``, raises on
+    entries outside it (beyond 1e-6).
+``Actuation``
+    The actuation model of a set of strings, batched: ``mode`` ``"rest_length"`` (control:
+    rest lengths, m, changed at most ``max_rate`` m/s, kept within [``low``, ``high``]) or
+    ``"force_density"`` (control: force densities of active strings, N/m, changed at most
+    ``max_rate`` N/(m s), within [``low`` >= 0, ``high``]). ``apply(ctrl, action)`` maps an
+    action in [-1, 1] to the new control; ``physics_inputs(ctrl)`` gives the
+    ``rest_length=`` / ``force_density=`` arrays (B, m) for :func:`tensegrity_gym.integrators.step`.
+``BatchedTask``
+    Base class of a task: owns ``model``, ``integrator``, ``dt``, ``frame_skip``, ``backend``,
+    the batched ``q``, ``qd`` (B, k, 6) and ``elapsed`` (B,) control steps. Subclasses implement
+    ``reset_idx``, ``step``, ``observe``, ``render_data``; :meth:`BatchedTask.simulate` runs one
+    control step of physics for the whole batch (ONE call of ``integrators.step`` with
+    ``n_steps=frame_skip``, or one call per substep when a ``substep_external(q, qd)`` force
+    such as drag or contact must be re-evaluated every substep) and handles divergence.
+``TaskEnv``, ``TaskVectorEnv``, ``make_sb3_vec_env``: the shells described above.
+
+Divergence
+----------
+After each control step, a copy whose state is non-finite or has a node farther than
+``divergence_limit`` m from the structure's initial centre is *diverged*: its state is put
+back to the last finite one (so observations stay finite; a NaN is never passed on), the env
+reports ``info["diverged"] = True`` and truncates the episode. The vector env autoresets it.
+
+Info conventions
+----------------
+A task's ``step`` returns ``(reward_terms, terminated, infos)`` with ``reward_terms`` a dict of
+(B,) arrays (the reward is their sum, each also reported as ``info["reward_<name>"]``) and
+``infos`` a dict of (B,) arrays. The single env turns them into Python scalars; the vector
+env returns Gymnasium's vector info dict (arrays plus ``"_<key>"`` masks).
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+import gymnasium as gym
+from gymnasium import spaces
+from gymnasium.utils import seeding
+
+from .. import integrators
+from .. import dynamics as dyn
+from ..rewards import combine
+
+__all__ = ["ACTION_MODES", "check_action", "check_positive", "Actuation", "BatchedTask", "TaskEnv",
+           "TaskVectorEnv", "make_sb3_vec_env", "resolve_actuated", "registered_max_episode_steps"]
+
+ACTION_MODES = ("rest_length", "force_density")
+ACTION_TOL = 1e-6
+
+
+# ---------------------------------------------------------------------- input checks
+def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -> float:
+    """``float(value)`` if finite and > 0 (>= 0 with ``allow_zero``), else ValueError naming ``name``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number{' in ' + unit if unit else ''}, got {value!r}") from None
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise ValueError(f"{name}: must be {'>= 0' if allow_zero else 'positive'} and finite"
+                         f"{' (' + unit + ')' if unit else ''}, got {value!r}")
+    return v
+
+
+def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
+    """Validate an action and return it as a float64 array of ``shape``.
+
+    * wrong shape -> ValueError;
+    * NaN or inf -> ValueError naming the (first) offending index;
+    * entries outside [-1, 1]: clipped to the box if ``clip`` (the documented Box contract,
+      like Gymnasium's MuJoCo envs whose actuators saturate), else ValueError naming the
+      index when beyond 1e-6 of the bounds.
+    """
+    try:
+        a = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected an array of numbers with shape {shape}, got {action!r}") from None
+    if a.shape != tuple(shape):
+        if a.size == int(np.prod(shape)) and a.ndim <= 1 and len(shape) == 1:
+            a = a.reshape(shape)
+        else:
+            raise ValueError(f"{name}: expected shape {tuple(shape)}, got {a.shape}")
+    finite = np.isfinite(a)
+    if not finite.all():
+        idx = tuple(int(i) for i in np.argwhere(~finite)[0])
+        idx_s = idx[0] if len(idx) == 1 else idx
+        raise ValueError(f"{name}: entry {idx_s} is {a[idx]!r}; actions must be finite numbers in [-1, 1]")
+    if clip:
+        return np.clip(a, -1.0, 1.0)
+    bad = np.abs(a) > 1.0 + ACTION_TOL
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        idx_s = idx[0] if len(idx) == 1 else idx
+        raise ValueError(f"{name}: entry {idx_s} is {a[idx]:.6g}, outside the action space [-1, 1] "
+                         "(construct the env with clip_actions=True to saturate instead)")
+    return np.clip(a, -1.0, 1.0)
+
+
+def resolve_actuated(actuated, n_strings: int) -> np.ndarray:
+    """Sorted unique string indices from ``None`` (all), an int list or a bool mask; errors name the index."""
+    if actuated is None:
+        return np.arange(n_strings)
+    arr = np.asarray(actuated)
+    if arr.dtype == bool:
+        if arr.shape != (n_strings,):
+            raise ValueError(f"actuated: a boolean mask needs {n_strings} entries (one per string), got {arr.shape}")
+        arr = np.flatnonzero(arr)
+    else:
+        arr = arr.reshape(-1)
+        if arr.size and (not np.issubdtype(arr.dtype, np.integer)):
+            if not np.all(np.asarray(arr, float) == np.round(np.asarray(arr, float))):
+                raise ValueError(f"actuated: string indices must be integers, got {actuated!r}")
+            arr = arr.astype(int)
+        for i in arr:
+            if not 0 <= int(i) < n_strings:
+                raise ValueError(f"actuated: string {int(i)} does not exist (there are {n_strings} strings)")
+        if len(set(arr.tolist())) != arr.size:
+            raise ValueError(f"actuated: duplicate string indices in {arr.tolist()}")
+        arr = np.sort(arr.astype(int))
+    if arr.size == 0:
+        raise ValueError("actuated: at least one string must be actuated")
+    return arr
+
+
+# ---------------------------------------------------------------------- actuation
+class Actuation:
+    """Batched actuation of ``na`` strings (SI units).
+
+    Parameters
+    ----------
+    mode : ``"rest_length"`` or ``"force_density"``.
+    actuated : (na,) indices of the actuated strings.
+    low, high : (na,) control bounds: m (rest length) or N/m (force density, ``low`` >= 0).
+    max_rate : (na,) largest change of the control per second: m/s or N/(m s).
+    control_dt : s, the duration of one control step (``dt * frame_skip``).
+    base_rest_length : (m,) rest lengths of all strings (the non-actuated ones keep them), m.
+    nominal : (na,) control at the start of an episode.
+
+    An action ``a`` in [-1, 1]^na changes the control by ``a * max_rate * control_dt`` per
+    control step, then the control is clipped to [``low``, ``high``].
+    """
+
+    def __init__(self, mode: str, actuated, low, high, max_rate, control_dt: float, base_rest_length,
+                 nominal):
+        if mode not in ACTION_MODES:
+            raise ValueError(f"action_mode: unknown {mode!r}; choose one of {ACTION_MODES}")
+        self.mode = mode
+        self.actuated = np.asarray(actuated, dtype=int)
+        na = self.actuated.size
+        self.base_rest_length = np.asarray(base_rest_length, float).copy()
+        self.n_strings = self.base_rest_length.size
+
+        def per(x, nm):
+            arr = np.broadcast_to(np.asarray(x, float), (na,)).copy()
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"{nm}: non-finite value(s) {arr.tolist()}")
+            return arr
+        self.low, self.high = per(low, "low"), per(high, "high")
+        self.max_rate = per(max_rate, "max_rate")
+        self.nominal = np.clip(per(nominal, "nominal"), self.low, self.high)
+        self.control_dt = check_positive(control_dt, "control_dt", "s")
+        unit = "m" if mode == "rest_length" else "N/m"
+        for i in range(na):
+            s = int(self.actuated[i])
+            if self.low[i] > self.high[i]:
+                raise ValueError(f"bounds of actuated string {s}: lower {self.low[i]:.6g} {unit} is above "
+                                 f"upper {self.high[i]:.6g} {unit}")
+            if self.low[i] < 0:
+                raise ValueError(f"bounds of actuated string {s}: lower bound {self.low[i]:.6g} {unit} is negative")
+            if self.max_rate[i] <= 0:
+                raise ValueError(f"max rate of actuated string {s}: {self.max_rate[i]:.6g} {unit}/s must be positive")
+
+    @property
+    def size(self) -> int:
+        return int(self.actuated.size)
+
+    @property
+    def unit(self) -> str:
+        return "m" if self.mode == "rest_length" else "N/m"
+
+    def apply(self, ctrl: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """New control (B, na) from the current control (B, na) and an action in [-1, 1] (B, na)."""
+        return np.clip(ctrl + action * (self.max_rate * self.control_dt), self.low, self.high)
+
+    def physics_inputs(self, ctrl: np.ndarray) -> dict:
+        """Keyword arguments ``rest_length`` / ``force_density`` (B, m) for ``integrators.step``."""
+        B = ctrl.shape[0]
+        if self.mode == "rest_length":
+            rl = np.empty((B, self.n_strings))
+            rl[:] = self.base_rest_length
+            rl[:, self.actuated] = ctrl
+            return {"rest_length": rl}
+        fd = np.zeros((B, self.n_strings))
+        fd[:, self.actuated] = ctrl
+        return {"rest_length": None, "force_density": fd}
+
+    def describe(self) -> str:
+        return (f"{self.mode}: strings {self.actuated.tolist()}, bounds [{self.low.min():.4g}, "
+                f"{self.high.max():.4g}] {self.unit}, max rate {self.max_rate.max():.4g} {self.unit}/s")
+
+
+# ---------------------------------------------------------------------- batched task base
+class BatchedTask:
+    """Base class of a batched task on B copies of one compiled structure.
+
+    Subclasses set in ``__init__`` (after calling :meth:`_init_physics`): ``action_size``,
+    ``observation_size``, ``obs_low``/``obs_high`` (optional, default +-inf) and implement
+
+    * ``reset_idx(idx (r,) int array, rngs: list of r np.random.Generator, options) -> dict``
+      of reset infos ((r,) arrays) -- all randomness of copy ``idx[j]`` from ``rngs[j]``,
+      drawn in a per-copy order so that B copies equal B single tasks;
+    * ``step(action (B, na) validated) -> (terms: dict of (B,), terminated (B,) bool, infos)``
+      which must call :meth:`simulate` exactly once;
+    * ``observe() -> (B, obs_size) float32``;
+    * ``render_data(i) -> dict`` of keyword arguments for :meth:`tensegrity_gym.rendering.Renderer.render`
+      (``nodes``, ``rods``, ``strings``, ``tensions``, ``targets``, ``ground_z``, ``path``, ``goal``, ``caption``).
+    """
+
+    action_size: int
+    observation_size: int
+
+    def _init_physics(self, model: dyn.Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
+                      backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
+        if int(num_envs) != num_envs or num_envs < 1:
+            raise ValueError(f"num_envs: must be a positive integer, got {num_envs}")
+        self.num_envs = int(num_envs)
+        self.model = model
+        self.integrator = integrators.resolve(integrator).name
+        if integrators.INTEGRATORS[self.integrator].adaptive:
+            raise ValueError(f"integrator: {integrator!r} is adaptive; envs need a fixed-step method "
+                             f"({[k for k, v in integrators.INTEGRATORS.items() if not v.adaptive]})")
+        self.dt = check_positive(dt, "dt", "s")
+        if int(frame_skip) != frame_skip or frame_skip < 1:
+            raise ValueError(f"frame_skip: must be a positive integer, got {frame_skip}")
+        self.frame_skip = int(frame_skip)
+        if backend not in ("auto", "numpy", "numba"):
+            raise ValueError(f"backend: unknown {backend!r}; choose 'auto', 'numpy' or 'numba'")
+        self.backend = backend
+        self.clip_actions = bool(clip_actions)
+        nodes0 = model.structure.nodes
+        self.center0 = nodes0.mean(axis=0)
+        size = float(np.max(np.linalg.norm(nodes0 - self.center0, axis=1)))
+        self.divergence_limit = (100.0 * max(size, 1e-3) if divergence_limit is None
+                                 else check_positive(divergence_limit, "divergence_limit", "m"))
+        B, k = self.num_envs, model.n_bars
+        st = dyn.initial_state(model, B)
+        self.q = st.q.copy()
+        self.qd = st.qd.copy()
+        self.elapsed = np.zeros(B, dtype=np.int64)
+
+    @property
+    def control_dt(self) -> float:
+        """Duration of one control step, s (``dt * frame_skip``)."""
+        return self.dt * self.frame_skip
+
+    def simulate(self, substep_external=None, **inputs) -> np.ndarray:
+        """Advance all B copies by one control step (``frame_skip`` steps of ``dt``).
+
+        ``inputs``: ``rest_length`` / ``force_density`` / ``external`` as
+        :func:`tensegrity_gym.integrators.step` takes them. Without ``substep_external`` this is
+        ONE call of ``integrators.step`` with ``n_steps=frame_skip`` for the whole batch. With
+        ``substep_external(q, qd) -> (B, n, 3)`` nodal forces (N; e.g. drag or contact), it is one
+        batched call per physics substep, the force evaluated at the substep's start and held
+        over it (what semi-implicit Euler does with velocity-dependent forces anyway).
+
+        Returns ``diverged`` (B,) bool (checked once per control step); diverged copies get
+        their pre-step state back (see the module doc). Increments ``elapsed``.
+        """
+        q0, qd0 = self.q, self.qd
+        with np.errstate(all="ignore"):
+            if substep_external is None:
+                st = integrators.step(self.model, dyn.State(q0, qd0, 0.0), self.dt, self.integrator,
+                                      n_steps=self.frame_skip, backend=self.backend, **inputs)
+            else:
+                st = dyn.State(q0, qd0, 0.0)
+                for _ in range(self.frame_skip):
+                    st = integrators.step(self.model, st, self.dt, self.integrator, backend=self.backend,
+                                          external=substep_external(st.q, st.qd), **inputs)
+            q, qd = np.asarray(st.q), np.asarray(st.qd)
+            # fast path: one reduction each for the whole batch; per-copy only when something is off
+            ok = np.isfinite(q.sum() + qd.sum()) and np.abs(q[..., :3] - self.center0).max() <= self.divergence_limit
+            if ok:
+                diverged = np.zeros(self.num_envs, bool)
+            else:
+                finite = np.isfinite(q).all(axis=(1, 2)) & np.isfinite(qd).all(axis=(1, 2))
+                far = ~(np.abs(np.where(np.isfinite(q[..., :3]), q[..., :3], 0.0) - self.center0).max(axis=(1, 2))
+                        <= self.divergence_limit)
+                diverged = ~finite | far
+        if diverged.any():
+            q = np.where(diverged[:, None, None], q0, q)
+            qd = np.where(diverged[:, None, None], qd0, qd)
+        self.q, self.qd = q, qd
+        self.elapsed += 1
+        return diverged
+
+    # -- to implement
+    def reset_idx(self, idx: np.ndarray, rngs: Sequence[np.random.Generator], options: dict | None = None) -> dict:
+        raise NotImplementedError
+
+    def step(self, action: np.ndarray):
+        raise NotImplementedError
+
+    def observe(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def render_data(self, i: int) -> dict:
+        raise NotImplementedError
+
+
+def _scalar(v):
+    v = np.asarray(v)
+    return v.item() if v.ndim == 0 else v
+
+
+# ---------------------------------------------------------------------- single env shell
+class TaskEnv(gym.Env):
+    """``gymnasium.Env`` shell around a :class:`BatchedTask` with B = 1.
+
+    Subclasses build their task and call ``self._init_task(task, render_mode, width, height)``.
+    ``step`` validates the action (:func:`check_action`), steps the task, returns
+    ``(obs, reward, terminated, truncated, info)`` with ``truncated = info["diverged"]`` (the
+    time limit is added at registration by ``gymnasium.make``'s ``TimeLimit``).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+
+    def _init_task(self, task: BatchedTask, render_mode: str | None, width: int = 480, height: int = 480,
+                   title: str | None = None):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode: unknown {render_mode!r}; choose one of {self.metadata['render_modes']} or None")
+        self.task = task
+        self.render_mode = render_mode
+        self.metadata = dict(self.metadata)
+        self.metadata["render_fps"] = int(round(1.0 / task.control_dt))
+        self.action_space = spaces.Box(-1.0, 1.0, (task.action_size,), np.float32)
+        low = getattr(task, "obs_low", None)
+        high = getattr(task, "obs_high", None)
+        self.observation_space = spaces.Box(
+            -np.inf if low is None else low.astype(np.float32),
+            np.inf if high is None else high.astype(np.float32), (task.observation_size,), np.float32)
+        self._width, self._height, self._title = int(width), int(height), title
+        self._renderer = None
+        self._needs_reset = True
+
+    @property
+    def dt(self) -> float:
+        """Control step, s (as Gymnasium's MuJoCo envs' ``dt``)."""
+        return self.task.control_dt
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        info = self.task.reset_idx(np.array([0]), [self.np_random], options)
+        self._needs_reset = False
+        obs = self.task.observe()[0]
+        if self.render_mode == "human":
+            self.render()
+        return obs, {k: _scalar(v[0]) for k, v in info.items()}
+
+    def step(self, action):
+        a = check_action(action, (self.task.action_size,), clip=self.task.clip_actions)
+        terms, terminated, infos = self.task.step(a[None, :])
+        reward = float(combine(terms)[0])
+        info = {k: _scalar(v[0]) for k, v in infos.items()}
+        for name, v in terms.items():
+            info[f"reward_{name}"] = float(v[0])
+        obs = self.task.observe()[0]
+        truncated = bool(info.get("diverged", False))
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, bool(terminated[0]), truncated, info
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; construct the env with "
+                            "render_mode='rgb_array' or 'human'")
+            return None
+        frame = self._frame(0)
+        if self.render_mode == "human":
+            self._renderer.show(frame, self.metadata["render_fps"])
+            return None
+        return frame
+
+    def _frame(self, i: int) -> np.ndarray:
+        from ..rendering import Renderer
+        if self._renderer is None:
+            self._renderer = Renderer(self._width, self._height, title=self._title)
+        return self._renderer.render(**self.task.render_data(i))
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+# ---------------------------------------------------------------------- vector env shell
+def registered_max_episode_steps(env_id: str) -> int | None:
+    """``max_episode_steps`` of a registered id (None if unregistered or unlimited)."""
+    from gymnasium.envs.registration import registry
+    spec = registry.get(env_id)
+    return None if spec is None else spec.max_episode_steps
+
+
+class TaskVectorEnv(gym.vector.VectorEnv):
+    """``gymnasium.vector.VectorEnv`` shell around a :class:`BatchedTask` with B = ``num_envs``.
+
+    * One batched physics call per ``step`` for all envs (no per-env loop, no subprocess).
+    * Autoreset: ``AutoresetMode.NEXT_STEP`` (Gymnasium 1.x default): after an env returns
+      ``terminated`` or ``truncated``, its next ``step`` ignores its action, resets it and
+      returns the reset observation with reward 0 and ``terminated = truncated = False``.
+    * Seeding: ``reset(seed=s)`` seeds env i with ``s + i``; ``reset(seed=[s0, s1, ...])``
+      seeds each env; each env has its own ``np.random.Generator`` created exactly as a
+      single env's ``np_random``, so env i reproduces a single env reset with the same seed.
+    * ``reset(options={"reset_mask": mask})`` resets only the envs where ``mask`` (bool (N,)) is true.
+    * Time limit: ``max_episode_steps`` (control steps) truncates each env. ``gymnasium.make_vec``
+      passes the registered value; constructed directly, the default ``"registered"`` looks
+      it up for ``env_id``; ``None`` disables it.
+    * ``info``: Gymnasium's vector dict: every key an (N,) array with a boolean mask ``"_key"``.
+    * ``render()``: tuple of (H, W, 3) frames, one per env (``render_mode="rgb_array"``).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 50,
+                "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
+
+    def _init_task(self, task: BatchedTask, env_id: str, max_episode_steps="registered",
+                   render_mode: str | None = None, width: int = 480, height: int = 480, title: str | None = None):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode: the vector env supports {self.metadata['render_modes']} or None, "
+                             f"got {render_mode!r}")
+        self.task = task
+        self.num_envs = task.num_envs
+        if max_episode_steps == "registered":
+            max_episode_steps = registered_max_episode_steps(env_id)
+        if max_episode_steps is not None:
+            if int(max_episode_steps) != max_episode_steps or max_episode_steps < 1:
+                raise ValueError(f"max_episode_steps: must be a positive integer or None, got {max_episode_steps}")
+            max_episode_steps = int(max_episode_steps)
+        self.max_episode_steps = max_episode_steps
+        self.metadata = dict(self.metadata)
+        self.metadata["render_fps"] = int(round(1.0 / task.control_dt))
+        self.render_mode = render_mode
+        self.single_action_space = spaces.Box(-1.0, 1.0, (task.action_size,), np.float32)
+        low = getattr(task, "obs_low", None)
+        high = getattr(task, "obs_high", None)
+        self.single_observation_space = spaces.Box(
+            -np.inf if low is None else low.astype(np.float32),
+            np.inf if high is None else high.astype(np.float32), (task.observation_size,), np.float32)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)
+        self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
+        self._autoreset = np.zeros(self.num_envs, bool)
+        self._width, self._height, self._title = int(width), int(height), title
+        self._renderers: dict[int, Any] = {}
+
+    @property
+    def dt(self) -> float:
+        return self.task.control_dt
+
+    @property
+    def np_random_list(self) -> list[np.random.Generator]:
+        """Per-env random generators."""
+        return self._rngs
+
+    def _vector_info(self, infos: dict, mask: np.ndarray, out: dict | None = None) -> dict:
+        out = {} if out is None else out
+        for k, v in infos.items():
+            v = np.asarray(v)
+            if k in out:
+                out[k][mask] = v[mask] if v.shape[:1] == (self.num_envs,) else v
+                out["_" + k] |= mask
+            else:
+                arr = np.zeros((self.num_envs,) + v.shape[1:], dtype=v.dtype)
+                arr[mask] = v[mask] if v.shape[:1] == (self.num_envs,) else v
+                out[k] = arr
+                out["_" + k] = mask.copy()
+        return out
+
+    def _reset_envs(self, idx: np.ndarray, options) -> dict:
+        """Reset envs ``idx`` (int array); returns their infos as (N,) arrays (others zero)."""
+        info = self.task.reset_idx(idx, [self._rngs[i] for i in idx], options)
+        full = {}
+        for k, v in info.items():
+            v = np.asarray(v)
+            arr = np.zeros((self.num_envs,) + v.shape[1:], dtype=v.dtype)
+            arr[idx] = v
+            full[k] = arr
+        self.task.elapsed[idx] = 0
+        self._autoreset[idx] = False
+        return full
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
+        super().reset(seed=None)
+        N = self.num_envs
+        options = dict(options) if options else {}
+        mask = options.pop("reset_mask", None)
+        if mask is None:
+            mask = np.ones(N, bool)
+        else:
+            mask = np.asarray(mask)
+            if mask.shape != (N,) or mask.dtype != np.bool_:
+                raise ValueError(f"options['reset_mask']: expected a bool array of shape ({N},), "
+                                 f"got {mask.dtype} {mask.shape}")
+        if seed is None:
+            seeds = [None] * N
+        elif isinstance(seed, (int, np.integer)):
+            seeds = [int(seed) + i for i in range(N)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != N:
+                raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {len(seeds)}")
+        for i in range(N):
+            if mask[i] and seeds[i] is not None:
+                self._rngs[i] = seeding.np_random(int(seeds[i]))[0]
+        idx = np.flatnonzero(mask)
+        info = self._reset_envs(idx, options or None)
+        return self.task.observe().copy(), self._vector_info(info, mask)
+
+    def step(self, actions):
+        N = self.num_envs
+        a = check_action(actions, (N, self.task.action_size), clip=self.task.clip_actions, name="actions")
+        reset_now = self._autoreset.copy()
+        # envs to autoreset get zero actions in the physics step, then are reset (their step is discarded)
+        if reset_now.any():
+            a = a.copy()
+            a[reset_now] = 0.0
+        terms, terminated, infos = self.task.step(a)
+        reward = combine(terms).astype(np.float64)
+        terminated = np.asarray(terminated, bool).copy()
+        diverged = np.asarray(infos.get("diverged", np.zeros(N, bool)), bool)
+        truncated = diverged.copy()
+        if self.max_episode_steps is not None:
+            truncated |= self.task.elapsed >= self.max_episode_steps
+        step_mask = ~reset_now
+        all_infos = dict(infos)
+        for name, v in terms.items():
+            all_infos[f"reward_{name}"] = v
+        out = self._vector_info(all_infos, step_mask)
+        if reset_now.any():
+            idx = np.flatnonzero(reset_now)
+            rinfo = self._reset_envs(idx, None)
+            self._vector_info(rinfo, reset_now, out)
+            reward[reset_now] = 0.0
+            terminated[reset_now] = False
+            truncated[reset_now] = False
+        self._autoreset = terminated | truncated
+        return self.task.observe().copy(), reward, terminated, truncated, out
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; use render_mode='rgb_array'")
+            return None
+        from ..rendering import Renderer
+        frames = []
+        for i in range(self.num_envs):
+            if i not in self._renderers:
+                self._renderers[i] = Renderer(self._width, self._height, title=self._title)
+            frames.append(self._renderers[i].render(**self.task.render_data(i)))
+        return tuple(frames)
+
+    def close_extras(self, **kwargs):
+        self._renderers.clear()
+
+
+# ---------------------------------------------------------------------- SB3 adapter
+_SB3_CLASS = None
+
+
+def make_sb3_vec_env(vector_env: gym.vector.VectorEnv):
+    """Wrap a ``gymnasium.vector.VectorEnv`` (e.g. ``gymnasium.make_vec("TensegrityShape-v0",
+    num_envs=64, vectorization_mode="vector_entry_point")``) as a Stable-Baselines3
+    ``VecEnv`` so that SB3 trains on the batched env directly::
+
+        venv = make_sb3_vec_env(gymnasium.make_vec("TensegrityShape-v0", num_envs=64,
+                                                   vectorization_mode="vector_entry_point"))
+        PPO("MlpPolicy", venv).learn(100_000)
+
+    SB3 resets finished envs in the same step and passes the last observation of the
+    episode as ``info["terminal_observation"]`` (with ``info["TimeLimit.truncated"]``). The
+    adapter does this with a masked reset (``options={"reset_mask": done}``, which
+    Gymnasium >= 1.1 vector envs support) right after a step in which envs finished, so the
+    wrapped env's own next-step autoreset never fires. Infos become a list of per-env dicts.
+    ``seed(s)`` seeds env i with ``s + i`` at the next reset.
+    SB3 is imported here, not at module import (the core install does not need it).
+    """
+    global _SB3_CLASS
+    if _SB3_CLASS is None:
+        from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+        class GymnasiumVectorToSB3(VecEnv):
+            """SB3 ``VecEnv`` over a gymnasium ``VectorEnv`` (see :func:`make_sb3_vec_env`)."""
+
+            def __init__(self, venv):
+                self.venv = venv
+                super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
+                self._actions = None
+
+            def reset(self):
+                seeds = self._seeds if any(s is not None for s in self._seeds) else None
+                opts = self._options[0] if self._options and self._options[0] else None
+                obs, _ = self.venv.reset(seed=seeds, options=opts)
+                self._reset_seeds()
+                self._reset_options()
+                return obs
+
+            def step_async(self, actions):
+                self._actions = actions
+
+            def step_wait(self):
+                obs, rew, term, trunc, info = self.venv.step(self._actions)
+                done = term | trunc
+                infos = [{} for _ in range(self.num_envs)]
+                for k, v in info.items():
+                    if k.startswith("_"):
+                        continue
+                    m = info.get("_" + k)
+                    for i in range(self.num_envs):
+                        if m is None or m[i]:
+                            infos[i][k] = v[i]
+                obs = np.array(obs, copy=True)
+                if done.any():
+                    for i in np.flatnonzero(done):
+                        infos[i]["terminal_observation"] = obs[i].copy()
+                        infos[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+                    new_obs, _ = self.venv.reset(options={"reset_mask": done.copy()})
+                    obs[done] = new_obs[done]
+                return obs, np.asarray(rew, np.float32), done, infos
+
+            def close(self):
+                self.venv.close()
+
+            def get_attr(self, attr_name, indices=None):
+                val = getattr(self.venv, attr_name, None) if attr_name != "render_mode" else \
+                    getattr(self.venv, "render_mode", None)
+                return [val for _ in self._get_indices(indices)]
+
+            def set_attr(self, attr_name, value, indices=None):
+                setattr(self.venv, attr_name, value)
+
+            def env_method(self, method_name, *method_args, indices=None, **method_kwargs):
+                fn = getattr(self.venv, method_name)
+                return [fn(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
+
+            def env_is_wrapped(self, wrapper_class, indices=None):
+                return [False for _ in self._get_indices(indices)]
+
+            def get_images(self):
+                frames = self.venv.render()
+                return list(frames) if frames is not None else [None] * self.num_envs
+
+        _SB3_CLASS = GymnasiumVectorToSB3
+    return _SB3_CLASS(vector_env)

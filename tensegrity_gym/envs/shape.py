@@ -1,0 +1,412 @@
+"""TensegrityShape-v0: drive an anchored tensegrity to a commanded (reachable) shape.
+
+One batched task (:class:`ShapeTask`) on B copies; :class:`TensegrityShapeEnv` is it with
+B = 1 and :class:`TensegrityShapeVectorEnv` with B = ``num_envs`` (see
+:mod:`tensegrity_gym.envs.common`). SI units throughout.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import dynamics as dyn
+from .. import statics
+from ..rewards import quadratic_cost, tolerance
+from .common import (ACTION_MODES, Actuation, BatchedTask, TaskEnv, TaskVectorEnv, check_positive,
+                     resolve_actuated)
+
+__all__ = ["ShapeTask", "TensegrityShapeEnv", "TensegrityShapeVectorEnv", "DEFAULT_STRING_DAMPING",
+           "DEFAULT_NODE_DAMPING"]
+
+ENV_ID = "TensegrityShape-v0"
+DEFAULT_STRING_DAMPING = 5.0   # N s/m per string
+DEFAULT_NODE_DAMPING = 2.0     # N s/m per rod node (viscous drag / joint friction)
+MAX_TARGET_TRIES = 50
+
+
+def _load(structure):
+    from .. import load_structure
+    return load_structure(structure)
+
+
+class ShapeTask(BatchedTask):
+    """Batched shape-tracking task on ``num_envs`` copies (arguments: see :class:`TensegrityShapeEnv`).
+
+    State: ``q``, ``qd`` (B, k, 6); ``ctrl`` (B, na) current rest lengths (m) or force densities
+    (N/m) of the actuated strings; ``target`` (B, nt, 3) target positions of the tracked nodes, m.
+    """
+
+    def __init__(self, num_envs: int = 1, structure="constrained_prism", action_mode: str = "rest_length",
+                 actuated=None, integrator: str = "semi_implicit_euler", dt: float = 1e-3, frame_skip: int = 20,
+                 string_damping: float | None = DEFAULT_STRING_DAMPING,
+                 node_damping: float = DEFAULT_NODE_DAMPING,
+                 tracking_weight: float = 10.0, proximity_weight: float = 1.0, ctrl_cost_weight: float = 0.01,
+                 success_tolerance: float | None = None, reset_noise_scale: float = 5e-3,
+                 target_range: float = 0.1, rest_length_bounds=(0.8, 1.1), max_speed: float = 0.1,
+                 force_density_max: float | None = None, force_density_rate: float | None = None,
+                 backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
+        s = _load(structure)
+        if not s.node_constraints and s.anchors.size == 0:
+            raise ValueError(f"structure {s.name!r}: the shape task needs an anchored structure (node_constraints "
+                             "or fixed anchor nodes); a free structure has no unique shape under gravity")
+        if string_damping is not None:
+            s = s.replace(damping=check_positive(string_damping, "string_damping", "N s/m", allow_zero=True))
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode: unknown {action_mode!r}; choose one of {ACTION_MODES}")
+        self.action_mode = action_mode
+        self.structure = s
+        act = resolve_actuated(actuated, s.n_strings)
+        self.actuated = act
+        self.node_damping = check_positive(node_damping, "node_damping", "N s/m", allow_zero=True)
+        self.tracking_weight = check_positive(tracking_weight, "tracking_weight", "1/m", allow_zero=True)
+        self.proximity_weight = check_positive(proximity_weight, "proximity_weight", allow_zero=True)
+        self.ctrl_cost_weight = check_positive(ctrl_cost_weight, "ctrl_cost_weight", allow_zero=True)
+        self.reset_noise_scale = check_positive(reset_noise_scale, "reset_noise_scale", "m", allow_zero=True)
+        self.target_range = check_positive(target_range, "target_range", allow_zero=True)
+        if self.target_range >= 1:
+            raise ValueError(f"target_range: relative rest-length change must be < 1, got {target_range}")
+        lo, hi = (float(x) for x in rest_length_bounds)
+        if not (0 < lo <= 1 <= hi):
+            raise ValueError(f"rest_length_bounds: need 0 < low <= 1 <= high (fractions of the structure's rest "
+                             f"lengths), got {rest_length_bounds}")
+        self.rest_length_bounds = (lo, hi)
+        self.max_speed = check_positive(max_speed, "max_speed", "m/s")
+
+        # the elastic model (targets) and the nominal equilibrium (start shape)
+        self.elastic_model = dyn.compile_model(s)
+        try:
+            eq = statics.equilibrium(self.elastic_model, relax_steps=20000)
+        except statics.EquilibriumError as e:
+            raise ValueError(f"structure {s.name!r}: its nominal rest lengths give no stable equilibrium: {e}") from None
+        self.q_nominal = eq.q[None]
+        self.nodes_nominal = eq.nodes
+        self.gamma_nominal = eq.force_density
+        if np.any(eq.force_density[act] <= 0):
+            bad = act[eq.force_density[act] <= 0][0]
+            raise ValueError(f"actuated string {bad} is slack at the nominal equilibrium; actuate taut strings")
+        model = dyn.compile_model(s, act if action_mode == "force_density" else None)
+        self.height = s.height if s.height > 0 else float(np.ptp(eq.nodes, axis=0).max())
+        self.success_tolerance = (0.01 * self.height if success_tolerance is None
+                                  else check_positive(success_tolerance, "success_tolerance", "m"))
+        self._init_physics(model, num_envs, integrator, dt, frame_skip, backend, divergence_limit, clip_actions)
+
+        # actuation
+        l0 = s.rest_length[act]
+        self.rest_low, self.rest_high = lo * l0, hi * l0
+        if action_mode == "rest_length":
+            self.actuation = Actuation("rest_length", act, self.rest_low, self.rest_high, self.max_speed,
+                                       self.control_dt, s.rest_length, l0)
+        else:
+            g0 = self.gamma_nominal[act]
+            fmax = 3.0 * float(g0.max()) if force_density_max is None else check_positive(
+                force_density_max, "force_density_max", "N/m")
+            frate = 2.0 * fmax if force_density_rate is None else check_positive(
+                force_density_rate, "force_density_rate", "N/(m s)")
+            self.actuation = Actuation("force_density", act, 0.0, fmax, frate, self.control_dt,
+                                       s.rest_length, g0)
+        self.force_density_max = float(self.actuation.high.max()) if action_mode == "force_density" else None
+
+        # tracked nodes: every rod node that can move (not pinned)
+        pinned = {nd for nd, D in s.node_constraints.items() if D.shape[0] == 3}
+        self.tracked = np.array(sorted(set(s.bars.ravel().tolist()) - pinned), dtype=int)
+        nt, na = self.tracked.size, act.size
+        self.action_size = na
+        self.observation_size = 4 * 3 * nt + na
+        B = self.num_envs
+        self.rc = statics.ReducedCoordinates(model)
+        self.ctrl = np.tile(self.actuation.nominal, (B, 1))
+        self.target = np.tile(eq.nodes[self.tracked], (B, 1, 1))
+        self.target_control = np.tile(self.actuation.nominal, (B, 1))
+        self.q = np.tile(self.q_nominal, (B, 1, 1))
+        self.qd = np.zeros_like(self.q)
+        self._last_action = np.zeros((B, na))
+        self._N = None     # tracked node positions cached from step() for observe()
+
+    # ------------------------------------------------------------------ targets
+    def _sample_rest_lengths(self, rng: np.random.Generator) -> np.ndarray:
+        l0 = self.structure.rest_length[self.actuated]
+        x = l0 * (1.0 + rng.uniform(-self.target_range, self.target_range, self.actuated.size))
+        return np.clip(x, self.rest_low, self.rest_high)
+
+    def sample_targets(self, rngs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Targets for ``len(rngs)`` copies: (r, nt, 3) node positions (m), (r, na) the actuated
+        strings' rest lengths (m) and (r, na) force densities (N/m) that hold them.
+
+        Rest lengths of the actuated strings are drawn uniformly within ``target_range`` of the
+        structure's (and within the rest-length bounds); the stable equilibrium reached from the
+        nominal shape (Newton from it, :func:`tensegrity_gym.statics.solve_equilibria`) is the
+        target. A draw is rejected and redrawn (same generator) unless the equilibrium is found,
+        stable, has every actuated string taut and (force-density mode) needs force densities
+        within the bounds. (Under *constant* force densities the target is an exact equilibrium
+        but, with no elastic stiffness in the actuated strings, not necessarily a stable one.)"""
+        r = len(rngs)
+        act = self.actuated
+        na = act.size
+        out_t = np.zeros((r, self.tracked.size, 3))
+        out_l = np.zeros((r, na))
+        out_g = np.zeros((r, na))
+        pending = np.arange(r)
+        tries = 0
+        while pending.size:
+            tries += 1
+            if tries > MAX_TARGET_TRIES:
+                raise RuntimeError(f"{ENV_ID}: no admissible target after {MAX_TARGET_TRIES} draws; reduce "
+                                   f"target_range ({self.target_range}) or widen the bounds")
+            rl = np.tile(self.structure.rest_length, (pending.size, 1))
+            rl[:, act] = np.stack([self._sample_rest_lengths(rngs[i]) for i in pending])
+            res = statics.solve_equilibria(self.elastic_model, np.repeat(self.q_nominal, pending.size, 0), rl,
+                                           max_iter=15)
+            ok = (res["status"] == statics.OK) & np.all(res["force_density"][:, act] > 0, axis=1)
+            gam = res["force_density"][:, act]
+            if self.action_mode == "force_density":
+                ok &= np.all(gam <= self.actuation.high, axis=1)
+            done = pending[ok]
+            out_t[done] = res["nodes"][ok][:, self.tracked]
+            out_l[done] = rl[ok][:, act]
+            out_g[done] = gam[ok]
+            pending = pending[~ok]
+        return out_t, out_l, out_g
+
+    # ------------------------------------------------------------------ task API
+    def reset_idx(self, idx, rngs, options=None) -> dict:
+        idx = np.asarray(idx, dtype=int)
+        r = idx.size
+        tgt, l_t, g_t = self.sample_targets(rngs)
+        self.target[idx] = tgt
+        self.target_control[idx] = l_t if self.action_mode == "rest_length" else g_t
+        # start: nominal equilibrium with small noise on the reduced coordinates (m, m/s)
+        q0 = np.repeat(self.q_nominal, r, 0)
+        nx, s = self.rc.nx, self.reset_noise_scale
+        dx = np.stack([rngs[j].uniform(-s, s, nx) for j in range(r)]) if s > 0 else np.zeros((r, nx))
+        dv = np.stack([rngs[j].uniform(-s, s, nx) for j in range(r)]) if s > 0 else np.zeros((r, nx))
+        T = self.rc.tangent_basis(q0[..., 3:])
+        q = self.rc.retract(q0, T, dx)
+        qd = np.zeros_like(q)
+        if self.rc.dz:
+            np.add.at(qd[..., :3], (slice(None), self.rc.z_rod), dv[:, : self.rc.dz, None] * self.rc.E[None])
+        u = dv[:, self.rc.dz:].reshape(r, self.model.n_bars, 2) / self.model.length[None, :, None]
+        qd[..., 3:] = np.einsum("bkid,bkd->bki", T, u)
+        q, qd = dyn.project(self.model, q, qd)
+        self.q[idx], self.qd[idx] = q, qd
+        self.ctrl[idx] = self.actuation.nominal
+        self._last_action[idx] = 0.0
+        self.elapsed[idx] = 0
+        self._N = None
+        err, emax = self._errors(idx)
+        return {"tracking_error": err, "max_node_error": emax, "is_success": emax <= self.success_tolerance}
+
+    def _errors(self, idx=None):
+        q = self.q if idx is None else self.q[idx]
+        tgt = self.target if idx is None else self.target[idx]
+        d = np.linalg.norm(dyn.node_positions(self.model, q)[:, self.tracked] - tgt, axis=-1)
+        return d.mean(axis=1), d.max(axis=1)
+
+    def _damping_force(self, q, qd):
+        """Node drag -c v (B, n, 3), N."""
+        return -self.node_damping * dyn.node_velocities(self.model, qd)
+
+    def simulate_controls(self):
+        """One control step of physics for the batch at the current controls (one batched
+        ``integrators.step`` call; one per substep when node drag is on, see the class doc)."""
+        inputs = self.actuation.physics_inputs(self.ctrl)
+        if self.node_damping == 0:
+            return self.simulate(**inputs)
+        return self.simulate(substep_external=self._damping_force, **inputs)
+
+    def step(self, action):
+        self.ctrl = self.actuation.apply(self.ctrl, action)
+        self._last_action = action
+        diverged = self.simulate_controls()
+        self._N = dyn.node_positions(self.model, self.q)[:, self.tracked]
+        self._N_of = self.q
+        d = np.linalg.norm(self._N - self.target, axis=-1)
+        err, emax = d.mean(axis=1), d.max(axis=1)
+        success = emax <= self.success_tolerance
+        terms = {
+            "tracking": -self.tracking_weight * err,
+            "proximity": self.proximity_weight * tolerance(emax, (0.0, self.success_tolerance),
+                                                           margin=10.0 * self.success_tolerance),
+            "ctrl": -self.ctrl_cost_weight * quadratic_cost(action),
+        }
+        infos = {"tracking_error": err, "max_node_error": emax, "is_success": success, "diverged": diverged}
+        return terms, np.zeros(self.num_envs, bool), infos
+
+    def observe(self) -> np.ndarray:
+        cached = self._N is not None and self._N_of is self.q
+        N = self._N if cached else dyn.node_positions(self.model, self.q)[:, self.tracked]
+        self._N = None
+        V = dyn.node_velocities(self.model, self.qd)[:, self.tracked]
+        B = self.num_envs
+        obs = np.concatenate([N.reshape(B, -1), V.reshape(B, -1), self.ctrl,
+                              self.target.reshape(B, -1), (self.target - N).reshape(B, -1)], axis=1)
+        return obs.astype(np.float32)
+
+    def render_data(self, i: int) -> dict:
+        q, qd = self.q[i:i + 1], self.qd[i:i + 1]
+        inputs = self.actuation.physics_inputs(self.ctrl[i:i + 1])
+        gamma, _, L = dyn.force_densities(self.model, q, qd, inputs.get("rest_length"), inputs.get("force_density"))
+        _, emax = self._errors(np.array([i]))
+        return {"nodes": dyn.node_positions(self.model, q)[0], "rods": self.structure.bars,
+                "strings": self.structure.strings, "tensions": (gamma * L)[0], "targets": self.target[i],
+                "caption": f"t = {self.elapsed[i] * self.control_dt:.2f} s, max error {emax[0] * 1e3:.1f} mm"}
+
+    # ------------------------------------------------------------------ layout
+    def observation_layout(self) -> list[tuple[str, slice, str]]:
+        """(name, slice, unit) of each block of the observation vector."""
+        nt, na = 3 * self.tracked.size, self.actuated.size
+        u = self.actuation.unit
+        blocks = [("node_position", nt, "m"), ("node_velocity", nt, "m/s"), ("control", na, u),
+                  ("target_position", nt, "m"), ("target_error", nt, "m")]
+        out, i = [], 0
+        for name, n, unit in blocks:
+            out.append((name, slice(i, i + n), unit))
+            i += n
+        return out
+
+
+_DOC = r"""
+    Shape tracking with an anchored class-1 tensegrity (``TensegrityShape-v0``).
+
+    ## Description
+    A tensegrity whose rigid-body motion is removed by node constraints (default: the
+    seed's Example 5.8 three-bar prism, node 0 pinned at the origin, node 1 sliding on the
+    x axis, node 2 sliding on the plane z = 0; gravity -9.81 m/s^2 along z) must take a
+    commanded shape. The policy changes the rest lengths (``action_mode="rest_length"``)
+    or the force densities (``action_mode="force_density"``) of the actuated strings. The
+    dynamics are the exact configuration-matrix equations of Skelton & de Oliveira ch. 5
+    (tension-only strings, rigid rods), integrated with ``integrator`` at ``dt`` seconds,
+    ``frame_skip`` physics steps per control step (default 1 ms x 20 = 50 Hz control). No
+    contact code runs. Every target is reachable by construction: it is a stable static
+    equilibrium for admissible controls (see "Starting state").
+
+    Damping (defaults chosen so that a 2 cm disturbance decays below 1 mm in about 0.7 s):
+    ``string_damping`` = 5 N s/m on every elastic string (``None`` keeps the structure's own)
+    and ``node_damping`` = 2 N s/m of viscous drag on every rod node (string damping alone
+    cannot damp the prism's infinitesimal mechanism, whose motion does not stretch the strings
+    to first order). The drag is applied as an external force evaluated at the start of each
+    physics substep (exact for semi-implicit Euler; a zero-order hold over ``dt`` for rk4).
+    In force-density mode the actuated strings are ideal force actuators with no elastic or
+    damping part, so only the remaining strings and the node drag dissipate energy.
+
+    ## Action space
+    ``Box(-1, 1, (na,), float32)``, one entry per actuated string (``actuated``, default all
+    strings, in the structure's string order). Actions outside [-1, 1] are **clipped** to the
+    box (as actuators saturate; SB3 and random agents act inside it); construct with
+    ``clip_actions=False`` to get a ``ValueError`` instead. A NaN or inf entry always raises
+    ``ValueError`` naming its index.
+
+    | mode | action a_i in [-1, 1] does | control bounds |
+    |------|---------------------------|----------------|
+    | ``rest_length`` | rest length l0_i += a_i * ``max_speed`` * dt_c (m), dt_c = dt * frame_skip | ``rest_length_bounds`` x the structure's rest length (default 0.8 to 1.1) |
+    | ``force_density`` | force density g_i += a_i * ``force_density_rate`` * dt_c (N/m) | [0, ``force_density_max``] (default 3 x the largest nominal force density; never negative) |
+
+    The control then holds (zero-order hold) over the control step.
+
+    ## Observation space
+    ``Box(-inf, inf, (12 nt + na,), float32)``, with nt tracked nodes (every rod node that
+    is not pinned: nodes 1-5 for the default prism, nt = 5, na = 9, size 69). Blocks:
+
+    | index | observation | unit |
+    |-------|-------------|------|
+    | 0 .. 3nt-1 | positions of the tracked nodes (x, y, z per node, in node order) | m |
+    | 3nt .. 6nt-1 | velocities of the tracked nodes | m/s |
+    | 6nt .. 6nt+na-1 | current control of each actuated string: rest length (m) or force density (N/m) | m or N/m |
+    | 6nt+na .. 9nt+na-1 | target positions of the tracked nodes | m |
+    | 9nt+na .. 12nt+na-1 | target error (target - position) | m |
+
+    ``env.unwrapped.task.observation_layout()`` lists the blocks.
+
+    ## Rewards
+    ``reward = reward_tracking + reward_proximity + reward_ctrl`` with e_i the distance of
+    tracked node i from its target (m):
+
+    * ``reward_tracking = -tracking_weight * mean_i e_i`` (``tracking_weight`` 1/m, default 10);
+    * ``reward_proximity = proximity_weight * tolerance(max_i e_i, (0, tol), margin = 10 tol)``,
+      a Gaussian bonus (dm_control's ``tolerance``; 1 within the success tolerance, 0.1 at 10 tol);
+    * ``reward_ctrl = -ctrl_cost_weight * sum_i a_i^2``.
+
+    Each term is in ``info`` as ``reward_<name>``; their sum is the reward exactly.
+
+    ## Info
+    ``tracking_error`` (mean e_i, m), ``max_node_error`` (max e_i, m), ``is_success``
+    (every tracked node within ``success_tolerance``, default 1% of the structure's height:
+    1 cm for the default prism), ``diverged`` (see "Episode end"), and the ``reward_*`` terms.
+
+    ## Starting state
+    At reset a target is drawn: rest lengths of the actuated strings uniform within
+    +-``target_range`` (default 10%) of the structure's (clipped to the rest-length bounds); the
+    stable equilibrium they give (statics.solve_equilibria from the nominal shape) is the
+    target shape. Draws are redrawn unless the equilibrium is stable and every actuated
+    string is taut; in force-density mode also unless its force densities lie within the
+    bounds. In force-density mode the target is then an exact equilibrium of the actuated
+    strings held at those force densities -- but, with no elastic stiffness left in them, not
+    a stable one: for the default prism with all strings actuated, constant force densities
+    leave three nearly neutral modes (stiffness about -2 N/m, i.e. slowly unstable under
+    gravity), so holding a shape needs feedback (as the NNLS baseline does). The structure
+    starts at the nominal equilibrium (the structure's rest lengths, under gravity) with
+    uniform noise of +-``reset_noise_scale`` (m, m/s) on each reduced coordinate and
+    velocity; the controls start at their nominal values. All randomness comes from
+    ``np_random``.
+
+    ## Episode end
+    No termination: holding the shape is the task. Truncation: by the time limit set at
+    registration (``max_episode_steps`` = 200 control steps = 4 s), and at once with
+    ``info["diverged"] = True`` if the state becomes non-finite or a node moves more than
+    ``divergence_limit`` (default 100 x the structure's size) from it; the state is then
+    put back to the last finite one, so observations stay finite.
+
+    ## Arguments
+    ``gymnasium.make("TensegrityShape-v0", **kwargs)``:
+
+    | argument | default | meaning |
+    |----------|---------|---------|
+    | ``structure`` | ``"constrained_prism"`` | builder name, JSON path or ``Structure`` with node constraints or anchors |
+    | ``action_mode`` | ``"rest_length"`` | or ``"force_density"`` |
+    | ``actuated`` | ``None`` (all) | string indices or boolean mask |
+    | ``integrator`` | ``"semi_implicit_euler"`` | fixed-step integrator (``"rk4"``) |
+    | ``dt`` | ``1e-3`` | physics step, s (default well under the explicit limit, 0.025 s for the default prism) |
+    | ``frame_skip`` | ``20`` | physics steps per control step |
+    | ``string_damping`` | ``5.0`` | N s/m on every string, ``None`` keeps the structure's |
+    | ``node_damping`` | ``2.0`` | N s/m viscous drag on every rod node |
+    | ``tracking_weight``, ``proximity_weight``, ``ctrl_cost_weight`` | ``10.0``, ``1.0``, ``0.01`` | reward weights |
+    | ``success_tolerance`` | ``None`` (1% of the height) | m |
+    | ``reset_noise_scale`` | ``5e-3`` | m, m/s |
+    | ``target_range`` | ``0.1`` | relative rest-length range of target draws |
+    | ``rest_length_bounds`` | ``(0.8, 1.1)`` | fractions of the structure's rest lengths |
+    | ``max_speed`` | ``0.1`` | m/s, rest-length mode |
+    | ``force_density_max``, ``force_density_rate`` | ``None`` | N/m and N/(m s); default 3 x the largest nominal force density and twice that per second |
+    | ``backend`` | ``"auto"`` | physics backend (numba kernels when available) |
+    | ``divergence_limit`` | ``None`` | m |
+    | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
+    | ``render_mode``, ``width``, ``height`` | ``None``, 480, 480 | ``"rgb_array"`` or ``"human"`` |
+
+    ``render()`` draws rods thick, strings coloured by tension (slack dashed grey) and the
+    targets as green circles; ``metadata["render_fps"]`` = 1 / (dt frame_skip).
+
+    ## Version history
+    * v0: initial version.
+"""
+
+
+class TensegrityShapeEnv(TaskEnv):
+    __doc__ = _DOC
+
+    def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480, **kwargs):
+        task = ShapeTask(num_envs=1, **kwargs)
+        self._init_task(task, render_mode, width, height, title=ENV_ID)
+
+
+class TensegrityShapeVectorEnv(TaskVectorEnv):
+    __doc__ = _DOC + r"""
+    ## Vector env
+    ``gymnasium.make_vec("TensegrityShape-v0", num_envs=N, vectorization_mode="vector_entry_point")``
+    or ``TensegrityShapeVectorEnv(num_envs=N, **kwargs)``: the same task on N copies stepped in
+    one batched physics call. Next-step autoreset; ``reset(seed=s)`` seeds env i with s + i
+    (equal to N single envs with those seeds); ``max_episode_steps`` truncates every env
+    (``make_vec`` passes the registered 200; constructed directly, ``"registered"`` looks it up;
+    ``None`` disables it). See :class:`tensegrity_gym.envs.common.TaskVectorEnv`.
+"""
+
+    def __init__(self, num_envs: int = 1, max_episode_steps="registered", render_mode: str | None = None,
+                 width: int = 480, height: int = 480, **kwargs):
+        task = ShapeTask(num_envs=num_envs, **kwargs)
+        self._init_task(task, ENV_ID, max_episode_steps, render_mode, width, height, title=ENV_ID)

@@ -1,0 +1,250 @@
+"""Tests of agents/train.py and agents/evaluate.py (SB3 training scripts).
+
+Small budgets only: each training run is a few hundred env steps.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+yaml = pytest.importorskip("yaml")
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+import gymnasium as gym  # noqa: E402
+import tensegrity_gym  # noqa: E402,F401  (registers the envs)
+from agents import common, evaluate, train  # noqa: E402
+
+ENV_IDS = [e for e in ("TensegrityShape-v0", "TensegrityRoll-v0")
+           if e in gym.envs.registry]
+TINY = ["--n-timesteps", "256", "--n-envs", "4", "--eval-freq", "128", "--eval-episodes", "2",
+        "--save-freq", "128", "--no-progress-bar"]
+
+
+def _env_ok(env_id):
+    """The env can be constructed (its module exists)."""
+    try:
+        gym.make(env_id).close()
+        return True
+    except (ImportError, ModuleNotFoundError, gym.error.Error):
+        return False
+
+
+def _tiny_hp(algo):
+    if algo == "ppo":
+        return ["--hyperparams", "n_steps=32", "batch_size=64", "n_epochs=2",
+                "policy_kwargs=dict(net_arch=[32, 32])"]
+    return ["--hyperparams", "learning_starts=64", "batch_size=32", "buffer_size=2000",
+            "policy_kwargs=dict(net_arch=[32, 32])"]
+
+
+# ---------------------------------------------------------------------- parsing (no eval)
+def test_safe_literal_parses_zoo_strings_and_rejects_code():
+    import torch
+    d = common.safe_literal("dict(log_std_init=-1.0, net_arch=dict(pi=[64, 64], vf=[64]), activation_fn=nn.Tanh)")
+    assert d == {"log_std_init": -1.0, "net_arch": {"pi": [64, 64], "vf": [64]}, "activation_fn": torch.nn.Tanh}
+    assert common.safe_literal("th.nn.ReLU") is torch.nn.ReLU
+    for bad in ("__import__('os').system('true')", "os.system", "dict(a=open('x'))", "[x for x in ()]",
+                "nn.functional"):
+        with pytest.raises(ValueError):
+            common.safe_literal(bad)
+
+
+def test_kv_parsing():
+    assert common.parse_kv_list(["action_mode:force_density", "frame_skip:10", "actuated:[0, 1]",
+                                 "target_range:0.05", "clip_actions:false"], ":", "x") == {
+        "action_mode": "force_density", "frame_skip": 10, "actuated": [0, 1], "target_range": 0.05,
+        "clip_actions": False}
+    assert common.parse_kv_list(['{"a": 1, "b": "c"}'], ":", "x") == {"a": 1, "b": "c"}
+    assert common.parse_kv_list(["learning_rate=3e-4", "lr=lin_1e-3"], "=", "x") == {
+        "learning_rate": 3e-4, "lr": "lin_1e-3"}
+    with pytest.raises(ValueError, match="key:value"):
+        common.parse_kv_list(["oops"], ":", "--env-kwargs")
+
+
+def test_resolve_hyperparams_schedules_and_unsupported_keys():
+    hp = common.resolve_hyperparams("ppo", {"n_timesteps": 1e4, "n_envs": 2, "learning_rate": "lin_1e-3",
+                                            "normalize": True, "gamma": 0.9,
+                                            "policy_kwargs": "dict(net_arch=[8])"})
+    assert hp["n_timesteps"] == 10000 and hp["n_envs"] == 2
+    assert hp["normalize"] == {"gamma": 0.9}
+    assert hp["model_kwargs"]["learning_rate"](0.5) == pytest.approx(5e-4)
+    assert hp["model_kwargs"]["policy_kwargs"] == {"net_arch": [8]}
+    with pytest.raises(ValueError, match="env_wrapper"):
+        common.resolve_hyperparams("ppo", {"env_wrapper": "x.Y"})
+
+
+# ---------------------------------------------------------------------- hyperparameter files
+@pytest.mark.parametrize("algo", ["ppo", "sac", "td3"])
+def test_hyperparam_files_parse_and_name_registered_envs(algo):
+    path = ROOT / "agents" / "hyperparams" / f"{algo}.yml"
+    data = common.load_hyperparams_file(path)
+    assert data, f"{path} is empty"
+    for env_id, hp in data.items():
+        assert env_id in gym.envs.registry, f"{path}: {env_id} is not a registered env id"
+        r = common.resolve_hyperparams(algo, hp)  # every entry resolves (strings parse safely)
+        assert r["n_timesteps"] > 0 and r["n_envs"] >= 1
+        Algo = common.get_algo(algo)
+        import inspect
+        params = inspect.signature(Algo.__init__).parameters
+        for k in r["model_kwargs"]:
+            assert k in params, f"{path}:{env_id}: {k!r} is not a {Algo.__name__} argument"
+    for env_id in ENV_IDS:
+        assert env_id in data or algo == "td3", f"{path} has no entry for {env_id}"
+
+
+# ---------------------------------------------------------------------- train -> save -> reload -> evaluate
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_train_save_reload_evaluate(tmp_path, env_id, algo):
+    if not _env_ok(env_id):
+        pytest.skip(f"{env_id} is not importable yet")
+    run = tmp_path / "run"
+    train.train(["--algo", algo, "--env", env_id, "--log-dir", str(run), *TINY, *_tiny_hp(algo)])
+    for f in ("model.zip", "vecnormalize.pkl", "config.yaml", "command.txt", "versions.json", "state.json",
+              "best_model.zip", "best_vecnormalize.pkl", "eval/evaluations.npz"):
+        assert (run / f).exists(), f"missing {f}"
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    assert cfg["env"] == env_id and cfg["algo"] == algo and cfg["vec_env"] == "batched"
+    versions = json.loads((run / "versions.json").read_text())
+    for k in ("python", "numpy", "torch", "stable_baselines3", "gymnasium", "tensegrity_gym"):
+        assert versions[k], k
+    assert "agents.train" in (run / "command.txt").read_text()
+    state = json.loads((run / "state.json").read_text())
+    assert state["status"] == "finished" and state["num_timesteps"] >= 256
+    assert list((run / "checkpoints").glob("rl_model_*_steps.zip"))
+    assert list((run / "monitor").glob("*.monitor.csv"))
+    tb = list((run / "tb").rglob("events.out.tfevents*"))
+    assert tb
+    # reload and evaluate (few episodes, no gif) against the baselines and random
+    out = tmp_path / "eval"
+    m = evaluate.evaluate([str(run), "--model", "final", "--n-episodes", "2", "--out", str(out)])
+    res = m["results"]
+    trained = next(k for k in res if "trained" in k)
+    assert "random" in res
+    for k, r in res.items():
+        assert np.isfinite(r["return_mean"]) and r["n_episodes"] == 2
+    assert m["model_num_timesteps"] == state["num_timesteps"]
+    if env_id == "TensegrityShape-v0":
+        assert "nnls" in res
+        assert 0.0 <= res[trained]["success_rate"] <= 1.0
+        assert res[trained]["final_max_node_error_median_m"] > 0
+    for f in ("metrics.json", "episodes.json", "learning_curve.png", "episodes.png", "table.md"):
+        assert (out / f).exists(), f
+    # the reloaded policy's actions equal the model's with the saved normalisation
+    from stable_baselines3.common.base_class import BaseAlgorithm  # noqa: F401
+    cfg2, pol, _, model = evaluate.load_trained(run, "final")
+    env = gym.make(env_id)
+    obs, _ = env.reset(seed=3)
+    a1, _ = pol.predict(obs)
+    assert env.action_space.contains(np.asarray(a1, np.float32))
+    env.close()
+
+
+def test_evaluate_numbers_match_a_manual_rollout(tmp_path):
+    """The evaluation's return and final error equal a hand-written single-env rollout."""
+    env_id = "TensegrityShape-v0"
+    if not _env_ok(env_id):
+        pytest.skip("shape env not importable yet")
+    run = tmp_path / "run"
+    train.train(["--algo", "ppo", "--env", env_id, "--log-dir", str(run), "--n-timesteps", "64", "--n-envs", "2",
+                 "--eval-freq", "-1", "--save-freq", "-1", "--no-progress-bar", *_tiny_hp("ppo")])
+    cfg, pol, _, _ = evaluate.load_trained(run, "final")
+    eps = evaluate.run_episodes(env_id, cfg["env_kwargs"], lambda env: pol, [123, 124],
+                                ("max_node_error",), batched=True)
+    env = gym.make(env_id, **cfg["env_kwargs"])
+    for e in eps:
+        obs, _ = env.reset(seed=e["seed"])
+        R, done = 0.0, False
+        while not done:
+            a, _ = pol.predict(obs)
+            obs, r, term, trunc, info = env.step(a)
+            R += r
+            done = term or trunc
+        assert e["return"] == pytest.approx(R, rel=1e-5, abs=1e-6)
+        assert e["final"]["max_node_error"] == pytest.approx(info["max_node_error"], rel=1e-6, abs=1e-9)
+    env.close()
+
+
+# ---------------------------------------------------------------------- resume and Ctrl-C
+def test_interrupt_saves_and_resume_continues_step_count(tmp_path):
+    env_id = ENV_IDS[0] if ENV_IDS and _env_ok(ENV_IDS[0]) else "Pendulum-v1"
+    run = tmp_path / "run"
+    InterruptAt = train._callbacks()[3]
+    args = ["--algo", "ppo", "--env", env_id, "--log-dir", str(run), "--n-timesteps", "512", "--n-envs", "4",
+            "--eval-freq", "128", "--eval-episodes", "2", "--save-freq", "128", "--no-progress-bar",
+            "--hyperparams", "n_steps=32", "batch_size=64", "n_epochs=1", "normalize=true"]
+    train.train(args, extra_callbacks=[InterruptAt(200)])
+    st = json.loads((run / "state.json").read_text())
+    assert st["status"] == "interrupted"
+    n_int = st["num_timesteps"]
+    assert 200 <= n_int < 512
+    assert (run / "model.zip").exists() and (run / "vecnormalize.pkl").exists()
+    from stable_baselines3.common.vec_env import VecNormalize  # noqa: F401
+    vn_before = evaluate.load_vecnormalize(run / "vecnormalize.pkl")
+    ev_before = np.load(run / "eval" / "evaluations.npz")["timesteps"].tolist()
+
+    run_dir = train.train(["--resume", str(run), "--no-progress-bar"])
+    st2 = json.loads((run_dir / "state.json").read_text())
+    assert st2["status"] == "finished"
+    assert st2["num_timesteps"] >= 512
+    from stable_baselines3 import PPO
+    m = PPO.load(run / "model.zip")
+    assert m.num_timesteps == st2["num_timesteps"]
+    # the normalisation statistics continued from the saved ones (count grew, not restarted)
+    vn_after = evaluate.load_vecnormalize(run / "vecnormalize.pkl")
+    assert vn_after.obs_rms.count > vn_before.obs_rms.count
+    ev_after = np.load(run / "eval" / "evaluations.npz")["timesteps"].tolist()
+    assert ev_after[: len(ev_before)] == ev_before and len(ev_after) > len(ev_before)
+    assert all(t > n_int for t in ev_after[len(ev_before):])
+    assert len(list((run / "monitor").glob("*.monitor.csv"))) == 2
+    cmd = (run / "command.txt").read_text()
+    assert cmd.count("agents.train") == 2
+    # resuming again with a larger target extends the run
+    train.train(["--resume", str(run), "--n-timesteps", "640", "--no-progress-bar"])
+    assert PPO.load(run / "model.zip").num_timesteps >= 640
+
+
+def test_existing_run_dir_is_not_overwritten(tmp_path):
+    run = tmp_path / "run"
+    args = ["--algo", "ppo", "--env", "Pendulum-v1", "--log-dir", str(run), "--n-timesteps", "64", "--n-envs", "1",
+            "--eval-freq", "-1", "--save-freq", "-1", "--no-progress-bar", "--hyperparams", "n_steps=64",
+            "batch_size=64", "n_epochs=1"]
+    train.train(args)
+    with pytest.raises(FileExistsError, match="--resume"):
+        train.train(args)
+
+
+def test_bad_arguments_give_clear_errors(tmp_path):
+    with pytest.raises(ValueError, match="not a registered"):
+        train.train(["--env", "NoSuchEnv-v0", "--log-dir", str(tmp_path / "a")])
+    with pytest.raises(ValueError, match="--algo"):
+        train.train(["--algo", "nope", "--env", "Pendulum-v1", "--log-dir", str(tmp_path / "b")])
+    with pytest.raises(ValueError, match="not allowed|unsupported"):
+        train.train(["--algo", "ppo", "--env", "Pendulum-v1", "--log-dir", str(tmp_path / "c"),
+                     "--hyperparams", "policy_kwargs=dict(x=__import__('os'))"])
+
+
+# ---------------------------------------------------------------------- rl-baselines3-zoo compatibility
+def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path):
+    pytest.importorskip("rl_zoo3")
+    env_id = "TensegrityShape-v0"
+    if not _env_ok(env_id):
+        pytest.skip("shape env not importable yet")
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--gym-packages", "tensegrity_gym", "--algo", "ppo",
+           "--env", env_id, "-f", str(tmp_path), "--conf-file", str(ROOT / "agents" / "hyperparams" / "ppo.yml"),
+           "-n", "256", "--eval-freq", "-1", "--save-freq", "-1", "--seed", "0", "--num-threads", "1",
+           "--vec-env", "dummy", "-params", "n_envs:2", "n_steps:64", "batch_size:64", "n_epochs:1"]
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    zips = list(tmp_path.rglob(f"{env_id}.zip"))
+    assert zips, list(tmp_path.rglob("*"))
+    assert list(tmp_path.rglob("vecnormalize.pkl"))

@@ -1,0 +1,239 @@
+"""The compiled (numba) kernels reproduce the NumPy reference path.
+
+Every case integrates many steps with both backends from the same state and compares
+q and qd to ~1e-12 relative (round-off level: the kernels use the same formulas, with
+reciprocals where NumPy divides). Each scene is chosen to exercise a branch of the
+kernel (slack strings, damping, gravity, constrained rods, anchors, active strings,
+clipped force densities, external forces, the parallel batch loop); the tests check
+that the branch is really exercised, and that the comparison can fail.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import tensegrity_gym as tg
+from tensegrity_gym import builders, dynamics as dyn, integrators
+
+K = pytest.importorskip("tensegrity_gym._kernels")
+if not K.AVAILABLE:  # pragma: no cover
+    pytest.skip("numba not installed", allow_module_level=True)
+
+RTOL = 1e-12
+DT = 1e-3
+N_STEPS = 300
+
+
+def _rel_err(a, b):
+    """max |a - b| relative to the largest entry of a, for q and qd."""
+    eq = np.abs(a.q - b.q).max() / max(np.abs(a.q).max(), 1e-300)
+    eqd = np.abs(a.qd - b.qd).max() / max(np.abs(a.qd).max(), 1e-300)
+    return max(eq, eqd)
+
+
+def _perturbed(model, B, seed, scale=0.2):
+    """B copies with random node-velocity perturbations (consistent with the rods and constraints)."""
+    rng = np.random.default_rng(seed)
+    st = dyn.initial_state(model, B)
+    qd = st.qd + scale * rng.normal(size=st.qd.shape)
+    q, qd = dyn.project(model, st.q, qd)
+    return dyn.State(q=np.ascontiguousarray(q), qd=np.ascontiguousarray(qd), t=0.25)
+
+
+def _scene(name, B, seed=0):
+    """(model, state, controls dict) of each test scene, B copies."""
+    rng = np.random.default_rng(seed + 100)
+    if name == "prism_slack":
+        # free prism, no prestress kept: rest lengths per copy up to 8% longer than the strings, so
+        # several strings are slack at the start and go taut/slack along the run
+        model = dyn.compile_model(builders.prism(3))
+        st = _perturbed(model, B, seed, scale=1.0)
+        l0 = model.rest_length * (1.0 + rng.uniform(-0.05, 0.08, size=(B, model.n_strings)))
+        return model, st, dict(rest_length=l0)
+    if name == "prism_damped_gravity":
+        model = dyn.compile_model(builders.prism(3, damping=3.0, gravity=(0.0, 0.0, -9.81)))
+        st = _perturbed(model, B, seed)
+        ext = rng.normal(scale=2.0, size=(B, model.n_nodes, 3))
+        return model, st, dict(external=ext)
+    if name == "constrained_prism":
+        model = dyn.compile_model(builders.constrained_prism(damping=0.5))
+        st = _perturbed(model, B, seed)
+        fd = rng.normal(scale=60.0, size=(B, model.n_strings))     # some gamma + u < 0: clipped
+        return model, st, dict(force_density=fd)
+    if name == "pinned_rod":
+        model = dyn.compile_model(builders.pinned_rod())
+        st = _perturbed(model, B, seed)
+        l0 = model.rest_length * (1.0 + rng.uniform(-0.03, 0.03, size=(B, model.n_strings)))
+        ext = rng.normal(size=(model.n_nodes, 3))                  # (n, 3): same for every copy
+        return model, st, dict(rest_length=l0, external=ext)
+    if name == "icosahedron_active":
+        model = dyn.compile_model(builders.icosahedron(), active_strings=[0, 5, 11])
+        st = _perturbed(model, B, seed)
+        fd = np.zeros((B, model.n_strings))
+        fd[:, [0, 5, 11]] = rng.uniform(0.0, 80.0, size=(B, 3))      # actuation through active strings
+        fd[:, 7] = -1e3                                              # a clipped (slack) passive string
+        return model, st, dict(force_density=fd, rest_length=model.rest_length * 1.01)
+    raise KeyError(name)
+
+
+SCENES = ["prism_slack", "prism_damped_gravity", "constrained_prism", "pinned_rod", "icosahedron_active"]
+
+
+@pytest.mark.parametrize("scene", SCENES)
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+@pytest.mark.parametrize("project", [True, False])
+@pytest.mark.parametrize("B", [1, 5])
+def test_numba_matches_numpy(scene, integrator, project, B):
+    model, st, ctl = _scene(scene, B)
+    ref = integrators.step(model, st, DT, integrator, project=project, n_steps=N_STEPS, backend="numpy", **ctl)
+    q0, qd0 = st.q.copy(), st.qd.copy()
+    out = K.step(model, st, DT, integrator, project=project, n_steps=N_STEPS, **ctl)
+    assert np.all(np.isfinite(ref.q)) and np.abs(ref.q - st.q).max() > 1e-3, "the scene must move"
+    assert _rel_err(ref, out) < RTOL, f"{scene} {integrator}: numba deviates by {_rel_err(ref, out):.3g}"
+    assert out.t == ref.t
+    np.testing.assert_array_equal(st.q, q0)       # the input state is not modified
+    np.testing.assert_array_equal(st.qd, qd0)
+    # the dispatcher of integrators.step takes the same kernel
+    via = integrators.step(model, st, DT, integrator, project=project, n_steps=N_STEPS, backend="numba", **ctl)
+    np.testing.assert_array_equal(via.q, out.q)
+
+
+@pytest.mark.parametrize("scene", SCENES)
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+def test_simd_batch_loop_matches_numpy(scene, integrator):
+    """B >= 16 runs the structure-of-arrays (SIMD) loop; 19 copies also exercise the padded lanes."""
+    B = 19
+    assert B >= K._SOA_MIN_BATCH
+    model, st, ctl = _scene(scene, B, seed=5)
+    ref = integrators.step(model, st, DT, integrator, n_steps=100, backend="numpy", **ctl)
+    out = K.step(model, st, DT, integrator, n_steps=100, **ctl)
+    assert _rel_err(ref, out) < RTOL
+    one = K.step(model, dyn.State(st.q[7:8], st.qd[7:8], st.t), DT, integrator, n_steps=100,
+                 **{k: (v[7:8] if np.ndim(v) >= 2 and np.shape(v)[0] == B else v) for k, v in ctl.items()})
+    np.testing.assert_array_equal(one.q[0], out.q[7])     # same bits as the one-environment loop
+
+
+def test_branches_are_exercised():
+    """The scenes above really have slack strings, clipped force densities and taut strings."""
+    model, st, ctl = _scene("prism_slack", 5)
+    slack_seen = taut_seen = 0
+    s = st
+    for _ in range(30):
+        s = integrators.step(model, s, DT, "semi_implicit_euler", n_steps=10, backend="numpy", **ctl)
+        _, L, _ = dyn.string_state(model, s.q)
+        slack_seen += int(np.sum(L <= ctl["rest_length"]))
+        taut_seen += int(np.sum(L > ctl["rest_length"]))
+    assert slack_seen > 0 and taut_seen > 0
+    model, st, ctl = _scene("constrained_prism", 5)
+    gamma, _, _ = dyn.force_densities(model, st.q, st.qd)
+    assert np.any(gamma + ctl["force_density"] < 0) and np.any(gamma + ctl["force_density"] > 0)
+    assert model.has_damping and model.has_gravity and model.constrained.all()
+
+
+def test_comparison_can_fail():
+    """A 1e-9 relative change of one rest length is seen by the comparison (it is not vacuous)."""
+    model, st, ctl = _scene("prism_slack", 5)
+    ref = integrators.step(model, st, DT, "rk4", n_steps=N_STEPS, backend="numpy", **ctl)
+    l0 = ctl["rest_length"].copy()
+    l0[2, 4] *= 1.0 + 1e-9
+    out = K.step(model, st, DT, "rk4", n_steps=N_STEPS, rest_length=l0)
+    assert _rel_err(ref, out) > 100 * RTOL
+
+
+@pytest.mark.parametrize("min_work", [0, None])
+def test_parallel_batch_matches_numpy(monkeypatch, min_work):
+    """The multi-threaded kernel (forced with PARALLEL_MIN_WORK = 0, and chosen by the default rule
+    for this amount of work) matches NumPy; per-copy controls stay with their copy."""
+    if min_work is not None:
+        monkeypatch.setattr(K, "PARALLEL_MIN_WORK", min_work)
+    B = 37
+    model, st, ctl = _scene("prism_damped_gravity", B, seed=3)
+    assert K._parallel(K._CACHE.get(id(model)) or K._pack(model), B, 50, 0)
+    calls = []
+    real = K._run_parallel
+    monkeypatch.setattr(K, "_run_parallel", lambda *a: calls.append(1) or real(*a))
+    l0 = model.rest_length * (1.0 + np.linspace(-0.02, 0.05, B))[:, None]
+    for integrator in ("semi_implicit_euler", "rk4"):
+        ref = integrators.step(model, st, DT, integrator, n_steps=50, backend="numpy", rest_length=l0, **ctl)
+        out = K.step(model, st, DT, integrator, n_steps=50, rest_length=l0, **ctl)
+        assert _rel_err(ref, out) < RTOL
+        q, qd = st.q.copy(), st.qd.copy()
+        K.step_inplace(model, q, qd, DT, integrator, n_steps=50, rest_length=l0, **ctl)
+        np.testing.assert_array_equal(q, out.q)
+        np.testing.assert_array_equal(qd, out.qd)
+    assert len(calls) == 4
+    if min_work is None:      # the default rule keeps a small call serial
+        assert not K._parallel(K._CACHE[id(model)], 2, 1, 0)
+
+
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+def test_step_inplace_equals_step(integrator):
+    model, st, ctl = _scene("icosahedron_active", 3)
+    out = K.step(model, st, DT, integrator, n_steps=40, **ctl)
+    q, qd = st.q.copy(), st.qd.copy()
+    K.step_inplace(model, q, qd, DT, integrator, n_steps=40, **ctl)
+    np.testing.assert_array_equal(q, out.q)
+    np.testing.assert_array_equal(qd, out.qd)
+    # and without controls (the lean single-env path), one step at a time
+    model = dyn.compile_model(builders.prism(3))
+    st = _perturbed(model, 1, 7)
+    ref = integrators.step(model, st, DT, integrator, n_steps=25, backend="numpy")
+    q, qd = st.q.copy(), st.qd.copy()
+    for _ in range(25):
+        K.step_inplace(model, q, qd, DT, integrator)
+    assert _rel_err(ref, dyn.State(q, qd)) < RTOL
+
+
+def test_odd_inputs_are_converted():
+    """float32, strided, read-only and 1-D inputs give the same result as clean float64 arrays."""
+    model, st, ctl = _scene("pinned_rod", 4)
+    ref = K.step(model, st, DT, "rk4", n_steps=20, **ctl)
+    big = np.zeros((8,) + st.q.shape[1:])
+    big[::2] = st.q
+    strided = dyn.State(q=big[::2], qd=st.qd, t=st.t)
+    ro_l0 = ctl["rest_length"].copy()
+    ro_l0.setflags(write=False)
+    out = K.step(model, strided, DT, "rk4", n_steps=20, rest_length=ro_l0, external=ctl["external"])
+    np.testing.assert_array_equal(out.q, ref.q)
+    out32 = K.step(model, st, DT, "rk4", n_steps=20, rest_length=ctl["rest_length"],
+                   external=ctl["external"].astype(np.float32))
+    ext32 = ctl["external"].astype(np.float32).astype(np.float64)
+    ref32 = K.step(model, st, DT, "rk4", n_steps=20, rest_length=ctl["rest_length"], external=ext32)
+    np.testing.assert_array_equal(out32.q, ref32.q)
+    one = dyn.State(q=st.q[:1], qd=st.qd[:1], t=0.0)
+    a = K.step(model, one, DT, "semi_implicit_euler", rest_length=ctl["rest_length"][0], n_steps=5)
+    b = K.step(model, one, DT, "semi_implicit_euler", rest_length=ctl["rest_length"][:1], n_steps=5)
+    np.testing.assert_array_equal(a.q, b.q)
+
+
+def test_bad_shapes_raise_clear_errors():
+    model, st, ctl = _scene("prism_slack", 2)
+    m, n = model.n_strings, model.n_nodes
+    with pytest.raises(ValueError, match="rest_length"):
+        K.step(model, st, DT, "rk4", rest_length=np.ones((3, m)))
+    with pytest.raises(ValueError, match="rest_length"):
+        K.step(model, st, DT, "rk4", rest_length=np.ones(m + 1))
+    with pytest.raises(ValueError, match="force_density"):
+        K.step(model, st, DT, "rk4", force_density=np.ones((2, m - 1)))
+    with pytest.raises(ValueError, match="external"):
+        K.step(model, st, DT, "rk4", external=np.ones((2, n + 1, 3)))
+    with pytest.raises(ValueError, match="q"):
+        K.step(model, dyn.State(st.q[:, :2], st.qd[:, :2]), DT, "rk4")
+    with pytest.raises(ValueError, match="integrator"):
+        K.step(model, st, DT, "dop853")
+    with pytest.raises(TypeError, match="callable"):
+        K.step(model, st, DT, "rk4", external=lambda q, qd, t: 0.0)
+    q32 = st.q.astype(np.float32)
+    with pytest.raises(ValueError, match="C-contiguous float64"):
+        K.step_inplace(model, q32, st.qd.copy(), DT)
+
+
+def test_model_cache_follows_model_lifetime():
+    import gc
+    model = dyn.compile_model(tg.build("prism3"))
+    K.step(model, dyn.initial_state(model), DT, "semi_implicit_euler")
+    key = id(model)
+    assert key in K._CACHE
+    del model
+    gc.collect()
+    assert key not in K._CACHE

@@ -1,0 +1,232 @@
+"""TensegrityRoll-v0: API checks, determinism, stability under extreme actions, vector == single,
+make_vec, the open-loop gait, reward bookkeeping, divergence handling."""
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import tensegrity_gym  # noqa: F401  (registers the envs)
+from tensegrity_gym.baselines import RollingGait
+from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
+
+ENV_ID = "TensegrityRoll-v0"
+COMBOS = [("prism", "rest_length"), ("prism", "force_density"), ("icosahedron", "rest_length"),
+          ("icosahedron", "force_density")]
+
+
+@pytest.mark.parametrize("structure,mode", COMBOS)
+def test_gymnasium_and_sb3_check_env(structure, mode):
+    from gymnasium.utils.env_checker import check_env
+    env = gym.make(ENV_ID, structure=structure, action_mode=mode)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        check_env(env.unwrapped, skip_render_check=True)
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+    sb3_check(TensegrityRollEnv(structure=structure, action_mode=mode), warn=False)
+    n = env.unwrapped.task.model.n_nodes
+    k = env.unwrapped.task.model.n_bars
+    na = env.action_space.shape[0]
+    assert env.observation_space.shape == (6 * n + na + 2 * k + 3,)
+
+
+def test_determinism_per_seed():
+    def rollout(seed):
+        env = gym.make(ENV_ID)
+        obs, _ = env.reset(seed=seed)
+        env.action_space.seed(seed)
+        out = [obs]
+        for _ in range(40):
+            obs, r, *_ = env.step(env.action_space.sample())
+            out.append(obs)
+        return np.array(out)
+    a, b, c = rollout(3), rollout(3), rollout(4)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+@pytest.mark.parametrize("structure,mode", [("prism", "rest_length"), ("icosahedron", "rest_length"),
+                                            ("prism", "force_density")])
+def test_finite_under_random_and_extreme_actions(structure, mode):
+    env = TensegrityRollVectorEnv(num_envs=3, structure=structure, action_mode=mode, max_episode_steps=None)
+    obs, _ = env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    na = env.single_action_space.shape[0]
+    for i in range(600):
+        a = np.stack([np.ones(na), -np.ones(na), rng.uniform(-1, 1, na)])
+        if i % 100 >= 50:
+            a[2] = rng.choice([-1.0, 1.0], na)       # bang-bang
+        obs, r, term, trunc, info = env.step(a)
+        assert np.all(np.isfinite(obs)) and np.all(np.isfinite(r))
+        assert not info["diverged"].any()
+    com = info["com_position"]
+    assert np.all(np.abs(com[:, :2]) < 20.0) and np.all(com[:, 2] > 0.0)
+
+
+def test_vector_env_equals_single_envs_with_autoreset():
+    T = 12
+    N = 3
+    venv = TensegrityRollVectorEnv(num_envs=N, max_episode_steps=T, randomize_goal=True)
+    singles = [gym.make(ENV_ID, max_episode_steps=T, randomize_goal=True) for _ in range(N)]
+    vobs, _ = venv.reset(seed=7)
+    sobs = [e.reset(seed=7 + i)[0] for i, e in enumerate(singles)]
+    np.testing.assert_array_equal(vobs, np.array(sobs))
+    rng = np.random.default_rng(1)
+    done = [False] * N
+    n_trunc = 0
+    for step in range(2 * T + 3):
+        a = rng.uniform(-1, 1, (N,) + venv.single_action_space.shape).astype(np.float32)
+        vobs, vr, vterm, vtrunc, vinfo = venv.step(a)
+        for i, e in enumerate(singles):
+            if done[i]:
+                o, _ = e.reset()
+                r, te, tr = 0.0, False, False
+            else:
+                o, r, te, tr, _ = e.step(a[i])
+            done[i] = te or tr
+            np.testing.assert_array_equal(vobs[i], o)
+            assert vr[i] == pytest.approx(r, abs=0, rel=1e-12)
+            assert (vterm[i], vtrunc[i]) == (te, tr)
+        n_trunc += int(vtrunc.sum())
+    assert n_trunc == 2 * N   # every env crossed two episode boundaries (truncation at T, autoreset)
+
+
+def test_make_vec_vector_entry_point_and_registered_time_limit():
+    venv = gym.make_vec(ENV_ID, num_envs=4, vectorization_mode="vector_entry_point")
+    assert isinstance(venv.unwrapped, TensegrityRollVectorEnv)
+    assert venv.unwrapped.max_episode_steps == gym.spec(ENV_ID).max_episode_steps
+    assert venv.metadata["autoreset_mode"] == gym.vector.AutoresetMode.NEXT_STEP
+    obs, _ = venv.reset(seed=0)
+    assert obs.shape == (4,) + venv.single_observation_space.shape
+    venv.unwrapped.max_episode_steps = 5
+    for i in range(5):
+        obs, r, term, trunc, info = venv.step(venv.action_space.sample())
+    assert trunc.all() and not term.any()
+    obs, r, term, trunc, info = venv.step(venv.action_space.sample())   # autoreset step
+    assert not trunc.any() and np.all(r == 0)
+    assert np.allclose(info["distance_rolled"], 0.0)
+
+
+def test_reward_is_sum_of_terms_and_info():
+    env = gym.make(ENV_ID, ctrl_cost_weight=0.1, forward_reward_weight=2.0)
+    env.reset(seed=0)
+    for _ in range(20):
+        obs, r, term, trunc, info = env.step(env.action_space.sample())
+        terms = {k: v for k, v in info.items() if k.startswith("reward_")}
+        assert set(terms) == {"reward_forward", "reward_ctrl"}
+        assert r == pytest.approx(sum(terms.values()), abs=1e-12)
+        assert info["reward_forward"] == pytest.approx(2.0 * info["forward_velocity"])
+        assert info["com_position"].shape == (3,) and info["com_velocity"].shape == (3,)
+        assert np.isfinite(info["distance_rolled"])
+        assert not term
+
+
+def test_nan_action_names_index_and_bad_args():
+    env = gym.make(ENV_ID)
+    env.reset(seed=0)
+    a = np.zeros(env.action_space.shape)
+    a[4] = np.nan
+    with pytest.raises(ValueError, match="4"):
+        env.step(a)
+    with pytest.raises(ValueError, match="action_mode"):
+        TensegrityRollEnv(action_mode="torque")
+    with pytest.raises(ValueError, match="goal_direction"):
+        TensegrityRollEnv(goal_direction=(0.0, 0.0))
+    with pytest.raises(ValueError, match="friction"):
+        TensegrityRollEnv(friction=-1.0)
+
+
+def test_goal_randomised_and_observed():
+    env = TensegrityRollEnv(randomize_goal=True)
+    sl = {n: s for n, s, _ in env.task.observation_layout()}["goal_direction"]
+    goals = []
+    for seed in range(4):
+        obs, info = env.reset(seed=seed)
+        g = obs[sl]
+        assert np.linalg.norm(g) == pytest.approx(1.0, abs=1e-6)
+        np.testing.assert_allclose(g, info["goal_direction"], atol=1e-6)
+        goals.append(g)
+    assert np.ptp(np.array(goals), axis=0).max() > 0.1
+    env0 = TensegrityRollEnv()
+    obs, _ = env0.reset(seed=0)
+    np.testing.assert_allclose(obs[sl], [1.0, 0.0])
+
+
+def test_divergence_truncates_with_finite_observation():
+    env = TensegrityRollEnv()
+    obs, _ = env.reset(seed=0)
+    env.task.qd[0, 0, :3] = 1e7    # a kick that sends a rod far beyond the divergence limit
+    obs, r, term, trunc, info = env.step(np.zeros(env.action_space.shape))
+    assert info["diverged"] and trunc and not term
+    assert np.all(np.isfinite(obs)) and np.isfinite(r)
+
+
+def test_gait_rolls_the_prism_forward_more_than_a_body_length():
+    env = gym.make(ENV_ID)
+    gait = RollingGait(env)
+    obs, _ = env.reset(seed=0)
+    state = None
+    T = 20.0     # one registered episode (1000 control steps)
+    for _ in range(int(T / env.unwrapped.dt)):
+        a, state = gait.predict(obs, state)
+        obs, r, term, trunc, info = env.step(a)
+        if term or trunc:
+            break
+    L = env.unwrapped.task.body_length
+    assert info["distance_rolled"] > L, (info["distance_rolled"], L)
+
+
+def test_render_rgb_array_has_ground_and_path():
+    env = gym.make(ENV_ID, render_mode="rgb_array", width=160, height=160)
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    frame = env.render()
+    assert frame.shape == (160, 160, 3) and frame.dtype == np.uint8
+    assert len(env.unwrapped.task.paths[0]) == 4
+    env.close()
+
+
+def test_sb3_adapter_on_the_batched_vector_env():
+    from tensegrity_gym.envs.common import make_sb3_vec_env
+    venv = make_sb3_vec_env(TensegrityRollVectorEnv(num_envs=2, max_episode_steps=3))
+    obs = venv.reset()
+    assert obs.shape == (2,) + venv.observation_space.shape
+    for i in range(3):
+        obs, rew, done, infos = venv.step(np.zeros((2,) + venv.action_space.shape, np.float32))
+    assert done.all() and all(info["TimeLimit.truncated"] for info in infos)
+    assert all("terminal_observation" in info for info in infos)
+    assert np.all(np.isfinite(obs))
+
+
+def test_numpy_reference_backend_matches_the_fast_path():
+    """backend='numpy' (integrators.step + NumPy contact per physics step) and the default
+    compiled path (same equations, numba kernels) give the same trajectory to round-off."""
+    a, b = TensegrityRollEnv(backend="numpy"), TensegrityRollEnv()
+    a.reset(seed=3)
+    b.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(25):
+        act = rng.uniform(-1, 1, a.action_space.shape)
+        a.step(act)
+        b.step(act)
+    assert a.task.cstate.active.any()
+    np.testing.assert_allclose(a.task.q, b.task.q, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(a.task.qd, b.task.qd, rtol=0, atol=1e-8)
+    np.testing.assert_array_equal(a.task.cstate.active, b.task.cstate.active)
+
+
+def test_step_above_the_contact_stability_limit_warns():
+    from tensegrity_gym.integrators import StabilityWarning
+    with pytest.warns(StabilityWarning, match="stability limit"):
+        TensegrityRollEnv(dt=2.8e-3, frame_skip=7)
+
+
+@pytest.mark.parametrize("structure", ["prism", "icosahedron"])
+def test_robot_at_rest_stays_put_with_zero_action(structure):
+    env = TensegrityRollEnv(structure=structure, reset_noise_scale=0.0)
+    env.reset(seed=0)
+    for _ in range(250):     # 5 s
+        obs, r, term, trunc, info = env.step(np.zeros(env.action_space.shape))
+    assert np.linalg.norm(info["com_position"][:2] - env.task.start[0, :2]) < 1e-3
+    assert abs(info["com_velocity"]).max() < 1e-3
