@@ -34,7 +34,8 @@ Inputs (both entry points)
 string force densities, result clipped at 0), ``external`` (n, 3) or (B, n, 3) nodal forces
 in N held constant over the step(s). ``project``: normalise ``b``, remove the component of
 ``b'`` along ``b`` and put constrained reference points back on their point/line/plane after
-every step (exactly :func:`tensegrity_gym.dynamics.project`). ``n_steps``: steps taken in
+every step (exactly :func:`tensegrity_gym.dynamics.project`); semi-implicit Euler then moves
+``b`` along its great circle (``_drift_rod``, exactly ``integrators._sphere_drift``). ``n_steps``: steps taken in
 one call (all inside the compiled loop).
 
 Implementation notes
@@ -61,7 +62,9 @@ Implementation notes
   (``NUMBA_THREADING_LAYER``): see the comment at the import. The parallel kernel holds
   the GIL, so two Python threads never enter the pool at once.
 * Damping work (node velocities, string length rates) is skipped when
-  ``model.has_damping`` is False; gravity loads when ``model.has_gravity`` is False.
+  ``model.has_damping`` and ``model.has_node_damping`` are False (node drag ``-c v``,
+  :func:`tensegrity_gym.dynamics.compile_model` ``node_damping``, is added to the nodal forces
+  after gravity, as NumPy does); gravity loads when ``model.has_gravity`` is False.
 * Shapes are checked inside the kernel (error code -> ``ValueError`` naming the argument),
   so a wrong shape never reads out of bounds.
 * Cold start: the first call compiles (~25 s per entry point group on the 2-core machine);
@@ -106,6 +109,9 @@ _EXT = 16
 _PROJ = 32
 _CONS = 64
 _L0DEF = 128   # use the model's rest lengths stored in the buffer
+_NDAMP = 256   # per-node viscous drag (model.node_damping)
+_CHUNK_SHIFT = 16   # the parallel kernel's chunk count rides in flags >> _CHUNK_SHIFT
+_SINC_SMALL = 1e-4    # integrators._SINC_SMALL: below this angle per step sin(x)/x = 1 - x^2/6
 _SOA_MIN_BATCH = 16   # serial calls with at least this many environments use the SIMD (SoA) loop
 
 _ERRORS = {
@@ -137,6 +143,7 @@ def _layout(k, m, n):
     o_W0      3 n     gravity nodal loads
     o_ws      60 k    10 stage arrays (k, 6) of the integrators (scratch)
     o_N/V/F   3 n     node positions (anchor rows preset), velocities (anchor rows 0), forces
+    o_cn      3 n     node drag coefficients c (N s/m), repeated for x, y, z
     ========  ======  ==============================================================
     """
     o_rod = 3
@@ -147,8 +154,9 @@ def _layout(k, m, n):
     o_N = o_ws + 60 * k
     o_V = o_N + 3 * n
     o_F = o_V + 3 * n
-    end = o_F + 3 * n
-    return (o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, end)
+    o_cn = o_F + 3 * n
+    end = o_cn + 3 * n
+    return (o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end)
 
 
 if AVAILABLE:
@@ -162,8 +170,9 @@ if AVAILABLE:
     def _acc(w, ib, L, k, m, n, oq, oqd, oa, l0, el, fd, ef, ext, ee, flags):
         """w[oa:oa+6k] = accelerations (k, 6) of the configuration stored at w[oq:], w[oqd:]
         (dynamics.accelerations for one environment; l0[el], fd[ef], ext[ee] are its rows)."""
-        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, end = L
+        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
         has_damp = (flags & _DAMP) != 0
+        need_v = (flags & (_DAMP | _NDAMP)) != 0
         # node positions (and velocities) of rod nodes: n = r + eta b
         for j in range(k):
             rj = o_rod + _ROD * j
@@ -175,7 +184,7 @@ if AVAILABLE:
             for i in range(3):
                 w[o_N + ia + i] = w[qj + i] + ea * w[qj + 3 + i]
                 w[o_N + ic + i] = w[qj + i] + ec * w[qj + 3 + i]
-            if has_damp:
+            if need_v:
                 vj = oqd + 6 * j
                 for i in range(3):
                     w[o_V + ia + i] = w[vj + i] + ea * w[vj + 3 + i]
@@ -225,6 +234,9 @@ if AVAILABLE:
         if (flags & _GRAV) != 0:
             for p in range(3 * n):
                 w[o_F + p] = w[o_F + p] + w[o_W0 + p]
+        if (flags & _NDAMP) != 0:             # node drag -c v (anchor rows of V are 0)
+            for p in range(3 * n):
+                w[o_F + p] = w[o_F + p] - w[o_cn + p] * w[o_V + p]
         if (flags & _EXT) != 0:
             for p in range(n):
                 for i in range(3):
@@ -340,6 +352,34 @@ if AVAILABLE:
                     w[qj + i] = w[oj + i] + (w[pj + 3 * i] * x0 + w[pj + 3 * i + 1] * x1 + w[pj + 3 * i + 2] * x2)
                     w[vj + i] = w[pj + 3 * i] * v0 + w[pj + 3 * i + 1] * v1 + w[pj + 3 * i + 2] * v2
 
+    @njit(inline="always", **_opts)
+    def _drift_rod(q0, q1, q2, b0, b1, b2, v0, v1, v2, d0, d1, d2, dt):
+        """Semi-implicit Euler drift with projection for one rod (integrators._sphere_drift, same
+        operations in the same order): r += dt r'; b along its great circle. Returns the new
+        (r, b, b') as a 9-tuple (r' is unchanged)."""
+        q0 = q0 + dt * v0
+        q1 = q1 + dt * v1
+        q2 = q2 + dt * v2
+        inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+        b0 = b0 * inb
+        b1 = b1 * inb
+        b2 = b2 * inb
+        dot = b0 * d0 + b1 * d1 + b2 * d2
+        d0 = d0 - b0 * dot
+        d1 = d1 - b1 * dot
+        d2 = d2 - b2 * dot
+        wv = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        x = wv * dt
+        if x < _SINC_SMALL:
+            sinc = 1.0 - x * x / 6.0
+        else:
+            sinc = math.sin(x) / x
+        c = math.cos(x)
+        ds = dt * sinc
+        ws = wv * (x * sinc)
+        return (q0, q1, q2, b0 * c + d0 * ds, b1 * c + d1 * ds, b2 * c + d2 * ds,
+                d0 * c - b0 * ws, d1 * c - b1 * ws, d2 * c - b2 * ws)
+
     @njit(**_opts)
     def _advance_range(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags):
         """n_steps fixed steps of environments lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e])
@@ -378,10 +418,22 @@ if AVAILABLE:
                 for stage in range(n_stages):
                     _acc(w, ib, L, k, m, n, oq, oqd, oa, l0, el, fd, ef, ext, ee, flags)
                     if not rk4:
-                        # semi-implicit Euler: v += dt a(q, v); q += dt v
-                        for p in range(k6):
-                            w[QD + p] = w[QD + p] + dt * w[A1 + p]
-                            w[Q + p] = w[Q + p] + dt * w[QD + p]
+                        # semi-implicit Euler: v += dt a(q, v); q += dt v (with projection: b
+                        # along its great circle, see integrators._sphere_drift)
+                        if do_proj:
+                            for p in range(k6):
+                                w[QD + p] = w[QD + p] + dt * w[A1 + p]
+                            for j in range(k):
+                                qj = Q + 6 * j
+                                vj = QD + 6 * j
+                                (w[qj], w[qj + 1], w[qj + 2], w[qj + 3], w[qj + 4], w[qj + 5], w[vj + 3],
+                                 w[vj + 4], w[vj + 5]) = _drift_rod(
+                                    w[qj], w[qj + 1], w[qj + 2], w[qj + 3], w[qj + 4], w[qj + 5], w[vj],
+                                    w[vj + 1], w[vj + 2], w[vj + 3], w[vj + 4], w[vj + 5], dt)
+                        else:
+                            for p in range(k6):
+                                w[QD + p] = w[QD + p] + dt * w[A1 + p]
+                                w[Q + p] = w[Q + p] + dt * w[QD + p]
                     elif stage == 0:
                         for p in range(k6):
                             w[QS + p] = w[Q + p] + h * w[QD + p]
@@ -415,8 +467,9 @@ if AVAILABLE:
     def _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags):
         """_acc for E environments at once, structure-of-arrays: Qi, Vi, A (k, 6, E), N, V, F,
         EX (n, 3, E), L0, FD (m, E). The innermost loops run over the environments (SIMD)."""
-        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, end = L
+        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
         has_damp = (flags & _DAMP) != 0
+        need_v = (flags & (_DAMP | _NDAMP)) != 0
         for j in range(k):
             rj = o_rod + _ROD * j
             ia = ib[rj]
@@ -427,7 +480,7 @@ if AVAILABLE:
                 for e in range(E):
                     N[ia, i, e] = Qi[j, i, e] + ea * Qi[j, 3 + i, e]
                     N[ic, i, e] = Qi[j, i, e] + ec * Qi[j, 3 + i, e]
-            if has_damp:
+            if need_v:
                 for i in range(3):
                     for e in range(E):
                         V[ia, i, e] = Vi[j, i, e] + ea * Vi[j, 3 + i, e]
@@ -471,6 +524,12 @@ if AVAILABLE:
                     wv = w[o_W0 + 3 * p + i]
                     for e in range(E):
                         F[p, i, e] = F[p, i, e] + wv
+        if (flags & _NDAMP) != 0:
+            for p in range(n):
+                for i in range(3):
+                    cv = w[o_cn + 3 * p + i]
+                    for e in range(E):
+                        F[p, i, e] = F[p, i, e] - cv * V[p, i, e]
         if (flags & _EXT) != 0:
             for p in range(n):
                 for i in range(3):
@@ -606,7 +665,18 @@ if AVAILABLE:
                 A = A1
                 for stage in range(n_stages):
                     _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags)
-                    if not rk4:
+                    if not rk4 and do_proj:
+                        for j in range(k):
+                            for i in range(6):
+                                for e in range(E):
+                                    QD[j, i, e] = QD[j, i, e] + dt * A1[j, i, e]
+                            for e in range(E):
+                                (Q[j, 0, e], Q[j, 1, e], Q[j, 2, e], Q[j, 3, e], Q[j, 4, e], Q[j, 5, e],
+                                 QD[j, 3, e], QD[j, 4, e], QD[j, 5, e]) = _drift_rod(
+                                    Q[j, 0, e], Q[j, 1, e], Q[j, 2, e], Q[j, 3, e], Q[j, 4, e], Q[j, 5, e],
+                                    QD[j, 0, e], QD[j, 1, e], QD[j, 2, e], QD[j, 3, e], QD[j, 4, e],
+                                    QD[j, 5, e], dt)
+                    elif not rk4:
                         for j in range(k):
                             for i in range(6):
                                 for e in range(E):
@@ -749,7 +819,7 @@ if AVAILABLE:
             return err
         L = _layout_nb(k, m, n)
         B = q.shape[0]
-        nch = min(B, max(flags >> 8, 1))       # number of chunks in the high bits of flags
+        nch = min(B, max(flags >> _CHUNK_SHIFT, 1))       # number of chunks in the high bits of flags
         for c in prange(nch):
             # _advance_soa only reads buf and allocates its own scratch: threads share nothing written
             _advance_soa(buf, ib0, L, k, m, n, q, qd, qo, qdo, c * B // nch, (c + 1) * B // nch, l0, fd, ext,
@@ -775,7 +845,7 @@ def _pack(model):
     """Pack the model into one float64 buffer (see ``_layout``) plus default control arrays;
     cached by id(model) for the model's lifetime."""
     k, n, m = model.n_bars, model.n_nodes, model.n_strings
-    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, end = _layout(k, m, n)
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = _layout(k, m, n)
     buf = np.zeros(end)
     ib = buf.view(np.int64)
     ib[0:3] = (k, m, n)
@@ -794,6 +864,9 @@ def _pack(model):
         buf[ps + 2:ps + 4] = (model.stiffness[s], model.damping[s])
     buf[o_l0:o_l0 + m] = model.rest_length
     buf[o_W0:o_W0 + 3 * n] = model.W0.reshape(-1)
+    has_nd = bool(getattr(model, "has_node_damping", False))
+    if has_nd:
+        buf[o_cn:o_cn + 3 * n] = np.repeat(model.node_damping, 3)
     for a, pos in zip(model.anchor_idx, model.anchor_pos):   # anchor rows of the node scratch
         buf[o_N + 3 * a:o_N + 3 * a + 3] = pos
     p = _Packed()
@@ -803,7 +876,7 @@ def _pack(model):
     p.ext = np.zeros((1, n, 3))
     p.cost = m + k
     p.flags = ((_DAMP if model.has_damping else 0) | (_GRAV if model.has_gravity else 0)
-               | (_CONS if bool(np.any(model.constrained)) else 0))
+               | (_CONS if bool(np.any(model.constrained)) else 0) | (_NDAMP if has_nd else 0))
     key = id(model)
     _CACHE[key] = p
     weakref.finalize(model, _CACHE.pop, key, None)
@@ -839,7 +912,7 @@ def _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, inplac
     if not (isinstance(dt, (int, float, np.floating, np.integer)) and isinstance(n_steps, (int, np.integer))):
         raise TypeError(f"dt must be a number of seconds and n_steps an integer; got {dt!r}, {n_steps!r}")
     run = _run_parallel if _parallel(p, q.shape[0], n_steps, flags) else _run_serial
-    return run(q, qd, qo, qdo, p.buf, l0, fd, ext, float(dt), int(n_steps), flags | (_NCHUNK << 8))
+    return run(q, qd, qo, qdo, p.buf, l0, fd, ext, float(dt), int(n_steps), flags | (_NCHUNK << _CHUNK_SHIFT))
 
 
 def _raise(err, model, q, qd, l0, fd, ext):
@@ -934,7 +1007,7 @@ def step(model, state, dt, name, *, rest_length=None, force_density=None, extern
         else:
             l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
             if big:
-                err = _run_parallel(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags | (_NCHUNK << 8))
+                err = _run_parallel(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags | (_NCHUNK << _CHUNK_SHIFT))
             else:
                 err = _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags)
     except TypeError:
@@ -963,7 +1036,7 @@ def step_inplace(model, q, qd, dt, name="semi_implicit_euler", *, rest_length=No
         else:
             l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
             if big:
-                err = _run_parallel(q, qd, q, qd, p.buf, l0, fd, ext, dt, n_steps, flags | (_NCHUNK << 8))
+                err = _run_parallel(q, qd, q, qd, p.buf, l0, fd, ext, dt, n_steps, flags | (_NCHUNK << _CHUNK_SHIFT))
             else:
                 err = _run_serial(q, qd, q, qd, p.buf, l0, fd, ext, dt, n_steps, flags)
     except TypeError:

@@ -7,8 +7,11 @@ Integrators (select by name):
 =======================  =====  ========================================================
 name                     order  notes
 =======================  =====  ========================================================
-``semi_implicit_euler``  1      symplectic Euler: v += dt a(q, v); q += dt v. Energy stays
-                                bounded (no secular drift) without damping.
+``semi_implicit_euler``  1      symplectic Euler: v += dt a(q, v); q += dt v. With
+                                ``project=True`` each rod direction moves along its great
+                                circle instead of ``b += dt b'`` (:func:`_sphere_drift`), so
+                                energy stays bounded and angular momentum is kept (no
+                                secular drift, spinning bodies included) without damping.
 ``rk4``                  4      classic Runge-Kutta.
 ``dop853``               8      adaptive, ``scipy.integrate.solve_ivp`` (reference method).
 ``radau``                5      adaptive implicit (stiff strings), ``solve_ivp``.
@@ -23,7 +26,7 @@ Stability checks
 For the explicit fixed-step methods (``semi_implicit_euler``, ``rk4``) the first call of
 :func:`step`/:func:`simulate` with a given (model, integrator, dt) compares ``dt`` with the
 estimated stability limit (:func:`stability_limit`: :func:`tensegrity_gym.dynamics.stable_step_estimate`
-at the structure's initial state, lowered for damped strings; computed once per model and
+at the structure's initial state, string damping included; computed once per model and
 cached) and issues a
 :class:`StabilityWarning` naming the limit when ``dt`` exceeds it. Later calls with the same
 (model, integrator, dt) cost one set lookup. :func:`simulate` raises
@@ -36,8 +39,10 @@ The equations keep the *second* derivatives of ``|b| = 1``, ``b . b' = 0`` and o
 constraints, not the constraints themselves. With ``project=True`` (default for the
 fixed-step methods) each step ends by normalising ``b``, removing the component of ``b'``
 along ``b`` and putting constrained nodes back on their point/line/plane
-(:func:`tensegrity_gym.dynamics.project`). With ``project=False`` nothing is changed and the
-drift is left to be measured (``dynamics.constraint_violation``). The adaptive methods never
+(:func:`tensegrity_gym.dynamics.project`); semi-implicit Euler then also moves ``b`` along
+its great circle (geodesic on the unit sphere, ``r`` keeps the plain Euler update), so the
+projection only removes round-off. With ``project=False`` nothing is changed (plain
+``q += dt q'``) and the drift is left to be measured (``dynamics.constraint_violation``). The adaptive methods never
 project inside ``solve_ivp``; their drift is set by their tolerances.
 
 Backends
@@ -135,85 +140,19 @@ _LIMIT_CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictiona
 
 def stability_limit(model: Model) -> dict:
     """Largest stable step (s) of the explicit methods for ``model`` at its initial state,
-    computed once per model and cached: ``{"omega_max": rad/s, "semi_implicit_euler": s,
-    "rk4": s}``. Undamped strings: :func:`dynamics.stable_step_estimate`. Damped strings
-    (``model.has_damping``): the smaller of that and :func:`_damped_limits`, which also
-    accounts for the damping (it lowers the explicit limits, by 6x for 50 N s/m on the
+    computed once per model and cached: :func:`dynamics.stable_step_estimate`
+    (``{"omega_max": rad/s, "lambda_max": 1/s, "semi_implicit_euler": s, "rk4": s}``), which
+    accounts for string damping (it lowers the explicit limits, by 6x for 50 N s/m on the
     default prism)."""
     est = _LIMIT_CACHE.get(model)
     if est is None:
         try:
             est = dict(dyn.stable_step_estimate(model))
-            if model.has_damping:
-                damped = _damped_limits(model)
-                for name in _EXPLICIT:
-                    est[name] = min(est[name], damped[name])
         except Exception:  # pragma: no cover - an estimate must never break a simulation
-            est = {"omega_max": float("nan"), "semi_implicit_euler": float("inf"), "rk4": float("inf")}
+            est = {"omega_max": float("nan"), "lambda_max": float("nan"), "semi_implicit_euler": float("inf"),
+                   "rk4": float("inf")}
         _LIMIT_CACHE[model] = est
     return est
-
-
-def _damped_limits(model: Model) -> dict:
-    """Explicit stability limits (s) from the eigenvalues ``lam`` of the linearised first-order
-    system ``[[0, I], [K, D]]`` (``K``, ``D`` = d(accelerations)/d(q, qd), finite differences,
-    :func:`tensegrity_gym.implicit.jacobians`) at the initial state at rest.
-
-    RK4: the largest dt with ``|R(dt lam)| <= 1`` for every ``lam`` (``R`` its stability
-    polynomial; bisection). Semi-implicit Euler: each complex pair is a damped oscillator
-    ``x'' = -w0^2 x - c x'`` (``w0 = |lam|``, ``c = -2 Re lam``), stable for
-    ``w0^2 dt^2 + 2 c dt <= 4``, i.e. ``dt <= (sqrt(c^2 + 4 w0^2) - c) / w0^2``; a real
-    ``lam < 0`` (overdamped) gets ``dt <= 0.75 / |lam|``, safe for any overdamped pair."""
-    from .implicit import jacobians
-    st = dyn.initial_state(model)
-    _, K, D = jacobians(model, st.q, np.zeros_like(st.qd))
-    n = K.shape[-1]
-    A = np.block([[np.zeros((n, n)), np.eye(n)], [K[0], D[0]]])
-    lam = np.linalg.eigvals(A)
-    # drop the rigid-body/zero modes (finite-difference noise makes them ~1e-2 instead of 0) and
-    # growing modes (a physical instability is no step limit)
-    lam = lam[(np.abs(lam) > 1e-3 * np.abs(lam).max()) & (lam.real <= 1e-6 * np.abs(lam))]
-    inf = float("inf")
-    if lam.size == 0:
-        return {"semi_implicit_euler": inf, "rk4": inf}
-    cplx = lam[np.abs(lam.imag) > 1e-9 * np.abs(lam)]
-    real = lam[np.abs(lam.imag) <= 1e-9 * np.abs(lam)].real
-    sie = inf
-    if cplx.size:
-        w0 = np.abs(cplx)
-        c = np.maximum(-2.0 * cplx.real, 0.0)
-        sie = float(np.min((np.sqrt(c * c + 4 * w0 * w0) - c) / (w0 * w0)))
-    if np.any(real < 0):
-        sie = min(sie, float(0.75 / np.abs(real[real < 0]).max()))
-    if 2 * n <= 400:
-        # small systems: the exact linear limit, by bisection on the spectral radius of the
-        # semi-implicit Euler step matrix [[I + dt^2 K, dt I + dt^2 D], [dt K, I + dt D]]
-        # between the safe bound above and 8x it
-        I_ = np.eye(n)
-
-        def sie_ok(dt):
-            M = np.block([[I_ + dt * dt * K[0], dt * I_ + dt * dt * D[0]], [dt * K[0], I_ + dt * D[0]]])
-            return bool(np.abs(np.linalg.eigvals(M)).max() <= 1.0 + 1e-3 * dt * float(np.abs(lam).max()))
-
-        lo_s, hi_s = sie, 8.0 * sie
-        if np.isfinite(sie) and sie_ok(lo_s):
-            for _ in range(30):
-                mid = 0.5 * (lo_s + hi_s)
-                lo_s, hi_s = (mid, hi_s) if sie_ok(mid) else (lo_s, mid)
-            sie = lo_s
-
-    def rk4_ok(dt):
-        z = dt * lam
-        return bool(np.all(np.abs(1 + z + z * z / 2 + z ** 3 / 6 + z ** 4 / 24) <= 1 + 1e-6))
-
-    lo, hi = 0.0, 2.9 / float(np.abs(lam).max())   # no step beyond 2.83/|lam| is stable for RK4
-    if rk4_ok(hi):
-        lo = hi
-    else:
-        for _ in range(50):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if rk4_ok(mid) else (lo, mid)
-    return {"semi_implicit_euler": sie, "rk4": lo}
 
 
 def _check_stability(model: Model, info: IntegratorInfo, dt: float, stacklevel: int = 3) -> None:
@@ -311,7 +250,10 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     for _ in range(n_steps):
         if info.name == "semi_implicit_euler":
             qd = qd + dt * acc(model, q, qd, rest_length, force_density, _ext(external, q, qd, t))
-            q = q + dt * qd
+            if project:
+                q, qd = _sphere_drift(q, qd, dt)
+            else:
+                q = q + dt * qd
         else:  # rk4
             h = 0.5 * dt
             a1 = acc(model, q, qd, rest_length, force_density, _ext(external, q, qd, t))
@@ -327,6 +269,36 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
             q, qd = dyn.project(model, q, qd)
         t = t + dt
     return State(q=q, qd=qd, t=t)
+
+
+_SINC_SMALL = 1e-4   # below this rotation angle (rad) per step sin(x)/x = 1 - x^2/6 to round-off
+
+
+def _sphere_drift(q, qd, dt):
+    """Drift half of semi-implicit Euler with ``project=True``: ``r += dt r'`` and each rod
+    direction moved along its great circle (the exact geodesic flow on the unit sphere).
+
+    With ``b`` normalised, ``b'`` made tangent (``b' -= b (b . b')``), ``w = |b'|`` (1/s) and
+    ``x = w dt``: ``b <- b cos x + b' sin(x)/w``, ``b' <- -b w sin x + b' cos x``. This keeps
+    ``|b| = 1``, ``b . b' = 0``, ``|b'|`` and ``b x b'`` exactly, so a freely spinning rod
+    neither gains energy nor angular momentum (the Euler update ``b += dt b'`` followed by a
+    normalisation shrinks ``b'`` relative to the rotation and does). The radial part of
+    ``b''`` (the centripetal term ``-|b'|^2 b``) is what the great circle replaces. Operation
+    order mirrored by ``_kernels`` (round-off agreement)."""
+    r, b = q[..., :3], q[..., 3:]
+    rd, bd = qd[..., :3], qd[..., 3:]
+    r = r + dt * rd
+    b = b * (1.0 / np.sqrt(np.einsum("bki,bki->bk", b, b)))[..., None]
+    bd = bd - b * np.einsum("bki,bki->bk", b, bd)[..., None]
+    w = np.sqrt(np.einsum("bki,bki->bk", bd, bd))[..., None]
+    x = w * dt
+    small = x < _SINC_SMALL
+    xs = np.where(small, 1.0, x)
+    sinc = np.where(small, 1.0 - x * x / 6.0, np.sin(xs) / xs)   # sin(x)/x
+    c = np.cos(x)
+    bn = b * c + bd * (dt * sinc)
+    bdn = bd * c - b * (w * (x * sinc))                          # w sin x = w x sinc
+    return np.concatenate([r, bn], axis=-1), np.concatenate([rd, bdn], axis=-1)
 
 
 def _rhs(model, shape, rest_length, force_density, external):

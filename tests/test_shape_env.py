@@ -276,3 +276,33 @@ def test_baseline_reaches_targets(mode):
     o, _ = single.reset(seed=1)
     a, state = NNLSShapeController(single).predict(o, deterministic=True)
     assert a.shape == (9,) and state is None
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_node_drag_is_in_the_model_one_integrator_call_per_step(mode, monkeypatch):
+    """The node drag lives in the model: one integrator call of frame_skip steps per control
+    step, with the same physics as the drag applied as an external force every substep."""
+    from tensegrity_gym import integrators
+    env = TensegrityShapeEnv(action_mode=mode, node_damping=3.0)
+    task = env.task
+    assert task.model.has_node_damping and np.all(task.model.node_damping == 3.0)
+    env.reset(seed=1)
+    a = np.linspace(-0.8, 0.8, env.action_space.shape[0]).astype(np.float32)
+    env.step(a)
+    q0, qd0 = task.q.copy(), task.qd.copy()
+    inputs = task.actuation.physics_inputs(task.actuation.apply(task.ctrl, a))
+    plain = dyn.compile_model(task.structure, task.actuated if mode == "force_density" else None)
+    st = dyn.State(q0, qd0, 0.0)
+    for _ in range(task.frame_skip):                 # the old formulation: drag as an external force
+        st = integrators.step(plain, st, task.dt, task.integrator, backend=task.backend,
+                              external=-3.0 * dyn.node_velocities(plain, st.qd), **inputs)
+    calls = []
+    real = integrators.step
+    monkeypatch.setattr(integrators, "step", lambda *x, **k: calls.append(k.get("n_steps")) or real(*x, **k))
+    env.step(a)
+    assert calls == [task.frame_skip]
+    assert np.abs(task.q - st.q).max() < 1e-12 and np.abs(task.qd - st.qd).max() < 1e-10
+    assert np.abs(task.qd - qd0).max() > 1e-4                     # it moves
+    # without drag, no drag code: the model has none
+    env0 = TensegrityShapeEnv(action_mode=mode, node_damping=0.0)
+    assert not env0.task.model.has_node_damping

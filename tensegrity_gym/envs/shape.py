@@ -83,7 +83,10 @@ class ShapeTask(BatchedTask):
         if np.any(eq.force_density[act] <= 0):
             bad = act[eq.force_density[act] <= 0][0]
             raise ValueError(f"actuated string {bad} is slack at the nominal equilibrium; actuate taut strings")
-        model = dyn.compile_model(s, act if action_mode == "force_density" else None)
+        # node drag is part of the model (dynamics.compile_model(node_damping=...)): one fused
+        # integrator call per control step, no drag code at all when node_damping == 0
+        model = dyn.compile_model(s, act if action_mode == "force_density" else None,
+                                  node_damping=self.node_damping if self.node_damping > 0 else None)
         self.height = s.height if s.height > 0 else float(np.ptp(eq.nodes, axis=0).max())
         self.success_tolerance = (0.01 * self.height if success_tolerance is None
                                   else check_positive(success_tolerance, "success_tolerance", "m"))
@@ -201,16 +204,14 @@ class ShapeTask(BatchedTask):
         return d.mean(axis=1), d.max(axis=1)
 
     def _damping_force(self, q, qd):
-        """Node drag -c v (B, n, 3), N."""
+        """Node drag -c v (B, n, 3), N: the force the model itself applies (``self.model`` has
+        ``node_damping``); kept for comparisons with the external-force formulation."""
         return -self.node_damping * dyn.node_velocities(self.model, qd)
 
     def simulate_controls(self):
-        """One control step of physics for the batch at the current controls (one batched
-        ``integrators.step`` call; one per substep when node drag is on, see the class doc)."""
-        inputs = self.actuation.physics_inputs(self.ctrl)
-        if self.node_damping == 0:
-            return self.simulate(**inputs)
-        return self.simulate(substep_external=self._damping_force, **inputs)
+        """One control step of physics for the batch at the current controls: ONE batched
+        ``integrators.step`` call of ``frame_skip`` steps (the node drag is in the model)."""
+        return self.simulate(**self.actuation.physics_inputs(self.ctrl))
 
     def step(self, action):
         self.ctrl = self.actuation.apply(self.ctrl, action)
@@ -282,8 +283,9 @@ _DOC = r"""
     ``string_damping`` = 5 N s/m on every elastic string (``None`` keeps the structure's own)
     and ``node_damping`` = 2 N s/m of viscous drag on every rod node (string damping alone
     cannot damp the prism's infinitesimal mechanism, whose motion does not stretch the strings
-    to first order). The drag is applied as an external force evaluated at the start of each
-    physics substep (exact for semi-implicit Euler; a zero-order hold over ``dt`` for rk4).
+    to first order). The drag is part of the physics model (``dynamics.compile_model(...,
+    node_damping=c)``: force ``-c v`` on every rod node, evaluated wherever the integrator
+    evaluates forces), so a control step is one integrator call of ``frame_skip`` steps.
     In force-density mode the actuated strings are ideal force actuators with no elastic or
     damping part, so only the remaining strings and the node drag dissipate energy.
 
