@@ -12,14 +12,17 @@
    ``episodes.png``, ``rollout.gif``, and the run's ``config.yaml``, ``command.txt``,
    ``versions.json``, ``model.zip``, ``vecnormalize.pkl``.
 
-A brief training does not reach the shape-tracking targets; the full training is::
+A brief PPO training does not reach the shape-tracking targets; the full training behind the
+committed result ``results/sac_shape_rest_length/`` (30 min on 2 cores) is::
 
-    python -m agents.train --algo ppo --env TensegrityShape-v0 --seed 0 --log-dir runs/ppo_shape
-    python -m agents.evaluate runs/ppo_shape --gif --out results/ppo_shape
+    python -m agents.train --algo sac --env TensegrityShape-v0 --seed 0 -n 1e6 --max-wall-time 1800 \
+        --eval-freq 50000 --log-dir runs/sac_shape_rest_length
+    python -m agents.evaluate runs/sac_shape_rest_length --gif --copy-run-files --out results/sac_shape_rest_length
 """
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import sys
 import time
@@ -53,8 +56,10 @@ def main(argv=None) -> int:
     t1 = time.time()
     print(f"[main job] 2/3 evaluating on {args.n_episodes} held-out targets (NNLS baseline and random on "
           f"{args.baseline_episodes})")
-    if out.exists():
-        shutil.rmtree(out)
+    # write into a fresh folder beside OUT and swap it in only at the end: an interrupted run
+    # (Ctrl-C, crash) leaves the previous results untouched
+    final = out
+    out = final.parent / f".{final.name}.partial-{os.getpid()}"
     out.mkdir(parents=True)
     metrics = evaluate.evaluate([str(run), "--model", "best", "--n-episodes", str(args.n_episodes),
                                  "--baseline-episodes", str(args.baseline_episodes), "--gif", "--out", str(out)])
@@ -70,11 +75,20 @@ def main(argv=None) -> int:
         "# Main job: brief PPO training on TensegrityShape-v0 (default scene)\n\n"
         f"{summary}.\n\nHeld-out evaluation ({args.n_episodes} targets for the trained policy, "
         f"{args.baseline_episodes} for the baselines):\n\n```\n{(out / 'table.md').read_text()}```\n\n"
-        "Reproduce: `python scripts/main_job.py`. Full training (the committed results in "
-        "`results/ppo_shape_rest_length/`):\n\n"
-        "```\npython -m agents.train --algo ppo --env TensegrityShape-v0 --seed 0 --log-dir runs/ppo_shape\n"
-        "python -m agents.evaluate runs/ppo_shape --gif --out results/ppo_shape\n```\n")
-    print(f"[main job] done: {summary}; results in {out}")
+        "Reproduce: `python scripts/main_job.py`. Full training (the committed result in "
+        "`results/sac_shape_rest_length/`, 30 min on 2 cores; all results: `results/README.md`):\n\n"
+        "```\npython -m agents.train --algo sac --env TensegrityShape-v0 --seed 0 -n 1e6 --max-wall-time 1800 "
+        "--eval-freq 50000 --log-dir runs/sac_shape_rest_length\n"
+        "python -m agents.evaluate runs/sac_shape_rest_length --gif --copy-run-files --out "
+        "results/sac_shape_rest_length\n```\n")
+    if final.exists():   # swap: old -> backup, new -> OUT, then drop the backup
+        backup = final.parent / f".{final.name}.old-{os.getpid()}"
+        final.rename(backup)
+        out.rename(final)
+        shutil.rmtree(backup)
+    else:
+        out.rename(final)
+    print(f"[main job] done: {summary}; results in {final}")
     return 0
 
 
