@@ -111,3 +111,29 @@ def test_check_action_fast_path(dtype):
         check_action(A, (2, 3), name="actions")
     with pytest.raises(ValueError, match="shape"):
         check_action(np.zeros(5, dtype), (4,))
+
+
+@pytest.mark.parametrize("num_envs", [1, 3])
+def test_roll_env_fast_path_is_bit_identical(num_envs):
+    from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
+    make = (lambda: TensegrityRollEnv()) if num_envs == 1 else \
+        (lambda: TensegrityRollVectorEnv(num_envs=num_envs, max_episode_steps=7))
+    fast = make()
+    with reference():
+        ref = make()
+    o1, _ = fast.reset(seed=2)
+    with reference():
+        o2, _ = ref.reset(seed=2)
+    assert same(o1, o2)
+    shape = fast.action_space.shape
+    rng = np.random.default_rng(1)
+    for t in range(15):
+        a = rng.uniform(-1.3, 1.3, shape)
+        r1 = fast.step(a)
+        with reference():
+            r2 = ref.step(a)
+        for x, y in zip(r1[:4], r2[:4]):
+            assert same(x, y), t
+        assert r1[4].keys() == r2[4].keys()
+        for k in r1[4]:
+            assert same(r1[4][k], r2[4][k]), (t, k)

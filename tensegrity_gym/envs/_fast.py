@@ -22,7 +22,7 @@ try:  # pragma: no cover - exercised by the import itself
 except Exception:  # pragma: no cover - numba missing or broken
     AVAILABLE = False
 
-__all__ = ["AVAILABLE", "clip_action", "apply_controls", "state_ok", "shape_observe"]
+__all__ = ["AVAILABLE", "clip_action", "apply_controls", "state_ok", "shape_observe", "roll_observe"]
 
 if AVAILABLE:
     @njit(cache=True, nogil=True)
@@ -115,5 +115,34 @@ if AVAILABLE:
                 dist[b, t] = np.sqrt(s)
             for i in range(na):
                 obs[b, o_c + i] = np.float32(ctrl[b, i])
+
+    @njit(cache=True, nogil=True)
+    def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, obs):
+        """Observation of the roll task (see ``RollTask.observe``) into ``obs`` (B, size) float32:
+        node positions relative to ``com`` (B, 3), node velocities, controls, contact flags,
+        goal direction, centre-of-mass height. Node ``i`` sits at ``r + eta[i] b`` of rod ``rod[i]``."""
+        B = q.shape[0]
+        n = rod.size
+        na = ctrl.shape[1]
+        nc = active.shape[1]
+        n3 = 3 * n
+        for b in range(B):
+            for i in range(n):
+                j = rod[i]
+                e = eta[i]
+                for c in range(3):
+                    x = q[b, j, c] + e * q[b, j, 3 + c]
+                    obs[b, 3 * i + c] = np.float32(x - com[b, c])
+                    obs[b, n3 + 3 * i + c] = np.float32(qd[b, j, c] + e * qd[b, j, 3 + c])
+            o = 2 * n3
+            for i in range(na):
+                obs[b, o + i] = np.float32(ctrl[b, i])
+            o += na
+            for i in range(nc):
+                obs[b, o + i] = np.float32(1.0) if active[b, i] else np.float32(0.0)
+            o += nc
+            obs[b, o] = np.float32(goal[b, 0])
+            obs[b, o + 1] = np.float32(goal[b, 1])
+            obs[b, o + 2] = np.float32(com[b, 2])
 else:  # pragma: no cover
-    clip_action = apply_controls = state_ok = shape_observe = None
+    clip_action = apply_controls = state_ok = shape_observe = roll_observe = None
