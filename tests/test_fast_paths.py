@@ -137,3 +137,19 @@ def test_roll_env_fast_path_is_bit_identical(num_envs):
         assert r1[4].keys() == r2[4].keys()
         for k in r1[4]:
             assert same(r1[4][k], r2[4][k]), (t, k)
+
+
+def test_mean_max_matches_numpy_reductions():
+    rng = np.random.default_rng(4)
+    for nt in range(1, 12):
+        for B in (1, 3, 64):
+            d = np.abs(rng.normal(size=(B, nt))) * 10.0 ** rng.integers(-17, 1, size=(B, nt))
+            mean, mx = np.empty(B), np.empty(B)
+            done = _fast.mean_max(d, mean, mx)
+            assert done == (nt < 8)
+            if done:
+                assert same(mean, d.mean(axis=1)) and same(mx, d.max(axis=1)), (nt, B)
+    d = np.array([[0.1, np.nan, 0.3], [0.2, 0.1, 0.0]])
+    mean, mx = np.empty(2), np.empty(2)
+    assert _fast.mean_max(d, mean, mx)
+    assert same(mean, d.mean(axis=1)) and same(mx, d.max(axis=1))

@@ -6,9 +6,9 @@ physics inputs, divergence check, node positions, errors, observation) dominated
 These loops fuse that work into a handful of compiled calls. They compute exactly what the
 NumPy reference code in :mod:`tensegrity_gym.envs.common` / :mod:`tensegrity_gym.envs.shape`
 computes, element by element in the same order (no fast-math, so no reassociation or fused
-multiply-adds): results are bit-identical, which ``tests/test_fast_paths.py`` checks. Reductions
-whose NumPy summation order is not trivially sequential (the mean over tracked nodes) are
-left to NumPy by the callers.
+multiply-adds): results are bit-identical, which ``tests/test_fast_paths.py`` checks. Sums
+are only done here where NumPy's order is strictly sequential (fewer than 8 terms); longer
+ones are left to NumPy by the callers.
 
 ``AVAILABLE`` is False without numba; callers then run their NumPy reference path.
 """
@@ -22,7 +22,7 @@ try:  # pragma: no cover - exercised by the import itself
 except Exception:  # pragma: no cover - numba missing or broken
     AVAILABLE = False
 
-__all__ = ["AVAILABLE", "clip_action", "apply_controls", "state_ok", "shape_observe", "roll_observe"]
+__all__ = ["AVAILABLE", "clip_action", "apply_controls", "state_ok", "shape_observe", "mean_max", "roll_observe"]
 
 if AVAILABLE:
     @njit(cache=True, nogil=True)
@@ -117,6 +117,27 @@ if AVAILABLE:
                 obs[b, o_c + i] = np.float32(ctrl[b, i])
 
     @njit(cache=True, nogil=True)
+    def mean_max(dist, mean, mx):
+        """Row means and maxima of ``dist`` (B, nt) into ``mean``, ``mx`` (B,), exactly as
+        ``np.add.reduce(dist, 1) / nt`` and ``np.maximum.reduce(dist, 1)``: NumPy sums fewer than
+        8 numbers strictly left to right (its pairwise summation starts unrolling at 8), so this
+        returns False, computing nothing, when nt >= 8; the caller then uses NumPy."""
+        B, nt = dist.shape
+        if nt >= 8 or nt == 0:
+            return False
+        for b in range(B):
+            s = dist[b, 0]
+            m = dist[b, 0]
+            for t in range(1, nt):
+                v = dist[b, t]
+                s = s + v
+                if m == m and (v != v or v > m):   # NaN propagates, as in np.maximum
+                    m = v
+            mean[b] = s / nt
+            mx[b] = m
+        return True
+
+    @njit(cache=True, nogil=True)
     def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, obs):
         """Observation of the roll task (see ``RollTask.observe``) into ``obs`` (B, size) float32:
         node positions relative to ``com`` (B, 3), node velocities, controls, contact flags,
@@ -145,4 +166,4 @@ if AVAILABLE:
             obs[b, o + 1] = np.float32(goal[b, 1])
             obs[b, o + 2] = np.float32(com[b, 2])
 else:  # pragma: no cover
-    clip_action = apply_controls = state_ok = shape_observe = roll_observe = None
+    clip_action = apply_controls = state_ok = shape_observe = mean_max = roll_observe = None

@@ -259,8 +259,10 @@ class ShapeTask(BatchedTask):
             self._N = dyn.node_positions(self.model, self.q)[:, self.tracked]
             self._N_of = self.q
             d = np.linalg.norm(self._N - self.target, axis=-1)
-        # d.mean(axis=1) is add.reduce / count (bit-identical), without the Python of _mean
-        err, emax = np.add.reduce(d, axis=1) / d.shape[1], np.maximum.reduce(d, axis=1)
+        err, emax = np.empty(d.shape[0]), np.empty(d.shape[0])
+        if fast is None or not _fast.mean_max(d, err, emax):
+            # d.mean(axis=1) is add.reduce / count (bit-identical), without the Python of _mean
+            err, emax = np.add.reduce(d, axis=1) / d.shape[1], np.maximum.reduce(d, axis=1)
         success = emax <= self.success_tolerance
         terms = {
             "tracking": -self.tracking_weight * err,
