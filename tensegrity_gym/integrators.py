@@ -56,6 +56,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+import math
 import warnings
 import weakref
 
@@ -115,12 +116,18 @@ def _ext(external, q, qd, t):
     return external
 
 
+_KERNELS = None   # the _kernels module, once imported (an import statement per step costs ~1 us)
+
+
 def _numba_available() -> bool:
-    try:
-        from . import _kernels  # noqa: F401
-    except Exception:  # pragma: no cover - numba missing or broken
-        return False
-    return _kernels.AVAILABLE
+    global _KERNELS
+    if _KERNELS is None:
+        try:
+            from . import _kernels
+        except Exception:  # pragma: no cover - numba missing or broken
+            return False
+        _KERNELS = _kernels
+    return _KERNELS.AVAILABLE
 
 
 def _use_numba(backend: str, info: IntegratorInfo, external) -> bool:
@@ -227,7 +234,7 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     rtol, atol : tolerances of the adaptive methods.
     """
     info = resolve(integrator)
-    if not (np.isfinite(dt) and dt > 0):
+    if not ((math.isfinite(dt) if type(dt) is float else np.isfinite(dt)) and dt > 0):
         raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
     B, m = state.batch_size, model.n_strings
     rest_length = _as_batch(rest_length, B, m, "rest_length")
@@ -241,8 +248,7 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
                              force_density=force_density, external=external, project=project,
                              n_steps=n_steps)
     if _use_numba(backend, info, external):
-        from . import _kernels
-        return _kernels.step(model, state, dt, info.name, rest_length=rest_length,
+        return _KERNELS.step(model, state, dt, info.name, rest_length=rest_length,
                              force_density=force_density, external=external, project=project,
                              n_steps=n_steps)
     q, qd, t = state.q, state.qd, state.t

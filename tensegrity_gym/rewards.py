@@ -80,11 +80,31 @@ def tolerance(x, bounds=(0.0, 0.0), margin: float = 0.0, sigmoid: str = "gaussia
     if margin < 0:
         raise ValueError(f"margin: must be >= 0, got {margin}")
     x = np.asarray(x, dtype=float)
+    if x.size == 1 and margin > 0 and sigmoid == "gaussian":
+        return _tolerance_one(x, lower, upper, margin, value_at_margin)
     in_bounds = (lower <= x) & (x <= upper)
     if margin == 0:
         return np.where(in_bounds, 1.0, 0.0)
     d = np.where(x < lower, lower - x, x - upper) / margin
     return np.where(in_bounds, 1.0, _sigmoids(d, value_at_margin, sigmoid))
+
+
+_GAUSS_SCALE: dict = {}
+
+
+def _tolerance_one(x: np.ndarray, lower, upper, margin, value_at_margin) -> np.ndarray:
+    """:func:`tolerance` of a one-element ``x`` with the gaussian sigmoid (what the envs call each
+    step at B = 1): the same operations on the same doubles, without the array ``np.where``s."""
+    scale = _GAUSS_SCALE.get(value_at_margin)
+    if scale is None:
+        _sigmoids(np.zeros(1), value_at_margin, "gaussian")      # validates value_at_margin
+        scale = _GAUSS_SCALE.setdefault(value_at_margin, np.sqrt(-2 * np.log(value_at_margin)))
+    xv = float(x.reshape(-1)[0])
+    if lower <= xv and xv <= upper:
+        return np.ones(x.shape)
+    dv = (lower - xv if xv < lower else xv - upper) / margin
+    t = np.full(x.shape, dv * scale)
+    return np.exp(-0.5 * t ** 2)
 
 
 def quadratic_cost(x) -> np.ndarray:

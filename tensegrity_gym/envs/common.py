@@ -63,6 +63,7 @@ from gymnasium.utils import seeding
 from .. import integrators
 from .. import dynamics as dyn
 from ..rewards import combine
+from . import _fast
 
 __all__ = ["ACTION_MODES", "check_action", "check_positive", "Actuation", "BatchedTask", "TaskEnv",
            "TaskVectorEnv", "make_sb3_vec_env", "resolve_actuated", "registered_max_episode_steps"]
@@ -93,6 +94,13 @@ def check_action(action, shape: tuple, clip: bool = True, name: str = "action") 
       like Gymnasium's MuJoCo envs whose actuators saturate), else ValueError naming the
       index when beyond 1e-6 of the bounds.
     """
+    if (_fast.AVAILABLE and type(action) is np.ndarray and action.shape == shape
+            and (action.dtype == np.float32 or action.dtype == np.float64)):
+        # fast path (the common case): a float ndarray of the right shape, checked and clipped in
+        # one compiled pass; anything wrong falls through to the reference checks below
+        a = np.array(action, dtype=np.float64, order="C")
+        if _fast.clip_action(a.reshape(-1), clip, ACTION_TOL):
+            return a
     try:
         a = np.asarray(action, dtype=np.float64)
     except (TypeError, ValueError):
@@ -181,6 +189,7 @@ class Actuation:
         self.max_rate = per(max_rate, "max_rate")
         self.nominal = np.clip(per(nominal, "nominal"), self.low, self.high)
         self.control_dt = check_positive(control_dt, "control_dt", "s")
+        self._rate = self.max_rate * self.control_dt     # change of the control per unit action and step
         unit = "m" if mode == "rest_length" else "N/m"
         for i in range(na):
             s = int(self.actuated[i])
@@ -215,6 +224,21 @@ class Actuation:
         fd = np.zeros((B, self.n_strings))
         fd[:, self.actuated] = ctrl
         return {"rest_length": None, "force_density": fd}
+
+    def advance(self, ctrl: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, dict]:
+        """``(new, physics_inputs(new))`` with ``new = apply(ctrl, action)``: one compiled call
+        for C-contiguous float64 (B, na) arrays (the env's own), the two methods otherwise."""
+        if (_fast.AVAILABLE and type(ctrl) is np.ndarray and type(action) is np.ndarray
+                and ctrl.ndim == 2 and ctrl.shape == action.shape and ctrl.dtype == np.float64
+                and action.dtype == np.float64 and ctrl.flags.c_contiguous and action.flags.c_contiguous):
+            new = np.empty(ctrl.shape)
+            phys = np.empty((ctrl.shape[0], self.n_strings))
+            rl = self.mode == "rest_length"
+            _fast.apply_controls(ctrl, action, self._rate, self.low, self.high, self.actuated,
+                                 self.base_rest_length, rl, new, phys)
+            return new, ({"rest_length": phys} if rl else {"rest_length": None, "force_density": phys})
+        new = self.apply(ctrl, action)
+        return new, self.physics_inputs(new)
 
     def describe(self) -> str:
         return (f"{self.mode}: strings {self.actuated.tolist()}, bounds [{self.low.min():.4g}, "
@@ -289,6 +313,19 @@ class BatchedTask:
         their pre-step state back (see the module doc). Increments ``elapsed``.
         """
         q0, qd0 = self.q, self.qd
+        if substep_external is None and self._compiled_physics():
+            # fast path: the compiled kernel raises no floating-point warnings, so no np.errstate,
+            # and one compiled pass checks the whole batch; per copy only when something is off
+            st = integrators.step(self.model, dyn.State(q0, qd0, 0.0), self.dt, self.integrator,
+                                  n_steps=self.frame_skip, backend=self.backend, **inputs)
+            q, qd = st.q, st.qd
+            if (type(q) is np.ndarray and type(qd) is np.ndarray and q.dtype == np.float64
+                    and qd.dtype == np.float64 and q.ndim == 3 and q.shape == qd.shape
+                    and _fast.state_ok(q, qd, self.center0, self.divergence_limit)):
+                self.q, self.qd = q, qd
+                self.elapsed += 1
+                return np.zeros(self.num_envs, bool)
+            return self._finish_simulate(q0, qd0, q, qd)
         with np.errstate(all="ignore"):
             if substep_external is None:
                 st = integrators.step(self.model, dyn.State(q0, qd0, 0.0), self.dt, self.integrator,
@@ -298,7 +335,26 @@ class BatchedTask:
                 for _ in range(self.frame_skip):
                     st = integrators.step(self.model, st, self.dt, self.integrator, backend=self.backend,
                                           external=substep_external(st.q, st.qd), **inputs)
-            q, qd = np.asarray(st.q), np.asarray(st.qd)
+        return self._finish_simulate(q0, qd0, st.q, st.qd)
+
+    def _compiled_physics(self) -> bool:
+        """True if :meth:`simulate` runs the numba kernels (explicit integrator, numba present,
+        backend not "numpy"); decided once per task."""
+        c = self.__dict__.get("_compiled")
+        if c is None:
+            info = integrators.INTEGRATORS[self.integrator]
+            try:
+                c = bool(_fast.AVAILABLE and info.name in integrators._EXPLICIT
+                         and integrators._use_numba(self.backend, info, None))
+            except Exception:   # pragma: no cover - e.g. backend="numba" without numba: let step() raise
+                c = False
+            self._compiled = c
+        return c
+
+    def _finish_simulate(self, q0, qd0, q, qd) -> np.ndarray:
+        """Divergence check and state update of :meth:`simulate` (the NumPy reference path)."""
+        with np.errstate(all="ignore"):
+            q, qd = np.asarray(q), np.asarray(qd)
             # fast path: one reduction each for the whole batch; per-copy only when something is off
             ok = np.isfinite(q.sum() + qd.sum()) and np.abs(q[..., :3] - self.center0).max() <= self.divergence_limit
             if ok:
@@ -381,8 +437,15 @@ class TaskEnv(gym.Env):
     def step(self, action):
         a = check_action(action, (self.task.action_size,), clip=self.task.clip_actions)
         terms, terminated, infos = self.task.step(a[None, :])
-        reward = float(combine(terms)[0])
-        info = {k: _scalar(v[0]) for k, v in infos.items()}
+        # reward: combine(terms)[0], summed here in Python floats (IEEE doubles, same order: same value)
+        reward = None
+        for v in terms.values():
+            x = float(v[0])
+            reward = x if reward is None else reward + x
+        if reward is None:
+            raise ValueError("combine: no reward terms given")
+        info = {k: (v.item(0) if type(v) is np.ndarray and v.ndim == 1 else _scalar(v[0]))
+                for k, v in infos.items()}
         for name, v in terms.items():
             info[f"reward_{name}"] = float(v[0])
         obs = self.task.observe()[0]

@@ -16,6 +16,7 @@ from .. import contact as gc
 from .. import dynamics as dyn
 from ..rewards import quadratic_cost
 from ..structure import Structure
+from . import _fast
 from .common import (ACTION_MODES, Actuation, BatchedTask, TaskEnv, TaskVectorEnv, check_positive,
                      resolve_actuated)
 
@@ -240,6 +241,8 @@ class RollTask(BatchedTask):
         eta[model.rod_a] = model.eta[:, 0]
         eta[model.rod_c] = model.eta[:, 1]
         self._node_eta = eta[None, :, None]
+        self._node_rod_i64 = np.ascontiguousarray(self._node_rod, dtype=np.int64)
+        self._node_eta_1d = np.ascontiguousarray(eta, dtype=np.float64)
         self._com_at_r = bool(np.all(model.com_eta == 0.0))
         self._mass_frac = model.mass / model.mass.sum()
         self._W = np.zeros((B, n, 3))
@@ -328,8 +331,11 @@ class RollTask(BatchedTask):
                                           backend=self.backend, **inputs)
                     q[...] = st.q
                     qd[...] = st.qd
-            ok = np.isfinite(q.sum() + qd.sum()) and \
-                np.abs(q[..., :3] - self.center0).max() <= self.divergence_limit
+            if _fast.AVAILABLE and q.dtype == np.float64 and qd.dtype == np.float64:
+                ok = _fast.state_ok(q, qd, self.center0, self.divergence_limit)   # one compiled pass
+            else:
+                ok = np.isfinite(q.sum() + qd.sum()) and \
+                    np.abs(q[..., :3] - self.center0).max() <= self.divergence_limit
             if ok:
                 diverged = np.zeros(self.num_envs, bool)
             else:
@@ -344,8 +350,7 @@ class RollTask(BatchedTask):
         return diverged
 
     def step(self, action):
-        self.ctrl = self.actuation.apply(self.ctrl, action)
-        inputs = self.actuation.physics_inputs(self.ctrl)
+        self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
         com0 = self._com(self.q)
         diverged = self.simulate_contact(inputs)
         com = self._com(self.q)
@@ -373,6 +378,15 @@ class RollTask(BatchedTask):
     def observe(self) -> np.ndarray:
         B = self.num_envs
         q, qd = self.q, self.qd
+        if _fast.AVAILABLE:   # one compiled pass, bit-identical to the NumPy below
+            com = self._com(q)
+            arrs = (q, qd, com, self.ctrl, self.goal)
+            if all(type(x) is np.ndarray and x.dtype == np.float64 for x in arrs) and \
+                    type(self.cstate.active) is np.ndarray and self.cstate.active.dtype == np.bool_:
+                obs = np.empty((B, self.observation_size), np.float32)
+                _fast.roll_observe(q, qd, self._node_rod_i64, self._node_eta_1d, com, self.ctrl,
+                                   self.cstate.active, self.goal, obs)
+                return obs
         e = self._node_eta
         # node positions / velocities (= dynamics.node_positions / node_velocities of a free structure)
         N = q[:, self._node_rod, :3] + e * q[:, self._node_rod, 3:]

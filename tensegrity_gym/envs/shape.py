@@ -11,6 +11,7 @@ import numpy as np
 from .. import dynamics as dyn
 from .. import statics
 from ..rewards import quadratic_cost, tolerance
+from . import _fast
 from .common import (ACTION_MODES, Actuation, BatchedTask, TaskEnv, TaskVectorEnv, check_positive,
                      resolve_actuated)
 
@@ -123,6 +124,21 @@ class ShapeTask(BatchedTask):
         self.qd = np.zeros_like(self.q)
         self._last_action = np.zeros((B, na))
         self._N = None     # tracked node positions cached from step() for observe()
+        self._obs = None   # observation cached from step() (compiled path) for observe()
+        self._obs_of = None
+        # compiled observation (envs/_fast.py): tracked node t is r + eta b of one rod, exactly as
+        # dynamics.node_positions writes it (rod_c after rod_a, so the last rod wins); not used
+        # if a tracked node is an anchor (its position is then the anchor's)
+        self._obs_rod = self._obs_eta = None
+        if _fast.AVAILABLE and not np.isin(self.tracked, model.anchor_idx).any():
+            src_rod = np.full(model.n_nodes, -1)
+            src_eta = np.zeros(model.n_nodes)
+            for col, nodes in ((0, model.rod_a), (1, model.rod_c)):
+                src_rod[nodes] = np.arange(model.n_bars)
+                src_eta[nodes] = model.eta[:, col]
+            if np.all(src_rod[self.tracked] >= 0):
+                self._obs_rod = np.ascontiguousarray(src_rod[self.tracked], dtype=np.int64)
+                self._obs_eta = np.ascontiguousarray(src_eta[self.tracked], dtype=np.float64)
 
     # ------------------------------------------------------------------ targets
     def _sample_rest_lengths(self, rng: np.random.Generator) -> np.ndarray:
@@ -194,6 +210,7 @@ class ShapeTask(BatchedTask):
         self._last_action[idx] = 0.0
         self.elapsed[idx] = 0
         self._N = None
+        self._obs = None
         err, emax = self._errors(idx)
         return {"tracking_error": err, "max_node_error": emax, "is_success": emax <= self.success_tolerance}
 
@@ -213,14 +230,39 @@ class ShapeTask(BatchedTask):
         ``integrators.step`` call of ``frame_skip`` steps (the node drag is in the model)."""
         return self.simulate(**self.actuation.physics_inputs(self.ctrl))
 
+    def _compiled_observe(self):
+        """(obs (B, size) float32, node errors d (B, nt)) in one compiled call, or None when the
+        compiled helpers do not apply (no numba, anchored tracked node, foreign array types).
+        Bit-identical to the NumPy path of :meth:`observe` and :meth:`step`."""
+        if self._obs_rod is None:
+            return None
+        q, qd, ctrl, tgt = self.q, self.qd, self.ctrl, self.target
+        for x in (q, qd, ctrl, tgt):
+            if type(x) is not np.ndarray or x.dtype != np.float64:
+                return None
+        B = q.shape[0]
+        obs = np.empty((B, self.observation_size), np.float32)
+        d = np.empty((B, self._obs_rod.size))
+        _fast.shape_observe(q, qd, self._obs_rod, self._obs_eta, ctrl, tgt, obs, d)
+        return obs, d
+
     def step(self, action):
-        self.ctrl = self.actuation.apply(self.ctrl, action)
+        self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
         self._last_action = action
-        diverged = self.simulate_controls()
-        self._N = dyn.node_positions(self.model, self.q)[:, self.tracked]
-        self._N_of = self.q
-        d = np.linalg.norm(self._N - self.target, axis=-1)
-        err, emax = d.mean(axis=1), d.max(axis=1)
+        diverged = self.simulate(**inputs)
+        fast = self._compiled_observe()
+        if fast is not None:
+            self._obs, d = fast
+            self._obs_of = (self.q, self.qd, self.ctrl, self.target)
+            self._N = None
+        else:
+            self._N = dyn.node_positions(self.model, self.q)[:, self.tracked]
+            self._N_of = self.q
+            d = np.linalg.norm(self._N - self.target, axis=-1)
+        err, emax = np.empty(d.shape[0]), np.empty(d.shape[0])
+        if fast is None or not _fast.mean_max(d, err, emax):
+            # d.mean(axis=1) is add.reduce / count (bit-identical), without the Python of _mean
+            err, emax = np.add.reduce(d, axis=1) / d.shape[1], np.maximum.reduce(d, axis=1)
         success = emax <= self.success_tolerance
         terms = {
             "tracking": -self.tracking_weight * err,
@@ -232,6 +274,14 @@ class ShapeTask(BatchedTask):
         return terms, np.zeros(self.num_envs, bool), infos
 
     def observe(self) -> np.ndarray:
+        obs, self._obs = self._obs, None
+        if obs is not None:
+            of = self._obs_of
+            if of[0] is self.q and of[1] is self.qd and of[2] is self.ctrl and of[3] is self.target:
+                return obs
+        fast = self._compiled_observe()
+        if fast is not None:
+            return fast[0]
         cached = self._N is not None and self._N_of is self.q
         N = self._N if cached else dyn.node_positions(self.model, self.q)[:, self.tracked]
         self._N = None

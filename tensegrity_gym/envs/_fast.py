@@ -1,0 +1,169 @@
+"""Compiled (numba) helpers for the Python-side work around one env step.
+
+At B = 1 a control step of physics is one ~20 us kernel call, and each NumPy call on a tiny
+array costs ~1 us, so the bookkeeping around the physics (action check, control update,
+physics inputs, divergence check, node positions, errors, observation) dominated ``step()``.
+These loops fuse that work into a handful of compiled calls. They compute exactly what the
+NumPy reference code in :mod:`tensegrity_gym.envs.common` / :mod:`tensegrity_gym.envs.shape`
+computes, element by element in the same order (no fast-math, so no reassociation or fused
+multiply-adds): results are bit-identical, which ``tests/test_fast_paths.py`` checks. Sums
+are only done here where NumPy's order is strictly sequential (fewer than 8 terms); longer
+ones are left to NumPy by the callers.
+
+``AVAILABLE`` is False without numba; callers then run their NumPy reference path.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+try:  # pragma: no cover - exercised by the import itself
+    from numba import njit
+    AVAILABLE = True
+except Exception:  # pragma: no cover - numba missing or broken
+    AVAILABLE = False
+
+__all__ = ["AVAILABLE", "clip_action", "apply_controls", "state_ok", "shape_observe", "mean_max", "roll_observe"]
+
+if AVAILABLE:
+    @njit(cache=True, nogil=True)
+    def clip_action(a, clip, tol):
+        """``a``: 1-d float64 (the raveled action, modified in place). Returns False (and leaves
+        ``a`` partly clipped) if an entry is non-finite, or with ``clip`` False beyond ``1 + tol``
+        of the box: the caller then runs the reference check, which raises the right error.
+        Otherwise clips ``a`` to [-1, 1] in place (``np.clip`` semantics) and returns True."""
+        for i in range(a.size):
+            v = a[i]
+            if not np.isfinite(v):
+                return False
+            if not clip and abs(v) > 1.0 + tol:
+                return False
+            if v < -1.0:
+                a[i] = -1.0
+            elif v > 1.0:
+                a[i] = 1.0
+        return True
+
+    @njit(cache=True, nogil=True)
+    def apply_controls(ctrl, action, rate, low, high, actuated, base, fill_base, ctrl_out, phys_out):
+        """``ctrl_out = clip(ctrl + action * rate, low, high)`` (B, na) and the physics input
+        ``phys_out`` (B, m): ``base`` (m,) (rest lengths; zeros for force densities when
+        ``fill_base`` is False) with the actuated columns set to ``ctrl_out``."""
+        B, na = ctrl.shape
+        m = phys_out.shape[1]
+        for b in range(B):
+            if fill_base:
+                for j in range(m):
+                    phys_out[b, j] = base[j]
+            else:
+                for j in range(m):
+                    phys_out[b, j] = 0.0
+            for i in range(na):
+                v = ctrl[b, i] + action[b, i] * rate[i]
+                # np.clip(v, lo, hi) == minimum(maximum(v, lo), hi), NaN propagating
+                if v < low[i]:
+                    v = low[i]
+                if v > high[i]:
+                    v = high[i]
+                ctrl_out[b, i] = v
+                phys_out[b, actuated[i]] = v
+
+    @njit(cache=True, nogil=True)
+    def state_ok(q, qd, center, limit):
+        """True if every entry of ``q``, ``qd`` (B, k, 6) is finite and every reference point is
+        within ``limit`` (per coordinate) of ``center`` (3,)."""
+        B, k, _ = q.shape
+        for b in range(B):
+            for j in range(k):
+                for c in range(6):
+                    if not (np.isfinite(q[b, j, c]) and np.isfinite(qd[b, j, c])):
+                        return False
+                for c in range(3):
+                    if not (abs(q[b, j, c] - center[c]) <= limit):
+                        return False
+        return True
+
+    @njit(cache=True, nogil=True)
+    def shape_observe(q, qd, rod, eta, ctrl, target, obs, dist):
+        """Observation of the shape task (see ``ShapeTask.observe``) into ``obs`` (B, 12 nt + na)
+        float32 and the node errors |target - N| into ``dist`` (B, nt) float64. Tracked node
+        ``t`` sits at ``r + eta[t] b`` of rod ``rod[t]`` (as ``dynamics.node_positions``)."""
+        B = q.shape[0]
+        nt = rod.size
+        na = ctrl.shape[1]
+        o_v = 3 * nt
+        o_c = 6 * nt
+        o_t = 6 * nt + na
+        o_e = 9 * nt + na
+        for b in range(B):
+            for t in range(nt):
+                j = rod[t]
+                e = eta[t]
+                s = 0.0
+                for c in range(3):
+                    x = q[b, j, c] + e * q[b, j, 3 + c]
+                    v = qd[b, j, c] + e * qd[b, j, 3 + c]
+                    g = target[b, t, c]
+                    d = x - g
+                    obs[b, 3 * t + c] = np.float32(x)
+                    obs[b, o_v + 3 * t + c] = np.float32(v)
+                    obs[b, o_t + 3 * t + c] = np.float32(g)
+                    obs[b, o_e + 3 * t + c] = np.float32(g - x)
+                    if c == 0:
+                        s = d * d
+                    else:
+                        s = s + d * d
+                dist[b, t] = np.sqrt(s)
+            for i in range(na):
+                obs[b, o_c + i] = np.float32(ctrl[b, i])
+
+    @njit(cache=True, nogil=True)
+    def mean_max(dist, mean, mx):
+        """Row means and maxima of ``dist`` (B, nt) into ``mean``, ``mx`` (B,), exactly as
+        ``np.add.reduce(dist, 1) / nt`` and ``np.maximum.reduce(dist, 1)``: NumPy sums fewer than
+        8 numbers strictly left to right (its pairwise summation starts unrolling at 8), so this
+        returns False, computing nothing, when nt >= 8; the caller then uses NumPy."""
+        B, nt = dist.shape
+        if nt >= 8 or nt == 0:
+            return False
+        for b in range(B):
+            s = dist[b, 0]
+            m = dist[b, 0]
+            for t in range(1, nt):
+                v = dist[b, t]
+                s = s + v
+                if m == m and (v != v or v > m):   # NaN propagates, as in np.maximum
+                    m = v
+            mean[b] = s / nt
+            mx[b] = m
+        return True
+
+    @njit(cache=True, nogil=True)
+    def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, obs):
+        """Observation of the roll task (see ``RollTask.observe``) into ``obs`` (B, size) float32:
+        node positions relative to ``com`` (B, 3), node velocities, controls, contact flags,
+        goal direction, centre-of-mass height. Node ``i`` sits at ``r + eta[i] b`` of rod ``rod[i]``."""
+        B = q.shape[0]
+        n = rod.size
+        na = ctrl.shape[1]
+        nc = active.shape[1]
+        n3 = 3 * n
+        for b in range(B):
+            for i in range(n):
+                j = rod[i]
+                e = eta[i]
+                for c in range(3):
+                    x = q[b, j, c] + e * q[b, j, 3 + c]
+                    obs[b, 3 * i + c] = np.float32(x - com[b, c])
+                    obs[b, n3 + 3 * i + c] = np.float32(qd[b, j, c] + e * qd[b, j, 3 + c])
+            o = 2 * n3
+            for i in range(na):
+                obs[b, o + i] = np.float32(ctrl[b, i])
+            o += na
+            for i in range(nc):
+                obs[b, o + i] = np.float32(1.0) if active[b, i] else np.float32(0.0)
+            o += nc
+            obs[b, o] = np.float32(goal[b, 0])
+            obs[b, o + 1] = np.float32(goal[b, 1])
+            obs[b, o + 2] = np.float32(com[b, 2])
+else:  # pragma: no cover
+    clip_action = apply_controls = state_ok = shape_observe = mean_max = roll_observe = None

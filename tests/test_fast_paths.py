@@ -1,0 +1,155 @@
+"""The compiled per-step helpers (tensegrity_gym/envs/_fast.py) and the small-array fast paths
+give bit-identical results to the NumPy reference paths, and bad input still raises the same
+errors."""
+import contextlib
+
+import numpy as np
+import pytest
+
+from tensegrity_gym import rewards
+from tensegrity_gym.envs import _fast
+from tensegrity_gym.envs.common import check_action
+from tensegrity_gym.envs.shape import TensegrityShapeEnv, TensegrityShapeVectorEnv
+
+pytestmark = pytest.mark.skipif(not _fast.AVAILABLE, reason="numba not installed")
+
+
+@contextlib.contextmanager
+def reference():
+    """Run the NumPy reference paths (as without numba) inside the block."""
+    old = _fast.AVAILABLE
+    _fast.AVAILABLE = False
+    try:
+        yield
+    finally:
+        _fast.AVAILABLE = old
+
+
+def same(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b, equal_nan=True)
+
+
+@pytest.mark.parametrize("mode", ["rest_length", "force_density"])
+def test_shape_env_fast_path_is_bit_identical(mode):
+    fast = TensegrityShapeEnv(action_mode=mode)
+    with reference():
+        ref = TensegrityShapeEnv(action_mode=mode)
+    assert fast.task._obs_rod is not None and ref.task._obs_rod is None
+    rng = np.random.default_rng(3)
+    o1, i1 = fast.reset(seed=7)
+    with reference():
+        o2, i2 = ref.reset(seed=7)
+    assert same(o1, o2) and i1 == i2
+    for t in range(40):
+        a = rng.uniform(-1.5, 1.5, 9)                      # some entries outside the box: clipped
+        a = a.astype(np.float32) if t % 2 else a
+        r1 = fast.step(a)
+        with reference():
+            r2 = ref.step(a)
+        assert same(r1[0], r2[0]), t
+        assert r1[1:4] == r2[1:4], t
+        assert r1[4] == r2[4] and all(type(r1[4][k]) is type(r2[4][k]) for k in r1[4]), t
+    assert fast.task._compiled is True and ref.task._compiled is False
+
+
+def test_shape_vector_env_fast_path_is_bit_identical():
+    fast = TensegrityShapeVectorEnv(num_envs=3, max_episode_steps=5)
+    with reference():
+        ref = TensegrityShapeVectorEnv(num_envs=3, max_episode_steps=5)
+    o1, _ = fast.reset(seed=1)
+    with reference():
+        o2, _ = ref.reset(seed=1)
+    assert same(o1, o2)
+    rng = np.random.default_rng(0)
+    for t in range(12):
+        A = rng.uniform(-1.2, 1.2, (3, 9))
+        r1 = fast.step(A)
+        with reference():
+            r2 = ref.step(A)
+        for x, y in zip(r1[:4], r2[:4]):
+            assert same(x, y), t
+        assert r1[4].keys() == r2[4].keys()
+        for k in r1[4]:
+            assert same(r1[4][k], r2[4][k]), (t, k)
+
+
+def test_tolerance_one_element_fast_path_is_bit_identical():
+    xs = np.concatenate([np.linspace(-0.3, 0.3, 601), [0.0, 0.01, 0.0100000001, -1e-300, 1e300, np.inf,
+                                                        -np.inf, np.nan]])
+    for bounds, margin, v in [((0.0, 0.01), 0.1, 0.1), ((-0.02, 0.01), 0.03, 0.3), ((0.0, 0.0), 1e-3, 0.5)]:
+        full = rewards.tolerance(xs, bounds, margin=margin, value_at_margin=v)
+        for x, y in zip(xs, full):
+            one = rewards.tolerance(np.array([x]), bounds, margin=margin, value_at_margin=v)
+            assert one.shape == (1,) and same(one[0], y), (x, bounds)
+            zero_d = rewards.tolerance(x, bounds, margin=margin, value_at_margin=v)
+            assert zero_d.shape == () and same(zero_d, y)
+    with pytest.raises(ValueError, match="value_at_margin"):
+        rewards.tolerance(np.array([0.0]), (0.0, 1.0), margin=1.0, value_at_margin=1.5)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_check_action_fast_path(dtype):
+    a = np.array([0.5, -2.0, 1.0 + 1e-7, 0.25], dtype)
+    out = check_action(a, (4,))
+    with reference():
+        ref = check_action(a, (4,))
+    assert same(out, ref) and out is not a
+    for bad, msg in [(np.nan, "entry 2 is .*nan"), (np.inf, "entry 2 is .*inf")]:
+        b = a.copy()
+        b[2] = bad
+        with pytest.raises(ValueError, match=msg):
+            check_action(b, (4,))
+    with pytest.raises(ValueError, match="entry 1 is -2"):
+        check_action(a, (4,), clip=False)
+    ok = np.array([0.5, -1.0 - 1e-7, 1.0], dtype)
+    if dtype == np.float64:
+        assert same(check_action(ok, (3,), clip=False), np.array([0.5, -1.0, 1.0]))
+    A = np.zeros((2, 3), dtype)
+    A[1, 2] = np.nan
+    with pytest.raises(ValueError, match=r"entry \(1, 2\)"):
+        check_action(A, (2, 3), name="actions")
+    with pytest.raises(ValueError, match="shape"):
+        check_action(np.zeros(5, dtype), (4,))
+
+
+@pytest.mark.parametrize("num_envs", [1, 3])
+def test_roll_env_fast_path_is_bit_identical(num_envs):
+    from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
+    make = (lambda: TensegrityRollEnv()) if num_envs == 1 else \
+        (lambda: TensegrityRollVectorEnv(num_envs=num_envs, max_episode_steps=7))
+    fast = make()
+    with reference():
+        ref = make()
+    o1, _ = fast.reset(seed=2)
+    with reference():
+        o2, _ = ref.reset(seed=2)
+    assert same(o1, o2)
+    shape = fast.action_space.shape
+    rng = np.random.default_rng(1)
+    for t in range(15):
+        a = rng.uniform(-1.3, 1.3, shape)
+        r1 = fast.step(a)
+        with reference():
+            r2 = ref.step(a)
+        for x, y in zip(r1[:4], r2[:4]):
+            assert same(x, y), t
+        assert r1[4].keys() == r2[4].keys()
+        for k in r1[4]:
+            assert same(r1[4][k], r2[4][k]), (t, k)
+
+
+def test_mean_max_matches_numpy_reductions():
+    rng = np.random.default_rng(4)
+    for nt in range(1, 12):
+        for B in (1, 3, 64):
+            d = np.abs(rng.normal(size=(B, nt))) * 10.0 ** rng.integers(-17, 1, size=(B, nt))
+            mean, mx = np.empty(B), np.empty(B)
+            done = _fast.mean_max(d, mean, mx)
+            assert done == (nt < 8)
+            if done:
+                assert same(mean, d.mean(axis=1)) and same(mx, d.max(axis=1)), (nt, B)
+    d = np.array([[0.1, np.nan, 0.3], [0.2, 0.1, 0.0]])
+    mean, mx = np.empty(2), np.empty(2)
+    assert _fast.mean_max(d, mean, mx)
+    assert same(mean, d.mean(axis=1)) and same(mx, d.max(axis=1))
