@@ -27,7 +27,8 @@ def test_gymnasium_and_sb3_check_env(structure, mode):
     n = env.unwrapped.task.model.n_nodes
     k = env.unwrapped.task.model.n_bars
     na = env.action_space.shape[0]
-    assert env.observation_space.shape == (6 * n + na + 2 * k + 3,)
+    ns = na if mode == "rest_length" else 0    # cable speeds (motor model, on by default in rest-length mode)
+    assert env.observation_space.shape == (6 * n + na + 2 * k + 3 + ns,)
 
 
 def test_determinism_per_seed():

@@ -22,7 +22,7 @@ try:  # pragma: no cover - exercised by the import itself
 except Exception:  # pragma: no cover - numba missing or broken
     AVAILABLE = False
 
-__all__ = ["AVAILABLE", "clip_action", "apply_controls", "state_ok", "shape_observe", "mean_max", "roll_observe"]
+__all__ = ["AVAILABLE", "clip_action", "apply_controls", "apply_motor", "state_ok", "shape_observe", "mean_max", "roll_observe"]
 
 if AVAILABLE:
     @njit(cache=True, nogil=True)
@@ -66,6 +66,40 @@ if AVAILABLE:
                     v = high[i]
                 ctrl_out[b, i] = v
                 phys_out[b, actuated[i]] = v
+
+    @njit(cache=True, nogil=True)
+    def apply_motor(ctrl, speed, action, max_rate, dv, dt, low, high, actuated, base, fill_base,
+                    ctrl_out, speed_out, phys_out):
+        """Motor model of ``Actuation.apply_motor``: ``v = speed + clip(action * max_rate - speed,
+        -dv, dv)``, ``ctrl_out = clip(ctrl + v * dt, low, high)``, ``v = 0`` where the control
+        sits on a bound and ``v`` pushes beyond it (``speed_out``), and the physics input
+        ``phys_out`` as :func:`apply_controls`."""
+        B, na = ctrl.shape
+        m = phys_out.shape[1]
+        for b in range(B):
+            if fill_base:
+                for j in range(m):
+                    phys_out[b, j] = base[j]
+            else:
+                for j in range(m):
+                    phys_out[b, j] = 0.0
+            for i in range(na):
+                d = action[b, i] * max_rate[i] - speed[b, i]
+                if d < -dv:
+                    d = -dv
+                if d > dv:
+                    d = dv
+                v = speed[b, i] + d
+                x = ctrl[b, i] + v * dt
+                if x < low[i]:
+                    x = low[i]
+                if x > high[i]:
+                    x = high[i]
+                if (x <= low[i] and v < 0.0) or (x >= high[i] and v > 0.0):
+                    v = 0.0
+                ctrl_out[b, i] = x
+                speed_out[b, i] = v
+                phys_out[b, actuated[i]] = x
 
     @njit(cache=True, nogil=True)
     def state_ok(q, qd, center, limit):
@@ -138,10 +172,11 @@ if AVAILABLE:
         return True
 
     @njit(cache=True, nogil=True)
-    def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, obs):
+    def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, speed, obs):
         """Observation of the roll task (see ``RollTask.observe``) into ``obs`` (B, size) float32:
         node positions relative to ``com`` (B, 3), node velocities, controls, contact flags,
-        goal direction, centre-of-mass height. Node ``i`` sits at ``r + eta[i] b`` of rod ``rod[i]``."""
+        goal direction, centre-of-mass height, then the cable speeds ``speed`` (B, ns) (ns = 0
+        without the motor model). Node ``i`` sits at ``r + eta[i] b`` of rod ``rod[i]``."""
         B = q.shape[0]
         n = rod.size
         na = ctrl.shape[1]
@@ -165,5 +200,8 @@ if AVAILABLE:
             obs[b, o] = np.float32(goal[b, 0])
             obs[b, o + 1] = np.float32(goal[b, 1])
             obs[b, o + 2] = np.float32(com[b, 2])
+            o += 3
+            for i in range(speed.shape[1]):
+                obs[b, o + i] = np.float32(speed[b, i])
 else:  # pragma: no cover
-    clip_action = apply_controls = state_ok = shape_observe = mean_max = roll_observe = None
+    clip_action = apply_controls = apply_motor = state_ok = shape_observe = mean_max = roll_observe = None

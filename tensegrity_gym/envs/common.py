@@ -166,12 +166,22 @@ class Actuation:
     base_rest_length : (m,) rest lengths of all strings (the non-actuated ones keep them), m.
     nominal : (na,) control at the start of an episode.
 
-    An action ``a`` in [-1, 1]^na changes the control by ``a * max_rate * control_dt`` per
-    control step, then the control is clipped to [``low``, ``high``].
+    max_accel : ``None`` (default) or the largest change of the control *rate* per second
+        (rest-length mode: the cable acceleration limit of a motor, m/s^2). See below.
+
+    Without ``max_accel``, an action ``a`` in [-1, 1]^na changes the control by
+    ``a * max_rate * control_dt`` per control step, then the control is clipped to
+    [``low``, ``high``] (:meth:`apply`, :meth:`advance`).
+
+    With ``max_accel`` (a motor model, :meth:`advance_motor`) the action commands the rate
+    ``v_cmd = a * max_rate``; the rate ``v`` (B, na) is state (m/s for rest lengths) and moves
+    toward the command by at most ``max_accel * control_dt`` per control step; the control then
+    moves by ``v * control_dt`` and is clipped to [``low``, ``high``], and where it sits on a
+    bound with ``v`` pushing beyond it, ``v`` is set to 0 (end stop).
     """
 
     def __init__(self, mode: str, actuated, low, high, max_rate, control_dt: float, base_rest_length,
-                 nominal):
+                 nominal, max_accel: float | None = None):
         if mode not in ACTION_MODES:
             raise ValueError(f"action_mode: unknown {mode!r}; choose one of {ACTION_MODES}")
         self.mode = mode
@@ -190,6 +200,7 @@ class Actuation:
         self.nominal = np.clip(per(nominal, "nominal"), self.low, self.high)
         self.control_dt = check_positive(control_dt, "control_dt", "s")
         self._rate = self.max_rate * self.control_dt     # change of the control per unit action and step
+        self.max_accel = None if max_accel is None else check_positive(max_accel, "max_accel", "unit/s^2")
         unit = "m" if mode == "rest_length" else "N/m"
         for i in range(na):
             s = int(self.actuated[i])
@@ -240,9 +251,43 @@ class Actuation:
         new = self.apply(ctrl, action)
         return new, self.physics_inputs(new)
 
+    def apply_motor(self, ctrl: np.ndarray, speed: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Motor model (needs ``max_accel``): ``(new control, new rate)`` (B, na) from the current
+        control, the current rate ``speed`` (unit/s) and an action in [-1, 1] (the NumPy reference
+        of :meth:`advance_motor`)."""
+        if self.max_accel is None:
+            raise ValueError("apply_motor: this Actuation has no max_accel (use apply)")
+        dv = self.max_accel * self.control_dt
+        v = speed + np.clip(action * self.max_rate - speed, -dv, dv)
+        new = np.clip(ctrl + v * self.control_dt, self.low, self.high)
+        stop = ((new <= self.low) & (v < 0.0)) | ((new >= self.high) & (v > 0.0))
+        v = np.where(stop, 0.0, v)
+        return new, v
+
+    def advance_motor(self, ctrl: np.ndarray, speed: np.ndarray,
+                      action: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
+        """``(new, new_speed, physics_inputs(new))`` of the motor model (:meth:`apply_motor`): one
+        compiled call for C-contiguous float64 (B, na) arrays, NumPy otherwise (same numbers)."""
+        if self.max_accel is None:
+            raise ValueError("advance_motor: this Actuation has no max_accel (use advance)")
+        if (_fast.AVAILABLE and all(type(x) is np.ndarray and x.ndim == 2 and x.shape == ctrl.shape
+                                    and x.dtype == np.float64 and x.flags.c_contiguous
+                                    for x in (ctrl, speed, action))):
+            new = np.empty(ctrl.shape)
+            v = np.empty(ctrl.shape)
+            phys = np.empty((ctrl.shape[0], self.n_strings))
+            rl = self.mode == "rest_length"
+            _fast.apply_motor(ctrl, speed, action, self.max_rate, self.max_accel * self.control_dt,
+                              self.control_dt, self.low, self.high, self.actuated, self.base_rest_length,
+                              rl, new, v, phys)
+            return new, v, ({"rest_length": phys} if rl else {"rest_length": None, "force_density": phys})
+        new, v = self.apply_motor(ctrl, speed, action)
+        return new, v, self.physics_inputs(new)
+
     def describe(self) -> str:
+        acc = "" if self.max_accel is None else f", max rate change {self.max_accel:.4g} {self.unit}/s^2"
         return (f"{self.mode}: strings {self.actuated.tolist()}, bounds [{self.low.min():.4g}, "
-                f"{self.high.max():.4g}] {self.unit}, max rate {self.max_rate.max():.4g} {self.unit}/s")
+                f"{self.high.max():.4g}] {self.unit}, max rate {self.max_rate.max():.4g} {self.unit}/s" + acc)
 
 
 # ---------------------------------------------------------------------- batched task base

@@ -33,6 +33,7 @@ STRING_DAMPING = 2.0    # N s/m
 PRISM_RADIUS = 0.15     # m
 PRISM_HEIGHT = 0.25     # m
 PRISM_PRESTRESS = 20.0  # N in the vertical strings
+MAX_CABLE_ACCELERATION = 2.0   # m/s^2, cable motor acceleration limit (0.2 m/s reached in 0.1 s)
 ICO_LENGTH = 0.4        # m
 ICO_PRESTRESS = 10.0    # N in every string
 SETTLE_TIME = 1.5       # s of simulated settling at construction
@@ -136,6 +137,8 @@ class RollTask(BatchedTask):
 
     State: ``q``, ``qd`` (B, k, 6); ``cstate`` (contact anchors (B, 2k, 2), flags (B, 2k));
     ``ctrl`` (B, na) rest lengths (m) or force densities (N/m) of the actuated strings;
+    ``speed`` (B, na) cable speeds (m/s; rest-length mode with ``max_cable_acceleration``,
+    else (B, 0));
     ``goal`` (B, 2) unit goal direction in the ground plane; ``start`` (B, 3) centre of mass at reset, m.
     """
 
@@ -144,7 +147,8 @@ class RollTask(BatchedTask):
                  string_damping: float | None = STRING_DAMPING,
                  forward_reward_weight: float = 1.0, ctrl_cost_weight: float = 0.01,
                  goal_direction=(1.0, 0.0), randomize_goal: bool = False, reset_noise_scale: float = 1e-3,
-                 max_cable_speed: float = 0.2, rest_length_bounds=(0.5, 1.1),
+                 max_cable_speed: float = 0.2, max_cable_acceleration: float | None = MAX_CABLE_ACCELERATION,
+                 rest_length_bounds=(0.5, 1.1),
                  force_density_max: float | None = None, force_density_rate: float | None = None,
                  friction: float = 1.0, ground_stiffness: float = 1e4, ground_damping: float = 10.0,
                  tangential_stiffness: float | None = None, tangential_damping: float = 10.0,
@@ -169,6 +173,9 @@ class RollTask(BatchedTask):
         self.ctrl_cost_weight = check_positive(ctrl_cost_weight, "ctrl_cost_weight", allow_zero=True)
         self.reset_noise_scale = check_positive(reset_noise_scale, "reset_noise_scale", "m, m/s", allow_zero=True)
         self.max_cable_speed = check_positive(max_cable_speed, "max_cable_speed", "m/s")
+        if max_cable_acceleration is not None:
+            max_cable_acceleration = check_positive(max_cable_acceleration, "max_cable_acceleration", "m/s^2")
+        self.max_cable_acceleration = max_cable_acceleration
         g = np.asarray(goal_direction, float).reshape(-1)
         if g.shape != (2,) or not np.all(np.isfinite(g)) or np.linalg.norm(g) == 0:
             raise ValueError(f"goal_direction: expected a non-zero finite (x, y) vector, got {goal_direction!r}")
@@ -212,7 +219,7 @@ class RollTask(BatchedTask):
         l0 = s.rest_length[act]
         if action_mode == "rest_length":
             self.actuation = Actuation("rest_length", act, lo * l0, hi * l0, self.max_cable_speed,
-                                       self.control_dt, s.rest_length, l0)
+                                       self.control_dt, s.rest_length, l0, max_accel=max_cable_acceleration)
         else:
             g0 = self.gamma_nominal[act]
             fmax = 3.0 * float(g0.max()) if force_density_max is None else check_positive(
@@ -222,11 +229,15 @@ class RollTask(BatchedTask):
             self.actuation = Actuation("force_density", act, 0.0, fmax, frate, self.control_dt, s.rest_length, g0)
 
         B, k, n, na = self.num_envs, model.n_bars, model.n_nodes, act.size
+        # motor model (rest-length mode with an acceleration limit): cable speeds are state, observed
+        self.motor = self.actuation.max_accel is not None
+        self.n_speed = na if self.motor else 0
         self.n_contacts = 2 * k
         self.action_size = na
-        self.observation_size = 6 * n + na + self.n_contacts + 3
+        self.observation_size = 6 * n + na + self.n_contacts + 3 + self.n_speed
         self.cstate = gc.init_contact_state(model, B)
         self.ctrl = np.tile(self.actuation.nominal, (B, 1))
+        self.speed = np.zeros((B, self.n_speed))
         self.goal = np.tile(self.goal_direction, (B, 1))
         self.q = np.tile(self.q_nominal, (B, 1, 1))
         self.qd = np.zeros_like(self.q)
@@ -299,6 +310,7 @@ class RollTask(BatchedTask):
         self.cstate.anchor[idx] = 0.0
         self.cstate.active[idx] = False
         self.ctrl[idx] = self.actuation.nominal
+        self.speed[idx] = 0.0
         self.goal[idx] = goal
         self.elapsed[idx] = 0
         com = dyn.center_of_mass(self.model, q)
@@ -350,7 +362,10 @@ class RollTask(BatchedTask):
         return diverged
 
     def step(self, action):
-        self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
+        if self.motor:
+            self.ctrl, self.speed, inputs = self.actuation.advance_motor(self.ctrl, self.speed, action)
+        else:
+            self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
         com0 = self._com(self.q)
         diverged = self.simulate_contact(inputs)
         com = self._com(self.q)
@@ -380,12 +395,12 @@ class RollTask(BatchedTask):
         q, qd = self.q, self.qd
         if _fast.AVAILABLE:   # one compiled pass, bit-identical to the NumPy below
             com = self._com(q)
-            arrs = (q, qd, com, self.ctrl, self.goal)
+            arrs = (q, qd, com, self.ctrl, self.goal, self.speed)
             if all(type(x) is np.ndarray and x.dtype == np.float64 for x in arrs) and \
                     type(self.cstate.active) is np.ndarray and self.cstate.active.dtype == np.bool_:
                 obs = np.empty((B, self.observation_size), np.float32)
                 _fast.roll_observe(q, qd, self._node_rod_i64, self._node_eta_1d, com, self.ctrl,
-                                   self.cstate.active, self.goal, obs)
+                                   self.cstate.active, self.goal, self.speed, obs)
                 return obs
         e = self._node_eta
         # node positions / velocities (= dynamics.node_positions / node_velocities of a free structure)
@@ -404,6 +419,9 @@ class RollTask(BatchedTask):
         i += self.n_contacts
         obs[:, i:i + 2] = self.goal
         obs[:, i + 2] = com[:, 2]
+        i += 3
+        if self.n_speed:
+            obs[:, i:i + self.n_speed] = self.speed
         return obs
 
     def observation_layout(self) -> list[tuple[str, slice, str]]:
@@ -412,6 +430,8 @@ class RollTask(BatchedTask):
         blocks = [("node_position_rel_com", 3 * n, "m"), ("node_velocity", 3 * n, "m/s"),
                   ("control", na, self.actuation.unit), ("contact", self.n_contacts, "1"),
                   ("goal_direction", 2, "1"), ("com_height", 1, "m")]
+        if self.n_speed:
+            blocks.append(("cable_speed", self.n_speed, "m/s"))
         out, i = [], 0
         for name, sz, unit in blocks:
             out.append((name, slice(i, i + sz), unit))
@@ -479,14 +499,35 @@ _DOC = r"""
 
     | mode | action a_i in [-1, 1] does | bounds |
     |------|---------------------------|--------|
-    | ``rest_length`` | rest length l0_i += a_i * ``max_cable_speed`` * dt_c (m) (motor: 0.2 m/s) | ``rest_length_bounds`` x nominal (0.5 to 1.1) |
+    | ``rest_length`` | commands the cable speed v_cmd,i = a_i * ``max_cable_speed`` (0.2 m/s); the motor's speed v_i follows it at most ``max_cable_acceleration`` (2 m/s^2) fast; l0_i += v_i * dt_c (m) | ``rest_length_bounds`` x nominal (0.5 to 1.1) |
     | ``force_density`` | force density g_i += a_i * ``force_density_rate`` * dt_c (N/m) | [0, ``force_density_max``] (3 x the largest nominal) |
 
     with dt_c = ``dt * frame_skip`` = 0.02 s. The control is held over the control step.
 
+    Cable motor model (``rest_length`` mode). Each control step, per actuated cable::
+
+        v_cmd = a * max_cable_speed                                       # m/s
+        v    <- v + clip(v_cmd - v, -max_cable_acceleration * dt_c, +max_cable_acceleration * dt_c)
+        l0   <- clip(l0 + v * dt_c, low, high)
+        v    <- 0 where l0 is on a bound and v pushes beyond it            # end stop
+
+    and ``v = 0`` at reset. The cable speed v is state and is observed (block
+    ``cable_speed``). Why 2 m/s^2: the robots this env models (NTRT's and the Rutgers /
+    Berkeley 3-bar prisms) wind their cables on spools driven by small geared DC motors, which
+    reach full cable speed in about 0.1 s (motor time constant plus the spool's and gearbox's
+    inertia, current-limited drivers); 0.2 m/s in 0.1 s is 2 m/s^2, i.e. the cable speed can
+    reverse fully (-0.2 to +0.2 m/s) in 0.2 s, 10 control steps. Without such a limit a policy
+    can flip every cable between full speed in and out at every control step (25 Hz bang-bang)
+    and shuffle the robot forward by vibration instead of rolling it, which no real motor
+    could do. ``max_cable_acceleration=None`` removes the limit: the rest-length rate is then
+    a_i * ``max_cable_speed`` at once (the behaviour before this motor model; no
+    ``cable_speed`` block). ``force_density`` mode ignores the argument.
+
     ## Observation space
-    ``Box(-inf, inf, (6 n + na + 2 k + 3,), float32)`` (prism: n = 6 nodes, k = 3 rods, na = 9:
-    size 54; icosahedron: n = 12, k = 6, na = 24: size 111):
+    ``Box(-inf, inf, (6 n + na + 2 k + 3 + ns,), float32)`` with ns = na (the cable speeds) in
+    ``rest_length`` mode with the motor model (the default) and ns = 0 otherwise (prism: n = 6
+    nodes, k = 3 rods, na = 9: size 63, or 54 with ``max_cable_acceleration=None`` or in
+    ``force_density`` mode; icosahedron: n = 12, k = 6, na = 24: size 135, or 111):
 
     | index | observation | unit |
     |-------|-------------|------|
@@ -495,7 +536,8 @@ _DOC = r"""
     | 6n .. 6n+na-1 | control of each actuated string: rest length or force density | m or N/m |
     | 6n+na .. 6n+na+2k-1 | contact flag of each end cap (rod 0 end a, rod 0 end c, ...) | 0/1 |
     | next 2 | goal direction (unit vector in the ground plane) | 1 |
-    | last | height of the centre of mass | m |
+    | next 1 | height of the centre of mass | m |
+    | last ns | cable speed v_i of each actuated string (motor model only; positive: lengthening) | m/s |
 
     The absolute x, y position is not observed (as Ant/Hopper exclude it by default).
     ``env.unwrapped.task.observation_layout()`` lists the blocks.
@@ -545,6 +587,7 @@ _DOC = r"""
     | ``goal_direction``, ``randomize_goal`` | ``(1, 0)``, ``False`` | goal in the ground plane |
     | ``reset_noise_scale`` | ``1e-3`` | m, m/s |
     | ``max_cable_speed`` | ``0.2`` | m/s (rest-length mode) |
+    | ``max_cable_acceleration`` | ``2.0`` | m/s^2, cable motor acceleration limit (rest-length mode; ``None``: none, the speed follows the action at once) |
     | ``rest_length_bounds`` | ``(0.5, 1.1)`` | fractions of the nominal rest lengths |
     | ``force_density_max``, ``force_density_rate`` | ``None`` | N/m, N/(m s) (force-density mode) |
     | ``friction`` | ``1.0`` | Coulomb coefficient of the caps |
@@ -566,10 +609,20 @@ _DOC = r"""
     seeds) it rolls the prism 3.37 m along +x: 0.0337 m/s (std 0.0005), 0.088 body lengths/s
     (body length = rod length 0.383 m), with 0.76 m mean sideways drift (the chiral prism's path
     curves); about 0.6 m (1.6 body lengths) per 20 s episode
-    (``python scripts/eval_roll_baseline.py`` -> ``results/roll_baseline.json``).
+    (``python scripts/eval_roll_baseline.py`` -> ``results/roll_baseline.json``). These numbers
+    were measured before the cable motor model (as ``max_cable_acceleration=None``). With the
+    default 2 m/s^2 limit the same gait still rolls: reset seed 0, 20 s: 0.63 m along +x (0.55 m
+    without the limit).
 
     ## Version history
     * v0: initial version.
+    * v0 (motor model): rest-length mode got a cable acceleration limit
+      (``max_cable_acceleration``, default 2 m/s^2; the cable speed is now state, reset to 0,
+      stopped at the rest-length bounds) and the cable speeds were appended to the observation
+      (block ``cable_speed``; prism 54 -> 63 entries). This changes the default dynamics and
+      observation of rest-length mode (the id was kept): policies trained before it need
+      ``max_cable_acceleration=None``, which reproduces the old env exactly.
+      ``force_density`` mode is unchanged.
 """
 
 
