@@ -194,20 +194,23 @@ class RollingGait:
         x_s(t)  = t / period - direction * j / 3 - phase[kind]
         l0_s(t) = l0_s^nominal * (1 - amplitude[kind] * ((1 - cos 2 pi x_s) / 2) ** sharpness)
 
-    so the strings of the side that is about to touch the ground shorten in turn, the centre
-    of mass is pulled past the edge of the support face and the prism rolls from side face to
-    side face. The action is the cable-speed command that moves each rest length toward its
+    so the strings of the side that is about to touch the ground shorten in turn and the centre
+    of mass is pulled toward the edge of the support face. That was the design intent (roll
+    from side face to side face); what the found pattern actually does is rock and shuffle
+    forward without rolling over: ``scripts/gait_stats.py gait`` measures, over 20 s (seed
+    1000000), a net rotation of -0.37 turns about the horizontal axis across the goal (a
+    forward roll of the same 0.66 m would be about +0.8) within 3.7 turns of total rocking. The action is the cable-speed command that moves each rest length toward its
     target at the motor's limit: ``a = clip((l0_target - l0_current) / (max_cable_speed dt_c), -1, 1)``
     (the current rest lengths are read from the observation's ``control`` block; the pattern
     itself is open loop: it depends on time only). With the env's cable motor model
     (``max_cable_acceleration``, on by default) the action is the commanded speed and the cable
     speed follows it with a lag of up to 0.1 s; the gait ignores the observed ``cable_speed``
-    block and still rolls (seed 0, 20 s: 0.63 m with the 2 m/s^2 limit, 0.55 m without). The default parameters were found offline by
+    block and still moves forward (seed 0, 20 s: 0.63 m with the 2 m/s^2 limit, 0.55 m without). The default parameters were found offline by
     a random search over the wave's parameters (amplitudes, phases, period, sharpness,
     direction) on flat ground with friction 1: 128 random patterns scored by the distance
     rolled along +x in 10 s, then three rounds of perturbing the best ones scored over 20, 40
     and 100 s, and a final check of the five best over 8 reset seeds (100 s each); the chosen
-    pattern rolled 3.3-3.4 m in 100 s on every seed (0.034 m/s, 0.088 body lengths/s). The twisted (chiral) prism does not roll straight: its path curves slowly, and
+    pattern moved 3.3-3.4 m in 100 s on every seed (0.034 m/s, 0.088 body lengths/s). The twisted (chiral) prism does not roll straight: its path curves slowly, and
     the speed reported by ``scripts/eval_roll_baseline.py`` is the progress along +x.
 
     ``predict(obs, state=None, episode_start=None, deterministic=True) -> (action, state)`` as a
