@@ -299,10 +299,27 @@ def test_node_drag_is_in_the_model_one_integrator_call_per_step(mode, monkeypatc
     calls = []
     real = integrators.step
     monkeypatch.setattr(integrators, "step", lambda *x, **k: calls.append(k.get("n_steps")) or real(*x, **k))
+    from tensegrity_gym.envs import _fast
+    fused = []
+    ctrl0 = task.ctrl.copy()
+    assert bool(task._fused) == _fast.AVAILABLE
+    if task._fused:
+        # the fused fast path (envs/_fast.shape_step): ONE compiled call per control step that
+        # runs the physics kernel for frame_skip steps (icon[0]), no integrators.step call
+        disp = task._fused[0]
+        task._fused = (lambda *x: fused.append(int(x[7][0])) or disp(*x),) + task._fused[1:]
     env.step(a)
-    assert calls == [task.frame_skip]
+    assert (calls, fused) == (([], [task.frame_skip]) if task._fused else ([task.frame_skip], []))
     assert np.abs(task.q - st.q).max() < 1e-12 and np.abs(task.qd - st.qd).max() < 1e-10
     assert np.abs(task.qd - qd0).max() > 1e-4                     # it moves
+    # the reference path (no fused step): ONE integrators.step call of frame_skip steps, same state
+    q1, qd1 = task.q.copy(), task.qd.copy()
+    task.q, task.qd, task.ctrl = q0.copy(), qd0.copy(), ctrl0
+    calls.clear()
+    monkeypatch.setattr(_fast, "AVAILABLE", False)
+    env.step(a)
+    assert calls == [task.frame_skip] and len(fused) == 1
+    assert np.array_equal(task.q, q1) and np.array_equal(task.qd, qd1)
     # without drag, no drag code: the model has none
     env0 = TensegrityShapeEnv(action_mode=mode, node_damping=0.0)
     assert not env0.task.model.has_node_damping

@@ -10,6 +10,12 @@ multiply-adds): results are bit-identical, which ``tests/test_fast_paths.py`` ch
 are only done here where NumPy's order is strictly sequential (fewer than 8 terms); longer
 ones are left to NumPy by the callers.
 
+:func:`shape_step` goes further for the shape task: the control update, the physics kernel
+itself (``_kernels._run_serial``, called from compiled code, so no ``integrators.step`` /
+``State`` wrappers), the divergence check, the observation, the errors and the tracking term
+in ONE compiled call per ``step()``. (numba's on-disk cache does not notice edits of
+``_kernels.py``: clear ``__pycache__`` after changing the kernels.)
+
 ``AVAILABLE`` is False without numba; callers then run their NumPy reference path.
 """
 from __future__ import annotations
@@ -17,12 +23,14 @@ from __future__ import annotations
 import numpy as np
 
 try:  # pragma: no cover - exercised by the import itself
+    import numba
     from numba import njit
     AVAILABLE = True
 except Exception:  # pragma: no cover - numba missing or broken
     AVAILABLE = False
 
-__all__ = ["AVAILABLE", "clip_action", "apply_controls", "apply_motor", "state_ok", "shape_observe", "mean_max", "roll_observe"]
+__all__ = ["AVAILABLE", "clip_action", "apply_controls", "apply_motor", "state_ok", "shape_observe", "mean_max",
+           "roll_observe", "shape_step", "SHAPE_STEP_SIG"]
 
 if AVAILABLE:
     @njit(cache=True, nogil=True)
@@ -203,5 +211,80 @@ if AVAILABLE:
             o += 3
             for i in range(speed.shape[1]):
                 obs[b, o + i] = np.float32(speed[b, i])
+
+    from .. import _kernels
+
+    @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
+    def shape_step(q, qd, ctrl, action, target, buf, fcon, icon, qo, qdo, ctrl_out, obs, dist, stats, success,
+                   elapsed):
+        """One control step of the shape task in ONE compiled call (``ShapeTask.step``'s fast
+        path): the control update (:func:`apply_controls`), the physics (``_kernels._run_serial``,
+        the very kernel ``integrators.step`` runs, ``icon[0]`` steps of ``fcon[0]`` s, flags
+        ``icon[1]``), the divergence check (:func:`state_ok`), the observation and node errors
+        (:func:`shape_observe`) and the error statistics (:func:`mean_max`; ``stats`` (4, B):
+        mean error, max error, the proximity term's exponent ``-0.5 t^2`` of
+        ``rewards.tolerance`` (NaN inside the tolerance; the exp itself is left to NumPy, whose
+        exp may differ from LLVM's in the last bit) and the tracking term
+        ``-tracking_weight * mean error``), ``success`` (B,) bool (max error within the
+        tolerance) and ``elapsed`` (B,) int64 incremented (both only when mean/max are done
+        here)).
+
+        ``fcon``: dt, divergence limit, centre (3), tolerance, margin, gaussian scale,
+        -tracking_weight, then per
+        actuated string rate, low, high, base rest lengths (m), then eta (nt). ``icon``:
+        n_steps, flags, fill_base, na, m, nt, then actuated (na), rod (nt).
+        Inputs are only read; results go to the fresh output arrays. Returns 0 (all done), 2
+        (done but mean/max left to NumPy: nt >= 8), 1 (physics done, state diverged: outputs
+        ``qo``, ``qdo``, ``ctrl_out`` valid, the rest not computed) or -1 (shapes do not fit:
+        nothing valid, the caller runs the reference path, which raises the right error)."""
+        n_steps, flags, fill_base, na, m, nt = icon[0], icon[1], icon[2] != 0, icon[3], icon[4], icon[5]
+        B = q.shape[0]
+        if (ctrl.shape[0] != B or ctrl.shape[1] != na or action.shape[0] != B or action.shape[1] != na
+                or target.shape[0] != B or target.shape[1] != nt or target.shape[2] != 3
+                or qo.shape[0] != B or ctrl_out.shape[0] != B or ctrl_out.shape[1] != na
+                or obs.shape[0] != B or obs.shape[1] != 12 * nt + na or dist.shape[0] != B
+                or dist.shape[1] != nt or stats.shape[0] != 4 or stats.shape[1] != B
+                or success.shape[0] != B or elapsed.shape[0] != B):
+            return -1
+        o = 9
+        phys = np.empty((B, m))
+        apply_controls(ctrl, action, fcon[o:o + na], fcon[o + na:o + 2 * na], fcon[o + 2 * na:o + 3 * na],
+                       icon[6:6 + na], fcon[o + 3 * na:o + 3 * na + m], fill_base, ctrl_out, phys)
+        # rest-length mode: phys is rest_length; force-density mode (flags carry _L0DEF | _FD):
+        # phys is force_density; the external-force argument is never read (no _EXT)
+        err = _kernels._run_serial(q, qd, qo, qdo, buf, phys, phys, q, fcon[0], n_steps, flags)
+        if err:
+            return -1
+        if not state_ok(qo, qdo, fcon[2:5], fcon[1]):
+            return 1
+        shape_observe(qo, qdo, icon[6 + na:6 + na + nt], fcon[o + 3 * na + m:o + 3 * na + m + nt], ctrl_out,
+                      target, obs, dist)
+        done = mean_max(dist, stats[0], stats[1])
+        if done:
+            tol, margin, scale, neg_w = fcon[5], fcon[6], fcon[7], fcon[8]
+            for b in range(B):
+                stats[3, b] = neg_w * stats[0, b]
+                x = stats[1, b]
+                success[b] = x <= tol
+                if 0.0 <= x and x <= tol:
+                    stats[2, b] = np.nan
+                else:
+                    t = ((0.0 - x if x < 0.0 else x - tol) / margin) * scale
+                    stats[2, b] = -0.5 * (t * t)
+        if not done:
+            return 2
+        for b in range(B):
+            elapsed[b] += 1
+        return 0
+
+    _c1 = "C"
+    _F8, _I8 = numba.types.float64, numba.types.int64
+    SHAPE_STEP_SIG = _I8(*[numba.types.Array(_F8, d, _c1) for d in (3, 3, 2, 2, 3, 1, 1)],
+                         numba.types.Array(_I8, 1, _c1),
+                         *[numba.types.Array(_F8, d, _c1) for d in (3, 3, 2)],
+                         numba.types.Array(numba.types.float32, 2, _c1),
+                         *[numba.types.Array(_F8, d, _c1) for d in (2, 2)],
+                         numba.types.Array(numba.types.boolean, 1, _c1), numba.types.Array(_I8, 1, _c1))
 else:  # pragma: no cover
     clip_action = apply_controls = apply_motor = state_ok = shape_observe = mean_max = roll_observe = None
+    shape_step = SHAPE_STEP_SIG = None

@@ -9,8 +9,9 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics as dyn
+from .. import integrators
 from .. import statics
-from ..rewards import quadratic_cost, tolerance
+from ..rewards import _c_einsum as _sum_squares, quadratic_cost, tolerance
 from . import _fast
 from .common import (ACTION_MODES, Actuation, BatchedTask, TaskEnv, TaskVectorEnv, check_positive,
                      resolve_actuated)
@@ -246,10 +247,103 @@ class ShapeTask(BatchedTask):
         _fast.shape_observe(q, qd, self._obs_rod, self._obs_eta, ctrl, tgt, obs, d)
         return obs, d
 
+    def _fused_setup(self):
+        """Constants of the fused compiled step (:func:`tensegrity_gym.envs._fast.shape_step`),
+        or False when it does not apply: no numba, numpy backend / implicit integrator, an
+        anchored tracked node, or a batch large enough for the parallel kernel (then
+        ``integrators.step`` runs it). Decided once per task, at its first step."""
+        fz = False
+        if self._obs_rod is not None and self._compiled_physics():
+            from .. import _kernels
+            p = _kernels._packed(self.model)
+            flags = _kernels._flags(p, self.integrator, True)
+            B, act = self.num_envs, self.actuation
+            if not (B >= 8 and _kernels._parallel(p, B, self.frame_skip, flags)):
+                rl = act.mode == "rest_length"
+                if not rl:
+                    flags |= _kernels._L0DEF | _kernels._FD
+                tol = self.success_tolerance
+                scale = float(np.sqrt(-2 * np.log(0.1)))     # rewards.tolerance's gaussian, value 0.1 at the margin
+                fcon = np.concatenate([[self.dt, self.divergence_limit], self.center0,
+                                       [tol, 10.0 * tol, scale, -self.tracking_weight],
+                                       act._rate, act.low, act.high, act.base_rest_length, self._obs_eta])
+                icon = np.concatenate([[self.frame_skip, flags, int(rl), act.size, act.n_strings, self.tracked.size],
+                                       act.actuated, self._obs_rod]).astype(np.int64)
+                disp = _fast.shape_step
+                if not disp.signatures:
+                    disp.compile(_fast.SHAPE_STEP_SIG)
+                    disp.disable_compile()     # another argument type raises TypeError: reference path
+                # integrators.step's stability warning, once per (model, integrator, dt) as there
+                integrators._check_stability(self.model, integrators.INTEGRATORS[self.integrator], self.dt)
+                self._fused_dist = np.empty((B, self.tracked.size))
+                fz = (disp, p.buf, np.ascontiguousarray(fcon, np.float64), icon, B, self.action_size,
+                      self.observation_size, self.tracked.size)
+        self._fused = fz
+        return fz
+
+    def _fused_step(self, fz, action):
+        """:meth:`step` in one compiled call (see :meth:`_fused_setup`); None when it does not
+        apply to these arrays (nothing changed then: the caller runs the reference path)."""
+        disp, buf, fcon, icon, B, na, nobs, nt = fz
+        q0, qd0 = self.q, self.qd
+        qo = np.empty(q0.shape)
+        qdo = np.empty(q0.shape)
+        ctrl = np.empty((B, na))
+        obs = np.empty((B, nobs), np.float32)
+        d = self._fused_dist               # scratch: read below only before the next call
+        st = np.empty((4, B))
+        success = np.empty(B, bool)
+        try:
+            rc = disp(q0, qd0, self.ctrl, action, self.target, buf, fcon, icon, qo, qdo, ctrl, obs, d, st, success,
+                      self.elapsed)
+        except TypeError:    # an array of another type or layout: the reference path converts it
+            return None
+        if rc < 0:
+            return None
+        self.ctrl = ctrl
+        self._last_action = action
+        if rc == 1:      # diverged: the reference divergence handling and observation
+            diverged = self._finish_simulate(q0, qd0, qo, qdo)
+            return self._finish_step(action, diverged)
+        self.q, self.qd = qo, qdo
+        self._obs, self._obs_of, self._N = obs, (qo, qdo, ctrl, self.target), None
+        if rc == 2:      # mean/max left to NumPy (nt >= 8); elapsed not incremented
+            self.elapsed += 1
+            err, emax = np.add.reduce(d, axis=1) / nt, np.maximum.reduce(d, axis=1)
+            success = emax <= self.success_tolerance
+            tracking = -self.tracking_weight * err
+            prox = tolerance(emax, (0.0, self.success_tolerance), margin=10.0 * self.success_tolerance)
+        else:
+            err, emax, y = st[0], st[1], st[2]
+            tracking = st[3]               # -tracking_weight * err, the same multiplication
+            if B == 1:   # rewards.tolerance: 1 inside the bounds, exp(-0.5 t^2) outside
+                prox = np.ones(1) if y[0] != y[0] else np.exp(y)
+            else:
+                prox = np.where(y != y, 1.0, np.exp(y))
+        terms = {
+            "tracking": tracking,
+            "proximity": self.proximity_weight * prox,
+            "ctrl": -self.ctrl_cost_weight * _sum_squares("...i,...i->...", action, action),  # quadratic_cost
+        }
+        infos = {"tracking_error": err, "max_node_error": emax, "is_success": success,
+                 "diverged": np.zeros(B, bool)}
+        return terms, np.zeros(B, bool), infos
+
     def step(self, action):
+        fz = self.__dict__.get("_fused")
+        if fz is None:
+            fz = self._fused_setup()
+        if fz and _fast.AVAILABLE:
+            out = self._fused_step(fz, action)
+            if out is not None:
+                return out
         self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
         self._last_action = action
         diverged = self.simulate(**inputs)
+        return self._finish_step(action, diverged)
+
+    def _finish_step(self, action, diverged):
+        """Observation, errors, reward terms and infos of :meth:`step` after the physics."""
         fast = self._compiled_observe()
         if fast is not None:
             self._obs, d = fast
