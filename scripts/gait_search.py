@@ -1,82 +1,101 @@
-"""Batched random search over RollingGait-style travelling-wave patterns on TensegrityRoll-v0.
+#!/usr/bin/env python
+"""Batched random search over RollingGait travelling-wave patterns on TensegrityRoll-v0.
 
     python scripts/gait_search.py 1 4096        # seed 1, 4096 patterns, 10 s each (~35 s on 2 cores)
+    python scripts/gait_search.py 7 2048 --time 40
 
 Every pattern runs in one env of one batched vector env (the same physics as the env): the
-rest-length targets of the wave in ``tensegrity_gym.baselines.RollingGait`` with per-env
-parameters, the cable-speed action that tracks them, and, per control step, the best-fit rigid
-rotation of the nodes (Kabsch) accumulated as a rotation vector. Prints the patterns that
-progressed most along +x and those that rotated most about a horizontal axis (rolling), and
-saves everything to /tmp/gs/res_SEED.npz. A pattern rolls when its displacement is along
-(net turns) x z. Findings: ``results/gait_search/README.md``.
+rest-length targets of ``tensegrity_gym.baselines.wave_targets`` (RollingGait's wave) with
+per-env parameters, the cable-speed action that tracks them, and, per control step, the
+best-fit rigid rotation of the nodes (``scripts/gait_stats.rotation_vectors``, Kabsch)
+accumulated as a rotation vector. Prints the patterns that progressed most along +x and those
+that rotated most about a horizontal axis, and saves everything to ``--out`` (npz). A pattern
+rolls when its displacement is along (net turns) x z. Findings: ``results/gait_search/README.md``.
+SI units.
 """
-import sys, time, numpy as np
-from scipy.spatial.transform import Rotation
-import gymnasium as gym, tensegrity_gym
-from tensegrity_gym import dynamics as dyn
-from tensegrity_gym.envs.roll import TensegrityRollVectorEnv
+from __future__ import annotations
 
-def run(P, T=10.0, seed=0):
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
+
+from gait_stats import rotation_vectors  # noqa: E402
+from tensegrity_gym import dynamics as dyn  # noqa: E402
+from tensegrity_gym.baselines import wave_targets  # noqa: E402
+from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402
+
+
+def run(P: dict, T: float = 10.0, seed: int = 0):
+    """Run ``len(P["period"])`` patterns for ``T`` s from the same reset; returns the
+    centre-of-mass displacements (B, 3), m, and the net rotations (B, 3), turns about x, y, z."""
     B = len(P["period"])
     env = TensegrityRollVectorEnv(num_envs=B, max_episode_steps=None)
     obs, _ = env.reset(seed=seed)
-    task = env.task
+    task, act = env.task, env.task.actuation
     sl = {n: s for n, s, _ in task.observation_layout()}["control"]
-    nominal = task.actuation.nominal; low, high = task.actuation.low, task.actuation.high
-    step = task.actuation.max_rate * task.control_dt
-    sym = np.tile(np.arange(3), 3); kind = np.repeat(np.arange(3), 3)
-    amp = P["amplitude"][:, kind]; ph = P["phase"][:, kind]
-    N0 = dyn.node_positions(task.model, task.q); prev = N0 - N0.mean(1, keepdims=True)
-    rot = np.zeros((B, 3)); start = dyn.center_of_mass(task.model, task.q)
-    n = int(round(T / task.control_dt))
-    for k in range(n):
-        t = k * task.control_dt
-        x = t / P["period"][:, None] - P["direction"][:, None] * sym[None] / 3.0 - ph
-        p = ((1 - np.cos(2 * np.pi * x)) / 2) ** P["sharpness"][:, None]
-        tgt = np.clip(nominal[None] * (1 - amp * p), low, high)
-        a = np.clip((tgt - obs[:, sl]) / step, -1, 1).astype(np.float32)
-        obs, r, term, trunc, info = env.step(a)
-        N = dyn.node_positions(task.model, task.q); cur = N - N.mean(1, keepdims=True)
-        H = np.einsum("bni,bnj->bij", prev, cur)
-        U, S, Vt = np.linalg.svd(H)
-        V = np.swapaxes(Vt, 1, 2); Ut = np.swapaxes(U, 1, 2)
-        d = np.sign(np.linalg.det(V @ Ut))
-        D = np.tile(np.eye(3), (B, 1, 1)); D[:, 2, 2] = d
-        R = V @ D @ Ut
-        rot += Rotation.from_matrix(R).as_rotvec()
-        prev = cur
-    com = dyn.center_of_mass(task.model, task.q)
-    return com - start, rot / (2 * np.pi)
+    step = act.max_rate * task.control_dt
 
-def sample(rng, B):
+    def centred_nodes():
+        N = dyn.node_positions(task.model, task.q)
+        return N - N.mean(axis=1, keepdims=True)
+
+    prev = centred_nodes()
+    rot = np.zeros((B, 3))
+    start = dyn.center_of_mass(task.model, task.q)
+    for k in range(int(round(T / task.control_dt))):
+        t = np.full(B, k * task.control_dt)
+        tgt = wave_targets(t, act.nominal, act.low, act.high, P["amplitude"], P["phase"], P["period"],
+                           P["direction"], P["sharpness"])
+        obs, *_ = env.step(np.clip((tgt - obs[:, sl]) / step, -1, 1).astype(np.float32))
+        cur = centred_nodes()
+        rot += rotation_vectors(prev, cur)
+        prev = cur
+    env.close()
+    return dyn.center_of_mass(task.model, task.q) - start, rot / (2 * np.pi)
+
+
+def sample(rng: np.random.Generator, B: int) -> dict:
+    """B random patterns (RollingGait's parameters, one per row)."""
     return {"amplitude": rng.uniform(0.0, 0.5, (B, 3)), "phase": rng.uniform(0, 1, (B, 3)),
             "period": rng.uniform(0.5, 4.0, B), "direction": rng.choice([-1, 1], B).astype(float),
             "sharpness": rng.choice([1.0, 2.0, 4.0], B)}
 
-if __name__ == "__main__":
-    import os
-    os.makedirs("/tmp/gs", exist_ok=True)
-    rng = np.random.default_rng(int(sys.argv[1]) if len(sys.argv) > 1 else 0)
-    B = int(sys.argv[2]) if len(sys.argv) > 2 else 256
-    t0 = time.time()
-    P = sample(rng, B)
-    disp, turns = run(P, T=10.0)
-    print("wall", time.time() - t0)
-    # rolling about any horizontal axis: displacement consistent with rotation w x z
-    roll_dir = np.cross(turns, [0, 0, 1.0])   # direction of travel a roll with these turns gives
-    score = disp[:, 0]
-    order = np.argsort(-score)
-    for i in order[:12]:
-        print(f"dx {disp[i,0]:+.3f} dy {disp[i,1]:+.3f} turns {turns[i].round(2)} "
-              f"amp {P['amplitude'][i].round(2)} ph {P['phase'][i].round(2)} per {P['period'][i]:.2f} dir {P['direction'][i]:+.0f} sh {P['sharpness'][i]}")
-    big = np.argsort(-np.abs(turns[:, :2]).sum(1))[:8]
-    print("-- most horizontal rotation")
-    for i in big:
-        print(f"dx {disp[i,0]:+.3f} dy {disp[i,1]:+.3f} turns {turns[i].round(2)} amp {P['amplitude'][i].round(2)} ph {P['phase'][i].round(2)} per {P['period'][i]:.2f} dir {P['direction'][i]:+.0f} sh {P['sharpness'][i]}")
-    np.savez("/tmp/gs/res_%s.npz" % (sys.argv[1] if len(sys.argv) > 1 else 0), disp=disp, turns=turns, **P)
 
-def big(seed, B, T=10.0):
-    rng = np.random.default_rng(seed)
-    P = sample(rng, B)
-    disp, turns = run(P, T=T)
-    return P, disp, turns
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("seed", type=int, nargs="?", default=0)
+    p.add_argument("n", type=int, nargs="?", default=256, help="patterns (one env each)")
+    p.add_argument("--time", type=float, default=10.0, help="simulated seconds per pattern")
+    p.add_argument("--out", default=None, help="npz with every pattern and its result")
+    args = p.parse_args(argv)
+    t0 = time.time()
+    P = sample(np.random.default_rng(args.seed), args.n)
+    disp, turns = run(P, T=args.time)
+    print(f"{args.n} patterns x {args.time:g} s in {time.time() - t0:.1f} s")
+
+    def show(i):
+        print(f"dx {disp[i, 0]:+.3f} dy {disp[i, 1]:+.3f} turns {turns[i].round(2)} "
+              f"amp {P['amplitude'][i].round(3).tolist()} ph {P['phase'][i].round(3).tolist()} "
+              f"per {P['period'][i]:.3f} dir {P['direction'][i]:+.0f} sh {P['sharpness'][i]}")
+
+    print("-- most progress along +x")
+    for i in np.argsort(-disp[:, 0])[:12]:
+        show(i)
+    print("-- largest net rotation about a horizontal axis")
+    for i in np.argsort(-np.linalg.norm(turns[:, :2], axis=1))[:8]:
+        show(i)
+    if args.out:
+        np.savez(args.out, disp=disp, turns=turns, **P)
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

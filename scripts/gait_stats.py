@@ -47,6 +47,16 @@ from tensegrity_gym.baselines import RollingGait  # noqa: E402
 ENV_ID = "TensegrityRoll-v0"
 
 
+def rotation_vectors(prev: np.ndarray, cur: np.ndarray) -> np.ndarray:
+    """Rotation vectors (B, 3), rad, of the best-fit rotations ``R`` with ``cur[b] ~ prev[b] @ R.T``
+    (Kabsch; ``prev``, ``cur`` (B, n, 3) node positions about their centroids, m)."""
+    U, _, Vt = np.linalg.svd(np.einsum("bni,bnj->bij", prev, cur))
+    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
+    D = np.tile(np.eye(3), (len(prev), 1, 1))
+    D[:, 2, 2] = np.sign(np.linalg.det(V @ Ut))      # a rotation, not a reflection
+    return Rotation.from_matrix(V @ D @ Ut).as_rotvec()
+
+
 def episode_stats(env, policy, seed: int, steps: int) -> dict:
     obs, _ = env.reset(seed=seed)
     task = env.unwrapped.task
@@ -73,10 +83,7 @@ def episode_stats(env, policy, seed: int, steps: int) -> dict:
         acts.append(a)
         heights.append(float(info["com_position"][2]))
         cur = nodes()
-        U, _, Vt = np.linalg.svd(prev.T @ cur)       # Kabsch: cur ~ prev @ R.T with R = V diag(1, 1, d) U^T
-        d = np.sign(np.linalg.det(Vt.T @ U.T))
-        R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-        rv = Rotation.from_matrix(R).as_rotvec()
+        rv = rotation_vectors(prev[None], cur[None])[0]
         turned += frame @ rv
         total += float(np.linalg.norm(rv))
         prev = cur

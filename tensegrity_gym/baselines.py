@@ -16,7 +16,7 @@ from scipy.optimize import nnls
 from . import dynamics as dyn
 from . import statics
 
-__all__ = ["NNLSShapeController", "nnls_force_densities", "RollingGait"]
+__all__ = ["NNLSShapeController", "nnls_force_densities", "RollingGait", "wave_targets"]
 
 
 def _task_of(env):
@@ -183,6 +183,26 @@ class NNLSShapeController:
 
 
 # ---------------------------------------------------------------------- TensegrityRoll-v0 gait
+_WAVE_SYM = np.tile(np.arange(3), 3)      # symmetry index of each prism string
+_WAVE_KIND = np.repeat(np.arange(3), 3)    # its kind: 0 bottom, 1 top, 2 vertical
+
+
+def wave_targets(t, nominal, low, high, amplitude, phase, period, direction, sharpness) -> np.ndarray:
+    """Rest-length targets (B, 9), m, of :class:`RollingGait`'s travelling contraction wave at
+    times ``t`` (B,) s. ``nominal``, ``low``, ``high`` (9,) m. The wave's parameters are one
+    pattern for all B rows (``amplitude``, ``phase`` (3,); ``period`` s, ``direction``,
+    ``sharpness`` scalars) or one pattern per row (``(B, 3)`` and ``(B,)``: a batched search
+    over patterns, ``scripts/gait_search.py``)."""
+    t = np.atleast_1d(np.asarray(t, float))
+    period = np.asarray(period, float)[..., None]
+    direction = np.asarray(direction)[..., None]
+    sharpness = np.asarray(sharpness, float)[..., None]
+    x = t[:, None] / period - direction * _WAVE_SYM[None, :] / 3.0 - np.asarray(phase, float)[..., _WAVE_KIND]
+    p = ((1.0 - np.cos(2.0 * np.pi * x)) / 2.0) ** sharpness
+    tgt = nominal[None, :] * (1.0 - np.asarray(amplitude, float)[..., _WAVE_KIND] * p)
+    return np.clip(tgt, low, high)
+
+
 class RollingGait:
     """Open-loop periodic rest-length gait for ``TensegrityRoll-v0`` (default 3-bar prism, no learning).
 
@@ -256,17 +276,12 @@ class RollingGait:
         self.nominal = self.actuation.nominal.copy()
         self.control_dt = task.control_dt
         self._step = self.actuation.max_rate * self.control_dt
-        self._sym = np.tile(np.arange(3), 3)          # symmetry index of each string
-        self._kind = np.repeat(np.arange(3), 3)       # 0 bottom, 1 top, 2 vertical
         self._sl = {name: sl for name, sl, _ in task.observation_layout()}["control"]
 
     def target(self, t) -> np.ndarray:
         """(B, 9) target rest lengths (m) at times ``t`` (B,) s."""
-        t = np.atleast_1d(np.asarray(t, float))
-        x = t[:, None] / self.period - self.direction * self._sym[None, :] / 3.0 - self.phase[self._kind][None, :]
-        p = ((1.0 - np.cos(2.0 * np.pi * x)) / 2.0) ** self.sharpness
-        tgt = self.nominal[None, :] * (1.0 - self.amplitude[self._kind][None, :] * p)
-        return np.clip(tgt, self.actuation.low, self.actuation.high)
+        return wave_targets(t, self.nominal, self.actuation.low, self.actuation.high, self.amplitude,
+                            self.phase, self.period, self.direction, self.sharpness)
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
         obs = np.asarray(obs, dtype=np.float64)
