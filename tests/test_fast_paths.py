@@ -93,6 +93,15 @@ def test_shape_fused_step_is_bit_identical(mode, num_envs, divergence_limit):
     assert e1.task.step(np.zeros((1, 18))[:, ::2]) is not None    # a strided action: reference path
 
 
+def _assert_same_step(r1, r2, t):
+    """Two vector-env ``step`` results (obs, reward, terminated, truncated, info) are bit-identical."""
+    for x, y in zip(r1[:4], r2[:4]):
+        assert same(x, y), t
+    assert r1[4].keys() == r2[4].keys()
+    for k in r1[4]:
+        assert same(r1[4][k], r2[4][k]), (t, k)
+
+
 def test_shape_vector_env_fast_path_is_bit_identical():
     fast = TensegrityShapeVectorEnv(num_envs=3, max_episode_steps=5)
     with reference():
@@ -107,11 +116,7 @@ def test_shape_vector_env_fast_path_is_bit_identical():
         r1 = fast.step(A)
         with reference():
             r2 = ref.step(A)
-        for x, y in zip(r1[:4], r2[:4]):
-            assert same(x, y), t
-        assert r1[4].keys() == r2[4].keys()
-        for k in r1[4]:
-            assert same(r1[4][k], r2[4][k]), (t, k)
+        _assert_same_step(r1, r2, t)
 
 
 def test_tolerance_one_element_fast_path_is_bit_identical():
@@ -172,11 +177,7 @@ def test_roll_env_fast_path_is_bit_identical(num_envs):
         r1 = fast.step(a)
         with reference():
             r2 = ref.step(a)
-        for x, y in zip(r1[:4], r2[:4]):
-            assert same(x, y), t
-        assert r1[4].keys() == r2[4].keys()
-        for k in r1[4]:
-            assert same(r1[4][k], r2[4][k]), (t, k)
+        _assert_same_step(r1, r2, t)
 
 
 def test_mean_max_matches_numpy_reductions():

@@ -51,6 +51,17 @@ if AVAILABLE:
                 a[i] = 1.0
         return True
 
+    @njit(inline="always", cache=True, nogil=True)
+    def _physics_row(phys_out, b, base, fill_base, m):
+        """Row ``b`` of the physics input before its actuated columns are set: ``base`` (m,)
+        (rest lengths) when ``fill_base``, zeros (force densities of the passive strings) otherwise."""
+        if fill_base:
+            for j in range(m):
+                phys_out[b, j] = base[j]
+        else:
+            for j in range(m):
+                phys_out[b, j] = 0.0
+
     @njit(cache=True, nogil=True)
     def apply_controls(ctrl, action, rate, low, high, actuated, base, fill_base, ctrl_out, phys_out):
         """``ctrl_out = clip(ctrl + action * rate, low, high)`` (B, na) and the physics input
@@ -59,12 +70,7 @@ if AVAILABLE:
         B, na = ctrl.shape
         m = phys_out.shape[1]
         for b in range(B):
-            if fill_base:
-                for j in range(m):
-                    phys_out[b, j] = base[j]
-            else:
-                for j in range(m):
-                    phys_out[b, j] = 0.0
+            _physics_row(phys_out, b, base, fill_base, m)
             for i in range(na):
                 v = ctrl[b, i] + action[b, i] * rate[i]
                 # np.clip(v, lo, hi) == minimum(maximum(v, lo), hi), NaN propagating
@@ -85,12 +91,7 @@ if AVAILABLE:
         B, na = ctrl.shape
         m = phys_out.shape[1]
         for b in range(B):
-            if fill_base:
-                for j in range(m):
-                    phys_out[b, j] = base[j]
-            else:
-                for j in range(m):
-                    phys_out[b, j] = 0.0
+            _physics_row(phys_out, b, base, fill_base, m)
             for i in range(na):
                 d = action[b, i] * max_rate[i] - speed[b, i]
                 if d < -dv:

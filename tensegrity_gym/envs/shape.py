@@ -221,11 +221,6 @@ class ShapeTask(BatchedTask):
         d = np.linalg.norm(dyn.node_positions(self.model, q)[:, self.tracked] - tgt, axis=-1)
         return d.mean(axis=1), d.max(axis=1)
 
-    def _damping_force(self, q, qd):
-        """Node drag -c v (B, n, 3), N: the force the model itself applies (``self.model`` has
-        ``node_damping``); kept for comparisons with the external-force formulation."""
-        return -self.node_damping * dyn.node_velocities(self.model, qd)
-
     def simulate_controls(self):
         """One control step of physics for the batch at the current controls: ONE batched
         ``integrators.step`` call of ``frame_skip`` steps (the node drag is in the model)."""
