@@ -162,6 +162,35 @@ def test_divergence_truncates_with_finite_observation():
     assert np.all(np.isfinite(obs)) and np.isfinite(r)
 
 
+def test_travelling_far_is_not_divergence():
+    """The divergence check measures a rod from the robot's own centre: a robot that has rolled
+    1 km (here: moved there) keeps going; one torn apart there is still caught. The compiled
+    check and its NumPy reference agree on both."""
+    env = TensegrityRollEnv()
+    env.reset(seed=0)
+    task = env.task
+    limit = task.divergence_limit
+    task.q[0, :, 0] += 10.0 * limit + 1000.0     # every rod, and the contact anchors with them
+    task.cstate.anchor[..., 0] += 10.0 * limit + 1000.0
+    for _ in range(5):
+        obs, r, term, trunc, info = env.step(np.zeros(env.action_space.shape))
+        assert not info["diverged"] and not trunc
+    assert info["com_position"][0] > 1000.0 and np.all(np.isfinite(obs))
+    assert not task._far_or_nonfinite(task.q, task.qd).any()
+    torn = task.q.copy()
+    torn[0, 0, 1] += 2.0 * limit
+    assert task._far_or_nonfinite(torn, task.qd).all()
+    lifted = task.q.copy()
+    lifted[0, :, 2] += 2.0 * limit
+    assert task._far_or_nonfinite(lifted, task.qd).all()
+    from tensegrity_gym.envs import _fast
+    if _fast.AVAILABLE:
+        z = task.center0[2]
+        assert _fast.state_ok_local(task.q, task.qd, z, limit)
+        assert not _fast.state_ok_local(torn, task.qd, z, limit)
+        assert not _fast.state_ok_local(lifted, task.qd, z, limit)
+
+
 def test_gait_rolls_the_prism_forward_more_than_a_body_length():
     env = gym.make(ENV_ID)
     gait = RollingGait(env)

@@ -111,6 +111,35 @@ if AVAILABLE:
                 phys_out[b, actuated[i]] = x
 
     @njit(cache=True, nogil=True)
+    def state_ok_local(q, qd, center_z, limit):
+        """Like :func:`state_ok` for a robot that travels: every entry of ``q``, ``qd`` (B, k, 6)
+        finite, every reference point within ``limit`` (per coordinate) of its copy's mean
+        reference point, and that mean's height within ``limit`` of ``center_z``. Horizontal
+        travel is not limited."""
+        B, k, _ = q.shape
+        for b in range(B):
+            m0 = 0.0
+            m1 = 0.0
+            m2 = 0.0
+            for j in range(k):
+                for c in range(6):
+                    if not (np.isfinite(q[b, j, c]) and np.isfinite(qd[b, j, c])):
+                        return False
+                m0 += q[b, j, 0]
+                m1 += q[b, j, 1]
+                m2 += q[b, j, 2]
+            m0 /= k
+            m1 /= k
+            m2 /= k
+            if not (abs(m2 - center_z) <= limit):
+                return False
+            for j in range(k):
+                if not (abs(q[b, j, 0] - m0) <= limit and abs(q[b, j, 1] - m1) <= limit
+                        and abs(q[b, j, 2] - m2) <= limit):
+                    return False
+        return True
+
+    @njit(cache=True, nogil=True)
     def state_ok(q, qd, center, limit):
         """True if every entry of ``q``, ``qd`` (B, k, 6) is finite and every reference point is
         within ``limit`` (per coordinate) of ``center`` (3,)."""
