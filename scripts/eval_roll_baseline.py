@@ -1,10 +1,12 @@
-"""Evaluate the open-loop rolling gait (tensegrity_gym.baselines.RollingGait) on TensegrityRoll-v0.
+"""Evaluate the rolling gait (tensegrity_gym.baselines.RollingGait) on TensegrityRoll-v0.
 
 Runs the gait for 100 s of simulated time (5000 control steps at 50 Hz) on flat ground for
 several reset seeds (one batched vector env, no time limit) and reports the speed of the
-centre of mass along the goal (+x) in m/s and in body lengths per second (body length = rod
-length, 0.383 m for the default prism), plus the env's throughput (env steps per second of a
-single env and of the batched vector env, measured here, on this machine).
+centre of mass along the goal in m/s and in body lengths per second (body length = rod
+length, 0.383 m for the default prism), in three settings: the default gait with the goal +x,
+the default gait with random goals (``randomize_goal=True``), and the same wave without its
+heading feedback (``steer=0``: purely open loop, goal +x). Also the env's throughput (env steps
+per second of a single env and of the batched vector env, measured here, on this machine).
 
 Writes ``results/roll_baseline.json``. Run: ``python scripts/eval_roll_baseline.py [--seeds 8] [--time 100]``.
 """
@@ -28,33 +30,49 @@ from tensegrity_gym.baselines import RollingGait  # noqa: E402
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402
 
 
-def evaluate(seeds: int, T: float) -> dict:
-    venv = TensegrityRollVectorEnv(num_envs=seeds, max_episode_steps=None)
-    gait = RollingGait(venv)
+GAIT_PARAMS = ("amplitude", "phase", "period", "direction", "sharpness", "bias", "steer", "steer_angle",
+               "heading_time_constant")
+
+
+def evaluate(seeds: int, T: float, randomize_goal: bool = False, **gait_kwargs) -> dict:
+    """RollingGait (``gait_kwargs`` override its defaults) for ``T`` s on ``seeds`` reset seeds;
+    speed along the goal (``info["distance_rolled"]`` / T) and its time course."""
+    venv = TensegrityRollVectorEnv(num_envs=seeds, max_episode_steps=None, randomize_goal=randomize_goal)
+    gait = RollingGait(venv, **gait_kwargs)
     obs, _ = venv.reset(seed=0)
     task = venv.task
     n = int(round(T / task.control_dt))
+    every = int(round(10.0 / task.control_dt))
     state = None
     x_hist = []
     for i in range(n):
         a, state = gait.predict(obs, state)
         obs, r, term, trunc, info = venv.step(a)
-        if (i + 1) % int(round(10.0 / task.control_dt)) == 0:
+        if (i + 1) % every == 0:
             x_hist.append(info["distance_rolled"].copy())
         assert not info["diverged"].any()
     d = info["distance_rolled"]
-    lateral = info["com_position"][:, 1] - task.start[:, 1]
+    x_hist = np.array(x_hist).T
+    start = task.start[:, :2] if task.start.shape[0] == seeds else np.repeat(task.start[:, :2], seeds, 0)
+    off = info["com_position"][:, :2] - start
+    goal = task.goal
+    lateral = goal[:, 0] * off[:, 1] - goal[:, 1] * off[:, 0]
     L = task.body_length
     speed = d / T
-    return {"simulated_time_s": T, "seeds": list(range(seeds)), "reset_noise_scale_m": task.reset_noise_scale,
-            "body_length_m": L, "gait": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in
-                                         dict(amplitude=gait.amplitude, phase=gait.phase, period=gait.period,
-                                              direction=gait.direction, sharpness=gait.sharpness).items()},
-            "distance_m": d.tolist(), "lateral_drift_m": lateral.tolist(),
-            "speed_m_s": {"mean": float(speed.mean()), "std": float(speed.std()), "min": float(speed.min()),
-                          "max": float(speed.max())},
-            "speed_body_lengths_s": {"mean": float(speed.mean() / L), "std": float(speed.std() / L)},
-            "distance_every_10s_m": np.array(x_hist).T.tolist()}
+    out = {"simulated_time_s": T, "seeds": list(range(seeds)), "randomize_goal": randomize_goal,
+           "reset_noise_scale_m": task.reset_noise_scale, "body_length_m": L,
+           "gait": {k: (np.asarray(getattr(gait, k)).tolist()) for k in GAIT_PARAMS},
+           "distance_m": d.tolist(), "lateral_drift_m": lateral.tolist(),
+           "speed_m_s": {"mean": float(speed.mean()), "std": float(speed.std()), "min": float(speed.min()),
+                         "max": float(speed.max())},
+           "speed_body_lengths_s": {"mean": float(speed.mean() / L), "std": float(speed.std() / L)},
+           "distance_every_10s_m": x_hist.tolist()}
+    if T > 20.0 + 1e-9:   # after the first 20 s (turning toward the goal)
+        k20 = int(round(20.0 / 10.0)) - 1
+        late = (d - x_hist[:, k20]) / (T - 20.0)
+        out["speed_after_20s_m_s"] = {"mean": float(late.mean()), "min": float(late.min())}
+        out["speed_after_20s_body_lengths_s"] = float(late.mean() / L)
+    return out
 
 
 def throughput() -> dict:
@@ -92,6 +110,8 @@ def main():
     args = ap.parse_args()
     t0 = time.time()
     res = evaluate(args.seeds, args.time)
+    res["random_goals"] = evaluate(args.seeds, args.time, randomize_goal=True)
+    res["open_loop_steer_0"] = evaluate(args.seeds, args.time, steer=0.0)
     res["wall_s"] = time.time() - t0
     if not args.no_bench:
         res["throughput"] = throughput()
@@ -100,13 +120,19 @@ def main():
     out = ROOT / "results" / "roll_baseline.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(res, indent=2))
-    s = res["speed_m_s"]
-    print(f"RollingGait on TensegrityRoll-v0, {args.time:g} s simulated, {args.seeds} seeds")
-    print(f"| quantity | value |\n|---|---|")
-    print(f"| speed along +x | {s['mean']:.4f} m/s (std {s['std']:.4f}, min {s['min']:.4f}, max {s['max']:.4f}) |")
-    print(f"| speed | {res['speed_body_lengths_s']['mean']:.4f} body lengths/s (body length {res['body_length_m']:.3f} m) |")
-    print(f"| distance in {args.time:g} s | {np.mean(res['distance_m']):.3f} m (min {np.min(res['distance_m']):.3f}) |")
-    print(f"| lateral drift | {np.mean(res['lateral_drift_m']):+.3f} m |")
+    L = res["body_length_m"]
+    print(f"RollingGait on TensegrityRoll-v0, {args.time:g} s simulated, {args.seeds} seeds, "
+          f"body length {L:.3f} m")
+    print("| setting | speed along goal, m/s (min) | body lengths/s | after the first 20 s, m/s | "
+          "lateral drift, m |\n|---|---|---|---|---|")
+    for label, r in (("default gait, goal +x", res), ("default gait, random goals", res["random_goals"]),
+                     ("open loop (steer=0), goal +x", res["open_loop_steer_0"])):
+        s = r["speed_m_s"]
+        late = r.get("speed_after_20s_m_s", {}).get("mean", float("nan"))
+        print(f"| {label} | {s['mean']:.3f} ({s['min']:.3f}) | {r['speed_body_lengths_s']['mean']:.3f} | "
+              f"{late:.3f} | {np.mean(np.abs(r['lateral_drift_m'])):.2f} |")
+    if "throughput" in res:
+        print("\n| throughput (this machine) | env steps/s |\n|---|---|")
     for k, v in res.get("throughput", {}).items():
         if k != "note":
             print(f"| {k} | {v:.0f} |")

@@ -3,6 +3,7 @@
 
     python scripts/gait_search.py 1 4096        # seed 1, 4096 patterns, 10 s each (~35 s on 2 cores)
     python scripts/gait_search.py 7 2048 --time 40
+    python scripts/gait_search.py --steer-grid     # RollingGait's steering constants (~40 s)
 
 Every pattern runs in one env of one batched vector env (the same physics as the env): the
 rest-length targets of ``tensegrity_gym.baselines.wave_targets`` (RollingGait's wave) with
@@ -11,6 +12,11 @@ best-fit rigid rotation of the nodes (``scripts/gait_stats.rotation_vectors``, K
 accumulated as a rotation vector. Prints the patterns that progressed most along +x and those
 that rotated most about a horizontal axis, and saves everything to ``--out`` (npz). A pattern
 rolls when its displacement is along (net turns) x z. Findings: ``results/gait_search/README.md``.
+
+``--steer-grid`` instead runs :class:`RollingGait` itself (its default wave) with every one of
+81 settings of its steering constants (bias, steer, steer_angle, heading_time_constant; 3
+values each), for ``--time`` s (default 100) on 4 reset seeds with the goal +x and on 4 with
+random goals, and prints the settings ranked by the worse of the two mean speeds along the goal.
 SI units.
 """
 from __future__ import annotations
@@ -28,7 +34,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 from gait_stats import rotation_vectors  # noqa: E402
 from tensegrity_gym import dynamics as dyn  # noqa: E402
-from tensegrity_gym.baselines import wave_targets  # noqa: E402
+from tensegrity_gym.baselines import RollingGait, wave_targets  # noqa: E402
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402
 
 
@@ -68,14 +74,54 @@ def sample(rng: np.random.Generator, B: int) -> dict:
             "sharpness": rng.choice([1.0, 2.0, 4.0], B)}
 
 
+STEER_GRID = dict(bias=(0.05, 0.075, 0.1), steer=(0.025, 0.05, 0.075), steer_angle=(0.1, 0.5, 1.0),
+                  heading_time_constant=(1.0, 2.0, 4.0))
+
+
+def steer_grid(T: float = 100.0, repeats: int = 4) -> tuple[list, np.ndarray]:
+    """Every combination of ``STEER_GRID`` (81), ``repeats`` reset seeds each, goal +x and random
+    goals. Returns the settings and their speeds along the goal (81, 2, repeats), m/s."""
+    import itertools
+    names = list(STEER_GRID)
+    settings = list(itertools.product(*STEER_GRID.values()))
+    out = np.zeros((len(settings), 2, repeats))
+    for g, randomize in enumerate((False, True)):
+        B = len(settings) * repeats
+        env = TensegrityRollVectorEnv(num_envs=B, max_episode_steps=None, randomize_goal=randomize)
+        obs, _ = env.reset(seed=0)
+        gait = RollingGait(env)
+        for i, name in enumerate(names):
+            setattr(gait, name, np.repeat([c[i] for c in settings], repeats))
+        state = None
+        for _ in range(int(round(T / env.task.control_dt))):
+            a, state = gait.predict(obs, state)
+            obs, _, _, _, info = env.step(a)
+        out[:, g] = (info["distance_rolled"] / T).reshape(len(settings), repeats)
+        env.close()
+    return [dict(zip(names, c)) for c in settings], out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("seed", type=int, nargs="?", default=0)
     p.add_argument("n", type=int, nargs="?", default=256, help="patterns (one env each)")
-    p.add_argument("--time", type=float, default=10.0, help="simulated seconds per pattern")
+    p.add_argument("--time", type=float, default=None, help="simulated seconds per pattern (default 10, "
+                   "100 with --steer-grid)")
     p.add_argument("--out", default=None, help="npz with every pattern and its result")
+    p.add_argument("--steer-grid", action="store_true", help="grid over RollingGait's steering constants")
     args = p.parse_args(argv)
     t0 = time.time()
+    if args.steer_grid:
+        T = 100.0 if args.time is None else args.time
+        settings, v = steer_grid(T)
+        print(f"{len(settings)} steering settings x 2 goal modes x {v.shape[2]} seeds, {T:g} s each, "
+              f"in {time.time() - t0:.0f} s; speed along the goal, m/s")
+        score = v.mean(axis=2).min(axis=1)
+        for i in np.argsort(-score)[:10]:
+            print(f"{settings[i]}  goal +x {v[i, 0].round(3).tolist()}  random goals {v[i, 1].round(3).tolist()}"
+                  f"  worse mean {score[i]:.3f}")
+        return 0
+    args.time = 10.0 if args.time is None else args.time
     P = sample(np.random.default_rng(args.seed), args.n)
     disp, turns = run(P, T=args.time)
     print(f"{args.n} patterns x {args.time:g} s in {time.time() - t0:.1f} s")

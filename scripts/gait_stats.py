@@ -3,7 +3,7 @@
 
     python scripts/gait_stats.py runs/sac_roll                       # trained policy (best model)
     python scripts/gait_stats.py runs/sac_roll --model final --seeds 3
-    python scripts/gait_stats.py gait                                # the open-loop RollingGait
+    python scripts/gait_stats.py gait --steps 5000                   # the RollingGait baseline, 100 s
     python scripts/gait_stats.py runs/sac_roll --out results/sac_roll/gait_stats.json
 
 For each episode (held-out seeds from 1,000,000, deterministic actions, the run's env kwargs):
@@ -104,7 +104,7 @@ def episode_stats(env, policy, seed: int, steps: int) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("run", help="run directory of agents.train, or 'gait' for the open-loop RollingGait")
+    p.add_argument("run", help="run directory of agents.train, or 'gait' for the RollingGait baseline")
     p.add_argument("--model", default="best")
     p.add_argument("--seeds", type=int, default=2)
     p.add_argument("--steps", type=int, default=1000, help="control steps per episode (1000 = 20 s)")
@@ -116,7 +116,7 @@ def main(argv=None) -> int:
     extra = parse_kv_list(args.env_kwargs, ":", "--env-kwargs")
     if args.run == "gait":
         env_kwargs = extra
-        env = gym.make(ENV_ID, max_episode_steps=None, **env_kwargs)
+        env = gym.make(ENV_ID, max_episode_steps=args.steps, **env_kwargs)
         policy = RollingGait(env)
     else:
         from agents import evaluate
@@ -124,7 +124,7 @@ def main(argv=None) -> int:
         if cfg["env"] != ENV_ID:
             raise SystemExit(f"error: {args.run} is a run on {cfg['env']}, not {ENV_ID}")
         env_kwargs = {**cfg["env_kwargs"], **extra}
-        env = gym.make(ENV_ID, max_episode_steps=None, **env_kwargs)
+        env = gym.make(ENV_ID, max_episode_steps=args.steps, **env_kwargs)
     rows = [episode_stats(env, policy, 1_000_000 + i, args.steps) for i in range(args.seeds)]
     env.close()
     for r in rows:

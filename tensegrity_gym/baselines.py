@@ -185,61 +185,84 @@ class NNLSShapeController:
 # ---------------------------------------------------------------------- TensegrityRoll-v0 gait
 _WAVE_SYM = np.tile(np.arange(3), 3)      # symmetry index of each prism string
 _WAVE_KIND = np.repeat(np.arange(3), 3)    # its kind: 0 bottom, 1 top, 2 vertical
+_WAVE_CONE = np.array([1.0, -1.0, 0.0])[_WAVE_KIND]    # sign of the steering bias per string
 
 
-def wave_targets(t, nominal, low, high, amplitude, phase, period, direction, sharpness) -> np.ndarray:
+def wave_targets(t, nominal, low, high, amplitude, phase, period, direction, sharpness, bias=0.0) -> np.ndarray:
     """Rest-length targets (B, 9), m, of :class:`RollingGait`'s travelling contraction wave at
     times ``t`` (B,) s. ``nominal``, ``low``, ``high`` (9,) m. The wave's parameters are one
     pattern for all B rows (``amplitude``, ``phase`` (3,); ``period`` s, ``direction``,
     ``sharpness`` scalars) or one pattern per row (``(B, 3)`` and ``(B,)``: a batched search
-    over patterns, ``scripts/gait_search.py``)."""
+    over patterns, ``scripts/gait_search.py``). ``bias`` (scalar or (B,)) lengthens the bottom
+    strings' nominal rest lengths by the factor ``1 + bias`` and shortens the top strings' by
+    ``1 - bias`` (a cone-shaped prism: the steering input of :class:`RollingGait`)."""
     t = np.atleast_1d(np.asarray(t, float))
     period = np.asarray(period, float)[..., None]
     direction = np.asarray(direction)[..., None]
     sharpness = np.asarray(sharpness, float)[..., None]
     x = t[:, None] / period - direction * _WAVE_SYM[None, :] / 3.0 - np.asarray(phase, float)[..., _WAVE_KIND]
     p = ((1.0 - np.cos(2.0 * np.pi * x)) / 2.0) ** sharpness
-    tgt = nominal[None, :] * (1.0 - np.asarray(amplitude, float)[..., _WAVE_KIND] * p)
+    bias = np.asarray(bias, float)[..., None]
+    nom = nominal[None, :] * (1.0 + bias * _WAVE_CONE[None, :])
+    tgt = nom * (1.0 - np.asarray(amplitude, float)[..., _WAVE_KIND] * p)
     return np.clip(tgt, low, high)
 
 
 class RollingGait:
-    """Open-loop periodic rest-length gait for ``TensegrityRoll-v0`` (default 3-bar prism, no learning).
+    """Rolling gait for ``TensegrityRoll-v0`` (default 3-bar prism, no learning): an open-loop
+    travelling contraction wave, steered by the observed heading.
 
-    Every string ``s`` of the prism has a symmetry index ``j`` (bottom string j, top string j
-    and vertical string j are carried into string j+1 of their kind by the prism's 3-fold
-    rotation) and a kind (bottom, top, vertical). Its target rest length is a travelling
-    contraction wave around the prism's axis::
+    **The wave (open loop).** Every string ``s`` of the prism has a symmetry index ``j`` (bottom
+    string j, top string j and vertical string j are carried into string j+1 of their kind by
+    the prism's 3-fold rotation) and a kind (bottom, top, vertical). Its target rest length is a
+    periodic contraction wave around the prism's axis::
 
         x_s(t)  = t / period - direction * j / 3 - phase[kind]
-        l0_s(t) = l0_s^nominal * (1 - amplitude[kind] * ((1 - cos 2 pi x_s) / 2) ** sharpness)
+        l0_s(t) = l0_s^nominal * (1 + c_s * bias) * (1 - amplitude[kind] * ((1 - cos 2 pi x_s) / 2) ** sharpness)
 
-    so the strings of the side that is about to touch the ground shorten in turn and the centre
-    of mass is pulled toward the edge of the support face. That was the design intent (roll
-    from side face to side face); what the found pattern actually does is rock and shuffle
-    forward without rolling over: ``scripts/gait_stats.py gait`` measures, over 20 s (seed
-    1000000), a net rotation of -0.37 turns about the horizontal axis across the goal (a
-    forward roll of the same 0.66 m would be about +0.8) within 3.7 turns of total rocking. The action is the cable-speed command that moves each rest length toward its
-    target at the motor's limit: ``a = clip((l0_target - l0_current) / (max_cable_speed dt_c), -1, 1)``
-    (the current rest lengths are read from the observation's ``control`` block; the pattern
-    itself is open loop: it depends on time only). With the env's cable motor model
-    (``max_cable_acceleration``, on by default) the action is the commanded speed and the cable
-    speed follows it with a lag of up to 0.1 s; the gait ignores the observed ``cable_speed``
-    block and still moves forward (seed 0, 20 s: 0.63 m with the 2 m/s^2 limit, 0.55 m without). The default parameters were found offline by
-    a random search over the wave's parameters (amplitudes, phases, period, sharpness,
-    direction) on flat ground with friction 1: 128 random patterns scored by the distance
-    rolled along +x in 10 s, then three rounds of perturbing the best ones scored over 20, 40
-    and 100 s, and a final check of the five best over 8 reset seeds (100 s each); the chosen
-    pattern moved 3.3-3.4 m in 100 s on every seed (0.034 m/s, 0.088 body lengths/s). The twisted (chiral) prism does not roll straight: its path curves slowly, and
-    the speed reported by ``scripts/eval_roll_baseline.py`` is the progress along +x.
+    with ``c_s`` = +1 for the bottom strings, -1 for the top strings, 0 for the vertical ones.
+    The strings on the side that is about to touch the ground shorten in turn, which pulls the
+    centre of mass past the edge of the support face: the prism rolls face over face
+    (``scripts/gait_stats.py gait``: net rotation about the horizontal axis across the goal
+    with ``omega x z`` along the motion, see ``docs/contact.md``).
+
+    **Steering (heading feedback).** The twisted prism is chiral: rolled by the wave alone
+    (``steer=0``, a purely time-periodic pattern) its path curves, and over 100 s it circles
+    (``results/gait_search/``). The ``bias`` makes the prism a slight cone (bottom triangle larger,
+    top smaller), which changes the curvature of its path, as a cone rolls around its apex. The
+    gait sets::
+
+        v      <- v + (control_dt / heading_time_constant) (v_com - v)      (low-pass, m/s)
+        err    = signed angle from v to the goal direction (rad, + = goal to the left)
+        bias   = bias0 - steer * clip(err / steer_angle, -1, 1)
+
+    where ``v_com`` (horizontal centre-of-mass velocity) is estimated by the mean of the observed node
+    velocities (exact for equal uniform rods; only its direction is used) and the goal direction is read from the observation, so the gait
+    follows ``randomize_goal``. Only this one scalar is fed back; the wave's timing stays open
+    loop.
+
+    The action is the cable-speed command that moves each rest length toward its target at the
+    motor's limit: ``a = clip((l0_target - l0_current) / (max_cable_speed dt_c), -1, 1)`` (the
+    current rest lengths are read from the observation's ``control`` block). With the env's
+    cable motor model (on by default) the cable speed follows that command with a lag.
+
+    Figures (``python scripts/eval_roll_baseline.py``, 100 s on flat ground, 8 reset seeds,
+    ``results/roll_baseline.json``) are in the env's docstring and the README. How the default
+    parameters were found: the wave is the pattern of a batched random search
+    (``scripts/gait_search.py 1 4096``) that rotated most about a horizontal axis in 10 s; the
+    steering constants ``(bias0, steer, steer_angle, heading_time_constant)`` come from a grid
+    of 81 settings (3 x 3 x 3 x 3), each run for 100 s on 4 reset seeds with the goal +x and on
+    4 with random goals, keeping the setting with the best worse-of-the-two mean progress along
+    the goal (``scripts/gait_search.py --steer-grid``).
 
     ``predict(obs, state=None, episode_start=None, deterministic=True) -> (action, state)`` as a
-    Stable-Baselines3 model; ``state`` is the (B,) int array of control steps since the episode
-    start (pass it back in, as for SB3 recurrent policies; ``None`` = all episodes start now;
-    ``episode_start`` (B,) bool resets those counters).
+    Stable-Baselines3 model. ``state`` is a (B, 3) float array: column 0 the control steps since
+    the episode start, columns 1-2 the filtered centre-of-mass velocity (m/s). Pass it back in,
+    as for SB3 recurrent policies; ``None`` = all episodes start now; ``episode_start`` (B,) bool
+    resets those rows.
 
-    Parameters
-    ----------
+    Parameters (SI units)
+    ---------------------
     env : a ``TensegrityRoll-v0`` env / vector env / its task, ``action_mode="rest_length"``
         with the default prism (9 strings, all actuated).
     amplitude : (3,) relative contraction of the bottom, top and vertical strings (<= 1 - the
@@ -247,13 +270,20 @@ class RollingGait:
     phase : (3,) phase offsets (cycles) of the three kinds.
     period : s per cycle of the wave. direction : +1 or -1 (sense of the wave).
     sharpness : exponent of the raised-cosine pulse (higher: shorter contractions).
+    bias : steering bias at zero heading error (fraction of the nominal rest length).
+    steer : largest change of the bias made by the heading feedback; 0 = open loop.
+    steer_angle : rad, heading error at which the correction saturates (> 0).
+    heading_time_constant : s, of the low-pass filter on the centre-of-mass velocity (> 0).
     """
 
-    DEFAULT = dict(amplitude=(0.361, 0.5, 0.5), phase=(0.202, 0.016, 0.974), period=2.4, direction=1,
-                   sharpness=1)
+    DEFAULT = dict(amplitude=(0.4956, 0.4993, 0.4578), phase=(0.1408, 0.3134, 0.7829), period=1.7096,
+                   direction=-1, sharpness=1.0, bias=0.1, steer=0.075, steer_angle=0.5,
+                   heading_time_constant=1.0)
 
     def __init__(self, env, amplitude=None, phase=None, period: float | None = None,
-                 direction: int | None = None, sharpness: float | None = None):
+                 direction: int | None = None, sharpness: float | None = None, bias: float | None = None,
+                 steer: float | None = None, steer_angle: float | None = None,
+                 heading_time_constant: float | None = None):
         task = _task_of(env)
         if getattr(task, "action_mode", None) != "rest_length":
             raise ValueError("RollingGait: needs TensegrityRoll-v0 with action_mode='rest_length'")
@@ -262,36 +292,65 @@ class RollingGait:
             raise ValueError("RollingGait: designed for the 3-bar prism with all 9 strings actuated "
                              f"(got {s.n_bars} rods, {s.n_strings} strings, {task.actuated.size} actuated)")
         d = self.DEFAULT
-        self.amplitude = np.asarray(d["amplitude"] if amplitude is None else amplitude, float)
-        self.phase = np.asarray(d["phase"] if phase is None else phase, float)
-        self.period = float(d["period"] if period is None else period)
-        self.direction = int(d["direction"] if direction is None else direction)
-        self.sharpness = float(d["sharpness"] if sharpness is None else sharpness)
+        pick = (lambda name, v: d[name] if v is None else v)
+        self.amplitude = np.asarray(pick("amplitude", amplitude), float)
+        self.phase = np.asarray(pick("phase", phase), float)
+        self.period = float(pick("period", period))
+        self.direction = int(pick("direction", direction))
+        self.sharpness = float(pick("sharpness", sharpness))
+        self.bias = float(pick("bias", bias))
+        self.steer = float(pick("steer", steer))
+        self.steer_angle = float(pick("steer_angle", steer_angle))
+        self.heading_time_constant = float(pick("heading_time_constant", heading_time_constant))
         if self.amplitude.shape != (3,) or self.phase.shape != (3,):
             raise ValueError("RollingGait: amplitude and phase need 3 values (bottom, top, vertical strings)")
-        if not self.period > 0:
-            raise ValueError(f"RollingGait: period must be positive (s), got {period}")
+        for name in ("period", "steer_angle", "heading_time_constant"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"RollingGait: {name} must be positive and finite, got {v}")
+        for name in ("bias", "steer"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and abs(v) < 1):
+                raise ValueError(f"RollingGait: {name} must be finite with |{name}| < 1, got {v}")
+        if self.direction not in (-1, 1):
+            raise ValueError(f"RollingGait: direction must be +1 or -1, got {self.direction}")
         self.task = task
         self.actuation = task.actuation
         self.nominal = self.actuation.nominal.copy()
         self.control_dt = task.control_dt
         self._step = self.actuation.max_rate * self.control_dt
-        self._sl = {name: sl for name, sl, _ in task.observation_layout()}["control"]
+        lay = {name: sl for name, sl, _ in task.observation_layout()}
+        self._sl, self._vel, self._goal = lay["control"], lay["node_velocity"], lay["goal_direction"]
 
-    def target(self, t) -> np.ndarray:
-        """(B, 9) target rest lengths (m) at times ``t`` (B,) s."""
+    def target(self, t, bias=None) -> np.ndarray:
+        """(B, 9) target rest lengths (m) at times ``t`` (B,) s, with steering ``bias`` (scalar or
+        (B,); default the constant ``self.bias``)."""
         return wave_targets(t, self.nominal, self.actuation.low, self.actuation.high, self.amplitude,
-                            self.phase, self.period, self.direction, self.sharpness)
+                            self.phase, self.period, self.direction, self.sharpness,
+                            self.bias if bias is None else bias)
+
+    def steering(self, obs, v) -> tuple[np.ndarray, np.ndarray]:
+        """Heading feedback: observations (B, obs_dim) and filtered centre-of-mass velocities
+        (B, 2) m/s -> (bias (B,), updated filtered velocities (B, 2)). The four steering
+        constants may also be set to (B,) arrays after construction (one setting per row: the
+        grid of ``scripts/gait_search.py --steer-grid``)."""
+        vel = obs[:, self._vel].reshape(obs.shape[0], -1, 3)[:, :, :2].mean(axis=1)
+        a = np.minimum(1.0, self.control_dt / np.asarray(self.heading_time_constant, float))
+        v = v + np.reshape(a, (-1, 1)) * (vel - v)
+        g = obs[:, self._goal]
+        err = np.arctan2(v[:, 0] * g[:, 1] - v[:, 1] * g[:, 0], np.einsum("bi,bi->b", v, g))
+        return self.bias - self.steer * np.clip(err / self.steer_angle, -1.0, 1.0), v
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
         obs = np.asarray(obs, dtype=np.float64)
         single = obs.ndim == 1
         O = obs[None] if single else obs
         B = O.shape[0]
-        k = np.zeros(B, np.int64) if state is None else np.array(state, dtype=np.int64).reshape(B)
+        st = np.zeros((B, 3)) if state is None else np.array(state, dtype=np.float64).reshape(B, 3)
         if episode_start is not None:
-            k = np.where(np.asarray(episode_start, bool).reshape(B), 0, k)
-        ctrl = O[:, self._sl]
-        tgt = self.target(k * self.control_dt)
-        action = np.clip((tgt - ctrl) / self._step, -1.0, 1.0).astype(np.float32)
-        return (action[0] if single else action), k + 1
+            st[np.asarray(episode_start, bool).reshape(B)] = 0.0
+        bias, v = self.steering(O, st[:, 1:])
+        tgt = self.target(st[:, 0] * self.control_dt, bias)
+        action = np.clip((tgt - O[:, self._sl]) / self._step, -1.0, 1.0).astype(np.float32)
+        st = np.column_stack([st[:, 0] + 1.0, v])
+        return (action[0] if single else action), st

@@ -612,15 +612,18 @@ _DOC = r"""
     centre of mass (orange) and a star 0.5 m ahead of it along the goal.
 
     ## Baseline
-    :class:`tensegrity_gym.baselines.RollingGait`: an open-loop periodic rest-length pattern (a
-    contraction wave around the prism's axis, period 2.4 s). Over 100 s on flat ground (8 reset
-    seeds) it rolls the prism 3.37 m along +x: 0.0337 m/s (std 0.0005), 0.088 body lengths/s
-    (body length = rod length 0.383 m), with 0.76 m mean sideways drift (the chiral prism's path
-    curves); about 0.6 m (1.6 body lengths) per 20 s episode
-    (``python scripts/eval_roll_baseline.py`` -> ``results/roll_baseline.json``). These numbers
-    were measured before the cable motor model (as ``max_cable_acceleration=None``). With the
-    default 2 m/s^2 limit the same gait still rolls: reset seed 0, 20 s: 0.63 m along +x (0.55 m
-    without the limit).
+    :class:`tensegrity_gym.baselines.RollingGait` (no learning): a periodic contraction wave of
+    rest lengths around the prism's axis (period 1.71 s, open loop in time) that rolls the prism
+    face over face, steered by one fed-back scalar (the top/bottom rest-length bias, from the
+    heading of the observed centre-of-mass velocity). ``python scripts/eval_roll_baseline.py``
+    (100 s on flat ground, 8 reset seeds, default env; ``results/roll_baseline.json``): goal +x
+    0.196 m/s along the goal (min 0.191) = 0.51 body lengths/s (body length = rod length
+    0.383 m), 0.250 m/s = 0.65 body lengths/s after the first 20 s; random goals 0.232 m/s. From
+    the reset pose the wave rolls the prism toward -x first and the feedback turns it round in
+    its first 15-20 s, so in one registered 20 s episode it gains little (about 0 m). It
+    rolls: +18.9 net turns about the axis across the goal in 100 s
+    (``scripts/gait_stats.py gait --steps 5000``). The same wave without the feedback
+    (``steer=0``) rolls in circles: -0.085 m/s along +x.
 
     ## Version history
     * v0: initial version.
