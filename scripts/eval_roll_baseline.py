@@ -43,13 +43,18 @@ def evaluate(seeds: int, T: float, randomize_goal: bool = False, **gait_kwargs) 
     task = venv.task
     n = int(round(T / task.control_dt))
     every = int(round(10.0 / task.control_dt))
+    every_s = int(round(1.0 / task.control_dt))
     state = None
     x_hist = []
+    path, last = np.zeros(seeds), task.start[:, :2].copy()
     for i in range(n):
         a, state = gait.predict(obs, state)
         obs, r, term, trunc, info = venv.step(a)
         if (i + 1) % every == 0:
             x_hist.append(info["distance_rolled"].copy())
+        if (i + 1) % every_s == 0:    # path over the ground, centre of mass sampled once a second
+            path += np.linalg.norm(info["com_position"][:, :2] - last, axis=1)
+            last = info["com_position"][:, :2].copy()
         assert not info["diverged"].any()
     d = info["distance_rolled"]
     x_hist = np.array(x_hist).T
@@ -66,6 +71,9 @@ def evaluate(seeds: int, T: float, randomize_goal: bool = False, **gait_kwargs) 
            "speed_m_s": {"mean": float(speed.mean()), "std": float(speed.std()), "min": float(speed.min()),
                          "max": float(speed.max())},
            "speed_body_lengths_s": {"mean": float(speed.mean() / L), "std": float(speed.std() / L)},
+           "ground_speed_m_s": {"mean": float(path.mean() / T), "min": float(path.min() / T),
+                                "note": "length of the centre of mass's path over the ground (sampled "
+                                        "once a second) / time, whatever its direction"},
            "distance_every_10s_m": x_hist.tolist()}
     if T > 20.0 + 1e-9:   # after the first 20 s (turning toward the goal)
         k20 = int(round(20.0 / 10.0)) - 1
@@ -124,13 +132,13 @@ def main():
     print(f"RollingGait on TensegrityRoll-v0, {args.time:g} s simulated, {args.seeds} seeds, "
           f"body length {L:.3f} m")
     print("| setting | speed along goal, m/s (min) | body lengths/s | after the first 20 s, m/s | "
-          "lateral drift, m |\n|---|---|---|---|---|")
+          "over the ground, m/s | lateral drift, m |\n|---|---|---|---|---|---|")
     for label, r in (("default gait, goal +x", res), ("default gait, random goals", res["random_goals"]),
                      ("open loop (steer=0), goal +x", res["open_loop_steer_0"])):
         s = r["speed_m_s"]
         late = r.get("speed_after_20s_m_s", {}).get("mean", float("nan"))
         print(f"| {label} | {s['mean']:.3f} ({s['min']:.3f}) | {r['speed_body_lengths_s']['mean']:.3f} | "
-              f"{late:.3f} | {np.mean(np.abs(r['lateral_drift_m'])):.2f} |")
+              f"{late:.3f} | {r['ground_speed_m_s']['mean']:.3f} | {np.mean(np.abs(r['lateral_drift_m'])):.2f} |")
     if "throughput" in res:
         print("\n| throughput (this machine) | env steps/s |\n|---|---|")
     for k, v in res.get("throughput", {}).items():
