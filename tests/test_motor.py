@@ -12,6 +12,7 @@ import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym.envs import _fast
 from tensegrity_gym.envs.common import Actuation
 from tensegrity_gym.envs.roll import MAX_CABLE_ACCELERATION, TensegrityRollEnv, TensegrityRollVectorEnv
+from vector_check import step_vector_beside_singles
 
 ENV_ID = "TensegrityRoll-v0"
 
@@ -224,25 +225,14 @@ def test_checkers_pass_with_the_speed_observation():
 
 def test_vector_env_equals_single_envs():
     T, N = 10, 3
-    venv = TensegrityRollVectorEnv(num_envs=N, max_episode_steps=T, randomize_goal=True)
-    singles = [gym.make(ENV_ID, max_episode_steps=T, randomize_goal=True) for _ in range(N)]
-    vobs, _ = venv.reset(seed=11)
-    sobs = [e.reset(seed=11 + i)[0] for i, e in enumerate(singles)]
-    np.testing.assert_array_equal(vobs, np.array(sobs))
     rng = np.random.default_rng(2)
-    done = [False] * N
-    for step in range(2 * T + 3):
-        a = rng.choice([-1.0, 1.0], (N,) + venv.single_action_space.shape).astype(np.float32)
-        vobs, vr, vterm, vtrunc, _ = venv.step(a)
-        for i, e in enumerate(singles):
-            if done[i]:
-                o, _ = e.reset()
-                r, te, tr = 0.0, False, False
-            else:
-                o, r, te, tr, _ = e.step(a[i])
-            done[i] = te or tr
-            np.testing.assert_array_equal(vobs[i], o)
-            assert vr[i] == r and (vterm[i], vtrunc[i]) == (te, tr)
+    shape = (N,) + TensegrityRollEnv().action_space.shape
+
+    def equal(vr, r):
+        assert vr == r
+
+    step_vector_beside_singles(T, N, 11, lambda step: rng.choice([-1.0, 1.0], shape).astype(np.float32),
+                               equal, randomize_goal=True)
 
 
 @pytest.mark.parametrize("bad", [-1.0, 0.0, float("nan"), float("inf"), "fast"])
