@@ -30,10 +30,6 @@ from tensegrity_gym.baselines import RollingGait  # noqa: E402
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402
 
 
-GAIT_PARAMS = ("amplitude", "phase", "period", "direction", "sharpness", "bias", "steer", "steer_angle",
-               "heading_time_constant")
-
-
 def evaluate(seeds: int, T: float, randomize_goal: bool = False, **gait_kwargs) -> dict:
     """RollingGait (``gait_kwargs`` override its defaults) for ``T`` s on ``seeds`` reset seeds;
     speed along the goal (``info["distance_rolled"]`` / T) and its time course."""
@@ -58,15 +54,14 @@ def evaluate(seeds: int, T: float, randomize_goal: bool = False, **gait_kwargs) 
         assert not info["diverged"].any()
     d = info["distance_rolled"]
     x_hist = np.array(x_hist).T
-    start = task.start[:, :2] if task.start.shape[0] == seeds else np.repeat(task.start[:, :2], seeds, 0)
-    off = info["com_position"][:, :2] - start
+    off = info["com_position"][:, :2] - task.start[:, :2]
     goal = task.goal
     lateral = goal[:, 0] * off[:, 1] - goal[:, 1] * off[:, 0]
     L = task.body_length
     speed = d / T
     out = {"simulated_time_s": T, "seeds": list(range(seeds)), "randomize_goal": randomize_goal,
            "reset_noise_scale_m": task.reset_noise_scale, "body_length_m": L,
-           "gait": {k: (np.asarray(getattr(gait, k)).tolist()) for k in GAIT_PARAMS},
+           "gait": {k: np.asarray(getattr(gait, k)).tolist() for k in RollingGait.DEFAULT},
            "distance_m": d.tolist(), "lateral_drift_m": lateral.tolist(),
            "speed_m_s": {"mean": float(speed.mean()), "std": float(speed.std()), "min": float(speed.min()),
                          "max": float(speed.max())},

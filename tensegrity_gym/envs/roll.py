@@ -347,9 +347,9 @@ class RollTask(BatchedTask):
             # start's), so rolling any distance is never taken for a blow-up
             if _fast.AVAILABLE and q.dtype == np.float64 and qd.dtype == np.float64:
                 ok = _fast.state_ok_local(q, qd, self.center0[2], self.divergence_limit)   # one compiled pass
+                diverged = np.zeros(self.num_envs, bool) if ok else self._far_or_nonfinite(q, qd)
             else:
-                ok = not self._far_or_nonfinite(q, qd).any()
-            diverged = np.zeros(self.num_envs, bool) if ok else self._far_or_nonfinite(q, qd)
+                diverged = self._far_or_nonfinite(q, qd)
         if diverged.any():
             q[diverged], qd[diverged] = q0[diverged], qd0[diverged]
             cs.anchor[diverged], cs.active[diverged] = anchor0[diverged], active0[diverged]
