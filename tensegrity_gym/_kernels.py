@@ -946,8 +946,15 @@ def _pack_params(model, params):
         return p
     base = _CACHE.get(id(model)) or _packed(model)
     P = params.batch_size
-    bufs = np.repeat(base.buf[None], P, axis=0)
-    for b in range(P):
+    parent = params.parent() if params.parent is not None else None
+    pp = None if parent is None else _CACHE.get(("params", id(parent), id(model)))
+    if pp is not None and pp.bufs is not None and pp.bufs.shape[0] == P:
+        bufs = pp.bufs.copy()            # Params.set_rows: only its changed rows differ from the parent
+        rows = params.changed_rows
+    else:
+        bufs = np.repeat(base.buf[None], P, axis=0)
+        rows = range(P)
+    for b in rows:
         _fill_physics(bufs[b], model, params, b)
     p = _Packed()
     p.buf, p.bufs = (bufs[0], None) if P == 1 else (None, bufs)
