@@ -323,6 +323,11 @@ class Actuation:
 
 
 # ---------------------------------------------------------------------- batched task base
+#: robot parameters (envs/domain.py) that are Params fields of the physics (tensegrity_gym.params)
+_PHYSICS_FIELDS = {"rod_mass": "mass", "stiffness": "stiffness", "damping": "damping", "node_damping": "node_damping",
+                   "gravity": "gravity", "rest_length_offset": "rest_length"}
+
+
 class BatchedTask:
     """Base class of a batched task on B copies of one compiled structure.
 
@@ -405,27 +410,29 @@ class BatchedTask:
                 raise ValueError(f"start_rest_length_offset: actuated cable {int(act.actuated[i])} would start at "
                                  f"{start[i]:.6g} m, outside its bounds [{act.low[i]:.6g}, {act.high[i]:.6g}] m")
             self.start_control = start
+        phys_names = set(self.domain.names) & set(_PHYSICS_FIELDS)
+        if phys_names:   # Params: one row when fixed, one per copy when randomised (per-copy kernel)
+            per_copy = bool(phys_names & set(self.domain.spread))
+            self.params = default_params(model, B if per_copy else 1)
         if self.domain.enabled:
-            self.params = default_params(model, B if self.domain.randomized else 1)
-            self._apply_domain(np.arange(B) if self.domain.randomized else np.zeros(1, int))
+            self._apply_domain(np.arange(B) if self.domain.randomized else np.zeros(1, int), init=True)
 
-    def _apply_domain(self, idx: np.ndarray) -> None:
-        """Copies ``idx`` take the domain's current values (``self.params`` has 1 row when no
-        parameter is randomised, else one per copy)."""
-        v, model = self.domain.values, self.model
-        phys = {}
-        for name, fld in (("rod_mass", "mass"), ("stiffness", "stiffness"), ("damping", "damping"),
-                          ("node_damping", "node_damping"), ("gravity", "gravity")):
-            if name in v:
-                phys[fld] = v[name][idx]
-                if fld in ("stiffness", "damping"):          # force-density-actuated strings: no elastic part
-                    phys[fld] = np.where(model.active, 0.0, phys[fld])
-        if "rest_length_offset" in v:
-            phys["rest_length"] = model.rest_length + v["rest_length_offset"][idx]
-            self.rest_offset = v["rest_length_offset"] if self.params.batch_size > 1 else v["rest_length_offset"][:1]
-        if phys:
-            self.params = (self.params.set_rows(idx, **phys) if self.params.batch_size > 1
-                           else self.params.replace(**phys))
+    def _apply_domain(self, idx: np.ndarray, init: bool = False) -> None:
+        """Copies ``idx`` take the domain's current values. ``self.params`` has one row (set once,
+        at ``init``) when no physics parameter is randomised, else one per copy (set per reset)."""
+        v, model, P = self.domain.values, self.model, (0 if self.params is None else self.params.batch_size)
+        if P > 1 or (P == 1 and init):
+            rows = idx if P > 1 else np.zeros(1, int)
+            phys = {}
+            for name, fld in _PHYSICS_FIELDS.items():
+                if name in v and fld != "rest_length":
+                    phys[fld] = v[name][rows]
+                    if fld in ("stiffness", "damping"):          # force-density-actuated strings: no elastic part
+                        phys[fld] = np.where(model.active, 0.0, phys[fld])
+            if "rest_length_offset" in v:
+                phys["rest_length"] = model.rest_length + v["rest_length_offset"][rows]
+                self.rest_offset = v["rest_length_offset"] if P > 1 else v["rest_length_offset"][:1]
+            self.params = self.params.set_rows(rows, **phys) if P > 1 else self.params.replace(**phys)
         self._apply_task_domain(idx)
 
     def _apply_task_domain(self, idx: np.ndarray) -> None:

@@ -683,6 +683,13 @@ _DOC = r"""
     | ``backend`` | ``"auto"`` | ``"numpy"`` / ``"numba"`` |
     | ``divergence_limit`` | ``None`` | m (default 100 x the robot's size) |
     | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
+    | ``params`` | ``None`` | fix robot parameters by name, absolute SI values (``rod_mass``, ``stiffness``, ``damping``, ``node_damping``, ``gravity``, ``rest_length_offset``, ``friction``, ``ground_stiffness``, ``ground_damping``, ``max_cable_speed``, ``max_cable_acceleration``; a number or one per rod/string/node/cable): see :mod:`tensegrity_gym.envs.domain` |
+    | ``randomize`` | ``None`` | ``{name: spread}`` drawn per copy at every reset (relative U(1 - s, 1 + s) x nominal; ``rest_length_offset`` absolute U(-s, s) m); ``info["params"]`` at reset reports the values |
+    | ``action_delay`` | ``0`` | control steps between an action and its effect (zeros at the start of an episode) |
+    | ``start_rest_length_offset`` | ``None`` | m added to the actuated cables' rest lengths at reset (a slack start; must stay within the bounds) |
+    | ``observation_mode`` | ``"state"`` | ``"robot"``: what a lab robot senses (cable lengths, motor encoders and speeds, rod IMUs, contact switches, goal; :mod:`tensegrity_gym.envs.sensors`) |
+    | ``sensor_noise`` | ``None`` | robot mode: ``{block: sigma}`` Gaussian noise, SI units (``cable_length``, ``control``, ``cable_speed``, ``imu_accel``, ``imu_gyro``) |
+    | ``history`` | ``1`` | robot mode: readings stacked, newest first |
     | ``render_mode``, ``width``, ``height`` | ``None``, 480, 480 | ``"rgb_array"`` or ``"human"`` |
 
     ``render()`` draws the rods, the strings coloured by tension, the ground, the path of the
@@ -705,6 +712,7 @@ _DOC = r"""
 
     ## Version history
     * v0: initial version.
+    * v0 (0.2): ``params``, ``randomize``, ``action_delay``, ``start_rest_length_offset``, ``observation_mode="robot"``, ``sensor_noise``, ``history``; defaults unchanged (bit-identical).
     * v0 (motor model): rest-length mode got a cable acceleration limit
       (``max_cable_acceleration``, default 2 m/s^2; the cable speed is now state, reset to 0,
       stopped at the rest-length bounds) and the cable speeds were appended to the observation

@@ -526,6 +526,10 @@ _DOC = r"""
     | ``backend`` | ``"auto"`` | physics backend (numba kernels when available) |
     | ``divergence_limit`` | ``None`` | m |
     | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
+    | ``params`` | ``None`` | fix robot parameters by name, absolute SI values (``rod_mass``, ``stiffness``, ``damping``, ``node_damping``, ``gravity``, ``rest_length_offset``; a number or one per rod/string/node): see :mod:`tensegrity_gym.envs.domain`. Targets stay those of the nominal model (a controller that believes the nominal model then meets a different robot) |
+    | ``randomize`` | ``None`` | ``{name: spread}`` drawn per copy at every reset (relative U(1 - s, 1 + s) x nominal; ``rest_length_offset`` absolute U(-s, s) m); ``info["params"]`` at reset reports the values |
+    | ``action_delay`` | ``0`` | control steps between an action and its effect (zeros at the start of an episode) |
+    | ``start_rest_length_offset`` | ``None`` | m added to the actuated strings' rest lengths at reset (rest-length mode; within the bounds) |
     | ``render_mode``, ``width``, ``height`` | ``None``, 480, 480 | ``"rgb_array"`` or ``"human"`` |
 
     ``render()`` draws rods thick, strings coloured by tension (slack dashed grey) and the
@@ -533,6 +537,7 @@ _DOC = r"""
 
     ## Version history
     * v0: initial version.
+    * v0 (0.2): ``params``, ``randomize``, ``action_delay``, ``start_rest_length_offset``; defaults unchanged (bit-identical).
 """
 
 
