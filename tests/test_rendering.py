@@ -1,0 +1,110 @@
+"""Renderers: the MuJoCo (OpenGL) renderer draws what it is given; fallback to matplotlib.
+
+Tests of the MuJoCo renderer skip when mujoco or an OpenGL backend (EGL/OSMesa) is missing.
+"""
+import warnings
+
+import numpy as np
+import pytest
+
+import tensegrity_gym as tg
+from tensegrity_gym import rendering
+from tensegrity_gym.rendering import MujocoRenderer, Renderer, RendererUnavailable, make_renderer
+
+
+def _mujoco_renderer(*a, **kw):
+    pytest.importorskip("mujoco")
+    try:
+        return MujocoRenderer(*a, **kw)
+    except RendererUnavailable as exc:
+        pytest.skip(f"no OpenGL backend: {exc}")
+
+
+S = tg.prism(3)
+
+
+def _red_fraction(img):
+    r, g, b = (img[..., i].astype(int) for i in range(3))
+    return float(np.mean((r > 150) & (g < 90) & (b < 90)))
+
+
+def test_frame_shape_and_content():
+    r = _mujoco_renderer(480, 480, title="prism3")
+    f = r.render(S.nodes, S.bars, S.strings, np.full(9, 50.0), ground_z=0.0, caption="t = 0 s")
+    assert f.shape == (480, 480, 3) and f.dtype == np.uint8 and f.std() > 10
+    # non-square sizes
+    r2 = _mujoco_renderer(160, 120)
+    assert r2.render(S.nodes, S.bars, S.strings).shape == (120, 160, 3)
+    r.close()
+    r2.close()
+
+
+def test_strings_coloured_by_tension():
+    r = _mujoco_renderer(240, 240)
+    hot = r.render(S.nodes, S.bars, S.strings, np.full(9, 100.0), tension_max=100.0)
+    cold = r.render(S.nodes, S.bars, S.strings, np.full(9, 1.0), tension_max=100.0)
+    slack = r.render(S.nodes, S.bars, S.strings, np.zeros(9))
+    legend = (slice(None), slice(200, None))     # the colour bar has red at its top in all frames
+    body = (slice(None), slice(0, 190))
+    assert _red_fraction(hot[body]) > 0.005 > _red_fraction(cold[body])
+    assert _red_fraction(slack[body]) < 0.001
+    assert _red_fraction(hot[legend]) > 0.002
+    r.close()
+
+
+def test_ground_title_and_nonfinite_nodes():
+    r = _mujoco_renderer(240, 240, title="TITLE")
+    a = r.render(S.nodes, S.bars, S.strings, np.full(9, 50.0), ground_z=0.0)
+    b = r.render(S.nodes, S.bars, S.strings, np.full(9, 50.0))
+    assert np.abs(a.astype(int) - b).mean() > 5          # the ground changes the picture
+    r.title = None
+    c = r.render(S.nodes, S.bars, S.strings, np.full(9, 50.0))
+    assert np.any(b[:30, :100] != c[:30, :100])           # the title is drawn top left
+    bad = S.nodes.copy()
+    bad[0] = np.nan
+    assert r.render(bad, S.bars, S.strings).shape == (240, 240, 3)
+    with pytest.raises(ValueError, match="nodes"):
+        r.render(np.zeros((3, 2)), S.bars, S.strings)
+    r.close()
+
+
+def test_extras_targets_path_goal():
+    r = _mujoco_renderer(200, 200)
+    f = r.render(S.nodes, S.bars, S.strings, targets=S.nodes + 0.1, path=np.linspace([0, 0, 0], [1, 0, 0], 50),
+                 goal=[1, 0, 0], ground_z=0.0)
+    assert f.shape == (200, 200, 3)
+    r.close()
+
+
+def test_make_renderer_backends(monkeypatch):
+    assert isinstance(make_renderer(64, 64, backend="matplotlib"), Renderer)
+    with pytest.raises(ValueError, match="backend"):
+        make_renderer(64, 64, backend="vulkan")
+    # no OpenGL: "auto" falls back to matplotlib with one warning, "mujoco" raises
+    monkeypatch.setattr(rendering, "_GL_CACHE", {"error": "MuJoCo renderer: no OpenGL backend works here"})
+    with pytest.warns(UserWarning, match="matplotlib"):
+        r = make_renderer(64, 64, backend="auto")
+    assert isinstance(r, Renderer)
+    with pytest.raises(RendererUnavailable, match="OpenGL"):
+        make_renderer(64, 64, backend="mujoco")
+    monkeypatch.setenv("TENSEGRITY_RENDERER", "matplotlib")
+    assert isinstance(make_renderer(64, 64), Renderer)
+
+
+def test_unknown_gl_backend_message(monkeypatch):
+    pytest.importorskip("mujoco")
+    monkeypatch.setattr(rendering, "_GL_CACHE", {})
+    monkeypatch.setenv("MUJOCO_GL", "vulkan")
+    with pytest.raises(RendererUnavailable, match="MUJOCO_GL='vulkan'"):
+        rendering.gl_backend()
+
+
+def test_env_uses_the_3d_renderer():
+    gym = pytest.importorskip("gymnasium")
+    _mujoco_renderer(32, 32).close()
+    env = gym.make("TensegrityRoll-v0", render_mode="rgb_array", width=200, height=200)
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+    f = env.render()
+    assert f.shape == (200, 200, 3) and isinstance(env.unwrapped._renderer, MujocoRenderer)
+    env.close()
