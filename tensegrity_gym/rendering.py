@@ -48,7 +48,7 @@ import warnings
 
 import numpy as np
 
-__all__ = ["Renderer", "MujocoRenderer", "RendererUnavailable", "make_renderer", "render_frame",
+__all__ = ["Renderer", "MujocoRenderer", "RendererUnavailable", "make_renderer", "render_frame", "write_video",
            "gl_backend"]
 
 
@@ -536,3 +536,58 @@ def make_renderer(width: int = 480, height: int = 480, *, backend: str | None = 
             warnings.warn(f"{exc}. Falling back to the matplotlib renderer (slower).", stacklevel=2)
             _GL_CACHE["warned"] = True
         return Renderer(width, height, **kw)
+
+
+def write_video(path, structure, nodes, tensions=None, times=None, *, fps: float = 30.0, width: int = 480,
+                height: int = 480, title: str | None = None, ground_z=None, backend: str | None = None) -> int:
+    """Render a recorded trajectory to a video file (``.mp4`` via imageio-ffmpeg, or ``.gif``).
+
+    ``nodes`` (S, n, 3) m; ``tensions`` (S, m) N or None; ``times`` (S,) s: records are picked
+    so that the video plays in real time at ``fps`` frames/s (all records if ``times`` is None).
+    The file is written to a temporary name in the same folder and renamed when complete.
+    Returns the number of frames written."""
+    import os
+    import tempfile
+    from pathlib import Path
+    try:
+        import imageio.v2 as imageio
+    except ImportError:
+        raise RendererUnavailable("write_video needs imageio (pip install 'tensegrity_gym[mujoco]')") from None
+    nodes = np.asarray(nodes, float)
+    if nodes.ndim != 3 or nodes.shape[2] != 3 or len(nodes) == 0:
+        raise ValueError(f"nodes: expected an (S, n, 3) trajectory, got shape {nodes.shape}")
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps: must be positive, got {fps}")
+    idx = np.arange(len(nodes))
+    if times is not None:
+        times = np.asarray(times, float)
+        want = np.arange(times[0], times[-1] + 0.5 / fps, 1.0 / fps)
+        idx = np.unique(np.clip(np.searchsorted(times, want - 1e-12), 0, len(times) - 1))
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".mp4", ".gif", ".webm", ".mkv", ".avi", ".mov"):
+        raise ValueError(f"video path {str(path)!r}: use a .mp4 or .gif file name")
+    r = make_renderer(width, height, backend=backend, title=title or structure.name)
+    if ground_z is None and structure.gravity is not None:
+        ground_z = float(nodes[..., 2].min())
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent if str(path.parent) else ".")
+    os.close(fd)
+    try:
+        kw = {"fps": fps} if suffix != ".gif" else {"duration": 1000.0 / fps, "loop": 0}
+        if suffix == ".mp4":
+            kw.update(codec="libx264", quality=7, macro_block_size=8)
+        with imageio.get_writer(tmp, **kw) as w:
+            for i in idx:
+                cap = None if times is None else f"t = {times[i]:.2f} s"
+                T = None if tensions is None else tensions[i]
+                w.append_data(r.render(nodes[i], structure.bars, structure.strings, T, ground_z=ground_z,
+                                       caption=cap))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    finally:
+        r.close()
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return len(idx)

@@ -145,3 +145,37 @@ def test_export_writes_atomically(tmp_path):
 def test_bad_arguments(kw, msg):
     with pytest.raises(ValueError, match=msg):
         to_mjcf(tg.prism(3), **kw)
+
+
+def test_cli_export(tmp_path, capsys):
+    from tensegrity_gym.cli import main
+    out = tmp_path / "model.xml"
+    assert main(["export", "constrained_prism", "--format", "mjcf", "--out", str(out), "--ground"]) == 0
+    M = mujoco.MjModel.from_xml_path(str(out))
+    assert M.ntendon == 9 and M.ngeom == 4
+    # no silent overwrite; --force overwrites
+    assert main(["export", "prism3", "--out", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert main(["export", "prism3", "--out", str(out), "--force"]) == 0
+    assert mujoco.MjModel.from_xml_path(str(out)).nbody == 4
+    # a directory, a missing folder
+    assert main(["export", "prism3", "--out", str(tmp_path)]) == 2
+    assert main(["export", "prism3", "--out", str(tmp_path / "no" / "m.xml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("error: export:") == 2 and "Traceback" not in err
+    # JSON out, and a tnsgrt dict in
+    js = tmp_path / "p.json"
+    assert main(["export", "prism3", "--format", "json", "--out", str(js)]) == 0
+    assert tg.load_json(js).n_strings == 9
+    from tensegrity_gym.tnsgrt import to_tnsgrt_dict
+    import json
+    s = tg.prism(3)
+    tn = {"nodes": s.nodes.T.tolist(), "members": np.hstack([s.strings.T, s.bars.T]).tolist(),
+          "member_tags": {"string": list(range(9)), "bar": [9, 10, 11]},
+          "member_properties": {"stiffness": [1000.0] * 12, "rest_length": list(s.rest_length) + [0] * 3}}
+    (tmp_path / "tn.json").write_text(json.dumps(tn))
+    assert main(["export", str(tmp_path / "tn.json"), "--from", "tnsgrt", "--out", str(tmp_path / "tn.xml")]) == 0
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"nodes": [[0, 1]], "members": []}))
+    assert main(["export", str(bad), "--from", "tnsgrt", "--out", str(tmp_path / "b.xml")]) == 2
+    assert "tnsgrt nodes" in capsys.readouterr().err

@@ -108,3 +108,24 @@ def test_env_uses_the_3d_renderer():
     f = env.render()
     assert f.shape == (200, 200, 3) and isinstance(env.unwrapped._renderer, MujocoRenderer)
     env.close()
+
+
+def test_write_video_and_cli(tmp_path):
+    pytest.importorskip("imageio")
+    r = _mujoco_renderer(32, 32)
+    r.close()
+    from tensegrity_gym.rendering import write_video
+    nodes = np.stack([S.nodes + 0.01 * i for i in range(6)])
+    n = write_video(tmp_path / "v.gif", S, nodes, np.full((6, 9), 50.0), np.arange(6) * 0.1, fps=10,
+                    width=96, height=96)
+    assert n == 6 and (tmp_path / "v.gif").stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.gif"]
+    with pytest.raises(ValueError, match="mp4"):
+        write_video(tmp_path / "v.txt", S, nodes)
+    from tensegrity_gym.cli import main
+    assert main(["simulate", "prism3", "--duration", "0.1", "--out", str(tmp_path / "t.npz"),
+                 "--video", str(tmp_path / "v.mp4")]) == 0
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    nframes, _ = imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "v.mp4"))
+    meta = next(imageio_ffmpeg.read_frames(str(tmp_path / "v.mp4")))
+    assert nframes == 4 and tuple(meta["size"]) == (480, 480)
