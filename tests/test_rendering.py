@@ -129,3 +129,41 @@ def test_write_video_and_cli(tmp_path):
     nframes, _ = imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "v.mp4"))
     meta = next(imageio_ffmpeg.read_frames(str(tmp_path / "v.mp4")))
     assert nframes == 4 and tuple(meta["size"]) == (480, 480)
+
+
+def test_browser_viewer_slider_and_play():
+    pytest.importorskip("viser")
+    import time
+    import urllib.request
+    from tensegrity_gym.rendering import BrowserViewer
+    nodes = np.stack([S.nodes + 0.01 * i for i in range(20)])
+    T = np.linspace(0, 50, 20)[:, None] * np.ones(9)
+    v = BrowserViewer(S, nodes, T, np.arange(20) * 0.05, port=0)
+    try:
+        assert urllib.request.urlopen(v.url, timeout=10).read().lstrip().lower().startswith(b"<!doctype html")
+        v.set_time(0.25)
+        assert v.index == 5 and np.abs(v._points.points - nodes[5]).max() < 1e-3
+        assert np.abs(v._strings.points - nodes[5][S.strings]).max() < 1e-3
+        v.play()
+        time.sleep(0.4)
+        v.pause()
+        assert v.index > 5
+    finally:
+        v.close()
+    with pytest.raises(ValueError, match="nodes"):
+        BrowserViewer(S, np.zeros((3, 2)), port=0)
+
+
+def test_window_viewer_widgets_headless():
+    import matplotlib
+    matplotlib.use("Agg")
+    from tensegrity_gym.rendering import WindowViewer
+    nodes = np.stack([S.nodes + 0.01 * i for i in range(5)])
+    v = WindowViewer(S, nodes, np.full((5, 9), 20.0), np.arange(5) * 0.1, width=96, height=96)
+    first = v.img.get_array().copy()
+    v.slider.set_val(0.3)
+    assert v.index == 3 and not np.array_equal(first, v.img.get_array())
+    v._toggle(None)
+    assert v.playing and v.button.label.get_text() == "pause"
+    v._tick()
+    assert v.index == 3 or v.index == 4
