@@ -2,9 +2,11 @@
 
     python scripts/bench_render.py [--frames 100] [--size 480] [--scenes prism3,icosahedron]
 
-Prints a table: renderer, scene, size, frames/s (median frame time) and frames/s of the best
-frame (the machine's capability when other processes compete for the CPU), plus the OpenGL
-backend MuJoCo used. The structure moves between frames (a real simulated trajectory), so no
+Prints a table: renderer, scene, frames/s from the median wall-clock frame time, frames/s of
+the best frame, and frames per CPU-second (frames / process CPU time, all threads included: what
+one otherwise idle core delivers, independent of other processes competing for the CPU), plus
+the OpenGL backend MuJoCo used. On a shared machine the wall-clock figures fall with the load;
+the CPU-time figure and the ratio to matplotlib measured in the same run do not. The structure moves between frames (a real simulated trajectory), so no
 frame is a cached copy of the previous one.
 """
 from __future__ import annotations
@@ -34,11 +36,13 @@ def trajectory(name: str, frames: int):
 def bench(renderer, s, nodes, tensions, ground_z):
     renderer.render(nodes[0], s.bars, s.strings, tensions[0], ground_z=ground_z, caption="warm-up")
     ts = np.empty(len(nodes))
+    c0 = time.process_time()
     for i in range(len(nodes)):
         t0 = time.perf_counter()
         renderer.render(nodes[i], s.bars, s.strings, tensions[i], ground_z=ground_z, caption=f"frame {i}")
         ts[i] = time.perf_counter() - t0
-    return 1.0 / np.median(ts), 1.0 / ts.min()
+    cpu = time.process_time() - c0
+    return 1.0 / np.median(ts), 1.0 / ts.min(), len(nodes) / cpu
 
 
 def main(argv=None) -> int:
@@ -63,9 +67,15 @@ def main(argv=None) -> int:
         r = Renderer(a.size, a.size, title=name)
         rows.append(("matplotlib", name) + bench(r, s, nodes[: max(10, a.frames // 5)], T, gz))
     print(f"OpenGL backend: {backend}; {a.size} x {a.size} px, ground plane on, {a.frames} frames")
-    print(f"{'renderer':<12}{'scene':<14}{'frames/s (median)':>19}{'frames/s (best frame)':>23}")
-    for name, scene, med, best in rows:
-        print(f"{name:<12}{scene:<14}{med:>19.1f}{best:>23.1f}")
+    print(f"{'renderer':<12}{'scene':<14}{'frames/s (median)':>19}{'frames/s (best frame)':>23}"
+          f"{'frames per CPU-s':>18}")
+    for name, scene, med, best, cpu in rows:
+        print(f"{name:<12}{scene:<14}{med:>19.1f}{best:>23.1f}{cpu:>18.1f}")
+    try:
+        import os
+        print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    except OSError:  # pragma: no cover
+        pass
     return 0
 
 

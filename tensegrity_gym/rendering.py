@@ -571,6 +571,10 @@ def write_video(path, structure, nodes, tensions=None, times=None, *, fps: float
     r = make_renderer(width, height, backend=backend, title=title or structure.name)
     if ground_z is None and structure.gravity is not None:
         ground_z = float(nodes[..., 2].min())
+    tmax = None
+    if tensions is not None:
+        tensions = np.asarray(tensions, float)
+        tmax = max(float(np.nanmax(tensions, initial=0.0)), 1e-9)   # one colour scale for the whole video
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent if str(path.parent) else ".")
     os.close(fd)
     try:
@@ -582,7 +586,7 @@ def write_video(path, structure, nodes, tensions=None, times=None, *, fps: float
                 cap = None if times is None else f"t = {times[i]:.2f} s"
                 T = None if tensions is None else tensions[i]
                 w.append_data(r.render(nodes[i], structure.bars, structure.strings, T, ground_z=ground_z,
-                                       caption=cap))
+                                       caption=cap, tension_max=tmax))
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)

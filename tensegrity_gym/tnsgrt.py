@@ -214,7 +214,8 @@ def from_tnsgrt(obj_or_path: Any, *, stiffness=None, bar_mass=None, damping=0.0,
                                  f"(force density {lam[i]} N/m exceeds its stiffness {kk} N/m)")
     mass = col["mass"][bar_idx] if bar_mass is None else bar_mass
     cons = _constraints(_get(obj, "node_properties"), nodes.shape[1], nodes.T)
-    label = name or _get(obj, "label") or "tnsgrt"
+    label = name or _get(obj, "label") or \
+        ("tnsgrt" if isinstance(obj, Mapping) else f"tnsgrt {type(obj).__name__}")
     return Structure(nodes.T, members[:, bar_idx].T, members[:, str_idx].T, bar_mass=mass, stiffness=k,
                      rest_length=rest, damping=damping, gravity=gravity, node_constraints=cons,
                      name=str(label))
