@@ -179,3 +179,18 @@ def test_cli_export(tmp_path, capsys):
     bad.write_text(json.dumps({"nodes": [[0, 1]], "members": []}))
     assert main(["export", str(bad), "--from", "tnsgrt", "--out", str(tmp_path / "b.xml")]) == 2
     assert "tnsgrt nodes" in capsys.readouterr().err
+
+
+def test_ground_catches_a_falling_prism():
+    """With ground=True the rods (capsules of rod_radius) land on the plane and stay above it
+    (MuJoCo's own contact model: agreement with ours is qualitative)."""
+    s = tg.prism(3, gravity=(0, 0, -9.81), damping=5.0)
+    s = s.replace(nodes=s.nodes + [0.0, 0.0, 0.2])
+    M = mujoco.MjModel.from_xml_string(to_mjcf(s, ground=True, timestep=1e-3, rod_radius=0.01))
+    D = mujoco.MjData(M)
+    mujoco.mj_resetDataKeyframe(M, D, 0)
+    ids = [mujoco.mj_name2id(M, mujoco.mjtObj.mjOBJ_SITE, f"node{i}") for i in range(s.n_nodes)]
+    mujoco.mj_step(M, D, 1000)
+    z = D.site_xpos[ids][:, 2]
+    assert np.all(np.isfinite(D.qpos)) and D.ncon >= 3
+    assert 0.0 < z.min() < 0.03 and abs(z.max() - 1.0) < 0.05
