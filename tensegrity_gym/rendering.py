@@ -276,8 +276,8 @@ _SCENE_XML = """<mujoco model="tensegrity_view">
     <rgba haze=".88 .91 .95 1"/>
   </visual>
   <asset>
-    <texture name="sky" type="skybox" builtin="gradient" rgb1=".95 .97 1" rgb2=".70 .78 .88" width="64" height="64"/>
-    <texture name="grid" type="2d" builtin="checker" rgb1=".86 .87 .88" rgb2=".76 .78 .80" width="256" height="256" mark="edge" markrgb=".6 .62 .65"/>
+    <texture name="sky" type="skybox" builtin="gradient" rgb1=".95 .97 1" rgb2=".70 .78 .88" width="8" height="8"/>
+    <texture name="grid" type="2d" builtin="checker" rgb1=".86 .87 .88" rgb2=".76 .78 .80" width="32" height="32" mark="edge" markrgb=".6 .62 .65"/>
     <material name="grid" texture="grid" texrepeat="1 1" texuniform="true" reflectance="0"/>
   </asset>
   <worldbody>
