@@ -11,6 +11,8 @@
   structure (:mod:`tensegrity_gym.mjcf`); ``--format json`` writes this package's JSON;
   ``--from tnsgrt`` reads STRUCTURE as a tnsgrt structure dict (:mod:`tensegrity_gym.tnsgrt`).
 * ``simulate ... --video out.mp4`` / ``demo --video out.mp4`` also render the run to a video.
+* ``view traj.npz [--structure S]`` opens an interactive view of a ``simulate`` output (time
+  slider, play/pause): a window where there is a display, else a browser view (viser).
 
 ``STRUCTURE`` is a JSON file or a built-in name (``prism3``, ``icosahedron``, ...).
 Output files are written atomically (temporary file, then rename): an interrupted run
@@ -244,6 +246,37 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_view(args) -> int:
+    """``view TRAJ.npz``: interactive view of a simulate output; exit 2 with one line on stderr on bad input."""
+    from types import SimpleNamespace
+    from .rendering import RendererUnavailable, view_trajectory
+    try:
+        with np.load(args.trajectory) as z:
+            t, nodes, bars, strings = z["t"], z["nodes"], z["bars"], z["strings"]
+    except (OSError, ValueError, KeyError) as e:
+        print(f"error: view: {args.trajectory}: not a simulate output (.npz with t, nodes, bars, strings): {e}",
+              file=sys.stderr)
+        return 2
+    tensions = None
+    s = SimpleNamespace(bars=bars, strings=strings, n_strings=len(strings), gravity=None,
+                        name=Path(args.trajectory).stem)
+    if args.structure:
+        st = _load(args.structure)
+        if st.n_nodes != nodes.shape[1] or not np.array_equal(st.strings, strings):
+            print(f"error: view: structure {args.structure!r} does not match the trajectory's nodes/strings",
+                  file=sys.stderr)
+            return 2
+        L = np.linalg.norm(nodes[:, strings[:, 1]] - nodes[:, strings[:, 0]], axis=-1)
+        tensions = st.stiffness * np.maximum(0.0, L - st.rest_length)   # elastic part, N
+        s = st
+    try:
+        view_trajectory(s, nodes, tensions, t, mode=args.mode, **({"port": args.port} if args.mode != "window" else {}))
+    except (RendererUnavailable, ValueError, OSError) as e:
+        print(f"error: view: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m tensegrity_gym",
                                 description="Class-1 tensegrity dynamics (SI units).")
@@ -286,6 +319,13 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("--timestep", type=_positive(float), default=1e-3, help="MJCF: MuJoCo time step, s")
     ep.add_argument("--force", action="store_true", help="overwrite an existing output file")
     ep.set_defaults(func=cmd_export)
+    vp = sub.add_parser("view", help="interactive view of a simulate output (time slider, play/pause)")
+    vp.add_argument("trajectory", help="a .npz written by simulate")
+    vp.add_argument("--structure", default=None, help="the simulated structure: strings coloured by tension")
+    vp.add_argument("--mode", default="auto", choices=["auto", "window", "browser"],
+                    help="window (needs a display), browser (viser web view) or auto")
+    vp.add_argument("--port", type=int, default=8080, help="browser mode: port of the web viewer")
+    vp.set_defaults(func=cmd_view)
     return p
 
 

@@ -167,3 +167,23 @@ def test_window_viewer_widgets_headless():
     assert v.playing and v.button.label.get_text() == "pause"
     v._tick()
     assert v.index == 3 or v.index == 4
+
+
+def test_cli_view(tmp_path, monkeypatch, capsys):
+    from tensegrity_gym import cli, rendering as rmod
+    seen = {}
+
+    def fake_view(structure, nodes, tensions, times, mode, **kw):
+        seen.update(structure=structure, nodes=nodes, tensions=tensions, times=times, mode=mode, kw=kw)
+
+    monkeypatch.setattr(rmod, "view_trajectory", fake_view)
+    out = tmp_path / "t.npz"
+    assert cli.main(["simulate", "prism3", "--duration", "0.01", "--out", str(out)]) == 0
+    assert cli.main(["view", str(out), "--structure", "prism3", "--mode", "browser", "--port", "0"]) == 0
+    assert seen["nodes"].shape == (11, 6, 3) and seen["tensions"].shape == (11, 9) and seen["mode"] == "browser"
+    np.testing.assert_allclose(seen["tensions"][0], tg.prism(3).initial_tensions())
+    assert cli.main(["view", str(out)]) == 0 and seen["tensions"] is None
+    assert cli.main(["view", str(out), "--structure", "icosahedron"]) == 2
+    assert cli.main(["view", str(tmp_path / "missing.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "does not match" in err and "not a simulate output" in err and "Traceback" not in err
