@@ -1111,6 +1111,18 @@ def _packed(model):
     return _pack(model)
 
 
+def _copies_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, inplace):
+    """:func:`step` / :func:`step_inplace` with per-copy buffers ``p.bufs`` (B, len)."""
+    if inplace:
+        _check_inplace(q, qd)
+        qo, qdo = q, qd
+    else:
+        q, qd = _array(q, 3, "state.q"), _array(qd, 3, "state.qd")
+    err = _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags)
+    if err:
+        _raise(err, model, q, qd, rest_length, force_density, external)
+
+
 def _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags):
     """One step call with per-copy buffers ``p.bufs`` (B, len): inputs converted at the boundary."""
     if not _READY["copies"]:
@@ -1143,14 +1155,18 @@ def step(model, state, dt, name, *, rest_length=None, force_density=None, extern
     qo = np.empty(q.shape)
     qdo = np.empty(q.shape)
     if p.bufs is not None:
-        q, qd = _array(q, 3, "state.q"), _array(qd, 3, "state.qd")
-        err = _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags)
-        if err:
-            _raise(err, model, q, qd, rest_length, force_density, external)
-        t = state.t + dt
-        for _ in range(n_steps - 1):
-            t = t + dt
-        return _new_state(qo, qdo, t)
+        _copies_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, False)
+    else:
+        _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, name,
+                     project)
+    t = state.t + dt
+    for _ in range(n_steps - 1):
+        t = t + dt
+    return _new_state(qo, qdo, t)
+
+
+def _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, name, project):
+    """The kernels with one packed buffer ``p.buf`` shared by every copy (``qo is q``: in place)."""
     big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
     try:
         if rest_length is None and force_density is None and external is None and not big:
@@ -1163,13 +1179,9 @@ def step(model, state, dt, name, *, rest_length=None, force_density=None, extern
                 err = _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags)
     except TypeError:
         l0, fd, ext, flags = _controls(p, _flags(p, name, project), rest_length, force_density, external)
-        err = _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, False)
+        err = _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, qo is q)
     if err:
         _raise(err, model, q, qd, rest_length, force_density, external)
-    t = state.t + dt
-    for _ in range(n_steps - 1):
-        t = t + dt
-    return _new_state(qo, qdo, t)
 
 
 def step_inplace(model, q, qd, dt, name="semi_implicit_euler", *, rest_length=None, force_density=None,
@@ -1181,26 +1193,9 @@ def step_inplace(model, q, qd, dt, name="semi_implicit_euler", *, rest_length=No
     p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
     flags = _flags(p, name, project)
     if p.bufs is not None:
-        _check_inplace(q, qd)
-        err = _copies_call(p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags)
-        if err:
-            _raise(err, model, q, qd, rest_length, force_density, external)
-        return
-    big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
-    try:
-        if rest_length is None and force_density is None and external is None and not big:
-            err = _run_lean(q, qd, q, qd, p.buf, dt, n_steps, flags)
-        else:
-            l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
-            if big:
-                err = _run_parallel(q, qd, q, qd, p.buf, l0, fd, ext, dt, n_steps, flags | (_NCHUNK << _CHUNK_SHIFT))
-            else:
-                err = _run_serial(q, qd, q, qd, p.buf, l0, fd, ext, dt, n_steps, flags)
-    except TypeError:
-        l0, fd, ext, flags = _controls(p, _flags(p, name, project), rest_length, force_density, external)
-        err = _slow_call(model, p, q, qd, q, qd, l0, fd, ext, dt, n_steps, flags, True)
-    if err:
-        _raise(err, model, q, qd, rest_length, force_density, external)
+        _copies_step(model, p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags, True)
+    else:
+        _shared_step(model, p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags, name, project)
 
 
 from .dynamics import State  # noqa: E402  (after the kernels: dynamics never imports this module)
