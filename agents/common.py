@@ -369,13 +369,108 @@ def package_versions() -> dict:
     return out
 
 
-def write_json(path: str | Path, data) -> None:
+# ---------------------------------------------------------------------- atomic files
+TMP_TAG = ".tmp-"
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (no-op where directories cannot be opened, e.g. Windows)."""
+    try:
+        fd = os.open(str(folder), os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def atomic_write(path: str | Path, writer) -> Path:
+    """Write ``path`` atomically: ``writer(f)`` fills a temporary file in the same folder (opened
+    ``"wb"``), which is flushed, fsynced and renamed over ``path``, then the folder is fsynced.
+
+    An interrupt, a crash or a kill at any moment leaves either the old file or the new one, never
+    a partial file under ``path``; a stale ``.<name>.tmp-<pid>`` may remain and is removed by
+    :func:`remove_stale_tmp`. Returns ``path``.
+    """
     path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "w") as f:
-        json.dump(to_yaml_safe(data), f, indent=2)
-        f.write("\n")
-    os.replace(tmp, path)
+    tmp = path.with_name(f".{path.name}{TMP_TAG}{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            writer(f)  # may close f (SB3's save_to_pkl does)
+        fd = os.open(str(tmp), os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise
+    _fsync_dir(path.parent)
+    return path
+
+
+def remove_stale_tmp(folder: str | Path) -> list[Path]:
+    """Remove temporary files left by :func:`atomic_write` in ``folder`` (and its sub-folders) by
+    processes that no longer run; returns the removed paths."""
+    removed = []
+    for p in Path(folder).rglob(f".*{TMP_TAG}*"):
+        try:
+            pid = int(p.name.rsplit(TMP_TAG, 1)[1])
+        except ValueError:
+            continue
+        if pid != os.getpid() and not pid_alive(pid):
+            try:
+                p.unlink()
+                removed.append(p)
+            except OSError:
+                pass
+    return removed
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except (OSError, ValueError):
+        return False
+    return True
+
+
+def save_model_atomic(model, path: str | Path) -> Path:
+    """``model.save`` (SB3 zip) through :func:`atomic_write`."""
+    return atomic_write(path, model.save)
+
+
+def save_pickle_atomic(obj, path: str | Path) -> Path:
+    """Pickle ``obj`` (e.g. a ``VecNormalize``, as ``VecNormalize.save`` does) through :func:`atomic_write`."""
+    import pickle
+    return atomic_write(path, lambda f: pickle.dump(obj, f))
+
+
+def save_replay_buffer_atomic(model, path: str | Path) -> Path:
+    """``model.save_replay_buffer`` through :func:`atomic_write`."""
+    return atomic_write(path, model.save_replay_buffer)
+
+
+def write_json(path: str | Path, data) -> None:
+    """JSON file written atomically (temporary file in the same folder, fsync, rename)."""
+    text = json.dumps(to_yaml_safe(data), indent=2) + "\n"
+    atomic_write(path, lambda f: f.write(text.encode()))
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Text file written atomically."""
+    atomic_write(path, lambda f: f.write(text.encode()))
 
 
 def command_line(argv: list[str] | None = None, module: str = "agents.train") -> str:

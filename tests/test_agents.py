@@ -16,8 +16,6 @@ pytest.importorskip("stable_baselines3")
 yaml = pytest.importorskip("yaml")
 
 ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 import gymnasium as gym  # noqa: E402
 import tensegrity_gym  # noqa: E402,F401  (registers the envs)
