@@ -314,7 +314,7 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
     """A monitored SB3 VecEnv of ``n_envs`` copies of ``env_id``, env i seeded with ``seed + i``.
 
     ``vec_env``: ``"batched"`` (the env's ``vector_entry_point``: one batched physics call per step,
-    through :func:`tensegrity_gym.envs.common.make_sb3_vec_env`), ``"dummy"``, ``"subproc"``, or
+    through :func:`tensegrity_gym.sb3.make_sb3_vec_env`), ``"dummy"``, ``"subproc"``, or
     ``"auto"`` (batched when available, else dummy).
     """
     import gymnasium as gym
@@ -326,7 +326,7 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
     if vec_env == "batched":
         if not has_vector_entry_point(env_id):
             raise ValueError(f"--vec-env batched: {env_id} has no vector_entry_point")
-        from tensegrity_gym.envs.common import make_sb3_vec_env
+        from tensegrity_gym.sb3 import make_sb3_vec_env
         venv = make_sb3_vec_env(gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
                                              **env_kwargs))
         venv.seed(seed)
