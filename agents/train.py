@@ -137,12 +137,13 @@ def _callbacks():
         and writes ``eval/evaluations.npz``, ``best_model.zip`` and ``best_vecnormalize.pkl``
         atomically (statistics first, then the model)."""
 
-        def __init__(self, eval_env, every: int, run_dir: Path, run_state=None, **kw):
+        def __init__(self, eval_env, every: int, run_dir: Path, run_state=None, report=None, **kw):
             super().__init__(eval_env, eval_freq=1, log_path=str(run_dir / "eval"), best_model_save_path=None,
                              **kw)
             self.every = int(every)
             self.run_dir = Path(run_dir)
             self.run_state = run_state
+            self.report = report
             self.npz_path = self.run_dir / "eval" / "evaluations.npz"
             # EvalCallback's own np.savez (not atomic) goes to a scratch file; the real file is written below
             self.log_path = str(self.run_dir / "eval" / ".evaluations_scratch")
@@ -188,6 +189,9 @@ def _callbacks():
             if self.run_state is not None:
                 self.run_state.update(best_mean_reward=float(self.best_mean_reward),
                                       num_timesteps=int(self.num_timesteps))
+            if self.report is not None:
+                self.report(evaluation_metrics(self.evaluations_timesteps, self.evaluations_results,
+                                               self.evaluations_successes))
             return ok
 
     class InterruptAt(BaseCallback):
@@ -354,10 +358,26 @@ def _clear_failed_start(run_dir: Path) -> None:
             pass
 
 
-def train(argv: list[str] | None = None, extra_callbacks: list | None = None) -> Path:
+def evaluation_metrics(timesteps, results, successes=None) -> dict:
+    """Metrics of the latest evaluation: ``timesteps``, ``eval_return`` (mean episode return),
+    ``eval_return_std``, ``eval_success`` (success rate, when the env reports ``is_success``),
+    ``best_eval_return`` and ``n_evaluations``."""
+    if not len(timesteps):
+        return {"n_evaluations": 0}
+    r = np.asarray(results[-1], float)
+    out = {"timesteps": int(timesteps[-1]), "eval_return": float(r.mean()), "eval_return_std": float(r.std()),
+           "best_eval_return": float(max(np.mean(x) for x in results)), "n_evaluations": len(timesteps)}
+    if successes is not None and len(successes):
+        out["eval_success"] = float(np.mean(successes[-1]))
+    return out
+
+
+def train(argv: list[str] | None = None, extra_callbacks: list | None = None, report=None) -> Path:
     """Run training from command-line arguments; returns the run directory.
 
     ``extra_callbacks``: additional SB3 callbacks (tests use one to emulate Ctrl-C).
+    ``report``: called with :func:`evaluation_metrics` after every evaluation (``agents.tune``
+    passes Ray Tune's ``tune.report``).
     """
     args = build_parser().parse_args(argv)
     import yaml
@@ -537,7 +557,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None) ->
                                        run_state=run_state))
     ecb = None
     if eval_env is not None:
-        ecb = ResumableEvalCallback(eval_env, eval_freq, run_dir, run_state=run_state,
+        ecb = ResumableEvalCallback(eval_env, eval_freq, run_dir, run_state=run_state, report=report,
                                     n_eval_episodes=eval_episodes, deterministic=True, verbose=args.verbose,
                                     warn=False)
         if resume_dir is not None and not fresh_restart:
@@ -570,6 +590,10 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None) ->
         status = "interrupted"
         print(f"\ninterrupted at {model.num_timesteps} steps: saving model and statistics to {run_dir}",
               flush=True)
+    except SystemExit as e:  # sys.exit from a callback, e.g. Ray Tune stopping a trial: saved, then re-raised
+        status, error = ("stopped" if e.code in (0, None) else "crashed"), e
+        if status == "crashed":
+            run_state.data["error"] = f"SystemExit: {e.code}"
     except BaseException as e:  # noqa: BLE001 -- recorded, then re-raised
         import traceback
         status, error = "crashed", e
