@@ -113,3 +113,40 @@ def test_installed_zoo_reads_the_packaged_hyperparameters(installed):
     conf = next(l.split(" ", 1)[1] for l in out.splitlines() if l.startswith("CONF"))
     assert Path(conf).resolve() == (installed[1] / "agents" / "hyperparams" / "ppo.yml").resolve()
     assert "GAMMA 0.99" in out
+
+
+# ---------------------------------------------------------------------- layout (fast)
+def test_no_sys_path_edits_in_scripts_agents_or_package():
+    offenders = []
+    for folder in ("scripts", "agents", "tensegrity_gym"):
+        for f in (ROOT / folder).rglob("*.py"):
+            if "sys.path.insert" in f.read_text() or "sys.path.append" in f.read_text():
+                offenders.append(str(f.relative_to(ROOT)))
+    assert not offenders, offenders
+
+
+def test_shared_script_helpers():
+    import numpy as np
+    from tensegrity_gym import _bench, builders, dynamics as dyn
+    rng = np.random.default_rng(0)
+    for z in list(rng.normal(size=(5, 3))) + [np.array([0, 0, 1.0]), np.array([0, 0, -1.0])]:
+        z = z / np.linalg.norm(z)
+        w, x, y, zz = _bench.quat_z_to(z)
+        R = np.array([[1 - 2 * (y * y + zz * zz), 2 * (x * y - zz * w), 2 * (x * zz + y * w)],
+                      [2 * (x * y + zz * w), 1 - 2 * (x * x + zz * zz), 2 * (y * zz - x * w)],
+                      [2 * (x * zz - y * w), 2 * (y * zz + x * w), 1 - 2 * (x * x + y * y)]])
+        np.testing.assert_allclose(R @ [0, 0, 1.0], z, atol=1e-12)
+    t = _bench.timeit(lambda: sum(range(100)), target=0.01, repeats=1)
+    assert 0 < t < 1e-3
+    out, wall = _bench.timed(lambda: 3, wall_min=0.0)
+    assert out == 3 and wall >= 0
+    m = dyn.compile_model(builders.prism(3))
+    xml = _bench.mjcf(m)
+    assert xml.count("<freejoint/>") == m.n_bars and xml.count("<spatial") == m.n_strings
+    # a rigid rotation of a node set is recovered
+    from scipy.spatial.transform import Rotation
+    p = rng.normal(size=(1, 6, 3))
+    p -= p.mean(axis=1, keepdims=True)
+    rv = np.array([[0.1, -0.2, 0.3]])
+    cur = p @ Rotation.from_rotvec(rv[0]).as_matrix().T
+    np.testing.assert_allclose(_bench.rotation_vectors(p, cur), rv, atol=1e-12)
