@@ -1,6 +1,6 @@
 """Train a Stable-Baselines3 agent on a tensegrity_gym (or any Gymnasium) env.
 
-Usage (from the repository root)::
+Usage (from any directory once the package is installed; from the repository root otherwise)::
 
     python -m agents.train --algo ppo --env TensegrityShape-v0 --env-kwargs action_mode:rest_length \\
         --n-timesteps 1e6 --seed 0 --log-dir results/ppo_shape_rest_length
@@ -9,9 +9,9 @@ Usage (from the repository root)::
     python -m agents.train --resume results/ppo_shape_rest_length --n-timesteps 2e6   # or extend it
 
 Hyperparameters come from ``agents/hyperparams/<algo>.yml`` keyed by env id, in
-rl-baselines3-zoo's format, so the same file also works with
-``python -m rl_zoo3.train --gym-packages tensegrity_gym --algo ppo --env TensegrityShape-v0
---conf-file agents/hyperparams/ppo.yml``. ``--hyperparams key=value ...`` overrides entries;
+rl-baselines3-zoo's format, so the zoo uses the same file:
+``python -m rl_zoo3.train --gym-packages tensegrity_gym --algo ppo --env TensegrityShape-v0``
+reads it without ``--conf-file`` (:mod:`tensegrity_gym.zoo`). ``--hyperparams key=value ...`` overrides entries;
 ``--env-kwargs key:value ...`` (or one JSON object) are merged over the file's ``env_kwargs``.
 Values are parsed as JSON / Python literals (never ``eval``).
 
@@ -32,8 +32,12 @@ Run directory (``--log-dir``, default ``runs/<algo>_<env>_s<seed>``, git-ignored
     tb/                                 TensorBoard: SB3 scalars + info/reward_* means + episode_end/*
     config.yaml, command.txt, versions.json, state.json
 
-Ctrl-C (KeyboardInterrupt) saves ``model.zip``, ``vecnormalize.pkl`` (and the replay buffer of
-off-policy algorithms) before exiting; ``--resume RUN_DIR`` reloads the latest of the
+Every file is written atomically (temporary file in the same folder, fsync, rename), so no
+interrupt, crash or kill destroys the last good model; a crash is recorded in ``state.json`` as
+``crashed`` with the error; a run that failed before saving any model can be started again in the
+same folder; checkpoints and evaluations follow the run's step count, so ``--resume`` keeps their
+schedule. Ctrl-C (KeyboardInterrupt) saves ``model.zip``, ``vecnormalize.pkl`` (and the replay buffer of
+off-policy algorithms) before exiting (a second Ctrl-C waits for the save); ``--resume RUN_DIR`` reloads the latest of the
 interrupted model and the checkpoints, the VecNormalize statistics and the replay buffer, and
 continues with ``reset_num_timesteps=False`` up to the total ``n_timesteps`` (steps count on).
 """

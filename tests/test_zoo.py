@@ -58,13 +58,18 @@ def test_zoo_without_project_hyperparameters_fails_with_a_message_saying_how(tmp
                     "tensegrity_gym", "-f", "logs", "-n", "64"], tmp_path)
     assert rc != 0
     assert "no tuned a2c hyperparameters for TensegrityRoll-v0" in out and "--conf-file" in out
-    # an explicit --conf-file is left to the zoo (here: its own generic default entry)
-    zoo_file = Path(rl_zoo3.__file__).parent / "hyperparams" / "a2c.yml"
-    rc, out = _run(["-m", "rl_zoo3.train", "--algo", "a2c", "--env", "TensegrityRoll-v0", "--gym-packages",
-                    "tensegrity_gym", "-f", "logs", "--conf-file", str(zoo_file), "-n", "64", "--eval-freq", "-1",
-                    "--num-threads", "1", "-params", "n_envs:2"], tmp_path)
-    assert rc == 0, out[-3000:]
-    assert "Using 'default' hyperparameters" in out
+
+
+def test_zoo_explicit_conf_file_and_other_envs_are_left_to_the_zoo():
+    import argparse
+    from rl_zoo3.exp_manager import ExperimentManager
+    from tensegrity_gym import zoo
+    assert zoo.install() and zoo.install()                      # idempotent
+    zoo_file = str(Path(rl_zoo3.__file__).parent / "hyperparams" / "ppo.yml")
+    ns = argparse.Namespace()
+    assert ExperimentManager(ns, "ppo", "TensegrityRoll-v0", "logs", config=zoo_file).config == zoo_file
+    assert ExperimentManager(ns, "ppo", "TensegrityRoll-v0", "logs").config == str(zoo.hyperparams_file("ppo"))
+    assert Path(ExperimentManager(ns, "ppo", "Pendulum-v1", "logs").config).resolve() == Path(zoo_file).resolve()
 
 
 def test_zoo_enjoy(trained):
