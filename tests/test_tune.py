@@ -149,3 +149,11 @@ def test_search_with_optuna_and_asha(tmp_path):
     lrs = [r["settings"]["hyperparams.learning_rate"] for r in summary["variants"]]
     assert all(1e-4 <= lr <= 1e-3 for lr in lrs) and lrs[0] != lrs[1]   # sampled from the space
     assert summary["max_concurrent"] == 2
+
+
+def test_without_ray_the_cli_says_how_to_install_it(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)       # import ray -> ImportError
+    assert tune.main([str(SWEEPS / "smoke.yml"), "--storage", str(tmp_path)]) == 2
+    assert "pip install 'tensegrity_gym[tune]'" in capsys.readouterr().err
+    assert tune.main([str(tmp_path / "missing.yml")]) == 2
+    assert "does not exist" in capsys.readouterr().err
