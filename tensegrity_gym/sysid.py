@@ -80,6 +80,7 @@ _UNITS = {"stiffness": "N/m", "damping": "N s/m", "mass": "kg", "node_damping": 
 _EPS_THETA = 1e-6      # FD step in log space (relative change of a parameter)
 _EPS_POS = 1e-6        # FD step of a position / direction coordinate, m or 1
 _EPS_VEL = 1e-5        # FD step of a velocity coordinate, m/s or 1/s
+_THETA_MAX = 5.0       # |log(value / initial)| is clipped here (a factor of 148)
 
 
 class SysIdWarning(UserWarning):
@@ -412,7 +413,8 @@ class _Problem:
         """{field: (C, n_items) log(value / initial)} for parameter rows ``thetas`` (C, p)."""
         out = {}
         for g in self.names:
-            th = thetas[:, self.slices[g]]
+            # a bounded step: an unidentifiable direction must not run off to exp(700)
+            th = np.clip(thetas[:, self.slices[g]], -_THETA_MAX, _THETA_MAX)
             n_ = len(self.items[g])
             if g == "mass" and self.total_mass is not None:
                 th = np.concatenate([np.zeros((th.shape[0], 1)), th], axis=1) if self.mode == "per_member" \
@@ -627,7 +629,7 @@ def _kabsch(src, dst):
 # ----------------------------------------------------------------------------- main entry
 def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"), mode: str = "per_member", *,
              rest_length=None, node_mask=None, window: float = 0.2, integrator: str = "rk4", dt=None,
-             stride: int = 1, initial=None, total_mass=None, max_nfev: int = 60, rank_rtol: float = 1e-6,
+             stride: int = 1, initial=None, total_mass=None, max_nfev: int = 60, rank_rtol: float = 1e-4,
              verbose: int = 0) -> SysIdResult:
     """Fit physical parameters so that simulated motion matches a recorded one (see module doc).
 
@@ -689,23 +691,32 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
             pb.nfev += 1
         return cache
 
+    reg = {"lam": 0.0}
+
     def fun(theta):
         c = solve(theta)
         r = c["res"].ravel()
-        return np.where(np.isfinite(r), r, 1e3)   # a diverged copy: a large, finite residual
+        return np.concatenate([np.where(np.isfinite(r), r, 1e3),   # a diverged copy: large, finite
+                               reg["lam"] * theta])
 
     def jac(theta):
         c = solve(theta)
-        sim = pb.simulate(c["q"], c["qd"], pb.params(theta), np.arange(pb.W))
-        Jp, Jx = pb.full_jacobian(theta, c["q"], c["qd"], sim)
-        pb.njev += 1
-        c["Jp"] = Jp
-        cache["Jx"] = Jx
-        return np.where(np.isfinite(Jp), Jp, 0.0).reshape(-1, pb.p)
+        if c.get("Jp_key") != c["key"]:
+            sim = pb.simulate(c["q"], c["qd"], pb.params(theta), np.arange(pb.W))
+            Jp, Jx = pb.full_jacobian(theta, c["q"], c["qd"], sim)
+            pb.njev += 1
+            c.update(Jp=Jp, Jp_key=c["key"])
+            cache["Jx"] = Jx
+        J = np.where(np.isfinite(c["Jp"]), c["Jp"], 0.0).reshape(-1, pb.p)
+        return np.concatenate([J, reg["lam"] * np.eye(pb.p)])
 
     theta0 = np.zeros(pb.p)
-    r0 = fun(theta0)
+    r0 = fun(theta0)[:-pb.p]
     rms0 = float(np.sqrt(np.sum(r0 ** 2) / max(pb.n_obs, 1)))
+    # a weak pull towards the starting values (rows lam * theta, lam = 0.1 rank_rtol x the largest
+    # column norm): it keeps a flat (unidentifiable) direction where it started instead of letting
+    # the optimiser wander along it; on an identifiable parameter its bias is ~(0.1 rank_rtol)^2
+    reg["lam"] = 0.1 * rank_rtol * float(np.linalg.norm(jac(theta0)[:-pb.p], axis=0).max())
     warn_list = []
     try:
         # 'lm' (MINPACK): its QR of the tall Jacobian runs in its own loops (BLAS threads on a
@@ -718,6 +729,7 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     c = solve(theta)
     inner_ok = bool(c["ok"])
     jac(theta)
+    c = cache
     Jp = c["Jp"].reshape(-1, pb.p)
     res = c["res"]
     ssr = float(np.sum(res ** 2))
