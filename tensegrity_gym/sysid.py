@@ -47,11 +47,18 @@ They are the 1-sigma errors of a locally linear, unbiased fit with independent G
 position noise of the same size on every coordinate: they say how well the *record*
 determines the values, not how wrong the *model* is (integrator error, unmodelled friction).
 Standard errors in SI are ``value * se(theta)`` (first order). A parameter with a (near) zero
-direction of ``J^T J`` (singular value below ``rank_rtol`` times the largest, e.g. the damping
-of a string that never goes taut, or mass and stiffness of a free structure, which only enter
-through their ratio) is flagged ``identifiable = False`` with an infinite standard error, and
-the result is not ``ok``; a fit that stops without meeting its tolerances is ``converged =
-False``. Both also raise a :class:`SysIdWarning`.
+direction of ``J^T J`` (singular value of the column-scaled Jacobian below ``rank_rtol`` times
+the largest, e.g. the damping of a string that never goes taut, anything when nothing moves)
+is flagged ``identifiable = False`` with an infinite standard error, and the result is not
+``ok``; a fit that stops without meeting its tolerances is ``converged = False``. Both also
+raise a :class:`SysIdWarning`. A weak pull towards the starting values (rows
+``1e-5 |J| theta``) keeps the optimiser from wandering along such a flat direction.
+
+Mass, stiffness and damping: string forces scale with stiffness and damping, weight and
+inertia with mass, so a robot with all three scaled by one factor moves identically (gravity
+and supports do not break this). Motion fixes the ratios; pass the weighed total rod mass
+(``total_mass``, kg) and the rod masses are held to sum to it (their ratios are fitted).
+Without it such a fit is flagged.
 
 Units: SI throughout (s, m, kg, N/m, N s/m). The optional torch backend is not used: the
 batched finite differences are exact to ~1e-7 relative and cost one call per Jacobian.
@@ -161,17 +168,20 @@ class SysIdResult:
         return out
 
     def plot(self, path=None, nodes=None, max_nodes: int = 3):
-        """Recorded (dots) vs fitted (lines, one segment per shooting window) node coordinates
-        for up to ``max_nodes`` tracked nodes (or the given ``nodes``), and the RMS error per
-        sample. Writes a PNG to ``path`` if given; returns the matplotlib figure (Agg)."""
+        """Recorded (dots) vs fitted (lines, one segment per shooting window) displacements of
+        node coordinates from their mean over the record, mm, for the ``max_nodes`` tracked nodes
+        that move most (or the given ``nodes``), and the RMS error per sample. Writes a PNG to
+        ``path`` if given; returns the matplotlib figure (Agg)."""
         import matplotlib
         if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
             matplotlib.use("Agg")
         import matplotlib.pyplot as plt
         d = self._plot
         t, rec, fit, mask = d["t"], d["recorded"], d["fitted"], d["mask"]   # (W,K), (W,K,n,3) ...
-        tracked = np.flatnonzero(mask.any(axis=(0, 1)))
-        show = list(tracked[:max_nodes]) if nodes is None else [int(i) for i in nodes]
+        recn = np.where(mask[..., None], rec, np.nan)
+        mean = np.nanmean(recn, axis=(0, 1))                                   # (n, 3)
+        span = np.nan_to_num(np.nanmax(recn, axis=(0, 1)) - np.nanmin(recn, axis=(0, 1)), nan=-1.0).max(1)
+        show = list(np.argsort(-span)[:max_nodes]) if nodes is None else [int(i) for i in nodes]
         fig, ax = plt.subplots(len(show) + 1, 1, figsize=(10, 2.2 * (len(show) + 1)), sharex=True, squeeze=False)
         ax = ax[:, 0]
         colors = ("tab:blue", "tab:orange", "tab:green")
@@ -179,11 +189,11 @@ class SysIdResult:
             for c in range(3):
                 for w in range(t.shape[0]):
                     mk = mask[w, :, i]
-                    a.plot(t[w][mk], rec[w, mk, i, c], ".", ms=2, color=colors[c],
+                    a.plot(t[w][mk], 1e3 * (rec[w, mk, i, c] - mean[i, c]), ".", ms=2, color=colors[c],
                            label=f"{'xyz'[c]} recorded" if w == 0 else None)
-                    a.plot(t[w], fit[w, :, i, c], "-", lw=1, color="k", alpha=0.7,
+                    a.plot(t[w], 1e3 * (fit[w, :, i, c] - mean[i, c]), "-", lw=1, color="k", alpha=0.7,
                            label="fitted" if (w == 0 and c == 0) else None)
-            a.set_ylabel(f"node {i} [m]")
+            a.set_ylabel(f"node {i} [mm]")
         ax[0].legend(loc="upper right", ncol=4, fontsize=7)
         err = np.where(mask[..., None], fit - rec, np.nan)
         rms = np.sqrt(np.nanmean(err ** 2, axis=(2, 3)))
