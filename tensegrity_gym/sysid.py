@@ -52,7 +52,7 @@ the largest, e.g. the damping of a string that never goes taut, anything when no
 is flagged ``identifiable = False`` with an infinite standard error, and the result is not
 ``ok``; a fit that stops without meeting its tolerances is ``converged = False``. Both also
 raise a :class:`SysIdWarning`. A weak pull towards the starting values (rows
-``1e-5 |J| theta``) keeps the optimiser from wandering along such a flat direction.
+``rank_rtol |J| theta``) keeps the optimiser from wandering along such a flat direction.
 
 Mass, stiffness and damping: string forces scale with stiffness and damping, weight and
 inertia with mass, so a robot with all three scaled by one factor moves identically (gravity
@@ -325,7 +325,7 @@ def _parse_fit(model: Model, fit, mode, initial):
             raise ValueError(f"fit: {g!r} has nothing to fit in this structure")
         bad = idx[~(vals[idx] > 0)]
         if bad.size:
-            raise ValueError(f"initial: {g} of {FITTABLE[g]} {bad[0]} starts at {vals[bad[0]]!r} {_UNITS[g]}; it is "
+            raise ValueError(f"initial: {g} of {FITTABLE[g]} {bad[0]} starts at {float(vals[bad[0]])!r} {_UNITS[g]}; it is "
                              f"fitted in log space and needs a positive starting value (pass initial={{{g!r}: ...}})")
         items[g], init[g] = idx, vals[idx].copy()
     return names, items, init, base
@@ -723,10 +723,11 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     theta0 = np.zeros(pb.p)
     r0 = fun(theta0)[:-pb.p]
     rms0 = float(np.sqrt(np.sum(r0 ** 2) / max(pb.n_obs, 1)))
-    # a weak pull towards the starting values (rows lam * theta, lam = 0.1 rank_rtol x the largest
+    # a weak pull towards the starting values (rows lam * theta, lam = rank_rtol x the largest
     # column norm): it keeps a flat (unidentifiable) direction where it started instead of letting
-    # the optimiser wander along it; on an identifiable parameter its bias is ~(0.1 rank_rtol)^2
-    reg["lam"] = 0.1 * rank_rtol * float(np.linalg.norm(jac(theta0)[:-pb.p], axis=0).max())
+    # the optimiser wander along it; it shifts a parameter whose singular value is s (relative to
+    # the largest) by about (rank_rtol / s)^2 of its change: 1e-8 for s = 1, 1e-4 for s = 0.01
+    reg["lam"] = rank_rtol * float(np.linalg.norm(jac(theta0)[:-pb.p], axis=0).max())
     warn_list = []
     try:
         # 'lm' (MINPACK): its QR of the tall Jacobian runs in its own loops (BLAS threads on a

@@ -71,10 +71,13 @@ def test_mass_without_total_is_flagged(constrained_case):
     same factor (weight scales with mass): without the weighed total that direction is flagged."""
     model, true, t, nodes = constrained_case
     with pytest.warns(SysIdWarning, match="not identifiable"):
-        r = identify(model, t, nodes, fit=("stiffness", "damping", "mass"), mode="scale", stride=4, window=0.15)
+        r = identify(model, t, nodes, fit=("stiffness", "damping", "mass"), stride=4, window=0.15)
     assert not r.ok
     assert not any(r.identifiable["mass"]) and not any(r.identifiable["stiffness"])
     assert np.all(np.isinf(r.std_errors["mass"]))
+    # what the record does fix: every ratio (all 21 values are off from the truth by one factor)
+    f = np.concatenate([r.values[g] / true[g] for g in ("stiffness", "damping", "mass")])
+    assert np.ptp(f) < 2e-3 * f.mean()
 
 
 def test_partial_observation_half_the_nodes():
@@ -208,7 +211,8 @@ def test_cli_identify_npz_csv_and_errors(tmp_path, capsys):
     with pytest.raises(SystemExit, match="line 3"):
         main(["identify", "prism3", str(tmp_path / "bad.csv"), "--out", str(out)])
     with pytest.raises(SystemExit, match="nodes per sample"):
-        main(["identify", "icosahedron", str(tmp_path / "traj.npz"), "--out", str(tmp_path / "x.json")])
+        main(["identify", "icosahedron", str(tmp_path / "traj.npz"), "--fit", "stiffness", "--out",
+              str(tmp_path / "x.json")])
     with pytest.raises(SystemExit, match="unknown parameter 'spring'"):
         main(["identify", "prism3", str(tmp_path / "traj.npz"), "--fit", "spring", "--out", str(tmp_path / "x.json")])
     assert not (tmp_path / "x.json").exists()
@@ -216,13 +220,13 @@ def test_cli_identify_npz_csv_and_errors(tmp_path, capsys):
 
 def test_actuated_rest_lengths_are_followed():
     """Cables actuated during the record (rest lengths changing every sample, zero-order hold at
-    the 1 kHz record rate): given the recorded rest lengths the fit recovers the stiffness; the
+    the 500 Hz record rate): given the recorded rest lengths the fit recovers the stiffness; the
     same record without them cannot be matched (large residual)."""
     s = tg.prism(3, damping=2.0)
     model = tg.compile_model(s)
     true = _perturbed(model, np.random.default_rng(7), ("stiffness",))
     P = default_params(model).replace(**true)
-    h, S = 1e-3, 421
+    h, S = 2e-3, 211
     t = np.arange(S) * h
     phase = np.arange(model.n_strings)
     rl = model.rest_length * (1 - 0.02 * np.sin(2 * np.pi * 3 * t[:, None] + phase))
@@ -235,5 +239,6 @@ def test_actuated_rest_lengths_are_followed():
     assert np.ptp(nodes, axis=0).max() > 0.005
     r = identify(model, t, nodes, fit=("stiffness",), rest_length=rl, window=0.2)
     assert r.ok and np.abs(r.values["stiffness"] / true["stiffness"] - 1).max() < 1e-3
-    r2 = identify(model, t, nodes, fit=("stiffness",), window=0.2)
+    with pytest.warns(SysIdWarning):
+        r2 = identify(model, t, nodes, fit=("stiffness",), window=0.2, max_nfev=3)
     assert r2.rms_m > 100 * r.rms_m
