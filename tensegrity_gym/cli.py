@@ -227,6 +227,9 @@ def cmd_identify(args) -> int:
                                  dt=args.dt, stride=args.stride, total_mass=args.total_mass)
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None
+    except FloatingPointError as e:   # SimulationDiverged: the starting values blow the model up
+        raise SystemExit(f"error: the simulation diverged during the fit ({e}); try a smaller --dt or starting "
+                         f"values closer to the robot's") from None
     d = res.to_dict()
     d.update(structure=s.name, trajectory=str(args.trajectory))
     out = Path(args.out)

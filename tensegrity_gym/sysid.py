@@ -52,7 +52,8 @@ the largest, e.g. the damping of a string that never goes taut, anything when no
 is flagged ``identifiable = False`` with an infinite standard error, and the result is not
 ``ok``; a fit that stops without meeting its tolerances is ``converged = False``. Both also
 raise a :class:`SysIdWarning`. A weak pull towards the starting values (rows
-``rank_rtol |J| theta``) keeps the optimiser from wandering along such a flat direction.
+``rank_rtol |J| theta``) keeps the optimiser from wandering along such a flat direction; when
+every direction turns out determined, the fit is polished without it (no bias).
 
 Mass, stiffness and damping: string forces scale with stiffness and damping, weight and
 inertia with mass, so a robot with all three scaled by one factor moves identically (gravity
@@ -725,43 +726,56 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     rms0 = float(np.sqrt(np.sum(r0 ** 2) / max(pb.n_obs, 1)))
     # a weak pull towards the starting values (rows lam * theta, lam = rank_rtol x the largest
     # column norm): it keeps a flat (unidentifiable) direction where it started instead of letting
-    # the optimiser wander along it; it shifts a parameter whose singular value is s (relative to
-    # the largest) by about (rank_rtol / s)^2 of its change: 1e-8 for s = 1, 1e-4 for s = 0.01
+    # the optimiser wander along it. When the fit then finds every direction determined, it is
+    # polished without the pull (which would shift a parameter of relative singular value s by
+    # ~(rank_rtol / s)^2 of its change).
     reg["lam"] = rank_rtol * float(np.linalg.norm(jac(theta0)[:-pb.p], axis=0).max())
     warn_list = []
-    try:
-        # 'lm' (MINPACK): its QR of the tall Jacobian runs in its own loops (BLAS threads on a
-        # loaded machine made trf's SVD of the same matrix 20x slower)
-        sol = least_squares(fun, theta0, jac=jac, method="lm", x_scale=1.0, ftol=1e-10, xtol=1e-8, gtol=1e-10,
-                            max_nfev=max_nfev, verbose=verbose)
-        theta, status, message = sol.x, sol.status, sol.message
-    except (np.linalg.LinAlgError, ValueError) as e:
-        theta, status, message = theta0, -1, f"optimiser failed: {e}"
-    c = solve(theta)
-    inner_ok = bool(c["ok"])
-    jac(theta)
+
+    def run(theta_start):
+        try:
+            # 'lm' (MINPACK): its QR of the tall Jacobian runs in its own loops (BLAS threads on a
+            # loaded machine made trf's SVD of the same matrix 20x slower)
+            sol = least_squares(fun, theta_start, jac=jac, method="lm", x_scale=1.0, ftol=1e-10, xtol=1e-8,
+                                gtol=1e-10, max_nfev=max_nfev, verbose=verbose)
+            return sol.x, sol.status, sol.message
+        except (np.linalg.LinAlgError, ValueError) as e:
+            return theta_start, -1, f"optimiser failed: {e}"
+
+    def assess(theta):
+        """Projected Jacobian at ``theta`` and which parameters it determines (log coordinates)."""
+        solve(theta)
+        jac(theta)
+        Jp = cache["Jp"].reshape(-1, pb.p)
+        G = Jp.T @ Jp
+        colnorm = np.sqrt(np.diag(G))
+        scale = np.where(colnorm > 0, colnorm, 1.0)
+        ev, V = np.linalg.eigh(G / np.outer(scale, scale))     # singular values^2 of the column-scaled Jacobian
+        sv = np.sqrt(np.clip(ev, 0, None))
+        smax = sv.max() if sv.size and sv.max() > 0 else 0.0
+        null = (sv <= rank_rtol * smax) if smax > 0 else np.ones_like(sv, bool)
+        ident = np.ones(pb.p, bool)
+        ident[colnorm <= 1e-12 * max(colnorm.max(), 1e-300)] = False
+        for v in V.T[null]:
+            u = v / scale                      # the flat direction in log coordinates (relative changes)
+            ident[np.abs(u) > 0.01 * np.abs(u).max()] = False
+        return Jp, ident
+
+    theta, status, message = run(theta0)
+    Jp, ident = assess(theta)
+    if status > 0 and ident.all():
+        # every direction is determined: polish without the pull, so it biases nothing
+        reg["lam"] = 0.0
+        theta, status, message = run(theta)
+        Jp, ident = assess(theta)
     c = cache
-    Jp = c["Jp"].reshape(-1, pb.p)
+    inner_ok = bool(c["ok"])
     res = c["res"]
     ssr = float(np.sum(res ** 2))
     rms = float(np.sqrt(ssr / pb.n_obs))
     converged = bool(status > 0 and inner_ok and np.isfinite(res).all() and np.isfinite(Jp).all())
     if not inner_ok:
         message += "; the window-state fits did not all converge"
-    # identifiability and standard errors from the projected Jacobian (log coordinates)
-    G = Jp.T @ Jp
-    colnorm = np.sqrt(np.diag(G))
-    scale = np.where(colnorm > 0, colnorm, 1.0)
-    ev, V = np.linalg.eigh(G / np.outer(scale, scale))     # singular values^2 of the column-scaled Jacobian
-    sv = np.sqrt(np.clip(ev, 0, None))
-    Vt = V.T
-    smax = sv.max() if sv.size and sv.max() > 0 else 0.0
-    null = (sv <= rank_rtol * smax) if smax > 0 else np.ones_like(sv, bool)
-    ident = np.ones(pb.p, bool)
-    ident[colnorm <= 1e-12 * max(colnorm.max(), 1e-300)] = False
-    for v in Vt[null]:
-        u = v / scale                      # the flat direction in log coordinates (relative changes)
-        ident[np.abs(u) > 0.01 * np.abs(u).max()] = False
     sigma2 = ssr / pb.dof
     cov = np.full((pb.p, pb.p), np.inf)
     if ident.any():
