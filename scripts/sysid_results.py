@@ -130,6 +130,11 @@ def write_readme(out: Path, summary: dict):
     five = [r for r in rows if r["duration_s"] > 4]
     r0 = next(r for r in five if r["noise_mm"] == 0)
     r1 = next(r for r in five if r["noise_mm"] == 1)
+    by = {(round(r["duration_s"]), r["noise_mm"]): r for r in rows}
+    d1 = {T: 100 * by[(T, 1.0)]["max_rel_error_by_field"]["damping"] for T in (1, 2, 5) if (T, 1.0) in by}
+    k1 = {T: 100 * by[(T, 1.0)]["max_rel_error_by_field"]["stiffness"] for T in (1, 2, 5) if (T, 1.0) in by}
+    e1 = r1["max_rel_error_by_field"]
+    more = (e1["damping"] / 0.03) ** 2
     lines = ["| record | noise (mm) | max error, stiffness | damping | mass | all 21 values | max rel. SE | "
              "max abs err / SE | RMS (mm) | fit wall (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (-r["duration_s"], r["noise_mm"])):
@@ -164,19 +169,19 @@ Targets: noise-free 5 s, every parameter within 1 %: **{100 * r0['max_rel_error'
 One noise realisation (seed 1) per cell: the table shows one draw, the standard errors show the spread to expect.
 
 **What misses and why.** Stiffness and mass meet the 3 % target with 1 mm noise by a factor of
-10 (0.24 % and 0.12 %); the per-string damping does not ({100 * r1['max_rel_error_by_field']['damping']:.3g} %).
+{0.03 / max(e1['stiffness'], e1['mass']):.0f} ({100 * e1['stiffness']:.2g} % and {100 * e1['mass']:.2g} %); the per-string damping does not ({100 * r1['max_rel_error_by_field']['damping']:.3g} %).
 That is the information in this record, not the fit: the fit's own standard errors predict it
-(largest relative SE {100 * r1['max_rel_std_error']:.3g} %; actual errors are within 2.2 SE over 20 numbers,
+(largest relative SE {100 * r1['max_rel_std_error']:.3g} %; actual errors are within {r1['max_error_over_std_error']:.2g} SE over 20 numbers,
 so the standard errors are honest), every error scales linearly with the noise (table), and the
-noise-free fit is exact to 3e-5. Damping forces are small (2 N s/m x ~0.1 m/s against ~100 N of
+noise-free fit is exact to {r0['max_rel_error']:.1g}. Damping forces are small (2 N s/m x string length rates of ~0.1 m/s against ~100 N of
 prestress; damping ratio ~3 %); the fast modes die out within ~1 s and the slow sway that
 remains (fit_1mm.png) says little about the damping of individual strings, so a longer record adds
-little damping information (1 s: 12 %, 2 s: 9 %, 5 s: 11 % -- one noise draw each) while stiffness keeps
-improving (0.43 % -> 0.24 %). Per-string damping to 3 % at 1 mm needs ~13x more information ((11/3)^2):
+little damping information ({', '.join(f"{T} s: {v:.2g} %" for T, v in d1.items())} -- one noise draw each) while
+stiffness keeps improving ({' -> '.join(f"{v:.2g} %" for v in k1.values())}). Per-string damping to 3 % at 1 mm needs ~{more:.0f}x more information (({100 * e1['damping']:.2g} / 3)^2):
 several releases (errors fall as 1/sqrt(records)), larger excitation (1/amplitude: a 5 cm release
 gave 6.4 %, a 5 cm release of a 5 N s/m robot 4.5 % in an uncommitted side run), fitting every 1 kHz sample instead of every
 second (1/sqrt(2)), or one damping factor for all strings (`--scale`). Noise-free, the target
-(1 %) is met with a margin of 300x; the remaining 3e-5 is the RK4-at-2-ms model error against
+(1 %) is met with a margin of {0.01 / r0['max_rel_error']:.0f}x; the remaining {r0['max_rel_error']:.1g} is the RK4-at-2-ms model error against
 DOP853, which the standard errors do not include (hence err/SE >> 1 in the noise-free rows).
 
 `fit_1mm.png`: recorded (dots) vs fitted (lines, one per 0.2 s window) displacements of the
