@@ -5,6 +5,10 @@
   potential + gravity) at every step (``--record-every K`` thins the output).
 * ``info STRUCTURE`` prints counts, masses, prestress, slack strings and the estimated
   largest stable step of the explicit integrators.
+* ``identify STRUCTURE TRAJ.npz|TRAJ.csv --fit stiffness damping mass --per-member|--scale
+  --out fit.json [--plot fit.png]`` fits physical parameters to a recorded motion
+  (:mod:`tensegrity_gym.sysid`, docs/sysid.md); exit status 0 when the fit converged and every
+  parameter is identifiable, 3 when the result is flagged.
 * ``demo --out DIR`` simulates the default prism released off equilibrium and writes a
   plot and a JSON summary.
 * ``export STRUCTURE --format mjcf --out model.xml [--ground]`` writes a MuJoCo model of the
@@ -277,6 +281,57 @@ def cmd_view(args) -> int:
     return 0
 
 
+def cmd_identify(args) -> int:
+    """Fit parameters to a recorded trajectory; write the fit as JSON (atomically) and a plot."""
+    from . import sysid
+    s = _load(args.structure)
+    model = dyn.compile_model(s)
+    try:
+        t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes)
+    except FileNotFoundError:
+        raise SystemExit(f"error: trajectory file {args.trajectory!r} not found") from None
+    except (ValueError, OSError, KeyError) as e:
+        raise SystemExit(f"error: trajectory {args.trajectory!r}: {e}") from None
+    if args.nodes is not None:
+        sel = np.zeros(model.n_nodes, bool)
+        for i in args.nodes:
+            if not 0 <= i < model.n_nodes:
+                raise SystemExit(f"error: --nodes: node {i} does not exist (structure has {model.n_nodes} nodes)")
+            sel[i] = True
+        mask = sel if mask is None else (np.asarray(mask, bool) & sel)
+    import warnings
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", sysid.SysIdWarning)   # reported below from the result
+            res = sysid.identify(model, t, nodes, fit=args.fit, mode="scale" if args.scale else "per_member",
+                                 rest_length=rl, node_mask=mask, window=args.window, integrator=args.integrator,
+                                 dt=args.dt, stride=args.stride, total_mass=args.total_mass)
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
+    except FloatingPointError as e:   # SimulationDiverged: the starting values blow the model up
+        raise SystemExit(f"error: the simulation diverged during the fit ({e}); try a smaller --dt or starting "
+                         f"values closer to the robot's") from None
+    d = res.to_dict()
+    d.update(structure=s.name, trajectory=str(args.trajectory))
+    out = Path(args.out)
+    _atomic_write(out, lambda tmp: Path(tmp).write_text(json.dumps(d, indent=1)))
+    if args.plot:
+        import matplotlib
+        matplotlib.use("Agg")
+        pl = Path(args.plot)
+        _atomic_write(pl, lambda tmp: res.plot().savefig(tmp, dpi=100, format="png"))
+    for g in res.fields:
+        for i, v, e, ok in zip(res.items[g], res.values[g], res.std_errors[g], res.identifiable[g]):
+            err = f"+- {e:.3g}" if np.isfinite(e) else "(not identifiable)"
+            print(f"{g:12s} {sysid.FITTABLE[g]} {i:3d}  {v:.6g} {err} {sysid._UNITS[g]}")
+    print(f"RMS node error {res.rms_m * 1e3:.4g} mm (initial values {res.rms_initial_m * 1e3:.4g} mm); "
+          f"{res.n_windows} windows of {res.window_s:g} s; converged: {res.converged}; wrote {out}"
+          + (f" and {args.plot}" if args.plot else ""))
+    for w in res.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    return 0 if res.ok else 3
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m tensegrity_gym",
                                 description="Class-1 tensegrity dynamics (SI units).")
@@ -299,6 +354,25 @@ def build_parser() -> argparse.ArgumentParser:
     ip.add_argument("structure")
     ip.add_argument("--json", action="store_true", help="print JSON")
     ip.set_defaults(func=cmd_info)
+    yp = sub.add_parser("identify", help="fit stiffness/damping/mass to a recorded trajectory (.npz or .csv)")
+    yp.add_argument("structure", help=f"JSON file or built-in name ({names}): the starting values")
+    yp.add_argument("trajectory", help="TRAJ.npz (t (S,) s, nodes (S, n, 3) m, optional rest_length (S, m)) "
+                    "or TRAJ.csv (long format: header t,node,x,y,z; one row per tracked node per sample)")
+    yp.add_argument("--fit", nargs="+", default=["stiffness", "damping"],
+                    help="parameters to fit: stiffness damping mass (alias rod_mass) node_damping")
+    grp = yp.add_mutually_exclusive_group()
+    grp.add_argument("--per-member", action="store_true", help="one value per string / rod (default)")
+    grp.add_argument("--scale", action="store_true", help="one factor per parameter group")
+    yp.add_argument("--total-mass", type=_positive(float), default=None,
+                    help="weighed total rod mass, kg (needed to fit mass together with stiffness/damping)")
+    yp.add_argument("--nodes", type=int, nargs="+", default=None, help="use only these tracked nodes")
+    yp.add_argument("--window", type=_positive(float), default=0.2, help="shooting window, s")
+    yp.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit_euler", "implicit_euler"])
+    yp.add_argument("--dt", type=_positive(float), default=None, help="fit step, s (divides the sample spacing)")
+    yp.add_argument("--stride", type=_positive(int), default=1, help="fit every K-th sample")
+    yp.add_argument("--out", default="fit.json", help="output JSON")
+    yp.add_argument("--plot", default=None, help="PNG of recorded vs fitted motion")
+    yp.set_defaults(func=cmd_identify)
     dp = sub.add_parser("demo", help="simulate the default prism, write a plot and summary")
     dp.add_argument("--out", default="results/demo")
     dp.add_argument("--duration", type=_positive(float), default=5.0)
