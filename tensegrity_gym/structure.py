@@ -121,7 +121,8 @@ def _show(x) -> str:
         s = str(int(x))
         return s if len(s) <= 20 else f"an integer of {len(s)} digits ({s[:4]}...{s[-2:]})"
     if isinstance(x, (float, np.floating)):
-        return repr(float(x))
+        r = repr(float(x))
+        return r if len(r) <= 8 else f"{float(x):.6g}"
     if isinstance(x, (list, tuple, np.ndarray)):
         return f"a list of {len(x)} item{'s' if len(x) != 1 else ''}"
     if isinstance(x, Mapping):
@@ -197,8 +198,8 @@ def _check(x, node: dict, path: list) -> None:
                 errors.append((_resolve(branch), e))
         # report the branch of x's own type (the most telling), else a type error
         same = [e for b, e in errors if "type" in b and _type_ok(x, b["type"])]
-        if same:
-            raise same[0]
+        if same:                       # the branch that got furthest (the last one on a tie)
+            raise max(reversed(same), key=lambda e: len(e.path))
         kinds = []
         for b, _ in errors:
             w = _TYPE_WORDS.get(b.get("type"), "a value")
@@ -785,9 +786,10 @@ def from_dict(d: Mapping[str, Any]) -> Structure:
         return Structure(**{k: d[k] for k in d})
     except StructureError as e:   # a check across keys: cite the schema's description of the key
         key = re.match(r"[a-z_]+", str(e))
-        desc = _describe(key.group(0)) if key else ""
+        key = key and {"bar": "bars", "string": "strings"}.get(key.group(0), key.group(0))
+        desc = _describe(key) if key else ""
         if desc and "(schema," not in str(e):
-            raise StructureError(f"{e} (schema, {key.group(0)}: {desc})") from None
+            raise StructureError(f"{e} (schema, {key}: {desc})") from None
         raise
 
 
