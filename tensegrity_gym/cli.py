@@ -307,8 +307,8 @@ def cmd_simulate(args) -> int:
         arrays.update(diverged=np.array(True), message=np.array(_one_line(diverged)))
     _atomic_write(out, lambda f: np.savez(f, **arrays))
     if diverged is not None:
-        raise CLIError(EXIT_DIVERGED, f"simulation diverged: {_one_line(diverged)}; wrote the {S} records before "
-                                      f"it to {out} (flagged diverged=True)")
+        raise CLIError(EXIT_DIVERGED, f"simulation diverged: {_one_line(diverged)}; wrote {S} records "
+                                      f"(up to the divergence) to {out}, flagged diverged=True")
     drift = float(np.max(np.abs(E - E[0])) / max(abs(E[0]), 1e-300))
     print(f"{s.name}: {n_steps} steps of {args.dt:g} s with {args.integrator} in {wall:.3g} s wall "
           f"({n_steps / wall:,.0f} steps/s); {S} records -> {out}")
@@ -481,18 +481,19 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
         sp.add_argument("--max-steps", type=_positive(float), default=DEFAULT_MAX_STEPS,
                         help="refuse runs of more integration steps")
         sp.add_argument("--max-memory", type=_positive(float), default=round(max_mem, 1),
-                        help="refuse requests estimated to need more memory, GiB (default: half of RAM)")
+                        help="refuse requests estimated to need more memory, GiB (the default is half of this machine's memory)")
 
     sp = sub.add_parser("simulate", help="integrate a structure and write a trajectory (.npz)", formatter_class=fmt)
     sp.add_argument("structure", help=f"JSON file or built-in name ({names})")
     sp.add_argument("--duration", type=_positive(float), default=1.0, help="simulated time, s")
     sp.add_argument("--dt", type=_positive(float), default=1e-3, help="time step, s")
-    sp.add_argument("--integrator", default="rk4", choices=sorted(INTEGRATORS))
+    sp.add_argument("--integrator", default="rk4", choices=sorted(INTEGRATORS), help="integration method")
     sp.add_argument("--out", default="traj.npz", help="output .npz (t, nodes, energy)")
     sp.add_argument("--force", action="store_true", help="overwrite an existing output")
     sp.add_argument("--record-every", type=_positive(int), default=1, help="keep every K-th step")
     sp.add_argument("--no-project", action="store_true", help="do not project onto the rod constraints")
-    sp.add_argument("--backend", default="auto", choices=["auto", "numpy", "numba"])
+    sp.add_argument("--backend", default="auto", choices=["auto", "numpy", "numba"],
+                    help="compiled kernels (numba) or the NumPy reference")
     sp.add_argument("--rtol", type=_positive(float), default=1e-10, help="adaptive methods only")
     sp.add_argument("--atol", type=_positive(float), default=1e-12, help="adaptive methods only")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -510,8 +511,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     dp.add_argument("--duration", type=_positive(float), default=5.0, help="simulated time, s")
     dp.add_argument("--damping", type=_non_negative, default=5.0, help="string damping, N s/m")
     dp.add_argument("--perturbation", type=_non_negative, default=0.02, help="node perturbation std, m")
-    dp.add_argument("--integrator", default="rk4", choices=sorted(INTEGRATORS))
-    dp.add_argument("--seed", type=_seed, default=0)
+    dp.add_argument("--integrator", default="rk4", choices=sorted(INTEGRATORS), help="integration method")
+    dp.add_argument("--seed", type=_seed, default=0, help="seed of the perturbation")
     limits(dp)
     dp.set_defaults(func=cmd_demo)
     return p
