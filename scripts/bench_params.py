@@ -9,8 +9,9 @@ per call) at B = 1, 64 and 4096 with ``params=None``, with one shared row
 (``default_params(model)``) and with B rows holding the same values (``default_params(model, B)``:
 the per-copy kernel). Env rows: env-steps/s of a single env and of a vector env (N = 256) of
 ``TensegrityRoll-v0`` and ``TensegrityShape-v0`` with no robot parameters, and with
-``randomize={...}`` (every parameter the env has, redrawn at each reset; episodes of 50 control
-steps so that resets are part of the cost). Every cell is the best of ``--rounds`` rounds, the
+``randomize={...}`` (every parameter the env has): stepping (no reset inside the timed window)
+and, as a separate group, resetting every copy (where the parameters are drawn; per second of
+resets, counted per copy). Every cell is the best of ``--rounds`` rounds, the
 variants interleaved round by round (a load change hits them alike); ratios are against the
 first row of each group, measured in the same run.
 """
@@ -70,28 +71,29 @@ def env_rows(rounds: int) -> list[dict]:
     rows = []
     for env_id, rnd in (("TensegrityRoll-v0", ROLL_RANDOM), ("TensegrityShape-v0", SHAPE_RANDOM)):
         for N in (1, 256):
-            envs = {}
+            steps, resets = {}, {}
             for label, kw in (("defaults", {}), ("randomize (all parameters)", {"randomize": rnd})):
-                if N == 1:
-                    env = gym.make(env_id, max_episode_steps=50, **kw)
-                else:
-                    env = gym.make_vec(env_id, num_envs=N, vectorization_mode="vector_entry_point",
-                                       max_episode_steps=50, **kw)
+                env = (gym.make(env_id, **kw) if N == 1 else
+                       gym.make_vec(env_id, num_envs=N, vectorization_mode="vector_entry_point",
+                                    max_episode_steps=None, **kw))
                 env.reset(seed=0)
                 a = np.zeros(env.action_space.shape, np.float32)
 
-                def run(env=env, a=a, single=N == 1):
+                def run(env=env, a=a):
                     for _ in range(20):
-                        _, _, te, tr, _ = env.step(a)
-                        if single and (te or tr):
-                            env.reset()
-                envs[label] = (run, 1)
+                        env.step(a)
+
+                def reset(env=env):
+                    env.reset()
+                steps[label] = (run, 1)
+                resets[label] = (reset, 1)
                 run()
-            best = _interleaved(envs, rounds)
-            ref = best["defaults"]
-            for k, t in best.items():
-                rows.append({"group": f"{env_id} N = {N}", "variant": k, "env_steps_per_s": N * 20 / t,
-                             "ratio_to_first": t / ref})
+            for what, fns, per in (("step", steps, N * 20), ("reset (all copies)", resets, N)):
+                best = _interleaved(fns, rounds)
+                ref = best["defaults"]
+                for k, t in best.items():
+                    rows.append({"group": f"{env_id} N = {N}, {what}", "variant": k, "env_steps_per_s": per / t,
+                                 "ratio_to_first": t / ref})
     return rows
 
 

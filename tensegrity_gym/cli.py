@@ -1,4 +1,4 @@
-"""Command line: ``python -m tensegrity_gym {simulate,info,demo} ...`` (SI units throughout).
+"""Command line: ``python -m tensegrity_gym {simulate,info,demo,export,view} ...`` (SI units throughout).
 
 * ``simulate STRUCTURE --duration T --dt DT --integrator rk4 --out traj.npz`` writes
   ``t`` (S,) in s, ``nodes`` (S, n, 3) in m and ``energy`` (S,) in J (kinetic + string
@@ -7,6 +7,12 @@
   largest stable step of the explicit integrators.
 * ``demo --out DIR`` simulates the default prism released off equilibrium and writes a
   plot and a JSON summary.
+* ``export STRUCTURE --format mjcf --out model.xml [--ground]`` writes a MuJoCo model of the
+  structure (:mod:`tensegrity_gym.mjcf`); ``--format json`` writes this package's JSON;
+  ``--from tnsgrt`` reads STRUCTURE as a tnsgrt structure dict (:mod:`tensegrity_gym.tnsgrt`).
+* ``simulate ... --video out.mp4`` / ``demo --video out.mp4`` also render the run to a video.
+* ``view traj.npz [--structure S]`` opens an interactive view of a ``simulate`` output (time
+  slider, play/pause): a window where there is a display, else a browser view (viser).
 
 ``STRUCTURE`` is a JSON file or a built-in name (``prism3``, ``icosahedron``, ...).
 Output files are written atomically (temporary file in the same folder, fsync, rename) with
@@ -25,9 +31,10 @@ Exit codes (every error is one line on stderr, never a traceback):
 =====  =====================================================================================
 0      success
 2      bad arguments (unknown option, a value that is not a positive number, ...)
-3      bad structure: file not found or unreadable, not JSON, or invalid (``StructureError``)
+3      bad input: structure file not found or unreadable, not JSON, or invalid
+       (``StructureError``); ``view``: not a ``simulate`` output or a structure that does not match
 4      output problem: the output is a directory, its folder is not writable, it exists and
-       ``--force`` was not given, or writing failed (disk full)
+       ``--force`` was not given, writing failed (disk full), or no renderer / viewer is available
 5      request too large: more steps or memory than the limits above (the estimate is printed)
 6      the simulation diverged (non-finite state, an adaptive integrator failed, or the energy
        grew a million-fold: an unstable step); ``simulate`` keeps the records up to the
@@ -131,8 +138,11 @@ def _load(spec: str, args):
 
 
 # --------------------------------------------------------------------------- output files
-def _check_out(path: Path, force: bool, flag: str = "--out") -> None:
-    """Fail before any work if ``path`` cannot be written (or would be overwritten)."""
+def _check_out(path: Path, force: bool, flag: str = "--out", create_folders: bool = True) -> None:
+    """Fail before any work if ``path`` cannot be written (or would be overwritten); missing
+    folders are created when writing unless ``create_folders`` is False (then an error)."""
+    if not create_folders and not path.parent.is_dir():
+        raise CLIError(EXIT_OUTPUT, f"{flag} {str(path)!r}: folder {str(path.parent)!r} does not exist")
     if path.is_dir():
         raise CLIError(EXIT_OUTPUT, f"{flag} {str(path)!r} is a directory; give a file name")
     if path.exists() and not force:
@@ -281,6 +291,8 @@ def _run(model, state, args, n_steps: int, progress: bool):
 def cmd_simulate(args) -> int:
     out = Path(args.out)
     _check_out(out, args.force)
+    if args.video:
+        _check_out(Path(args.video), args.force, "--video")
     s = _load(args.structure, args)
     model = dyn.compile_model(s)
     state = dyn.initial_state(model)
@@ -314,7 +326,7 @@ def cmd_simulate(args) -> int:
           f"({n_steps / wall:,.0f} steps/s); {S} records -> {out}")
     print(f"max relative energy change {drift:.3e}; final rod-length drift "
           f"{float(dyn.rod_length_drift(model, qf[-1:])[0]):.3e}")
-    return 0
+    return _video(args, s, model, t, qf, qdf)
 
 
 def _stable_step_bytes(k: int) -> float:
@@ -402,6 +414,8 @@ def cmd_demo(args) -> int:
     png, summary_path = out / "demo_prism.png", out / "demo_summary.json"
     _check_out(png, args.force)
     _check_out(summary_path, args.force)
+    if args.video:
+        _check_out(Path(args.video), args.force, "--video")
     try:
         s = prism(3, damping=args.damping)
     except StructureError as e:
@@ -447,6 +461,76 @@ def cmd_demo(args) -> int:
     _atomic_write(summary_path, lambda f: f.write(json.dumps(summary, indent=1).encode()))
     print(json.dumps(summary, indent=1))
     print(f"wrote {png} and {summary_path}")
+    return _video(args, s, model, t, q1, qd1)
+
+
+def _video(args, s, model, t, q, qd) -> int:
+    """``--video PATH``: render the recorded trajectory (q, qd: (S, 1, k, 6)) in real time at 30 frames/s."""
+    if not getattr(args, "video", None):
+        return 0
+    from .rendering import RendererUnavailable, write_video
+    q, qd = q.reshape((len(t),) + q.shape[-2:]), qd.reshape((len(t),) + qd.shape[-2:])
+    gamma, _, L = dyn.force_densities(model, q, qd)
+    try:
+        n = write_video(args.video, s, dyn.node_positions(model, q), gamma * L, t)
+    except (RendererUnavailable, ValueError, OSError) as e:
+        raise CLIError(EXIT_OUTPUT, f"--video {args.video}: {e}") from None
+    print(f"wrote {n} frames -> {args.video}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    """``export STRUCTURE --format mjcf|json --out PATH``: exit 0, 3 (bad structure) or 4 (output)."""
+    from .mjcf import export
+    out = Path(args.out)
+    _check_out(out, args.force, "export: --out", create_folders=False)
+    if args.source == "tnsgrt":
+        from .tnsgrt import from_tnsgrt
+        try:
+            s = from_tnsgrt(args.structure)
+        except (StructureError, OSError, ValueError, KeyError, TypeError) as e:
+            raise CLIError(EXIT_STRUCTURE, f"export: {e}") from None
+    else:
+        s = _load(args.structure, args)
+    try:
+        if args.format == "mjcf":
+            export(s, out, ground=args.ground, timestep=args.timestep)
+        else:   # the bytes of save_json, written atomically
+            _atomic_write(out, lambda f: f.write(json.dumps(s.to_dict(), indent=1).encode()))
+    except (StructureError, ValueError) as e:
+        raise CLIError(EXIT_STRUCTURE, f"export: {e}") from None
+    except OSError as e:
+        raise CLIError(EXIT_OUTPUT, f"export: {e}") from None
+    print(f"{s.name}: {s.n_bars} rods, {s.n_strings} strings -> {out} ({args.format})")
+    return 0
+
+
+def cmd_view(args) -> int:
+    """``view TRAJ.npz``: interactive view of a simulate output; exit 3 on a bad trajectory or
+    structure, 4 when no viewer can be opened."""
+    from types import SimpleNamespace
+    from .rendering import RendererUnavailable, view_trajectory
+    try:
+        with np.load(args.trajectory) as z:
+            t, nodes, bars, strings = z["t"], z["nodes"], z["bars"], z["strings"]
+    except (OSError, ValueError, KeyError, EOFError) as e:
+        raise CLIError(EXIT_STRUCTURE, f"view: {args.trajectory}: not a simulate output (.npz with t, nodes, bars, "
+                                       f"strings): {e}") from None
+    tensions = None
+    s = SimpleNamespace(bars=bars, strings=strings, n_strings=len(strings), gravity=None,
+                        name=Path(args.trajectory).stem)
+    if args.structure:
+        st = _load(args.structure, args)
+        if st.n_nodes != nodes.shape[1] or not np.array_equal(st.strings, strings):
+            raise CLIError(EXIT_STRUCTURE, f"view: structure {args.structure!r} does not match the trajectory's "
+                                           "nodes/strings")
+        L = np.linalg.norm(nodes[:, strings[:, 1]] - nodes[:, strings[:, 0]], axis=-1)
+        tensions = st.stiffness * np.maximum(0.0, L - st.rest_length)   # elastic part, N
+        s = st
+    try:
+        view_trajectory(s, nodes, tensions, t, mode=args.mode, **({"port": args.port} if args.mode != "window" else {}))
+    except (RendererUnavailable, ValueError, OSError) as e:
+        raise CLIError(EXIT_OUTPUT, f"view: {e}") from None
     return 0
 
 
@@ -515,6 +599,28 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     dp.add_argument("--seed", type=_seed, default=0, help="seed of the perturbation")
     limits(dp)
     dp.set_defaults(func=cmd_demo)
+    for sp_ in (sp, dp):
+        sp_.add_argument("--video", default=None, help="also write a video of the run (.mp4 or .gif)")
+    ep = sub.add_parser("export", help="write a structure as a MuJoCo model (MJCF) or JSON", formatter_class=fmt)
+    ep.add_argument("structure", help=f"JSON file or built-in name ({names}); tnsgrt dict JSON with --from tnsgrt")
+    ep.add_argument("--format", default="mjcf", choices=["mjcf", "json"], help="output format")
+    ep.add_argument("--out", required=True, help="output file (model.xml)")
+    ep.add_argument("--from", dest="source", default="tensegrity_gym", choices=["tensegrity_gym", "tnsgrt"],
+                    help="input format of STRUCTURE")
+    ep.add_argument("--ground", action="store_true", help="MJCF: add a ground plane at z = 0")
+    ep.add_argument("--timestep", type=_positive(float), default=1e-3, help="MJCF: MuJoCo time step, s")
+    ep.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    limits(ep)
+    ep.set_defaults(func=cmd_export)
+    vp = sub.add_parser("view", help="interactive view of a simulate output (time slider, play/pause)",
+                        formatter_class=fmt)
+    vp.add_argument("trajectory", help="a .npz written by simulate")
+    vp.add_argument("--structure", default=None, help="the simulated structure: strings coloured by tension")
+    vp.add_argument("--mode", default="auto", choices=["auto", "window", "browser"],
+                    help="window (needs a display), browser (viser web view) or auto")
+    vp.add_argument("--port", type=int, default=8080, help="browser mode: port of the web viewer")
+    limits(vp)
+    vp.set_defaults(func=cmd_view)
     return p
 
 

@@ -103,6 +103,13 @@ CASES = [
     ("out-under-file", S + ["--out", "{tmp}/plain_file/t.npz"], 4, r"plain_file' is a file, not a folder"),
     ("demo-out-file", ["demo", "--out", "{tmp}/plain_file"], 4, r"--out '.*plain_file' is a file; give a folder"),
     ("demo-out-exists", ["demo", "--out", "{tmp}/demo_exists"], 4, r"demo_summary.json' exists; pass --force"),
+    ("video-exists", S + ["--out", "{tmp}/v.npz", "--video", "{tmp}/existing.npz"], 4,
+     r"--video '.*existing.npz' exists; pass --force"),
+    ("export-exists", ["export", "prism3", "--out", "{tmp}/existing.npz"], 4, r"export: --out '.*existing.npz' exists"),
+    ("export-missing-folder", ["export", "prism3", "--out", "{tmp}/nope/m.xml"], 4, r"folder '.*nope' does not exist"),
+    ("export-bad-structure", ["export", "{tmp}/mp5.json", "--out", "{tmp}/m.xml"], 3, r"mass_points: expected null"),
+    ("view-missing", ["view", "{tmp}/missing.npz"], 3, r"view: .*missing.npz: not a simulate output"),
+    ("view-not-npz", ["view", "{tmp}/bad.json"], 3, r"view: .*bad.json: not a simulate output"),
     # too large: exit 5, with the estimate
     ("duration-1e308", ["simulate", "prism3", "--duration", "1e308", "--out", "{tmp}/x.npz"], 5,
      r"--duration 1e\+308 s at --dt 0.001 s is inf steps, above the limit of 1e\+09 \(--max-steps\)"),

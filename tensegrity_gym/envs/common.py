@@ -641,9 +641,9 @@ class TaskEnv(gym.Env):
         return frame
 
     def _frame(self, i: int) -> np.ndarray:
-        from ..rendering import Renderer
+        from ..rendering import make_renderer
         if self._renderer is None:
-            self._renderer = Renderer(self._width, self._height, title=self._title)
+            self._renderer = make_renderer(self._width, self._height, title=self._title)
         return self._renderer.render(**self.task.render_data(i))
 
     def close(self):
@@ -819,11 +819,11 @@ class TaskVectorEnv(gym.vector.VectorEnv):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; use render_mode='rgb_array'")
             return None
-        from ..rendering import Renderer
+        from ..rendering import make_renderer
         frames = []
         for i in range(self.num_envs):
             if i not in self._renderers:
-                self._renderers[i] = Renderer(self._width, self._height, title=self._title)
+                self._renderers[i] = make_renderer(self._width, self._height, title=self._title)
             frames.append(self._renderers[i].render(**self.task.render_data(i)))
         return tuple(frames)
 
