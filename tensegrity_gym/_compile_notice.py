@@ -1,7 +1,7 @@
 """One line on stderr, once per process, when numba is about to compile tensegrity_gym's kernels.
 
 The first compiled call after an install (or after the package's source changed) compiles the
-numba kernels: 25 s of CPU (48 s wall on a busy 2-core machine) for the shape env's first ``step()`` (see the
+numba kernels: 25-27 s of CPU (48-57 s wall on a busy 2-core machine) for the shape env's first ``step()`` (see the
 README's "First step" figures); later processes load them from numba's on-disk cache
 (``__pycache__/*.nbi`` / ``*.nbc`` beside the modules) in well under a second. Loading from the
 cache prints nothing. Set ``TENSEGRITY_GYM_QUIET=1`` to silence the message.
