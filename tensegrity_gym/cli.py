@@ -541,11 +541,15 @@ def cmd_view(args) -> int:
 def cmd_identify(args) -> int:
     """Fit parameters to a recorded trajectory; write the fit as JSON (atomically) and a plot."""
     from . import sysid
+    for f in args.fit:
+        if sysid._ALIASES.get(f, f) not in sysid.FITTABLE:
+            raise CLIError(EXIT_USAGE, f"--fit: unknown parameter {f!r}; choose from {sorted(sysid.FITTABLE)} "
+                           f"(aliases {sorted(sysid._ALIASES)})")
     out = Path(args.out)
     _check_out(out, args.force)
     if args.plot:
         _check_out(Path(args.plot), args.force, "--plot")
-    s = _load(args.structure)
+    s = _load(args.structure, args)
     model = dyn.compile_model(s)
     try:
         t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes)
@@ -567,19 +571,19 @@ def cmd_identify(args) -> int:
             res = sysid.identify(model, t, nodes, fit=args.fit, mode="scale" if args.scale else "per_member",
                                  rest_length=rl, node_mask=mask, window=args.window, integrator=args.integrator,
                                  dt=args.dt, stride=args.stride, total_mass=args.total_mass)
-    except ValueError as e:
-        raise CLIError(EXIT_USAGE, str(e)) from None
+    except ValueError as e:     # the trajectory does not fit the structure, too short, ...: bad input
+        raise CLIError(EXIT_STRUCTURE, str(e)) from None
     except FloatingPointError as e:   # SimulationDiverged: the starting values blow the model up
         raise CLIError(EXIT_DIVERGED, f"the simulation diverged during the fit ({e}); try a smaller --dt or "
                        "starting values closer to the robot's") from None
     d = res.to_dict()
     d.update(structure=s.name, trajectory=str(args.trajectory))
-    _atomic_write(out, lambda tmp: Path(tmp).write_text(json.dumps(d, indent=1)))
+    _atomic_write(out, lambda f: f.write(json.dumps(d, indent=1).encode()))
     if args.plot:
         import matplotlib
         matplotlib.use("Agg")
         pl = Path(args.plot)
-        _atomic_write(pl, lambda tmp: res.plot().savefig(tmp, dpi=100, format="png"))
+        _atomic_write(pl, lambda f: res.plot().savefig(f, dpi=100, format="png"))
     for g in res.fields:
         for i, v, e, ok in zip(res.items[g], res.values[g], res.std_errors[g], res.identifiable[g]):
             err = f"+- {e:.3g}" if np.isfinite(e) else "(not identifiable)"
@@ -667,6 +671,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     yp.add_argument("--out", default="fit.json", help="output JSON")
     yp.add_argument("--plot", default=None, help="PNG of recorded vs fitted motion")
     yp.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    limits(yp)
     yp.set_defaults(func=cmd_identify)
     dp = sub.add_parser("demo", help="simulate the default prism, write a plot and summary", formatter_class=fmt)
     dp.add_argument("--out", default="results/demo", help="output folder")

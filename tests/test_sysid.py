@@ -204,17 +204,21 @@ def test_cli_identify_npz_csv_and_errors(tmp_path, capsys):
     tc, nc, mc = load_csv(tmp_path / "traj.csv", 6)
     assert np.array_equal(tc, t) and not mc[0, 2] and mc[1, 2] and np.isnan(nc[0, 2]).all()
     rc = main(["identify", str(st), str(tmp_path / "traj.csv"), "--fit", "stiffness", "--scale", "--stride", "4",
-               "--out", str(out)])
+               "--out", str(out), "--force"])
     assert rc == 0 and json.loads(out.read_text())["scale"]["stiffness"] == pytest.approx(1.1, rel=1e-3)
     # errors: a CSV line that is not numbers, a trajectory for another structure, a bad name
+    # (each a non-zero exit code and one "error:" line on stderr, no output file)
     (tmp_path / "bad.csv").write_text("t,node,x,y,z\n0,0,1,2,3\n0.001,zero,1,2,3\n")
-    with pytest.raises(SystemExit, match="line 3"):
-        main(["identify", "prism3", str(tmp_path / "bad.csv"), "--out", str(out)])
-    with pytest.raises(SystemExit, match="nodes per sample"):
-        main(["identify", "icosahedron", str(tmp_path / "traj.npz"), "--fit", "stiffness", "--out",
-              str(tmp_path / "x.json")])
-    with pytest.raises(SystemExit, match="unknown parameter 'spring'"):
-        main(["identify", "prism3", str(tmp_path / "traj.npz"), "--fit", "spring", "--out", str(tmp_path / "x.json")])
+    cases = [(["identify", "prism3", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "x.json")], 3, "line 3"),
+             (["identify", "icosahedron", str(tmp_path / "traj.npz"), "--fit", "stiffness", "--out",
+               str(tmp_path / "x.json")], 3, "nodes per sample"),
+             (["identify", "prism3", str(tmp_path / "traj.npz"), "--fit", "spring", "--out", str(tmp_path / "x.json")],
+              2, "unknown parameter 'spring'")]
+    for argv, code, msg in cases:
+        capsys.readouterr()
+        assert main(argv) == code
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len([x for x in err if x.startswith("error:")]) == 1 and msg in err[-1], err
     assert not (tmp_path / "x.json").exists()
 
 
