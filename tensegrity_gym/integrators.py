@@ -241,7 +241,7 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     if backend == "torch":   # torch backend: NumPy State in and out, computed on `device` in `dtype`
         from . import torch_backend
         if info.name not in _EXPLICIT:
-            raise ValueError(f"backend='torch' runs 'semi_implicit_euler' and 'rk4', not {info.name!r}")
+            raise ValueError(f"integrator: backend='torch' runs 'semi_implicit_euler' and 'rk4', not {info.name!r}")
         _check_stability(model, info, dt)
         return torch_backend.step_state(model, state, dt, info.name, rest_length=rest_length,
                                         force_density=force_density, external=external, project=project,
