@@ -75,9 +75,17 @@ def cmd_simulate(args) -> int:
         raise SystemExit(f"error: --duration {args.duration} s is shorter than one step of --dt {args.dt} s")
     progress = (not args.no_progress) and n_steps >= PROGRESS_MIN_STEPS
     t0 = time.perf_counter()
-    t, q, qd = simulate(model, state, args.dt, n_steps, args.integrator, record_every=args.record_every,
-                        project=not args.no_project, backend=args.backend, progress=progress,
-                        rtol=args.rtol, atol=args.atol)
+    if args.backend == "torch":   # optional torch backend (tensegrity_gym.torch_backend) on --device
+        try:
+            from . import torch_backend
+            t, q, qd = torch_backend.simulate(model, state, args.dt, n_steps, args.integrator, device=args.device,
+                                              record_every=args.record_every, project=not args.no_project)
+        except (ImportError, ValueError) as exc:
+            raise SystemExit(f"error: --backend torch: {exc}") from None
+    else:
+        t, q, qd = simulate(model, state, args.dt, n_steps, args.integrator, record_every=args.record_every,
+                            project=not args.no_project, backend=args.backend, progress=progress,
+                            rtol=args.rtol, atol=args.atol)
     wall = time.perf_counter() - t0
     S = len(t)
     qf, qdf = q.reshape((S,) + q.shape[2:]), qd.reshape((S,) + qd.shape[2:])
@@ -209,7 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", default="traj.npz", help="output .npz (t, nodes, energy)")
     sp.add_argument("--record-every", type=_positive(int), default=1, help="keep every K-th step")
     sp.add_argument("--no-project", action="store_true", help="do not project onto the rod constraints")
-    sp.add_argument("--backend", default="auto", choices=["auto", "numpy", "numba"])
+    sp.add_argument("--backend", default="auto", choices=["auto", "numpy", "numba", "torch"])
+    sp.add_argument("--device", default="cpu", help="torch device for --backend torch (cpu, cuda)")
     sp.add_argument("--rtol", type=_positive(float), default=1e-10, help="adaptive methods only")
     sp.add_argument("--atol", type=_positive(float), default=1e-12, help="adaptive methods only")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")

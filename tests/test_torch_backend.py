@@ -314,3 +314,19 @@ def test_cuda_agrees_with_cpu():
     with pytest.raises(ValueError, match="params.stiffness: tensor on device 'cpu'"):
         tb.step(model, torch.tensor(st.q, device="cuda"), torch.tensor(st.qd, device="cuda"), 1e-3,
                 params={"stiffness": torch.tensor(model.stiffness[None])})
+
+
+def test_cli_simulate_torch(tmp_path, capsys):
+    from tensegrity_gym import cli
+    out = tmp_path / "traj.npz"
+    assert cli.main(["simulate", "prism3", "--duration", "0.01", "--dt", "1e-3", "--backend", "torch",
+                     "--device", "cpu", "--out", str(out)]) == 0
+    ref = tmp_path / "ref.npz"
+    assert cli.main(["simulate", "prism3", "--duration", "0.01", "--dt", "1e-3", "--backend", "numba",
+                     "--out", str(ref)]) == 0
+    assert np.abs(np.load(out)["nodes"] - np.load(ref)["nodes"]).max() < 1e-12
+    if not torch.cuda.is_available():
+        with pytest.raises(SystemExit, match="cuda.*not available"):
+            cli.main(["simulate", "prism3", "--duration", "0.01", "--backend", "torch", "--device", "cuda",
+                      "--out", str(tmp_path / "x.npz")])
+        assert not (tmp_path / "x.npz").exists()
