@@ -39,7 +39,7 @@ DURATION = 1.0
 def main(argv=None):
     ap = argparse.ArgumentParser(description="fit rest lengths to a target shape through a 1 s rollout")
     ap.add_argument("--iters", type=int, default=40, help="Adam iterations")
-    ap.add_argument("--lr", type=float, default=2e-3, help="Adam step size, m")
+    ap.add_argument("--lr", type=float, default=5e-3, help="Adam step size, m")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--seed", type=int, default=0, help="seed of the hidden rest-length change")
     args = ap.parse_args(argv)

@@ -121,6 +121,7 @@ _ERRORS = {
     4: "force_density: expected shape ({m},) or (B, {m})",
     5: "external: expected shape ({n}, 3) or (B, {n}, 3)",
     6: "output arrays: expected the same shape as q",
+    7: "params: expected one row (shared) or one per copy of q",
 }
 
 
@@ -776,6 +777,7 @@ if AVAILABLE:
     _i64 = numba.types.int64
     _SIG = _i64(_a3, _a3, _a3, _a3, _a1, _a2, _a2, _a3, _f8, _i64, _i64)
     _SIG_LEAN = _i64(_a3, _a3, _a3, _a3, _a1, _f8, _i64, _i64)
+    _SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64)
 
     # Entry points are compiled lazily for ONE explicit signature each (see _compile): the serial
     # ones on first use of any model, the parallel one on first use of a large batch.
@@ -827,6 +829,38 @@ if AVAILABLE:
         return 0
 
 
+    # Per-copy parameters: bufs (B, len) holds one packed buffer per copy (its physics and its
+    # scratch); copy e runs the same _advance_range as above on bufs[e]. No copy shares a written
+    # byte with another, so the parallel loop needs no private scratch.
+    @njit(cache=True, fastmath=False, error_model="numpy")
+    def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
+        ibs = bufs.view(np.int64)
+        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        if err:
+            return err
+        if bufs.shape[0] != q.shape[0]:
+            return 7
+        L = _layout_nb(k, m, n)
+        for e in range(q.shape[0]):
+            _advance_range(bufs[e], ibs[e], L, k, m, n, q, qd, qo, qdo, e, e + 1, l0, fd, ext, dt, n_steps, flags)
+        return 0
+
+    @njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+    def _run_copies_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
+        ibs = bufs.view(np.int64)
+        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        if err:
+            return err
+        if bufs.shape[0] != q.shape[0]:
+            return 7
+        L = _layout_nb(k, m, n)
+        for e in prange(q.shape[0]):
+            _advance_range(bufs[e], ibs[e], L, k, m, n, q, qd, qo, qdo, e, e + 1, l0, fd, ext, dt, n_steps, flags)
+        return 0
+
+
 # ---------------------------------------------------------------------- Python side
 _CACHE: dict = {}
 _STEPPERS = {"semi_implicit_euler": 0, "rk4": _RK4}
@@ -838,7 +872,36 @@ def clear_cache() -> None:
 
 
 class _Packed:
-    __slots__ = ("buf", "l0", "fd", "ext", "flags", "cost", "__weakref__")
+    """Packed buffer(s) of one model or one Params: ``buf`` (len,) for values shared by every
+    copy, or ``bufs`` (B, len) one per copy (then ``buf`` is None)."""
+    __slots__ = ("buf", "bufs", "l0", "fd", "ext", "flags", "cost", "__weakref__")
+
+
+def _fill_physics(buf, model, p, b):
+    """Write the physical values of row ``b`` of ``p`` (the model itself, b = None, or a
+    :class:`~tensegrity_gym.params.Params`) into the packed buffer ``buf`` (see ``_layout``)."""
+    k, n, m = model.n_bars, model.n_nodes, model.n_strings
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = _layout(k, m, n)
+    row = (lambda a: a) if b is None else (lambda a: a[b])   # noqa: E731
+    mass_, f_, J_ = row(p.mass), row(p.f), row(p.J)
+    for j in range(k):
+        rj = o_rod + _ROD * j
+        mass, f, J = float(mass_[j]), float(f_[j]), float(J_[j])
+        alpha = mass - f * f / J
+        buf[rj + 5:rj + 12] = (1.0 / mass, 1.0 / J, f / J, f * f / J, alpha, 1.0 / alpha, f)
+    ps = o_str + _STR * np.arange(m)
+    buf[ps + 2] = row(p.stiffness)
+    buf[ps + 3] = row(p.damping)
+    buf[o_l0:o_l0 + m] = row(p.rest_length)
+    buf[o_W0:o_W0 + 3 * n] = row(p.W0).reshape(-1)
+    buf[o_cn:o_cn + 3 * n] = np.repeat(row(p.node_damping), 3)
+    for a, pos in zip(model.anchor_idx, row(p.anchor_pos)):   # anchor rows of the node scratch
+        buf[o_N + 3 * a:o_N + 3 * a + 3] = pos
+
+
+def _physics_flags(model, p):
+    return ((_DAMP if p.has_damping else 0) | (_GRAV if p.has_gravity else 0)
+            | (_CONS if bool(np.any(model.constrained)) else 0) | (_NDAMP if p.has_node_damping else 0))
 
 
 def _pack(model):
@@ -851,35 +914,48 @@ def _pack(model):
     ib[0:3] = (k, m, n)
     for j in range(k):
         rj = o_rod + _ROD * j
-        mass, f, J = float(model.mass[j]), float(model.f[j]), float(model.J[j])
         ib[rj:rj + 3] = (model.rod_a[j], model.rod_c[j], int(bool(model.constrained[j])))
-        alpha = mass - f * f / J
-        buf[rj + 3:rj + 12] = (model.eta[j, 0], model.eta[j, 1], 1.0 / mass, 1.0 / J, f / J, f * f / J, alpha,
-                               1.0 / alpha, f)
+        buf[rj + 3:rj + 5] = (model.eta[j, 0], model.eta[j, 1])
         buf[rj + 12:rj + 21] = model.proj[j].reshape(-1)
         buf[rj + 21:rj + 24] = model.offset[j]
     for s in range(m):
         ps = o_str + _STR * s
         ib[ps:ps + 2] = (model.str_i[s], model.str_j[s])
-        buf[ps + 2:ps + 4] = (model.stiffness[s], model.damping[s])
-    buf[o_l0:o_l0 + m] = model.rest_length
-    buf[o_W0:o_W0 + 3 * n] = model.W0.reshape(-1)
-    has_nd = bool(getattr(model, "has_node_damping", False))
-    if has_nd:
-        buf[o_cn:o_cn + 3 * n] = np.repeat(model.node_damping, 3)
-    for a, pos in zip(model.anchor_idx, model.anchor_pos):   # anchor rows of the node scratch
-        buf[o_N + 3 * a:o_N + 3 * a + 3] = pos
+    _fill_physics(buf, model, model, None)
     p = _Packed()
     p.buf = buf
+    p.bufs = None
     p.l0 = np.array(model.rest_length, dtype=np.float64).reshape(1, m)
     p.fd = np.zeros((1, m))
     p.ext = np.zeros((1, n, 3))
     p.cost = m + k
-    p.flags = ((_DAMP if model.has_damping else 0) | (_GRAV if model.has_gravity else 0)
-               | (_CONS if bool(np.any(model.constrained)) else 0) | (_NDAMP if has_nd else 0))
+    p.flags = _physics_flags(model, model)
     key = id(model)
     _CACHE[key] = p
     weakref.finalize(model, _CACHE.pop, key, None)
+    return p
+
+
+def _pack_params(model, params):
+    """The packed buffers of ``params`` (a :class:`~tensegrity_gym.params.Params` of this
+    model): one shared buffer when it has one row (then the kernels run exactly as for the
+    model), else one buffer per copy. Cached by id(params) for the params' lifetime."""
+    key = ("params", id(params), id(model))
+    p = _CACHE.get(key)
+    if p is not None:
+        return p
+    base = _CACHE.get(id(model)) or _packed(model)
+    P = params.batch_size
+    bufs = np.repeat(base.buf[None], P, axis=0)
+    for b in range(P):
+        _fill_physics(bufs[b], model, params, b)
+    p = _Packed()
+    p.buf, p.bufs = (bufs[0], None) if P == 1 else (None, bufs)
+    p.l0 = np.array(params.rest_length[:1], dtype=np.float64)
+    p.fd, p.ext, p.cost = base.fd, base.ext, base.cost
+    p.flags = _physics_flags(model, params)
+    _CACHE[key] = p
+    weakref.finalize(params, _CACHE.pop, key, None)
     return p
 
 
@@ -895,16 +971,20 @@ def _array(x, ndim, what):
     return x
 
 
+def _check_inplace(q, qd):
+    for x, nm in ((q, "q"), (qd, "qd")):
+        if not (isinstance(x, np.ndarray) and x.dtype == np.float64 and x.ndim == 3
+                and x.flags.c_contiguous and x.flags.writeable):
+            raise ValueError(f"step_inplace: {nm} must be a writable C-contiguous float64 array (B, k, 6); "
+                             f"got {type(x).__name__} {getattr(x, 'dtype', '')} {np.shape(x)}")
+
+
 def _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, inplace):
     """After a TypeError at the kernel boundary: convert the inputs (C-contiguous, writable
     float64, batch axis added) and call the general kernel. In place, q and qd must already
     be writable C-contiguous float64 arrays (B, k, 6)."""
     if inplace:
-        for x, nm in ((q, "q"), (qd, "qd")):
-            if not (isinstance(x, np.ndarray) and x.dtype == np.float64 and x.ndim == 3
-                    and x.flags.c_contiguous and x.flags.writeable):
-                raise ValueError(f"step_inplace: {nm} must be a writable C-contiguous float64 array (B, k, 6); "
-                                 f"got {type(x).__name__} {getattr(x, 'dtype', '')} {np.shape(x)}")
+        _check_inplace(q, qd)
         qo, qdo = q, qd
     else:
         q, qd = _array(q, 3, "state.q"), _array(qd, 3, "state.qd")
@@ -948,7 +1028,7 @@ def _controls(p, flags, rest_length, force_density, external):
     return l0, fd, ext, flags
 
 
-_READY = {"serial": False, "parallel": False}
+_READY = {"serial": False, "parallel": False, "copies": False}
 
 
 def _compile(which: str) -> None:
@@ -958,6 +1038,10 @@ def _compile(which: str) -> None:
     if which == "serial":
         for disp, sig in ((_run_lean, _SIG_LEAN), (_run_serial, _SIG)):
             disp.compile(sig)
+            disp.disable_compile()
+    elif which == "copies":
+        for disp in (_run_copies_serial, _run_copies_parallel):
+            disp.compile(_SIG_COPIES)
             disp.disable_compile()
     else:
         _run_parallel.compile(_SIG)
@@ -986,20 +1070,44 @@ def _packed(model):
     return _pack(model)
 
 
+def _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags):
+    """One step call with per-copy buffers ``p.bufs`` (B, len): inputs converted at the boundary."""
+    if not _READY["copies"]:
+        _compile("copies")
+    l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
+    l0, fd, ext = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external")
+    if not (isinstance(dt, (int, float, np.floating, np.integer)) and isinstance(n_steps, (int, np.integer))):
+        raise TypeError(f"dt must be a number of seconds and n_steps an integer; got {dt!r}, {n_steps!r}")
+    B = q.shape[0]
+    work = B * int(n_steps) * p.cost * (4 if flags & _RK4 else 1)
+    run = _run_copies_parallel if (B >= 8 and work >= PARALLEL_MIN_WORK) else _run_copies_serial
+    return run(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps), flags)
+
+
 def step(model, state, dt, name, *, rest_length=None, force_density=None, external=None, project=True,
-         n_steps=1):
+         n_steps=1, params=None):
     """Advance ``state`` by ``n_steps`` fixed steps of ``dt`` s with the compiled kernel.
 
     Same contract as :func:`tensegrity_gym.integrators.step` (``name`` in
     ``{"semi_implicit_euler", "rk4"}``); returns a new :class:`~tensegrity_gym.dynamics.State`
     with ``q``, ``qd`` (B, k, 6) and ``t = state.t + n_steps * dt`` (summed step by step, as
-    the NumPy path does). The input state is not modified."""
-    p = _CACHE.get(id(model)) or _packed(model)
+    the NumPy path does). The input state is not modified. ``params``: per-copy physical values
+    (:class:`~tensegrity_gym.params.Params`, 1 or B rows)."""
+    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
     flags = _flags(p, name, project)
     q = state.q
     qd = state.qd
     qo = np.empty(q.shape)
     qdo = np.empty(q.shape)
+    if p.bufs is not None:
+        q, qd = _array(q, 3, "state.q"), _array(qd, 3, "state.qd")
+        err = _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags)
+        if err:
+            _raise(err, model, q, qd, rest_length, force_density, external)
+        t = state.t + dt
+        for _ in range(n_steps - 1):
+            t = t + dt
+        return _new_state(qo, qdo, t)
     big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
     try:
         if rest_length is None and force_density is None and external is None and not big:
@@ -1022,13 +1130,19 @@ def step(model, state, dt, name, *, rest_length=None, force_density=None, extern
 
 
 def step_inplace(model, q, qd, dt, name="semi_implicit_euler", *, rest_length=None, force_density=None,
-                 external=None, project=True, n_steps=1):
+                 external=None, project=True, n_steps=1, params=None):
     """Advance ``q``, ``qd`` (B, k, 6), writable C-contiguous float64 arrays (m, 1, m/s, 1/s),
     **in place** by ``n_steps`` steps of ``dt`` s. The fast path for environments that own
     their state arrays: no allocation, no :class:`State`. Other arguments as :func:`step`.
-    Returns None; the caller tracks time."""
-    p = _CACHE.get(id(model)) or _packed(model)
+    Returns None; the caller tracks time. ``params``: per-copy physical values, as in :func:`step`."""
+    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
     flags = _flags(p, name, project)
+    if p.bufs is not None:
+        _check_inplace(q, qd)
+        err = _copies_call(p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags)
+        if err:
+            _raise(err, model, q, qd, rest_length, force_density, external)
+        return
     big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
     try:
         if rest_length is None and force_density is None and external is None and not big:

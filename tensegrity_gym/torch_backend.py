@@ -233,6 +233,7 @@ def torch_params(tm: TorchModel, params=None, batch_size: int | None = None) -> 
     ValueError names a field on another device, of a wrong shape, or a P that is neither 1 nor B."""
     torch = _torch()
     out = {}
+    given = {}
     shapes = {"mass": (tm.k,), "f": (tm.k,), "J": (tm.k,), "stiffness": (tm.m,), "damping": (tm.m,),
               "rest_length": (tm.m,), "node_damping": (tm.n,), "gravity": (3,), "anchor_pos": (tm.na, 3)}
     for name in PARAM_FIELDS:
@@ -242,6 +243,8 @@ def torch_params(tm: TorchModel, params=None, batch_size: int | None = None) -> 
         if val is None:
             out[name] = tm.defaults[name]
             continue
+        # a term the model lacks (damping, gravity, node drag) runs when a given value may be non-zero
+        given[name] = True if isinstance(val, torch.Tensor) else bool(np.any(np.asarray(val, dtype=float) != 0))
         if isinstance(val, torch.Tensor):
             if val.device != tm.device:
                 raise ValueError(f"params.{name}: tensor on device {str(val.device)!r}, but the state is on "
@@ -262,6 +265,15 @@ def torch_params(tm: TorchModel, params=None, batch_size: int | None = None) -> 
         if batch_size is not None and P not in (1, batch_size):
             raise ValueError(f"params.{name}: leading axis {P} is neither 1 nor the batch size {batch_size}")
         out[name] = val
+    if "mass" in given and "f" not in given and "J" not in given:
+        # mass alone: the rod's mass distribution is kept (as Params.replace), so f and J scale with it
+        m0 = tm.defaults["mass"]
+        out["f"] = out["mass"] * (tm.defaults["f"] / m0)
+        out["J"] = out["mass"] * (tm.defaults["J"] / m0)
+    # ("given" maps a provided field to "may be non-zero")
+    out["has_damping"] = tm.has_damping or given.get("damping", False)
+    out["has_gravity"] = tm.has_gravity or given.get("gravity", False)
+    out["has_node_damping"] = tm.has_node_damping or given.get("node_damping", False)
     g = out["gravity"][:, None, :]                                   # (P, 1, 3)
     mass = out["mass"][..., None]                                     # (P, k, 1)
     Wa, Wc = tm.com_a * mass * g, tm.com_c * mass * g                 # (P, k, 3)
@@ -318,11 +330,11 @@ def force_densities(tm: TorchModel, q, qd, prm, rest_length=None, force_density=
     controls clipped at 0 (see :func:`tensegrity_gym.dynamics.force_densities`)."""
     torch = _torch()
     l0 = prm["rest_length"] if rest_length is None else rest_length
-    S, L, Ld = string_state(tm, q, qd, prm, tm.has_damping)
+    S, L, Ld = string_state(tm, q, qd, prm, prm["has_damping"])
     taut = L > l0
     safeL = torch.where(taut, L, torch.ones_like(L))
     tension = prm["stiffness"] * (L - l0)
-    if tm.has_damping:
+    if prm["has_damping"]:
         tension = tension + prm["damping"] * Ld
     gamma = torch.where(taut, torch.clamp(tension, min=0.0) / safeL, torch.zeros_like(L))
     if force_density is not None:
@@ -335,9 +347,9 @@ def nodal_forces(tm: TorchModel, q, qd, prm, rest_length=None, force_density=Non
     gamma, S, _ = force_densities(tm, q, qd, prm, rest_length, force_density)
     gS = gamma[..., None] * S
     F = gS.new_zeros((S.shape[0], tm.n, 3)).index_add(1, tm.str_i, gS).index_add(1, tm.str_j, -gS)
-    if tm.has_gravity:
+    if prm["has_gravity"]:
         F = F + prm["W0"]
-    if tm.has_node_damping:
+    if prm["has_node_damping"]:
         F = F - prm["node_damping"][..., None] * node_velocities(tm, qd)
     if external is not None:
         F = F + external

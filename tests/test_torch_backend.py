@@ -19,6 +19,7 @@ from tensegrity_gym import builders, contact as gc, dynamics as dyn, integrators
 from tensegrity_gym import torch_backend as tb  # noqa: E402
 from tensegrity_gym.envs import roll  # noqa: E402
 from tensegrity_gym.envs.common import Actuation  # noqa: E402
+from tensegrity_gym.params import default_params  # noqa: E402
 
 T64 = torch.float64
 
@@ -90,6 +91,28 @@ def test_accelerations_match_numpy_with_slack_and_params():
     assert np.allclose(a_p[0].numpy(), dyn.accelerations(model, st.q[:1], st.qd[:1])[0], rtol=0, atol=1e-10)
 
 
+def test_per_copy_params_agree_with_numba():
+    """A Params with one row per copy (masses, stiffness, damping, gravity, node drag, anchors)
+    gives the numba backend's numbers; gravity and damping on a model compiled without them too."""
+    for s in (builders.prism(3, prestress=100), builders.pinned_rod()):
+        model = dyn.compile_model(s)
+        st = _released(model, B=3, seed=4)
+        rng = np.random.default_rng(0)
+        p = default_params(model, 3).replace(
+            mass=model.mass * (1 + 0.2 * rng.random((3, model.n_bars))),
+            stiffness=model.stiffness * (1 + 0.3 * rng.random((3, model.n_strings))),
+            damping=rng.random((3, model.n_strings)), node_damping=0.1 * rng.random((3, model.n_nodes)),
+            gravity=np.array([[0, 0, -9.81], [0, 0, 0], [1.0, 0, -3.0]]),
+            anchor_pos=model.anchor_pos + 0.01 * rng.standard_normal((3,) + model.anchor_pos.shape))
+        ref = integrators.step(model, st, 1e-4, "rk4", n_steps=300, backend="numba", params=p)
+        out = integrators.step(model, st, 1e-4, "rk4", n_steps=300, backend="torch", params=p)
+        assert np.abs(out.q - ref.q).max() < 1e-10
+        q, qd = tb.step(model, torch.tensor(st.q), torch.tensor(st.qd), 1e-4, "rk4", 300, params=p.take([1]))
+        ref1 = integrators.step(model, dyn.State(st.q, st.qd), 1e-4, "rk4", n_steps=300, backend="numba",
+                                params=p.take([1]))
+        assert np.abs(q.numpy() - ref1.q).max() < 1e-10
+
+
 def _roll_scene():
     s = roll.robot_prism()
     rod_com = (s.nodes[s.bars[:, 0]] * (1 - s.com_fraction)[:, None] + s.nodes[s.bars[:, 1]] * s.com_fraction[:, None])
@@ -156,9 +179,9 @@ N_GRAD, DT_GRAD = 150, 1e-3
 W_LOSS = np.random.default_rng(11).standard_normal((2, 6, 3))
 
 
-def _loss_numpy(model, st, rest_length=None, force_density=None):
+def _loss_numpy(model, st, rest_length=None, force_density=None, params=None):
     out = integrators.step(model, st, DT_GRAD, "rk4", n_steps=N_GRAD, backend="numpy", rest_length=rest_length,
-                           force_density=force_density)
+                           force_density=force_density, params=params)
     return float(np.sum(W_LOSS * dyn.node_positions(model, out.q)))
 
 
@@ -167,15 +190,6 @@ def _loss_torch(model, q, qd, rest_length=None, force_density=None, params=None)
     q, qd = tb.step(model, q, qd, DT_GRAD, "rk4", N_GRAD, rest_length, force_density, params)
     prm = tb.torch_params(tm, params, q.shape[0])
     return (torch.tensor(W_LOSS) * tb.node_positions(tm, q, prm)).sum()
-
-
-def _with_mass(model, mass):
-    s = model.structure
-    W0 = np.zeros((model.n_nodes, 3))
-    com = s.com_fraction
-    W0[model.rod_a] += ((1 - com) * mass)[:, None] * s.gravity
-    W0[model.rod_c] += (com * mass)[:, None] * s.gravity
-    return replace(model, mass=mass, W0=W0)
 
 
 def _agree(ad, fd, rel=1e-6):
@@ -203,14 +217,8 @@ def test_param_gradient_matches_numpy_fd(field):
     ad = float((g[0].numpy() * d).sum())
     h = 1e-5 * max(1.0, float(np.abs(base).max()))
 
-    def at(x):
-        if field == "mass":
-            m = _with_mass(model, x)
-        elif field == "rest_length":
-            return _loss_numpy(model, st, rest_length=x)
-        else:
-            m = replace(model, **{field: x})
-        return _loss_numpy(m, st)
+    def at(x):   # the NumPy reference with Params (mass alone rescales f and J there, as in torch)
+        return _loss_numpy(model, st, params=default_params(model).replace(**{field: x}))
     fd = (at(base + h * d) - at(base - h * d)) / (2 * h)
     assert _agree(ad, fd), (field, ad, fd)
     assert abs(fd) > 1e-6                        # the parameter matters to the loss
