@@ -206,16 +206,19 @@ def test_smooth_stretch_has_no_switch():
         assert np.min(L - model.rest_length) > 1e-3   # all strings taut by a margin
 
 
-@pytest.mark.parametrize("field", ["stiffness", "damping", "mass", "rest_length", "J", "node_damping"])
+FIELDS = ["stiffness", "damping", "mass", "rest_length", "J", "node_damping"]
+
+
+@pytest.mark.parametrize("field", FIELDS)
 def test_param_gradient_matches_numpy_fd(field):
     model, st = _grad_scene()
     base = np.asarray(getattr(model, field), float)
-    d = np.random.default_rng(hash(field) % 2**32).standard_normal(base.shape)
+    d = np.random.default_rng(FIELDS.index(field)).standard_normal(base.shape)   # a fixed random direction
     p = torch.tensor(base[None], requires_grad=True)
     loss = _loss_torch(model, torch.tensor(st.q), torch.tensor(st.qd), params={field: p})
     (g,) = torch.autograd.grad(loss, p)
     ad = float((g[0].numpy() * d).sum())
-    h = 1e-5 * max(1.0, float(np.abs(base).max()))
+    h = 1e-5 * float(np.abs(base).max())   # relative step: 1e-6 .. 1e-4 all agree to < 6e-6 here; 1e-5 best
 
     def at(x):   # the NumPy reference with Params (mass alone rescales f and J there, as in torch)
         return _loss_numpy(model, st, params=default_params(model).replace(**{field: x}))
