@@ -36,7 +36,8 @@ When all copies share their values (``P = 1``) the compiled kernels run exactly 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import weakref
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -76,6 +77,10 @@ class Params:
     anchor_pos: np.ndarray
     W0: np.ndarray
     model: object = None   # the Model these values belong to (topology: rod nodes, com fractions)
+    # set by set_rows: the Params this one was made from (weak) and the rows that differ from it,
+    # so that compiled backends can update their packed copy of the parent instead of repacking
+    parent: object = field(default=None, repr=False)
+    changed_rows: object = field(default=None, repr=False)
 
     @property
     def batch_size(self) -> int:
@@ -113,6 +118,23 @@ class Params:
         if self.batch_size != 1:
             raise ValueError(f"params: cannot broadcast {self.batch_size} copies to {batch_size}")
         return self.take(np.zeros(batch_size, dtype=int))
+
+    def set_rows(self, idx, **values) -> "Params":
+        """A new Params equal to this one except rows ``idx`` (int array of copies), whose named
+        fields take ``values`` (each a number, a per-item array or an (len(idx), ...) array;
+        ``mass`` alone recomputes ``f``, ``J``). Validated like :meth:`replace`. Only the changed
+        rows are repacked by the compiled kernels (an env resetting a few copies of a large batch
+        pays for those copies only)."""
+        idx = np.asarray(idx, dtype=int).reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.batch_size):
+            raise ValueError(f"params.set_rows: copy index out of range 0..{self.batch_size - 1}: {idx.tolist()}")
+        sub = self.take(idx).replace(**values)
+        out = {}
+        for k in tuple(PARAM_FIELDS) + ("W0",):
+            a = np.array(getattr(self, k))
+            a[idx] = _rows(getattr(sub, k), idx.size)
+            out[k] = a
+        return _frozen(self.model, parent=weakref.ref(self), changed_rows=idx, **out)
 
     def replace(self, **values) -> "Params":
         """A new Params with the named fields replaced and validated.
@@ -242,13 +264,13 @@ def _weights(model, mass: np.ndarray, gravity: np.ndarray) -> np.ndarray:
     return W0
 
 
-def _frozen(model, **arrays) -> Params:
+def _frozen(model, parent=None, changed_rows=None, **arrays) -> Params:
     out = {}
     for k, a in arrays.items():
         a = np.array(a, dtype=float, order="C")   # own copy, then read-only
         a.setflags(write=False)
         out[k] = a
-    return Params(model=model, **out)
+    return Params(model=model, parent=parent, changed_rows=changed_rows, **out)
 
 
 def default_params(model, batch_size: int = 1) -> Params:
