@@ -305,7 +305,17 @@ def cmd_simulate(args) -> int:
                     f"recording {n_steps // args.record_every + 1} states of {s.n_nodes} nodes")
     progress = (not args.no_progress) and n_steps >= PROGRESS_MIN_STEPS
     t0 = time.perf_counter()
-    t, q, qd, diverged = _run(model, state, args, n_steps, progress)
+    if args.backend == "torch":   # optional torch backend (tensegrity_gym.torch_backend) on --device
+        try:
+            from . import torch_backend
+            t, q, qd = torch_backend.simulate(model, state, args.dt, n_steps, args.integrator, device=args.device,
+                                              record_every=args.record_every, project=not args.no_project)
+        except (ImportError, ValueError) as exc:
+            raise CLIError(EXIT_USAGE, f"--backend torch: {exc}") from None
+        diverged = None if (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))) else \
+            "the torch backend's state became non-finite"
+    else:
+        t, q, qd, diverged = _run(model, state, args, n_steps, progress)
     wall = time.perf_counter() - t0
     S = len(t)
     qf, qdf = q.reshape((S,) + q.shape[2:]), qd.reshape((S,) + qd.shape[2:])
@@ -638,8 +648,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     sp.add_argument("--force", action="store_true", help="overwrite an existing output")
     sp.add_argument("--record-every", type=_positive(int), default=1, help="keep every K-th step")
     sp.add_argument("--no-project", action="store_true", help="do not project onto the rod constraints")
-    sp.add_argument("--backend", default="auto", choices=["auto", "numpy", "numba"],
-                    help="compiled kernels (numba) or the NumPy reference")
+    sp.add_argument("--backend", default="auto", choices=["auto", "numpy", "numba", "torch"],
+                    help="compiled kernels (numba), the NumPy reference, or torch (optional extra) on --device")
+    sp.add_argument("--device", default="cpu", help="torch device for --backend torch (cpu, cuda)")
     sp.add_argument("--rtol", type=_positive(float), default=1e-10, help="adaptive methods only")
     sp.add_argument("--atol", type=_positive(float), default=1e-12, help="adaptive methods only")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -222,7 +222,7 @@ def _as_batch(x, B, m, name):
 def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit_euler", *,
          rest_length=None, force_density=None, external=None, project: bool = True,
          n_steps: int = 1, backend: str = "auto", rtol: float = 1e-10, atol: float = 1e-12,
-         params=None) -> State:
+         params=None, device=None, dtype=None) -> State:
     """Advance ``state`` by ``n_steps`` steps of ``dt`` seconds.
 
     Parameters
@@ -232,7 +232,8 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     external : (B, n, 3) nodal forces in N held over the step, or a callable
         ``external(q, qd, t) -> (B, n, 3)`` evaluated at every stage.
     project : project onto the constraints after each fixed step (see module doc).
-    backend : "auto", "numpy" or "numba".
+    backend : "auto", "numpy", "numba" or "torch" (:mod:`tensegrity_gym.torch_backend`, fixed-step
+        methods, array ``external`` only; ``device`` / ``dtype``: torch device and float32/float64).
     rtol, atol : tolerances of the adaptive methods.
     params : :class:`~tensegrity_gym.params.Params` with 1 row (shared) or B rows (copy b steps
         with row b's masses, stiffnesses, damping, rest lengths, node drag, gravity, anchors);
@@ -242,6 +243,15 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     info = resolve(integrator)
     if not ((math.isfinite(dt) if type(dt) is float else np.isfinite(dt)) and dt > 0):
         raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
+    if backend == "torch":   # torch backend: NumPy State in and out, computed on `device` in `dtype`
+        from . import torch_backend
+        if info.name not in _EXPLICIT:
+            raise ValueError(f"integrator: backend='torch' runs 'semi_implicit_euler' and 'rk4', not {info.name!r}")
+        if params is None:
+            _check_stability(model, info, dt)
+        return torch_backend.step_state(model, state, dt, info.name, rest_length=rest_length,
+                                        force_density=force_density, external=external, project=project,
+                                        n_steps=n_steps, device=device, dtype=dtype, params=params)
     B, m = state.batch_size, model.n_strings
     rest_length = _as_batch(rest_length, B, m, "rest_length")
     force_density = _as_batch(force_density, B, m, "force_density")

@@ -1,0 +1,309 @@
+#!/usr/bin/env python
+"""Throughput of the torch backend (tensegrity_gym.torch_backend) beside the numba backend, same run.
+
+An env-step is one physics step of one env (as in ``scripts/bench_dynamics.py``): semi-implicit
+Euler, dt = 1 ms, for
+
+* ``prism``: the free 3-bar prism (``builders.prism(3)``), released with small random velocities;
+* ``roll_prism``: the TensegrityRoll-v0 robot (``envs.roll.robot_prism`` on the ground,
+  ``place_on_ground``, gravity, string damping) with ground contact and friction, per step
+  contact forces then one integrator step (torch: :func:`torch_backend.contact_step`; numba:
+  ``contact.forces_inplace`` + ``_kernels.step_inplace``, the env's own path);
+* ``icosahedron``: the 6-bar icosahedron (``builders.icosahedron()``);
+* ``tower30``: a 30-stage prism tower (``builders.tower(30)``: 90 rods).
+
+For each scene and batch size B: torch float32 and float64 on ``--device`` (default: cuda if
+available, else cpu) and numba float64 on all CPU cores (``integrators.step(backend="numba")``
+on the same B copies), env-steps/s, the ratio torch / numba, and memory: the process's peak
+resident set (CPU) or ``torch.cuda.max_memory_allocated`` (CUDA). A B whose torch run raises
+out-of-memory is reported as such (the largest B that fits is the last one that ran).
+
+``--compile`` also times the prism step wrapped in ``torch.compile`` (inductor) at the
+largest B. ``--agreement`` runs the 1 s RK4 (dt = 1e-4) agreement of torch float64 and float32
+with numba on the prism, the icosahedron and the constrained prism (node error, m).
+
+Usage::
+
+    .venv/bin/python scripts/bench_gpu.py --quick                       # ~1-2 min on 2 CPU cores
+    .venv/bin/python scripts/bench_gpu.py --batch 1024 4096 16384 --agreement --compile \\
+        --out results/bench_gpu_cpu.json --label "2-core CPU, no GPU in this session"
+    .venv/bin/python scripts/bench_gpu.py --device cuda --batch 1024 16384 262144 1048576
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tensegrity_gym import _kernels, builders, contact as gc, dynamics as dyn, integrators
+from tensegrity_gym import torch_backend as tb
+from tensegrity_gym.envs import roll
+
+DT = 1e-3
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def roll_scene():
+    s = roll.robot_prism()
+    rod_com = (s.nodes[s.bars[:, 0]] * (1 - s.com_fraction)[:, None] + s.nodes[s.bars[:, 1]] * s.com_fraction[:, None])
+    com = s.bar_mass @ rod_com / s.bar_mass.sum()
+    axis = s.nodes[3:].mean(0) - s.nodes[:3].mean(0)
+    contact = gc.GroundContact(radius=0.02, max_damping=float(s.bar_mass.min()) / 4.0 / DT)
+    nodes, _ = roll.place_on_ground(s.nodes, com, contact.radius, exclude_axis=axis)
+    return dyn.compile_model(s.replace(nodes=nodes)), contact
+
+
+def scenes():
+    return {"prism": (dyn.compile_model(builders.prism(3)), None), "roll_prism": roll_scene(),
+            "icosahedron": (dyn.compile_model(builders.icosahedron()), None),
+            "tower30": (dyn.compile_model(builders.tower(30)), None)}
+
+
+def released(model, B, scale=0.01, seed=0):
+    rng = np.random.default_rng(seed)
+    st = dyn.initial_state(model, B)
+    q, qd = dyn.project(model, st.q, st.qd + scale * rng.normal(size=st.qd.shape))
+    return np.ascontiguousarray(q), np.ascontiguousarray(qd)
+
+
+def sync(dev):
+    if dev.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def time_loop(fn, n_steps, min_time, dev):
+    """Seconds per step: one warm-up call, then calls of ``n_steps`` steps until ``min_time`` s."""
+    fn(n_steps)
+    sync(dev)
+    calls, t0 = 0, time.perf_counter()
+    while True:
+        fn(n_steps)
+        sync(dev)
+        calls += 1
+        el = time.perf_counter() - t0
+        if el >= min_time:
+            return el / (calls * n_steps)
+
+
+def bench_torch(model, contact, q0, qd0, dtype, dev, n_steps, min_time, compiled=False):
+    B = q0.shape[0]
+    q = torch.as_tensor(q0, device=dev).to(dtype)
+    qd = torch.as_tensor(qd0, device=dev).to(dtype)
+    state = [q, qd]
+    if dev.type == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+    if contact is None:
+        tm = tb.torch_model(model, dev, dtype)
+        prm = tb.torch_params(tm, None, B)
+        one = (lambda a, b: tb._step_once(tm, a, b, DT, "semi_implicit_euler", prm, None, None, None, True))
+        if compiled:
+            one = torch.compile(one, dynamic=False)
+
+        def fn(n):
+            with torch.no_grad():
+                a, b = state
+                for _ in range(n):
+                    a, b = one(a, b)
+                state[0], state[1] = a, b
+    else:
+        anchor, active = tb.init_contact_state(model, B, dev, dtype)
+        cs = [anchor, active]
+
+        def fn(n):
+            with torch.no_grad():
+                state[0], state[1], cs[0], cs[1] = tb.contact_step(model, contact, state[0], state[1], cs[0], cs[1],
+                                                                   DT, n_steps=n)
+    t0 = time.perf_counter()
+    sec = time_loop(fn, n_steps, min_time, dev)
+    ok = bool(torch.isfinite(state[0]).all())
+    mem = torch.cuda.max_memory_allocated() / 2**20 if dev.type == "cuda" else peak_rss_mb()
+    return {"steps_per_s": B / sec, "finite": ok, "memory_mb": mem, "wall_s": time.perf_counter() - t0}
+
+
+def bench_numba(model, contact, q0, qd0, n_steps, min_time):
+    B = q0.shape[0]
+    q, qd = q0.copy(), qd0.copy()
+    if contact is None:
+        st = [dyn.State(q, qd)]
+
+        def fn(n):
+            st[0] = integrators.step(model, st[0], DT, "semi_implicit_euler", n_steps=n, backend="numba")
+    else:
+        cs = gc.init_contact_state(model, B)
+        W = np.zeros((B, model.n_nodes, 3))
+        slip = np.zeros((B, 2 * model.n_bars), bool)
+
+        def fn(n):
+            for _ in range(n):
+                gc.forces_inplace(contact, model, q, qd, cs, W, slip)
+                _kernels.step_inplace(model, q, qd, DT, "semi_implicit_euler", external=W)
+    sec = time_loop(fn, n_steps, min_time, torch.device("cpu"))
+    return {"steps_per_s": B / sec}
+
+
+def agreement(dev):
+    """1 s of RK4 at dt = 1e-4: torch float64 and float32 against numba (max node error, m)."""
+    out = {}
+    for name, s in (("prism", builders.prism(3, prestress=100)), ("icosahedron", builders.icosahedron()),
+                    ("constrained_prism", builders.constrained_prism())):
+        model = dyn.compile_model(s)
+        q, qd = released(model, 2, scale=0.2, seed=1)
+        st = dyn.State(q, qd)
+        ref = integrators.step(model, st, 1e-4, "rk4", n_steps=10000, backend="numba")
+        Nref = dyn.node_positions(model, ref.q)
+        row = {}
+        for label, dtype in (("float64", "float64"), ("float32", "float32")):
+            t0 = time.perf_counter()
+            out_ = integrators.step(model, st, 1e-4, "rk4", n_steps=10000, backend="torch", device=dev, dtype=dtype)
+            row[label + "_node_error_m"] = float(np.abs(dyn.node_positions(model, out_.q) - Nref).max())
+            row[label + "_wall_s"] = time.perf_counter() - t0
+        row["moved_m"] = float(np.abs(Nref - dyn.node_positions(model, q)).max())
+        out[name] = row
+        print(f"agreement {name:18s} 1 s RK4 dt=1e-4: float64 {row['float64_node_error_m']:.2e} m, "
+              f"float32 {row['float32_node_error_m']:.2e} m (nodes moved up to {row['moved_m']:.3f} m)", flush=True)
+    return out
+
+
+def markdown(result) -> str:
+    """Markdown tables of a saved result (``--table FILE.json``)."""
+    info = result["info"]
+    lines = [f"Machine: {info.get('label') or info['device']}; device {info['device']}, torch {info['torch']} "
+             f"({info['torch_threads']} threads), numba on {info['numba_threads']} threads; "
+             f"{info['integrator']}, dt = {info['dt_s'] * 1e3:g} ms; env-steps/s (one physics step of one env).", ""]
+    if result.get("rows"):
+        lines += ["| scene | B | numba f64 | torch f32 | ratio | torch f64 | ratio | peak memory (MB) |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for r in result["rows"]:
+            def f(x):
+                return "OOM" if x is None else f"{x:,.0f}"
+
+            def rt(x):
+                return "-" if x is None else f"{x:.3f}x"
+            lines.append(f"| {r['scene']} | {r['B']} | {f(r['numba_f64'])} | {f(r['torch_f32'])} | "
+                         f"{rt(r['torch_f32_ratio_vs_numba'])} | {f(r['torch_f64'])} | {rt(r['torch_f64_ratio_vs_numba'])} | "
+                         f"{r['torch_f64_memory_mb'] or 0:.0f} |")
+    if result.get("compile"):
+        c = result["compile"]
+        lines += ["", f"torch.compile (inductor), free prism, B = {c['B']}:", ""]
+        for k in ("float32", "float64"):
+            v = c.get(k, {})
+            if "error" in v:
+                lines.append(f"* {k}: eager {v['eager']:,.0f}/s; compile failed: {v['error']}")
+            elif v:
+                lines.append(f"* {k}: eager {v['eager']:,.0f}/s, compiled {v['compiled']:,.0f}/s "
+                             f"({v['speedup']:.2f}x; first call incl. compilation {v['first_call_incl_compile_s']:.0f} s)")
+    if result.get("agreement"):
+        lines += ["", "Agreement with numba, 1 s of RK4 at dt = 1e-4 (10,000 steps), 2 copies released with random "
+                  "node velocities (0.2 m/s):", "",
+                  "| scene | torch float64: max node error (m) | torch float32 (m) | nodes moved (m) |", "|---|---:|---:|---:|"]
+        for name, a in result["agreement"].items():
+            lines.append(f"| {name} | {a['float64_node_error_m']:.2e} | {a['float32_node_error_m']:.2e} | {a['moved_m']:.3f} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    ap.add_argument("--batch", type=int, nargs="+", default=[1024, 4096, 16384])
+    ap.add_argument("--scenes", nargs="*", default=["prism", "roll_prism", "icosahedron", "tower30"],
+                    help="scenes to time (none: only --agreement / --compile)")
+    ap.add_argument("--steps", type=int, default=20, help="physics steps per timed call")
+    ap.add_argument("--min-time", type=float, default=1.0, help="seconds timed per entry")
+    ap.add_argument("--quick", action="store_true", help="B = 1024, 4096; 0.3 s per entry")
+    ap.add_argument("--compile", action="store_true", help="also time torch.compile on the prism")
+    ap.add_argument("--agreement", action="store_true", help="1 s RK4 agreement with numba (float64, float32)")
+    ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
+    ap.add_argument("--label", default=None, help="machine label written into the output")
+    ap.add_argument("--out", default=None, help="write JSON here")
+    ap.add_argument("--table", default=None, help="print the markdown tables of a saved JSON result and exit")
+    args = ap.parse_args(argv)
+    if args.table:
+        print(markdown(json.loads(Path(args.table).read_text())))
+        return 0
+    if args.quick:
+        args.batch, args.min_time = [1024, 4096], 0.3
+    dev = tb.resolve_device(args.device)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    info = {"label": args.label, "device": str(dev), "cpu_count": os.cpu_count(), "torch": torch.__version__,
+            "torch_threads": torch.get_num_threads(), "numba_threads": _kernels.numba.get_num_threads()
+            if hasattr(_kernels, "numba") else None, "platform": platform.platform(), "dt_s": DT,
+            "integrator": "semi_implicit_euler",
+            "gpu": torch.cuda.get_device_name(dev) if dev.type == "cuda" else None}
+    print(json.dumps(info), flush=True)
+    sc = scenes()
+    rows = []
+    result = {"info": info, "rows": rows}
+    for name in args.scenes:
+        model, contact = sc[name]
+        for B in args.batch:
+            q0, qd0 = released(model, B)
+            row = {"scene": name, "B": B, "rods": model.n_bars, "strings": model.n_strings}
+            row["numba_f64"] = bench_numba(model, contact, q0, qd0, args.steps, args.min_time)["steps_per_s"]
+            for label, dtype in (("torch_f32", torch.float32), ("torch_f64", torch.float64)):
+                try:
+                    r = bench_torch(model, contact, q0, qd0, dtype, dev, args.steps, args.min_time)
+                except torch.OutOfMemoryError:
+                    r = {"steps_per_s": None, "oom": True}
+                row[label] = r["steps_per_s"]
+                row[label + "_memory_mb"] = r.get("memory_mb")
+                row[label + "_finite"] = r.get("finite")
+                row[label + "_ratio_vs_numba"] = None if r["steps_per_s"] is None else r["steps_per_s"] / row["numba_f64"]
+            rows.append(row)
+            print(f"{name:12s} B={B:8d}  numba f64 {row['numba_f64']:12,.0f}  torch f32 {row['torch_f32'] or 0:12,.0f} "
+                  f"({row['torch_f32_ratio_vs_numba'] or 0:.2f}x)  torch f64 {row['torch_f64'] or 0:12,.0f} "
+                  f"({row['torch_f64_ratio_vs_numba'] or 0:.2f}x)  env-steps/s  peak mem {row['torch_f64_memory_mb']:.0f} MB",
+                  flush=True)
+            save(args.out, result)   # after every row: an interrupted run keeps what it measured
+    if args.compile:
+        model, _ = sc["prism"]
+        B = max(args.batch)
+        q0, qd0 = released(model, B)
+        comp = {}
+        for label, dtype in (("float32", torch.float32), ("float64", torch.float64)):
+            eager = bench_torch(model, None, q0, qd0, dtype, dev, args.steps, args.min_time)["steps_per_s"]
+            t0 = time.perf_counter()
+            try:
+                c = bench_torch(model, None, q0, qd0, dtype, dev, args.steps, args.min_time, compiled=True)
+                comp[label] = {"eager": eager, "compiled": c["steps_per_s"], "speedup": c["steps_per_s"] / eager,
+                               "first_call_incl_compile_s": time.perf_counter() - t0}
+            except Exception as exc:  # inductor needs a C++ compiler (CPU) or Triton (CUDA)
+                comp[label] = {"eager": eager, "error": f"{type(exc).__name__}: {exc}"[:300]}
+            print(f"torch.compile prism B={B} {label}: {comp[label]}", flush=True)
+        result["compile"] = {"B": B, **comp}
+    if args.agreement:
+        result["agreement"] = agreement(dev)
+    save(args.out, result)
+    if args.out:
+        print(f"wrote {args.out}")
+    return 0
+
+
+def save(path, result):
+    """Write ``result`` as JSON atomically (temporary file in the same folder, fsync, rename)."""
+    if not path:
+        return
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        json.dump(result, fh, indent=1)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, out)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
