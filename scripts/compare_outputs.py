@@ -1,0 +1,91 @@
+#!/usr/bin/env python
+"""Outputs of two versions of the package on the committed scenes (issue 12: a refactor keeps
+every output equal to 1e-12 relative).
+
+    PYTHONPATH=/path/to/old/checkout python scripts/compare_outputs.py dump old.npz
+    PYTHONPATH=/path/to/new/checkout python scripts/compare_outputs.py dump new.npz
+    python scripts/compare_outputs.py compare old.npz new.npz      # table; exit 1 above 1e-12
+
+``dump`` runs, with whatever ``tensegrity_gym`` is importable: every built-in structure
+(released off equilibrium by a fixed, seeded velocity perturbation) for 200 steps of semi-implicit
+Euler and RK4 with the numba kernels and 20 steps with the NumPy path, dop853 and implicit Euler
+(B = 3 copies); and 100 control steps of TensegrityShape-v0 (both action modes) and
+TensegrityRoll-v0 (single env and a vector env of 4) under a fixed seeded action sequence
+(observations, rewards). Only public API is used, so any version can be dumped.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+SCENES = ("prism3", "prism4", "pinned_rod", "constrained_prism", "icosahedron", "tower3")
+RUNS = (("semi_implicit_euler", "numba", 200), ("rk4", "numba", 200), ("semi_implicit_euler", "numpy", 20),
+        ("rk4", "numpy", 20), ("dop853", "auto", 20), ("implicit_euler", "auto", 20))
+
+
+def dump(path: str) -> None:
+    import gymnasium as gym
+    import tensegrity_gym as tg
+    from tensegrity_gym import dynamics as dyn
+    out = {}
+    for name in SCENES:
+        model = tg.compile_model(tg.build(name))
+        st = tg.initial_state(model, 3)
+        rng = np.random.default_rng(0)
+        q, qd = dyn.project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
+        st = dyn.State(q=q, qd=qd)
+        for integ, backend, n in RUNS:
+            r = tg.step(model, st, 1e-3, integ, n_steps=n, backend=backend)
+            out[f"{name}/{integ}/{backend}/q"] = r.q
+            out[f"{name}/{integ}/{backend}/qd"] = r.qd
+    envs = (("TensegrityShape-v0", {}), ("TensegrityShape-v0", {"action_mode": "force_density"}),
+            ("TensegrityRoll-v0", {}))
+    for env_id, kw in envs:
+        tag = env_id + "/" + "/".join(f"{k}={v}" for k, v in kw.items())
+        env = gym.make(env_id, **kw)
+        o, _ = env.reset(seed=3)
+        rng = np.random.default_rng(1)
+        obs, rew = [o], []
+        for _ in range(100):
+            o, r, *_ = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+            obs.append(o)
+            rew.append(r)
+        out[f"{tag}/single/obs"], out[f"{tag}/single/rew"] = np.array(obs), np.array(rew)
+        venv = gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", **kw)
+        o, _ = venv.reset(seed=3)
+        obs, rew = [o], []
+        for _ in range(100):
+            o, r, *_ = venv.step(rng.uniform(-1, 1, venv.action_space.shape).astype(np.float32))
+            obs.append(o)
+            rew.append(r)
+        out[f"{tag}/vector/obs"], out[f"{tag}/vector/rew"] = np.array(obs), np.array(rew)
+    np.savez(path, **out)
+
+
+def compare(a: str, b: str) -> int:
+    A, B = np.load(a), np.load(b)
+    worst = 0.0
+    print("| output | max abs difference | max relative difference |\n|---|---:|---:|")
+    for k in sorted(set(A.files) | set(B.files)):
+        if k not in A.files or k not in B.files:
+            print(f"| {k} | missing in {'the first' if k not in A.files else 'the second'} | |")
+            worst = np.inf
+            continue
+        x, y = A[k].astype(float), B[k].astype(float)
+        d = np.abs(x - y)
+        rel = float((d / np.maximum(np.abs(x), 1.0)).max()) if d.size else 0.0
+        worst = max(worst, rel)
+        print(f"| {k} | {float(d.max()) if d.size else 0.0:.3g} | {rel:.3g} |")
+    print(f"\nlargest relative difference: {worst:.3g} ({'within' if worst <= 1e-12 else 'ABOVE'} 1e-12)")
+    return 0 if worst <= 1e-12 else 1
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 3 and sys.argv[1] == "dump":
+        dump(sys.argv[2])
+        raise SystemExit(0)
+    if len(sys.argv) == 4 and sys.argv[1] == "compare":
+        raise SystemExit(compare(sys.argv[2], sys.argv[3]))
+    print(__doc__, file=sys.stderr)
+    raise SystemExit(2)
