@@ -68,11 +68,13 @@ def _positive(kind):
 
 def cmd_simulate(args) -> int:
     s = _load(args.structure)
-    model = dyn.compile_model(s)
-    state = dyn.initial_state(model)
     n_steps = int(round(args.duration / args.dt))
     if n_steps < 1:
         raise SystemExit(f"error: --duration {args.duration} s is shorter than one step of --dt {args.dt} s")
+    from .sizing import check_size
+    check_size(s, records=n_steps // args.record_every + 1)   # the recorded trajectory must fit too
+    model = dyn.compile_model(s)
+    state = dyn.initial_state(model)
     progress = (not args.no_progress) and n_steps >= PROGRESS_MIN_STEPS
     t0 = time.perf_counter()
     t, q, qd = simulate(model, state, args.dt, n_steps, args.integrator, record_every=args.record_every,
@@ -236,6 +238,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("interrupted; no output file was changed", file=sys.stderr)
         return 130
+    except MemoryError as e:   # sizing.StructureTooLarge: refused up front, naming the size
+        print(f"error: {e or 'out of memory'}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

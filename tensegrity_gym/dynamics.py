@@ -549,8 +549,9 @@ DENSE_STABILITY_MAX_RODS = 20
 #: radius of the largest half-disk {|z| <= R, Re z <= 0} inside RK4's stability region (the
 #: region's boundary comes closest to 0 at arg z ~ 0.8 pi: 2.6156; on the axes it is 2.785/2.828)
 _RK4_HALF_DISK = 2.615
-#: eigenvalues computed by Arnoldi in the sparse stability estimate
-_ARNOLDI_NEV = 10
+#: eigenvalues computed by Arnoldi in the sparse stability estimate, and their relative tolerance
+_ARNOLDI_NEV = 6
+_ARNOLDI_TOL = 1e-3
 
 
 def stable_step_estimate(model: Model, state: State | None = None, rest_length=None, damping: bool = True,
@@ -576,9 +577,9 @@ def stable_step_estimate(model: Model, state: State | None = None, rest_length=N
     (a few ms for the 3-bar prism).
 
     ``method``: ``"dense"`` (the above), ``"sparse"`` (:func:`_stable_step_sparse`: sparse
-    Jacobians by column grouping and Arnoldi for the largest eigenvalues; cost linear in the
-    structure's size, 0.1-0.5 s for a 300-stage tower, conservative: never above the dense
-    estimate beyond Arnoldi's tolerance) or ``"auto"`` (dense up to
+    Jacobians by column grouping and Arnoldi for the largest eigenvalues; cost about linear in
+    the structure's size, ~1 s for a 300-stage tower; conservative: never above the dense
+    estimate) or ``"auto"`` (dense up to
     :data:`DENSE_STABILITY_MAX_RODS` rods, else sparse). The result also holds ``"method"``."""
     st = initial_state(model) if state is None else State(state.q[:1], state.qd[:1], state.t)
     q0, qd0 = np.ascontiguousarray(st.q, dtype=float), np.ascontiguousarray(st.qd, dtype=float)
@@ -610,14 +611,31 @@ def stable_step_estimate(model: Model, state: State | None = None, rest_length=N
 
 
 def _top_eigenvalues(A, nev: int) -> np.ndarray:
-    """The ``nev`` largest-magnitude eigenvalues of the sparse square matrix ``A`` (implicitly
-    restarted Arnoldi, ARPACK via ``scipy.sparse.linalg.eigs``; fixed start vector, so the result
-    is reproducible). Raises ``ArpackNoConvergence`` if they do not converge."""
+    """Approximations (relative tolerance :data:`_ARNOLDI_TOL`) of the ``nev`` largest-magnitude
+    eigenvalues of the sparse square matrix ``A``: implicitly restarted Arnoldi (ARPACK via
+    ``scipy.sparse.linalg.eigs``) with a fixed start vector (reproducible). The loose tolerance is
+    what makes the cost linear: the top of a long tower's spectrum is a dense band (its 10 largest
+    frequencies within 0.03 % for tower300), whose single eigenvalues Arnoldi resolves only slowly,
+    while a Ritz value within the band converges fast. Raises ``ArpackNoConvergence``."""
     from scipy.sparse.linalg import eigs
     n = A.shape[0]
     v0 = np.random.default_rng(0).standard_normal(n)
-    return eigs(A, k=nev, which="LM", v0=v0, ncv=min(n, max(2 * nev + 1, 40)), tol=1e-9,
-                maxiter=100 * n, return_eigenvectors=False)
+    return eigs(A, k=nev, which="LM", v0=v0, ncv=min(n, max(2 * nev + 1, 30)), tol=_ARNOLDI_TOL,
+                maxiter=1000, return_eigenvectors=False)
+
+
+def _perron_bound(A, iters: int = 100) -> float:
+    """Rigorous upper bound of the spectral radius of the sparse matrix ``A``: the Collatz-Wielandt
+    bound ``max_i (|A| x)_i / x_i`` (>= the Perron root of ``|A|`` >= ``rho(A)``) of power
+    iterates ``x > 0`` of ``|A|``."""
+    B = abs(A).tocsr()
+    x = np.ones(B.shape[0])
+    best = float("inf")
+    for _ in range(iters):
+        y = B @ x + 1e-300
+        best = min(best, float(np.max(y / x)))
+        x = y / np.max(y)
+    return best
 
 
 def _stable_step_sparse(model: Model, q0, qd0, rest_length, with_v: bool) -> dict:
@@ -625,27 +643,28 @@ def _stable_step_sparse(model: Model, q0, qd0, rest_length, with_v: bool) -> dic
 
     1. ``K``, ``D`` as sparse matrices (:func:`tensegrity_gym.jacobian.acceleration_jacobians_sparse`:
        the same central differences as the dense path, with column grouping).
-    2. Arnoldi for the :data:`_ARNOLDI_NEV` largest-magnitude eigenvalues: of ``K`` (``omega_max``;
-       without ``D`` the system's eigenvalues are ``lam = +-sqrt(mu)``, ``mu`` those of K) and, with
-       ``D``, of the sparse first-order operator ``[[0, I], [K, D]]``. ``lambda_max`` is then the
-       dense path's value (to Arnoldi's tolerance 1e-9).
-    3. Step limits: the computed top modes get the dense path's modal formulas (RK4 bisection,
-       semi-implicit Euler's damped-oscillator limit); every other mode has ``|lam| <= rho`` (the
-       smallest computed ``|lam|``) and is bounded without knowing it: RK4 is stable for every
-       ``z = dt lam`` in the half-disk ``|z| <= 2.615`` (:data:`_RK4_HALF_DISK`), ``2 sqrt 2``
-       on the imaginary axis when there is no ``D``; semi-implicit Euler's limit decreases with
-       ``|lam|`` and with the damping rate ``c = -2 Re lam``, which is at most
-       ``c_D = min(|D|_1, |D|_inf)`` (a bound of D's spectral radius: the damping rates of string
-       damping and node drag) and at most ``2 |lam|``, giving ``(sqrt(c^2 + 4 rho^2) - c)/rho^2``
-       (``0.8/rho`` once ``c_D >= 2 rho``, overdamped). The minimum of the two parts is returned.
-       Every step is thus an upper frequency bound turned into a conservative step; it equals the
-       dense modal estimate when the computed modes limit the step (undamped structures: the
-       top mode, ``2/omega_max`` and ``2.828/omega_max``), and is below it by at most the factor
-       ``2.785/2.615 = 1.065`` (RK4 with damping) or ``2/0.8 = 2.5`` (semi-implicit Euler, heavily
-       damped) otherwise. Unlike the dense path for <= 20 rods it has no refinement on the exact
-       step matrix. If Arnoldi does not converge, the rigorous bound
-       ``|lam| <= (|D| + sqrt(|D|^2 + 4 |K|)) / 2`` (infinity norms, from
-       ``lam^2 x = lam D x + K x``) gives ``0.8/bound`` and ``2.615/bound``."""
+    2. Arnoldi (:func:`_top_eigenvalues`) for the :data:`_ARNOLDI_NEV` largest-magnitude eigenvalues
+       of ``K`` (``omega_max``; without ``D`` the system's eigenvalues are ``lam = +-sqrt(mu)``, ``mu``
+       those of K) and, with ``D``, of the sparse first-order operator ``[[0, I], [K, D]]``:
+       ``lambda_max``. Both are the dense path's values to ~1e-5 (tolerance :data:`_ARNOLDI_TOL`).
+    3. Step limits from the frequency bound ``L = (1 + 2 tol) lambda_max >= |lam|`` of EVERY mode:
+       RK4 is stable for every ``z = dt lam`` in the half-disk ``|z| <= 2.615``
+       (:data:`_RK4_HALF_DISK`), so ``dt = 2.615 / L`` is safe (``2 sqrt 2 / L`` without ``D``: the
+       modes are then ``+-sqrt(mu)``, oscillations on the imaginary axis). Semi-implicit Euler's
+       limit decreases with ``|lam|`` and with the damping rate ``c = -2 Re lam``; ``c`` is at most
+       ``c_D = min(|D|_1, |D|_inf)`` (a bound of D's spectral radius: the rates of string damping and
+       node drag) and at most ``2 |lam|``, giving ``(sqrt(c^2 + 4 L^2) - c) / L^2`` (``2 / L``
+       undamped, ``0.8 / L`` once ``c_D >= 2 L``). The computed top modes' own modal limits (the
+       dense path's formulas) are taken too if smaller. An upper bound on the frequency gives a
+       conservative step: the result is never above the dense modal estimate (beyond the
+       tolerance); it equals it within ``2 tol`` when the top mode limits the step (undamped:
+       ``2/omega_max`` and ``2.828/omega_max``) and is below it by at most ``1.002 * 2.9/2.615 =
+       1.12`` (RK4 with damping: the dense path allows up to 2.9 between the axes) or
+       ``2/0.8 = 2.5`` (semi-implicit Euler, heavily damped). Unlike the
+       dense path (<= 20 rods) it has no refinement on the exact step matrix.
+    If Arnoldi does not converge (1000 restarts), the rigorous Collatz-Wielandt bound of the
+    spectral radius of ``|[[0, I], [K, D]]|`` (:func:`_perron_bound`; 1.3x omega_max on the towers)
+    is used as ``L``, with ``0.8 / L`` and ``2.615 / L``."""
     from scipy.sparse import bmat, identity
     from scipy.sparse.linalg import ArpackNoConvergence, norm as spnorm
     from .jacobian import acceleration_jacobians_sparse
@@ -659,6 +678,7 @@ def _stable_step_sparse(model: Model, q0, qd0, rest_length, with_v: bool) -> dic
     n = K.shape[0]
     nev = max(1, min(_ARNOLDI_NEV, n - 2))
     cD = 0.0 if D is None else float(min(spnorm(D, 1), spnorm(D, np.inf)))
+    Phi = None if D is None else bmat([[None, identity(n)], [K, D]], format="csr")
     try:
         mu = _top_eigenvalues(K, nev)
         omega = float(np.sqrt(np.abs(mu).max()))
@@ -666,25 +686,23 @@ def _stable_step_sparse(model: Model, q0, qd0, rest_length, with_v: bool) -> dic
             lam = np.concatenate([np.sqrt(mu.astype(complex)), -np.sqrt(mu.astype(complex))])
             lmax = omega
         else:
-            Phi = bmat([[None, identity(n)], [K, D]], format="csr")
             lam = _top_eigenvalues(Phi, nev)
             lmax = float(np.abs(lam).max())
     except ArpackNoConvergence:
-        kn = float(spnorm(K, np.inf))
-        bound = 0.5 * (cD + np.sqrt(cD * cD + 4.0 * kn))
-        if bound <= 0:
-            return {"omega_max": 0.0, "lambda_max": 0.0, "semi_implicit_euler": inf, "rk4": inf, "method": "sparse"}
-        return {"omega_max": float(np.sqrt(kn)), "lambda_max": float(bound), "semi_implicit_euler": 0.8 / bound,
-                "rk4": _RK4_HALF_DISK / bound, "method": "sparse"}
+        L = _perron_bound(bmat([[None, identity(n)], [K, None]], format="csr") if Phi is None else Phi)
+        out = {"omega_max": float(np.sqrt(_perron_bound(K))), "lambda_max": L, "method": "sparse"}
+        out.update({"semi_implicit_euler": 0.8 / L, "rk4": _RK4_HALF_DISK / L} if L > 0
+                   else {"semi_implicit_euler": inf, "rk4": inf})
+        return out
     if lmax <= 0:
         return {"omega_max": omega, "lambda_max": lmax, "semi_implicit_euler": inf, "rk4": inf, "method": "sparse"}
     lam = lam[np.abs(lam) > 1e-6 * lmax]          # rigid-body and near-zero modes do not limit the step
     lam = np.minimum(lam.real, 0.0) + 1j * lam.imag
-    rho = float(np.abs(lam).min())
-    c = min(cD, 2.0 * rho)
-    sie_rest = (np.sqrt(c * c + 4.0 * rho * rho) - c) / (rho * rho)
-    if cD >= 2.0 * rho:
-        sie_rest = min(sie_rest, 0.8 / rho)
-    rk4_rest = (2.0 * np.sqrt(2.0) if D is None else _RK4_HALF_DISK) / rho
-    return {"omega_max": omega, "lambda_max": lmax, "semi_implicit_euler": min(_sie_modal(lam), float(sie_rest)),
-            "rk4": min(_rk4_limit(lam), float(rk4_rest)), "method": "sparse"}
+    L = (1.0 + 2.0 * _ARNOLDI_TOL) * lmax
+    c = min(cD, 2.0 * L)
+    sie = (np.sqrt(c * c + 4.0 * L * L) - c) / (L * L)
+    if cD >= 2.0 * L:
+        sie = min(sie, 0.8 / L)
+    rk4 = (2.0 * np.sqrt(2.0) if D is None else _RK4_HALF_DISK) / L
+    return {"omega_max": omega, "lambda_max": lmax, "semi_implicit_euler": min(_sie_modal(lam), float(sie)),
+            "rk4": min(_rk4_limit(lam), float(rk4)), "method": "sparse"}
