@@ -618,10 +618,17 @@ def _top_eigenvalues(A, nev: int) -> np.ndarray:
     frequencies within 0.03 % for tower300), whose single eigenvalues Arnoldi resolves only slowly,
     while a Ritz value within the band converges fast. Raises ``ArpackNoConvergence``."""
     from scipy.sparse.linalg import eigs
+    try:   # optional: ARPACK's BLAS-1/2 work on a few vectors gains nothing from threads, and
+        from threadpoolctl import threadpool_limits     # spinning BLAS threads on a busy machine cost 20x
+        limit = threadpool_limits(1, user_api="blas")
+    except ImportError:  # pragma: no cover - threadpoolctl missing
+        import contextlib
+        limit = contextlib.nullcontext()
     n = A.shape[0]
     v0 = np.random.default_rng(0).standard_normal(n)
-    return eigs(A, k=nev, which="LM", v0=v0, ncv=min(n, max(2 * nev + 1, 30)), tol=_ARNOLDI_TOL,
-                maxiter=1000, return_eigenvectors=False)
+    with limit:
+        return eigs(A, k=nev, which="LM", v0=v0, ncv=min(n, max(2 * nev + 1, 30)), tol=_ARNOLDI_TOL,
+                    maxiter=1000, return_eigenvectors=False)
 
 
 def _perron_bound(A, iters: int = 100) -> float:

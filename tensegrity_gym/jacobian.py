@@ -81,16 +81,22 @@ def fd_jacobian_grouped(fun, x: np.ndarray, h, groups: np.ndarray, rows: np.ndar
     G = int(groups.max()) + 1 if n else 0
     if check and np.unique(groups[cols].astype(np.int64) * n_rows + rows).size != rows.size:
         raise ValueError("fd_jacobian_grouped: two columns of one group share a row of the sparsity pattern")
-    onehot = np.zeros((G, n))
-    onehot[groups, np.arange(n)] = h
-    chunk = 2 * G if chunk is None else max(int(chunk), 2)
-    diff = np.empty((G, n_rows))
-    for g0 in range(0, G, max(chunk // 2, 1)):
-        g1 = min(G, g0 + max(chunk // 2, 1))
-        Z = np.concatenate([x + onehot[g0:g1], x - onehot[g0:g1]])
+    step = max((2 * G if chunk is None else max(int(chunk), 2)) // 2, 1)     # groups per chunk
+    ge = groups[cols]                                   # group of each pattern entry
+    order = np.argsort(ge, kind="stable")
+    bounds = np.searchsorted(ge[order], np.arange(G + 1))
+    colgroups = np.argsort(groups, kind="stable")        # columns sorted by group
+    cbounds = np.searchsorted(groups[colgroups], np.arange(G + 1))
+    vals = np.empty(rows.size)
+    for g0 in range(0, G, step):                        # memory: O(step n) per chunk, never O(G n)
+        g1 = min(G, g0 + step)
+        cs = colgroups[cbounds[g0]:cbounds[g1]]
+        Z = np.broadcast_to(x, (2 * (g1 - g0), n)).copy()
+        Z[groups[cs] - g0, cs] += h[cs]
+        Z[g1 - g0 + groups[cs] - g0, cs] -= h[cs]
         F = fun(Z)
-        diff[g0:g1] = F[: g1 - g0] - F[g1 - g0:]
-    vals = diff[groups[cols], rows] / (2.0 * h[cols])
+        e = order[bounds[g0]:bounds[g1]]
+        vals[e] = (F[ge[e] - g0, rows[e]] - F[g1 - g0 + ge[e] - g0, rows[e]]) / (2.0 * h[cols[e]])
     return sp.csr_matrix((vals, (rows, cols)), shape=(n_rows, n))
 
 
