@@ -59,7 +59,7 @@ from .structure import Structure, mass_moments
 __all__ = ["Model", "State", "compile_model", "initial_state", "node_positions", "node_velocities",
            "string_state", "force_densities", "nodal_forces", "accelerations", "project", "energy",
            "kinetic_energy", "potential_energy", "linear_momentum", "angular_momentum", "rod_length_drift",
-           "configuration_matrix", "constraint_violation", "stable_step_estimate", "connectivity"]
+           "configuration_matrix", "constraint_violation", "stable_step_estimate"]
 
 
 @dataclass(frozen=True, eq=False)
