@@ -314,7 +314,7 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
     """A monitored SB3 VecEnv of ``n_envs`` copies of ``env_id``, env i seeded with ``seed + i``.
 
     ``vec_env``: ``"batched"`` (the env's ``vector_entry_point``: one batched physics call per step,
-    through :func:`tensegrity_gym.envs.common.make_sb3_vec_env`), ``"dummy"``, ``"subproc"``, or
+    through :func:`tensegrity_gym.sb3.make_sb3_vec_env`), ``"dummy"``, ``"subproc"``, or
     ``"auto"`` (batched when available, else dummy).
     """
     import gymnasium as gym
@@ -326,7 +326,7 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
     if vec_env == "batched":
         if not has_vector_entry_point(env_id):
             raise ValueError(f"--vec-env batched: {env_id} has no vector_entry_point")
-        from tensegrity_gym.envs.common import make_sb3_vec_env
+        from tensegrity_gym.sb3 import make_sb3_vec_env
         venv = make_sb3_vec_env(gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
                                              **env_kwargs))
         venv.seed(seed)
@@ -369,13 +369,108 @@ def package_versions() -> dict:
     return out
 
 
-def write_json(path: str | Path, data) -> None:
+# ---------------------------------------------------------------------- atomic files
+TMP_TAG = ".tmp-"
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (no-op where directories cannot be opened, e.g. Windows)."""
+    try:
+        fd = os.open(str(folder), os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def atomic_write(path: str | Path, writer) -> Path:
+    """Write ``path`` atomically: ``writer(f)`` fills a temporary file in the same folder (opened
+    ``"wb"``), which is flushed, fsynced and renamed over ``path``, then the folder is fsynced.
+
+    An interrupt, a crash or a kill at any moment leaves either the old file or the new one, never
+    a partial file under ``path``; a stale ``.<name>.tmp-<pid>`` may remain and is removed by
+    :func:`remove_stale_tmp`. Returns ``path``.
+    """
     path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "w") as f:
-        json.dump(to_yaml_safe(data), f, indent=2)
-        f.write("\n")
-    os.replace(tmp, path)
+    tmp = path.with_name(f".{path.name}{TMP_TAG}{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            writer(f)  # may close f (SB3's save_to_pkl does)
+        fd = os.open(str(tmp), os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise
+    _fsync_dir(path.parent)
+    return path
+
+
+def remove_stale_tmp(folder: str | Path) -> list[Path]:
+    """Remove temporary files left by :func:`atomic_write` in ``folder`` (and its sub-folders) by
+    processes that no longer run; returns the removed paths."""
+    removed = []
+    for p in Path(folder).rglob(f".*{TMP_TAG}*"):
+        try:
+            pid = int(p.name.rsplit(TMP_TAG, 1)[1])
+        except ValueError:
+            continue
+        if pid != os.getpid() and not pid_alive(pid):
+            try:
+                p.unlink()
+                removed.append(p)
+            except OSError:
+                pass
+    return removed
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except (OSError, ValueError):
+        return False
+    return True
+
+
+def save_model_atomic(model, path: str | Path) -> Path:
+    """``model.save`` (SB3 zip) through :func:`atomic_write`."""
+    return atomic_write(path, model.save)
+
+
+def save_pickle_atomic(obj, path: str | Path) -> Path:
+    """Pickle ``obj`` (e.g. a ``VecNormalize``, as ``VecNormalize.save`` does) through :func:`atomic_write`."""
+    import pickle
+    return atomic_write(path, lambda f: pickle.dump(obj, f))
+
+
+def save_replay_buffer_atomic(model, path: str | Path) -> Path:
+    """``model.save_replay_buffer`` through :func:`atomic_write`."""
+    return atomic_write(path, model.save_replay_buffer)
+
+
+def write_json(path: str | Path, data) -> None:
+    """JSON file written atomically (temporary file in the same folder, fsync, rename)."""
+    text = json.dumps(to_yaml_safe(data), indent=2) + "\n"
+    atomic_write(path, lambda f: f.write(text.encode()))
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Text file written atomically."""
+    atomic_write(path, lambda f: f.write(text.encode()))
 
 
 def command_line(argv: list[str] | None = None, module: str = "agents.train") -> str:

@@ -38,11 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-    __package__ = "agents"
-
-from agents import common  # noqa: E402
+from agents import common
 
 HELD_OUT_SEED = 1_000_000
 

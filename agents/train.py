@@ -1,6 +1,6 @@
 """Train a Stable-Baselines3 agent on a tensegrity_gym (or any Gymnasium) env.
 
-Usage (from the repository root)::
+Usage (from any directory once the package is installed; from the repository root otherwise)::
 
     python -m agents.train --algo ppo --env TensegrityShape-v0 --env-kwargs action_mode:rest_length \\
         --n-timesteps 1e6 --seed 0 --log-dir results/ppo_shape_rest_length
@@ -9,15 +9,15 @@ Usage (from the repository root)::
     python -m agents.train --resume results/ppo_shape_rest_length --n-timesteps 2e6   # or extend it
 
 Hyperparameters come from ``agents/hyperparams/<algo>.yml`` keyed by env id, in
-rl-baselines3-zoo's format, so the same file also works with
-``python -m rl_zoo3.train --gym-packages tensegrity_gym --algo ppo --env TensegrityShape-v0
---conf-file agents/hyperparams/ppo.yml``. ``--hyperparams key=value ...`` overrides entries;
+rl-baselines3-zoo's format, so the zoo uses the same file:
+``python -m rl_zoo3.train --gym-packages tensegrity_gym --algo ppo --env TensegrityShape-v0``
+reads it without ``--conf-file`` (:mod:`tensegrity_gym.zoo`). ``--hyperparams key=value ...`` overrides entries;
 ``--env-kwargs key:value ...`` (or one JSON object) are merged over the file's ``env_kwargs``.
 Values are parsed as JSON / Python literals (never ``eval``).
 
 Environments: when the env id has a ``vector_entry_point`` (the tensegrity envs do), the
 ``n_envs`` copies are ONE batched vector env (one physics call per step) wrapped for SB3 by
-:func:`tensegrity_gym.envs.common.make_sb3_vec_env`; otherwise SB3's ``make_vec_env``
+:func:`tensegrity_gym.sb3.make_sb3_vec_env`; otherwise SB3's ``make_vec_env``
 (``--vec-env dummy|subproc`` forces one). Env i of the training env is seeded ``seed + i``;
 the evaluation env used during training is seeded ``seed + 10_000 + i`` (the final evaluation
 in :mod:`agents.evaluate` uses other, held-out seeds).
@@ -32,8 +32,12 @@ Run directory (``--log-dir``, default ``runs/<algo>_<env>_s<seed>``, git-ignored
     tb/                                 TensorBoard: SB3 scalars + info/reward_* means + episode_end/*
     config.yaml, command.txt, versions.json, state.json
 
-Ctrl-C (KeyboardInterrupt) saves ``model.zip``, ``vecnormalize.pkl`` (and the replay buffer of
-off-policy algorithms) before exiting; ``--resume RUN_DIR`` reloads the latest of the
+Every file is written atomically (temporary file in the same folder, fsync, rename), so no
+interrupt, crash or kill destroys the last good model; a crash is recorded in ``state.json`` as
+``crashed`` with the error; a run that failed before saving any model can be started again in the
+same folder; checkpoints and evaluations follow the run's step count, so ``--resume`` keeps their
+schedule. Ctrl-C (KeyboardInterrupt) saves ``model.zip``, ``vecnormalize.pkl`` (and the replay buffer of
+off-policy algorithms) before exiting (a second Ctrl-C waits for the save); ``--resume RUN_DIR`` reloads the latest of the
 interrupted model and the checkpoints, the VecNormalize statistics and the replay buffer, and
 continues with ``reset_num_timesteps=False`` up to the total ``n_timesteps`` (steps count on).
 """
@@ -51,11 +55,7 @@ from typing import Any
 
 import numpy as np
 
-if __package__ in (None, ""):  # run as a script: python agents/train.py
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-    __package__ = "agents"
-
-from agents import common  # noqa: E402
+from agents import common
 
 EVAL_SEED_OFFSET = 10_000
 
@@ -100,21 +100,58 @@ def _callbacks():
                 if d:
                     self.logger.record(f"episode_end/{k}", float(np.mean(d)))
 
-    class SaveVecNormalizeOnBest(BaseCallback):
-        """Called by EvalCallback on a new best model: saves the matching VecNormalize statistics."""
+    class ScheduledCheckpoint(BaseCallback):
+        """Checkpoints every ``save_freq`` env steps counted from step 0 of the run (so a resumed run
+        keeps its schedule), each file written atomically: ``rl_model_vecnormalize_<N>_steps.pkl``,
+        ``rl_model_replay_buffer_<N>_steps.pkl`` (optional), then ``rl_model_<N>_steps.zip``
+        (the zip last: a checkpoint whose zip exists has its statistics)."""
 
-        def __init__(self, path: str):
+        def __init__(self, save_freq: int, save_path: str, save_vecnormalize: bool, save_replay_buffer: bool,
+                     run_state=None):
             super().__init__()
-            self.path = path
+            self.save_freq = int(save_freq)
+            self.save_path = Path(save_path)
+            self.save_vecnormalize = save_vecnormalize
+            self.save_replay_buffer = save_replay_buffer
+            self.run_state = run_state
+            self._last_k = 0
+
+        def _on_training_start(self) -> None:
+            self._last_k = self.model.num_timesteps // self.save_freq
 
         def _on_step(self) -> bool:
-            venv = self.model.get_vec_normalize_env()
-            if venv is not None:
-                venv.save(self.path)
+            k = self.num_timesteps // self.save_freq
+            if k > self._last_k:
+                self._last_k = k
+                self.save_path.mkdir(parents=True, exist_ok=True)
+                n = self.num_timesteps
+                vn = self.model.get_vec_normalize_env()
+                if self.save_vecnormalize and vn is not None:
+                    common.save_pickle_atomic(vn, self.save_path / f"rl_model_vecnormalize_{n}_steps.pkl")
+                if self.save_replay_buffer and hasattr(self.model, "replay_buffer"):
+                    common.save_replay_buffer_atomic(self.model, self.save_path / f"rl_model_replay_buffer_{n}_steps.pkl")
+                common.save_model_atomic(self.model, self.save_path / f"rl_model_{n}_steps.zip")
+                if self.run_state is not None:
+                    self.run_state.update(last_checkpoint_timesteps=int(n), num_timesteps=int(n))
             return True
 
     class ResumableEvalCallback(EvalCallback):
-        """EvalCallback that, on resume, keeps the earlier evaluations and best reward."""
+        """EvalCallback that evaluates every ``every`` env steps counted from step 0 of the run (a
+        resumed run keeps its schedule), keeps the earlier evaluations and best reward on resume,
+        and writes ``eval/evaluations.npz``, ``best_model.zip`` and ``best_vecnormalize.pkl``
+        atomically (statistics first, then the model)."""
+
+        def __init__(self, eval_env, every: int, run_dir: Path, run_state=None, report=None, **kw):
+            super().__init__(eval_env, eval_freq=1, log_path=str(run_dir / "eval"), best_model_save_path=None,
+                             **kw)
+            self.every = int(every)
+            self.run_dir = Path(run_dir)
+            self.run_state = run_state
+            self.report = report
+            self.npz_path = self.run_dir / "eval" / "evaluations.npz"
+            # EvalCallback's own np.savez (not atomic) goes to a scratch file; the real file is written below
+            self.log_path = str(self.run_dir / "eval" / ".evaluations_scratch")
+            self._last_k = 0
 
         def load_previous(self, npz_path: str, best_reward: float | None):
             if os.path.exists(npz_path):
@@ -127,15 +164,38 @@ def _callbacks():
             if best_reward is not None:
                 self.best_mean_reward = float(best_reward)
 
+        def _on_training_start(self) -> None:
+            super()._on_training_start()
+            self._last_k = self.model.num_timesteps // self.every
+
         def _on_step(self) -> bool:
+            k = self.num_timesteps // self.every
+            due = k > self._last_k
+            if due:
+                self._last_k = k
+            self.eval_freq = 1 if due else 0  # EvalCallback evaluates when eval_freq > 0 and n_calls % 1 == 0
+            best_before = self.best_mean_reward
             ok = super()._on_step()
-            if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0 and self.best_model_save_path:
-                st = Path(self.best_model_save_path) / "state.json"
-                if st.exists():
-                    import json
-                    s = json.loads(st.read_text())
-                    s["best_mean_reward"] = float(self.best_mean_reward)
-                    common.write_json(st, s)
+            self.eval_freq = 1
+            if not due:
+                return ok
+            kw = {}
+            if self.evaluations_successes:
+                kw["successes"] = np.asarray(self.evaluations_successes)
+            arrays = dict(timesteps=np.asarray(self.evaluations_timesteps), results=np.asarray(self.evaluations_results),
+                          ep_lengths=np.asarray(self.evaluations_length), **kw)
+            common.atomic_write(self.npz_path, lambda f: np.savez(f, **arrays))
+            if self.best_mean_reward > best_before:
+                vn = self.model.get_vec_normalize_env()
+                if vn is not None:
+                    common.save_pickle_atomic(vn, self.run_dir / "best_vecnormalize.pkl")
+                common.save_model_atomic(self.model, self.run_dir / "best_model.zip")
+            if self.run_state is not None:
+                self.run_state.update(best_mean_reward=float(self.best_mean_reward),
+                                      num_timesteps=int(self.num_timesteps))
+            if self.report is not None:
+                self.report(evaluation_metrics(self.evaluations_timesteps, self.evaluations_results,
+                                               self.evaluations_successes))
             return ok
 
     class InterruptAt(BaseCallback):
@@ -168,7 +228,7 @@ def _callbacks():
                 return False
             return True
 
-    return InfoLoggerCallback, SaveVecNormalizeOnBest, ResumableEvalCallback, InterruptAt, StopAfterWallTime
+    return InfoLoggerCallback, ScheduledCheckpoint, ResumableEvalCallback, InterruptAt, StopAfterWallTime
 
 
 # ---------------------------------------------------------------------- argument parsing
@@ -236,10 +296,92 @@ def _install_interrupt_handlers():
     signal.signal(signal.SIGTERM, _raise)
 
 
-def train(argv: list[str] | None = None, extra_callbacks: list | None = None) -> Path:
+class _DeferInterrupts:
+    """While saving: a second Ctrl-C / SIGTERM prints a note and is ignored, so the save completes
+    (every file is written atomically anyway: a SIGKILL leaves the previous good files)."""
+
+    def __enter__(self):
+        import signal
+        import threading
+        self.old = None
+        if threading.current_thread() is threading.main_thread():
+            def _note(signum, frame):
+                print("\nstill saving the model: wait a moment (the files are written atomically)",
+                      file=sys.stderr, flush=True)
+            self.old = {sig: signal.signal(sig, _note) for sig in (signal.SIGINT, signal.SIGTERM)}
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+        if self.old:
+            for sig, h in self.old.items():
+                signal.signal(sig, h)
+        return False
+
+
+class RunState:
+    """``state.json`` of a run, rewritten atomically on every update."""
+
+    def __init__(self, path: Path, initial: dict):
+        self.path = Path(path)
+        self.data = dict(initial)
+
+    def update(self, **kw):
+        self.data.update(kw)
+        common.write_json(self.path, self.data)
+
+
+def _read_state(run_dir: Path) -> dict:
+    import json
+    p = run_dir / "state.json"
+    if not p.exists():
+        return {}
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def _has_saved_model(run_dir: Path) -> bool:
+    return (run_dir / "model.zip").exists() or _latest_checkpoint(run_dir)[1] is not None
+
+
+def _running_elsewhere(state: dict) -> bool:
+    import socket
+    return (state.get("status") == "running" and state.get("pid") not in (None, os.getpid())
+            and state.get("host") == socket.gethostname() and common.pid_alive(state["pid"]))
+
+
+def _clear_failed_start(run_dir: Path) -> None:
+    """A run that failed before saving any model: drop its monitor / evaluation files so that a
+    restart in the same folder starts clean (config.yaml and command.txt are rewritten / appended)."""
+    for f in list((run_dir / "monitor").glob("*.monitor.csv")) + [run_dir / "eval" / "evaluations.npz"]:
+        try:
+            f.unlink()
+        except OSError:
+            pass
+
+
+def evaluation_metrics(timesteps, results, successes=None) -> dict:
+    """Metrics of the latest evaluation: ``timesteps``, ``eval_return`` (mean episode return),
+    ``eval_return_std``, ``eval_success`` (success rate, when the env reports ``is_success``),
+    ``best_eval_return`` and ``n_evaluations``."""
+    if not len(timesteps):
+        return {"n_evaluations": 0}
+    r = np.asarray(results[-1], float)
+    out = {"timesteps": int(timesteps[-1]), "eval_return": float(r.mean()), "eval_return_std": float(r.std()),
+           "best_eval_return": float(max(np.mean(x) for x in results)), "n_evaluations": len(timesteps)}
+    if successes is not None and len(successes):
+        out["eval_success"] = float(np.mean(successes[-1]))
+    return out
+
+
+def train(argv: list[str] | None = None, extra_callbacks: list | None = None, report=None) -> Path:
     """Run training from command-line arguments; returns the run directory.
 
     ``extra_callbacks``: additional SB3 callbacks (tests use one to emulate Ctrl-C).
+    ``report``: called with :func:`evaluation_metrics` after every evaluation (``agents.tune``
+    passes Ray Tune's ``tune.report``).
     """
     args = build_parser().parse_args(argv)
     import yaml
@@ -249,15 +391,21 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None) ->
     torch.set_num_threads(max(1, args.num_threads))
 
     resume_dir = Path(args.resume) if args.resume else None
+    fresh_restart = False  # a run directory whose first attempt failed before saving any model
     if resume_dir is not None:
         cfg_path = resume_dir / "config.yaml"
         if not cfg_path.exists():
             raise FileNotFoundError(f"--resume {resume_dir}: no config.yaml there (not a run directory)")
+        if _running_elsewhere(_read_state(resume_dir)):
+            raise FileExistsError(f"--resume {resume_dir}: a training (pid {_read_state(resume_dir)['pid']}) "
+                                  "is running in it")
         cfg = yaml.safe_load(cfg_path.read_text())
         run_dir = resume_dir
+        fresh_restart = not _has_saved_model(run_dir)
         algo, env_id, seed = cfg["algo"], cfg["env"], int(cfg["seed"])
         env_kwargs = cfg["env_kwargs"]
         raw_hp = cfg["hyperparams_raw"]
+        source = cfg.get("hyperparams_source", "config.yaml")
         n_envs = int(cfg["n_envs"])
         n_timesteps = int(args.n_timesteps) if args.n_timesteps is not None else int(cfg["n_timesteps"])
         vec_mode = cfg.get("vec_env", "auto")
@@ -287,8 +435,13 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None) ->
         n_eval_envs = args.n_eval_envs or max(1, min(eval_episodes, 10))
         run_dir = Path(args.log_dir) if args.log_dir else Path("runs") / f"{algo}_{env_id}_s{seed}"
         if (run_dir / "config.yaml").exists():
-            raise FileExistsError(f"--log-dir {run_dir} already holds a run; use --resume {run_dir} to continue "
-                                  "it or choose another --log-dir")
+            st = _read_state(run_dir)
+            if _has_saved_model(run_dir) or _running_elsewhere(st):
+                raise FileExistsError(f"--log-dir {run_dir} already holds a run; use --resume {run_dir} to "
+                                      "continue it or choose another --log-dir")
+            print(f"note: {run_dir} holds a run that stopped before saving any model "
+                  f"(status {st.get('status', 'unknown')}): starting it again")
+            fresh_restart = True
     if n_timesteps < 1:
         raise ValueError(f"--n-timesteps: must be >= 1, got {n_timesteps}")
 
@@ -296,107 +449,122 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None) ->
     Algo = common.get_algo(algo)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "checkpoints").mkdir(exist_ok=True)
+    common.remove_stale_tmp(run_dir)
+    if fresh_restart:
+        _clear_failed_start(run_dir)
 
     from stable_baselines3.common.vec_env import VecNormalize
-    from stable_baselines3.common.callbacks import CheckpointCallback, CallbackList, ProgressBarCallback
+    from stable_baselines3.common.callbacks import CallbackList, ProgressBarCallback
     from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
-    InfoLoggerCallback, SaveVecNormalizeOnBest, ResumableEvalCallback, _, StopAfterWallTime = _callbacks()
+    InfoLoggerCallback, ScheduledCheckpoint, ResumableEvalCallback, _, StopAfterWallTime = _callbacks()
 
-    info_keys, reward_keys = common.probe_info_keys(env_id, env_kwargs)
-    segment = len(glob.glob(str(run_dir / "monitor" / "train_*.monitor.csv")))
-    env, vec_used = common.make_vec(env_id, n_envs, seed, env_kwargs, vec_mode,
-                                    monitor_file=str(run_dir / "monitor" / f"train_{segment}"),
-                                    info_keywords=tuple(k for k in info_keys if not k.startswith("reward_")))
-    eval_env = None
-    if eval_freq and eval_freq > 0:
-        eval_env, _ = common.make_vec(env_id, n_eval_envs, seed + EVAL_SEED_OFFSET, env_kwargs, vec_mode)
-    norm = hp["normalize"]
-    if norm is not None:
-        env = VecNormalize(env, **norm)
-        if eval_env is not None:
-            eval_env = VecNormalize(eval_env, training=False, norm_reward=False,
-                                    **{k: v for k, v in norm.items() if k not in ("norm_reward", "training")})
-
-    # ---------------------------------------------------------------- config + metadata
-    config = {
-        "algo": algo, "env": env_id, "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": n_timesteps,
-        "n_envs": n_envs, "vec_env": vec_used, "eval_freq": eval_freq, "save_freq": save_freq,
-        "eval_episodes": eval_episodes, "n_eval_envs": n_eval_envs, "eval_seed": seed + EVAL_SEED_OFFSET,
-        "hyperparams_raw": common.to_yaml_safe(raw_hp),
-        "hyperparams_resolved": common.to_yaml_safe({**hp["model_kwargs"], "policy": hp["policy"],
-                                                     "normalize": hp["normalize"], "noise": hp["noise"]}),
-        "info_keys": info_keys,
-    }
-    if resume_dir is None:
-        config["hyperparams_source"] = source
-        (run_dir / "config.yaml").write_text(yaml.safe_dump(common.to_yaml_safe(config), sort_keys=False))
-    else:
-        old = yaml.safe_load((run_dir / "config.yaml").read_text())
-        old["n_timesteps"] = n_timesteps
-        (run_dir / "config.yaml").write_text(yaml.safe_dump(old, sort_keys=False))
-    with open(run_dir / "command.txt", "a") as f:
-        f.write(f"# {time.strftime('%Y-%m-%d %H:%M:%S %Z')} cwd={os.getcwd()}\n{common.command_line(argv)}\n")
-    common.write_json(run_dir / "versions.json", common.package_versions())
-
-    # ---------------------------------------------------------------- model
-    model_kwargs = dict(hp["model_kwargs"])
-    if hp["noise"] is not None:
-        kind, std = hp["noise"]
-        nact = env.action_space.shape[0]
-        if kind == "normal":
-            model_kwargs["action_noise"] = NormalActionNoise(np.zeros(nact), std * np.ones(nact))
-        elif kind == "ornstein-uhlenbeck":
-            model_kwargs["action_noise"] = OrnsteinUhlenbeckActionNoise(np.zeros(nact), std * np.ones(nact))
-        else:
-            raise ValueError(f"noise_type: unknown {kind!r}; choose normal or ornstein-uhlenbeck")
+    import json
+    import socket
     state_path = run_dir / "state.json"
-    prev_state = {}
-    if resume_dir is not None:
-        import json
-        prev_state = json.loads(state_path.read_text()) if state_path.exists() else {}
-        ck_steps, ck_path = _latest_checkpoint(run_dir)
-        final = run_dir / "model.zip"
-        fin_steps = int(prev_state.get("num_timesteps", -1)) if final.exists() else -1
-        if fin_steps >= ck_steps and final.exists():
-            load_path, vn_path, rb_path = final, run_dir / "vecnormalize.pkl", run_dir / "replay_buffer.pkl"
-        elif ck_path is not None:
-            load_path = ck_path
-            vn_path = run_dir / "checkpoints" / f"rl_model_vecnormalize_{ck_steps}_steps.pkl"
-            rb_path = run_dir / "checkpoints" / f"rl_model_replay_buffer_{ck_steps}_steps.pkl"
-        else:
-            raise FileNotFoundError(f"--resume {run_dir}: neither model.zip nor checkpoints/rl_model_*_steps.zip")
+    prev_state = _read_state(run_dir) if (resume_dir is not None and not fresh_restart) else {}
+    run_state = RunState(state_path, {
+        **prev_state, "status": "starting", "pid": os.getpid(), "host": socket.gethostname(),
+        "num_timesteps": int(prev_state.get("num_timesteps", 0)), "target_timesteps": n_timesteps})
+    run_state.update()
+    t0 = time.time()
+    env = eval_env = model = None
+    try:
+        info_keys, reward_keys = common.probe_info_keys(env_id, env_kwargs)
+        segment = len(glob.glob(str(run_dir / "monitor" / "train_*.monitor.csv")))
+        env, vec_used = common.make_vec(env_id, n_envs, seed, env_kwargs, vec_mode,
+                                        monitor_file=str(run_dir / "monitor" / f"train_{segment}"),
+                                        info_keywords=tuple(k for k in info_keys if not k.startswith("reward_")))
+        if eval_freq and eval_freq > 0:
+            eval_env, _ = common.make_vec(env_id, n_eval_envs, seed + EVAL_SEED_OFFSET, env_kwargs, vec_mode)
+        norm = hp["normalize"]
         if norm is not None:
-            if not vn_path.exists():
-                raise FileNotFoundError(f"--resume: normalisation statistics {vn_path} are missing")
-            env = VecNormalize.load(str(vn_path), env.venv)
-            env.training = True
-        model = Algo.load(str(load_path), env=env, device=args.device,
-                          tensorboard_log=str(run_dir / "tb"))
-        if hasattr(model, "replay_buffer"):
-            if rb_path.exists():
-                model.load_replay_buffer(str(rb_path))
+            env = VecNormalize(env, **norm)
+            if eval_env is not None:
+                eval_env = VecNormalize(eval_env, training=False, norm_reward=False,
+                                        **{k: v for k, v in norm.items() if k not in ("norm_reward", "training")})
+
+        # ------------------------------------------------------------ config + metadata
+        config = {
+            "algo": algo, "env": env_id, "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": n_timesteps,
+            "n_envs": n_envs, "vec_env": vec_used, "eval_freq": eval_freq, "save_freq": save_freq,
+            "eval_episodes": eval_episodes, "n_eval_envs": n_eval_envs, "eval_seed": seed + EVAL_SEED_OFFSET,
+            "hyperparams_raw": common.to_yaml_safe(raw_hp),
+            "hyperparams_resolved": common.to_yaml_safe({**hp["model_kwargs"], "policy": hp["policy"],
+                                                         "normalize": hp["normalize"], "noise": hp["noise"]}),
+            "info_keys": info_keys,
+        }
+        if resume_dir is None:
+            config["hyperparams_source"] = source
+            common.write_text(run_dir / "config.yaml", yaml.safe_dump(common.to_yaml_safe(config), sort_keys=False))
+        else:
+            old = yaml.safe_load((run_dir / "config.yaml").read_text())
+            old["n_timesteps"] = n_timesteps
+            common.write_text(run_dir / "config.yaml", yaml.safe_dump(old, sort_keys=False))
+        with open(run_dir / "command.txt", "a") as f:
+            f.write(f"# {time.strftime('%Y-%m-%d %H:%M:%S %Z')} cwd={os.getcwd()}\n{common.command_line(argv)}\n")
+        common.write_json(run_dir / "versions.json", common.package_versions())
+
+        # ------------------------------------------------------------ model
+        model_kwargs = dict(hp["model_kwargs"])
+        if hp["noise"] is not None:
+            kind, std = hp["noise"]
+            nact = env.action_space.shape[0]
+            if kind == "normal":
+                model_kwargs["action_noise"] = NormalActionNoise(np.zeros(nact), std * np.ones(nact))
+            elif kind == "ornstein-uhlenbeck":
+                model_kwargs["action_noise"] = OrnsteinUhlenbeckActionNoise(np.zeros(nact), std * np.ones(nact))
             else:
-                print(f"warning: no replay buffer {rb_path.name} (saved on Ctrl-C, or in checkpoints with "
-                      "--save-replay-buffer): continuing with an empty buffer")
-        print(f"resuming {run_dir} from {load_path.name} at {model.num_timesteps} steps "
-              f"(target {n_timesteps})")
-    else:
-        model = Algo(hp["policy"], env, seed=seed, device=args.device, verbose=args.verbose,
-                     tensorboard_log=str(run_dir / "tb"), **model_kwargs)
+                raise ValueError(f"noise_type: unknown {kind!r}; choose normal or ornstein-uhlenbeck")
+        if resume_dir is not None and not fresh_restart:
+            ck_steps, ck_path = _latest_checkpoint(run_dir)
+            final = run_dir / "model.zip"
+            fin_steps = int(prev_state.get("model_num_timesteps", prev_state.get("num_timesteps", -1))) \
+                if final.exists() else -1
+            if fin_steps >= ck_steps and final.exists():
+                load_path, vn_path, rb_path = final, run_dir / "vecnormalize.pkl", run_dir / "replay_buffer.pkl"
+            else:
+                load_path = ck_path
+                vn_path = run_dir / "checkpoints" / f"rl_model_vecnormalize_{ck_steps}_steps.pkl"
+                rb_path = run_dir / "checkpoints" / f"rl_model_replay_buffer_{ck_steps}_steps.pkl"
+            if norm is not None:
+                if not vn_path.exists():
+                    raise FileNotFoundError(f"--resume: normalisation statistics {vn_path} are missing")
+                env = VecNormalize.load(str(vn_path), env.venv)
+                env.training = True
+            model = Algo.load(str(load_path), env=env, device=args.device,
+                              tensorboard_log=str(run_dir / "tb"))
+            if hasattr(model, "replay_buffer"):
+                if rb_path.exists():
+                    model.load_replay_buffer(str(rb_path))
+                else:
+                    print(f"warning: no replay buffer {rb_path.name} (saved on Ctrl-C, or in checkpoints with "
+                          "--save-replay-buffer): continuing with an empty buffer")
+            print(f"resuming {run_dir} from {load_path.name} at {model.num_timesteps} steps "
+                  f"(target {n_timesteps})")
+        else:
+            model = Algo(hp["policy"], env, seed=seed, device=args.device, verbose=args.verbose,
+                         tensorboard_log=str(run_dir / "tb"), **model_kwargs)
+    except BaseException as e:  # failed before the first step: record it; the folder can be started again
+        run_state.update(status="crashed" if not isinstance(e, KeyboardInterrupt) else "interrupted",
+                         error=f"{type(e).__name__}: {e}", failed_before_first_step=True,
+                         wall_time_s=float(prev_state.get("wall_time_s", 0.0)) + time.time() - t0)
+        for v in (env, eval_env):
+            if v is not None:
+                v.close()
+        raise
 
     # ---------------------------------------------------------------- callbacks
     cbs: list = [InfoLoggerCallback(reward_keys, info_keys)]
     if save_freq and save_freq > 0:
-        cbs.append(CheckpointCallback(max(save_freq // n_envs, 1), str(run_dir / "checkpoints"),
-                                      save_vecnormalize=norm is not None,
-                                      save_replay_buffer=bool(args.save_replay_buffer and algo in common.OFF_POLICY)))
+        cbs.append(ScheduledCheckpoint(save_freq, str(run_dir / "checkpoints"), save_vecnormalize=norm is not None,
+                                       save_replay_buffer=bool(args.save_replay_buffer and algo in common.OFF_POLICY),
+                                       run_state=run_state))
+    ecb = None
     if eval_env is not None:
-        ecb = ResumableEvalCallback(
-            eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
-            log_path=str(run_dir / "eval"), best_model_save_path=str(run_dir), deterministic=True,
-            verbose=args.verbose, warn=False,
-            callback_on_new_best=SaveVecNormalizeOnBest(str(run_dir / "best_vecnormalize.pkl")))
-        if resume_dir is not None:
+        ecb = ResumableEvalCallback(eval_env, eval_freq, run_dir, run_state=run_state, report=report,
+                                    n_eval_episodes=eval_episodes, deterministic=True, verbose=args.verbose,
+                                    warn=False)
+        if resume_dir is not None and not fresh_restart:
             ecb.load_previous(str(run_dir / "eval" / "evaluations.npz"), prev_state.get("best_mean_reward"))
         cbs.append(ecb)
     if not args.no_progress_bar:
@@ -410,41 +578,77 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None) ->
     _install_interrupt_handlers()
     remaining = n_timesteps - model.num_timesteps
     status = "finished"
-    t0 = time.time()
+    error = None
     steps0 = model.num_timesteps
-    common.write_json(state_path, {**prev_state, "status": "running", "num_timesteps": int(model.num_timesteps)})
+    run_state.data.pop("error", None)
+    run_state.data.pop("traceback", None)
+    run_state.data.pop("failed_before_first_step", None)
+    run_state.update(status="running", num_timesteps=int(model.num_timesteps))
     try:
         if remaining > 0:
             model.learn(total_timesteps=remaining, callback=CallbackList(cbs), tb_log_name="run",
-                        reset_num_timesteps=resume_dir is None, progress_bar=False)
+                        reset_num_timesteps=resume_dir is None or fresh_restart, progress_bar=False)
         else:
             print(f"nothing to do: {model.num_timesteps} steps >= n_timesteps {n_timesteps}")
     except KeyboardInterrupt:
         status = "interrupted"
-        print(f"\ninterrupted at {model.num_timesteps} steps: saving model and statistics to {run_dir}")
+        print(f"\ninterrupted at {model.num_timesteps} steps: saving model and statistics to {run_dir}",
+              flush=True)
+    except SystemExit as e:  # sys.exit from a callback, e.g. Ray Tune stopping a trial: saved, then re-raised
+        status, error = ("stopped" if e.code in (0, None) else "crashed"), e
+        if status == "crashed":
+            run_state.data["error"] = f"SystemExit: {e.code}"
+    except BaseException as e:  # noqa: BLE001 -- recorded, then re-raised
+        import traceback
+        status, error = "crashed", e
+        run_state.data["error"] = f"{type(e).__name__}: {e}"
+        run_state.data["traceback"] = traceback.format_exc()[-4000:]
     finally:
-        model.save(str(run_dir / "model.zip"))
-        venv_norm = model.get_vec_normalize_env()
-        if venv_norm is not None:
-            venv_norm.save(str(run_dir / "vecnormalize.pkl"))
-        if hasattr(model, "replay_buffer") and status == "interrupted":
-            model.save_replay_buffer(str(run_dir / "replay_buffer.pkl"))
-        elapsed = time.time() - t0
-        best = prev_state.get("best_mean_reward")
-        if eval_env is not None:
-            best = float(ecb.best_mean_reward) if np.isfinite(ecb.best_mean_reward) else None
-        if stopper is not None and stopper.hit and status == "finished":
-            status = "time_limit"
-        state = {"status": status, "num_timesteps": int(model.num_timesteps), "target_timesteps": n_timesteps,
-                 "best_mean_reward": best,
-                 "wall_time_s": float(prev_state.get("wall_time_s", 0.0)) + elapsed,
-                 "steps_per_s_last_segment": (model.num_timesteps - steps0) / max(elapsed, 1e-9)}
-        common.write_json(state_path, state)
-        env.close()
-        if eval_env is not None:
-            eval_env.close()
-    print(f"{state['status']}: {model.num_timesteps} steps in {elapsed:.1f} s -> {run_dir}")
+        with _DeferInterrupts():
+            _save_final(model, run_dir, status, run_state)
+            elapsed = time.time() - t0
+            best = prev_state.get("best_mean_reward")
+            if ecb is not None and np.isfinite(ecb.best_mean_reward):
+                best = float(ecb.best_mean_reward)
+            if stopper is not None and stopper.hit and status == "finished":
+                status = "time_limit"
+            run_state.update(status=status, num_timesteps=int(model.num_timesteps), target_timesteps=n_timesteps,
+                             best_mean_reward=best,
+                             wall_time_s=float(prev_state.get("wall_time_s", 0.0)) + elapsed,
+                             steps_per_s_last_segment=(model.num_timesteps - steps0) / max(elapsed, 1e-9))
+            scratch = run_dir / "eval" / ".evaluations_scratch.npz"
+            if scratch.exists():
+                scratch.unlink()
+            env.close()
+            if eval_env is not None:
+                eval_env.close()
+    print(f"{status}: {model.num_timesteps} steps in {elapsed:.1f} s -> {run_dir}")
+    if error is not None:
+        raise error
     return run_dir
+
+
+def _save_final(model, run_dir: Path, status: str, run_state: RunState) -> None:
+    """Save the model at the end of a segment, every file atomically, statistics before the model.
+
+    finished / interrupted / time_limit: ``vecnormalize.pkl``, (``replay_buffer.pkl`` when
+    interrupted, off-policy), ``model.zip``. crashed: the last good ``model.zip`` and checkpoints
+    are kept; the crashing model goes to ``crashed_model.zip`` (+ ``crashed_vecnormalize.pkl``)
+    for inspection only (``--resume`` does not use it)."""
+    prefix = "crashed_" if status == "crashed" else ""
+    try:
+        vn = model.get_vec_normalize_env()
+        if vn is not None:
+            common.save_pickle_atomic(vn, run_dir / f"{prefix}vecnormalize.pkl")
+        if hasattr(model, "replay_buffer") and status == "interrupted":
+            common.save_replay_buffer_atomic(model, run_dir / "replay_buffer.pkl")
+        common.save_model_atomic(model, run_dir / f"{prefix}model.zip")
+        if not prefix:
+            run_state.data["model_num_timesteps"] = int(model.num_timesteps)
+    except Exception as e:  # noqa: BLE001 -- a crashed model may not be savable; the old files stay
+        if not prefix:
+            raise
+        print(f"warning: could not save the crashed model: {e}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:

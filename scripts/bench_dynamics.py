@@ -48,41 +48,12 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 from tensegrity_gym import builders, dynamics as dyn, integrators  # noqa: E402
 from tensegrity_gym import _kernels  # noqa: E402
+from tensegrity_gym._bench import mjcf, quat_z_to as _quat_z_to, timeit  # noqa: E402,F401  (shared helpers)
 
 DT = 1e-3
-
-
-# ---------------------------------------------------------------------------- timing
-def timeit(fn, target=0.15, repeats=3, max_single=2.0):
-    """Best wall time (s) of one call of ``fn`` over ``repeats`` runs of about ``target`` s each.
-    Returns None when one call takes longer than ``max_single`` s (too slow to time)."""
-    t0 = time.perf_counter()
-    fn()                                      # warm up (compilation, caches)
-    first = time.perf_counter() - t0
-    if first > max_single:
-        return None
-    n = 1
-    while True:
-        t0 = time.perf_counter()
-        for _ in range(n):
-            fn()
-        el = time.perf_counter() - t0
-        if el >= target / 5 or n >= 1 << 22:
-            break
-        n *= 4
-    n = max(1, int(n * target / max(el, 1e-9)))
-    best = el / max(n, 1) if n == 1 else float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(n):
-            fn()
-        best = min(best, (time.perf_counter() - t0) / n)
-    return best
 
 
 # ---------------------------------------------------------------------------- scenes
@@ -102,56 +73,6 @@ def perturbed_state(model, B, scale, seed=0):
 
 
 # ---------------------------------------------------------------------------- MuJoCo
-def _quat_z_to(z):
-    """Unit quaternion (w, x, y, z) rotating the z axis onto the unit vector z."""
-    zz = np.array([0.0, 0.0, 1.0])
-    c = float(zz @ z)
-    if c < -1 + 1e-12:
-        return np.array([0.0, 1.0, 0.0, 0.0])
-    v = np.cross(zz, z)
-    q = np.array([1.0 + c, *v])
-    return q / np.linalg.norm(q)
-
-
-def _f(x):
-    """Shortest exact decimal form of a float for MJCF."""
-    return repr(float(x))
-
-
-def mjcf(model, integrator="Euler", dt=DT, axial_inertia=1e-6):
-    """MJCF of a free class-1 structure (no anchors, no node constraints, no gravity): one free
-    body per rod at its centre of mass, z axis along the rod, thin-rod inertia; one site per
-    node at the rod ends; one spatial tendon per string with springlength = [0, l0]."""
-    if model.anchor_idx.size or model.constrained.any() or model.has_gravity or model.has_damping:
-        raise ValueError("mjcf(): only free, undamped structures without gravity are translated")
-    s = model.structure
-    bodies = []
-    for j in range(model.n_bars):
-        a, c = int(model.rod_a[j]), int(model.rod_c[j])
-        pa, pc = s.nodes[a], s.nodes[c]
-        L = float(np.linalg.norm(pc - pa))
-        ctr = pa + model.sigma[j] * (pc - pa)
-        qt = _quat_z_to((pc - pa) / L)
-        m = float(model.mass[j])
-        J = float(model.J[j])
-        za, zc = float(model.eta[j, 0]), float(model.eta[j, 1])
-        bodies.append(
-            f'<body name="rod{j}" pos="{_f(ctr[0])} {_f(ctr[1])} {_f(ctr[2])}" '
-            f'quat="{_f(qt[0])} {_f(qt[1])} {_f(qt[2])} {_f(qt[3])}"><freejoint/>'
-            f'<inertial pos="0 0 0" mass="{_f(m)}" diaginertia="{_f(J)} {_f(J)} {_f(J * axial_inertia)}"/>'
-            f'<geom type="capsule" fromto="0 0 {_f(za)} 0 0 {_f(zc)}" size="0.01" mass="0" '
-            f'contype="0" conaffinity="0"/>'
-            f'<site name="n{a}" pos="0 0 {_f(za)}"/><site name="n{c}" pos="0 0 {_f(zc)}"/></body>')
-    tendons = []
-    for i in range(model.n_strings):
-        tendons.append(
-            f'<spatial name="s{i}" stiffness="{_f(float(model.stiffness[i]))}" damping="0" '
-            f'springlength="0 {_f(float(model.rest_length[i]))}"><site site="n{int(model.str_i[i])}"/>'
-            f'<site site="n{int(model.str_j[i])}"/></spatial>')
-    return (f'<mujoco><option timestep="{_f(dt)}" integrator="{integrator}" gravity="0 0 0"/>'
-            f'<worldbody>{"".join(bodies)}</worldbody><tendon>{"".join(tendons)}</tendon></mujoco>')
-
-
 def mj_set_state(mujoco, mm, d, model, q, qd):
     """Put our configuration q, qd (k, 6) of one copy into MjData (free joints)."""
     for j in range(model.n_bars):

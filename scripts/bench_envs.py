@@ -64,9 +64,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for _p in (ROOT, ROOT / "scripts"):
-    if str(_p) not in sys.path:
-        sys.path.insert(0, str(_p))
 
 import gymnasium as gym  # noqa: E402
 from gymnasium import spaces  # noqa: E402
@@ -74,9 +71,8 @@ from gymnasium import spaces  # noqa: E402
 import tensegrity_gym  # noqa: E402,F401  (registers the env ids)
 from tensegrity_gym import _kernels, builders, integrators  # noqa: E402
 from tensegrity_gym import dynamics as dyn  # noqa: E402
-from tensegrity_gym.envs.common import make_sb3_vec_env  # noqa: E402
-
-from bench_dynamics import mjcf  # noqa: E402  (MJCF of the free prism: reused, not copied)
+from tensegrity_gym._bench import mjcf  # noqa: E402  (MJCF of the free prism, shared with bench_dynamics)
+from tensegrity_gym.sb3 import make_sb3_vec_env  # noqa: E402
 
 ENV_IDS = {"shape": "TensegrityShape-v0", "roll": "TensegrityRoll-v0"}
 METHODS = {

@@ -8,7 +8,7 @@
 Every pattern runs in one env of one batched vector env (the same physics as the env): the
 rest-length targets of ``tensegrity_gym.baselines.wave_targets`` (RollingGait's wave) with
 per-env parameters, the cable-speed action that tracks them, and, per control step, the
-best-fit rigid rotation of the nodes (``scripts/gait_stats.rotation_vectors``, Kabsch)
+best-fit rigid rotation of the nodes (``tensegrity_gym._bench.rotation_vectors``, Kabsch)
 accumulated as a rotation vector. Prints the patterns that progressed most along +x and those
 that rotated most about a horizontal axis, and saves everything to ``--out`` (npz). A pattern
 rolls when its displacement is along (net turns) x z. Findings: ``results/gait_search/README.md``.
@@ -28,11 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
-
-from gait_stats import rotation_vectors  # noqa: E402
+from tensegrity_gym._bench import rotation_vectors
 from tensegrity_gym import dynamics as dyn  # noqa: E402
 from tensegrity_gym.baselines import RollingGait, wave_targets  # noqa: E402
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402

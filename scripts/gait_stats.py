@@ -33,28 +33,16 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 import gymnasium as gym  # noqa: E402
 
 import tensegrity_gym  # noqa: E402,F401
 from tensegrity_gym import dynamics as dyn  # noqa: E402
 from tensegrity_gym.baselines import RollingGait  # noqa: E402
+from tensegrity_gym._bench import rotation_vectors  # noqa: E402,F401  (shared with gait_search)
 
 ENV_ID = "TensegrityRoll-v0"
-
-
-def rotation_vectors(prev: np.ndarray, cur: np.ndarray) -> np.ndarray:
-    """Rotation vectors (B, 3), rad, of the best-fit rotations ``R`` with ``cur[b] ~ prev[b] @ R.T``
-    (Kabsch; ``prev``, ``cur`` (B, n, 3) node positions about their centroids, m)."""
-    U, _, Vt = np.linalg.svd(np.einsum("bni,bnj->bij", prev, cur))
-    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
-    D = np.tile(np.eye(3), (len(prev), 1, 1))
-    D[:, 2, 2] = np.sign(np.linalg.det(V @ Ut))      # a rotation, not a reflection
-    return Rotation.from_matrix(V @ D @ Ut).as_rotvec()
 
 
 def episode_stats(env, policy, seed: int, steps: int) -> dict:

@@ -39,10 +39,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 import tensegrity_gym as tg  # noqa: E402
 from tensegrity_gym import dynamics as dyn, integrators as I  # noqa: E402
+from tensegrity_gym._bench import mjcf_rods, timed as _timed  # noqa: E402  (shared helpers)
 
 FIXED = ("semi_implicit_euler", "rk4", "implicit_euler")
 
@@ -187,20 +187,6 @@ def errors(sc, ref, q, qd, ec=None):
     return pos, en, rod
 
 
-def _timed(fn, wall_min=0.2):
-    """Run ``fn`` (returns the records); wall time, best of 3 when a run is short (noise of
-    a shared machine)."""
-    t0 = time.perf_counter()
-    out = fn()
-    wall = time.perf_counter() - t0
-    if wall < wall_min:
-        for _ in range(2):
-            t0 = time.perf_counter()
-            fn()
-            wall = min(wall, time.perf_counter() - t0)
-    return out, wall
-
-
 def run_one(sc, ref, integrator, dt, backend):
     """One fixed-step run: returns a row dict (errors, cost, status)."""
     m, st, T, S = sc["model"], sc["state"], sc["T"], sc["n_rec"]
@@ -247,49 +233,14 @@ def numba_works(model, state):
 
 # ----------------------------------------------------------------------------- MuJoCo
 def mujoco_prism_xml(model, state, dt, integrator):
-    """MJCF of the free prism: one free body per rod at its centre of mass (thin-rod inertia
-    m l^2/12 about the transverse axes), a site at each rod end, one spatial tendon per string
-    with ``springlength="0 l0"`` (tension-only: no force while shorter than l0)."""
+    """MJCF of the free prism in configuration ``state`` (copy 0): one free body per rod at its
+    centre of mass (thin-rod inertia), a site at each rod end, one spatial tendon per string with
+    ``springlength="0 l0"`` (tension-only), contact disabled (:func:`tensegrity_gym._bench.mjcf_rods`)."""
     r = state.q[0, :, :3]
     b = state.q[0, :, 3:]
     L = model.length
-    bodies = []
-    for j in range(model.n_bars):
-        z = b[j]
-        quat = _quat_z_to(z)
-        J = model.mass[j] * L[j] ** 2 / 12
-        bodies.append(
-            f'<body name="rod{j}" pos="{_f(r[j, 0])} {_f(r[j, 1])} {_f(r[j, 2])}" '
-            f'quat="{_f(quat[0])} {_f(quat[1])} {_f(quat[2])} {_f(quat[3])}"><freejoint/>'
-            f'<inertial pos="0 0 0" mass="{_f(model.mass[j])}" diaginertia="{_f(J)} {_f(J)} {_f(J * 1e-6)}"/>'
-            f'<site name="n{model.rod_a[j]}" pos="0 0 {_f(-L[j] / 2)}"/>'
-            f'<site name="n{model.rod_c[j]}" pos="0 0 {_f(L[j] / 2)}"/></body>')
-    tendons = []
-    for i in range(model.n_strings):
-        tendons.append(
-            f'<spatial name="s{i}" stiffness="{_f(model.stiffness[i])}" damping="0" '
-            f'springlength="0 {_f(model.rest_length[i])}"><site site="n{model.str_i[i]}"/>'
-            f'<site site="n{model.str_j[i]}"/></spatial>')
-    return (f'<mujoco><option timestep="{_f(dt)}" integrator="{integrator}" gravity="0 0 0">'
-            '<flag contact="disable"/></option>'
-            f'<worldbody>{"".join(bodies)}</worldbody><tendon>{"".join(tendons)}</tendon></mujoco>')
-
-
-def _f(x):
-    return repr(float(x))
-
-
-def _quat_z_to(z):
-    """Unit quaternion (w, x, y, z) rotating the z axis onto unit vector ``z``."""
-    e = np.array([0.0, 0.0, 1.0])
-    c = float(np.dot(e, z))
-    ax = np.cross(e, z)
-    s = np.linalg.norm(ax)
-    if s < 1e-15:
-        return np.array([1.0, 0.0, 0.0, 0.0]) if c > 0 else np.array([0.0, 1.0, 0.0, 0.0])
-    ang = np.arctan2(s, c)
-    ax = ax / s
-    return np.concatenate([[np.cos(ang / 2)], np.sin(ang / 2) * ax])
+    return mjcf_rods(model, r, b, [(-L[j] / 2, L[j] / 2) for j in range(model.n_bars)], dt, integrator,
+                     contact=False)
 
 
 def mujoco_rows(sc, ref, dts, integrators=("Euler", "RK4")):

@@ -30,7 +30,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 import tensegrity_gym as tg  # noqa: E402
 from tensegrity_gym import Structure, dynamics as dyn, integrators as I  # noqa: E402

@@ -39,3 +39,9 @@ def _register() -> None:
 
 
 _register()
+
+if "rl_zoo3.exp_manager" in __import__("sys").modules:
+    # imported by rl_zoo3 (--gym-packages tensegrity_gym): the zoo reads the project's tuned
+    # hyperparameter files for the tensegrity envs unless given --conf-file (tensegrity_gym/zoo.py)
+    from .zoo import install as _install_zoo
+    _install_zoo()

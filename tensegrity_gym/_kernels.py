@@ -121,6 +121,7 @@ _ERRORS = {
     4: "force_density: expected shape ({m},) or (B, {m})",
     5: "external: expected shape ({n}, 3) or (B, {n}, 3)",
     6: "output arrays: expected the same shape as q",
+    7: "params: expected one row (shared) or one per copy of q",
 }
 
 
@@ -464,9 +465,11 @@ if AVAILABLE:
 
 
     @njit(inline="always", **_opts)
-    def _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags):
+    def _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
         """_acc for E environments at once, structure-of-arrays: Qi, Vi, A (k, 6, E), N, V, F,
-        EX (n, 3, E), L0, FD (m, E). The innermost loops run over the environments (SIMD)."""
+        EX (n, 3, E), L0, FD (m, E). The innermost loops run over the environments (SIMD).
+        Topology (node indices, eta, projectors) comes from ``w``; the physical constants of lane
+        e from ``PC[slot, e]`` (the buffer's slots, one column per lane: see _lane_physics)."""
         o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
         has_damp = (flags & _DAMP) != 0
         need_v = (flags & (_DAMP | _NDAMP)) != 0
@@ -491,9 +494,9 @@ if AVAILABLE:
             ps = o_str + _STR * s
             si = ib[ps]
             sj = ib[ps + 1]
-            kk = w[ps + 2]
-            cc = w[ps + 3]
             for e in range(E):
+                kk = PC[ps + 2, e]
+                cc = PC[ps + 3, e]
                 s0 = N[sj, 0, e] - N[si, 0, e]
                 s1 = N[sj, 1, e] - N[si, 1, e]
                 s2 = N[sj, 2, e] - N[si, 2, e]
@@ -521,15 +524,13 @@ if AVAILABLE:
         if (flags & _GRAV) != 0:
             for p in range(n):
                 for i in range(3):
-                    wv = w[o_W0 + 3 * p + i]
                     for e in range(E):
-                        F[p, i, e] = F[p, i, e] + wv
+                        F[p, i, e] = F[p, i, e] + PC[o_W0 + 3 * p + i, e]
         if (flags & _NDAMP) != 0:
             for p in range(n):
                 for i in range(3):
-                    cv = w[o_cn + 3 * p + i]
                     for e in range(E):
-                        F[p, i, e] = F[p, i, e] - cv * V[p, i, e]
+                        F[p, i, e] = F[p, i, e] - PC[o_cn + 3 * p + i, e] * V[p, i, e]
         if (flags & _EXT) != 0:
             for p in range(n):
                 for i in range(3):
@@ -541,19 +542,19 @@ if AVAILABLE:
             fc = ib[rj + 1]
             ea = w[rj + 3]
             ec = w[rj + 4]
-            im = w[rj + 5]
-            iJ = w[rj + 6]
             free = ib[rj + 2] == 0
-            fJ = w[rj + 7]
-            beta = w[rj + 8]
-            alpha = w[rj + 9]
-            ialpha = w[rj + 10]
-            fm = w[rj + 11]
             pj = rj + 12
             p00, p01, p02 = w[pj], w[pj + 1], w[pj + 2]
             p10, p11, p12 = w[pj + 3], w[pj + 4], w[pj + 5]
             p20, p21, p22 = w[pj + 6], w[pj + 7], w[pj + 8]
             for e in range(E):
+                im = PC[rj + 5, e]
+                iJ = PC[rj + 6, e]
+                fJ = PC[rj + 7, e]
+                beta = PC[rj + 8, e]
+                alpha = PC[rj + 9, e]
+                ialpha = PC[rj + 10, e]
+                fm = PC[rj + 11, e]
                 b0 = Qi[j, 3, e]
                 b1 = Qi[j, 4, e]
                 b2 = Qi[j, 5, e]
@@ -611,20 +612,44 @@ if AVAILABLE:
                     A[j, 4, e] = P1 * iJ - fJ * (r1 - b1 * br) - wv * b1
                     A[j, 5, e] = P2 * iJ - fJ * (r2 - b2 * br) - wv * b2
 
+    @njit(inline="always", **_opts)
+    def _lane_physics(PC, N, src, L, k, m, n, e):
+        """Lane e of the SoA scratch takes the physical constants of the packed buffer ``src``:
+        rod constants (slots 5..11), string stiffness and damping, default rest lengths, gravity
+        loads, node drag (into ``PC[slot, e]``) and the anchor positions (rows of ``N``)."""
+        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
+        for j in range(k):
+            rj = o_rod + _ROD * j
+            for x in range(rj + 5, rj + 12):
+                PC[x, e] = src[x]
+        for s in range(m):
+            ps = o_str + _STR * s
+            PC[ps + 2, e] = src[ps + 2]
+            PC[ps + 3, e] = src[ps + 3]
+            PC[o_l0 + s, e] = src[o_l0 + s]
+        for p in range(3 * n):
+            PC[o_W0 + p, e] = src[o_W0 + p]
+            PC[o_cn + p, e] = src[o_cn + p]
+        for p in range(n):                      # anchor rows: fixed positions; rod rows overwritten
+            for i in range(3):
+                N[p, i, e] = src[o_N + 3 * p + i]
+
     @njit(**_opts)
-    def _advance_soa(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags):
+    def _advance_soa(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, bufs):
         """_advance_range for large batches: E environments at a time in structure-of-arrays
         scratch, so that every inner loop runs over environments and compiles to SIMD code.
-        Same operations in the same order as _advance_range (results agree to the last bit)."""
+        Same operations in the same order as _advance_range (results agree to the last bit).
+        ``bufs`` (B, len): one packed buffer per copy (per-copy parameters), or (0, len): every
+        copy uses ``w``'s physical constants."""
         E = 16 if k <= 24 else 8
         S = np.empty((10, k, 6, E))
         Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
         N = np.empty((n, 3, E))
-        o_N = L[5]
-        for p in range(n):                      # anchor rows: fixed positions; rod rows overwritten
-            for i in range(3):
-                for e in range(E):
-                    N[p, i, e] = w[o_N + 3 * p + i]
+        PC = np.empty((L[9], E))
+        per_copy = bufs.shape[0] > 0
+        if not per_copy:
+            for e in range(E):
+                _lane_physics(PC, N, w, L, k, m, n, e)
         V = np.zeros((n, 3, E))
         F = np.empty((n, 3, E))
         L0 = np.empty((m, E))
@@ -646,12 +671,14 @@ if AVAILABLE:
             ne = min(E, hi - c0)
             for e in range(E):
                 src = c0 + e if e < ne else c0          # pad lanes repeat the first environment
+                if per_copy:
+                    _lane_physics(PC, N, bufs[src], L, k, m, n, e)
                 for j in range(k):
                     for i in range(6):
                         Q[j, i, e] = q[src, j, i]
                         QD[j, i, e] = qd[src, j, i]
                 for s in range(m):
-                    L0[s, e] = w[o_l0 + s] if l0def else l0[src if nl > 1 else 0, s]
+                    L0[s, e] = PC[o_l0 + s, e] if l0def else l0[src if nl > 1 else 0, s]
                 if has_fd:
                     for s in range(m):
                         FD[s, e] = fd[src if nf > 1 else 0, s]
@@ -664,7 +691,7 @@ if AVAILABLE:
                 Vi = QD
                 A = A1
                 for stage in range(n_stages):
-                    _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags)
+                    _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC)
                     if not rk4 and do_proj:
                         for j in range(k):
                             for i in range(6):
@@ -776,6 +803,7 @@ if AVAILABLE:
     _i64 = numba.types.int64
     _SIG = _i64(_a3, _a3, _a3, _a3, _a1, _a2, _a2, _a3, _f8, _i64, _i64)
     _SIG_LEAN = _i64(_a3, _a3, _a3, _a3, _a1, _f8, _i64, _i64)
+    _SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64)
 
     # Entry points are compiled lazily for ONE explicit signature each (see _compile): the serial
     # ones on first use of any model, the parallel one on first use of a large batch.
@@ -788,7 +816,8 @@ if AVAILABLE:
             return err
         L = _layout_nb(k, m, n)
         if q.shape[0] >= _SOA_MIN_BATCH:
-            _advance_soa(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags)
+            _advance_soa(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
+                         np.empty((0, 1)))
         else:
             _advance_range(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags)
         return 0
@@ -823,7 +852,46 @@ if AVAILABLE:
         for c in prange(nch):
             # _advance_soa only reads buf and allocates its own scratch: threads share nothing written
             _advance_soa(buf, ib0, L, k, m, n, q, qd, qo, qdo, c * B // nch, (c + 1) * B // nch, l0, fd, ext,
-                         dt, n_steps, flags)
+                         dt, n_steps, flags, np.empty((0, 1)))
+        return 0
+
+
+    # Per-copy parameters: bufs (B, len) holds one packed buffer per copy (its physics and its
+    # scratch); copy e runs the same _advance_range as above on bufs[e]. No copy shares a written
+    # byte with another, so the parallel loop needs no private scratch.
+    @njit(cache=True, fastmath=False, error_model="numpy")
+    def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
+        ibs = bufs.view(np.int64)
+        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        if err:
+            return err
+        if bufs.shape[0] != q.shape[0]:
+            return 7
+        L = _layout_nb(k, m, n)
+        B = q.shape[0]
+        if B >= _SOA_MIN_BATCH:     # the SIMD loop, each lane with its copy's constants
+            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, 0, B, l0, fd, ext, dt, n_steps, flags, bufs)
+            return 0
+        for e in range(B):
+            _advance_range(bufs[e], ibs[e], L, k, m, n, q, qd, qo, qdo, e, e + 1, l0, fd, ext, dt, n_steps, flags)
+        return 0
+
+    @njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+    def _run_copies_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
+        ibs = bufs.view(np.int64)
+        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        if err:
+            return err
+        if bufs.shape[0] != q.shape[0]:
+            return 7
+        L = _layout_nb(k, m, n)
+        B = q.shape[0]
+        nch = min(B, max(flags >> _CHUNK_SHIFT, 1))       # number of chunks in the high bits of flags
+        for c in prange(nch):
+            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, c * B // nch, (c + 1) * B // nch, l0, fd, ext,
+                         dt, n_steps, flags, bufs)
         return 0
 
 
@@ -838,7 +906,36 @@ def clear_cache() -> None:
 
 
 class _Packed:
-    __slots__ = ("buf", "l0", "fd", "ext", "flags", "cost", "__weakref__")
+    """Packed buffer(s) of one model or one Params: ``buf`` (len,) for values shared by every
+    copy, or ``bufs`` (B, len) one per copy (then ``buf`` is None)."""
+    __slots__ = ("buf", "bufs", "l0", "fd", "ext", "flags", "cost", "__weakref__")
+
+
+def _fill_physics(buf, model, p, b):
+    """Write the physical values of row ``b`` of ``p`` (the model itself, b = None, or a
+    :class:`~tensegrity_gym.params.Params`) into the packed buffer ``buf`` (see ``_layout``)."""
+    k, n, m = model.n_bars, model.n_nodes, model.n_strings
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = _layout(k, m, n)
+    row = (lambda a: a) if b is None else (lambda a: a[b])   # noqa: E731
+    mass_, f_, J_ = row(p.mass), row(p.f), row(p.J)
+    for j in range(k):
+        rj = o_rod + _ROD * j
+        mass, f, J = float(mass_[j]), float(f_[j]), float(J_[j])
+        alpha = mass - f * f / J
+        buf[rj + 5:rj + 12] = (1.0 / mass, 1.0 / J, f / J, f * f / J, alpha, 1.0 / alpha, f)
+    ps = o_str + _STR * np.arange(m)
+    buf[ps + 2] = row(p.stiffness)
+    buf[ps + 3] = row(p.damping)
+    buf[o_l0:o_l0 + m] = row(p.rest_length)
+    buf[o_W0:o_W0 + 3 * n] = row(p.W0).reshape(-1)
+    buf[o_cn:o_cn + 3 * n] = np.repeat(row(p.node_damping), 3)
+    for a, pos in zip(model.anchor_idx, row(p.anchor_pos)):   # anchor rows of the node scratch
+        buf[o_N + 3 * a:o_N + 3 * a + 3] = pos
+
+
+def _physics_flags(model, p):
+    return ((_DAMP if p.has_damping else 0) | (_GRAV if p.has_gravity else 0)
+            | (_CONS if bool(np.any(model.constrained)) else 0) | (_NDAMP if p.has_node_damping else 0))
 
 
 def _pack(model):
@@ -851,35 +948,55 @@ def _pack(model):
     ib[0:3] = (k, m, n)
     for j in range(k):
         rj = o_rod + _ROD * j
-        mass, f, J = float(model.mass[j]), float(model.f[j]), float(model.J[j])
         ib[rj:rj + 3] = (model.rod_a[j], model.rod_c[j], int(bool(model.constrained[j])))
-        alpha = mass - f * f / J
-        buf[rj + 3:rj + 12] = (model.eta[j, 0], model.eta[j, 1], 1.0 / mass, 1.0 / J, f / J, f * f / J, alpha,
-                               1.0 / alpha, f)
+        buf[rj + 3:rj + 5] = (model.eta[j, 0], model.eta[j, 1])
         buf[rj + 12:rj + 21] = model.proj[j].reshape(-1)
         buf[rj + 21:rj + 24] = model.offset[j]
     for s in range(m):
         ps = o_str + _STR * s
         ib[ps:ps + 2] = (model.str_i[s], model.str_j[s])
-        buf[ps + 2:ps + 4] = (model.stiffness[s], model.damping[s])
-    buf[o_l0:o_l0 + m] = model.rest_length
-    buf[o_W0:o_W0 + 3 * n] = model.W0.reshape(-1)
-    has_nd = bool(getattr(model, "has_node_damping", False))
-    if has_nd:
-        buf[o_cn:o_cn + 3 * n] = np.repeat(model.node_damping, 3)
-    for a, pos in zip(model.anchor_idx, model.anchor_pos):   # anchor rows of the node scratch
-        buf[o_N + 3 * a:o_N + 3 * a + 3] = pos
+    _fill_physics(buf, model, model, None)
     p = _Packed()
     p.buf = buf
+    p.bufs = None
     p.l0 = np.array(model.rest_length, dtype=np.float64).reshape(1, m)
     p.fd = np.zeros((1, m))
     p.ext = np.zeros((1, n, 3))
     p.cost = m + k
-    p.flags = ((_DAMP if model.has_damping else 0) | (_GRAV if model.has_gravity else 0)
-               | (_CONS if bool(np.any(model.constrained)) else 0) | (_NDAMP if has_nd else 0))
+    p.flags = _physics_flags(model, model)
     key = id(model)
     _CACHE[key] = p
     weakref.finalize(model, _CACHE.pop, key, None)
+    return p
+
+
+def _pack_params(model, params):
+    """The packed buffers of ``params`` (a :class:`~tensegrity_gym.params.Params` of this
+    model): one shared buffer when it has one row (then the kernels run exactly as for the
+    model), else one buffer per copy. Cached by id(params) for the params' lifetime."""
+    key = ("params", id(params), id(model))
+    p = _CACHE.get(key)
+    if p is not None:
+        return p
+    base = _CACHE.get(id(model)) or _packed(model)
+    P = params.batch_size
+    parent = params.parent() if params.parent is not None else None
+    pp = None if parent is None else _CACHE.get(("params", id(parent), id(model)))
+    if pp is not None and pp.bufs is not None and pp.bufs.shape[0] == P:
+        bufs = pp.bufs.copy()            # Params.set_rows: only its changed rows differ from the parent
+        rows = params.changed_rows
+    else:
+        bufs = np.repeat(base.buf[None], P, axis=0)
+        rows = range(P)
+    for b in rows:
+        _fill_physics(bufs[b], model, params, b)
+    p = _Packed()
+    p.buf, p.bufs = (bufs[0], None) if P == 1 else (None, bufs)
+    p.l0 = np.array(params.rest_length[:1], dtype=np.float64)
+    p.fd, p.ext, p.cost = base.fd, base.ext, base.cost
+    p.flags = _physics_flags(model, params)
+    _CACHE[key] = p
+    weakref.finalize(params, _CACHE.pop, key, None)
     return p
 
 
@@ -895,16 +1012,20 @@ def _array(x, ndim, what):
     return x
 
 
+def _check_inplace(q, qd):
+    for x, nm in ((q, "q"), (qd, "qd")):
+        if not (isinstance(x, np.ndarray) and x.dtype == np.float64 and x.ndim == 3
+                and x.flags.c_contiguous and x.flags.writeable):
+            raise ValueError(f"step_inplace: {nm} must be a writable C-contiguous float64 array (B, k, 6); "
+                             f"got {type(x).__name__} {getattr(x, 'dtype', '')} {np.shape(x)}")
+
+
 def _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, inplace):
     """After a TypeError at the kernel boundary: convert the inputs (C-contiguous, writable
     float64, batch axis added) and call the general kernel. In place, q and qd must already
     be writable C-contiguous float64 arrays (B, k, 6)."""
     if inplace:
-        for x, nm in ((q, "q"), (qd, "qd")):
-            if not (isinstance(x, np.ndarray) and x.dtype == np.float64 and x.ndim == 3
-                    and x.flags.c_contiguous and x.flags.writeable):
-                raise ValueError(f"step_inplace: {nm} must be a writable C-contiguous float64 array (B, k, 6); "
-                                 f"got {type(x).__name__} {getattr(x, 'dtype', '')} {np.shape(x)}")
+        _check_inplace(q, qd)
         qo, qdo = q, qd
     else:
         q, qd = _array(q, 3, "state.q"), _array(qd, 3, "state.qd")
@@ -948,7 +1069,7 @@ def _controls(p, flags, rest_length, force_density, external):
     return l0, fd, ext, flags
 
 
-_READY = {"serial": False, "parallel": False}
+_READY = {"serial": False, "parallel": False, "copies": False}
 
 
 def _compile(which: str) -> None:
@@ -958,6 +1079,10 @@ def _compile(which: str) -> None:
     if which == "serial":
         for disp, sig in ((_run_lean, _SIG_LEAN), (_run_serial, _SIG)):
             disp.compile(sig)
+            disp.disable_compile()
+    elif which == "copies":
+        for disp in (_run_copies_serial, _run_copies_parallel):
+            disp.compile(_SIG_COPIES)
             disp.disable_compile()
     else:
         _run_parallel.compile(_SIG)
@@ -986,20 +1111,62 @@ def _packed(model):
     return _pack(model)
 
 
+def _copies_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, inplace):
+    """:func:`step` / :func:`step_inplace` with per-copy buffers ``p.bufs`` (B, len)."""
+    if inplace:
+        _check_inplace(q, qd)
+        qo, qdo = q, qd
+    else:
+        q, qd = _array(q, 3, "state.q"), _array(qd, 3, "state.qd")
+    err = _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags)
+    if err:
+        _raise(err, model, q, qd, rest_length, force_density, external)
+
+
+def _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags):
+    """One step call with per-copy buffers ``p.bufs`` (B, len): inputs converted at the boundary."""
+    if not _READY["copies"]:
+        _compile("copies")
+    l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
+    l0, fd, ext = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external")
+    if not (isinstance(dt, (int, float, np.floating, np.integer)) and isinstance(n_steps, (int, np.integer))):
+        raise TypeError(f"dt must be a number of seconds and n_steps an integer; got {dt!r}, {n_steps!r}")
+    B = q.shape[0]
+    work = B * int(n_steps) * p.cost * (4 if flags & _RK4 else 1)
+    if B >= 8 and work >= PARALLEL_MIN_WORK:
+        return _run_copies_parallel(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps),
+                                    flags | (_NCHUNK << _CHUNK_SHIFT))
+    return _run_copies_serial(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps), flags)
+
+
 def step(model, state, dt, name, *, rest_length=None, force_density=None, external=None, project=True,
-         n_steps=1):
+         n_steps=1, params=None):
     """Advance ``state`` by ``n_steps`` fixed steps of ``dt`` s with the compiled kernel.
 
     Same contract as :func:`tensegrity_gym.integrators.step` (``name`` in
     ``{"semi_implicit_euler", "rk4"}``); returns a new :class:`~tensegrity_gym.dynamics.State`
     with ``q``, ``qd`` (B, k, 6) and ``t = state.t + n_steps * dt`` (summed step by step, as
-    the NumPy path does). The input state is not modified."""
-    p = _CACHE.get(id(model)) or _packed(model)
+    the NumPy path does). The input state is not modified. ``params``: per-copy physical values
+    (:class:`~tensegrity_gym.params.Params`, 1 or B rows)."""
+    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
     flags = _flags(p, name, project)
     q = state.q
     qd = state.qd
     qo = np.empty(q.shape)
     qdo = np.empty(q.shape)
+    if p.bufs is not None:
+        _copies_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, False)
+    else:
+        _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, name,
+                     project)
+    t = state.t + dt
+    for _ in range(n_steps - 1):
+        t = t + dt
+    return _new_state(qo, qdo, t)
+
+
+def _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, name, project):
+    """The kernels with one packed buffer ``p.buf`` shared by every copy (``qo is q``: in place)."""
     big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
     try:
         if rest_length is None and force_density is None and external is None and not big:
@@ -1012,38 +1179,23 @@ def step(model, state, dt, name, *, rest_length=None, force_density=None, extern
                 err = _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags)
     except TypeError:
         l0, fd, ext, flags = _controls(p, _flags(p, name, project), rest_length, force_density, external)
-        err = _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, False)
+        err = _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, qo is q)
     if err:
         _raise(err, model, q, qd, rest_length, force_density, external)
-    t = state.t + dt
-    for _ in range(n_steps - 1):
-        t = t + dt
-    return _new_state(qo, qdo, t)
 
 
 def step_inplace(model, q, qd, dt, name="semi_implicit_euler", *, rest_length=None, force_density=None,
-                 external=None, project=True, n_steps=1):
+                 external=None, project=True, n_steps=1, params=None):
     """Advance ``q``, ``qd`` (B, k, 6), writable C-contiguous float64 arrays (m, 1, m/s, 1/s),
     **in place** by ``n_steps`` steps of ``dt`` s. The fast path for environments that own
     their state arrays: no allocation, no :class:`State`. Other arguments as :func:`step`.
-    Returns None; the caller tracks time."""
-    p = _CACHE.get(id(model)) or _packed(model)
+    Returns None; the caller tracks time. ``params``: per-copy physical values, as in :func:`step`."""
+    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
     flags = _flags(p, name, project)
-    big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
-    try:
-        if rest_length is None and force_density is None and external is None and not big:
-            err = _run_lean(q, qd, q, qd, p.buf, dt, n_steps, flags)
-        else:
-            l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
-            if big:
-                err = _run_parallel(q, qd, q, qd, p.buf, l0, fd, ext, dt, n_steps, flags | (_NCHUNK << _CHUNK_SHIFT))
-            else:
-                err = _run_serial(q, qd, q, qd, p.buf, l0, fd, ext, dt, n_steps, flags)
-    except TypeError:
-        l0, fd, ext, flags = _controls(p, _flags(p, name, project), rest_length, force_density, external)
-        err = _slow_call(model, p, q, qd, q, qd, l0, fd, ext, dt, n_steps, flags, True)
-    if err:
-        _raise(err, model, q, qd, rest_length, force_density, external)
+    if p.bufs is not None:
+        _copies_step(model, p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags, True)
+    else:
+        _shared_step(model, p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags, name, project)
 
 
 from .dynamics import State  # noqa: E402  (after the kernels: dynamics never imports this module)

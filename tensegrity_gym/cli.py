@@ -7,6 +7,12 @@
   largest stable step of the explicit integrators.
 * ``demo --out DIR`` simulates the default prism released off equilibrium and writes a
   plot and a JSON summary.
+* ``export STRUCTURE --format mjcf --out model.xml [--ground]`` writes a MuJoCo model of the
+  structure (:mod:`tensegrity_gym.mjcf`); ``--format json`` writes this package's JSON;
+  ``--from tnsgrt`` reads STRUCTURE as a tnsgrt structure dict (:mod:`tensegrity_gym.tnsgrt`).
+* ``simulate ... --video out.mp4`` / ``demo --video out.mp4`` also render the run to a video.
+* ``view traj.npz [--structure S]`` opens an interactive view of a ``simulate`` output (time
+  slider, play/pause): a window where there is a display, else a browser view (viser).
 
 ``STRUCTURE`` is a JSON file or a built-in name (``prism3``, ``icosahedron``, ...).
 Output files are written atomically (temporary file, then rename): an interrupted run
@@ -93,7 +99,7 @@ def cmd_simulate(args) -> int:
           f"({n_steps / wall:,.0f} steps/s); {S} records -> {out}")
     print(f"max relative energy change {drift:.3e}; final rod-length drift "
           f"{float(dyn.rod_length_drift(model, qf[-1:])[0]):.3e}")
-    return 0
+    return _video(args, s, model, t, qf, qdf)
 
 
 def structure_summary(s) -> dict:
@@ -195,6 +201,81 @@ def cmd_demo(args) -> int:
     (out / "demo_summary.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps(summary, indent=1))
     print(f"wrote {out / 'demo_prism.png'} and {out / 'demo_summary.json'}")
+    return _video(args, s, model, t, q1, qd1)
+
+
+def _video(args, s, model, t, q, qd) -> int:
+    """``--video PATH``: render the recorded trajectory (q, qd: (S, 1, k, 6)) in real time at 30 frames/s."""
+    if not getattr(args, "video", None):
+        return 0
+    from .rendering import RendererUnavailable, write_video
+    q, qd = q.reshape((len(t),) + q.shape[-2:]), qd.reshape((len(t),) + qd.shape[-2:])
+    gamma, _, L = dyn.force_densities(model, q, qd)
+    try:
+        n = write_video(args.video, s, dyn.node_positions(model, q), gamma * L, t)
+    except (RendererUnavailable, ValueError, OSError) as e:
+        print(f"error: --video {args.video}: {e}", file=sys.stderr)
+        return 1
+    print(f"wrote {n} frames -> {args.video}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    """``export STRUCTURE --format mjcf|json --out PATH``: exit 0, or 2 with one line on stderr."""
+    from .mjcf import export
+    from .structure import save_json
+    try:
+        if args.source == "tnsgrt":
+            from .tnsgrt import from_tnsgrt
+            s = from_tnsgrt(args.structure)
+        else:
+            s = _load(args.structure)
+        out = Path(args.out)
+        if out.is_dir():
+            raise OSError(f"--out {args.out!r} is a directory")
+        if out.exists() and not args.force:
+            raise OSError(f"--out {args.out!r} exists (use --force to overwrite)")
+        if not os.access(out.parent if str(out.parent) else ".", os.W_OK):
+            raise OSError(f"--out {args.out!r}: folder {str(out.parent)!r} is not writable or does not exist")
+        if args.format == "mjcf":
+            export(s, out, ground=args.ground, timestep=args.timestep)
+        else:
+            _atomic_write(out, lambda tmp: save_json(s, tmp))
+    except (StructureError, OSError, ValueError) as e:
+        print(f"error: export: {e}", file=sys.stderr)
+        return 2
+    print(f"{s.name}: {s.n_bars} rods, {s.n_strings} strings -> {out} ({args.format})")
+    return 0
+
+
+def cmd_view(args) -> int:
+    """``view TRAJ.npz``: interactive view of a simulate output; exit 2 with one line on stderr on bad input."""
+    from types import SimpleNamespace
+    from .rendering import RendererUnavailable, view_trajectory
+    try:
+        with np.load(args.trajectory) as z:
+            t, nodes, bars, strings = z["t"], z["nodes"], z["bars"], z["strings"]
+    except (OSError, ValueError, KeyError) as e:
+        print(f"error: view: {args.trajectory}: not a simulate output (.npz with t, nodes, bars, strings): {e}",
+              file=sys.stderr)
+        return 2
+    tensions = None
+    s = SimpleNamespace(bars=bars, strings=strings, n_strings=len(strings), gravity=None,
+                        name=Path(args.trajectory).stem)
+    if args.structure:
+        st = _load(args.structure)
+        if st.n_nodes != nodes.shape[1] or not np.array_equal(st.strings, strings):
+            print(f"error: view: structure {args.structure!r} does not match the trajectory's nodes/strings",
+                  file=sys.stderr)
+            return 2
+        L = np.linalg.norm(nodes[:, strings[:, 1]] - nodes[:, strings[:, 0]], axis=-1)
+        tensions = st.stiffness * np.maximum(0.0, L - st.rest_length)   # elastic part, N
+        s = st
+    try:
+        view_trajectory(s, nodes, tensions, t, mode=args.mode, **({"port": args.port} if args.mode != "window" else {}))
+    except (RendererUnavailable, ValueError, OSError) as e:
+        print(f"error: view: {e}", file=sys.stderr)
+        return 2
     return 0
 
 
@@ -228,6 +309,25 @@ def build_parser() -> argparse.ArgumentParser:
     dp.add_argument("--integrator", default="rk4", choices=sorted(INTEGRATORS))
     dp.add_argument("--seed", type=int, default=0)
     dp.set_defaults(func=cmd_demo)
+    for sp_ in (sp, dp):
+        sp_.add_argument("--video", default=None, help="also write a video of the run (.mp4 or .gif)")
+    ep = sub.add_parser("export", help="write a structure as a MuJoCo model (MJCF) or JSON")
+    ep.add_argument("structure", help=f"JSON file or built-in name ({names}); tnsgrt dict JSON with --from tnsgrt")
+    ep.add_argument("--format", default="mjcf", choices=["mjcf", "json"], help="output format (default: mjcf)")
+    ep.add_argument("--out", required=True, help="output file (model.xml)")
+    ep.add_argument("--from", dest="source", default="tensegrity_gym", choices=["tensegrity_gym", "tnsgrt"],
+                    help="input format of STRUCTURE (default: tensegrity_gym)")
+    ep.add_argument("--ground", action="store_true", help="MJCF: add a ground plane at z = 0")
+    ep.add_argument("--timestep", type=_positive(float), default=1e-3, help="MJCF: MuJoCo time step, s")
+    ep.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    ep.set_defaults(func=cmd_export)
+    vp = sub.add_parser("view", help="interactive view of a simulate output (time slider, play/pause)")
+    vp.add_argument("trajectory", help="a .npz written by simulate")
+    vp.add_argument("--structure", default=None, help="the simulated structure: strings coloured by tension")
+    vp.add_argument("--mode", default="auto", choices=["auto", "window", "browser"],
+                    help="window (needs a display), browser (viser web view) or auto")
+    vp.add_argument("--port", type=int, default=8080, help="browser mode: port of the web viewer")
+    vp.set_defaults(func=cmd_view)
     return p
 
 

@@ -182,8 +182,8 @@ class GroundContact:
         if not cmax > 0:   # NaN or <= 0
             raise ValueError(f"max_damping: must be positive (N s/m; inf = no cap), got {self.max_damping!r}")
         s(self, "max_damping", cmax)
-        prm = np.array([self.height, self.radius, self.stiffness, self.damping, self.exponent, self.friction,
-                        self.tangential_stiffness, self.tangential_damping, cmax], float)
+        prm = np.array([[self.height, self.radius, self.stiffness, self.damping, self.exponent, self.friction,
+                         self.tangential_stiffness, self.tangential_damping, cmax]], float)   # (1, 9): see PRM_FIELDS
         prm.setflags(write=False)
         s(self, "_prm", prm)
         s(self, "_numba", self.backend == "numba" or (self.backend == "auto" and _NUMBA))
@@ -191,9 +191,43 @@ class GroundContact:
     def replace(self, **kw) -> "GroundContact":
         return replace(self, **kw)
 
+    def per_copy(self, batch_size: int) -> np.ndarray:
+        """(B, 9) per-copy contact parameters (columns :data:`PRM_FIELDS`), every row this
+        contact's values: pass it as ``prm`` to :func:`contact_forces` / :func:`forces_inplace`
+        after changing rows with :func:`set_copy_values` (each copy its own friction, stiffness...)."""
+        return np.repeat(self._prm, int(batch_size), axis=0)
+
     @property
     def use_numba(self) -> bool:
         return self.backend == "numba" or (self.backend == "auto" and _NUMBA)
+
+
+#: columns of the (P, 9) contact parameter array (the kernels' ``prm``): SI units as in GroundContact
+PRM_FIELDS = ("height", "radius", "stiffness", "damping", "exponent", "friction", "tangential_stiffness",
+              "tangential_damping", "max_damping")
+#: the fields that may differ per copy (the exponent is one per contact model)
+PER_COPY_FIELDS = tuple(f for f in PRM_FIELDS if f != "exponent")
+
+
+def set_copy_values(prm: np.ndarray, idx, name: str, values) -> None:
+    """In place: rows ``idx`` of a per-copy parameter array (from :meth:`GroundContact.per_copy`)
+    get ``values`` (a number or one per row) for field ``name`` (one of :data:`PER_COPY_FIELDS`),
+    checked as the constructor checks it (ValueError naming the field, the copy and the value)."""
+    if name not in PER_COPY_FIELDS:
+        raise ValueError(f"contact parameter: unknown or not per copy {name!r}; choose one of {PER_COPY_FIELDS}")
+    idx = np.asarray(idx, dtype=int).reshape(-1)
+    v = np.broadcast_to(np.asarray(values, dtype=float), idx.shape)
+    nonneg = name in ("damping", "friction", "tangential_damping", "radius")
+    bad = ~np.isfinite(v) | ((v < 0) if nonneg else (v <= 0))
+    if name in ("height",):
+        bad = ~np.isfinite(v)
+    elif name == "max_damping":
+        bad = ~(v > 0)
+    if bad.any():
+        j = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"contact {name}: copy {int(idx[j])}: must be {'>= 0' if nonneg else '> 0'}, "
+                         f"got {float(v[j])!r}")
+    prm[idx, PRM_FIELDS.index(name)] = v
 
 
 @dataclass(frozen=True, eq=False)
@@ -219,32 +253,35 @@ def init_contact_state(model: dyn.Model, batch_size: int = 1) -> ContactState:
 
 
 # ---------------------------------------------------------------------- NumPy reference
-def _forces_numpy(c: GroundContact, model, q, qd, anchor, active):
+def _forces_numpy(c: GroundContact, model, q, qd, anchor, active, prm=None):
     B = q.shape[0]
+    # parameters: (1, 1) or (B, 1) columns of the per-copy array (the contact's own values by default)
+    P = c._prm if prm is None else prm
+    height, radius, kn, dn, _, mu, kt, ct, cmax = (P[:, i:i + 1] for i in range(9))
     k = model.n_bars
     r, b = q[..., :3], q[..., 3:]
     rd, bd = qd[..., :3], qd[..., 3:]
     eta = model.eta  # (k, 2)
     # contact positions / velocities (B, k, 2, 3) -> (B, 2k, 3), order rod j end a, end c
-    P = (r[:, :, None, :] + eta[None, :, :, None] * b[:, :, None, :]).reshape(B, 2 * k, 3)
+    Pc = (r[:, :, None, :] + eta[None, :, :, None] * b[:, :, None, :]).reshape(B, 2 * k, 3)
     V = (rd[:, :, None, :] + eta[None, :, :, None] * bd[:, :, None, :]).reshape(B, 2 * k, 3)
-    delta = c.height + c.radius - P[..., 2]
+    delta = height + radius - Pc[..., 2]
     touch = delta > 0.0
     dpos = np.where(touch, delta, 0.0)
     de = dpos if c.exponent == 1.0 else dpos ** c.exponent
-    kd = c.stiffness * de
-    cn = np.minimum(kd * c.damping, c.max_damping)
+    kd = kn * de
+    cn = np.minimum(kd * dn, cmax)
     Fn = np.where(touch, np.maximum(kd - cn * V[..., 2], 0.0), 0.0)
-    pt = P[..., :2]
+    pt = Pc[..., :2]
     anchor = np.where((touch & ~active)[..., None], pt, anchor)
     xi = pt - anchor
-    Ft = -c.tangential_stiffness * xi - c.tangential_damping * V[..., :2]
+    Ft = -kt[..., None] * xi - ct[..., None] * V[..., :2]
     norm = np.sqrt(np.einsum("bci,bci->bc", Ft, Ft))
-    lim = c.friction * Fn
+    lim = mu * Fn
     slip = touch & (norm > lim)
     scale = np.where(slip, lim / np.where(slip, norm, 1.0), 1.0)
     Ft = Ft * scale[..., None]
-    anchor = np.where(slip[..., None], pt + Ft / c.tangential_stiffness, anchor)
+    anchor = np.where(slip[..., None], pt + Ft / kt[..., None], anchor)
     Ft = np.where(touch[..., None], Ft, 0.0)
     Fc = np.concatenate([Ft, Fn[..., None]], axis=-1)  # (B, 2k, 3)
     W = np.zeros((B, model.n_nodes, 3))
@@ -256,10 +293,12 @@ def _forces_numpy(c: GroundContact, model, q, qd, anchor, active):
 if _NUMBA:
     @njit(cache=True, nogil=True)
     def _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm):
-        height, radius, kn, dn, ex, mu, kt, ct = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6], prm[7]
-        cmax = prm[8]
         B, k = q.shape[0], q.shape[1]
+        per_copy = prm.shape[0] > 1
         for e in range(B):
+            pe = e if per_copy else 0      # prm (1, 9) shared or (B, 9) one row per copy
+            height, radius, kn, dn, ex, mu = prm[pe, 0], prm[pe, 1], prm[pe, 2], prm[pe, 3], prm[pe, 4], prm[pe, 5]
+            kt, ct, cmax = prm[pe, 6], prm[pe, 7], prm[pe, 8]
             for p in range(W.shape[1]):
                 W[e, p, 0] = 0.0
                 W[e, p, 1] = 0.0
@@ -311,14 +350,16 @@ if _NUMBA:
 
 
 def contact_forces(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: np.ndarray,
-                   cstate: ContactState, out: np.ndarray | None = None, inplace: bool = False):
+                   cstate: ContactState, out: np.ndarray | None = None, inplace: bool = False, prm=None):
     """Contact forces at the state ``q``, ``qd`` (B, k, 6) and the updated stick/slip state.
 
     Returns ``(W, new_state, slip)``: ``W`` (B, n, 3) nodal forces in N (normal along +z,
     friction in x, y), ``new_state`` a :class:`ContactState` (anchors moved on slip, set on
     touch-down; ``active`` = cap below ``height + radius``) and ``slip`` (B, n_c) bool.
     With ``inplace=True`` the arrays of ``cstate`` are updated in place (and returned) and
-    ``out`` (B, n, 3) is reused for ``W`` (see :func:`forces_inplace` for the fastest path)."""
+    ``out`` (B, n, 3) is reused for ``W`` (see :func:`forces_inplace` for the fastest path).
+    ``prm``: per-copy parameters (B, 9) from :meth:`GroundContact.per_copy` (default: the
+    contact's own values for every copy; the exponent is always the contact's)."""
     B = q.shape[0]
     nc = 2 * model.n_bars
     if cstate.anchor.shape != (B, nc, 2) or cstate.active.shape != (B, nc):
@@ -331,9 +372,11 @@ def contact_forces(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: 
         slip = np.empty((B, nc), bool)
         qc = np.ascontiguousarray(q, dtype=np.float64)
         qdc = np.ascontiguousarray(qd, dtype=np.float64)
-        _forces_kernel(qc, qdc, model.eta, model.rod_a, model.rod_c, anchor, active, W, slip, contact._prm)
+        _forces_kernel(qc, qdc, model.eta, model.rod_a, model.rod_c, anchor, active, W, slip,
+                       contact._prm if prm is None else _prm_rows(contact, prm, B))
         return W, (cstate if inplace else ContactState(anchor, active)), slip
-    W, anchor, active, slip = _forces_numpy(contact, model, q, qd, cstate.anchor, cstate.active)
+    W, anchor, active, slip = _forces_numpy(contact, model, q, qd, cstate.anchor, cstate.active,
+                                            None if prm is None else _prm_rows(contact, prm, B))
     if inplace:
         cstate.anchor[...] = anchor
         cstate.active[...] = active
@@ -344,16 +387,28 @@ def contact_forces(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: 
     return W, ContactState(anchor, active), slip
 
 
+def _prm_rows(contact, prm, B):
+    prm = np.ascontiguousarray(prm, dtype=np.float64)
+    if prm.ndim != 2 or prm.shape[1] != len(PRM_FIELDS) or prm.shape[0] not in (1, B):
+        raise ValueError(f"contact prm: expected shape (1, 9) or ({B}, 9) (GroundContact.per_copy), got {prm.shape}")
+    if np.any(prm[:, 4] != contact.exponent):
+        raise ValueError("contact prm: the exponent column must equal the contact's exponent "
+                         f"{contact.exponent} (one exponent per contact model)")
+    return prm
+
+
 def forces_inplace(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: np.ndarray,
-                   cstate: ContactState, W: np.ndarray, slip: np.ndarray) -> None:
+                   cstate: ContactState, W: np.ndarray, slip: np.ndarray, prm=None) -> None:
     """Allocation-free :func:`contact_forces` for environments that own their arrays: writes the
     forces into ``W`` (B, n, 3), the slip flags into ``slip`` (B, n_c) bool and updates ``cstate``
-    in place. ``q``, ``qd``: C-contiguous float64 (B, k, 6). Shapes are the caller's duty."""
+    in place. ``q``, ``qd``: C-contiguous float64 (B, k, 6). Shapes are the caller's duty.
+    ``prm``: (B, 9) C-contiguous float64 per-copy parameters (:meth:`GroundContact.per_copy`) or
+    None (the contact's own)."""
+    prm = contact._prm if prm is None else prm
     if contact._numba:
-        _forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, cstate.anchor, cstate.active, W, slip,
-                       contact._prm)
+        _forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, cstate.anchor, cstate.active, W, slip, prm)
         return
-    Wn, anchor, active, sl = _forces_numpy(contact, model, q, qd, cstate.anchor, cstate.active)
+    Wn, anchor, active, sl = _forces_numpy(contact, model, q, qd, cstate.anchor, cstate.active, prm)
     W[...] = Wn
     cstate.anchor[...] = anchor
     cstate.active[...] = active

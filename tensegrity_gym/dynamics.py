@@ -55,8 +55,9 @@ from typing import Iterable
 import numpy as np
 
 from .structure import Structure, mass_moments
+from .params import Params, default_params
 
-__all__ = ["Model", "State", "compile_model", "initial_state", "node_positions", "node_velocities",
+__all__ = ["Model", "State", "compile_model", "Params", "default_params", "initial_state", "node_positions", "node_velocities",
            "string_state", "force_densities", "nodal_forces", "accelerations", "project", "energy",
            "kinetic_energy", "potential_energy", "linear_momentum", "angular_momentum", "rod_length_drift",
            "configuration_matrix", "constraint_violation", "stable_step_estimate"]
@@ -230,15 +231,15 @@ def initial_state(model: Model, batch_size: int = 1, nodes: np.ndarray | None = 
     return State(q=np.ascontiguousarray(q), qd=np.ascontiguousarray(qd), t=0.0)
 
 
-def node_positions(model: Model, q: np.ndarray) -> np.ndarray:
-    """(B, n, 3) node positions, m, from q (B, k, 6)."""
+def node_positions(model: Model, q: np.ndarray, params=None) -> np.ndarray:
+    """(B, n, 3) node positions, m, from q (B, k, 6) (anchors from ``params`` if given)."""
     B = q.shape[0]
     r, b = q[..., :3], q[..., 3:]
     N = np.empty((B, model.n_nodes, 3))
     N[:, model.rod_a] = r + model.eta[None, :, 0, None] * b
     N[:, model.rod_c] = r + model.eta[None, :, 1, None] * b
     if model.anchor_idx.size:
-        N[:, model.anchor_idx] = model.anchor_pos
+        N[:, model.anchor_idx] = model.anchor_pos if params is None else params.anchor_pos
     return N
 
 
@@ -252,10 +253,10 @@ def node_velocities(model: Model, qd: np.ndarray) -> np.ndarray:
     return V
 
 
-def string_state(model: Model, q: np.ndarray, qd: np.ndarray | None = None):
+def string_state(model: Model, q: np.ndarray, qd: np.ndarray | None = None, params=None):
     """String vectors ``s`` (B, m, 3) = n_j - n_i, lengths (B, m) and, if ``qd`` is
     given, length rates d|s|/dt (B, m) in m/s (else None)."""
-    N = node_positions(model, q)
+    N = node_positions(model, q, params)
     S = N[:, model.str_j] - N[:, model.str_i]
     L = np.sqrt(np.einsum("bmi,bmi->bm", S, S))
     Ld = None
@@ -267,38 +268,44 @@ def string_state(model: Model, q: np.ndarray, qd: np.ndarray | None = None):
     return S, L, Ld
 
 
-def force_densities(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None):
-    """String force densities gamma (B, m), N/m (tension / length, >= 0). See the module doc."""
-    l0 = model.rest_length if rest_length is None else rest_length
-    S, L, Ld = string_state(model, q, qd if model.has_damping else None)
+def force_densities(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
+                    params=None):
+    """String force densities gamma (B, m), N/m (tension / length, >= 0). See the module doc.
+    ``params``: a :class:`~tensegrity_gym.params.Params` (P = 1 or B copies) whose stiffness,
+    damping, rest lengths, ... replace the model's (default None: the model's)."""
+    p = model if params is None else params
+    l0 = p.rest_length if rest_length is None else rest_length
+    S, L, Ld = string_state(model, q, qd if p.has_damping else None, params)
     taut = L > l0
     safeL = np.where(taut, L, 1.0)
-    tension = model.stiffness * (L - l0)
-    if model.has_damping:
-        tension = tension + model.damping * Ld
+    tension = p.stiffness * (L - l0)
+    if p.has_damping:
+        tension = tension + p.damping * Ld
     gamma = np.where(taut, np.maximum(tension, 0.0) / safeL, 0.0)
     if force_density is not None:
         gamma = np.maximum(gamma + force_density, 0.0)
     return gamma, S, L
 
 
-def nodal_forces(model: Model, q, qd, rest_length=None, force_density=None, external=None):
+def nodal_forces(model: Model, q, qd, rest_length=None, force_density=None, external=None, params=None):
     """Total nodal forces W - N C_S^T Gamma C_S (B, n, 3), N, and gamma (B, m). ``W``: gravity
-    loads, node drag ``-c v`` (if the model has ``node_damping``) and ``external``."""
-    gamma, S, _ = force_densities(model, q, qd, rest_length, force_density)
+    loads, node drag ``-c v`` (if the model has ``node_damping``) and ``external``.
+    ``params``: per-copy physical values (see :func:`force_densities`)."""
+    p = model if params is None else params
+    gamma, S, _ = force_densities(model, q, qd, rest_length, force_density, params)
     # -C^T (gamma s), scattered by the string index arrays (cost linear in B m, no m x n product):
     # node j of string i gets -gamma_i s_i, node i gets +gamma_i s_i
     F = _scatter_string_forces(model, gamma[..., None] * S)
-    if model.has_gravity:
-        F = F + model.W0
-    if model.has_node_damping:
-        F = F - model.node_damping[:, None] * node_velocities(model, qd)
+    if p.has_gravity:
+        F = F + p.W0
+    if p.has_node_damping:
+        F = F - p.node_damping[..., None] * node_velocities(model, qd)
     if external is not None:
         F = F + external
     return F, gamma
 
 
-def _rod_accelerations(model: Model, q, qd, F):
+def _rod_accelerations(model: Model, q, qd, F, params=None):
     r, b = q[..., :3], q[..., 3:]
     rd, bd = qd[..., :3], qd[..., 3:]
     Fa, Fc = F[:, model.rod_a], F[:, model.rod_c]
@@ -307,9 +314,10 @@ def _rod_accelerations(model: Model, q, qd, F):
     bb = np.einsum("bki,bki->bk", b, b)[..., None]
     w = np.einsum("bki,bki->bk", bd, bd)[..., None] / bb
     Pfb = fb - b * np.einsum("bki,bki->bk", b, fb)[..., None] / bb
-    f = model.f[None, :, None]
-    J = model.J[None, :, None]
-    m = model.mass[None, :, None]
+    p = model if params is None else params
+    f = p.f[..., None]
+    J = p.J[..., None]
+    m = p.mass[..., None]
     h = fr - (f / J) * Pfb + f * w * b
     # A h with A = (Pi - beta u u^T/(alpha + beta |u|^2)) / alpha, u = Pi b / |b|
     alpha = m - f * f / J
@@ -326,15 +334,17 @@ def _rod_accelerations(model: Model, q, qd, F):
 
 
 def accelerations(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
-                  external=None) -> np.ndarray:
+                  external=None, params=None) -> np.ndarray:
     """Second derivatives (B, k, 6) ``[r'', b'']`` of the configuration (m/s^2, 1/s^2).
 
     ``rest_length``: (m,) or (B, m) string rest lengths, m (default the model's).
     ``force_density``: (m,) or (B, m) force densities added by a controller, N/m.
     ``external``: (B, n, 3) or (n, 3) external nodal forces, N (gravity is added
-    by the model itself when the structure has it)."""
-    F, _ = nodal_forces(model, q, qd, rest_length, force_density, external)
-    return _rod_accelerations(model, q, qd, F)
+    by the model itself when the structure has it).
+    ``params``: a :class:`~tensegrity_gym.params.Params` with 1 or B rows: copy b's masses,
+    stiffnesses, damping, rest lengths, node drag, gravity and anchors (default: the model's)."""
+    F, _ = nodal_forces(model, q, qd, rest_length, force_density, external, params)
+    return _rod_accelerations(model, q, qd, F, params)
 
 
 def project(model: Model, q: np.ndarray, qd: np.ndarray):
@@ -352,37 +362,44 @@ def project(model: Model, q: np.ndarray, qd: np.ndarray):
 
 
 # ---------------------------------------------------------------------- diagnostics
-def kinetic_energy(model: Model, qd: np.ndarray) -> np.ndarray:
+def kinetic_energy(model: Model, qd: np.ndarray, params=None) -> np.ndarray:
     """(B,) kinetic energy, J: sum of m|r'|^2/2 + f r'.b' + J|b'|^2/2."""
+    p = model if params is None else params
     rd, bd = qd[..., :3], qd[..., 3:]
-    return np.sum(0.5 * model.mass * np.einsum("bki,bki->bk", rd, rd)
-                  + model.f * np.einsum("bki,bki->bk", rd, bd)
-                  + 0.5 * model.J * np.einsum("bki,bki->bk", bd, bd), axis=-1)
+    return np.sum(0.5 * p.mass * np.einsum("bki,bki->bk", rd, rd)
+                  + p.f * np.einsum("bki,bki->bk", rd, bd)
+                  + 0.5 * p.J * np.einsum("bki,bki->bk", bd, bd), axis=-1)
 
 
-def potential_energy(model: Model, q: np.ndarray, rest_length=None) -> np.ndarray:
+def potential_energy(model: Model, q: np.ndarray, rest_length=None, params=None) -> np.ndarray:
     """(B,) string potential sum k max(0, |s| - l0)^2 / 2 plus gravity potential, J.
     Active strings (no stiffness) store no energy."""
-    l0 = model.rest_length if rest_length is None else rest_length
-    _, L, _ = string_state(model, q)
-    V = 0.5 * np.sum(model.stiffness * np.maximum(L - l0, 0.0) ** 2, axis=-1)
-    if model.has_gravity:
-        V = V - np.einsum("bni,ni->b", node_positions(model, q), model.W0)
+    p = model if params is None else params
+    l0 = p.rest_length if rest_length is None else rest_length
+    _, L, _ = string_state(model, q, None, params)
+    V = 0.5 * np.sum(p.stiffness * np.maximum(L - l0, 0.0) ** 2, axis=-1)
+    if p.has_gravity:
+        N = node_positions(model, q, params)
+        if params is None:
+            V = V - np.einsum("bni,ni->b", N, model.W0)
+        else:
+            V = V - np.einsum("bni,bni->b", N, np.broadcast_to(params.W0, N.shape))
     return V
 
 
-def energy(model: Model, q, qd, rest_length=None) -> np.ndarray:
-    """(B,) total mechanical energy, J."""
-    return kinetic_energy(model, qd) + potential_energy(model, q, rest_length)
+def energy(model: Model, q, qd, rest_length=None, params=None) -> np.ndarray:
+    """(B,) total mechanical energy, J (``params``: per-copy values, default the model's)."""
+    return kinetic_energy(model, qd, params) + potential_energy(model, q, rest_length, params)
 
 
-def linear_momentum(model: Model, qd: np.ndarray) -> np.ndarray:
+def linear_momentum(model: Model, qd: np.ndarray, params=None) -> np.ndarray:
     """(B, 3) linear momentum sum m r' + f b', kg m/s."""
+    p = model if params is None else params
     rd, bd = qd[..., :3], qd[..., 3:]
-    return np.sum(model.mass[:, None] * rd + model.f[:, None] * bd, axis=1)
+    return np.sum(p.mass[..., None] * rd + p.f[..., None] * bd, axis=-2)
 
 
-def angular_momentum(model: Model, q: np.ndarray, qd: np.ndarray, about=None) -> np.ndarray:
+def angular_momentum(model: Model, q: np.ndarray, qd: np.ndarray, about=None, params=None) -> np.ndarray:
     """(B, 3) angular momentum about ``about`` (3,) or (B, 3) (default: origin), kg m^2/s.
 
     Per rod: m (r - o) x r' + f ((r - o) x b' + b x r') + J b x b'."""
@@ -390,16 +407,20 @@ def angular_momentum(model: Model, q: np.ndarray, qd: np.ndarray, about=None) ->
     rd, bd = qd[..., :3], qd[..., 3:]
     if about is not None:
         r = r - np.asarray(about)[..., None, :] if np.ndim(about) == 2 else r - about
-    m, f, J = (x[:, None] for x in (model.mass, model.f, model.J))
+    p = model if params is None else params
+    m, f, J = (x[..., None] for x in (p.mass, p.f, p.J))
     L = m * np.cross(r, rd) + f * (np.cross(r, bd) + np.cross(b, rd)) + J * np.cross(b, bd)
-    return L.sum(axis=1)
+    return L.sum(axis=-2)
 
 
-def center_of_mass(model: Model, q: np.ndarray) -> np.ndarray:
-    """(B, 3) centre of mass of the rods, m."""
+def center_of_mass(model: Model, q: np.ndarray, params=None) -> np.ndarray:
+    """(B, 3) centre of mass of the rods, m (rod masses from ``params`` if given)."""
     r, b = q[..., :3], q[..., 3:]
     com = r + model.com_eta[None, :, None] * b
-    return np.einsum("k,bki->bi", model.mass, com) / model.mass.sum()
+    if params is None:
+        return np.einsum("k,bki->bi", model.mass, com) / model.mass.sum()
+    m = np.broadcast_to(params.mass, com.shape[:2])
+    return np.einsum("bk,bki->bi", m, com) / m.sum(axis=1)[:, None]
 
 
 def rod_length_drift(model: Model, q: np.ndarray) -> np.ndarray:

@@ -97,7 +97,7 @@ STATS = {"steps": 0, "newton_iterations": 0}
 
 
 def jacobians(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
-              external=None):
+              external=None, params=None):
     """Accelerations and their Jacobians at ``(q, qd)`` by forward differences, one batched call
     (:func:`tensegrity_gym.jacobian.acceleration_jacobians`, step ``1.5e-8 max(1, |q|_inf)``).
 
@@ -110,13 +110,13 @@ def jacobians(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, for
     -------
     a : (B, 6k) accelerations; K : (B, 6k, 6k) da/dq (1/s^2); D : (B, 6k, 6k) da/dqd (1/s).
     """
-    return acceleration_jacobians(model, q, qd, rest_length, force_density, external, with_velocity=True,
-                                  central=False, rel_step=_FD_REL)
+    return acceleration_jacobians(model, q, qd, rest_length, force_density, external, params,
+                                  with_velocity=True, central=False, rel_step=_FD_REL)
 
 
 def step(model: Model, state: State, dt: float, method: str = "implicit_euler", *, rest_length=None,
          force_density=None, external=None, project: bool = True, n_steps: int = 1,
-         max_newton: int = 8, newton_tol: float = 0.05) -> State:
+         max_newton: int = 8, newton_tol: float = 0.05, params=None) -> State:
     """Advance ``state`` by ``n_steps`` backward-Euler steps of ``dt`` seconds (see module doc).
 
     ``method``: ``"implicit_euler"``.
@@ -125,7 +125,8 @@ def step(model: Model, state: State, dt: float, method: str = "implicit_euler", 
     ``external(q, qd, t)`` evaluated once at the start of each step.
     ``max_newton``: most extra Newton iterations per step; ``newton_tol``: accepted residual
     relative to the velocity change (max norm). ``max_newton=0`` gives the linearly implicit
-    (one-solve) method.
+    (one-solve) method. ``params``: per-copy physical values (1 or B rows), as in
+    :func:`tensegrity_gym.integrators.step`.
     Returns the new :class:`State` (q, qd of shape (B, k, 6)).
     """
     if method not in METHODS:
@@ -137,26 +138,32 @@ def step(model: Model, state: State, dt: float, method: str = "implicit_euler", 
     shape = q.shape
     for _ in range(n_steps):
         ext = external(q, qd, t) if callable(external) else external
-        a0, K, D = jacobians(model, q, qd, rest_length, force_density, ext)
+        a0, K, D = jacobians(model, q, qd, rest_length, force_density, ext, params)
         x = q.reshape(B, n)
         v = qd.reshape(B, n)
         # first Newton iterate from (q, v): the linearly implicit step
         dv = _solve(eye - dt * D - (dt * dt) * K, dt * (a0 + dt * _mv(K, v)))
         v1 = v + dv
         x1 = x + dt * v1
-        # further Newton iterations on G = v1 - v - dt a(x + dt v1, v1) while it is large
+        # further Newton iterations on G = v1 - v - dt a(x + dt v1, v1), for each copy while its
+        # residual is large (copy by copy: no copy's result depends on another's)
         for _it in range(max_newton):
             a1 = dyn.accelerations(model, x1.reshape(shape), v1.reshape(shape), rest_length,
-                                   force_density, ext).reshape(B, n)
+                                   force_density, ext, params).reshape(B, n)
             G = v1 - v - dt * a1
             scale = np.abs(v1 - v).max(axis=1) + 1e-12 * (1.0 + np.abs(v).max(axis=1))
-            if not np.any(np.abs(G).max(axis=1) > newton_tol * scale):   # NaN stops too: reported later
+            todo = np.flatnonzero(np.abs(G).max(axis=1) > newton_tol * scale)   # NaN stops too: reported later
+            if todo.size == 0:
                 break
-            _, K1, D1 = jacobians(model, x1.reshape(shape), v1.reshape(shape), rest_length,
-                                  force_density, ext)
-            dv1 = _solve(eye - dt * D1 - (dt * dt) * K1, -G)
-            v1 = v1 + dv1
-            x1 = x1 + dt * dv1
+            sub = (todo.size,) + shape[1:]
+            _, K1, D1 = jacobians(model, x1[todo].reshape(sub), v1[todo].reshape(sub), _rows(rest_length, todo, 2),
+                                  _rows(force_density, todo, 2), _rows(ext, todo, 3),
+                                  params if params is None or params.batch_size == 1 else params.take(todo))
+            dv1 = _solve(eye - dt * D1 - (dt * dt) * K1, -G[todo])
+            v1 = v1.copy()
+            x1 = x1.copy()
+            v1[todo] += dv1
+            x1[todo] += dt * dv1
             STATS["newton_iterations"] += 1
         q, qd = x1.reshape(shape), v1.reshape(shape)
         STATS["steps"] += 1
@@ -164,6 +171,12 @@ def step(model: Model, state: State, dt: float, method: str = "implicit_euler", 
             q, qd = dyn.project(model, q, qd)
         t = t + dt
     return State(q=q, qd=qd, t=t)
+
+
+def _rows(x, idx, ndim):
+    """Rows ``idx`` of a per-copy input (``ndim`` dimensions: (B, m) controls, (B, n, 3) external
+    forces); a shared input ((m,), (n, 3)) or None passes unchanged."""
+    return x[idx] if x is not None and np.ndim(x) == ndim else x
 
 
 def _mv(A, x):

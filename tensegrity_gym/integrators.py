@@ -64,6 +64,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from .dynamics import Model, State
+from .params import check_params
 
 __all__ = ["INTEGRATORS", "step", "simulate", "IntegratorInfo", "SimulationDiverged", "StabilityWarning",
            "stability_limit"]
@@ -220,7 +221,8 @@ def _as_batch(x, B, m, name):
 
 def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit_euler", *,
          rest_length=None, force_density=None, external=None, project: bool = True,
-         n_steps: int = 1, backend: str = "auto", rtol: float = 1e-10, atol: float = 1e-12) -> State:
+         n_steps: int = 1, backend: str = "auto", rtol: float = 1e-10, atol: float = 1e-12,
+         params=None) -> State:
     """Advance ``state`` by ``n_steps`` steps of ``dt`` seconds.
 
     Parameters
@@ -232,6 +234,10 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     project : project onto the constraints after each fixed step (see module doc).
     backend : "auto", "numpy" or "numba".
     rtol, atol : tolerances of the adaptive methods.
+    params : :class:`~tensegrity_gym.params.Params` with 1 row (shared) or B rows (copy b steps
+        with row b's masses, stiffnesses, damping, rest lengths, node drag, gravity, anchors);
+        default None: the model's own values. With ``params`` the stability check is skipped
+        (the model's estimated limit need not hold for other values).
     """
     info = resolve(integrator)
     if not ((math.isfinite(dt) if type(dt) is float else np.isfinite(dt)) and dt > 0):
@@ -239,20 +245,26 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     B, m = state.batch_size, model.n_strings
     rest_length = _as_batch(rest_length, B, m, "rest_length")
     force_density = _as_batch(force_density, B, m, "force_density")
+    if params is not None:
+        params = check_params(model, params, B)
     if info.adaptive:
-        return _adaptive(model, state, dt * n_steps, info, rest_length, force_density, external, rtol, atol)
-    _check_stability(model, info, dt)
+        return _adaptive(model, state, dt * n_steps, info, rest_length, force_density, external, rtol, atol,
+                         params=params)
+    if params is None:
+        _check_stability(model, info, dt)
     if info.name in _IMPLICIT:
         from . import implicit
         return implicit.step(model, state, dt, info.name, rest_length=rest_length,
                              force_density=force_density, external=external, project=project,
-                             n_steps=n_steps)
+                             n_steps=n_steps, params=params)
     if _use_numba(backend, info, external):
         return _KERNELS.step(model, state, dt, info.name, rest_length=rest_length,
                              force_density=force_density, external=external, project=project,
-                             n_steps=n_steps)
+                             n_steps=n_steps, params=params)
     q, qd, t = state.q, state.qd, state.t
-    acc = dyn.accelerations
+    def acc(model, q, qd, rest_length, force_density, ext):
+        return dyn.accelerations(model, q, qd, rest_length, force_density, ext, params)
+
     for _ in range(n_steps):
         if info.name == "semi_implicit_euler":
             qd = qd + dt * acc(model, q, qd, rest_length, force_density, _ext(external, q, qd, t))
@@ -307,23 +319,56 @@ def _sphere_drift(q, qd, dt):
     return np.concatenate([r, bn], axis=-1), np.concatenate([rd, bdn], axis=-1)
 
 
-def _rhs(model, shape, rest_length, force_density, external):
+@dataclass(frozen=True)
+class _Solution:
+    """The parts of a solve_ivp result that :func:`simulate` reads, for a batch run copy by copy."""
+    t: np.ndarray
+    y: np.ndarray
+
+
+def _rhs(model, shape, rest_length, force_density, external, params=None):
     half = int(np.prod(shape))
 
     def f(t, y):
         q = y[:half].reshape(shape)
         qd = y[half:].reshape(shape)
-        a = dyn.accelerations(model, q, qd, rest_length, force_density, _ext(external, q, qd, t))
+        a = dyn.accelerations(model, q, qd, rest_length, force_density, _ext(external, q, qd, t), params)
         return np.concatenate([qd.reshape(-1), a.reshape(-1)])
     return f
 
 
-def _adaptive(model, state, T, info, rest_length, force_density, external, rtol, atol, t_eval=None):
+def _copy_rows(x, b):
+    """Row b (as a batch of one) of an (m,) or (B, m) input already checked by :func:`_as_batch`."""
+    return x[b:b + 1] if x is not None and x.ndim == 2 else x
+
+
+def _adaptive(model, state, T, info, rest_length, force_density, external, rtol, atol, t_eval=None, params=None):
+    """solve_ivp over [t, t + T]. A batch is integrated copy by copy (each copy its own step-size
+    control, so no copy's result depends on another's), unless ``external`` is a callable of
+    the whole batch."""
     from scipy.integrate import solve_ivp
+    B = state.batch_size
+    if B > 1 and not callable(external):
+        ext = None if external is None else np.asarray(external)
+        runs = []
+        for b in range(B):
+            st_b = State(q=state.q[b:b + 1], qd=state.qd[b:b + 1], t=state.t)
+            runs.append(_adaptive(model, st_b, T, info, _copy_rows(rest_length, b), _copy_rows(force_density, b),
+                                  ext[b:b + 1] if ext is not None and ext.ndim == 3 else ext, rtol, atol, t_eval,
+                                  params if params is None or params.batch_size == 1 else params.take([b])))
+        if t_eval is None:
+            return State(q=np.concatenate([r.q for r in runs]), qd=np.concatenate([r.qd for r in runs]),
+                         t=state.t + T)
+        sols = [r[1] for r in runs]
+        half = sols[0].y.shape[0] // 2
+        y = np.concatenate([s_.y[:half] for s_ in sols] + [s_.y[half:] for s_ in sols], axis=0)
+        out = State(q=np.concatenate([r[0].q for r in runs]), qd=np.concatenate([r[0].qd for r in runs]),
+                    t=state.t + T)
+        return out, _Solution(t=sols[0].t, y=y)
     shape = state.q.shape
     y0 = np.concatenate([state.q.reshape(-1), state.qd.reshape(-1)])
     method = {"dop853": "DOP853", "radau": "Radau"}[info.name]
-    sol = solve_ivp(_rhs(model, shape, rest_length, force_density, external), (state.t, state.t + T), y0,
+    sol = solve_ivp(_rhs(model, shape, rest_length, force_density, external, params), (state.t, state.t + T), y0,
                     method=method, rtol=rtol, atol=atol, t_eval=t_eval)
     if sol.status < 0:
         raise SimulationDiverged(f"{info.name} failed at t = {sol.t[-1]:.6g} s: {sol.message}")
@@ -338,13 +383,14 @@ def _adaptive(model, state, T, info, rest_length, force_density, external, rtol,
 def simulate(model: Model, state: State, dt: float, n_steps: int, integrator: str = "rk4", *,
              record_every: int = 1, rest_length=None, force_density=None, external=None,
              project: bool = True, backend: str = "auto", rtol: float = 1e-10, atol: float = 1e-12,
-             progress: bool = False):
+             progress: bool = False, params=None):
     """Integrate ``n_steps`` steps of ``dt`` and record every ``record_every``-th state.
 
     Returns ``(t, q, qd)`` with ``t`` (S,) in s and ``q``, ``qd`` (S, B, k, 6); the first
     record is the initial state. Adaptive methods integrate the whole span in one
     ``solve_ivp`` call and report the solution at the record times.
     Raises :class:`SimulationDiverged` naming the time if the state stops being finite.
+    ``params``: per-copy physical values, as in :func:`step`.
     """
     info = resolve(integrator)
     if int(n_steps) != n_steps or n_steps < 0:
@@ -357,7 +403,7 @@ def simulate(model: Model, state: State, dt: float, n_steps: int, integrator: st
         B, m = state.batch_size, model.n_strings
         _, sol = _adaptive(model, state, dt * n_steps, info, _as_batch(rest_length, B, m, "rest_length"),
                            _as_batch(force_density, B, m, "force_density"), external, rtol, atol,
-                           t_eval=ts)
+                           t_eval=ts, params=None if params is None else check_params(model, params, B))
         half = sol.y.shape[0] // 2
         S = sol.y.shape[1]
         q = sol.y[:half].T.reshape((S,) + state.q.shape)
@@ -374,12 +420,14 @@ def simulate(model: Model, state: State, dt: float, n_steps: int, integrator: st
         except ImportError:  # pragma: no cover
             bar = None
     st = state
-    _check_stability(model, info, dt)
+    if params is None:
+        _check_stability(model, info, dt)
     for i in range(1, n_rec + 1):
         last = st
         try:
             st = step(model, st, dt, info.name, rest_length=rest_length, force_density=force_density,
-                      external=external, project=project, n_steps=record_every, backend=backend)
+                      external=external, project=project, n_steps=record_every, backend=backend,
+                      params=params)
             finite = bool(np.all(np.isfinite(st.q)) and np.all(np.isfinite(st.qd)))
             what = "state became non-finite"
         except (ZeroDivisionError, OverflowError, FloatingPointError) as exc:  # compiled kernels

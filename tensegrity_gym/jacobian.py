@@ -122,7 +122,7 @@ def _tile(x, P: int, B: int):
 
 
 def acceleration_jacobians(model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
-                           external=None, *, with_velocity: bool = True, central: bool = False,
+                           external=None, params=None, *, with_velocity: bool = True, central: bool = False,
                            rel_step: float = 1.5e-8):
     """Accelerations and their Jacobians at B states by finite differences, one batched call of
     :func:`tensegrity_gym.dynamics.accelerations`.
@@ -131,6 +131,7 @@ def acceleration_jacobians(model, q: np.ndarray, qd: np.ndarray, rest_length=Non
     ----------
     q, qd : (B, k, 6) configuration ``[r, b]`` (m, 1) and its rate (m/s, 1/s).
     rest_length, force_density : (m,) or (B, m) (m, N/m); external : (B, n, 3) or (n, 3) N or None.
+    params : per-copy physical values (:class:`tensegrity_gym.params.Params`, 1 or B copies) or None.
     with_velocity : also ``D = da/dq'`` (else None).
     central : central differences (error O(h^2), 2 copies per column) instead of forward ones.
     rel_step : step ``rel_step * max(1, |q_b|_inf)`` for the q columns of state b, likewise with
@@ -155,8 +156,11 @@ def acceleration_jacobians(model, q: np.ndarray, qd: np.ndarray, rest_length=Non
     def fun(Z):
         P = Z.shape[0]
         Q, V = _split(model, Z, q, qd, with_velocity)
+        pp = params
+        if pp is not None and pp.batch_size == B and B > 1:     # copy b of every perturbation: params b
+            pp = pp.take(np.tile(np.arange(B), P))
         A = dyn.accelerations(model, Q, V, _tile(rest_length, P, B), _tile(force_density, P, B),
-                              _tile(external, P, B))
+                              _tile(external, P, B), pp)
         return A.reshape(P, B, n)
 
     a0, J = fd_jacobian(fun, z, h, central=central)

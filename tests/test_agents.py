@@ -16,8 +16,6 @@ pytest.importorskip("stable_baselines3")
 yaml = pytest.importorskip("yaml")
 
 ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 import gymnasium as gym  # noqa: E402
 import tensegrity_gym  # noqa: E402,F401  (registers the envs)
@@ -248,3 +246,58 @@ def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path):
     zips = list(tmp_path.rglob(f"{env_id}.zip"))
     assert zips, list(tmp_path.rglob("*"))
     assert list(tmp_path.rglob("vecnormalize.pkl"))
+
+
+# ---------------------------------------------------------------------- the SB3 adapter (tensegrity_gym.sb3)
+def test_adapter_per_sub_env_methods_on_separate_envs():
+    """get_attr / set_attr / env_method / env_is_wrapped act on the selected sub-envs only."""
+    from gymnasium.wrappers import TimeLimit
+    from stable_baselines3.common.vec_env import DummyVecEnv
+    from tensegrity_gym.sb3 import make_sb3_vec_env
+    from tensegrity_gym.envs.common import make_sb3_vec_env as legacy
+    assert legacy is make_sb3_vec_env  # the old import path still works
+    venv = make_sb3_vec_env(gym.vector.SyncVectorEnv([lambda: gym.make("Pendulum-v1") for _ in range(3)]))
+    ref = DummyVecEnv([lambda: gym.make("Pendulum-v1") for _ in range(3)])
+    for v in (venv, ref):
+        v.set_attr("foo", 7, indices=[1])
+        assert v.get_attr("foo", indices=[1]) == [7]
+        with pytest.raises(AttributeError):
+            v.get_attr("foo", indices=[0])
+        v.set_attr("foo", 1)
+        assert v.get_attr("foo") == [1, 1, 1]
+        assert v.env_is_wrapped(TimeLimit) == [True, True, True]
+        assert v.env_is_wrapped(gym.wrappers.RecordEpisodeStatistics, indices=[0, 2]) == [False, False]
+        v.seed(5)
+        v.reset()
+        spaces_ = v.env_method("get_wrapper_attr", "observation_space", indices=[2])
+        assert len(spaces_) == 1 and spaces_[0].shape == (3,)
+    # the seeds reach the sub-envs as in DummyVecEnv: env i gets seed + i
+    venv.seed(11)
+    ref.seed(11)
+    np.testing.assert_array_equal(venv.reset(), ref.reset())
+    assert venv.get_attr("np_random", indices=[0])[0] is not venv.get_attr("np_random", indices=[1])[0]
+    venv.close()
+    ref.close()
+
+
+def test_adapter_per_sub_env_methods_on_the_batched_env():
+    if not _env_ok("TensegrityShape-v0"):
+        pytest.skip("shape env not importable yet")
+    from tensegrity_gym.sb3 import make_sb3_vec_env
+    venv = make_sb3_vec_env(gym.make_vec("TensegrityShape-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                                         render_mode="rgb_array", width=32, height=32))
+    venv.seed(0)
+    venv.reset()
+    rngs = venv.get_attr("np_random")
+    assert len(rngs) == 3 and len({id(r) for r in rngs}) == 3          # each copy its own generator
+    assert venv.get_attr("render_mode", indices=[2]) == ["rgb_array"]
+    assert venv.env_is_wrapped(gym.Wrapper, indices=[0, 1]) == [False, False]
+    frames = venv.env_method("render", indices=[0, 1, 2])
+    assert len(frames) == 3 and frames[0].shape == (32, 32, 3)
+    venv.set_attr("foo", 3)                                             # all copies: allowed
+    assert venv.get_attr("foo") == [3, 3, 3]
+    with pytest.raises(ValueError, match="share this attribute"):
+        venv.set_attr("foo", 4, indices=[1])
+    with pytest.raises(ValueError, match="one object"):
+        venv.env_method("render", indices=[1])
+    venv.close()

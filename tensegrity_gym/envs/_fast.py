@@ -66,13 +66,16 @@ if AVAILABLE:
     def apply_controls(ctrl, action, rate, low, high, actuated, base, fill_base, ctrl_out, phys_out):
         """``ctrl_out = clip(ctrl + action * rate, low, high)`` (B, na) and the physics input
         ``phys_out`` (B, m): ``base`` (m,) (rest lengths; zeros for force densities when
-        ``fill_base`` is False) with the actuated columns set to ``ctrl_out``."""
+        ``fill_base`` is False) with the actuated columns set to ``ctrl_out``. ``rate`` (P, na):
+        one row shared by every copy (P = 1) or one per copy (P = B)."""
         B, na = ctrl.shape
         m = phys_out.shape[1]
+        per_copy = rate.shape[0] > 1
         for b in range(B):
             _physics_row(phys_out, b, base, fill_base, m)
+            rb = b if per_copy else 0
             for i in range(na):
-                v = ctrl[b, i] + action[b, i] * rate[i]
+                v = ctrl[b, i] + action[b, i] * rate[rb, i]
                 # np.clip(v, lo, hi) == minimum(maximum(v, lo), hi), NaN propagating
                 if v < low[i]:
                     v = low[i]
@@ -87,17 +90,21 @@ if AVAILABLE:
         """Motor model of ``Actuation.apply_motor``: ``v = speed + clip(action * max_rate - speed,
         -dv, dv)``, ``ctrl_out = clip(ctrl + v * dt, low, high)``, ``v = 0`` where the control
         sits on a bound and ``v`` pushes beyond it (``speed_out``), and the physics input
-        ``phys_out`` as :func:`apply_controls`."""
+        ``phys_out`` as :func:`apply_controls`. ``max_rate`` (P, na) and ``dv`` (P,): one row
+        shared (P = 1) or one per copy (P = B)."""
         B, na = ctrl.shape
         m = phys_out.shape[1]
+        per_copy = max_rate.shape[0] > 1
         for b in range(B):
             _physics_row(phys_out, b, base, fill_base, m)
+            rb = b if per_copy else 0
+            dvb = dv[rb]
             for i in range(na):
-                d = action[b, i] * max_rate[i] - speed[b, i]
-                if d < -dv:
-                    d = -dv
-                if d > dv:
-                    d = dv
+                d = action[b, i] * max_rate[rb, i] - speed[b, i]
+                if d < -dvb:
+                    d = -dvb
+                if d > dvb:
+                    d = dvb
                 v = speed[b, i] + d
                 x = ctrl[b, i] + v * dt
                 if x < low[i]:
@@ -278,7 +285,8 @@ if AVAILABLE:
             return -1
         o = 9
         phys = np.empty((B, m))
-        apply_controls(ctrl, action, fcon[o:o + na], fcon[o + na:o + 2 * na], fcon[o + 2 * na:o + 3 * na],
+        apply_controls(ctrl, action, fcon[o:o + na].reshape((1, na)), fcon[o + na:o + 2 * na],
+                       fcon[o + 2 * na:o + 3 * na],
                        icon[6:6 + na], fcon[o + 3 * na:o + 3 * na + m], fill_base, ctrl_out, phys)
         # rest-length mode: phys is rest_length; force-density mode (flags carry _L0DEF | _FD):
         # phys is force_density; the external-force argument is never read (no _EXT)

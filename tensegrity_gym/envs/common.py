@@ -64,6 +64,8 @@ from .. import integrators
 from .. import dynamics as dyn
 from ..rewards import combine
 from . import _fast
+from .domain import Domain
+from ..params import default_params
 
 __all__ = ["ACTION_MODES", "check_action", "check_positive", "Actuation", "BatchedTask", "TaskEnv",
            "TaskVectorEnv", "make_sb3_vec_env", "resolve_actuated", "registered_max_episode_steps"]
@@ -199,8 +201,11 @@ class Actuation:
         self.max_rate = per(max_rate, "max_rate")
         self.nominal = np.clip(per(nominal, "nominal"), self.low, self.high)
         self.control_dt = check_positive(control_dt, "control_dt", "s")
-        self._rate = self.max_rate * self.control_dt     # change of the control per unit action and step
         self.max_accel = None if max_accel is None else check_positive(max_accel, "max_accel", "unit/s^2")
+        # per-copy limits (set_copy_limits): (P, na) rates and (P,) accelerations, P = 1 until set
+        self.rate_rows = self.max_rate[None].copy()
+        self.accel_rows = None if self.max_accel is None else np.array([self.max_accel])
+        self._update_steps()
         unit = "m" if mode == "rest_length" else "N/m"
         for i in range(na):
             s = int(self.actuated[i])
@@ -212,6 +217,34 @@ class Actuation:
             if self.max_rate[i] <= 0:
                 raise ValueError(f"max rate of actuated string {s}: {self.max_rate[i]:.6g} {unit}/s must be positive")
 
+    def _update_steps(self):
+        self._rate = self.rate_rows * self.control_dt     # change of the control per unit action and step
+        self._dv = None if self.accel_rows is None else self.accel_rows * self.control_dt
+
+    def set_copy_limits(self, batch_size: int, idx, max_rate=None, max_accel=None) -> None:
+        """Copies ``idx`` get their own rate limit ``max_rate`` ((len(idx), na) or (na,), unit/s)
+        and/or motor acceleration limit ``max_accel`` ((len(idx),) or a number, unit/s^2); the
+        other copies keep theirs (the nominal ones until changed). ValueError naming the copy
+        and the value if one is not finite and > 0."""
+        idx = np.asarray(idx, dtype=int).reshape(-1)
+        if self.rate_rows.shape[0] != batch_size:
+            self.rate_rows = np.repeat(self.rate_rows[:1], batch_size, axis=0)
+            if self.accel_rows is not None:
+                self.accel_rows = np.repeat(self.accel_rows[:1], batch_size)
+        for name, val, rows in (("max_cable_speed", max_rate, self.rate_rows),
+                                ("max_cable_acceleration", max_accel, self.accel_rows)):
+            if val is None:
+                continue
+            if rows is None:
+                raise ValueError(f"{name}: this actuation has no motor acceleration limit")
+            v = np.broadcast_to(np.asarray(val, float), (idx.size,) + rows.shape[1:])
+            bad = ~(np.isfinite(v) & (v > 0))
+            if bad.any():
+                pos = np.argwhere(bad)[0]
+                raise ValueError(f"{name}: copy {int(idx[pos[0]])}: must be finite and > 0, got {float(v[tuple(pos)])!r}")
+            rows[idx] = v
+        self._update_steps()
+
     @property
     def size(self) -> int:
         return int(self.actuated.size)
@@ -222,7 +255,7 @@ class Actuation:
 
     def apply(self, ctrl: np.ndarray, action: np.ndarray) -> np.ndarray:
         """New control (B, na) from the current control (B, na) and an action in [-1, 1] (B, na)."""
-        return np.clip(ctrl + action * (self.max_rate * self.control_dt), self.low, self.high)
+        return np.clip(ctrl + action * self._rate, self.low, self.high)
 
     def physics_inputs(self, ctrl: np.ndarray) -> dict:
         """Keyword arguments ``rest_length`` / ``force_density`` (B, m) for ``integrators.step``."""
@@ -257,8 +290,8 @@ class Actuation:
         of :meth:`advance_motor`)."""
         if self.max_accel is None:
             raise ValueError("apply_motor: this Actuation has no max_accel (use apply)")
-        dv = self.max_accel * self.control_dt
-        v = speed + np.clip(action * self.max_rate - speed, -dv, dv)
+        dv = self._dv[:, None]
+        v = speed + np.clip(action * self.rate_rows - speed, -dv, dv)
         new = np.clip(ctrl + v * self.control_dt, self.low, self.high)
         stop = ((new <= self.low) & (v < 0.0)) | ((new >= self.high) & (v > 0.0))
         v = np.where(stop, 0.0, v)
@@ -277,8 +310,7 @@ class Actuation:
             v = np.empty(ctrl.shape)
             phys = np.empty((ctrl.shape[0], self.n_strings))
             rl = self.mode == "rest_length"
-            _fast.apply_motor(ctrl, speed, action, self.max_rate, self.max_accel * self.control_dt,
-                              self.control_dt, self.low, self.high, self.actuated, self.base_rest_length,
+            _fast.apply_motor(ctrl, speed, action, self.rate_rows, self._dv, self.control_dt, self.low, self.high, self.actuated, self.base_rest_length,
                               rl, new, v, phys)
             return new, v, ({"rest_length": phys} if rl else {"rest_length": None, "force_density": phys})
         new, v = self.apply_motor(ctrl, speed, action)
@@ -291,6 +323,11 @@ class Actuation:
 
 
 # ---------------------------------------------------------------------- batched task base
+#: robot parameters (envs/domain.py) that are Params fields of the physics (tensegrity_gym.params)
+_PHYSICS_FIELDS = {"rod_mass": "mass", "stiffness": "stiffness", "damping": "damping", "node_damping": "node_damping",
+                   "gravity": "gravity", "rest_length_offset": "rest_length"}
+
+
 class BatchedTask:
     """Base class of a batched task on B copies of one compiled structure.
 
@@ -338,6 +375,98 @@ class BatchedTask:
         self.q = st.q.copy()
         self.qd = st.qd.copy()
         self.elapsed = np.zeros(B, dtype=np.int64)
+        self.params = None        # tensegrity_gym.params.Params of the copies; None: the model's own values
+        self.rest_offset = None   # (P, m) true minus commanded rest lengths, m (rest_length_offset)
+        self.action_delay = 0
+
+    # ------------------------------------------------------------------ robot parameters (envs/domain.py)
+    def _init_domain(self, params=None, randomize=None, action_delay: int = 0, start_rest_length_offset=None,
+                     extra_nominal: dict | None = None):
+        """Fixed / randomised physical parameters (:mod:`tensegrity_gym.envs.domain`), actuation
+        latency (``action_delay`` control steps: the physics receives the action given that many
+        steps earlier; zeros at the start of an episode) and the slack start
+        (``start_rest_length_offset``, m: the actuated cables start at their nominal rest length
+        plus this, rest-length mode). Call at the end of the task's ``__init__``."""
+        model, B = self.model, self.num_envs
+        g = np.zeros(3) if model.gravity is None else np.asarray(model.gravity, float)
+        nominal = {"rod_mass": model.mass, "stiffness": model.structure.stiffness, "damping": model.structure.damping,
+                   "node_damping": model.node_damping, "gravity": g, "rest_length_offset": np.zeros(model.n_strings)}
+        nominal.update(extra_nominal or {})
+        self.domain = Domain(nominal, B, params, randomize)
+        if isinstance(action_delay, (bool, np.bool_)) or int(action_delay) != action_delay or action_delay < 0:
+            raise ValueError(f"action_delay: must be a non-negative integer (control steps), got {action_delay!r}")
+        self.action_delay = int(action_delay)
+        self._action_queue = np.zeros((B, self.action_delay, self.action_size))
+        act = self.actuation
+        self.start_control = act.nominal.copy()
+        if start_rest_length_offset is not None:
+            if act.mode != "rest_length":
+                raise ValueError("start_rest_length_offset: only with action_mode='rest_length'")
+            off = np.broadcast_to(np.asarray(start_rest_length_offset, float), act.nominal.shape)
+            start = act.nominal + off
+            bad = ~np.isfinite(start) | (start < act.low) | (start > act.high)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise ValueError(f"start_rest_length_offset: actuated cable {int(act.actuated[i])} would start at "
+                                 f"{start[i]:.6g} m, outside its bounds [{act.low[i]:.6g}, {act.high[i]:.6g}] m")
+            self.start_control = start
+        phys_names = set(self.domain.names) & set(_PHYSICS_FIELDS)
+        if phys_names:   # Params: one row when fixed, one per copy when randomised (per-copy kernel)
+            per_copy = bool(phys_names & set(self.domain.spread))
+            self.params = default_params(model, B if per_copy else 1)
+        if self.domain.enabled:
+            self._apply_domain(np.arange(B) if self.domain.randomized else np.zeros(1, int), init=True)
+
+    def _apply_domain(self, idx: np.ndarray, init: bool = False) -> None:
+        """Copies ``idx`` take the domain's current values. ``self.params`` has one row (set once,
+        at ``init``) when no physics parameter is randomised, else one per copy (set per reset)."""
+        v, model, P = self.domain.values, self.model, (0 if self.params is None else self.params.batch_size)
+        if P > 1 or (P == 1 and init):
+            rows = idx if P > 1 else np.zeros(1, int)
+            phys = {}
+            for name, fld in _PHYSICS_FIELDS.items():
+                if name in v and fld != "rest_length":
+                    phys[fld] = v[name][rows]
+                    if fld in ("stiffness", "damping"):          # force-density-actuated strings: no elastic part
+                        phys[fld] = np.where(model.active, 0.0, phys[fld])
+            if "rest_length_offset" in v:
+                phys["rest_length"] = model.rest_length + v["rest_length_offset"][rows]
+                self.rest_offset = v["rest_length_offset"] if P > 1 else v["rest_length_offset"][:1]
+            self.params = self.params.set_rows(rows, **phys) if P > 1 else self.params.replace(**phys)
+        self._apply_task_domain(idx)
+
+    def _apply_task_domain(self, idx: np.ndarray) -> None:
+        """Task-specific parameters (contact, motor limits) of copies ``idx``; see RollTask."""
+
+    def with_offset(self, inputs: dict) -> dict:
+        """Physics inputs with the cables' rest-length offsets added (``rest_length_offset``)."""
+        if self.rest_offset is not None and inputs.get("rest_length") is not None:
+            inputs["rest_length"] = inputs["rest_length"] + self.rest_offset
+        return inputs
+
+    def reset(self, idx: np.ndarray, rngs: Sequence[np.random.Generator], options: dict | None = None) -> dict:
+        """Reset copies ``idx``: robot parameters drawn first (if randomised), then the task's
+        :meth:`reset_idx`; ``info["params"]`` reports the parameters when any are set."""
+        dom = self.domain
+        if dom.randomized:
+            dom.sample(idx, rngs)
+            self._apply_domain(idx)
+        if self.action_delay:
+            self._action_queue[idx] = 0.0
+        info = self.reset_idx(idx, rngs, options)
+        if dom.enabled:
+            info["params"] = dom.report(idx if dom.randomized else np.zeros(len(idx), int))
+        return info
+
+    def act(self, action: np.ndarray):
+        """:meth:`step` with the action delayed by ``action_delay`` control steps."""
+        if self.action_delay:
+            queue = self._action_queue
+            out = queue[:, 0].copy()     # (a view would be overwritten by the shift below)
+            queue[:, :-1] = queue[:, 1:]
+            queue[:, -1] = action
+            action = out
+        return self.step(action)
 
     @property
     def control_dt(self) -> float:
@@ -362,7 +491,7 @@ class BatchedTask:
             # fast path: the compiled kernel raises no floating-point warnings, so no np.errstate,
             # and one compiled pass checks the whole batch; per copy only when something is off
             st = integrators.step(self.model, dyn.State(q0, qd0, 0.0), self.dt, self.integrator,
-                                  n_steps=self.frame_skip, backend=self.backend, **inputs)
+                                  n_steps=self.frame_skip, backend=self.backend, params=self.params, **inputs)
             q, qd = st.q, st.qd
             if (type(q) is np.ndarray and type(qd) is np.ndarray and q.dtype == np.float64
                     and qd.dtype == np.float64 and q.ndim == 3 and q.shape == qd.shape
@@ -374,12 +503,12 @@ class BatchedTask:
         with np.errstate(all="ignore"):
             if substep_external is None:
                 st = integrators.step(self.model, dyn.State(q0, qd0, 0.0), self.dt, self.integrator,
-                                      n_steps=self.frame_skip, backend=self.backend, **inputs)
+                                      n_steps=self.frame_skip, backend=self.backend, params=self.params, **inputs)
             else:
                 st = dyn.State(q0, qd0, 0.0)
                 for _ in range(self.frame_skip):
                     st = integrators.step(self.model, st, self.dt, self.integrator, backend=self.backend,
-                                          external=substep_external(st.q, st.qd), **inputs)
+                                          external=substep_external(st.q, st.qd), params=self.params, **inputs)
         return self._finish_simulate(q0, qd0, st.q, st.qd)
 
     def _compiled_physics(self) -> bool:
@@ -472,16 +601,17 @@ class TaskEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        info = self.task.reset_idx(np.array([0]), [self.np_random], options)
+        info = self.task.reset(np.array([0]), [self.np_random], options)
         self._needs_reset = False
         obs = self.task.observe()[0]
         if self.render_mode == "human":
             self.render()
-        return obs, {k: _scalar(v[0]) for k, v in info.items()}
+        return obs, {k: ({n: x[0] for n, x in v.items()} if isinstance(v, dict) else _scalar(v[0]))
+                     for k, v in info.items()}
 
     def step(self, action):
         a = check_action(action, (self.task.action_size,), clip=self.task.clip_actions)
-        terms, terminated, infos = self.task.step(a[None, :])
+        terms, terminated, infos = self.task.act(a[None, :])
         # reward: combine(terms)[0], summed here in Python floats (IEEE doubles, same order: same value)
         reward = None
         for v in terms.values():
@@ -511,9 +641,9 @@ class TaskEnv(gym.Env):
         return frame
 
     def _frame(self, i: int) -> np.ndarray:
-        from ..rendering import Renderer
+        from ..rendering import make_renderer
         if self._renderer is None:
-            self._renderer = Renderer(self._width, self._height, title=self._title)
+            self._renderer = make_renderer(self._width, self._height, title=self._title)
         return self._renderer.render(**self.task.render_data(i))
 
     def close(self):
@@ -593,6 +723,10 @@ class TaskVectorEnv(gym.vector.VectorEnv):
     def _vector_info(self, infos: dict, mask: np.ndarray, out: dict | None = None) -> dict:
         out = {} if out is None else out
         for k, v in infos.items():
+            if isinstance(v, dict):          # e.g. info["params"]: a nested vector dict
+                out[k] = self._vector_info(v, mask, out.get(k))
+                out["_" + k] = mask.copy() if "_" + k not in out else out["_" + k] | mask
+                continue
             v = np.asarray(v)
             if k in out:
                 out[k][mask] = v[mask] if v.shape[:1] == (self.num_envs,) else v
@@ -606,9 +740,16 @@ class TaskVectorEnv(gym.vector.VectorEnv):
 
     def _reset_envs(self, idx: np.ndarray, options) -> dict:
         """Reset envs ``idx`` (int array); returns their infos as (N,) arrays (others zero)."""
-        info = self.task.reset_idx(idx, [self._rngs[i] for i in idx], options)
+        info = self.task.reset(idx, [self._rngs[i] for i in idx], options)
         full = {}
         for k, v in info.items():
+            if isinstance(v, dict):
+                full[k] = {}
+                for n, x in v.items():
+                    arr = np.zeros((self.num_envs,) + x.shape[1:], dtype=x.dtype)
+                    arr[idx] = x
+                    full[k][n] = arr
+                continue
             v = np.asarray(v)
             arr = np.zeros((self.num_envs,) + v.shape[1:], dtype=v.dtype)
             arr[idx] = v
@@ -652,7 +793,7 @@ class TaskVectorEnv(gym.vector.VectorEnv):
         if reset_now.any():
             a = a.copy()
             a[reset_now] = 0.0
-        terms, terminated, infos = self.task.step(a)
+        terms, terminated, infos = self.task.act(a)
         reward = combine(terms).astype(np.float64)
         terminated = np.asarray(terminated, bool).copy()
         diverged = np.asarray(infos.get("diverged", np.zeros(N, bool)), bool)
@@ -678,11 +819,11 @@ class TaskVectorEnv(gym.vector.VectorEnv):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; use render_mode='rgb_array'")
             return None
-        from ..rendering import Renderer
+        from ..rendering import make_renderer
         frames = []
         for i in range(self.num_envs):
             if i not in self._renderers:
-                self._renderers[i] = Renderer(self._width, self._height, title=self._title)
+                self._renderers[i] = make_renderer(self._width, self._height, title=self._title)
             frames.append(self._renderers[i].render(**self.task.render_data(i)))
         return tuple(frames)
 
@@ -691,90 +832,5 @@ class TaskVectorEnv(gym.vector.VectorEnv):
 
 
 # ---------------------------------------------------------------------- SB3 adapter
-_SB3_CLASS = None
-
-
-def make_sb3_vec_env(vector_env: gym.vector.VectorEnv):
-    """Wrap a ``gymnasium.vector.VectorEnv`` (e.g. ``gymnasium.make_vec("TensegrityShape-v0",
-    num_envs=64, vectorization_mode="vector_entry_point")``) as a Stable-Baselines3
-    ``VecEnv`` so that SB3 trains on the batched env directly::
-
-        venv = make_sb3_vec_env(gymnasium.make_vec("TensegrityShape-v0", num_envs=64,
-                                                   vectorization_mode="vector_entry_point"))
-        PPO("MlpPolicy", venv).learn(100_000)
-
-    SB3 resets finished envs in the same step and passes the last observation of the
-    episode as ``info["terminal_observation"]`` (with ``info["TimeLimit.truncated"]``). The
-    adapter does this with a masked reset (``options={"reset_mask": done}``, which
-    Gymnasium >= 1.1 vector envs support) right after a step in which envs finished, so the
-    wrapped env's own next-step autoreset never fires. Infos become a list of per-env dicts.
-    ``seed(s)`` seeds env i with ``s + i`` at the next reset.
-    SB3 is imported here, not at module import (the core install does not need it).
-    """
-    global _SB3_CLASS
-    if _SB3_CLASS is None:
-        from stable_baselines3.common.vec_env.base_vec_env import VecEnv
-
-        class GymnasiumVectorToSB3(VecEnv):
-            """SB3 ``VecEnv`` over a gymnasium ``VectorEnv`` (see :func:`make_sb3_vec_env`)."""
-
-            def __init__(self, venv):
-                self.venv = venv
-                super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
-                self._actions = None
-
-            def reset(self):
-                seeds = self._seeds if any(s is not None for s in self._seeds) else None
-                opts = self._options[0] if self._options and self._options[0] else None
-                obs, _ = self.venv.reset(seed=seeds, options=opts)
-                self._reset_seeds()
-                self._reset_options()
-                return obs
-
-            def step_async(self, actions):
-                self._actions = actions
-
-            def step_wait(self):
-                obs, rew, term, trunc, info = self.venv.step(self._actions)
-                done = term | trunc
-                infos = [{} for _ in range(self.num_envs)]
-                for k, v in info.items():
-                    if k.startswith("_"):
-                        continue
-                    m = info.get("_" + k)
-                    for i in range(self.num_envs):
-                        if m is None or m[i]:
-                            infos[i][k] = v[i]
-                obs = np.array(obs, copy=True)
-                if done.any():
-                    for i in np.flatnonzero(done):
-                        infos[i]["terminal_observation"] = obs[i].copy()
-                        infos[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
-                    new_obs, _ = self.venv.reset(options={"reset_mask": done.copy()})
-                    obs[done] = new_obs[done]
-                return obs, np.asarray(rew, np.float32), done, infos
-
-            def close(self):
-                self.venv.close()
-
-            def get_attr(self, attr_name, indices=None):
-                val = getattr(self.venv, attr_name, None) if attr_name != "render_mode" else \
-                    getattr(self.venv, "render_mode", None)
-                return [val for _ in self._get_indices(indices)]
-
-            def set_attr(self, attr_name, value, indices=None):
-                setattr(self.venv, attr_name, value)
-
-            def env_method(self, method_name, *method_args, indices=None, **method_kwargs):
-                fn = getattr(self.venv, method_name)
-                return [fn(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
-
-            def env_is_wrapped(self, wrapper_class, indices=None):
-                return [False for _ in self._get_indices(indices)]
-
-            def get_images(self):
-                frames = self.venv.render()
-                return list(frames) if frames is not None else [None] * self.num_envs
-
-        _SB3_CLASS = GymnasiumVectorToSB3
-    return _SB3_CLASS(vector_env)
+# moved to tensegrity_gym.sb3; imported here for backwards compatibility
+from ..sb3 import make_sb3_vec_env  # noqa: E402,F401

@@ -153,7 +153,14 @@ class RollTask(BatchedTask):
                  friction: float = 1.0, ground_stiffness: float = 1e4, ground_damping: float = 10.0,
                  tangential_stiffness: float | None = None, tangential_damping: float = 10.0,
                  cap_radius: float = 0.02, ground_max_damping: float | None = None, backend: str = "auto",
-                 divergence_limit: float | None = None, clip_actions: bool = True):
+                 divergence_limit: float | None = None, clip_actions: bool = True,
+                 params: dict | None = None, randomize: dict | None = None, action_delay: int = 0,
+                 start_rest_length_offset=None, observation_mode: str = "state", sensor_noise: dict | None = None,
+                 history: int = 1):
+        if observation_mode not in ("state", "robot"):
+            raise ValueError(f"observation_mode: unknown {observation_mode!r}; choose 'state' or 'robot'")
+        if observation_mode == "state" and (sensor_noise or history != 1):
+            raise ValueError("sensor_noise / history: only with observation_mode='robot'")
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode: unknown {action_mode!r}; choose one of {ACTION_MODES}")
         if string_damping is not None:
@@ -235,6 +242,15 @@ class RollTask(BatchedTask):
         self.n_contacts = 2 * k
         self.action_size = na
         self.observation_size = 6 * n + na + self.n_contacts + 3 + self.n_speed
+        self.observation_mode = observation_mode
+        self.sensors = None
+        if observation_mode == "robot":
+            from .sensors import RobotSensors
+            self.sensors = RobotSensors(model, na, self.n_speed, 2 * k, sensor_noise, history, self.actuation.unit)
+            self.observation_size = self.sensors.size
+            self._readings = np.zeros((B, self.sensors.history, self.sensors.frame_size))
+            self._sensor_rngs = [None] * B
+            self._qd_prev = None
         self.cstate = gc.init_contact_state(model, B)
         self.ctrl = np.tile(self.actuation.nominal, (B, 1))
         self.speed = np.zeros((B, self.n_speed))
@@ -260,11 +276,39 @@ class RollTask(BatchedTask):
         self._slip = np.zeros((B, self.n_contacts), bool)
         self._fast = (backend != "numpy" and _kernels.AVAILABLE
                       and self.integrator in ("semi_implicit_euler", "rk4"))
+        self._contact_prm = None     # (B, 9) per-copy contact parameters once any is set (domain)
+        extra = {"friction": np.array(self.contact.friction), "ground_stiffness": np.array(self.contact.stiffness),
+                 "ground_damping": np.array(self.contact.damping), "max_cable_speed": self.actuation.max_rate.copy()}
+        if self.motor:
+            extra["max_cable_acceleration"] = np.array(self.actuation.max_accel)
+        self._init_domain(params, randomize, action_delay, start_rest_length_offset, extra)
         limit = gc.stable_step(self.contact, model)["semi_implicit_euler"]
         if self.integrator in ("semi_implicit_euler", "rk4") and self.dt > limit:
             warnings.warn(integrators.StabilityWarning(
                 f"{ENV_ID}: dt = {self.dt:.4g} s is above the estimated stability limit {limit:.4g} s of "
                 "semi-implicit Euler with this robot's strings and ground contact"), stacklevel=3)
+
+    def _apply_task_domain(self, idx) -> None:
+        """Contact, motor and mass-fraction values of copies ``idx`` (see BatchedTask._apply_domain)."""
+        v, B = self.domain.values, self.num_envs
+        contact = {"friction": "friction", "ground_stiffness": "stiffness", "ground_damping": "damping"}
+        if any(n in v for n in contact):
+            if self._contact_prm is None:
+                self._contact_prm = self.contact.per_copy(B)
+            rows = idx if self.domain.randomized else np.arange(B)
+            src = idx if self.domain.randomized else np.zeros(B, int)
+            for name, fld in contact.items():
+                if name in v:
+                    gc.set_copy_values(self._contact_prm, rows, fld, v[name][src])
+        if "max_cable_speed" in v or "max_cable_acceleration" in v:
+            rows = idx if self.domain.randomized else np.arange(B)
+            src = idx if self.domain.randomized else np.zeros(B, int)
+            self.actuation.set_copy_limits(
+                B, rows, max_rate=v["max_cable_speed"][src] if "max_cable_speed" in v else None,
+                max_accel=v["max_cable_acceleration"][src] if "max_cable_acceleration" in v else None)
+        if "rod_mass" in v:
+            mass = np.broadcast_to(self.params.mass, (B, self.model.n_bars))
+            self._mass_frac = mass / mass.sum(axis=1, keepdims=True)
 
     # ------------------------------------------------------------------ scene
     def _settle(self, model, s, integrator, dt):
@@ -309,12 +353,19 @@ class RollTask(BatchedTask):
         self.q[idx], self.qd[idx] = q, qd
         self.cstate.anchor[idx] = 0.0
         self.cstate.active[idx] = False
-        self.ctrl[idx] = self.actuation.nominal
+        self.ctrl[idx] = self.start_control
         self.speed[idx] = 0.0
         self.goal[idx] = goal
         self.elapsed[idx] = 0
-        com = dyn.center_of_mass(self.model, q)
+        com = dyn.center_of_mass(self.model, q, None if self.params is None else self.params.take(
+            idx if self.params.batch_size > 1 else np.zeros(len(idx), int)))
         self.start[idx] = com
+        if self.sensors is not None:
+            for j, i in enumerate(idx):
+                self._sensor_rngs[i] = rngs[j]
+            frame = self.sensors.frame(q, qd, None, self.dt, self._gravity(idx), self.ctrl[idx], self.speed[idx],
+                                       self.cstate.active[idx], goal, rngs)
+            self._readings[idx] = frame[:, None, :]
         if self.record_path:
             for j, i in enumerate(idx):
                 self.paths[int(i)] = [com[j].copy()]
@@ -333,14 +384,18 @@ class RollTask(BatchedTask):
         q0, qd0, anchor0, active0 = q.copy(), qd.copy(), cs.anchor.copy(), cs.active.copy()
         W, slip, dt, model, contact, name = self._W, self._slip, self.dt, self.model, self.contact, self.integrator
         forces, step_inplace = gc.forces_inplace, _kernels.step_inplace
+        params, prm = self.params, self._contact_prm
+        inputs = self.with_offset(inputs)
         with np.errstate(all="ignore"):
-            for _ in range(self.frame_skip):
-                forces(contact, model, q, qd, cs, W, slip)
+            for sub in range(self.frame_skip):
+                if self.sensors is not None and sub == self.frame_skip - 1:
+                    self._qd_prev = qd.copy()     # the IMUs read the last physics step's acceleration
+                forces(contact, model, q, qd, cs, W, slip, prm)
                 if self._fast:
-                    step_inplace(model, q, qd, dt, name, external=W, **inputs)
+                    step_inplace(model, q, qd, dt, name, external=W, params=params, **inputs)
                 else:
                     st = integrators.step(self.model, dyn.State(q, qd, 0.0), dt, self.integrator, external=W,
-                                          backend=self.backend, **inputs)
+                                          backend=self.backend, params=params, **inputs)
                     q[...] = st.q
                     qd[...] = st.qd
             # the robot travels: "far" is measured from its own centre (and its height from the
@@ -353,6 +408,8 @@ class RollTask(BatchedTask):
         if diverged.any():
             q[diverged], qd[diverged] = q0[diverged], qd0[diverged]
             cs.anchor[diverged], cs.active[diverged] = anchor0[diverged], active0[diverged]
+            if self.sensors is not None:
+                self._qd_prev[diverged] = qd[diverged]
         self.elapsed += 1
         return diverged
 
@@ -389,16 +446,33 @@ class RollTask(BatchedTask):
                     del p[: len(p) - MAX_PATH]
         infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward,
                  "diverged": diverged}
+        if self.sensors is not None:
+            frame = self.sensors.frame(self.q, self.qd, self._qd_prev, self.dt, self._gravity(slice(None)), self.ctrl,
+                                       self.speed, self.cstate.active, self.goal, self._sensor_rngs)
+            R = self._readings
+            R[:, 1:] = R[:, :-1].copy()
+            R[:, 0] = frame
         return terms, np.zeros(self.num_envs, bool), infos
+
+    def _gravity(self, idx) -> np.ndarray:
+        """(r, 3) or (3,) gravity of copies ``idx``, m/s^2 (the robot's own with ``params``)."""
+        if self.params is not None:
+            g = self.params.gravity
+            return g[idx] if g.shape[0] > 1 else g[0]
+        return np.zeros(3) if self.model.gravity is None else np.asarray(self.model.gravity, float)
 
     def _com(self, q) -> np.ndarray:
         """(B, 3) centre of mass, m (= dynamics.center_of_mass, one matrix product)."""
         if self._com_at_r:
+            if self._mass_frac.ndim == 2:     # per-copy rod masses
+                return np.einsum("bk,bki->bi", self._mass_frac, q[..., :3])
             return np.einsum("k,bki->bi", self._mass_frac, q[..., :3])
-        return dyn.center_of_mass(self.model, q)
+        return dyn.center_of_mass(self.model, q, self.params)
 
     def observe(self) -> np.ndarray:
         B = self.num_envs
+        if self.sensors is not None:
+            return self._readings.reshape(B, -1).astype(np.float32)
         q, qd = self.q, self.qd
         if _fast.AVAILABLE:   # one compiled pass, bit-identical to the NumPy below
             com = self._com(q)
@@ -432,7 +506,10 @@ class RollTask(BatchedTask):
         return obs
 
     def observation_layout(self) -> list[tuple[str, slice, str]]:
-        """(name, slice, unit) of each block of the observation vector."""
+        """(name, slice, unit) of each block of the observation vector (robot mode: of the newest
+        reading; the ``history - 1`` older readings follow it in the same layout)."""
+        if self.sensors is not None:
+            return self.sensors.layout()
         n, na = self.model.n_nodes, self.actuated.size
         blocks = [("node_position_rel_com", 3 * n, "m"), ("node_velocity", 3 * n, "m/s"),
                   ("control", na, self.actuation.unit), ("contact", self.n_contacts, "1"),
@@ -606,6 +683,13 @@ _DOC = r"""
     | ``backend`` | ``"auto"`` | ``"numpy"`` / ``"numba"`` |
     | ``divergence_limit`` | ``None`` | m (default 100 x the robot's size) |
     | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
+    | ``params`` | ``None`` | fix robot parameters by name, absolute SI values (``rod_mass``, ``stiffness``, ``damping``, ``node_damping``, ``gravity``, ``rest_length_offset``, ``friction``, ``ground_stiffness``, ``ground_damping``, ``max_cable_speed``, ``max_cable_acceleration``; a number or one per rod/string/node/cable): see :mod:`tensegrity_gym.envs.domain` |
+    | ``randomize`` | ``None`` | ``{name: spread}`` drawn per copy at every reset (relative U(1 - s, 1 + s) x nominal; ``rest_length_offset`` absolute U(-s, s) m); ``info["params"]`` at reset reports the values |
+    | ``action_delay`` | ``0`` | control steps between an action and its effect (zeros at the start of an episode) |
+    | ``start_rest_length_offset`` | ``None`` | m added to the actuated cables' rest lengths at reset (a slack start; must stay within the bounds) |
+    | ``observation_mode`` | ``"state"`` | ``"robot"``: what a lab robot senses (cable lengths, motor encoders and speeds, rod IMUs, contact switches, goal; :mod:`tensegrity_gym.envs.sensors`) |
+    | ``sensor_noise`` | ``None`` | robot mode: ``{block: sigma}`` Gaussian noise, SI units (``cable_length``, ``control``, ``cable_speed``, ``imu_accel``, ``imu_gyro``) |
+    | ``history`` | ``1`` | robot mode: readings stacked, newest first |
     | ``render_mode``, ``width``, ``height`` | ``None``, 480, 480 | ``"rgb_array"`` or ``"human"`` |
 
     ``render()`` draws the rods, the strings coloured by tension, the ground, the path of the
@@ -628,6 +712,7 @@ _DOC = r"""
 
     ## Version history
     * v0: initial version.
+    * v0 (0.2): ``params``, ``randomize``, ``action_delay``, ``start_rest_length_offset``, ``observation_mode="robot"``, ``sensor_noise``, ``history``; defaults unchanged (bit-identical).
     * v0 (motor model): rest-length mode got a cable acceleration limit
       (``max_cable_acceleration``, default 2 m/s^2; the cable speed is now state, reset to 0,
       stopped at the rest-length bounds) and the cable speeds were appended to the observation

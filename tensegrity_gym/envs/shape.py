@@ -45,7 +45,9 @@ class ShapeTask(BatchedTask):
                  success_tolerance: float | None = None, reset_noise_scale: float = 5e-3,
                  target_range: float = 0.1, rest_length_bounds=(0.8, 1.1), max_speed: float = 0.1,
                  force_density_max: float | None = None, force_density_rate: float | None = None,
-                 backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
+                 backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True,
+                 params: dict | None = None, randomize: dict | None = None, action_delay: int = 0,
+                 start_rest_length_offset=None):
         s = _load(structure)
         if not s.node_constraints and s.anchors.size == 0:
             raise ValueError(f"structure {s.name!r}: the shape task needs an anchored structure (node_constraints "
@@ -140,6 +142,7 @@ class ShapeTask(BatchedTask):
             if np.all(src_rod[self.tracked] >= 0):
                 self._obs_rod = np.ascontiguousarray(src_rod[self.tracked], dtype=np.int64)
                 self._obs_eta = np.ascontiguousarray(src_eta[self.tracked], dtype=np.float64)
+        self._init_domain(params, randomize, action_delay, start_rest_length_offset)
 
     # ------------------------------------------------------------------ targets
     def _sample_rest_lengths(self, rng: np.random.Generator) -> np.ndarray:
@@ -207,7 +210,7 @@ class ShapeTask(BatchedTask):
         qd[..., 3:] = np.einsum("bkid,bkd->bki", T, u)
         q, qd = dyn.project(self.model, q, qd)
         self.q[idx], self.qd[idx] = q, qd
-        self.ctrl[idx] = self.actuation.nominal
+        self.ctrl[idx] = self.start_control
         self._last_action[idx] = 0.0
         self.elapsed[idx] = 0
         self._N = None
@@ -224,7 +227,7 @@ class ShapeTask(BatchedTask):
     def simulate_controls(self):
         """One control step of physics for the batch at the current controls: ONE batched
         ``integrators.step`` call of ``frame_skip`` steps (the node drag is in the model)."""
-        return self.simulate(**self.actuation.physics_inputs(self.ctrl))
+        return self.simulate(**self.with_offset(self.actuation.physics_inputs(self.ctrl)))
 
     def _compiled_observe(self):
         """(obs (B, size) float32, node errors d (B, nt)) in one compiled call, or None when the
@@ -261,7 +264,7 @@ class ShapeTask(BatchedTask):
                 scale = float(np.sqrt(-2 * np.log(0.1)))     # rewards.tolerance's gaussian, value 0.1 at the margin
                 fcon = np.concatenate([[self.dt, self.divergence_limit], self.center0,
                                        [tol, 10.0 * tol, scale, -self.tracking_weight],
-                                       act._rate, act.low, act.high, act.base_rest_length, self._obs_eta])
+                                       act._rate[0], act.low, act.high, act.base_rest_length, self._obs_eta])
                 icon = np.concatenate([[self.frame_skip, flags, int(rl), act.size, act.n_strings, self.tracked.size],
                                        act.actuated, self._obs_rod]).astype(np.int64)
                 disp = _fast.shape_step
@@ -280,6 +283,11 @@ class ShapeTask(BatchedTask):
         """:meth:`step` in one compiled call (see :meth:`_fused_setup`); None when it does not
         apply to these arrays (nothing changed then: the caller runs the reference path)."""
         disp, buf, fcon, icon, B, na, nobs, nt = fz
+        if self.params is not None:       # the robot's own values: the shared buffer of its Params
+            if self.rest_offset is not None or self.params.batch_size != 1:
+                return None
+            from .. import _kernels
+            buf = _kernels._pack_params(self.model, self.params).buf
         q0, qd0 = self.q, self.qd
         qo = np.empty(q0.shape)
         qdo = np.empty(q0.shape)
@@ -334,7 +342,7 @@ class ShapeTask(BatchedTask):
                 return out
         self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
         self._last_action = action
-        diverged = self.simulate(**inputs)
+        diverged = self.simulate(**self.with_offset(inputs))
         return self._finish_step(action, diverged)
 
     def _finish_step(self, action, diverged):
@@ -518,6 +526,10 @@ _DOC = r"""
     | ``backend`` | ``"auto"`` | physics backend (numba kernels when available) |
     | ``divergence_limit`` | ``None`` | m |
     | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
+    | ``params`` | ``None`` | fix robot parameters by name, absolute SI values (``rod_mass``, ``stiffness``, ``damping``, ``node_damping``, ``gravity``, ``rest_length_offset``; a number or one per rod/string/node): see :mod:`tensegrity_gym.envs.domain`. Targets stay those of the nominal model (a controller that believes the nominal model then meets a different robot) |
+    | ``randomize`` | ``None`` | ``{name: spread}`` drawn per copy at every reset (relative U(1 - s, 1 + s) x nominal; ``rest_length_offset`` absolute U(-s, s) m); ``info["params"]`` at reset reports the values |
+    | ``action_delay`` | ``0`` | control steps between an action and its effect (zeros at the start of an episode) |
+    | ``start_rest_length_offset`` | ``None`` | m added to the actuated strings' rest lengths at reset (rest-length mode; within the bounds) |
     | ``render_mode``, ``width``, ``height`` | ``None``, 480, 480 | ``"rgb_array"`` or ``"human"`` |
 
     ``render()`` draws rods thick, strings coloured by tension (slack dashed grey) and the
@@ -525,6 +537,7 @@ _DOC = r"""
 
     ## Version history
     * v0: initial version.
+    * v0 (0.2): ``params``, ``randomize``, ``action_delay``, ``start_rest_length_offset``; defaults unchanged (bit-identical).
 """
 
 

@@ -1,0 +1,474 @@
+"""Hyperparameter searches and multi-seed repeats of :mod:`agents.train` on Ray Tune.
+
+Usage::
+
+    python -m agents.tune agents/sweeps/smoke.yml                     # embedded local Ray
+    python -m agents.tune agents/sweeps/sweep1.yml --storage runs_tune --max-concurrent 16
+    python -m agents.tune CONFIG.yml --address auto                   # an existing Ray cluster
+    python -m agents.tune CONFIG.yml --summary-only                   # table + plot of a finished sweep
+
+A config (YAML) has a ``name``, the ``train`` arguments shared by every trial, and either
+
+* ``variants``: named runs (each a set of ``train`` arguments merged over the shared ones), each
+  repeated over ``seeds`` (a multi-seed repeat; a variant may give its own ``seeds``), or
+* ``search``: a search space over ``hyperparams`` / ``env_kwargs`` entries sampled ``num_samples``
+  times by Optuna (``search_alg: optuna``) or at random (``random``), optionally with ASHA early
+  stopping (``scheduler: asha``) on the evaluation ``metric``; each sample is repeated over
+  ``seeds``.
+
+``train`` keys are the options of ``python -m agents.train`` with ``_`` for ``-``
+(``algo``, ``env``, ``n_timesteps``, ``n_envs``, ``eval_freq``, ``eval_episodes``, ``save_freq``,
+``max_wall_time``, ...), ``env_kwargs`` and ``hyperparams`` as mappings. See agents/README.md.
+
+Every trial is one ``agents.train`` run (1 CPU, torch and numba threads 1) in
+``<storage>/<name>/runs/<trial>/``; it reports each evaluation to Tune (``eval_return``,
+``eval_success``, ``timesteps``). Concurrency is capped at the CPUs Ray has (the machine's cores
+by default, ``--max-concurrent`` to lower it). Tune's experiment state and the trial results live
+in ``<storage>/<name>/``; running the same command again after an interrupt resumes the sweep
+(``Tuner.restore``): finished trials are kept, unfinished ones continue from their run
+directory's latest model (``agents.train --resume``).
+
+At the end: ``summary.md`` / ``summary.json`` (per variant: final evaluation return and success
+rate per seed, the IQM over seeds with a 95 % percentile-bootstrap interval from
+``scipy.stats.bootstrap`` -- rliable's estimator, computed without rliable, whose dependency
+``arch`` does not import with pandas 3) and ``summary.png`` (evaluation curves, IQM over seeds
+with the interval as a band).
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents import common
+
+SEARCH_KINDS = ("uniform", "loguniform", "randint", "choice", "quniform")
+TRAIN_KEYS = {"algo", "env", "n_timesteps", "n_envs", "eval_freq", "eval_episodes", "n_eval_envs", "save_freq",
+              "save_replay_buffer", "max_wall_time", "vec_env", "env_kwargs", "hyperparams", "device", "conf_file",
+              "gym_packages"}
+
+
+# ---------------------------------------------------------------------- config
+def load_config(path: str | Path) -> dict:
+    """Read and validate a sweep config (errors name the field and the value)."""
+    import yaml
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"sweep config {path} does not exist")
+    cfg = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(cfg, dict):
+        raise ValueError(f"{path}: expected a mapping")
+    unknown = set(cfg) - {"name", "train", "variants", "search", "seeds", "metric", "mode", "max_concurrent",
+                          "description"}
+    if unknown:
+        raise ValueError(f"{path}: unknown keys {sorted(unknown)}")
+    cfg.setdefault("name", path.stem)
+    cfg.setdefault("train", {})
+    cfg.setdefault("seeds", [0])
+    cfg.setdefault("metric", "eval_return")
+    cfg.setdefault("mode", "max")
+    if cfg["mode"] not in ("max", "min"):
+        raise ValueError(f"{path}: mode must be max or min, got {cfg['mode']!r}")
+    if not isinstance(cfg["seeds"], list) or not cfg["seeds"] or not all(isinstance(s, int) for s in cfg["seeds"]):
+        raise ValueError(f"{path}: seeds must be a non-empty list of integers, got {cfg['seeds']!r}")
+    _check_train(cfg["train"], f"{path}: train")
+    if ("variants" in cfg) == ("search" in cfg):
+        raise ValueError(f"{path}: give exactly one of 'variants' (named runs x seeds) or 'search'")
+    if "variants" in cfg:
+        names = set()
+        for i, v in enumerate(cfg["variants"]):
+            if not isinstance(v, dict) or "name" not in v:
+                raise ValueError(f"{path}: variants[{i}] must be a mapping with a 'name', got {v!r}")
+            if v["name"] in names:
+                raise ValueError(f"{path}: variants[{i}]: duplicate name {v['name']!r}")
+            names.add(v["name"])
+            _check_train({k: x for k, x in v.items() if k not in ("name", "seeds")}, f"{path}: variants[{i}]")
+            if "seeds" in v and (not isinstance(v["seeds"], list) or not v["seeds"]):
+                raise ValueError(f"{path}: variants[{i}].seeds must be a non-empty list, got {v['seeds']!r}")
+    else:
+        s = cfg["search"]
+        s.setdefault("num_samples", 8)
+        s.setdefault("search_alg", "optuna")
+        s.setdefault("scheduler", "none")
+        if s["search_alg"] not in ("optuna", "random"):
+            raise ValueError(f"{path}: search.search_alg must be optuna or random, got {s['search_alg']!r}")
+        if s["scheduler"] not in ("asha", "none"):
+            raise ValueError(f"{path}: search.scheduler must be asha or none, got {s['scheduler']!r}")
+        if not isinstance(s.get("space"), dict) or not s["space"]:
+            raise ValueError(f"{path}: search.space must map 'hyperparams.<key>' / 'env_kwargs.<key>' to a "
+                             "distribution")
+        for key, dist in s["space"].items():
+            if not key.startswith(("hyperparams.", "env_kwargs.")):
+                raise ValueError(f"{path}: search.space key {key!r} must start with hyperparams. or env_kwargs.")
+            if not isinstance(dist, dict) or len(dist) != 1 or next(iter(dist)) not in SEARCH_KINDS:
+                raise ValueError(f"{path}: search.space.{key}: expected one of {SEARCH_KINDS} as "
+                                 f"{{kind: [args]}}, got {dist!r}")
+    return cfg
+
+
+def _check_train(d: dict, where: str) -> None:
+    if not isinstance(d, dict):
+        raise ValueError(f"{where}: expected a mapping of agents.train options, got {d!r}")
+    bad = set(d) - TRAIN_KEYS
+    if bad:
+        raise ValueError(f"{where}: unknown agents.train options {sorted(bad)} (known: {sorted(TRAIN_KEYS)}; "
+                         "log_dir, seed and resume are set by agents.tune)")
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if k in ("env_kwargs", "hyperparams") and isinstance(v, dict):
+            out[k] = {**out.get(k, {}), **v}
+        else:
+            out[k] = v
+    return out
+
+
+def train_argv(opts: dict, seed: int, log_dir: str | Path) -> list[str]:
+    """``agents.train`` command-line arguments of one trial."""
+    argv = ["--seed", str(int(seed)), "--log-dir", str(log_dir), "--no-progress-bar", "--num-threads", "1"]
+    for k, v in opts.items():
+        if k in ("env_kwargs", "hyperparams"):
+            if v:
+                argv += [f"--{k.replace('_', '-')}", json.dumps(common.to_yaml_safe(v))] if k == "env_kwargs" else \
+                    ["--hyperparams"] + [f"{hk}={_hp_text(hv)}" for hk, hv in v.items()]
+        elif k == "gym_packages":
+            argv += ["--gym-packages", *v]
+        elif isinstance(v, bool):
+            if v:
+                argv.append(f"--{k.replace('_', '-')}")
+        else:
+            argv += [f"--{k.replace('_', '-')}", str(v)]
+    return argv
+
+
+def _hp_text(v) -> str:
+    """A hyperparameter value as ``--hyperparams`` parses it (JSON / Python literal / zoo string)."""
+    if isinstance(v, str):
+        return v
+    return json.dumps(common.to_yaml_safe(v))
+
+
+def trial_list(cfg: dict) -> list[dict]:
+    """The runs of a ``variants`` config: one dict per (variant, seed)."""
+    runs = []
+    for v in cfg["variants"]:
+        opts = _merge(cfg["train"], {k: x for k, x in v.items() if k not in ("name", "seeds")})
+        for seed in v.get("seeds", cfg["seeds"]):
+            runs.append({"variant": v["name"], "seed": int(seed), "opts": opts})
+    return runs
+
+
+def search_space(cfg: dict) -> dict:
+    from ray import tune
+    space = {}
+    for key, dist in cfg["search"]["space"].items():
+        kind, args = next(iter(dist.items()))
+        args = list(args) if isinstance(args, (list, tuple)) else [args]
+        space[key] = getattr(tune, kind)(*args) if kind != "choice" else tune.choice(args)
+    return space
+
+
+# ---------------------------------------------------------------------- the trainable
+def run_trial(config: dict) -> None:
+    """One Tune trial: an ``agents.train`` run in ``<experiment>/runs/<trial>/``, resumed from its
+    latest model when the trial is restored."""
+    from ray import tune
+    from agents import train as train_mod
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    opts = copy.deepcopy(config["opts"])
+    for key, val in config.items():  # sampled values: "hyperparams.<k>" / "env_kwargs.<k>"
+        if "." in key:
+            group, name = key.split(".", 1)
+            opts.setdefault(group, {})[name] = val
+    ctx = tune.get_context()
+    name = config.get("variant") or f"trial_{ctx.get_trial_id()}"
+    run_dir = Path(config["runs_dir"]) / f"{name}_s{config['seed']}"
+    if (run_dir / "config.yaml").exists():  # a restored trial (or a re-run sweep): continue that run
+        # Tune runs this only for a trial it wants continued (a trial it stopped, e.g. by ASHA, stays
+        # stopped), so a run stopped by an interrupted sweep ("stopped", "interrupted") continues too
+        state = json.loads((run_dir / "state.json").read_text()) if (run_dir / "state.json").exists() else {}
+        left = None
+        if opts.get("max_wall_time") is not None:  # the wall-time budget counts the earlier segments
+            left = float(opts["max_wall_time"]) - float(state.get("wall_time_s", 0.0))
+        if state.get("status") == "finished" or (state.get("status") == "time_limit" and (left or 0) <= 1.0):
+            tune.report(_final_metrics(run_dir, config))
+            return
+        argv = ["--resume", str(run_dir), "--no-progress-bar", "--num-threads", "1"]
+        if left is not None:
+            argv += ["--max-wall-time", str(max(left, 1.0))]
+    else:
+        argv = train_argv(opts, config["seed"], run_dir)
+
+    def report(metrics):
+        tune.report({**metrics, "variant": name, "seed": int(config["seed"])})
+
+    train_mod.train(argv, report=report)
+    tune.report(_final_metrics(run_dir, {**config, "variant": name}))
+
+
+def _final_metrics(run_dir: Path, config: dict) -> dict:
+    from agents.train import evaluation_metrics
+    out = {"variant": config.get("variant") or run_dir.name.rsplit("_s", 1)[0], "seed": int(config["seed"]),
+           "run_dir": str(run_dir), "done_training": True}
+    ev = run_dir / "eval" / "evaluations.npz"
+    if ev.exists():
+        d = np.load(ev)
+        out.update(evaluation_metrics(d["timesteps"].tolist(), d["results"].tolist(),
+                                      d["successes"].tolist() if "successes" in d.files else None))
+    st = run_dir / "state.json"
+    if st.exists():
+        s = json.loads(st.read_text())
+        out["timesteps"] = int(s.get("num_timesteps", out.get("timesteps", 0)))
+        out["wall_time_s"] = float(s.get("wall_time_s", 0.0))
+        out["status"] = s.get("status")
+    return out
+
+
+# ---------------------------------------------------------------------- summary
+def iqm_interval(x, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """IQM (25 % trimmed mean, rliable's ``aggregate_iqm``) of ``x`` and its percentile-bootstrap
+    ``confidence`` interval (``scipy.stats.bootstrap``; seeded). Fewer than 2 values: (x, nan, nan)."""
+    from scipy import stats
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return float("nan"), float("nan"), float("nan")
+    iqm = float(stats.trim_mean(x, 0.25))
+    if x.size < 2 or np.ptp(x) == 0:
+        return iqm, (iqm if x.size >= 2 else float("nan")), (iqm if x.size >= 2 else float("nan"))
+    res = stats.bootstrap((x,), lambda s, axis: stats.trim_mean(s, 0.25, axis=axis), confidence_level=confidence,
+                          n_resamples=n_resamples, method="percentile", rng=np.random.default_rng(seed))
+    return iqm, float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def summarize(exp_dir: Path, metric: str = "eval_return") -> dict:
+    """Per-variant table from the trial run directories under ``exp_dir/runs``; writes
+    ``summary.json``, ``summary.md`` and ``summary.png`` in ``exp_dir``."""
+    runs_dir = exp_dir / "runs"
+    per: dict[str, list[dict]] = {}
+    for d in sorted(p for p in runs_dir.iterdir() if p.is_dir()) if runs_dir.exists() else []:
+        if not (d / "config.yaml").exists():
+            continue
+        name, _, seed = d.name.rpartition("_s")
+        m = _final_metrics(d, {"variant": name, "seed": int(seed) if seed.isdigit() else -1})
+        ev = d / "eval" / "evaluations.npz"
+        if ev.exists():
+            z = np.load(ev)
+            m["curve_steps"] = z["timesteps"].tolist()
+            m["curve_return"] = z["results"].mean(axis=1).tolist()
+        import yaml
+        rc = yaml.safe_load((d / "config.yaml").read_text()) or {}
+        m["params"] = {**{f"hyperparams.{k}": v for k, v in (rc.get("hyperparams_raw") or {}).items()
+                          if k != "env_kwargs"},
+                       **{f"env_kwargs.{k}": v for k, v in (rc.get("env_kwargs") or {}).items()},
+                       "algo": rc.get("algo"), "env": rc.get("env")}
+        per.setdefault(name, []).append(m)
+    # the settings that differ between variants (e.g. the sampled values of a search)
+    allp = [r["params"] for runs in per.values() for r in runs[:1]]
+    keys = sorted({k for p in allp for k in p})
+    differ = [k for k in keys if len({json.dumps(p.get(k), sort_keys=True, default=str) for p in allp}) > 1]
+    rows = []
+    for name, runs in per.items():
+        vals = [r.get(metric, np.nan) for r in runs]
+        iqm, lo, hi = iqm_interval(vals)
+        succ = [r["eval_success"] for r in runs if "eval_success" in r]
+        s_iqm, s_lo, s_hi = iqm_interval(succ) if succ else (np.nan, np.nan, np.nan)
+        rows.append({"variant": name, "n_seeds": len(runs), "seeds": [r["seed"] for r in runs],
+                     "settings": {k: runs[0]["params"].get(k) for k in differ},
+                     f"{metric}_per_seed": [float(v) for v in vals], f"{metric}_iqm": iqm,
+                     f"{metric}_ci95": [lo, hi], "eval_success_iqm": s_iqm, "eval_success_ci95": [s_lo, s_hi],
+                     "timesteps": [r.get("timesteps") for r in runs],
+                     "status": [r.get("status") for r in runs],
+                     "wall_time_s": [round(r.get("wall_time_s", 0.0), 1) for r in runs]})
+    out = {"experiment": str(exp_dir), "metric": metric,
+           "interval": "95 % percentile bootstrap of the IQM over seeds (scipy.stats.bootstrap, 2000 resamples, "
+                       "seed 0)", "variants": rows}
+    common.write_json(exp_dir / "summary.json", out)
+    lines = [f"# {exp_dir.name}: final evaluation per variant", "",
+             f"IQM over training seeds with a 95 % percentile-bootstrap interval (scipy.stats.bootstrap). "
+             f"Metric: `{metric}` = mean return of the last evaluation.", "",
+             f"| variant | settings | seeds | {metric} per seed | IQM [95 % CI] | success IQM [95 % CI] | steps | status |",
+             "|---|---|---|---|---|---|---|---|"]
+
+    def f(x):
+        return "nan" if x is None or not np.isfinite(x) else f"{x:.3g}"
+    for r in sorted(rows, key=lambda r: -np.nan_to_num(r[f"{metric}_iqm"], nan=-np.inf)):
+        lo, hi = r[f"{metric}_ci95"]
+        slo, shi = r["eval_success_ci95"]
+        sets = ", ".join(f"{k.split('.', 1)[-1]}={v:.3g}" if isinstance(v, float) else f"{k.split('.', 1)[-1]}={v}"
+                         for k, v in r["settings"].items())
+        lines.append(f"| {r['variant']} | {sets} | {r['n_seeds']} | {', '.join(f(v) for v in r[f'{metric}_per_seed'])} | "
+                     f"{f(r[f'{metric}_iqm'])} [{f(lo)}, {f(hi)}] | {f(r['eval_success_iqm'])} [{f(slo)}, {f(shi)}] | "
+                     f"{', '.join(str(t) for t in r['timesteps'])} | {', '.join(str(s) for s in set(r['status']))} |")
+    common.write_text(exp_dir / "summary.md", "\n".join(lines) + "\n")
+    _plot(exp_dir / "summary.png", per)
+    return out
+
+
+def _plot(path: Path, per: dict) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy import stats
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for name, runs in sorted(per.items()):
+        curves = [(np.asarray(r["curve_steps"]), np.asarray(r["curve_return"])) for r in runs if r.get("curve_steps")]
+        if not curves:
+            continue
+        grid = np.unique(np.concatenate([c[0] for c in curves]))
+        Y = np.array([np.interp(grid, s, y, left=np.nan, right=np.nan) for s, y in curves])
+        iqm = np.array([stats.trim_mean(c[np.isfinite(c)], 0.25) if np.isfinite(c).any() else np.nan for c in Y.T])
+        line, = ax.plot(grid, iqm, label=f"{name} ({len(curves)} seeds)")
+        if len(curves) >= 2:
+            band = np.array([iqm_interval(c)[1:] for c in Y.T])
+            ax.fill_between(grid, band[:, 0], band[:, 1], color=line.get_color(), alpha=0.2)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("evaluation return (IQM over seeds, 95 % CI band)")
+    if ax.lines:
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.stem}{common.TMP_TAG}{os.getpid()}.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+# ---------------------------------------------------------------------- driver
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m agents.tune", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("config", help="sweep config (YAML), e.g. agents/sweeps/smoke.yml")
+    p.add_argument("--storage", default="runs_tune", help="folder of experiments (default runs_tune/)")
+    p.add_argument("--address", default=None,
+                   help="address of an existing Ray cluster ('auto' or host:port); default: start an embedded "
+                        "local Ray (nothing to set up)")
+    p.add_argument("--num-cpus", type=int, default=None,
+                   help="CPUs of the embedded local Ray (default: this machine's cores)")
+    p.add_argument("--max-concurrent", type=int, default=None,
+                   help="at most this many trials at once (default: the config's max_concurrent, else the CPUs "
+                        "Ray has; each trial uses 1 CPU)")
+    p.add_argument("--fresh", action="store_true",
+                   help="refuse to resume: error if the experiment folder already exists")
+    p.add_argument("--summary-only", action="store_true", help="only (re)write the summary of an experiment")
+    return p
+
+
+def tune_main(argv: list[str] | None = None) -> dict:
+    args = build_parser().parse_args(argv)
+    cfg = load_config(args.config)
+    storage = Path(args.storage).resolve()
+    exp_dir = storage / cfg["name"]
+    if args.summary_only:
+        return summarize(exp_dir, cfg["metric"])
+    try:
+        import ray
+        from ray import tune
+    except ImportError:
+        raise ValueError("agents.tune needs Ray Tune: pip install 'tensegrity_gym[tune]' (or 'ray[tune]')") from None
+    for v in ([cfg["train"]] + [dict(x) for x in cfg.get("variants", [])]):
+        if "algo" in v:
+            common.get_algo(v["algo"])
+    common.import_env_packages(["tensegrity_gym"])
+    env_ids = {v.get("env", cfg["train"].get("env")) for v in cfg.get("variants", [cfg["train"]])}
+    for e in env_ids:
+        if e is None:
+            raise ValueError(f"{args.config}: train.env (or each variant's env) is required")
+        common.check_env_id(e)
+
+    if not ray.is_initialized():
+        if args.address:
+            ray.init(address=args.address, log_to_driver=False)
+        else:
+            # the driver's import path reaches the workers (repository checkout or installed package)
+            pkg_root = str(Path(common.__file__).resolve().parent.parent)
+            pp = os.pathsep.join([pkg_root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+            ray.init(num_cpus=args.num_cpus or os.cpu_count() or 1, include_dashboard=False, log_to_driver=False,
+                     runtime_env={"env_vars": {"PYTHONPATH": pp, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+                                               "MKL_NUM_THREADS": "1", "MPLBACKEND": "Agg"}})
+    cpus = int(ray.cluster_resources().get("CPU", 1))
+    max_conc = args.max_concurrent or cfg.get("max_concurrent") or cpus
+    max_conc = max(1, min(int(max_conc), cpus))
+    exp_dir.mkdir(parents=True, exist_ok=True)
+    base = {"runs_dir": str(exp_dir / "runs")}
+
+    if "variants" in cfg:
+        runs = trial_list(cfg)
+        param_space = {"run": tune.grid_search(runs), **base}
+        tune_cfg = tune.TuneConfig(max_concurrent_trials=max_conc, num_samples=1,
+                                   trial_name_creator=lambda t: f"{t.config['run']['variant']}_s{t.config['run']['seed']}",
+                                   trial_dirname_creator=lambda t: f"{t.config['run']['variant']}_s{t.config['run']['seed']}")
+        trainable_fn = tune.with_resources(run_variant, {"cpu": 1})
+    else:
+        s = cfg["search"]
+        seeds = cfg["seeds"]
+        param_space = {"opts": cfg["train"], "seed": tune.grid_search(seeds) if len(seeds) > 1 else seeds[0],
+                       **search_space(cfg), **base}
+        search_alg = None
+        if s["search_alg"] == "optuna":
+            if len(seeds) > 1:
+                raise ValueError(f"{args.config}: search_alg optuna samples one seed per trial; give one seed (and "
+                                 "repeat the best sample over seeds with a variants config) or use search_alg random")
+            from ray.tune.search.optuna import OptunaSearch
+            search_alg = OptunaSearch(seed=int(s.get("seed", 0)))
+        scheduler = None
+        if s["scheduler"] == "asha":
+            from ray.tune.schedulers import ASHAScheduler
+            n = int(float(cfg["train"].get("n_timesteps", 1e5)))
+            scheduler = ASHAScheduler(time_attr="timesteps", max_t=n,
+                                      grace_period=int(float(s.get("grace_period", max(n // 8, 1)))),
+                                      reduction_factor=int(s.get("reduction_factor", 3)))
+        tune_cfg = tune.TuneConfig(metric=cfg["metric"], mode=cfg["mode"], search_alg=search_alg, scheduler=scheduler,
+                                   num_samples=int(s["num_samples"]), max_concurrent_trials=max_conc)
+        trainable_fn = tune.with_resources(run_trial, {"cpu": 1})
+
+    run_cfg = tune.RunConfig(name=cfg["name"], storage_path=str(storage), verbose=1,
+                             failure_config=tune.FailureConfig(max_failures=0))
+    if tune.Tuner.can_restore(str(exp_dir)):
+        if args.fresh:
+            raise FileExistsError(f"{exp_dir} holds a sweep; drop --fresh to resume it or choose another --storage")
+        print(f"resuming the sweep in {exp_dir}")
+        tuner = tune.Tuner.restore(str(exp_dir), trainable_fn, resume_unfinished=True, resume_errored=True,
+                                   param_space=param_space)
+    else:
+        tuner = tune.Tuner(trainable_fn, param_space=param_space, tune_config=tune_cfg, run_config=run_cfg)
+    t0 = time.time()
+    grid = tuner.fit()
+    summary = summarize(exp_dir, cfg["metric"])
+    summary["sweep_wall_time_s"] = time.time() - t0
+    summary["max_concurrent"] = max_conc
+    summary["errors"] = [str(r.error) for r in grid if r.error is not None]
+    common.write_json(exp_dir / "summary.json", summary)
+    print((exp_dir / "summary.md").read_text())
+    print(f"summary: {exp_dir / 'summary.md'}, {exp_dir / 'summary.png'} ({summary['sweep_wall_time_s']:.0f} s, "
+          f"{max_conc} trials at a time)")
+    return summary
+
+
+def run_variant(config: dict) -> None:
+    """Trainable of a ``variants`` config: each run is ``config["run"]`` (variant, seed, options)."""
+    run = config["run"]
+    run_trial({"variant": run["variant"], "seed": run["seed"], "opts": run["opts"], "runs_dir": config["runs_dir"]})
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        summary = tune_main(argv)
+    except (ValueError, FileNotFoundError, FileExistsError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 1 if summary.get("errors") else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

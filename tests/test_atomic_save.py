@@ -1,0 +1,220 @@
+"""Training loses nothing: atomic saves, kills mid-save, crash status, restart, resume schedule.
+
+Every training here is tiny (Pendulum-v1 or the shape env, a few hundred steps).
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+pytest.importorskip("yaml")
+
+from agents import common, train  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+PPO_TINY = ["--algo", "ppo", "--env", "Pendulum-v1", "--n-envs", "2", "--no-progress-bar",
+            "--hyperparams", "n_steps=16", "batch_size=32", "n_epochs=1", "normalize=true",
+            "policy_kwargs=dict(net_arch=[16])"]
+
+
+# ---------------------------------------------------------------------- the atomic writer
+def test_atomic_write_keeps_old_file_when_writer_fails(tmp_path):
+    p = tmp_path / "f.bin"
+    common.atomic_write(p, lambda f: f.write(b"good"))
+
+    def bad(f):
+        f.write(b"half")
+        raise KeyboardInterrupt  # an interrupt in the middle of writing
+
+    with pytest.raises(KeyboardInterrupt):
+        common.atomic_write(p, bad)
+    assert p.read_bytes() == b"good"
+    assert [x.name for x in tmp_path.iterdir()] == ["f.bin"]  # the temporary file is gone
+
+
+def test_stale_tmp_files_of_dead_processes_are_removed(tmp_path):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    stale = tmp_path / f".model.zip{common.TMP_TAG}{dead}"
+    stale.write_bytes(b"x")
+    mine = tmp_path / f".state.json{common.TMP_TAG}{os.getpid()}"
+    mine.write_bytes(b"x")
+    assert common.remove_stale_tmp(tmp_path) == [stale]
+    assert mine.exists()
+
+
+# ---------------------------------------------------------------------- kills in the middle of saves
+_SLOW_RUNNER = textwrap.dedent("""
+    import os, sys, time
+    from agents import common, train
+    real = common.atomic_write
+    def slow(path, writer):
+        def w(f):
+            writer(f)
+            f.flush()
+            time.sleep(float(os.environ["SLOW_SAVE_S"]))  # a slow disk: the kill lands mid-save
+        return real(path, w)
+    common.atomic_write = slow
+    sys.exit(train.main(sys.argv[1:]))
+""")
+
+
+def _env(slow_s):
+    return {**os.environ, "SLOW_SAVE_S": str(slow_s), "PYTHONPATH": str(ROOT) + os.pathsep +
+            os.environ.get("PYTHONPATH", "")}
+
+
+def _start(run, extra, slow_s=0.05):
+    return subprocess.Popen([sys.executable, "-c", _SLOW_RUNNER, "--log-dir", str(run), *PPO_TINY, *extra],
+                            cwd=str(ROOT), env=_env(slow_s), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+
+
+def _check_loadable(run: Path) -> dict:
+    """Every model / statistics file under its final name loads; returns {name: num_timesteps}."""
+    from stable_baselines3 import PPO
+    from agents.evaluate import load_vecnormalize
+    out = {}
+    zips = [run / "model.zip", run / "best_model.zip"] + sorted((run / "checkpoints").glob("rl_model_*_steps.zip"))
+    for z in zips:
+        if z.exists():
+            out[z.name] = PPO.load(z, device="cpu").num_timesteps
+    for p in [run / "vecnormalize.pkl", run / "best_vecnormalize.pkl"] + \
+            sorted((run / "checkpoints").glob("rl_model_vecnormalize_*.pkl")):
+        if p.exists():
+            assert load_vecnormalize(p).obs_rms.count > 0
+    for j in ("state.json", "versions.json"):
+        if (run / j).exists():
+            json.loads((run / j).read_text())
+    ev = run / "eval" / "evaluations.npz"
+    if ev.exists():
+        np.load(ev)["timesteps"]
+    # every checkpoint zip has its statistics (the statistics are written first)
+    for z in (run / "checkpoints").glob("rl_model_*_steps.zip"):
+        n = z.name.split("_")[2]
+        assert (run / "checkpoints" / f"rl_model_vecnormalize_{n}_steps.pkl").exists(), z.name
+    return out
+
+
+@pytest.mark.slow
+def test_sigkill_at_random_moments_never_destroys_the_last_good_model(tmp_path):
+    """A run saves every 32 steps through a slow writer; SIGKILL lands at random moments (many of
+    them inside a save); after each kill every file under its final name loads, and --resume
+    continues from the newest one."""
+    rng = np.random.default_rng(0)
+    run = tmp_path / "run"
+    p = _start(run, ["--n-timesteps", "100000", "--save-freq", "32", "--eval-freq", "64", "--eval-episodes", "1"])
+    try:
+        # wait for the first checkpoint, then kill at a random moment
+        t_end = time.time() + 120
+        while not list((run / "checkpoints").glob("rl_model_*_steps.zip")) and time.time() < t_end:
+            time.sleep(0.05)
+        time.sleep(float(rng.uniform(0.0, 1.0)))
+    finally:
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+    saved = _check_loadable(run)
+    assert saved, "no model was saved before the kill"
+    for k in range(3):  # resume and kill again, each time at a random moment
+        p = subprocess.Popen([sys.executable, "-c", _SLOW_RUNNER, "--resume", str(run), "--no-progress-bar"],
+                             cwd=str(ROOT), env=_env(0.05),
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        time.sleep(float(rng.uniform(4.0, 7.0)))
+        p.send_signal(signal.SIGKILL)
+        out = p.communicate()[0]
+        saved2 = _check_loadable(run)
+        assert max(saved2.values()) >= max(saved.values()), out[-2000:]
+        saved = saved2
+    common.remove_stale_tmp(run)  # what --resume does first: no temporary file is left after it
+    assert not [f for f in run.rglob(f"*{common.TMP_TAG}*")]
+
+
+@pytest.mark.slow
+def test_second_ctrl_c_during_the_save_does_not_lose_the_model(tmp_path):
+    run = tmp_path / "run"
+    p = _start(run, ["--n-timesteps", "100000", "--save-freq", "-1", "--eval-freq", "-1"], slow_s=1.0)
+    t_end = time.time() + 120
+    while time.time() < t_end:
+        st = json.loads((run / "state.json").read_text()) if (run / "state.json").exists() else {}
+        if st.get("status") == "running":
+            break
+        time.sleep(0.1)
+    time.sleep(1.0)
+    p.send_signal(signal.SIGINT)          # first Ctrl-C: saves (slowly)
+    time.sleep(0.5)
+    p.send_signal(signal.SIGINT)          # second Ctrl-C in the middle of the save
+    out = p.communicate(timeout=120)[0]
+    assert p.returncode == 130, out[-3000:]
+    assert "still saving" in out
+    st = json.loads((run / "state.json").read_text())
+    assert st["status"] == "interrupted"
+    assert _check_loadable(run)["model.zip"] == st["num_timesteps"] == st["model_num_timesteps"]
+
+
+# ---------------------------------------------------------------------- crash, restart, resume schedule
+def test_crash_is_recorded_and_keeps_the_last_good_model(tmp_path):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Boom(BaseCallback):
+        def _on_step(self):
+            if self.num_timesteps >= 96:
+                raise RuntimeError("simulated crash")
+            return True
+
+    run = tmp_path / "run"
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        train.train(["--log-dir", str(run), "--n-timesteps", "512", "--save-freq", "64", "--eval-freq", "-1",
+                     *PPO_TINY], extra_callbacks=[Boom()])
+    st = json.loads((run / "state.json").read_text())
+    assert st["status"] == "crashed"
+    assert "RuntimeError: simulated crash" in st["error"] and "Traceback" in st["traceback"]
+    assert not (run / "model.zip").exists()           # no model was finished: nothing overwritten
+    assert (run / "crashed_model.zip").exists()
+    assert _check_loadable(run)["rl_model_64_steps.zip"] == 64
+    # --resume continues from the last checkpoint
+    train.train(["--resume", str(run), "--no-progress-bar"])
+    st = json.loads((run / "state.json").read_text())
+    assert st["status"] == "finished" and st["num_timesteps"] >= 512 and "error" not in st
+
+
+def test_a_run_that_failed_before_its_first_step_restarts_in_the_same_folder(tmp_path):
+    run = tmp_path / "run"
+    bad = PPO_TINY + ["batch_size=1"]  # PPO's constructor rejects it: fails before the first step
+    with pytest.raises(Exception):
+        train.train(["--log-dir", str(run), "--n-timesteps", "64", "--save-freq", "-1", "--eval-freq", "-1",
+                     *bad])
+    st = json.loads((run / "state.json").read_text())
+    assert st["status"] == "crashed" and st["failed_before_first_step"]
+    # the same folder, fixed arguments: starts again (no FileExistsError) ...
+    train.train(["--log-dir", str(run), "--n-timesteps", "64", "--save-freq", "-1", "--eval-freq", "-1",
+                 *PPO_TINY])
+    st = json.loads((run / "state.json").read_text())
+    assert st["status"] == "finished" and "failed_before_first_step" not in st
+    # ... and now that it holds a model, a new run there is refused
+    with pytest.raises(FileExistsError, match="--resume"):
+        train.train(["--log-dir", str(run), "--n-timesteps", "64", *PPO_TINY])
+
+
+def test_resume_keeps_the_checkpoint_and_evaluation_schedule(tmp_path):
+    run = tmp_path / "run"
+    InterruptAt = train._callbacks()[3]
+    args = ["--log-dir", str(run), "--n-timesteps", "512", "--save-freq", "128", "--eval-freq", "128",
+            "--eval-episodes", "1", *PPO_TINY]
+    train.train(args, extra_callbacks=[InterruptAt(200)])
+    assert json.loads((run / "state.json").read_text())["status"] == "interrupted"
+    train.train(["--resume", str(run), "--no-progress-bar"])
+    ck = sorted(int(p.name.split("_")[2]) for p in (run / "checkpoints").glob("rl_model_*_steps.zip"))
+    assert ck == [128, 256, 384, 512]   # not 200 + 128 k
+    ev = np.load(run / "eval" / "evaluations.npz")["timesteps"].tolist()
+    assert ev == [128, 256, 384, 512]
+    assert not (run / "eval" / ".evaluations_scratch.npz").exists()

@@ -1,0 +1,152 @@
+"""Packaging: a NON-editable install works from any directory.
+
+The repository's files (as git lists them) are copied to a temporary folder and installed with
+``pip install --no-deps --no-build-isolation`` into a fresh virtual environment that sees the
+test interpreter's site-packages through a ``.pth`` line (so the dependencies are there and the
+install takes seconds). Then, from another temporary directory and without PYTHONPATH:
+``python -m agents.train`` (64 steps), ``python -m agents.evaluate``, the rl_zoo3 hyperparameter
+lookup and the packaged files are checked. Pendulum-v1 is trained there so that no numba kernel
+has to compile in the fresh install (~70 s on 2 cores); the tensegrity envs are trained by the
+other tests.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import venv
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+pytest.importorskip("stable_baselines3")
+pytest.importorskip("yaml")
+
+
+def _tracked_files() -> list[str]:
+    p = subprocess.run(["git", "ls-files", "-co", "--exclude-standard"], cwd=ROOT, capture_output=True, text=True)
+    if p.returncode != 0:
+        pytest.skip("not a git checkout")
+    return [f for f in p.stdout.splitlines() if f and not f.startswith("results/") and (ROOT / f).is_file()]
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    base = tmp_path_factory.mktemp("pkg")
+    src = base / "src"
+    for f in _tracked_files():
+        (src / f).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / f, src / f)
+    vdir = base / "venv"
+    venv.EnvBuilder(with_pip=False).create(vdir)
+    py = vdir / ("Scripts/python.exe" if os.name == "nt" else "bin/python")
+    site = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    Path(site, "_shared_site.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["MPLBACKEND"] = "Agg"
+    p = subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", str(src)],
+                       cwd=str(base), env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    shutil.rmtree(src)  # nothing may come from the source tree any more
+    work = base / "work"
+    work.mkdir()
+    return py, Path(site), work, env
+
+
+def _run(installed, args, timeout=300):
+    py, _, work, env = installed
+    p = subprocess.run([str(py), *args], cwd=str(work), env=env, capture_output=True, text=True, timeout=timeout)
+    return p.returncode, p.stdout + p.stderr
+
+
+@pytest.mark.slow
+def test_installed_package_ships_agents_hyperparams_adapter_and_license(installed):
+    py, site, work, env = installed
+    rc, out = _run(installed, ["-c", "import json, tensegrity_gym, agents, tensegrity_gym.sb3 as s, "
+                                     "tensegrity_gym.zoo as z; print(json.dumps([tensegrity_gym.__file__, "
+                                     "agents.__file__, s.__file__, str(z.hyperparams_file('ppo'))]))"])
+    assert rc == 0, out
+    paths = json.loads(out.strip().splitlines()[-1])
+    for p in paths:
+        assert Path(p).resolve().is_relative_to(site.resolve()), p   # from the install, not the repository
+    for name in ("ppo.yml", "sac.yml", "td3.yml"):
+        assert (site / "agents" / "hyperparams" / name).exists()
+    for name in ("smoke.yml", "sweep1.yml"):
+        assert (site / "agents" / "sweeps" / name).exists()
+    lic = list(site.glob("tensegrity_gym-*.dist-info/**/LICENSE*"))
+    assert lic and "MIT License" in lic[0].read_text()
+
+
+@pytest.mark.slow
+def test_installed_train_and_evaluate_from_any_directory(installed):
+    rc, out = _run(installed, ["-m", "agents.train", "--algo", "ppo", "--env", "Pendulum-v1", "--n-timesteps", "64",
+                               "--n-envs", "2", "--eval-freq", "32", "--eval-episodes", "1", "--save-freq", "32",
+                               "--no-progress-bar", "--log-dir", "run",
+                               "--hyperparams", "n_steps=32", "batch_size=32", "n_epochs=1"])
+    assert rc == 0, out[-3000:]
+    run = installed[2] / "run"
+    cfg = (run / "config.yaml").read_text()
+    assert "agents/hyperparams/ppo.yml:Pendulum-v1" in cfg          # the packaged file was found
+    assert json.loads((run / "state.json").read_text())["status"] == "finished"
+    rc, out = _run(installed, ["-m", "agents.evaluate", "run", "--model", "final", "--n-episodes", "1",
+                               "--out", "ev"])
+    assert rc == 0, out[-3000:]
+    assert (installed[2] / "ev" / "metrics.json").exists()
+
+
+@pytest.mark.slow
+def test_installed_zoo_reads_the_packaged_hyperparameters(installed):
+    pytest.importorskip("rl_zoo3")
+    code = ("import argparse, rl_zoo3.exp_manager, tensegrity_gym\n"
+            "from rl_zoo3.exp_manager import ExperimentManager\n"
+            "m = ExperimentManager(argparse.Namespace(), 'ppo', 'TensegrityRoll-v0', 'logs')\n"
+            "print('CONF', m.config)\n"
+            "hp, _ = m.read_hyperparameters()\n"
+            "print('GAMMA', hp['gamma'])\n")
+    rc, out = _run(installed, ["-c", code])
+    assert rc == 0, out[-3000:]
+    conf = next(l.split(" ", 1)[1] for l in out.splitlines() if l.startswith("CONF"))
+    assert Path(conf).resolve() == (installed[1] / "agents" / "hyperparams" / "ppo.yml").resolve()
+    assert "GAMMA 0.99" in out
+
+
+# ---------------------------------------------------------------------- layout (fast)
+def test_no_sys_path_edits_in_scripts_agents_or_package():
+    offenders = []
+    for folder in ("scripts", "agents", "tensegrity_gym"):
+        for f in (ROOT / folder).rglob("*.py"):
+            if "sys.path.insert" in f.read_text() or "sys.path.append" in f.read_text():
+                offenders.append(str(f.relative_to(ROOT)))
+    assert not offenders, offenders
+
+
+def test_shared_script_helpers():
+    import numpy as np
+    from tensegrity_gym import _bench, builders, dynamics as dyn
+    rng = np.random.default_rng(0)
+    for z in list(rng.normal(size=(5, 3))) + [np.array([0, 0, 1.0]), np.array([0, 0, -1.0])]:
+        z = z / np.linalg.norm(z)
+        w, x, y, zz = _bench.quat_z_to(z)
+        R = np.array([[1 - 2 * (y * y + zz * zz), 2 * (x * y - zz * w), 2 * (x * zz + y * w)],
+                      [2 * (x * y + zz * w), 1 - 2 * (x * x + zz * zz), 2 * (y * zz - x * w)],
+                      [2 * (x * zz - y * w), 2 * (y * zz + x * w), 1 - 2 * (x * x + y * y)]])
+        np.testing.assert_allclose(R @ [0, 0, 1.0], z, atol=1e-12)
+    t = _bench.timeit(lambda: sum(range(100)), target=0.01, repeats=1)
+    assert 0 < t < 1e-3
+    out, wall = _bench.timed(lambda: 3, wall_min=0.0)
+    assert out == 3 and wall >= 0
+    m = dyn.compile_model(builders.prism(3))
+    xml = _bench.mjcf(m)
+    assert xml.count("<freejoint/>") == m.n_bars and xml.count("<spatial") == m.n_strings
+    # a rigid rotation of a node set is recovered
+    from scipy.spatial.transform import Rotation
+    p = rng.normal(size=(1, 6, 3))
+    p -= p.mean(axis=1, keepdims=True)
+    rv = np.array([[0.1, -0.2, 0.3]])
+    cur = p @ Rotation.from_rotvec(rv[0]).as_matrix().T
+    np.testing.assert_allclose(_bench.rotation_vectors(p, cur), rv, atol=1e-12)
