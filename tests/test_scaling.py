@@ -25,14 +25,15 @@ def _dense_connectivity(model):
     return C
 
 
-def _dense_nodal_forces(model, q, qd, rest_length=None, force_density=None, external=None):
+def _dense_nodal_forces(model, q, qd, rest_length=None, force_density=None, external=None, params=None):
     """The pre-issue-12 formula W - N C_S^T Gamma C_S with the dense C (oracle)."""
-    gamma, S, _ = dyn.force_densities(model, q, qd, rest_length, force_density)
+    p = model if params is None else params
+    gamma, S, _ = dyn.force_densities(model, q, qd, rest_length, force_density, params)
     F = -np.einsum("mn,bmi->bni", _dense_connectivity(model), gamma[..., None] * S)
-    if model.has_gravity:
-        F = F + model.W0
-    if model.has_node_damping:
-        F = F - model.node_damping[:, None] * dyn.node_velocities(model, qd)
+    if p.has_gravity:
+        F = F + p.W0
+    if p.has_node_damping:
+        F = F - p.node_damping[..., None] * dyn.node_velocities(model, qd)
     if external is not None:
         F = F + external
     return F, gamma
@@ -62,7 +63,11 @@ def test_nodal_forces_equal_dense_connectivity_formula(name, model, B, fd):
     st = dyn.initial_state(model, B, nodes=nodes, velocities=vel)
     rl = model.rest_length * rng.uniform(0.9, 1.1, (B, model.n_strings))
     ext = rng.standard_normal((B, s.n_nodes, 3))
-    for kw in ({}, {"rest_length": rl, "force_density": fd, "external": ext}):
+    from tensegrity_gym.params import default_params
+    params = default_params(model, B).replace(
+        stiffness=model.stiffness * rng.uniform(0.8, 1.2, (B, model.n_strings)),
+        gravity=np.array([0.0, 0.0, -9.81]) * rng.uniform(0.5, 1.5, (B, 1)))
+    for kw in ({}, {"rest_length": rl, "force_density": fd, "external": ext}, {"params": params}):
         F, gamma = dyn.nodal_forces(model, st.q, st.qd, **kw)
         F0, gamma0 = _dense_nodal_forces(model, st.q, st.qd, **kw)
         np.testing.assert_array_equal(gamma, gamma0)
