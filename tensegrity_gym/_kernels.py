@@ -1076,17 +1076,16 @@ def _compile(which: str) -> None:
     """Compile (or load from numba's on-disk cache) the serial entry points or the parallel one
     for their single signature, then forbid further compilation: an argument of another type
     raises TypeError (handled by converting it) instead of compiling a new variant."""
+    from ._compile_notice import compile_with_notice   # says so on stderr when numba really compiles
     if which == "serial":
-        for disp, sig in ((_run_lean, _SIG_LEAN), (_run_serial, _SIG)):
-            disp.compile(sig)
-            disp.disable_compile()
+        pairs = ((_run_lean, _SIG_LEAN), (_run_serial, _SIG))
     elif which == "copies":
-        for disp in (_run_copies_serial, _run_copies_parallel):
-            disp.compile(_SIG_COPIES)
-            disp.disable_compile()
+        pairs = ((_run_copies_serial, _SIG_COPIES), (_run_copies_parallel, _SIG_COPIES))
     else:
-        _run_parallel.compile(_SIG)
-        _run_parallel.disable_compile()
+        pairs = ((_run_parallel, _SIG),)
+    compile_with_notice(pairs, f"{'physics' if which == 'serial' else which + ' physics'} kernels")
+    for disp, _ in pairs:
+        disp.disable_compile()
     _READY[which] = True
 
 

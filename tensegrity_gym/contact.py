@@ -372,6 +372,9 @@ def contact_forces(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: 
         slip = np.empty((B, nc), bool)
         qc = np.ascontiguousarray(q, dtype=np.float64)
         qdc = np.ascontiguousarray(qd, dtype=np.float64)
+        if not _forces_kernel.signatures:       # first call: one line on stderr if numba compiles
+            from ._compile_notice import compile_with_notice
+            compile_with_notice(((_forces_kernel, None),), "ground-contact kernel")
         _forces_kernel(qc, qdc, model.eta, model.rod_a, model.rod_c, anchor, active, W, slip,
                        contact._prm if prm is None else _prm_rows(contact, prm, B))
         return W, (cstate if inplace else ContactState(anchor, active)), slip

@@ -371,7 +371,8 @@ def _adaptive(model, state, T, info, rest_length, force_density, external, rtol,
     sol = solve_ivp(_rhs(model, shape, rest_length, force_density, external, params), (state.t, state.t + T), y0,
                     method=method, rtol=rtol, atol=atol, t_eval=t_eval)
     if sol.status < 0:
-        raise SimulationDiverged(f"{info.name} failed at t = {sol.t[-1]:.6g} s: {sol.message}")
+        at = f"after t = {sol.t[-1]:.6g} s" if len(sol.t) else f"in its first step from t = {state.t:.6g} s"
+        raise SimulationDiverged(f"{info.name} failed {at}: {sol.message}")
     half = y0.size // 2
     y = sol.y[:, -1]
     out = State(q=y[:half].reshape(shape), qd=y[half:].reshape(shape), t=state.t + T)

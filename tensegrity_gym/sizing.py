@@ -24,7 +24,8 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["StructureTooLarge", "memory_estimate", "available_memory", "check_size", "FD_CHUNK_BYTES"]
+__all__ = ["StructureTooLarge", "memory_estimate", "stability_bytes", "available_memory", "check_size",
+           "FD_CHUNK_BYTES"]
 
 #: bytes of working memory per chunk of the batched finite-difference evaluation (sparse Jacobian)
 FD_CHUNK_BYTES = 64 * 2 ** 20
@@ -43,8 +44,15 @@ def memory_estimate(n_bars: int, n_nodes: int, n_strings: int, batch_size: int =
     total = 8 * (40 * k + 12 * m + 12 * n) + B * 8 * (160 * k + 64 * m + 32 * n)
     total += max(int(records), 0) * B * 8 * (12 * k + 3 * n)
     if stability:
-        total += 72 * (k + 2 * m) * 40 + 40 * 12 * k * 8 + FD_CHUNK_BYTES
+        total += stability_bytes(k, m)
     return int(total)
+
+
+def stability_bytes(n_bars: int, n_strings: int) -> int:
+    """Estimated peak bytes of the sparse stable-step estimate (see the module doc): K, D entries
+    of ``k + 2 m`` coupled rod pairs, one finite-difference chunk and the Arnoldi vectors."""
+    k, m = int(n_bars), int(n_strings)
+    return 72 * (k + 2 * m) * 40 + 40 * 12 * k * 8 + FD_CHUNK_BYTES
 
 
 def available_memory() -> int | None:

@@ -155,13 +155,13 @@ def test_cli_export(tmp_path, capsys):
     M = mujoco.MjModel.from_xml_path(str(out))
     assert M.ntendon == 9 and M.ngeom == 4
     # no silent overwrite; --force overwrites
-    assert main(["export", "prism3", "--out", str(out)]) == 2
+    assert main(["export", "prism3", "--out", str(out)]) == 4      # exit codes: tensegrity_gym.cli
     assert "exists" in capsys.readouterr().err
     assert main(["export", "prism3", "--out", str(out), "--force"]) == 0
     assert mujoco.MjModel.from_xml_path(str(out)).nbody == 4
     # a directory, a missing folder
-    assert main(["export", "prism3", "--out", str(tmp_path)]) == 2
-    assert main(["export", "prism3", "--out", str(tmp_path / "no" / "m.xml")]) == 2
+    assert main(["export", "prism3", "--out", str(tmp_path)]) == 4
+    assert main(["export", "prism3", "--out", str(tmp_path / "no" / "m.xml")]) == 4
     err = capsys.readouterr().err
     assert err.count("error: export:") == 2 and "Traceback" not in err
     # JSON out, and a tnsgrt dict in
@@ -178,7 +178,7 @@ def test_cli_export(tmp_path, capsys):
     assert main(["export", str(tmp_path / "tn.json"), "--from", "tnsgrt", "--out", str(tmp_path / "tn.xml")]) == 0
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"nodes": [[0, 1]], "members": []}))
-    assert main(["export", str(bad), "--from", "tnsgrt", "--out", str(tmp_path / "b.xml")]) == 2
+    assert main(["export", str(bad), "--from", "tnsgrt", "--out", str(tmp_path / "b.xml")]) == 3
     assert "tnsgrt nodes" in capsys.readouterr().err
 
 

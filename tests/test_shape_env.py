@@ -164,7 +164,7 @@ def test_target_sampled_at_reset_is_an_equilibrium(mode):
 def test_divergence_truncates_with_finite_observations():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        env = TensegrityShapeEnv(dt=0.08, frame_skip=1, string_damping=0.0, node_damping=0.0,
+        env = TensegrityShapeEnv(dt=0.08, frame_skip=1, string_damping=0.0, node_damping=0.0, allow_unstable_dt=True,
                                  structure=tensegrity_gym.constrained_prism(stiffness=20000.0, prestress=2000.0))
         env.reset(seed=0)
         info = {}

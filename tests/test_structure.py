@@ -341,7 +341,7 @@ def test_json_errors(tmp_path):
         load_json(tmp_path / "l.json")
     # a validation error inside a file names the item
     d2 = dict(d, stiffness=[1000.0] * 8 + [-1.0])
-    with pytest.raises(StructureError, match=r"stiffness of string 8"):
+    with pytest.raises(StructureError, match=r"stiffness\[8\] \(string 8\): -1.0 is below the accepted minimum"):
         from_dict(d2)
 
 

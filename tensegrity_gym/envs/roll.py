@@ -156,7 +156,7 @@ class RollTask(BatchedTask):
                  divergence_limit: float | None = None, clip_actions: bool = True,
                  params: dict | None = None, randomize: dict | None = None, action_delay: int = 0,
                  start_rest_length_offset=None, observation_mode: str = "state", sensor_noise: dict | None = None,
-                 history: int = 1):
+                 history: int = 1, allow_unstable_dt: bool = False):
         if observation_mode not in ("state", "robot"):
             raise ValueError(f"observation_mode: unknown {observation_mode!r}; choose 'state' or 'robot'")
         if observation_mode == "state" and (sensor_noise or history != 1):
@@ -283,6 +283,10 @@ class RollTask(BatchedTask):
             extra["max_cable_acceleration"] = np.array(self.actuation.max_accel)
         self._init_domain(params, randomize, action_delay, start_rest_length_offset, extra)
         limit = gc.stable_step(self.contact, model)["semi_implicit_euler"]
+        if self.integrator in ("semi_implicit_euler", "rk4") and self.dt > limit and not allow_unstable_dt:
+            raise ValueError(f"dt: {self.dt:g} s is above the estimated stability limit {limit:.3g} s of "
+                             "semi-implicit Euler with this robot's strings and ground contact (the state would "
+                             "blow up); use a smaller dt, or allow_unstable_dt=True to run it anyway")
         if self.integrator in ("semi_implicit_euler", "rk4") and self.dt > limit:
             warnings.warn(integrators.StabilityWarning(
                 f"{ENV_ID}: dt = {self.dt:.4g} s is above the estimated stability limit {limit:.4g} s of "
@@ -667,6 +671,7 @@ _DOC = r"""
     | ``actuated`` | ``None`` (all) | string indices or boolean mask |
     | ``integrator`` | ``"semi_implicit_euler"`` | (``"rk4"`` holds contact forces over each step: first order in contact) |
     | ``dt``, ``frame_skip`` | ``1e-3``, ``20`` | physics step (s), steps per control step |
+    | ``allow_unstable_dt`` | ``False`` | a ``dt`` above the estimated stability limit (strings + contact) raises ValueError unless True (then it warns) |
     | ``string_damping`` | ``2.0`` | N s/m on every string (``None``: the structure's) |
     | ``forward_reward_weight``, ``ctrl_cost_weight`` | ``1.0``, ``0.01`` | reward weights |
     | ``goal_direction``, ``randomize_goal`` | ``(1, 0)``, ``False`` | goal in the ground plane |

@@ -47,7 +47,7 @@ class ShapeTask(BatchedTask):
                  force_density_max: float | None = None, force_density_rate: float | None = None,
                  backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True,
                  params: dict | None = None, randomize: dict | None = None, action_delay: int = 0,
-                 start_rest_length_offset=None):
+                 start_rest_length_offset=None, allow_unstable_dt: bool = False):
         s = _load(structure)
         if not s.node_constraints and s.anchors.size == 0:
             raise ValueError(f"structure {s.name!r}: the shape task needs an anchored structure (node_constraints "
@@ -95,6 +95,11 @@ class ShapeTask(BatchedTask):
         self.success_tolerance = (0.01 * self.height if success_tolerance is None
                                   else check_positive(success_tolerance, "success_tolerance", "m"))
         self._init_physics(model, num_envs, integrator, dt, frame_skip, backend, divergence_limit, clip_actions)
+        limit = integrators.stability_limit(model).get(self.integrator, float("inf"))   # cached per model
+        if self.dt > limit and not allow_unstable_dt:
+            raise ValueError(f"dt: {self.dt:g} s is above the estimated stability limit {limit:.3g} s of "
+                             f"{self.integrator} for this structure (the state would blow up); use a smaller dt, "
+                             "integrator='implicit_euler', or allow_unstable_dt=True to run it anyway")
 
         # actuation
         l0 = s.rest_length[act]
@@ -513,6 +518,7 @@ _DOC = r"""
     | ``actuated`` | ``None`` (all) | string indices or boolean mask |
     | ``integrator`` | ``"semi_implicit_euler"`` | fixed-step integrator (``"rk4"``) |
     | ``dt`` | ``1e-3`` | physics step, s (default well under the explicit limit, 0.025 s for the default prism) |
+    | ``allow_unstable_dt`` | ``False`` | a ``dt`` above the integrator's estimated stability limit raises ValueError unless True (then it warns) |
     | ``frame_skip`` | ``20`` | physics steps per control step |
     | ``string_damping`` | ``5.0`` | N s/m on every string, ``None`` keeps the structure's |
     | ``node_damping`` | ``2.0`` | N s/m viscous drag on every rod node |

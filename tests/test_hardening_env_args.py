@@ -1,0 +1,133 @@
+"""Env constructor arguments and actions (issue 16, item 1): a clear ValueError naming the
+argument and the value, or a finite result, nothing else.
+
+CASES lists constructor arguments with the message each must give; a ``dt`` above the estimated
+stability limit is refused unless ``allow_unstable_dt=True``. The hypothesis tests throw NaN,
+inf, huge, wrong-shape and non-numeric actions at both envs."""
+from __future__ import annotations
+
+import math
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from hypothesis.extra import numpy as hnp
+
+import tensegrity_gym  # noqa: F401  (registers the envs)
+from tensegrity_gym.integrators import StabilityWarning
+
+SHAPE, ROLL = "TensegrityShape-v0", "TensegrityRoll-v0"
+
+# (id, env id, constructor kwargs, regex of the ValueError)
+CASES = [
+    ("roll-dt-0.2", ROLL, dict(dt=0.2), r"dt: 0.2 s is above the estimated stability limit 0.00\d+ s of semi-implicit "
+                                        r"Euler .* or allow_unstable_dt=True"),
+    ("shape-dt-0.08", SHAPE, dict(dt=0.08), r"dt: 0.08 s is above the estimated stability limit 0.0\d+ s of "
+                                            r"semi_implicit_euler .*allow_unstable_dt=True"),
+    ("shape-rk4-dt-0.05", SHAPE, dict(dt=0.05, integrator="rk4"), r"dt: 0.05 s is above the estimated stability limit .* of rk4"),
+    ("shape-dt-zero", SHAPE, dict(dt=0.0), r"dt: must be positive and finite \(s\), got 0.0"),
+    ("shape-dt-negative", SHAPE, dict(dt=-1e-3), r"dt: must be positive and finite \(s\), got -0.001"),
+    ("shape-dt-nan", SHAPE, dict(dt=math.nan), r"dt: must be positive and finite \(s\), got nan"),
+    ("shape-dt-inf", SHAPE, dict(dt=math.inf), r"dt: must be positive and finite \(s\), got inf"),
+    ("shape-dt-text", SHAPE, dict(dt="fast"), r"dt: expected a number in s, got 'fast'"),
+    ("roll-dt-nan", ROLL, dict(dt=math.nan), r"dt: must be positive and finite \(s\), got nan"),
+    ("shape-frame-skip-0", SHAPE, dict(frame_skip=0), r"frame_skip: must be a positive integer, got 0"),
+    ("shape-frame-skip-float", SHAPE, dict(frame_skip=1.5), r"frame_skip: must be a positive integer, got 1.5"),
+    ("shape-adaptive", SHAPE, dict(integrator="dop853"), r"integrator: 'dop853' is adaptive; envs need a fixed-step method"),
+    ("shape-integrator-unknown", SHAPE, dict(integrator="leapfrog"), r"integrator: unknown name 'leapfrog'"),
+    ("shape-backend", SHAPE, dict(backend="gpu"), r"backend: unknown 'gpu'"),
+    ("shape-action-mode", SHAPE, dict(action_mode="torque"), r"action_mode: unknown 'torque'"),
+    ("roll-damping-negative", ROLL, dict(string_damping=-1.0), r"string_damping: must be >= 0 and finite \(N s/m\), got -1.0"),
+]
+
+
+@pytest.mark.parametrize("case_id, env_id, kwargs, pattern", CASES, ids=[c[0] for c in CASES])
+def test_bad_constructor_argument(case_id, env_id, kwargs, pattern):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")        # the settling of a roll env at a huge dt warns first
+        with pytest.raises(ValueError, match=pattern):
+            gym.make(env_id, **kwargs)
+
+
+def test_default_dt_accepted_without_warning():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StabilityWarning)
+        gym.make(SHAPE).close()
+        gym.make(ROLL).close()
+
+
+def test_unstable_dt_allowed_on_request():
+    with pytest.warns(StabilityWarning, match="stability limit"):
+        env = gym.make(ROLL, dt=2.8e-3, frame_skip=7, allow_unstable_dt=True)
+    env.close()
+    env = gym.make(SHAPE, dt=0.08, frame_skip=1, allow_unstable_dt=True)
+    env.reset(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for _ in range(30):
+            obs, r, term, trunc, info = env.step(np.ones(env.action_space.shape))
+            assert np.all(np.isfinite(obs)) and np.isfinite(r)      # diverged copies are truncated, finite
+            if trunc:
+                break
+
+
+# ---------------------------------------------------------------------- actions
+_ENVS: dict = {}
+
+
+def _env(env_id):
+    if env_id not in _ENVS:
+        env = gym.make(env_id)
+        env.reset(seed=0)
+        _ENVS[env_id] = env
+    return _ENVS[env_id]
+
+
+_special = st.sampled_from([np.nan, np.inf, -np.inf, 1e308, -1e308, 1e30, 2.0, -1.0, 0.0, 1.0])
+_action = st.one_of(
+    hnp.arrays(np.float64, st.sampled_from([(9,), (12,), (3,), (9, 1), (1, 9), (0,), ()]),
+               elements=st.one_of(_special, st.floats(-2, 2))),
+    hnp.arrays(np.float32, st.just((9,)), elements=st.floats(width=32)),
+    st.lists(st.one_of(_special, st.floats(-1, 1)), min_size=0, max_size=13),
+    st.sampled_from(["up", None, [["a"] * 9], {"a": 1}, [True] * 9, np.zeros(9, dtype=complex)]))
+
+
+def _step_clear_or_finite(env, action):
+    try:
+        obs, r, term, trunc, info = env.step(action)
+    except ValueError as e:
+        assert str(e) and "\n" not in str(e)
+        return
+    except TypeError as e:                  # complex numbers: numpy refuses the cast
+        assert "complex" in str(e)
+        return
+    assert np.all(np.isfinite(obs)) and np.isfinite(r)
+    if term or trunc:
+        env.reset(seed=1)
+
+
+@settings(max_examples=80, deadline=None)
+@given(action=_action)
+def test_shape_env_actions(action):
+    _step_clear_or_finite(_env(SHAPE), action)
+
+
+@settings(max_examples=50, deadline=None)
+@given(action=_action)
+def test_roll_env_actions(action):
+    env = _env(ROLL)
+    if isinstance(action, np.ndarray) and action.shape == (9,):
+        action = np.resize(action, env.action_space.shape)
+    _step_clear_or_finite(env, action)
+
+
+def test_named_action_errors():
+    env = _env(SHAPE)
+    with pytest.raises(ValueError, match=r"action: entry 2 is (np.float64\()?nan\)?; actions must be finite numbers in \[-1, 1\]"):
+        env.step(np.array([0, 0, np.nan, 0, 0, 0, 0, 0, 0.0]))
+    with pytest.raises(ValueError, match=r"action: expected shape \(9,\), got \(3,\)"):
+        env.step(np.zeros(3))
+    with pytest.raises(ValueError, match=r"action: expected an array of numbers with shape \(9,\), got 'up'"):
+        env.step("up")
