@@ -65,6 +65,7 @@ from . import __version__
 from . import dynamics as dyn
 from .builders import BUILDERS
 from .integrators import INTEGRATORS, SimulationDiverged, resolve, simulate
+from .sizing import StructureTooLarge
 from .structure import StructureError
 
 PROGRESS_MIN_STEPS = 20000
@@ -126,9 +127,14 @@ def _load(spec: str, args):
     if mt and not os.path.exists(spec) and spec not in BUILDERS:
         size = int(mt.group(2)) if len(mt.group(2)) < 12 else 10 ** 12
         n, k, m = _SIZED[mt.group(1)](size)
-        _require_memory(_builder_bytes(n, k, m), args,
-                        f"building {spec!r} ({n} nodes, {k} rods, {m} strings; SVD of its {6 * k} x {m} "
-                        "equilibrium matrix)")
+        if mt.group(1) == "prism":
+            _require_memory(_builder_bytes(n, k, m), args,
+                            f"building {spec!r} ({n} nodes, {k} rods, {m} strings; SVD of its {6 * k} x {m} "
+                            "equilibrium matrix)")
+        else:   # tower: no SVD (uniform strain); compile + a step + the stable-step estimate, linear
+            from .sizing import memory_estimate
+            _require_memory(memory_estimate(k, n, m), args, f"{spec!r} ({n} nodes, {k} rods, {m} strings: "
+                            "compile, one step and the stable-step estimate)")
     try:
         return load_structure(spec)
     except FileNotFoundError:
@@ -343,9 +349,13 @@ def cmd_simulate(args) -> int:
     return _video(args, s, model, t, qf, qdf)
 
 
-def _stable_step_bytes(k: int) -> float:
-    """Memory of dynamics.stable_step_estimate: finite-difference Jacobians on 24 k states and
-    the eigenvalues of the (12 k x 12 k) first-order matrix (about six such matrices)."""
+def _stable_step_bytes(k: int, m: int = 0) -> float:
+    """Memory of dynamics.stable_step_estimate: up to DENSE_STABILITY_MAX_RODS rods finite-difference
+    Jacobians on 24 k states and the eigenvalues of the (12 k x 12 k) first-order matrix (about six
+    such matrices); above, the sparse path (linear in k and the m strings: sizing.stability_bytes)."""
+    if k > dyn.DENSE_STABILITY_MAX_RODS:
+        from .sizing import stability_bytes
+        return float(stability_bytes(k, m))
     return 8.0 * (6 * (12 * k) ** 2 + 24 * k * (6 * k) * 12)
 
 
@@ -379,9 +389,10 @@ def structure_summary(s, stable_step: bool = True) -> dict:
 def cmd_info(args) -> int:
     s = _load(args.structure, args)
     if not args.no_stable_step:
-        _require_memory(_stable_step_bytes(s.n_bars), args,
-                        f"the stable-step estimate of {s.n_bars} rods (eigenvalues of a {12 * s.n_bars} x "
-                        f"{12 * s.n_bars} matrix; --no-stable-step skips it)")
+        how = ("sparse Jacobians and Arnoldi" if s.n_bars > dyn.DENSE_STABILITY_MAX_RODS else
+               f"eigenvalues of a {12 * s.n_bars} x {12 * s.n_bars} matrix")
+        _require_memory(_stable_step_bytes(s.n_bars, s.n_strings), args,
+                        f"the stable-step estimate of {s.n_bars} rods ({how}; --no-stable-step skips it)")
     d = structure_summary(s, stable_step=not args.no_stable_step)
     if args.json:
         print(json.dumps(d, indent=1))
@@ -773,8 +784,9 @@ def main(argv=None) -> int:
     except SimulationDiverged as e:
         _error(f"simulation diverged: {e}")
         return EXIT_DIVERGED
-    except MemoryError:
-        _error("out of memory; reduce --duration, raise --record-every or use a smaller structure")
+    except MemoryError as e:   # sizing.StructureTooLarge (refused up front) names the size
+        _error(e if isinstance(e, StructureTooLarge) else
+               "out of memory; reduce --duration, raise --record-every or use a smaller structure")
         return EXIT_TOO_LARGE
     except BrokenPipeError:
         _quiet_stdout()

@@ -84,6 +84,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from .dynamics import Model, State
+from .jacobian import acceleration_jacobians
 
 __all__ = ["METHODS", "step", "jacobians"]
 
@@ -95,19 +96,10 @@ _FD_REL = 1.5e-8
 STATS = {"steps": 0, "newton_iterations": 0}
 
 
-def _tile(x, P, B):
-    """Broadcast a per-batch array (B, ...) to the stacked batch (P B, ...); (m,) arrays pass."""
-    if x is None or np.ndim(x) <= 1:
-        return x
-    x = np.asarray(x)
-    if x.shape[0] != B:
-        return x  # e.g. (n, 3) external forces shared by the batch
-    return np.broadcast_to(x, (P,) + x.shape).reshape((P * B,) + x.shape[1:])
-
-
 def jacobians(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
               external=None, params=None):
-    """Accelerations and their Jacobians at ``(q, qd)`` by forward differences, one batched call.
+    """Accelerations and their Jacobians at ``(q, qd)`` by forward differences, one batched call
+    (:func:`tensegrity_gym.jacobian.acceleration_jacobians`, step ``1.5e-8 max(1, |q|_inf)``).
 
     Parameters
     ----------
@@ -118,27 +110,8 @@ def jacobians(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, for
     -------
     a : (B, 6k) accelerations; K : (B, 6k, 6k) da/dq (1/s^2); D : (B, 6k, 6k) da/dqd (1/s).
     """
-    B, k, _ = q.shape
-    n = 6 * k
-    P = 2 * n + 1
-    x = q.reshape(B, n)
-    v = qd.reshape(B, n)
-    hq = _FD_REL * np.maximum(1.0, np.abs(x).max(axis=1))   # (B,)
-    hv = _FD_REL * np.maximum(1.0, np.abs(v).max(axis=1))
-    X = np.broadcast_to(x, (P, B, n)).copy()
-    V = np.broadcast_to(v, (P, B, n)).copy()
-    idx = np.arange(n)
-    X[1 + idx, :, idx] += hq[None, :]
-    V[1 + n + idx, :, idx] += hv[None, :]
-    if params is not None and params.batch_size == B and B > 1:
-        params = params.take(np.tile(np.arange(B), P))
-    A = dyn.accelerations(model, X.reshape(P * B, k, 6), V.reshape(P * B, k, 6),
-                          _tile(rest_length, P, B), _tile(force_density, P, B), _tile(external, P, B), params)
-    A = A.reshape(P, B, n)
-    a0 = A[0]
-    K = ((A[1:n + 1] - a0) / hq[None, :, None]).transpose(1, 2, 0)      # (B, row, col)
-    D = ((A[n + 1:] - a0) / hv[None, :, None]).transpose(1, 2, 0)
-    return a0, K, D
+    return acceleration_jacobians(model, q, qd, rest_length, force_density, external, params,
+                                  with_velocity=True, central=False, rel_step=_FD_REL)
 
 
 def step(model: Model, state: State, dt: float, method: str = "implicit_euler", *, rest_length=None,

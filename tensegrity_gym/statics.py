@@ -38,6 +38,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from .dynamics import Model
+from .jacobian import fd_jacobian
 from .structure import Structure
 
 __all__ = ["EquilibriumError", "Equilibrium", "ReducedCoordinates", "equilibrium", "solve_equilibria",
@@ -198,18 +199,21 @@ def _tile(x, reps: int, B: int):
 
 
 def _jacobian(model, rc, q, T, rest_length, force_density, eps, R0=None):
-    """Forward-difference dR/dx (B, nx, nx), all nx perturbations in one batched evaluation."""
+    """Forward-difference dR/dx (B, nx, nx) in the local coordinates x (step ``eps``, m) around
+    ``q``, all nx perturbations in one batched evaluation (:func:`tensegrity_gym.jacobian.fd_jacobian`)."""
     B, nx = q.shape[0], rc.nx
     if R0 is None:
         R0 = generalized_residual(model, q, rest_length, force_density, T)
-    dx = np.zeros((nx, B, nx))
-    dx[np.arange(nx), :, np.arange(nx)] = eps
-    qs = np.tile(q, (nx, 1, 1))
-    Ts = np.tile(T, (nx, 1, 1, 1))
-    qc = rc.retract(qs, Ts, dx.reshape(nx * B, nx))
-    Rc = generalized_residual(model, qc, _tile(rest_length, nx, B), _tile(force_density, nx, B), Ts)
-    Jm = (Rc.reshape(nx, B, nx) - R0[None]) / eps           # (col, B, row)
-    return Jm.transpose(1, 2, 0), R0
+
+    def fun(dx):                                   # (P, B, nx) local coordinates -> (P, B, nx) forces
+        P = dx.shape[0]
+        qc = rc.retract(np.tile(q, (P, 1, 1)), np.tile(T, (P, 1, 1, 1)), dx.reshape(P * B, nx))
+        R = generalized_residual(model, qc, _tile(rest_length, P, B), _tile(force_density, P, B),
+                                 np.tile(T, (P, 1, 1, 1)))
+        return R.reshape(P, B, nx)
+
+    _, Jm = fd_jacobian(fun, np.zeros((B, nx)), eps, f0=R0)
+    return Jm, R0
 
 
 def _force_scale(model: Model, rest_length, force_density, q) -> np.ndarray:

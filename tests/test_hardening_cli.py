@@ -120,7 +120,7 @@ CASES = [
     ("records-memory", ["simulate", "tower30", "--duration", "10", "--max-memory", "0.01", "--out", "{tmp}/x.npz"], 5,
      r"recording 10001 states of 180 nodes needs about 0.\d+ GiB of memory, above the limit of 0.01 GiB"),
     ("info-eigen-memory", ["info", "tower30", "--max-memory", "0.001"], 5,
-     r"the stable-step estimate of 90 rods \(eigenvalues of a 1080 x 1080 matrix; --no-stable-step skips it\) needs about"),
+     r"the stable-step estimate of 90 rods \(sparse Jacobians and Arnoldi; --no-stable-step skips it\) needs about"),
     ("demo-too-long", ["demo", "--duration", "1e300", "--out", "{tmp}/d"], 5, r"is 1e\+303 steps, above the limit"),
     # diverged: exit 6, trajectory up to the divergence kept and flagged
     ("diverged-nonfinite", ["simulate", "prism3", "--dt", "0.2", "--duration", "20", "--integrator", "semi_implicit_euler",
