@@ -47,19 +47,30 @@ Modelling differences from the project's physics (``docs/contact.md``, ``EQUATIO
 * **Integrator.** MuJoCo's ``implicitfast`` (default; ``mj_integrator``: "Euler", "RK4",
   "implicit") at the project's ``dt`` (1 ms), instead of the project's semi-implicit Euler
   with contact forces held over each step. The contact switches are MuJoCo's active contacts.
-* **Rods** have an axial inertia ``m r^2 / 2`` (irrelevant: no axial torque, see ``mjcf``).
+* **Rod spin.** Our rods have no rotation about their own axis and the contact force acts at
+  the node (on the axis); MuJoCo's rods are 6-DOF bodies and the contact acts at the capsule's
+  surface, ``cap_radius`` off the axis, so friction exerts an axial torque. Left free, the rods
+  of the resting robot spin (up to ~1 rad/s with ``to_mjcf``'s axial inertia ``m r^2 / 2``) and
+  roll on their caps like wheels, so the resting robot creeps by mm per s. The twin therefore
+  damps each rod's spin about its own axis (``spin_damping``, default 1 N m s, on the free
+  joint's axial rotation, integrated implicitly): spin rates stay below ~1e-3 rad/s and the
+  rods behave as ours (no axial rotation). ``spin_damping=0`` gives MuJoCo's free spin.
+* **Start pose.** MuJoCo's soft contact rests a little deeper than ours, so the robot is
+  settled again on MuJoCo's ground at construction (SETTLE_TIME s with viscous drag on the
+  rods, as RollTask settles it) and resets add the reset noise to that pose. The contact flags
+  in the reset observation are MuJoCo's contacts (ours start released: all 0).
 
 Not supported (ValueError): ``action_mode="force_density"``, ``params``, ``randomize``,
 ``action_delay``, ``start_rest_length_offset`` and divergence limits (a non-finite state or a
 MuJoCo bad-acceleration warning truncates the episode with ``info["diverged"] = True``).
 Registered as ``TensegrityRollMuJoCo-v0`` with ``max_episode_steps`` = 1000 (20 s), as
-``TensegrityRoll-v0``. ``render_mode="rgb_array"`` draws MuJoCo's own scene (``mujoco.Renderer``,
-needs an OpenGL backend, see :func:`tensegrity_gym.rendering.gl_backend`).
+``TensegrityRoll-v0``. ``render_mode="rgb_array"`` draws MuJoCo's state with the project's
+renderer (as ``TensegrityRoll-v0`` does; ``mujoco.Renderer`` would need ``MUJOCO_GL`` set before
+``mujoco`` is imported, which :mod:`tensegrity_gym.rendering` does not need).
 """
 from __future__ import annotations
 
 import math
-import re
 
 import gymnasium as gym
 import numpy as np
@@ -69,7 +80,7 @@ from .. import dynamics as dyn
 from ..mjcf import initial_qpos_qvel, to_mjcf
 from ..rewards import quadratic_cost
 from .common import check_action, check_positive
-from .roll import SETTLE_TIME, RollTask
+from .roll import MAX_PATH, SETTLE_TIME, RollTask
 
 __all__ = ["TensegrityRollMuJoCoEnv", "ENV_ID"]
 
@@ -82,7 +93,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
 
     Arguments: those of ``TensegrityRoll-v0`` (passed to its :class:`RollTask`; rest-length mode
     only), plus ``mj_integrator`` ("implicitfast"), ``contact_dampratio`` (1.0, the damping ratio
-    of MuJoCo's contact ``solref``), ``render_mode`` (None or "rgb_array"), ``width``, ``height``.
+    of MuJoCo's contact ``solref``), ``spin_damping`` (1.0 N m s, damping of each rod's spin
+    about its own axis, see the module doc), ``render_mode`` (None or "rgb_array"), ``width``, ``height``.
     ``env.unwrapped.task`` is the :class:`RollTask` (so :class:`tensegrity_gym.baselines.RollingGait`
     and ``observation_layout()`` work as on ``TensegrityRoll-v0``); ``env.unwrapped.model`` /
     ``data`` are the MuJoCo ``MjModel`` / ``MjData``.
@@ -92,7 +104,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
 
     def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480,
                  mj_integrator: str = "implicitfast", contact_dampratio: float = 1.0,
-                 axial_inertia: str = "transverse", **kwargs):
+                 spin_damping: float = 1.0, **kwargs):
         import mujoco
         self._mj = mujoco
         for name in _UNSUPPORTED:
@@ -102,8 +114,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             raise ValueError(f"action_delay: not supported by {ENV_ID}, got {kwargs['action_delay']!r}")
         if kwargs.get("action_mode", "rest_length") != "rest_length":
             raise ValueError(f"action_mode: {ENV_ID} supports 'rest_length' only, got {kwargs['action_mode']!r}")
-        if axial_inertia not in ("transverse", "cylinder"):
-            raise ValueError(f"axial_inertia: 'transverse' or 'cylinder', got {axial_inertia!r}")
+        self.spin_damping = check_positive(spin_damping, "spin_damping", "N m s", allow_zero=True)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode: unknown {render_mode!r}; choose 'rgb_array' or None")
         self.contact_dampratio = check_positive(contact_dampratio, "contact_dampratio")
@@ -111,8 +122,6 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         c, s = task.contact, task.structure.replace(nodes=task.nodes_nominal)
         xml = to_mjcf(s, ground=True, timestep=task.dt, integrator=mj_integrator, rod_radius=c.radius,
                       ground_height=c.height, friction=c.friction, model_name="tensegrity_roll_twin")
-        if axial_inertia == "transverse":   # rods' axial inertia = their transverse one (see the module doc)
-            xml = re.sub(r'diaginertia="(\S+) (\S+) (\S+)"', r'diaginertia="\1 \2 \1"', xml)
         self.model = m = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(m)
         m.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
@@ -133,6 +142,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / task.control_dt)))
         self.render_mode, self._size, self._renderer = render_mode, (int(height), int(width)), None
         self._settle()
+        task.record_path = render_mode is not None
         self.start = np.zeros(3)
         self._needs_reset = True
 
@@ -147,6 +157,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         for _ in range(int(round(SETTLE_TIME / t.dt))):
             mj.mj_step(m, d)
         m.dof_damping[:] = 0.0
+        m.dof_damping[self._dof + 5] = self.spin_damping   # free joint dof 5: rotation about the body z = rod axis
         d.qvel[:] = 0.0
         mj.mj_forward(m, d)
         q, _ = self.rod_state()
@@ -268,25 +279,26 @@ class TensegrityRollMuJoCoEnv(gym.Env):
                                     t.cstate.active, t.goal, [self.np_random])
             t._readings[0, 1:] = t._readings[0, :-1].copy()
             t._readings[0, 0] = frame[0]
+        if t.record_path:   # centre-of-mass path for render(), the last MAX_PATH points
+            path = t.paths.setdefault(0, [])
+            path.append(com.copy())
+            del path[:-MAX_PATH]
         info = {"com_position": com, "com_velocity": vel, "distance_rolled": float((com - self.start)[:2] @ goal),
                 "forward_velocity": forward, "diverged": bool(diverged),
                 "reward_forward": r_fwd, "reward_ctrl": r_ctrl}
         return t.observe()[0], r_fwd + r_ctrl, False, bool(diverged), info
 
     def render(self):
+        """RGB frame (H, W, 3) uint8 of MuJoCo's current state, drawn by the project's renderer
+        (:func:`tensegrity_gym.rendering.make_renderer`, as ``TensegrityRoll-v0``: rods, strings
+        coloured by the project's tension model at this state, path of the centre of mass, goal)."""
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; construct the env with render_mode='rgb_array'")
             return None
-        mj = self._mj
         if self._renderer is None:
-            from ..rendering import gl_backend
-            gl_backend()   # RendererUnavailable with an install hint when no OpenGL backend works
-            self._renderer = mj.Renderer(self.model, *self._size)
-            self._camera = mj.MjvCamera()
-            self._camera.distance, self._camera.elevation, self._camera.azimuth = 1.6, -20.0, 90.0
-        self._camera.lookat[:] = self.com()
-        self._renderer.update_scene(self.data, self._camera)
-        return self._renderer.render()
+            from ..rendering import make_renderer
+            self._renderer = make_renderer(self._size[1], self._size[0], title=ENV_ID)
+        return self._renderer.render(**self.task.render_data(0))
 
     def close(self):
         if self._renderer is not None:
