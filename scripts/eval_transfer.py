@@ -72,9 +72,9 @@ def run_vector(policy_spec, algo, n, T, **env_kwargs):
     return inf["distance_rolled"] / T, venv.task.body_length, params
 
 
-def run_twin(policy_spec, algo, n, T):
+def run_twin(policy_spec, algo, n, T, **env_kwargs):
     """Speeds (n,) m/s along the goal on the MuJoCo twin, reset seeds SEED0 + i."""
-    env = TensegrityRollMuJoCoEnv()
+    env = TensegrityRollMuJoCoEnv(**env_kwargs)
     policy = make_policy(policy_spec, algo, env)
     out = []
     steps = int(round(T / env.dt))
@@ -116,20 +116,25 @@ def main(argv=None) -> int:
     ap.add_argument("--algo", default=None, help="SB3 algorithm of the zip (PPO, SAC, ...)")
     ap.add_argument("--robots", type=int, default=20, help="N: reset seeds / randomised robots / twin episodes")
     ap.add_argument("--time", type=float, default=20.0, help="simulated seconds per episode")
+    ap.add_argument("--goal", type=float, nargs=2, default=(1.0, 0.0), metavar=("X", "Y"),
+                    help="goal direction in the ground plane (default +x)")
     ap.add_argument("--out", type=Path, default=None, help="JSON output path")
     a = ap.parse_args(argv)
     if a.robots < 1 or not (np.isfinite(a.time) and a.time > 0):
         print(f"error: --robots must be >= 1 and --time > 0 (got {a.robots}, {a.time})", file=sys.stderr)
         return 2
-    rows, t0 = {}, time.time()
-    v, L, _ = run_vector(a.policy, a.algo, a.robots, a.time)
+    if not (np.all(np.isfinite(a.goal)) and np.hypot(*a.goal) > 0):
+        print(f"error: --goal must be a non-zero finite vector, got {a.goal}", file=sys.stderr)
+        return 2
+    rows, t0, kw = {}, time.time(), {"goal_direction": tuple(a.goal)}
+    v, L, _ = run_vector(a.policy, a.algo, a.robots, a.time, **kw)
     rows["nominal"] = summary(v, L)
-    v, L, params = run_vector(a.policy, a.algo, a.robots, a.time, randomize=RANDOMIZE)
+    v, L, params = run_vector(a.policy, a.algo, a.robots, a.time, randomize=RANDOMIZE, **kw)
     rows["randomised"] = summary(v, L)
-    v, L = run_twin(a.policy, a.algo, a.robots, a.time)
+    v, L = run_twin(a.policy, a.algo, a.robots, a.time, **kw)
     rows["mujoco_twin"] = summary(v, L)
     nominal = rows["nominal"]["mean_m_s"]
-    print(f"policy {a.policy}, {a.robots} robots x {a.time:g} s, body length {L:.3f} m")
+    print(f"policy {a.policy}, goal {tuple(a.goal)}, {a.robots} robots x {a.time:g} s, body length {L:.3f} m")
     print(f"{'setting':<12} {'speed m/s':>10} {'std':>7} {'min':>8} {'body len/s':>10} {'of nominal':>10}")
     for name, r in rows.items():
         frac = r["mean_m_s"] / nominal if nominal else float("nan")
@@ -137,7 +142,7 @@ def main(argv=None) -> int:
         print(f"{name:<12} {r['mean_m_s']:>10.4f} {r['std_m_s']:>7.4f} {r['min_m_s']:>8.4f} "
               f"{r['mean_body_lengths_s']:>10.3f} {frac:>10.2f}")
     data = {"command": "python scripts/eval_transfer.py " + " ".join(sys.argv[1:] if argv is None else argv),
-            "policy": a.policy, "algo": a.algo, "robots": a.robots, "simulated_time_s": a.time,
+            "policy": a.policy, "algo": a.algo, "goal_direction": list(a.goal), "robots": a.robots, "simulated_time_s": a.time,
             "seeds": f"{SEED0} .. {SEED0 + a.robots - 1}", "randomize": RANDOMIZE,
             "randomised_params_drawn": {k: np.asarray(p).tolist() for k, p in (params or {}).items()},
             "results": rows, "wall_time_s": time.time() - t0,

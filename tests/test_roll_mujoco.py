@@ -157,3 +157,22 @@ def test_friction_and_contact_softness_from_the_env():
     np.testing.assert_allclose(env.model.geom_solref[:, 0], env.contact_timeconst)
     stiff = TensegrityRollMuJoCoEnv(ground_stiffness=1e5)
     assert stiff.contact_timeconst == pytest.approx(2 * stiff.task.dt)         # floored at 2 steps
+
+
+def test_eval_transfer_script(tmp_path, capsys):
+    import json
+    import runpy
+    from pathlib import Path
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer.py"
+    main = runpy.run_path(str(script), run_name="eval_transfer")["main"]
+    out = tmp_path / "t.json"
+    assert main(["--policy", "gait", "--robots", "2", "--time", "0.2", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert set(data["results"]) == {"nominal", "randomised", "mujoco_twin"}
+    for row in data["results"].values():
+        assert len(row["per_robot_m_s"]) == 2 and np.isfinite(row["mean_m_s"])
+    assert len(data["randomised_params_drawn"]["rod_mass"]) == 2
+    assert "mujoco_twin" in capsys.readouterr().out
+    assert main(["--robots", "0"]) == 2
+    with pytest.raises(SystemExit, match="no such file"):
+        main(["--policy", str(tmp_path / "missing.zip"), "--robots", "1", "--time", "0.1"])

@@ -31,10 +31,11 @@ Modelling differences from the project's physics (``docs/contact.md``, ``EQUATIO
   softness is chosen to resemble the ground stiffness: ``solref = (timeconst, dampratio)`` with
   ``timeconst = sqrt(m_eff / ground_stiffness)``, m_eff = a quarter of the lightest rod mass
   (the effective mass of a rod end, as ``contact.stable_step`` uses), i.e. the contact's natural
-  frequency is the project's (2.24 ms, 447 rad/s for the default 1e4 N/m and 0.2 kg), floored at
+  frequency is the project's ``sqrt(k / m_eff)`` (2.24 ms, 447 rad/s for the default 1e4 N/m and 0.2 kg), floored at
   2 x the step (MuJoCo's own safety limit); ``dampratio = contact_dampratio`` (default 1,
-  critical: Hunt-Crossley damping grows with penetration, at the resting penetration of the
-  default robot it is about 0.3 of critical, so no single value matches); ``solimp`` MuJoCo's
+  critical: Hunt-Crossley damping k d delta grows with the penetration delta; at the resting
+  penetration of the default robot, 0.1-0.24 mm, it is about half of critical, so no single
+  value matches); ``solimp`` MuJoCo's
   default. ``ground_damping``, ``tangential_stiffness``/``tangential_damping`` and
   ``ground_max_damping`` have no counterpart and are ignored.
 * **Friction.** Coulomb, coefficient ``friction`` on both the caps and the ground (MuJoCo takes
@@ -53,9 +54,10 @@ Modelling differences from the project's physics (``docs/contact.md``, ``EQUATIO
   of the resting robot spin (up to ~1 rad/s with ``to_mjcf``'s axial inertia ``m r^2 / 2``) and
   roll on their caps like wheels, so the resting robot creeps by mm per s. The twin therefore
   damps each rod's spin about its own axis (``spin_damping``, default 1 N m s, on the free
-  joint's axial rotation, integrated implicitly): spin rates stay below ~1e-3 rad/s and the
-  rods behave as ours (no axial rotation). ``spin_damping=0`` gives MuJoCo's free spin.
-* **Start pose.** MuJoCo's soft contact rests a little deeper than ours, so the robot is
+  joint's axial rotation, integrated implicitly): spin rates at rest stay near 2e-3 rad/s and
+  the rods behave as ours (no axial rotation). ``spin_damping=0`` gives MuJoCo's free spin.
+* **Start pose.** MuJoCo's contact rests at another depth than ours (caps 0.007 mm into the
+  ground against our 0.1-0.24 mm), so the robot is
   settled again on MuJoCo's ground at construction (SETTLE_TIME s with viscous drag on the
   rods, as RollTask settles it) and resets add the reset noise to that pose. The contact flags
   in the reset observation are MuJoCo's contacts (ours start released: all 0).
@@ -105,7 +107,10 @@ class TensegrityRollMuJoCoEnv(gym.Env):
     def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480,
                  mj_integrator: str = "implicitfast", contact_dampratio: float = 1.0,
                  spin_damping: float = 1.0, **kwargs):
-        import mujoco
+        try:
+            import mujoco
+        except ImportError:
+            raise ImportError(f"{ENV_ID} needs MuJoCo: pip install 'tensegrity_gym[mujoco]'") from None
         self._mj = mujoco
         for name in _UNSUPPORTED:
             if kwargs.get(name) is not None:
@@ -224,7 +229,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         mj, m, d, t = self._mj, self.model, self.data, self.task
-        info = t.reset(np.array([0]), [self.np_random], options)   # same noise, goal, controls as TensegrityRoll-v0
+        t.reset(np.array([0]), [self.np_random], options)   # same noise, goal, controls as TensegrityRoll-v0
         N = dyn.node_positions(t.model, t.q)[0]
         V = dyn.node_velocities(t.model, t.qd)[0]
         mj.mj_resetData(m, d)
@@ -239,8 +244,6 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self._needs_reset = False
         out = {"com_position": self.start.copy(), "com_velocity": np.zeros(3), "distance_rolled": 0.0,
                "goal_direction": t.goal[0].copy()}
-        if "params" in info:
-            out["params"] = {n: x[0] for n, x in info["params"].items()}
         return t.observe()[0], out
 
     def step(self, action):
