@@ -1,8 +1,9 @@
 """Sim-to-sim transfer table of a rolling policy (issue 13 item 4/5).
 
 Evaluates one policy object with the SB3 interface ``predict(obs, state, episode_start)`` --
-the rolling gait (:class:`tensegrity_gym.baselines.RollingGait`, ``--policy gait``) or a
-Stable-Baselines3 model zip (``--policy PATH.zip --algo PPO``) -- unchanged, on
+the rolling gait (:class:`tensegrity_gym.baselines.RollingGait`, ``--policy gait``), a training
+run folder of ``agents.train`` (``--policy results/sac_roll_motor``: model + VecNormalize
+statistics) or a Stable-Baselines3 model zip (``--policy PATH.zip --algo SAC``) -- unchanged, on
 
 (a) ``TensegrityRoll-v0``, the nominal robot (N reset seeds),
 (b) N held-out randomised robots of ``TensegrityRoll-v0`` (``randomize``: every listed
@@ -40,19 +41,28 @@ RANDOMIZE = {"rod_mass": 0.2, "stiffness": 0.2, "damping": 0.2, "friction": 0.2,
 
 
 def make_policy(spec: str, algo: str | None, env):
-    """The policy object: RollingGait built for ``env``, or an SB3 model loaded from a zip."""
+    """The policy object: RollingGait built for ``env``; a training run folder of ``agents.train``
+    (its ``model.zip`` + ``vecnormalize.pkl``, via ``agents.evaluate.load_trained``); or an SB3
+    model zip (``--algo``; a ``vecnormalize.pkl`` beside it is applied to the observations)."""
     if spec == "gait":
         return RollingGait(env)
     path = Path(spec)
+    if path.is_dir():
+        from agents.evaluate import load_trained
+        if not (path / "config.yaml").is_file():
+            raise SystemExit(f"--policy: {spec!r} is a folder without config.yaml (not a training run)")
+        return load_trained(path, "final")[1]
     if not path.is_file():
-        raise SystemExit(f"--policy: no such file {spec!r} (give 'gait' or an SB3 model .zip)")
+        raise SystemExit(f"--policy: no such file {spec!r} (give 'gait', a run folder or an SB3 model .zip)")
     if not algo:
         raise SystemExit("--algo: needed with a model zip (PPO, SAC, TD3, A2C, DDPG)")
     import stable_baselines3 as sb3
+    from agents.evaluate import TrainedPolicy, load_vecnormalize, resolve_model
     cls = getattr(sb3, algo, None)
     if cls is None:
         raise SystemExit(f"--algo: unknown SB3 algorithm {algo!r}")
-    return cls.load(str(path), device="cpu")
+    _, vn = resolve_model(path.parent, str(path))
+    return TrainedPolicy(cls.load(str(path), device="cpu"), None if vn is None else load_vecnormalize(vn))
 
 
 def run_vector(policy_spec, algo, n, T, **env_kwargs):
@@ -112,7 +122,7 @@ def write_json(path: Path, data: dict) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--policy", default="gait", help="'gait' (RollingGait) or an SB3 model .zip")
+    ap.add_argument("--policy", default="gait", help="'gait' (RollingGait), a training run folder or an SB3 model .zip")
     ap.add_argument("--algo", default=None, help="SB3 algorithm of the zip (PPO, SAC, ...)")
     ap.add_argument("--robots", type=int, default=20, help="N: reset seeds / randomised robots / twin episodes")
     ap.add_argument("--time", type=float, default=20.0, help="simulated seconds per episode")
