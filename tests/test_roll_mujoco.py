@@ -176,3 +176,16 @@ def test_eval_transfer_script(tmp_path, capsys):
     assert main(["--robots", "0"]) == 2
     with pytest.raises(SystemExit, match="no such file"):
         main(["--policy", str(tmp_path / "missing.zip"), "--robots", "1", "--time", "0.1"])
+
+
+def test_render_rgb_array_follows_mujoco_state():
+    env = gym.make("TensegrityRollMuJoCo-v0", render_mode="rgb_array", width=120, height=120)
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    frame = env.render()
+    assert frame.shape == (120, 120, 3) and frame.dtype == np.uint8 and frame.std() > 0
+    task = env.unwrapped.task
+    assert len(task.paths[0]) == 4
+    np.testing.assert_allclose(task.paths[0][-1], env.unwrapped.com())
+    env.close()
