@@ -154,7 +154,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
     def _settle(self) -> None:
         """Let the robot settle on MuJoCo's ground (SETTLE_TIME s with viscous drag on the rods,
         as RollTask settles it on its own ground) and make that the task's nominal start pose, so
-        that resets start at MuJoCo's rest (its soft contact sinks a little deeper than ours)."""
+        that resets start at MuJoCo's rest (its contact rests at another depth than ours)."""
         mj, m, d, t = self._mj, self.model, self.data, self.task
         mj.mj_resetData(m, d)
         d.qpos[:] = initial_qpos_qvel(t.structure.replace(nodes=t.nodes_nominal))[0]
