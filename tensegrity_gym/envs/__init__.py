@@ -5,7 +5,7 @@ Time limits are set here at registration, not inside the envs.
 """
 from __future__ import annotations
 
-ENV_IDS = ("TensegrityShape-v0", "TensegrityRoll-v0")
+ENV_IDS = ("TensegrityShape-v0", "TensegrityRoll-v0", "TensegrityRollMuJoCo-v0")
 
 
 def register_envs() -> None:
@@ -23,5 +23,11 @@ def register_envs() -> None:
             id="TensegrityRoll-v0",
             entry_point="tensegrity_gym.envs.roll:TensegrityRollEnv",
             vector_entry_point="tensegrity_gym.envs.roll:TensegrityRollVectorEnv",
+            max_episode_steps=1000,
+        )
+    if "TensegrityRollMuJoCo-v0" not in registry:   # MuJoCo twin of TensegrityRoll-v0 (needs the mujoco extra)
+        register(
+            id="TensegrityRollMuJoCo-v0",
+            entry_point="tensegrity_gym.envs.roll_mujoco:TensegrityRollMuJoCoEnv",
             max_episode_steps=1000,
         )

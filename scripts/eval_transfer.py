@@ -1,0 +1,167 @@
+"""Sim-to-sim transfer table of a rolling policy (issue 13 item 4/5).
+
+Evaluates one policy object with the SB3 interface ``predict(obs, state, episode_start)`` --
+the rolling gait (:class:`tensegrity_gym.baselines.RollingGait`, ``--policy gait``), a training
+run folder of ``agents.train`` (``--policy results/sac_roll_motor``: model + VecNormalize
+statistics) or a Stable-Baselines3 model zip (``--policy PATH.zip --algo SAC``) -- unchanged, on
+
+(a) ``TensegrityRoll-v0``, the nominal robot (N reset seeds),
+(b) N held-out randomised robots of ``TensegrityRoll-v0`` (``randomize``: every listed
+    parameter drawn per robot, relative U(1 - s, 1 + s) x nominal; seeds from 1,000,000), and
+(c) the MuJoCo twin ``TensegrityRollMuJoCo-v0`` (N reset seeds, the same reset noise as (a)),
+
+each for ``--time`` s (no time limit), and prints a table of the speed of the centre of mass
+along the goal (``info["distance_rolled"] / T``: m/s and body lengths/s, body length = the
+longest rod). Writes the numbers as JSON (``--out``, atomically).
+
+Run (with the package importable, e.g. ``PYTHONPATH=.``):
+``python scripts/eval_transfer.py --policy gait --robots 20 --time 20 --out results/transfer/gait.json``
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import tensegrity_gym  # noqa: F401  (registers the envs)
+from tensegrity_gym.baselines import RollingGait
+from tensegrity_gym.envs.roll import TensegrityRollVectorEnv
+from tensegrity_gym.envs.roll_mujoco import TensegrityRollMuJoCoEnv
+
+SEED0 = 1_000_000
+RANDOMIZE = {"rod_mass": 0.2, "stiffness": 0.2, "damping": 0.2, "friction": 0.2, "ground_stiffness": 0.2,
+             "ground_damping": 0.2, "max_cable_speed": 0.2, "max_cable_acceleration": 0.2}
+
+
+def make_policy(spec: str, algo: str | None, env):
+    """The policy object: RollingGait built for ``env``; a training run folder of ``agents.train``
+    (its ``model.zip`` + ``vecnormalize.pkl``, via ``agents.evaluate.load_trained``); or an SB3
+    model zip (``--algo``; a ``vecnormalize.pkl`` beside it is applied to the observations)."""
+    if spec == "gait":
+        return RollingGait(env)
+    path = Path(spec)
+    if path.is_dir():
+        from agents.evaluate import load_trained
+        if not (path / "config.yaml").is_file():
+            raise SystemExit(f"--policy: {spec!r} is a folder without config.yaml (not a training run)")
+        return load_trained(path, "final")[1]
+    if not path.is_file():
+        raise SystemExit(f"--policy: no such file {spec!r} (give 'gait', a run folder or an SB3 model .zip)")
+    if not algo:
+        raise SystemExit("--algo: needed with a model zip (PPO, SAC, TD3, A2C, DDPG)")
+    import stable_baselines3 as sb3
+    from agents.evaluate import TrainedPolicy, load_vecnormalize, resolve_model
+    cls = getattr(sb3, algo, None)
+    if cls is None:
+        raise SystemExit(f"--algo: unknown SB3 algorithm {algo!r}")
+    _, vn = resolve_model(path.parent, str(path))
+    return TrainedPolicy(cls.load(str(path), device="cpu"), None if vn is None else load_vecnormalize(vn))
+
+
+def run_vector(policy_spec, algo, n, T, **env_kwargs):
+    """Speeds (n,) m/s along the goal on n copies of TensegrityRoll-v0 (seeds SEED0 + i)."""
+    venv = TensegrityRollVectorEnv(num_envs=n, max_episode_steps=None, **env_kwargs)
+    policy = make_policy(policy_spec, algo, venv)
+    obs, info = venv.reset(seed=SEED0)
+    state, start = None, np.ones(n, bool)
+    steps = int(round(T / venv.task.control_dt))
+    for _ in range(steps):
+        a, state = policy.predict(obs, state, episode_start=start, deterministic=True)
+        start[:] = False
+        obs, _, _, trunc, inf = venv.step(a)
+        if np.any(inf["diverged"]):
+            raise RuntimeError(f"diverged copies {np.flatnonzero(inf['diverged']).tolist()}")
+    params = info.get("params")
+    return inf["distance_rolled"] / T, venv.task.body_length, params
+
+
+def run_twin(policy_spec, algo, n, T, **env_kwargs):
+    """Speeds (n,) m/s along the goal on the MuJoCo twin, reset seeds SEED0 + i."""
+    env = TensegrityRollMuJoCoEnv(**env_kwargs)
+    policy = make_policy(policy_spec, algo, env)
+    out = []
+    steps = int(round(T / env.dt))
+    for i in range(n):
+        obs, _ = env.reset(seed=SEED0 + i)
+        state = None
+        for k in range(steps):
+            a, state = policy.predict(obs, state, episode_start=np.array([k == 0]), deterministic=True)
+            obs, _, _, trunc, inf = env.step(a)
+            if trunc:
+                raise RuntimeError(f"twin diverged (seed {SEED0 + i}, step {k})")
+        out.append(inf["distance_rolled"] / T)
+    return np.array(out), env.task.body_length
+
+
+def summary(v, L):
+    return {"mean_m_s": float(v.mean()), "std_m_s": float(v.std()), "min_m_s": float(v.min()),
+            "max_m_s": float(v.max()), "mean_body_lengths_s": float(v.mean() / L), "per_robot_m_s": v.tolist()}
+
+
+def write_json(path: Path, data: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(data, fh, indent=1)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--policy", default="gait", help="'gait' (RollingGait), a training run folder or an SB3 model .zip")
+    ap.add_argument("--algo", default=None, help="SB3 algorithm of the zip (PPO, SAC, ...)")
+    ap.add_argument("--robots", type=int, default=20, help="N: reset seeds / randomised robots / twin episodes")
+    ap.add_argument("--time", type=float, default=20.0, help="simulated seconds per episode")
+    ap.add_argument("--goal", type=float, nargs=2, default=(1.0, 0.0), metavar=("X", "Y"),
+                    help="goal direction in the ground plane (default +x)")
+    ap.add_argument("--out", type=Path, default=None, help="JSON output path")
+    a = ap.parse_args(argv)
+    if a.robots < 1 or not (np.isfinite(a.time) and a.time > 0):
+        print(f"error: --robots must be >= 1 and --time > 0 (got {a.robots}, {a.time})", file=sys.stderr)
+        return 2
+    if not (np.all(np.isfinite(a.goal)) and np.hypot(*a.goal) > 0):
+        print(f"error: --goal must be a non-zero finite vector, got {a.goal}", file=sys.stderr)
+        return 2
+    rows, t0, kw = {}, time.time(), {"goal_direction": tuple(a.goal)}
+    v, L, _ = run_vector(a.policy, a.algo, a.robots, a.time, **kw)
+    rows["nominal"] = summary(v, L)
+    v, L, params = run_vector(a.policy, a.algo, a.robots, a.time, randomize=RANDOMIZE, **kw)
+    rows["randomised"] = summary(v, L)
+    v, L = run_twin(a.policy, a.algo, a.robots, a.time, **kw)
+    rows["mujoco_twin"] = summary(v, L)
+    nominal = rows["nominal"]["mean_m_s"]
+    print(f"policy {a.policy}, goal {tuple(a.goal)}, {a.robots} robots x {a.time:g} s, body length {L:.3f} m")
+    print(f"{'setting':<12} {'speed m/s':>10} {'std':>7} {'min':>8} {'body len/s':>10} {'of nominal':>10}")
+    for name, r in rows.items():
+        frac = r["mean_m_s"] / nominal if nominal else float("nan")
+        r["fraction_of_nominal"] = frac
+        print(f"{name:<12} {r['mean_m_s']:>10.4f} {r['std_m_s']:>7.4f} {r['min_m_s']:>8.4f} "
+              f"{r['mean_body_lengths_s']:>10.3f} {frac:>10.2f}")
+    data = {"command": "python scripts/eval_transfer.py " + " ".join(sys.argv[1:] if argv is None else argv),
+            "policy": a.policy, "algo": a.algo, "goal_direction": list(a.goal), "robots": a.robots, "simulated_time_s": a.time,
+            "seeds": f"{SEED0} .. {SEED0 + a.robots - 1}", "randomize": RANDOMIZE,
+            "randomised_params_drawn": {k: np.asarray(p).tolist() for k, p in (params or {}).items()},
+            "results": rows, "wall_time_s": time.time() - t0,
+            "machine": f"{platform.machine()}, {os.cpu_count()} CPUs visible, {platform.python_version()}"}
+    if a.out is not None:
+        write_json(a.out, data)
+        print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,309 @@
+"""TensegrityRollMuJoCo-v0: the rolling robot of ``TensegrityRoll-v0`` simulated by MuJoCo (sim-to-sim twin).
+
+The same robot, action space, observation space and layout, rewards, info keys and control
+step as :class:`tensegrity_gym.envs.roll.TensegrityRollEnv`, but the motion comes from MuJoCo
+(an independent simulator, its own contact, friction and integrator), so a policy trained on
+this project's physics runs on it unchanged. SI units (m, kg, s, N).
+
+What is shared (not copied): the env builds a one-copy :class:`~tensegrity_gym.envs.roll.RollTask`
+with the same keyword arguments and takes from it the robot placed on the ground and settled
+(the settled node positions become the MuJoCo model's pose), its nominal rest lengths, its
+:class:`~tensegrity_gym.envs.common.Actuation` (the cable motor model ``advance_motor``: speed
+command, acceleration limit, rest-length bounds, end stops), its reset (the same reset noise
+and goal drawn from ``np_random`` in the same order), its observation (``RollTask.observe``,
+fed with the MuJoCo state converted to rod coordinates ``[r, b]``, ``[r', b']``) and, with
+``observation_mode="robot"``, its sensor model (:mod:`tensegrity_gym.envs.sensors`: cable
+lengths from the rod state, IMUs from the change of MuJoCo's rod velocities over the last
+physics step, contact switches from MuJoCo's contacts).
+
+The MuJoCo model is :func:`tensegrity_gym.mjcf.to_mjcf` of the settled robot with ``ground=True``:
+rods are free bodies with capsules of radius ``cap_radius`` (the capsule's lowest point on a
+plane is always at an end, so the capsule-plane contact is the end caps' contact), strings are
+spatial tendons with the dead band ``springlength="0 l0"`` (no spring force while slack). The
+actuated cables' rest lengths are written to ``model.tendon_lengthspring[i, 1]`` once per
+control step (the control is held over the control step, as in ``TensegrityRoll-v0``; no
+MuJoCo actuators are used).
+
+Modelling differences from the project's physics (``docs/contact.md``, ``EQUATIONS.md``)
+-----------------------------------------------------------------------------------------
+* **Contact.** MuJoCo's soft-constraint contact (``solref``/``solimp``, solved by its convex
+  optimiser) instead of the compliant Hunt-Crossley normal force with a stick spring. The
+  softness is chosen to resemble the ground stiffness: ``solref = (timeconst, dampratio)`` with
+  ``timeconst = sqrt(m_eff / ground_stiffness)``, m_eff = a quarter of the lightest rod mass
+  (the effective mass of a rod end, as ``contact.stable_step`` uses), i.e. the contact's natural
+  frequency is the project's ``sqrt(k / m_eff)`` (2.24 ms, 447 rad/s for the default 1e4 N/m and 0.2 kg), floored at
+  2 x the step (MuJoCo's own safety limit); ``dampratio = contact_dampratio`` (default 1,
+  critical: Hunt-Crossley damping k d delta grows with the penetration delta; at the resting
+  penetration of the default robot, 0.1-0.24 mm, it is about half of critical, so no single
+  value matches); ``solimp`` MuJoCo's
+  default. ``ground_damping``, ``tangential_stiffness``/``tangential_damping`` and
+  ``ground_max_damping`` have no counterpart and are ignored.
+* **Friction.** Coulomb, coefficient ``friction`` on both the caps and the ground (MuJoCo takes
+  the larger of the two geoms' values), elliptic friction cone (isotropic like ours), condim 3
+  (no torsional or rolling friction). MuJoCo's static friction is also soft (a slowly creeping
+  stick), ours is a stick spring.
+* **Damping on slack strings.** MuJoCo's tendon damping ``-c L'`` acts at every length, slack
+  or taut, and the total tendon force may push; ours acts only while the string is taut and the
+  total force is clipped at 0. The spring part has the same dead band in both.
+* **Integrator.** MuJoCo's ``implicitfast`` (default; ``mj_integrator``: "Euler", "RK4",
+  "implicit") at the project's ``dt`` (1 ms), instead of the project's semi-implicit Euler
+  with contact forces held over each step. The contact switches are MuJoCo's active contacts.
+* **Rod spin.** Our rods have no rotation about their own axis and the contact force acts at
+  the node (on the axis); MuJoCo's rods are 6-DOF bodies and the contact acts at the capsule's
+  surface, ``cap_radius`` off the axis, so friction exerts an axial torque. Left free, the rods
+  of the resting robot spin (up to ~1 rad/s with ``to_mjcf``'s axial inertia ``m r^2 / 2``) and
+  roll on their caps like wheels, so the resting robot creeps by mm per s. The twin therefore
+  damps each rod's spin about its own axis (``spin_damping``, default 1 N m s, on the free
+  joint's axial rotation, integrated implicitly): spin rates at rest stay near 2e-3 rad/s and
+  the rods behave as ours (no axial rotation). ``spin_damping=0`` gives MuJoCo's free spin.
+* **Start pose.** MuJoCo's contact rests at another depth than ours (caps 0.007 mm into the
+  ground against our 0.1-0.24 mm), so the robot is
+  settled again on MuJoCo's ground at construction (SETTLE_TIME s with viscous drag on the
+  rods, as RollTask settles it) and resets add the reset noise to that pose. The contact flags
+  in the reset observation are MuJoCo's contacts (ours start released: all 0).
+
+Not supported (ValueError): ``action_mode="force_density"``, ``params``, ``randomize``,
+``action_delay``, ``start_rest_length_offset`` and divergence limits (a non-finite state or a
+MuJoCo bad-acceleration warning truncates the episode with ``info["diverged"] = True``).
+Registered as ``TensegrityRollMuJoCo-v0`` with ``max_episode_steps`` = 1000 (20 s), as
+``TensegrityRoll-v0``. ``render_mode="rgb_array"`` draws MuJoCo's state with the project's
+renderer (as ``TensegrityRoll-v0`` does; ``mujoco.Renderer`` would need ``MUJOCO_GL`` set before
+``mujoco`` is imported, which :mod:`tensegrity_gym.rendering` does not need).
+"""
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .. import dynamics as dyn
+from ..mjcf import initial_qpos_qvel, to_mjcf
+from ..rewards import quadratic_cost
+from .common import check_action, check_positive
+from .roll import MAX_PATH, SETTLE_TIME, RollTask
+
+__all__ = ["TensegrityRollMuJoCoEnv", "ENV_ID"]
+
+ENV_ID = "TensegrityRollMuJoCo-v0"
+_UNSUPPORTED = ("params", "randomize", "start_rest_length_offset")
+
+
+class TensegrityRollMuJoCoEnv(gym.Env):
+    """MuJoCo twin of ``TensegrityRoll-v0`` (see the module docstring).
+
+    Arguments: those of ``TensegrityRoll-v0`` (passed to its :class:`RollTask`; rest-length mode
+    only), plus ``mj_integrator`` ("implicitfast"), ``contact_dampratio`` (1.0, the damping ratio
+    of MuJoCo's contact ``solref``), ``spin_damping`` (1.0 N m s, damping of each rod's spin
+    about its own axis, see the module doc), ``render_mode`` (None or "rgb_array"), ``width``, ``height``.
+    ``env.unwrapped.task`` is the :class:`RollTask` (so :class:`tensegrity_gym.baselines.RollingGait`
+    and ``observation_layout()`` work as on ``TensegrityRoll-v0``); ``env.unwrapped.model`` /
+    ``data`` are the MuJoCo ``MjModel`` / ``MjData``.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+
+    def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480,
+                 mj_integrator: str = "implicitfast", contact_dampratio: float = 1.0,
+                 spin_damping: float = 1.0, **kwargs):
+        try:
+            import mujoco
+        except ImportError:
+            raise ImportError(f"{ENV_ID} needs MuJoCo: pip install 'tensegrity_gym[mujoco]'") from None
+        self._mj = mujoco
+        for name in _UNSUPPORTED:
+            if kwargs.get(name) is not None:
+                raise ValueError(f"{name}: not supported by {ENV_ID} (the twin simulates the nominal robot)")
+        if kwargs.get("action_delay", 0):
+            raise ValueError(f"action_delay: not supported by {ENV_ID}, got {kwargs['action_delay']!r}")
+        if kwargs.get("action_mode", "rest_length") != "rest_length":
+            raise ValueError(f"action_mode: {ENV_ID} supports 'rest_length' only, got {kwargs['action_mode']!r}")
+        self.spin_damping = check_positive(spin_damping, "spin_damping", "N m s", allow_zero=True)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode: unknown {render_mode!r}; choose 'rgb_array' or None")
+        self.contact_dampratio = check_positive(contact_dampratio, "contact_dampratio")
+        self.task = task = RollTask(num_envs=1, **kwargs)
+        c, s = task.contact, task.structure.replace(nodes=task.nodes_nominal)
+        xml = to_mjcf(s, ground=True, timestep=task.dt, integrator=mj_integrator, rod_radius=c.radius,
+                      ground_height=c.height, friction=c.friction, model_name="tensegrity_roll_twin")
+        self.model = m = mujoco.MjModel.from_xml_string(xml)
+        self.data = mujoco.MjData(m)
+        m.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+        m.geom_friction[:, 0] = c.friction
+        m_eff = float(s.bar_mass.min()) / 4.0
+        self.contact_timeconst = max(math.sqrt(m_eff / c.stiffness), 2.0 * task.dt)
+        m.geom_solref[:] = (self.contact_timeconst, self.contact_dampratio)
+        k = s.n_bars
+        self._body = np.array([m.body(f"rod{j}").id for j in range(k)])
+        self._dof = m.jnt_dofadr[m.body_jntadr[self._body]]
+        self._rod_of_geom = np.full(m.ngeom, -1)
+        self._rod_of_geom[[m.geom(f"rod{j}").id for j in range(k)]] = np.arange(k)
+        self._eta = task.model.eta                          # (k, 2) node offsets from the reference point, m
+        self._act = task.actuated
+        self._badqacc = mujoco.mjtWarning.mjWARN_BADQACC
+        self.action_space = spaces.Box(-1.0, 1.0, (task.action_size,), np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (task.observation_size,), np.float32)
+        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / task.control_dt)))
+        self.render_mode, self._size, self._renderer = render_mode, (int(height), int(width)), None
+        self._settle()
+        task.record_path = render_mode is not None
+        self.start = np.zeros(3)
+        self._needs_reset = True
+
+    def _settle(self) -> None:
+        """Let the robot settle on MuJoCo's ground (SETTLE_TIME s with viscous drag on the rods,
+        as RollTask settles it on its own ground) and make that the task's nominal start pose, so
+        that resets start at MuJoCo's rest (its contact rests at another depth than ours)."""
+        mj, m, d, t = self._mj, self.model, self.data, self.task
+        mj.mj_resetData(m, d)
+        d.qpos[:] = initial_qpos_qvel(t.structure.replace(nodes=t.nodes_nominal))[0]
+        m.dof_damping[:] = 4.0 * float(t.structure.bar_mass.max())   # N s/m (N m s on the rotations)
+        for _ in range(int(round(SETTLE_TIME / t.dt))):
+            mj.mj_step(m, d)
+        m.dof_damping[:] = 0.0
+        m.dof_damping[self._dof + 5] = self.spin_damping   # free joint dof 5: rotation about the body z = rod axis
+        d.qvel[:] = 0.0
+        mj.mj_forward(m, d)
+        q, _ = self.rod_state()
+        if not np.all(np.isfinite(q)):
+            raise ValueError(f"{ENV_ID}: settling on MuJoCo's ground diverged at dt = {t.dt} s; reduce dt")
+        t.q_nominal = q.copy()
+        t.nodes_nominal = dyn.node_positions(t.model, q)[0]
+
+    @property
+    def dt(self) -> float:
+        """Control step, s (``dt * frame_skip``, as ``TensegrityRoll-v0``)."""
+        return self.task.control_dt
+
+    # ------------------------------------------------------------------ state conversion
+    def rod_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """MuJoCo's state as the project's rod coordinates: ``q`` (1, k, 6) = [r (m), b (unit)],
+        ``qd`` (1, k, 6) = [r' (m/s), b' (1/s)] (r: the rod body's origin = its centre of mass)."""
+        d = self.data
+        R = d.xmat[self._body].reshape(-1, 3, 3)
+        b = R[:, :, 2]
+        idx = self._dof[:, None] + np.arange(6)
+        v = d.qvel[idx]
+        omega = np.einsum("kij,kj->ki", R, v[:, 3:])        # body-frame angular velocity -> world
+        q = np.concatenate([d.xpos[self._body], b], axis=1)[None]
+        qd = np.concatenate([v[:, :3], np.cross(omega, b)], axis=1)[None]
+        return q, qd
+
+    def contact_flags(self) -> np.ndarray:
+        """(2k,) bool: end cap touching the ground in MuJoCo's current contacts (rod 0 end a,
+        rod 0 end c, ...); a contact belongs to the end of its rod nearest to its point."""
+        d, q = self.data, self.task.q[0]
+        out = np.zeros(2 * len(self._body), bool)
+        n = d.ncon
+        if n:
+            geom = d.contact.geom[:n]
+            rod = np.maximum(self._rod_of_geom[geom[:, 0]], self._rod_of_geom[geom[:, 1]])
+            ok = (rod >= 0) & (d.contact.dist[:n] <= 0.0)
+            pos, rod = d.contact.pos[:n][ok], rod[ok]
+            along = np.einsum("ci,ci->c", pos - q[rod, :3], q[rod, 3:])
+            end = (np.abs(along - self._eta[rod, 1]) < np.abs(along - self._eta[rod, 0])).astype(int)
+            out[2 * rod + end] = True
+        return out
+
+    def _sync(self) -> None:
+        """Project MuJoCo's current state into the task (q, qd, contact flags) for its observation."""
+        self._mj.mj_forward(self.model, self.data)
+        t = self.task
+        t.q, t.qd = self.rod_state()
+        t.cstate.active[0] = self.contact_flags()
+
+    def com(self) -> np.ndarray:
+        """(3,) centre of mass of the robot, m (MuJoCo's, after :meth:`_sync`)."""
+        return self.data.subtree_com[0].copy()
+
+    def tendon_tension(self) -> np.ndarray:
+        """(m,) force each tendon applies as MuJoCo computes it, N (positive: pulling):
+        ``k (L - l0)`` above the rest length, 0 below it (dead band), plus ``c L'`` at any length."""
+        m, d = self.model, self.data
+        L, Ld = d.ten_length, d.ten_velocity
+        stretch = np.maximum(L - m.tendon_lengthspring[:, 1], 0.0) - np.maximum(m.tendon_lengthspring[:, 0] - L, 0.0)
+        return m.tendon_stiffness * stretch + m.tendon_damping * Ld
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        mj, m, d, t = self._mj, self.model, self.data, self.task
+        t.reset(np.array([0]), [self.np_random], options)   # same noise, goal, controls as TensegrityRoll-v0
+        N = dyn.node_positions(t.model, t.q)[0]
+        V = dyn.node_velocities(t.model, t.qd)[0]
+        mj.mj_resetData(m, d)
+        d.qpos[:], d.qvel[:] = initial_qpos_qvel(t.structure.replace(nodes=N, velocities=V))
+        m.tendon_lengthspring[self._act, 1] = t.ctrl[0]
+        self._sync()
+        self.start = self.com()
+        t.start[0] = self.start
+        if t.sensors is not None:   # the reset reading from MuJoCo's state (contacts included)
+            t._readings[0] = t.sensors.frame(t.q, t.qd, None, t.dt, t._gravity(slice(None)), t.ctrl, t.speed,
+                                             t.cstate.active, t.goal, [self.np_random])[0]
+        self._needs_reset = False
+        out = {"com_position": self.start.copy(), "com_velocity": np.zeros(3), "distance_rolled": 0.0,
+               "goal_direction": t.goal[0].copy()}
+        return t.observe()[0], out
+
+    def step(self, action):
+        if self._needs_reset:
+            raise RuntimeError(f"{ENV_ID}: call reset() before step()")
+        mj, m, d, t = self._mj, self.model, self.data, self.task
+        a = check_action(action, (t.action_size,), clip=t.clip_actions)[None, :].astype(np.float64)
+        if t.motor:
+            t.ctrl, t.speed, _ = t.actuation.advance_motor(t.ctrl, t.speed, a)
+        else:
+            t.ctrl, _ = t.actuation.advance(t.ctrl, a)
+        m.tendon_lengthspring[self._act, 1] = t.ctrl[0]
+        com0 = self.com()
+        qpos0, qvel0, bad0 = d.qpos.copy(), d.qvel.copy(), d.warning[self._badqacc].number
+        for sub in range(t.frame_skip):
+            if sub == t.frame_skip - 1 and t.sensors is not None:
+                mj.mj_kinematics(m, d)
+                t._qd_prev = self.rod_state()[1]   # the IMUs read the last physics step's change of velocity
+            mj.mj_step(m, d)
+        diverged = not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))) \
+            or d.warning[self._badqacc].number > bad0
+        if diverged:
+            d.qpos[:], d.qvel[:] = qpos0, qvel0
+        self._sync()
+        t.elapsed += 1
+        com = self.com()
+        vel = (com - com0) / t.control_dt
+        goal = t.goal[0]
+        forward = float(vel[:2] @ goal)
+        r_fwd = t.forward_reward_weight * forward
+        r_ctrl = -t.ctrl_cost_weight * float(quadratic_cost(a)[0])
+        if t.sensors is not None:
+            if diverged:
+                t._qd_prev = t.qd
+            frame = t.sensors.frame(t.q, t.qd, t._qd_prev, t.dt, t._gravity(slice(None)), t.ctrl, t.speed,
+                                    t.cstate.active, t.goal, [self.np_random])
+            t._readings[0, 1:] = t._readings[0, :-1].copy()
+            t._readings[0, 0] = frame[0]
+        if t.record_path:   # centre-of-mass path for render(), the last MAX_PATH points
+            path = t.paths.setdefault(0, [])
+            path.append(com.copy())
+            del path[:-MAX_PATH]
+        info = {"com_position": com, "com_velocity": vel, "distance_rolled": float((com - self.start)[:2] @ goal),
+                "forward_velocity": forward, "diverged": bool(diverged),
+                "reward_forward": r_fwd, "reward_ctrl": r_ctrl}
+        return t.observe()[0], r_fwd + r_ctrl, False, bool(diverged), info
+
+    def render(self):
+        """RGB frame (H, W, 3) uint8 of MuJoCo's current state, drawn by the project's renderer
+        (:func:`tensegrity_gym.rendering.make_renderer`, as ``TensegrityRoll-v0``: rods, strings
+        coloured by the project's tension model at this state, path of the centre of mass, goal)."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; construct the env with render_mode='rgb_array'")
+            return None
+        if self._renderer is None:
+            from ..rendering import make_renderer
+            self._renderer = make_renderer(self._size[1], self._size[0], title=ENV_ID)
+        return self._renderer.render(**self.task.render_data(0))
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

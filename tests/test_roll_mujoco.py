@@ -1,0 +1,191 @@
+"""TensegrityRollMuJoCo-v0: the MuJoCo twin of TensegrityRoll-v0 (issue 13 item 4). SI units."""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+
+import tensegrity_gym  # noqa: E402,F401
+from tensegrity_gym.baselines import RollingGait  # noqa: E402
+from tensegrity_gym.envs.roll import TensegrityRollEnv  # noqa: E402
+from tensegrity_gym.envs.roll_mujoco import TensegrityRollMuJoCoEnv  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def twin():
+    return TensegrityRollMuJoCoEnv()
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"observation_mode": "robot", "history": 3},
+                                    {"max_cable_acceleration": None}])
+def test_spaces_equal_roll_env(kwargs):
+    a, b = TensegrityRollMuJoCoEnv(**kwargs), TensegrityRollEnv(**kwargs)
+    assert a.action_space == b.action_space
+    assert a.observation_space == b.observation_space
+    assert a.task.observation_layout() == b.task.observation_layout()
+    assert a.dt == b.dt
+    obs, info = a.reset(seed=0)
+    assert a.observation_space.contains(obs)
+    _, info_b = b.reset(seed=0)
+    assert set(info) == set(info_b)
+    obs, r, term, trunc, info = a.step(a.action_space.sample())
+    _, _, _, _, info_b = b.step(b.action_space.sample())
+    assert set(info) == set(info_b)
+    assert r == pytest.approx(info["reward_forward"] + info["reward_ctrl"])
+
+
+def test_registered_with_roll_time_limit():
+    env = gym.make("TensegrityRollMuJoCo-v0")
+    assert env.spec.max_episode_steps == gym.spec("TensegrityRoll-v0").max_episode_steps == 1000
+    assert isinstance(env.unwrapped, TensegrityRollMuJoCoEnv)
+
+
+def test_resting_robot_neither_sinks_nor_slides(twin):
+    """Zero actions for 2 s: no cap sinks more than 2 mm into the ground, no node moves more than 3 mm."""
+    r = twin.task.contact.radius
+    obs, info = twin.reset(seed=3)
+    nodes0 = twin.data.site_xpos.copy()
+    deepest = 0.0
+    for _ in range(100):
+        obs, rew, term, trunc, info = twin.step(np.zeros(9))
+        assert not trunc
+        deepest = max(deepest, r - twin.data.site_xpos[:, 2].min())
+    moved = np.linalg.norm(twin.data.site_xpos - nodes0, axis=1).max()
+    com_slide = np.linalg.norm(info["com_position"][:2] - twin.start[:2])
+    print(f"deepest cap penetration {deepest * 1e3:.3f} mm, largest node displacement {moved * 1e3:.3f} mm, "
+          f"centre of mass slid {com_slide * 1e3:.3f} mm")
+    assert deepest < 2e-3
+    assert moved < 3e-3
+    assert com_slide < 3e-3
+    assert np.linalg.norm(obs[18:36]) < 0.05      # node velocities have died down
+
+
+def test_slack_strings_carry_no_spring_force(twin):
+    """Dead band: a string shorter than its rest length adds nothing to MuJoCo's spring forces;
+    a stretched one does."""
+    m, d = twin.model, twin.data
+    twin.reset(seed=0)
+    d.qvel[:] = 0.0
+    mujoco.mj_forward(m, d)
+    L = d.ten_length.copy()
+    saved = m.tendon_lengthspring.copy()
+    try:
+        for i, slack in ((0, True), (0, False), (7, True)):
+            m.tendon_lengthspring[:] = saved
+            m.tendon_lengthspring[i, 1] = L[i] + (0.01 if slack else -0.01)
+            mujoco.mj_forward(m, d)
+            f_with = d.qfrc_spring.copy()
+            tension = twin.tendon_tension()[i]
+            k = m.tendon_stiffness[i]
+            m.tendon_stiffness[i] = 0.0
+            mujoco.mj_forward(m, d)
+            f_without = d.qfrc_spring.copy()
+            m.tendon_stiffness[i] = k
+            if slack:
+                np.testing.assert_allclose(f_with, f_without, atol=1e-12)
+                assert tension == 0.0
+            else:
+                assert np.abs(f_with - f_without).max() > 1.0
+                assert tension == pytest.approx(k * 0.01)
+    finally:
+        m.tendon_lengthspring[:] = saved
+        mujoco.mj_forward(m, d)
+
+
+def test_rolling_gait_rolls_the_twin():
+    """The rolling gait, trained for nothing and tuned on TensegrityRoll-v0, rolls the twin along
+    its goal. The wave rolls the prism toward -x from the reset pose (on both simulators; with goal
+    +x its feedback turns it round within 15-20 s), so the goal here is -x: 10 s."""
+    speeds = {}
+    for cls in (TensegrityRollMuJoCoEnv, TensegrityRollEnv):
+        env = cls(goal_direction=(-1.0, 0.0))
+        gait = RollingGait(env)
+        obs, _ = env.reset(seed=0)
+        state = None
+        for _ in range(500):
+            a, state = gait.predict(obs, state)
+            obs, _, _, trunc, info = env.step(a)
+            assert not trunc
+        speeds[cls.__name__] = info["distance_rolled"] / 10.0
+    print("speed along the goal over 10 s, m/s:", speeds)
+    assert speeds["TensegrityRollMuJoCoEnv"] > 0.03
+    assert speeds["TensegrityRollEnv"] > 0.03
+
+
+def test_seeding_reproducible():
+    def episode(seed):
+        env = TensegrityRollMuJoCoEnv()
+        rng = np.random.default_rng(1)
+        obs, _ = env.reset(seed=seed)
+        out = [obs]
+        for _ in range(30):
+            out.append(env.step(rng.uniform(-1, 1, 9))[0])
+        return np.array(out)
+    a, b, c = episode(5), episode(5), episode(6)
+    np.testing.assert_array_equal(a, b)
+    assert np.abs(a - c).max() > 1e-4
+
+
+def test_robot_observation_imu_at_rest():
+    env = TensegrityRollMuJoCoEnv(observation_mode="robot")
+    lay = {n: s for n, s, _ in env.task.observation_layout()}
+    env.reset(seed=0)
+    for _ in range(50):
+        obs, *_ = env.step(np.zeros(9))
+    acc = obs[lay["imu_accel"]].reshape(3, 3)
+    np.testing.assert_allclose(np.linalg.norm(acc, axis=1), 9.81, atol=0.5)   # specific force -g at rest
+    assert obs[lay["contact"]].sum() >= 3                                     # resting on >= 3 caps
+    d = env.data
+    np.testing.assert_allclose(obs[lay["cable_length"]], d.ten_length, atol=1e-6)
+
+
+@pytest.mark.parametrize("kwargs", [{"action_mode": "force_density"}, {"randomize": {"friction": 0.1}},
+                                    {"params": {"friction": 0.5}}, {"action_delay": 2},
+                                    {"spin_damping": -1.0}, {"contact_dampratio": -1.0}])
+def test_unsupported_arguments_raise(kwargs):
+    name = next(iter(kwargs))
+    with pytest.raises(ValueError, match=name):
+        TensegrityRollMuJoCoEnv(**kwargs)
+
+
+def test_friction_and_contact_softness_from_the_env():
+    env = TensegrityRollMuJoCoEnv(friction=0.6, ground_stiffness=5e3)
+    np.testing.assert_allclose(env.model.geom_friction[:, 0], 0.6)
+    assert env.contact_timeconst == pytest.approx(np.sqrt(0.2 / 4 / 5e3))    # sqrt(m_eff / k), m_eff = m / 4
+    np.testing.assert_allclose(env.model.geom_solref[:, 0], env.contact_timeconst)
+    stiff = TensegrityRollMuJoCoEnv(ground_stiffness=1e5)
+    assert stiff.contact_timeconst == pytest.approx(2 * stiff.task.dt)         # floored at 2 steps
+
+
+def test_eval_transfer_script(tmp_path, capsys):
+    import json
+    import runpy
+    from pathlib import Path
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer.py"
+    main = runpy.run_path(str(script), run_name="eval_transfer")["main"]
+    out = tmp_path / "t.json"
+    assert main(["--policy", "gait", "--robots", "2", "--time", "0.2", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert set(data["results"]) == {"nominal", "randomised", "mujoco_twin"}
+    for row in data["results"].values():
+        assert len(row["per_robot_m_s"]) == 2 and np.isfinite(row["mean_m_s"])
+    assert len(data["randomised_params_drawn"]["rod_mass"]) == 2
+    assert "mujoco_twin" in capsys.readouterr().out
+    assert main(["--robots", "0"]) == 2
+    with pytest.raises(SystemExit, match="no such file"):
+        main(["--policy", str(tmp_path / "missing.zip"), "--robots", "1", "--time", "0.1"])
+
+
+def test_render_rgb_array_follows_mujoco_state():
+    env = gym.make("TensegrityRollMuJoCo-v0", render_mode="rgb_array", width=120, height=120)
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    frame = env.render()
+    assert frame.shape == (120, 120, 3) and frame.dtype == np.uint8 and frame.std() > 0
+    task = env.unwrapped.task
+    assert len(task.paths[0]) == 4
+    np.testing.assert_allclose(task.paths[0][-1], env.unwrapped.com())
+    env.close()
