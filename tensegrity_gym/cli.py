@@ -64,12 +64,15 @@ import numpy as np
 from . import __version__
 from . import dynamics as dyn
 from .builders import BUILDERS
-from .integrators import INTEGRATORS, SimulationDiverged, resolve, simulate
+from .integrators import INTEGRATORS, EvaluationBudgetExceeded, SimulationDiverged, resolve, simulate
 from .sizing import StructureTooLarge
 from .structure import StructureError
 
 PROGRESS_MIN_STEPS = 20000
 DEFAULT_MAX_STEPS = 1e9
+#: adaptive methods (dop853, radau) may evaluate the accelerations this many times per --max-steps step
+#: (dop853 takes 12 per accepted step, radau a few Newton iterations of 3 stages) before exit code 5
+ADAPTIVE_EVALUATIONS_PER_STEP = 20
 EXIT_OK, EXIT_USAGE, EXIT_STRUCTURE, EXIT_OUTPUT, EXIT_TOO_LARGE, EXIT_DIVERGED = 0, 2, 3, 4, 5, 6
 EXIT_INTERRUPTED, EXIT_PIPE, EXIT_TERMINATED = 130, 141, 143
 CHUNK_STEPS = 200_000          # a fixed-step run is integrated in chunks of about this many steps
@@ -251,7 +254,11 @@ def _run(model, state, args, n_steps: int, progress: bool):
     if info.adaptive:
         try:
             t, q, qd = simulate(model, state, args.dt, n_steps, args.integrator, record_every=args.record_every,
-                                progress=progress, **kw)
+                                progress=progress, max_evaluations=int(ADAPTIVE_EVALUATIONS_PER_STEP * args.max_steps),
+                                **kw)
+        except EvaluationBudgetExceeded as e:
+            raise CLIError(EXIT_TOO_LARGE, f"{info.name}: {e}; loosen --rtol/--atol, shorten --duration or raise "
+                           f"--max-steps (it allows {ADAPTIVE_EVALUATIONS_PER_STEP} evaluations per step)") from None
         except SimulationDiverged as e:
             empty = np.empty((0,) + state.q.shape)
             return np.zeros(0), empty, empty, str(e)

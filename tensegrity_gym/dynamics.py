@@ -460,13 +460,16 @@ def configuration_matrix(model: Model, q: np.ndarray):
 def _scatter_string_forces(model: Model, X: np.ndarray) -> np.ndarray:
     """(B, n, 3) nodal forces ``-C_S^T X`` of per-string vectors X (B, m, 3) = gamma s (N): node
     ``str_i`` of string i gets ``+X_i``, node ``str_j`` gets ``-X_i``. ``np.add.at`` for a few
-    strings (lowest call overhead), else one ``np.bincount`` per component (fast for large B m)."""
+    strings (lowest call overhead), else one ``np.bincount`` per component (fast for large B m).
+    Both sum each node's ``+X`` terms and its ``-X`` terms separately, in string order, and
+    subtract: the same operations, so a copy's forces do not depend on the batch size."""
     B, n = X.shape[0], model.n_nodes
     if B * model.n_strings <= 128:
-        F = np.zeros((B, n, 3))
-        np.add.at(F, (slice(None), model.str_i), X)
-        np.add.at(F, (slice(None), model.str_j), -X)
-        return F
+        Fi = np.zeros((B, n, 3))
+        Fj = np.zeros((B, n, 3))
+        np.add.at(Fi, (slice(None), model.str_i), X)
+        np.add.at(Fj, (slice(None), model.str_j), X)
+        return Fi - Fj
     base = (np.arange(B) * n)[:, None]
     ii = (base + model.str_i).ravel()
     jj = (base + model.str_j).ravel()

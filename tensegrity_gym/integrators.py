@@ -67,11 +67,17 @@ from .dynamics import Model, State
 from .params import check_params
 
 __all__ = ["INTEGRATORS", "step", "simulate", "IntegratorInfo", "SimulationDiverged", "StabilityWarning",
+           "EvaluationBudgetExceeded",
            "stability_limit"]
 
 
 class SimulationDiverged(FloatingPointError):
     """Raised when the state stops being finite; the message names time and cause."""
+
+
+class EvaluationBudgetExceeded(RuntimeError):
+    """An adaptive method needed more right-hand-side evaluations than ``max_evaluations``
+    (tolerances too tight for the span, or a very stiff structure): raised instead of running on."""
 
 
 class StabilityWarning(UserWarning):
@@ -336,10 +342,17 @@ class _Solution:
     y: np.ndarray
 
 
-def _rhs(model, shape, rest_length, force_density, external, params=None):
+def _rhs(model, shape, rest_length, force_density, external, params=None, budget=None):
     half = int(np.prod(shape))
+    count = [0]
 
     def f(t, y):
+        if budget is not None:
+            count[0] += 1
+            if count[0] > budget:
+                raise EvaluationBudgetExceeded(
+                    f"the adaptive solver needed more than {budget} evaluations of the accelerations before "
+                    f"t = {t:.6g} s (tolerances too tight for this span, or a very stiff structure)")
         q = y[:half].reshape(shape)
         qd = y[half:].reshape(shape)
         a = dyn.accelerations(model, q, qd, rest_length, force_density, _ext(external, q, qd, t), params)
@@ -352,7 +365,8 @@ def _copy_rows(x, b):
     return x[b:b + 1] if x is not None and x.ndim == 2 else x
 
 
-def _adaptive(model, state, T, info, rest_length, force_density, external, rtol, atol, t_eval=None, params=None):
+def _adaptive(model, state, T, info, rest_length, force_density, external, rtol, atol, t_eval=None, params=None,
+              max_evaluations=None):
     """solve_ivp over [t, t + T]. A batch is integrated copy by copy (each copy its own step-size
     control, so no copy's result depends on another's), unless ``external`` is a callable of
     the whole batch."""
@@ -365,7 +379,8 @@ def _adaptive(model, state, T, info, rest_length, force_density, external, rtol,
             st_b = State(q=state.q[b:b + 1], qd=state.qd[b:b + 1], t=state.t)
             runs.append(_adaptive(model, st_b, T, info, _copy_rows(rest_length, b), _copy_rows(force_density, b),
                                   ext[b:b + 1] if ext is not None and ext.ndim == 3 else ext, rtol, atol, t_eval,
-                                  params if params is None or params.batch_size == 1 else params.take([b])))
+                                  params if params is None or params.batch_size == 1 else params.take([b]),
+                                  max_evaluations))
         if t_eval is None:
             return State(q=np.concatenate([r.q for r in runs]), qd=np.concatenate([r.qd for r in runs]),
                          t=state.t + T)
@@ -378,8 +393,14 @@ def _adaptive(model, state, T, info, rest_length, force_density, external, rtol,
     shape = state.q.shape
     y0 = np.concatenate([state.q.reshape(-1), state.qd.reshape(-1)])
     method = {"dop853": "DOP853", "radau": "Radau"}[info.name]
-    sol = solve_ivp(_rhs(model, shape, rest_length, force_density, external, params), (state.t, state.t + T), y0,
-                    method=method, rtol=rtol, atol=atol, t_eval=t_eval)
+    try:
+        sol = solve_ivp(_rhs(model, shape, rest_length, force_density, external, params, max_evaluations),
+                        (state.t, state.t + T), y0, method=method, rtol=rtol, atol=atol, t_eval=t_eval)
+    except (ValueError, np.linalg.LinAlgError) as e:   # scipy's checks on a non-finite state / Jacobian
+        if "inf" not in str(e).lower() and "nan" not in str(e).lower() and "singular" not in str(e).lower():
+            raise
+        raise SimulationDiverged(f"{info.name} failed: the state or its Jacobian became non-finite or singular "
+                                 f"({e}); loosen rtol/atol or shorten the span") from None
     if sol.status < 0:
         at = f"after t = {sol.t[-1]:.6g} s" if len(sol.t) else f"in its first step from t = {state.t:.6g} s"
         raise SimulationDiverged(f"{info.name} failed {at}: {sol.message}")
@@ -394,14 +415,16 @@ def _adaptive(model, state, T, info, rest_length, force_density, external, rtol,
 def simulate(model: Model, state: State, dt: float, n_steps: int, integrator: str = "rk4", *,
              record_every: int = 1, rest_length=None, force_density=None, external=None,
              project: bool = True, backend: str = "auto", rtol: float = 1e-10, atol: float = 1e-12,
-             progress: bool = False, params=None):
+             progress: bool = False, params=None, max_evaluations: int | None = None):
     """Integrate ``n_steps`` steps of ``dt`` and record every ``record_every``-th state.
 
     Returns ``(t, q, qd)`` with ``t`` (S,) in s and ``q``, ``qd`` (S, B, k, 6); the first
     record is the initial state. Adaptive methods integrate the whole span in one
     ``solve_ivp`` call and report the solution at the record times.
     Raises :class:`SimulationDiverged` naming the time if the state stops being finite.
-    ``params``: per-copy physical values, as in :func:`step`.
+    ``params``: per-copy physical values, as in :func:`step`. ``max_evaluations``: adaptive methods
+    raise :class:`EvaluationBudgetExceeded` after that many evaluations of the accelerations (per
+    copy) instead of running on (default None: no limit).
     """
     info = resolve(integrator)
     if int(n_steps) != n_steps or n_steps < 0:
@@ -414,7 +437,8 @@ def simulate(model: Model, state: State, dt: float, n_steps: int, integrator: st
         B, m = state.batch_size, model.n_strings
         _, sol = _adaptive(model, state, dt * n_steps, info, _as_batch(rest_length, B, m, "rest_length"),
                            _as_batch(force_density, B, m, "force_density"), external, rtol, atol,
-                           t_eval=ts, params=None if params is None else check_params(model, params, B))
+                           t_eval=ts, params=None if params is None else check_params(model, params, B),
+                           max_evaluations=max_evaluations)
         half = sol.y.shape[0] // 2
         S = sol.y.shape[1]
         q = sol.y[:half].T.reshape((S,) + state.q.shape)

@@ -294,7 +294,7 @@ def test_random_arguments_give_a_code_and_one_line(tmp_path_factory, cmd, struct
     out = tmp_path_factory.mktemp("cli") / "o.npz"
     argv = [cmd, structure] + [x for o in options for x in o]
     if cmd == "simulate":
-        argv += ["--out", str(out), "--no-progress", "--max-steps", "3000"]   # bounded: fast or refused
+        argv += ["--out", str(out), "--no-progress", "--max-steps", "1000"]   # bounded: fast or refused (adaptive: 20k evaluations)
     import contextlib
     import io
     err, std = io.StringIO(), io.StringIO()
@@ -309,3 +309,22 @@ def test_random_arguments_give_a_code_and_one_line(tmp_path_factory, cmd, struct
     elif cmd == "simulate" and "-h" not in argv:
         d = np.load(out)
         assert np.all(np.isfinite(d["nodes"])) and np.all(np.isfinite(d["energy"]))
+
+
+def test_adaptive_solver_is_bounded_by_max_steps(tmp_path, capsys):
+    """An adaptive run that would take long (100 s of a stiff rod at rtol 1e-10 with 1000 records)
+    stops after ADAPTIVE_EVALUATIONS_PER_STEP x --max-steps evaluations with exit code 5 (not a
+    hang); one with tolerances at the round-off floor, whose Jacobian goes non-finite, is reported
+    as diverged (exit 6), never a traceback."""
+    import time
+    t0 = time.perf_counter()
+    code = main(["simulate", "pinned_rod", "--integrator", "dop853", "--duration", "100", "--dt", "0.1",
+                 "--max-steps", "3000", "--out", str(tmp_path / "x.npz"), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 5 and err[-1].startswith("error: dop853: the adaptive solver needed more than 60000"), err
+    assert not (tmp_path / "x.npz").exists()
+    code = main(["simulate", "pinned_rod", "--integrator", "radau", "--duration", "3", "--atol", "1e-300",
+                 "--rtol", "1e-13", "--max-steps", "3000", "--out", str(tmp_path / "y.npz"), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code in (5, 6) and sum(x.startswith("error: ") for x in err) == 1, (code, err)
+    assert time.perf_counter() - t0 < 120

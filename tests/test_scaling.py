@@ -241,3 +241,16 @@ def test_grouped_fd_in_chunks_equals_one_batch(monkeypatch):
     monkeypatch.setattr(sizing, "FD_CHUNK_BYTES", 1)
     K2, D2 = jac.acceleration_jacobians_sparse(model, st.q, st.qd)
     assert (K1 != K2).nnz == 0 and (D1 != D2).nnz == 0
+
+
+def test_nodal_forces_of_a_copy_do_not_depend_on_the_batch_size():
+    """The index scatter takes one path for small batches and another for large ones; both must
+    give each copy the same bits (a vector env's targets, solved in a batch, equal a single env's)."""
+    model = tg.compile_model(tg.tower(3))
+    rng = np.random.default_rng(0)
+    st = tg.initial_state(model, 40)
+    q = st.q + 1e-3 * rng.standard_normal(st.q.shape)
+    qd = 0.1 * rng.standard_normal(st.q.shape)
+    F, _ = dyn.nodal_forces(model, q, qd)
+    for b in (0, 7, 39):
+        assert np.array_equal(F[b], dyn.nodal_forces(model, q[b:b + 1], qd[b:b + 1])[0][0])
