@@ -444,7 +444,8 @@ def stable_step(contact: GroundContact, model: dyn.Model) -> dict:
     and the Hunt-Crossley damping at rest ``d k delta_rest`` (``delta_rest`` the penetration
     under a third of the weight per contact). For exponent > 1 the stiffness is the tangent
     stiffness at ``delta_rest``. Returns ``{"omega_contact", "omega_strings", "omega", "zeta",
-    "undamped": 2/omega, "semi_implicit_euler": damped limit}`` (rad/s, 1, s).
+    "undamped": 2/omega, "semi_implicit_euler": damped limit}`` (rad/s, 1, s); the damped limit is
+    also capped by the strings' own (string damping lowers it: :func:`tensegrity_gym.integrators.stability_limit`).
     For the defaults on the TensegrityRoll-v0 prism (0.2 kg rods): 447, 243, 509 rad/s,
     zeta 0.45, limit 2.5 ms; measured: stable at 2 ms, unstable at 3 ms (docs/contact.md)."""
     g = 9.81 if model.gravity is None else float(np.linalg.norm(model.gravity))
@@ -460,8 +461,11 @@ def stable_step(contact: GroundContact, model: dyn.Model) -> dict:
     os_ = integrators.stability_limit(model)["omega_max"]
     os_ = 0.0 if not math.isfinite(os_) else os_
     om = math.sqrt(oc * oc + os_ * os_)
+    # the strings' own damped limit (string damping lowers it; 6.4 ms for the default prism robot)
+    strings = integrators.stability_limit(model)["semi_implicit_euler"]
+    combined = 2.0 * (math.sqrt(1.0 + zeta * zeta) - zeta) / om
     return {"omega_contact": oc, "omega_strings": os_, "omega": om, "zeta": zeta, "undamped": 2.0 / om,
-            "semi_implicit_euler": 2.0 * (math.sqrt(1.0 + zeta * zeta) - zeta) / om}
+            "semi_implicit_euler": min(combined, strings) if math.isfinite(strings) else combined}
 
 
 def step(model: dyn.Model, contact: GroundContact, state: dyn.State, cstate: ContactState, dt: float,

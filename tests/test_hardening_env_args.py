@@ -22,8 +22,13 @@ SHAPE, ROLL = "TensegrityShape-v0", "TensegrityRoll-v0"
 
 # (id, env id, constructor kwargs, regex of the ValueError)
 CASES = [
-    ("roll-dt-0.2", ROLL, dict(dt=0.2), r"dt: 0.2 s is above the estimated stability limit 0.00\d+ s of semi-implicit "
-                                        r"Euler .* or allow_unstable_dt=True"),
+    ("roll-dt-0.2", ROLL, dict(dt=0.2), r"dt: 0.2 s is above the estimated stability limit 0.00\d+ s of "
+                                        r"semi_implicit_euler .* or allow_unstable_dt=True"),
+    # huge string damping: named as the cause (was "settling diverged" / "all strings are slack")
+    ("roll-string-damping-1e4", ROLL, dict(string_damping=1e4),
+     r"dt: 0.001 s is above the estimated stability limit .* \(strings up to 1000 N/m and 1e\+04 N s/m"),
+    ("shape-string-damping-1e4", SHAPE, dict(string_damping=1e4),
+     r"dt: 0.001 s is above the estimated stability limit .* \(strings up to 1000 N/m and 1e\+04 N s/m"),
     ("shape-dt-0.08", SHAPE, dict(dt=0.08), r"dt: 0.08 s is above the estimated stability limit 0.0\d+ s of "
                                             r"semi_implicit_euler .*allow_unstable_dt=True"),
     ("shape-rk4-dt-0.05", SHAPE, dict(dt=0.05, integrator="rk4"), r"dt: 0.05 s is above the estimated stability limit .* of rk4"),

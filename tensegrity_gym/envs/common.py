@@ -128,6 +128,19 @@ def check_action(action, shape: tuple, clip: bool = True, name: str = "action") 
     return np.clip(a, -1.0, 1.0)
 
 
+def check_stable_dt(model: dyn.Model, limit: float, dt: float, integrator: str, allow: bool, what: str) -> None:
+    """ValueError if ``dt`` (s) is above the estimated stability ``limit`` (s) of ``integrator``,
+    unless ``allow``; the message names the strings' stiffness and damping that set the limit."""
+    if dt <= limit or allow:
+        return
+    k = float(np.max(model.stiffness)) if model.n_strings else 0.0
+    c = float(np.max(model.damping)) if model.n_strings else 0.0
+    raise ValueError(f"dt: {dt:g} s is above the estimated stability limit {limit:.3g} s of {integrator} for {what} "
+                     f"(strings up to {k:.4g} N/m and {c:.4g} N s/m; the state would blow up); use a smaller dt, "
+                     "less stiffness or string damping, integrator='implicit_euler' where the task allows it, or "
+                     "allow_unstable_dt=True to run it anyway")
+
+
 def resolve_actuated(actuated, n_strings: int) -> np.ndarray:
     """Sorted unique string indices from ``None`` (all), an int list or a bool mask; errors name the index."""
     if actuated is None:

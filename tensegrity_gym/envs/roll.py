@@ -18,7 +18,7 @@ from ..rewards import quadratic_cost
 from ..structure import Structure
 from . import _fast
 from .common import (ACTION_MODES, Actuation, BatchedTask, TaskEnv, TaskVectorEnv, check_positive,
-                     resolve_actuated)
+                     check_stable_dt, resolve_actuated)
 
 __all__ = ["RollTask", "TensegrityRollEnv", "TensegrityRollVectorEnv", "robot_prism", "robot_icosahedron",
            "place_on_ground", "GRAVITY"]
@@ -204,6 +204,10 @@ class RollTask(BatchedTask):
         s = s.replace(nodes=nodes)
         self.structure = s
         elastic = dyn.compile_model(s)
+        if integrators.resolve(integrator).name in ("semi_implicit_euler", "rk4"):   # before settling on it
+            check_stable_dt(elastic, gc.stable_step(self.contact, elastic)["semi_implicit_euler"], dt,
+                            integrators.resolve(integrator).name, allow_unstable_dt,
+                            "this robot's strings and ground contact")
         key = None
         if isinstance(structure, str):   # built-in scenes: settle once per process and parameter set
             key = (structure, string_damping, self.contact, integrators.resolve(integrator).name, float(dt))
@@ -283,10 +287,9 @@ class RollTask(BatchedTask):
             extra["max_cable_acceleration"] = np.array(self.actuation.max_accel)
         self._init_domain(params, randomize, action_delay, start_rest_length_offset, extra)
         limit = gc.stable_step(self.contact, model)["semi_implicit_euler"]
-        if self.integrator in ("semi_implicit_euler", "rk4") and self.dt > limit and not allow_unstable_dt:
-            raise ValueError(f"dt: {self.dt:g} s is above the estimated stability limit {limit:.3g} s of "
-                             "semi-implicit Euler with this robot's strings and ground contact (the state would "
-                             "blow up); use a smaller dt, or allow_unstable_dt=True to run it anyway")
+        if self.integrator in ("semi_implicit_euler", "rk4"):
+            check_stable_dt(model, limit, self.dt, self.integrator, allow_unstable_dt,
+                            "this robot's strings and ground contact")
         if self.integrator in ("semi_implicit_euler", "rk4") and self.dt > limit:
             warnings.warn(integrators.StabilityWarning(
                 f"{ENV_ID}: dt = {self.dt:.4g} s is above the estimated stability limit {limit:.4g} s of "

@@ -14,7 +14,7 @@ from .. import statics
 from ..rewards import _c_einsum as _sum_squares, quadratic_cost, tolerance
 from . import _fast
 from .common import (ACTION_MODES, Actuation, BatchedTask, TaskEnv, TaskVectorEnv, check_positive,
-                     resolve_actuated)
+                     check_stable_dt, resolve_actuated)
 
 __all__ = ["ShapeTask", "TensegrityShapeEnv", "TensegrityShapeVectorEnv", "DEFAULT_STRING_DAMPING",
            "DEFAULT_NODE_DAMPING"]
@@ -77,6 +77,10 @@ class ShapeTask(BatchedTask):
 
         # the elastic model (targets) and the nominal equilibrium (start shape)
         self.elastic_model = dyn.compile_model(s)
+        integ = integrators.resolve(integrator).name
+        # before the equilibrium solve, whose relaxation would fail with a misleading message
+        check_stable_dt(self.elastic_model, integrators.stability_limit(self.elastic_model).get(integ, float("inf")),
+                        check_positive(dt, "dt", "s"), integ, allow_unstable_dt, "this structure")
         try:
             eq = statics.equilibrium(self.elastic_model, relax_steps=20000)
         except statics.EquilibriumError as e:
@@ -95,11 +99,8 @@ class ShapeTask(BatchedTask):
         self.success_tolerance = (0.01 * self.height if success_tolerance is None
                                   else check_positive(success_tolerance, "success_tolerance", "m"))
         self._init_physics(model, num_envs, integrator, dt, frame_skip, backend, divergence_limit, clip_actions)
-        limit = integrators.stability_limit(model).get(self.integrator, float("inf"))   # cached per model
-        if self.dt > limit and not allow_unstable_dt:
-            raise ValueError(f"dt: {self.dt:g} s is above the estimated stability limit {limit:.3g} s of "
-                             f"{self.integrator} for this structure (the state would blow up); use a smaller dt, "
-                             "integrator='implicit_euler', or allow_unstable_dt=True to run it anyway")
+        check_stable_dt(model, integrators.stability_limit(model).get(self.integrator, float("inf")), self.dt,
+                        self.integrator, allow_unstable_dt, "this structure with its node drag")
 
         # actuation
         l0 = s.rest_length[act]
