@@ -24,6 +24,10 @@ SHAPE, ROLL = "TensegrityShape-v0", "TensegrityRoll-v0"
 CASES = [
     ("roll-dt-0.2", ROLL, dict(dt=0.2), r"dt: 0.2 s is above the estimated stability limit 0.00\d+ s of "
                                         r"semi_implicit_euler .* or allow_unstable_dt=True"),
+    # strings and bools are not numbers (they were converted: "1e-3" -> 0.001, True -> 1.0)
+    ("shape-dt-string", SHAPE, dict(dt="1e-3"), r"dt: expected a number in s, got '1e-3'"),
+    ("roll-speed-bool", ROLL, dict(max_cable_speed=True), r"max_cable_speed: expected a number in m/s, got True"),
+    ("shape-weight-string", SHAPE, dict(tracking_weight="10"), r"tracking_weight: expected a number in 1/m, got '10'"),
     # huge string damping: named as the cause (was "settling diverged" / "all strings are slack")
     ("roll-string-damping-1e4", ROLL, dict(string_damping=1e4),
      r"dt: 0.001 s is above the estimated stability limit .* \(strings up to 1000 N/m and 1e\+04 N s/m"),

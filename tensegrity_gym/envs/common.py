@@ -76,7 +76,10 @@ ACTION_TOL = 1e-6
 
 # ---------------------------------------------------------------------- input checks
 def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -> float:
-    """``float(value)`` if finite and > 0 (>= 0 with ``allow_zero``), else ValueError naming ``name``."""
+    """``float(value)`` if finite and > 0 (>= 0 with ``allow_zero``), else ValueError naming ``name``.
+    A string or a bool is not a number here (``"1e-3"`` and ``True`` are refused, not converted)."""
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"{name}: expected a number{' in ' + unit if unit else ''}, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
