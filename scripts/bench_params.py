@@ -18,7 +18,6 @@ first row of each group, measured in the same run.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -28,6 +27,7 @@ import gymnasium as gym
 
 import tensegrity_gym as tg
 from tensegrity_gym.params import default_params
+from agents.common import write_json
 
 ROLL_RANDOM = {"rod_mass": 0.2, "stiffness": 0.2, "damping": 0.2, "friction": 0.2, "ground_stiffness": 0.2,
                "ground_damping": 0.2, "rest_length_offset": 0.005, "max_cable_speed": 0.2,
@@ -109,12 +109,7 @@ def main(argv=None) -> int:
     if args.out:
         doc = {"machine": f"{platform.machine()}, {os.cpu_count()} cores", "rounds": args.rounds, "rows": rows,
                "command": "python scripts/bench_params.py" + (f" --rounds {args.rounds}" if args.rounds != 15 else "")}
-        tmp = args.out + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(doc, f, indent=1)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, args.out)
+        write_json(args.out, doc)      # atomic (temporary file, fsync, rename)
     return 0
 
 

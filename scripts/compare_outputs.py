@@ -24,6 +24,17 @@ RUNS = (("semi_implicit_euler", "numba", 200), ("rk4", "numba", 200), ("semi_imp
         ("rk4", "numpy", 20), ("dop853", "auto", 20), ("implicit_euler", "auto", 20))
 
 
+def _rollout(env, rng, steps: int = 100):
+    """(observations (steps + 1, ...), rewards (steps, ...)) under seeded random actions."""
+    o, _ = env.reset(seed=3)
+    obs, rew = [o], []
+    for _ in range(steps):
+        o, r, *_ = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+        obs.append(o)
+        rew.append(r)
+    return np.array(obs), np.array(rew)
+
+
 def dump(path: str) -> None:
     import gymnasium as gym
     import tensegrity_gym as tg
@@ -43,23 +54,10 @@ def dump(path: str) -> None:
             ("TensegrityRoll-v0", {}))
     for env_id, kw in envs:
         tag = env_id + "/" + "/".join(f"{k}={v}" for k, v in kw.items())
-        env = gym.make(env_id, **kw)
-        o, _ = env.reset(seed=3)
         rng = np.random.default_rng(1)
-        obs, rew = [o], []
-        for _ in range(100):
-            o, r, *_ = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
-            obs.append(o)
-            rew.append(r)
-        out[f"{tag}/single/obs"], out[f"{tag}/single/rew"] = np.array(obs), np.array(rew)
-        venv = gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", **kw)
-        o, _ = venv.reset(seed=3)
-        obs, rew = [o], []
-        for _ in range(100):
-            o, r, *_ = venv.step(rng.uniform(-1, 1, venv.action_space.shape).astype(np.float32))
-            obs.append(o)
-            rew.append(r)
-        out[f"{tag}/vector/obs"], out[f"{tag}/vector/rew"] = np.array(obs), np.array(rew)
+        for kind, env in (("single", gym.make(env_id, **kw)),
+                          ("vector", gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", **kw))):
+            out[f"{tag}/{kind}/obs"], out[f"{tag}/{kind}/rew"] = _rollout(env, rng)
     np.savez(path, **out)
 
 

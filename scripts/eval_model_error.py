@@ -17,7 +17,6 @@ within 1 % of the height at the episode's end).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 from pathlib import Path
@@ -27,6 +26,7 @@ import numpy as np
 import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym.baselines import NNLSShapeController
 from agents import evaluate as ev
+from agents.common import write_json
 
 ENV = "TensegrityShape-v0"
 RANDOM = {"stiffness": 0.2, "rod_mass": 0.2, "rest_length_offset": 0.01}
@@ -74,13 +74,7 @@ def main(argv=None) -> int:
            "machine": f"{platform.machine()}, {os.cpu_count()} cores", "env": ENV, "randomize": RANDOM,
            "seeds": [seeds[0], seeds[-1]], "model": str(model_path), "training_config": cfg.get("env_kwargs"),
            "results": results}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(args.out.name + ".tmp")
-    with open(tmp, "w") as f:
-        json.dump(doc, f, indent=1)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, args.out)
+    write_json(args.out, doc)      # atomic (temporary file, fsync, rename)
     return 0
 
 

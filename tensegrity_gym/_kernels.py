@@ -859,15 +859,22 @@ if AVAILABLE:
     # Per-copy parameters: bufs (B, len) holds one packed buffer per copy (its physics and its
     # scratch); copy e runs the same _advance_range as above on bufs[e]. No copy shares a written
     # byte with another, so the parallel loop needs no private scratch.
+    @njit(inline="always", **_opts)
+    def _copies_check(q, qd, qo, qdo, ibs, l0, fd, ext, flags):
+        """(error code, k, m, n) of a per-copy call: the shape checks of _check, and one packed
+        buffer per copy of q (error 7 otherwise)."""
+        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        if err == 0 and ibs.shape[0] != q.shape[0]:
+            err = 7
+        return err, k, m, n
+
     @njit(cache=True, fastmath=False, error_model="numpy")
     def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
         ibs = bufs.view(np.int64)
-        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
-        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        err, k, m, n = _copies_check(q, qd, qo, qdo, ibs, l0, fd, ext, flags)
         if err:
             return err
-        if bufs.shape[0] != q.shape[0]:
-            return 7
         L = _layout_nb(k, m, n)
         B = q.shape[0]
         if B >= _SOA_MIN_BATCH:     # the SIMD loop, each lane with its copy's constants
@@ -880,12 +887,9 @@ if AVAILABLE:
     @njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
     def _run_copies_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
         ibs = bufs.view(np.int64)
-        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
-        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        err, k, m, n = _copies_check(q, qd, qo, qdo, ibs, l0, fd, ext, flags)
         if err:
             return err
-        if bufs.shape[0] != q.shape[0]:
-            return 7
         L = _layout_nb(k, m, n)
         B = q.shape[0]
         nch = min(B, max(flags >> _CHUNK_SHIFT, 1))       # number of chunks in the high bits of flags

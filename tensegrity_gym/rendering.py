@@ -53,6 +53,26 @@ __all__ = ["Renderer", "MujocoRenderer", "RendererUnavailable", "make_renderer",
            "gl_backend"]
 
 
+
+def _scene_arrays(nodes, rods, strings, targets, goal):
+    """Checked arrays of one frame, shared by the renderers: nodes (n, 3) m (non-finite rows
+    drawn at the origin), rods and strings (., 2) node pairs,
+    targets (t, 3) m or None, and ``pts``: the points the view must hold."""
+    nodes = np.asarray(nodes, float)
+    if nodes.ndim != 2 or nodes.shape[1] != 3:
+        raise ValueError(f"nodes: expected an (n, 3) array, got shape {nodes.shape}")
+    rods = np.asarray(rods, int).reshape(-1, 2)
+    strings = np.asarray(strings, int).reshape(-1, 2)
+    ok = np.all(np.isfinite(nodes), axis=1)
+    nodes = np.where(ok[:, None], nodes, 0.0)
+    pts = [nodes]
+    if targets is not None:
+        targets = np.asarray(targets, float).reshape(-1, 3)
+        pts.append(targets)
+    if goal is not None:
+        pts.append(np.asarray(goal, float).reshape(1, 3))
+    return nodes, rods, strings, targets, pts
+
 class Renderer:
     """Reusable matplotlib renderer (one figure kept between frames: about 20-40 ms a frame).
 
@@ -103,19 +123,7 @@ class Renderer:
         path (p, 3) m; goal (3,) m; tension_max N (colour-scale top); caption: text.
         """
         import matplotlib
-        nodes = np.asarray(nodes, float)
-        if nodes.ndim != 2 or nodes.shape[1] != 3:
-            raise ValueError(f"nodes: expected an (n, 3) array, got shape {nodes.shape}")
-        rods = np.asarray(rods, int).reshape(-1, 2)
-        strings = np.asarray(strings, int).reshape(-1, 2)
-        ok = np.all(np.isfinite(nodes), axis=1)
-        nodes = np.where(ok[:, None], nodes, 0.0)
-        pts = [nodes]
-        if targets is not None:
-            targets = np.asarray(targets, float).reshape(-1, 3)
-            pts.append(targets)
-        if goal is not None:
-            pts.append(np.asarray(goal, float).reshape(1, 3))
+        nodes, rods, strings, targets, pts = _scene_arrays(nodes, rods, strings, targets, goal)
         self._update_limits(np.concatenate(pts))
         ax = self.ax
         ax.cla()
@@ -363,19 +371,7 @@ class MujocoRenderer:
         """Draw one frame and return it as an (height, width, 3) uint8 array (arguments as
         :meth:`Renderer.render`)."""
         mj = self._mj
-        nodes = np.asarray(nodes, float)
-        if nodes.ndim != 2 or nodes.shape[1] != 3:
-            raise ValueError(f"nodes: expected an (n, 3) array, got shape {nodes.shape}")
-        rods = np.asarray(rods, int).reshape(-1, 2)
-        strings = np.asarray(strings, int).reshape(-1, 2)
-        ok = np.all(np.isfinite(nodes), axis=1)
-        nodes = np.where(ok[:, None], nodes, 0.0)
-        pts = [nodes]
-        if targets is not None:
-            targets = np.asarray(targets, float).reshape(-1, 3)
-            pts.append(targets)
-        if goal is not None:
-            pts.append(np.asarray(goal, float).reshape(1, 3))
+        nodes, rods, strings, targets, pts = _scene_arrays(nodes, rods, strings, targets, goal)
         if self.follow and self._auto_limits and self.limits is not None:
             half = 0.5 * float(np.max(self.limits[:, 1] - self.limits[:, 0]))
             c = nodes.mean(axis=0)

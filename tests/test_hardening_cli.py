@@ -181,18 +181,13 @@ def test_no_leftover_temporary_files(tmp, capsys):
 
 
 def test_output_mode_follows_umask(tmp_path, capsys):
-    old = os.umask(0o027)
-    try:
-        assert main(S + ["--out", str(tmp_path / "u.npz")]) == 0
-    finally:
-        os.umask(old)
-    assert stat.S_IMODE((tmp_path / "u.npz").stat().st_mode) == 0o640
-    old = os.umask(0o022)
-    try:
-        assert main(S + ["--out", str(tmp_path / "v.npz")]) == 0
-    finally:
-        os.umask(old)
-    assert stat.S_IMODE((tmp_path / "v.npz").stat().st_mode) == 0o644
+    for name, mask, mode in (("u.npz", 0o027, 0o640), ("v.npz", 0o022, 0o644)):
+        old = os.umask(mask)
+        try:
+            assert main(S + ["--out", str(tmp_path / name)]) == 0
+        finally:
+            os.umask(old)
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == mode
 
 
 def test_interrupt_inside_write_leaves_no_temp_file(tmp_path):

@@ -204,10 +204,10 @@ class RollTask(BatchedTask):
         s = s.replace(nodes=nodes)
         self.structure = s
         elastic = dyn.compile_model(s)
-        if integrators.resolve(integrator).name in ("semi_implicit_euler", "rk4"):   # before settling on it
-            check_stable_dt(elastic, gc.stable_step(self.contact, elastic)["semi_implicit_euler"], dt,
-                            integrators.resolve(integrator).name, allow_unstable_dt,
-                            "this robot's strings and ground contact")
+        integ = integrators.resolve(integrator).name
+        if integ in ("semi_implicit_euler", "rk4"):   # before settling on it
+            check_stable_dt(elastic, gc.stable_step(self.contact, elastic)["semi_implicit_euler"], dt, integ,
+                            allow_unstable_dt, "this robot's strings and ground contact")
         key = None
         if isinstance(structure, str):   # built-in scenes: settle once per process and parameter set
             key = (structure, string_damping, self.contact, integrators.resolve(integrator).name, float(dt))
@@ -298,18 +298,16 @@ class RollTask(BatchedTask):
     def _apply_task_domain(self, idx) -> None:
         """Contact, motor and mass-fraction values of copies ``idx`` (see BatchedTask._apply_domain)."""
         v, B = self.domain.values, self.num_envs
+        # randomised: copies idx take their own rows; fixed: every copy takes row 0
+        rows, src = (idx, idx) if self.domain.randomized else (np.arange(B), np.zeros(B, int))
         contact = {"friction": "friction", "ground_stiffness": "stiffness", "ground_damping": "damping"}
         if any(n in v for n in contact):
             if self._contact_prm is None:
                 self._contact_prm = self.contact.per_copy(B)
-            rows = idx if self.domain.randomized else np.arange(B)
-            src = idx if self.domain.randomized else np.zeros(B, int)
             for name, fld in contact.items():
                 if name in v:
                     gc.set_copy_values(self._contact_prm, rows, fld, v[name][src])
         if "max_cable_speed" in v or "max_cable_acceleration" in v:
-            rows = idx if self.domain.randomized else np.arange(B)
-            src = idx if self.domain.randomized else np.zeros(B, int)
             self.actuation.set_copy_limits(
                 B, rows, max_rate=v["max_cable_speed"][src] if "max_cable_speed" in v else None,
                 max_accel=v["max_cable_acceleration"][src] if "max_cable_acceleration" in v else None)

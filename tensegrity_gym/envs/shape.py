@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import _kernels
 from .. import dynamics as dyn
 from .. import integrators
 from .. import statics
@@ -258,7 +259,6 @@ class ShapeTask(BatchedTask):
         ``integrators.step`` runs it). Decided once per task, at its first step."""
         fz = False
         if self._obs_rod is not None and self._compiled_physics():
-            from .. import _kernels
             p = _kernels._packed(self.model)
             flags = _kernels._flags(p, self.integrator, True)
             B, act = self.num_envs, self.actuation
@@ -292,7 +292,6 @@ class ShapeTask(BatchedTask):
         if self.params is not None:       # the robot's own values: the shared buffer of its Params
             if self.rest_offset is not None or self.params.batch_size != 1:
                 return None
-            from .. import _kernels
             buf = _kernels._pack_params(self.model, self.params).buf
         q0, qd0 = self.q, self.qd
         qo = np.empty(q0.shape)
