@@ -83,7 +83,7 @@ import numpy as np
 
 __all__ = ["resolve_device", "resolve_dtype", "TorchModel", "torch_model", "torch_params", "node_positions",
            "node_velocities", "string_state", "force_densities", "nodal_forces", "accelerations", "project",
-           "sphere_drift", "step", "contact_forces", "contact_step", "init_contact_state", "motor",
+           "sphere_drift", "step", "contact_forces", "contact_step", "init_contact_state", "motor", "advance",
            "physics_inputs", "step_state", "simulate", "PARAM_FIELDS"]
 
 PARAM_FIELDS = ("mass", "f", "J", "stiffness", "damping", "rest_length", "node_damping", "gravity", "anchor_pos")
@@ -555,38 +555,53 @@ def init_contact_state(tm_or_model, batch_size: int, device=None, dtype=None):
             torch.zeros((batch_size, nc), dtype=torch.bool, device=tm.device))
 
 
-def contact_forces(contact, model, q, qd, anchor, active):
+def contact_forces(contact, model, q, qd, anchor, active, prm=None):
     """Ground contact forces as ``contact._forces_numpy`` (Hunt-Crossley normal force, Coulomb
     friction with a stick anchor): returns ``(W (B, n, 3) N, anchor, active, slip)``, the
-    contact state as new tensors. ``contact``: a :class:`tensegrity_gym.contact.GroundContact`."""
+    contact state as new tensors. ``contact``: a :class:`tensegrity_gym.contact.GroundContact`.
+    ``prm``: None (the contact's own numbers) or a (P, 9) tensor of per-copy parameters in the
+    columns of :data:`tensegrity_gym.contact.PRM_FIELDS` (as ``GroundContact.per_copy``; P = 1
+    or B; the exponent stays the contact's)."""
     torch = _torch()
     tm = model if isinstance(model, TorchModel) else torch_model(model, q.device, q.dtype)
     B, k = q.shape[0], tm.k
+    if prm is None:
+        height, radius, kn, dn = contact.height, contact.radius, contact.stiffness, contact.damping
+        mu, kt, ct, cmax = contact.friction, contact.tangential_stiffness, contact.tangential_damping, \
+            contact.max_damping
+    else:
+        if not isinstance(prm, torch.Tensor) or prm.device != q.device:
+            raise ValueError(f"prm: expected a (P, 9) tensor on {str(q.device)!r} (contact.PRM_FIELDS columns)")
+        if prm.ndim != 2 or prm.shape[1] != 9 or prm.shape[0] not in (1, B):
+            raise ValueError(f"prm: expected shape (1, 9) or ({B}, 9), got {tuple(prm.shape)}")
+        prm = prm.to(q.dtype)
+        height, radius, kn, dn, _, mu, kt, ct, cmax = (prm[:, i:i + 1] for i in range(9))
     r, b = q[..., :3], q[..., 3:]
     rd, bd = qd[..., :3], qd[..., 3:]
     # (B, k, 2, 3) -> (B, 2k, 3): rod j end a, rod j end c
     P = torch.stack([r + tm.eta_a * b, r + tm.eta_c * b], dim=2).reshape(B, 2 * k, 3)
     V = torch.stack([rd + tm.eta_a * bd, rd + tm.eta_c * bd], dim=2).reshape(B, 2 * k, 3)
-    delta = contact.height + contact.radius - P[..., 2]
+    delta = height + radius - P[..., 2]
     touch = delta > 0.0
     zero = torch.zeros_like(delta)
     dpos = torch.where(touch, delta, zero)
     de = dpos if contact.exponent == 1.0 else dpos ** contact.exponent
-    kd = contact.stiffness * de
-    cn = torch.clamp(kd * contact.damping, max=contact.max_damping)
+    kd = kn * de
+    cn = torch.minimum(kd * dn, torch.as_tensor(cmax, dtype=q.dtype, device=q.device))
     Fn = torch.where(touch, torch.clamp(kd - cn * V[..., 2], min=0.0), zero)
     pt = P[..., :2]
     anchor = torch.where((touch & ~active)[..., None], pt, anchor)
     xi = pt - anchor
-    Ft = -contact.tangential_stiffness * xi - contact.tangential_damping * V[..., :2]
+    kt_, ct_ = (kt, ct) if prm is None else (kt[..., None], ct[..., None])
+    Ft = -kt_ * xi - ct_ * V[..., :2]
     nn = Ft[..., 0] * Ft[..., 0] + Ft[..., 1] * Ft[..., 1]
     pos = nn > 0
     norm = torch.where(pos, torch.sqrt(torch.where(pos, nn, torch.ones_like(nn))), zero)
-    lim = contact.friction * Fn
+    lim = mu * Fn
     slip = touch & (norm > lim)
     scale = torch.where(slip, lim / torch.where(slip, norm, torch.ones_like(norm)), torch.ones_like(norm))
     Ft = Ft * scale[..., None]
-    anchor = torch.where(slip[..., None], pt + Ft / contact.tangential_stiffness, anchor)
+    anchor = torch.where(slip[..., None], pt + Ft / kt_, anchor)
     Ft = torch.where(touch[..., None], Ft, torch.zeros_like(Ft))
     Fc = torch.cat([Ft, Fn[..., None]], dim=-1).reshape(B, k, 2, 3)
     W = tm.gather_nodes(Fc[:, :, 0], Fc[:, :, 1])
@@ -595,9 +610,10 @@ def contact_forces(contact, model, q, qd, anchor, active):
 
 def contact_step(model, contact, q, qd, anchor, active, dt: float, integrator: str = "semi_implicit_euler",
                  n_steps: int = 1, rest_length=None, force_density=None, params=None, project: bool = True,
-                 external=None):
+                 external=None, contact_prm=None):
     """``n_steps`` physics steps with ground contact (as :func:`tensegrity_gym.contact.step`):
     per step, contact forces from the state at its start, held over one integrator step.
+    ``contact_prm``: per-copy contact parameters (``prm`` of :func:`contact_forces`).
     Returns ``(q, qd, anchor, active)``."""
     name = _integrator_name(integrator)
     dt = float(dt)
@@ -606,7 +622,7 @@ def contact_step(model, contact, q, qd, anchor, active, dt: float, integrator: s
     tm, prm, rl, fd = _setup(model, q, params, rest_length, force_density)
     ext = _check_external(tm, external, q.shape[0])
     for _ in range(int(n_steps)):
-        W, anchor, active, _ = contact_forces(contact, tm, q, qd, anchor, active)
+        W, anchor, active, _ = contact_forces(contact, tm, q, qd, anchor, active, contact_prm)
         if ext is not None:
             W = W + ext
         q, qd = _step_once(tm, q, qd, dt, name, prm, rl, fd, W, project)
@@ -614,41 +630,68 @@ def contact_step(model, contact, q, qd, anchor, active, dt: float, integrator: s
 
 
 # ---------------------------------------------------------------------- cable motor
-def _act_tensors(actuation, like):
+_ACTS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _act_tensors(actuation, like) -> dict:
+    """The constants of an :class:`~tensegrity_gym.envs.common.Actuation` as tensors on ``like``'s
+    device and dtype (cached per actuation, device and dtype: no host copy per call):
+    ``low``, ``high``, ``max_rate`` (na,), ``base`` (m,) rest lengths, ``idx`` (na,) int64."""
     torch = _torch()
+    per = _ACTS.setdefault(actuation, {})
+    key = (str(like.device), str(like.dtype))
+    c = per.get(key)
+    if c is None:
+        def T(x):
+            return torch.as_tensor(np.array(x, dtype=float), dtype=like.dtype, device=like.device)
+        c = per[key] = {"low": T(actuation.low), "high": T(actuation.high), "max_rate": T(actuation.max_rate),
+                        "base": T(actuation.base_rest_length),
+                        "idx": torch.as_tensor(np.array(actuation.actuated, dtype=np.int64), device=like.device)}
+    return c
 
-    def T(x):
-        return torch.as_tensor(np.array(x, dtype=float), dtype=like.dtype, device=like.device)
-    return T(actuation.low), T(actuation.high), T(actuation.max_rate)
 
-
-def motor(actuation, ctrl, speed, action):
+def motor(actuation, ctrl, speed, action, max_rate=None, max_accel=None):
     """The cable motor (``Actuation.apply_motor``) on tensors (B, na): rate toward the command
     ``action * max_rate`` by at most ``max_accel * control_dt``, control moved by
     ``rate * control_dt`` and clipped to [low, high], rate zeroed at an end stop. Returns
-    ``(new control, new rate)``."""
+    ``(new control, new rate)``. ``max_rate`` (P, na) unit/s and ``max_accel`` (P, 1) unit/s^2:
+    per-copy limits as tensors (``Actuation.set_copy_limits``); None: the actuation's nominal ones."""
     torch = _torch()
     if actuation.max_accel is None:
         raise ValueError("motor: this Actuation has no max_accel (no motor model)")
-    low, high, max_rate = _act_tensors(actuation, ctrl)
-    dv = actuation.max_accel * actuation.control_dt
-    v = speed + torch.clamp(action * max_rate - speed, -dv, dv)
+    c = _act_tensors(actuation, ctrl)
+    low, high = c["low"], c["high"]
+    rate = c["max_rate"] if max_rate is None else max_rate
+    if max_accel is None:
+        dv = actuation.max_accel * actuation.control_dt
+        v = speed + torch.clamp(action * rate - speed, -dv, dv)
+    else:
+        dv = max_accel * actuation.control_dt
+        v = speed + torch.minimum(torch.maximum(action * rate - speed, -dv), dv)
     new = torch.minimum(torch.maximum(ctrl + v * actuation.control_dt, low), high)
     stop = ((new <= low) & (v < 0.0)) | ((new >= high) & (v > 0.0))
     v = torch.where(stop, torch.zeros_like(v), v)
     return new, v
 
 
+def advance(actuation, ctrl, action, max_rate=None):
+    """The control update without a motor model (``Actuation.apply``): ``clip(ctrl + action *
+    max_rate * control_dt, low, high)`` on tensors (B, na); ``max_rate`` (P, na) per-copy rate
+    limits (unit/s) or None (the nominal ones)."""
+    torch = _torch()
+    c = _act_tensors(actuation, ctrl)
+    rate = (c["max_rate"] if max_rate is None else max_rate) * actuation.control_dt
+    return torch.minimum(torch.maximum(ctrl + action * rate, c["low"]), c["high"])
+
+
 def physics_inputs(actuation, ctrl) -> dict:
     """``rest_length`` (B, m) or ``force_density`` (B, m) tensors from the actuated controls
     (B, na) (``Actuation.physics_inputs``), differentiable in ``ctrl``."""
-    torch = _torch()
+    c = _act_tensors(actuation, ctrl)
     B = ctrl.shape[0]
-    idx = torch.as_tensor(np.array(actuation.actuated, dtype=np.int64), device=ctrl.device)
     if actuation.mode == "rest_length":
-        base = torch.as_tensor(np.array(actuation.base_rest_length, dtype=float), dtype=ctrl.dtype, device=ctrl.device)
-        return {"rest_length": base.expand(B, -1).index_copy(1, idx, ctrl)}
-    fd = ctrl.new_zeros((B, actuation.n_strings)).index_copy(1, idx, ctrl)
+        return {"rest_length": c["base"].expand(B, -1).index_copy(1, c["idx"], ctrl)}
+    fd = ctrl.new_zeros((B, actuation.n_strings)).index_copy(1, c["idx"], ctrl)
     return {"rest_length": None, "force_density": fd}
 
 

@@ -22,7 +22,7 @@ def register_envs() -> None:
         register(
             id="TensegrityRoll-v0",
             entry_point="tensegrity_gym.envs.roll:TensegrityRollEnv",
-            vector_entry_point="tensegrity_gym.envs.roll:TensegrityRollVectorEnv",
+            vector_entry_point="tensegrity_gym.envs.torch_vec:roll_vector_env",   # backend="torch": device-resident
             max_episode_steps=1000,
         )
     if "TensegrityRollMuJoCo-v0" not in registry:   # MuJoCo twin of TensegrityRoll-v0 (needs the mujoco extra)

@@ -1,0 +1,420 @@
+"""Device-resident vector env of ``TensegrityRoll-v0`` on the torch backend (SI units).
+
+``gymnasium.make_vec("TensegrityRoll-v0", num_envs=N, vectorization_mode="vector_entry_point",
+backend="torch", device="cuda", dtype="float32")`` returns a :class:`TorchRollVectorEnv`: a
+``gymnasium.vector.VectorEnv`` whose ``step`` takes an action tensor (N, na) and returns
+``(obs, reward, terminated, truncated, info)`` as torch tensors on ``device`` (obs (N, obs_size)
+and reward (N,) in ``dtype``, terminated / truncated (N,) bool; ``info`` a dict of (N, ...)
+tensors with Gymnasium's ``"_key"`` masks as bool tensors), as ManiSkill / Isaac Lab do. Without
+``backend="torch"`` the registered id builds the NumPy/numba
+:class:`~tensegrity_gym.envs.roll.TensegrityRollVectorEnv`, unchanged.
+
+One task, two backends
+----------------------
+The task is :class:`~tensegrity_gym.envs.roll.RollTask`'s: this env builds a ``RollTask`` with
+the same keyword arguments (robot, actuation, contact, rewards, limits, ``params=`` /
+``randomize=`` / ``action_delay`` / ``start_rest_length_offset``) and uses it
+
+* as the configuration (model, contact, actuation, weights, divergence limit), and
+* **on the host at reset only**: ``RollTask.reset`` draws each reset env's robot parameters,
+  initial-state noise and goal from that env's own NumPy generator (exactly the numbers the
+  NumPy vector env draws: env i seeded ``seed + i``); the reset rows are then copied to the
+  device once (state, control, goal, start, and the per-copy parameters when randomised).
+
+The step loop runs on the device: the cable motor / control update
+(:func:`tensegrity_gym.torch_backend.motor` / :func:`~tensegrity_gym.torch_backend.advance`),
+the physics inputs, ``frame_skip`` physics steps with ground contact
+(:func:`tensegrity_gym.torch_backend.contact_step`: per-copy ``Params`` and contact
+parameters), the divergence check and restore, the observation, the reward terms and the time
+limit. Per ``step`` the host reads ONE small tensor (3 bools: an action entry non-finite, one
+out of the box with ``clip_actions=False``, an env to autoreset) to raise a clear error and to
+know whether to reset; when an env finished, its mask (N bools) is read and its reset drawn on
+the host as above. Nothing else crosses between host and device in a step.
+
+Matching the NumPy env: in float64 on CPU the observations, reward terms and infos equal the
+NumPy vector env's to round-off (``tests/test_torch_env.py``: 50 control steps, autoreset,
+``randomize``, ``params``, ``action_delay``, force-density mode). The NumPy env's observation
+is float32; this env returns ``dtype`` (float64 gives the float64 numbers before that cast).
+
+Not supported here (``ValueError`` at construction): ``observation_mode="robot"`` (the sensor
+model is NumPy-only), ``render_mode`` (use the NumPy env to render), the implicit integrators
+(the torch backend has ``semi_implicit_euler`` and ``rk4``).
+
+Autoreset and seeding are those of :class:`~tensegrity_gym.envs.common.TaskVectorEnv`:
+``AutoresetMode.NEXT_STEP``; ``reset(seed=s)`` seeds env i with ``s + i``; ``reset(options=
+{"reset_mask": mask})`` resets the envs where the (N,) bool mask (NumPy or tensor) is true;
+``max_episode_steps`` (``make_vec`` passes the registered 1000) truncates every env.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import gymnasium as gym
+from gymnasium import spaces
+from gymnasium.utils import seeding
+
+from .. import torch_backend as tb
+from .common import ACTION_TOL, registered_max_episode_steps
+
+__all__ = ["TorchRollVectorEnv", "roll_vector_env"]
+
+ENV_ID = "TensegrityRoll-v0"
+
+
+def roll_vector_env(num_envs: int = 1, **kwargs):
+    """``vector_entry_point`` of ``TensegrityRoll-v0``: :class:`TorchRollVectorEnv` when
+    ``backend="torch"``, else :class:`~tensegrity_gym.envs.roll.TensegrityRollVectorEnv` with
+    the arguments passed through untouched (the default path is unchanged)."""
+    if kwargs.get("backend") == "torch":
+        return TorchRollVectorEnv(num_envs=num_envs, **kwargs)
+    for name in ("device", "dtype"):
+        if name in kwargs:
+            raise ValueError(f"{name}: only with backend='torch' (got backend={kwargs.get('backend', 'auto')!r})")
+    from .roll import TensegrityRollVectorEnv
+    return TensegrityRollVectorEnv(num_envs=num_envs, **kwargs)
+
+
+class TorchRollVectorEnv(gym.vector.VectorEnv):
+    """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc).
+
+    Arguments: those of ``TensegrityRoll-v0`` (:class:`~tensegrity_gym.envs.roll.TensegrityRollEnv`)
+    plus ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``; ValueError when it does not exist),
+    ``dtype`` (``"float64"`` default or ``"float32"``; anything else is a ValueError) and
+    ``max_episode_steps`` (control steps; ``"registered"``: the id's 1000; None: no limit).
+    """
+
+    metadata = {"render_modes": [], "render_fps": 50, "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, max_episode_steps="registered", device=None, dtype=None,
+                 backend: str = "torch", render_mode: str | None = None, **kwargs):
+        torch = tb._torch()
+        if backend != "torch":
+            raise ValueError(f"backend: TorchRollVectorEnv runs backend='torch', got {backend!r}")
+        if render_mode is not None:
+            raise ValueError(f"render_mode: {render_mode!r} is not supported by backend='torch' (render the "
+                             "NumPy env: gymnasium.make('TensegrityRoll-v0', render_mode='rgb_array'))")
+        if kwargs.get("observation_mode", "state") != "state":
+            raise ValueError(f"observation_mode: {kwargs['observation_mode']!r} is not supported by "
+                             "backend='torch' (the robot sensor model is NumPy-only); use 'state'")
+        self.device = tb.resolve_device(device)
+        self.dtype = tb.resolve_dtype(dtype)
+        from .roll import RollTask
+        task = RollTask(num_envs=num_envs, **kwargs)
+        tb._integrator_name(task.integrator)          # ValueError for an implicit method
+        self.task = task
+        self.num_envs = N = task.num_envs
+        if max_episode_steps == "registered":
+            max_episode_steps = registered_max_episode_steps(ENV_ID)
+        if max_episode_steps is not None:
+            if isinstance(max_episode_steps, bool) or int(max_episode_steps) != max_episode_steps \
+                    or max_episode_steps < 1:
+                raise ValueError(f"max_episode_steps: must be a positive integer or None, got {max_episode_steps!r}")
+            max_episode_steps = int(max_episode_steps)
+        self.max_episode_steps = max_episode_steps
+        self.render_mode = None
+        self.metadata = dict(self.metadata)
+        self.metadata["render_fps"] = int(round(1.0 / task.control_dt))
+        np_dtype = np.float64 if self.dtype == torch.float64 else np.float32
+        self.single_action_space = spaces.Box(-1.0, 1.0, (task.action_size,), np.float32)
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, (task.observation_size,), np_dtype)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, N)
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, N)
+        self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(N)]
+
+        dev, dt = self.device, self.dtype
+        self.tm = tb.torch_model(task.model, dev, dt)
+        self._node_prm = tb.torch_params(self.tm, None)          # model defaults (anchor positions)
+        self._com_eta = self._T(task.model.com_eta)[None, :, None]
+        # device state: the whole batch
+        self.q = self._T(task.q)
+        self.qd = self._T(task.qd)
+        self.anchor = self._T(task.cstate.anchor)
+        self.active = torch.as_tensor(task.cstate.active, device=dev)
+        self.ctrl = self._T(task.ctrl)
+        self.speed = self._T(task.speed)
+        self.goal = self._T(task.goal)
+        self.start = self._T(task.start)
+        self.elapsed = torch.zeros(N, dtype=torch.int64, device=dev)
+        self._autoreset = torch.zeros(N, dtype=torch.bool, device=dev)
+        self._queue = torch.zeros((N, task.action_delay, task.action_size), dtype=dt, device=dev)
+        # per-copy parameters (domain): uploaded whole here, by reset rows when randomised
+        self._upload_domain(None)
+
+    # ------------------------------------------------------------------ host <-> device
+    def _T(self, x):
+        torch = tb._torch()
+        return torch.as_tensor(np.array(x, dtype=float), dtype=self.dtype, device=self.device)
+
+    def _upload_domain(self, idx) -> None:
+        """Copy the host task's parameter rows to the device: all (``idx`` None) or rows ``idx``
+        (a randomised domain after a reset)."""
+        task = self.task
+        if idx is not None and not task.domain.randomized:
+            return
+        torch = tb._torch()
+        idx_t = None if idx is None else torch.as_tensor(idx, dtype=torch.int64, device=self.device)
+
+        def put(name, host):
+            if host is None:
+                setattr(self, name, None)
+                return
+            cur = getattr(self, name, None)
+            if idx_t is None or cur is None or cur.shape[0] != host.shape[0] or host.shape[0] == 1:
+                setattr(self, name, self._T(host))
+            else:
+                cur[idx_t] = self._T(host[idx])
+        prm = task.params
+        if prm is None:
+            self._params = None
+        else:
+            self._params = getattr(self, "_params", None) or {}
+            fields = ["mass", "f", "J", "stiffness", "damping", "rest_length", "gravity"]
+            if prm.has_node_damping:
+                fields.append("node_damping")
+            for f in fields:
+                host = np.asarray(getattr(prm, f), float)
+                cur = self._params.get(f)
+                if idx_t is None or cur is None or cur.shape[0] != host.shape[0] or host.shape[0] == 1:
+                    self._params[f] = self._T(host)
+                else:
+                    cur[idx_t] = self._T(host[idx])
+        put("_rest_offset", None if task.rest_offset is None else np.asarray(task.rest_offset, float))
+        put("_contact_prm", task._contact_prm)
+        act = task.actuation
+        put("_max_rate", act.rate_rows)
+        put("_max_accel", None if act.accel_rows is None else np.asarray(act.accel_rows, float)[:, None])
+        mf = np.asarray(task._mass_frac, float)
+        put("_mass_frac", mf if mf.ndim == 2 else mf[None])
+
+    def _reset_envs(self, idx: np.ndarray, options) -> dict:
+        """Reset envs ``idx`` (host draws, one upload of their rows); infos as (N,) tensors."""
+        torch = tb._torch()
+        task = self.task
+        info = task.reset(idx, [self._rngs[i] for i in idx], options)
+        self._upload_domain(idx)
+        it = torch.as_tensor(idx, dtype=torch.int64, device=self.device)
+        self.q[it] = self._T(task.q[idx])
+        self.qd[it] = self._T(task.qd[idx])
+        self.anchor[it] = self._T(task.cstate.anchor[idx])
+        self.active[it] = torch.as_tensor(task.cstate.active[idx], device=self.device)
+        self.ctrl[it] = self._T(task.ctrl[idx])
+        self.speed[it] = self._T(task.speed[idx])
+        self.goal[it] = self._T(task.goal[idx])
+        self.start[it] = self._T(task.start[idx])
+        self.elapsed[it] = 0
+        self._autoreset[it] = False
+        if self._queue.shape[1]:
+            self._queue[it] = 0.0
+        return self._full_info(info, it)
+
+    def _full_info(self, info: dict, it) -> dict:
+        """(r, ...) host infos of envs ``it`` -> (N, ...) device tensors (zeros elsewhere)."""
+        torch = tb._torch()
+        out = {}
+        for k, v in info.items():
+            if isinstance(v, dict):
+                out[k] = self._full_info(v, it)
+                continue
+            v = np.asarray(v)
+            t = (torch.as_tensor(v, device=self.device) if v.dtype == np.bool_ else self._T(v))
+            arr = torch.zeros((self.num_envs,) + tuple(v.shape[1:]), dtype=t.dtype, device=self.device)
+            arr[it] = t
+            out[k] = arr
+        return out
+
+    def _vector_info(self, infos: dict, mask, out: dict | None = None) -> dict:
+        """Gymnasium's vector info dict (tensors): values where ``mask``, zeros elsewhere, ``"_key"`` masks."""
+        torch = tb._torch()
+        out = {} if out is None else out
+        for k, v in infos.items():
+            if isinstance(v, dict):
+                out[k] = self._vector_info(v, mask, out.get(k))
+                out["_" + k] = mask.clone() if "_" + k not in out else out["_" + k] | mask
+                continue
+            m = mask.reshape((-1,) + (1,) * (v.ndim - 1))
+            if k in out:
+                out[k] = torch.where(m, v, out[k])
+                out["_" + k] = out["_" + k] | mask
+            else:
+                out[k] = torch.where(m, v, torch.zeros_like(v))
+                out["_" + k] = mask.clone()
+        return out
+
+    # ------------------------------------------------------------------ task on the device
+    def _com(self, q):
+        """(N, 3) centre of mass, m (as ``RollTask._com``)."""
+        r = q[..., :3]
+        if not self.task._com_at_r:
+            r = r + self._com_eta * q[..., 3:]
+        mf = self._mass_frac[..., None]
+        return (mf * r).sum(dim=1)
+
+    def _observe(self):
+        torch = tb._torch()
+        q, qd = self.q, self.qd
+        B = q.shape[0]
+        com = self._com(q)
+        Np = tb.node_positions(self.tm, q, self._node_prm) - com[:, None, :]
+        V = tb.node_velocities(self.tm, qd)
+        return torch.cat([Np.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.active.to(self.dtype),
+                          self.goal, com[:, 2:3], self.speed], dim=1)
+
+    def _far_or_nonfinite(self, q, qd):
+        """(N,) bool, as ``RollTask._far_or_nonfinite``."""
+        torch = tb._torch()
+        finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
+        r = q[..., :3]
+        r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))
+        m = r.mean(dim=1, keepdim=True)
+        lim = self.task.divergence_limit
+        dev = (r - m).abs().amax(dim=(1, 2))
+        far = ~((dev <= lim) & ((m[:, 0, 2] - self.task.center0[2]).abs() <= lim))
+        return ~finite | far
+
+    def _act(self, action):
+        """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
+        torch = tb._torch()
+        task = self.task
+        if self._queue.shape[1]:                       # action_delay (BatchedTask.act)
+            out = self._queue[:, 0]
+            self._queue = torch.cat([self._queue[:, 1:], action[:, None]], dim=1)
+            action = out
+        act = task.actuation
+        if task.motor:
+            self.ctrl, self.speed = tb.motor(act, self.ctrl, self.speed, action, self._max_rate, self._max_accel)
+        else:
+            self.ctrl = tb.advance(act, self.ctrl, action, self._max_rate)
+        inputs = tb.physics_inputs(act, self.ctrl)
+        if self._rest_offset is not None and inputs.get("rest_length") is not None:
+            inputs["rest_length"] = inputs["rest_length"] + self._rest_offset
+        q0, qd0, anchor0, active0 = self.q, self.qd, self.anchor, self.active
+        com0 = self._com(q0)
+        q, qd, anchor, active = tb.contact_step(
+            self.tm, task.contact, q0, qd0, anchor0, active0, task.dt, task.integrator, task.frame_skip,
+            rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
+            params=self._params, contact_prm=self._contact_prm)
+        diverged = self._far_or_nonfinite(q, qd)
+        d3 = diverged[:, None, None]
+        self.q = torch.where(d3, q0, q)
+        self.qd = torch.where(d3, qd0, qd)
+        self.anchor = torch.where(d3, anchor0, anchor)
+        self.active = torch.where(diverged[:, None], active0, active)
+        self.elapsed = self.elapsed + 1
+        com = self._com(self.q)
+        vel = (com - com0) / task.control_dt
+        forward = vel[:, 0] * self.goal[:, 0] + vel[:, 1] * self.goal[:, 1]
+        terms = {"forward": task.forward_reward_weight * forward,
+                 "ctrl": -task.ctrl_cost_weight * (action * action).sum(dim=1)}
+        disp = com - self.start
+        dist = disp[:, 0] * self.goal[:, 0] + disp[:, 1] * self.goal[:, 1]
+        infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward,
+                 "diverged": diverged}
+        return terms, infos
+
+    def _check_actions(self, actions):
+        """The action tensor (N, na) on the device, clipped to the box; ValueError naming the
+        entry of a non-finite value (or, with ``clip_actions=False``, one outside the box).
+        Returns ``(actions, any env to autoreset)`` after ONE small device -> host read."""
+        torch = tb._torch()
+        N, na = self.num_envs, self.task.action_size
+        if isinstance(actions, torch.Tensor):
+            if actions.device != self.device:
+                raise ValueError(f"actions: tensor on device {str(actions.device)!r}, but the env runs on "
+                                 f"{str(self.device)!r}; move it with .to({str(self.device)!r})")
+            if not (actions.is_floating_point() or actions.dtype in (torch.int32, torch.int64)):
+                raise ValueError(f"actions: expected a float tensor, got {actions.dtype}")
+            a = actions.to(self.dtype)
+        else:
+            try:
+                a = self._T(actions)
+            except (TypeError, ValueError):
+                raise ValueError(f"actions: expected a tensor or array of numbers with shape ({N}, {na}), "
+                                 f"got {type(actions).__name__}") from None
+        if tuple(a.shape) != (N, na):
+            raise ValueError(f"actions: expected shape ({N}, {na}), got {tuple(a.shape)}")
+        nonfinite = ~torch.isfinite(a)
+        outside = a.abs() > 1.0 + ACTION_TOL
+        no = torch.zeros((), dtype=torch.bool, device=self.device)
+        flags = torch.stack([nonfinite.any(), no if self.task.clip_actions else outside.any(),
+                             self._autoreset.any()]).cpu().tolist()
+        if flags[0]:
+            i, j = (int(x) for x in torch.nonzero(nonfinite)[0].cpu())
+            raise ValueError(f"actions: entry ({i}, {j}) is {float(a[i, j])!r}; actions must be finite numbers "
+                             "in [-1, 1]")
+        if flags[1]:
+            i, j = (int(x) for x in torch.nonzero(outside)[0].cpu())
+            raise ValueError(f"actions: entry ({i}, {j}) is {float(a[i, j]):.6g}, outside the action space [-1, 1] "
+                             "(construct the env with clip_actions=True to saturate instead)")
+        return torch.clamp(a, -1.0, 1.0), bool(flags[2])
+
+    # ------------------------------------------------------------------ VectorEnv API
+    @property
+    def dt(self) -> float:
+        """Control step, s."""
+        return self.task.control_dt
+
+    @property
+    def np_random_list(self) -> list[np.random.Generator]:
+        """Per-env random generators (host; used at reset only)."""
+        return self._rngs
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
+        torch = tb._torch()
+        super().reset(seed=None)
+        N = self.num_envs
+        options = dict(options) if options else {}
+        mask = options.pop("reset_mask", None)
+        if mask is None:
+            mask = np.ones(N, bool)
+        else:
+            if isinstance(mask, torch.Tensor):
+                mask = mask.cpu().numpy()
+            mask = np.asarray(mask)
+            if mask.shape != (N,) or mask.dtype != np.bool_:
+                raise ValueError(f"options['reset_mask']: expected a bool array of shape ({N},), "
+                                 f"got {mask.dtype} {mask.shape}")
+        if seed is None:
+            seeds = [None] * N
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            seeds = [int(seed) + i for i in range(N)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != N:
+                raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {len(seeds)}")
+        for i in range(N):
+            if mask[i] and seeds[i] is not None:
+                self._rngs[i] = seeding.np_random(int(seeds[i]))[0]
+        idx = np.flatnonzero(mask)
+        info = self._reset_envs(idx, options or None)
+        return self._observe(), self._vector_info(info, torch.as_tensor(mask, device=self.device))
+
+    def step(self, actions):
+        torch = tb._torch()
+        a, any_reset = self._check_actions(actions)
+        reset_now = self._autoreset.clone()
+        if any_reset:
+            a = torch.where(reset_now[:, None], torch.zeros_like(a), a)
+        terms, infos = self._act(a)
+        reward = terms["forward"] + terms["ctrl"]
+        diverged = infos["diverged"]
+        terminated = torch.zeros_like(diverged)
+        truncated = diverged.clone()
+        if self.max_episode_steps is not None:
+            truncated = truncated | (self.elapsed >= self.max_episode_steps)
+        all_infos = dict(infos)
+        for name, v in terms.items():
+            all_infos[f"reward_{name}"] = v
+        out = self._vector_info(all_infos, ~reset_now)
+        if any_reset:
+            idx = np.flatnonzero(reset_now.cpu().numpy())
+            rinfo = self._reset_envs(idx, None)
+            self._vector_info(rinfo, reset_now, out)
+            reward = torch.where(reset_now, torch.zeros_like(reward), reward)
+            terminated = terminated & ~reset_now
+            truncated = truncated & ~reset_now
+        self._autoreset = terminated | truncated
+        return self._observe(), reward, terminated, truncated, out
+
+    def close_extras(self, **kwargs):
+        pass

@@ -1,0 +1,183 @@
+"""The device-resident torch vector env of TensegrityRoll-v0 (tensegrity_gym.envs.torch_vec),
+its SB3 adapter, and the torch Jacobian of the sys-ID fit.
+
+The torch env runs RollTask's task on the torch backend; in float64 on CPU it must reproduce
+the NumPy/numba vector env (same seeds, same actions) to round-off: observations (the NumPy
+env's are float32, so to float32 rounding), rewards, reward terms, infos, terminations,
+autoresets, with randomised and fixed robot parameters, action delay and force-density mode.
+"""
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+import gymnasium as gym  # noqa: E402
+
+import tensegrity_gym  # noqa: E402,F401  (registers the envs)
+from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402
+from tensegrity_gym.envs.torch_vec import TorchRollVectorEnv  # noqa: E402
+
+ID = "TensegrityRoll-v0"
+
+
+def _pair(N, **kw):
+    ref = gym.make_vec(ID, num_envs=N, vectorization_mode="vector_entry_point", **kw)
+    ten = gym.make_vec(ID, num_envs=N, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
+                       dtype="float64", **kw)
+    return ref, ten
+
+
+def _close_obs(o_np, o_t):
+    """The NumPy env's float32 observation is the float64 value rounded: within 2^-24 relative."""
+    o_t = o_t.numpy()
+    assert o_np.shape == o_t.shape
+    err = np.abs(o_np.astype(np.float64) - o_t)
+    assert np.all(err <= 6e-8 * np.abs(o_t) + 1e-12), err.max()
+
+
+def _close_info(i_np, i_t, tol=1e-9):
+    assert set(i_np) == set(i_t), (sorted(i_np), sorted(i_t))
+    for k, v in i_np.items():
+        if isinstance(v, dict):
+            _close_info(v, i_t[k], tol)
+            continue
+        w = i_t[k]
+        assert isinstance(w, torch.Tensor), k
+        w = w.numpy()
+        if v.dtype == np.bool_:
+            assert np.array_equal(v, w), k
+        else:
+            assert np.abs(v - w).max() <= tol, (k, np.abs(v - w).max())
+
+
+CASES = {
+    "default_autoreset": dict(max_episode_steps=20),
+    "randomized_delay": dict(max_episode_steps=20, action_delay=2, randomize_goal=True,
+                             randomize={"friction": 0.3, "rod_mass": 0.2, "max_cable_speed": 0.2,
+                                        "rest_length_offset": 0.005, "stiffness": 0.1, "ground_damping": 0.2,
+                                        "max_cable_acceleration": 0.3, "gravity": 0.1},
+                             params={"damping": 1.0, "node_damping": 0.1, "ground_stiffness": 2e4}),
+    "force_density": dict(action_mode="force_density", max_episode_steps=30),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_float64_matches_numpy_vector_env(case):
+    N, steps = 3, 50
+    ref, ten = _pair(N, **CASES[case])
+    assert isinstance(ten, TorchRollVectorEnv) and isinstance(ref, TensegrityRollVectorEnv)
+    o1, i1 = ref.reset(seed=7)
+    o2, i2 = ten.reset(seed=7)
+    _close_obs(o1, o2)
+    _close_info(i1, i2)
+    rng = np.random.default_rng(0)
+    resets = 0
+    for _ in range(steps):
+        a = rng.uniform(-1.2, 1.2, (N, ref.single_action_space.shape[0]))   # some outside: clipped
+        o1, r1, te1, tr1, i1 = ref.step(a)
+        o2, r2, te2, tr2, i2 = ten.step(torch.as_tensor(a))
+        _close_obs(o1, o2)
+        assert np.abs(r1 - r2.numpy()).max() <= 1e-9
+        assert np.array_equal(te1, te2.numpy()) and np.array_equal(tr1, tr2.numpy())
+        _close_info(i1, i2)
+        resets += int(tr1.sum())
+    assert np.abs(ref.unwrapped.task.q - ten.q.numpy()).max() <= 1e-9
+    assert resets >= N           # the autoreset was exercised (time limit 20 or 30 < 50 steps)
+    moved = np.abs(ref.unwrapped.task.q - ref.unwrapped.task.q_nominal).max()
+    assert moved > 1e-3          # not a comparison of robots at rest
+
+
+def test_tensors_on_device_autoreset_and_seeding():
+    env = gym.make_vec(ID, num_envs=4, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
+                       dtype="float32", max_episode_steps=3)
+    assert env.metadata["autoreset_mode"] == gym.vector.AutoresetMode.NEXT_STEP
+    obs, info = env.reset(seed=5)
+    assert obs.dtype == torch.float32 and obs.shape == (4, env.single_observation_space.shape[0])
+    assert env.single_observation_space.dtype == np.float32
+    a = torch.full((4, env.single_action_space.shape[0]), 0.3)
+    for t in range(3):
+        obs, rew, term, trunc, info = env.step(a)
+        assert rew.dtype == torch.float32 and term.dtype == torch.bool and isinstance(info["reward_forward"],
+                                                                                      torch.Tensor)
+        assert torch.isfinite(obs).all()
+        torch.testing.assert_close(rew, info["reward_forward"] + info["reward_ctrl"])
+    assert trunc.all() and not term.any()
+    obs, rew, term, trunc, info = env.step(a)          # next-step autoreset: reset obs, reward 0
+    assert (rew == 0).all() and not trunc.any() and info["_goal_direction"].all()
+    assert not info["_reward_forward"].any()
+    # env i is seeded seed + i: it equals a one-copy env seeded with seed + i
+    env.reset(seed=11)
+    one = gym.make_vec(ID, num_envs=1, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
+                       dtype="float32")
+    o_one, _ = one.reset(seed=13)
+    o_all, _ = env.reset(seed=11)
+    assert torch.equal(o_all[2], o_one[0])
+    # a masked reset leaves the other copies alone
+    env.step(a)
+    before = env.q.clone()
+    env.reset(options={"reset_mask": torch.tensor([True, False, False, False])})
+    assert torch.equal(env.q[1:], before[1:]) and not torch.equal(env.q[0], before[0])
+
+
+def test_float32_close_to_float64():
+    envs = [gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
+                         dtype=d) for d in ("float32", "float64")]
+    outs = [e.reset(seed=1)[0] for e in envs]
+    rng = np.random.default_rng(2)
+    for _ in range(15):
+        a = rng.uniform(-1, 1, (2, 9))
+        outs = [e.step(torch.as_tensor(a, dtype=torch.float32))[0] for e in envs]
+    err = (outs[0].double() - outs[1]).abs().max().item()
+    assert 0 < err < 1e-3, err
+
+
+def test_bad_input_named():
+    mk = dict(num_envs=2, vectorization_mode="vector_entry_point", backend="torch")
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="device: 'cuda'.*CUDA is not available"):
+            gym.make_vec(ID, device="cuda", **mk)
+    with pytest.raises(ValueError, match="dtype: 'float16'"):
+        gym.make_vec(ID, dtype="float16", **mk)
+    with pytest.raises(ValueError, match="observation_mode"):
+        gym.make_vec(ID, observation_mode="robot", **mk)
+    with pytest.raises(ValueError, match="render_mode"):
+        gym.make_vec(ID, render_mode="rgb_array", **mk)
+    with pytest.raises(ValueError, match="device: only with backend='torch'"):
+        gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point", device="cpu")
+    with pytest.raises(ValueError, match="integrator"):
+        gym.make_vec(ID, integrator="implicit_euler", **mk)
+    env = gym.make_vec(ID, clip_actions=False, **mk)
+    env.reset(seed=0)
+    a = torch.zeros((2, 9), dtype=torch.float64)
+    a[1, 4] = float("nan")
+    with pytest.raises(ValueError, match=r"actions: entry \(1, 4\) is nan"):
+        env.step(a)
+    a[1, 4] = 1.5
+    with pytest.raises(ValueError, match=r"actions: entry \(1, 4\) is 1.5, outside"):
+        env.step(a)
+    with pytest.raises(ValueError, match=r"actions: expected shape \(2, 9\)"):
+        env.step(torch.zeros((2, 8)))
+
+
+def test_default_path_unchanged():
+    """Without backend='torch' the registered id builds the NumPy vector env with the same arguments."""
+    env = gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point")
+    assert type(env) is TensegrityRollVectorEnv
+    direct = TensegrityRollVectorEnv(num_envs=2)
+    o1, _ = env.reset(seed=3)
+    o2, _ = direct.reset(seed=3)
+    a = np.full((2, 9), 0.5)
+    assert np.array_equal(env.step(a)[0], direct.step(a)[0])
+    assert np.array_equal(o1, o2)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_matches_cpu():
+    envs = [gym.make_vec(ID, num_envs=3, vectorization_mode="vector_entry_point", backend="torch", device=d,
+                         dtype="float64") for d in ("cpu", "cuda")]
+    outs = [e.reset(seed=4)[0] for e in envs]
+    assert outs[1].device.type == "cuda"
+    a = torch.full((3, 9), -0.4, dtype=torch.float64)
+    for _ in range(10):
+        outs = [e.step(a.to(e.device))[0] for e in envs]
+    assert (outs[0] - outs[1].cpu()).abs().max().item() < 1e-9
