@@ -26,9 +26,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["make_sb3_vec_env"]
+__all__ = ["make_sb3_vec_env", "make_sb3_torch_vec_env"]
 
 _SB3_CLASS = None
+_SB3_TORCH_CLASS = None
 
 
 def _build_class():
@@ -159,3 +160,99 @@ def make_sb3_vec_env(vector_env):
     if _SB3_CLASS is None:
         _SB3_CLASS = _build_class()
     return _SB3_CLASS(vector_env)
+
+
+def _build_torch_class():
+    import torch
+    from gymnasium import spaces
+
+    class TorchVectorToSB3(_SB3_CLASS):
+        """SB3 ``VecEnv`` over a device-resident torch vector env (see :func:`make_sb3_torch_vec_env`)."""
+
+        def __init__(self, venv, info_keys=()):
+            super().__init__(venv)
+            sp = venv.single_observation_space
+            self.observation_space = spaces.Box(sp.low.astype(np.float32), sp.high.astype(np.float32),
+                                                sp.shape, np.float32)
+            self.info_keys = tuple(info_keys)
+            self._obs_size = int(np.prod(sp.shape))
+
+        def _host_obs(self, obs):
+            return obs.to(torch.float32).cpu().numpy()
+
+        def reset(self):
+            seeds = self._seeds if any(s is not None for s in self._seeds) else None
+            opts = self._options[0] if self._options and self._options[0] else None
+            obs, _ = self.venv.reset(seed=seeds, options=opts)
+            self._reset_seeds()
+            self._reset_options()
+            return self._host_obs(obs)
+
+        def step_async(self, actions):
+            self._actions = torch.as_tensor(np.asarray(actions), device=self.venv.device)   # one host -> device copy
+
+        def step_wait(self):
+            obs, rew, term, trunc, info = self.venv.step(self._actions)
+            N, D = self.num_envs, self._obs_size
+            cols = [obs.reshape(N, D), rew[:, None].to(obs.dtype), term[:, None].to(obs.dtype),
+                    trunc[:, None].to(obs.dtype)]
+            widths = []
+            for k in self.info_keys:
+                if k not in info:
+                    raise ValueError(f"info_keys: {k!r} is not in the env's step info (it has "
+                                     f"{sorted(x for x in info if not x.startswith('_'))})")
+                v = info[k].reshape(N, -1).to(obs.dtype)
+                cols.append(v)
+                cols.append(info["_" + k][:, None].to(obs.dtype))
+                widths.append((k, v.shape[1], info[k].shape[1:]))
+            host = torch.cat(cols, dim=1).cpu().numpy()           # ONE device -> host copy per step
+            obs_np = host[:, :D].astype(np.float32).reshape((N,) + self.observation_space.shape)
+            rew_np = host[:, D].astype(np.float32)
+            term_np, trunc_np = host[:, D + 1] != 0, host[:, D + 2] != 0
+            infos = [{} for _ in range(N)]
+            o = D + 3
+            for k, w, shape in widths:
+                vals = host[:, o:o + w].reshape((N,) + tuple(shape))
+                has = host[:, o + w] != 0
+                o += w + 1
+                for i in np.flatnonzero(has):
+                    infos[i][k] = vals[i]
+            done = term_np | trunc_np
+            if done.any():
+                for i in np.flatnonzero(done):
+                    infos[i]["terminal_observation"] = obs_np[i].copy()
+                    infos[i]["TimeLimit.truncated"] = bool(trunc_np[i] and not term_np[i])
+                new_obs, _ = self.venv.reset(options={"reset_mask": torch.as_tensor(done, device=self.venv.device)})
+                obs_np[done] = self._host_obs(new_obs)[done]     # a second copy only when an env finished
+            return obs_np, rew_np, done, infos
+
+    return TorchVectorToSB3
+
+
+def make_sb3_torch_vec_env(vector_env, info_keys=()):
+    """Wrap a device-resident torch vector env (``gymnasium.make_vec("TensegrityRoll-v0",
+    num_envs=N, vectorization_mode="vector_entry_point", backend="torch", device=...)``) as a
+    Stable-Baselines3 ``VecEnv``. SB3 works on NumPy arrays, so the adapter copies between
+    device and host, and only this:
+
+    * ``step_async``: the (N, na) action array, host -> device, one copy;
+    * ``step_wait``: ONE device -> host copy of one packed (N, obs_size + 3 + ...) tensor holding
+      the observations, rewards, ``terminated`` and ``truncated`` flags and the ``info_keys``
+      infos (default none: infos stay on the device; e.g. ``info_keys=("reward_forward",)``
+      adds those columns and their ``"_key"`` masks); when an env finished, a masked reset on the device and a second
+      copy of the reset observations (SB3 resets in the same step, with
+      ``info["terminal_observation"]`` and ``info["TimeLimit.truncated"]``);
+    * ``reset``: the observations, one copy.
+
+    Observations reach SB3 as float32 (the adapter's ``observation_space`` is float32 whatever
+    the env's ``dtype``), rewards as float32. ``get_attr`` / ``set_attr`` / ``env_method`` as
+    :func:`make_sb3_vec_env`."""
+    global _SB3_CLASS, _SB3_TORCH_CLASS
+    if _SB3_CLASS is None:
+        _SB3_CLASS = _build_class()
+    if _SB3_TORCH_CLASS is None:
+        _SB3_TORCH_CLASS = _build_torch_class()
+    for k in info_keys:
+        if not isinstance(k, str):
+            raise ValueError(f"info_keys: expected info key names, got {k!r}")
+    return _SB3_TORCH_CLASS(vector_env, info_keys)

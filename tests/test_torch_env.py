@@ -181,3 +181,61 @@ def test_cuda_matches_cpu():
     for _ in range(10):
         outs = [e.step(a.to(e.device))[0] for e in envs]
     assert (outs[0] - outs[1].cpu()).abs().max().item() < 1e-9
+
+
+# ---------------------------------------------------------------------- SB3 route
+def test_sb3_adapter_matches_numpy_adapter():
+    """The torch adapter gives SB3 the NumPy adapter's arrays (float64 env, float32 obs)."""
+    pytest.importorskip("stable_baselines3")
+    from tensegrity_gym.sb3 import make_sb3_torch_vec_env, make_sb3_vec_env
+    ref, ten = _pair(3, max_episode_steps=5)
+    a_ref, a_ten = make_sb3_vec_env(ref), make_sb3_torch_vec_env(ten, info_keys=("reward_forward", "com_position"))
+    assert a_ten.observation_space.dtype == np.float32
+    a_ref.seed(2)
+    a_ten.seed(2)
+    o1, o2 = a_ref.reset(), a_ten.reset()
+    assert o2.dtype == np.float32 and np.abs(o1 - o2).max() <= 1e-6
+    rng = np.random.default_rng(1)
+    dones = 0
+    for _ in range(12):
+        a = rng.uniform(-1, 1, (3, 9)).astype(np.float32)
+        o1, r1, d1, i1 = a_ref.step(a)
+        o2, r2, d2, i2 = a_ten.step(a)
+        assert np.abs(o1 - o2).max() <= 1e-6 and np.abs(r1 - r2).max() <= 1e-6
+        assert np.array_equal(d1, d2)
+        for x, y in zip(i1, i2):
+            assert abs(x["reward_forward"] - y["reward_forward"]) <= 1e-9
+            assert np.abs(x["com_position"] - y["com_position"]).max() <= 1e-9
+            if "terminal_observation" in x:
+                assert np.abs(x["terminal_observation"] - y["terminal_observation"]).max() <= 1e-6
+                assert x["TimeLimit.truncated"] == y["TimeLimit.truncated"]
+        dones += int(d1.sum())
+    assert dones == 6          # two time limits of 5 steps per env in 12 steps
+    with pytest.raises(ValueError, match="info_keys: 'nope'"):
+        make_sb3_torch_vec_env(ten, info_keys=("nope",)).step(np.zeros((3, 9), np.float32))
+
+
+@pytest.fixture
+def one_thread():
+    """One torch thread: on a shared 2-core CI machine torch's thread pool makes tiny MLPs 3x slower."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def test_ppo_trains_on_the_torch_env(one_thread):
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3 import PPO
+    from tensegrity_gym.sb3 import make_sb3_torch_vec_env
+    env = gym.make_vec(ID, num_envs=4, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
+                       dtype="float32", max_episode_steps=40)
+    venv = make_sb3_torch_vec_env(env)
+    model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    before = [p.detach().clone() for p in model.policy.parameters()]
+    model.learn(total_timesteps=256)
+    assert model.num_timesteps >= 256
+    assert any(not torch.equal(b, p) for b, p in zip(before, model.policy.parameters()))   # it updated
+    obs = venv.reset()
+    act, _ = model.predict(obs, deterministic=True)
+    assert act.shape == (4, 9) and np.all(np.isfinite(act))
