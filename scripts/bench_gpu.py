@@ -18,6 +18,14 @@ on the same B copies), env-steps/s, the ratio torch / numba, and memory: the pro
 resident set (CPU) or ``torch.cuda.max_memory_allocated`` (CUDA). A B whose torch run raises
 out-of-memory is reported as such (the largest B that fits is the last one that ran).
 
+``--env`` times the vector envs of TensegrityRoll-v0 with their task logic (action check,
+cable motor, contact physics, divergence check, observation, rewards, time limit): the
+device-resident torch env (``gymnasium.make_vec(..., backend="torch", device=--device)``,
+float32 and float64; ``--env-compile`` adds float64 with ``compile=True``) against the
+NumPy/numba vector env (``make_vec`` default) at B in ``--env-batch``, random actions in the
+box (drawn once per B, on the env's device), reported as control steps x B per second and
+as physics env-steps/s (x ``frame_skip`` = 20).
+
 ``--compile`` also times the prism step wrapped in ``torch.compile`` (inductor) at the
 largest B. ``--agreement`` runs the 1 s RK4 (dt = 1e-4) agreement of torch float64 and float32
 with numba on the prism, the icosahedron and the constrained prism (node error, m).
@@ -28,6 +36,7 @@ Usage::
     .venv/bin/python scripts/bench_gpu.py --batch 1024 4096 16384 --agreement --compile \\
         --out results/bench_gpu_cpu.json --label "2-core CPU, no GPU in this session"
     .venv/bin/python scripts/bench_gpu.py --device cuda --batch 1024 16384 262144 1048576
+    .venv/bin/python scripts/bench_gpu.py --scenes --env --env-batch 256 1024 4096 --threads 1
 """
 from __future__ import annotations
 
@@ -153,6 +162,36 @@ def bench_numba(model, contact, q0, qd0, n_steps, min_time):
     return {"steps_per_s": B / sec}
 
 
+def bench_env(B, dev, dtype, min_time, compile_=False):
+    """Control steps x B per second of TensegrityRoll-v0's vector env: NumPy/numba (``dtype``
+    None) or the torch env on ``dev`` in ``dtype``; the time limit is off (no resets timed)."""
+    import gymnasium as gym
+    import tensegrity_gym  # noqa: F401  (registers the ids)
+    kw = {} if dtype is None else {"backend": "torch", "device": str(dev), "dtype": dtype, "compile": compile_}
+    env = gym.make_vec("TensegrityRoll-v0", num_envs=B, vectorization_mode="vector_entry_point",
+                       max_episode_steps=None, **kw)
+    env.reset(seed=0)
+    na = env.single_action_space.shape[0]
+    rng = np.random.default_rng(0)
+    if dtype is None:
+        acts = [rng.uniform(-1, 1, (B, na)) for _ in range(4)]
+    else:
+        acts = [torch.as_tensor(rng.uniform(-1, 1, (B, na)), device=dev).to(tb.resolve_dtype(dtype)) for _ in range(4)]
+    t0 = time.perf_counter()
+
+    def fn(n):
+        for i in range(n):
+            env.step(acts[i % 4])
+    first = time.perf_counter()
+    fn(1)
+    first = time.perf_counter() - first
+    sec = time_loop(fn, 2, min_time, dev if dtype is not None else torch.device("cpu"))
+    obs = env.step(acts[0])[0]
+    ok = bool(np.isfinite(np.asarray(obs.cpu() if dtype is not None else obs)).all())
+    return {"control_steps_per_s": B / sec, "env_steps_per_s": B * env.unwrapped.task.frame_skip / sec,
+            "finite": ok, "first_step_s": first, "wall_s": time.perf_counter() - t0}
+
+
 def agreement(dev):
     """1 s of RK4 at dt = 1e-4: torch float64 and float32 against numba (max node error, m)."""
     out = {}
@@ -194,6 +233,14 @@ def markdown(result) -> str:
             lines.append(f"| {r['scene']} | {r['B']} | {f(r['numba_f64'])} | {f(r['torch_f32'])} | "
                          f"{rt(r['torch_f32_ratio_vs_numba'])} | {f(r['torch_f64'])} | {rt(r['torch_f64_ratio_vs_numba'])} | "
                          f"{r['torch_f64_memory_mb'] or 0:.0f} |")
+    if result.get("env"):
+        lines += ["", "TensegrityRoll-v0 vector env with its task logic (one control step = 20 physics steps; "
+                  "env-steps/s = physics steps x B per second):", "",
+                  "| B | env | control steps x B / s | physics env-steps/s | ratio vs NumPy/numba env |",
+                  "|---:|---|---:|---:|---:|"]
+        for r in result["env"]:
+            lines.append(f"| {r['B']} | {r['env']} | {r['control_steps_per_s']:,.0f} | {r['env_steps_per_s']:,.0f} | "
+                         f"{r['ratio_vs_numpy']:.3f}x |")
     if result.get("compile"):
         c = result["compile"]
         lines += ["", f"torch.compile (inductor), free prism, B = {c['B']}:", ""]
@@ -224,6 +271,9 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="B = 1024, 4096; 0.3 s per entry")
     ap.add_argument("--compile", action="store_true", help="also time torch.compile on the prism")
     ap.add_argument("--agreement", action="store_true", help="1 s RK4 agreement with numba (float64, float32)")
+    ap.add_argument("--env", action="store_true", help="time the TensegrityRoll-v0 vector envs (torch vs NumPy/numba)")
+    ap.add_argument("--env-batch", type=int, nargs="+", default=[256, 1024, 4096], help="B of --env")
+    ap.add_argument("--env-compile", action="store_true", help="--env also with compile=True (float64)")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     ap.add_argument("--label", default=None, help="machine label written into the output")
     ap.add_argument("--out", default=None, help="write JSON here")
@@ -267,6 +317,22 @@ def main(argv=None):
                   f"({row['torch_f64_ratio_vs_numba'] or 0:.2f}x)  env-steps/s  peak mem {row['torch_f64_memory_mb']:.0f} MB",
                   flush=True)
             save(args.out, result)   # after every row: an interrupted run keeps what it measured
+    if args.env:
+        envrows = result["env"] = []
+        for B in args.env_batch:
+            variants = [("numpy/numba f64", None, False), (f"torch {dev.type} f32", "float32", False),
+                        (f"torch {dev.type} f64", "float64", False)]
+            if args.env_compile:
+                variants.append((f"torch {dev.type} f64 compiled", "float64", True))
+            base = None
+            for label, dtype, comp in variants:
+                r = bench_env(B, dev, dtype, args.min_time, comp)
+                base = r["control_steps_per_s"] if base is None else base
+                envrows.append({"B": B, "env": label, **r, "ratio_vs_numpy": r["control_steps_per_s"] / base})
+                print(f"env B={B:6d} {label:28s} {r['control_steps_per_s']:10,.0f} control steps x B/s "
+                      f"{r['env_steps_per_s']:12,.0f} env-steps/s ({r['control_steps_per_s'] / base:.3f}x; "
+                      f"first step {r['first_step_s']:.1f} s)", flush=True)
+                save(args.out, result)
     if args.compile:
         model, _ = sc["prism"]
         B = max(args.batch)

@@ -83,7 +83,7 @@ import numpy as np
 
 __all__ = ["resolve_device", "resolve_dtype", "TorchModel", "torch_model", "torch_params", "node_positions",
            "node_velocities", "string_state", "force_densities", "nodal_forces", "accelerations", "project",
-           "sphere_drift", "step", "contact_forces", "contact_step", "init_contact_state", "motor", "advance",
+           "sphere_drift", "step", "contact_forces", "contact_step", "contact_substep", "init_contact_state", "motor", "advance",
            "physics_inputs", "step_state", "simulate", "PARAM_FIELDS"]
 
 PARAM_FIELDS = ("mass", "f", "J", "stiffness", "damping", "rest_length", "node_damping", "gravity", "anchor_pos")
@@ -610,22 +610,33 @@ def contact_forces(contact, model, q, qd, anchor, active, prm=None):
 
 def contact_step(model, contact, q, qd, anchor, active, dt: float, integrator: str = "semi_implicit_euler",
                  n_steps: int = 1, rest_length=None, force_density=None, params=None, project: bool = True,
-                 external=None, contact_prm=None):
+                 external=None, contact_prm=None, substep=None):
     """``n_steps`` physics steps with ground contact (as :func:`tensegrity_gym.contact.step`):
-    per step, contact forces from the state at its start, held over one integrator step.
-    ``contact_prm``: per-copy contact parameters (``prm`` of :func:`contact_forces`).
-    Returns ``(q, qd, anchor, active)``."""
+    per step, contact forces from the state at its start, held over one integrator step
+    (:func:`contact_substep`). ``contact_prm``: per-copy contact parameters (``prm`` of
+    :func:`contact_forces`). ``substep``: a replacement for :func:`contact_substep` with its
+    signature (e.g. ``torch.compile(contact_substep)``). Returns ``(q, qd, anchor, active)``."""
     name = _integrator_name(integrator)
     dt = float(dt)
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
     tm, prm, rl, fd = _setup(model, q, params, rest_length, force_density)
     ext = _check_external(tm, external, q.shape[0])
+    one = contact_substep if substep is None else substep
     for _ in range(int(n_steps)):
-        W, anchor, active, _ = contact_forces(contact, tm, q, qd, anchor, active, contact_prm)
-        if ext is not None:
-            W = W + ext
-        q, qd = _step_once(tm, q, qd, dt, name, prm, rl, fd, W, project)
+        q, qd, anchor, active = one(tm, contact, q, qd, anchor, active, dt, name, prm, rl, fd, ext, contact_prm,
+                                    project)
+    return q, qd, anchor, active
+
+
+def contact_substep(tm, contact, q, qd, anchor, active, dt, name, prm, rl, fd, ext, contact_prm, project_):
+    """One physics step with ground contact on prepared inputs (``tm``: :class:`TorchModel`,
+    ``prm``: :func:`torch_params`' dict, ``name``: a resolved integrator name): contact forces
+    from the state at the step's start (plus ``ext``), then one integrator step."""
+    W, anchor, active, _ = contact_forces(contact, tm, q, qd, anchor, active, contact_prm)
+    if ext is not None:
+        W = W + ext
+    q, qd = _step_once(tm, q, qd, dt, name, prm, rl, fd, W, project_)
     return q, qd, anchor, active
 
 

@@ -87,6 +87,47 @@ def test_float64_matches_numpy_vector_env(case):
     assert moved > 1e-3          # not a comparison of robots at rest
 
 
+SHAPE_CASES = {
+    "default_autoreset": dict(max_episode_steps=20),
+    "randomized_delay": dict(max_episode_steps=20, action_delay=1, randomize={"stiffness": 0.1, "rod_mass": 0.2,
+                                                                                "rest_length_offset": 0.003},
+                             params={"damping": 4.0}),
+    "force_density": dict(action_mode="force_density", max_episode_steps=30),
+}
+
+
+@pytest.mark.parametrize("case", sorted(SHAPE_CASES))
+def test_shape_float64_matches_numpy_vector_env(case):
+    """TensegrityShape-v0: the torch env equals the NumPy vector env (obs, rewards, the tracking,
+    proximity and ctrl terms, errors, success, autoreset)."""
+    from tensegrity_gym.envs.shape import TensegrityShapeVectorEnv
+    from tensegrity_gym.envs.torch_vec import TorchShapeVectorEnv
+    N, steps = 3, 50
+    kw = SHAPE_CASES[case]
+    ref = gym.make_vec("TensegrityShape-v0", num_envs=N, vectorization_mode="vector_entry_point", **kw)
+    ten = gym.make_vec("TensegrityShape-v0", num_envs=N, vectorization_mode="vector_entry_point", backend="torch",
+                       device="cpu", dtype="float64", **kw)
+    assert isinstance(ten, TorchShapeVectorEnv) and type(ref) is TensegrityShapeVectorEnv
+    o1, i1 = ref.reset(seed=5)
+    o2, i2 = ten.reset(seed=5)
+    _close_obs(o1, o2)
+    _close_info(i1, i2)
+    rng = np.random.default_rng(4)
+    resets = 0
+    for _ in range(steps):
+        a = rng.uniform(-1.2, 1.2, (N, ref.single_action_space.shape[0]))
+        o1, r1, te1, tr1, i1 = ref.step(a)
+        o2, r2, te2, tr2, i2 = ten.step(torch.as_tensor(a))
+        _close_obs(o1, o2)
+        assert np.abs(r1 - r2.numpy()).max() <= 1e-9
+        assert np.array_equal(te1, te2.numpy()) and np.array_equal(tr1, tr2.numpy())
+        _close_info(i1, i2)
+        resets += int(tr1.sum())
+    assert np.abs(ref.unwrapped.task.q - ten.q.numpy()).max() <= 1e-9
+    assert resets >= N
+    assert np.abs(i1["reward_proximity"]).max() > 0 and np.abs(i1["reward_tracking"]).max() > 0
+
+
 def test_tensors_on_device_autoreset_and_seeding():
     env = gym.make_vec(ID, num_envs=4, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
                        dtype="float32", max_episode_steps=3)

@@ -15,7 +15,7 @@ def register_envs() -> None:
         register(
             id="TensegrityShape-v0",
             entry_point="tensegrity_gym.envs.shape:TensegrityShapeEnv",
-            vector_entry_point="tensegrity_gym.envs.shape:TensegrityShapeVectorEnv",
+            vector_entry_point="tensegrity_gym.envs.torch_vec:shape_vector_env",   # backend="torch": device-resident
             max_episode_steps=200,
         )
     if "TensegrityRoll-v0" not in registry:

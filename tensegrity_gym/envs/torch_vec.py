@@ -47,6 +47,7 @@ Autoreset and seeding are those of :class:`~tensegrity_gym.envs.common.TaskVecto
 """
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
@@ -57,9 +58,13 @@ from gymnasium.utils import seeding
 from .. import torch_backend as tb
 from .common import ACTION_TOL, registered_max_episode_steps
 
-__all__ = ["TorchRollVectorEnv", "roll_vector_env"]
+__all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "roll_vector_env", "shape_vector_env"]
 
-ENV_ID = "TensegrityRoll-v0"
+
+def _no_torch_kwargs(kwargs):
+    for name in ("device", "dtype", "compile"):
+        if name in kwargs:
+            raise ValueError(f"{name}: only with backend='torch' (got backend={kwargs.get('backend', 'auto')!r})")
 
 
 def roll_vector_env(num_envs: int = 1, **kwargs):
@@ -68,44 +73,53 @@ def roll_vector_env(num_envs: int = 1, **kwargs):
     the arguments passed through untouched (the default path is unchanged)."""
     if kwargs.get("backend") == "torch":
         return TorchRollVectorEnv(num_envs=num_envs, **kwargs)
-    for name in ("device", "dtype"):
-        if name in kwargs:
-            raise ValueError(f"{name}: only with backend='torch' (got backend={kwargs.get('backend', 'auto')!r})")
+    _no_torch_kwargs(kwargs)
     from .roll import TensegrityRollVectorEnv
     return TensegrityRollVectorEnv(num_envs=num_envs, **kwargs)
 
 
-class TorchRollVectorEnv(gym.vector.VectorEnv):
-    """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc).
+def shape_vector_env(num_envs: int = 1, **kwargs):
+    """``vector_entry_point`` of ``TensegrityShape-v0``: :class:`TorchShapeVectorEnv` when
+    ``backend="torch"``, else :class:`~tensegrity_gym.envs.shape.TensegrityShapeVectorEnv`
+    (arguments passed through untouched)."""
+    if kwargs.get("backend") == "torch":
+        return TorchShapeVectorEnv(num_envs=num_envs, **kwargs)
+    _no_torch_kwargs(kwargs)
+    from .shape import TensegrityShapeVectorEnv
+    return TensegrityShapeVectorEnv(num_envs=num_envs, **kwargs)
 
-    Arguments: those of ``TensegrityRoll-v0`` (:class:`~tensegrity_gym.envs.roll.TensegrityRollEnv`)
-    plus ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``; ValueError when it does not exist),
+
+class _TorchTaskVectorEnv(gym.vector.VectorEnv):
+    """A batched task (:class:`~tensegrity_gym.envs.common.BatchedTask`) stepped on a torch
+    device: seeding, resets on the host, Gymnasium vector infos, action checks, next-step
+    autoreset. Subclasses set ``ENV_ID`` and implement ``_make_task``, ``_init_state``,
+    ``_upload_rows``, ``_act`` and ``_observe``.
+
+    Arguments: those of the id's env plus ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``; ValueError when it does not exist),
     ``dtype`` (``"float64"`` default or ``"float32"``; anything else is a ValueError) and
-    ``max_episode_steps`` (control steps; ``"registered"``: the id's 1000; None: no limit).
+    ``max_episode_steps`` (control steps; ``"registered"``: the id's 1000; None: no limit) and
+    ``compile`` (default False: wrap the physics step with contact in ``torch.compile``; the
+    first steps then compile for tens of seconds; measured in ``docs/bench_gpu.md``).
     """
 
     metadata = {"render_modes": [], "render_fps": 50, "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, max_episode_steps="registered", device=None, dtype=None,
-                 backend: str = "torch", render_mode: str | None = None, **kwargs):
+                 backend: str = "torch", render_mode: str | None = None, compile: bool = False, **kwargs):
         torch = tb._torch()
         if backend != "torch":
-            raise ValueError(f"backend: TorchRollVectorEnv runs backend='torch', got {backend!r}")
+            raise ValueError(f"backend: {type(self).__name__} runs backend='torch', got {backend!r}")
         if render_mode is not None:
             raise ValueError(f"render_mode: {render_mode!r} is not supported by backend='torch' (render the "
-                             "NumPy env: gymnasium.make('TensegrityRoll-v0', render_mode='rgb_array'))")
-        if kwargs.get("observation_mode", "state") != "state":
-            raise ValueError(f"observation_mode: {kwargs['observation_mode']!r} is not supported by "
-                             "backend='torch' (the robot sensor model is NumPy-only); use 'state'")
+                             f"NumPy env: gymnasium.make({self.ENV_ID!r}, render_mode='rgb_array'))")
         self.device = tb.resolve_device(device)
         self.dtype = tb.resolve_dtype(dtype)
-        from .roll import RollTask
-        task = RollTask(num_envs=num_envs, **kwargs)
+        task = self._make_task(num_envs, kwargs)
         tb._integrator_name(task.integrator)          # ValueError for an implicit method
         self.task = task
         self.num_envs = N = task.num_envs
         if max_episode_steps == "registered":
-            max_episode_steps = registered_max_episode_steps(ENV_ID)
+            max_episode_steps = registered_max_episode_steps(self.ENV_ID)
         if max_episode_steps is not None:
             if isinstance(max_episode_steps, bool) or int(max_episode_steps) != max_episode_steps \
                     or max_episode_steps < 1:
@@ -125,19 +139,13 @@ class TorchRollVectorEnv(gym.vector.VectorEnv):
         dev, dt = self.device, self.dtype
         self.tm = tb.torch_model(task.model, dev, dt)
         self._node_prm = tb.torch_params(self.tm, None)          # model defaults (anchor positions)
-        self._com_eta = self._T(task.model.com_eta)[None, :, None]
-        # device state: the whole batch
-        self.q = self._T(task.q)
-        self.qd = self._T(task.qd)
-        self.anchor = self._T(task.cstate.anchor)
-        self.active = torch.as_tensor(task.cstate.active, device=dev)
-        self.ctrl = self._T(task.ctrl)
-        self.speed = self._T(task.speed)
-        self.goal = self._T(task.goal)
-        self.start = self._T(task.start)
+        self._init_state()
         self.elapsed = torch.zeros(N, dtype=torch.int64, device=dev)
         self._autoreset = torch.zeros(N, dtype=torch.bool, device=dev)
         self._queue = torch.zeros((N, task.action_delay, task.action_size), dtype=dt, device=dev)
+        if not isinstance(compile, (bool, np.bool_)):
+            raise ValueError(f"compile: expected True or False, got {compile!r}")
+        self._substep = torch.compile(tb.contact_substep, dynamic=False) if compile else None
         # per-copy parameters (domain): uploaded whole here, by reset rows when randomised
         self._upload_domain(None)
 
@@ -180,12 +188,13 @@ class TorchRollVectorEnv(gym.vector.VectorEnv):
                 else:
                     cur[idx_t] = self._T(host[idx])
         put("_rest_offset", None if task.rest_offset is None else np.asarray(task.rest_offset, float))
-        put("_contact_prm", task._contact_prm)
+        put("_contact_prm", getattr(task, "_contact_prm", None))
         act = task.actuation
         put("_max_rate", act.rate_rows)
         put("_max_accel", None if act.accel_rows is None else np.asarray(act.accel_rows, float)[:, None])
-        mf = np.asarray(task._mass_frac, float)
-        put("_mass_frac", mf if mf.ndim == 2 else mf[None])
+        if hasattr(task, "_mass_frac"):
+            mf = np.asarray(task._mass_frac, float)
+            put("_mass_frac", mf if mf.ndim == 2 else mf[None])
 
     def _reset_envs(self, idx: np.ndarray, options) -> dict:
         """Reset envs ``idx`` (host draws, one upload of their rows); infos as (N,) tensors."""
@@ -194,14 +203,7 @@ class TorchRollVectorEnv(gym.vector.VectorEnv):
         info = task.reset(idx, [self._rngs[i] for i in idx], options)
         self._upload_domain(idx)
         it = torch.as_tensor(idx, dtype=torch.int64, device=self.device)
-        self.q[it] = self._T(task.q[idx])
-        self.qd[it] = self._T(task.qd[idx])
-        self.anchor[it] = self._T(task.cstate.anchor[idx])
-        self.active[it] = torch.as_tensor(task.cstate.active[idx], device=self.device)
-        self.ctrl[it] = self._T(task.ctrl[idx])
-        self.speed[it] = self._T(task.speed[idx])
-        self.goal[it] = self._T(task.goal[idx])
-        self.start[it] = self._T(task.start[idx])
+        self._upload_rows(it, idx)
         self.elapsed[it] = 0
         self._autoreset[it] = False
         if self._queue.shape[1]:
@@ -241,76 +243,22 @@ class TorchRollVectorEnv(gym.vector.VectorEnv):
                 out["_" + k] = mask.clone()
         return out
 
-    # ------------------------------------------------------------------ task on the device
-    def _com(self, q):
-        """(N, 3) centre of mass, m (as ``RollTask._com``)."""
-        r = q[..., :3]
-        if not self.task._com_at_r:
-            r = r + self._com_eta * q[..., 3:]
-        mf = self._mass_frac[..., None]
-        return (mf * r).sum(dim=1)
-
-    def _observe(self):
+    def _delayed(self, action):
+        """``action_delay`` (``BatchedTask.act``): the action given that many steps earlier."""
         torch = tb._torch()
-        q, qd = self.q, self.qd
-        B = q.shape[0]
-        com = self._com(q)
-        Np = tb.node_positions(self.tm, q, self._node_prm) - com[:, None, :]
-        V = tb.node_velocities(self.tm, qd)
-        return torch.cat([Np.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.active.to(self.dtype),
-                          self.goal, com[:, 2:3], self.speed], dim=1)
+        if not self._queue.shape[1]:
+            return action
+        out = self._queue[:, 0]
+        self._queue = torch.cat([self._queue[:, 1:], action[:, None]], dim=1)
+        return out
 
-    def _far_or_nonfinite(self, q, qd):
-        """(N,) bool, as ``RollTask._far_or_nonfinite``."""
-        torch = tb._torch()
-        finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
-        r = q[..., :3]
-        r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))
-        m = r.mean(dim=1, keepdim=True)
-        lim = self.task.divergence_limit
-        dev = (r - m).abs().amax(dim=(1, 2))
-        far = ~((dev <= lim) & ((m[:, 0, 2] - self.task.center0[2]).abs() <= lim))
-        return ~finite | far
-
-    def _act(self, action):
-        """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
-        torch = tb._torch()
-        task = self.task
-        if self._queue.shape[1]:                       # action_delay (BatchedTask.act)
-            out = self._queue[:, 0]
-            self._queue = torch.cat([self._queue[:, 1:], action[:, None]], dim=1)
-            action = out
-        act = task.actuation
-        if task.motor:
-            self.ctrl, self.speed = tb.motor(act, self.ctrl, self.speed, action, self._max_rate, self._max_accel)
-        else:
-            self.ctrl = tb.advance(act, self.ctrl, action, self._max_rate)
-        inputs = tb.physics_inputs(act, self.ctrl)
+    def _physics_inputs(self):
+        """``rest_length`` / ``force_density`` (N, m) of the current controls, the cables'
+        rest-length offsets added (``BatchedTask.with_offset``)."""
+        inputs = tb.physics_inputs(self.task.actuation, self.ctrl)
         if self._rest_offset is not None and inputs.get("rest_length") is not None:
             inputs["rest_length"] = inputs["rest_length"] + self._rest_offset
-        q0, qd0, anchor0, active0 = self.q, self.qd, self.anchor, self.active
-        com0 = self._com(q0)
-        q, qd, anchor, active = tb.contact_step(
-            self.tm, task.contact, q0, qd0, anchor0, active0, task.dt, task.integrator, task.frame_skip,
-            rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
-            params=self._params, contact_prm=self._contact_prm)
-        diverged = self._far_or_nonfinite(q, qd)
-        d3 = diverged[:, None, None]
-        self.q = torch.where(d3, q0, q)
-        self.qd = torch.where(d3, qd0, qd)
-        self.anchor = torch.where(d3, anchor0, anchor)
-        self.active = torch.where(diverged[:, None], active0, active)
-        self.elapsed = self.elapsed + 1
-        com = self._com(self.q)
-        vel = (com - com0) / task.control_dt
-        forward = vel[:, 0] * self.goal[:, 0] + vel[:, 1] * self.goal[:, 1]
-        terms = {"forward": task.forward_reward_weight * forward,
-                 "ctrl": -task.ctrl_cost_weight * (action * action).sum(dim=1)}
-        disp = com - self.start
-        dist = disp[:, 0] * self.goal[:, 0] + disp[:, 1] * self.goal[:, 1]
-        infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward,
-                 "diverged": diverged}
-        return terms, infos
+        return inputs
 
     def _check_actions(self, actions):
         """The action tensor (N, na) on the device, clipped to the box; ValueError naming the
@@ -396,9 +344,11 @@ class TorchRollVectorEnv(gym.vector.VectorEnv):
         if any_reset:
             a = torch.where(reset_now[:, None], torch.zeros_like(a), a)
         terms, infos = self._act(a)
-        reward = terms["forward"] + terms["ctrl"]
+        reward = None
+        for v in terms.values():                      # rewards.combine: the terms in order
+            reward = v if reward is None else reward + v
         diverged = infos["diverged"]
-        terminated = torch.zeros_like(diverged)
+        terminated = torch.zeros_like(diverged)      # neither task terminates
         truncated = diverged.clone()
         if self.max_episode_steps is not None:
             truncated = truncated | (self.elapsed >= self.max_episode_steps)
@@ -418,3 +368,190 @@ class TorchRollVectorEnv(gym.vector.VectorEnv):
 
     def close_extras(self, **kwargs):
         pass
+
+
+class TorchRollVectorEnv(_TorchTaskVectorEnv):
+    """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc).
+    ``observation_mode="robot"`` is refused (the sensor model is NumPy-only)."""
+
+    ENV_ID = "TensegrityRoll-v0"
+
+    def _make_task(self, num_envs, kwargs):
+        if kwargs.get("observation_mode", "state") != "state":
+            raise ValueError(f"observation_mode: {kwargs['observation_mode']!r} is not supported by "
+                             "backend='torch' (the robot sensor model is NumPy-only); use 'state'")
+        from .roll import RollTask
+        return RollTask(num_envs=num_envs, **kwargs)
+
+    def _init_state(self):
+        torch = tb._torch()
+        task, dev = self.task, self.device
+        self._com_eta = self._T(task.model.com_eta)[None, :, None]
+        self.q = self._T(task.q)
+        self.qd = self._T(task.qd)
+        self.anchor = self._T(task.cstate.anchor)
+        self.active = torch.as_tensor(task.cstate.active, device=dev)
+        self.ctrl = self._T(task.ctrl)
+        self.speed = self._T(task.speed)
+        self.goal = self._T(task.goal)
+        self.start = self._T(task.start)
+
+    def _upload_rows(self, it, idx):
+        torch = tb._torch()
+        task = self.task
+        self.q[it] = self._T(task.q[idx])
+        self.qd[it] = self._T(task.qd[idx])
+        self.anchor[it] = self._T(task.cstate.anchor[idx])
+        self.active[it] = torch.as_tensor(task.cstate.active[idx], device=self.device)
+        self.ctrl[it] = self._T(task.ctrl[idx])
+        self.speed[it] = self._T(task.speed[idx])
+        self.goal[it] = self._T(task.goal[idx])
+        self.start[it] = self._T(task.start[idx])
+
+    def _com(self, q):
+        """(N, 3) centre of mass, m (as ``RollTask._com``)."""
+        r = q[..., :3]
+        if not self.task._com_at_r:
+            r = r + self._com_eta * q[..., 3:]
+        mf = self._mass_frac[..., None]
+        return (mf * r).sum(dim=1)
+
+    def _observe(self):
+        torch = tb._torch()
+        q, qd = self.q, self.qd
+        B = q.shape[0]
+        com = self._com(q)
+        Np = tb.node_positions(self.tm, q, self._node_prm) - com[:, None, :]
+        V = tb.node_velocities(self.tm, qd)
+        return torch.cat([Np.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.active.to(self.dtype),
+                          self.goal, com[:, 2:3], self.speed], dim=1)
+
+    def _far_or_nonfinite(self, q, qd):
+        """(N,) bool, as ``RollTask._far_or_nonfinite``."""
+        torch = tb._torch()
+        finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
+        r = q[..., :3]
+        r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))
+        m = r.mean(dim=1, keepdim=True)
+        lim = self.task.divergence_limit
+        dev = (r - m).abs().amax(dim=(1, 2))
+        far = ~((dev <= lim) & ((m[:, 0, 2] - self.task.center0[2]).abs() <= lim))
+        return ~finite | far
+
+    def _act(self, action):
+        """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
+        torch = tb._torch()
+        task = self.task
+        action = self._delayed(action)
+        act = task.actuation
+        if task.motor:
+            self.ctrl, self.speed = tb.motor(act, self.ctrl, self.speed, action, self._max_rate, self._max_accel)
+        else:
+            self.ctrl = tb.advance(act, self.ctrl, action, self._max_rate)
+        inputs = self._physics_inputs()
+        q0, qd0, anchor0, active0 = self.q, self.qd, self.anchor, self.active
+        com0 = self._com(q0)
+        q, qd, anchor, active = tb.contact_step(
+            self.tm, task.contact, q0, qd0, anchor0, active0, task.dt, task.integrator, task.frame_skip,
+            rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
+            params=self._params, contact_prm=self._contact_prm, substep=self._substep)
+        diverged = self._far_or_nonfinite(q, qd)
+        d3 = diverged[:, None, None]
+        self.q = torch.where(d3, q0, q)
+        self.qd = torch.where(d3, qd0, qd)
+        self.anchor = torch.where(d3, anchor0, anchor)
+        self.active = torch.where(diverged[:, None], active0, active)
+        self.elapsed = self.elapsed + 1
+        com = self._com(self.q)
+        vel = (com - com0) / task.control_dt
+        forward = vel[:, 0] * self.goal[:, 0] + vel[:, 1] * self.goal[:, 1]
+        terms = {"forward": task.forward_reward_weight * forward,
+                 "ctrl": -task.ctrl_cost_weight * (action * action).sum(dim=1)}
+        disp = com - self.start
+        dist = disp[:, 0] * self.goal[:, 0] + disp[:, 1] * self.goal[:, 1]
+        infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward,
+                 "diverged": diverged}
+        return terms, infos
+
+
+
+#: rewards.tolerance's gaussian sigmoid with its default value 0.1 at the margin (as ShapeTask's fused step)
+_GAUSS_SCALE = math.sqrt(-2.0 * math.log(0.1))
+
+
+class TorchShapeVectorEnv(_TorchTaskVectorEnv):
+    """``TensegrityShape-v0`` on N copies stepped on a torch device: the task of
+    :class:`~tensegrity_gym.envs.shape.ShapeTask` (targets and initial states drawn on the host
+    at reset from each env's generator; control update, physics with the model's node drag,
+    divergence check, tracking errors, the ``tracking`` / ``proximity`` / ``ctrl`` reward terms
+    and the observation on the device). Arguments: those of ``TensegrityShape-v0`` plus
+    ``device``, ``dtype``, ``max_episode_steps``, ``compile`` (no effect here: the shape task has
+    no contact substep)."""
+
+    ENV_ID = "TensegrityShape-v0"
+
+    def _make_task(self, num_envs, kwargs):
+        from .shape import ShapeTask
+        return ShapeTask(num_envs=num_envs, **kwargs)
+
+    def _init_state(self):
+        task = self.task
+        torch = tb._torch()
+        self.q = self._T(task.q)
+        self.qd = self._T(task.qd)
+        self.ctrl = self._T(task.ctrl)
+        self.target = self._T(task.target)
+        self._tracked = torch.as_tensor(np.asarray(task.tracked, dtype=np.int64), device=self.device)
+        self._center0 = self._T(task.center0)
+
+    def _upload_rows(self, it, idx):
+        task = self.task
+        self.q[it] = self._T(task.q[idx])
+        self.qd[it] = self._T(task.qd[idx])
+        self.ctrl[it] = self._T(task.ctrl[idx])
+        self.target[it] = self._T(task.target[idx])
+
+    def _tracked_nodes(self, q):
+        return tb.node_positions(self.tm, q, self._node_prm).index_select(1, self._tracked)
+
+    def _act(self, action):
+        torch = tb._torch()
+        task = self.task
+        action = self._delayed(action)
+        self.ctrl = tb.advance(task.actuation, self.ctrl, action, self._max_rate)
+        inputs = self._physics_inputs()
+        q0, qd0 = self.q, self.qd
+        q, qd = tb.step(self.tm, q0, qd0, task.dt, task.integrator, task.frame_skip,
+                        rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
+                        params=self._params)
+        # BatchedTask._finish_simulate: non-finite, or a reference point farther than the limit from the centre
+        finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
+        r = q[..., :3]
+        r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))
+        far = ~((r - self._center0).abs().amax(dim=(1, 2)) <= task.divergence_limit)
+        diverged = ~finite | far
+        d3 = diverged[:, None, None]
+        self.q = torch.where(d3, q0, q)
+        self.qd = torch.where(d3, qd0, qd)
+        self.elapsed = self.elapsed + 1
+        N = self._tracked_nodes(self.q)
+        D = N - self.target
+        d = torch.sqrt((D * D).sum(dim=-1))
+        err, emax = d.mean(dim=1), d.amax(dim=1)
+        tol = task.success_tolerance
+        margin = 10.0 * tol
+        inside = (emax >= 0.0) & (emax <= tol)
+        t = torch.where(emax < 0.0, -emax, emax - tol) / margin * _GAUSS_SCALE
+        prox = torch.where(inside, torch.ones_like(emax), torch.exp(-0.5 * t * t))
+        terms = {"tracking": -task.tracking_weight * err, "proximity": task.proximity_weight * prox,
+                 "ctrl": -task.ctrl_cost_weight * (action * action).sum(dim=1)}
+        infos = {"tracking_error": err, "max_node_error": emax, "is_success": emax <= tol, "diverged": diverged}
+        return terms, infos
+
+    def _observe(self):
+        torch = tb._torch()
+        B = self.num_envs
+        N = self._tracked_nodes(self.q)
+        V = tb.node_velocities(self.tm, self.qd).index_select(1, self._tracked)
+        return torch.cat([N.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.target.reshape(B, -1),
+                          (self.target - N).reshape(B, -1)], dim=1)
