@@ -21,7 +21,8 @@ out-of-memory is reported as such (the largest B that fits is the last one that 
 ``--env`` times the vector envs of TensegrityRoll-v0 with their task logic (action check,
 cable motor, contact physics, divergence check, observation, rewards, time limit): the
 device-resident torch env (``gymnasium.make_vec(..., backend="torch", device=--device)``,
-float32 and float64; ``--env-compile`` adds float64 with ``compile=True``) against the
+float32 and float64; ``--env-compile`` adds both with ``compile=True``, and the largest
+observation difference of the compiled env from the eager one after 5 control steps) against the
 NumPy/numba vector env (``make_vec`` default) at B in ``--env-batch``, random actions in the
 box (drawn once per B, on the env's device), reported as control steps x B per second and
 as physics env-steps/s (x ``frame_skip`` = 20).
@@ -188,8 +189,19 @@ def bench_env(B, dev, dtype, min_time, compile_=False):
     sec = time_loop(fn, 2, min_time, dev if dtype is not None else torch.device("cpu"))
     obs = env.step(acts[0])[0]
     ok = bool(np.isfinite(np.asarray(obs.cpu() if dtype is not None else obs)).all())
-    return {"control_steps_per_s": B / sec, "env_steps_per_s": B * env.unwrapped.task.frame_skip / sec,
-            "finite": ok, "first_step_s": first, "wall_s": time.perf_counter() - t0}
+    out = {"control_steps_per_s": B / sec, "env_steps_per_s": B * env.unwrapped.task.frame_skip / sec,
+           "finite": ok, "first_step_s": first, "wall_s": time.perf_counter() - t0}
+    if compile_:   # the compiled step against the eager one: same seed, same actions, 5 control steps
+        pair = []
+        for c in (False, True):
+            e = gym.make_vec("TensegrityRoll-v0", num_envs=B, vectorization_mode="vector_entry_point",
+                             max_episode_steps=None, **{**kw, "compile": c})
+            e.reset(seed=1)
+            for i in range(5):
+                o = e.step(acts[i % 4])[0]
+            pair.append(o)
+        out["compiled_vs_eager_max_obs_diff"] = float((pair[0] - pair[1]).abs().max())
+    return out
 
 
 def agreement(dev):
@@ -239,7 +251,11 @@ def markdown(result) -> str:
                   "| B | env | control steps x B / s | physics env-steps/s | ratio vs NumPy/numba env |",
                   "|---:|---|---:|---:|---:|"]
         for r in result["env"]:
-            lines.append(f"| {r['B']} | {r['env']} | {r['control_steps_per_s']:,.0f} | {r['env_steps_per_s']:,.0f} | "
+            extra = ""
+            if "compiled_vs_eager_max_obs_diff" in r:
+                extra = (f" (first step incl. compilation {r['first_step_s']:.0f} s; obs vs eager after 5 steps "
+                         f"{r['compiled_vs_eager_max_obs_diff']:.1e})")
+            lines.append(f"| {r['B']} | {r['env']}{extra} | {r['control_steps_per_s']:,.0f} | {r['env_steps_per_s']:,.0f} | "
                          f"{r['ratio_vs_numpy']:.3f}x |")
     if result.get("compile"):
         c = result["compile"]
@@ -273,7 +289,7 @@ def main(argv=None):
     ap.add_argument("--agreement", action="store_true", help="1 s RK4 agreement with numba (float64, float32)")
     ap.add_argument("--env", action="store_true", help="time the TensegrityRoll-v0 vector envs (torch vs NumPy/numba)")
     ap.add_argument("--env-batch", type=int, nargs="+", default=[256, 1024, 4096], help="B of --env")
-    ap.add_argument("--env-compile", action="store_true", help="--env also with compile=True (float64)")
+    ap.add_argument("--env-compile", action="store_true", help="--env also with compile=True (float32, float64)")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     ap.add_argument("--label", default=None, help="machine label written into the output")
     ap.add_argument("--out", default=None, help="write JSON here")
@@ -323,7 +339,8 @@ def main(argv=None):
             variants = [("numpy/numba f64", None, False), (f"torch {dev.type} f32", "float32", False),
                         (f"torch {dev.type} f64", "float64", False)]
             if args.env_compile:
-                variants.append((f"torch {dev.type} f64 compiled", "float64", True))
+                variants += [(f"torch {dev.type} f32 compiled", "float32", True),
+                             (f"torch {dev.type} f64 compiled", "float64", True)]
             base = None
             for label, dtype, comp in variants:
                 r = bench_env(B, dev, dtype, args.min_time, comp)
@@ -331,7 +348,9 @@ def main(argv=None):
                 envrows.append({"B": B, "env": label, **r, "ratio_vs_numpy": r["control_steps_per_s"] / base})
                 print(f"env B={B:6d} {label:28s} {r['control_steps_per_s']:10,.0f} control steps x B/s "
                       f"{r['env_steps_per_s']:12,.0f} env-steps/s ({r['control_steps_per_s'] / base:.3f}x; "
-                      f"first step {r['first_step_s']:.1f} s)", flush=True)
+                      f"first step {r['first_step_s']:.1f} s"
+                      + (f"; compiled vs eager obs {r['compiled_vs_eager_max_obs_diff']:.1e}"
+                         if "compiled_vs_eager_max_obs_diff" in r else "") + ")", flush=True)
                 save(args.out, result)
     if args.compile:
         model, _ = sc["prism"]

@@ -187,6 +187,10 @@ def test_bad_input_named():
         gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point", device="cpu")
     with pytest.raises(ValueError, match="integrator"):
         gym.make_vec(ID, integrator="implicit_euler", **mk)
+    with pytest.raises(ValueError, match="compile: expected True or False"):
+        gym.make_vec(ID, compile="yes", **mk)
+    with pytest.raises(ValueError, match="compile: only with backend='torch'"):
+        gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point", compile=True)
     env = gym.make_vec(ID, clip_actions=False, **mk)
     env.reset(seed=0)
     a = torch.zeros((2, 9), dtype=torch.float64)

@@ -1,4 +1,4 @@
-"""Device-resident vector env of ``TensegrityRoll-v0`` on the torch backend (SI units).
+"""Device-resident vector envs of ``TensegrityRoll-v0`` and ``TensegrityShape-v0`` on the torch backend (SI units).
 
 ``gymnasium.make_vec("TensegrityRoll-v0", num_envs=N, vectorization_mode="vector_entry_point",
 backend="torch", device="cuda", dtype="float32")`` returns a :class:`TorchRollVectorEnv`: a
@@ -36,9 +36,22 @@ NumPy vector env's to round-off (``tests/test_torch_env.py``: 50 control steps, 
 ``randomize``, ``params``, ``action_delay``, force-density mode). The NumPy env's observation
 is float32; this env returns ``dtype`` (float64 gives the float64 numbers before that cast).
 
+``TensegrityShape-v0`` (:class:`TorchShapeVectorEnv`) works the same way on
+:class:`~tensegrity_gym.envs.shape.ShapeTask`: targets and initial states drawn on the host at
+reset, the control update, the physics (with the model's node drag), the divergence check, the
+tracking errors, the ``tracking`` / ``proximity`` / ``ctrl`` reward terms and the observation on
+the device; it equals the NumPy vector env to round-off in the same tests.
+
 Not supported here (``ValueError`` at construction): ``observation_mode="robot"`` (the sensor
 model is NumPy-only), ``render_mode`` (use the NumPy env to render), the implicit integrators
 (the torch backend has ``semi_implicit_euler`` and ``rk4``).
+
+``compile=True`` (roll) wraps the physics step with contact
+(:func:`tensegrity_gym.torch_backend.contact_substep`) in ``torch.compile``: the first steps
+compile (10-35 s on a 2-core CPU), then a control step ran 2-8x faster than eager on CPU in
+``scripts/bench_gpu.py --env --env-compile`` (``docs/bench_gpu.md``). Reset sampling on the host
+costs a Python loop over the reset envs (about 35 us per env on a 2-core CPU, the same as the
+NumPy env's reset; ``docs/bench_gpu.md``), paid when envs finish.
 
 Autoreset and seeding are those of :class:`~tensegrity_gym.envs.common.TaskVectorEnv`:
 ``AutoresetMode.NEXT_STEP``; ``reset(seed=s)`` seeds env i with ``s + i``; ``reset(options=
