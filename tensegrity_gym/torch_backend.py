@@ -12,9 +12,12 @@ Entry points
 * :func:`step` ``(model, q, qd, dt, integrator, n_steps, ...) -> (q, qd)`` on torch tensors
   (``"semi_implicit_euler"`` with the great-circle drift when ``project=True``, or ``"rk4"``,
   projection after each step as :func:`tensegrity_gym.integrators.step`);
-* :func:`contact_forces`, :func:`contact_step`: ground contact with Coulomb friction and a
-  stick phase (as :mod:`tensegrity_gym.contact`, the anchors and contact flags as tensors);
-* :func:`motor`: the cable motor (``Actuation.apply_motor`` + ``physics_inputs``);
+* :func:`contact_forces`, :func:`contact_step`, :func:`contact_substep`: ground contact with
+  Coulomb friction and a stick phase (as :mod:`tensegrity_gym.contact`, the anchors and contact
+  flags as tensors; per-copy contact parameters as a (P, 9) tensor ``prm`` / ``contact_prm``);
+* :func:`motor`: the cable motor (``Actuation.apply_motor``), :func:`advance`: the control
+  update without a motor (``Actuation.apply``), both with optional per-copy limits, and
+  :func:`physics_inputs`;
 * :func:`step_state` / :func:`simulate`: numpy :class:`~tensegrity_gym.dynamics.State` in
   and out, what ``integrators.step(..., backend="torch", device=..., dtype=...)`` and
   ``python -m tensegrity_gym simulate --backend torch --device cpu`` call.
