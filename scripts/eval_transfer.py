@@ -9,6 +9,9 @@ statistics) or a Stable-Baselines3 model zip (``--policy PATH.zip --algo SAC``) 
 (b) N held-out randomised robots of ``TensegrityRoll-v0`` (``randomize``: every listed
     parameter drawn per robot, relative U(1 - s, 1 + s) x nominal; seeds from 1,000,000), and
 (c) the MuJoCo twin ``TensegrityRollMuJoCo-v0`` (N reset seeds, the same reset noise as (a)),
+(d) with ``--twin-randomised``, also N randomised MuJoCo twins (row ``mujoco_twin_randomised``:
+    the twin with the same ``randomize`` and seeds as (b), so twin i is robot i of (b), with the
+    same drawn parameters, run by MuJoCo; see the twin's module doc for how each maps),
 
 each for ``--time`` s (no time limit), and prints a table of the speed of the centre of mass
 along the goal (``info["distance_rolled"] / T``: m/s and body lengths/s, body length = the
@@ -83,13 +86,15 @@ def run_vector(policy_spec, algo, n, T, **env_kwargs):
 
 
 def run_twin(policy_spec, algo, n, T, **env_kwargs):
-    """Speeds (n,) m/s along the goal on the MuJoCo twin, reset seeds SEED0 + i."""
+    """Speeds (n,) m/s along the goal on the MuJoCo twin, reset seeds SEED0 + i; with
+    ``randomize`` in ``env_kwargs`` also the parameters each twin drew (name -> (n, ...))."""
     env = TensegrityRollMuJoCoEnv(**env_kwargs)
     policy = make_policy(policy_spec, algo, env)
-    out = []
+    out, drawn = [], []
     steps = int(round(T / env.dt))
     for i in range(n):
-        obs, _ = env.reset(seed=SEED0 + i)
+        obs, info = env.reset(seed=SEED0 + i)
+        drawn.append(info.get("params", {}))
         state = None
         for k in range(steps):
             a, state = policy.predict(obs, state, episode_start=np.array([k == 0]), deterministic=True)
@@ -97,7 +102,8 @@ def run_twin(policy_spec, algo, n, T, **env_kwargs):
             if trunc:
                 raise RuntimeError(f"twin diverged (seed {SEED0 + i}, step {k})")
         out.append(inf["distance_rolled"] / T)
-    return np.array(out), env.task.body_length
+    params = {k: np.array([p[k] for p in drawn]) for k in drawn[0]}
+    return np.array(out), env.task.body_length, params
 
 
 def summary(v, L):
@@ -128,6 +134,8 @@ def main(argv=None) -> int:
     ap.add_argument("--time", type=float, default=20.0, help="simulated seconds per episode")
     ap.add_argument("--goal", type=float, nargs=2, default=(1.0, 0.0), metavar=("X", "Y"),
                     help="goal direction in the ground plane (default +x)")
+    ap.add_argument("--twin-randomised", action="store_true",
+                    help="also run the MuJoCo twin on the N randomised robots of (b) (row mujoco_twin_randomised)")
     ap.add_argument("--out", type=Path, default=None, help="JSON output path")
     a = ap.parse_args(argv)
     if a.robots < 1 or not (np.isfinite(a.time) and a.time > 0):
@@ -141,20 +149,26 @@ def main(argv=None) -> int:
     rows["nominal"] = summary(v, L)
     v, L, params = run_vector(a.policy, a.algo, a.robots, a.time, randomize=RANDOMIZE, **kw)
     rows["randomised"] = summary(v, L)
-    v, L = run_twin(a.policy, a.algo, a.robots, a.time, **kw)
+    v, L, _ = run_twin(a.policy, a.algo, a.robots, a.time, **kw)
     rows["mujoco_twin"] = summary(v, L)
+    twin_params = None
+    if a.twin_randomised:
+        v, L, twin_params = run_twin(a.policy, a.algo, a.robots, a.time, randomize=RANDOMIZE, **kw)
+        rows["mujoco_twin_randomised"] = summary(v, L)
     nominal = rows["nominal"]["mean_m_s"]
     print(f"policy {a.policy}, goal {tuple(a.goal)}, {a.robots} robots x {a.time:g} s, body length {L:.3f} m")
-    print(f"{'setting':<12} {'speed m/s':>10} {'std':>7} {'min':>8} {'body len/s':>10} {'of nominal':>10}")
+    print(f"{'setting':<22} {'speed m/s':>10} {'std':>7} {'min':>8} {'body len/s':>10} {'of nominal':>10}")
     for name, r in rows.items():
         frac = r["mean_m_s"] / nominal if nominal else float("nan")
         r["fraction_of_nominal"] = frac
-        print(f"{name:<12} {r['mean_m_s']:>10.4f} {r['std_m_s']:>7.4f} {r['min_m_s']:>8.4f} "
+        print(f"{name:<22} {r['mean_m_s']:>10.4f} {r['std_m_s']:>7.4f} {r['min_m_s']:>8.4f} "
               f"{r['mean_body_lengths_s']:>10.3f} {frac:>10.2f}")
     data = {"command": "python scripts/eval_transfer.py " + " ".join(sys.argv[1:] if argv is None else argv),
             "policy": a.policy, "algo": a.algo, "goal_direction": list(a.goal), "robots": a.robots, "simulated_time_s": a.time,
             "seeds": f"{SEED0} .. {SEED0 + a.robots - 1}", "randomize": RANDOMIZE,
             "randomised_params_drawn": {k: np.asarray(p).tolist() for k, p in (params or {}).items()},
+            **({"twin_randomised_params_drawn": {k: p.tolist() for k, p in twin_params.items()}}
+               if twin_params is not None else {}),
             "results": rows, "wall_time_s": time.time() - t0,
             "machine": f"{platform.machine()}, {os.cpu_count()} CPUs visible, {platform.python_version()}"}
     if a.out is not None:
