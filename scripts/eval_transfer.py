@@ -68,6 +68,23 @@ def make_policy(spec: str, algo: str | None, env):
     return TrainedPolicy(cls.load(str(path), device="cpu"), None if vn is None else load_vecnormalize(vn))
 
 
+#: env arguments of a training run that describe the robot the policy was trained on, not what it
+#: senses: the evaluation sets the robots itself ((a) nominal, (b) randomised, (c) twin)
+ROBOT_KEYS = ("randomize", "params", "goal_direction")
+
+
+def run_env_kwargs(policy_spec: str) -> dict:
+    """The env arguments a training run folder's policy needs to act (its observation and
+    actuation settings: ``observation_mode``, ``history``, ``sensor_noise``, ``action_mode``, ...),
+    from the run's ``config.yaml``; the robot (``randomize`` / ``params``) is the evaluation's."""
+    path = Path(policy_spec)
+    if policy_spec == "gait" or not (path / "config.yaml").is_file():
+        return {}
+    import yaml
+    cfg = yaml.safe_load((path / "config.yaml").read_text()) or {}
+    return {k: v for k, v in (cfg.get("env_kwargs") or {}).items() if k not in ROBOT_KEYS}
+
+
 def run_vector(policy_spec, algo, n, T, **env_kwargs):
     """Speeds (n,) m/s along the goal on n copies of TensegrityRoll-v0 (seeds SEED0 + i)."""
     venv = TensegrityRollVectorEnv(num_envs=n, max_episode_steps=None, **env_kwargs)
@@ -126,11 +143,45 @@ def write_json(path: Path, data: dict) -> None:
         raise
 
 
+def table(paths: list[Path]) -> str:
+    """Markdown table of several policies' transfer JSON files (one row per policy): speed in m/s
+    and its share of the policy's own nominal speed on each robot set."""
+    sets = ("nominal", "randomised", "mujoco_twin", "mujoco_twin_randomised")
+    head = "| policy | trained on | observation | " + " | ".join(sets) + " |"
+    lines = [head, "|---|---|---|" + "---:|" * len(sets)]
+    for path in paths:
+        d = json.loads(Path(path).read_text())
+        kw = d.get("policy_env_kwargs", {})
+        trained = "?"
+        cfg = Path(d["policy"]) / "config.yaml"
+        if cfg.is_file():
+            import yaml
+            ek = (yaml.safe_load(cfg.read_text()) or {}).get("env_kwargs") or {}
+            trained = "randomised (" + ", ".join(f"{k} {v:g}" for k, v in ek["randomize"].items()) + ")" \
+                if ek.get("randomize") else "nominal"
+        obs = kw.get("observation_mode", "state") + (f", history {kw['history']}" if kw.get("history", 1) != 1 else "")
+        cells = []
+        for k in sets:
+            r = d["results"].get(k)
+            cells.append("-" if r is None else f"{r['mean_m_s']:.3f} m/s ({100 * r['fraction_of_nominal']:.0f} %)")
+        lines.append(f"| `{d['policy']}` | {trained} | {obs} | " + " | ".join(cells) + " |")
+    ds = [json.loads(Path(p).read_text()) for p in paths]
+    n = sorted({d["robots"] for d in ds})
+    nt = sorted({d.get("twin_robots", d["robots"]) for d in ds})
+    return "\n".join(lines) + (f"\n\n{'/'.join(map(str, n))} robots on our physics, {'/'.join(map(str, nt))} on the "
+                                f"twin, {ds[0]['simulated_time_s']:g} s each; speed of the centre of mass "
+                                "along the goal; (x %) = share of the same policy's nominal speed.\n")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--table", type=Path, nargs="+", default=None, metavar="JSON",
+                    help="only print (and with --out write) the markdown table of these result files")
     ap.add_argument("--policy", default="gait", help="'gait' (RollingGait), a training run folder or an SB3 model .zip")
     ap.add_argument("--algo", default=None, help="SB3 algorithm of the zip (PPO, SAC, ...)")
     ap.add_argument("--robots", type=int, default=20, help="N: reset seeds / randomised robots / twin episodes")
+    ap.add_argument("--twin-robots", type=int, default=None,
+                    help="episodes on the MuJoCo twin (default --robots; the twin steps one robot at a time)")
     ap.add_argument("--time", type=float, default=20.0, help="simulated seconds per episode")
     ap.add_argument("--goal", type=float, nargs=2, default=(1.0, 0.0), metavar=("X", "Y"),
                     help="goal direction in the ground plane (default +x)")
@@ -138,22 +189,34 @@ def main(argv=None) -> int:
                     help="also run the MuJoCo twin on the N randomised robots of (b) (row mujoco_twin_randomised)")
     ap.add_argument("--out", type=Path, default=None, help="JSON output path")
     a = ap.parse_args(argv)
+    if a.table:
+        md = table(a.table)
+        print(md)
+        if a.out is not None:
+            tmp = a.out.with_name(a.out.name + ".tmp")
+            tmp.write_text(md)
+            os.replace(tmp, a.out)
+        return 0
+    if a.twin_robots is not None and a.twin_robots < 1:
+        print(f"error: --twin-robots must be >= 1 (got {a.twin_robots})", file=sys.stderr)
+        return 2
     if a.robots < 1 or not (np.isfinite(a.time) and a.time > 0):
         print(f"error: --robots must be >= 1 and --time > 0 (got {a.robots}, {a.time})", file=sys.stderr)
         return 2
     if not (np.all(np.isfinite(a.goal)) and np.hypot(*a.goal) > 0):
         print(f"error: --goal must be a non-zero finite vector, got {a.goal}", file=sys.stderr)
         return 2
-    rows, t0, kw = {}, time.time(), {"goal_direction": tuple(a.goal)}
+    rows, t0, kw = {}, time.time(), {"goal_direction": tuple(a.goal), **run_env_kwargs(a.policy)}
     v, L, _ = run_vector(a.policy, a.algo, a.robots, a.time, **kw)
     rows["nominal"] = summary(v, L)
     v, L, params = run_vector(a.policy, a.algo, a.robots, a.time, randomize=RANDOMIZE, **kw)
     rows["randomised"] = summary(v, L)
-    v, L, _ = run_twin(a.policy, a.algo, a.robots, a.time, **kw)
+    nt = a.robots if a.twin_robots is None else a.twin_robots
+    v, L, _ = run_twin(a.policy, a.algo, nt, a.time, **kw)
     rows["mujoco_twin"] = summary(v, L)
     twin_params = None
     if a.twin_randomised:
-        v, L, twin_params = run_twin(a.policy, a.algo, a.robots, a.time, randomize=RANDOMIZE, **kw)
+        v, L, twin_params = run_twin(a.policy, a.algo, nt, a.time, randomize=RANDOMIZE, **kw)
         rows["mujoco_twin_randomised"] = summary(v, L)
     nominal = rows["nominal"]["mean_m_s"]
     print(f"policy {a.policy}, goal {tuple(a.goal)}, {a.robots} robots x {a.time:g} s, body length {L:.3f} m")
@@ -164,7 +227,8 @@ def main(argv=None) -> int:
         print(f"{name:<22} {r['mean_m_s']:>10.4f} {r['std_m_s']:>7.4f} {r['min_m_s']:>8.4f} "
               f"{r['mean_body_lengths_s']:>10.3f} {frac:>10.2f}")
     data = {"command": "python scripts/eval_transfer.py " + " ".join(sys.argv[1:] if argv is None else argv),
-            "policy": a.policy, "algo": a.algo, "goal_direction": list(a.goal), "robots": a.robots, "simulated_time_s": a.time,
+            "policy": a.policy, "algo": a.algo, "policy_env_kwargs": {k: v for k, v in kw.items() if k != "goal_direction"},
+            "goal_direction": list(a.goal), "robots": a.robots, "twin_robots": nt, "simulated_time_s": a.time,
             "seeds": f"{SEED0} .. {SEED0 + a.robots - 1}", "randomize": RANDOMIZE,
             "randomised_params_drawn": {k: np.asarray(p).tolist() for k, p in (params or {}).items()},
             **({"twin_randomised_params_drawn": {k: p.tolist() for k, p in twin_params.items()}}

@@ -271,3 +271,31 @@ def test_render_rgb_array_follows_mujoco_state():
     assert len(task.paths[0]) == 4
     np.testing.assert_allclose(task.paths[0][-1], env.unwrapped.com())
     env.close()
+
+
+def test_eval_transfer_uses_the_runs_observation_and_writes_a_table(tmp_path):
+    """A run trained with the robot observation is evaluated with it (its robot, randomize/params,
+    is the evaluation's own); --twin-robots sets the twin's episode count; --table prints one row
+    per result file."""
+    import json
+    import runpy
+    from pathlib import Path
+    yaml = pytest.importorskip("yaml")
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer.py"
+    ns = runpy.run_path(str(script), run_name="eval_transfer")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text(yaml.safe_dump({"env_kwargs": {
+        "observation_mode": "robot", "history": 2, "randomize": {"stiffness": 0.2}, "goal_direction": [0.0, 1.0]}}))
+    assert ns["run_env_kwargs"](str(run)) == {"observation_mode": "robot", "history": 2}
+    assert ns["run_env_kwargs"]("gait") == {}
+    out = tmp_path / "g.json"
+    assert ns["main"](["--policy", "gait", "--robots", "2", "--twin-robots", "1", "--time", "0.1", "--out", str(out)]) == 0
+    d = json.loads(out.read_text())
+    assert d["twin_robots"] == 1 and len(d["results"]["mujoco_twin"]["per_robot_m_s"]) == 1
+    assert len(d["results"]["randomised"]["per_robot_m_s"]) == 2
+    md = tmp_path / "t.md"
+    assert ns["main"](["--table", str(out), str(out), "--out", str(md)]) == 0
+    text = md.read_text()
+    assert text.count("| `gait` |") == 2 and "2 robots on our physics, 1 on the twin" in text
+    assert ns["main"](["--robots", "2", "--twin-robots", "0"]) == 2
