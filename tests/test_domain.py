@@ -141,3 +141,21 @@ def test_bad_domain_arguments_name_the_parameter(kw, match):
 def test_shape_task_has_no_contact_parameters():
     with pytest.raises(ValueError, match="'friction' is not a parameter of this task"):
         gym.make("TensegrityShape-v0", randomize={"friction": 0.1})
+
+
+@pytest.mark.parametrize("env_id,randomize", [("TensegrityRoll-v0", {"stiffness": 0.2, "rod_mass": 0.2}),
+                                              ("TensegrityShape-v0", {"stiffness": 0.2, "rest_length_offset": 0.003})])
+def test_single_env_randomize_uses_the_drawn_physics(env_id, randomize):
+    """A single env (one copy) with randomised physics parameters runs the values it reports
+    (it ran the nominal robot when the per-copy rows were only written for more than one copy)."""
+    def rollout(env):
+        obs, info = env.reset(seed=3)
+        rng, out = np.random.default_rng(0), [obs]
+        for _ in range(10):
+            out.append(env.step(rng.uniform(-1, 1, env.action_space.shape))[0])
+        return np.array(out), info
+    a, info = rollout(gym.make(env_id, randomize=randomize))
+    b, _ = rollout(gym.make(env_id, params=_as_kwargs(_params_of(info, slice(None)))))
+    nominal, _ = rollout(gym.make(env_id))
+    np.testing.assert_array_equal(a, b)
+    assert np.abs(a - nominal).max() > 1e-6

@@ -141,13 +141,84 @@ def test_robot_observation_imu_at_rest():
     np.testing.assert_allclose(obs[lay["cable_length"]], d.ten_length, atol=1e-6)
 
 
-@pytest.mark.parametrize("kwargs", [{"action_mode": "force_density"}, {"randomize": {"friction": 0.1}},
-                                    {"params": {"friction": 0.5}}, {"action_delay": 2},
+@pytest.mark.parametrize("kwargs", [{"action_mode": "force_density"}, {"randomize": {"node_damping": 0.1}},
+                                    {"params": {"node_damping": 0.5}}, {"action_delay": 2},
+                                    {"ground_damping": 0.0, "params": {"ground_damping": 5.0}},
                                     {"spin_damping": -1.0}, {"contact_dampratio": -1.0}])
 def test_unsupported_arguments_raise(kwargs):
     name = next(iter(kwargs))
     with pytest.raises(ValueError, match=name):
         TensegrityRollMuJoCoEnv(**kwargs)
+
+
+TWIN_RANDOM = {"rod_mass": 0.2, "stiffness": 0.2, "damping": 0.2, "rest_length_offset": 0.005, "friction": 0.2,
+               "ground_stiffness": 0.2, "ground_damping": 0.2, "gravity": 0.05, "max_cable_speed": 0.2,
+               "max_cable_acceleration": 0.2}
+
+
+def _rollout(env, seed, steps=25):
+    rng = np.random.default_rng(0)
+    obs, info = env.reset(seed=seed)
+    out = [obs]
+    for _ in range(steps):
+        out.append(env.step(rng.uniform(-1, 1, 9))[0])
+    return np.array(out), info
+
+
+def test_randomised_twin_reports_the_roll_env_draws_and_equals_fixed_params():
+    """randomize= draws the same robot as TensegrityRoll-v0 for the same seed (domain.py's
+    sampling from np_random), reports it in info["params"], and a twin built with params= set to
+    the reported values runs the same trajectory, bit for bit; the nominal twin runs another."""
+    rand = TensegrityRollMuJoCoEnv(randomize=TWIN_RANDOM)
+    a, info = _rollout(rand, 5)
+    p = info["params"]
+    assert set(p) == set(TWIN_RANDOM)
+    _, info_roll = TensegrityRollEnv(randomize=TWIN_RANDOM).reset(seed=5)
+    for name in TWIN_RANDOM:
+        np.testing.assert_array_equal(p[name], info_roll["params"][name])
+    k0 = rand.task.structure.stiffness
+    assert np.all(np.abs(p["stiffness"] / k0 - 1) <= 0.2) and np.ptp(p["stiffness"] / k0) > 0.05
+    fixed = TensegrityRollMuJoCoEnv(params={n: np.asarray(v).tolist() for n, v in p.items()})
+    b, info_b = _rollout(fixed, 5)
+    np.testing.assert_array_equal(a, b)
+    for name in TWIN_RANDOM:
+        np.testing.assert_array_equal(info_b["params"][name], p[name])
+    nominal, _ = _rollout(TensegrityRollMuJoCoEnv(), 5)
+    assert np.abs(a - nominal).max() > 1e-3
+    _, info2 = rand.reset(seed=6)                                 # a new robot at the next seed
+    assert not np.array_equal(info2["params"]["rod_mass"], p["rod_mass"])
+
+
+def test_params_reach_the_mujoco_model():
+    base = TensegrityRollMuJoCoEnv()
+    m0 = base.model
+    mass0, inertia0 = m0.body_mass[base._body].copy(), m0.body_inertia[base._body].copy()
+    rest0, solref0 = m0.tendon_lengthspring[:, 1].copy(), m0.geom_solref[0].copy()
+    k = np.linspace(800.0, 1200.0, 9)
+    env = TensegrityRollMuJoCoEnv(params={"rod_mass": [0.3, 0.2, 0.25], "stiffness": k.tolist(), "damping": 3.0,
+                                          "rest_length_offset": 0.004, "friction": 0.7, "gravity": [0, 0, -5.0],
+                                          "ground_stiffness": 2e4, "ground_damping": 5.0})
+    m = env.model
+    env.reset(seed=0)
+    body = env._body
+    np.testing.assert_allclose(m.body_mass[body], [0.3, 0.2, 0.25])
+    np.testing.assert_allclose(m.body_inertia[body], inertia0 * (np.array([0.3, 0.2, 0.25]) / mass0)[:, None])
+    np.testing.assert_allclose(m.body_subtreemass[0], 0.75)                 # mj_setConst ran
+    np.testing.assert_allclose(m.tendon_stiffness, k)
+    np.testing.assert_allclose(m.tendon_damping, 3.0)
+    passive = np.setdiff1d(np.arange(9), env._act)
+    np.testing.assert_allclose(m.tendon_lengthspring[passive, 1], rest0[passive] + 0.004)
+    np.testing.assert_allclose(m.tendon_lengthspring[env._act, 1], env.task.ctrl[0] + 0.004)
+    env.step(np.ones(9))                                                     # rewritten every control step
+    np.testing.assert_allclose(m.tendon_lengthspring[env._act, 1], env.task.ctrl[0] + 0.004)
+    np.testing.assert_allclose(m.geom_friction[:, 0], 0.7)
+    np.testing.assert_allclose(m.opt.gravity, [0, 0, -5.0])
+    tc = max(np.sqrt(0.2 / 4 / 2e4), 2 * env.task.dt)                      # lightest rod 0.2 kg
+    np.testing.assert_allclose(m.geom_solref, np.tile([tc, 1.0 * 5.0 / 10.0], (m.ngeom, 1)))
+    assert tuple(solref0) == (base.contact_timeconst, 1.0)
+    heavy = TensegrityRollMuJoCoEnv(params={"rod_mass": 0.4})
+    heavy.reset(seed=0)
+    np.testing.assert_allclose(heavy.model.geom_solref[:, 0], np.sqrt(0.4 / 4 / 1e4))   # m_eff follows the mass
 
 
 def test_friction_and_contact_softness_from_the_env():
@@ -174,6 +245,17 @@ def test_eval_transfer_script(tmp_path, capsys):
     assert len(data["randomised_params_drawn"]["rod_mass"]) == 2
     assert "mujoco_twin" in capsys.readouterr().out
     assert main(["--robots", "0"]) == 2
+    out2 = tmp_path / "t2.json"
+    assert main(["--policy", "gait", "--robots", "2", "--time", "0.2", "--twin-randomised", "--out", str(out2)]) == 0
+    data2 = json.loads(out2.read_text())
+    assert set(data2["results"]) == {"nominal", "randomised", "mujoco_twin", "mujoco_twin_randomised"}
+    for name in ("nominal", "randomised", "mujoco_twin"):     # the existing rows are unchanged by the option
+        assert data2["results"][name]["per_robot_m_s"] == data["results"][name]["per_robot_m_s"]
+    assert set(data2["twin_randomised_params_drawn"]) == set(data2["randomize"])
+    for name in data2["twin_randomised_params_drawn"]:        # twin i is randomised robot i of (b)
+        v = data2["randomised_params_drawn"][name]
+        np.testing.assert_array_equal(data2["twin_randomised_params_drawn"][name], v)
+    assert data2["results"]["mujoco_twin_randomised"]["per_robot_m_s"] != data2["results"]["mujoco_twin"]["per_robot_m_s"]
     with pytest.raises(SystemExit, match="no such file"):
         main(["--policy", str(tmp_path / "missing.zip"), "--robots", "1", "--time", "0.1"])
 
@@ -189,3 +271,31 @@ def test_render_rgb_array_follows_mujoco_state():
     assert len(task.paths[0]) == 4
     np.testing.assert_allclose(task.paths[0][-1], env.unwrapped.com())
     env.close()
+
+
+def test_eval_transfer_uses_the_runs_observation_and_writes_a_table(tmp_path):
+    """A run trained with the robot observation is evaluated with it (its robot, randomize/params,
+    is the evaluation's own); --twin-robots sets the twin's episode count; --table prints one row
+    per result file."""
+    import json
+    import runpy
+    from pathlib import Path
+    yaml = pytest.importorskip("yaml")
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer.py"
+    ns = runpy.run_path(str(script), run_name="eval_transfer")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text(yaml.safe_dump({"env_kwargs": {
+        "observation_mode": "robot", "history": 2, "randomize": {"stiffness": 0.2}, "goal_direction": [0.0, 1.0]}}))
+    assert ns["run_env_kwargs"](str(run)) == {"observation_mode": "robot", "history": 2}
+    assert ns["run_env_kwargs"]("gait") == {}
+    out = tmp_path / "g.json"
+    assert ns["main"](["--policy", "gait", "--robots", "2", "--twin-robots", "1", "--time", "0.1", "--out", str(out)]) == 0
+    d = json.loads(out.read_text())
+    assert d["twin_robots"] == 1 and len(d["results"]["mujoco_twin"]["per_robot_m_s"]) == 1
+    assert len(d["results"]["randomised"]["per_robot_m_s"]) == 2
+    md = tmp_path / "t.md"
+    assert ns["main"](["--table", str(out), str(out), "--out", str(md)]) == 0
+    text = md.read_text()
+    assert text.count("| `gait` |") == 2 and "2 robots on our physics, 1 on the twin" in text
+    assert ns["main"](["--robots", "2", "--twin-robots", "0"]) == 2

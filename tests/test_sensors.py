@@ -118,3 +118,121 @@ def test_roll_env_robot_observation_noise_and_history():
 def test_bad_sensor_arguments(kw, match):
     with pytest.raises(ValueError, match=match):
         gym.make("TensegrityRoll-v0", **kw)
+
+
+# ---------------------------------------------------------------------- TensegrityShape-v0 (same sensor code)
+def _shape_rollout(env, seed=2, steps=12):
+    rng = np.random.default_rng(0)
+    obs, info = env.reset(seed=seed)
+    out = [(obs, None, info)]
+    for _ in range(steps):
+        o, r, term, trunc, inf = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        out.append((o, r, inf))
+    return out
+
+
+@pytest.mark.parametrize("action_mode,unit", [("rest_length", "m"), ("force_density", "N/m")])
+def test_shape_env_robot_observation_layout_and_readings(action_mode, unit):
+    env = gym.make("TensegrityShape-v0", observation_mode="robot", history=2, action_mode=action_mode)
+    task = env.unwrapped.task
+    k, m, na, nt = task.model.n_bars, task.model.n_strings, task.actuated.size, task.tracked.size
+    lay = {n: (s, u) for n, s, u in task.observation_layout()}
+    assert list(lay) == ["cable_length", "control", "imu_accel", "imu_gyro", "target_position"]
+    assert lay["control"][1] == unit and lay["target_position"][1] == "m"
+    F = task.sensors.frame_size
+    assert F == m + na + 6 * k + 3 * nt == 51 and env.observation_space.shape == (2 * F,)
+    obs, _ = env.reset(seed=1)
+    assert np.array_equal(obs[:F], obs[F:])                                          # history filled at reset
+    acc = obs[lay["imu_accel"][0]].reshape(k, 3)
+    np.testing.assert_allclose(np.linalg.norm(acc, axis=1), 9.81, rtol=1e-6)        # reset reading: -g
+    prev = obs
+    obs, *_ = env.step(np.full(na, 0.5))
+    assert np.array_equal(obs[F:], prev[:F])                                          # newest first
+    np.testing.assert_allclose(obs[lay["cable_length"][0]], dyn.string_state(task.model, task.q)[1][0], rtol=1e-6)
+    np.testing.assert_allclose(obs[lay["control"][0]], task.ctrl[0], rtol=1e-6)
+    np.testing.assert_allclose(obs[lay["target_position"][0]], task.target[0].ravel(), rtol=1e-6)
+    assert env.observation_space.contains(obs)
+
+
+def test_shape_env_imu_reads_the_last_physics_step():
+    """frame_skip = 1: the accelerometer is (v(t) - v(t - dt)) / dt - g and the gyroscope b x b',
+    in each rod's frame, from the task's own state before and after the step."""
+    env = gym.make("TensegrityShape-v0", observation_mode="robot", frame_skip=1)
+    task = env.unwrapped.task
+    lay = {n: s for n, s, _ in task.observation_layout()}
+    env.reset(seed=0)
+    for _ in range(3):
+        qd0 = task.qd.copy()
+        obs, *_ = env.step(np.full(9, -1.0))
+    acc = (task.qd[0, :, :3] - qd0[0, :, :3]) / task.dt + task.model.com_eta[:, None] * (
+        task.qd[0, :, 3:] - qd0[0, :, 3:]) / task.dt - np.asarray(task.model.gravity)
+    R = rod_frames(task.q[:, :, 3:])[0]
+    np.testing.assert_allclose(obs[lay["imu_accel"]].reshape(-1, 3), np.einsum("kij,kj->ki", R, acc), rtol=1e-5, atol=1e-4)
+    w = np.cross(task.q[0, :, 3:], task.qd[0, :, 3:])
+    np.testing.assert_allclose(obs[lay["imu_gyro"]].reshape(-1, 3), np.einsum("kij,kj->ki", R, w), rtol=1e-5, atol=1e-6)
+    assert np.abs(obs[lay["imu_accel"]].reshape(-1, 3) - np.einsum("kij,j->ki", R, -np.asarray(task.model.gravity))).max() > 0.1
+
+
+def test_shape_env_at_rest_reads_minus_g_and_no_rotation():
+    env = gym.make("TensegrityShape-v0", observation_mode="robot", reset_noise_scale=0.0)
+    task = env.unwrapped.task
+    lay = {n: s for n, s, _ in task.observation_layout()}
+    env.reset(seed=0)
+    for _ in range(5):
+        obs, *_ = env.step(np.zeros(9))             # nominal controls at the nominal equilibrium
+    acc = obs[lay["imu_accel"]].reshape(-1, 3)
+    np.testing.assert_allclose(np.linalg.norm(acc, axis=1), 9.81, rtol=1e-4)
+    np.testing.assert_allclose(acc[:, 2], 9.81 * task.q[0, :, 5], rtol=1e-4, atol=1e-4)   # along the rod: up . b
+    assert np.abs(obs[lay["imu_gyro"]]).max() < 1e-4
+
+
+def test_shape_env_robot_mode_same_physics_rewards_infos_as_state_mode():
+    rob = gym.make("TensegrityShape-v0", observation_mode="robot")
+    sta = gym.make("TensegrityShape-v0")
+    default = gym.make("TensegrityShape-v0", observation_mode="state")
+    a, b, c = _shape_rollout(rob), _shape_rollout(sta), _shape_rollout(default)
+    np.testing.assert_array_equal(rob.unwrapped.task.q, sta.unwrapped.task.q)
+    for (_, ra, ia), (ob, rb, ib), (oc, _, _) in zip(a, b, c):
+        assert ra == rb
+        assert np.array_equal(ob, oc)
+        for key in ("tracking_error", "max_node_error", "is_success"):
+            assert ia[key] == ib[key]
+    assert sta.unwrapped.task.sensors is None and sta.observation_space.shape == (69,)
+
+
+def test_shape_env_sensor_noise_seeded_and_vector_equals_single():
+    noisy = dict(observation_mode="robot", sensor_noise={"imu_gyro": 0.02, "cable_length": 1e-3}, history=2)
+    a, b = gym.make("TensegrityShape-v0", **noisy), gym.make("TensegrityShape-v0", **noisy)
+    clean = gym.make("TensegrityShape-v0", observation_mode="robot", history=2)
+    lay = {n: s for n, s, _ in a.unwrapped.task.observation_layout()}
+    oa, ob, oc = a.reset(seed=4)[0], b.reset(seed=4)[0], clean.reset(seed=4)[0]
+    assert np.array_equal(oa, ob) and not np.array_equal(oa, oc)
+    d = (oa - oc)[lay["cable_length"]]
+    assert 2e-4 < d.std() < 5e-3
+    assert np.array_equal(oa[lay["target_position"]], oc[lay["target_position"]])   # the command is not noisy
+    venv = gym.make_vec("TensegrityShape-v0", num_envs=2, vectorization_mode="vector_entry_point", **noisy)
+    ov, _ = venv.reset(seed=4)
+    assert np.array_equal(ov[0], oa)
+    env1 = gym.make("TensegrityShape-v0", **noisy)
+    o1, _ = env1.reset(seed=5)
+    assert np.array_equal(ov[1], o1)
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        acts = rng.uniform(-1, 1, (2, 9))
+        ov, rv, *_ = venv.step(acts)
+        oa, ra, *_ = a.step(acts[0])
+        o1, *_ = env1.step(acts[1])
+    assert np.array_equal(ov[0], oa) and np.array_equal(ov[1], o1) and rv[0] == ra
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({"observation_mode": "camera"}, "observation_mode: unknown 'camera'"),
+    ({"observation_mode": "robot", "sensor_noise": {"contact": 0.1}}, "unknown or noiseless block 'contact'"),
+    ({"observation_mode": "robot", "sensor_noise": {"cable_speed": 0.1}}, "unknown or noiseless block 'cable_speed'"),
+    ({"observation_mode": "robot", "sensor_noise": {"target_position": 0.1}}, "unknown or noiseless block"),
+    ({"observation_mode": "robot", "history": 1.5}, "history: must be a positive integer"),
+    ({"history": 3}, "only with observation_mode='robot'"),
+])
+def test_shape_env_bad_sensor_arguments(kw, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make("TensegrityShape-v0", **kw)

@@ -437,8 +437,10 @@ class BatchedTask:
         """Copies ``idx`` take the domain's current values. ``self.params`` has one row (set once,
         at ``init``) when no physics parameter is randomised, else one per copy (set per reset)."""
         v, model, P = self.domain.values, self.model, (0 if self.params is None else self.params.batch_size)
-        if P > 1 or (P == 1 and init):
-            rows = idx if P > 1 else np.zeros(1, int)
+        # per copy: a physics parameter is randomised (then P = B, also when B = 1)
+        per_copy = P > 0 and bool(set(self.domain.spread) & set(_PHYSICS_FIELDS))
+        if per_copy or (P == 1 and init):
+            rows = idx if per_copy else np.zeros(1, int)
             phys = {}
             for name, fld in _PHYSICS_FIELDS.items():
                 if name in v and fld != "rest_length":
@@ -447,8 +449,8 @@ class BatchedTask:
                         phys[fld] = np.where(model.active, 0.0, phys[fld])
             if "rest_length_offset" in v:
                 phys["rest_length"] = model.rest_length + v["rest_length_offset"][rows]
-                self.rest_offset = v["rest_length_offset"] if P > 1 else v["rest_length_offset"][:1]
-            self.params = self.params.set_rows(rows, **phys) if P > 1 else self.params.replace(**phys)
+                self.rest_offset = v["rest_length_offset"] if per_copy else v["rest_length_offset"][:1]
+            self.params = self.params.set_rows(rows, **phys) if per_copy else self.params.replace(**phys)
         self._apply_task_domain(idx)
 
     def _apply_task_domain(self, idx: np.ndarray) -> None:

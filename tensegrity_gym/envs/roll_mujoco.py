@@ -62,9 +62,47 @@ Modelling differences from the project's physics (``docs/contact.md``, ``EQUATIO
   rods, as RollTask settles it) and resets add the reset noise to that pose. The contact flags
   in the reset observation are MuJoCo's contacts (ours start released: all 0).
 
-Not supported (ValueError): ``action_mode="force_density"``, ``params``, ``randomize``,
-``action_delay``, ``start_rest_length_offset`` and divergence limits (a non-finite state or a
-MuJoCo bad-acceleration warning truncates the episode with ``info["diverged"] = True``).
+Robot parameters: ``params=`` and ``randomize=``
+-------------------------------------------------
+As ``TensegrityRoll-v0`` (:mod:`tensegrity_gym.envs.domain`): the twin's :class:`RollTask` holds
+the :class:`~tensegrity_gym.envs.domain.Domain`, so the values are drawn at every reset from the
+env's ``np_random`` by the same code, in the same order, as ``TensegrityRoll-v0`` draws them (the
+same seed gives the same robot on both), and ``info["params"]`` at reset reports them. A twin built
+with ``params=`` set to the reported values runs the same trajectory as the randomised one. At each
+reset, before the state is set, the values are written into the ``MjModel`` (then
+``mj_setConst``, so MuJoCo's constants that depend on the masses follow):
+
+==========================  ===============================================================
+name (SI unit)              MuJoCo field
+==========================  ===============================================================
+``rod_mass`` (kg)           ``body_mass`` of the rod; ``body_inertia`` scaled by the same
+                            factor (the mass distribution keeps its shape); the contact's
+                            effective mass m_eff (below) follows the lightest rod
+``stiffness`` (N/m)         ``tendon_stiffness``
+``damping`` (N s/m)         ``tendon_damping`` (acts slack or taut, see above)
+``rest_length_offset`` (m)  added to ``tendon_lengthspring[:, 1]``: the nominal rest length
+                            of passive strings, the motor's rest length of actuated ones
+                            (rewritten every control step)
+``gravity`` (m/s^2)         ``opt.gravity``
+``friction`` (1)            ``geom_friction[:, 0]`` of every geom
+``ground_stiffness`` (N/m)  ``geom_solref[:, 0]`` = timeconst = ``sqrt(m_eff / k)`` (floored at
+                            2 steps), m_eff = a quarter of the lightest rod mass
+``ground_damping`` (s/m)    ``geom_solref[:, 1]`` = dampratio = ``contact_dampratio`` x
+                            ``ground_damping`` / the env's nominal ``ground_damping``: the
+                            Hunt-Crossley damping ratio at a given penetration is proportional
+                            to it, MuJoCo's has no penetration dependence, so only the
+                            relative change is carried (refused if the nominal value is 0)
+``max_cable_speed`` (m/s),  the cable motor model (:class:`~tensegrity_gym.envs.common.Actuation`,
+``max_cable_acceleration``  shared with ``TensegrityRoll-v0``), not MuJoCo
+==========================  ===============================================================
+
+``node_damping`` is refused (ValueError): MuJoCo damps the DOFs of a rod's free joint (centre of
+mass translation, body-frame rotation), not its end nodes; a viscous force at each end node on
+the axis has no exact counterpart.
+
+Not supported (ValueError): ``action_mode="force_density"``, ``node_damping`` in ``params`` /
+``randomize``, ``action_delay``, ``start_rest_length_offset`` and divergence limits (a non-finite
+state or a MuJoCo bad-acceleration warning truncates the episode with ``info["diverged"] = True``).
 Registered as ``TensegrityRollMuJoCo-v0`` with ``max_episode_steps`` = 1000 (20 s), as
 ``TensegrityRoll-v0``. ``render_mode="rgb_array"`` draws MuJoCo's state with the project's
 renderer (as ``TensegrityRoll-v0`` does; ``mujoco.Renderer`` would need ``MUJOCO_GL`` set before
@@ -87,14 +125,19 @@ from .roll import MAX_PATH, SETTLE_TIME, RollTask
 __all__ = ["TensegrityRollMuJoCoEnv", "ENV_ID"]
 
 ENV_ID = "TensegrityRollMuJoCo-v0"
-_UNSUPPORTED = ("params", "randomize", "start_rest_length_offset")
+_UNSUPPORTED = ("start_rest_length_offset",)
+#: robot parameters (envs/domain.py SPECS) the twin represents (module doc: the MuJoCo fields)
+TWIN_PARAMS = ("damping", "friction", "gravity", "ground_damping", "ground_stiffness", "max_cable_acceleration",
+               "max_cable_speed", "rest_length_offset", "rod_mass", "stiffness")
+_NOT_REPRESENTABLE = {"node_damping": "MuJoCo damps a rod's free-joint DOFs (centre-of-mass translation, "
+                                      "body-frame rotation), not its end nodes"}
 
 
 class TensegrityRollMuJoCoEnv(gym.Env):
     """MuJoCo twin of ``TensegrityRoll-v0`` (see the module docstring).
 
     Arguments: those of ``TensegrityRoll-v0`` (passed to its :class:`RollTask`; rest-length mode
-    only), plus ``mj_integrator`` ("implicitfast"), ``contact_dampratio`` (1.0, the damping ratio
+    only; ``params`` / ``randomize`` as the module doc maps them onto the MjModel), plus ``mj_integrator`` ("implicitfast"), ``contact_dampratio`` (1.0, the damping ratio
     of MuJoCo's contact ``solref``), ``spin_damping`` (1.0 N m s, damping of each rod's spin
     about its own axis, see the module doc), ``render_mode`` (None or "rgb_array"), ``width``, ``height``.
     ``env.unwrapped.task`` is the :class:`RollTask` (so :class:`tensegrity_gym.baselines.RollingGait`
@@ -114,7 +157,13 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self._mj = mujoco
         for name in _UNSUPPORTED:
             if kwargs.get(name) is not None:
-                raise ValueError(f"{name}: not supported by {ENV_ID} (the twin simulates the nominal robot)")
+                raise ValueError(f"{name}: not supported by {ENV_ID}")
+        for arg in ("params", "randomize"):
+            d = kwargs.get(arg)
+            for name in (d if isinstance(d, dict) else ()):
+                if name in _NOT_REPRESENTABLE:
+                    raise ValueError(f"{arg}[{name!r}]: {ENV_ID} cannot represent it ({_NOT_REPRESENTABLE[name]}); "
+                                     f"it takes {list(TWIN_PARAMS)}")
         if kwargs.get("action_delay", 0):
             raise ValueError(f"action_delay: not supported by {ENV_ID}, got {kwargs['action_delay']!r}")
         if kwargs.get("action_mode", "rest_length") != "rest_length":
@@ -134,11 +183,19 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         m_eff = float(s.bar_mass.min()) / 4.0
         self.contact_timeconst = max(math.sqrt(m_eff / c.stiffness), 2.0 * task.dt)
         m.geom_solref[:] = (self.contact_timeconst, self.contact_dampratio)
+        if c.damping == 0 and any(isinstance(kwargs.get(a), dict) and "ground_damping" in kwargs[a]
+                                  for a in ("params", "randomize")):
+            raise ValueError(f"ground_damping: {ENV_ID} carries it as a change relative to the env's nominal "
+                             f"ground_damping, which is 0 here")
         k = s.n_bars
         self._body = np.array([m.body(f"rod{j}").id for j in range(k)])
         self._dof = m.jnt_dofadr[m.body_jntadr[self._body]]
         self._rod_of_geom = np.full(m.ngeom, -1)
         self._rod_of_geom[[m.geom(f"rod{j}").id for j in range(k)]] = np.arange(k)
+        self._tendon0 = {"mass": m.body_mass[self._body].copy(), "inertia": m.body_inertia[self._body].copy(),
+                         "stiffness": m.tendon_stiffness.copy(), "damping": m.tendon_damping.copy(),
+                         "rest_length": m.tendon_lengthspring[:, 1].copy(), "gravity": m.opt.gravity.copy()}
+        self._rest_offset = np.zeros(m.ntendon)   # rest_length_offset of this episode, m
         self._eta = task.model.eta                          # (k, 2) node offsets from the reference point, m
         self._act = task.actuated
         self._badqacc = mujoco.mjtWarning.mjWARN_BADQACC
@@ -170,6 +227,27 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             raise ValueError(f"{ENV_ID}: settling on MuJoCo's ground diverged at dt = {t.dt} s; reduce dt")
         t.q_nominal = q.copy()
         t.nodes_nominal = dyn.node_positions(t.model, q)[0]
+
+    def _apply_params(self) -> None:
+        """Write this episode's robot parameters (the task's domain values, drawn or fixed) into the
+        MjModel (module doc: the mapping), then ``mj_setConst``. Called at reset before the state is set."""
+        mj, m, t, nom = self._mj, self.model, self.task, self._tendon0
+        v = {name: x[0] for name, x in t.domain.values.items()}
+        c = t.contact
+        mass = np.asarray(v.get("rod_mass", nom["mass"]), float)
+        m.body_mass[self._body] = mass
+        m.body_inertia[self._body] = nom["inertia"] * (mass / nom["mass"])[:, None]
+        m.tendon_stiffness[:] = v.get("stiffness", nom["stiffness"])
+        m.tendon_damping[:] = v.get("damping", nom["damping"])
+        self._rest_offset = np.asarray(v.get("rest_length_offset", np.zeros(m.ntendon)), float)
+        m.tendon_lengthspring[:, 1] = nom["rest_length"] + self._rest_offset
+        m.opt.gravity[:] = v.get("gravity", nom["gravity"])
+        m.geom_friction[:, 0] = float(v.get("friction", c.friction))
+        k = float(v.get("ground_stiffness", c.stiffness))
+        self.contact_timeconst = max(math.sqrt(float(mass.min()) / 4.0 / k), 2.0 * t.dt)
+        ratio = float(v["ground_damping"]) / c.damping if "ground_damping" in v else 1.0
+        m.geom_solref[:] = (self.contact_timeconst, self.contact_dampratio * ratio)
+        mj.mj_setConst(m, self.data)
 
     @property
     def dt(self) -> float:
@@ -229,12 +307,14 @@ class TensegrityRollMuJoCoEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         mj, m, d, t = self._mj, self.model, self.data, self.task
-        t.reset(np.array([0]), [self.np_random], options)   # same noise, goal, controls as TensegrityRoll-v0
+        info = t.reset(np.array([0]), [self.np_random], options)   # same params, noise, goal, controls as TensegrityRoll-v0
+        if t.domain.enabled:
+            self._apply_params()
         N = dyn.node_positions(t.model, t.q)[0]
         V = dyn.node_velocities(t.model, t.qd)[0]
         mj.mj_resetData(m, d)
         d.qpos[:], d.qvel[:] = initial_qpos_qvel(t.structure.replace(nodes=N, velocities=V))
-        m.tendon_lengthspring[self._act, 1] = t.ctrl[0]
+        m.tendon_lengthspring[self._act, 1] = t.ctrl[0] + self._rest_offset[self._act]
         self._sync()
         self.start = self.com()
         t.start[0] = self.start
@@ -244,6 +324,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self._needs_reset = False
         out = {"com_position": self.start.copy(), "com_velocity": np.zeros(3), "distance_rolled": 0.0,
                "goal_direction": t.goal[0].copy()}
+        if "params" in info:
+            out["params"] = {n: x[0] for n, x in info["params"].items()}
         return t.observe()[0], out
 
     def step(self, action):
@@ -255,7 +337,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             t.ctrl, t.speed, _ = t.actuation.advance_motor(t.ctrl, t.speed, a)
         else:
             t.ctrl, _ = t.actuation.advance(t.ctrl, a)
-        m.tendon_lengthspring[self._act, 1] = t.ctrl[0]
+        m.tendon_lengthspring[self._act, 1] = t.ctrl[0] + self._rest_offset[self._act]
         com0 = self.com()
         qpos0, qvel0, bad0 = d.qpos.copy(), d.qvel.copy(), d.warning[self._badqacc].number
         for sub in range(t.frame_skip):

@@ -16,8 +16,13 @@ block                  size        unit     meaning
 ``imu_gyro``           3 k         rad/s    each rod's angular velocity in the rod frame (the z component,
                                             about the rod's own axis, is 0: a rod has no roll in this model)
 ``contact``            2 k         1        end-cap contact switches (1 = touching the ground)
-``goal_direction``     2           1        the commanded heading (x, y) (a command, not a sensor)
+command                            the task's command (not a sensor), as its state mode gives it:
+``goal_direction``     2           1        ``TensegrityRoll-v0``: the commanded heading (x, y)
+``target_position``    3 nt        m        ``TensegrityShape-v0``: the target positions of the tracked nodes
 =====================  ==========  =======  =============================================================
+
+Blocks an env does not have are left out (no ``cable_speed`` without the motor model, no
+``contact`` without ground contact: ``TensegrityShape-v0`` has neither).
 
 Rod frame (the rod's own axis carries no roll, so the frame is fixed by gravity): ``z`` is the rod
 axis ``b`` (node a to node c); ``x`` is the world "up" (0, 0, 1) made perpendicular to ``b``
@@ -31,12 +36,19 @@ minus gravity; at reset it reads ``-g`` (the robot starts at rest). The gyroscop
 contact switches and the goal are not noisy), drawn from the copy's own generator (the env's
 ``np_random``) once per control step. ``history=H`` stacks the last H readings, newest first
 (at reset all H are the reset reading), so a policy can infer rates.
+
+A task uses this module through :meth:`RobotSensors.attach` (construction),
+:meth:`RobotSensors.reset_reading` (reset), :meth:`RobotSensors.simulate` (its physics for one
+control step, split so that the IMUs see the last physics step) and :meth:`RobotSensors.record`
+(after the step); ``TensegrityRoll-v0`` keeps its own stepping loop (contact) and calls
+:meth:`RobotSensors.frame` itself.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .. import dynamics as dyn
+from .. import integrators
 
 __all__ = ["NOISY_BLOCKS", "rod_frames", "RobotSensors"]
 
@@ -63,12 +75,14 @@ class RobotSensors:
     """The robot reading of a batched task (see the module doc)."""
 
     def __init__(self, model, n_actuated: int, n_speed: int, n_contacts: int, noise: dict | None = None,
-                 history: int = 1, control_unit: str = "m"):
+                 history: int = 1, control_unit: str = "m", command: tuple = ("goal_direction", 2, "1")):
+        """``command``: (name, size, unit) of the task's command block, the last of a reading."""
         self.model = model
         k, m = model.n_bars, model.n_strings
+        self.command = tuple(command)
         self.blocks = [("cable_length", m, "m"), ("control", n_actuated, control_unit), ("cable_speed", n_speed, "m/s"),
                        ("imu_accel", 3 * k, "m/s^2"), ("imu_gyro", 3 * k, "rad/s"), ("contact", n_contacts, "1"),
-                       ("goal_direction", 2, "1")]
+                       self.command]
         self.blocks = [b for b in self.blocks if b[1] > 0]
         self.frame_size = sum(b[1] for b in self.blocks)
         if isinstance(history, (bool, np.bool_)) or int(history) != history or history < 1:
@@ -106,11 +120,13 @@ class RobotSensors:
             i += sz
         return out
 
-    def frame(self, q, qd, qd_prev, dt: float, gravity, ctrl, speed, contact, goal, rngs) -> np.ndarray:
+    def frame(self, q, qd, qd_prev, dt: float, gravity, ctrl, speed, contact, command, rngs) -> np.ndarray:
         """(r, frame_size) float64 readings of r copies: state ``q``, ``qd`` (r, k, 6), the rod
         velocities one physics step ``dt`` earlier ``qd_prev`` (None: at rest), ``gravity`` (3,)
-        or (r, 3) m/s^2, controls (r, na), motor speeds (r, n_speed), contact flags (r, 2k),
-        goal (r, 2); noise from ``rngs`` (one generator per copy)."""
+        or (r, 3) m/s^2, controls (r, na), motor speeds (r, n_speed), contact flags (r, 2k)
+        (``speed`` / ``contact`` unused, may be None, when the env has no such block), the
+        command (r, size) (the goal (r, 2) of the roll task); noise from ``rngs`` (one generator
+        per copy)."""
         model = self.model
         r = q.shape[0]
         _, L, _ = dyn.string_state(model, q)
@@ -127,9 +143,82 @@ class RobotSensors:
         parts = {"cable_length": L, "control": ctrl, "cable_speed": speed,
                  "imu_accel": np.einsum("bkij,bkj->bki", R, spec).reshape(r, -1),
                  "imu_gyro": np.einsum("bkij,bkj->bki", R, omega).reshape(r, -1),
-                 "contact": contact.astype(float), "goal_direction": goal}
+                 "contact": None if contact is None else contact.astype(float),
+                 self.command[0]: np.asarray(command, float).reshape(r, -1)}
         out = np.concatenate([parts[name] for name, _, _ in self.blocks], axis=1)
         for j in range(r) if self.noise else ():
             for sl, s in self.noise:
                 out[j, sl] += rngs[j].normal(0.0, s, sl.stop - sl.start)
         return out
+
+    # ------------------------------------------------------------------ the task side
+    @classmethod
+    def attach(cls, task, observation_mode: str, sensor_noise: dict | None, history: int, command: tuple,
+               n_speed: int = 0, n_contacts: int = 0) -> "RobotSensors | None":
+        """Validate ``observation_mode`` / ``sensor_noise`` / ``history`` for ``task`` (a
+        :class:`~tensegrity_gym.envs.common.BatchedTask` whose ``model``, ``actuation`` and
+        ``num_envs`` are set) and, in robot mode, set its ``observation_size`` and reading buffers.
+        Returns the sensors, or None in state mode (nothing of the task is touched then)."""
+        if observation_mode not in ("state", "robot"):
+            raise ValueError(f"observation_mode: unknown {observation_mode!r}; choose 'state' or 'robot'")
+        if observation_mode == "state":
+            if sensor_noise or history != 1:
+                raise ValueError("sensor_noise / history: only with observation_mode='robot'")
+            return None
+        act = task.actuation
+        sens = cls(task.model, act.actuated.size, n_speed, n_contacts, sensor_noise, history, act.unit, command)
+        B = task.num_envs
+        task.observation_size = sens.size
+        task._readings = np.zeros((B, sens.history, sens.frame_size))
+        task._sensor_rngs = [None] * B
+        task._qd_prev = None
+        return sens
+
+    @staticmethod
+    def gravity(task, idx) -> np.ndarray:
+        """(r, 3) or (3,) gravity of copies ``idx`` of ``task``, m/s^2 (the robot's own with ``params``)."""
+        if task.params is not None:
+            g = task.params.gravity
+            return g[idx] if g.shape[0] > 1 else g[0]
+        return np.zeros(3) if task.model.gravity is None else np.asarray(task.model.gravity, float)
+
+    def reset_reading(self, task, idx: np.ndarray, rngs, command, speed=None, contact=None) -> None:
+        """The reset reading of copies ``idx`` (at rest: the IMUs read -g), copied into every
+        history slot; the copies' generators ``rngs`` are kept for the noise of later readings."""
+        for j, i in enumerate(idx):
+            task._sensor_rngs[i] = rngs[j]
+        frame = self.frame(task.q[idx], task.qd[idx], None, task.dt, self.gravity(task, idx), task.ctrl[idx],
+                           speed, contact, command, rngs)
+        task._readings[idx] = frame[:, None, :]
+
+    def simulate(self, task, inputs: dict) -> np.ndarray:
+        """``task.simulate(**inputs)`` for the robot observation: the control step's physics as two
+        ``integrators.step`` calls (``frame_skip - 1`` steps, then the last one) so that the rod
+        velocities before the last physics step are kept (``task._qd_prev``, what the IMUs
+        difference). Same per-step arithmetic as one call of ``frame_skip`` steps. Returns
+        ``diverged`` (B,) bool (diverged copies keep their state; their IMUs read -g)."""
+        q0, qd0 = task.q, task.qd
+        kw = dict(backend=task.backend, params=task.params, **inputs)
+        with np.errstate(all="ignore"):
+            st = dyn.State(q0, qd0, 0.0)
+            if task.frame_skip > 1:
+                st = integrators.step(task.model, st, task.dt, task.integrator, n_steps=task.frame_skip - 1, **kw)
+            qd_prev = np.array(st.qd, dtype=float)
+            st = integrators.step(task.model, st, task.dt, task.integrator, **kw)
+        diverged = task._finish_simulate(q0, qd0, st.q, st.qd)
+        qd_prev[diverged] = task.qd[diverged]
+        task._qd_prev = qd_prev
+        return diverged
+
+    def record(self, task, command, speed=None, contact=None) -> None:
+        """Push the reading after a control step into the history (newest first)."""
+        frame = self.frame(task.q, task.qd, task._qd_prev, task.dt, self.gravity(task, slice(None)), task.ctrl,
+                           speed, contact, command, task._sensor_rngs)
+        R = task._readings
+        R[:, 1:] = R[:, :-1].copy()
+        R[:, 0] = frame
+
+    @staticmethod
+    def observation(task) -> np.ndarray:
+        """(B, history x frame_size) float32: the readings, newest first."""
+        return task._readings.reshape(task.num_envs, -1).astype(np.float32)

@@ -16,6 +16,7 @@ from ..rewards import _c_einsum as _sum_squares, quadratic_cost, tolerance
 from . import _fast
 from .common import (ACTION_MODES, Actuation, BatchedTask, TaskEnv, TaskVectorEnv, check_positive,
                      check_stable_dt, resolve_actuated)
+from .sensors import RobotSensors
 
 __all__ = ["ShapeTask", "TensegrityShapeEnv", "TensegrityShapeVectorEnv", "DEFAULT_STRING_DAMPING",
            "DEFAULT_NODE_DAMPING"]
@@ -48,7 +49,8 @@ class ShapeTask(BatchedTask):
                  force_density_max: float | None = None, force_density_rate: float | None = None,
                  backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True,
                  params: dict | None = None, randomize: dict | None = None, action_delay: int = 0,
-                 start_rest_length_offset=None, allow_unstable_dt: bool = False):
+                 start_rest_length_offset=None, allow_unstable_dt: bool = False, observation_mode: str = "state",
+                 sensor_noise: dict | None = None, history: int = 1):
         s = _load(structure)
         if not s.node_constraints and s.anchors.size == 0:
             raise ValueError(f"structure {s.name!r}: the shape task needs an anchored structure (node_constraints "
@@ -149,6 +151,10 @@ class ShapeTask(BatchedTask):
             if np.all(src_rod[self.tracked] >= 0):
                 self._obs_rod = np.ascontiguousarray(src_rod[self.tracked], dtype=np.int64)
                 self._obs_eta = np.ascontiguousarray(src_eta[self.tracked], dtype=np.float64)
+        # robot observation (envs/sensors.py; None in state mode): NumPy observe and step paths
+        self.sensors = RobotSensors.attach(self, observation_mode, sensor_noise, history, ("target_position", 3 * nt, "m"))
+        if self.sensors is not None:
+            self._obs_rod = None
         self._init_domain(params, randomize, action_delay, start_rest_length_offset)
 
     # ------------------------------------------------------------------ targets
@@ -222,6 +228,8 @@ class ShapeTask(BatchedTask):
         self.elapsed[idx] = 0
         self._N = None
         self._obs = None
+        if self.sensors is not None:
+            self.sensors.reset_reading(self, idx, rngs, self.target[idx].reshape(r, -1))
         err, emax = self._errors(idx)
         return {"tracking_error": err, "max_node_error": emax, "is_success": emax <= self.success_tolerance}
 
@@ -338,6 +346,12 @@ class ShapeTask(BatchedTask):
         return terms, np.zeros(B, bool), infos
 
     def step(self, action):
+        if self.sensors is not None:    # robot observation: the IMUs need the last physics step (envs/sensors.py)
+            self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
+            self._last_action = action
+            out = self._finish_step(action, self.sensors.simulate(self, self.with_offset(inputs)))
+            self.sensors.record(self, self.target.reshape(self.num_envs, -1))
+            return out
         fz = self.__dict__.get("_fused")
         if fz is None:
             fz = self._fused_setup()
@@ -376,6 +390,8 @@ class ShapeTask(BatchedTask):
         return terms, np.zeros(self.num_envs, bool), infos
 
     def observe(self) -> np.ndarray:
+        if self.sensors is not None:
+            return self.sensors.observation(self)
         obs, self._obs = self._obs, None
         if obs is not None:
             of = self._obs_of
@@ -404,7 +420,10 @@ class ShapeTask(BatchedTask):
 
     # ------------------------------------------------------------------ layout
     def observation_layout(self) -> list[tuple[str, slice, str]]:
-        """(name, slice, unit) of each block of the observation vector."""
+        """(name, slice, unit) of each block of the observation vector (robot mode: of the newest
+        reading; the ``history - 1`` older readings follow it in the same layout)."""
+        if self.sensors is not None:
+            return self.sensors.layout()
         nt, na = 3 * self.tracked.size, self.actuated.size
         u = self.actuation.unit
         blocks = [("node_position", nt, "m"), ("node_velocity", nt, "m/s"), ("control", na, u),
@@ -468,6 +487,27 @@ _DOC = r"""
     | 9nt+na .. 12nt+na-1 | target error (target - position) | m |
 
     ``env.unwrapped.task.observation_layout()`` lists the blocks.
+
+    **Robot observation** (``observation_mode="robot"``): only what a lab robot measures, plus
+    the target (a command, as the state mode gives it); no node position, velocity or target
+    error. One reading, k rods, m strings (:mod:`tensegrity_gym.envs.sensors`, the code
+    ``TensegrityRoll-v0`` uses; size m + na + 6k + 3nt, 51 for the default prism):
+
+    | block | size | unit | reading |
+    |-------|------|------|---------|
+    | ``cable_length`` | m | m | length of every string (cable length sensor) |
+    | ``control`` | na | m or N/m | each actuated string's motor encoder: its commanded rest length (N/m: force density) |
+    | ``imu_accel`` | 3k | m/s^2 | each rod's accelerometer at its centre of mass in the rod frame: specific force a - g over the last physics step (reset reading: -g) |
+    | ``imu_gyro`` | 3k | rad/s | each rod's angular velocity in the rod frame (z, about the rod axis, is 0) |
+    | ``target_position`` | 3nt | m | target positions of the tracked nodes (the command) |
+
+    The rod frame (z along the rod, x the world "up" made perpendicular to it) is defined in
+    :mod:`tensegrity_gym.envs.sensors`. ``sensor_noise={block: sigma}`` adds Gaussian noise
+    (SI units, from ``np_random``) to ``cable_length``, ``control``, ``imu_accel``, ``imu_gyro``;
+    ``history=H`` stacks the last H readings, newest first (size H x the reading). Robot mode
+    runs the same physics (the control step's ``frame_skip`` physics steps as two calls, so the
+    IMUs see the last one; same trajectory, rewards and infos as the state mode) on the NumPy
+    path of the observation (no fused compiled step).
 
     ## Rewards
     ``reward = reward_tracking + reward_proximity + reward_ctrl`` with e_i the distance of
@@ -536,6 +576,9 @@ _DOC = r"""
     | ``randomize`` | ``None`` | ``{name: spread}`` drawn per copy at every reset (relative U(1 - s, 1 + s) x nominal; ``rest_length_offset`` absolute U(-s, s) m); ``info["params"]`` at reset reports the values |
     | ``action_delay`` | ``0`` | control steps between an action and its effect (zeros at the start of an episode) |
     | ``start_rest_length_offset`` | ``None`` | m added to the actuated strings' rest lengths at reset (rest-length mode; within the bounds) |
+    | ``observation_mode`` | ``"state"`` | ``"robot"``: what a lab robot senses (cable lengths, motor encoders, rod IMUs) plus the target; see "Observation space" |
+    | ``sensor_noise`` | ``None`` | robot mode: ``{block: sigma}`` Gaussian noise, SI units (``cable_length``, ``control``, ``imu_accel``, ``imu_gyro``) |
+    | ``history`` | ``1`` | robot mode: readings stacked, newest first |
     | ``render_mode``, ``width``, ``height`` | ``None``, 480, 480 | ``"rgb_array"`` or ``"human"`` |
 
     ``render()`` draws rods thick, strings coloured by tension (slack dashed grey) and the
@@ -544,6 +587,7 @@ _DOC = r"""
     ## Version history
     * v0: initial version.
     * v0 (0.2): ``params``, ``randomize``, ``action_delay``, ``start_rest_length_offset``; defaults unchanged (bit-identical).
+    * v0 (0.2): ``observation_mode="robot"``, ``sensor_noise``, ``history``; defaults unchanged (bit-identical).
 """
 
 
