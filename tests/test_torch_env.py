@@ -179,8 +179,9 @@ def test_bad_input_named():
             gym.make_vec(ID, device="cuda", **mk)
     with pytest.raises(ValueError, match="dtype: 'float16'"):
         gym.make_vec(ID, dtype="float16", **mk)
-    with pytest.raises(ValueError, match="observation_mode"):
-        gym.make_vec(ID, observation_mode="robot", **mk)
+    for env_id in (ID, "TensegrityShape-v0"):
+        with pytest.raises(ValueError, match="observation_mode: 'robot' is not supported by backend='torch'"):
+            gym.make_vec(env_id, observation_mode="robot", **mk)
     with pytest.raises(ValueError, match="render_mode"):
         gym.make_vec(ID, render_mode="rgb_array", **mk)
     with pytest.raises(ValueError, match="device: only with backend='torch'"):

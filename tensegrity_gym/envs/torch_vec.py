@@ -125,6 +125,9 @@ class _TorchTaskVectorEnv(gym.vector.VectorEnv):
         if render_mode is not None:
             raise ValueError(f"render_mode: {render_mode!r} is not supported by backend='torch' (render the "
                              f"NumPy env: gymnasium.make({self.ENV_ID!r}, render_mode='rgb_array'))")
+        if kwargs.get("observation_mode", "state") != "state":
+            raise ValueError(f"observation_mode: {kwargs['observation_mode']!r} is not supported by "
+                             "backend='torch' (the robot sensor model is NumPy-only); use 'state'")
         self.device = tb.resolve_device(device)
         self.dtype = tb.resolve_dtype(dtype)
         task = self._make_task(num_envs, kwargs)
@@ -384,15 +387,11 @@ class _TorchTaskVectorEnv(gym.vector.VectorEnv):
 
 
 class TorchRollVectorEnv(_TorchTaskVectorEnv):
-    """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc).
-    ``observation_mode="robot"`` is refused (the sensor model is NumPy-only)."""
+    """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc)."""
 
     ENV_ID = "TensegrityRoll-v0"
 
     def _make_task(self, num_envs, kwargs):
-        if kwargs.get("observation_mode", "state") != "state":
-            raise ValueError(f"observation_mode: {kwargs['observation_mode']!r} is not supported by "
-                             "backend='torch' (the robot sensor model is NumPy-only); use 'state'")
         from .roll import RollTask
         return RollTask(num_envs=num_envs, **kwargs)
 
