@@ -340,6 +340,16 @@ def test_sysid_torch_jacobian_equals_finite_differences(one_thread):
     Jp, Xp = pb.full_jacobian(theta, q0, qd0, sim)
     assert np.linalg.norm(Jp - Jf) / np.linalg.norm(Jp) < 1e-5
     assert np.linalg.norm(Xp - Xf) / np.linalg.norm(Xp) < 1e-5
+    # with recorded (actuated) rest lengths, held per sample interval
+    rl = model.rest_length[None] * (1 + 0.01 * np.sin(np.arange(t.size)[:, None] * 0.3 + np.arange(3)))
+    t_, rec, mask, rl_, h = sysid._check_record(model, t, nodes, rl, None)
+    pa = sysid._Problem(model, t_, rec, mask, rl_, h, names, items, init, base, "per_member", 0.06, "rk4", 4e-3, 1)
+    sim = pa.simulate(q0, qd0, pa.params(theta), np.arange(W))
+    Jf, Xf = pa.full_jacobian(theta, q0, qd0, sim)
+    pa.jacobian = "torch"
+    Jp, Xp = pa.full_jacobian(theta, q0, qd0, sim)
+    assert np.linalg.norm(Jp - Jf) / np.linalg.norm(Jp) < 1e-5
+    assert np.linalg.norm(Xp - Xf) / np.linalg.norm(Xp) < 1e-5
     # a wrong gradient is caught: one parameter column off by 0.1 %
     bad = Jt.copy()
     bad[..., 0] *= 1.001
