@@ -58,6 +58,7 @@ CASES = {
                                         "max_cable_acceleration": 0.3, "gravity": 0.1},
                              params={"damping": 1.0, "node_damping": 0.1, "ground_stiffness": 2e4}),
     "force_density": dict(action_mode="force_density", max_episode_steps=30),
+    "icosahedron_rk4": dict(structure="icosahedron", integrator="rk4", max_episode_steps=20),
 }
 
 
