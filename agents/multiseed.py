@@ -197,7 +197,9 @@ def run(argv: list[str] | None = None) -> dict:
         import yaml
         cfg = yaml.safe_load((r / "config.yaml").read_text())
         env_ids.add(m["env"])
+        st = json.loads((r / "state.json").read_text()) if (r / "state.json").exists() else {}
         row = {"run": str(r), "seed": cfg.get("seed"), "model": m["model"],
+               "time_split_s": st.get("time_split_last_segment_s"),
                "model_num_timesteps": m["model_num_timesteps"],
                "training_wall_time_s": m["training_wall_time_s"], "training_status": m["training_status"]}
         for key, src, _ in METRICS:

@@ -115,6 +115,7 @@ def _callbacks():
             self.save_replay_buffer = save_replay_buffer
             self.run_state = run_state
             self._last_k = 0
+            self.elapsed = 0.0   # s spent writing checkpoints (TimeSplit)
 
         def _on_training_start(self) -> None:
             self._last_k = self.model.num_timesteps // self.save_freq
@@ -122,6 +123,7 @@ def _callbacks():
         def _on_step(self) -> bool:
             k = self.num_timesteps // self.save_freq
             if k > self._last_k:
+                t0 = time.perf_counter()
                 self._last_k = k
                 self.save_path.mkdir(parents=True, exist_ok=True)
                 n = self.num_timesteps
@@ -133,6 +135,7 @@ def _callbacks():
                 common.save_model_atomic(self.model, self.save_path / f"rl_model_{n}_steps.zip")
                 if self.run_state is not None:
                     self.run_state.update(last_checkpoint_timesteps=int(n), num_timesteps=int(n))
+                self.elapsed += time.perf_counter() - t0
             return True
 
     class ResumableEvalCallback(EvalCallback):
@@ -149,6 +152,7 @@ def _callbacks():
             self.run_state = run_state
             self.report = report
             self.npz_path = self.run_dir / "eval" / "evaluations.npz"
+            self.elapsed = 0.0   # s spent evaluating and saving the best model (TimeSplit)
             # EvalCallback's own np.savez (not atomic) goes to a scratch file; the real file is written below
             self.log_path = str(self.run_dir / "eval" / ".evaluations_scratch")
             self._last_k = 0
@@ -169,6 +173,13 @@ def _callbacks():
             self._last_k = self.model.num_timesteps // self.every
 
         def _on_step(self) -> bool:
+            t0 = time.perf_counter()
+            try:
+                return self._step()
+            finally:
+                self.elapsed += time.perf_counter() - t0
+
+        def _step(self) -> bool:
             k = self.num_timesteps // self.every
             due = k > self._last_k
             if due:
@@ -228,7 +239,47 @@ def _callbacks():
                 return False
             return True
 
-    return InfoLoggerCallback, ScheduledCheckpoint, ResumableEvalCallback, InterruptAt, StopAfterWallTime
+    class TimeSplit(BaseCallback):
+        """Where a training segment's wall time goes (``state.json`` ``time_split_s``): ``rollout``
+        (collecting experience: env steps, policy inference, normalisation, buffer writes),
+        ``learner`` (gradient updates: from the end of one collection to the start of the next),
+        and ``evaluation_and_checkpoints`` (the ``timed`` callbacks' own ``elapsed`` time, spent
+        inside collection and subtracted from ``rollout``). Works for on-policy algorithms (one
+        collection per update) and off-policy ones (one per ``train_freq``) alike."""
+
+        def __init__(self, timed=()):
+            super().__init__()
+            self.timed = [c for c in timed if c is not None]
+            self.rollout = self.learner = 0.0
+            self._t, self._phase = None, None
+
+        def _on_training_start(self) -> None:
+            self._t, self._phase = time.perf_counter(), None
+
+        def _on_rollout_start(self) -> None:
+            now = time.perf_counter()
+            if self._phase == "learn":
+                self.learner += now - self._t
+            self._t, self._phase = now, "rollout"
+
+        def _on_rollout_end(self) -> None:
+            now = time.perf_counter()
+            self.rollout += now - self._t
+            self._t, self._phase = now, "learn"
+
+        def _on_training_end(self) -> None:
+            if self._phase == "learn":
+                self.learner += time.perf_counter() - self._t
+            self._phase = None
+
+        def _on_step(self) -> bool:
+            return True
+
+        def split(self) -> dict:
+            ev = sum(c.elapsed for c in self.timed)
+            return {"rollout": max(self.rollout - ev, 0.0), "learner": self.learner, "evaluation_and_checkpoints": ev}
+
+    return InfoLoggerCallback, ScheduledCheckpoint, ResumableEvalCallback, InterruptAt, StopAfterWallTime, TimeSplit
 
 
 # ---------------------------------------------------------------------- argument parsing
@@ -456,7 +507,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
     from stable_baselines3.common.vec_env import VecNormalize
     from stable_baselines3.common.callbacks import CallbackList, ProgressBarCallback
     from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
-    InfoLoggerCallback, ScheduledCheckpoint, ResumableEvalCallback, _, StopAfterWallTime = _callbacks()
+    InfoLoggerCallback, ScheduledCheckpoint, ResumableEvalCallback, _, StopAfterWallTime, TimeSplit = _callbacks()
 
     import json
     import socket
@@ -555,10 +606,12 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
 
     # ---------------------------------------------------------------- callbacks
     cbs: list = [InfoLoggerCallback(reward_keys, info_keys)]
+    ckpt = None
     if save_freq and save_freq > 0:
-        cbs.append(ScheduledCheckpoint(save_freq, str(run_dir / "checkpoints"), save_vecnormalize=norm is not None,
+        ckpt = ScheduledCheckpoint(save_freq, str(run_dir / "checkpoints"), save_vecnormalize=norm is not None,
                                        save_replay_buffer=bool(args.save_replay_buffer and algo in common.OFF_POLICY),
-                                       run_state=run_state))
+                                       run_state=run_state)
+        cbs.append(ckpt)
     ecb = None
     if eval_env is not None:
         ecb = ResumableEvalCallback(eval_env, eval_freq, run_dir, run_state=run_state, report=report,
@@ -574,6 +627,8 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         stopper = StopAfterWallTime(args.max_wall_time)
         cbs.append(stopper)
     cbs.extend(extra_callbacks or [])
+    timer = TimeSplit([ckpt, ecb])
+    cbs.append(timer)
 
     _install_interrupt_handlers()
     remaining = n_timesteps - model.num_timesteps
@@ -615,14 +670,17 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
             run_state.update(status=status, num_timesteps=int(model.num_timesteps), target_timesteps=n_timesteps,
                              best_mean_reward=best,
                              wall_time_s=float(prev_state.get("wall_time_s", 0.0)) + elapsed,
-                             steps_per_s_last_segment=(model.num_timesteps - steps0) / max(elapsed, 1e-9))
+                             steps_per_s_last_segment=(model.num_timesteps - steps0) / max(elapsed, 1e-9),
+                             time_split_last_segment_s={k: round(v, 3) for k, v in timer.split().items()})
             scratch = run_dir / "eval" / ".evaluations_scratch.npz"
             if scratch.exists():
                 scratch.unlink()
             env.close()
             if eval_env is not None:
                 eval_env.close()
-    print(f"{status}: {model.num_timesteps} steps in {elapsed:.1f} s -> {run_dir}")
+    split = timer.split()
+    print(f"{status}: {model.num_timesteps} steps in {elapsed:.1f} s -> {run_dir} (" +
+          ", ".join(f"{k} {v:.1f} s" for k, v in split.items()) + ")")
     if error is not None:
         raise error
     return run_dir

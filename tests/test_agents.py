@@ -301,3 +301,18 @@ def test_adapter_per_sub_env_methods_on_the_batched_env():
     with pytest.raises(ValueError, match="one object"):
         venv.env_method("render", indices=[1])
     venv.close()
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_state_records_where_the_time_went(tmp_path, algo):
+    """state.json's time_split_last_segment_s: rollout, learner and evaluation/checkpoint seconds,
+    each >= 0, together no more than the segment's wall time; a run with evaluations has
+    evaluation time, a learner that updates has learner time."""
+    run = tmp_path / "run"
+    train.train(["--algo", algo, "--env", "Pendulum-v1", "--log-dir", str(run), *TINY, *_tiny_hp(algo)])
+    st = json.loads((run / "state.json").read_text())
+    split = st["time_split_last_segment_s"]
+    assert set(split) == {"rollout", "learner", "evaluation_and_checkpoints"}
+    assert all(v >= 0 for v in split.values())
+    assert sum(split.values()) <= st["wall_time_s"] + 1e-3
+    assert split["learner"] > 0 and split["rollout"] > 0 and split["evaluation_and_checkpoints"] > 0
