@@ -1,4 +1,4 @@
-"""The compiled per-step helpers (tensegrity_gym/envs/_fast.py) and the small-array fast paths
+"""The compiled per-step helpers (tensegrity_gym/pipeline.py, tensegrity_gym/envs/compiled.py) and the small-array fast paths
 give bit-identical results to the NumPy reference paths, and bad input still raises the same
 errors."""
 import contextlib
@@ -7,22 +7,23 @@ import numpy as np
 import pytest
 
 from tensegrity_gym import rewards
-from tensegrity_gym.envs import _fast
+from tensegrity_gym import pipeline
+from tensegrity_gym.envs import compiled
 from tensegrity_gym.envs.common import check_action
 from tensegrity_gym.envs.shape import TensegrityShapeEnv, TensegrityShapeVectorEnv
 
-pytestmark = pytest.mark.skipif(not _fast.AVAILABLE, reason="numba not installed")
+pytestmark = pytest.mark.skipif(not pipeline.AVAILABLE, reason="numba not installed")
 
 
 @contextlib.contextmanager
 def reference():
     """Run the NumPy reference paths (as without numba) inside the block."""
-    old = _fast.AVAILABLE
-    _fast.AVAILABLE = False
+    old = pipeline.AVAILABLE
+    pipeline.AVAILABLE = False
     try:
         yield
     finally:
-        _fast.AVAILABLE = old
+        pipeline.AVAILABLE = old
 
 
 def same(a, b):
@@ -59,7 +60,7 @@ def test_shape_env_fast_path_is_bit_identical(mode):
 @pytest.mark.parametrize("divergence_limit", [None, 0.3])
 def test_shape_fused_step_is_bit_identical(mode, num_envs, divergence_limit):
     """ShapeTask's fused step (one compiled call: control update, physics kernel, divergence
-    check, observation, errors; _fast.shape_step) against the unfused path (integrators.step
+    check, observation, errors; compiled.shape_step) against the unfused path (integrators.step
     and the separate compiled helpers): same observations, rewards, infos and state, bit for
     bit, including steps where a copy diverges (a 0.3 m limit: some copies leave it)."""
     kw = dict(action_mode=mode, divergence_limit=divergence_limit)
@@ -186,11 +187,11 @@ def test_mean_max_matches_numpy_reductions():
         for B in (1, 3, 64):
             d = np.abs(rng.normal(size=(B, nt))) * 10.0 ** rng.integers(-17, 1, size=(B, nt))
             mean, mx = np.empty(B), np.empty(B)
-            done = _fast.mean_max(d, mean, mx)
+            done = compiled.mean_max(d, mean, mx)
             assert done == (nt < 8)
             if done:
                 assert same(mean, d.mean(axis=1)) and same(mx, d.max(axis=1)), (nt, B)
     d = np.array([[0.1, np.nan, 0.3], [0.2, 0.1, 0.0]])
     mean, mx = np.empty(2), np.empty(2)
-    assert _fast.mean_max(d, mean, mx)
+    assert compiled.mean_max(d, mean, mx)
     assert same(mean, d.mean(axis=1)) and same(mx, d.max(axis=1))
