@@ -83,6 +83,10 @@ def advance(model: Model, q: np.ndarray, qd: np.ndarray, dt: float, integrator: 
         forces = np.empty((B, model.n_nodes, 3))
     if slip is None:
         slip = np.empty((B, 2 * model.n_bars), bool)
+    if compiled and external is None and contact._numba and _contact_compiled(
+            model, q, qd, dt, integrator, n_steps, rest_length, force_density, params, project, contact, cstate,
+            contact_params, forces, slip):
+        return
     contact_forces = gc.forces_inplace
     for _ in range(int(n_steps)):
         contact_forces(contact, model, q, qd, cstate, forces, slip, contact_params)
@@ -143,6 +147,36 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     for _ in range(int(n_steps)):
         t = t + dt
     return State(q=q, qd=qd, t=t), cs
+
+
+def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_density, params, project, contact, cstate,
+                      contact_params, forces, slip) -> bool:
+    """The contact loop of :func:`advance` in ONE compiled call (:func:`_contact_loop`: the
+    contact kernel and the serial integrator kernel per step, exactly the calls the Python loop
+    makes), when the serial kernels are what that loop would run; False (nothing done) otherwise:
+    a batch large enough for the parallel kernel, or arrays the kernels do not take as they are."""
+    p = _kernels._packed(model) if params is None else _kernels._pack_params(model, params)
+    flags = _kernels._flags(p, name, project)
+    B = q.shape[0]
+    if B >= 8 and B * p.cost * (4 if flags & _kernels._RK4 else 1) >= _kernels.PARALLEL_MIN_WORK:
+        return False
+    for x in (q, qd, forces):
+        if not (type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable):
+            return False
+    l0, fd, ext, flags = _kernels._controls(p, flags, rest_length, force_density, forces)
+    l0, fd = _kernels._array(l0, 2, "rest_length"), _kernels._array(fd, 2, "force_density")
+    prm = contact._prm if contact_params is None else contact_params
+    bufs = p.buf[None] if p.bufs is None else p.bufs
+    if p.bufs is not None and not _kernels._READY["copies"]:
+        _kernels._compile("copies")
+    try:
+        err = _contact_loop(q, qd, bufs, l0, fd, forces, float(dt), int(n_steps), flags, model.eta, model.rod_a,
+                            model.rod_c, cstate.anchor, cstate.active, slip, prm)
+    except TypeError:      # an array of another type or layout: the Python loop converts it
+        return False
+    if err:
+        _kernels._raise(err, model, q, qd, rest_length, force_density, forces)
+    return True
 
 
 # ---------------------------------------------------------------------- divergence
@@ -219,6 +253,25 @@ if AVAILABLE:
     from numba import njit
 
     _run_serial = _kernels._run_serial
+    _run_copies_serial = _kernels._run_copies_serial
+    _forces_kernel = gc._forces_kernel
+
+    @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside the buffers
+    def _contact_loop(q, qd, bufs, l0, fd, W, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active, slip, prm):
+        """In place, ``n_steps`` times: the contact forces ``W`` (B, n, 3) from the state (the
+        contact kernel, anchors and slip flags updated), then one step of the serial integrator
+        kernel with ``external=W`` (``flags`` carry it); ``bufs`` (1, len) the shared packed buffer
+        or (B, len) one per copy. Returns the kernel's error code (0: done)."""
+        one = np.int64(1)
+        for _ in range(n_steps):
+            _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm)
+            if bufs.shape[0] == 1:
+                err = _run_serial(q, qd, q, qd, bufs[0], l0, fd, W, dt, one, flags)
+            else:
+                err = _run_copies_serial(q, qd, q, qd, bufs, l0, fd, W, dt, one, flags)
+            if err:
+                return err
+        return 0
 
     @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
     def run_plan(q, qd, qo, qdo, buf, controls, dt, n_steps, flags):

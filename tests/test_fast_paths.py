@@ -94,6 +94,34 @@ def test_shape_fused_step_is_bit_identical(mode, num_envs, divergence_limit):
     assert e1.task.step(np.zeros((1, 18))[:, ::2]) is not None    # a strided action: reference path
 
 
+@pytest.mark.parametrize("mode", ["rest_length", "force_density"])
+@pytest.mark.parametrize("robot", [dict(params={"rest_length_offset": 0.004}),
+                                   dict(randomize={"rest_length_offset": 0.005, "stiffness": 0.2})])
+def test_shape_fused_step_with_rest_length_offsets(mode, robot):
+    """A single env whose robot has rest-length offsets (fixed, or drawn at every reset) keeps the
+    fused step (the offsets added inside it, as BatchedTask.with_offset adds them) and matches
+    the unfused path bit for bit; a vector env with per-copy offsets runs the unfused path."""
+    e1, e2 = TensegrityShapeEnv(action_mode=mode, **robot), TensegrityShapeEnv(action_mode=mode, **robot)
+    e2.task._fused = False
+    calls = []
+    fz = e1.task._fused_setup()
+    e1.task._fused = (lambda *x: calls.append(1) or fz[0](*x),) + fz[1:]
+    for seed in (4, 5):                                    # a second reset redraws the randomised robot
+        assert same(e1.reset(seed=seed)[0], e2.reset(seed=seed)[0])
+        rng = np.random.default_rng(seed)
+        for t in range(8):
+            a = rng.uniform(-1, 1, 9)
+            r1, r2 = e1.step(a), e2.step(a)
+            assert same(r1[0], r2[0]) and r1[1:] == r2[1:], (seed, t)
+            assert same(e1.task.q, e2.task.q), (seed, t)
+    assert e1.task.rest_offset is not None and len(calls) == 16        # every step fused
+    v = TensegrityShapeVectorEnv(num_envs=3, max_episode_steps=None, action_mode=mode,
+                                 randomize={"rest_length_offset": 0.005})
+    v.reset(seed=0)
+    v.step(np.zeros((3, 9)))
+    assert v.task._fused and v.task._fused_step(v.task._fused, np.zeros((3, 9))) is None   # per-copy: unfused
+
+
 def _assert_same_step(r1, r2, t):
     """Two vector-env ``step`` results (obs, reward, terminated, truncated, info) are bit-identical."""
     for x, y in zip(r1[:4], r2[:4]):

@@ -142,8 +142,8 @@ if pipeline.AVAILABLE:
                 obs[b, o + i] = np.float32(speed[b, i])
 
     @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
-    def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, fcon, icon, qo, qdo, ctrl_out, obs, dist,
-                   stats, success, elapsed):
+    def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out, obs,
+                   dist, stats, success, elapsed):
         """One control step of the shape task in ONE compiled call (``ShapeTask.step``'s fast
         path): the control update (``pipeline.apply_controls``), the physics of a
         :class:`tensegrity_gym.pipeline.Plan` (``buf``, ``dt``, ``n_steps``, ``flags``:
@@ -156,6 +156,8 @@ if pipeline.AVAILABLE:
         tolerance) and ``elapsed`` (B,) int64 incremented (both only when mean/max are done
         here)).
 
+        ``offset`` (P, m): rest-length offsets (m) added to the physics input in rest-length mode
+        (P = 1 shared, P = B per copy, P = 0 none), as ``BatchedTask.with_offset`` adds them.
         ``fcon``: divergence limit, centre (3), tolerance, margin, gaussian scale,
         -tracking_weight, then per actuated string rate, low, high, base rest lengths (m), then
         eta (nt). ``icon``: fill_base, na, m, nt, then actuated (na), rod (nt).
@@ -177,6 +179,13 @@ if pipeline.AVAILABLE:
         _apply_controls(ctrl, action, fcon[o:o + na].reshape((1, na)), fcon[o + na:o + 2 * na],
                         fcon[o + 2 * na:o + 3 * na], icon[4:4 + na], fcon[o + 3 * na:o + 3 * na + m], fill_base,
                         ctrl_out, phys)
+        if fill_base and offset.shape[0] > 0:      # rest_length + rest_offset (with_offset)
+            if offset.shape[1] != m or (offset.shape[0] != 1 and offset.shape[0] != B):
+                return -1
+            per = offset.shape[0] > 1
+            for b in range(B):
+                for j in range(m):
+                    phys[b, j] = phys[b, j] + offset[b if per else 0, j]
         if _run_plan(q, qd, qo, qdo, buf, phys, dt, n_steps, flags):
             return -1
         if not _state_ok(qo, qdo, fcon[1:4], fcon[0]):
@@ -204,7 +213,8 @@ if pipeline.AVAILABLE:
     _c1 = "C"
     _F8, _I8 = numba.types.float64, numba.types.int64
     SHAPE_STEP_SIG = _I8(*[numba.types.Array(_F8, d, _c1) for d in (3, 3, 2, 2, 3, 1)], _F8, _I8, _I8,
-                         numba.types.Array(_F8, 1, _c1), numba.types.Array(_I8, 1, _c1),
+                         numba.types.Array(_F8, 2, _c1), numba.types.Array(_F8, 1, _c1),
+                         numba.types.Array(_I8, 1, _c1),
                          *[numba.types.Array(_F8, d, _c1) for d in (3, 3, 2)],
                          numba.types.Array(numba.types.float32, 2, _c1),
                          *[numba.types.Array(_F8, d, _c1) for d in (2, 2)],
