@@ -161,12 +161,18 @@ def _layout(k, m, n):
     return (o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end)
 
 
+def _soa_width(k):
+    """E, the copies per block of the SIMD (structure-of-arrays) loop for k rods."""
+    return 16 if k <= 24 else 8
+
+
 if AVAILABLE:
     # The kernels index one flat float64 buffer ``w`` (model data + scratch, see _layout) with
     # computed offsets instead of slicing views: every numba array view costs reference-count
     # traffic that, at B = 1, is larger than the physics of a small structure.
     _opts = dict(cache=True, fastmath=False, error_model="numpy")
     _layout_nb = njit(**_opts)(_layout)
+    _soa_width_nb = njit(inline="always", **_opts)(_soa_width)
 
     @njit(inline="always", **_opts)
     def _rod_acc(b0, b1, b2, bd0, bd1, bd2, Fa0, Fa1, Fa2, Fc0, Fc1, Fc2, ea, ec, free, im, iJ, fJ, beta, alpha,
@@ -568,18 +574,19 @@ if AVAILABLE:
                     QDn[j, i, e] = QD[j, i, e] + c * A[j, i, e]
 
     @njit(**_opts)
-    def _advance_soa(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, bufs):
+    def _advance_soa(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
         """_advance_range for large batches: E environments at a time in structure-of-arrays
         scratch, so that every inner loop runs over environments and compiles to SIMD code.
         Same operations in the same order as _advance_range (results agree to the last bit).
-        ``bufs`` (B, len): one packed buffer per copy (per-copy parameters), or (0, len): every
-        copy uses ``w``'s physical constants."""
-        E = 16 if k <= 24 else 8
+        ``lanes`` (ceil(B/E), len, E): the copies' packed buffers in blocks of E lanes
+        (:func:`_lanes`; per-copy parameters, ``lo`` a multiple of E), read in place: no copy
+        per call; or (0, 1, 1): every copy uses ``w``'s physical constants."""
+        E = _soa_width_nb(k)
         S = np.empty((10, k, 6, E))
         Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
         N = np.empty((n, 3, E))
         PC = np.empty((L[9], E))
-        per_copy = bufs.shape[0] > 0
+        per_copy = lanes.shape[0] > 0
         if not per_copy:
             for e in range(E):
                 _lane_physics(PC, N, w, L, k, m, n, e)
@@ -600,12 +607,17 @@ if AVAILABLE:
         nl, nf, ne_ = l0.shape[0], fd.shape[0], ext.shape[0]
         o_l0 = L[2]
         o_rod = L[0]
+        o_N = L[5]
         for c0 in range(lo, hi, E):
             ne = min(E, hi - c0)
+            if per_copy:                                # this block's lane constants and anchor rows
+                PC = lanes[c0 // E]
+                for p in range(n):
+                    for i in range(3):
+                        for e in range(E):
+                            N[p, i, e] = PC[o_N + 3 * p + i, e]
             for e in range(E):
                 src = c0 + e if e < ne else c0          # pad lanes repeat the first environment
-                if per_copy:
-                    _lane_physics(PC, N, bufs[src], L, k, m, n, e)
                 for j in range(k):
                     for i in range(6):
                         Q[j, i, e] = q[src, j, i]
@@ -732,7 +744,7 @@ if AVAILABLE:
     _i64 = numba.types.int64
     _SIG = _i64(_a3, _a3, _a3, _a3, _a1, _a2, _a2, _a3, _f8, _i64, _i64)
     _SIG_LEAN = _i64(_a3, _a3, _a3, _a3, _a1, _f8, _i64, _i64)
-    _SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64)
+    _SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64, _a3)
 
     # Entry points are compiled lazily for ONE explicit signature each (see _compile): the serial
     # ones on first use of any model, the parallel one on first use of a large batch.
@@ -743,7 +755,7 @@ if AVAILABLE:
             return err
         if q.shape[0] >= _SOA_MIN_BATCH:
             _advance_soa(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
-                         np.empty((0, 1)))
+                         np.empty((0, 1, 1)))
         else:
             _advance_range(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags)
         return 0
@@ -777,19 +789,21 @@ if AVAILABLE:
     # Per-copy parameters: bufs (P, len) holds one packed buffer per copy (its physics and its
     # scratch, P = B), or the one buffer shared by every copy (P = 1).
     @njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
-    def _run_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
-        """The batch in chunks on all threads (``prange``), each chunk the SIMD loop; ``bufs``
-        (1, len) shared or (B, len) one packed buffer per copy."""
+    def _run_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
+        """The batch in chunks of whole SIMD blocks on all threads (``prange``), each chunk the
+        SIMD loop; ``bufs`` (1, len) shared or (B, len) one packed buffer per copy, ``lanes`` their
+        lane blocks (:func:`_lanes`) or (0, 1, 1)."""
         err, ibs, L, k, m, n = _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, True)
         if err:
             return err
         B = q.shape[0]
-        lanes = bufs if bufs.shape[0] > 1 else np.empty((0, 1))   # per-copy lane constants, or the shared ones
-        nch = min(B, max(flags >> _CHUNK_SHIFT, 1))       # number of chunks in the high bits of flags
+        E = _soa_width_nb(k)
+        nb = (B + E - 1) // E                             # SIMD blocks
+        nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))      # number of chunks in the high bits of flags
         for c in prange(nch):
             # _advance_soa only reads the buffers and allocates its own scratch: threads share nothing written
-            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, c * B // nch, (c + 1) * B // nch, l0, fd, ext,
-                         dt, n_steps, flags, lanes)
+            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, (c * nb // nch) * E,
+                         min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes)
         return 0
 
 
@@ -797,13 +811,13 @@ if AVAILABLE:
     # copy e runs the same _advance_range as the shared buffer's copies on bufs[e]: no copy shares a
     # written byte with another
     @njit(cache=True, fastmath=False, error_model="numpy")
-    def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
+    def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
         err, ibs, L, k, m, n = _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, False)
         if err:
             return err
         B = q.shape[0]
         if B >= _SOA_MIN_BATCH:     # the SIMD loop, each lane with its copy's constants
-            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, 0, B, l0, fd, ext, dt, n_steps, flags, bufs)
+            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, 0, B, l0, fd, ext, dt, n_steps, flags, lanes)
             return 0
         for e in range(B):
             _advance_range(bufs[e], ibs[e], L, k, m, n, q, qd, qo, qdo, e, e + 1, l0, fd, ext, dt, n_steps, flags)
@@ -823,7 +837,7 @@ def clear_cache() -> None:
 class _Packed:
     """Packed buffer(s) of one model or one Params: ``buf`` (len,) for values shared by every
     copy, or ``bufs`` (B, len) one per copy (then ``buf`` is None)."""
-    __slots__ = ("buf", "bufs", "l0", "fd", "ext", "flags", "cost", "__weakref__")
+    __slots__ = ("buf", "bufs", "lanes", "l0", "fd", "ext", "flags", "cost", "__weakref__")
 
 
 def _fill_physics(buf, model, p, b):
@@ -874,6 +888,7 @@ def _pack(model):
     p = _Packed()
     p.buf = buf
     p.bufs = None
+    p.lanes = _NO_LANES
     p.l0 = np.array(model.rest_length, dtype=np.float64).reshape(1, m)
     p.fd = np.zeros((1, m))
     p.ext = np.zeros((1, n, 3))
@@ -907,12 +922,28 @@ def _pack_params(model, params):
         _fill_physics(bufs[b], model, params, b)
     p = _Packed()
     p.buf, p.bufs = (bufs[0], None) if P == 1 else (None, bufs)
+    p.lanes = _NO_LANES if P == 1 else _lanes(bufs, model.n_bars)
     p.l0 = np.array(params.rest_length[:1], dtype=np.float64)
     p.fd, p.ext, p.cost = base.fd, base.ext, base.cost
     p.flags = _physics_flags(model, params)
     _CACHE[key] = p
     weakref.finalize(params, _CACHE.pop, key, None)
     return p
+
+
+_NO_LANES = np.empty((0, 1, 1))   # no per-copy lane blocks: the SIMD loop takes the shared buffer's constants
+
+
+def _lanes(bufs, k):
+    """(ceil(P/E), len, E): the per-copy buffers ``bufs`` (P, len) in blocks of E copies, lane
+    e of block c holding copy c E + e (the SIMD loop reads its lane constants from it in place);
+    the pad lanes of the last block repeat its first copy, as the SIMD loop's pad lanes do."""
+    P, size = bufs.shape
+    E = _soa_width(k)
+    nb = -(-P // E)
+    idx = np.arange(nb * E)
+    idx = np.where(idx < P, idx, (idx // E) * E)
+    return np.ascontiguousarray(bufs[idx].reshape(nb, E, size).transpose(0, 2, 1))
 
 
 def _array(x, ndim, what):
@@ -949,7 +980,7 @@ def _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, inplac
         raise TypeError(f"dt must be a number of seconds and n_steps an integer; got {dt!r}, {n_steps!r}")
     flags |= _NCHUNK << _CHUNK_SHIFT
     if _parallel(p, q.shape[0], n_steps, flags):
-        return _run_parallel(q, qd, qo, qdo, p.buf[None], l0, fd, ext, float(dt), int(n_steps), flags)
+        return _run_parallel(q, qd, qo, qdo, p.buf[None], l0, fd, ext, float(dt), int(n_steps), flags, p.lanes)
     return _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, float(dt), int(n_steps), flags)
 
 
@@ -1053,8 +1084,8 @@ def _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_
         if not _READY["parallel"]:
             _compile("parallel")
         return _run_parallel(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps),
-                             flags | (_NCHUNK << _CHUNK_SHIFT))
-    return _run_copies_serial(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps), flags)
+                             flags | (_NCHUNK << _CHUNK_SHIFT), p.lanes)
+    return _run_copies_serial(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps), flags, p.lanes)
 
 
 def step(model, state, dt, name, *, rest_length=None, force_density=None, external=None, project=True,
@@ -1093,7 +1124,7 @@ def _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external,
             l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
             if big:
                 err = _run_parallel(q, qd, qo, qdo, p.buf[None], l0, fd, ext, dt, n_steps,
-                                    flags | (_NCHUNK << _CHUNK_SHIFT))
+                                    flags | (_NCHUNK << _CHUNK_SHIFT), p.lanes)
             else:
                 err = _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags)
     except TypeError:

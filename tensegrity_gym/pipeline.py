@@ -25,6 +25,13 @@ kernel loop.
     packed model, integrator and control mode of ``integrators.step``'s serial kernel as an
     opaque :class:`Plan`, and the njit-callable that runs it.
 
+With the numba kernels the contact steps of :func:`advance` run in ONE compiled call
+(``_contact_loop``: the contact kernel, then the serial integrator kernel, per step: the same
+calls, in the same order, as the Python loop, which the NumPy backend and batches large enough
+for the parallel kernel run). numba's on-disk cache does not notice edits of the kernels that
+``_contact_loop`` and :func:`run_plan` call: clear ``__pycache__`` (``*.nbi``, ``*.nbc``) after
+editing ``_kernels.py`` or ``contact.py``.
+
 ``AVAILABLE`` (numba importable) switches the compiled bookkeeping (divergence check, control
 update, fused steps); set it False to run the NumPy references (the tests do). The physics
 kernels themselves follow ``backend`` as in :func:`integrators.step`.
@@ -170,8 +177,8 @@ def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_densit
     if p.bufs is not None and not _kernels._READY["copies"]:
         _kernels._compile("copies")
     try:
-        err = _contact_loop(q, qd, bufs, l0, fd, forces, float(dt), int(n_steps), flags, model.eta, model.rod_a,
-                            model.rod_c, cstate.anchor, cstate.active, slip, prm)
+        err = _contact_loop(q, qd, bufs, p.lanes, l0, fd, forces, float(dt), int(n_steps), flags, model.eta,
+                            model.rod_a, model.rod_c, cstate.anchor, cstate.active, slip, prm)
     except TypeError:      # an array of another type or layout: the Python loop converts it
         return False
     if err:
@@ -257,18 +264,19 @@ if AVAILABLE:
     _forces_kernel = gc._forces_kernel
 
     @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside the buffers
-    def _contact_loop(q, qd, bufs, l0, fd, W, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active, slip, prm):
+    def _contact_loop(q, qd, bufs, lanes, l0, fd, W, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active, slip,
+                      prm):
         """In place, ``n_steps`` times: the contact forces ``W`` (B, n, 3) from the state (the
         contact kernel, anchors and slip flags updated), then one step of the serial integrator
         kernel with ``external=W`` (``flags`` carry it); ``bufs`` (1, len) the shared packed buffer
-        or (B, len) one per copy. Returns the kernel's error code (0: done)."""
+        or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the kernel's error code (0: done)."""
         one = np.int64(1)
         for _ in range(n_steps):
             _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm)
             if bufs.shape[0] == 1:
                 err = _run_serial(q, qd, q, qd, bufs[0], l0, fd, W, dt, one, flags)
             else:
-                err = _run_copies_serial(q, qd, q, qd, bufs, l0, fd, W, dt, one, flags)
+                err = _run_copies_serial(q, qd, q, qd, bufs, l0, fd, W, dt, one, flags, lanes)
             if err:
                 return err
         return 0
