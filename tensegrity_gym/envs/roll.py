@@ -13,14 +13,15 @@ import numpy as np
 
 from .. import contact as gc
 from .. import dynamics as dyn
-from .. import integrators, pipeline
+from .. import integrators
 from ..rewards import quadratic_cost
-from . import compiled
 from .actuation import Actuation
 from .base import BatchedTask, fixed_step
 from .docs import ROLL_DOC as _DOC
+from .roll_obs import RollObservation
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
-                         STRING_DAMPING, load_robot, place_on_ground, robot_icosahedron, robot_prism)
+                         STRING_DAMPING, load_robot, place_on_ground, put_on_ground, robot_icosahedron,
+                         robot_prism, settle)
 from .shells import TaskEnv, TaskVectorEnv
 from .validate import ACTION_MODES, check_positive, check_stable_dt, resolve_actuated
 
@@ -28,10 +29,9 @@ __all__ = ["RollTask", "TensegrityRollEnv", "TensegrityRollVectorEnv", "robot_pr
            "place_on_ground", "GRAVITY"]
 
 ENV_ID = "TensegrityRoll-v0"
-_SETTLED: dict = {}     # settled rest states of the built-in scenes, by parameters
 
 
-class RollTask(BatchedTask):
+class RollTask(RollObservation, BatchedTask):
     """Batched rolling task on ``num_envs`` copies (arguments: see :class:`TensegrityRollEnv`).
 
     State: ``q``, ``qd`` (B, k, 6); ``cstate`` (contact anchors (B, 2k, 2), flags (B, 2k));
@@ -97,25 +97,15 @@ class RollTask(BatchedTask):
         self.actuated = act
 
         # place on the ground and let it settle (elastic model, all strings at their rest lengths)
-        rod_com = (s.nodes[s.bars[:, 0]] * (1 - s.com_fraction)[:, None]
-                   + s.nodes[s.bars[:, 1]] * s.com_fraction[:, None])
-        com = s.bar_mass @ rod_com / s.bar_mass.sum()
-        nodes, self.stability_margin = place_on_ground(s.nodes, com, self.contact.radius, exclude_axis=axis)
-        s = s.replace(nodes=nodes)
+        s, self.stability_margin = put_on_ground(s, self.contact.radius, axis)
         self.structure = s
         elastic = dyn.compile_model(s)
         if integ in ("semi_implicit_euler", "rk4"):   # before settling on it
             check_stable_dt(elastic, gc.stable_step(self.contact, elastic)["semi_implicit_euler"], dt, integ,
                             allow_unstable_dt, "this robot's strings and ground contact")
-        key = None
-        if isinstance(structure, str):   # built-in scenes: settle once per process and parameter set
-            key = (structure, string_damping, self.contact, integ, float(dt))
-        if key is not None and key in _SETTLED:
-            self.q_nominal, self.qd_nominal = (x.copy() for x in _SETTLED[key])
-        else:
-            self.q_nominal, self.qd_nominal = self._settle(elastic, s, integ, dt)
-            if key is not None:
-                _SETTLED[key] = (self.q_nominal.copy(), self.qd_nominal.copy())
+        # built-in scenes: settle once per process and parameter set
+        key = (structure, string_damping, self.contact, integ, float(dt)) if isinstance(structure, str) else None
+        self.q_nominal, self.qd_nominal = settle(elastic, self.contact, integ, dt, key)
         self.nodes_nominal = dyn.node_positions(elastic, self.q_nominal)[0]
         gamma0, _, _ = dyn.force_densities(elastic, self.q_nominal, self.qd_nominal)
         self.gamma_nominal = gamma0[0]
@@ -155,18 +145,7 @@ class RollTask(BatchedTask):
         self.start = dyn.center_of_mass(model, self.q)
         self.record_path = False
         self.paths: dict[int, list] = {}
-        # node -> (rod, signed distance from the rod's reference point) for the observation
-        self._node_rod = np.empty(n, int)
-        self._node_rod[model.rod_a] = np.arange(k)
-        self._node_rod[model.rod_c] = np.arange(k)
-        eta = np.empty(n)
-        eta[model.rod_a] = model.eta[:, 0]
-        eta[model.rod_c] = model.eta[:, 1]
-        self._node_eta = eta[None, :, None]
-        self._node_rod_i64 = np.ascontiguousarray(self._node_rod, dtype=np.int64)
-        self._node_eta_1d = np.ascontiguousarray(eta, dtype=np.float64)
-        self._com_at_r = bool(np.all(model.com_eta == 0.0))
-        self._mass_frac = model.mass / model.mass.sum()
+        self._init_observation(model)
         self._W = np.zeros((B, n, 3))
         self._slip = np.zeros((B, self.n_contacts), bool)
         self._contact_prm = None     # (B, 9) per-copy contact parameters once any is set (domain)
@@ -206,21 +185,6 @@ class RollTask(BatchedTask):
             self._mass_frac = mass / mass.sum(axis=1, keepdims=True)
 
     # ------------------------------------------------------------------ scene
-    def _settle(self, model, s, integrator, dt):
-        """Rest state under gravity on the ground: SETTLE_TIME s from the placed shape, with extra
-        viscous drag on the nodes (only here) so that it comes to rest."""
-        st = dyn.initial_state(model, 1)
-        cs = gc.init_contact_state(model, 1)
-        drag = 4.0 * float(s.bar_mass.max())  # N s/m per node
-        n = int(round(SETTLE_TIME / dt))
-        for _ in range(n):
-            ext = -drag * dyn.node_velocities(model, st.qd)
-            st, cs = gc.step(model, self.contact, st, cs, dt, integrator, external=ext)
-        if not np.all(np.isfinite(st.q)):
-            raise ValueError(f"structure {s.name!r}: settling on the ground diverged at dt = {dt} s; reduce dt")
-        # freeze: keep the configuration, zero velocities
-        return st.q.copy(), np.zeros_like(st.qd)
-
     # ------------------------------------------------------------------ task API
     def reset_idx(self, idx, rngs, options=None) -> dict:
         idx = np.asarray(idx, dtype=int)
@@ -302,67 +266,6 @@ class RollTask(BatchedTask):
             g = self.params.gravity
             return g[idx] if g.shape[0] > 1 else g[0]
         return np.zeros(3) if self.model.gravity is None else np.asarray(self.model.gravity, float)
-
-    def _com(self, q) -> np.ndarray:
-        """(B, 3) centre of mass, m (= dynamics.center_of_mass, one matrix product)."""
-        if self._com_at_r:
-            if self._mass_frac.ndim == 2:     # per-copy rod masses
-                return np.einsum("bk,bki->bi", self._mass_frac, q[..., :3])
-            return np.einsum("k,bki->bi", self._mass_frac, q[..., :3])
-        return dyn.center_of_mass(self.model, q, self.params)
-
-    def observe(self) -> np.ndarray:
-        B = self.num_envs
-        if self.sensors is not None:
-            return self._readings.reshape(B, -1).astype(np.float32)
-        q, qd = self.q, self.qd
-        if pipeline.AVAILABLE:   # one compiled pass, bit-identical to the NumPy below
-            com = self._com(q)
-            arrs = (q, qd, com, self.ctrl, self.goal, self.speed)
-            if all(type(x) is np.ndarray and x.dtype == np.float64 for x in arrs) and \
-                    type(self.cstate.active) is np.ndarray and self.cstate.active.dtype == np.bool_:
-                obs = np.empty((B, self.observation_size), np.float32)
-                compiled.roll_observe(q, qd, self._node_rod_i64, self._node_eta_1d, com, self.ctrl,
-                                   self.cstate.active, self.goal, self.speed, obs)
-                return obs
-        e = self._node_eta
-        # node positions / velocities (= dynamics.node_positions / node_velocities of a free structure)
-        N = q[:, self._node_rod, :3] + e * q[:, self._node_rod, 3:]
-        V = qd[:, self._node_rod, :3] + e * qd[:, self._node_rod, 3:]
-        com = self._com(q)
-        obs = np.empty((B, self.observation_size), np.float32)
-        n3 = N.shape[1] * 3
-        obs[:, :n3] = (N - com[:, None, :]).reshape(B, -1)
-        obs[:, n3:2 * n3] = V.reshape(B, -1)
-        i = 2 * n3
-        na = self.ctrl.shape[1]
-        obs[:, i:i + na] = self.ctrl
-        i += na
-        obs[:, i:i + self.n_contacts] = self.cstate.active
-        i += self.n_contacts
-        obs[:, i:i + 2] = self.goal
-        obs[:, i + 2] = com[:, 2]
-        i += 3
-        if self.n_speed:
-            obs[:, i:i + self.n_speed] = self.speed
-        return obs
-
-    def observation_layout(self) -> list[tuple[str, slice, str]]:
-        """(name, slice, unit) of each block of the observation vector (robot mode: of the newest
-        reading; the ``history - 1`` older readings follow it in the same layout)."""
-        if self.sensors is not None:
-            return self.sensors.layout()
-        n, na = self.model.n_nodes, self.actuated.size
-        blocks = [("node_position_rel_com", 3 * n, "m"), ("node_velocity", 3 * n, "m/s"),
-                  ("control", na, self.actuation.unit), ("contact", self.n_contacts, "1"),
-                  ("goal_direction", 2, "1"), ("com_height", 1, "m")]
-        if self.n_speed:
-            blocks.append(("cable_speed", self.n_speed, "m/s"))
-        out, i = [], 0
-        for name, sz, unit in blocks:
-            out.append((name, slice(i, i + sz), unit))
-            i += sz
-        return out
 
     def render_data(self, i: int) -> dict:
         q, qd = self.q[i:i + 1], self.qd[i:i + 1]

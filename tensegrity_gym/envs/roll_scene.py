@@ -6,9 +6,12 @@ import math
 import numpy as np
 
 from .. import builders
+from .. import contact as gc
+from .. import dynamics as dyn
 from ..structure import Structure
 
-__all__ = ["robot_prism", "robot_icosahedron", "place_on_ground", "load_robot", "GRAVITY"]
+__all__ = ["robot_prism", "robot_icosahedron", "place_on_ground", "put_on_ground", "settle", "load_robot",
+           "GRAVITY"]
 
 GRAVITY = (0.0, 0.0, -9.81)
 
@@ -24,6 +27,7 @@ ICO_LENGTH = 0.4        # m
 ICO_PRESTRESS = 10.0    # N in every string
 SETTLE_TIME = 1.5       # s of simulated settling at construction
 MAX_PATH = 5000         # centre-of-mass points kept per env for rendering
+_SETTLED: dict = {}     # settled rest states of the built-in scenes, by parameters
 
 
 def robot_prism(string_damping: float = STRING_DAMPING) -> Structure:
@@ -116,3 +120,36 @@ def load_robot(structure, string_damping):
     if string_damping is not None:
         s = s.replace(damping=string_damping)
     return s, None
+
+
+def put_on_ground(s: Structure, radius: float, axis=None) -> tuple[Structure, float]:
+    """``s`` placed on its most stable face with its caps (radius m) on ``z = 0``
+    (:func:`place_on_ground` from its centre of mass; ``axis``: the prism's, turned along y).
+    Returns ``(structure, stability margin m)``."""
+    rod_com = (s.nodes[s.bars[:, 0]] * (1 - s.com_fraction)[:, None]
+               + s.nodes[s.bars[:, 1]] * s.com_fraction[:, None])
+    com = s.bar_mass @ rod_com / s.bar_mass.sum()
+    nodes, margin = place_on_ground(s.nodes, com, radius, exclude_axis=axis)
+    return s.replace(nodes=nodes), margin
+
+
+def settle(model, contact: gc.GroundContact, integrator: str, dt: float, key=None) -> tuple[np.ndarray, np.ndarray]:
+    """Rest state ``(q, qd = 0)`` (1, k, 6) of the placed robot ``model`` under gravity on the
+    ground: SETTLE_TIME s from the placed shape (``contact.step``), with extra viscous drag on
+    the nodes (only here) so that it comes to rest. ``key``: remember the result for the process
+    (built-in scenes: one settling per parameter set)."""
+    if key is not None and key in _SETTLED:
+        return tuple(x.copy() for x in _SETTLED[key])
+    st = dyn.initial_state(model, 1)
+    cs = gc.init_contact_state(model, 1)
+    drag = 4.0 * float(model.mass.max())  # N s/m per node
+    for _ in range(int(round(SETTLE_TIME / dt))):
+        ext = -drag * dyn.node_velocities(model, st.qd)
+        st, cs = gc.step(model, contact, st, cs, dt, integrator, external=ext)
+    if not np.all(np.isfinite(st.q)):
+        name = model.structure.name
+        raise ValueError(f"structure {name!r}: settling on the ground diverged at dt = {dt} s; reduce dt")
+    q, qd = st.q.copy(), np.zeros_like(st.qd)     # freeze: keep the configuration, zero velocities
+    if key is not None:
+        _SETTLED[key] = (q.copy(), qd.copy())
+    return q, qd
