@@ -43,18 +43,19 @@ class FusedShapeStep:
                 disp.disable_compile()     # another argument type raises TypeError: reference path
             self._fused_dist = np.empty((self.num_envs, self.tracked.size))
             self._no_offset = np.zeros((0, act.n_strings))
-            fz = (disp, plan, np.ascontiguousarray(fcon, np.float64), icon, self.num_envs, self.action_size,
-                  self.observation_size, self.tracked.size)
+            fz = (disp, plan, (plan.buf, plan.dt, plan.n_steps, plan.flags), np.ascontiguousarray(fcon, np.float64),
+                  icon, self.num_envs, self.action_size, self.observation_size, self.tracked.size)
         self._fused = fz
         return fz
 
     def _fused_step(self, fz, action):
         """:meth:`step` in one compiled call (see :meth:`_fused_setup`); None when it does not
         apply to these arrays (nothing changed then: the caller runs the reference path)."""
-        disp, plan, fcon, icon, B, na, nobs, nt = fz
-        buf = plan.buffer(self.params)     # the robot's own values: the shared buffer of its Params
-        if buf is None:
-            return None
+        disp, plan, (buf, dt, n_steps, flags), fcon, icon, B, na, nobs, nt = fz
+        if self.params is not None:
+            buf = plan.buffer(self.params)     # the robot's own values: the shared buffer of its Params
+            if buf is None:
+                return None
         offset = self._no_offset if self.rest_offset is None else self.rest_offset
         q0, qd0 = self.q, self.qd
         qo = np.empty(q0.shape)
@@ -65,8 +66,8 @@ class FusedShapeStep:
         st = np.empty((4, B))
         success = np.empty(B, bool)
         try:
-            rc = disp(q0, qd0, self.ctrl, action, self.target, buf, plan.dt, plan.n_steps, plan.flags, offset, fcon,
-                      icon, qo, qdo, ctrl, obs, d, st, success, self.elapsed)
+            rc = disp(q0, qd0, self.ctrl, action, self.target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl,
+                      obs, d, st, success, self.elapsed)
         except TypeError:    # an array of another type or layout: the reference path converts it
             return None
         if rc < 0:
