@@ -162,7 +162,8 @@ def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_densit
     contact kernel and the serial integrator kernel per step, exactly the calls the Python loop
     makes), when the serial kernels are what that loop would run; False (nothing done) otherwise:
     a batch large enough for the parallel kernel, or arrays the kernels do not take as they are."""
-    p = _kernels._packed(model) if params is None else _kernels._pack_params(model, params)
+    p = (_kernels._CACHE.get(id(model)) or _kernels._packed(model)) if params is None else \
+        _kernels._pack_params(model, params)
     flags = _kernels._flags(p, name, project)
     B = q.shape[0]
     if B >= 8 and B * p.cost * (4 if flags & _kernels._RK4 else 1) >= _kernels.PARALLEL_MIN_WORK:
@@ -242,7 +243,7 @@ def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_
     if not (AVAILABLE and compiled_physics(integrator, backend)):
         return None
     info = integrators.resolve(integrator)
-    p = _kernels._packed(model)
+    p = _kernels._CACHE.get(id(model)) or _kernels._packed(model)
     flags = _kernels._flags(p, info.name, True)
     if batch_size >= 8 and _kernels._parallel(p, batch_size, n_steps, flags):
         return None

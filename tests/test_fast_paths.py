@@ -223,3 +223,35 @@ def test_mean_max_matches_numpy_reductions():
     mean, mx = np.empty(2), np.empty(2)
     assert compiled.mean_max(d, mean, mx)
     assert same(mean, d.mean(axis=1)) and same(mx, d.max(axis=1))
+
+
+@pytest.mark.parametrize("kw", [dict(), dict(num_envs=20, integrator="rk4"),
+                                dict(num_envs=5, randomize={"rod_mass": 0.1, "friction": 0.2}),
+                                dict(observation_mode="robot")])
+def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
+    """pipeline.advance's contact steps in ONE compiled call (_contact_loop) give the same bits as
+    its Python loop of contact.forces_inplace + _kernels.step_inplace, and reuse the model's packed
+    buffer (no repacking per control step)."""
+    from tensegrity_gym import _kernels
+    from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
+    n = kw.pop("num_envs", 1)
+    make = (lambda: TensegrityRollEnv(**kw)) if n == 1 else \
+        (lambda: TensegrityRollVectorEnv(num_envs=n, max_episode_steps=None, **kw))
+    fused, loop = make(), make()
+    calls = []
+    real = pipeline._contact_loop
+    monkeypatch.setattr(pipeline, "_contact_loop", lambda *a: calls.append(1) or real(*a))
+    assert same(fused.reset(seed=1)[0], loop.reset(seed=1)[0])
+    packed = []
+    rng = np.random.default_rng(2)
+    for t in range(6):
+        a = rng.uniform(-1, 1, fused.action_space.shape)
+        r1 = fused.step(a)
+        with monkeypatch.context() as m:
+            m.setattr(pipeline, "_contact_compiled", lambda *x: False)     # the Python loop
+            r2 = loop.step(a)
+        assert same(r1[0], r2[0]) and same(r1[1], r2[1]), t
+        assert same(fused.unwrapped.task.cstate.anchor, loop.unwrapped.task.cstate.anchor), t
+        packed.append(_kernels._CACHE.get(id(fused.unwrapped.task.model)))
+    assert len(calls) == 6 * (2 if kw.get("observation_mode") == "robot" else 1)   # robot: IMUs split the last step
+    assert packed[0] is not None and all(p is packed[0] for p in packed)
