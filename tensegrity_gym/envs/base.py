@@ -61,7 +61,8 @@ class BatchedTask:
             raise ValueError(f"num_envs: must be a positive integer, got {num_envs}")
         self.num_envs = int(num_envs)
         self.model = model
-        self.integrator = fixed_step(integrator)
+        info = integrators.INTEGRATORS.get(integrator)   # the task passes the name it resolved (fixed_step)
+        self.integrator = integrator if info is not None and not info.adaptive else fixed_step(integrator)
         self.dt = check_positive(dt, "dt", "s")
         if int(frame_skip) != frame_skip or frame_skip < 1:
             raise ValueError(f"frame_skip: must be a positive integer, got {frame_skip}")
