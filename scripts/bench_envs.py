@@ -366,11 +366,12 @@ class _Recorder:
     and are removed on exit."""
 
     SPIED = (("integrators", "step", "integrator"), ("_kernels", "step", "integrator"),
-             ("_kernels", "step_inplace", "integrator"), ("contact", "forces_inplace", "force"))
+             ("_kernels", "step_inplace", "integrator"), ("contact", "forces_inplace", "force"),
+             ("pipeline", "advance", "integrator"))    # the env pipeline's in-place steps (contact inside)
 
     def __init__(self):
-        from tensegrity_gym import contact as gc
-        self.modules = {"integrators": integrators, "_kernels": _kernels, "contact": gc}
+        from tensegrity_gym import contact as gc, pipeline
+        self.modules = {"integrators": integrators, "_kernels": _kernels, "contact": gc, "pipeline": pipeline}
         self.calls: list = []
         self.buffers: dict = {}          # id -> (original object kept alive, snapshot)
         self._depth = 0
@@ -443,7 +444,8 @@ def physics_callables(env) -> tuple[dict, str]:
     :class:`_Recorder`; the env is then put back to its pre-step state):
 
     ``integrator``   only the recorded integrator call(s) (``integrators.step`` /
-                     ``_kernels.step_inplace``), same arguments, same input states;
+                     ``_kernels.step_inplace`` / ``pipeline.advance``, whose contact steps
+                     are inside it), same arguments, same input states;
     ``with_forces``  all recorded calls in order, force evaluations (``contact.forces_inplace``)
                      included;
     ``kernel_floor`` one compiled-kernel call ``_kernels.step_inplace(..., n_steps=frame_skip)``

@@ -54,7 +54,8 @@ Implementation notes
   other inputs -- float32, strided or read-only arrays -- are converted at the boundary, never
   compiled again): ``_run_lean`` (no control arrays: three arguments fewer, the single-env
   fast path), ``_run_serial`` and ``_run_parallel`` (``prange`` over chunks of the batch, used
-  when a call carries at least ``PARALLEL_MIN_WORK`` units of work). The serial ones compile
+  when a call carries at least ``PARALLEL_MIN_WORK`` units of work; it takes the packed buffers
+  (P, len): the shared one, P = 1, or one per copy). The serial ones compile
   (or load from numba's disk cache) on the first call, the parallel one on the first large
   batch. Batches of ``_SOA_MIN_BATCH`` = 16 or more environments run a structure-of-arrays
   loop (16 environments per SIMD block; bit-identical results to the one-environment loop).
@@ -160,12 +161,67 @@ def _layout(k, m, n):
     return (o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end)
 
 
+def _soa_width(k):
+    """E, the copies per block of the SIMD (structure-of-arrays) loop for k rods."""
+    return 16 if k <= 24 else 8
+
+
 if AVAILABLE:
     # The kernels index one flat float64 buffer ``w`` (model data + scratch, see _layout) with
     # computed offsets instead of slicing views: every numba array view costs reference-count
     # traffic that, at B = 1, is larger than the physics of a small structure.
     _opts = dict(cache=True, fastmath=False, error_model="numpy")
     _layout_nb = njit(**_opts)(_layout)
+    _soa_width_nb = njit(inline="always", **_opts)(_soa_width)
+
+    @njit(inline="always", **_opts)
+    def _rod_acc(b0, b1, b2, bd0, bd1, bd2, Fa0, Fa1, Fa2, Fc0, Fc1, Fc2, ea, ec, free, im, iJ, fJ, beta, alpha,
+                 ialpha, fm, w, pj):
+        """(r'', b'') of one rod from its direction ``b``, rate ``b'``, the forces on its nodes
+        ``F_a``, ``F_c`` (N) at ``eta_a``, ``eta_c`` and its constants (1/m, 1/J, f/J, beta,
+        alpha, 1/alpha, f; projector Pi at ``w[pj:pj + 9]``, read only for a constrained rod;
+        at most 30 arguments: CPython passes more as a tuple, which numba cannot inline):
+        (5.37)/(5.40) for a free rod at its centre of mass
+        (``free``: f = 0, A = I/m), the reduced form (5.49)-(5.51) with the branch-free
+        Sherman-Morrison ``A`` for a constrained one (see dynamics.py). The one copy of the rod
+        equations of the numba backend (_acc and _acc_soa inline it)."""
+        fr0 = Fa0 + Fc0
+        fr1 = Fa1 + Fc1
+        fr2 = Fa2 + Fc2
+        fb0 = ea * Fa0 + ec * Fc0
+        fb1 = ea * Fa1 + ec * Fc1
+        fb2 = ea * Fa2 + ec * Fc2
+        ibb = 1.0 / (b0 * b0 + b1 * b1 + b2 * b2)
+        wv = (bd0 * bd0 + bd1 * bd1 + bd2 * bd2) * ibb
+        c = (b0 * fb0 + b1 * fb1 + b2 * fb2) * ibb
+        P0 = fb0 - b0 * c
+        P1 = fb1 - b1 * c
+        P2 = fb2 - b2 * c
+        if free:
+            return (fr0 * im, fr1 * im, fr2 * im, P0 * iJ - wv * b0, P1 * iJ - wv * b1, P2 * iJ - wv * b2)
+        fw = fm * wv         # f w
+        h0 = fr0 - fJ * P0 + fw * b0
+        h1 = fr1 - fJ * P1 + fw * b1
+        h2 = fr2 - fJ * P2 + fw * b2
+        isb = math.sqrt(ibb)
+        p00, p01, p02 = w[pj], w[pj + 1], w[pj + 2]
+        p10, p11, p12 = w[pj + 3], w[pj + 4], w[pj + 5]
+        p20, p21, p22 = w[pj + 6], w[pj + 7], w[pj + 8]
+        u0 = (p00 * b0 + p01 * b1 + p02 * b2) * isb
+        u1 = (p10 * b0 + p11 * b1 + p12 * b2) * isb
+        u2 = (p20 * b0 + p21 * b1 + p22 * b2) * isb
+        Ph0 = p00 * h0 + p01 * h1 + p02 * h2
+        Ph1 = p10 * h0 + p11 * h1 + p12 * h2
+        Ph2 = p20 * h0 + p21 * h1 + p22 * h2
+        uu = u0 * u0 + u1 * u1 + u2 * u2
+        uh = u0 * h0 + u1 * h1 + u2 * h2
+        cu = beta * uh / (alpha + beta * uu)
+        r0 = (Ph0 - cu * u0) * ialpha
+        r1 = (Ph1 - cu * u1) * ialpha
+        r2 = (Ph2 - cu * u2) * ialpha
+        br = (b0 * r0 + b1 * r1 + b2 * r2) * ibb
+        return (r0, r1, r2, P0 * iJ - fJ * (r0 - b0 * br) - wv * b0, P1 * iJ - fJ * (r1 - b1 * br) - wv * b1,
+                P2 * iJ - fJ * (r2 - b2 * br) - wv * b2)
 
     @njit(inline="always", **_opts)
     def _acc(w, ib, L, k, m, n, oq, oqd, oa, l0, el, fd, ef, ext, ee, flags):
@@ -242,80 +298,18 @@ if AVAILABLE:
             for p in range(n):
                 for i in range(3):
                     w[o_F + 3 * p + i] = w[o_F + 3 * p + i] + ext[ee, p, i]
-        # rods: (5.37)/(5.40) for free rods, (5.49)-(5.51) for constrained ones
+        # rods: (5.37)/(5.40) for free rods, (5.49)-(5.51) for constrained ones (_rod_acc)
         for j in range(k):
             rj = o_rod + _ROD * j
             fa = o_F + 3 * ib[rj]
             fc = o_F + 3 * ib[rj + 1]
-            ea = w[rj + 3]
-            ec = w[rj + 4]
             qj = oq + 6 * j
             vj = oqd + 6 * j
             aj = oa + 6 * j
-            b0 = w[qj + 3]
-            b1 = w[qj + 4]
-            b2 = w[qj + 5]
-            bd0 = w[vj + 3]
-            bd1 = w[vj + 4]
-            bd2 = w[vj + 5]
-            Fa0 = w[fa]
-            Fa1 = w[fa + 1]
-            Fa2 = w[fa + 2]
-            Fc0 = w[fc]
-            Fc1 = w[fc + 1]
-            Fc2 = w[fc + 2]
-            fr0 = Fa0 + Fc0
-            fr1 = Fa1 + Fc1
-            fr2 = Fa2 + Fc2
-            fb0 = ea * Fa0 + ec * Fc0
-            fb1 = ea * Fa1 + ec * Fc1
-            fb2 = ea * Fa2 + ec * Fc2
-            ibb = 1.0 / (b0 * b0 + b1 * b1 + b2 * b2)
-            wv = (bd0 * bd0 + bd1 * bd1 + bd2 * bd2) * ibb
-            c = (b0 * fb0 + b1 * fb1 + b2 * fb2) * ibb
-            P0 = fb0 - b0 * c
-            P1 = fb1 - b1 * c
-            P2 = fb2 - b2 * c
-            iJ = w[rj + 6]
-            if ib[rj + 2] == 0:
-                # free rod at its centre of mass: f = 0, A = I/m
-                im = w[rj + 5]
-                w[aj] = fr0 * im
-                w[aj + 1] = fr1 * im
-                w[aj + 2] = fr2 * im
-                w[aj + 3] = P0 * iJ - wv * b0
-                w[aj + 4] = P1 * iJ - wv * b1
-                w[aj + 5] = P2 * iJ - wv * b2
-            else:
-                fJ = w[rj + 7]
-                beta = w[rj + 8]
-                alpha = w[rj + 9]
-                ialpha = w[rj + 10]
-                fw = w[rj + 11] * wv         # f w
-                h0 = fr0 - fJ * P0 + fw * b0
-                h1 = fr1 - fJ * P1 + fw * b1
-                h2 = fr2 - fJ * P2 + fw * b2
-                isb = math.sqrt(ibb)
-                pj = rj + 12
-                u0 = (w[pj] * b0 + w[pj + 1] * b1 + w[pj + 2] * b2) * isb
-                u1 = (w[pj + 3] * b0 + w[pj + 4] * b1 + w[pj + 5] * b2) * isb
-                u2 = (w[pj + 6] * b0 + w[pj + 7] * b1 + w[pj + 8] * b2) * isb
-                Ph0 = w[pj] * h0 + w[pj + 1] * h1 + w[pj + 2] * h2
-                Ph1 = w[pj + 3] * h0 + w[pj + 4] * h1 + w[pj + 5] * h2
-                Ph2 = w[pj + 6] * h0 + w[pj + 7] * h1 + w[pj + 8] * h2
-                uu = u0 * u0 + u1 * u1 + u2 * u2
-                uh = u0 * h0 + u1 * h1 + u2 * h2
-                cu = beta * uh / (alpha + beta * uu)
-                r0 = (Ph0 - cu * u0) * ialpha
-                r1 = (Ph1 - cu * u1) * ialpha
-                r2 = (Ph2 - cu * u2) * ialpha
-                br = (b0 * r0 + b1 * r1 + b2 * r2) * ibb
-                w[aj] = r0
-                w[aj + 1] = r1
-                w[aj + 2] = r2
-                w[aj + 3] = P0 * iJ - fJ * (r0 - b0 * br) - wv * b0
-                w[aj + 4] = P1 * iJ - fJ * (r1 - b1 * br) - wv * b1
-                w[aj + 5] = P2 * iJ - fJ * (r2 - b2 * br) - wv * b2
+            (w[aj], w[aj + 1], w[aj + 2], w[aj + 3], w[aj + 4], w[aj + 5]) = _rod_acc(
+                w[qj + 3], w[qj + 4], w[qj + 5], w[vj + 3], w[vj + 4], w[vj + 5],
+                w[fa], w[fa + 1], w[fa + 2], w[fc], w[fc + 1], w[fc + 2], w[rj + 3], w[rj + 4], ib[rj + 2] == 0,
+                w[rj + 5], w[rj + 6], w[rj + 7], w[rj + 8], w[rj + 9], w[rj + 10], w[rj + 11], w, rj + 12)
 
     @njit(inline="always", **_opts)
     def _project(w, ib, L, k, oq, oqd, any_cons):
@@ -465,6 +459,12 @@ if AVAILABLE:
 
 
     @njit(inline="always", **_opts)
+    def _rod_topology(w, ib, o_rod, j):
+        """(slot of rod j in the packed buffer, node a, node c, eta_a, eta_c)."""
+        rj = o_rod + _ROD * j
+        return rj, ib[rj], ib[rj + 1], w[rj + 3], w[rj + 4]
+
+    @njit(inline="always", **_opts)
     def _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
         """_acc for E environments at once, structure-of-arrays: Qi, Vi, A (k, 6, E), N, V, F,
         EX (n, 3, E), L0, FD (m, E). The innermost loops run over the environments (SIMD).
@@ -474,11 +474,7 @@ if AVAILABLE:
         has_damp = (flags & _DAMP) != 0
         need_v = (flags & (_DAMP | _NDAMP)) != 0
         for j in range(k):
-            rj = o_rod + _ROD * j
-            ia = ib[rj]
-            ic = ib[rj + 1]
-            ea = w[rj + 3]
-            ec = w[rj + 4]
+            rj, ia, ic, ea, ec = _rod_topology(w, ib, o_rod, j)
             for i in range(3):
                 for e in range(E):
                     N[ia, i, e] = Qi[j, i, e] + ea * Qi[j, 3 + i, e]
@@ -537,80 +533,14 @@ if AVAILABLE:
                     for e in range(E):
                         F[p, i, e] = F[p, i, e] + EX[p, i, e]
         for j in range(k):
-            rj = o_rod + _ROD * j
-            fa = ib[rj]
-            fc = ib[rj + 1]
-            ea = w[rj + 3]
-            ec = w[rj + 4]
+            rj, fa, fc, ea, ec = _rod_topology(w, ib, o_rod, j)
             free = ib[rj + 2] == 0
-            pj = rj + 12
-            p00, p01, p02 = w[pj], w[pj + 1], w[pj + 2]
-            p10, p11, p12 = w[pj + 3], w[pj + 4], w[pj + 5]
-            p20, p21, p22 = w[pj + 6], w[pj + 7], w[pj + 8]
             for e in range(E):
-                im = PC[rj + 5, e]
-                iJ = PC[rj + 6, e]
-                fJ = PC[rj + 7, e]
-                beta = PC[rj + 8, e]
-                alpha = PC[rj + 9, e]
-                ialpha = PC[rj + 10, e]
-                fm = PC[rj + 11, e]
-                b0 = Qi[j, 3, e]
-                b1 = Qi[j, 4, e]
-                b2 = Qi[j, 5, e]
-                bd0 = Vi[j, 3, e]
-                bd1 = Vi[j, 4, e]
-                bd2 = Vi[j, 5, e]
-                Fa0 = F[fa, 0, e]
-                Fa1 = F[fa, 1, e]
-                Fa2 = F[fa, 2, e]
-                Fc0 = F[fc, 0, e]
-                Fc1 = F[fc, 1, e]
-                Fc2 = F[fc, 2, e]
-                fr0 = Fa0 + Fc0
-                fr1 = Fa1 + Fc1
-                fr2 = Fa2 + Fc2
-                fb0 = ea * Fa0 + ec * Fc0
-                fb1 = ea * Fa1 + ec * Fc1
-                fb2 = ea * Fa2 + ec * Fc2
-                ibb = 1.0 / (b0 * b0 + b1 * b1 + b2 * b2)
-                wv = (bd0 * bd0 + bd1 * bd1 + bd2 * bd2) * ibb
-                c = (b0 * fb0 + b1 * fb1 + b2 * fb2) * ibb
-                P0 = fb0 - b0 * c
-                P1 = fb1 - b1 * c
-                P2 = fb2 - b2 * c
-                if free:
-                    A[j, 0, e] = fr0 * im
-                    A[j, 1, e] = fr1 * im
-                    A[j, 2, e] = fr2 * im
-                    A[j, 3, e] = P0 * iJ - wv * b0
-                    A[j, 4, e] = P1 * iJ - wv * b1
-                    A[j, 5, e] = P2 * iJ - wv * b2
-                else:
-                    fw = fm * wv
-                    h0 = fr0 - fJ * P0 + fw * b0
-                    h1 = fr1 - fJ * P1 + fw * b1
-                    h2 = fr2 - fJ * P2 + fw * b2
-                    isb = math.sqrt(ibb)
-                    u0 = (p00 * b0 + p01 * b1 + p02 * b2) * isb
-                    u1 = (p10 * b0 + p11 * b1 + p12 * b2) * isb
-                    u2 = (p20 * b0 + p21 * b1 + p22 * b2) * isb
-                    Ph0 = p00 * h0 + p01 * h1 + p02 * h2
-                    Ph1 = p10 * h0 + p11 * h1 + p12 * h2
-                    Ph2 = p20 * h0 + p21 * h1 + p22 * h2
-                    uu = u0 * u0 + u1 * u1 + u2 * u2
-                    uh = u0 * h0 + u1 * h1 + u2 * h2
-                    cu = beta * uh / (alpha + beta * uu)
-                    r0 = (Ph0 - cu * u0) * ialpha
-                    r1 = (Ph1 - cu * u1) * ialpha
-                    r2 = (Ph2 - cu * u2) * ialpha
-                    br = (b0 * r0 + b1 * r1 + b2 * r2) * ibb
-                    A[j, 0, e] = r0
-                    A[j, 1, e] = r1
-                    A[j, 2, e] = r2
-                    A[j, 3, e] = P0 * iJ - fJ * (r0 - b0 * br) - wv * b0
-                    A[j, 4, e] = P1 * iJ - fJ * (r1 - b1 * br) - wv * b1
-                    A[j, 5, e] = P2 * iJ - fJ * (r2 - b2 * br) - wv * b2
+                (A[j, 0, e], A[j, 1, e], A[j, 2, e], A[j, 3, e], A[j, 4, e], A[j, 5, e]) = _rod_acc(
+                    Qi[j, 3, e], Qi[j, 4, e], Qi[j, 5, e], Vi[j, 3, e], Vi[j, 4, e], Vi[j, 5, e],
+                    F[fa, 0, e], F[fa, 1, e], F[fa, 2, e], F[fc, 0, e], F[fc, 1, e], F[fc, 2, e], ea, ec, free,
+                    PC[rj + 5, e], PC[rj + 6, e], PC[rj + 7, e], PC[rj + 8, e], PC[rj + 9, e], PC[rj + 10, e],
+                    PC[rj + 11, e], w, rj + 12)
 
     @njit(inline="always", **_opts)
     def _lane_physics(PC, N, src, L, k, m, n, e):
@@ -634,19 +564,29 @@ if AVAILABLE:
             for i in range(3):
                 N[p, i, e] = src[o_N + 3 * p + i]
 
+    @njit(inline="always", **_opts)
+    def _stage_soa(Q, QD, V, A, c, QS, QDn, k, E):
+        """An RK4 stage state of E lanes: ``QS = Q + c V``, ``QDn = QD + c A`` (k, 6, E)."""
+        for j in range(k):
+            for i in range(6):
+                for e in range(E):
+                    QS[j, i, e] = Q[j, i, e] + c * V[j, i, e]
+                    QDn[j, i, e] = QD[j, i, e] + c * A[j, i, e]
+
     @njit(**_opts)
-    def _advance_soa(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, bufs):
+    def _advance_soa(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
         """_advance_range for large batches: E environments at a time in structure-of-arrays
         scratch, so that every inner loop runs over environments and compiles to SIMD code.
         Same operations in the same order as _advance_range (results agree to the last bit).
-        ``bufs`` (B, len): one packed buffer per copy (per-copy parameters), or (0, len): every
-        copy uses ``w``'s physical constants."""
-        E = 16 if k <= 24 else 8
+        ``lanes`` (ceil(B/E), len, E): the copies' packed buffers in blocks of E lanes
+        (:func:`_lanes`; per-copy parameters, ``lo`` a multiple of E), read in place: no copy
+        per call; or (0, 1, 1): every copy uses ``w``'s physical constants."""
+        E = _soa_width_nb(k)
         S = np.empty((10, k, 6, E))
         Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
         N = np.empty((n, 3, E))
         PC = np.empty((L[9], E))
-        per_copy = bufs.shape[0] > 0
+        per_copy = lanes.shape[0] > 0
         if not per_copy:
             for e in range(E):
                 _lane_physics(PC, N, w, L, k, m, n, e)
@@ -667,12 +607,17 @@ if AVAILABLE:
         nl, nf, ne_ = l0.shape[0], fd.shape[0], ext.shape[0]
         o_l0 = L[2]
         o_rod = L[0]
+        o_N = L[5]
         for c0 in range(lo, hi, E):
             ne = min(E, hi - c0)
+            if per_copy:                                # this block's lane constants and anchor rows
+                PC = lanes[c0 // E]
+                for p in range(n):
+                    for i in range(3):
+                        for e in range(E):
+                            N[p, i, e] = PC[o_N + 3 * p + i, e]
             for e in range(E):
                 src = c0 + e if e < ne else c0          # pad lanes repeat the first environment
-                if per_copy:
-                    _lane_physics(PC, N, bufs[src], L, k, m, n, e)
                 for j in range(k):
                     for i in range(6):
                         Q[j, i, e] = q[src, j, i]
@@ -710,25 +655,13 @@ if AVAILABLE:
                                     QD[j, i, e] = QD[j, i, e] + dt * A1[j, i, e]
                                     Q[j, i, e] = Q[j, i, e] + dt * QD[j, i, e]
                     elif stage == 0:
-                        for j in range(k):
-                            for i in range(6):
-                                for e in range(E):
-                                    QS[j, i, e] = Q[j, i, e] + h * QD[j, i, e]
-                                    QD2[j, i, e] = QD[j, i, e] + h * A1[j, i, e]
+                        _stage_soa(Q, QD, QD, A1, h, QS, QD2, k, E)
                         Qi, Vi, A = QS, QD2, A2
                     elif stage == 1:
-                        for j in range(k):
-                            for i in range(6):
-                                for e in range(E):
-                                    QS[j, i, e] = Q[j, i, e] + h * QD2[j, i, e]
-                                    QD3[j, i, e] = QD[j, i, e] + h * A2[j, i, e]
+                        _stage_soa(Q, QD, QD2, A2, h, QS, QD3, k, E)
                         Qi, Vi, A = QS, QD3, A3
                     elif stage == 2:
-                        for j in range(k):
-                            for i in range(6):
-                                for e in range(E):
-                                    QS[j, i, e] = Q[j, i, e] + dt * QD3[j, i, e]
-                                    QD4[j, i, e] = QD[j, i, e] + dt * A3[j, i, e]
+                        _stage_soa(Q, QD, QD3, A3, dt, QS, QD4, k, E)
                         Qi, Vi, A = QS, QD4, A4
                     else:
                         for j in range(k):
@@ -797,27 +730,32 @@ if AVAILABLE:
             return 5
         return 0
 
+    @njit(inline="always", **_opts)
+    def _entry(q, qd, qo, qdo, buf, l0, fd, ext, flags):
+        """(error code, int64 view of buf, layout, k, m, n) of a call on one packed buffer: the
+        shape checks of _check (0: fine)."""
+        ib = buf.view(np.int64)
+        k, m, n = ib[0], ib[1], ib[2]
+        return _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags), ib, _layout_nb(k, m, n), k, m, n
+
     # explicit signatures (no other variant is ever compiled): C-contiguous float64 arrays
     _f8 = numba.types.float64
     _a1, _a2, _a3 = (numba.types.Array(_f8, d, "C") for d in (1, 2, 3))
     _i64 = numba.types.int64
     _SIG = _i64(_a3, _a3, _a3, _a3, _a1, _a2, _a2, _a3, _f8, _i64, _i64)
     _SIG_LEAN = _i64(_a3, _a3, _a3, _a3, _a1, _f8, _i64, _i64)
-    _SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64)
+    _SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64, _a3)
 
     # Entry points are compiled lazily for ONE explicit signature each (see _compile): the serial
     # ones on first use of any model, the parallel one on first use of a large batch.
     @njit(cache=True, fastmath=False, error_model="numpy")   # holds the GIL: it uses the scratch inside buf
     def _run_serial(q, qd, qo, qdo, buf, l0, fd, ext, dt, n_steps, flags):
-        ib = buf.view(np.int64)
-        k, m, n = ib[0], ib[1], ib[2]
-        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        err, ib, L, k, m, n = _entry(q, qd, qo, qdo, buf, l0, fd, ext, flags)
         if err:
             return err
-        L = _layout_nb(k, m, n)
         if q.shape[0] >= _SOA_MIN_BATCH:
             _advance_soa(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
-                         np.empty((0, 1)))
+                         np.empty((0, 1, 1)))
         else:
             _advance_range(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags)
         return 0
@@ -826,76 +764,63 @@ if AVAILABLE:
     def _run_lean(q, qd, qo, qdo, buf, dt, n_steps, flags):
         """_run_serial with the model's rest lengths and no force density / external force:
         three array arguments fewer to convert at the Python boundary (single-env fast path)."""
-        ib = buf.view(np.int64)
-        k, m, n = ib[0], ib[1], ib[2]
         flags = (flags | _L0DEF) & ~(_FD | _EXT)
         d2 = q[0]                             # placeholders of the right type, never read
-        err = _check(q, qd, qo, qdo, k, m, n, d2, d2, q, flags)
+        err, ib, L, k, m, n = _entry(q, qd, qo, qdo, buf, d2, d2, q, flags)
         if err:
             return err
-        L = _layout_nb(k, m, n)
         _advance_range(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], d2, d2, q, dt, n_steps, flags)
         return 0
 
+    @njit(inline="always", **_opts)
+    def _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, shared):
+        """(error code, int64 view of bufs, layout, k, m, n) of a call on packed buffers (P, len):
+        the shape checks of _check, and one buffer per copy of q, or one (``shared`` allowed)
+        (error 7 otherwise)."""
+        ibs = bufs.view(np.int64)
+        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        if err == 0 and ibs.shape[0] != q.shape[0] and not (shared and ibs.shape[0] == 1):
+            err = 7
+        return err, ibs, _layout_nb(k, m, n), k, m, n
+
     # holds the GIL too: then no two Python threads can be inside the thread pool at once (the
     # workqueue threading layer, chosen below, does not support concurrent callers)
+    # Per-copy parameters: bufs (P, len) holds one packed buffer per copy (its physics and its
+    # scratch, P = B), or the one buffer shared by every copy (P = 1).
     @njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
-    def _run_parallel(q, qd, qo, qdo, buf, l0, fd, ext, dt, n_steps, flags):
-        ib0 = buf.view(np.int64)
-        k, m, n = ib0[0], ib0[1], ib0[2]
-        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+    def _run_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
+        """The batch in chunks of whole SIMD blocks on all threads (``prange``), each chunk the
+        SIMD loop; ``bufs`` (1, len) shared or (B, len) one packed buffer per copy, ``lanes`` their
+        lane blocks (:func:`_lanes`) or (0, 1, 1)."""
+        err, ibs, L, k, m, n = _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, True)
         if err:
             return err
-        L = _layout_nb(k, m, n)
         B = q.shape[0]
-        nch = min(B, max(flags >> _CHUNK_SHIFT, 1))       # number of chunks in the high bits of flags
+        E = _soa_width_nb(k)
+        nb = (B + E - 1) // E                             # SIMD blocks
+        nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))      # number of chunks in the high bits of flags
         for c in prange(nch):
-            # _advance_soa only reads buf and allocates its own scratch: threads share nothing written
-            _advance_soa(buf, ib0, L, k, m, n, q, qd, qo, qdo, c * B // nch, (c + 1) * B // nch, l0, fd, ext,
-                         dt, n_steps, flags, np.empty((0, 1)))
+            # _advance_soa only reads the buffers and allocates its own scratch: threads share nothing written
+            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, (c * nb // nch) * E,
+                         min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes)
         return 0
 
 
-    # Per-copy parameters: bufs (B, len) holds one packed buffer per copy (its physics and its
-    # scratch); copy e runs the same _advance_range as above on bufs[e]. No copy shares a written
-    # byte with another, so the parallel loop needs no private scratch.
-    @njit(inline="always", **_opts)
-    def _copies_check(q, qd, qo, qdo, ibs, l0, fd, ext, flags):
-        """(error code, k, m, n) of a per-copy call: the shape checks of _check, and one packed
-        buffer per copy of q (error 7 otherwise)."""
-        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
-        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
-        if err == 0 and ibs.shape[0] != q.shape[0]:
-            err = 7
-        return err, k, m, n
 
+    # copy e runs the same _advance_range as the shared buffer's copies on bufs[e]: no copy shares a
+    # written byte with another
     @njit(cache=True, fastmath=False, error_model="numpy")
-    def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
-        ibs = bufs.view(np.int64)
-        err, k, m, n = _copies_check(q, qd, qo, qdo, ibs, l0, fd, ext, flags)
+    def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
+        err, ibs, L, k, m, n = _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, False)
         if err:
             return err
-        L = _layout_nb(k, m, n)
         B = q.shape[0]
         if B >= _SOA_MIN_BATCH:     # the SIMD loop, each lane with its copy's constants
-            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, 0, B, l0, fd, ext, dt, n_steps, flags, bufs)
+            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, 0, B, l0, fd, ext, dt, n_steps, flags, lanes)
             return 0
         for e in range(B):
             _advance_range(bufs[e], ibs[e], L, k, m, n, q, qd, qo, qdo, e, e + 1, l0, fd, ext, dt, n_steps, flags)
-        return 0
-
-    @njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
-    def _run_copies_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags):
-        ibs = bufs.view(np.int64)
-        err, k, m, n = _copies_check(q, qd, qo, qdo, ibs, l0, fd, ext, flags)
-        if err:
-            return err
-        L = _layout_nb(k, m, n)
-        B = q.shape[0]
-        nch = min(B, max(flags >> _CHUNK_SHIFT, 1))       # number of chunks in the high bits of flags
-        for c in prange(nch):
-            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, c * B // nch, (c + 1) * B // nch, l0, fd, ext,
-                         dt, n_steps, flags, bufs)
         return 0
 
 
@@ -912,7 +837,7 @@ def clear_cache() -> None:
 class _Packed:
     """Packed buffer(s) of one model or one Params: ``buf`` (len,) for values shared by every
     copy, or ``bufs`` (B, len) one per copy (then ``buf`` is None)."""
-    __slots__ = ("buf", "bufs", "l0", "fd", "ext", "flags", "cost", "__weakref__")
+    __slots__ = ("buf", "bufs", "lanes", "l0", "fd", "ext", "flags", "cost", "__weakref__")
 
 
 def _fill_physics(buf, model, p, b):
@@ -963,6 +888,7 @@ def _pack(model):
     p = _Packed()
     p.buf = buf
     p.bufs = None
+    p.lanes = _NO_LANES
     p.l0 = np.array(model.rest_length, dtype=np.float64).reshape(1, m)
     p.fd = np.zeros((1, m))
     p.ext = np.zeros((1, n, 3))
@@ -996,12 +922,28 @@ def _pack_params(model, params):
         _fill_physics(bufs[b], model, params, b)
     p = _Packed()
     p.buf, p.bufs = (bufs[0], None) if P == 1 else (None, bufs)
+    p.lanes = _NO_LANES if P == 1 else _lanes(bufs, model.n_bars)
     p.l0 = np.array(params.rest_length[:1], dtype=np.float64)
     p.fd, p.ext, p.cost = base.fd, base.ext, base.cost
     p.flags = _physics_flags(model, params)
     _CACHE[key] = p
     weakref.finalize(params, _CACHE.pop, key, None)
     return p
+
+
+_NO_LANES = np.empty((0, 1, 1))   # no per-copy lane blocks: the SIMD loop takes the shared buffer's constants
+
+
+def _lanes(bufs, k):
+    """(ceil(P/E), len, E): the per-copy buffers ``bufs`` (P, len) in blocks of E copies, lane
+    e of block c holding copy c E + e (the SIMD loop reads its lane constants from it in place);
+    the pad lanes of the last block repeat its first copy, as the SIMD loop's pad lanes do."""
+    P, size = bufs.shape
+    E = _soa_width(k)
+    nb = -(-P // E)
+    idx = np.arange(nb * E)
+    idx = np.where(idx < P, idx, (idx // E) * E)
+    return np.ascontiguousarray(bufs[idx].reshape(nb, E, size).transpose(0, 2, 1))
 
 
 def _array(x, ndim, what):
@@ -1036,8 +978,10 @@ def _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, inplac
     l0, fd, ext = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external")
     if not (isinstance(dt, (int, float, np.floating, np.integer)) and isinstance(n_steps, (int, np.integer))):
         raise TypeError(f"dt must be a number of seconds and n_steps an integer; got {dt!r}, {n_steps!r}")
-    run = _run_parallel if _parallel(p, q.shape[0], n_steps, flags) else _run_serial
-    return run(q, qd, qo, qdo, p.buf, l0, fd, ext, float(dt), int(n_steps), flags | (_NCHUNK << _CHUNK_SHIFT))
+    flags |= _NCHUNK << _CHUNK_SHIFT
+    if _parallel(p, q.shape[0], n_steps, flags):
+        return _run_parallel(q, qd, qo, qdo, p.buf[None], l0, fd, ext, float(dt), int(n_steps), flags, p.lanes)
+    return _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, float(dt), int(n_steps), flags)
 
 
 def _raise(err, model, q, qd, l0, fd, ext):
@@ -1084,9 +1028,9 @@ def _compile(which: str) -> None:
     if which == "serial":
         pairs = ((_run_lean, _SIG_LEAN), (_run_serial, _SIG))
     elif which == "copies":
-        pairs = ((_run_copies_serial, _SIG_COPIES), (_run_copies_parallel, _SIG_COPIES))
+        pairs = ((_run_copies_serial, _SIG_COPIES),)
     else:
-        pairs = ((_run_parallel, _SIG),)
+        pairs = ((_run_parallel, _SIG_COPIES),)
     compile_with_notice(pairs, f"{'physics' if which == 'serial' else which + ' physics'} kernels")
     for disp, _ in pairs:
         disp.disable_compile()
@@ -1137,9 +1081,11 @@ def _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_
     B = q.shape[0]
     work = B * int(n_steps) * p.cost * (4 if flags & _RK4 else 1)
     if B >= 8 and work >= PARALLEL_MIN_WORK:
-        return _run_copies_parallel(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps),
-                                    flags | (_NCHUNK << _CHUNK_SHIFT))
-    return _run_copies_serial(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps), flags)
+        if not _READY["parallel"]:
+            _compile("parallel")
+        return _run_parallel(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps),
+                             flags | (_NCHUNK << _CHUNK_SHIFT), p.lanes)
+    return _run_copies_serial(q, qd, qo, qdo, p.bufs, l0, fd, ext, float(dt), int(n_steps), flags, p.lanes)
 
 
 def step(model, state, dt, name, *, rest_length=None, force_density=None, external=None, project=True,
@@ -1177,7 +1123,8 @@ def _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external,
         else:
             l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
             if big:
-                err = _run_parallel(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags | (_NCHUNK << _CHUNK_SHIFT))
+                err = _run_parallel(q, qd, qo, qdo, p.buf[None], l0, fd, ext, dt, n_steps,
+                                    flags | (_NCHUNK << _CHUNK_SHIFT), p.lanes)
             else:
                 err = _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags)
     except TypeError:

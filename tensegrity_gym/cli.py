@@ -197,36 +197,26 @@ def _atomic_write(path: Path, writer) -> None:
             os.remove(tmp)
 
 
-def _positive(kind):
+def _number(kind, what: str, ok, rule: str):
+    """An argparse type: ``kind(text)`` if it parses as ``what`` and ``ok(value)``, else an error
+    naming the rule and the text."""
     def parse(text):
         try:
             v = kind(text)
         except (ValueError, OverflowError):
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not (np.isfinite(v) and v > 0):
-            raise argparse.ArgumentTypeError(f"must be positive and finite, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if not ok(v):
+            raise argparse.ArgumentTypeError(f"{rule}, got {text!r}")
         return v
     return parse
 
 
-def _non_negative(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (np.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"must be >= 0 and finite, got {text!r}")
-    return v
+def _positive(kind):
+    return _number(kind, "a number", lambda v: np.isfinite(v) and v > 0, "must be positive and finite")
 
 
-def _seed(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
-    return v
+_non_negative = _number(float, "a number", lambda v: np.isfinite(v) and v >= 0, "must be >= 0 and finite")
+_seed = _number(int, "an integer", lambda v: v >= 0, "must be >= 0")
 
 
 def _n_steps(duration: float, dt: float, args) -> int:
@@ -305,13 +295,19 @@ def _run(model, state, args, n_steps: int, progress: bool):
     return ts[:S], qs[:S], qds[:S], message
 
 
-def cmd_simulate(args) -> int:
+def _outputs_and_model(args, second, flag: str):
+    """``(out path, structure, model)`` of a command writing ``--out`` and optionally ``second``
+    (the path given to ``flag``): both checked before any work, then the structure loaded."""
     out = Path(args.out)
     _check_out(out, args.force)
-    if args.video:
-        _check_out(Path(args.video), args.force, "--video")
+    if second:
+        _check_out(Path(second), args.force, flag)
     s = _load(args.structure, args)
-    model = dyn.compile_model(s)
+    return out, s, dyn.compile_model(s)
+
+
+def cmd_simulate(args) -> int:
+    out, s, model = _outputs_and_model(args, args.video, "--video")
     state = dyn.initial_state(model)
     n_steps = _n_steps(args.duration, args.dt, args)
     _require_memory(_trajectory_bytes(model, n_steps // args.record_every + 1), args,
@@ -573,12 +569,7 @@ def cmd_identify(args) -> int:
         if sysid._ALIASES.get(f, f) not in sysid.FITTABLE:
             raise CLIError(EXIT_USAGE, f"--fit: unknown parameter {f!r}; choose from {sorted(sysid.FITTABLE)} "
                            f"(aliases {sorted(sysid._ALIASES)})")
-    out = Path(args.out)
-    _check_out(out, args.force)
-    if args.plot:
-        _check_out(Path(args.plot), args.force, "--plot")
-    s = _load(args.structure, args)
-    model = dyn.compile_model(s)
+    out, s, model = _outputs_and_model(args, args.plot, "--plot")
     try:
         t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes)
     except FileNotFoundError:

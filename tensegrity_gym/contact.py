@@ -65,8 +65,9 @@ TensegrityRoll-v0 robot: 2 cm caps on 0.38 m rods).
 Coupling with the integrator
 ----------------------------
 Contact forces are computed once per physics step from the state at the start of the step
-and held over it (``external=W``): :func:`step` calls :func:`contact_forces` then
-``integrators.step(..., external=W, n_steps=1)`` once per step for the whole batch. For
+and held over it (``external=W``): the pipeline (:func:`tensegrity_gym.pipeline.step`, which
+:func:`step` calls) computes the forces then takes one integrator step with ``external=W``,
+once per step for the whole batch. For
 ``semi_implicit_euler`` this is *exactly* the method applied to the full force (it evaluates
 all forces at the start of the step anyway); for ``rk4`` it is a zero-order hold (first order
 in the contact force), so use ``semi_implicit_euler`` with contact. The anchors (stick/slip
@@ -470,16 +471,13 @@ def stable_step(contact: GroundContact, model: dyn.Model) -> dict:
 
 def step(model: dyn.Model, contact: GroundContact, state: dyn.State, cstate: ContactState, dt: float,
          integrator: str = "semi_implicit_euler", n_steps: int = 1, external=None, **inputs):
-    """``n_steps`` physics steps with ground contact: per step, contact forces from the state
-    at its start (batched, :func:`contact_forces`) then ONE ``integrators.step(n_steps=1,
-    external=W + external)`` for the whole batch. ``external``: optional (B, n, 3) extra nodal
-    forces, N, held over every step. ``inputs``: ``rest_length`` / ``force_density`` /
-    ``backend`` / ``project`` as :func:`tensegrity_gym.integrators.step` takes them.
-    Returns ``(state, cstate)`` (new objects; the inputs are not modified)."""
-    cs = cstate.copy()
-    for _ in range(int(n_steps)):
-        W, cs, _ = contact_forces(contact, model, state.q, state.qd, cs, inplace=True)
-        if external is not None:
-            W = W + external
-        state = integrators.step(model, state, dt, integrator, external=W, n_steps=1, **inputs)
-    return state, cs
+    """``n_steps`` physics steps with ground contact (:func:`tensegrity_gym.pipeline.step` with
+    ``contact``): per step, contact forces from the state at its start (batched) then ONE
+    integrator step with ``external=W + external`` for the whole batch. ``external``: optional
+    (B, n, 3) extra nodal forces, N, held over every step. ``inputs``: ``rest_length`` /
+    ``force_density`` / ``backend`` / ``project`` / ``params`` as
+    :func:`tensegrity_gym.integrators.step` takes them. Returns ``(state, cstate)`` (new objects;
+    the inputs are not modified)."""
+    from . import pipeline
+    return pipeline.step(model, state, dt, integrator, n_steps=n_steps, contact=contact, cstate=cstate,
+                         external=external, **inputs)

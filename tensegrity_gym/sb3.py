@@ -32,6 +32,17 @@ _SB3_CLASS = None
 _SB3_TORCH_CLASS = None
 
 
+def _reset(vec):
+    """SB3 ``VecEnv.reset`` on the wrapped Gymnasium vector env ``vec.venv``: the seeds and options
+    SB3 set since the last reset (``seed()`` / ``set_options()``) are passed on, then cleared."""
+    seeds = vec._seeds if any(s is not None for s in vec._seeds) else None
+    opts = vec._options[0] if vec._options and vec._options[0] else None
+    obs, _ = vec.venv.reset(seed=seeds, options=opts)
+    vec._reset_seeds()
+    vec._reset_options()
+    return obs
+
+
 def _build_class():
     from stable_baselines3.common.env_util import is_wrapped
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv
@@ -46,12 +57,7 @@ def _build_class():
 
         # ------------------------------------------------------------ stepping
         def reset(self):
-            seeds = self._seeds if any(s is not None for s in self._seeds) else None
-            opts = self._options[0] if self._options and self._options[0] else None
-            obs, _ = self.venv.reset(seed=seeds, options=opts)
-            self._reset_seeds()
-            self._reset_options()
-            return obs
+            return _reset(self)
 
         def step_async(self, actions):
             self._actions = actions
@@ -181,12 +187,7 @@ def _build_torch_class():
             return obs.to(torch.float32).cpu().numpy()
 
         def reset(self):
-            seeds = self._seeds if any(s is not None for s in self._seeds) else None
-            opts = self._options[0] if self._options and self._options[0] else None
-            obs, _ = self.venv.reset(seed=seeds, options=opts)
-            self._reset_seeds()
-            self._reset_options()
-            return self._host_obs(obs)
+            return self._host_obs(_reset(self))
 
         def step_async(self, actions):
             self._actions = torch.as_tensor(np.asarray(actions), device=self.venv.device)   # one host -> device copy

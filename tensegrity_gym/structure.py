@@ -528,27 +528,19 @@ class Structure:
                     "(use at least two distinct positions)")
 
         # strings
-        stiffness = _as_per_item(stiffness, m, "stiffness", "string")
-        for i, kk in enumerate(stiffness):
-            if not (math.isfinite(kk) and kk > 0):
-                raise StructureError(
-                    f"stiffness of string {i} (nodes {strings[i, 0]}, {strings[i, 1]}): {kk} N/m "
-                    "is not positive and finite")
+        def per_string(value, name, unit, positive):
+            """(m,) values of a per-string field, each finite and > 0 (``positive``) or >= 0."""
+            arr = _as_per_item(value, m, name, "string")
+            for i, v in enumerate(arr):
+                if not (math.isfinite(v) and (v > 0 if positive else v >= 0)):
+                    rule = "is not positive and finite" if positive else "is negative or not finite"
+                    raise StructureError(f"{name} of string {i} (nodes {strings[i, 0]}, {strings[i, 1]}): "
+                                         f"{v} {unit} {rule}")
+            return arr
+        stiffness = per_string(stiffness, "stiffness", "N/m", True)
         _in_range(stiffness, "stiffness", "stiffness", "N/m", "string")
-        if rest_length is None:
-            rest_length = str_len.copy()
-        rest_length = _as_per_item(rest_length, m, "rest_length", "string")
-        for i, L0 in enumerate(rest_length):
-            if not (math.isfinite(L0) and L0 >= 0):
-                raise StructureError(
-                    f"rest_length of string {i} (nodes {strings[i, 0]}, {strings[i, 1]}): {L0} m "
-                    "is negative or not finite")
-        damping = _as_per_item(damping, m, "damping", "string")
-        for i, c in enumerate(damping):
-            if not (math.isfinite(c) and c >= 0):
-                raise StructureError(
-                    f"damping of string {i} (nodes {strings[i, 0]}, {strings[i, 1]}): {c} N s/m "
-                    "is negative or not finite")
+        rest_length = per_string(str_len.copy() if rest_length is None else rest_length, "rest_length", "m", False)
+        damping = per_string(damping, "damping", "N s/m", False)
         _in_range(damping, "damping", "damping", "N s/m", "string")
 
         # gravity

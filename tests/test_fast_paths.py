@@ -1,4 +1,4 @@
-"""The compiled per-step helpers (tensegrity_gym/envs/_fast.py) and the small-array fast paths
+"""The compiled per-step helpers (tensegrity_gym/pipeline.py, tensegrity_gym/envs/compiled.py) and the small-array fast paths
 give bit-identical results to the NumPy reference paths, and bad input still raises the same
 errors."""
 import contextlib
@@ -7,22 +7,23 @@ import numpy as np
 import pytest
 
 from tensegrity_gym import rewards
-from tensegrity_gym.envs import _fast
+from tensegrity_gym import pipeline
+from tensegrity_gym.envs import compiled
 from tensegrity_gym.envs.common import check_action
 from tensegrity_gym.envs.shape import TensegrityShapeEnv, TensegrityShapeVectorEnv
 
-pytestmark = pytest.mark.skipif(not _fast.AVAILABLE, reason="numba not installed")
+pytestmark = pytest.mark.skipif(not pipeline.AVAILABLE, reason="numba not installed")
 
 
 @contextlib.contextmanager
 def reference():
     """Run the NumPy reference paths (as without numba) inside the block."""
-    old = _fast.AVAILABLE
-    _fast.AVAILABLE = False
+    old = pipeline.AVAILABLE
+    pipeline.AVAILABLE = False
     try:
         yield
     finally:
-        _fast.AVAILABLE = old
+        pipeline.AVAILABLE = old
 
 
 def same(a, b):
@@ -59,7 +60,7 @@ def test_shape_env_fast_path_is_bit_identical(mode):
 @pytest.mark.parametrize("divergence_limit", [None, 0.3])
 def test_shape_fused_step_is_bit_identical(mode, num_envs, divergence_limit):
     """ShapeTask's fused step (one compiled call: control update, physics kernel, divergence
-    check, observation, errors; _fast.shape_step) against the unfused path (integrators.step
+    check, observation, errors; compiled.shape_step) against the unfused path (integrators.step
     and the separate compiled helpers): same observations, rewards, infos and state, bit for
     bit, including steps where a copy diverges (a 0.3 m limit: some copies leave it)."""
     kw = dict(action_mode=mode, divergence_limit=divergence_limit)
@@ -91,6 +92,34 @@ def test_shape_fused_step_is_bit_identical(mode, num_envs, divergence_limit):
         r1, r2 = e1.step(a), e2.step(a)
         assert same(r1[0], r2[0]) and r1[1:] == r2[1:], t
     assert e1.task.step(np.zeros((1, 18))[:, ::2]) is not None    # a strided action: reference path
+
+
+@pytest.mark.parametrize("mode", ["rest_length", "force_density"])
+@pytest.mark.parametrize("robot", [dict(params={"rest_length_offset": 0.004}),
+                                   dict(randomize={"rest_length_offset": 0.005, "stiffness": 0.2})])
+def test_shape_fused_step_with_rest_length_offsets(mode, robot):
+    """A single env whose robot has rest-length offsets (fixed, or drawn at every reset) keeps the
+    fused step (the offsets added inside it, as BatchedTask.with_offset adds them) and matches
+    the unfused path bit for bit; a vector env with per-copy offsets runs the unfused path."""
+    e1, e2 = TensegrityShapeEnv(action_mode=mode, **robot), TensegrityShapeEnv(action_mode=mode, **robot)
+    e2.task._fused = False
+    calls = []
+    fz = e1.task._fused_setup()
+    e1.task._fused = (lambda *x: calls.append(1) or fz[0](*x),) + fz[1:]
+    for seed in (4, 5):                                    # a second reset redraws the randomised robot
+        assert same(e1.reset(seed=seed)[0], e2.reset(seed=seed)[0])
+        rng = np.random.default_rng(seed)
+        for t in range(8):
+            a = rng.uniform(-1, 1, 9)
+            r1, r2 = e1.step(a), e2.step(a)
+            assert same(r1[0], r2[0]) and r1[1:] == r2[1:], (seed, t)
+            assert same(e1.task.q, e2.task.q), (seed, t)
+    assert e1.task.rest_offset is not None and len(calls) == 16        # every step fused
+    v = TensegrityShapeVectorEnv(num_envs=3, max_episode_steps=None, action_mode=mode,
+                                 randomize={"rest_length_offset": 0.005})
+    v.reset(seed=0)
+    v.step(np.zeros((3, 9)))
+    assert v.task._fused and v.task._fused_step(v.task._fused, np.zeros((3, 9))) is None   # per-copy: unfused
 
 
 def _assert_same_step(r1, r2, t):
@@ -186,11 +215,43 @@ def test_mean_max_matches_numpy_reductions():
         for B in (1, 3, 64):
             d = np.abs(rng.normal(size=(B, nt))) * 10.0 ** rng.integers(-17, 1, size=(B, nt))
             mean, mx = np.empty(B), np.empty(B)
-            done = _fast.mean_max(d, mean, mx)
+            done = compiled.mean_max(d, mean, mx)
             assert done == (nt < 8)
             if done:
                 assert same(mean, d.mean(axis=1)) and same(mx, d.max(axis=1)), (nt, B)
     d = np.array([[0.1, np.nan, 0.3], [0.2, 0.1, 0.0]])
     mean, mx = np.empty(2), np.empty(2)
-    assert _fast.mean_max(d, mean, mx)
+    assert compiled.mean_max(d, mean, mx)
     assert same(mean, d.mean(axis=1)) and same(mx, d.max(axis=1))
+
+
+@pytest.mark.parametrize("kw", [dict(), dict(num_envs=20, integrator="rk4"),
+                                dict(num_envs=5, randomize={"rod_mass": 0.1, "friction": 0.2}),
+                                dict(observation_mode="robot")])
+def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
+    """pipeline.advance's contact steps in ONE compiled call (_contact_loop) give the same bits as
+    its Python loop of contact.forces_inplace + _kernels.step_inplace, and reuse the model's packed
+    buffer (no repacking per control step)."""
+    from tensegrity_gym import _kernels
+    from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
+    n = kw.pop("num_envs", 1)
+    make = (lambda: TensegrityRollEnv(**kw)) if n == 1 else \
+        (lambda: TensegrityRollVectorEnv(num_envs=n, max_episode_steps=None, **kw))
+    fused, loop = make(), make()
+    calls = []
+    real = pipeline._contact_loop
+    monkeypatch.setattr(pipeline, "_contact_loop", lambda *a: calls.append(1) or real(*a))
+    assert same(fused.reset(seed=1)[0], loop.reset(seed=1)[0])
+    packed = []
+    rng = np.random.default_rng(2)
+    for t in range(6):
+        a = rng.uniform(-1, 1, fused.action_space.shape)
+        r1 = fused.step(a)
+        with monkeypatch.context() as m:
+            m.setattr(pipeline, "_contact_compiled", lambda *x: False)     # the Python loop
+            r2 = loop.step(a)
+        assert same(r1[0], r2[0]) and same(r1[1], r2[1]), t
+        assert same(fused.unwrapped.task.cstate.anchor, loop.unwrapped.task.cstate.anchor), t
+        packed.append(_kernels._CACHE.get(id(fused.unwrapped.task.model)))
+    assert len(calls) == 6 * (2 if kw.get("observation_mode") == "robot" else 1)   # robot: IMUs split the last step
+    assert packed[0] is not None and all(p is packed[0] for p in packed)

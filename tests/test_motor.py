@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym.envs import _fast
+from tensegrity_gym import pipeline
 from tensegrity_gym.envs.common import Actuation
 from tensegrity_gym.envs.roll import MAX_CABLE_ACCELERATION, TensegrityRollEnv, TensegrityRollVectorEnv
 from vector_check import step_vector_beside_singles
@@ -156,7 +156,7 @@ def test_reset_zeroes_the_speed_and_vector_autoreset_too():
     np.testing.assert_array_equal(e.task.speed, 0.0)
 
 
-@pytest.mark.skipif(not _fast.AVAILABLE, reason="numba not installed")
+@pytest.mark.skipif(not pipeline.AVAILABLE, reason="numba not installed")
 @pytest.mark.parametrize("num_envs", [1, 3])
 def test_motor_fast_path_is_bit_identical_to_numpy(num_envs):
     def make():
@@ -164,13 +164,13 @@ def test_motor_fast_path_is_bit_identical_to_numpy(num_envs):
             return TensegrityRollEnv()
         return TensegrityRollVectorEnv(num_envs=num_envs, max_episode_steps=9)
     fast = make()
-    old = _fast.AVAILABLE
-    _fast.AVAILABLE = False
+    old = pipeline.AVAILABLE
+    pipeline.AVAILABLE = False
     try:
         ref = make()
         o2, _ = ref.reset(seed=2)
     finally:
-        _fast.AVAILABLE = old
+        pipeline.AVAILABLE = old
     o1, _ = fast.reset(seed=2)
     np.testing.assert_array_equal(o1, o2)
     rng = np.random.default_rng(5)
@@ -179,11 +179,11 @@ def test_motor_fast_path_is_bit_identical_to_numpy(num_envs):
         if t % 3 == 0:
             a = np.sign(a)
         r1 = fast.step(a)
-        _fast.AVAILABLE = False
+        pipeline.AVAILABLE = False
         try:
             r2 = ref.step(a)
         finally:
-            _fast.AVAILABLE = old
+            pipeline.AVAILABLE = old
         for x, y in zip(r1[:4], r2[:4]):
             x, y = np.asarray(x), np.asarray(y)
             assert x.dtype == y.dtype and np.array_equal(x, y), t

@@ -299,15 +299,15 @@ def test_node_drag_is_in_the_model_one_integrator_call_per_step(mode, monkeypatc
     calls = []
     real = integrators.step
     monkeypatch.setattr(integrators, "step", lambda *x, **k: calls.append(k.get("n_steps")) or real(*x, **k))
-    from tensegrity_gym.envs import _fast
+    from tensegrity_gym import pipeline
     fused = []
     ctrl0 = task.ctrl.copy()
-    assert bool(task._fused) == _fast.AVAILABLE
+    assert bool(task._fused) == pipeline.AVAILABLE
     if task._fused:
-        # the fused fast path (envs/_fast.shape_step): ONE compiled call per control step that
-        # runs the physics kernel for frame_skip steps (icon[0]), no integrators.step call
+        # the fused fast path (envs/compiled.shape_step): ONE compiled call per control step that
+        # runs the physics kernel for frame_skip steps (its n_steps argument), no integrators.step call
         disp = task._fused[0]
-        task._fused = (lambda *x: fused.append(int(x[7][0])) or disp(*x),) + task._fused[1:]
+        task._fused = (lambda *x: fused.append(int(x[7])) or disp(*x),) + task._fused[1:]
     env.step(a)
     assert (calls, fused) == (([], [task.frame_skip]) if task._fused else ([task.frame_skip], []))
     assert np.abs(task.q - st.q).max() < 1e-12 and np.abs(task.qd - st.qd).max() < 1e-10
@@ -316,7 +316,7 @@ def test_node_drag_is_in_the_model_one_integrator_call_per_step(mode, monkeypatc
     q1, qd1 = task.q.copy(), task.qd.copy()
     task.q, task.qd, task.ctrl = q0.copy(), qd0.copy(), ctrl0
     calls.clear()
-    monkeypatch.setattr(_fast, "AVAILABLE", False)
+    monkeypatch.setattr(pipeline, "AVAILABLE", False)
     env.step(a)
     assert calls == [task.frame_skip] and len(fused) == 1
     assert np.array_equal(task.q, q1) and np.array_equal(task.qd, qd1)

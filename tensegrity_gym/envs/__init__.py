@@ -8,26 +8,22 @@ from __future__ import annotations
 ENV_IDS = ("TensegrityShape-v0", "TensegrityRoll-v0", "TensegrityRollMuJoCo-v0")
 
 
+#: (id, module:class of the single env, of the vector env or None, max_episode_steps)
+_REGISTRY = (
+    # vector entry points: dispatchers that build the NumPy/numba vector env, or with backend="torch"
+    # the device-resident torch one (envs/torch_vec.py)
+    ("TensegrityShape-v0", "shape:TensegrityShapeEnv", "torch_vec:shape_vector_env", 200),
+    ("TensegrityRoll-v0", "roll:TensegrityRollEnv", "torch_vec:roll_vector_env", 1000),
+    # MuJoCo twin of TensegrityRoll-v0 (needs the mujoco extra)
+    ("TensegrityRollMuJoCo-v0", "roll_mujoco:TensegrityRollMuJoCoEnv", None, 1000),
+)
+
+
 def register_envs() -> None:
     from gymnasium.envs.registration import register, registry
 
-    if "TensegrityShape-v0" not in registry:
-        register(
-            id="TensegrityShape-v0",
-            entry_point="tensegrity_gym.envs.shape:TensegrityShapeEnv",
-            vector_entry_point="tensegrity_gym.envs.torch_vec:shape_vector_env",   # backend="torch": device-resident
-            max_episode_steps=200,
-        )
-    if "TensegrityRoll-v0" not in registry:
-        register(
-            id="TensegrityRoll-v0",
-            entry_point="tensegrity_gym.envs.roll:TensegrityRollEnv",
-            vector_entry_point="tensegrity_gym.envs.torch_vec:roll_vector_env",   # backend="torch": device-resident
-            max_episode_steps=1000,
-        )
-    if "TensegrityRollMuJoCo-v0" not in registry:   # MuJoCo twin of TensegrityRoll-v0 (needs the mujoco extra)
-        register(
-            id="TensegrityRollMuJoCo-v0",
-            entry_point="tensegrity_gym.envs.roll_mujoco:TensegrityRollMuJoCoEnv",
-            max_episode_steps=1000,
-        )
+    for env_id, entry, vector_entry, max_steps in _REGISTRY:
+        if env_id in registry:
+            continue
+        kw = {} if vector_entry is None else {"vector_entry_point": f"tensegrity_gym.envs.{vector_entry}"}
+        register(id=env_id, entry_point=f"tensegrity_gym.envs.{entry}", max_episode_steps=max_steps, **kw)

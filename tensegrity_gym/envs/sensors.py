@@ -48,7 +48,6 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics as dyn
-from .. import integrators
 
 __all__ = ["NOISY_BLOCKS", "rod_frames", "RobotSensors"]
 
@@ -172,6 +171,7 @@ class RobotSensors:
         task._readings = np.zeros((B, sens.history, sens.frame_size))
         task._sensor_rngs = [None] * B
         task._qd_prev = None
+        task.track_last_velocity = True   # BatchedTask.simulate keeps the last physics step's start velocities
         return sens
 
     @staticmethod
@@ -190,25 +190,6 @@ class RobotSensors:
         frame = self.frame(task.q[idx], task.qd[idx], None, task.dt, self.gravity(task, idx), task.ctrl[idx],
                            speed, contact, command, rngs)
         task._readings[idx] = frame[:, None, :]
-
-    def simulate(self, task, inputs: dict) -> np.ndarray:
-        """``task.simulate(**inputs)`` for the robot observation: the control step's physics as two
-        ``integrators.step`` calls (``frame_skip - 1`` steps, then the last one) so that the rod
-        velocities before the last physics step are kept (``task._qd_prev``, what the IMUs
-        difference). Same per-step arithmetic as one call of ``frame_skip`` steps. Returns
-        ``diverged`` (B,) bool (diverged copies keep their state; their IMUs read -g)."""
-        q0, qd0 = task.q, task.qd
-        kw = dict(backend=task.backend, params=task.params, **inputs)
-        with np.errstate(all="ignore"):
-            st = dyn.State(q0, qd0, 0.0)
-            if task.frame_skip > 1:
-                st = integrators.step(task.model, st, task.dt, task.integrator, n_steps=task.frame_skip - 1, **kw)
-            qd_prev = np.array(st.qd, dtype=float)
-            st = integrators.step(task.model, st, task.dt, task.integrator, **kw)
-        diverged = task._finish_simulate(q0, qd0, st.q, st.qd)
-        qd_prev[diverged] = task.qd[diverged]
-        task._qd_prev = qd_prev
-        return diverged
 
     def record(self, task, command, speed=None, contact=None) -> None:
         """Push the reading after a control step into the history (newest first)."""

@@ -8,15 +8,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _kernels
 from .. import dynamics as dyn
-from .. import integrators
+from .. import integrators, pipeline
 from .. import statics
-from ..rewards import _c_einsum as _sum_squares, quadratic_cost, tolerance
-from . import _fast
-from .common import (ACTION_MODES, Actuation, BatchedTask, TaskEnv, TaskVectorEnv, check_positive,
-                     check_stable_dt, resolve_actuated)
+from ..rewards import quadratic_cost, tolerance
+from . import compiled
+from .actuation import Actuation
+from .base import BatchedTask, fixed_step
+from .docs import SHAPE_DOC as _DOC
+from .shape_fused import FusedShapeStep
 from .sensors import RobotSensors
+from .shells import TaskEnv, TaskVectorEnv
+from .validate import ACTION_MODES, check_positive, check_stable_dt, resolve_actuated
 
 __all__ = ["ShapeTask", "TensegrityShapeEnv", "TensegrityShapeVectorEnv", "DEFAULT_STRING_DAMPING",
            "DEFAULT_NODE_DAMPING"]
@@ -32,7 +35,7 @@ def _load(structure):
     return load_structure(structure)
 
 
-class ShapeTask(BatchedTask):
+class ShapeTask(FusedShapeStep, BatchedTask):
     """Batched shape-tracking task on ``num_envs`` copies (arguments: see :class:`TensegrityShapeEnv`).
 
     State: ``q``, ``qd`` (B, k, 6); ``ctrl`` (B, na) current rest lengths (m) or force densities
@@ -80,7 +83,7 @@ class ShapeTask(BatchedTask):
 
         # the elastic model (targets) and the nominal equilibrium (start shape)
         self.elastic_model = dyn.compile_model(s)
-        integ = integrators.resolve(integrator).name
+        integ = fixed_step(integrator)     # the integrator's name, decoded once
         # before the equilibrium solve, whose relaxation would fail with a misleading message
         check_stable_dt(self.elastic_model, integrators.stability_limit(self.elastic_model).get(integ, float("inf")),
                         check_positive(dt, "dt", "s"), integ, allow_unstable_dt, "this structure")
@@ -101,24 +104,16 @@ class ShapeTask(BatchedTask):
         self.height = s.height if s.height > 0 else float(np.ptp(eq.nodes, axis=0).max())
         self.success_tolerance = (0.01 * self.height if success_tolerance is None
                                   else check_positive(success_tolerance, "success_tolerance", "m"))
-        self._init_physics(model, num_envs, integrator, dt, frame_skip, backend, divergence_limit, clip_actions)
+        self._init_physics(model, num_envs, integ, dt, frame_skip, backend, divergence_limit, clip_actions)
         check_stable_dt(model, integrators.stability_limit(model).get(self.integrator, float("inf")), self.dt,
                         self.integrator, allow_unstable_dt, "this structure with its node drag")
 
         # actuation
         l0 = s.rest_length[act]
         self.rest_low, self.rest_high = lo * l0, hi * l0
-        if action_mode == "rest_length":
-            self.actuation = Actuation("rest_length", act, self.rest_low, self.rest_high, self.max_speed,
-                                       self.control_dt, s.rest_length, l0)
-        else:
-            g0 = self.gamma_nominal[act]
-            fmax = 3.0 * float(g0.max()) if force_density_max is None else check_positive(
-                force_density_max, "force_density_max", "N/m")
-            frate = 2.0 * fmax if force_density_rate is None else check_positive(
-                force_density_rate, "force_density_rate", "N/(m s)")
-            self.actuation = Actuation("force_density", act, 0.0, fmax, frate, self.control_dt,
-                                       s.rest_length, g0)
+        self.actuation = Actuation.for_task(action_mode, act, s.rest_length, (lo, hi), self.max_speed,
+                                            self.control_dt, self.gamma_nominal, force_density_max,
+                                            force_density_rate)
         self.force_density_max = float(self.actuation.high.max()) if action_mode == "force_density" else None
 
         # tracked nodes: every rod node that can move (not pinned)
@@ -138,11 +133,11 @@ class ShapeTask(BatchedTask):
         self._N = None     # tracked node positions cached from step() for observe()
         self._obs = None   # observation cached from step() (compiled path) for observe()
         self._obs_of = None
-        # compiled observation (envs/_fast.py): tracked node t is r + eta b of one rod, exactly as
+        # compiled observation (envs/compiled.py): tracked node t is r + eta b of one rod, exactly as
         # dynamics.node_positions writes it (rod_c after rod_a, so the last rod wins); not used
         # if a tracked node is an anchor (its position is then the anchor's)
         self._obs_rod = self._obs_eta = None
-        if _fast.AVAILABLE and not np.isin(self.tracked, model.anchor_idx).any():
+        if pipeline.AVAILABLE and not np.isin(self.tracked, model.anchor_idx).any():
             src_rod = np.full(model.n_nodes, -1)
             src_eta = np.zeros(model.n_nodes)
             for col, nodes in ((0, model.rod_a), (1, model.rod_c)):
@@ -242,7 +237,7 @@ class ShapeTask(BatchedTask):
     def simulate_controls(self):
         """One control step of physics for the batch at the current controls: ONE batched
         ``integrators.step`` call of ``frame_skip`` steps (the node drag is in the model)."""
-        return self.simulate(**self.with_offset(self.actuation.physics_inputs(self.ctrl)))
+        return self.simulate(**self.actuation.physics_inputs(self.ctrl))
 
     def _compiled_observe(self):
         """(obs (B, size) float32, node errors d (B, nt)) in one compiled call, or None when the
@@ -257,111 +252,26 @@ class ShapeTask(BatchedTask):
         B = q.shape[0]
         obs = np.empty((B, self.observation_size), np.float32)
         d = np.empty((B, self._obs_rod.size))
-        _fast.shape_observe(q, qd, self._obs_rod, self._obs_eta, ctrl, tgt, obs, d)
+        compiled.shape_observe(q, qd, self._obs_rod, self._obs_eta, ctrl, tgt, obs, d)
         return obs, d
-
-    def _fused_setup(self):
-        """Constants of the fused compiled step (:func:`tensegrity_gym.envs._fast.shape_step`),
-        or False when it does not apply: no numba, numpy backend / implicit integrator, an
-        anchored tracked node, or a batch large enough for the parallel kernel (then
-        ``integrators.step`` runs it). Decided once per task, at its first step."""
-        fz = False
-        if self._obs_rod is not None and self._compiled_physics():
-            p = _kernels._packed(self.model)
-            flags = _kernels._flags(p, self.integrator, True)
-            B, act = self.num_envs, self.actuation
-            if not (B >= 8 and _kernels._parallel(p, B, self.frame_skip, flags)):
-                rl = act.mode == "rest_length"
-                if not rl:
-                    flags |= _kernels._L0DEF | _kernels._FD
-                tol = self.success_tolerance
-                scale = float(np.sqrt(-2 * np.log(0.1)))     # rewards.tolerance's gaussian, value 0.1 at the margin
-                fcon = np.concatenate([[self.dt, self.divergence_limit], self.center0,
-                                       [tol, 10.0 * tol, scale, -self.tracking_weight],
-                                       act._rate[0], act.low, act.high, act.base_rest_length, self._obs_eta])
-                icon = np.concatenate([[self.frame_skip, flags, int(rl), act.size, act.n_strings, self.tracked.size],
-                                       act.actuated, self._obs_rod]).astype(np.int64)
-                disp = _fast.shape_step
-                if not disp.signatures:
-                    disp.compile(_fast.SHAPE_STEP_SIG)
-                    disp.disable_compile()     # another argument type raises TypeError: reference path
-                # integrators.step's stability warning, once per (model, integrator, dt) as there
-                integrators._check_stability(self.model, integrators.INTEGRATORS[self.integrator], self.dt)
-                self._fused_dist = np.empty((B, self.tracked.size))
-                fz = (disp, p.buf, np.ascontiguousarray(fcon, np.float64), icon, B, self.action_size,
-                      self.observation_size, self.tracked.size)
-        self._fused = fz
-        return fz
-
-    def _fused_step(self, fz, action):
-        """:meth:`step` in one compiled call (see :meth:`_fused_setup`); None when it does not
-        apply to these arrays (nothing changed then: the caller runs the reference path)."""
-        disp, buf, fcon, icon, B, na, nobs, nt = fz
-        if self.params is not None:       # the robot's own values: the shared buffer of its Params
-            if self.rest_offset is not None or self.params.batch_size != 1:
-                return None
-            buf = _kernels._pack_params(self.model, self.params).buf
-        q0, qd0 = self.q, self.qd
-        qo = np.empty(q0.shape)
-        qdo = np.empty(q0.shape)
-        ctrl = np.empty((B, na))
-        obs = np.empty((B, nobs), np.float32)
-        d = self._fused_dist               # scratch: read below only before the next call
-        st = np.empty((4, B))
-        success = np.empty(B, bool)
-        try:
-            rc = disp(q0, qd0, self.ctrl, action, self.target, buf, fcon, icon, qo, qdo, ctrl, obs, d, st, success,
-                      self.elapsed)
-        except TypeError:    # an array of another type or layout: the reference path converts it
-            return None
-        if rc < 0:
-            return None
-        self.ctrl = ctrl
-        self._last_action = action
-        if rc == 1:      # diverged: the reference divergence handling and observation
-            diverged = self._finish_simulate(q0, qd0, qo, qdo)
-            return self._finish_step(action, diverged)
-        self.q, self.qd = qo, qdo
-        self._obs, self._obs_of, self._N = obs, (qo, qdo, ctrl, self.target), None
-        if rc == 2:      # mean/max left to NumPy (nt >= 8); elapsed not incremented
-            self.elapsed += 1
-            err, emax = np.add.reduce(d, axis=1) / nt, np.maximum.reduce(d, axis=1)
-            success = emax <= self.success_tolerance
-            tracking = -self.tracking_weight * err
-            prox = tolerance(emax, (0.0, self.success_tolerance), margin=10.0 * self.success_tolerance)
-        else:
-            err, emax, y = st[0], st[1], st[2]
-            tracking = st[3]               # -tracking_weight * err, the same multiplication
-            if B == 1:   # rewards.tolerance: 1 inside the bounds, exp(-0.5 t^2) outside
-                prox = np.ones(1) if y[0] != y[0] else np.exp(y)
-            else:
-                prox = np.where(y != y, 1.0, np.exp(y))
-        terms = {
-            "tracking": tracking,
-            "proximity": self.proximity_weight * prox,
-            "ctrl": -self.ctrl_cost_weight * _sum_squares("...i,...i->...", action, action),  # quadratic_cost
-        }
-        infos = {"tracking_error": err, "max_node_error": emax, "is_success": success,
-                 "diverged": np.zeros(B, bool)}
-        return terms, np.zeros(B, bool), infos
 
     def step(self, action):
         if self.sensors is not None:    # robot observation: the IMUs need the last physics step (envs/sensors.py)
             self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
             self._last_action = action
-            out = self._finish_step(action, self.sensors.simulate(self, self.with_offset(inputs)))
+            out = self._finish_step(action, self.simulate(**inputs))
             self.sensors.record(self, self.target.reshape(self.num_envs, -1))
             return out
         fz = self.__dict__.get("_fused")
         if fz is None:
             fz = self._fused_setup()
-        if fz and _fast.AVAILABLE:
+        if fz and pipeline.AVAILABLE:
             out = self._fused_step(fz, action)
             if out is not None:
                 return out
         self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
         self._last_action = action
-        diverged = self.simulate(**self.with_offset(inputs))
+        diverged = self.simulate(**inputs)
         return self._finish_step(action, diverged)
 
     def _finish_step(self, action, diverged):
@@ -376,7 +286,7 @@ class ShapeTask(BatchedTask):
             self._N_of = self.q
             d = np.linalg.norm(self._N - self.target, axis=-1)
         err, emax = np.empty(d.shape[0]), np.empty(d.shape[0])
-        if fast is None or not _fast.mean_max(d, err, emax):
+        if fast is None or not compiled.mean_max(d, err, emax):
             # d.mean(axis=1) is add.reduce / count (bit-identical), without the Python of _mean
             err, emax = np.add.reduce(d, axis=1) / d.shape[1], np.maximum.reduce(d, axis=1)
         success = emax <= self.success_tolerance
@@ -433,162 +343,6 @@ class ShapeTask(BatchedTask):
             out.append((name, slice(i, i + n), unit))
             i += n
         return out
-
-
-_DOC = r"""
-    Shape tracking with an anchored class-1 tensegrity (``TensegrityShape-v0``).
-
-    ## Description
-    A tensegrity whose rigid-body motion is removed by node constraints (default: the
-    seed's Example 5.8 three-bar prism, node 0 pinned at the origin, node 1 sliding on the
-    x axis, node 2 sliding on the plane z = 0; gravity -9.81 m/s^2 along z) must take a
-    commanded shape. The policy changes the rest lengths (``action_mode="rest_length"``)
-    or the force densities (``action_mode="force_density"``) of the actuated strings. The
-    dynamics are the exact configuration-matrix equations of Skelton & de Oliveira ch. 5
-    (tension-only strings, rigid rods), integrated with ``integrator`` at ``dt`` seconds,
-    ``frame_skip`` physics steps per control step (default 1 ms x 20 = 50 Hz control). No
-    contact code runs. Every target is reachable by construction: it is a stable static
-    equilibrium for admissible controls (see "Starting state").
-
-    Damping (defaults chosen so that a 2 cm disturbance decays below 1 mm in about 0.7 s):
-    ``string_damping`` = 5 N s/m on every elastic string (``None`` keeps the structure's own)
-    and ``node_damping`` = 2 N s/m of viscous drag on every rod node (string damping alone
-    cannot damp the prism's infinitesimal mechanism, whose motion does not stretch the strings
-    to first order). The drag is part of the physics model (``dynamics.compile_model(...,
-    node_damping=c)``: force ``-c v`` on every rod node, evaluated wherever the integrator
-    evaluates forces), so a control step is one integrator call of ``frame_skip`` steps.
-    In force-density mode the actuated strings are ideal force actuators with no elastic or
-    damping part, so only the remaining strings and the node drag dissipate energy.
-
-    ## Action space
-    ``Box(-1, 1, (na,), float32)``, one entry per actuated string (``actuated``, default all
-    strings, in the structure's string order). Actions outside [-1, 1] are **clipped** to the
-    box (as actuators saturate; SB3 and random agents act inside it); construct with
-    ``clip_actions=False`` to get a ``ValueError`` instead. A NaN or inf entry always raises
-    ``ValueError`` naming its index.
-
-    | mode | action a_i in [-1, 1] does | control bounds |
-    |------|---------------------------|----------------|
-    | ``rest_length`` | rest length l0_i += a_i * ``max_speed`` * dt_c (m), dt_c = dt * frame_skip | ``rest_length_bounds`` x the structure's rest length (default 0.8 to 1.1) |
-    | ``force_density`` | force density g_i += a_i * ``force_density_rate`` * dt_c (N/m) | [0, ``force_density_max``] (default 3 x the largest nominal force density; never negative) |
-
-    The control then holds (zero-order hold) over the control step.
-
-    ## Observation space
-    ``Box(-inf, inf, (12 nt + na,), float32)``, with nt tracked nodes (every rod node that
-    is not pinned: nodes 1-5 for the default prism, nt = 5, na = 9, size 69). Blocks:
-
-    | index | observation | unit |
-    |-------|-------------|------|
-    | 0 .. 3nt-1 | positions of the tracked nodes (x, y, z per node, in node order) | m |
-    | 3nt .. 6nt-1 | velocities of the tracked nodes | m/s |
-    | 6nt .. 6nt+na-1 | current control of each actuated string: rest length (m) or force density (N/m) | m or N/m |
-    | 6nt+na .. 9nt+na-1 | target positions of the tracked nodes | m |
-    | 9nt+na .. 12nt+na-1 | target error (target - position) | m |
-
-    ``env.unwrapped.task.observation_layout()`` lists the blocks.
-
-    **Robot observation** (``observation_mode="robot"``): only what a lab robot measures, plus
-    the target (a command, as the state mode gives it); no node position, velocity or target
-    error. One reading, k rods, m strings (:mod:`tensegrity_gym.envs.sensors`, the code
-    ``TensegrityRoll-v0`` uses; size m + na + 6k + 3nt, 51 for the default prism):
-
-    | block | size | unit | reading |
-    |-------|------|------|---------|
-    | ``cable_length`` | m | m | length of every string (cable length sensor) |
-    | ``control`` | na | m or N/m | each actuated string's motor encoder: its commanded rest length (N/m: force density) |
-    | ``imu_accel`` | 3k | m/s^2 | each rod's accelerometer at its centre of mass in the rod frame: specific force a - g over the last physics step (reset reading: -g) |
-    | ``imu_gyro`` | 3k | rad/s | each rod's angular velocity in the rod frame (z, about the rod axis, is 0) |
-    | ``target_position`` | 3nt | m | target positions of the tracked nodes (the command) |
-
-    The rod frame (z along the rod, x the world "up" made perpendicular to it) is defined in
-    :mod:`tensegrity_gym.envs.sensors`. ``sensor_noise={block: sigma}`` adds Gaussian noise
-    (SI units, from ``np_random``) to ``cable_length``, ``control``, ``imu_accel``, ``imu_gyro``;
-    ``history=H`` stacks the last H readings, newest first (size H x the reading). Robot mode
-    runs the same physics (the control step's ``frame_skip`` physics steps as two calls, so the
-    IMUs see the last one; same trajectory, rewards and infos as the state mode) on the NumPy
-    path of the observation (no fused compiled step).
-
-    ## Rewards
-    ``reward = reward_tracking + reward_proximity + reward_ctrl`` with e_i the distance of
-    tracked node i from its target (m):
-
-    * ``reward_tracking = -tracking_weight * mean_i e_i`` (``tracking_weight`` 1/m, default 10);
-    * ``reward_proximity = proximity_weight * tolerance(max_i e_i, (0, tol), margin = 10 tol)``,
-      a Gaussian bonus (dm_control's ``tolerance``; 1 within the success tolerance, 0.1 at 10 tol);
-    * ``reward_ctrl = -ctrl_cost_weight * sum_i a_i^2``.
-
-    Each term is in ``info`` as ``reward_<name>``; their sum is the reward exactly.
-
-    ## Info
-    ``tracking_error`` (mean e_i, m), ``max_node_error`` (max e_i, m), ``is_success``
-    (every tracked node within ``success_tolerance``, default 1% of the structure's height:
-    1 cm for the default prism), ``diverged`` (see "Episode end"), and the ``reward_*`` terms.
-
-    ## Starting state
-    At reset a target is drawn: rest lengths of the actuated strings uniform within
-    +-``target_range`` (default 10%) of the structure's (clipped to the rest-length bounds); the
-    stable equilibrium they give (statics.solve_equilibria from the nominal shape) is the
-    target shape. Draws are redrawn unless the equilibrium is stable and every actuated
-    string is taut; in force-density mode also unless its force densities lie within the
-    bounds. In force-density mode the target is then an exact equilibrium of the actuated
-    strings held at those force densities -- but, with no elastic stiffness left in them, not
-    a stable one: for the default prism with all strings actuated, constant force densities
-    leave three nearly neutral modes (stiffness about -2 N/m, i.e. slowly unstable under
-    gravity), so holding a shape needs feedback (as the NNLS baseline does). The structure
-    starts at the nominal equilibrium (the structure's rest lengths, under gravity) with
-    uniform noise of +-``reset_noise_scale`` (m, m/s) on each reduced coordinate and
-    velocity; the controls start at their nominal values. All randomness comes from
-    ``np_random``.
-
-    ## Episode end
-    No termination: holding the shape is the task. Truncation: by the time limit set at
-    registration (``max_episode_steps`` = 200 control steps = 4 s), and at once with
-    ``info["diverged"] = True`` if the state becomes non-finite or a node moves more than
-    ``divergence_limit`` (default 100 x the structure's size) from it; the state is then
-    put back to the last finite one, so observations stay finite.
-
-    ## Arguments
-    ``gymnasium.make("TensegrityShape-v0", **kwargs)``:
-
-    | argument | default | meaning |
-    |----------|---------|---------|
-    | ``structure`` | ``"constrained_prism"`` | builder name, JSON path or ``Structure`` with node constraints or anchors |
-    | ``action_mode`` | ``"rest_length"`` | or ``"force_density"`` |
-    | ``actuated`` | ``None`` (all) | string indices or boolean mask |
-    | ``integrator`` | ``"semi_implicit_euler"`` | fixed-step integrator (``"rk4"``) |
-    | ``dt`` | ``1e-3`` | physics step, s (default well under the explicit limit, 0.025 s for the default prism) |
-    | ``allow_unstable_dt`` | ``False`` | a ``dt`` above the integrator's estimated stability limit raises ValueError unless True (then it warns) |
-    | ``frame_skip`` | ``20`` | physics steps per control step |
-    | ``string_damping`` | ``5.0`` | N s/m on every string, ``None`` keeps the structure's |
-    | ``node_damping`` | ``2.0`` | N s/m viscous drag on every rod node |
-    | ``tracking_weight``, ``proximity_weight``, ``ctrl_cost_weight`` | ``10.0``, ``1.0``, ``0.01`` | reward weights |
-    | ``success_tolerance`` | ``None`` (1% of the height) | m |
-    | ``reset_noise_scale`` | ``5e-3`` | m, m/s |
-    | ``target_range`` | ``0.1`` | relative rest-length range of target draws |
-    | ``rest_length_bounds`` | ``(0.8, 1.1)`` | fractions of the structure's rest lengths |
-    | ``max_speed`` | ``0.1`` | m/s, rest-length mode |
-    | ``force_density_max``, ``force_density_rate`` | ``None`` | N/m and N/(m s); default 3 x the largest nominal force density and twice that per second |
-    | ``backend`` | ``"auto"`` | physics backend (numba kernels when available) |
-    | ``divergence_limit`` | ``None`` | m |
-    | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
-    | ``params`` | ``None`` | fix robot parameters by name, absolute SI values (``rod_mass``, ``stiffness``, ``damping``, ``node_damping``, ``gravity``, ``rest_length_offset``; a number or one per rod/string/node): see :mod:`tensegrity_gym.envs.domain`. Targets stay those of the nominal model (a controller that believes the nominal model then meets a different robot) |
-    | ``randomize`` | ``None`` | ``{name: spread}`` drawn per copy at every reset (relative U(1 - s, 1 + s) x nominal; ``rest_length_offset`` absolute U(-s, s) m); ``info["params"]`` at reset reports the values |
-    | ``action_delay`` | ``0`` | control steps between an action and its effect (zeros at the start of an episode) |
-    | ``start_rest_length_offset`` | ``None`` | m added to the actuated strings' rest lengths at reset (rest-length mode; within the bounds) |
-    | ``observation_mode`` | ``"state"`` | ``"robot"``: what a lab robot senses (cable lengths, motor encoders, rod IMUs) plus the target; see "Observation space" |
-    | ``sensor_noise`` | ``None`` | robot mode: ``{block: sigma}`` Gaussian noise, SI units (``cable_length``, ``control``, ``imu_accel``, ``imu_gyro``) |
-    | ``history`` | ``1`` | robot mode: readings stacked, newest first |
-    | ``render_mode``, ``width``, ``height`` | ``None``, 480, 480 | ``"rgb_array"`` or ``"human"`` |
-
-    ``render()`` draws rods thick, strings coloured by tension (slack dashed grey) and the
-    targets as green circles; ``metadata["render_fps"]`` = 1 / (dt frame_skip).
-
-    ## Version history
-    * v0: initial version.
-    * v0 (0.2): ``params``, ``randomize``, ``action_delay``, ``start_rest_length_offset``; defaults unchanged (bit-identical).
-    * v0 (0.2): ``observation_mode="robot"``, ``sensor_noise``, ``history``; defaults unchanged (bit-identical).
-"""
 
 
 class TensegrityShapeEnv(TaskEnv):

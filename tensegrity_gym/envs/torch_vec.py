@@ -70,6 +70,7 @@ from gymnasium.utils import seeding
 
 from .. import torch_backend as tb
 from .common import ACTION_TOL, registered_max_episode_steps
+from .shells import VectorSeeding, reseed
 
 __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "roll_vector_env", "shape_vector_env"]
 
@@ -102,7 +103,7 @@ def shape_vector_env(num_envs: int = 1, **kwargs):
     return TensegrityShapeVectorEnv(num_envs=num_envs, **kwargs)
 
 
-class _TorchTaskVectorEnv(gym.vector.VectorEnv):
+class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     """A batched task (:class:`~tensegrity_gym.envs.common.BatchedTask`) stepped on a torch
     device: seeding, resets on the host, Gymnasium vector infos, action checks, next-step
     autoreset. Subclasses set ``ENV_ID`` and implement ``_make_task``, ``_init_state``,
@@ -313,42 +314,11 @@ class _TorchTaskVectorEnv(gym.vector.VectorEnv):
         return torch.clamp(a, -1.0, 1.0), bool(flags[2])
 
     # ------------------------------------------------------------------ VectorEnv API
-    @property
-    def dt(self) -> float:
-        """Control step, s."""
-        return self.task.control_dt
-
-    @property
-    def np_random_list(self) -> list[np.random.Generator]:
-        """Per-env random generators (host; used at reset only)."""
-        return self._rngs
-
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
         torch = tb._torch()
         super().reset(seed=None)
-        N = self.num_envs
-        options = dict(options) if options else {}
-        mask = options.pop("reset_mask", None)
-        if mask is None:
-            mask = np.ones(N, bool)
-        else:
-            if isinstance(mask, torch.Tensor):
-                mask = mask.cpu().numpy()
-            mask = np.asarray(mask)
-            if mask.shape != (N,) or mask.dtype != np.bool_:
-                raise ValueError(f"options['reset_mask']: expected a bool array of shape ({N},), "
-                                 f"got {mask.dtype} {mask.shape}")
-        if seed is None:
-            seeds = [None] * N
-        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            seeds = [int(seed) + i for i in range(N)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != N:
-                raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {len(seeds)}")
-        for i in range(N):
-            if mask[i] and seeds[i] is not None:
-                self._rngs[i] = seeding.np_random(int(seeds[i]))[0]
+        mask, options = self._reset_mask(options)
+        reseed(self._rngs, seed, mask)
         idx = np.flatnonzero(mask)
         info = self._reset_envs(idx, options or None)
         return self._observe(), self._vector_info(info, torch.as_tensor(mask, device=self.device))
@@ -439,7 +409,7 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
                           self.goal, com[:, 2:3], self.speed], dim=1)
 
     def _far_or_nonfinite(self, q, qd):
-        """(N,) bool, as ``RollTask._far_or_nonfinite``."""
+        """(N,) bool, as ``pipeline.diverged`` with ``travels=True`` (the roll task)."""
         torch = tb._torch()
         finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
         r = q[..., :3]
@@ -536,7 +506,7 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
         q, qd = tb.step(self.tm, q0, qd0, task.dt, task.integrator, task.frame_skip,
                         rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                         params=self._params)
-        # BatchedTask._finish_simulate: non-finite, or a reference point farther than the limit from the centre
+        # pipeline.diverged (BatchedTask.simulate): non-finite, or a reference point farther than the limit from the centre
         finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
         r = q[..., :3]
         r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))

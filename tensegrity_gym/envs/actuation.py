@@ -1,0 +1,206 @@
+"""Actuation of a set of strings, batched: rest-length or force-density controls with rate
+limits and the cable motor model. SI units.
+
+It turns actions in [-1, 1] into the ``rest_length`` / ``force_density`` inputs of
+:func:`tensegrity_gym.pipeline.step`; the compiled update is :func:`tensegrity_gym.pipeline.apply_controls`
+/ :func:`~tensegrity_gym.pipeline.apply_motor` (bit-identical to the NumPy methods here).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import pipeline
+from .validate import ACTION_MODES, check_positive
+
+__all__ = ["Actuation"]
+
+
+class Actuation:
+    """Batched actuation of ``na`` strings (SI units).
+
+    Parameters
+    ----------
+    mode : ``"rest_length"`` or ``"force_density"``.
+    actuated : (na,) indices of the actuated strings.
+    low, high : (na,) control bounds: m (rest length) or N/m (force density, ``low`` >= 0).
+    max_rate : (na,) largest change of the control per second: m/s or N/(m s).
+    control_dt : s, the duration of one control step (``dt * frame_skip``).
+    base_rest_length : (m,) rest lengths of all strings (the non-actuated ones keep them), m.
+    nominal : (na,) control at the start of an episode.
+
+    max_accel : ``None`` (default) or the largest change of the control *rate* per second
+        (rest-length mode: the cable acceleration limit of a motor, m/s^2). See below.
+
+    Without ``max_accel``, an action ``a`` in [-1, 1]^na changes the control by
+    ``a * max_rate * control_dt`` per control step, then the control is clipped to
+    [``low``, ``high``] (:meth:`apply`, :meth:`advance`).
+
+    With ``max_accel`` (a motor model, :meth:`advance_motor`) the action commands the rate
+    ``v_cmd = a * max_rate``; the rate ``v`` (B, na) is state (m/s for rest lengths) and moves
+    toward the command by at most ``max_accel * control_dt`` per control step; the control then
+    moves by ``v * control_dt`` and is clipped to [``low``, ``high``], and where it sits on a
+    bound with ``v`` pushing beyond it, ``v`` is set to 0 (end stop).
+    """
+
+    def __init__(self, mode: str, actuated, low, high, max_rate, control_dt: float, base_rest_length,
+                 nominal, max_accel: float | None = None):
+        if mode not in ACTION_MODES:
+            raise ValueError(f"action_mode: unknown {mode!r}; choose one of {ACTION_MODES}")
+        self.mode = mode
+        self.actuated = np.asarray(actuated, dtype=int)
+        na = self.actuated.size
+        self.base_rest_length = np.asarray(base_rest_length, float).copy()
+        self.n_strings = self.base_rest_length.size
+
+        def per(x, nm):
+            arr = np.broadcast_to(np.asarray(x, float), (na,)).copy()
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"{nm}: non-finite value(s) {arr.tolist()}")
+            return arr
+        self.low, self.high = per(low, "low"), per(high, "high")
+        self.max_rate = per(max_rate, "max_rate")
+        self.nominal = np.clip(per(nominal, "nominal"), self.low, self.high)
+        self.control_dt = check_positive(control_dt, "control_dt", "s")
+        self.max_accel = None if max_accel is None else check_positive(max_accel, "max_accel", "unit/s^2")
+        # per-copy limits (set_copy_limits): (P, na) rates and (P,) accelerations, P = 1 until set
+        self.rate_rows = self.max_rate[None].copy()
+        self.accel_rows = None if self.max_accel is None else np.array([self.max_accel])
+        self._update_steps()
+        unit = "m" if mode == "rest_length" else "N/m"
+        for i in range(na):
+            s = int(self.actuated[i])
+            if self.low[i] > self.high[i]:
+                raise ValueError(f"bounds of actuated string {s}: lower {self.low[i]:.6g} {unit} is above "
+                                 f"upper {self.high[i]:.6g} {unit}")
+            if self.low[i] < 0:
+                raise ValueError(f"bounds of actuated string {s}: lower bound {self.low[i]:.6g} {unit} is negative")
+            if self.max_rate[i] <= 0:
+                raise ValueError(f"max rate of actuated string {s}: {self.max_rate[i]:.6g} {unit}/s must be positive")
+
+    @classmethod
+    def for_task(cls, mode: str, actuated, rest_length, bounds, max_speed: float, control_dt: float, gamma_nominal,
+                 force_density_max: float | None = None, force_density_rate: float | None = None,
+                 max_accel: float | None = None) -> "Actuation":
+        """The actuation of a task's strings ``actuated`` (rest lengths ``rest_length`` (m,) m, force
+        densities ``gamma_nominal`` (m,) N/m at rest). ``"rest_length"``: within ``bounds`` (low,
+        high fractions of the rest lengths), at most ``max_speed`` m/s (a motor with ``max_accel``
+        m/s^2 if given). ``"force_density"``: within [0, ``force_density_max``] N/m (default 3x the
+        largest nominal), at most ``force_density_rate`` N/(m s) (default twice the maximum per s)."""
+        if mode not in ACTION_MODES:
+            raise ValueError(f"action_mode: unknown {mode!r}; choose one of {ACTION_MODES}")
+        l0 = np.asarray(rest_length, float)[actuated]
+        if mode == "rest_length":
+            lo, hi = bounds
+            return cls("rest_length", actuated, lo * l0, hi * l0, max_speed, control_dt, rest_length, l0,
+                       max_accel=max_accel)
+        g0 = np.asarray(gamma_nominal, float)[actuated]
+        fmax = 3.0 * float(g0.max()) if force_density_max is None else check_positive(
+            force_density_max, "force_density_max", "N/m")
+        frate = 2.0 * fmax if force_density_rate is None else check_positive(
+            force_density_rate, "force_density_rate", "N/(m s)")
+        return cls("force_density", actuated, 0.0, fmax, frate, control_dt, rest_length, g0)
+
+    def _update_steps(self):
+        self._rate = self.rate_rows * self.control_dt     # change of the control per unit action and step
+        self._dv = None if self.accel_rows is None else self.accel_rows * self.control_dt
+
+    def set_copy_limits(self, batch_size: int, idx, max_rate=None, max_accel=None) -> None:
+        """Copies ``idx`` get their own rate limit ``max_rate`` ((len(idx), na) or (na,), unit/s)
+        and/or motor acceleration limit ``max_accel`` ((len(idx),) or a number, unit/s^2); the
+        other copies keep theirs (the nominal ones until changed). ValueError naming the copy
+        and the value if one is not finite and > 0."""
+        idx = np.asarray(idx, dtype=int).reshape(-1)
+        if self.rate_rows.shape[0] != batch_size:
+            self.rate_rows = np.repeat(self.rate_rows[:1], batch_size, axis=0)
+            if self.accel_rows is not None:
+                self.accel_rows = np.repeat(self.accel_rows[:1], batch_size)
+        for name, val, rows in (("max_cable_speed", max_rate, self.rate_rows),
+                                ("max_cable_acceleration", max_accel, self.accel_rows)):
+            if val is None:
+                continue
+            if rows is None:
+                raise ValueError(f"{name}: this actuation has no motor acceleration limit")
+            v = np.broadcast_to(np.asarray(val, float), (idx.size,) + rows.shape[1:])
+            bad = ~(np.isfinite(v) & (v > 0))
+            if bad.any():
+                pos = np.argwhere(bad)[0]
+                raise ValueError(f"{name}: copy {int(idx[pos[0]])}: must be finite and > 0, got {float(v[tuple(pos)])!r}")
+            rows[idx] = v
+        self._update_steps()
+
+    @property
+    def size(self) -> int:
+        return int(self.actuated.size)
+
+    @property
+    def unit(self) -> str:
+        return "m" if self.mode == "rest_length" else "N/m"
+
+    def apply(self, ctrl: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """New control (B, na) from the current control (B, na) and an action in [-1, 1] (B, na)."""
+        return np.clip(ctrl + action * self._rate, self.low, self.high)
+
+    def physics_inputs(self, ctrl: np.ndarray) -> dict:
+        """Keyword arguments ``rest_length`` / ``force_density`` (B, m) for ``integrators.step``."""
+        B = ctrl.shape[0]
+        if self.mode == "rest_length":
+            rl = np.empty((B, self.n_strings))
+            rl[:] = self.base_rest_length
+            rl[:, self.actuated] = ctrl
+            return {"rest_length": rl}
+        fd = np.zeros((B, self.n_strings))
+        fd[:, self.actuated] = ctrl
+        return {"rest_length": None, "force_density": fd}
+
+    def advance(self, ctrl: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, dict]:
+        """``(new, physics_inputs(new))`` with ``new = apply(ctrl, action)``: one compiled call
+        for C-contiguous float64 (B, na) arrays (the env's own), the two methods otherwise."""
+        if (pipeline.AVAILABLE and type(ctrl) is np.ndarray and type(action) is np.ndarray
+                and ctrl.ndim == 2 and ctrl.shape == action.shape and ctrl.dtype == np.float64
+                and action.dtype == np.float64 and ctrl.flags.c_contiguous and action.flags.c_contiguous):
+            new = np.empty(ctrl.shape)
+            phys = np.empty((ctrl.shape[0], self.n_strings))
+            rl = self.mode == "rest_length"
+            pipeline.apply_controls(ctrl, action, self._rate, self.low, self.high, self.actuated,
+                                 self.base_rest_length, rl, new, phys)
+            return new, ({"rest_length": phys} if rl else {"rest_length": None, "force_density": phys})
+        new = self.apply(ctrl, action)
+        return new, self.physics_inputs(new)
+
+    def apply_motor(self, ctrl: np.ndarray, speed: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Motor model (needs ``max_accel``): ``(new control, new rate)`` (B, na) from the current
+        control, the current rate ``speed`` (unit/s) and an action in [-1, 1] (the NumPy reference
+        of :meth:`advance_motor`)."""
+        if self.max_accel is None:
+            raise ValueError("apply_motor: this Actuation has no max_accel (use apply)")
+        dv = self._dv[:, None]
+        v = speed + np.clip(action * self.rate_rows - speed, -dv, dv)
+        new = np.clip(ctrl + v * self.control_dt, self.low, self.high)
+        stop = ((new <= self.low) & (v < 0.0)) | ((new >= self.high) & (v > 0.0))
+        v = np.where(stop, 0.0, v)
+        return new, v
+
+    def advance_motor(self, ctrl: np.ndarray, speed: np.ndarray,
+                      action: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
+        """``(new, new_speed, physics_inputs(new))`` of the motor model (:meth:`apply_motor`): one
+        compiled call for C-contiguous float64 (B, na) arrays, NumPy otherwise (same numbers)."""
+        if self.max_accel is None:
+            raise ValueError("advance_motor: this Actuation has no max_accel (use advance)")
+        if (pipeline.AVAILABLE and all(type(x) is np.ndarray and x.ndim == 2 and x.shape == ctrl.shape
+                                       and x.dtype == np.float64 and x.flags.c_contiguous
+                                       for x in (ctrl, speed, action))):
+            new = np.empty(ctrl.shape)
+            v = np.empty(ctrl.shape)
+            phys = np.empty((ctrl.shape[0], self.n_strings))
+            rl = self.mode == "rest_length"
+            pipeline.apply_motor(ctrl, speed, action, self.rate_rows, self._dv, self.control_dt, self.low, self.high,
+                                 self.actuated, self.base_rest_length, rl, new, v, phys)
+            return new, v, ({"rest_length": phys} if rl else {"rest_length": None, "force_density": phys})
+        new, v = self.apply_motor(ctrl, speed, action)
+        return new, v, self.physics_inputs(new)
+
+    def describe(self) -> str:
+        acc = "" if self.max_accel is None else f", max rate change {self.max_accel:.4g} {self.unit}/s^2"
+        return (f"{self.mode}: strings {self.actuated.tolist()}, bounds [{self.low.min():.4g}, "
+                f"{self.high.max():.4g}] {self.unit}, max rate {self.max_rate.max():.4g} {self.unit}/s" + acc)
+

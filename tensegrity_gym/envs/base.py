@@ -1,0 +1,282 @@
+"""The batched task base class: B copies of one compiled structure, one pipeline call per control
+step, divergence handling and robot parameters (:mod:`tensegrity_gym.envs.domain`). SI units.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from .. import dynamics as dyn
+from .. import integrators, pipeline
+from ..params import default_params
+from .domain import Domain
+from .validate import check_positive
+
+__all__ = ["BatchedTask", "fixed_step"]
+
+#: robot parameters (envs/domain.py) that are Params fields of the physics (tensegrity_gym.params)
+_PHYSICS_FIELDS = {"rod_mass": "mass", "stiffness": "stiffness", "damping": "damping", "node_damping": "node_damping",
+                   "gravity": "gravity", "rest_length_offset": "rest_length"}
+
+
+def fixed_step(integrator: str) -> str:
+    """The resolved name of a fixed-step integrator (envs step a fixed ``dt``); ValueError for an
+    unknown name or an adaptive method."""
+    name = integrators.resolve(integrator).name
+    if integrators.INTEGRATORS[name].adaptive:
+        raise ValueError(f"integrator: {integrator!r} is adaptive; envs need a fixed-step method "
+                         f"({[k for k, v in integrators.INTEGRATORS.items() if not v.adaptive]})")
+    return name
+
+
+class BatchedTask:
+    """Base class of a batched task on B copies of one compiled structure.
+
+    Subclasses set in ``__init__`` (after calling :meth:`_init_physics`): ``action_size``,
+    ``observation_size``, ``obs_low``/``obs_high`` (optional, default +-inf) and implement
+
+    * ``reset_idx(idx (r,) int array, rngs: list of r np.random.Generator, options) -> dict``
+      of reset infos ((r,) arrays) -- all randomness of copy ``idx[j]`` from ``rngs[j]``,
+      drawn in a per-copy order so that B copies equal B single tasks;
+    * ``step(action (B, na) validated) -> (terms: dict of (B,), terminated (B,) bool, infos)``
+      which must call :meth:`simulate` exactly once;
+    * ``observe() -> (B, obs_size) float32``;
+    * ``render_data(i) -> dict`` of keyword arguments for :meth:`tensegrity_gym.rendering.Renderer.render`
+      (``nodes``, ``rods``, ``strings``, ``tensions``, ``targets``, ``ground_z``, ``path``, ``goal``, ``caption``).
+    """
+
+    action_size: int
+    observation_size: int
+    #: ground contact (tensegrity_gym.contact.GroundContact) of the task, or None: no contact code runs
+    contact = None
+    #: divergence measured from each copy's own centre (a robot that travels), not from the start's
+    travels = False
+    #: keep the velocities before the last physics step of a control step (``_qd_prev``; IMUs)
+    track_last_velocity = False
+
+    def _init_physics(self, model: dyn.Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
+                      backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
+        if int(num_envs) != num_envs or num_envs < 1:
+            raise ValueError(f"num_envs: must be a positive integer, got {num_envs}")
+        self.num_envs = int(num_envs)
+        self.model = model
+        info = integrators.INTEGRATORS.get(integrator)   # the task passes the name it resolved (fixed_step)
+        self.integrator = integrator if info is not None and not info.adaptive else fixed_step(integrator)
+        self.dt = check_positive(dt, "dt", "s")
+        if int(frame_skip) != frame_skip or frame_skip < 1:
+            raise ValueError(f"frame_skip: must be a positive integer, got {frame_skip}")
+        self.frame_skip = int(frame_skip)
+        if backend not in ("auto", "numpy", "numba"):
+            raise ValueError(f"backend: unknown {backend!r}; choose 'auto', 'numpy' or 'numba'")
+        self.backend = backend
+        self._kernels_run = pipeline.compiled_physics(self.integrator, backend)   # the numba kernels step it
+        self.clip_actions = bool(clip_actions)
+        nodes0 = model.structure.nodes
+        self.center0 = nodes0.mean(axis=0)
+        size = float(np.max(np.linalg.norm(nodes0 - self.center0, axis=1)))
+        self.divergence_limit = (100.0 * max(size, 1e-3) if divergence_limit is None
+                                 else check_positive(divergence_limit, "divergence_limit", "m"))
+        B, k = self.num_envs, model.n_bars
+        st = dyn.initial_state(model, B)
+        self.q = st.q.copy()
+        self.qd = st.qd.copy()
+        self.elapsed = np.zeros(B, dtype=np.int64)
+        self.params = None        # tensegrity_gym.params.Params of the copies; None: the model's own values
+        self.rest_offset = None   # (P, m) true minus commanded rest lengths, m (rest_length_offset)
+        self.action_delay = 0
+
+    # ------------------------------------------------------------------ robot parameters (envs/domain.py)
+    def _init_domain(self, params=None, randomize=None, action_delay: int = 0, start_rest_length_offset=None,
+                     extra_nominal: dict | None = None):
+        """Fixed / randomised physical parameters (:mod:`tensegrity_gym.envs.domain`), actuation
+        latency (``action_delay`` control steps: the physics receives the action given that many
+        steps earlier; zeros at the start of an episode) and the slack start
+        (``start_rest_length_offset``, m: the actuated cables start at their nominal rest length
+        plus this, rest-length mode). Call at the end of the task's ``__init__``."""
+        model, B = self.model, self.num_envs
+        g = np.zeros(3) if model.gravity is None else np.asarray(model.gravity, float)
+        nominal = {"rod_mass": model.mass, "stiffness": model.structure.stiffness, "damping": model.structure.damping,
+                   "node_damping": model.node_damping, "gravity": g, "rest_length_offset": np.zeros(model.n_strings)}
+        nominal.update(extra_nominal or {})
+        self.domain = Domain(nominal, B, params, randomize)
+        if isinstance(action_delay, (bool, np.bool_)) or int(action_delay) != action_delay or action_delay < 0:
+            raise ValueError(f"action_delay: must be a non-negative integer (control steps), got {action_delay!r}")
+        self.action_delay = int(action_delay)
+        self._action_queue = np.zeros((B, self.action_delay, self.action_size))
+        act = self.actuation
+        self.start_control = act.nominal.copy()
+        if start_rest_length_offset is not None:
+            if act.mode != "rest_length":
+                raise ValueError("start_rest_length_offset: only with action_mode='rest_length'")
+            off = np.broadcast_to(np.asarray(start_rest_length_offset, float), act.nominal.shape)
+            start = act.nominal + off
+            bad = ~np.isfinite(start) | (start < act.low) | (start > act.high)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise ValueError(f"start_rest_length_offset: actuated cable {int(act.actuated[i])} would start at "
+                                 f"{start[i]:.6g} m, outside its bounds [{act.low[i]:.6g}, {act.high[i]:.6g}] m")
+            self.start_control = start
+        phys_names = set(self.domain.names) & set(_PHYSICS_FIELDS)
+        if phys_names:   # Params: one row when fixed, one per copy when randomised (per-copy kernel)
+            per_copy = bool(phys_names & set(self.domain.spread))
+            self.params = default_params(model, B if per_copy else 1)
+        if self.domain.enabled:
+            self._apply_domain(np.arange(B) if self.domain.randomized else np.zeros(1, int), init=True)
+
+    def _apply_domain(self, idx: np.ndarray, init: bool = False) -> None:
+        """Copies ``idx`` take the domain's current values. ``self.params`` has one row (set once,
+        at ``init``) when no physics parameter is randomised, else one per copy (set per reset)."""
+        v, model, P = self.domain.values, self.model, (0 if self.params is None else self.params.batch_size)
+        # per copy: a physics parameter is randomised (then P = B, also when B = 1)
+        per_copy = P > 0 and bool(set(self.domain.spread) & set(_PHYSICS_FIELDS))
+        if per_copy or (P == 1 and init):
+            rows = idx if per_copy else np.zeros(1, int)
+            phys = {}
+            for name, fld in _PHYSICS_FIELDS.items():
+                if name in v and fld != "rest_length":
+                    phys[fld] = v[name][rows]
+                    if fld in ("stiffness", "damping"):          # force-density-actuated strings: no elastic part
+                        phys[fld] = np.where(model.active, 0.0, phys[fld])
+            if "rest_length_offset" in v:
+                phys["rest_length"] = model.rest_length + v["rest_length_offset"][rows]
+                self.rest_offset = v["rest_length_offset"] if per_copy else v["rest_length_offset"][:1]
+            self.params = self.params.set_rows(rows, **phys) if per_copy else self.params.replace(**phys)
+        self._apply_task_domain(idx)
+
+    def _apply_task_domain(self, idx: np.ndarray) -> None:
+        """Task-specific parameters (contact, motor limits) of copies ``idx``; see RollTask."""
+
+    def with_offset(self, inputs: dict) -> dict:
+        """Physics inputs with the cables' rest-length offsets added (``rest_length_offset``)."""
+        if self.rest_offset is not None and inputs.get("rest_length") is not None:
+            inputs["rest_length"] = inputs["rest_length"] + self.rest_offset
+        return inputs
+
+    def reset(self, idx: np.ndarray, rngs: Sequence[np.random.Generator], options: dict | None = None) -> dict:
+        """Reset copies ``idx``: robot parameters drawn first (if randomised), then the task's
+        :meth:`reset_idx`; ``info["params"]`` reports the parameters when any are set."""
+        dom = self.domain
+        if dom.randomized:
+            dom.sample(idx, rngs)
+            self._apply_domain(idx)
+        if self.action_delay:
+            self._action_queue[idx] = 0.0
+        info = self.reset_idx(idx, rngs, options)
+        if dom.enabled:
+            info["params"] = dom.report(idx if dom.randomized else np.zeros(len(idx), int))
+        return info
+
+    def act(self, action: np.ndarray):
+        """:meth:`step` with the action delayed by ``action_delay`` control steps."""
+        if self.action_delay:
+            queue = self._action_queue
+            out = queue[:, 0].copy()     # (a view would be overwritten by the shift below)
+            queue[:, :-1] = queue[:, 1:]
+            queue[:, -1] = action
+            action = out
+        return self.step(action)
+
+    @property
+    def control_dt(self) -> float:
+        """Duration of one control step, s (``dt * frame_skip``)."""
+        return self.dt * self.frame_skip
+
+    def simulate(self, **inputs) -> np.ndarray:
+        """Advance all B copies by one control step (``frame_skip`` steps of ``dt``) through the
+        pipeline (:mod:`tensegrity_gym.pipeline`): ``inputs`` ``rest_length`` / ``force_density``
+        as :func:`tensegrity_gym.integrators.step` takes them (the robots' rest-length offsets
+        are added here). Without ``contact``: ONE ``pipeline.step`` of ``frame_skip`` steps for the
+        whole batch. With the task's ``contact``: ``pipeline.advance`` in place, contact forces
+        and one integrator step per physics step (``contact_params`` per copy, the stick/slip
+        state in ``cstate``).
+
+        Returns ``diverged`` (B,) bool (:func:`tensegrity_gym.pipeline.diverged`, once per control
+        step; ``travels``: measured from each copy's own centre); diverged copies get their
+        pre-step state back (see the module doc). Increments ``elapsed``.
+        """
+        inputs = self.with_offset(inputs)
+        if self.contact is not None:
+            return self._simulate_contact(inputs)
+        q0, qd0 = self.q, self.qd
+        kw = dict(backend=self.backend, params=self.params, **inputs)
+        model, dt, name, n = self.model, self.dt, self.integrator, self.frame_skip
+        if self.track_last_velocity:
+            # the frame_skip steps as two calls (n - 1, then 1; the same per-step arithmetic) to keep
+            # the velocities before the last physics step (what IMUs read)
+            with np.errstate(all="ignore"):
+                st = dyn.State(q0, qd0, 0.0)
+                if n > 1:
+                    st = pipeline.step(model, st, dt, name, n_steps=n - 1, **kw)
+                qd_prev = np.array(st.qd, dtype=float)
+                st = pipeline.step(model, st, dt, name, n_steps=1, **kw)
+            diverged = self._settle_divergence(q0, qd0, st.q, st.qd)
+            qd_prev[diverged] = self.qd[diverged]
+            self._qd_prev = qd_prev
+            return diverged
+        if self._compiled_physics():
+            # the compiled kernel raises no floating-point warnings: no np.errstate
+            st = pipeline.step(model, dyn.State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
+        else:
+            with np.errstate(all="ignore"):
+                st = pipeline.step(model, dyn.State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
+        return self._settle_divergence(q0, qd0, st.q, st.qd)
+
+    def _simulate_contact(self, inputs: dict) -> np.ndarray:
+        """:meth:`simulate` with contact, in place on ``q``, ``qd``, ``cstate``; with
+        ``track_last_velocity`` the velocities before the last physics step are kept in
+        ``_qd_prev`` (what IMUs read)."""
+        q, qd, cs = self.q, self.qd, self.cstate
+        q0, qd0, anchor0, active0 = q.copy(), qd.copy(), cs.anchor.copy(), cs.active.copy()
+        kw = dict(backend=self.backend, params=self.params, contact=self.contact, cstate=cs,
+                  contact_params=self._contact_prm, forces=self._W, slip=self._slip,
+                  compiled=self._kernels_run, **inputs)
+        model, dt, name, n = self.model, self.dt, self.integrator, self.frame_skip
+        with np.errstate(all="ignore"):
+            if self.track_last_velocity:
+                pipeline.advance(model, q, qd, dt, name, n_steps=n - 1, **kw)
+                self._qd_prev = qd.copy()
+                pipeline.advance(model, q, qd, dt, name, n_steps=1, **kw)
+            else:
+                pipeline.advance(model, q, qd, dt, name, n_steps=n, **kw)
+        diverged = pipeline.diverged(q, qd, self.center0, self.divergence_limit, self.travels)
+        if diverged.any():
+            q[diverged], qd[diverged] = q0[diverged], qd0[diverged]
+            cs.anchor[diverged], cs.active[diverged] = anchor0[diverged], active0[diverged]
+            if self.track_last_velocity:
+                self._qd_prev[diverged] = qd[diverged]
+        self.elapsed += 1
+        return diverged
+
+    def _compiled_physics(self) -> bool:
+        """True if :meth:`simulate` runs the numba kernels and the compiled bookkeeping
+        (explicit integrator, numba present, backend not "numpy"); decided once per task."""
+        c = self.__dict__.get("_compiled")
+        if c is None:
+            c = self._compiled = bool(pipeline.AVAILABLE and self._kernels_run)
+        return c
+
+    def _settle_divergence(self, q0, qd0, q, qd) -> np.ndarray:
+        """Divergence check (:func:`tensegrity_gym.pipeline.diverged`) and state update of
+        :meth:`simulate`: diverged copies take ``q0``, ``qd0`` back. Increments ``elapsed``."""
+        diverged = pipeline.diverged(q, qd, self.center0, self.divergence_limit, self.travels)
+        if diverged.any():
+            q = np.where(diverged[:, None, None], q0, q)
+            qd = np.where(diverged[:, None, None], qd0, qd)
+        self.q, self.qd = q, qd
+        self.elapsed += 1
+        return diverged
+
+    # -- to implement
+    def reset_idx(self, idx: np.ndarray, rngs: Sequence[np.random.Generator], options: dict | None = None) -> dict:
+        raise NotImplementedError
+
+    def step(self, action: np.ndarray):
+        raise NotImplementedError
+
+    def observe(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def render_data(self, i: int) -> dict:
+        raise NotImplementedError
+

@@ -1,0 +1,94 @@
+"""The state observation of TensegrityRoll-v0 (a mixin of :class:`~tensegrity_gym.envs.roll.RollTask`):
+node positions relative to the centre of mass, node velocities, controls, contact flags, goal,
+height and cable speeds, in one compiled pass (:func:`tensegrity_gym.envs.compiled.roll_observe`)
+bit-identical to the NumPy reference here. SI units."""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import dynamics as dyn
+from .. import pipeline
+from . import compiled
+
+__all__ = ["RollObservation"]
+
+
+class RollObservation:
+    """``observe``, ``observation_layout`` and the centre of mass of the roll task; the task sets
+    ``q``, ``qd``, ``ctrl``, ``speed``, ``goal``, ``cstate``, ``sensors`` and the sizes."""
+
+    def _init_observation(self, model: dyn.Model) -> None:
+        """node -> (rod, signed distance from the rod's reference point) maps, the rods' mass fractions."""
+        n, k = model.n_nodes, model.n_bars
+        self._node_rod = np.empty(n, int)
+        self._node_rod[model.rod_a] = np.arange(k)
+        self._node_rod[model.rod_c] = np.arange(k)
+        eta = np.empty(n)
+        eta[model.rod_a] = model.eta[:, 0]
+        eta[model.rod_c] = model.eta[:, 1]
+        self._node_eta = eta[None, :, None]
+        self._node_rod_i64 = np.ascontiguousarray(self._node_rod, dtype=np.int64)
+        self._node_eta_1d = np.ascontiguousarray(eta, dtype=np.float64)
+        self._com_at_r = bool(np.all(model.com_eta == 0.0))
+        self._mass_frac = model.mass / model.mass.sum()
+
+    def _com(self, q) -> np.ndarray:
+        """(B, 3) centre of mass, m (= dynamics.center_of_mass, one matrix product)."""
+        if self._com_at_r:
+            if self._mass_frac.ndim == 2:     # per-copy rod masses
+                return np.einsum("bk,bki->bi", self._mass_frac, q[..., :3])
+            return np.einsum("k,bki->bi", self._mass_frac, q[..., :3])
+        return dyn.center_of_mass(self.model, q, self.params)
+
+    def observe(self) -> np.ndarray:
+        B = self.num_envs
+        if self.sensors is not None:
+            return self._readings.reshape(B, -1).astype(np.float32)
+        q, qd = self.q, self.qd
+        if pipeline.AVAILABLE:   # one compiled pass, bit-identical to the NumPy below
+            com = self._com(q)
+            arrs = (q, qd, com, self.ctrl, self.goal, self.speed)
+            if all(type(x) is np.ndarray and x.dtype == np.float64 for x in arrs) and \
+                    type(self.cstate.active) is np.ndarray and self.cstate.active.dtype == np.bool_:
+                obs = np.empty((B, self.observation_size), np.float32)
+                compiled.roll_observe(q, qd, self._node_rod_i64, self._node_eta_1d, com, self.ctrl,
+                                   self.cstate.active, self.goal, self.speed, obs)
+                return obs
+        e = self._node_eta
+        # node positions / velocities (= dynamics.node_positions / node_velocities of a free structure)
+        N = q[:, self._node_rod, :3] + e * q[:, self._node_rod, 3:]
+        V = qd[:, self._node_rod, :3] + e * qd[:, self._node_rod, 3:]
+        com = self._com(q)
+        obs = np.empty((B, self.observation_size), np.float32)
+        n3 = N.shape[1] * 3
+        obs[:, :n3] = (N - com[:, None, :]).reshape(B, -1)
+        obs[:, n3:2 * n3] = V.reshape(B, -1)
+        i = 2 * n3
+        na = self.ctrl.shape[1]
+        obs[:, i:i + na] = self.ctrl
+        i += na
+        obs[:, i:i + self.n_contacts] = self.cstate.active
+        i += self.n_contacts
+        obs[:, i:i + 2] = self.goal
+        obs[:, i + 2] = com[:, 2]
+        i += 3
+        if self.n_speed:
+            obs[:, i:i + self.n_speed] = self.speed
+        return obs
+
+    def observation_layout(self) -> list[tuple[str, slice, str]]:
+        """(name, slice, unit) of each block of the observation vector (robot mode: of the newest
+        reading; the ``history - 1`` older readings follow it in the same layout)."""
+        if self.sensors is not None:
+            return self.sensors.layout()
+        n, na = self.model.n_nodes, self.actuated.size
+        blocks = [("node_position_rel_com", 3 * n, "m"), ("node_velocity", 3 * n, "m/s"),
+                  ("control", na, self.actuation.unit), ("contact", self.n_contacts, "1"),
+                  ("goal_direction", 2, "1"), ("com_height", 1, "m")]
+        if self.n_speed:
+            blocks.append(("cable_speed", self.n_speed, "m/s"))
+        out, i = [], 0
+        for name, sz, unit in blocks:
+            out.append((name, slice(i, i + sz), unit))
+            i += sz
+        return out

@@ -1,0 +1,102 @@
+"""The fused step of TensegrityShape-v0 (a mixin of :class:`~tensegrity_gym.envs.shape.ShapeTask`):
+one compiled call per control step (:func:`tensegrity_gym.envs.compiled.shape_step`) that runs
+the control update, the pipeline's physics (an opaque :func:`tensegrity_gym.pipeline.compiled_plan`),
+the divergence check, the observation, the errors and the tracking term; bit-identical to
+``ShapeTask.step``'s reference path (``tests/test_fast_paths.py``). SI units."""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import pipeline
+from ..rewards import _c_einsum as _sum_squares, tolerance
+from . import compiled
+
+__all__ = ["FusedShapeStep"]
+
+
+class FusedShapeStep:
+    """``_fused_setup`` (decided once per task, at its first step) and ``_fused_step`` of the
+    shape task; the task provides the state, actuation, targets and ``_finish_step``."""
+
+    def _fused_setup(self):
+        """Constants of the fused compiled step (:func:`tensegrity_gym.envs.compiled.shape_step`
+        running a :func:`tensegrity_gym.pipeline.compiled_plan`), or False when it does not apply:
+        no numba, numpy backend / implicit integrator, an anchored tracked node, or a batch large
+        enough for the parallel kernel (then the pipeline runs it). Decided once per task, at its
+        first step."""
+        fz = False
+        act = self.actuation
+        plan = None
+        if self._obs_rod is not None and self._compiled_physics():
+            plan = pipeline.compiled_plan(self.model, self.integrator, self.dt, self.frame_skip, self.num_envs,
+                                          act.mode, self.backend)
+        if plan is not None:
+            tol = self.success_tolerance
+            scale = float(np.sqrt(-2 * np.log(0.1)))     # rewards.tolerance's gaussian, value 0.1 at the margin
+            fcon = np.concatenate([[self.divergence_limit], self.center0, [tol, 10.0 * tol, scale, -self.tracking_weight],
+                                   act._rate[0], act.low, act.high, act.base_rest_length, self._obs_eta])
+            icon = np.concatenate([[int(act.mode == "rest_length"), act.size, act.n_strings, self.tracked.size],
+                                   act.actuated, self._obs_rod]).astype(np.int64)
+            disp = compiled.shape_step
+            if not disp.signatures:
+                disp.compile(compiled.SHAPE_STEP_SIG)
+                disp.disable_compile()     # another argument type raises TypeError: reference path
+            self._fused_dist = np.empty((self.num_envs, self.tracked.size))
+            self._no_offset = np.zeros((0, act.n_strings))
+            fz = (disp, plan, (plan.buf, plan.dt, plan.n_steps, plan.flags), np.ascontiguousarray(fcon, np.float64),
+                  icon, self.num_envs, self.action_size, self.observation_size, self.tracked.size)
+        self._fused = fz
+        return fz
+
+    def _fused_step(self, fz, action):
+        """:meth:`step` in one compiled call (see :meth:`_fused_setup`); None when it does not
+        apply to these arrays (nothing changed then: the caller runs the reference path)."""
+        disp, plan, (buf, dt, n_steps, flags), fcon, icon, B, na, nobs, nt = fz
+        if self.params is not None:
+            buf = plan.buffer(self.params)     # the robot's own values: the shared buffer of its Params
+            if buf is None:
+                return None
+        offset = self._no_offset if self.rest_offset is None else self.rest_offset
+        q0, qd0 = self.q, self.qd
+        qo = np.empty(q0.shape)
+        qdo = np.empty(q0.shape)
+        ctrl = np.empty((B, na))
+        obs = np.empty((B, nobs), np.float32)
+        d = self._fused_dist               # scratch: read below only before the next call
+        st = np.empty((4, B))
+        success = np.empty(B, bool)
+        try:
+            rc = disp(q0, qd0, self.ctrl, action, self.target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl,
+                      obs, d, st, success, self.elapsed)
+        except TypeError:    # an array of another type or layout: the reference path converts it
+            return None
+        if rc < 0:
+            return None
+        self.ctrl = ctrl
+        self._last_action = action
+        if rc == 1:      # diverged: the reference divergence handling and observation
+            diverged = self._settle_divergence(q0, qd0, qo, qdo)
+            return self._finish_step(action, diverged)
+        self.q, self.qd = qo, qdo
+        self._obs, self._obs_of, self._N = obs, (qo, qdo, ctrl, self.target), None
+        if rc == 2:      # mean/max left to NumPy (nt >= 8); elapsed not incremented
+            self.elapsed += 1
+            err, emax = np.add.reduce(d, axis=1) / nt, np.maximum.reduce(d, axis=1)
+            success = emax <= self.success_tolerance
+            tracking = -self.tracking_weight * err
+            prox = tolerance(emax, (0.0, self.success_tolerance), margin=10.0 * self.success_tolerance)
+        else:
+            err, emax, y = st[0], st[1], st[2]
+            tracking = st[3]               # -tracking_weight * err, the same multiplication
+            if B == 1:   # rewards.tolerance: 1 inside the bounds, exp(-0.5 t^2) outside
+                prox = np.ones(1) if y[0] != y[0] else np.exp(y)
+            else:
+                prox = np.where(y != y, 1.0, np.exp(y))
+        terms = {
+            "tracking": tracking,
+            "proximity": self.proximity_weight * prox,
+            "ctrl": -self.ctrl_cost_weight * _sum_squares("...i,...i->...", action, action),  # quadratic_cost
+        }
+        infos = {"tracking_error": err, "max_node_error": emax, "is_success": success,
+                 "diverged": np.zeros(B, bool)}
+        return terms, np.zeros(B, bool), infos

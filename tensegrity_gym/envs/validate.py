@@ -1,0 +1,114 @@
+"""Input checks of the environments: numbers, actions, time steps, actuated strings.
+
+Every error is a ``ValueError`` naming the argument, the index and the value. SI units.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import dynamics as dyn
+from .. import pipeline
+from . import compiled
+
+__all__ = ["ACTION_MODES", "ACTION_TOL", "check_positive", "check_action", "check_stable_dt", "resolve_actuated"]
+
+ACTION_MODES = ("rest_length", "force_density")
+ACTION_TOL = 1e-6
+
+
+def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -> float:
+    """``float(value)`` if finite and > 0 (>= 0 with ``allow_zero``), else ValueError naming ``name``.
+    A string or a bool is not a number here (``"1e-3"`` and ``True`` are refused, not converted)."""
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"{name}: expected a number{' in ' + unit if unit else ''}, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number{' in ' + unit if unit else ''}, got {value!r}") from None
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise ValueError(f"{name}: must be {'>= 0' if allow_zero else 'positive'} and finite"
+                         f"{' (' + unit + ')' if unit else ''}, got {value!r}")
+    return v
+
+
+def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
+    """Validate an action and return it as a float64 array of ``shape``.
+
+    * wrong shape -> ValueError;
+    * NaN or inf -> ValueError naming the (first) offending index;
+    * entries outside [-1, 1]: clipped to the box if ``clip`` (the documented Box contract,
+      like Gymnasium's MuJoCo envs whose actuators saturate), else ValueError naming the
+      index when beyond 1e-6 of the bounds.
+    """
+    if (pipeline.AVAILABLE and type(action) is np.ndarray and action.shape == shape
+            and (action.dtype == np.float32 or action.dtype == np.float64)):
+        # fast path (the common case): a float ndarray of the right shape, checked and clipped in
+        # one compiled pass; anything wrong falls through to the reference checks below
+        a = np.array(action, dtype=np.float64, order="C")
+        if compiled.clip_action(a.reshape(-1), clip, ACTION_TOL):
+            return a
+    try:
+        a = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected an array of numbers with shape {shape}, got {action!r}") from None
+    if a.shape != tuple(shape):
+        if a.size == int(np.prod(shape)) and a.ndim <= 1 and len(shape) == 1:
+            a = a.reshape(shape)
+        else:
+            raise ValueError(f"{name}: expected shape {tuple(shape)}, got {a.shape}")
+    finite = np.isfinite(a)
+    if not finite.all():
+        idx = tuple(int(i) for i in np.argwhere(~finite)[0])
+        idx_s = idx[0] if len(idx) == 1 else idx
+        raise ValueError(f"{name}: entry {idx_s} is {a[idx]!r}; actions must be finite numbers in [-1, 1]")
+    if clip:
+        return np.clip(a, -1.0, 1.0)
+    bad = np.abs(a) > 1.0 + ACTION_TOL
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        idx_s = idx[0] if len(idx) == 1 else idx
+        raise ValueError(f"{name}: entry {idx_s} is {a[idx]:.6g}, outside the action space [-1, 1] "
+                         "(construct the env with clip_actions=True to saturate instead)")
+    return np.clip(a, -1.0, 1.0)
+
+
+def check_stable_dt(model: dyn.Model, limit: float, dt: float, integrator: str, allow: bool, what: str) -> None:
+    """ValueError if ``dt`` (s) is above the estimated stability ``limit`` (s) of ``integrator``,
+    unless ``allow``; the message names the strings' stiffness and damping that set the limit."""
+    if dt <= limit or allow:
+        return
+    k = float(np.max(model.stiffness)) if model.n_strings else 0.0
+    c = float(np.max(model.damping)) if model.n_strings else 0.0
+    raise ValueError(f"dt: {dt:g} s is above the estimated stability limit {limit:.3g} s of {integrator} for {what} "
+                     f"(strings up to {k:.4g} N/m and {c:.4g} N s/m; the state would blow up); use a smaller dt, "
+                     "less stiffness or string damping, integrator='implicit_euler' where the task allows it, or "
+                     "allow_unstable_dt=True to run it anyway")
+
+
+def resolve_actuated(actuated, n_strings: int) -> np.ndarray:
+    """Sorted unique string indices from ``None`` (all), an int list or a bool mask; errors name the index."""
+    if actuated is None:
+        return np.arange(n_strings)
+    arr = np.asarray(actuated)
+    if arr.dtype == bool:
+        if arr.shape != (n_strings,):
+            raise ValueError(f"actuated: a boolean mask needs {n_strings} entries (one per string), got {arr.shape}")
+        arr = np.flatnonzero(arr)
+    else:
+        arr = arr.reshape(-1)
+        if arr.size and (not np.issubdtype(arr.dtype, np.integer)):
+            if not np.all(np.asarray(arr, float) == np.round(np.asarray(arr, float))):
+                raise ValueError(f"actuated: string indices must be integers, got {actuated!r}")
+            arr = arr.astype(int)
+        for i in arr:
+            if not 0 <= int(i) < n_strings:
+                raise ValueError(f"actuated: string {int(i)} does not exist (there are {n_strings} strings)")
+        if len(set(arr.tolist())) != arr.size:
+            raise ValueError(f"actuated: duplicate string indices in {arr.tolist()}")
+        arr = np.sort(arr.astype(int))
+    if arr.size == 0:
+        raise ValueError("actuated: at least one string must be actuated")
+    return arr
+

@@ -1,0 +1,394 @@
+"""The physics pipeline of a batch of B copies: actuation -> contact -> forces -> integration.
+
+The public entry points the environments (and any other caller that owns its state arrays) use;
+no gymnasium import, SI units. Every function here runs the equations written once in the
+backends (:mod:`tensegrity_gym.dynamics` NumPy reference, ``_kernels`` numba) through
+:func:`tensegrity_gym.integrators.step` or its in-place compiled twin; nothing here copies a
+kernel loop.
+
+:func:`step` ``(model, state, dt, integrator, *, n_steps, contact=None, cstate=None, ...)``
+    ``n_steps`` physics steps. Without ``contact`` it is :func:`integrators.step` (one call,
+    all steps inside the compiled loop). With a :class:`~tensegrity_gym.contact.GroundContact`
+    each step is: contact forces of the whole batch from the state at the step's start
+    (stick/slip anchors updated in ``cstate``), then ONE integrator step with those forces
+    held over it (``external=W``). Returns a new ``State`` (and a new ``ContactState``).
+:func:`advance`
+    The same, in place on C-contiguous float64 arrays ``q``, ``qd`` (B, k, 6) and ``cstate``,
+    with caller-owned scratch: no allocation and no ``State`` per step (the env fast path).
+:func:`diverged`
+    (B,) bool: which copies went non-finite or far (the divergence check of every env).
+:func:`apply_controls`, :func:`apply_motor`
+    Compiled actuation updates (new controls and the ``rest_length`` / ``force_density`` input
+    of the physics), bit-identical to the NumPy reference in ``envs.actuation.Actuation``.
+:func:`compiled_plan` / :func:`run_plan`
+    For a task that fuses its own bookkeeping with the physics in one compiled call: the
+    packed model, integrator and control mode of ``integrators.step``'s serial kernel as an
+    opaque :class:`Plan`, and the njit-callable that runs it.
+
+With the numba kernels the contact steps of :func:`advance` run in ONE compiled call
+(``_contact_loop``: the contact kernel, then the serial integrator kernel, per step: the same
+calls, in the same order, as the Python loop, which the NumPy backend and batches large enough
+for the parallel kernel run). numba's on-disk cache does not notice edits of the kernels that
+``_contact_loop`` and :func:`run_plan` call: clear ``__pycache__`` (``*.nbi``, ``*.nbc``) after
+editing ``_kernels.py`` or ``contact.py``.
+
+``AVAILABLE`` (numba importable) switches the compiled bookkeeping (divergence check, control
+update, fused steps); set it False to run the NumPy references (the tests do). The physics
+kernels themselves follow ``backend`` as in :func:`integrators.step`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import _kernels
+from . import contact as gc
+from . import integrators
+from .dynamics import Model, State
+
+__all__ = ["AVAILABLE", "step", "advance", "diverged", "compiled_physics", "apply_controls", "apply_motor",
+           "state_ok", "state_ok_local", "Plan", "compiled_plan", "run_plan"]
+
+AVAILABLE = _kernels.AVAILABLE
+
+
+def compiled_physics(integrator: str, backend: str = "auto") -> bool:
+    """True if :func:`integrators.step` runs the numba kernels for ``integrator`` (a fixed-step
+    explicit method) and ``backend`` with array inputs; False otherwise (also when
+    ``backend="numba"`` cannot run: :func:`integrators.step` then raises)."""
+    info = integrators.resolve(integrator)
+    if info.name not in integrators._EXPLICIT:
+        return False
+    try:
+        return integrators._use_numba(backend, info, None)
+    except (RuntimeError, ValueError):
+        return False
+
+
+# ---------------------------------------------------------------------- stepping
+def advance(model: Model, q: np.ndarray, qd: np.ndarray, dt: float, integrator: str = "semi_implicit_euler", *,
+            n_steps: int = 1, rest_length=None, force_density=None, external=None, params=None,
+            project: bool = True, backend: str = "auto", contact: gc.GroundContact | None = None,
+            cstate: gc.ContactState | None = None, contact_params=None, forces=None, slip=None,
+            compiled: bool | None = None) -> None:
+    """In place: ``n_steps`` steps of ``dt`` s of ``q``, ``qd`` (B, k, 6), writable C-contiguous
+    float64 (m, 1, m/s, 1/s). Inputs as :func:`integrators.step` takes them (``integrator`` a
+    resolved name; shapes are checked by the kernels, values are the caller's duty).
+
+    With ``contact`` (and its ``cstate``, updated in place): per step, contact forces from the
+    state at the step's start into ``forces`` (B, n, 3) N (plus ``external`` if given), slip
+    flags into ``slip`` (B, n_c) bool, then one integrator step with ``external=forces``.
+    ``contact_params``: (B, 9) per-copy contact parameters or None (the contact's own).
+    ``compiled``: whether the numba kernels run (default: :func:`compiled_physics`)."""
+    if compiled is None:
+        compiled = compiled_physics(integrator, backend)
+    if contact is None:
+        _physics(model, q, qd, dt, integrator, n_steps, rest_length, force_density, external, params, project,
+                 backend, compiled)
+        return
+    B = q.shape[0]
+    if forces is None:
+        forces = np.empty((B, model.n_nodes, 3))
+    if slip is None:
+        slip = np.empty((B, 2 * model.n_bars), bool)
+    if compiled and external is None and contact._numba and _contact_compiled(
+            model, q, qd, dt, integrator, n_steps, rest_length, force_density, params, project, contact, cstate,
+            contact_params, forces, slip):
+        return
+    contact_forces = gc.forces_inplace
+    for _ in range(int(n_steps)):
+        contact_forces(contact, model, q, qd, cstate, forces, slip, contact_params)
+        if external is not None:
+            forces += external
+        _physics(model, q, qd, dt, integrator, 1, rest_length, force_density, forces, params, project, backend,
+                 compiled)
+
+
+def _physics(model, q, qd, dt, name, n_steps, rest_length, force_density, external, params, project, backend,
+             compiled):
+    """One in-place integrator call: the compiled kernel, or integrators.step and a copy back."""
+    if compiled:
+        _kernels.step_inplace(model, q, qd, dt, name, rest_length=rest_length, force_density=force_density,
+                              external=external, project=project, n_steps=n_steps, params=params)
+        return
+    st = integrators.step(model, State(q, qd, 0.0), dt, name, rest_length=rest_length, force_density=force_density,
+                          external=external, project=project, n_steps=n_steps, backend=backend, params=params)
+    q[...] = st.q
+    qd[...] = st.qd
+
+
+def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit_euler", *, n_steps: int = 1,
+         contact: gc.GroundContact | None = None, cstate: gc.ContactState | None = None, contact_params=None,
+         external=None, backend: str = "auto", **inputs):
+    """``n_steps`` physics steps of ``dt`` s for the whole batch (see the module doc).
+
+    Without ``contact``: :func:`integrators.step` (returns a ``State``). With ``contact``:
+    returns ``(State, ContactState)``, new objects (the inputs are not modified); ``external``
+    (B, n, 3) N is added to the contact forces of every step. ``inputs``: ``rest_length``,
+    ``force_density``, ``params``, ``project`` as :func:`integrators.step` takes them."""
+    if contact is None:
+        return integrators.step(model, state, dt, integrator, n_steps=n_steps, external=external, backend=backend,
+                                **inputs)
+    info = integrators.resolve(integrator)
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
+    if cstate is None:
+        raise ValueError("cstate: a ContactState is needed with contact (contact.init_contact_state)")
+    B, m = state.batch_size, model.n_strings
+    nc = 2 * model.n_bars
+    if cstate.anchor.shape != (B, nc, 2) or cstate.active.shape != (B, nc):
+        raise ValueError(f"contact state: expected anchor ({B}, {nc}, 2) and active ({B}, {nc}), got "
+                         f"{cstate.anchor.shape} and {cstate.active.shape}")
+    for name in ("rest_length", "force_density"):
+        inputs[name] = integrators._as_batch(inputs.get(name), B, m, name)
+    if inputs.get("params") is None:
+        integrators._check_stability(model, info, dt)
+    if contact_params is not None:
+        contact_params = gc._prm_rows(contact, contact_params, B)
+    q = np.array(state.q, dtype=np.float64, order="C")
+    qd = np.array(state.qd, dtype=np.float64, order="C")
+    cs = cstate.copy()
+    ext = None if external is None else np.asarray(external, dtype=np.float64)
+    advance(model, q, qd, dt, info.name, n_steps=n_steps, external=ext, backend=backend, contact=contact,
+            cstate=cs, contact_params=contact_params, **inputs)
+    t = state.t
+    for _ in range(int(n_steps)):
+        t = t + dt
+    return State(q=q, qd=qd, t=t), cs
+
+
+def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_density, params, project, contact, cstate,
+                      contact_params, forces, slip) -> bool:
+    """The contact loop of :func:`advance` in ONE compiled call (:func:`_contact_loop`: the
+    contact kernel and the serial integrator kernel per step, exactly the calls the Python loop
+    makes), when the serial kernels are what that loop would run; False (nothing done) otherwise:
+    a batch large enough for the parallel kernel, or arrays the kernels do not take as they are."""
+    p = (_kernels._CACHE.get(id(model)) or _kernels._packed(model)) if params is None else \
+        _kernels._pack_params(model, params)
+    flags = _kernels._flags(p, name, project)
+    B = q.shape[0]
+    if B >= 8 and B * p.cost * (4 if flags & _kernels._RK4 else 1) >= _kernels.PARALLEL_MIN_WORK:
+        return False
+    for x in (q, qd, forces):
+        if not (type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable):
+            return False
+    l0, fd, ext, flags = _kernels._controls(p, flags, rest_length, force_density, forces)
+    l0, fd = _kernels._array(l0, 2, "rest_length"), _kernels._array(fd, 2, "force_density")
+    prm = contact._prm if contact_params is None else contact_params
+    bufs = p.buf[None] if p.bufs is None else p.bufs
+    if p.bufs is not None and not _kernels._READY["copies"]:
+        _kernels._compile("copies")
+    try:
+        err = _contact_loop(q, qd, bufs, p.lanes, l0, fd, forces, float(dt), int(n_steps), flags, model.eta,
+                            model.rod_a, model.rod_c, cstate.anchor, cstate.active, slip, prm)
+    except TypeError:      # an array of another type or layout: the Python loop converts it
+        return False
+    if err:
+        _kernels._raise(err, model, q, qd, rest_length, force_density, forces)
+    return True
+
+
+# ---------------------------------------------------------------------- divergence
+def diverged(q: np.ndarray, qd: np.ndarray, center, limit: float, local: bool = False) -> np.ndarray:
+    """(B,) bool: copy b has a non-finite entry in ``q``/``qd`` (B, k, 6), or a rod reference
+    point farther than ``limit`` m (per coordinate) from ``center`` (3,) m; with ``local`` (a
+    robot that travels) from its copy's mean reference point instead, that mean's height
+    checked against ``center[2]`` (horizontal travel is not limited). One compiled pass over
+    the batch when nothing is off; per copy in NumPy otherwise."""
+    if (AVAILABLE and type(q) is np.ndarray and type(qd) is np.ndarray and q.dtype == np.float64
+            and qd.dtype == np.float64 and q.ndim == 3 and q.shape == qd.shape):
+        ok = state_ok_local(q, qd, center[2], limit) if local else state_ok(q, qd, center, limit)
+        if ok:
+            return np.zeros(q.shape[0], bool)
+    with np.errstate(all="ignore"):
+        q, qd = np.asarray(q), np.asarray(qd)
+        if local:
+            finite = np.isfinite(q).all(axis=(1, 2)) & np.isfinite(qd).all(axis=(1, 2))
+            r = np.where(np.isfinite(q[..., :3]), q[..., :3], 0.0)
+            m = r.mean(axis=1, keepdims=True)
+            far = ~((np.abs(r - m).max(axis=(1, 2)) <= limit) & (np.abs(m[:, 0, 2] - center[2]) <= limit))
+            return ~finite | far
+        # one reduction each for the whole batch; per copy only when something is off
+        if np.isfinite(q.sum() + qd.sum()) and np.abs(q[..., :3] - center).max() <= limit:
+            return np.zeros(q.shape[0], bool)
+        finite = np.isfinite(q).all(axis=(1, 2)) & np.isfinite(qd).all(axis=(1, 2))
+        far = ~(np.abs(np.where(np.isfinite(q[..., :3]), q[..., :3], 0.0) - center).max(axis=(1, 2)) <= limit)
+        return ~finite | far
+
+
+# ---------------------------------------------------------------------- fused steps
+class Plan:
+    """What a compiled caller needs to run ``integrators.step``'s serial kernel from its own
+    njit code (:func:`run_plan`): ``buf`` (the packed model), ``flags`` (integrator, projection,
+    control mode), ``dt`` (s) and ``n_steps``. Opaque: build it with :func:`compiled_plan`."""
+    __slots__ = ("model", "buf", "flags", "dt", "n_steps")
+
+    def buffer(self, params=None) -> np.ndarray | None:
+        """The packed buffer for ``params`` (one shared row) or the model's own (None); None
+        when ``params`` has one row per copy (the per-copy kernels do not fuse)."""
+        if params is None:
+            return self.buf
+        if params.batch_size != 1:
+            return None
+        return _kernels._pack_params(self.model, params).buf
+
+
+def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_size: int,
+                  control: str = "rest_length", backend: str = "auto") -> Plan | None:
+    """A :class:`Plan` for ``n_steps`` steps of ``integrator`` (projected) on ``batch_size``
+    copies whose control is ``control`` per string (``"rest_length"``, m, or
+    ``"force_density"``, N/m, with the model's rest lengths), or None where the fused serial
+    kernel does not apply (no numba, the NumPy backend, an implicit method, or a batch large
+    enough for the parallel kernel: then :func:`step` runs it). Issues the stability warning
+    of :func:`integrators.step` once, as it would."""
+    if not (AVAILABLE and compiled_physics(integrator, backend)):
+        return None
+    info = integrators.resolve(integrator)
+    p = _kernels._CACHE.get(id(model)) or _kernels._packed(model)
+    flags = _kernels._flags(p, info.name, True)
+    if batch_size >= 8 and _kernels._parallel(p, batch_size, n_steps, flags):
+        return None
+    if control == "force_density":
+        flags |= _kernels._L0DEF | _kernels._FD
+    elif control != "rest_length":
+        raise ValueError(f"control: unknown {control!r}; choose 'rest_length' or 'force_density'")
+    integrators._check_stability(model, info, dt)
+    plan = Plan()
+    plan.model, plan.buf, plan.flags, plan.dt, plan.n_steps = model, p.buf, int(flags), float(dt), int(n_steps)
+    return plan
+
+
+if AVAILABLE:
+    from numba import njit
+
+    _run_serial = _kernels._run_serial
+    _run_copies_serial = _kernels._run_copies_serial
+    _forces_kernel = gc._forces_kernel
+
+    @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside the buffers
+    def _contact_loop(q, qd, bufs, lanes, l0, fd, W, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active, slip,
+                      prm):
+        """In place, ``n_steps`` times: the contact forces ``W`` (B, n, 3) from the state (the
+        contact kernel, anchors and slip flags updated), then one step of the serial integrator
+        kernel with ``external=W`` (``flags`` carry it); ``bufs`` (1, len) the shared packed buffer
+        or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the kernel's error code (0: done)."""
+        one = np.int64(1)
+        for _ in range(n_steps):
+            _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm)
+            if bufs.shape[0] == 1:
+                err = _run_serial(q, qd, q, qd, bufs[0], l0, fd, W, dt, one, flags)
+            else:
+                err = _run_copies_serial(q, qd, q, qd, bufs, l0, fd, W, dt, one, flags, lanes)
+            if err:
+                return err
+        return 0
+
+    @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
+    def run_plan(q, qd, qo, qdo, buf, controls, dt, n_steps, flags):
+        """From njit code: the physics of a :class:`Plan` (its ``buf``, ``dt``, ``n_steps``,
+        ``flags``) from ``q``, ``qd`` into ``qo``, ``qdo`` (B, k, 6) with ``controls`` (B, m)
+        the rest lengths or force densities of its control mode. Returns the kernel's error
+        code (0: done)."""
+        return _run_serial(q, qd, qo, qdo, buf, controls, controls, q, dt, n_steps, flags)
+
+    @njit(inline="always", cache=True, nogil=True)
+    def _update(ctrl, speed, action, rate, dv, dt, low, high, actuated, base, fill_base, motor, ctrl_out,
+                speed_out, phys_out):
+        B, na = ctrl.shape
+        m = phys_out.shape[1]
+        per_copy = rate.shape[0] > 1
+        for b in range(B):
+            if fill_base:            # the physics row before its actuated columns are set
+                for j in range(m):
+                    phys_out[b, j] = base[j]
+            else:
+                for j in range(m):
+                    phys_out[b, j] = 0.0
+            rb = b if per_copy else 0
+            for i in range(na):
+                v = 0.0
+                if motor:
+                    d = action[b, i] * rate[rb, i] - speed[b, i]
+                    if d < -dv[rb]:
+                        d = -dv[rb]
+                    if d > dv[rb]:
+                        d = dv[rb]
+                    v = speed[b, i] + d
+                    x = ctrl[b, i] + v * dt
+                else:
+                    x = ctrl[b, i] + action[b, i] * rate[rb, i]
+                # np.clip(x, lo, hi) == minimum(maximum(x, lo), hi), NaN propagating
+                if x < low[i]:
+                    x = low[i]
+                if x > high[i]:
+                    x = high[i]
+                if motor:
+                    if (x <= low[i] and v < 0.0) or (x >= high[i] and v > 0.0):
+                        v = 0.0
+                    speed_out[b, i] = v
+                ctrl_out[b, i] = x
+                phys_out[b, actuated[i]] = x
+
+    @njit(cache=True, nogil=True)
+    def apply_controls(ctrl, action, rate, low, high, actuated, base, fill_base, ctrl_out, phys_out):
+        """``ctrl_out = clip(ctrl + action * rate, low, high)`` (B, na) and the physics input
+        ``phys_out`` (B, m): ``base`` (m,) (rest lengths; zeros for force densities when
+        ``fill_base`` is False) with the actuated columns set to ``ctrl_out``. ``rate`` (P, na):
+        one row shared by every copy (P = 1) or one per copy (P = B)."""
+        _update(ctrl, ctrl, action, rate, low, 0.0, low, high, actuated, base, fill_base, False, ctrl_out,
+                ctrl_out, phys_out)
+
+    @njit(cache=True, nogil=True)
+    def apply_motor(ctrl, speed, action, max_rate, dv, dt, low, high, actuated, base, fill_base,
+                    ctrl_out, speed_out, phys_out):
+        """Motor model of ``Actuation.apply_motor``: ``v = speed + clip(action * max_rate - speed,
+        -dv, dv)``, ``ctrl_out = clip(ctrl + v * dt, low, high)``, ``v = 0`` where the control
+        sits on a bound and ``v`` pushes beyond it (``speed_out``), and the physics input
+        ``phys_out`` as :func:`apply_controls`. ``max_rate`` (P, na) and ``dv`` (P,): one row
+        shared (P = 1) or one per copy (P = B)."""
+        _update(ctrl, speed, action, max_rate, dv, dt, low, high, actuated, base, fill_base, True, ctrl_out,
+                speed_out, phys_out)
+
+    @njit(cache=True, nogil=True)
+    def state_ok(q, qd, center, limit):
+        """True if every entry of ``q``, ``qd`` (B, k, 6) is finite and every reference point is
+        within ``limit`` (per coordinate) of ``center`` (3,)."""
+        B, k, _ = q.shape
+        for b in range(B):
+            for j in range(k):
+                for c in range(6):
+                    if not (np.isfinite(q[b, j, c]) and np.isfinite(qd[b, j, c])):
+                        return False
+                for c in range(3):
+                    if not (abs(q[b, j, c] - center[c]) <= limit):
+                        return False
+        return True
+
+    @njit(cache=True, nogil=True)
+    def state_ok_local(q, qd, center_z, limit):
+        """Like :func:`state_ok` for a robot that travels: every entry of ``q``, ``qd`` (B, k, 6)
+        finite, every reference point within ``limit`` (per coordinate) of its copy's mean
+        reference point, and that mean's height within ``limit`` of ``center_z``."""
+        B, k, _ = q.shape
+        for b in range(B):
+            m0 = 0.0
+            m1 = 0.0
+            m2 = 0.0
+            for j in range(k):
+                for c in range(6):
+                    if not (np.isfinite(q[b, j, c]) and np.isfinite(qd[b, j, c])):
+                        return False
+                m0 += q[b, j, 0]
+                m1 += q[b, j, 1]
+                m2 += q[b, j, 2]
+            m0 /= k
+            m1 /= k
+            m2 /= k
+            if not (abs(m2 - center_z) <= limit):
+                return False
+            for j in range(k):
+                if not (abs(q[b, j, 0] - m0) <= limit and abs(q[b, j, 1] - m1) <= limit
+                        and abs(q[b, j, 2] - m2) <= limit):
+                    return False
+        return True
+else:  # pragma: no cover
+    run_plan = apply_controls = apply_motor = state_ok = state_ok_local = None
