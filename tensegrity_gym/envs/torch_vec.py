@@ -60,7 +60,6 @@ Autoreset and seeding are those of :class:`~tensegrity_gym.envs.common.TaskVecto
 """
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 import numpy as np
@@ -86,6 +85,7 @@ def roll_vector_env(num_envs: int = 1, **kwargs):
     ``backend="torch"``, else :class:`~tensegrity_gym.envs.roll.TensegrityRollVectorEnv` with
     the arguments passed through untouched (the default path is unchanged)."""
     if kwargs.get("backend") == "torch":
+        from .torch_tasks import TorchRollVectorEnv
         return TorchRollVectorEnv(num_envs=num_envs, **kwargs)
     _no_torch_kwargs(kwargs)
     from .roll import TensegrityRollVectorEnv
@@ -97,6 +97,7 @@ def shape_vector_env(num_envs: int = 1, **kwargs):
     ``backend="torch"``, else :class:`~tensegrity_gym.envs.shape.TensegrityShapeVectorEnv`
     (arguments passed through untouched)."""
     if kwargs.get("backend") == "torch":
+        from .torch_tasks import TorchShapeVectorEnv
         return TorchShapeVectorEnv(num_envs=num_envs, **kwargs)
     _no_torch_kwargs(kwargs)
     from .shape import TensegrityShapeVectorEnv
@@ -356,184 +357,8 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         pass
 
 
-class TorchRollVectorEnv(_TorchTaskVectorEnv):
-    """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc)."""
-
-    ENV_ID = "TensegrityRoll-v0"
-
-    def _make_task(self, num_envs, kwargs):
-        from .roll import RollTask
-        return RollTask(num_envs=num_envs, **kwargs)
-
-    def _init_state(self):
-        torch = tb._torch()
-        task, dev = self.task, self.device
-        self._com_eta = self._T(task.model.com_eta)[None, :, None]
-        self.q = self._T(task.q)
-        self.qd = self._T(task.qd)
-        self.anchor = self._T(task.cstate.anchor)
-        self.active = torch.as_tensor(task.cstate.active, device=dev)
-        self.ctrl = self._T(task.ctrl)
-        self.speed = self._T(task.speed)
-        self.goal = self._T(task.goal)
-        self.start = self._T(task.start)
-
-    def _upload_rows(self, it, idx):
-        torch = tb._torch()
-        task = self.task
-        self.q[it] = self._T(task.q[idx])
-        self.qd[it] = self._T(task.qd[idx])
-        self.anchor[it] = self._T(task.cstate.anchor[idx])
-        self.active[it] = torch.as_tensor(task.cstate.active[idx], device=self.device)
-        self.ctrl[it] = self._T(task.ctrl[idx])
-        self.speed[it] = self._T(task.speed[idx])
-        self.goal[it] = self._T(task.goal[idx])
-        self.start[it] = self._T(task.start[idx])
-
-    def _com(self, q):
-        """(N, 3) centre of mass, m (as ``RollTask._com``)."""
-        r = q[..., :3]
-        if not self.task._com_at_r:
-            r = r + self._com_eta * q[..., 3:]
-        mf = self._mass_frac[..., None]
-        return (mf * r).sum(dim=1)
-
-    def _observe(self):
-        torch = tb._torch()
-        q, qd = self.q, self.qd
-        B = q.shape[0]
-        com = self._com(q)
-        Np = tb.node_positions(self.tm, q, self._node_prm) - com[:, None, :]
-        V = tb.node_velocities(self.tm, qd)
-        return torch.cat([Np.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.active.to(self.dtype),
-                          self.goal, com[:, 2:3], self.speed], dim=1)
-
-    def _far_or_nonfinite(self, q, qd):
-        """(N,) bool, as ``pipeline.diverged`` with ``travels=True`` (the roll task)."""
-        torch = tb._torch()
-        finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
-        r = q[..., :3]
-        r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))
-        m = r.mean(dim=1, keepdim=True)
-        lim = self.task.divergence_limit
-        dev = (r - m).abs().amax(dim=(1, 2))
-        far = ~((dev <= lim) & ((m[:, 0, 2] - self.task.center0[2]).abs() <= lim))
-        return ~finite | far
-
-    def _act(self, action):
-        """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
-        torch = tb._torch()
-        task = self.task
-        action = self._delayed(action)
-        act = task.actuation
-        if task.motor:
-            self.ctrl, self.speed = tb.motor(act, self.ctrl, self.speed, action, self._max_rate, self._max_accel)
-        else:
-            self.ctrl = tb.advance(act, self.ctrl, action, self._max_rate)
-        inputs = self._physics_inputs()
-        q0, qd0, anchor0, active0 = self.q, self.qd, self.anchor, self.active
-        com0 = self._com(q0)
-        q, qd, anchor, active = tb.contact_step(
-            self.tm, task.contact, q0, qd0, anchor0, active0, task.dt, task.integrator, task.frame_skip,
-            rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
-            params=self._params, contact_prm=self._contact_prm, substep=self._substep)
-        diverged = self._far_or_nonfinite(q, qd)
-        d3 = diverged[:, None, None]
-        self.q = torch.where(d3, q0, q)
-        self.qd = torch.where(d3, qd0, qd)
-        self.anchor = torch.where(d3, anchor0, anchor)
-        self.active = torch.where(diverged[:, None], active0, active)
-        self.elapsed = self.elapsed + 1
-        com = self._com(self.q)
-        vel = (com - com0) / task.control_dt
-        forward = vel[:, 0] * self.goal[:, 0] + vel[:, 1] * self.goal[:, 1]
-        terms = {"forward": task.forward_reward_weight * forward,
-                 "ctrl": -task.ctrl_cost_weight * (action * action).sum(dim=1)}
-        disp = com - self.start
-        dist = disp[:, 0] * self.goal[:, 0] + disp[:, 1] * self.goal[:, 1]
-        infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward,
-                 "diverged": diverged}
-        return terms, infos
-
-
-
-#: rewards.tolerance's gaussian sigmoid with its default value 0.1 at the margin (as ShapeTask's fused step)
-_GAUSS_SCALE = math.sqrt(-2.0 * math.log(0.1))
-
-
-class TorchShapeVectorEnv(_TorchTaskVectorEnv):
-    """``TensegrityShape-v0`` on N copies stepped on a torch device: the task of
-    :class:`~tensegrity_gym.envs.shape.ShapeTask` (targets and initial states drawn on the host
-    at reset from each env's generator; control update, physics with the model's node drag,
-    divergence check, tracking errors, the ``tracking`` / ``proximity`` / ``ctrl`` reward terms
-    and the observation on the device). Arguments: those of ``TensegrityShape-v0`` plus
-    ``device``, ``dtype``, ``max_episode_steps``, ``compile`` (no effect here: the shape task has
-    no contact substep)."""
-
-    ENV_ID = "TensegrityShape-v0"
-
-    def _make_task(self, num_envs, kwargs):
-        from .shape import ShapeTask
-        return ShapeTask(num_envs=num_envs, **kwargs)
-
-    def _init_state(self):
-        task = self.task
-        torch = tb._torch()
-        self.q = self._T(task.q)
-        self.qd = self._T(task.qd)
-        self.ctrl = self._T(task.ctrl)
-        self.target = self._T(task.target)
-        self._tracked = torch.as_tensor(np.asarray(task.tracked, dtype=np.int64), device=self.device)
-        self._center0 = self._T(task.center0)
-
-    def _upload_rows(self, it, idx):
-        task = self.task
-        self.q[it] = self._T(task.q[idx])
-        self.qd[it] = self._T(task.qd[idx])
-        self.ctrl[it] = self._T(task.ctrl[idx])
-        self.target[it] = self._T(task.target[idx])
-
-    def _tracked_nodes(self, q):
-        return tb.node_positions(self.tm, q, self._node_prm).index_select(1, self._tracked)
-
-    def _act(self, action):
-        torch = tb._torch()
-        task = self.task
-        action = self._delayed(action)
-        self.ctrl = tb.advance(task.actuation, self.ctrl, action, self._max_rate)
-        inputs = self._physics_inputs()
-        q0, qd0 = self.q, self.qd
-        q, qd = tb.step(self.tm, q0, qd0, task.dt, task.integrator, task.frame_skip,
-                        rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
-                        params=self._params)
-        # pipeline.diverged (BatchedTask.simulate): non-finite, or a reference point farther than the limit from the centre
-        finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
-        r = q[..., :3]
-        r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))
-        far = ~((r - self._center0).abs().amax(dim=(1, 2)) <= task.divergence_limit)
-        diverged = ~finite | far
-        d3 = diverged[:, None, None]
-        self.q = torch.where(d3, q0, q)
-        self.qd = torch.where(d3, qd0, qd)
-        self.elapsed = self.elapsed + 1
-        N = self._tracked_nodes(self.q)
-        D = N - self.target
-        d = torch.sqrt((D * D).sum(dim=-1))
-        err, emax = d.mean(dim=1), d.amax(dim=1)
-        tol = task.success_tolerance
-        margin = 10.0 * tol
-        inside = (emax >= 0.0) & (emax <= tol)
-        t = torch.where(emax < 0.0, -emax, emax - tol) / margin * _GAUSS_SCALE
-        prox = torch.where(inside, torch.ones_like(emax), torch.exp(-0.5 * t * t))
-        terms = {"tracking": -task.tracking_weight * err, "proximity": task.proximity_weight * prox,
-                 "ctrl": -task.ctrl_cost_weight * (action * action).sum(dim=1)}
-        infos = {"tracking_error": err, "max_node_error": emax, "is_success": emax <= tol, "diverged": diverged}
-        return terms, infos
-
-    def _observe(self):
-        torch = tb._torch()
-        B = self.num_envs
-        N = self._tracked_nodes(self.q)
-        V = tb.node_velocities(self.tm, self.qd).index_select(1, self._tracked)
-        return torch.cat([N.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.target.reshape(B, -1),
-                          (self.target - N).reshape(B, -1)], dim=1)
+def __getattr__(name):   # the task envs live in torch_tasks.py (imported on first use)
+    if name in ("TorchRollVectorEnv", "TorchShapeVectorEnv"):
+        from . import torch_tasks
+        return getattr(torch_tasks, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
