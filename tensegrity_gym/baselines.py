@@ -320,6 +320,10 @@ class RollingGait:
         self.control_dt = task.control_dt
         self._step = self.actuation.max_rate * self.control_dt
         lay = {name: sl for name, sl, _ in task.observation_layout()}
+        if "node_velocity" not in lay:
+            raise ValueError("RollingGait: reads the node velocities of the state observation; this env has "
+                             f"observation_mode={getattr(task, 'sensors', None) and 'robot'!r} "
+                             "(construct it with observation_mode='state')")
         self._sl, self._vel, self._goal = lay["control"], lay["node_velocity"], lay["goal_direction"]
 
     def target(self, t, bias=None) -> np.ndarray:

@@ -236,3 +236,14 @@ def test_shape_env_sensor_noise_seeded_and_vector_equals_single():
 def test_shape_env_bad_sensor_arguments(kw, match):
     with pytest.raises(ValueError, match=match):
         gym.make("TensegrityShape-v0", **kw)
+
+
+def test_rolling_gait_refuses_the_robot_observation_by_name():
+    """The gait reads node velocities of the state observation: in robot mode it is refused
+    with a ValueError (agents.evaluate then skips the baseline with a note), not a KeyError."""
+    import gymnasium as gym
+    from tensegrity_gym.baselines import RollingGait
+    env = gym.make("TensegrityRoll-v0", observation_mode="robot")
+    with pytest.raises(ValueError, match="observation_mode='robot'"):
+        RollingGait(env)
+    env.close()
