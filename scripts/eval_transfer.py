@@ -157,8 +157,13 @@ def table(paths: list[Path]) -> str:
         if cfg.is_file():
             import yaml
             ek = (yaml.safe_load(cfg.read_text()) or {}).get("env_kwargs") or {}
-            trained = "randomised (" + ", ".join(f"{k} {v:g}" for k, v in ek["randomize"].items()) + ")" \
-                if ek.get("randomize") else "nominal"
+            rz = ek.get("randomize") or {}
+            if not rz:
+                trained = "nominal"
+            elif len(set(rz.values())) == 1:
+                trained = f"randomised +-{100 * next(iter(rz.values())):g} % ({len(rz)} parameters)"
+            else:
+                trained = "randomised (" + ", ".join(f"{k} {v:g}" for k, v in rz.items()) + ")"
         obs = kw.get("observation_mode", "state") + (f", history {kw['history']}" if kw.get("history", 1) != 1 else "")
         cells = []
         for k in sets:
