@@ -370,3 +370,10 @@ def test_sysid_fit_with_torch_jacobian_recovers_parameters(one_thread):
         identify(model, t, nodes, fit=("stiffness",), jacobian="ad")
     with pytest.raises(ValueError, match="jacobian: 'torch' supports integrator"):
         identify(model, t, nodes, fit=("stiffness",), integrator="implicit_euler", jacobian="torch")
+
+
+def test_single_env_with_the_torch_backend_points_to_the_vector_env():
+    """gym.make(id, backend='torch') says how to get the torch env (a vector env), naming the call."""
+    for env_id in ("TensegrityRoll-v0", "TensegrityShape-v0"):
+        with pytest.raises(ValueError, match="make_vec.*vector_entry_point.*backend='torch'"):
+            gym.make(env_id, backend="torch")

@@ -67,6 +67,11 @@ class BatchedTask:
         if int(frame_skip) != frame_skip or frame_skip < 1:
             raise ValueError(f"frame_skip: must be a positive integer, got {frame_skip}")
         self.frame_skip = int(frame_skip)
+        if backend == "torch":
+            raise ValueError("backend='torch' runs the batch on a torch device as a vector env: "
+                             "gymnasium.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point', "
+                             "backend='torch', device=...) (docs/bench_gpu.md); this NumPy/numba task takes "
+                             "backend 'auto', 'numpy' or 'numba'")
         if backend not in ("auto", "numpy", "numba"):
             raise ValueError(f"backend: unknown {backend!r}; choose 'auto', 'numpy' or 'numba'")
         self.backend = backend
