@@ -22,6 +22,7 @@ from .roll_obs import RollObservation
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
                          STRING_DAMPING, load_robot, place_on_ground, put_on_ground, robot_icosahedron,
                          robot_prism, settle)
+from .sensors import RobotSensors
 from .shells import TaskEnv, TaskVectorEnv
 from .validate import ACTION_MODES, check_positive, check_stable_dt, resolve_actuated
 
@@ -56,10 +57,7 @@ class RollTask(RollObservation, BatchedTask):
                  params: dict | None = None, randomize: dict | None = None, action_delay: int = 0,
                  start_rest_length_offset=None, observation_mode: str = "state", sensor_noise: dict | None = None,
                  history: int = 1, allow_unstable_dt: bool = False):
-        if observation_mode not in ("state", "robot"):
-            raise ValueError(f"observation_mode: unknown {observation_mode!r}; choose 'state' or 'robot'")
-        if observation_mode == "state" and (sensor_noise or history != 1):
-            raise ValueError("sensor_noise / history: only with observation_mode='robot'")
+        RobotSensors.check_mode(observation_mode, sensor_noise, history)   # before the robot is built
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode: unknown {action_mode!r}; choose one of {ACTION_MODES}")
         if string_damping is not None:
@@ -127,15 +125,9 @@ class RollTask(RollObservation, BatchedTask):
         self.action_size = na
         self.observation_size = 6 * n + na + self.n_contacts + 3 + self.n_speed
         self.observation_mode = observation_mode
-        self.sensors = None
-        if observation_mode == "robot":
-            from .sensors import RobotSensors
-            self.sensors = RobotSensors(model, na, self.n_speed, 2 * k, sensor_noise, history, self.actuation.unit)
-            self.observation_size = self.sensors.size
-            self._readings = np.zeros((B, self.sensors.history, self.sensors.frame_size))
-            self._sensor_rngs = [None] * B
-            self._qd_prev = None
-            self.track_last_velocity = True     # the IMUs read the last physics step's acceleration
+        # robot observation (envs/sensors.py; None in state mode); the IMUs read the last physics step
+        self.sensors = RobotSensors.attach(self, observation_mode, sensor_noise, history, ("goal_direction", 2, "1"),
+                                           n_speed=self.n_speed, n_contacts=2 * k)
         self.cstate = gc.init_contact_state(model, B)
         self.ctrl = np.tile(self.actuation.nominal, (B, 1))
         self.speed = np.zeros((B, self.n_speed))

@@ -151,6 +151,15 @@ class RobotSensors:
         return out
 
     # ------------------------------------------------------------------ the task side
+    @staticmethod
+    def check_mode(observation_mode: str, sensor_noise: dict | None, history: int) -> bool:
+        """Validate the observation arguments of a task; True in robot mode, False in state mode."""
+        if observation_mode not in ("state", "robot"):
+            raise ValueError(f"observation_mode: unknown {observation_mode!r}; choose 'state' or 'robot'")
+        if observation_mode == "state" and (sensor_noise or history != 1):
+            raise ValueError("sensor_noise / history: only with observation_mode='robot'")
+        return observation_mode == "robot"
+
     @classmethod
     def attach(cls, task, observation_mode: str, sensor_noise: dict | None, history: int, command: tuple,
                n_speed: int = 0, n_contacts: int = 0) -> "RobotSensors | None":
@@ -158,11 +167,7 @@ class RobotSensors:
         :class:`~tensegrity_gym.envs.common.BatchedTask` whose ``model``, ``actuation`` and
         ``num_envs`` are set) and, in robot mode, set its ``observation_size`` and reading buffers.
         Returns the sensors, or None in state mode (nothing of the task is touched then)."""
-        if observation_mode not in ("state", "robot"):
-            raise ValueError(f"observation_mode: unknown {observation_mode!r}; choose 'state' or 'robot'")
-        if observation_mode == "state":
-            if sensor_noise or history != 1:
-                raise ValueError("sensor_noise / history: only with observation_mode='robot'")
+        if not cls.check_mode(observation_mode, sensor_noise, history):
             return None
         act = task.actuation
         sens = cls(task.model, act.actuated.size, n_speed, n_contacts, sensor_noise, history, act.unit, command)
