@@ -473,6 +473,17 @@ def write_text(path: str | Path, text: str) -> None:
     atomic_write(path, lambda f: f.write(text.encode()))
 
 
+def run_cli(fn, argv: list[str] | None = None, errors=(ValueError, FileNotFoundError)) -> int:
+    """Exit status of a command-line entry point: 0 after ``fn(argv)``, 2 with a one-line
+    ``error: ...`` on stderr for the input errors ``errors`` (no traceback)."""
+    try:
+        fn(argv)
+    except errors as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def command_line(argv: list[str] | None = None, module: str = "agents.train") -> str:
     """The command that reproduces this run: ``python -m <module> <argv>`` (``argv`` default sys.argv[1:])."""
     import shlex

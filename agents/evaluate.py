@@ -571,12 +571,7 @@ def evaluate(argv=None) -> dict:
 
 
 def main(argv=None) -> int:
-    try:
-        evaluate(argv)
-    except (ValueError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return common.run_cli(evaluate, argv)
 
 
 if __name__ == "__main__":

@@ -150,10 +150,8 @@ def _plot(path: Path, curves: list[dict], title: str) -> bool:
         ax.legend(fontsize=7)
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
+    common.atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
     plt.close(fig)
-    tmp.replace(path)
     return True
 
 
@@ -190,11 +188,12 @@ def run(argv: list[str] | None = None) -> dict:
         raise ValueError(f"runs: two run directories share a name ({names}); each seed needs its own")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    import yaml
+    from agents.evaluate import HELD_OUT_SEED
     per_seed, curves, env_ids = [], [], set()
     for r in runs:
         m = _evaluate_seed(r, out / "seeds" / r.name, args)
         res = m["results"][next(k for k in m["results"] if k.endswith("(trained)"))]
-        import yaml
         cfg = yaml.safe_load((r / "config.yaml").read_text())
         env_ids.add(m["env"])
         st = json.loads((r / "state.json").read_text()) if (r / "state.json").exists() else {}
@@ -209,7 +208,7 @@ def run(argv: list[str] | None = None) -> dict:
     agg = aggregate(per_seed, goals)
     title = args.title or f"{', '.join(sorted(env_ids))}: {len(runs)} training seeds"
     summary = {"title": title, "n_seeds": len(runs), "held_out_episodes_per_seed": args.n_episodes,
-               "held_out_seeds": [evaluate_seed0(), evaluate_seed0() + args.n_episodes - 1],
+               "held_out_seeds": [HELD_OUT_SEED, HELD_OUT_SEED + args.n_episodes - 1],
                "model": args.model, "eval_env_kwargs": common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs"),
                "per_seed": per_seed, "aggregate": agg,
                "interval": "IQM (25 % trimmed mean) over training seeds, 95 % percentile bootstrap "
@@ -218,19 +217,12 @@ def run(argv: list[str] | None = None) -> dict:
                "versions": common.package_versions()}
     common.write_json(out / "summary.json", summary)
     md = _table(summary)
-    tmp = out / "summary.md.tmp"
-    tmp.write_text(md)
-    tmp.replace(out / "summary.md")
+    common.write_text(out / "summary.md", md)
     if _plot(out / "learning_curves.png", curves, title):
         print(f"wrote {out / 'learning_curves.png'}")
     print(md)
     print(f"wrote {out / 'summary.json'}")
     return summary
-
-
-def evaluate_seed0() -> int:
-    from agents.evaluate import HELD_OUT_SEED
-    return HELD_OUT_SEED
 
 
 def _table(s: dict) -> str:
@@ -256,12 +248,7 @@ def _table(s: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        run(argv)
-    except (ValueError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return common.run_cli(run, argv)
 
 
 if __name__ == "__main__":

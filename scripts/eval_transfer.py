@@ -27,13 +27,13 @@ import json
 import os
 import platform
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
+from agents import common
 from tensegrity_gym.baselines import RollingGait
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv
 from tensegrity_gym.envs.roll_mujoco import TensegrityRollMuJoCoEnv
@@ -129,18 +129,9 @@ def summary(v, L):
 
 
 def write_json(path: Path, data: dict) -> None:
+    """``data`` as JSON at ``path`` (folder created), atomically (:func:`agents.common.write_json`)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=1)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    common.write_json(path, data)
 
 
 def table(paths: list[Path]) -> str:
@@ -198,9 +189,8 @@ def main(argv=None) -> int:
         md = table(a.table)
         print(md)
         if a.out is not None:
-            tmp = a.out.with_name(a.out.name + ".tmp")
-            tmp.write_text(md)
-            os.replace(tmp, a.out)
+            a.out.parent.mkdir(parents=True, exist_ok=True)
+            common.write_text(a.out, md)
         return 0
     if a.twin_robots is not None and a.twin_robots < 1:
         print(f"error: --twin-robots must be >= 1 (got {a.twin_robots})", file=sys.stderr)
