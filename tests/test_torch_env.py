@@ -50,6 +50,41 @@ def _close_info(i_np, i_t, tol=1e-9):
             assert np.abs(v - w).max() <= tol, (k, np.abs(v - w).max())
 
 
+def _compare_rollouts(ref, ten, N, steps, seed, action_seed):
+    """Reset both vector envs with ``seed``, step them ``steps`` times with the same random actions
+    (some outside [-1, 1]: clipped) and assert equal observations, rewards (1e-9), dones and infos
+    at every step and equal final states (1e-9). Returns (episodes ended by the time limit, the
+    NumPy env's last infos)."""
+    o1, i1 = ref.reset(seed=seed)
+    o2, i2 = ten.reset(seed=seed)
+    _close_obs(o1, o2)
+    _close_info(i1, i2)
+    rng = np.random.default_rng(action_seed)
+    resets = 0
+    for _ in range(steps):
+        a = rng.uniform(-1.2, 1.2, (N, ref.single_action_space.shape[0]))
+        o1, r1, te1, tr1, i1 = ref.step(a)
+        o2, r2, te2, tr2, i2 = ten.step(torch.as_tensor(a))
+        _close_obs(o1, o2)
+        assert np.abs(r1 - r2.numpy()).max() <= 1e-9
+        assert np.array_equal(te1, te2.numpy()) and np.array_equal(tr1, tr2.numpy())
+        _close_info(i1, i2)
+        resets += int(tr1.sum())
+    assert np.abs(ref.unwrapped.task.q - ten.q.numpy()).max() <= 1e-9
+    return resets, i1
+
+
+def _torch_equals_fd_jacobian(problem, theta, q0, qd0, W):
+    """The sys-ID problem's projected Jacobians (parameters, window states) with
+    ``jacobian="torch"`` equal the production forward differences to 1e-5 relative."""
+    sim = problem.simulate(q0, qd0, problem.params(theta), np.arange(W))
+    Jf, Xf = problem.full_jacobian(theta, q0, qd0, sim)
+    problem.jacobian = "torch"
+    Jp, Xp = problem.full_jacobian(theta, q0, qd0, sim)
+    assert np.linalg.norm(Jp - Jf) / np.linalg.norm(Jp) < 1e-5
+    assert np.linalg.norm(Xp - Xf) / np.linalg.norm(Xp) < 1e-5
+
+
 CASES = {
     "default_autoreset": dict(max_episode_steps=20),
     "randomized_delay": dict(max_episode_steps=20, action_delay=2, randomize_goal=True,
@@ -67,22 +102,7 @@ def test_float64_matches_numpy_vector_env(case):
     N, steps = 3, 50
     ref, ten = _pair(N, **CASES[case])
     assert isinstance(ten, TorchRollVectorEnv) and isinstance(ref, TensegrityRollVectorEnv)
-    o1, i1 = ref.reset(seed=7)
-    o2, i2 = ten.reset(seed=7)
-    _close_obs(o1, o2)
-    _close_info(i1, i2)
-    rng = np.random.default_rng(0)
-    resets = 0
-    for _ in range(steps):
-        a = rng.uniform(-1.2, 1.2, (N, ref.single_action_space.shape[0]))   # some outside: clipped
-        o1, r1, te1, tr1, i1 = ref.step(a)
-        o2, r2, te2, tr2, i2 = ten.step(torch.as_tensor(a))
-        _close_obs(o1, o2)
-        assert np.abs(r1 - r2.numpy()).max() <= 1e-9
-        assert np.array_equal(te1, te2.numpy()) and np.array_equal(tr1, tr2.numpy())
-        _close_info(i1, i2)
-        resets += int(tr1.sum())
-    assert np.abs(ref.unwrapped.task.q - ten.q.numpy()).max() <= 1e-9
+    resets, i1 = _compare_rollouts(ref, ten, N, steps, seed=7, action_seed=0)
     assert resets >= N           # the autoreset was exercised (time limit 20 or 30 < 50 steps)
     moved = np.abs(ref.unwrapped.task.q - ref.unwrapped.task.q_nominal).max()
     assert moved > 1e-3          # not a comparison of robots at rest
@@ -109,22 +129,7 @@ def test_shape_float64_matches_numpy_vector_env(case):
     ten = gym.make_vec("TensegrityShape-v0", num_envs=N, vectorization_mode="vector_entry_point", backend="torch",
                        device="cpu", dtype="float64", **kw)
     assert isinstance(ten, TorchShapeVectorEnv) and type(ref) is TensegrityShapeVectorEnv
-    o1, i1 = ref.reset(seed=5)
-    o2, i2 = ten.reset(seed=5)
-    _close_obs(o1, o2)
-    _close_info(i1, i2)
-    rng = np.random.default_rng(4)
-    resets = 0
-    for _ in range(steps):
-        a = rng.uniform(-1.2, 1.2, (N, ref.single_action_space.shape[0]))
-        o1, r1, te1, tr1, i1 = ref.step(a)
-        o2, r2, te2, tr2, i2 = ten.step(torch.as_tensor(a))
-        _close_obs(o1, o2)
-        assert np.abs(r1 - r2.numpy()).max() <= 1e-9
-        assert np.array_equal(te1, te2.numpy()) and np.array_equal(tr1, tr2.numpy())
-        _close_info(i1, i2)
-        resets += int(tr1.sum())
-    assert np.abs(ref.unwrapped.task.q - ten.q.numpy()).max() <= 1e-9
+    resets, i1 = _compare_rollouts(ref, ten, N, steps, seed=5, action_seed=4)
     assert resets >= N
     assert np.abs(i1["reward_proximity"]).max() > 0 and np.abs(i1["reward_tracking"]).max() > 0
 
@@ -335,22 +340,12 @@ def test_sysid_torch_jacobian_equals_finite_differences(one_thread):
     rel = np.linalg.norm(Jt - Jc, axis=(0, 1)) / np.linalg.norm(Jc, axis=(0, 1))
     assert rel.max() < 1e-6, rel
     # the projected Jacobians of the fit: torch against the production forward differences
-    sim = pb.simulate(q0, qd0, pb.params(theta), np.arange(W))
-    Jf, Xf = pb.full_jacobian(theta, q0, qd0, sim)
-    pb.jacobian = "torch"
-    Jp, Xp = pb.full_jacobian(theta, q0, qd0, sim)
-    assert np.linalg.norm(Jp - Jf) / np.linalg.norm(Jp) < 1e-5
-    assert np.linalg.norm(Xp - Xf) / np.linalg.norm(Xp) < 1e-5
+    _torch_equals_fd_jacobian(pb, theta, q0, qd0, W)
     # with recorded (actuated) rest lengths, held per sample interval
     rl = model.rest_length[None] * (1 + 0.01 * np.sin(np.arange(t.size)[:, None] * 0.3 + np.arange(3)))
     t_, rec, mask, rl_, h = sysid._check_record(model, t, nodes, rl, None)
     pa = sysid._Problem(model, t_, rec, mask, rl_, h, names, items, init, base, "per_member", 0.06, "rk4", 4e-3, 1)
-    sim = pa.simulate(q0, qd0, pa.params(theta), np.arange(W))
-    Jf, Xf = pa.full_jacobian(theta, q0, qd0, sim)
-    pa.jacobian = "torch"
-    Jp, Xp = pa.full_jacobian(theta, q0, qd0, sim)
-    assert np.linalg.norm(Jp - Jf) / np.linalg.norm(Jp) < 1e-5
-    assert np.linalg.norm(Xp - Xf) / np.linalg.norm(Xp) < 1e-5
+    _torch_equals_fd_jacobian(pa, theta, q0, qd0, W)
     # a wrong gradient is caught: one parameter column off by 0.1 %
     bad = Jt.copy()
     bad[..., 0] *= 1.001
