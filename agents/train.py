@@ -240,7 +240,7 @@ def _callbacks():
             return True
 
     class TimeSplit(BaseCallback):
-        """Where a training segment's wall time goes (``state.json`` ``time_split_s``): ``rollout``
+        """Where a training segment's wall time goes (``state.json`` ``time_split_last_segment_s``): ``rollout``
         (collecting experience: env steps, policy inference, normalisation, buffer writes),
         ``learner`` (gradient updates: from the end of one collection to the start of the next),
         and ``evaluation_and_checkpoints`` (the ``timed`` callbacks' own ``elapsed`` time, spent
@@ -667,18 +667,18 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
                 best = float(ecb.best_mean_reward)
             if stopper is not None and stopper.hit and status == "finished":
                 status = "time_limit"
+            split = timer.split()
             run_state.update(status=status, num_timesteps=int(model.num_timesteps), target_timesteps=n_timesteps,
                              best_mean_reward=best,
                              wall_time_s=float(prev_state.get("wall_time_s", 0.0)) + elapsed,
                              steps_per_s_last_segment=(model.num_timesteps - steps0) / max(elapsed, 1e-9),
-                             time_split_last_segment_s={k: round(v, 3) for k, v in timer.split().items()})
+                             time_split_last_segment_s={k: round(v, 3) for k, v in split.items()})
             scratch = run_dir / "eval" / ".evaluations_scratch.npz"
             if scratch.exists():
                 scratch.unlink()
             env.close()
             if eval_env is not None:
                 eval_env.close()
-    split = timer.split()
     print(f"{status}: {model.num_timesteps} steps in {elapsed:.1f} s -> {run_dir} (" +
           ", ".join(f"{k} {v:.1f} s" for k, v in split.items()) + ")")
     if error is not None:
