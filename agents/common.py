@@ -310,12 +310,15 @@ def probe_info_keys(env_id: str, env_kwargs: dict) -> tuple[list[str], list[str]
 
 
 def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str = "auto",
-             monitor_file: str | None = None, info_keywords: tuple = ()):
+             monitor_file: str | None = None, info_keywords: tuple = (), env_device: str = "cpu",
+             env_dtype: str = "float32", info_keys: tuple = ()):
     """A monitored SB3 VecEnv of ``n_envs`` copies of ``env_id``, env i seeded with ``seed + i``.
 
     ``vec_env``: ``"batched"`` (the env's ``vector_entry_point``: one batched physics call per step,
-    through :func:`tensegrity_gym.sb3.make_sb3_vec_env`), ``"dummy"``, ``"subproc"``, or
-    ``"auto"`` (batched when available, else dummy).
+    through :func:`tensegrity_gym.sb3.make_sb3_vec_env`), ``"torch"`` (the device-resident torch
+    vector env on ``env_device`` in ``env_dtype``, through
+    :func:`tensegrity_gym.sb3.make_sb3_torch_vec_env`, which copies ``info_keys`` to the host),
+    ``"dummy"``, ``"subproc"``, or ``"auto"`` (batched when available, else dummy).
     """
     import gymnasium as gym
     from stable_baselines3.common.vec_env import VecMonitor, DummyVecEnv, SubprocVecEnv
@@ -330,12 +333,20 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
         venv = make_sb3_vec_env(gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
                                              **env_kwargs))
         venv.seed(seed)
+    elif vec_env == "torch":
+        if not has_vector_entry_point(env_id):
+            raise ValueError(f"--vec-env torch: {env_id} has no vector_entry_point")
+        from tensegrity_gym.sb3 import make_sb3_torch_vec_env
+        venv = make_sb3_torch_vec_env(gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
+                                                   backend="torch", device=env_device, dtype=env_dtype,
+                                                   **env_kwargs), info_keys=tuple(info_keys))
+        venv.seed(seed)
     elif vec_env in ("dummy", "subproc"):
         venv = sb3_make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs,
                                 vec_env_cls=DummyVecEnv if vec_env == "dummy" else SubprocVecEnv)
         # make_vec_env wraps each env in Monitor already; VecMonitor below writes the csv + keywords
     else:
-        raise ValueError(f"--vec-env: unknown {vec_env!r}; choose auto, batched, dummy or subproc")
+        raise ValueError(f"--vec-env: unknown {vec_env!r}; choose auto, batched, torch, dummy or subproc")
     if monitor_file:
         os.makedirs(os.path.dirname(monitor_file), exist_ok=True)
     import warnings

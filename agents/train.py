@@ -302,7 +302,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hyperparameter file (default agents/hyperparams/<algo>.yml)")
     p.add_argument("--resume", metavar="RUN_DIR", default=None,
                    help="continue the run in RUN_DIR from its latest checkpoint / interrupted model")
-    p.add_argument("--vec-env", default="auto", choices=["auto", "batched", "dummy", "subproc"])
+    p.add_argument("--vec-env", default="auto", choices=["auto", "batched", "torch", "dummy", "subproc"],
+                   help="torch: the device-resident torch vector env (--env-device, --env-dtype) for training; "
+                        "the evaluation env stays the NumPy/numba one")
+    p.add_argument("--env-device", default=None, help="--vec-env torch: env device (default cuda if available, "
+                                                      "else cpu)")
+    p.add_argument("--env-dtype", default="float32", choices=["float32", "float64"], help="--vec-env torch: env dtype")
     p.add_argument("--eval-freq", type=int, default=None,
                    help="evaluate every this many env steps (default n_timesteps/20; <= 0 disables)")
     p.add_argument("--eval-episodes", type=int, default=20)
@@ -460,6 +465,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         n_envs = int(cfg["n_envs"])
         n_timesteps = int(args.n_timesteps) if args.n_timesteps is not None else int(cfg["n_timesteps"])
         vec_mode = cfg.get("vec_env", "auto")
+        env_device, env_dtype = cfg.get("env_device"), cfg.get("env_dtype", "float32")
         eval_freq, save_freq = cfg["eval_freq"], cfg["save_freq"]
         eval_episodes, n_eval_envs = cfg["eval_episodes"], cfg["n_eval_envs"]
     else:
@@ -480,6 +486,12 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         if n_envs < 1:
             raise ValueError(f"--n-envs: must be >= 1, got {n_envs}")
         vec_mode = args.vec_env
+        env_device, env_dtype = args.env_device, args.env_dtype
+        if vec_mode == "torch" and env_device is None:
+            import torch
+            env_device = "cuda" if torch.cuda.is_available() else "cpu"
+        if vec_mode != "torch" and env_device is not None:
+            raise ValueError("--env-device: only with --vec-env torch")
         eval_freq = args.eval_freq if args.eval_freq is not None else max(n_timesteps // 20, 1)
         save_freq = args.save_freq if args.save_freq is not None else max(n_timesteps // 10, 1)
         eval_episodes = args.eval_episodes
@@ -524,9 +536,11 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         segment = len(glob.glob(str(run_dir / "monitor" / "train_*.monitor.csv")))
         env, vec_used = common.make_vec(env_id, n_envs, seed, env_kwargs, vec_mode,
                                         monitor_file=str(run_dir / "monitor" / f"train_{segment}"),
-                                        info_keywords=tuple(k for k in info_keys if not k.startswith("reward_")))
+                                        info_keywords=tuple(k for k in info_keys if not k.startswith("reward_")),
+                                        env_device=env_device, env_dtype=env_dtype, info_keys=info_keys)
         if eval_freq and eval_freq > 0:
-            eval_env, _ = common.make_vec(env_id, n_eval_envs, seed + EVAL_SEED_OFFSET, env_kwargs, vec_mode)
+            eval_env, _ = common.make_vec(env_id, n_eval_envs, seed + EVAL_SEED_OFFSET, env_kwargs,
+                                          "batched" if vec_mode == "torch" else vec_mode)
         norm = hp["normalize"]
         if norm is not None:
             env = VecNormalize(env, **norm)
@@ -538,6 +552,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         config = {
             "algo": algo, "env": env_id, "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": n_timesteps,
             "n_envs": n_envs, "vec_env": vec_used, "eval_freq": eval_freq, "save_freq": save_freq,
+            **({"env_device": env_device, "env_dtype": env_dtype} if vec_used == "torch" else {}),
             "eval_episodes": eval_episodes, "n_eval_envs": n_eval_envs, "eval_seed": seed + EVAL_SEED_OFFSET,
             "hyperparams_raw": common.to_yaml_safe(raw_hp),
             "hyperparams_resolved": common.to_yaml_safe({**hp["model_kwargs"], "policy": hp["policy"],

@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from tensegrity_gym import builders, dynamics as dyn, integrators  # noqa: E402
 from tensegrity_gym import _kernels  # noqa: E402
-from tensegrity_gym._bench import mjcf, quat_z_to as _quat_z_to, timeit  # noqa: E402,F401  (shared helpers)
+from tensegrity_gym._bench import mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers)
 
 DT = 1e-3
 
@@ -73,28 +73,6 @@ def perturbed_state(model, B, scale, seed=0):
 
 
 # ---------------------------------------------------------------------------- MuJoCo
-def mj_set_state(mujoco, mm, d, model, q, qd):
-    """Put our configuration q, qd (k, 6) of one copy into MjData (free joints)."""
-    for j in range(model.n_bars):
-        adr, vadr = mm.jnt_qposadr[j], mm.jnt_dofadr[j]
-        r, b = q[j, :3], q[j, 3:]
-        rd, bd = qd[j, :3], qd[j, 3:]
-        d.qpos[adr:adr + 3] = r
-        d.qpos[adr + 3:adr + 7] = _quat_z_to(b / np.linalg.norm(b))
-        R = _quat_to_mat(d.qpos[adr + 3:adr + 7])
-        omega_world = np.cross(b, bd)                   # b' = omega x b with omega . b = 0
-        d.qvel[vadr:vadr + 3] = rd
-        d.qvel[vadr + 3:vadr + 6] = R.T @ omega_world   # free joint: angular velocity in body frame
-    mujoco.mj_forward(mm, d)
-
-
-def _quat_to_mat(qt):
-    w, x, y, z = qt
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
 def mj_nodes(mm, d, model):
     """(n, 3) node positions of MuJoCo's model (sites are named by node)."""
     import mujoco
@@ -156,17 +134,10 @@ def bench_mujoco(mujoco, rollout, model, B, integ, target, repeats, loop_limit):
     if B == 1:
         t = timeit(lambda: mujoco.mj_step(mm, d), target, repeats)
         return t, t
+    t_roll = mujoco_rollout_time(mujoco, rollout, mm, d, B, target, repeats)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     x0 = np.empty(mujoco.mj_stateSize(mm, spec))
     mujoco.mj_getState(mm, d, x0, spec)
-    nthread = os.cpu_count() or 1
-    datas = [mujoco.MjData(mm) for _ in range(nthread)]
-    nstep = 4
-    init = np.tile(x0, (B, 1))
-    out_state = np.empty((B, nstep, x0.size))
-    t_roll = timeit(lambda: rollout.rollout(mm, datas, init, nstep=nstep, state=out_state, persistent_pool=True),
-                    target, repeats)
-    t_roll = None if t_roll is None else t_roll / (B * nstep)
     t_loop = None
     if B * mm.ntendon <= loop_limit:
         ds = [mujoco.MjData(mm) for _ in range(B)]

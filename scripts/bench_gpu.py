@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tensegrity_gym import _kernels, builders, contact as gc, dynamics as dyn, integrators
+from tensegrity_gym import _bench, _kernels, builders, contact as gc, dynamics as dyn, integrators
 from tensegrity_gym import torch_backend as tb
 from tensegrity_gym.envs import roll
 
@@ -107,10 +107,17 @@ def time_loop(fn, n_steps, min_time, dev):
             return el / (calls * n_steps)
 
 
-def bench_torch(model, contact, q0, qd0, dtype, dev, n_steps, min_time, compiled=False):
-    B = q0.shape[0]
-    q = torch.as_tensor(q0, device=dev).to(dtype)
-    qd = torch.as_tensor(qd0, device=dev).to(dtype)
+def bench_torch(model, contact, q0, qd0, dtype, dev, n_steps, min_time, compiled=False, batch=None):
+    """Env-steps/s of the torch backend from the states ``q0``, ``qd0`` (B, k, 6); with ``batch``,
+    ``q0``, ``qd0`` are one copy (1, k, 6), repeated ``batch`` times on the device."""
+    if batch is None:
+        B = q0.shape[0]
+        q = torch.as_tensor(q0, device=dev).to(dtype)
+        qd = torch.as_tensor(qd0, device=dev).to(dtype)
+    else:
+        B = batch
+        q = torch.as_tensor(q0, device=dev).to(dtype).expand(B, -1, -1).contiguous()
+        qd = torch.as_tensor(qd0, device=dev).to(dtype).expand(B, -1, -1).contiguous()
     state = [q, qd]
     if dev.type == "cuda":
         torch.cuda.reset_peak_memory_stats()
@@ -130,11 +137,12 @@ def bench_torch(model, contact, q0, qd0, dtype, dev, n_steps, min_time, compiled
     else:
         anchor, active = tb.init_contact_state(model, B, dev, dtype)
         cs = [anchor, active]
+        sub = torch.compile(tb.contact_substep, dynamic=False) if compiled else None
 
         def fn(n):
             with torch.no_grad():
                 state[0], state[1], cs[0], cs[1] = tb.contact_step(model, contact, state[0], state[1], cs[0], cs[1],
-                                                                   DT, n_steps=n)
+                                                                   DT, n_steps=n, substep=sub)
     t0 = time.perf_counter()
     sec = time_loop(fn, n_steps, min_time, dev)
     ok = bool(torch.isfinite(state[0]).all())
@@ -161,6 +169,40 @@ def bench_numba(model, contact, q0, qd0, n_steps, min_time):
                 _kernels.step_inplace(model, q, qd, DT, "semi_implicit_euler", external=W)
     sec = time_loop(fn, n_steps, min_time, torch.device("cpu"))
     return {"steps_per_s": B / sec}
+
+
+def bench_mujoco(model, q0, qd0, min_time):
+    """Env-steps/s of ``mujoco.rollout`` on all CPU cores over B copies of copy 0's state, the
+    scene translated by ``tensegrity_gym._bench.mjcf`` (free rods, tension-only tendons; as in
+    ``scripts/bench_dynamics.py``). None when MuJoCo is not installed."""
+    try:
+        import mujoco
+        from mujoco import rollout
+    except ImportError:
+        return None
+    mm = mujoco.MjModel.from_xml_string(_bench.mjcf(model, "Euler", dt=DT))
+    d = mujoco.MjData(mm)
+    _bench.mj_set_state(mujoco, mm, d, model, q0[0], qd0[0])
+    t = _bench.mujoco_rollout_time(mujoco, rollout, mm, d, q0.shape[0], target=min_time / 3, repeats=2)
+    return None if t is None else 1.0 / t
+
+
+def probe_largest_batch(model, contact, dtype, dev, start, limit):
+    """The largest B (doubling from ``start`` up to ``limit``) for which one physics step in
+    ``dtype`` on ``dev`` runs without running out of memory; returns (B, peak memory MB at B)."""
+    best, mem, B = None, None, start
+    while B <= limit:
+        try:
+            q0, qd0 = released(model, 1)
+            r = bench_torch(model, contact, q0, qd0, dtype, dev, 1, 0.0, batch=B)
+            best, mem = B, r["memory_mb"]
+        except torch.OutOfMemoryError:
+            break
+        finally:
+            if dev.type == "cuda":
+                torch.cuda.empty_cache()
+        B *= 2
+    return best, mem
 
 
 def bench_env(B, dev, dtype, min_time, compile_=False):
@@ -234,17 +276,38 @@ def markdown(result) -> str:
              f"({info['torch_threads']} threads), numba on {info['numba_threads']} threads; "
              f"{info['integrator']}, dt = {info['dt_s'] * 1e3:g} ms; env-steps/s (one physics step of one env).", ""]
     if result.get("rows"):
-        lines += ["| scene | B | numba f64 | torch f32 | ratio | torch f64 | ratio | peak memory (MB) |",
-                  "|---|---:|---:|---:|---:|---:|---:|---:|"]
-        for r in result["rows"]:
-            def f(x):
-                return "OOM" if x is None else f"{x:,.0f}"
+        rows = result["rows"]
+        comp = any(r.get("torch_f32_compiled") or r.get("torch_f32_compiled_error") for r in rows)
+        mj = any("mujoco_f64" in r for r in rows)
 
-            def rt(x):
-                return "-" if x is None else f"{x:.3f}x"
-            lines.append(f"| {r['scene']} | {r['B']} | {f(r['numba_f64'])} | {f(r['torch_f32'])} | "
-                         f"{rt(r['torch_f32_ratio_vs_numba'])} | {f(r['torch_f64'])} | {rt(r['torch_f64_ratio_vs_numba'])} | "
-                         f"{r['torch_f64_memory_mb'] or 0:.0f} |")
+        def f(x):
+            return "OOM" if x is None else f"{x:,.0f}"
+
+        def rt(x):
+            return "-" if x is None else f"{x:.3f}x"
+        head = "| scene | B | numba f64 | torch f32 | ratio | torch f64 | ratio |"
+        sep = "|---|---:|---:|---:|---:|---:|---:|"
+        if comp:
+            head, sep = head + " torch f32 compiled | ratio |", sep + "---:|---:|"
+        if mj:
+            head, sep = head + " MuJoCo rollout f64 | numba / MuJoCo |", sep + "---:|---:|"
+        lines += [head + " peak memory f64 (MB) |", sep + "---:|"]
+        for r in rows:
+            line = (f"| {r['scene']} | {r['B']} | {f(r['numba_f64'])} | {f(r['torch_f32'])} | "
+                    f"{rt(r['torch_f32_ratio_vs_numba'])} | {f(r['torch_f64'])} | {rt(r['torch_f64_ratio_vs_numba'])} |")
+            if comp:
+                c = r.get("torch_f32_compiled")
+                line += (f" {f(c)} | {rt(r.get('torch_f32_compiled_ratio_vs_numba'))} |" if c
+                         else (" error |  - |" if r.get("torch_f32_compiled_error") else " - | - |"))
+            if mj:
+                m = r.get("mujoco_f64")
+                line += f" {f(m)} | {rt(r.get('numba_ratio_vs_mujoco'))} |" if m else " - | - |"
+            lines.append(line + f" {r['torch_f64_memory_mb'] or 0:.0f} |")
+    if result.get("largest_batch"):
+        lines += ["", "Largest B whose float32 step ran (doubling from the largest B above):", ""]
+        for name, v in result["largest_batch"].items():
+            cap = " (the probe's limit)" if v["float32_B"] == v["limit"] else ""
+            lines.append(f"* {name}: {v['float32_B']:,}{cap}, peak {v['memory_mb'] or 0:,.0f} MB")
     if result.get("env"):
         lines += ["", "TensegrityRoll-v0 vector env with its task logic (one control step = 20 physics steps; "
                   "env-steps/s = physics steps x B per second):", "",
@@ -285,7 +348,20 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=20, help="physics steps per timed call")
     ap.add_argument("--min-time", type=float, default=1.0, help="seconds timed per entry")
     ap.add_argument("--quick", action="store_true", help="B = 1024, 4096; 0.3 s per entry")
-    ap.add_argument("--compile", action="store_true", help="also time torch.compile on the prism")
+    ap.add_argument("--compile", action="store_true",
+                    help="also time torch.compile (inductor) of the physics step, float32, per scene at "
+                         "the B of --compile-batch")
+    ap.add_argument("--compile-batch", type=int, nargs="+", default=None,
+                    help="B of --compile (default: the largest --batch)")
+    ap.add_argument("--mujoco", action="store_true",
+                    help="also time mujoco.rollout on all CPU cores (contact-free scenes, B <= --mujoco-max-batch)")
+    ap.add_argument("--mujoco-max-batch", type=int, default=65536)
+    ap.add_argument("--probe", action="store_true",
+                    help="per scene, the largest B (doubling from the largest --batch) whose float32 step fits "
+                         "in memory")
+    ap.add_argument("--probe-limit", type=int, default=1 << 27, help="largest B --probe tries")
+    ap.add_argument("--work", type=float, default=2e7,
+                    help="rod-steps per timed call: steps per call = clamp(work / (B x rods), 1, --steps)")
     ap.add_argument("--agreement", action="store_true", help="1 s RK4 agreement with numba (float64, float32)")
     ap.add_argument("--env", action="store_true", help="time the TensegrityRoll-v0 vector envs (torch vs NumPy/numba)")
     ap.add_argument("--env-batch", type=int, nargs="+", default=[256, 1024, 4096], help="B of --env")
@@ -316,23 +392,49 @@ def main(argv=None):
         model, contact = sc[name]
         for B in args.batch:
             q0, qd0 = released(model, B)
-            row = {"scene": name, "B": B, "rods": model.n_bars, "strings": model.n_strings}
-            row["numba_f64"] = bench_numba(model, contact, q0, qd0, args.steps, args.min_time)["steps_per_s"]
-            for label, dtype in (("torch_f32", torch.float32), ("torch_f64", torch.float64)):
+            steps = int(min(max(args.work // (B * model.n_bars), 1), args.steps))
+            row = {"scene": name, "B": B, "rods": model.n_bars, "strings": model.n_strings, "steps_per_call": steps}
+            row["numba_f64"] = bench_numba(model, contact, q0, qd0, steps, args.min_time)["steps_per_s"]
+            variants = [("torch_f32", torch.float32, False), ("torch_f64", torch.float64, False)]
+            if args.compile and B in (args.compile_batch or [max(args.batch)]):
+                variants.append(("torch_f32_compiled", torch.float32, True))
+            for label, dtype, comp in variants:
+                t0 = time.perf_counter()
                 try:
-                    r = bench_torch(model, contact, q0, qd0, dtype, dev, args.steps, args.min_time)
+                    r = bench_torch(model, contact, q0, qd0, dtype, dev, steps, args.min_time, compiled=comp)
                 except torch.OutOfMemoryError:
                     r = {"steps_per_s": None, "oom": True}
+                except Exception as exc:  # inductor needs a C++ compiler (CPU) or Triton (CUDA)
+                    if not comp:
+                        raise
+                    r = {"steps_per_s": None, "error": f"{type(exc).__name__}: {exc}"[:300]}
+                if dev.type == "cuda":
+                    torch.cuda.empty_cache()
                 row[label] = r["steps_per_s"]
                 row[label + "_memory_mb"] = r.get("memory_mb")
                 row[label + "_finite"] = r.get("finite")
                 row[label + "_ratio_vs_numba"] = None if r["steps_per_s"] is None else r["steps_per_s"] / row["numba_f64"]
+                if comp:
+                    row[label + "_wall_incl_compile_s"] = time.perf_counter() - t0
+                    if "error" in r:
+                        row[label + "_error"] = r["error"]
+            if args.mujoco and contact is None and B <= args.mujoco_max_batch:
+                row["mujoco_f64"] = bench_mujoco(model, q0, qd0, args.min_time)
+                row["numba_ratio_vs_mujoco"] = (None if not row["mujoco_f64"] else row["numba_f64"] / row["mujoco_f64"])
             rows.append(row)
+            extra = "".join(f"  {k} {row[k]:,.0f}" for k in ("torch_f32_compiled", "mujoco_f64") if row.get(k))
             print(f"{name:12s} B={B:8d}  numba f64 {row['numba_f64']:12,.0f}  torch f32 {row['torch_f32'] or 0:12,.0f} "
                   f"({row['torch_f32_ratio_vs_numba'] or 0:.2f}x)  torch f64 {row['torch_f64'] or 0:12,.0f} "
-                  f"({row['torch_f64_ratio_vs_numba'] or 0:.2f}x)  env-steps/s  peak mem {row['torch_f64_memory_mb']:.0f} MB",
-                  flush=True)
+                  f"({row['torch_f64_ratio_vs_numba'] or 0:.2f}x){extra}  env-steps/s  peak mem "
+                  f"{row['torch_f64_memory_mb'] or 0:.0f} MB", flush=True)
             save(args.out, result)   # after every row: an interrupted run keeps what it measured
+        if args.probe:
+            big, mem = probe_largest_batch(model, contact, torch.float32, dev, max(args.batch), args.probe_limit)
+            result.setdefault("largest_batch", {})[name] = {"float32_B": big, "memory_mb": mem,
+                                                            "limit": args.probe_limit}
+            print(f"{name:12s} largest float32 B that ran one step: {big} ({mem or 0:,.0f} MB; tried up to "
+                  f"{args.probe_limit})", flush=True)
+            save(args.out, result)
     if args.env:
         envrows = result["env"] = []
         for B in args.env_batch:
@@ -352,7 +454,7 @@ def main(argv=None):
                       + (f"; compiled vs eager obs {r['compiled_vs_eager_max_obs_diff']:.1e}"
                          if "compiled_vs_eager_max_obs_diff" in r else "") + ")", flush=True)
                 save(args.out, result)
-    if args.compile:
+    if args.compile and not args.scenes:   # no scene timed: the eager/compiled pair on the prism alone
         model, _ = sc["prism"]
         B = max(args.batch)
         q0, qd0 = released(model, B)

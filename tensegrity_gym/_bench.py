@@ -5,6 +5,8 @@ translation of a free class-1 structure, and rod rotation vectors. Private: no A
 * :func:`timed` -- wall time of one run (best of 3 when the run is short);
 * :func:`quat_z_to`, :func:`mj_float`, :func:`mjcf_rods`, :func:`mjcf` -- MJCF of free rods
   (one free body per rod, a site per node, one tension-only spatial tendon per string);
+* :func:`mj_set_state`, :func:`mujoco_rollout_time` -- our state into MjData, and the
+  per-env-step time of ``mujoco.rollout`` on all cores;
 * :func:`rotation_vectors` -- best-fit rigid rotation between two node sets (Kabsch).
 """
 from __future__ import annotations
@@ -13,7 +15,8 @@ import time
 
 import numpy as np
 
-__all__ = ["timeit", "timed", "quat_z_to", "mj_float", "mjcf_rods", "mjcf", "rotation_vectors"]
+__all__ = ["timeit", "timed", "quat_z_to", "mj_float", "mjcf_rods", "mjcf", "mj_set_state", "mujoco_rollout_time",
+           "rotation_vectors"]
 
 
 # ---------------------------------------------------------------------------- timing
@@ -125,6 +128,44 @@ def mjcf(model, integrator="Euler", dt=1e-3, axial_inertia=1e-6):
         axes.append((pc - pa) / L)
         ends.append((float(model.eta[j, 0]), float(model.eta[j, 1])))
     return mjcf_rods(model, centres, axes, ends, dt, integrator, axial_inertia, capsules=True)
+
+
+def mj_set_state(mujoco, mm, d, model, q, qd):
+    """Put our configuration q, qd (k, 6) of one copy into MjData (free joints)."""
+    for j in range(model.n_bars):
+        adr, vadr = mm.jnt_qposadr[j], mm.jnt_dofadr[j]
+        r, b = q[j, :3], q[j, 3:]
+        rd, bd = qd[j, :3], qd[j, 3:]
+        d.qpos[adr:adr + 3] = r
+        d.qpos[adr + 3:adr + 7] = quat_z_to(b / np.linalg.norm(b))
+        R = _quat_to_mat(d.qpos[adr + 3:adr + 7])
+        omega_world = np.cross(b, bd)                   # b' = omega x b with omega . b = 0
+        d.qvel[vadr:vadr + 3] = rd
+        d.qvel[vadr + 3:vadr + 6] = R.T @ omega_world   # free joint: angular velocity in body frame
+    mujoco.mj_forward(mm, d)
+
+
+def _quat_to_mat(qt):
+    w, x, y, z = qt
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def mujoco_rollout_time(mujoco, rollout, mm, d, B, target=0.15, repeats=3, nthread=None, nstep=4):
+    """Seconds per env-step of ``mujoco.rollout`` (MuJoCo's fastest batched CPU path) stepping B
+    copies of ``d``'s state ``nstep`` steps with one MjData per thread (``nthread``: default all
+    cores), timed with :func:`timeit`; None when one call is too slow to time."""
+    import os
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    x0 = np.empty(mujoco.mj_stateSize(mm, spec))
+    mujoco.mj_getState(mm, d, x0, spec)
+    datas = [mujoco.MjData(mm) for _ in range(nthread or os.cpu_count() or 1)]
+    init = np.tile(x0, (B, 1))
+    out_state = np.empty((B, nstep, x0.size))
+    t = timeit(lambda: rollout.rollout(mm, datas, init, nstep=nstep, state=out_state, persistent_pool=True),
+               target, repeats)
+    return None if t is None else t / (B * nstep)
 
 
 # ---------------------------------------------------------------------------- rigid rotations

@@ -105,7 +105,8 @@ def _torch():
 # ---------------------------------------------------------------------- device, dtype
 def resolve_device(device=None):
     """A ``torch.device`` from None (CPU), a string or a device; ValueError if CUDA (or another
-    accelerator) is requested where none exists."""
+    accelerator) is requested where none exists. A bare ``"cuda"`` resolves to the current CUDA
+    device with its index (``cuda:0``), the device its tensors report."""
     torch = _torch()
     if device is None:
         return torch.device("cpu")
@@ -120,6 +121,8 @@ def resolve_device(device=None):
         if dev.index is not None and dev.index >= torch.cuda.device_count():
             raise ValueError(f"device: {str(dev)!r} requested but only {torch.cuda.device_count()} CUDA "
                              "device(s) exist")
+        if dev.index is None:   # 'cuda' -> 'cuda:<current>': tensors report their index, so compare equal
+            dev = torch.device("cuda", torch.cuda.current_device())
     elif dev.type == "mps":
         if not (hasattr(torch.backends, "mps") and torch.backends.mps.is_available()):
             raise ValueError(f"device: {str(dev)!r} requested but MPS is not available")

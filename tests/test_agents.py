@@ -147,6 +147,30 @@ def test_train_save_reload_evaluate(tmp_path, env_id, algo):
     env.close()
 
 
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_train_on_the_torch_vector_env(tmp_path, env_id):
+    """--vec-env torch trains on the device-resident torch env (here on the CPU) and records it;
+    the evaluation env stays the NumPy one, and the saved model evaluates like any other."""
+    pytest.importorskip("torch")
+    run = tmp_path / "run"
+    train.train(["--algo", "ppo", "--env", env_id, "--log-dir", str(run), "--vec-env", "torch",
+                 "--env-device", "cpu", "--env-dtype", "float64", *TINY, *_tiny_hp("ppo")])
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    assert (cfg["vec_env"], cfg["env_device"], cfg["env_dtype"]) == ("torch", "cpu", "float64")
+    state = json.loads((run / "state.json").read_text())
+    assert state["status"] == "finished" and state["num_timesteps"] >= 256
+    rows = (run / "monitor" / "train_0.monitor.csv").read_text().splitlines()
+    assert len(rows) >= 2 and rows[1].startswith("r,l,t")       # the torch env's infos reach VecMonitor
+    m = evaluate.evaluate([str(run), "--model", "final", "--n-episodes", "2", "--out", str(tmp_path / "eval")])
+    assert np.isfinite(m["results"][next(k for k in m["results"] if "trained" in k)]["return_mean"])
+
+
+def test_env_device_needs_the_torch_vec_env(tmp_path):
+    with pytest.raises(ValueError, match="--env-device: only with --vec-env torch"):
+        train.train(["--algo", "ppo", "--env", "TensegrityShape-v0", "--env-device", "cpu",
+                     "--log-dir", str(tmp_path / "a"), *TINY])
+
+
 def test_evaluate_numbers_match_a_manual_rollout(tmp_path):
     """The evaluation's return and final error equal a hand-written single-env rollout."""
     env_id = "TensegrityShape-v0"
