@@ -233,16 +233,21 @@ def bench_env(B, dev, dtype, min_time, compile_=False):
     ok = bool(np.isfinite(np.asarray(obs.cpu() if dtype is not None else obs)).all())
     out = {"control_steps_per_s": B / sec, "env_steps_per_s": B * env.unwrapped.task.frame_skip / sec,
            "finite": ok, "first_step_s": first, "wall_s": time.perf_counter() - t0}
-    if compile_:   # the compiled step against the eager one: same seed, same actions, 5 control steps
-        pair = []
-        for c in (False, True):
+    if compile_:   # the compiled step against eager ones: same seed, same actions, 5 control steps
+        obs = {}
+        for name, dt_, c in (("eager", dtype, False), ("compiled", dtype, True), ("eager_f64", "float64", False)):
             e = gym.make_vec("TensegrityRoll-v0", num_envs=B, vectorization_mode="vector_entry_point",
-                             max_episode_steps=None, **{**kw, "compile": c})
+                             max_episode_steps=None, **{**kw, "dtype": dt_, "compile": c})
             e.reset(seed=1)
             for i in range(5):
-                o = e.step(acts[i % 4])[0]
-            pair.append(o)
-        out["compiled_vs_eager_max_obs_diff"] = float((pair[0] - pair[1]).abs().max())
+                o = e.step(acts[i % 4].to(tb.resolve_dtype(dt_)))[0]
+            obs[name] = o.double()
+        for a, b in (("compiled", "eager"), ("eager", "eager_f64"), ("compiled", "eager_f64")):
+            d = (obs[a] - obs[b]).abs().amax(dim=1)   # per env, largest observation entry difference
+            key = f"{a}_vs_{b}"
+            out[key] = {"max": float(d.max()), "median": float(d.median()),
+                        "p99": float(torch.quantile(d.float().cpu(), 0.99)), "envs_over_1e-2": int((d > 1e-2).sum())}
+        out["compiled_vs_eager_max_obs_diff"] = out["compiled_vs_eager"]["max"]
     return out
 
 
@@ -320,6 +325,16 @@ def markdown(result) -> str:
                          f"{r['compiled_vs_eager_max_obs_diff']:.1e})")
             lines.append(f"| {r['B']} | {r['env']}{extra} | {r['control_steps_per_s']:,.0f} | {r['env_steps_per_s']:,.0f} | "
                          f"{r['ratio_vs_numpy']:.3f}x |")
+        diffs = [(r, k) for r in result["env"] for k in ("compiled_vs_eager", "eager_vs_eager_f64", "compiled_vs_eager_f64")
+                 if k in r]
+        if diffs:
+            lines += ["", "Observations after 5 control steps (same seed and actions), per env the largest entry "
+                      "difference (m, m/s, rad/s, -), then over the B envs:", "",
+                      "| B | env | pair | max | median | 99th percentile | envs over 1e-2 |", "|---:|---|---|---:|---:|---:|---:|"]
+            for r, k in diffs:
+                v = r[k]
+                lines.append(f"| {r['B']} | {r['env']} | {k.replace('_vs_', ' vs ')} | {v['max']:.1e} | {v['median']:.1e} | "
+                             f"{v['p99']:.1e} | {v['envs_over_1e-2']} |")
     if result.get("compile"):
         c = result["compile"]
         lines += ["", f"torch.compile (inductor), free prism, B = {c['B']}:", ""]
@@ -453,6 +468,9 @@ def main(argv=None):
                       f"first step {r['first_step_s']:.1f} s"
                       + (f"; compiled vs eager obs {r['compiled_vs_eager_max_obs_diff']:.1e}"
                          if "compiled_vs_eager_max_obs_diff" in r else "") + ")", flush=True)
+                for k in ("compiled_vs_eager", "eager_vs_eager_f64", "compiled_vs_eager_f64"):
+                    if k in r:
+                        print(f"    obs after 5 control steps, {k} (per-env largest entry): {r[k]}", flush=True)
                 save(args.out, result)
     if args.compile and not args.scenes:   # no scene timed: the eager/compiled pair on the prism alone
         model, _ = sc["prism"]

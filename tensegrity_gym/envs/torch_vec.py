@@ -48,7 +48,8 @@ model is NumPy-only), ``render_mode`` (use the NumPy env to render), the implici
 
 ``compile=True`` (roll) wraps the physics step with contact
 (:func:`tensegrity_gym.torch_backend.contact_substep`) in ``torch.compile``: the first steps
-compile (10-35 s on a 2-core CPU), then a control step ran 2-8x faster than eager on CPU in
+compile (10-35 s on a 2-core CPU, 7-17 s on an H100), then a control step ran 2-8x faster than
+eager on CPU, and 4.7-6.1x on an H100 at N = 65,536 (88-123M physics env-steps/s), in
 ``scripts/bench_gpu.py --env --env-compile`` (``docs/bench_gpu.md``). Reset sampling on the host
 costs a Python loop over the reset envs (about 35 us per env on a 2-core CPU, the same as the
 NumPy env's reset; ``docs/bench_gpu.md``), paid when envs finish.
