@@ -124,7 +124,7 @@ def bench_torch(model, contact, q0, qd0, dtype, dev, n_steps, min_time, compiled
     if contact is None:
         tm = tb.torch_model(model, dev, dtype)
         prm = tb.torch_params(tm, None, B)
-        one = (lambda a, b: tb._step_once(tm, a, b, DT, "semi_implicit_euler", prm, None, None, None, True))
+        one = (lambda a, b: tb.step_once(tm, a, b, DT, "semi_implicit_euler", prm, None, None, None, True))
         if compiled:
             one = torch.compile(one, dynamic=False)
 

@@ -504,7 +504,11 @@ def _integrator_name(integrator):
     return name
 
 
-def _step_once(tm, q, qd, dt, name, prm, rl, fd, ext, project_):
+def step_once(tm, q, qd, dt, name, prm, rl, fd, ext, project_):
+    """One integrator step on prepared inputs (``tm``: :class:`TorchModel`, ``prm``:
+    :func:`torch_params`' dict, ``name``: a resolved integrator name, ``rl`` / ``fd`` / ``ext``:
+    controls and nodal forces or None): the unit :func:`step` repeats, and what ``torch.compile``
+    wraps (``step(..., substep=torch.compile(step_once))``). Returns ``(q, qd)``."""
     if name == "semi_implicit_euler":
         qd = qd + dt * _accel(tm, q, qd, prm, rl, fd, ext)
         if project_:
@@ -528,13 +532,15 @@ def _step_once(tm, q, qd, dt, name, prm, rl, fd, ext, project_):
 
 
 def step(model, q, qd, dt: float, integrator: str = "semi_implicit_euler", n_steps: int = 1, rest_length=None,
-         force_density=None, params=None, project: bool = True, external=None):
+         force_density=None, params=None, project: bool = True, external=None, substep=None):
     """Advance torch tensors ``q``, ``qd`` (B, k, 6) by ``n_steps`` fixed steps of ``dt`` s.
 
     ``integrator``: ``"semi_implicit_euler"`` (great-circle drift when ``project``) or
     ``"rk4"``; ``rest_length`` / ``force_density``: (m,) or (B, m) held over the steps (m, N/m);
     ``external``: (B, n, 3) or (n, 3) nodal forces, N, held; ``params``: per-copy parameters
-    (module doc). Returns new ``(q, qd)``; differentiable with respect to every tensor input."""
+    (module doc); ``substep``: a replacement for :func:`step_once` with its signature (e.g.
+    ``torch.compile(step_once)``). Returns new ``(q, qd)``; differentiable with respect to every
+    tensor input."""
     name = _integrator_name(integrator)
     dt = float(dt)
     if not (math.isfinite(dt) and dt > 0):
@@ -546,8 +552,9 @@ def step(model, q, qd, dt: float, integrator: str = "semi_implicit_euler", n_ste
         raise ValueError(f"qd: expected shape {tuple(q.shape)}, dtype {q.dtype} on {q.device}, got "
                          f"{tuple(qd.shape)}, {qd.dtype} on {qd.device}")
     ext = _check_external(tm, external, q.shape[0])
+    one = step_once if substep is None else substep
     for _ in range(int(n_steps)):
-        q, qd = _step_once(tm, q, qd, dt, name, prm, rl, fd, ext, project)
+        q, qd = one(tm, q, qd, dt, name, prm, rl, fd, ext, project)
     return q, qd
 
 
@@ -642,7 +649,7 @@ def contact_substep(tm, contact, q, qd, anchor, active, dt, name, prm, rl, fd, e
     W, anchor, active, _ = contact_forces(contact, tm, q, qd, anchor, active, contact_prm)
     if ext is not None:
         W = W + ext
-    q, qd = _step_once(tm, q, qd, dt, name, prm, rl, fd, W, project_)
+    q, qd = step_once(tm, q, qd, dt, name, prm, rl, fd, W, project_)
     return q, qd, anchor, active
 
 

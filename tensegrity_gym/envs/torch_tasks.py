@@ -57,6 +57,8 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
 
     def _observe(self):
         torch = tb._torch()
+        if self._sens is not None:
+            return self._sens.observation()
         q, qd = self.q, self.qd
         B = q.shape[0]
         com = self._com(q)
@@ -90,16 +92,26 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
         inputs = self._physics_inputs()
         q0, qd0, anchor0, active0 = self.q, self.qd, self.anchor, self.active
         com0 = self._com(q0)
-        q, qd, anchor, active = tb.contact_step(
-            self.tm, task.contact, q0, qd0, anchor0, active0, task.dt, task.integrator, task.frame_skip,
-            rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
-            params=self._params, contact_prm=self._contact_prm, substep=self._substep)
+        kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
+                  params=self._params, contact_prm=self._contact_prm, substep=self._substep)
+        # with robot sensors: frame_skip - 1 steps, then 1 (the same arithmetic), keeping the
+        # velocities before the last physics step (what the IMUs read)
+        n_first = task.frame_skip if self._sens is None else task.frame_skip - 1
+        q, qd, anchor, active = tb.contact_step(self.tm, task.contact, q0, qd0, anchor0, active0, task.dt,
+                                                task.integrator, n_first, **kw)
+        qd_prev = qd
+        if self._sens is not None:
+            q, qd, anchor, active = tb.contact_step(self.tm, task.contact, q, qd, anchor, active, task.dt,
+                                                    task.integrator, 1, **kw)
         diverged = self._far_or_nonfinite(q, qd)
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
         self.anchor = torch.where(d3, anchor0, anchor)
         self.active = torch.where(diverged[:, None], active0, active)
+        if self._sens is not None:
+            self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self._sens.gravity(), self.ctrl,
+                              self.speed, self.active, self.goal)
         self.elapsed = self.elapsed + 1
         com = self._com(self.q)
         vel = (com - com0) / task.control_dt
@@ -124,8 +136,8 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
     at reset from each env's generator; control update, physics with the model's node drag,
     divergence check, tracking errors, the ``tracking`` / ``proximity`` / ``ctrl`` reward terms
     and the observation on the device). Arguments: those of ``TensegrityShape-v0`` plus
-    ``device``, ``dtype``, ``max_episode_steps``, ``compile`` (no effect here: the shape task has
-    no contact substep)."""
+    ``device``, ``dtype``, ``max_episode_steps``, ``compile`` (``torch.compile`` of
+    :func:`tensegrity_gym.torch_backend.step_once`)."""
 
     ENV_ID = "TensegrityShape-v0"
 
@@ -160,9 +172,13 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
         self.ctrl = tb.advance(task.actuation, self.ctrl, action, self._max_rate)
         inputs = self._physics_inputs()
         q0, qd0 = self.q, self.qd
-        q, qd = tb.step(self.tm, q0, qd0, task.dt, task.integrator, task.frame_skip,
-                        rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
-                        params=self._params)
+        kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
+                  params=self._params, substep=self._substep)
+        n_first = task.frame_skip if self._sens is None else task.frame_skip - 1   # as the roll task
+        q, qd = tb.step(self.tm, q0, qd0, task.dt, task.integrator, n_first, **kw)
+        qd_prev = qd
+        if self._sens is not None:
+            q, qd = tb.step(self.tm, q, qd, task.dt, task.integrator, 1, **kw)
         # pipeline.diverged (BatchedTask.simulate): non-finite, or a reference point farther than the limit from the centre
         finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
         r = q[..., :3]
@@ -172,6 +188,9 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
+        if self._sens is not None:
+            self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self._sens.gravity(), self.ctrl,
+                              None, None, self.target)
         self.elapsed = self.elapsed + 1
         N = self._tracked_nodes(self.q)
         D = N - self.target
@@ -189,6 +208,8 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
 
     def _observe(self):
         torch = tb._torch()
+        if self._sens is not None:
+            return self._sens.observation()
         B = self.num_envs
         N = self._tracked_nodes(self.q)
         V = tb.node_velocities(self.tm, self.qd).index_select(1, self._tracked)

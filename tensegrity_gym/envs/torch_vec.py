@@ -42,14 +42,17 @@ reset, the control update, the physics (with the model's node drag), the diverge
 tracking errors, the ``tracking`` / ``proximity`` / ``ctrl`` reward terms and the observation on
 the device; it equals the NumPy vector env to round-off in the same tests.
 
-Not supported here (``ValueError`` at construction): ``observation_mode="robot"`` (the sensor
-model is NumPy-only), ``render_mode`` (use the NumPy env to render), the implicit integrators
-(the torch backend has ``semi_implicit_euler`` and ``rk4``).
+``observation_mode="robot"`` (what a lab robot senses, :mod:`tensegrity_gym.envs.sensors`) is
+computed on the device by :class:`~tensegrity_gym.envs.torch_sensors.TorchSensors`; its
+``sensor_noise`` comes from a device generator seeded by ``reset(seed=...)`` (that module's doc).
+Not supported here (``ValueError`` at construction): ``render_mode`` (use the NumPy env to
+render), the implicit integrators (the torch backend has ``semi_implicit_euler`` and ``rk4``).
 
-``compile=True`` (roll) wraps the physics step with contact
-(:func:`tensegrity_gym.torch_backend.contact_substep`) in ``torch.compile``: the first steps
+``compile=True`` wraps the physics step (roll: with contact,
+:func:`tensegrity_gym.torch_backend.contact_substep`; shape:
+:func:`tensegrity_gym.torch_backend.step_once`) in ``torch.compile``: the first steps
 compile (10-35 s on a 2-core CPU, 7-17 s on an H100), then a control step ran 2-8x faster than
-eager on CPU, and 4.7-6.1x on an H100 at N = 65,536 (88-123M physics env-steps/s), in
+eager on CPU, and 4.5-6.1x on an H100 at N = 65,536 (roll: 74-123M physics env-steps/s), in
 ``scripts/bench_gpu.py --env --env-compile`` (``docs/bench_gpu.md``). Reset sampling on the host
 costs a Python loop over the reset envs (about 35 us per env on a 2-core CPU, the same as the
 NumPy env's reset; ``docs/bench_gpu.md``), paid when envs finish.
@@ -71,6 +74,7 @@ from gymnasium.utils import seeding
 from .. import torch_backend as tb
 from .common import ACTION_TOL, registered_max_episode_steps
 from .shells import VectorSeeding, reseed
+from .torch_sensors import TorchSensors
 
 __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "roll_vector_env", "shape_vector_env"]
 
@@ -114,7 +118,7 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     Arguments: those of the id's env plus ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``; ValueError when it does not exist),
     ``dtype`` (``"float64"`` default or ``"float32"``; anything else is a ValueError) and
     ``max_episode_steps`` (control steps; ``"registered"``: the id's 1000; None: no limit) and
-    ``compile`` (default False: wrap the physics step with contact in ``torch.compile``; the
+    ``compile`` (default False: wrap the task's physics step in ``torch.compile``; the
     first steps then compile for tens of seconds; measured in ``docs/bench_gpu.md``).
     """
 
@@ -128,9 +132,6 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         if render_mode is not None:
             raise ValueError(f"render_mode: {render_mode!r} is not supported by backend='torch' (render the "
                              f"NumPy env: gymnasium.make({self.ENV_ID!r}, render_mode='rgb_array'))")
-        if kwargs.get("observation_mode", "state") != "state":
-            raise ValueError(f"observation_mode: {kwargs['observation_mode']!r} is not supported by "
-                             "backend='torch' (the robot sensor model is NumPy-only); use 'state'")
         self.device = tb.resolve_device(device)
         self.dtype = tb.resolve_dtype(dtype)
         task = self._make_task(num_envs, kwargs)
@@ -159,12 +160,16 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self.tm = tb.torch_model(task.model, dev, dt)
         self._node_prm = tb.torch_params(self.tm, None)          # model defaults (anchor positions)
         self._init_state()
+        sens = getattr(task, "sensors", None)      # observation_mode="robot": the readings on the device
+        self._sens = None if sens is None else TorchSensors(sens, self)
         self.elapsed = torch.zeros(N, dtype=torch.int64, device=dev)
         self._autoreset = torch.zeros(N, dtype=torch.bool, device=dev)
         self._queue = torch.zeros((N, task.action_delay, task.action_size), dtype=dt, device=dev)
         if not isinstance(compile, (bool, np.bool_)):
             raise ValueError(f"compile: expected True or False, got {compile!r}")
-        self._substep = torch.compile(tb.contact_substep, dynamic=False) if compile else None
+        # compile: the one physics step each task repeats (with contact: contact forces + integrator step)
+        one = tb.contact_substep if getattr(task, "contact", None) is not None else tb.step_once
+        self._substep = torch.compile(one, dynamic=False) if compile else None
         # per-copy parameters (domain): uploaded whole here, by reset rows when randomised
         self._upload_domain(None)
 
@@ -223,6 +228,8 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self._upload_domain(idx)
         it = torch.as_tensor(idx, dtype=torch.int64, device=self.device)
         self._upload_rows(it, idx)
+        if self._sens is not None:
+            self._sens.upload_reset(it, task._readings[idx])
         self.elapsed[it] = 0
         self._autoreset[it] = False
         if self._queue.shape[1]:
@@ -321,6 +328,8 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         super().reset(seed=None)
         mask, options = self._reset_mask(options)
         reseed(self._rngs, seed, mask)
+        if self._sens is not None:
+            self._sens.seed(seed)
         idx = np.flatnonzero(mask)
         info = self._reset_envs(idx, options or None)
         return self._observe(), self._vector_info(info, torch.as_tensor(mask, device=self.device))
