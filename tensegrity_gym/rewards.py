@@ -22,7 +22,7 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = ["tolerance", "quadratic_cost", "combine", "SIGMOIDS"]
+__all__ = ["tolerance", "quadratic_cost", "sum_squares", "combine", "SIGMOIDS"]
 
 SIGMOIDS = ("gaussian", "hyperbolic", "long_tail", "reciprocal", "cosine", "linear", "quadratic",
             "tanh_squared")
@@ -116,10 +116,15 @@ except ImportError:  # pragma: no cover - NumPy < 2
         _c_einsum = np.einsum
 
 
+def sum_squares(x: np.ndarray) -> np.ndarray:
+    """``sum(x**2)`` over the last axis of a float array, (..., a) -> (...), without conversion
+    (the hot-path form of :func:`quadratic_cost`)."""
+    return _c_einsum("...i,...i->...", x, x)
+
+
 def quadratic_cost(x) -> np.ndarray:
     """``sum(x**2)`` over the last axis: (..., a) -> (...)."""
-    x = np.asarray(x, dtype=float)
-    return _c_einsum("...i,...i->...", x, x)
+    return sum_squares(np.asarray(x, dtype=float))
 
 
 def combine(terms: Mapping[str, np.ndarray]) -> np.ndarray:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import pipeline
-from ..rewards import _c_einsum as _sum_squares, tolerance
+from ..rewards import sum_squares, tolerance
 from . import compiled
 
 __all__ = ["FusedShapeStep"]
@@ -95,7 +95,7 @@ class FusedShapeStep:
         terms = {
             "tracking": tracking,
             "proximity": self.proximity_weight * prox,
-            "ctrl": -self.ctrl_cost_weight * _sum_squares("...i,...i->...", action, action),  # quadratic_cost
+            "ctrl": -self.ctrl_cost_weight * sum_squares(action),  # quadratic_cost
         }
         infos = {"tracking_error": err, "max_node_error": emax, "is_success": success,
                  "diverged": np.zeros(B, bool)}
