@@ -108,9 +108,36 @@ def test_roll_env_robot_observation_noise_and_history():
     assert np.array_equal(ov[0], oa)
 
 
+def test_contact_switch_noise_flips_readings():
+    """sensor_noise={"contact": p}: each switch reads wrong with probability p; nothing else changes
+    (the physics and the other blocks equal the noiseless env's for the same seed and actions)."""
+    kw = dict(observation_mode="robot", num_envs=32, vectorization_mode="vector_entry_point")
+    clean = gym.make_vec("TensegrityRoll-v0", **kw)
+    noisy = gym.make_vec("TensegrityRoll-v0", sensor_noise={"contact": 0.25}, **kw)
+    sl = dict((n, s) for n, s, _ in clean.task.sensors.layout())["contact"]
+    clean.reset(seed=3)
+    noisy.reset(seed=3)
+    wrong, total = 0, 0
+    for _ in range(6):
+        a = np.full((32, clean.single_action_space.shape[0]), 0.4)
+        oc, *_ = clean.step(a)
+        on, *_ = noisy.step(a)
+        d = on[:, :clean.task.sensors.frame_size] - oc[:, :clean.task.sensors.frame_size]
+        rest = np.ones(d.shape[1], bool)
+        rest[sl] = False
+        assert np.abs(d[:, rest]).max() == 0.0
+        assert set(np.unique(np.abs(d[:, sl]))) <= {0.0, 1.0}
+        wrong += int(np.abs(d[:, sl]).sum())
+        total += d[:, sl].size
+    p = wrong / total                                         # 1152 readings: 4 standard errors ~ 0.05
+    assert abs(p - 0.25) < 0.05, p
+    assert np.array_equal(clean.task.q, noisy.task.q)
+
+
 @pytest.mark.parametrize("kw,match", [
     ({"observation_mode": "camera"}, "observation_mode: unknown 'camera'"),
-    ({"observation_mode": "robot", "sensor_noise": {"contact": 0.1}}, "unknown or noiseless block 'contact'"),
+    ({"observation_mode": "robot", "sensor_noise": {"contact": 1.5}}, r"sensor_noise\['contact'\]: the probability"),
+    ({"observation_mode": "robot", "sensor_noise": {"goal_direction": 0.1}}, "unknown or noiseless block 'goal_direction'"),
     ({"observation_mode": "robot", "sensor_noise": {"imu_gyro": -1}}, r"sensor_noise\['imu_gyro'\]: must be"),
     ({"observation_mode": "robot", "history": 0}, "history: must be a positive integer"),
     ({"sensor_noise": {"imu_gyro": 0.1}}, "only with observation_mode='robot'"),

@@ -193,8 +193,9 @@ def test_robot_observation_noise_on_the_device(env_id):
     the same noise, another seed other noise."""
     mk = dict(num_envs=64, vectorization_mode="vector_entry_point", backend="torch", device="cpu", dtype="float64",
               observation_mode="robot", max_episode_steps=None)
-    sigma = 2.0
-    envs = [gym.make_vec(env_id, sensor_noise={"imu_accel": sigma}, **mk) for _ in range(3)]
+    sigma, p = 2.0, 0.25
+    noise = {"imu_accel": sigma, **({"contact": p} if env_id == ID else {})}
+    envs = [gym.make_vec(env_id, sensor_noise=noise, **mk) for _ in range(3)]
     clean = gym.make_vec(env_id, **mk)
     layout = dict((name, sl) for name, sl, _ in clean.task.sensors.layout())
     acc = layout["imu_accel"]
@@ -208,6 +209,10 @@ def test_robot_observation_noise_on_the_device(env_id):
     assert abs(float(d[:, acc].mean())) < 4 * sigma / n ** 0.5 and abs(float(d[:, acc].std()) / sigma - 1) < 4 / (2 * n) ** 0.5
     rest = torch.ones(d.shape[1], dtype=torch.bool)
     rest[acc] = False
+    if "contact" in noise:                                  # switches read wrong with probability p
+        c = d[:, layout["contact"]].abs()
+        assert set(c.unique().tolist()) <= {0.0, 1.0} and abs(float(c.mean()) - p) < 4 * (p * (1 - p) / c.numel()) ** 0.5
+        rest[layout["contact"]] = False
     assert float(d[:, rest].abs().max()) < 1e-12            # only the accelerometers are noisy (newest frame)
     assert torch.equal(outs[0], outs[1]) and not torch.equal(outs[0], outs[2])
 
@@ -241,8 +246,8 @@ def test_bad_input_named():
     for env_id in (ID, "TensegrityShape-v0"):
         with pytest.raises(ValueError, match="observation_mode: unknown 'robt'"):
             gym.make_vec(env_id, observation_mode="robt", **mk)
-        with pytest.raises(ValueError, match="sensor_noise: unknown or noiseless block 'contact'"):
-            gym.make_vec(env_id, observation_mode="robot", sensor_noise={"contact": 0.1}, **mk)
+        with pytest.raises(ValueError, match="sensor_noise: unknown or noiseless block 'goal_direction'"):
+            gym.make_vec(env_id, observation_mode="robot", sensor_noise={"goal_direction": 0.1}, **mk)
     with pytest.raises(ValueError, match="render_mode"):
         gym.make_vec(ID, render_mode="rgb_array", **mk)
     with pytest.raises(ValueError, match="device: only with backend='torch'"):

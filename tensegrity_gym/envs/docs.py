@@ -155,7 +155,7 @@ ROLL_DOC = r"""
     | ``action_delay`` | ``0`` | control steps between an action and its effect (zeros at the start of an episode) |
     | ``start_rest_length_offset`` | ``None`` | m added to the actuated cables' rest lengths at reset (a slack start; must stay within the bounds) |
     | ``observation_mode`` | ``"state"`` | ``"robot"``: what a lab robot senses (cable lengths, motor encoders and speeds, rod IMUs, contact switches, goal; :mod:`tensegrity_gym.envs.sensors`) |
-    | ``sensor_noise`` | ``None`` | robot mode: ``{block: sigma}`` Gaussian noise, SI units (``cable_length``, ``control``, ``cable_speed``, ``imu_accel``, ``imu_gyro``) |
+    | ``sensor_noise`` | ``None`` | robot mode: ``{block: sigma}`` Gaussian noise, SI units (``cable_length``, ``control``, ``cable_speed``, ``imu_accel``, ``imu_gyro``); ``contact``: the probability p that a switch reads wrong |
     | ``history`` | ``1`` | robot mode: readings stacked, newest first |
     | ``render_mode``, ``width``, ``height`` | ``None``, 480, 480 | ``"rgb_array"`` or ``"human"`` |
 
@@ -180,6 +180,7 @@ ROLL_DOC = r"""
     ## Version history
     * v0: initial version.
     * v0 (0.2): ``params``, ``randomize``, ``action_delay``, ``start_rest_length_offset``, ``observation_mode="robot"``, ``sensor_noise``, ``history``; defaults unchanged (bit-identical).
+    * v0 (0.3): ``sensor_noise={"contact": p}`` (contact switches that read wrong with probability p); the torch vector env has ``observation_mode="robot"``.
     * v0 (motor model): rest-length mode got a cable acceleration limit
       (``max_cable_acceleration``, default 2 m/s^2; the cable speed is now state, reset to 0,
       stopped at the rest-length bounds) and the cable speeds were appended to the observation

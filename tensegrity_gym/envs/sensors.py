@@ -32,9 +32,10 @@ last physics step, ``(v(t) - v(t - dt)) / dt`` (exactly the acceleration semi-im
 minus gravity; at reset it reads ``-g`` (the robot starts at rest). The gyroscope reads
 ``b x b'``.
 
-``sensor_noise={block: sigma}`` adds N(0, sigma^2) to every entry of a block (SI units; the
-contact switches and the goal are not noisy), drawn from the copy's own generator (the env's
-``np_random``) once per control step. ``history=H`` stacks the last H readings, newest first
+``sensor_noise={block: sigma}`` adds N(0, sigma^2) to every entry of a block (SI units; the goal
+is not noisy), drawn from the copy's own generator (the env's ``np_random``) once per control
+step. For the ``contact`` switches the value is instead a probability p in [0, 1]: each switch
+reads wrong (0 for 1, 1 for 0) with probability p, independently per reading. ``history=H`` stacks the last H readings, newest first
 (at reset all H are the reset reading), so a policy can infer rates.
 
 A task uses this module through :meth:`RobotSensors.attach` (construction),
@@ -51,7 +52,7 @@ from .. import dynamics as dyn
 
 __all__ = ["NOISY_BLOCKS", "rod_frames", "RobotSensors"]
 
-NOISY_BLOCKS = ("cable_length", "control", "cable_speed", "imu_accel", "imu_gyro")
+NOISY_BLOCKS = ("cable_length", "control", "cable_speed", "imu_accel", "imu_gyro", "contact")
 
 
 def rod_frames(b: np.ndarray) -> np.ndarray:
@@ -102,10 +103,14 @@ class RobotSensors:
                 raise ValueError(f"sensor_noise[{name!r}]: expected a standard deviation (number), got {sigma!r}") from None
             if isinstance(sigma, bool) or not (np.isfinite(s) and s >= 0):
                 raise ValueError(f"sensor_noise[{name!r}]: must be a finite standard deviation >= 0, got {sigma!r}")
+            flip = name == "contact"          # a switch: the probability of a wrong reading
+            if flip and s > 1:
+                raise ValueError(f"sensor_noise['contact']: the probability that a switch reads wrong, in [0, 1]; "
+                                 f"got {sigma!r}")
             if s > 0:
                 i = names.index(name)
                 start = sum(b[1] for b in self.blocks[:i])
-                self.noise.append((slice(start, start + self.blocks[i][1]), s))
+                self.noise.append((slice(start, start + self.blocks[i][1]), s, flip))
 
     @property
     def size(self) -> int:
@@ -146,8 +151,12 @@ class RobotSensors:
                  self.command[0]: np.asarray(command, float).reshape(r, -1)}
         out = np.concatenate([parts[name] for name, _, _ in self.blocks], axis=1)
         for j in range(r) if self.noise else ():
-            for sl, s in self.noise:
-                out[j, sl] += rngs[j].normal(0.0, s, sl.stop - sl.start)
+            for sl, s, flip in self.noise:
+                if flip:
+                    wrong = rngs[j].random(sl.stop - sl.start) < s
+                    out[j, sl] = np.where(wrong, 1.0 - out[j, sl], out[j, sl])
+                else:
+                    out[j, sl] += rngs[j].normal(0.0, s, sl.stop - sl.start)
         return out
 
     # ------------------------------------------------------------------ the task side

@@ -58,7 +58,7 @@ class TorchSensors:
         self.sens = sens
         self.env = env
         self.blocks = [name for name, _, _ in sens.blocks]
-        self.noise = [(sl, float(s)) for sl, s in sens.noise]
+        self.noise = [(sl, float(s), flip) for sl, s, flip in sens.noise]
         self.com_eta = env._T(sens.model.com_eta)[None, :, None]
         g = sens.model.gravity
         self.gravity0 = env._T(np.zeros(3) if g is None else np.asarray(g, float))[None]
@@ -107,9 +107,13 @@ class TorchSensors:
                  "contact": None if contact is None else contact.to(q.dtype),
                  self.sens.command[0]: command.reshape(N, -1)}
         out = torch.cat([parts[name] for name in self.blocks], dim=1)
-        for sl, s in self.noise:
-            out[:, sl] += s * torch.randn((N, sl.stop - sl.start), generator=self.generator, dtype=out.dtype,
-                                          device=out.device)
+        for sl, s, flip in self.noise:
+            shape = (N, sl.stop - sl.start)
+            if flip:       # contact switches: each reads wrong with probability s
+                wrong = torch.rand(shape, generator=self.generator, dtype=out.dtype, device=out.device) < s
+                out[:, sl] = torch.where(wrong, 1.0 - out[:, sl], out[:, sl])
+            else:
+                out[:, sl] += s * torch.randn(shape, generator=self.generator, dtype=out.dtype, device=out.device)
         return out
 
     def record(self, *args) -> None:
