@@ -307,7 +307,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "the evaluation env stays the NumPy/numba one")
     p.add_argument("--env-device", default=None, help="--vec-env torch: env device (default cuda if available, "
                                                       "else cpu)")
-    p.add_argument("--env-dtype", default="float32", choices=["float32", "float64"], help="--vec-env torch: env dtype")
+    p.add_argument("--env-dtype", default=None, choices=["float32", "float64"],
+                   help="--vec-env torch: env dtype (default float32)")
     p.add_argument("--eval-freq", type=int, default=None,
                    help="evaluate every this many env steps (default n_timesteps/20; <= 0 disables)")
     p.add_argument("--eval-episodes", type=int, default=20)
@@ -487,11 +488,13 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
             raise ValueError(f"--n-envs: must be >= 1, got {n_envs}")
         vec_mode = args.vec_env
         env_device, env_dtype = args.env_device, args.env_dtype
-        if vec_mode == "torch" and env_device is None:
+        for flag, value in (("--env-device", env_device), ("--env-dtype", env_dtype)):
+            if vec_mode != "torch" and value is not None:
+                raise ValueError(f"{flag}: only with --vec-env torch")
+        if vec_mode == "torch":
             import torch
-            env_device = "cuda" if torch.cuda.is_available() else "cpu"
-        if vec_mode != "torch" and env_device is not None:
-            raise ValueError("--env-device: only with --vec-env torch")
+            env_device = env_device or ("cuda" if torch.cuda.is_available() else "cpu")
+            env_dtype = env_dtype or "float32"
         eval_freq = args.eval_freq if args.eval_freq is not None else max(n_timesteps // 20, 1)
         save_freq = args.save_freq if args.save_freq is not None else max(n_timesteps // 10, 1)
         eval_episodes = args.eval_episodes

@@ -191,9 +191,9 @@ def probe_largest_batch(model, contact, dtype, dev, start, limit):
     """The largest B (doubling from ``start`` up to ``limit``) for which one physics step in
     ``dtype`` on ``dev`` runs without running out of memory; returns (B, peak memory MB at B)."""
     best, mem, B = None, None, start
+    q0, qd0 = released(model, 1)
     while B <= limit:
         try:
-            q0, qd0 = released(model, 1)
             r = bench_torch(model, contact, q0, qd0, dtype, dev, 1, 0.0, batch=B)
             best, mem = B, r["memory_mb"]
         except torch.OutOfMemoryError:

@@ -166,9 +166,10 @@ def test_train_on_the_torch_vector_env(tmp_path, env_id):
 
 
 def test_env_device_needs_the_torch_vec_env(tmp_path):
-    with pytest.raises(ValueError, match="--env-device: only with --vec-env torch"):
-        train.train(["--algo", "ppo", "--env", "TensegrityShape-v0", "--env-device", "cpu",
-                     "--log-dir", str(tmp_path / "a"), *TINY])
+    for flag, value in (("--env-device", "cpu"), ("--env-dtype", "float64")):
+        with pytest.raises(ValueError, match=f"{flag}: only with --vec-env torch"):
+            train.train(["--algo", "ppo", "--env", "TensegrityShape-v0", flag, value,
+                         "--log-dir", str(tmp_path / flag.strip("-")), *TINY])
 
 
 def test_evaluate_numbers_match_a_manual_rollout(tmp_path):

@@ -86,11 +86,11 @@ class TorchSensors:
         """Reset rows ``it`` get the host task's reset readings (r, history, frame_size)."""
         self.readings[it] = self.env._T(host_readings)
 
-    def frame(self, q, qd, qd_prev, gravity, ctrl, speed, contact, command):
+    def frame(self, q, qd, qd_prev, ctrl, speed, contact, command):
         """(N, frame_size) readings after a control step (:meth:`RobotSensors.frame` in torch):
         state ``q``, ``qd`` (N, k, 6), the velocities one physics step earlier ``qd_prev``,
-        ``gravity`` (P, 3) m/s^2 (P = 1 or N), controls, motor speeds, contact flags (N, 2k) bool
-        (None where the env has no such block), the command (N, size)."""
+        controls, motor speeds, contact flags (N, 2k) bool (None where the env has no such
+        block), the command (N, size); gravity is the copies' own (:meth:`gravity`)."""
         torch = tb._torch()
         env = self.env
         N = q.shape[0]
@@ -99,7 +99,7 @@ class TorchSensors:
         R = rod_frames(b)
         d = (qd - qd_prev) / env.task.dt
         acc = d[..., :3] + self.com_eta * d[..., 3:]
-        spec = acc - gravity[:, None, :]
+        spec = acc - self.gravity()[:, None, :]
         omega = torch.linalg.cross(b, bd, dim=-1)
         parts = {"cable_length": L, "control": ctrl, "cable_speed": speed,
                  "imu_accel": torch.einsum("bkij,bkj->bki", R, spec).reshape(N, -1),

@@ -94,24 +94,18 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
         com0 = self._com(q0)
         kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                   params=self._params, contact_prm=self._contact_prm, substep=self._substep)
-        # with robot sensors: frame_skip - 1 steps, then 1 (the same arithmetic), keeping the
-        # velocities before the last physics step (what the IMUs read)
-        n_first = task.frame_skip if self._sens is None else task.frame_skip - 1
-        q, qd, anchor, active = tb.contact_step(self.tm, task.contact, q0, qd0, anchor0, active0, task.dt,
-                                                task.integrator, n_first, **kw)
-        qd_prev = qd
-        if self._sens is not None:
-            q, qd, anchor, active = tb.contact_step(self.tm, task.contact, q, qd, anchor, active, task.dt,
-                                                    task.integrator, 1, **kw)
+        (q, qd, anchor, active), qd_prev = self._advance(
+            lambda n, *s: tb.contact_step(self.tm, task.contact, *s, task.dt, task.integrator, n, **kw),
+            (q0, qd0, anchor0, active0))
         diverged = self._far_or_nonfinite(q, qd)
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
         self.anchor = torch.where(d3, anchor0, anchor)
         self.active = torch.where(diverged[:, None], active0, active)
-        if self._sens is not None:
-            self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self._sens.gravity(), self.ctrl,
-                              self.speed, self.active, self.goal)
+        if qd_prev is not None:
+            self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self.ctrl, self.speed, self.active,
+                              self.goal)
         self.elapsed = self.elapsed + 1
         com = self._com(self.q)
         vel = (com - com0) / task.control_dt
@@ -174,11 +168,8 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
         q0, qd0 = self.q, self.qd
         kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                   params=self._params, substep=self._substep)
-        n_first = task.frame_skip if self._sens is None else task.frame_skip - 1   # as the roll task
-        q, qd = tb.step(self.tm, q0, qd0, task.dt, task.integrator, n_first, **kw)
-        qd_prev = qd
-        if self._sens is not None:
-            q, qd = tb.step(self.tm, q, qd, task.dt, task.integrator, 1, **kw)
+        (q, qd), qd_prev = self._advance(lambda n, *s: tb.step(self.tm, *s, task.dt, task.integrator, n, **kw),
+                                         (q0, qd0))
         # pipeline.diverged (BatchedTask.simulate): non-finite, or a reference point farther than the limit from the centre
         finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
         r = q[..., :3]
@@ -188,9 +179,8 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
-        if self._sens is not None:
-            self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self._sens.gravity(), self.ctrl,
-                              None, None, self.target)
+        if qd_prev is not None:
+            self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self.ctrl, None, None, self.target)
         self.elapsed = self.elapsed + 1
         N = self._tracked_nodes(self.q)
         D = N - self.target

@@ -278,6 +278,17 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self._queue = torch.cat([self._queue[:, 1:], action[:, None]], dim=1)
         return out
 
+    def _advance(self, fn, state):
+        """``frame_skip`` physics steps ``fn(n, *state) -> state`` (``state[1]``: the velocities);
+        with robot sensors as ``frame_skip - 1`` steps, then 1 (the same arithmetic), keeping the
+        velocities before the last physics step (what the IMUs read), as ``BatchedTask.simulate``
+        does. Returns ``(state, qd_prev)`` (``qd_prev`` None without sensors)."""
+        n = self.task.frame_skip
+        if self._sens is None:
+            return fn(n, *state), None
+        mid = fn(n - 1, *state)
+        return fn(1, *mid), mid[1]
+
     def _physics_inputs(self):
         """``rest_length`` / ``force_density`` (N, m) of the current controls, the cables'
         rest-length offsets added (``BatchedTask.with_offset``)."""
