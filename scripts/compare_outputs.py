@@ -50,6 +50,24 @@ def dump(path: str) -> None:
             r = tg.step(model, st, 1e-3, integ, n_steps=n, backend=backend)
             out[f"{name}/{integ}/{backend}/q"] = r.q
             out[f"{name}/{integ}/{backend}/qd"] = r.qd
+    # the kernels' batch paths: one copy at a time (B < 16), SIMD blocks (B = 19, 40, pad lanes),
+    # the parallel kernel (B = 600), each with shared and per-copy Params
+    from tensegrity_gym.params import default_params
+    for name in ("prism3", "constrained_prism", "icosahedron", "tower3"):
+        model = tg.compile_model(tg.build(name))
+        for B in (1, 3, 19, 40, 600):
+            st = tg.initial_state(model, B)
+            rng = np.random.default_rng(B)
+            q, qd = dyn.project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
+            st = dyn.State(q=q, qd=qd)
+            p0 = default_params(model, batch_size=B)
+            per_copy = p0.replace(stiffness=p0.stiffness * rng.uniform(0.8, 1.2, p0.stiffness.shape),
+                                  mass=p0.mass * rng.uniform(0.8, 1.2, p0.mass.shape))
+            for integ in ("semi_implicit_euler", "rk4"):
+                for tag, params in (("shared", None), ("per_copy", per_copy)):
+                    r = tg.step(model, st, 1e-3, integ, n_steps=50, backend="numba", params=params)
+                    out[f"batch/{name}/B={B}/{integ}/{tag}/q"] = r.q
+                    out[f"batch/{name}/B={B}/{integ}/{tag}/qd"] = r.qd
     envs = (("TensegrityShape-v0", {}), ("TensegrityShape-v0", {"action_mode": "force_density"}),
             ("TensegrityRoll-v0", {}))
     for env_id, kw in envs:
@@ -58,6 +76,11 @@ def dump(path: str) -> None:
         for kind, env in (("single", gym.make(env_id, **kw)),
                           ("vector", gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", **kw))):
             out[f"{tag}/{kind}/obs"], out[f"{tag}/{kind}/rew"] = _rollout(env, rng)
+    for env_id, N, rnd in (("TensegrityRoll-v0", 20, {"rod_mass": 0.1, "friction": 0.2, "stiffness": 0.1}),
+                           ("TensegrityShape-v0", 20, {"rod_mass": 0.1, "stiffness": 0.1, "rest_length_offset": 0.002})):
+        env = gym.make_vec(env_id, num_envs=N, vectorization_mode="vector_entry_point", randomize=rnd)
+        out[f"{env_id}/randomized/N={N}/obs"], out[f"{env_id}/randomized/N={N}/rew"] = _rollout(
+            env, np.random.default_rng(2), steps=30)
     np.savez(path, **out)
 
 
