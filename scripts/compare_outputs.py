@@ -35,17 +35,23 @@ def _rollout(env, rng, steps: int = 100):
     return np.array(obs), np.array(rew)
 
 
+def _released(model, B: int, seed: int):
+    """B copies of the model's initial state released by a seeded velocity perturbation (projected)."""
+    from tensegrity_gym import dynamics as dyn
+    import tensegrity_gym as tg
+    st = tg.initial_state(model, B)
+    rng = np.random.default_rng(seed)
+    q, qd = dyn.project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
+    return dyn.State(q=q, qd=qd), rng
+
+
 def dump(path: str) -> None:
     import gymnasium as gym
     import tensegrity_gym as tg
-    from tensegrity_gym import dynamics as dyn
     out = {}
     for name in SCENES:
         model = tg.compile_model(tg.build(name))
-        st = tg.initial_state(model, 3)
-        rng = np.random.default_rng(0)
-        q, qd = dyn.project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
-        st = dyn.State(q=q, qd=qd)
+        st, _ = _released(model, 3, 0)
         for integ, backend, n in RUNS:
             r = tg.step(model, st, 1e-3, integ, n_steps=n, backend=backend)
             out[f"{name}/{integ}/{backend}/q"] = r.q
@@ -56,10 +62,7 @@ def dump(path: str) -> None:
     for name in ("prism3", "constrained_prism", "icosahedron", "tower3"):
         model = tg.compile_model(tg.build(name))
         for B in (1, 3, 19, 40, 600):
-            st = tg.initial_state(model, B)
-            rng = np.random.default_rng(B)
-            q, qd = dyn.project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
-            st = dyn.State(q=q, qd=qd)
+            st, rng = _released(model, B, B)
             p0 = default_params(model, batch_size=B)
             per_copy = p0.replace(stiffness=p0.stiffness * rng.uniform(0.8, 1.2, p0.stiffness.shape),
                                   mass=p0.mass * rng.uniform(0.8, 1.2, p0.mass.shape))
@@ -77,7 +80,8 @@ def dump(path: str) -> None:
                           ("vector", gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", **kw))):
             out[f"{tag}/{kind}/obs"], out[f"{tag}/{kind}/rew"] = _rollout(env, rng)
     for env_id, N, rnd in (("TensegrityRoll-v0", 20, {"rod_mass": 0.1, "friction": 0.2, "stiffness": 0.1}),
-                           ("TensegrityShape-v0", 20, {"rod_mass": 0.1, "stiffness": 0.1, "rest_length_offset": 0.002})):
+                           ("TensegrityShape-v0", 20,
+                            {"rod_mass": 0.1, "stiffness": 0.1, "rest_length_offset": 0.002})):
         env = gym.make_vec(env_id, num_envs=N, vectorization_mode="vector_entry_point", randomize=rnd)
         out[f"{env_id}/randomized/N={N}/obs"], out[f"{env_id}/randomized/N={N}/rew"] = _rollout(
             env, np.random.default_rng(2), steps=30)

@@ -87,7 +87,7 @@ import numpy as np
 __all__ = ["resolve_device", "resolve_dtype", "TorchModel", "torch_model", "torch_params", "node_positions",
            "node_velocities", "string_state", "force_densities", "nodal_forces", "accelerations", "project",
            "sphere_drift", "step", "contact_forces", "contact_step", "contact_substep", "init_contact_state", "motor", "advance",
-           "physics_inputs", "step_state", "simulate", "PARAM_FIELDS"]
+           "physics_inputs", "step_state", "simulate", "diverged", "PARAM_FIELDS"]
 
 PARAM_FIELDS = ("mass", "f", "J", "stiffness", "damping", "rest_length", "node_damping", "gravity", "anchor_pos")
 _SINC_SMALL = 1e-4   # rad: below this rotation per step sin(x)/x = 1 - x^2/6 (as integrators._SINC_SMALL)
@@ -312,6 +312,24 @@ def node_positions(tm: TorchModel, q, prm):
     """(B, n, 3) node positions, m."""
     r, b = q[..., :3], q[..., 3:]
     return tm.gather_nodes(r + tm.eta_a * b, r + tm.eta_c * b, prm["anchor_pos"])
+
+
+def diverged(q, qd, center, limit: float, local: bool = False):
+    """(B,) bool, :func:`tensegrity_gym.pipeline.diverged` in torch: copy b has a non-finite entry
+    in ``q``/``qd`` (B, k, 6), or a rod reference point farther than ``limit`` m (per
+    coordinate) from ``center`` (3,) m (a tensor on q's device and dtype); with ``local`` (a
+    robot that travels) from its copy's mean reference point instead, that mean's height checked
+    against ``float(center[2])`` (horizontal travel is not limited)."""
+    torch = _torch()
+    finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
+    r = q[..., :3]
+    r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))
+    if local:
+        m = r.mean(dim=1, keepdim=True)
+        far = ~(((r - m).abs().amax(dim=(1, 2)) <= limit) & ((m[:, 0, 2] - float(center[2])).abs() <= limit))
+    else:
+        far = ~((r - center).abs().amax(dim=(1, 2)) <= limit)
+    return ~finite | far
 
 
 def node_velocities(tm: TorchModel, qd):

@@ -345,3 +345,24 @@ def test_cli_simulate_torch(tmp_path, capsys):
         err = capsys.readouterr().err
         assert re.search("cuda.*not available", err) and err.count("error:") == 1
         assert not (tmp_path / "x.npz").exists()
+
+
+@pytest.mark.parametrize("local", [False, True])
+def test_diverged_equals_the_pipeline(local):
+    """tb.diverged flags the same copies as pipeline.diverged: a NaN in q or qd, a reference point
+    past the limit (from the start's centre, or with ``local`` from the copy's own centre, whose
+    height is checked), and leaves travelled-but-fine copies alone."""
+    from tensegrity_gym import pipeline
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-0.2, 0.2, (6, 3, 6))
+    qd = rng.standard_normal((6, 3, 6))
+    q[1, 0, 4] = np.nan                      # non-finite direction
+    qd[2, 2, 0] = np.inf                     # non-finite velocity
+    q[3, 1, 0] += 5.0                        # one rod far from the others and from the centre
+    q[4, :, 0] += 5.0                        # the whole robot travelled 5 m along x
+    q[5, :, 2] += 5.0                        # the whole robot rose 5 m
+    center, limit = np.array([0.0, 0.0, 0.1]), 1.0
+    want = pipeline.diverged(q, qd, center, limit, local=local)
+    got = tb.diverged(torch.as_tensor(q), torch.as_tensor(qd), torch.as_tensor(center), limit, local=local)
+    assert got.tolist() == want.tolist()
+    assert want.tolist() == [False, True, True, True, not local, True]

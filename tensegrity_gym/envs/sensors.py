@@ -35,8 +35,9 @@ minus gravity; at reset it reads ``-g`` (the robot starts at rest). The gyroscop
 ``sensor_noise={block: sigma}`` adds N(0, sigma^2) to every entry of a block (SI units; the goal
 is not noisy), drawn from the copy's own generator (the env's ``np_random``) once per control
 step. For the ``contact`` switches the value is instead a probability p in [0, 1]: each switch
-reads wrong (0 for 1, 1 for 0) with probability p, independently per reading. ``history=H`` stacks the last H readings, newest first
-(at reset all H are the reset reading), so a policy can infer rates.
+reads wrong (0 for 1, 1 for 0) with probability p, independently per reading. ``history=H``
+stacks the last H readings, newest first (at reset all H are the reset reading), so a policy can
+infer rates.
 
 A task uses this module through :meth:`RobotSensors.attach` (construction),
 :meth:`RobotSensors.reset_reading` (reset), :meth:`RobotSensors.simulate` (its physics for one
@@ -97,16 +98,14 @@ class RobotSensors:
             if name not in NOISY_BLOCKS or name not in names:
                 raise ValueError(f"sensor_noise: unknown or noiseless block {name!r}; noisy blocks of this env: "
                                  f"{[n for n in NOISY_BLOCKS if n in names]}")
+            flip = name == "contact"          # a switch: the probability of a wrong reading
             try:
                 s = float(sigma)
             except (TypeError, ValueError):
-                raise ValueError(f"sensor_noise[{name!r}]: expected a standard deviation (number), got {sigma!r}") from None
-            if isinstance(sigma, bool) or not (np.isfinite(s) and s >= 0):
-                raise ValueError(f"sensor_noise[{name!r}]: must be a finite standard deviation >= 0, got {sigma!r}")
-            flip = name == "contact"          # a switch: the probability of a wrong reading
-            if flip and s > 1:
-                raise ValueError(f"sensor_noise['contact']: the probability that a switch reads wrong, in [0, 1]; "
-                                 f"got {sigma!r}")
+                s = float("nan")
+            if isinstance(sigma, bool) or not (np.isfinite(s) and 0 <= s <= (1 if flip else np.inf)):
+                raise ValueError(f"sensor_noise[{name!r}]: " + ("the probability that a switch reads wrong, in [0, 1]"
+                                 if flip else "must be a finite standard deviation >= 0 (a number)") + f"; got {sigma!r}")
             if s > 0:
                 i = names.index(name)
                 start = sum(b[1] for b in self.blocks[:i])

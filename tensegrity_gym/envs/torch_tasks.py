@@ -67,18 +67,6 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
         return torch.cat([Np.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.active.to(self.dtype),
                           self.goal, com[:, 2:3], self.speed], dim=1)
 
-    def _far_or_nonfinite(self, q, qd):
-        """(N,) bool, as ``pipeline.diverged`` with ``travels=True`` (the roll task)."""
-        torch = tb._torch()
-        finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
-        r = q[..., :3]
-        r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))
-        m = r.mean(dim=1, keepdim=True)
-        lim = self.task.divergence_limit
-        dev = (r - m).abs().amax(dim=(1, 2))
-        far = ~((dev <= lim) & ((m[:, 0, 2] - self.task.center0[2]).abs() <= lim))
-        return ~finite | far
-
     def _act(self, action):
         """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
         torch = tb._torch()
@@ -97,7 +85,7 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
         (q, qd, anchor, active), qd_prev = self._advance(
             lambda n, *s: tb.contact_step(self.tm, task.contact, *s, task.dt, task.integrator, n, **kw),
             (q0, qd0, anchor0, active0))
-        diverged = self._far_or_nonfinite(q, qd)
+        diverged = tb.diverged(q, qd, task.center0, task.divergence_limit, local=True)   # pipeline.diverged
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
@@ -170,12 +158,7 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
                   params=self._params, substep=self._substep)
         (q, qd), qd_prev = self._advance(lambda n, *s: tb.step(self.tm, *s, task.dt, task.integrator, n, **kw),
                                          (q0, qd0))
-        # pipeline.diverged (BatchedTask.simulate): non-finite, or a reference point farther than the limit from the centre
-        finite = torch.isfinite(q).all(dim=2).all(dim=1) & torch.isfinite(qd).all(dim=2).all(dim=1)
-        r = q[..., :3]
-        r = torch.where(torch.isfinite(r), r, torch.zeros_like(r))
-        far = ~((r - self._center0).abs().amax(dim=(1, 2)) <= task.divergence_limit)
-        diverged = ~finite | far
+        diverged = tb.diverged(q, qd, self._center0, task.divergence_limit)   # pipeline.diverged
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
