@@ -57,8 +57,10 @@ Implementation notes
   when a call carries at least ``PARALLEL_MIN_WORK`` units of work; it takes the packed buffers
   (P, len): the shared one, P = 1, or one per copy). The serial ones compile
   (or load from numba's disk cache) on the first call, the parallel one on the first large
-  batch. Batches of ``_SOA_MIN_BATCH`` = 16 or more environments run a structure-of-arrays
-  loop (16 environments per SIMD block; bit-identical results to the one-environment loop).
+  batch. All of them run ONE loop driver, ``_advance``, on structure-of-arrays scratch
+  (k, 6, E): E = 16 (8 above 24 rods) environments per SIMD block from ``_SOA_MIN_BATCH`` = 16
+  environments, else one at a time through its instance compiled with E = 1 (bit-identical
+  results either way).
 * numba's threading layer is set to ``workqueue`` unless the user chose one
   (``NUMBA_THREADING_LAYER``): see the comment at the import. The parallel kernel holds
   the GIL, so two Python threads never enter the pool at once.
@@ -146,6 +148,7 @@ def _layout(k, m, n):
     o_ws      60 k    10 stage arrays (k, 6) of the integrators (scratch)
     o_N/V/F   3 n     node positions (anchor rows preset), velocities (anchor rows 0), forces
     o_cn      3 n     node drag coefficients c (N s/m), repeated for x, y, z
+    +3 n      2 m+3n  one copy's rest lengths, force densities, external forces (scratch)
     ========  ======  ==============================================================
     """
     o_rod = 3
@@ -157,7 +160,7 @@ def _layout(k, m, n):
     o_V = o_N + 3 * n
     o_F = o_V + 3 * n
     o_cn = o_F + 3 * n
-    end = o_cn + 3 * n
+    end = o_cn + 3 * n + 2 * m + 3 * n
     return (o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end)
 
 
@@ -175,6 +178,12 @@ if AVAILABLE:
     _soa_width_nb = njit(inline="always", **_opts)(_soa_width)
 
     @njit(inline="always", **_opts)
+    def _lane_width(k, B):
+        """E for a serial call on B copies: SIMD blocks from _SOA_MIN_BATCH copies, else one copy
+        at a time (a padded block would compute up to 15 copies for nothing)."""
+        return _soa_width_nb(k) if B >= _SOA_MIN_BATCH else 1
+
+    @njit(inline="always", **_opts)
     def _rod_acc(b0, b1, b2, bd0, bd1, bd2, Fa0, Fa1, Fa2, Fc0, Fc1, Fc2, ea, ec, free, im, iJ, fJ, beta, alpha,
                  ialpha, fm, w, pj):
         """(r'', b'') of one rod from its direction ``b``, rate ``b'``, the forces on its nodes
@@ -184,7 +193,7 @@ if AVAILABLE:
         (5.37)/(5.40) for a free rod at its centre of mass
         (``free``: f = 0, A = I/m), the reduced form (5.49)-(5.51) with the branch-free
         Sherman-Morrison ``A`` for a constrained one (see dynamics.py). The one copy of the rod
-        equations of the numba backend (_acc and _acc_soa inline it)."""
+        equations of the numba backend (_acc inlines it)."""
         fr0 = Fa0 + Fc0
         fr1 = Fa1 + Fc1
         fr2 = Fa2 + Fc2
@@ -224,130 +233,6 @@ if AVAILABLE:
                 P2 * iJ - fJ * (r2 - b2 * br) - wv * b2)
 
     @njit(inline="always", **_opts)
-    def _acc(w, ib, L, k, m, n, oq, oqd, oa, l0, el, fd, ef, ext, ee, flags):
-        """w[oa:oa+6k] = accelerations (k, 6) of the configuration stored at w[oq:], w[oqd:]
-        (dynamics.accelerations for one environment; l0[el], fd[ef], ext[ee] are its rows)."""
-        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
-        has_damp = (flags & _DAMP) != 0
-        need_v = (flags & (_DAMP | _NDAMP)) != 0
-        # node positions (and velocities) of rod nodes: n = r + eta b
-        for j in range(k):
-            rj = o_rod + _ROD * j
-            ia = 3 * ib[rj]
-            ic = 3 * ib[rj + 1]
-            ea = w[rj + 3]
-            ec = w[rj + 4]
-            qj = oq + 6 * j
-            for i in range(3):
-                w[o_N + ia + i] = w[qj + i] + ea * w[qj + 3 + i]
-                w[o_N + ic + i] = w[qj + i] + ec * w[qj + 3 + i]
-            if need_v:
-                vj = oqd + 6 * j
-                for i in range(3):
-                    w[o_V + ia + i] = w[vj + i] + ea * w[vj + 3 + i]
-                    w[o_V + ic + i] = w[vj + i] + ec * w[vj + 3 + i]
-        for p in range(3 * n):
-            w[o_F + p] = 0.0
-        has_fd = (flags & _FD) != 0
-        l0def = (flags & _L0DEF) != 0
-        # strings, tension only: gamma = max(0, k (L - l0)/L + c Ld/L) if L > l0 else 0 (5.20)
-        for s in range(m):
-            ps = o_str + _STR * s
-            si = o_N + 3 * ib[ps]
-            sj = o_N + 3 * ib[ps + 1]
-            s0 = w[sj] - w[si]
-            s1 = w[sj + 1] - w[si + 1]
-            s2 = w[sj + 2] - w[si + 2]
-            Ls = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-            g = 0.0
-            l0s = w[o_l0 + s] if l0def else l0[el, s]
-            if Ls > l0s:
-                tension = w[ps + 2] * (Ls - l0s)
-                if has_damp:
-                    vi = si - o_N + o_V
-                    vj = sj - o_N + o_V
-                    d0 = w[vj] - w[vi]
-                    d1 = w[vj + 1] - w[vi + 1]
-                    d2 = w[vj + 2] - w[vi + 2]
-                    tension = tension + w[ps + 3] * ((s0 * d0 + s1 * d1 + s2 * d2) / Ls)
-                if not (tension < 0.0):     # np.maximum(tension, 0): NaN propagates
-                    g = tension / Ls
-            if has_fd:
-                g = g + fd[ef, s]
-                if g < 0.0:
-                    g = 0.0
-            if g != 0.0:
-                g0 = g * s0
-                g1 = g * s1
-                g2 = g * s2
-                fi = si - o_N + o_F
-                fj = sj - o_N + o_F
-                w[fj] -= g0
-                w[fj + 1] -= g1
-                w[fj + 2] -= g2
-                w[fi] += g0
-                w[fi + 1] += g1
-                w[fi + 2] += g2
-        if (flags & _GRAV) != 0:
-            for p in range(3 * n):
-                w[o_F + p] = w[o_F + p] + w[o_W0 + p]
-        if (flags & _NDAMP) != 0:             # node drag -c v (anchor rows of V are 0)
-            for p in range(3 * n):
-                w[o_F + p] = w[o_F + p] - w[o_cn + p] * w[o_V + p]
-        if (flags & _EXT) != 0:
-            for p in range(n):
-                for i in range(3):
-                    w[o_F + 3 * p + i] = w[o_F + 3 * p + i] + ext[ee, p, i]
-        # rods: (5.37)/(5.40) for free rods, (5.49)-(5.51) for constrained ones (_rod_acc)
-        for j in range(k):
-            rj = o_rod + _ROD * j
-            fa = o_F + 3 * ib[rj]
-            fc = o_F + 3 * ib[rj + 1]
-            qj = oq + 6 * j
-            vj = oqd + 6 * j
-            aj = oa + 6 * j
-            (w[aj], w[aj + 1], w[aj + 2], w[aj + 3], w[aj + 4], w[aj + 5]) = _rod_acc(
-                w[qj + 3], w[qj + 4], w[qj + 5], w[vj + 3], w[vj + 4], w[vj + 5],
-                w[fa], w[fa + 1], w[fa + 2], w[fc], w[fc + 1], w[fc + 2], w[rj + 3], w[rj + 4], ib[rj + 2] == 0,
-                w[rj + 5], w[rj + 6], w[rj + 7], w[rj + 8], w[rj + 9], w[rj + 10], w[rj + 11], w, rj + 12)
-
-    @njit(inline="always", **_opts)
-    def _project(w, ib, L, k, oq, oqd, any_cons):
-        """In place on w[oq:], w[oqd:]: |b| = 1, b.b' = 0 and constrained reference points back
-        on their point/line/plane with tangent velocity (exactly dynamics.project)."""
-        o_rod = L[0]
-        for j in range(k):
-            qj = oq + 6 * j
-            vj = oqd + 6 * j
-            b0 = w[qj + 3]
-            b1 = w[qj + 4]
-            b2 = w[qj + 5]
-            inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-            b0 = b0 * inb
-            b1 = b1 * inb
-            b2 = b2 * inb
-            w[qj + 3] = b0
-            w[qj + 4] = b1
-            w[qj + 5] = b2
-            dot = b0 * w[vj + 3] + b1 * w[vj + 4] + b2 * w[vj + 5]
-            w[vj + 3] = w[vj + 3] - b0 * dot
-            w[vj + 4] = w[vj + 4] - b1 * dot
-            w[vj + 5] = w[vj + 5] - b2 * dot
-            rj = o_rod + _ROD * j
-            if any_cons and ib[rj + 2] != 0:
-                pj = rj + 12
-                oj = rj + 21
-                x0 = w[qj]
-                x1 = w[qj + 1]
-                x2 = w[qj + 2]
-                v0 = w[vj]
-                v1 = w[vj + 1]
-                v2 = w[vj + 2]
-                for i in range(3):
-                    w[qj + i] = w[oj + i] + (w[pj + 3 * i] * x0 + w[pj + 3 * i + 1] * x1 + w[pj + 3 * i + 2] * x2)
-                    w[vj + i] = w[pj + 3 * i] * v0 + w[pj + 3 * i + 1] * v1 + w[pj + 3 * i + 2] * v2
-
-    @njit(inline="always", **_opts)
     def _drift_rod(q0, q1, q2, b0, b1, b2, v0, v1, v2, d0, d1, d2, dt):
         """Semi-implicit Euler drift with projection for one rod (integrators._sphere_drift, same
         operations in the same order): r += dt r'; b along its great circle. Returns the new
@@ -375,89 +260,6 @@ if AVAILABLE:
         return (q0, q1, q2, b0 * c + d0 * ds, b1 * c + d1 * ds, b2 * c + d2 * ds,
                 d0 * c - b0 * ws, d1 * c - b1 * ws, d2 * c - b2 * ws)
 
-    @njit(**_opts)
-    def _advance_range(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags):
-        """n_steps fixed steps of environments lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e])
-        (which may be the same arrays), using the scratch of w. One call per batch chunk:
-        the physics (_acc, _project) is inlined, so nothing is called per environment."""
-        k6 = 6 * k
-        Q = L[4]
-        QD = Q + k6
-        A1 = QD + k6
-        A2 = A1 + k6
-        A3 = A2 + k6
-        A4 = A3 + k6
-        QS = A4 + k6
-        QD2 = QS + k6
-        QD3 = QD2 + k6
-        QD4 = QD3 + k6
-        rk4 = (flags & _RK4) != 0
-        n_stages = 4 if rk4 else 1
-        do_proj = (flags & _PROJ) != 0
-        any_cons = (flags & _CONS) != 0
-        h = 0.5 * dt
-        c6 = dt / 6.0
-        nl, nf, ne = l0.shape[0], fd.shape[0], ext.shape[0]
-        for e in range(lo, hi):
-            el = e if nl > 1 else 0
-            ef = e if nf > 1 else 0
-            ee = e if ne > 1 else 0
-            for j in range(k):
-                for i in range(6):
-                    w[Q + 6 * j + i] = q[e, j, i]
-                    w[QD + 6 * j + i] = qd[e, j, i]
-            for _ in range(n_steps):
-                oq = Q
-                oqd = QD
-                oa = A1
-                for stage in range(n_stages):
-                    _acc(w, ib, L, k, m, n, oq, oqd, oa, l0, el, fd, ef, ext, ee, flags)
-                    if not rk4:
-                        # semi-implicit Euler: v += dt a(q, v); q += dt v (with projection: b
-                        # along its great circle, see integrators._sphere_drift)
-                        if do_proj:
-                            for p in range(k6):
-                                w[QD + p] = w[QD + p] + dt * w[A1 + p]
-                            for j in range(k):
-                                qj = Q + 6 * j
-                                vj = QD + 6 * j
-                                (w[qj], w[qj + 1], w[qj + 2], w[qj + 3], w[qj + 4], w[qj + 5], w[vj + 3],
-                                 w[vj + 4], w[vj + 5]) = _drift_rod(
-                                    w[qj], w[qj + 1], w[qj + 2], w[qj + 3], w[qj + 4], w[qj + 5], w[vj],
-                                    w[vj + 1], w[vj + 2], w[vj + 3], w[vj + 4], w[vj + 5], dt)
-                        else:
-                            for p in range(k6):
-                                w[QD + p] = w[QD + p] + dt * w[A1 + p]
-                                w[Q + p] = w[Q + p] + dt * w[QD + p]
-                    elif stage == 0:
-                        for p in range(k6):
-                            w[QS + p] = w[Q + p] + h * w[QD + p]
-                            w[QD2 + p] = w[QD + p] + h * w[A1 + p]
-                        oq, oqd, oa = QS, QD2, A2
-                    elif stage == 1:
-                        for p in range(k6):
-                            w[QS + p] = w[Q + p] + h * w[QD2 + p]
-                            w[QD3 + p] = w[QD + p] + h * w[A2 + p]
-                        oq, oqd, oa = QS, QD3, A3
-                    elif stage == 2:
-                        for p in range(k6):
-                            w[QS + p] = w[Q + p] + dt * w[QD3 + p]
-                            w[QD4 + p] = w[QD + p] + dt * w[A3 + p]
-                        oq, oqd, oa = QS, QD4, A4
-                    else:
-                        for p in range(k6):
-                            w[Q + p] = w[Q + p] + c6 * (w[QD + p] + 2.0 * w[QD2 + p] + 2.0 * w[QD3 + p]
-                                                        + w[QD4 + p])
-                            w[QD + p] = w[QD + p] + c6 * (w[A1 + p] + 2.0 * w[A2 + p] + 2.0 * w[A3 + p]
-                                                         + w[A4 + p])
-                if do_proj:
-                    _project(w, ib, L, k, Q, QD, any_cons)
-            for j in range(k):
-                for i in range(6):
-                    qo[e, j, i] = w[Q + 6 * j + i]
-                    qdo[e, j, i] = w[QD + 6 * j + i]
-
-
     @njit(inline="always", **_opts)
     def _rod_topology(w, ib, o_rod, j):
         """(slot of rod j in the packed buffer, node a, node c, eta_a, eta_c)."""
@@ -465,9 +267,10 @@ if AVAILABLE:
         return rj, ib[rj], ib[rj + 1], w[rj + 3], w[rj + 4]
 
     @njit(inline="always", **_opts)
-    def _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
-        """_acc for E environments at once, structure-of-arrays: Qi, Vi, A (k, 6, E), N, V, F,
-        EX (n, 3, E), L0, FD (m, E). The innermost loops run over the environments (SIMD).
+    def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
+        """Accelerations A (k, 6, E) of E copies at once (dynamics.accelerations), in
+        structure-of-arrays scratch: Qi, Vi, A (k, 6, E), N, V, F, EX (n, 3, E), L0, FD (m, E).
+        The innermost loops run over the copies (SIMD; one iteration in the E = 1 instance).
         Topology (node indices, eta, projectors) comes from ``w``; the physical constants of lane
         e from ``PC[slot, e]`` (the buffer's slots, one column per lane: see _lane_physics)."""
         o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
@@ -560,7 +363,14 @@ if AVAILABLE:
         for p in range(3 * n):
             PC[o_W0 + p, e] = src[o_W0 + p]
             PC[o_cn + p, e] = src[o_cn + p]
-        for p in range(n):                      # anchor rows: fixed positions; rod rows overwritten
+        _lane_physics_anchors(N, src, L, n, e)
+
+    @njit(inline="always", **_opts)
+    def _lane_physics_anchors(N, src, L, n, e):
+        """Lane e of the node scratch ``N`` takes the node rows of the packed buffer ``src``
+        (anchors: their fixed positions; rod nodes are overwritten by every force evaluation)."""
+        o_N = L[5]
+        for p in range(n):
             for i in range(3):
                 N[p, i, e] = src[o_N + 3 * p + i]
 
@@ -573,28 +383,97 @@ if AVAILABLE:
                     QS[j, i, e] = Q[j, i, e] + c * V[j, i, e]
                     QDn[j, i, e] = QD[j, i, e] + c * A[j, i, e]
 
-    @njit(**_opts)
-    def _advance_soa(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
-        """_advance_range for large batches: E environments at a time in structure-of-arrays
-        scratch, so that every inner loop runs over environments and compiles to SIMD code.
-        Same operations in the same order as _advance_range (results agree to the last bit).
-        ``lanes`` (ceil(B/E), len, E): the copies' packed buffers in blocks of E lanes
-        (:func:`_lanes`; per-copy parameters, ``lo`` a multiple of E), read in place: no copy
-        per call; or (0, 1, 1): every copy uses ``w``'s physical constants."""
-        E = _soa_width_nb(k)
-        S = np.empty((10, k, 6, E))
-        Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
+    @njit(inline="always", **_opts)
+    def _project(w, ib, o_rod, k, Q, QD, E, any_cons):
+        """In place on Q, QD (k, 6, E): |b| = 1, b.b' = 0 and constrained reference points back on
+        their point/line/plane with tangent velocity (dynamics.project, same operations)."""
+        for j in range(k):
+            rj = o_rod + _ROD * j
+            for e in range(E):
+                b0 = Q[j, 3, e]
+                b1 = Q[j, 4, e]
+                b2 = Q[j, 5, e]
+                inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+                b0 = b0 * inb
+                b1 = b1 * inb
+                b2 = b2 * inb
+                Q[j, 3, e] = b0
+                Q[j, 4, e] = b1
+                Q[j, 5, e] = b2
+                dot = b0 * QD[j, 3, e] + b1 * QD[j, 4, e] + b2 * QD[j, 5, e]
+                QD[j, 3, e] = QD[j, 3, e] - b0 * dot
+                QD[j, 4, e] = QD[j, 4, e] - b1 * dot
+                QD[j, 5, e] = QD[j, 5, e] - b2 * dot
+            if any_cons and ib[rj + 2] != 0:
+                pj = rj + 12
+                oj = rj + 21
+                for e in range(E):
+                    x0 = Q[j, 0, e]
+                    x1 = Q[j, 1, e]
+                    x2 = Q[j, 2, e]
+                    v0 = QD[j, 0, e]
+                    v1 = QD[j, 1, e]
+                    v2 = QD[j, 2, e]
+                    for i in range(3):
+                        Q[j, i, e] = w[oj + i] + (w[pj + 3 * i] * x0 + w[pj + 3 * i + 1] * x1
+                                                  + w[pj + 3 * i + 2] * x2)
+                        QD[j, i, e] = w[pj + 3 * i] * v0 + w[pj + 3 * i + 1] * v1 + w[pj + 3 * i + 2] * v2
+
+    @numba.extending.intrinsic
+    def _address(typingctx, arr, offset):
+        """Pointer to ``arr.flat[offset]`` (C-contiguous ``arr``), for numba.carray views into the
+        packed buffer that cost no reference counting and no reshape call."""
+        def codegen(context, builder, sig, args):
+            return builder.gep(context.make_array(sig.args[0])(context, builder, args[0]).data, [args[1]])
+        return numba.types.CPointer(arr.dtype)(arr, offset), codegen
+
+    @njit(inline="always", **_opts)
+    def _view(arr, offset, shape):
+        """C-contiguous view of ``arr`` from flat index ``offset`` with ``shape`` (no bounds check:
+        the caller's layout guarantees it). Unlike slicing and reshape, it costs no reference
+        counting and no library call, which matter at one copy and one step per call."""
+        return numba.carray(_address(arr, offset), shape)
+
+    @njit(inline="always", **_opts)
+    def _scratch(w, L, k, m, n, E, per_copy):
+        """The driver's scratch for E lanes, (S, N, V, F, L0, FD, EX, PC): stage arrays S
+        (10, k, 6, E), node positions / velocities / forces (n, 3, E), rest lengths and force
+        densities (m, E), external forces (n, 3, E), and the lanes' physical constants PC
+        (len, E). Separate arrays (the compiler may assume they do not overlap). Where every
+        copy shares ``w`` (``per_copy`` False) its constants and anchor rows are written here,
+        once; one copy reads them from ``w`` in place. Reusable across calls of the same model
+        and E (V's anchor rows, FD and EX stay 0 where unused)."""
+        if E == 1:        # one copy (serial calls, GIL held): the packed buffer's own scratch
+            o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
+            o_x = o_cn + 3 * n
+            PC = _view(w, 0, (0 if per_copy else w.shape[0], 1))
+            return (_view(w, o_ws, (10, k, 6, 1)), _view(w, o_N, (n, 3, 1)), _view(w, o_V, (n, 3, 1)),
+                    _view(w, o_F, (n, 3, 1)), _view(w, o_x, (m, 1)), _view(w, o_x + m, (m, 1)),
+                    _view(w, o_x + 2 * m, (n, 3, 1)), PC)
         N = np.empty((n, 3, E))
-        PC = np.empty((L[9], E))
-        per_copy = lanes.shape[0] > 0
-        if not per_copy:
+        if per_copy:
+            PC = np.empty((0, E))
+        else:
+            PC = np.empty((L[9], E))
             for e in range(E):
                 _lane_physics(PC, N, w, L, k, m, n, e)
-        V = np.zeros((n, 3, E))
-        F = np.empty((n, 3, E))
-        L0 = np.empty((m, E))
-        FD = np.zeros((m, E))
-        EX = np.zeros((n, 3, E))
+        return (np.empty((10, k, 6, E)), N, np.zeros((n, 3, E)), np.empty((n, 3, E)), np.empty((m, E)),
+                np.zeros((m, E)), np.zeros((n, 3, E)), PC)
+
+    def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E, scr):
+        """``n_steps`` fixed steps of copies lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e]) (which
+        may be the same arrays): the one loop driver of the numba backend. E copies at a time in
+        structure-of-arrays scratch (k, 6, E), so that every inner loop runs over copies and
+        compiles to SIMD code; E = 1 (one copy at a time) for small batches. The equations are
+        inlined (_acc, _rod_acc, _drift_rod, _project), so nothing is called per copy or per step.
+        ``w``/``ib``: the packed buffer (topology; its physical constants where every copy shares
+        them). ``lanes`` (ceil(B/E), len, E): the copies' packed buffers in blocks of E lanes
+        (:func:`_lanes`, or (P, len, 1) for E = 1; per-copy parameters, ``lo`` a multiple of E),
+        read in place: no copy per call; or (0, 1, 1): every copy uses ``w``'s constants.
+        ``scr``: :func:`_scratch` for this E and ``w``."""
+        S, N, V, F, L0, FD, EX, PC = scr
+        Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
+        per_copy = lanes.shape[0] > 0
         rk4 = (flags & _RK4) != 0
         n_stages = 4 if rk4 else 1
         do_proj = (flags & _PROJ) != 0
@@ -636,7 +515,7 @@ if AVAILABLE:
                 Vi = QD
                 A = A1
                 for stage in range(n_stages):
-                    _acc_soa(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC)
+                    _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC)
                     if not rk4 and do_proj:
                         for j in range(k):
                             for i in range(6):
@@ -672,42 +551,56 @@ if AVAILABLE:
                                     QD[j, i, e] = QD[j, i, e] + c6 * (A1[j, i, e] + 2.0 * A2[j, i, e]
                                                                       + 2.0 * A3[j, i, e] + A4[j, i, e])
                 if do_proj:
-                    for j in range(k):
-                        rj = o_rod + _ROD * j
-                        for e in range(E):
-                            b0 = Q[j, 3, e]
-                            b1 = Q[j, 4, e]
-                            b2 = Q[j, 5, e]
-                            inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-                            b0 = b0 * inb
-                            b1 = b1 * inb
-                            b2 = b2 * inb
-                            Q[j, 3, e] = b0
-                            Q[j, 4, e] = b1
-                            Q[j, 5, e] = b2
-                            dot = b0 * QD[j, 3, e] + b1 * QD[j, 4, e] + b2 * QD[j, 5, e]
-                            QD[j, 3, e] = QD[j, 3, e] - b0 * dot
-                            QD[j, 4, e] = QD[j, 4, e] - b1 * dot
-                            QD[j, 5, e] = QD[j, 5, e] - b2 * dot
-                        if any_cons and ib[rj + 2] != 0:
-                            pj = rj + 12
-                            oj = rj + 21
-                            for e in range(E):
-                                x0 = Q[j, 0, e]
-                                x1 = Q[j, 1, e]
-                                x2 = Q[j, 2, e]
-                                v0 = QD[j, 0, e]
-                                v1 = QD[j, 1, e]
-                                v2 = QD[j, 2, e]
-                                for i in range(3):
-                                    Q[j, i, e] = w[oj + i] + (w[pj + 3 * i] * x0 + w[pj + 3 * i + 1] * x1
-                                                              + w[pj + 3 * i + 2] * x2)
-                                    QD[j, i, e] = w[pj + 3 * i] * v0 + w[pj + 3 * i + 1] * v1 + w[pj + 3 * i + 2] * v2
+                    _project(w, ib, o_rod, k, Q, QD, E, any_cons)
             for e in range(ne):
                 for j in range(k):
                     for i in range(6):
                         qo[c0 + e, j, i] = Q[j, i, e]
                         qdo[c0 + e, j, i] = QD[j, i, e]
+
+    # The one driver, compiled twice: for any E (SIMD blocks), and inlined with E = 1 so that the
+    # compiler drops the lane loops of a single copy (same source, same operations).
+    _advance = njit(**_opts)(_advance_py)
+    _advance_inline = njit(inline="always", **_opts)(_advance_py)
+
+    @njit(**_opts)
+    def _advance_one(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
+        """_advance one copy at a time (E = 1, a compile-time constant), in the scratch of ``w``."""
+        _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1,
+                        _scratch(w, L, k, m, n, 1, lanes.shape[0] > 0))
+
+    @njit(inline="always", **_opts)
+    def _serial_setup(bufs, B):
+        """(layout, k, m, n, E, lanes, scratch) of serial calls on B copies with ``bufs`` (1, len)
+        shared or (B, len) one packed buffer per copy; ``lanes`` is for E = 1 only (the buffers
+        themselves, (B, len, 1)); a SIMD call takes the caller's :func:`_lanes` blocks."""
+        ibs = bufs.view(np.int64)
+        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+        L = _layout_nb(k, m, n)
+        E = _lane_width(k, B)
+        per_copy = bufs.shape[0] > 1
+        lanes = _view(bufs, 0, (bufs.shape[0] if per_copy else 0, bufs.shape[1], 1))
+        return L, k, m, n, E, lanes, _scratch(bufs[0], L, k, m, n, E, per_copy)
+
+    @njit(inline="always", **_opts)
+    def _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, setup):
+        """The serial step of every copy (checks, then the driver: its E = 1 instance for one copy
+        at a time); ``setup`` from :func:`_serial_setup`, reusable for repeated calls (the contact
+        sub-steps). Returns the error code (0: done)."""
+        L, k, m, n, E, lanes1, scr = setup
+        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+        if err == 0 and bufs.shape[0] != q.shape[0] and bufs.shape[0] != 1:
+            err = 7
+        if err:
+            return err
+        ib = bufs[0].view(np.int64)
+        if E == 1:
+            _advance_one(bufs[0], ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
+                         lanes1)
+        else:
+            _advance(bufs[0], ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
+                     _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2])), E, scr)
+        return 0
 
 
     @njit(**_opts)
@@ -730,14 +623,6 @@ if AVAILABLE:
             return 5
         return 0
 
-    @njit(inline="always", **_opts)
-    def _entry(q, qd, qo, qdo, buf, l0, fd, ext, flags):
-        """(error code, int64 view of buf, layout, k, m, n) of a call on one packed buffer: the
-        shape checks of _check (0: fine)."""
-        ib = buf.view(np.int64)
-        k, m, n = ib[0], ib[1], ib[2]
-        return _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags), ib, _layout_nb(k, m, n), k, m, n
-
     # explicit signatures (no other variant is ever compiled): C-contiguous float64 arrays
     _f8 = numba.types.float64
     _a1, _a2, _a3 = (numba.types.Array(_f8, d, "C") for d in (1, 2, 3))
@@ -750,15 +635,9 @@ if AVAILABLE:
     # ones on first use of any model, the parallel one on first use of a large batch.
     @njit(cache=True, fastmath=False, error_model="numpy")   # holds the GIL: it uses the scratch inside buf
     def _run_serial(q, qd, qo, qdo, buf, l0, fd, ext, dt, n_steps, flags):
-        err, ib, L, k, m, n = _entry(q, qd, qo, qdo, buf, l0, fd, ext, flags)
-        if err:
-            return err
-        if q.shape[0] >= _SOA_MIN_BATCH:
-            _advance_soa(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
-                         np.empty((0, 1, 1)))
-        else:
-            _advance_range(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags)
-        return 0
+        bufs = _view(buf, 0, (1, buf.shape[0]))
+        return _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, _view(buf, 0, (1, buf.shape[0], 1)),
+                       _serial_setup(bufs, q.shape[0]))
 
     @njit(cache=True, fastmath=False, error_model="numpy")
     def _run_lean(q, qd, qo, qdo, buf, dt, n_steps, flags):
@@ -766,11 +645,9 @@ if AVAILABLE:
         three array arguments fewer to convert at the Python boundary (single-env fast path)."""
         flags = (flags | _L0DEF) & ~(_FD | _EXT)
         d2 = q[0]                             # placeholders of the right type, never read
-        err, ib, L, k, m, n = _entry(q, qd, qo, qdo, buf, d2, d2, q, flags)
-        if err:
-            return err
-        _advance_range(buf, ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], d2, d2, q, dt, n_steps, flags)
-        return 0
+        bufs = _view(buf, 0, (1, buf.shape[0]))
+        return _serial(q, qd, qo, qdo, bufs, d2, d2, q, dt, n_steps, flags, _view(buf, 0, (1, buf.shape[0], 1)),
+                       _serial_setup(bufs, q.shape[0]))
 
     @njit(inline="always", **_opts)
     def _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, shared):
@@ -800,28 +677,20 @@ if AVAILABLE:
         E = _soa_width_nb(k)
         nb = (B + E - 1) // E                             # SIMD blocks
         nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))      # number of chunks in the high bits of flags
+        per_copy = lanes.shape[0] > 0
         for c in prange(nch):
-            # _advance_soa only reads the buffers and allocates its own scratch: threads share nothing written
-            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, (c * nb // nch) * E,
-                         min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes)
+            # _advance only reads the buffers; each chunk has its own scratch: threads share nothing written
+            _advance(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, (c * nb // nch) * E,
+                     min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes, E,
+                     _scratch(bufs[0], L, k, m, n, E, per_copy))
         return 0
 
 
 
-    # copy e runs the same _advance_range as the shared buffer's copies on bufs[e]: no copy shares a
-    # written byte with another
+    # one packed buffer per copy (bufs (B, len)), each lane reading its copy's constants
     @njit(cache=True, fastmath=False, error_model="numpy")
     def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
-        err, ibs, L, k, m, n = _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, False)
-        if err:
-            return err
-        B = q.shape[0]
-        if B >= _SOA_MIN_BATCH:     # the SIMD loop, each lane with its copy's constants
-            _advance_soa(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, 0, B, l0, fd, ext, dt, n_steps, flags, lanes)
-            return 0
-        for e in range(B):
-            _advance_range(bufs[e], ibs[e], L, k, m, n, q, qd, qo, qdo, e, e + 1, l0, fd, ext, dt, n_steps, flags)
-        return 0
+        return _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, _serial_setup(bufs, q.shape[0]))
 
 
 # ---------------------------------------------------------------------- Python side

@@ -261,7 +261,7 @@ if AVAILABLE:
     from numba import njit
 
     _run_serial = _kernels._run_serial
-    _run_copies_serial = _kernels._run_copies_serial
+    _serial, _serial_setup = _kernels._serial, _kernels._serial_setup
     _forces_kernel = gc._forces_kernel
 
     @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside the buffers
@@ -272,12 +272,10 @@ if AVAILABLE:
         kernel with ``external=W`` (``flags`` carry it); ``bufs`` (1, len) the shared packed buffer
         or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the kernel's error code (0: done)."""
         one = np.int64(1)
+        setup = _serial_setup(bufs, q.shape[0])     # the integrator's scratch, once for all sub-steps
         for _ in range(n_steps):
             _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm)
-            if bufs.shape[0] == 1:
-                err = _run_serial(q, qd, q, qd, bufs[0], l0, fd, W, dt, one, flags)
-            else:
-                err = _run_copies_serial(q, qd, q, qd, bufs, l0, fd, W, dt, one, flags, lanes)
+            err = _serial(q, qd, q, qd, bufs, l0, fd, W, dt, one, flags, lanes, setup)
             if err:
                 return err
         return 0
