@@ -460,7 +460,7 @@ if AVAILABLE:
         return (np.empty((10, k, 6, E)), N, np.zeros((n, 3, E)), np.empty((n, 3, E)), np.empty((m, E)),
                 np.zeros((m, E)), np.zeros((n, 3, E)), PC)
 
-    def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E, scr):
+    def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E):
         """``n_steps`` fixed steps of copies lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e]) (which
         may be the same arrays): the one loop driver of the numba backend. E copies at a time in
         structure-of-arrays scratch (k, 6, E), so that every inner loop runs over copies and
@@ -470,8 +470,9 @@ if AVAILABLE:
         them). ``lanes`` (ceil(B/E), len, E): the copies' packed buffers in blocks of E lanes
         (:func:`_lanes`, or (P, len, 1) for E = 1; per-copy parameters, ``lo`` a multiple of E),
         read in place: no copy per call; or (0, 1, 1): every copy uses ``w``'s constants.
-        ``scr``: :func:`_scratch` for this E and ``w``."""
-        S, N, V, F, L0, FD, EX, PC = scr
+        Its scratch (:func:`_scratch`) is made here: fresh arrays for SIMD blocks (which the
+        compiler knows do not overlap), views of ``w``'s own scratch for E = 1."""
+        S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, E, lanes.shape[0] > 0)
         Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
         per_copy = lanes.shape[0] > 0
         rk4 = (flags & _RK4) != 0
@@ -558,20 +559,24 @@ if AVAILABLE:
                         qo[c0 + e, j, i] = Q[j, i, e]
                         qdo[c0 + e, j, i] = QD[j, i, e]
 
-    # The one driver, compiled twice: for any E (SIMD blocks), and inlined with E = 1 so that the
-    # compiler drops the lane loops of a single copy (same source, same operations).
-    _advance = njit(**_opts)(_advance_py)
+    # The one driver, inlined into its two instances with E known to the compiler: SIMD blocks
+    # (E = 16 or 8) and one copy at a time (E = 1, lane loops dropped). Same source, same operations.
     _advance_inline = njit(inline="always", **_opts)(_advance_py)
+
+    @njit(**_opts)
+    def _advance(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
+        """_advance_py in SIMD blocks of E = :func:`_soa_width` copies (fresh scratch arrays)."""
+        _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes,
+                        _soa_width_nb(k))
 
     @njit(**_opts)
     def _advance_one(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
         """_advance one copy at a time (E = 1, a compile-time constant), in the scratch of ``w``."""
-        _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1,
-                        _scratch(w, L, k, m, n, 1, lanes.shape[0] > 0))
+        _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1)
 
     @njit(inline="always", **_opts)
     def _serial_setup(bufs, B):
-        """(layout, k, m, n, E, lanes, scratch) of serial calls on B copies with ``bufs`` (1, len)
+        """(layout, k, m, n, E, lanes) of serial calls on B copies with ``bufs`` (1, len)
         shared or (B, len) one packed buffer per copy; ``lanes`` is for E = 1 only (the buffers
         themselves, (B, len, 1)); a SIMD call takes the caller's :func:`_lanes` blocks."""
         ibs = bufs.view(np.int64)
@@ -580,14 +585,14 @@ if AVAILABLE:
         E = _lane_width(k, B)
         per_copy = bufs.shape[0] > 1
         lanes = _view(bufs, 0, (bufs.shape[0] if per_copy else 0, bufs.shape[1], 1))
-        return L, k, m, n, E, lanes, _scratch(bufs[0], L, k, m, n, E, per_copy)
+        return L, k, m, n, E, lanes
 
     @njit(inline="always", **_opts)
     def _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, setup):
         """The serial step of every copy (checks, then the driver: its E = 1 instance for one copy
         at a time); ``setup`` from :func:`_serial_setup`, reusable for repeated calls (the contact
         sub-steps). Returns the error code (0: done)."""
-        L, k, m, n, E, lanes1, scr = setup
+        L, k, m, n, E, lanes1 = setup
         err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
         if err == 0 and bufs.shape[0] != q.shape[0] and bufs.shape[0] != 1:
             err = 7
@@ -599,7 +604,7 @@ if AVAILABLE:
                          lanes1)
         else:
             _advance(bufs[0], ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
-                     _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2])), E, scr)
+                     _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2])))
         return 0
 
 
@@ -677,12 +682,10 @@ if AVAILABLE:
         E = _soa_width_nb(k)
         nb = (B + E - 1) // E                             # SIMD blocks
         nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))      # number of chunks in the high bits of flags
-        per_copy = lanes.shape[0] > 0
         for c in prange(nch):
             # _advance only reads the buffers; each chunk has its own scratch: threads share nothing written
             _advance(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, (c * nb // nch) * E,
-                     min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes, E,
-                     _scratch(bufs[0], L, k, m, n, E, per_copy))
+                     min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes)
         return 0
 
 

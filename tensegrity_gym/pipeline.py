@@ -272,7 +272,7 @@ if AVAILABLE:
         kernel with ``external=W`` (``flags`` carry it); ``bufs`` (1, len) the shared packed buffer
         or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the kernel's error code (0: done)."""
         one = np.int64(1)
-        setup = _serial_setup(bufs, q.shape[0])     # the integrator's scratch, once for all sub-steps
+        setup = _serial_setup(bufs, q.shape[0])     # layout and lane width, once for all sub-steps
         for _ in range(n_steps):
             _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm)
             err = _serial(q, qd, q, qd, bufs, l0, fd, W, dt, one, flags, lanes, setup)
