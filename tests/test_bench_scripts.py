@@ -1,0 +1,16 @@
+"""The benchmark scripts run end to end in their smallest size (they print tables, they are not
+timed here: timings are the scripts' business, on a quiet machine)."""
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_bench_envs_default_env_runs(tmp_path):
+    # the shape env's single step is measured by bench_step_overhead; bench_envs must skip it, not crash
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "bench_envs.py"), "--quick", "--env", "shape",
+                        "--methods", "batched", "--n-envs", "1", "--seconds", "0.05", "--out", str(tmp_path / "b")],
+                       capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "Targets" in r.stdout
