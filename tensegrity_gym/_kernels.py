@@ -57,10 +57,12 @@ Implementation notes
   when a call carries at least ``PARALLEL_MIN_WORK`` units of work; it takes the packed buffers
   (P, len): the shared one, P = 1, or one per copy). The serial ones compile
   (or load from numba's disk cache) on the first call, the parallel one on the first large
-  batch. All of them run ONE loop driver, ``_advance``, on structure-of-arrays scratch
-  (k, 6, E): E = 16 (8 above 24 rods) environments per SIMD block from ``_SOA_MIN_BATCH`` = 16
-  environments, else one at a time through its instance compiled with E = 1 (bit-identical
-  results either way).
+  batch. All of them run ONE loop driver, ``_advance_py``, on structure-of-arrays scratch
+  (k, 6, E), through its two instances: ``_advance``, E = 16 (8 above 24 rods) environments
+  per SIMD block from ``_SOA_MIN_BATCH`` = 16 environments (fresh scratch per call), and
+  ``_advance_one``, one at a time with E = 1 a compile-time constant, in the packed buffer's
+  own scratch reached through ``numba.carray`` views (``_view``: no reference counting)
+  (bit-identical results either way).
 * numba's threading layer is set to ``workqueue`` unless the user chose one
   (``NUMBA_THREADING_LAYER``): see the comment at the import. The parallel kernel holds
   the GIL, so two Python threads never enter the pool at once.
