@@ -911,15 +911,16 @@ def _compile(which: str) -> None:
     _READY[which] = True
 
 
-def _parallel(p, B, n_steps, flags):
-    """True if this call should run the multi-threaded kernel (see PARALLEL_MIN_WORK)."""
+def _parallel(p, B, n_steps, flags, compile_kernel=True):
+    """True if this call should run the multi-threaded kernel (see PARALLEL_MIN_WORK); compiles
+    ``_run_parallel`` then unless ``compile_kernel`` is False (a caller with its own parallel kernel)."""
     try:
         work = B * int(n_steps) * p.cost * (4 if flags & _RK4 else 1)
     except (TypeError, ValueError):
         return False
     if work < PARALLEL_MIN_WORK:
         return False
-    if not _READY["parallel"]:
+    if compile_kernel and not _READY["parallel"]:
         _compile("parallel")
     return True
 

@@ -292,11 +292,15 @@ def _forces_numpy(c: GroundContact, model, q, qd, anchor, active, prm=None):
 
 
 if _NUMBA:
-    @njit(cache=True, nogil=True)
-    def _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm):
-        B, k = q.shape[0], q.shape[1]
+    @njit(inline="always", cache=True, nogil=True)
+    def _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, lo, hi):
+        """The contact forces (the one numba implementation of :func:`_forces_numpy`) of copies
+        ``lo`` ... ``hi - 1`` into ``W``, their anchors, active and slip flags updated in place;
+        ``prm`` (1, 9) shared or (B, 9) one row per copy. Inlined into :func:`_forces_kernel`
+        (the whole batch) and into the pipeline's compiled contact loop (a chunk of it)."""
+        k = q.shape[1]
         per_copy = prm.shape[0] > 1
-        for e in range(B):
+        for e in range(lo, hi):
             pe = e if per_copy else 0      # prm (1, 9) shared or (B, 9) one row per copy
             height, radius, kn, dn, ex, mu = prm[pe, 0], prm[pe, 1], prm[pe, 2], prm[pe, 3], prm[pe, 4], prm[pe, 5]
             kt, ct, cmax = prm[pe, 6], prm[pe, 7], prm[pe, 8]
@@ -348,6 +352,12 @@ if _NUMBA:
                     W[e, node, 0] += fx
                     W[e, node, 1] += fy
                     W[e, node, 2] += fn
+
+
+    @njit(cache=True, nogil=True)
+    def _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm):
+        """:func:`_forces_range` on the whole batch."""
+        _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, 0, q.shape[0])
 
 
 def contact_forces(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: np.ndarray,

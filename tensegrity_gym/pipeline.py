@@ -25,12 +25,15 @@ kernel loop.
     packed model, integrator and control mode of ``integrators.step``'s serial kernel as an
     opaque :class:`Plan`, and the njit-callable that runs it.
 
-With the numba kernels the contact steps of :func:`advance` run in ONE compiled call
-(``_contact_loop``: the contact kernel, then the serial integrator kernel, per step: the same
-calls, in the same order, as the Python loop, which the NumPy backend and batches large enough
-for the parallel kernel run). numba's on-disk cache does not notice edits of the kernels that
-``_contact_loop`` and :func:`run_plan` call: clear ``__pycache__`` (``*.nbi``, ``*.nbc``) after
-editing ``_kernels.py`` or ``contact.py``.
+With the numba kernels the contact steps of :func:`advance` run in ONE compiled call, written
+once (``_contact_range``: per sub-step the contact forces of a range of copies, then one step of
+the loop driver on them) and run either on the whole batch on this thread (``_contact_loop``) or
+on chunks of whole SIMD blocks on all threads (``_contact_parallel``, when the call has the
+parallel kernel's work: every sub-step of a chunk runs inside one ``prange`` iteration). The
+Python loop of :func:`advance` (the same calls, in the same order, bit for bit) is the NumPy
+backend's. numba's on-disk cache does not notice edits of the kernels that these and
+:func:`run_plan` inline or call: clear ``__pycache__`` (``*.nbi``, ``*.nbc``) after editing
+``_kernels.py`` or ``contact.py``.
 
 ``AVAILABLE`` (numba importable) switches the compiled bookkeeping (divergence check, control
 update, fused steps); set it False to run the NumPy references (the tests do). The physics
@@ -90,9 +93,9 @@ def advance(model: Model, q: np.ndarray, qd: np.ndarray, dt: float, integrator: 
         forces = np.empty((B, model.n_nodes, 3))
     if slip is None:
         slip = np.empty((B, 2 * model.n_bars), bool)
-    if compiled and external is None and contact._numba and _contact_compiled(
-            model, q, qd, dt, integrator, n_steps, rest_length, force_density, params, project, contact, cstate,
-            contact_params, forces, slip):
+    if compiled and contact._numba and _contact_compiled(
+            model, q, qd, dt, integrator, n_steps, rest_length, force_density, external, params, project, contact,
+            cstate, contact_params, forces, slip):
         return
     contact_forces = gc.forces_inplace
     for _ in range(int(n_steps)):
@@ -156,35 +159,46 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     return State(q=q, qd=qd, t=t), cs
 
 
-def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_density, params, project, contact, cstate,
-                      contact_params, forces, slip) -> bool:
-    """The contact loop of :func:`advance` in ONE compiled call (:func:`_contact_loop`: the
-    contact kernel and the serial integrator kernel per step, exactly the calls the Python loop
-    makes), when the serial kernels are what that loop would run; False (nothing done) otherwise:
-    a batch large enough for the parallel kernel, or arrays the kernels do not take as they are."""
+def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_density, external, params, project,
+                      contact, cstate, contact_params, forces, slip) -> bool:
+    """The contact loop of :func:`advance` in ONE compiled call: :func:`_contact_loop` (this
+    thread) or, for a batch with enough work for the parallel kernel (``_kernels._parallel``),
+    :func:`_contact_parallel` (chunks of the batch on all threads, every sub-step inside). False
+    (nothing done) for arrays the kernels do not take as they are: the Python loop converts them."""
     p = (_kernels._CACHE.get(id(model)) or _kernels._packed(model)) if params is None else \
         _kernels._pack_params(model, params)
     flags = _kernels._flags(p, name, project)
-    B = q.shape[0]
-    if B >= 8 and B * p.cost * (4 if flags & _kernels._RK4 else 1) >= _kernels.PARALLEL_MIN_WORK:
-        return False
     for x in (q, qd, forces):
         if not (type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable):
             return False
-    l0, fd, ext, flags = _kernels._controls(p, flags, rest_length, force_density, forces)
+    if external is None:
+        ext = _NO_EXTERNAL
+    elif type(external) is np.ndarray and external.dtype == np.float64 and external.ndim == 3:
+        ext = external
+    else:
+        return False
+    l0, fd, _, flags = _kernels._controls(p, flags, rest_length, force_density, forces)
     l0, fd = _kernels._array(l0, 2, "rest_length"), _kernels._array(fd, 2, "force_density")
     prm = contact._prm if contact_params is None else contact_params
     bufs = p.buf[None] if p.bufs is None else p.bufs
-    if p.bufs is not None and not _kernels._READY["copies"]:
-        _kernels._compile("copies")
+    B = q.shape[0]
+    if B >= 8 and _kernels._parallel(p, B, n_steps, flags, compile_kernel=False):
+        kernel, flags = _contact_parallel, flags | (_kernels._NCHUNK << _kernels._CHUNK_SHIFT)
+    else:
+        kernel = _contact_loop
+        if p.bufs is not None and not _kernels._READY["copies"]:
+            _kernels._compile("copies")
     try:
-        err = _contact_loop(q, qd, bufs, p.lanes, l0, fd, forces, float(dt), int(n_steps), flags, model.eta,
-                            model.rod_a, model.rod_c, cstate.anchor, cstate.active, slip, prm)
+        err = kernel(q, qd, bufs, p.lanes, l0, fd, forces, ext, float(dt), int(n_steps), flags, model.eta,
+                     model.rod_a, model.rod_c, cstate.anchor, cstate.active, slip, prm)
     except TypeError:      # an array of another type or layout: the Python loop converts it
         return False
     if err:
-        _kernels._raise(err, model, q, qd, rest_length, force_density, forces)
+        _kernels._raise(err, model, q, qd, rest_length, force_density, forces if external is None else external)
     return True
+
+
+_NO_EXTERNAL = np.empty((0, 1, 3))   # no external force added to the contact forces
 
 
 # ---------------------------------------------------------------------- divergence
@@ -258,26 +272,89 @@ def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_
 
 
 if AVAILABLE:
-    from numba import njit
+    from numba import njit, prange
 
     _run_serial = _kernels._run_serial
-    _serial, _serial_setup = _kernels._serial, _kernels._serial_setup
-    _forces_kernel = gc._forces_kernel
 
-    @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside the buffers
-    def _contact_loop(q, qd, bufs, lanes, l0, fd, W, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active, slip,
-                      prm):
-        """In place, ``n_steps`` times: the contact forces ``W`` (B, n, 3) from the state (the
-        contact kernel, anchors and slip flags updated), then one step of the serial integrator
-        kernel with ``external=W`` (``flags`` carry it); ``bufs`` (1, len) the shared packed buffer
-        or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the kernel's error code (0: done)."""
-        one = np.int64(1)
-        setup = _serial_setup(bufs, q.shape[0])     # layout and lane width, once for all sub-steps
+    _advance, _advance_one, _copies_check = _kernels._advance, _kernels._advance_one, _kernels._copies_check
+    _forces_range, _view, _soa_width_nb = gc._forces_range, _kernels._view, _kernels._soa_width_nb
+
+    @njit(inline="always", cache=True)
+    def _contact_range(q, qd, w, ib, L, k, m, n, lanes, one, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a,
+                       rod_c, anchor, active, slip, prm, lo, hi):
+        """The contact sub-steps of copies lo..hi-1, in place, ``n_steps`` times: their contact
+        forces ``W`` from the state at the step's start (anchors and slip flags updated), plus
+        ``ext`` (1 or B, n, 3) N if it has rows, then ONE step of the loop driver with those
+        forces (``flags`` carry ``external``): its one-copy instance if ``one``, else the SIMD
+        one. The one compiled form of :func:`advance`'s contact loop: the serial entry runs it on
+        the whole batch, the parallel entry on chunks of whole SIMD blocks."""
+        per_ext = ext.shape[0] > 1
         for _ in range(n_steps):
-            _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm)
-            err = _serial(q, qd, q, qd, bufs, l0, fd, W, dt, one, flags, lanes, setup)
-            if err:
-                return err
+            _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, lo, hi)
+            if ext.shape[0] > 0:
+                for e in range(lo, hi):
+                    r = e if per_ext else 0
+                    for i in range(n):
+                        for c in range(3):
+                            W[e, i, c] += ext[r, i, c]
+            if one:
+                _advance_one(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, 1, flags, lanes)
+            else:
+                _advance(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, 1, flags, lanes)
+
+    @njit(inline="always", cache=True)
+    def _contact_check(q, qd, bufs, l0, fd, W, ext, flags):
+        """(error code, int64 view of bufs, layout, k, m, n) of a contact loop call: the driver's
+        checks (``_kernels._copies_check``, W as its external force) and ext rows 0, 1 or B of
+        (n, 3) (error 5 otherwise)."""
+        err, ibs, L, k, m, n = _copies_check(q, qd, q, qd, bufs, l0, fd, W, flags, True)
+        if err == 0 and ext.shape[0] > 0 and ((ext.shape[0] != 1 and ext.shape[0] != q.shape[0])
+                                              or ext.shape[1] != n or ext.shape[2] != 3):
+            err = 5
+        return err, ibs, L, k, m, n
+
+    @njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
+    def _contact_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active,
+                      slip, prm):
+        """:func:`_contact_range` on the whole batch, on this thread. ``bufs`` (1, len) the shared
+        packed buffer or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the
+        kernel's error code (0: done)."""
+        err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
+        if err:
+            return err
+        B = q.shape[0]
+        per_copy = bufs.shape[0] > 1
+        w = bufs[0]
+        if _kernels._lane_width(k, B) == 1:
+            _contact_range(q, qd, w, ibs[0], L, k, m, n, _view(bufs, 0, (bufs.shape[0] if per_copy else 0,
+                           bufs.shape[1], 1)), True, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor,
+                           active, slip, prm, 0, B)
+        else:
+            _contact_range(q, qd, w, ibs[0], L, k, m, n, _view(lanes, 0, (lanes.shape[0] if per_copy else 0,
+                           lanes.shape[1], lanes.shape[2])), False, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a,
+                           rod_c, anchor, active, slip, prm, 0, B)
+        return 0
+
+    @njit(parallel=True, cache=True)   # holds the GIL, as _kernels._run_parallel does
+    def _contact_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor,
+                          active, slip, prm):
+        """:func:`_contact_range` on chunks of whole SIMD blocks on all threads (``prange``; the
+        chunk count in ``flags >> _CHUNK_SHIFT``): each chunk runs all ``n_steps`` sub-steps of
+        its copies (contact forces, then the SIMD driver with its own scratch), so the threads
+        meet once per call, not once per sub-step. Same arguments and bits as
+        :func:`_contact_loop`."""
+        err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
+        if err:
+            return err
+        B = q.shape[0]
+        E = _soa_width_nb(k)
+        nb = (B + E - 1) // E
+        nch = min(nb, max(flags >> _kernels._CHUNK_SHIFT, 1))
+        for c in prange(nch):
+            # the driver only reads the buffers; each chunk has its own scratch and copies
+            _contact_range(q, qd, bufs[0], ibs[0], L, k, m, n, lanes, False, l0, fd, W, ext, dt, n_steps,
+                           flags, eta, rod_a, rod_c, anchor, active, slip, prm, (c * nb // nch) * E,
+                           min(B, ((c + 1) * nb // nch) * E))
         return 0
 
     @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf

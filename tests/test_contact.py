@@ -197,3 +197,32 @@ def test_fast_impact_stays_stable_with_capped_damping():
     assert np.all(np.isfinite(st.q))
     assert zmax < 0.5 and pen < 0.02
     assert np.abs(st.qd).max() < 1e-2 and cs.active.all()
+
+
+@pytest.mark.parametrize("B, ext_rows", [(1, 1), (6, 6), (64, 1), (64, 64)])
+def test_contact_steps_with_external_force_compiled_equal_python_loop(monkeypatch, B, ext_rows):
+    """pipeline.step with ground contact and an external force (shared or per copy): the one
+    compiled contact loop (serial for 1 and 6 copies, the parallel chunks for 64) gives the bits
+    of the Python loop (contact forces + external, then one integrator step, per sub-step)."""
+    if not C._NUMBA:
+        pytest.skip("numba not installed")
+    from tensegrity_gym import pipeline
+    rng = np.random.default_rng(3)
+    m = resting_prism(drop=0.01)
+    st = dyn.initial_state(m, B)
+    st = dyn.State(st.q + rng.normal(0, 0.005, st.q.shape), rng.normal(0, 0.2, st.q.shape), 0.0)
+    cs = C.init_contact_state(m, B)
+    ext = rng.normal(0, 2.0, (ext_rows, m.n_nodes, 3))
+    g = C.GroundContact(friction=0.4)
+    calls = []
+    for name in ("_contact_loop", "_contact_parallel"):
+        monkeypatch.setattr(pipeline, name, lambda *a, _f=getattr(pipeline, name), _n=name: calls.append(_n) or _f(*a))
+    s1, c1 = pipeline.step(m, st, DT, n_steps=20, contact=g, cstate=cs, external=ext)
+    assert calls == ["_contact_parallel" if B >= 64 else "_contact_loop"]
+    monkeypatch.setattr(pipeline, "_contact_compiled", lambda *a: False)
+    s2, c2 = pipeline.step(m, st, DT, n_steps=20, contact=g, cstate=cs, external=ext)
+    assert np.array_equal(s1.q, s2.q) and np.array_equal(s1.qd, s2.qd)
+    assert np.array_equal(c1.anchor, c2.anchor) and np.array_equal(c1.active, c2.active)
+    assert c1.active.any()            # the caps touch: contact forces were exercised
+    s3, _ = pipeline.step(m, st, DT, n_steps=20, contact=g, cstate=cs)
+    assert not np.array_equal(s1.q, s3.q)   # the external force acted

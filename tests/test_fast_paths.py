@@ -227,11 +227,13 @@ def test_mean_max_matches_numpy_reductions():
 
 @pytest.mark.parametrize("kw", [dict(), dict(num_envs=20, integrator="rk4"),
                                 dict(num_envs=5, randomize={"rod_mass": 0.1, "friction": 0.2}),
-                                dict(observation_mode="robot")])
+                                dict(observation_mode="robot"), dict(num_envs=12), dict(num_envs=70),
+                                dict(num_envs=50, randomize={"rod_mass": 0.1, "friction": 0.2})])
 def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
-    """pipeline.advance's contact steps in ONE compiled call (_contact_loop) give the same bits as
-    its Python loop of contact.forces_inplace + _kernels.step_inplace, and reuse the model's packed
-    buffer (no repacking per control step)."""
+    """pipeline.advance's contact steps in ONE compiled call (_contact_loop on this thread, or
+    _contact_parallel on chunks of the batch when the call has enough work: 20 copies with RK4,
+    50 and 70 copies) give the same bits as its Python loop of contact.forces_inplace +
+    _kernels.step_inplace, and reuse the model's packed buffer (no repacking per control step)."""
     from tensegrity_gym import _kernels
     from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
     n = kw.pop("num_envs", 1)
@@ -239,8 +241,8 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
         (lambda: TensegrityRollVectorEnv(num_envs=n, max_episode_steps=None, **kw))
     fused, loop = make(), make()
     calls = []
-    real = pipeline._contact_loop
-    monkeypatch.setattr(pipeline, "_contact_loop", lambda *a: calls.append(1) or real(*a))
+    for name in ("_contact_loop", "_contact_parallel"):
+        monkeypatch.setattr(pipeline, name, lambda *a, _f=getattr(pipeline, name), _n=name: calls.append(_n) or _f(*a))
     assert same(fused.reset(seed=1)[0], loop.reset(seed=1)[0])
     packed = []
     rng = np.random.default_rng(2)
@@ -254,4 +256,5 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
         assert same(fused.unwrapped.task.cstate.anchor, loop.unwrapped.task.cstate.anchor), t
         packed.append(_kernels._CACHE.get(id(fused.unwrapped.task.model)))
     assert len(calls) == 6 * (2 if kw.get("observation_mode") == "robot" else 1)   # robot: IMUs split the last step
+    assert set(calls) == {"_contact_parallel" if n >= 20 else "_contact_loop"}, (n, set(calls))
     assert packed[0] is not None and all(p is packed[0] for p in packed)
