@@ -11,8 +11,8 @@ every output equal to 1e-12 relative).
 Euler and RK4 with the numba kernels and 20 steps with the NumPy path, dop853 and implicit Euler
 (B = 3 copies); and 100 control steps of TensegrityShape-v0 (both action modes) and
 TensegrityRoll-v0 (single env and a vector env of 4) under a fixed seeded action sequence
-(observations, rewards); vector envs of 20 and 64 copies, nominal and randomised (64: the roll
-env's contact loop on all threads). Only public API is used, so any version can be dumped.
+(observations, rewards); vector envs of 20 and 64 copies, nominal and randomised, and of 900
+(the roll env's contact loop on all threads). Only public API is used, so any version can be dumped.
 """
 from __future__ import annotations
 
@@ -81,8 +81,8 @@ def dump(path: str) -> None:
                           ("vector", gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", **kw))):
             out[f"{tag}/{kind}/obs"], out[f"{tag}/{kind}/rew"] = _rollout(env, rng)
     # the roll env's contact sub-steps on all threads (enough work for the parallel kernel)
-    env = gym.make_vec("TensegrityRoll-v0", num_envs=64, vectorization_mode="vector_entry_point")
-    out["TensegrityRoll-v0/vector/N=64/obs"], out["TensegrityRoll-v0/vector/N=64/rew"] = _rollout(
+    env = gym.make_vec("TensegrityRoll-v0", num_envs=900, vectorization_mode="vector_entry_point")
+    out["TensegrityRoll-v0/vector/N=900/obs"], out["TensegrityRoll-v0/vector/N=900/rew"] = _rollout(
         env, np.random.default_rng(4), steps=30)
     for env_id, N, rnd in (("TensegrityRoll-v0", 20, {"rod_mass": 0.1, "friction": 0.2, "stiffness": 0.1}),
                            ("TensegrityRoll-v0", 64, {"rod_mass": 0.1, "friction": 0.2, "stiffness": 0.1}),

@@ -28,7 +28,7 @@ kernel loop.
 With the numba kernels the contact steps of :func:`advance` run in ONE compiled call, written
 once (``_contact_range``: per sub-step the contact forces of a range of copies, then one step of
 the loop driver on them) and run either on the whole batch on this thread (``_contact_loop``) or
-on chunks of whole SIMD blocks on all threads (``_contact_parallel``, when the call has the
+on chunks of whole SIMD blocks on all threads (``_contact_parallel``, when one sub-step has the
 parallel kernel's work: every sub-step of a chunk runs inside one ``prange`` iteration). The
 Python loop of :func:`advance` (the same calls, in the same order, bit for bit) is the NumPy
 backend's. numba's on-disk cache does not notice edits of the kernels that these and
@@ -182,7 +182,10 @@ def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_densit
     prm = contact._prm if contact_params is None else contact_params
     bufs = p.buf[None] if p.bufs is None else p.bufs
     B = q.shape[0]
-    if B >= 8 and _kernels._parallel(p, B, n_steps, flags, compile_kernel=False):
+    # parallel when ONE sub-step has the parallel kernel's work (not all n_steps together): the
+    # threads then meet once per call, but on a 2-core machine waking them between env steps
+    # costs more than they save below that (results/refactor/contact_loop.md)
+    if B >= 8 and _kernels._parallel(p, B, 1, flags, compile_kernel=False):
         kernel, flags = _contact_parallel, flags | (_kernels._NCHUNK << _kernels._CHUNK_SHIFT)
     else:
         kernel = _contact_loop

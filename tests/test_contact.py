@@ -199,10 +199,10 @@ def test_fast_impact_stays_stable_with_capped_damping():
     assert np.abs(st.qd).max() < 1e-2 and cs.active.all()
 
 
-@pytest.mark.parametrize("B, ext_rows", [(1, 1), (6, 6), (64, 1), (64, 64)])
+@pytest.mark.parametrize("B, ext_rows", [(1, 1), (6, 6), (64, 64), (900, 1), (900, 900)])
 def test_contact_steps_with_external_force_compiled_equal_python_loop(monkeypatch, B, ext_rows):
     """pipeline.step with ground contact and an external force (shared or per copy): the one
-    compiled contact loop (serial for 1 and 6 copies, the parallel chunks for 64) gives the bits
+    compiled contact loop (serial for 1, 6 and 64 copies, the parallel chunks for 900) gives the bits
     of the Python loop (contact forces + external, then one integrator step, per sub-step)."""
     if not C._NUMBA:
         pytest.skip("numba not installed")
@@ -218,7 +218,7 @@ def test_contact_steps_with_external_force_compiled_equal_python_loop(monkeypatc
     for name in ("_contact_loop", "_contact_parallel"):
         monkeypatch.setattr(pipeline, name, lambda *a, _f=getattr(pipeline, name), _n=name: calls.append(_n) or _f(*a))
     s1, c1 = pipeline.step(m, st, DT, n_steps=20, contact=g, cstate=cs, external=ext)
-    assert calls == ["_contact_parallel" if B >= 64 else "_contact_loop"]
+    assert calls == ["_contact_parallel" if B >= 900 else "_contact_loop"]
     monkeypatch.setattr(pipeline, "_contact_compiled", lambda *a: False)
     s2, c2 = pipeline.step(m, st, DT, n_steps=20, contact=g, cstate=cs, external=ext)
     assert np.array_equal(s1.q, s2.q) and np.array_equal(s1.qd, s2.qd)

@@ -228,11 +228,12 @@ def test_mean_max_matches_numpy_reductions():
 @pytest.mark.parametrize("kw", [dict(), dict(num_envs=20, integrator="rk4"),
                                 dict(num_envs=5, randomize={"rod_mass": 0.1, "friction": 0.2}),
                                 dict(observation_mode="robot"), dict(num_envs=12), dict(num_envs=70),
-                                dict(num_envs=50, randomize={"rod_mass": 0.1, "friction": 0.2})])
+                                dict(num_envs=210, integrator="rk4"),
+                                dict(num_envs=220, integrator="rk4", randomize={"rod_mass": 0.1, "friction": 0.2})])
 def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
     """pipeline.advance's contact steps in ONE compiled call (_contact_loop on this thread, or
-    _contact_parallel on chunks of the batch when the call has enough work: 20 copies with RK4,
-    50 and 70 copies) give the same bits as its Python loop of contact.forces_inplace +
+    _contact_parallel on chunks of the batch when one sub-step has the parallel kernel's work:
+    210 and 220 copies with RK4) give the same bits as its Python loop of contact.forces_inplace +
     _kernels.step_inplace, and reuse the model's packed buffer (no repacking per control step)."""
     from tensegrity_gym import _kernels
     from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
@@ -256,5 +257,5 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
         assert same(fused.unwrapped.task.cstate.anchor, loop.unwrapped.task.cstate.anchor), t
         packed.append(_kernels._CACHE.get(id(fused.unwrapped.task.model)))
     assert len(calls) == 6 * (2 if kw.get("observation_mode") == "robot" else 1)   # robot: IMUs split the last step
-    assert set(calls) == {"_contact_parallel" if n >= 20 else "_contact_loop"}, (n, set(calls))
+    assert set(calls) == {"_contact_parallel" if n >= 200 else "_contact_loop"}, (n, set(calls))
     assert packed[0] is not None and all(p is packed[0] for p in packed)
