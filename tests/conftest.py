@@ -8,18 +8,23 @@ if _TESTS not in sys.path:
     sys.path.insert(0, _TESTS)
 
 import os  # noqa: E402
+import shutil  # noqa: E402
+import tempfile  # noqa: E402
 
-import pytest  # noqa: E402
+_SB3_LOGDIR = None
 
 
-@pytest.fixture(autouse=True, scope="session")
-def _sb3_logs_in_tmp(tmp_path_factory):
+def pytest_configure(config):
     """SB3 models made without a log folder write an (empty) ``SB3-<date>`` folder into the
-    system's temporary directory on every ``learn()``; keep those inside pytest's own temporary
-    directory (subprocesses inherit the variable)."""
+    system's temporary directory on every ``learn()``: point them (and the subprocesses, whose
+    environments the test modules copy at import) at one folder removed at the end."""
+    global _SB3_LOGDIR
     if "SB3_LOGDIR" not in os.environ:
-        os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logs"))
-        yield
+        _SB3_LOGDIR = tempfile.mkdtemp(prefix="tensegrity_gym_tests_sb3_")
+        os.environ["SB3_LOGDIR"] = _SB3_LOGDIR
+
+
+def pytest_unconfigure(config):
+    if _SB3_LOGDIR is not None:
         os.environ.pop("SB3_LOGDIR", None)
-    else:
-        yield
+        shutil.rmtree(_SB3_LOGDIR, ignore_errors=True)
