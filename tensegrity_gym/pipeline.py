@@ -277,7 +277,7 @@ def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_
 if AVAILABLE:
     from numba import njit, prange
 
-    _run_serial = _kernels._run_serial
+    _run_serial, _serial_setup = _kernels._run_serial, _kernels._serial_setup
 
     _advance, _advance_one, _copies_check = _kernels._advance, _kernels._advance_one, _kernels._copies_check
     _forces_range, _view, _soa_width_nb = gc._forces_range, _kernels._view, _kernels._soa_width_nb
@@ -325,17 +325,11 @@ if AVAILABLE:
         err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
         if err:
             return err
-        B = q.shape[0]
-        per_copy = bufs.shape[0] > 1
-        w = bufs[0]
-        if _kernels._lane_width(k, B) == 1:
-            _contact_range(q, qd, w, ibs[0], L, k, m, n, _view(bufs, 0, (bufs.shape[0] if per_copy else 0,
-                           bufs.shape[1], 1)), True, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor,
-                           active, slip, prm, 0, B)
-        else:
-            _contact_range(q, qd, w, ibs[0], L, k, m, n, _view(lanes, 0, (lanes.shape[0] if per_copy else 0,
-                           lanes.shape[1], lanes.shape[2])), False, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a,
-                           rod_c, anchor, active, slip, prm, 0, B)
+        E, lanes1 = _serial_setup(bufs, q.shape[0])[4:]     # the serial kernels' choice of instance
+        if E != 1:       # the SIMD instance reads per-copy constants from the lane blocks, shared ones from w
+            lanes1 = _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2]))
+        _contact_range(q, qd, bufs[0], ibs[0], L, k, m, n, lanes1, E == 1, l0, fd, W, ext, dt, n_steps, flags, eta,
+                       rod_a, rod_c, anchor, active, slip, prm, 0, q.shape[0])
         return 0
 
     @njit(parallel=True, cache=True)   # holds the GIL, as _kernels._run_parallel does
