@@ -19,7 +19,7 @@ kernel loop.
     (B,) bool: which copies went non-finite or far (the divergence check of every env).
 :func:`apply_controls`, :func:`apply_motor`
     Compiled actuation updates (new controls and the ``rest_length`` / ``force_density`` input
-    of the physics), bit-identical to the NumPy reference in ``envs.actuation.Actuation``.
+    of the physics), bit-identical to the NumPy reference in ``actuation.Actuation``.
 :func:`compiled_plan` / :func:`run_plan`
     For a task that fuses its own bookkeeping with the physics in one compiled call: the
     packed model, integrator and control mode of ``integrators.step``'s serial kernel as an
@@ -41,14 +41,17 @@ kernels themselves follow ``backend`` as in :func:`integrators.step`.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from . import _kernels
 from . import contact as gc
 from . import integrators
+from .checks import check_array
 from .dynamics import Model, State
 
-__all__ = ["AVAILABLE", "step", "advance", "diverged", "compiled_physics", "apply_controls", "apply_motor",
+__all__ = ["AVAILABLE", "step", "control_step", "ControlStep", "advance", "diverged", "compiled_physics", "apply_controls", "apply_motor",
            "state_ok", "state_ok_local", "Plan", "compiled_plan", "run_plan"]
 
 AVAILABLE = _kernels.AVAILABLE
@@ -157,6 +160,56 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     for _ in range(int(n_steps)):
         t = t + dt
     return State(q=q, qd=qd, t=t), cs
+
+
+class ControlStep(NamedTuple):
+    """What :func:`control_step` returns (new objects; the inputs are not modified)."""
+    #: rod state after the control step (q, qd (B, k, 6); t advanced by n_steps * dt s)
+    state: State
+    #: (B, na) the actuated strings' new controls: rest lengths (m) or force densities (N/m)
+    controls: np.ndarray
+    #: (B, na) the motor's new cable speeds (unit/s), or None without a motor model
+    speed: np.ndarray | None
+    #: the contact's new stick/slip state, or None without contact
+    cstate: gc.ContactState | None
+
+
+def control_step(model: Model, state: State, actuation, controls, action, dt: float,
+                 integrator: str = "semi_implicit_euler", *, n_steps: int = 1, speed=None, rest_offset=None,
+                 contact: gc.GroundContact | None = None, cstate: gc.ContactState | None = None,
+                 contact_params=None, external=None, params=None, project: bool = True,
+                 backend: str = "auto") -> ControlStep:
+    """One control step of the whole batch from actions: actuation, then ``n_steps`` physics
+    steps of ``dt`` s (contact inside each when ``contact`` is given). What every env does per
+    control step, as one pure call (brax's ``pipeline.step(sys, state, act)``).
+
+    ``actuation``: a :class:`tensegrity_gym.actuation.Actuation` (which strings, rest-length or
+    force-density mode, bounds, rate limits, the cable motor). ``controls`` (B, na): the actuated
+    strings' current controls (m or N/m); ``action`` (B, na) in [-1, 1] (an entry beyond it by
+    more than 1e-6 is an error, not clipped); ``speed`` (B, na): the motor's current cable speeds
+    (unit/s), needed when the actuation has a motor model (``max_accel``). ``rest_offset``
+    (P, m) m, P = 1 or B: true minus commanded rest lengths of the robots. The actuation update
+    is :meth:`Actuation.update <tensegrity_gym.actuation.Actuation.update>`; the physics is
+    :func:`step` with its ``rest_length`` / ``force_density`` (the other arguments as there).
+    Returns a :class:`ControlStep`. ValueError naming the argument, the index and the value for
+    a wrong shape, a non-finite entry or an action outside [-1, 1]."""
+    B, na = state.batch_size, actuation.size
+    controls = check_array(controls, (B, na), "controls")
+    action = np.clip(check_array(action, (B, na), "action", bound=1.0, tol=1e-6), -1.0, 1.0)
+    if speed is not None:
+        speed = check_array(speed, (B, na), "speed")
+    if rest_offset is not None:
+        ro = np.asarray(rest_offset)
+        ro = ro[None] if ro.ndim == 1 else ro
+        rows = B if ro.ndim == 2 and ro.shape[0] == B else 1
+        rest_offset = check_array(ro, (rows, model.n_strings), "rest_offset")
+    ctrl, speed, inputs = actuation.update(np.ascontiguousarray(controls), np.ascontiguousarray(action),
+                                           None if speed is None else np.ascontiguousarray(speed), rest_offset)
+    kw = dict(n_steps=n_steps, external=external, backend=backend, params=params, project=project, **inputs)
+    if contact is None:
+        return ControlStep(step(model, state, dt, integrator, **kw), ctrl, speed, None)
+    st, cs = step(model, state, dt, integrator, contact=contact, cstate=cstate, contact_params=contact_params, **kw)
+    return ControlStep(st, ctrl, speed, cs)
 
 
 def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_density, external, params, project,

@@ -54,6 +54,8 @@ class BatchedTask:
     travels = False
     #: keep the velocities before the last physics step of a control step (``_qd_prev``; IMUs)
     track_last_velocity = False
+    #: (B, na) cable speeds of the actuation's motor model (unit/s); None: no motor state
+    speed = None
 
     def _init_physics(self, model: dyn.Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
                       backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
@@ -187,12 +189,14 @@ class BatchedTask:
         """Duration of one control step, s (``dt * frame_skip``)."""
         return self.dt * self.frame_skip
 
-    def simulate(self, **inputs) -> np.ndarray:
+    def simulate(self, action: np.ndarray | None = None, **inputs) -> np.ndarray:
         """Advance all B copies by one control step (``frame_skip`` steps of ``dt``) through the
-        pipeline (:mod:`tensegrity_gym.pipeline`): ``inputs`` ``rest_length`` / ``force_density``
-        as :func:`tensegrity_gym.integrators.step` takes them (the robots' rest-length offsets
-        are added here). Without ``contact``: ONE ``pipeline.step`` of ``frame_skip`` steps for the
-        whole batch. With the task's ``contact``: ``pipeline.advance`` in place, contact forces
+        pipeline (:mod:`tensegrity_gym.pipeline`), as :func:`tensegrity_gym.pipeline.control_step`
+        does: with ``action`` (B, na) validated, the task's ``actuation`` updates ``ctrl`` (and
+        the motor's ``speed``) and gives the physics inputs (``Actuation.update``, the robots'
+        rest-length offsets added); without it, ``inputs`` ``rest_length`` / ``force_density``
+        as :func:`tensegrity_gym.integrators.step` takes them (the offsets added here). Without
+        ``contact``: ONE ``pipeline.step`` of ``frame_skip`` steps for the whole batch. With the task's ``contact``: ``pipeline.advance`` in place, contact forces
         and one integrator step per physics step (``contact_params`` per copy, the stick/slip
         state in ``cstate``).
 
@@ -200,7 +204,10 @@ class BatchedTask:
         step; ``travels``: measured from each copy's own centre); diverged copies get their
         pre-step state back (see the module doc). Increments ``elapsed``.
         """
-        inputs = self.with_offset(inputs)
+        if action is not None:
+            self.ctrl, self.speed, inputs = self.actuation.update(self.ctrl, action, self.speed, self.rest_offset)
+        else:
+            inputs = self.with_offset(inputs)
         if self.contact is not None:
             return self._simulate_contact(inputs)
         q0, qd0 = self.q, self.qd

@@ -20,9 +20,9 @@ keeps working)
 :mod:`~tensegrity_gym.envs.validate`
     ``check_action`` (shape, NaN/inf naming the index, clip to [-1, 1] or raise with
     ``clip=False``), ``check_positive``, ``check_stable_dt``, ``resolve_actuated``.
-:mod:`~tensegrity_gym.envs.actuation`
+:mod:`~tensegrity_gym.actuation` (a physics-layer module, re-exported here)
     ``Actuation``: rest-length or force-density controls of a set of strings, batched, with
-    rate limits and the cable motor; ``advance`` / ``advance_motor`` give the new controls and
+    rate limits and the cable motor; ``update`` gives the new controls, the motor's speeds and
     the ``rest_length=`` / ``force_density=`` inputs (B, m) of :func:`tensegrity_gym.pipeline.step`.
 :mod:`~tensegrity_gym.envs.base`
     ``BatchedTask``: owns ``model``, ``integrator``, ``dt``, ``frame_skip``, ``backend``, the
@@ -52,7 +52,7 @@ env returns Gymnasium's vector info dict (arrays plus ``"_<key>"`` masks).
 from __future__ import annotations
 
 from .validate import ACTION_MODES, ACTION_TOL, check_action, check_positive, check_stable_dt, resolve_actuated
-from .actuation import Actuation
+from ..actuation import Actuation
 from .base import BatchedTask
 from .shells import TaskEnv, TaskVectorEnv, registered_max_episode_steps
 from ..sb3 import make_sb3_vec_env

@@ -15,7 +15,7 @@ from .. import contact as gc
 from .. import dynamics as dyn
 from .. import integrators
 from ..rewards import quadratic_cost
-from .actuation import Actuation
+from ..actuation import Actuation
 from .base import BatchedTask, fixed_step
 from .docs import ROLL_DOC as _DOC
 from .roll_obs import RollObservation
@@ -224,12 +224,8 @@ class RollTask(RollObservation, BatchedTask):
                 "goal_direction": goal.copy()}
 
     def step(self, action):
-        if self.motor:
-            self.ctrl, self.speed, inputs = self.actuation.advance_motor(self.ctrl, self.speed, action)
-        else:
-            self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
         com0 = self._com(self.q)
-        diverged = self.simulate(**inputs)
+        diverged = self.simulate(action)
         com = self._com(self.q)
         vel = (com - com0) / self.control_dt
         forward = np.einsum("bi,bi->b", vel[:, :2], self.goal)

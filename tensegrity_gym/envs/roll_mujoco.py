@@ -333,10 +333,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             raise RuntimeError(f"{ENV_ID}: call reset() before step()")
         mj, m, d, t = self._mj, self.model, self.data, self.task
         a = check_action(action, (t.action_size,), clip=t.clip_actions)[None, :].astype(np.float64)
-        if t.motor:
-            t.ctrl, t.speed, _ = t.actuation.advance_motor(t.ctrl, t.speed, a)
-        else:
-            t.ctrl, _ = t.actuation.advance(t.ctrl, a)
+        t.ctrl, t.speed, _ = t.actuation.update(t.ctrl, a, t.speed)
         m.tendon_lengthspring[self._act, 1] = t.ctrl[0] + self._rest_offset[self._act]
         com0 = self.com()
         qpos0, qvel0, bad0 = d.qpos.copy(), d.qvel.copy(), d.warning[self._badqacc].number

@@ -13,7 +13,7 @@ from .. import integrators, pipeline
 from .. import statics
 from ..rewards import quadratic_cost, tolerance
 from . import compiled
-from .actuation import Actuation
+from ..actuation import Actuation
 from .base import BatchedTask, fixed_step
 from .docs import SHAPE_DOC as _DOC
 from .shape_fused import FusedShapeStep
@@ -257,9 +257,8 @@ class ShapeTask(FusedShapeStep, BatchedTask):
 
     def step(self, action):
         if self.sensors is not None:    # robot observation: the IMUs need the last physics step (envs/sensors.py)
-            self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
             self._last_action = action
-            out = self._finish_step(action, self.simulate(**inputs))
+            out = self._finish_step(action, self.simulate(action))
             self.sensors.record(self, self.target.reshape(self.num_envs, -1))
             return out
         fz = self.__dict__.get("_fused")
@@ -269,9 +268,8 @@ class ShapeTask(FusedShapeStep, BatchedTask):
             out = self._fused_step(fz, action)
             if out is not None:
                 return out
-        self.ctrl, inputs = self.actuation.advance(self.ctrl, action)
         self._last_action = action
-        diverged = self.simulate(**inputs)
+        diverged = self.simulate(action)
         return self._finish_step(action, diverged)
 
     def _finish_step(self, action, diverged):

@@ -4,33 +4,17 @@ Every error is a ``ValueError`` naming the argument, the index and the value. SI
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .. import dynamics as dyn
 from .. import pipeline
+from ..actuation import ACTION_MODES
+from ..checks import check_positive
 from . import compiled
 
 __all__ = ["ACTION_MODES", "ACTION_TOL", "check_positive", "check_action", "check_stable_dt", "resolve_actuated"]
 
-ACTION_MODES = ("rest_length", "force_density")
 ACTION_TOL = 1e-6
-
-
-def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -> float:
-    """``float(value)`` if finite and > 0 (>= 0 with ``allow_zero``), else ValueError naming ``name``.
-    A string or a bool is not a number here (``"1e-3"`` and ``True`` are refused, not converted)."""
-    if isinstance(value, (str, bytes, bool, np.bool_)):
-        raise ValueError(f"{name}: expected a number{' in ' + unit if unit else ''}, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a number{' in ' + unit if unit else ''}, got {value!r}") from None
-    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        raise ValueError(f"{name}: must be {'>= 0' if allow_zero else 'positive'} and finite"
-                         f"{' (' + unit + ')' if unit else ''}, got {value!r}")
-    return v
 
 
 def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:

@@ -1,18 +1,23 @@
 """Actuation of a set of strings, batched: rest-length or force-density controls with rate
-limits and the cable motor model. SI units.
+limits and the cable motor model. SI units. No gymnasium import (a physics-layer module).
 
-It turns actions in [-1, 1] into the ``rest_length`` / ``force_density`` inputs of
-:func:`tensegrity_gym.pipeline.step`; the compiled update is :func:`tensegrity_gym.pipeline.apply_controls`
-/ :func:`~tensegrity_gym.pipeline.apply_motor` (bit-identical to the NumPy methods here).
+:meth:`Actuation.update` is the one entry that turns actions in [-1, 1] (B, na) into new
+controls, the motor's new cable speeds and the ``rest_length`` / ``force_density`` inputs of
+:func:`tensegrity_gym.pipeline.step`; :func:`tensegrity_gym.pipeline.control_step` runs it and
+the physics in one call. The compiled update is :func:`tensegrity_gym.pipeline.apply_controls` /
+:func:`~tensegrity_gym.pipeline.apply_motor` (bit-identical to the NumPy methods here).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .. import pipeline
-from .validate import ACTION_MODES, check_positive
+from . import pipeline
+from .checks import check_positive
 
-__all__ = ["Actuation"]
+__all__ = ["ACTION_MODES", "Actuation"]
+
+#: the control modes of an actuated string: its rest length (m) or its force density (N/m)
+ACTION_MODES = ("rest_length", "force_density")
 
 
 class Actuation:
@@ -198,6 +203,29 @@ class Actuation:
             return new, v, ({"rest_length": phys} if rl else {"rest_length": None, "force_density": phys})
         new, v = self.apply_motor(ctrl, speed, action)
         return new, v, self.physics_inputs(new)
+
+    def update(self, ctrl: np.ndarray, action: np.ndarray, speed: np.ndarray | None = None,
+               rest_offset: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, dict]:
+        """One control step of the actuation: ``(new control (B, na), new cable speed (B, na) or
+        None, physics inputs)`` from the current control (B, na), an action in [-1, 1] (B, na)
+        and, with a motor model (``max_accel``), the current speed (B, na) (unit/s).
+
+        Without a motor model it is :meth:`advance` (``speed`` is ignored and returned as
+        given); with one, :meth:`advance_motor`. ``rest_offset`` (P, m) m, P = 1 or B: true minus
+        commanded rest lengths of the robots (``rest_length_offset``), added to the
+        ``rest_length`` input (rest-length mode only; ignored for force densities).
+        ValueError if a motor model has no ``speed`` of shape (B, na)."""
+        if self.max_accel is None:
+            new, inputs = self.advance(ctrl, action)
+        else:
+            if speed is None or np.shape(speed) != np.shape(ctrl):
+                raise ValueError(f"speed: the motor model needs the cable speeds, shape {np.shape(ctrl)} "
+                                 f"(unit/s), got {None if speed is None else np.shape(speed)}")
+            new, speed, inputs = self.advance_motor(ctrl, speed, action)
+        rl = inputs.get("rest_length")
+        if rest_offset is not None and rl is not None:
+            rl += rest_offset        # a fresh (B, m) array of this call: += is rl + rest_offset
+        return new, speed, inputs
 
     def describe(self) -> str:
         acc = "" if self.max_accel is None else f", max rate change {self.max_accel:.4g} {self.unit}/s^2"
