@@ -64,7 +64,7 @@ import numpy as np
 from . import __version__
 from . import dynamics as dyn
 from .builders import BUILDERS
-from .integrators import INTEGRATORS, EvaluationBudgetExceeded, SimulationDiverged, resolve, simulate
+from .integrators import INTEGRATORS, EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
 from .sizing import StructureTooLarge
 from .structure import StructureError
 
@@ -240,7 +240,8 @@ def _run(model, state, args, n_steps: int, progress: bool):
     """``simulate`` in chunks (fixed-step methods) so that a divergence keeps the records before
     it. Returns ``(t, q, qd, message)``, ``message`` None unless the run diverged."""
     info = resolve(args.integrator)
-    kw = dict(project=not args.no_project, backend=args.backend, rtol=args.rtol, atol=args.atol)
+    kw = dict(project=not args.no_project, backend=args.backend, rtol=args.rtol, atol=args.atol,
+              rest_length=getattr(args, "rest_length", None), force_density=getattr(args, "force_density", None))
     if info.adaptive:
         try:
             t, q, qd = simulate(model, state, args.dt, n_steps, args.integrator, record_every=args.record_every,
@@ -306,8 +307,52 @@ def _outputs_and_model(args, second, flag: str):
     return out, s, dyn.compile_model(s)
 
 
+def load_schedule(path, name: str, n_strings: int) -> Schedule:
+    """A command schedule (:class:`tensegrity_gym.integrators.Schedule`) from ``.npz`` (arrays
+    ``t`` (C,) s and ``name`` (C, m)) or ``.csv`` (a header row, then one row per command: the
+    time in s, then the m strings' values). ValueError naming the file, the row and the value."""
+    p = str(path)
+    unit = "m" if name == "rest_length" else "N/m"
+    if p.lower().endswith(".csv"):
+        try:
+            a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as e:
+            raise ValueError(f"{p}: not a CSV of numbers after its header row ({_one_line(e)})") from None
+        if a.shape[1] != n_strings + 1:
+            raise ValueError(f"{p}: expected {n_strings + 1} columns (t in s, then {n_strings} strings' {name} in "
+                             f"{unit}), got {a.shape[1]}")
+        t, v = a[:, 0], a[:, 1:]
+    else:
+        with np.load(p, allow_pickle=False) as z:
+            for k in ("t", name):
+                if k not in z.files:
+                    raise ValueError(f"{p}: no array {k!r} (found {sorted(z.files)}); expected t (C,) s and {name} "
+                                     f"(C, {n_strings}) {unit}")
+            t, v = z["t"], z[name]
+    v = np.asarray(v, dtype=float)
+    if v.ndim != 2 or v.shape[1] != n_strings:
+        raise ValueError(f"{p}: {name} must have shape (C, {n_strings}) (one row per command time, one column per "
+                         f"string), got {v.shape}")
+    return Schedule(t, v, name)
+
+
 def cmd_simulate(args) -> int:
     out, s, model = _outputs_and_model(args, args.video, "--video")
+    for name in ("rest_length", "force_density"):
+        path = getattr(args, name)
+        if path is None:
+            continue
+        flag = "--" + name.replace("_", "-")
+        if args.backend == "torch":
+            raise CLIError(EXIT_USAGE, f"{flag}: command schedules run with --backend auto, numba or numpy")
+        try:
+            sched = load_schedule(path, name, model.n_strings)
+            sched.rows(np.zeros(1), args.dt)       # the first command must be at the start (t = 0 s)
+            setattr(args, name, sched)
+        except FileNotFoundError:
+            raise CLIError(EXIT_STRUCTURE, f"{flag}: file {path!r} not found") from None
+        except (ValueError, OSError, KeyError) as e:
+            raise CLIError(EXIT_STRUCTURE, f"{flag} {path!r}: {_one_line(e)}") from None
     state = dyn.initial_state(model)
     n_steps = _n_steps(args.duration, args.dt, args)
     _require_memory(_trajectory_bytes(model, n_steps // args.record_every + 1), args,
@@ -338,6 +383,10 @@ def cmd_simulate(args) -> int:
             diverged = (f"{args.integrator}: the energy grew from {E[0]:.4g} J to {E[i]:.4g} J by t = {t[i]:.6g} s "
                         f"(dt = {args.dt:g} s): the step is unstable; reduce --dt")
     arrays = dict(t=t, nodes=nodes, energy=E, bars=s.bars, strings=s.strings)
+    for name in ("rest_length", "force_density"):
+        sched = getattr(args, name, None)
+        if isinstance(sched, Schedule) and S:   # the row in force over the step from each record on
+            arrays[name] = sched.values[sched.rows(t, args.dt)]
     if diverged is not None:
         arrays.update(diverged=np.array(True), message=np.array(_one_line(diverged)))
     _atomic_write(out, lambda f: np.savez(f, **arrays))
@@ -663,6 +712,12 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     sp.add_argument("--rtol", type=_positive(float), default=1e-10, help="adaptive methods only")
     sp.add_argument("--atol", type=_positive(float), default=1e-12, help="adaptive methods only")
     sp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sp.add_argument("--rest-length", default=None, metavar="FILE",
+                    help="cable commands to replay: rest lengths over time, held from each command time to the "
+                         "next (.npz with t (C,) s and rest_length (C, m) m, or .csv: header, then rows "
+                         "t,l_0,...,l_m-1); the output then holds rest_length (S, m) per record for identify")
+    sp.add_argument("--force-density", default=None, metavar="FILE",
+                    help="force densities added over time (N/m), as --rest-length (.npz array force_density)")
     limits(sp)
     sp.set_defaults(func=cmd_simulate)
     ip = sub.add_parser("info", help="print a summary of a structure", formatter_class=fmt)

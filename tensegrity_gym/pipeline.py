@@ -12,6 +12,11 @@ kernel loop.
     each step is: contact forces of the whole batch from the state at the step's start
     (stick/slip anchors updated in ``cstate``), then ONE integrator step with those forces
     held over it (``external=W``). Returns a new ``State`` (and a new ``ContactState``).
+:func:`control_step` ``(model, state, actuation, controls, action, dt, integrator, *, speed, ...)``
+    One control step from actions in [-1, 1]: the actuation update
+    (:meth:`tensegrity_gym.actuation.Actuation.update`: rate limits or the cable motor, bounds,
+    rest-length offsets), then :func:`step` with the new controls. Returns a
+    :class:`ControlStep` ``(state, controls, speed, cstate)``; every env's control step is this.
 :func:`advance`
     The same, in place on C-contiguous float64 arrays ``q``, ``qd`` (B, k, 6) and ``cstate``,
     with caller-owned scratch: no allocation and no ``State`` per step (the env fast path).
@@ -51,8 +56,8 @@ from . import integrators
 from .checks import check_array
 from .dynamics import Model, State
 
-__all__ = ["AVAILABLE", "step", "control_step", "ControlStep", "advance", "diverged", "compiled_physics", "apply_controls", "apply_motor",
-           "state_ok", "state_ok_local", "Plan", "compiled_plan", "run_plan"]
+__all__ = ["AVAILABLE", "step", "control_step", "ControlStep", "advance", "diverged", "compiled_physics",
+           "apply_controls", "apply_motor", "state_ok", "state_ok_local", "Plan", "compiled_plan", "run_plan"]
 
 AVAILABLE = _kernels.AVAILABLE
 
