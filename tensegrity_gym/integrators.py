@@ -143,6 +143,22 @@ class Schedule:
         return f"Schedule({self.name}, {self.t.size} commands from t = {self.t[0]:g} s to {self.t[-1]:g} s)"
 
 
+def _records(state, n_rec, n_steps, name, progress):
+    """``(q, qd)`` record arrays (n_rec + 1, B, k, 6), the first filled with ``state``, and a
+    tqdm progress bar over ``n_steps`` (None without ``progress`` or tqdm) of :func:`simulate`."""
+    qs = np.empty((n_rec + 1,) + state.q.shape)
+    qds = np.empty_like(qs)
+    qs[0], qds[0] = state.q, state.qd
+    bar = None
+    if progress:
+        try:
+            from tqdm import tqdm
+            bar = tqdm(total=n_steps, unit="step", desc=name)
+        except ImportError:  # pragma: no cover
+            bar = None
+    return qs, qds, bar
+
+
 def _simulate_scheduled(model, state, dt, n_steps, integrator, record_every, rest_length, force_density, progress,
                         kw):
     """:func:`simulate` with :class:`Schedule` inputs: runs of steps with constant inputs, each
@@ -163,16 +179,7 @@ def _simulate_scheduled(model, state, dt, n_steps, integrator, record_every, res
     n_rec = n_steps // record_every
     t0 = state.t
     ts = t0 + dt * record_every * np.arange(n_rec + 1)
-    qs = np.empty((n_rec + 1,) + state.q.shape)
-    qds = np.empty_like(qs)
-    qs[0], qds[0] = state.q, state.qd
-    bar = None
-    if progress:
-        try:
-            from tqdm import tqdm
-            bar = tqdm(total=n_steps, unit="step", desc=resolve(integrator).name)
-        except ImportError:  # pragma: no cover
-            bar = None
+    qs, qds, bar = _records(state, n_rec, n_steps, resolve(integrator).name, progress)
     st = state
     try:
         for a, b in zip(cuts[:-1], cuts[1:]):
@@ -576,16 +583,7 @@ def simulate(model: Model, state: State, dt: float, n_steps: int, integrator: st
         q = sol.y[:half].T.reshape((S,) + state.q.shape)
         qd = sol.y[half:].T.reshape((S,) + state.q.shape)
         return sol.t, q, qd
-    qs = np.empty((n_rec + 1,) + state.q.shape)
-    qds = np.empty_like(qs)
-    qs[0], qds[0] = state.q, state.qd
-    bar = None
-    if progress:
-        try:
-            from tqdm import tqdm
-            bar = tqdm(total=n_steps, unit="step", desc=info.name)
-        except ImportError:  # pragma: no cover
-            bar = None
+    qs, qds, bar = _records(state, n_rec, n_steps, info.name, progress)
     st = state
     if params is None:
         _check_stability(model, info, dt)
