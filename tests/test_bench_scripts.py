@@ -14,3 +14,12 @@ def test_bench_envs_default_env_runs(tmp_path):
                        capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "Targets" in r.stdout
+
+
+def test_profile_learner_runs(tmp_path):
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "profile_learner.py"), "--rollouts", "1"],
+                       capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = [line for line in r.stdout.splitlines() if line.startswith("| ")]
+    assert any("**learner**" in line for line in rows) and any(line.startswith("| backward") for line in rows)
+    assert "80 minibatch updates" in r.stdout
