@@ -124,3 +124,24 @@ def test_control_step_bad_input():
         pipeline.control_step(model, state, act, ctrl, ok, 1e-3, speed=speed, rest_offset=np.zeros((3, 9)))
     with pytest.raises(ValueError, match="dt"):
         pipeline.control_step(model, state, act, ctrl, ok, -1.0, speed=speed)
+
+
+from hypothesis import given, settings, strategies as hst  # noqa: E402
+from hypothesis.extra import numpy as hnp  # noqa: E402
+
+
+@settings(max_examples=80, deadline=None)
+@given(action=hnp.arrays(np.float64, hst.sampled_from([(2, 3), (3,), (2, 4), (1, 3)]),
+                         elements=hst.floats(allow_nan=True, allow_infinity=True, width=64)))
+def test_control_step_fuzz_action(action):
+    """Any action array: a finite step within the bounds, or a ValueError naming ``action``."""
+    model, act = _prism_actuation(max_accel=2.0)
+    state = dyn.initial_state(model, 2)
+    ctrl = np.tile(act.nominal, (2, 1))
+    try:
+        out = pipeline.control_step(model, state, act, ctrl, action, 1e-3, speed=np.zeros((2, 3)))
+    except ValueError as e:
+        assert str(e).startswith("action: ")
+        return
+    assert np.isfinite(out.state.q).all() and np.isfinite(out.speed).all()
+    assert (out.controls >= act.low).all() and (out.controls <= act.high).all()

@@ -173,3 +173,47 @@ def test_cli_simulate_command_file_errors(tmp_path, capsys):
         err = capsys.readouterr().err
         assert got == code, (extra, got, err)
         assert "Traceback" not in err and re.search(pattern, err), (extra, err)
+
+
+# ------------------------------------------------------------------ fuzzing (hypothesis)
+from hypothesis import given, settings, strategies as hst  # noqa: E402
+from hypothesis.extra import numpy as hnp  # noqa: E402
+
+_MODEL = dyn.compile_model(tg.prism(3))
+_floats = hst.floats(allow_nan=True, allow_infinity=True, width=64)
+
+
+@settings(max_examples=60, deadline=None)
+@given(t=hnp.arrays(np.float64, hst.integers(0, 4), elements=_floats),
+       v=hnp.arrays(np.float64, hst.tuples(hst.integers(0, 4), hst.integers(7, 10)), elements=_floats),
+       name=hst.sampled_from(["rest_length", "force_density"]))
+def test_schedule_fuzz_valid_or_value_error(t, v, name):
+    """Any times and values: a Schedule that simulates to finite states, or a ValueError; never
+    another exception, never a NaN in the output."""
+    try:
+        sched = Schedule(t, v, name)
+    except ValueError:
+        return
+    state = dyn.initial_state(_MODEL, 1)
+    try:
+        _, q, qd = integ.simulate(_MODEL, state, DT, 5, "semi_implicit_euler", **{name: sched})
+    except (ValueError, integ.SimulationDiverged):
+        return
+    assert np.isfinite(q).all() and np.isfinite(qd).all()
+
+
+@settings(max_examples=60, deadline=None)
+@given(times=hnp.arrays(np.float64, hst.integers(1, 5), elements=hst.floats(0.0, 0.02), unique=True),
+       scale=hnp.arrays(np.float64, 5, elements=hst.floats(0.9, 1.05)),
+       every=hst.integers(1, 6), n=hst.integers(0, 25))
+def test_schedule_fuzz_equals_step_by_step(times, scale, every, n):
+    """Random command times (anywhere, also inside steps) and record grids: simulate equals
+    stepping one step at a time, bit for bit."""
+    tc = np.sort(times)
+    tc[0] = 0.0
+    tc = np.unique(tc)
+    v = _MODEL.rest_length[None] * scale[:tc.size, None]
+    model, st = _prism(B=1)
+    _, q, qd = integ.simulate(model, st, DT, n, "rk4", record_every=every, rest_length=Schedule(tc, v))
+    Q, QD = _manual(model, st, tc, v, n, "rk4", every)
+    assert np.array_equal(q, Q) and np.array_equal(qd, QD)
