@@ -6,7 +6,10 @@ import math
 
 import numpy as np
 
-__all__ = ["check_positive"]
+__all__ = ["ACTION_TOL", "check_positive", "check_array"]
+
+#: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
+ACTION_TOL = 1e-6
 
 
 def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -> float:

@@ -241,7 +241,7 @@ def _run(model, state, args, n_steps: int, progress: bool):
     it. Returns ``(t, q, qd, message)``, ``message`` None unless the run diverged."""
     info = resolve(args.integrator)
     kw = dict(project=not args.no_project, backend=args.backend, rtol=args.rtol, atol=args.atol,
-              rest_length=getattr(args, "rest_length", None), force_density=getattr(args, "force_density", None))
+              rest_length=args.rest_length, force_density=args.force_density)
     if info.adaptive:
         try:
             t, q, qd = simulate(model, state, args.dt, n_steps, args.integrator, record_every=args.record_every,
@@ -384,8 +384,8 @@ def cmd_simulate(args) -> int:
                         f"(dt = {args.dt:g} s): the step is unstable; reduce --dt")
     arrays = dict(t=t, nodes=nodes, energy=E, bars=s.bars, strings=s.strings)
     for name in ("rest_length", "force_density"):
-        sched = getattr(args, name, None)
-        if isinstance(sched, Schedule) and S:   # the row in force over the step from each record on
+        sched = getattr(args, name)
+        if sched is not None and S:   # the row in force over the step from each record on
             arrays[name] = sched.values[sched.rows(t, args.dt)]
     if diverged is not None:
         arrays.update(diverged=np.array(True), message=np.array(_one_line(diverged)))

@@ -16,13 +16,26 @@ RANDOM_ROLL = {"stiffness": 0.2, "rod_mass": 0.2, "rest_length_offset": 0.01, "f
                "max_cable_speed": 0.2}
 
 
-def _venv(env_id, n, **kw):
-    return gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kw)
+def _venv(env_id, n, seed, **kw):
+    """A vector env of ``n`` copies reset with ``seed``, and its task."""
+    env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kw)
+    env.reset(seed=seed)
+    return env, env.unwrapped.task
 
 
-def _before(task):
-    return (dyn.State(task.q.copy(), task.qd.copy(), 0.0), task.ctrl.copy(),
-            None if task.speed is None or task.speed.shape[1] == 0 else task.speed.copy())
+def _env_and_control_step(env, task, action, **kw):
+    """``(state before, ControlStep)``: control_step from the task's state with its actuation,
+    robots and ``kw`` (contact), then ``env.step(action)``; the two agree bit for bit in the
+    rod state and the controls."""
+    state = dyn.State(task.q.copy(), task.qd.copy(), 0.0)
+    speed = None if task.speed is None or task.speed.shape[1] == 0 else task.speed.copy()
+    out = pipeline.control_step(task.model, state, task.actuation, task.ctrl.copy(), action, task.dt,
+                                task.integrator, n_steps=task.frame_skip, speed=speed, rest_offset=task.rest_offset,
+                                params=task.params, **kw)
+    env.step(action)
+    assert np.array_equal(out.state.q, task.q) and np.array_equal(out.state.qd, task.qd)
+    assert np.array_equal(out.controls, task.ctrl)
+    return state, out
 
 
 @pytest.mark.parametrize("randomize", [None, RANDOM_ROLL])
@@ -31,22 +44,14 @@ def test_roll_env_step_is_control_step(randomize, motor):
     """A roll vector env step (contact sub-steps, cable motor, per-copy robots and rest-length
     offsets) equals control_step from the same state, bit for bit."""
     kw = {} if motor else {"max_cable_acceleration": None}
-    env = _venv("TensegrityRoll-v0", 5, randomize=randomize, **kw)
-    env.reset(seed=4)
-    task = env.unwrapped.task
+    env, task = _venv("TensegrityRoll-v0", 5, 4, randomize=randomize, **kw)
     rng = np.random.default_rng(0)
     for _ in range(3):
-        state, ctrl, speed = _before(task)
         cs = task.cstate.copy()
         cs0 = cs.copy()
         action = rng.uniform(-1, 1, (5, task.action_size))
-        out = pipeline.control_step(task.model, state, task.actuation, ctrl, action, task.dt, task.integrator,
-                                    n_steps=task.frame_skip, speed=speed, rest_offset=task.rest_offset,
-                                    contact=task.contact, cstate=cs, contact_params=task._contact_prm,
-                                    params=task.params)
-        env.step(action)
-        assert np.array_equal(out.state.q, task.q) and np.array_equal(out.state.qd, task.qd)
-        assert np.array_equal(out.controls, task.ctrl)
+        state, out = _env_and_control_step(env, task, action, contact=task.contact, cstate=cs,
+                                           contact_params=task._contact_prm)
         if motor:
             assert np.array_equal(out.speed, task.speed)
         else:
@@ -63,19 +68,11 @@ def test_roll_env_step_is_control_step(randomize, motor):
 def test_shape_env_step_is_control_step(mode):
     """A shape vector env step (the fused compiled step in rest-length mode) equals control_step."""
     kw = {"node_damping": 10.0} if mode == "force_density" else {"randomize": {"rest_length_offset": 0.01}}
-    env = _venv("TensegrityShape-v0", 4, action_mode=mode, **kw)
-    env.reset(seed=1)
-    task = env.unwrapped.task
+    env, task = _venv("TensegrityShape-v0", 4, 1, action_mode=mode, **kw)
     rng = np.random.default_rng(1)
     for _ in range(3):
-        state, ctrl, _ = _before(task)
-        action = rng.uniform(-1, 1, (4, task.action_size))
-        q0 = state.q.copy()
-        out = pipeline.control_step(task.model, state, task.actuation, ctrl, action, task.dt, task.integrator,
-                                    n_steps=task.frame_skip, rest_offset=task.rest_offset, params=task.params)
-        env.step(action)
-        assert np.array_equal(out.state.q, task.q) and np.array_equal(out.state.qd, task.qd)
-        assert np.array_equal(out.controls, task.ctrl)
+        q0 = task.q.copy()
+        state, out = _env_and_control_step(env, task, rng.uniform(-1, 1, (4, task.action_size)))
         assert out.cstate is None and np.array_equal(state.q, q0)
     env.close()
 

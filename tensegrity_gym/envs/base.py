@@ -196,9 +196,9 @@ class BatchedTask:
         the motor's ``speed``) and gives the physics inputs (``Actuation.update``, the robots'
         rest-length offsets added); without it, ``inputs`` ``rest_length`` / ``force_density``
         as :func:`tensegrity_gym.integrators.step` takes them (the offsets added here). Without
-        ``contact``: ONE ``pipeline.step`` of ``frame_skip`` steps for the whole batch. With the task's ``contact``: ``pipeline.advance`` in place, contact forces
-        and one integrator step per physics step (``contact_params`` per copy, the stick/slip
-        state in ``cstate``).
+        ``contact``: ONE ``pipeline.step`` of ``frame_skip`` steps for the whole batch. With the
+        task's ``contact``: ``pipeline.advance`` in place, contact forces and one integrator step
+        per physics step (``contact_params`` per copy, the stick/slip state in ``cstate``).
 
         Returns ``diverged`` (B,) bool (:func:`tensegrity_gym.pipeline.diverged`, once per control
         step; ``travels``: measured from each copy's own centre); diverged copies get their

@@ -9,12 +9,10 @@ import numpy as np
 from .. import dynamics as dyn
 from .. import pipeline
 from ..actuation import ACTION_MODES
-from ..checks import check_positive
+from ..checks import ACTION_TOL, check_positive
 from . import compiled
 
 __all__ = ["ACTION_MODES", "ACTION_TOL", "check_positive", "check_action", "check_stable_dt", "resolve_actuated"]
-
-ACTION_TOL = 1e-6
 
 
 def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
