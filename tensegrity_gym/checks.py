@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-__all__ = ["ACTION_TOL", "check_positive", "check_array"]
+__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_action", "check_action_tensor"]
 
 #: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
 ACTION_TOL = 1e-6
@@ -27,10 +27,9 @@ def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -
     return v
 
 
-def check_array(value, shape: tuple, name: str, bound: float | None = None, tol: float = 0.0) -> np.ndarray:
+def check_array(value, shape: tuple, name: str) -> np.ndarray:
     """``value`` as a float64 array of ``shape``; ValueError naming ``name`` for another shape, and
-    naming the first offending index and its value for a NaN/inf entry or (with ``bound``) an
-    entry beyond ``[-bound, bound]`` by more than ``tol``."""
+    naming the first offending index and its value for a NaN/inf entry."""
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -38,11 +37,90 @@ def check_array(value, shape: tuple, name: str, bound: float | None = None, tol:
     if a.shape != tuple(shape):
         raise ValueError(f"{name}: expected shape {tuple(shape)}, got {a.shape}")
     bad = ~np.isfinite(a)
-    what = "is not finite"
-    if not bad.any() and bound is not None:
-        bad = np.abs(a) > bound + tol
-        what = f"is outside [-{bound:g}, {bound:g}]"
     if bad.any():
-        idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(f"{name}: entry {idx[0] if len(idx) == 1 else idx} {what}: {float(a[idx])!r}")
+        idx = _first(bad)
+        raise ValueError(f"{name}: entry {_index(idx)} is not finite: {float(a[idx])!r}")
     return a
+
+
+def _first(mask) -> tuple:
+    return tuple(int(i) for i in np.argwhere(mask)[0])
+
+
+def _index(idx: tuple):
+    return idx[0] if len(idx) == 1 else idx
+
+
+def _nonfinite_action(name, idx, value):
+    return ValueError(f"{name}: entry {_index(idx)} is {value!r}; actions must be finite numbers in [-1, 1]")
+
+
+def _outside_action(name, idx, value):
+    return ValueError(f"{name}: entry {_index(idx)} is {value:.6g}, outside the action space [-1, 1] "
+                      "(clip it first, or construct the env with clip_actions=True to saturate instead)")
+
+
+def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
+    """An action as a float64 array of ``shape`` in [-1, 1] (the reference check; the envs'
+    :func:`tensegrity_gym.envs.validate.check_action` adds a compiled fast path in front of it):
+
+    * wrong shape -> ValueError (a flat sequence of the right size is reshaped for a 1-D ``shape``);
+    * NaN or inf -> ValueError naming the (first) offending index and the value;
+    * entries outside [-1, 1]: clipped to the box if ``clip`` (the documented Box contract, like
+      Gymnasium's MuJoCo envs whose actuators saturate), else ValueError naming the index when
+      beyond ``ACTION_TOL`` of the bounds (round-off within it is clipped).
+    """
+    try:
+        a = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected an array of numbers with shape {shape}, got {action!r}") from None
+    if a.shape != tuple(shape):
+        if a.size == int(np.prod(shape)) and a.ndim <= 1 and len(shape) == 1:
+            a = a.reshape(shape)
+        else:
+            raise ValueError(f"{name}: expected shape {tuple(shape)}, got {a.shape}")
+    finite = np.isfinite(a)
+    if not finite.all():
+        idx = _first(~finite)
+        raise _nonfinite_action(name, idx, a[idx])
+    if not clip:
+        bad = np.abs(a) > 1.0 + ACTION_TOL
+        if bad.any():
+            idx = _first(bad)
+            raise _outside_action(name, idx, a[idx])
+    return np.clip(a, -1.0, 1.0)
+
+
+def check_action_tensor(actions, shape: tuple, device, dtype, clip: bool, extra=None):
+    """:func:`check_action` for a batch on a torch ``device`` (the device-resident vector envs):
+    ``actions`` a tensor on ``device`` or anything ``torch.as_tensor`` takes, of ``shape`` (N, na);
+    returns ``(the actions in dtype clipped to [-1, 1], bool(extra))`` after ONE small device ->
+    host read (``extra``: a bool scalar tensor the caller needs on the host too, e.g. "an env
+    must autoreset"). Errors as :func:`check_action`, plus a tensor on another device."""
+    import torch
+    name = "actions"
+    if isinstance(actions, torch.Tensor):
+        if actions.device != device:
+            raise ValueError(f"{name}: tensor on device {str(actions.device)!r}, but the env runs on "
+                             f"{str(device)!r}; move it with .to({str(device)!r})")
+        if not (actions.is_floating_point() or actions.dtype in (torch.int32, torch.int64)):
+            raise ValueError(f"{name}: expected a float tensor, got {actions.dtype}")
+        a = actions.to(dtype)
+    else:
+        try:
+            a = torch.as_tensor(np.array(actions, dtype=float), dtype=dtype, device=device)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: expected a tensor or array of numbers with shape {tuple(shape)}, "
+                             f"got {type(actions).__name__}") from None
+    if tuple(a.shape) != tuple(shape):
+        raise ValueError(f"{name}: expected shape {tuple(shape)}, got {tuple(a.shape)}")
+    nonfinite = ~torch.isfinite(a)
+    outside = a.abs() > 1.0 + ACTION_TOL
+    no = torch.zeros((), dtype=torch.bool, device=device)
+    flags = torch.stack([nonfinite.any(), no if clip else outside.any(),
+                         no if extra is None else extra]).cpu().tolist()
+    for bad, err, fmt in ((flags[0], nonfinite, _nonfinite_action), (flags[1], outside, _outside_action)):
+        if bad:
+            idx = tuple(int(x) for x in torch.nonzero(err)[0].cpu())
+            raise fmt(name, idx, float(a[idx]))
+    return torch.clamp(a, -1.0, 1.0), bool(flags[2])

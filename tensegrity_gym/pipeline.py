@@ -53,7 +53,7 @@ import numpy as np
 from . import _kernels
 from . import contact as gc
 from . import integrators
-from .checks import ACTION_TOL, check_array
+from .checks import check_action, check_array
 from .dynamics import Model, State
 
 __all__ = ["AVAILABLE", "step", "control_step", "ControlStep", "advance", "diverged", "compiled_physics",
@@ -191,8 +191,9 @@ def control_step(model: Model, state: State, actuation, controls, action, dt: fl
     ``actuation``: a :class:`tensegrity_gym.actuation.Actuation` (which strings, rest-length or
     force-density mode, bounds, rate limits, the cable motor). ``controls`` (B, na): the actuated
     strings' current controls (m or N/m); ``action`` (B, na) in [-1, 1] (an entry beyond it by
-    more than ``checks.ACTION_TOL`` (1e-6) is an error, not clipped, as ``check_action(clip=False)``); ``speed`` (B, na): the motor's current cable speeds
-    (unit/s), needed when the actuation has a motor model (``max_accel``). ``rest_offset``
+    more than ``checks.ACTION_TOL`` (1e-6) is an error, not clipped:
+    :func:`tensegrity_gym.checks.check_action` with ``clip=False``); ``speed`` (B, na): the
+    motor's current cable speeds (unit/s), needed when the actuation has a motor model (``max_accel``). ``rest_offset``
     (P, m) m, P = 1 or B: true minus commanded rest lengths of the robots. The actuation update
     is :meth:`Actuation.update <tensegrity_gym.actuation.Actuation.update>`; the physics is
     :func:`step` with its ``rest_length`` / ``force_density`` (the other arguments as there).
@@ -200,7 +201,7 @@ def control_step(model: Model, state: State, actuation, controls, action, dt: fl
     a wrong shape, a non-finite entry or an action outside [-1, 1]."""
     B, na = state.batch_size, actuation.size
     controls = check_array(controls, (B, na), "controls")
-    action = np.clip(check_array(action, (B, na), "action", bound=1.0, tol=ACTION_TOL), -1.0, 1.0)
+    action = check_action(action, (B, na), clip=False)
     if speed is not None:
         speed = check_array(speed, (B, na), "speed")
     if rest_offset is not None:

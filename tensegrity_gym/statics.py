@@ -120,6 +120,20 @@ class ReducedCoordinates:
         b /= np.linalg.norm(b, axis=-1, keepdims=True)
         return np.concatenate([r, b], axis=-1)
 
+    def perturb(self, q: np.ndarray, dx: np.ndarray, dv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """State ``(q, qd)`` (B, k, 6) at local coordinates ``dx`` (B, nx) around ``q`` moving at the
+        local rates ``dv`` (B, nx) (m and m/s: ``z`` along the free directions of constrained
+        reference points, ``u`` the rod ends' sideways offsets), before projection."""
+        m = self.model
+        T = self.tangent_basis(q[..., 3:])
+        qn = self.retract(q, T, dx)
+        qd = np.zeros_like(qn)
+        if self.dz:
+            np.add.at(qd[..., :3], (slice(None), self.z_rod), dv[:, : self.dz, None] * self.E[None])
+        u = dv[:, self.dz:].reshape(q.shape[0], m.n_bars, 2) / m.length[None, :, None]
+        qd[..., 3:] = np.einsum("bkid,bkd->bki", T, u)
+        return qn, qd
+
     def project_forces(self, q: np.ndarray, F: np.ndarray, T: np.ndarray | None = None) -> np.ndarray:
         """Generalized forces (B, nx), N, of nodal forces F (B, n, 3) (or (B, n, 3, c) -> (B, nx, c))."""
         m = self.model

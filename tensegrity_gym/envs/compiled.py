@@ -26,7 +26,26 @@ import numpy as np
 
 from .. import pipeline
 
-__all__ = ["clip_action", "shape_observe", "mean_max", "roll_observe", "shape_step", "SHAPE_STEP_SIG"]
+__all__ = ["clip_action", "shape_observe", "mean_max", "roll_observe", "shape_step", "SHAPE_STEP_SIG",
+           "node_sources"]
+
+
+def node_sources(model, nodes: np.ndarray):
+    """``(rod, eta)`` of the compiled observations: node ``nodes[t]`` sits at ``r + eta[t] b`` of
+    rod ``rod[t]`` (int64, float64 (t,)), exactly as ``dynamics.node_positions`` writes it (rod_c
+    after rod_a, so the last rod wins); ``(None, None)`` (the NumPy path) without numba or when a
+    node is an anchor or on no rod."""
+    if not pipeline.AVAILABLE or np.isin(nodes, model.anchor_idx).any():
+        return None, None
+    src_rod = np.full(model.n_nodes, -1)
+    src_eta = np.zeros(model.n_nodes)
+    for col, ends in ((0, model.rod_a), (1, model.rod_c)):
+        src_rod[ends] = np.arange(model.n_bars)
+        src_eta[ends] = model.eta[:, col]
+    if not np.all(src_rod[nodes] >= 0):
+        return None, None
+    return (np.ascontiguousarray(src_rod[nodes], dtype=np.int64),
+            np.ascontiguousarray(src_eta[nodes], dtype=np.float64))
 
 if pipeline.AVAILABLE:
     import numba

@@ -8,7 +8,7 @@ this project's physics runs on it unchanged. SI units (m, kg, s, N).
 What is shared (not copied): the env builds a one-copy :class:`~tensegrity_gym.envs.roll.RollTask`
 with the same keyword arguments and takes from it the robot placed on the ground and settled
 (the settled node positions become the MuJoCo model's pose), its nominal rest lengths, its
-:class:`~tensegrity_gym.envs.common.Actuation` (the cable motor model ``advance_motor``: speed
+:class:`~tensegrity_gym.actuation.Actuation` (the cable motor model: speed
 command, acceleration limit, rest-length bounds, end stops), its reset (the same reset noise
 and goal drawn from ``np_random`` in the same order), its observation (``RollTask.observe``,
 fed with the MuJoCo state converted to rod coordinates ``[r, b]``, ``[r', b']``) and, with
@@ -67,38 +67,8 @@ Robot parameters: ``params=`` and ``randomize=``
 As ``TensegrityRoll-v0`` (:mod:`tensegrity_gym.envs.domain`): the twin's :class:`RollTask` holds
 the :class:`~tensegrity_gym.envs.domain.Domain`, so the values are drawn at every reset from the
 env's ``np_random`` by the same code, in the same order, as ``TensegrityRoll-v0`` draws them (the
-same seed gives the same robot on both), and ``info["params"]`` at reset reports them. A twin built
-with ``params=`` set to the reported values runs the same trajectory as the randomised one. At each
-reset, before the state is set, the values are written into the ``MjModel`` (then
-``mj_setConst``, so MuJoCo's constants that depend on the masses follow):
-
-==========================  ===============================================================
-name (SI unit)              MuJoCo field
-==========================  ===============================================================
-``rod_mass`` (kg)           ``body_mass`` of the rod; ``body_inertia`` scaled by the same
-                            factor (the mass distribution keeps its shape); the contact's
-                            effective mass m_eff (below) follows the lightest rod
-``stiffness`` (N/m)         ``tendon_stiffness``
-``damping`` (N s/m)         ``tendon_damping`` (acts slack or taut, see above)
-``rest_length_offset`` (m)  added to ``tendon_lengthspring[:, 1]``: the nominal rest length
-                            of passive strings, the motor's rest length of actuated ones
-                            (rewritten every control step)
-``gravity`` (m/s^2)         ``opt.gravity``
-``friction`` (1)            ``geom_friction[:, 0]`` of every geom
-``ground_stiffness`` (N/m)  ``geom_solref[:, 0]`` = timeconst = ``sqrt(m_eff / k)`` (floored at
-                            2 steps), m_eff = a quarter of the lightest rod mass
-``ground_damping`` (s/m)    ``geom_solref[:, 1]`` = dampratio = ``contact_dampratio`` x
-                            ``ground_damping`` / the env's nominal ``ground_damping``: the
-                            Hunt-Crossley damping ratio at a given penetration is proportional
-                            to it, MuJoCo's has no penetration dependence, so only the
-                            relative change is carried (refused if the nominal value is 0)
-``max_cable_speed`` (m/s),  the cable motor model (:class:`~tensegrity_gym.envs.common.Actuation`,
-``max_cable_acceleration``  shared with ``TensegrityRoll-v0``), not MuJoCo
-==========================  ===============================================================
-
-``node_damping`` is refused (ValueError): MuJoCo damps the DOFs of a rod's free joint (centre of
-mass translation, body-frame rotation), not its end nodes; a viscous force at each end node on
-the axis has no exact counterpart.
+same seed gives the same robot on both), and ``info["params"]`` at reset reports them. How each
+value reaches the ``MjModel`` (and why ``node_damping`` cannot): :mod:`tensegrity_gym.envs.twin_params`.
 
 Not supported (ValueError): ``action_mode="force_density"``, ``node_damping`` in ``params`` /
 ``randomize``, ``action_delay``, ``start_rest_length_offset`` and divergence limits (a non-finite
@@ -110,8 +80,6 @@ renderer (as ``TensegrityRoll-v0`` does; ``mujoco.Renderer`` would need ``MUJOCO
 """
 from __future__ import annotations
 
-import math
-
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -121,16 +89,12 @@ from ..mjcf import initial_qpos_qvel, to_mjcf
 from ..rewards import quadratic_cost
 from .common import check_action, check_positive
 from .roll import MAX_PATH, SETTLE_TIME, RollTask
+from .twin_params import TwinParams, check_twin_kwargs, contact_timeconst
 
 __all__ = ["TensegrityRollMuJoCoEnv", "ENV_ID"]
 
 ENV_ID = "TensegrityRollMuJoCo-v0"
 _UNSUPPORTED = ("start_rest_length_offset",)
-#: robot parameters (envs/domain.py SPECS) the twin represents (module doc: the MuJoCo fields)
-TWIN_PARAMS = ("damping", "friction", "gravity", "ground_damping", "ground_stiffness", "max_cable_acceleration",
-               "max_cable_speed", "rest_length_offset", "rod_mass", "stiffness")
-_NOT_REPRESENTABLE = {"node_damping": "MuJoCo damps a rod's free-joint DOFs (centre-of-mass translation, "
-                                      "body-frame rotation), not its end nodes"}
 
 
 class TensegrityRollMuJoCoEnv(gym.Env):
@@ -158,12 +122,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         for name in _UNSUPPORTED:
             if kwargs.get(name) is not None:
                 raise ValueError(f"{name}: not supported by {ENV_ID}")
-        for arg in ("params", "randomize"):
-            d = kwargs.get(arg)
-            for name in (d if isinstance(d, dict) else ()):
-                if name in _NOT_REPRESENTABLE:
-                    raise ValueError(f"{arg}[{name!r}]: {ENV_ID} cannot represent it ({_NOT_REPRESENTABLE[name]}); "
-                                     f"it takes {list(TWIN_PARAMS)}")
+        check_twin_kwargs(kwargs, ENV_ID)
         if kwargs.get("action_delay", 0):
             raise ValueError(f"action_delay: not supported by {ENV_ID}, got {kwargs['action_delay']!r}")
         if kwargs.get("action_mode", "rest_length") != "rest_length":
@@ -180,21 +139,15 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self.data = mujoco.MjData(m)
         m.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
         m.geom_friction[:, 0] = c.friction
-        m_eff = float(s.bar_mass.min()) / 4.0
-        self.contact_timeconst = max(math.sqrt(m_eff / c.stiffness), 2.0 * task.dt)
+        self.contact_timeconst = contact_timeconst(float(s.bar_mass.min()), c.stiffness, task.dt)
         m.geom_solref[:] = (self.contact_timeconst, self.contact_dampratio)
-        if c.damping == 0 and any(isinstance(kwargs.get(a), dict) and "ground_damping" in kwargs[a]
-                                  for a in ("params", "randomize")):
-            raise ValueError(f"ground_damping: {ENV_ID} carries it as a change relative to the env's nominal "
-                             f"ground_damping, which is 0 here")
         k = s.n_bars
         self._body = np.array([m.body(f"rod{j}").id for j in range(k)])
         self._dof = m.jnt_dofadr[m.body_jntadr[self._body]]
         self._rod_of_geom = np.full(m.ngeom, -1)
         self._rod_of_geom[[m.geom(f"rod{j}").id for j in range(k)]] = np.arange(k)
-        self._tendon0 = {"mass": m.body_mass[self._body].copy(), "inertia": m.body_inertia[self._body].copy(),
-                         "stiffness": m.tendon_stiffness.copy(), "damping": m.tendon_damping.copy(),
-                         "rest_length": m.tendon_lengthspring[:, 1].copy(), "gravity": m.opt.gravity.copy()}
+        self._params = TwinParams(m, self._body, c, task.dt, self.contact_dampratio, ENV_ID, any(
+            isinstance(kwargs.get(a), dict) and "ground_damping" in kwargs[a] for a in ("params", "randomize")))
         self._rest_offset = np.zeros(m.ntendon)   # rest_length_offset of this episode, m
         self._eta = task.model.eta                          # (k, 2) node offsets from the reference point, m
         self._act = task.actuated
@@ -227,27 +180,6 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             raise ValueError(f"{ENV_ID}: settling on MuJoCo's ground diverged at dt = {t.dt} s; reduce dt")
         t.q_nominal = q.copy()
         t.nodes_nominal = dyn.node_positions(t.model, q)[0]
-
-    def _apply_params(self) -> None:
-        """Write this episode's robot parameters (the task's domain values, drawn or fixed) into the
-        MjModel (module doc: the mapping), then ``mj_setConst``. Called at reset before the state is set."""
-        mj, m, t, nom = self._mj, self.model, self.task, self._tendon0
-        v = {name: x[0] for name, x in t.domain.values.items()}
-        c = t.contact
-        mass = np.asarray(v.get("rod_mass", nom["mass"]), float)
-        m.body_mass[self._body] = mass
-        m.body_inertia[self._body] = nom["inertia"] * (mass / nom["mass"])[:, None]
-        m.tendon_stiffness[:] = v.get("stiffness", nom["stiffness"])
-        m.tendon_damping[:] = v.get("damping", nom["damping"])
-        self._rest_offset = np.asarray(v.get("rest_length_offset", np.zeros(m.ntendon)), float)
-        m.tendon_lengthspring[:, 1] = nom["rest_length"] + self._rest_offset
-        m.opt.gravity[:] = v.get("gravity", nom["gravity"])
-        m.geom_friction[:, 0] = float(v.get("friction", c.friction))
-        k = float(v.get("ground_stiffness", c.stiffness))
-        self.contact_timeconst = max(math.sqrt(float(mass.min()) / 4.0 / k), 2.0 * t.dt)
-        ratio = float(v["ground_damping"]) / c.damping if "ground_damping" in v else 1.0
-        m.geom_solref[:] = (self.contact_timeconst, self.contact_dampratio * ratio)
-        mj.mj_setConst(m, self.data)
 
     @property
     def dt(self) -> float:
@@ -308,8 +240,9 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         super().reset(seed=seed)
         mj, m, d, t = self._mj, self.model, self.data, self.task
         info = t.reset(np.array([0]), [self.np_random], options)   # same params, noise, goal, controls as TensegrityRoll-v0
-        if t.domain.enabled:
-            self._apply_params()
+        if t.domain.enabled:   # this episode's robot into the MjModel (envs/twin_params.py)
+            self._rest_offset, self.contact_timeconst = self._params.apply(
+                mj, m, d, {name: x[0] for name, x in t.domain.values.items()})
         N = dyn.node_positions(t.model, t.q)[0]
         V = dyn.node_velocities(t.model, t.qd)[0]
         mj.mj_resetData(m, d)

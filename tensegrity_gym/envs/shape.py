@@ -9,11 +9,10 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics as dyn
-from .. import integrators, pipeline
-from .. import statics
+from .. import integrators, pipeline, statics
+from ..actuation import Actuation
 from ..rewards import quadratic_cost, tolerance
 from . import compiled
-from ..actuation import Actuation
 from .base import BatchedTask, fixed_step
 from .docs import SHAPE_DOC as _DOC
 from .shape_fused import FusedShapeStep
@@ -133,21 +132,10 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         self._N = None     # tracked node positions cached from step() for observe()
         self._obs = None   # observation cached from step() (compiled path) for observe()
         self._obs_of = None
-        # compiled observation (envs/compiled.py): tracked node t is r + eta b of one rod, exactly as
-        # dynamics.node_positions writes it (rod_c after rod_a, so the last rod wins); not used
-        # if a tracked node is an anchor (its position is then the anchor's)
-        self._obs_rod = self._obs_eta = None
-        if pipeline.AVAILABLE and not np.isin(self.tracked, model.anchor_idx).any():
-            src_rod = np.full(model.n_nodes, -1)
-            src_eta = np.zeros(model.n_nodes)
-            for col, nodes in ((0, model.rod_a), (1, model.rod_c)):
-                src_rod[nodes] = np.arange(model.n_bars)
-                src_eta[nodes] = model.eta[:, col]
-            if np.all(src_rod[self.tracked] >= 0):
-                self._obs_rod = np.ascontiguousarray(src_rod[self.tracked], dtype=np.int64)
-                self._obs_eta = np.ascontiguousarray(src_eta[self.tracked], dtype=np.float64)
-        # robot observation (envs/sensors.py; None in state mode): NumPy observe and step paths
+        # robot observation (envs/sensors.py; None in state mode): NumPy observe and step paths;
+        # else the compiled observation (envs/compiled.py; None where it does not apply)
         self.sensors = RobotSensors.attach(self, observation_mode, sensor_noise, history, ("target_position", 3 * nt, "m"))
+        self._obs_rod, self._obs_eta = compiled.node_sources(model, self.tracked)
         if self.sensors is not None:
             self._obs_rod = None
         self._init_domain(params, randomize, action_delay, start_rest_length_offset)
@@ -209,14 +197,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         nx, s = self.rc.nx, self.reset_noise_scale
         dx = np.stack([rngs[j].uniform(-s, s, nx) for j in range(r)]) if s > 0 else np.zeros((r, nx))
         dv = np.stack([rngs[j].uniform(-s, s, nx) for j in range(r)]) if s > 0 else np.zeros((r, nx))
-        T = self.rc.tangent_basis(q0[..., 3:])
-        q = self.rc.retract(q0, T, dx)
-        qd = np.zeros_like(q)
-        if self.rc.dz:
-            np.add.at(qd[..., :3], (slice(None), self.rc.z_rod), dv[:, : self.rc.dz, None] * self.rc.E[None])
-        u = dv[:, self.rc.dz:].reshape(r, self.model.n_bars, 2) / self.model.length[None, :, None]
-        qd[..., 3:] = np.einsum("bkid,bkd->bki", T, u)
-        q, qd = dyn.project(self.model, q, qd)
+        q, qd = dyn.project(self.model, *self.rc.perturb(q0, dx, dv))
         self.q[idx], self.qd[idx] = q, qd
         self.ctrl[idx] = self.start_control
         self._last_action[idx] = 0.0

@@ -72,7 +72,8 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 
 from .. import torch_backend as tb
-from .common import ACTION_TOL, registered_max_episode_steps
+from ..checks import check_action_tensor
+from .common import registered_max_episode_steps
 from .shells import VectorSeeding, reseed
 from .torch_sensors import TorchSensors
 
@@ -187,15 +188,14 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         torch = tb._torch()
         idx_t = None if idx is None else torch.as_tensor(idx, dtype=torch.int64, device=self.device)
 
-        def put(name, host):
-            if host is None:
-                setattr(self, name, None)
-                return
-            cur = getattr(self, name, None)
+        def rows(cur, host):      # the whole array, or rows idx written into the device tensor
             if idx_t is None or cur is None or cur.shape[0] != host.shape[0] or host.shape[0] == 1:
-                setattr(self, name, self._T(host))
-            else:
-                cur[idx_t] = self._T(host[idx])
+                return self._T(host)
+            cur[idx_t] = self._T(host[idx])
+            return cur
+
+        def put(name, host):
+            setattr(self, name, None if host is None else rows(getattr(self, name, None), host))
         prm = task.params
         if prm is None:
             self._params = None
@@ -205,12 +205,7 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             if prm.has_node_damping:
                 fields.append("node_damping")
             for f in fields:
-                host = np.asarray(getattr(prm, f), float)
-                cur = self._params.get(f)
-                if idx_t is None or cur is None or cur.shape[0] != host.shape[0] or host.shape[0] == 1:
-                    self._params[f] = self._T(host)
-                else:
-                    cur[idx_t] = self._T(host[idx])
+                self._params[f] = rows(self._params.get(f), np.asarray(getattr(prm, f), float))
         put("_rest_offset", None if task.rest_offset is None else np.asarray(task.rest_offset, float))
         put("_contact_prm", getattr(task, "_contact_prm", None))
         act = task.actuation
@@ -298,40 +293,10 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         return inputs
 
     def _check_actions(self, actions):
-        """The action tensor (N, na) on the device, clipped to the box; ValueError naming the
-        entry of a non-finite value (or, with ``clip_actions=False``, one outside the box).
-        Returns ``(actions, any env to autoreset)`` after ONE small device -> host read."""
-        torch = tb._torch()
-        N, na = self.num_envs, self.task.action_size
-        if isinstance(actions, torch.Tensor):
-            if actions.device != self.device:
-                raise ValueError(f"actions: tensor on device {str(actions.device)!r}, but the env runs on "
-                                 f"{str(self.device)!r}; move it with .to({str(self.device)!r})")
-            if not (actions.is_floating_point() or actions.dtype in (torch.int32, torch.int64)):
-                raise ValueError(f"actions: expected a float tensor, got {actions.dtype}")
-            a = actions.to(self.dtype)
-        else:
-            try:
-                a = self._T(actions)
-            except (TypeError, ValueError):
-                raise ValueError(f"actions: expected a tensor or array of numbers with shape ({N}, {na}), "
-                                 f"got {type(actions).__name__}") from None
-        if tuple(a.shape) != (N, na):
-            raise ValueError(f"actions: expected shape ({N}, {na}), got {tuple(a.shape)}")
-        nonfinite = ~torch.isfinite(a)
-        outside = a.abs() > 1.0 + ACTION_TOL
-        no = torch.zeros((), dtype=torch.bool, device=self.device)
-        flags = torch.stack([nonfinite.any(), no if self.task.clip_actions else outside.any(),
-                             self._autoreset.any()]).cpu().tolist()
-        if flags[0]:
-            i, j = (int(x) for x in torch.nonzero(nonfinite)[0].cpu())
-            raise ValueError(f"actions: entry ({i}, {j}) is {float(a[i, j])!r}; actions must be finite numbers "
-                             "in [-1, 1]")
-        if flags[1]:
-            i, j = (int(x) for x in torch.nonzero(outside)[0].cpu())
-            raise ValueError(f"actions: entry ({i}, {j}) is {float(a[i, j]):.6g}, outside the action space [-1, 1] "
-                             "(construct the env with clip_actions=True to saturate instead)")
-        return torch.clamp(a, -1.0, 1.0), bool(flags[2])
+        """``(actions clipped to the box, any env to autoreset)`` after ONE small device -> host
+        read (:func:`tensegrity_gym.checks.check_action_tensor`)."""
+        return check_action_tensor(actions, (self.num_envs, self.task.action_size), self.device, self.dtype,
+                                   self.task.clip_actions, self._autoreset.any())
 
     # ------------------------------------------------------------------ VectorEnv API
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):

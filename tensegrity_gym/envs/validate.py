@@ -9,6 +9,7 @@ import numpy as np
 from .. import dynamics as dyn
 from .. import pipeline
 from ..actuation import ACTION_MODES
+from .. import checks
 from ..checks import ACTION_TOL, check_positive
 from . import compiled
 
@@ -16,44 +17,17 @@ __all__ = ["ACTION_MODES", "ACTION_TOL", "check_positive", "check_action", "chec
 
 
 def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
-    """Validate an action and return it as a float64 array of ``shape``.
-
-    * wrong shape -> ValueError;
-    * NaN or inf -> ValueError naming the (first) offending index;
-    * entries outside [-1, 1]: clipped to the box if ``clip`` (the documented Box contract,
-      like Gymnasium's MuJoCo envs whose actuators saturate), else ValueError naming the
-      index when beyond 1e-6 of the bounds.
-    """
+    """Validate an action and return it as a float64 array of ``shape``:
+    :func:`tensegrity_gym.checks.check_action` (wrong shape, NaN/inf naming the index, clip to
+    [-1, 1] or raise naming the index with ``clip=False``), behind a compiled fast path for the
+    common case (a float ndarray of the right shape, checked and clipped in one pass; anything
+    wrong falls through to the reference check, which raises)."""
     if (pipeline.AVAILABLE and type(action) is np.ndarray and action.shape == shape
             and (action.dtype == np.float32 or action.dtype == np.float64)):
-        # fast path (the common case): a float ndarray of the right shape, checked and clipped in
-        # one compiled pass; anything wrong falls through to the reference checks below
         a = np.array(action, dtype=np.float64, order="C")
         if compiled.clip_action(a.reshape(-1), clip, ACTION_TOL):
             return a
-    try:
-        a = np.asarray(action, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected an array of numbers with shape {shape}, got {action!r}") from None
-    if a.shape != tuple(shape):
-        if a.size == int(np.prod(shape)) and a.ndim <= 1 and len(shape) == 1:
-            a = a.reshape(shape)
-        else:
-            raise ValueError(f"{name}: expected shape {tuple(shape)}, got {a.shape}")
-    finite = np.isfinite(a)
-    if not finite.all():
-        idx = tuple(int(i) for i in np.argwhere(~finite)[0])
-        idx_s = idx[0] if len(idx) == 1 else idx
-        raise ValueError(f"{name}: entry {idx_s} is {a[idx]!r}; actions must be finite numbers in [-1, 1]")
-    if clip:
-        return np.clip(a, -1.0, 1.0)
-    bad = np.abs(a) > 1.0 + ACTION_TOL
-    if bad.any():
-        idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        idx_s = idx[0] if len(idx) == 1 else idx
-        raise ValueError(f"{name}: entry {idx_s} is {a[idx]:.6g}, outside the action space [-1, 1] "
-                         "(construct the env with clip_actions=True to saturate instead)")
-    return np.clip(a, -1.0, 1.0)
+    return checks.check_action(action, shape, clip, name)
 
 
 def check_stable_dt(model: dyn.Model, limit: float, dt: float, integrator: str, allow: bool, what: str) -> None:
