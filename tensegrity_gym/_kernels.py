@@ -22,6 +22,11 @@ Entry points
     ``{"semi_implicit_euler", "rk4"}``; returns a new :class:`~tensegrity_gym.dynamics.State`
     (the input state is never modified). ``integrators.step`` dispatches here for
     ``backend="auto"``/``"numba"``.
+:func:`accelerations` ``(model, q, qd, rest_length, force_density, external, params)``
+    The accelerations ``[r'', b'']`` of a batch of states, no step: the driver's own force and
+    rod equations (flag ``_ACC``), for the methods that evaluate accelerations themselves
+    (implicit Euler, the adaptive methods, finite-difference Jacobians, through
+    :func:`tensegrity_gym.integrators.accelerations`).
 :func:`step_inplace` ``(model, q, qd, dt, name="semi_implicit_euler", *, ...)``
     The fast path for environments: advances preallocated state arrays ``q``, ``qd``
     (B, k, 6), C-contiguous float64, **in place** and returns nothing. It allocates nothing
@@ -98,7 +103,7 @@ if AVAILABLE and "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THRE
     # ~0.1 ms with numba's own workqueue pool. Set NUMBA_THREADING_LAYER to choose otherwise.
     numba.config.THREADING_LAYER = "workqueue"
 
-__all__ = ["AVAILABLE", "step", "step_inplace", "PARALLEL_MIN_WORK", "clear_cache"]
+__all__ = ["AVAILABLE", "step", "step_inplace", "accelerations", "PARALLEL_MIN_WORK", "clear_cache"]
 
 #: a call runs the multi-threaded kernel when B * n_steps * (strings + rods) * (4 for RK4, else 1)
 #: reaches this (about 0.3 ms of single-core work: below it, waking threads costs more than they save,
@@ -115,6 +120,7 @@ _PROJ = 32
 _CONS = 64
 _L0DEF = 128   # use the model's rest lengths stored in the buffer
 _NDAMP = 256   # per-node viscous drag (model.node_damping)
+_ACC = 512     # no step: write the accelerations [r'', b''] of (q, qd) into qdo (q into qo)
 _CHUNK_SHIFT = 16   # the parallel kernel's chunk count rides in flags >> _CHUNK_SHIFT
 _SINC_SMALL = 1e-4    # integrators._SINC_SMALL: below this angle per step sin(x)/x = 1 - x^2/6
 _SOA_MIN_BATCH = 16   # serial calls with at least this many environments use the SIMD (SoA) loop
@@ -484,6 +490,7 @@ if AVAILABLE:
         l0def = (flags & _L0DEF) != 0
         has_fd = (flags & _FD) != 0
         has_ext = (flags & _EXT) != 0
+        acc_only = (flags & _ACC) != 0
         h = 0.5 * dt
         c6 = dt / 6.0
         nl, nf, ne_ = l0.shape[0], fd.shape[0], ext.shape[0]
@@ -494,6 +501,11 @@ if AVAILABLE:
             ne = min(E, hi - c0)
             if per_copy:                                # this block's lane constants and anchor rows
                 PC = lanes[c0 // E]
+                if E == 1:
+                    # one copy at a time: its node scratch is its own buffer's node rows (anchors
+                    # included); the shared scratch of w would carry this copy's anchors into the
+                    # next call of copy 0, whose buffer w is
+                    N = _view(PC, o_N, (n, 3, 1))
                 for p in range(n):
                     for i in range(3):
                         for e in range(E):
@@ -513,6 +525,14 @@ if AVAILABLE:
                     for p in range(n):
                         for i in range(3):
                             EX[p, i, e] = ext[src if ne_ > 1 else 0, p, i]
+            if acc_only:                                # accelerations only (the entry `accelerations`)
+                _acc(w, ib, L, k, m, n, Q, QD, A1, N, V, F, L0, FD, EX, E, flags, PC)
+                for e in range(ne):
+                    for j in range(k):
+                        for i in range(6):
+                            qo[c0 + e, j, i] = Q[j, i, e]
+                            qdo[c0 + e, j, i] = A1[j, i, e]
+                continue
             for _ in range(n_steps):
                 Qi = Q
                 Vi = QD
@@ -981,16 +1001,16 @@ def step(model, state, dt, name, *, rest_length=None, force_density=None, extern
     if p.bufs is not None:
         _copies_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, False)
     else:
-        _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, name,
-                     project)
+        _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags)
     t = state.t + dt
     for _ in range(n_steps - 1):
         t = t + dt
     return _new_state(qo, qdo, t)
 
 
-def _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, name, project):
+def _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags):
     """The kernels with one packed buffer ``p.buf`` shared by every copy (``qo is q``: in place)."""
+    flags0 = flags
     big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
     try:
         if rest_length is None and force_density is None and external is None and not big:
@@ -1003,7 +1023,7 @@ def _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external,
             else:
                 err = _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags)
     except TypeError:
-        l0, fd, ext, flags = _controls(p, _flags(p, name, project), rest_length, force_density, external)
+        l0, fd, ext, flags = _controls(p, flags0, rest_length, force_density, external)
         err = _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, qo is q)
     if err:
         _raise(err, model, q, qd, rest_length, force_density, external)
@@ -1020,7 +1040,24 @@ def step_inplace(model, q, qd, dt, name="semi_implicit_euler", *, rest_length=No
     if p.bufs is not None:
         _copies_step(model, p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags, True)
     else:
-        _shared_step(model, p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags, name, project)
+        _shared_step(model, p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags)
+
+
+def accelerations(model, q, qd, rest_length=None, force_density=None, external=None, params=None):
+    """Accelerations ``[r'', b'']`` (B, k, 6) (m/s^2, 1/s^2) of the state ``q``, ``qd`` ((B, k, 6)
+    or (k, 6): the result has the same shape): :func:`tensegrity_gym.dynamics.accelerations` (the
+    NumPy reference; equal to round-off, ``tests/test_kernels.py``) computed by the loop driver's
+    own force and rod equations (``_acc``), no step taken. Inputs as :func:`step`."""
+    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
+    flags = p.flags | _ACC
+    shape = np.shape(q)
+    q, qd = _array(q, 3, "q"), _array(qd, 3, "qd")
+    qo, qdo = np.empty(q.shape), np.empty(q.shape)
+    if p.bufs is not None:
+        _copies_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, 0.0, 1, flags, False)
+    else:
+        _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, 0.0, 1, flags)
+    return qdo.reshape(shape)
 
 
 from .dynamics import State  # noqa: E402  (after the kernels: dynamics never imports this module)

@@ -84,6 +84,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from .dynamics import Model, State
+from .integrators import accelerations
 from .jacobian import acceleration_jacobians
 
 __all__ = ["METHODS", "step", "jacobians"]
@@ -97,7 +98,7 @@ STATS = {"steps": 0, "newton_iterations": 0}
 
 
 def jacobians(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
-              external=None, params=None):
+              external=None, params=None, backend: str = "auto"):
     """Accelerations and their Jacobians at ``(q, qd)`` by forward differences, one batched call
     (:func:`tensegrity_gym.jacobian.acceleration_jacobians`, step ``1.5e-8 max(1, |q|_inf)``).
 
@@ -111,12 +112,12 @@ def jacobians(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, for
     a : (B, 6k) accelerations; K : (B, 6k, 6k) da/dq (1/s^2); D : (B, 6k, 6k) da/dqd (1/s).
     """
     return acceleration_jacobians(model, q, qd, rest_length, force_density, external, params,
-                                  with_velocity=True, central=False, rel_step=_FD_REL)
+                                  with_velocity=True, central=False, rel_step=_FD_REL, backend=backend)
 
 
 def step(model: Model, state: State, dt: float, method: str = "implicit_euler", *, rest_length=None,
          force_density=None, external=None, project: bool = True, n_steps: int = 1,
-         max_newton: int = 8, newton_tol: float = 0.05, params=None) -> State:
+         max_newton: int = 8, newton_tol: float = 0.05, params=None, backend: str = "auto") -> State:
     """Advance ``state`` by ``n_steps`` backward-Euler steps of ``dt`` seconds (see module doc).
 
     ``method``: ``"implicit_euler"``.
@@ -126,7 +127,8 @@ def step(model: Model, state: State, dt: float, method: str = "implicit_euler", 
     ``max_newton``: most extra Newton iterations per step; ``newton_tol``: accepted residual
     relative to the velocity change (max norm). ``max_newton=0`` gives the linearly implicit
     (one-solve) method. ``params``: per-copy physical values (1 or B rows), as in
-    :func:`tensegrity_gym.integrators.step`.
+    :func:`tensegrity_gym.integrators.step`. ``backend``: who evaluates the accelerations
+    (:func:`tensegrity_gym.integrators.accelerations`: numba unless "numpy").
     Returns the new :class:`State` (q, qd of shape (B, k, 6)).
     """
     if method not in METHODS:
@@ -138,7 +140,7 @@ def step(model: Model, state: State, dt: float, method: str = "implicit_euler", 
     shape = q.shape
     for _ in range(n_steps):
         ext = external(q, qd, t) if callable(external) else external
-        a0, K, D = jacobians(model, q, qd, rest_length, force_density, ext, params)
+        a0, K, D = jacobians(model, q, qd, rest_length, force_density, ext, params, backend=backend)
         x = q.reshape(B, n)
         v = qd.reshape(B, n)
         # first Newton iterate from (q, v): the linearly implicit step
@@ -148,8 +150,8 @@ def step(model: Model, state: State, dt: float, method: str = "implicit_euler", 
         # further Newton iterations on G = v1 - v - dt a(x + dt v1, v1), for each copy while its
         # residual is large (copy by copy: no copy's result depends on another's)
         for _it in range(max_newton):
-            a1 = dyn.accelerations(model, x1.reshape(shape), v1.reshape(shape), rest_length,
-                                   force_density, ext, params).reshape(B, n)
+            a1 = accelerations(model, x1.reshape(shape), v1.reshape(shape), rest_length,
+                               force_density, ext, params, backend).reshape(B, n)
             G = v1 - v - dt * a1
             scale = np.abs(v1 - v).max(axis=1) + 1e-12 * (1.0 + np.abs(v).max(axis=1))
             todo = np.flatnonzero(np.abs(G).max(axis=1) > newton_tol * scale)   # NaN stops too: reported later
@@ -158,7 +160,8 @@ def step(model: Model, state: State, dt: float, method: str = "implicit_euler", 
             sub = (todo.size,) + shape[1:]
             _, K1, D1 = jacobians(model, x1[todo].reshape(sub), v1[todo].reshape(sub), _rows(rest_length, todo, 2),
                                   _rows(force_density, todo, 2), _rows(ext, todo, 3),
-                                  params if params is None or params.batch_size == 1 else params.take(todo))
+                                  params if params is None or params.batch_size == 1 else params.take(todo),
+                                  backend=backend)
             dv1 = _solve(eye - dt * D1 - (dt * dt) * K1, -G[todo])
             v1 = v1.copy()
             x1 = x1.copy()

@@ -66,9 +66,8 @@ from . import dynamics as dyn
 from .dynamics import Model, State
 from .params import check_params
 
-__all__ = ["INTEGRATORS", "step", "simulate", "Schedule", "IntegratorInfo", "SimulationDiverged",
-           "StabilityWarning", "EvaluationBudgetExceeded",
-           "stability_limit"]
+__all__ = ["INTEGRATORS", "step", "simulate", "accelerations", "Schedule", "IntegratorInfo", "SimulationDiverged",
+           "StabilityWarning", "EvaluationBudgetExceeded", "stability_limit"]
 
 
 class SimulationDiverged(FloatingPointError):
@@ -271,6 +270,19 @@ def _numba_available() -> bool:
     return _KERNELS.AVAILABLE
 
 
+def accelerations(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
+                  external=None, params=None, backend: str = "auto") -> np.ndarray:
+    """Accelerations ``[r'', b'']`` (B, k, 6) (m/s^2, 1/s^2) of the states ``q``, ``qd`` (B, k, 6)
+    (or (k, 6)), inputs as :func:`step` takes them (``external`` an array). What the adaptive and
+    implicit methods and the finite-difference Jacobians evaluate: the numba kernels' equations
+    (:func:`tensegrity_gym._kernels.accelerations`, the ones every fixed step runs) with
+    ``backend`` "auto" (numba installed) or "numba", else the NumPy reference
+    :func:`tensegrity_gym.dynamics.accelerations` (``backend="numpy"``); the two agree to round-off."""
+    if backend != "numpy" and _use_numba(backend, INTEGRATORS["rk4"], None):
+        return _KERNELS.accelerations(model, q, qd, rest_length, force_density, external, params)
+    return dyn.accelerations(model, q, qd, rest_length, force_density, external, params)
+
+
 def _use_numba(backend: str, info: IntegratorInfo, external) -> bool:
     if backend == "numpy" or info.adaptive or callable(external):
         return False
@@ -399,14 +411,14 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
         params = check_params(model, params, B)
     if info.adaptive:
         return _adaptive(model, state, dt * n_steps, info, rest_length, force_density, external, rtol, atol,
-                         params=params)
+                         params=params, backend=backend)
     if params is None:
         _check_stability(model, info, dt)
     if info.name in _IMPLICIT:
         from . import implicit
         return implicit.step(model, state, dt, info.name, rest_length=rest_length,
                              force_density=force_density, external=external, project=project,
-                             n_steps=n_steps, params=params)
+                             n_steps=n_steps, params=params, backend=backend)
     if _use_numba(backend, info, external):
         return _KERNELS.step(model, state, dt, info.name, rest_length=rest_length,
                              force_density=force_density, external=external, project=project,
@@ -476,7 +488,7 @@ class _Solution:
     y: np.ndarray
 
 
-def _rhs(model, shape, rest_length, force_density, external, params=None, budget=None):
+def _rhs(model, shape, rest_length, force_density, external, params=None, budget=None, backend="auto"):
     half = int(np.prod(shape))
     count = [0]
 
@@ -489,7 +501,7 @@ def _rhs(model, shape, rest_length, force_density, external, params=None, budget
                     f"t = {t:.6g} s (tolerances too tight for this span, or a very stiff structure)")
         q = y[:half].reshape(shape)
         qd = y[half:].reshape(shape)
-        a = dyn.accelerations(model, q, qd, rest_length, force_density, _ext(external, q, qd, t), params)
+        a = accelerations(model, q, qd, rest_length, force_density, _ext(external, q, qd, t), params, backend)
         return np.concatenate([qd.reshape(-1), a.reshape(-1)])
     return f
 
@@ -500,7 +512,7 @@ def _copy_rows(x, b):
 
 
 def _adaptive(model, state, T, info, rest_length, force_density, external, rtol, atol, t_eval=None, params=None,
-              max_evaluations=None):
+              max_evaluations=None, backend="auto"):
     """solve_ivp over [t, t + T]. A batch is integrated copy by copy (each copy its own step-size
     control, so no copy's result depends on another's), unless ``external`` is a callable of
     the whole batch."""
@@ -514,7 +526,7 @@ def _adaptive(model, state, T, info, rest_length, force_density, external, rtol,
             runs.append(_adaptive(model, st_b, T, info, _copy_rows(rest_length, b), _copy_rows(force_density, b),
                                   ext[b:b + 1] if ext is not None and ext.ndim == 3 else ext, rtol, atol, t_eval,
                                   params if params is None or params.batch_size == 1 else params.take([b]),
-                                  max_evaluations))
+                                  max_evaluations, backend))
         if t_eval is None:
             return State(q=np.concatenate([r.q for r in runs]), qd=np.concatenate([r.qd for r in runs]),
                          t=state.t + T)
@@ -528,7 +540,7 @@ def _adaptive(model, state, T, info, rest_length, force_density, external, rtol,
     y0 = np.concatenate([state.q.reshape(-1), state.qd.reshape(-1)])
     method = {"dop853": "DOP853", "radau": "Radau"}[info.name]
     try:
-        sol = solve_ivp(_rhs(model, shape, rest_length, force_density, external, params, max_evaluations),
+        sol = solve_ivp(_rhs(model, shape, rest_length, force_density, external, params, max_evaluations, backend),
                         (state.t, state.t + T), y0, method=method, rtol=rtol, atol=atol, t_eval=t_eval)
     except (ValueError, np.linalg.LinAlgError) as e:   # scipy's checks on a non-finite state / Jacobian
         if "inf" not in str(e).lower() and "nan" not in str(e).lower() and "singular" not in str(e).lower():
@@ -577,7 +589,7 @@ def simulate(model: Model, state: State, dt: float, n_steps: int, integrator: st
         _, sol = _adaptive(model, state, dt * n_steps, info, _as_batch(rest_length, B, m, "rest_length"),
                            _as_batch(force_density, B, m, "force_density"), external, rtol, atol,
                            t_eval=ts, params=None if params is None else check_params(model, params, B),
-                           max_evaluations=max_evaluations)
+                           max_evaluations=max_evaluations, backend=backend)
         half = sol.y.shape[0] // 2
         S = sol.y.shape[1]
         q = sol.y[:half].T.reshape((S,) + state.q.shape)

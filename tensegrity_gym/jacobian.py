@@ -123,9 +123,10 @@ def _tile(x, P: int, B: int):
 
 def acceleration_jacobians(model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
                            external=None, params=None, *, with_velocity: bool = True, central: bool = False,
-                           rel_step: float = 1.5e-8):
+                           rel_step: float = 1.5e-8, backend: str = "auto"):
     """Accelerations and their Jacobians at B states by finite differences, one batched call of
-    :func:`tensegrity_gym.dynamics.accelerations`.
+    :func:`tensegrity_gym.integrators.accelerations` (``backend``: numba unless "numpy"; with
+    per-copy ``params`` one call per perturbation, each on the B copies).
 
     Parameters
     ----------
@@ -140,7 +141,7 @@ def acceleration_jacobians(model, q: np.ndarray, qd: np.ndarray, rest_length=Non
     Returns ``(a0, K, D)``: a0 (B, 6k) accelerations (None for central differences), K (B, 6k, 6k)
     in 1/s^2, D (B, 6k, 6k) in 1/s (None unless ``with_velocity``).
     """
-    from . import dynamics as dyn
+    from .integrators import accelerations
     B, k, _ = q.shape
     n = 6 * k
     x = q.reshape(B, n)
@@ -156,11 +157,11 @@ def acceleration_jacobians(model, q: np.ndarray, qd: np.ndarray, rest_length=Non
     def fun(Z):
         P = Z.shape[0]
         Q, V = _split(model, Z, q, qd, with_velocity)
-        pp = params
-        if pp is not None and pp.batch_size == B and B > 1:     # copy b of every perturbation: params b
-            pp = pp.take(np.tile(np.arange(B), P))
-        A = dyn.accelerations(model, Q, V, _tile(rest_length, P, B), _tile(force_density, P, B),
-                              _tile(external, P, B), pp)
+        if params is not None and params.batch_size == B and B > 1:   # copy b of every perturbation: params b
+            return np.stack([accelerations(model, Q[i * B:(i + 1) * B], V[i * B:(i + 1) * B], rest_length,
+                                           force_density, external, params, backend) for i in range(P)]).reshape(P, B, n)
+        A = accelerations(model, Q, V, _tile(rest_length, P, B), _tile(force_density, P, B),
+                          _tile(external, P, B), params, backend)
         return A.reshape(P, B, n)
 
     a0, J = fd_jacobian(fun, z, h, central=central)
@@ -215,8 +216,9 @@ def acceleration_jacobians_sparse(model, q: np.ndarray, qd: np.ndarray, rest_len
     the rods coloured by :func:`distance2_colouring`: ``2 * 6 * colours`` (twice that with
     velocity) acceleration evaluations of the whole structure, in chunks of
     :data:`tensegrity_gym.sizing.FD_CHUNK_BYTES`. Equal to the dense Jacobian's entries
-    inside the pattern to round-off; outside it the dense Jacobian is exactly zero."""
-    from . import dynamics as dyn
+    inside the pattern to round-off; outside it the dense Jacobian is exactly zero. The
+    accelerations: :func:`tensegrity_gym.integrators.accelerations` (numba when installed)."""
+    from .integrators import accelerations
     from .sizing import FD_CHUNK_BYTES
     k = model.n_bars
     n = 6 * k
@@ -248,7 +250,7 @@ def acceleration_jacobians_sparse(model, q: np.ndarray, qd: np.ndarray, rest_len
         P = Z.shape[0]
         Q = Z[:, :n].reshape(P, k, 6)
         V = Z[:, n:].reshape(P, k, 6) if with_velocity else np.broadcast_to(qd, (P, k, 6))
-        return dyn.accelerations(model, Q, V, rest_length).reshape(P, n)
+        return accelerations(model, Q, V, rest_length).reshape(P, n)
 
     # the distance-2 colouring makes the grouping valid by construction (tested against the check)
     J = fd_jacobian_grouped(fun, z, h, groups, rows, cols, n, chunk=chunk, check=False)

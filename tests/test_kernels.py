@@ -149,6 +149,7 @@ def test_parallel_batch_matches_numpy(monkeypatch, min_work):
     B = 37
     model, st, ctl = _scene("prism_damped_gravity", B, seed=3)
     assert K._parallel(K._CACHE.get(id(model)) or K._pack(model), B, 50, 0)
+    integrators.stability_limit(model)   # cached now: its Jacobian's acceleration calls are not counted below
     calls = []
     real = K._run_parallel
     monkeypatch.setattr(K, "_run_parallel", lambda *a: calls.append(1) or real(*a))
@@ -288,3 +289,40 @@ def test_node_damping_matches_numpy(B, integrator, monkeypatch):
     if B >= 8:
         par = K.step(model, st, DT, integrator, n_steps=100, **ctl)
         np.testing.assert_array_equal(par.q, out.q)
+
+
+@pytest.mark.parametrize("scene", SCENES)
+@pytest.mark.parametrize("B", [1, 5, 40])
+def test_accelerations_entry_matches_numpy(scene, B):
+    """``_kernels.accelerations`` (the loop driver's force and rod equations, no step) equals
+    ``dynamics.accelerations`` to round-off: one copy at a time (B < 16) and SIMD blocks (B = 40)."""
+    model, st, ctrl = _scene(scene, B)
+    a_ref = dyn.accelerations(model, st.q, st.qd, **ctrl)
+    a = K.accelerations(model, st.q, st.qd, **ctrl)
+    assert a.shape == st.q.shape
+    assert np.abs(a - a_ref).max() <= RTOL * np.abs(a_ref).max()
+    assert np.abs(a_ref).max() > 1.0                     # a real comparison (nonzero accelerations)
+
+
+def test_accelerations_entry_parallel_params_and_shapes(monkeypatch):
+    """The parallel kernel, per-copy Params, an unbatched (k, 6) state and bad shapes."""
+    from tensegrity_gym.params import default_params
+    model, st, ctrl = _scene("constrained_prism", 24)
+    ref = dyn.accelerations(model, st.q, st.qd, **ctrl)
+    monkeypatch.setattr(K, "PARALLEL_MIN_WORK", 1)
+    assert np.abs(K.accelerations(model, st.q, st.qd, **ctrl) - ref).max() <= RTOL * np.abs(ref).max()
+    monkeypatch.undo()
+    rng = np.random.default_rng(5)
+    prm = default_params(model, 24).replace(stiffness=model.stiffness * rng.uniform(0.8, 1.2, (24, model.n_strings)),
+                                            mass=model.mass * rng.uniform(0.8, 1.2, (24, model.n_bars)))
+    ref_p = dyn.accelerations(model, st.q, st.qd, params=prm, **ctrl)
+    assert np.abs(ref_p - ref).max() > 1e-3 * np.abs(ref).max()     # the parameters matter
+    a_p = K.accelerations(model, st.q, st.qd, params=prm, **ctrl)
+    assert np.abs(a_p - ref_p).max() <= RTOL * np.abs(ref_p).max()
+    one = K.accelerations(model, st.q[3], st.qd[3], force_density=ctrl["force_density"][3])
+    assert one.shape == (model.n_bars, 6)
+    np.testing.assert_allclose(one, ref[3], rtol=0, atol=RTOL * np.abs(ref).max())
+    with pytest.raises(ValueError, match="force_density"):
+        K.accelerations(model, st.q, st.qd, force_density=np.zeros((24, model.n_strings + 1)))
+    with pytest.raises(ValueError, match="qd"):
+        K.accelerations(model, st.q, st.qd[:, :2])
