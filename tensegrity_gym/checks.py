@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_action", "check_action_tensor"]
+__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_action", "check_action_tensor", "load_npz"]
 
 #: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
 ACTION_TOL = 1e-6
@@ -25,6 +25,30 @@ def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -
         raise ValueError(f"{name}: must be {'>= 0' if allow_zero else 'positive'} and finite"
                          f"{' (' + unit + ')' if unit else ''}, got {value!r}")
     return v
+
+
+def load_npz(path, expected: str) -> dict:
+    """The arrays of the NumPy ``.npz`` archive at ``path`` as a dict (pickled objects refused).
+    ValueError naming the file for anything else (a single ``.npy`` array, a pickle, text, a
+    damaged archive), with ``expected`` saying what the file should hold; FileNotFoundError and
+    IsADirectoryError pass unchanged (the callers word them)."""
+    import zipfile
+    p = str(path)
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (FileNotFoundError, IsADirectoryError):
+        raise
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile):
+        raise ValueError(f"{p}: not a NumPy .npz archive (expected {expected})") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise ValueError(f"{p}: a single NumPy array (.npy), not an .npz archive of named arrays "
+                         f"(expected {expected})")
+    with z:
+        try:
+            return {k: z[k] for k in z.files}
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+            raise ValueError(f"{p}: a damaged .npz archive or one holding pickled objects (expected {expected}): "
+                             f"{' '.join(str(e).split())[:200]}") from None
 
 
 def check_array(value, shape: tuple, name: str) -> np.ndarray:

@@ -64,6 +64,7 @@ import numpy as np
 from . import __version__
 from . import dynamics as dyn
 from .builders import BUILDERS
+from .checks import load_npz
 from .integrators import INTEGRATORS, EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
 from .sizing import StructureTooLarge
 from .structure import StructureError
@@ -323,12 +324,12 @@ def load_schedule(path, name: str, n_strings: int) -> Schedule:
                              f"{unit}), got {a.shape[1]}")
         t, v = a[:, 0], a[:, 1:]
     else:
-        with np.load(p, allow_pickle=False) as z:
-            for k in ("t", name):
-                if k not in z.files:
-                    raise ValueError(f"{p}: no array {k!r} (found {sorted(z.files)}); expected t (C,) s and {name} "
-                                     f"(C, {n_strings}) {unit}")
-            t, v = z["t"], z[name]
+        z = load_npz(p, f"arrays t (C,) s and {name} (C, {n_strings}) {unit}, or a .csv")
+        for k in ("t", name):
+            if k not in z:
+                raise ValueError(f"{p}: no array {k!r} (found {sorted(z)}); expected t (C,) s and {name} "
+                                 f"(C, {n_strings}) {unit}")
+        t, v = z["t"], z[name]
     v = np.asarray(v, dtype=float)
     if v.ndim != 2 or v.shape[1] != n_strings:
         raise ValueError(f"{p}: {name} must have shape (C, {n_strings}) (one row per command time, one column per "
@@ -588,9 +589,11 @@ def cmd_view(args) -> int:
     from types import SimpleNamespace
     from .rendering import RendererUnavailable, view_trajectory
     try:
-        with np.load(args.trajectory) as z:
-            t, nodes, bars, strings = z["t"], z["nodes"], z["bars"], z["strings"]
-    except (OSError, ValueError, KeyError, EOFError) as e:
+        z = load_npz(args.trajectory, "a simulate output with t, nodes, bars, strings")
+        t, nodes, bars, strings = z["t"], z["nodes"], z["bars"], z["strings"]
+    except ValueError as e:
+        raise CLIError(EXIT_STRUCTURE, f"view: {e}") from None
+    except (OSError, KeyError) as e:
         raise CLIError(EXIT_STRUCTURE, f"view: {args.trajectory}: not a simulate output (.npz with t, nodes, bars, "
                                        f"strings): {e}") from None
     tensions = None

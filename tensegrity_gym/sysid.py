@@ -76,6 +76,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import dynamics as dyn
+from .checks import load_npz
 from .dynamics import Model, State
 from .integrators import resolve, step
 from .params import Params, default_params
@@ -982,14 +983,14 @@ def load_trajectory(path, n_nodes: int):
     if p.lower().endswith(".csv"):
         t, nodes, mask = load_csv(p, n_nodes)
         return t, nodes, None, mask
-    with np.load(p, allow_pickle=False) as z:
-        for k in ("t", "nodes"):
-            if k not in z.files:
-                raise ValueError(f"{p}: no array {k!r} (found {sorted(z.files)}); expected t (S,) s and nodes "
-                                 f"(S, n, 3) m as written by `python -m tensegrity_gym simulate`")
-        t, nodes = z["t"], z["nodes"]
-        rl = z["rest_length"] if "rest_length" in z.files else None
-        mask = z["node_mask"] if "node_mask" in z.files else None
+    z = load_npz(p, "t (S,) s and nodes (S, n, 3) m as written by `python -m tensegrity_gym simulate`, "
+                    "or a long-format .csv")
+    for k in ("t", "nodes"):
+        if k not in z:
+            raise ValueError(f"{p}: no array {k!r} (found {sorted(z)}); expected t (S,) s and nodes "
+                             f"(S, n, 3) m as written by `python -m tensegrity_gym simulate`")
+    t, nodes = z["t"], z["nodes"]
+    rl, mask = z.get("rest_length"), z.get("node_mask")
     if mask is None and np.asarray(nodes).ndim == 3:
         fin = np.isfinite(np.asarray(nodes, float)).all(axis=2)
         if not fin.all() and (fin | ~fin.any(axis=0)).all():

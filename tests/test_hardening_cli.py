@@ -49,6 +49,8 @@ def _files(tmp: Path) -> None:
     tg.save_json(s.replace(velocities=np.cross([0, 0, 2.0], s.nodes - s.nodes.mean(0))), tmp / "spin.json")
     (tmp / "demo_exists").mkdir()
     (tmp / "demo_exists" / "demo_summary.json").write_text("{}")
+    np.save(tmp / "one_array.npy", np.zeros((3, 10)))
+    (tmp / "text.npz").write_text("t,rest_length\n")
 
 
 S = ["simulate", "prism3", "--duration", "0.01", "--no-progress"]
@@ -109,7 +111,16 @@ CASES = [
     ("export-missing-folder", ["export", "prism3", "--out", "{tmp}/nope/m.xml"], 4, r"folder '.*nope' does not exist"),
     ("export-bad-structure", ["export", "{tmp}/mp5.json", "--out", "{tmp}/m.xml"], 3, r"mass_points: expected null"),
     ("view-missing", ["view", "{tmp}/missing.npz"], 3, r"view: .*missing.npz: not a simulate output"),
-    ("view-not-npz", ["view", "{tmp}/bad.json"], 3, r"view: .*bad.json: not a simulate output"),
+    ("view-not-npz", ["view", "{tmp}/bad.json"], 3, r"view: .*bad.json: not a NumPy .npz archive \(expected a simulate output"),
+    ("view-npy", ["view", "{tmp}/one_array.npy"], 3, r"view: .*one_array.npy: a single NumPy array \(.npy\), not an .npz archive"),
+    ("view-no-key", ["view", "{tmp}/existing.npz"], 3, r"view: .*existing.npz: not a NumPy .npz archive"),
+    ("schedule-npy", S + ["--rest-length", "{tmp}/one_array.npy", "--out", "{tmp}/x.npz"], 3,
+     r"--rest-length .*one_array.npy: a single NumPy array \(.npy\), not an .npz archive .*expected arrays t \(C,\) s "
+     r"and rest_length \(C, 9\) m"),
+    ("schedule-text", S + ["--rest-length", "{tmp}/text.npz", "--out", "{tmp}/x.npz"], 3,
+     r"--rest-length .*text.npz: not a NumPy .npz archive"),
+    ("identify-npy", ["identify", "prism3", "{tmp}/one_array.npy"], 3, r"one_array.npy: a single NumPy array"),
+    ("identify-json", ["identify", "prism3", "{tmp}/bad.json"], 3, r"bad.json: not a NumPy .npz archive \(expected t \(S,\)"),
     # too large: exit 5, with the estimate
     ("duration-1e308", ["simulate", "prism3", "--duration", "1e308", "--out", "{tmp}/x.npz"], 5,
      r"--duration 1e\+308 s at --dt 0.001 s is inf steps, above the limit of 1e\+09 \(--max-steps\)"),
