@@ -363,12 +363,44 @@ def _divergence_cause(model: Model, info: IntegratorInfo, dt: float, last: State
 
 
 def _as_batch(x, B, m, name):
+    """``x`` (m,) or (B, m) as a float array; ValueError naming ``name``, the index and the value
+    for another shape, a NaN/inf entry or (``rest_length``) a negative one."""
     if x is None:
         return None
     x = np.asarray(x, dtype=float)
     if x.shape not in ((m,), (B, m)):
         raise ValueError(f"{name}: expected shape ({m},) or ({B}, {m}), got {x.shape}")
+    _check_entries(x, name, nonnegative=name == "rest_length")
     return x
+
+
+def _check_entries(x: np.ndarray, name: str, nonnegative: bool = False) -> None:
+    """ValueError naming ``name``, the first offending index and its value for a NaN/inf entry
+    (or a negative one with ``nonnegative``)."""
+    ok = np.isfinite(x)
+    if nonnegative:
+        ok &= x >= 0
+    if not ok.all():
+        idx = tuple(int(i) for i in np.argwhere(~ok)[0])
+        need = "finite and >= 0" if nonnegative else "finite"
+        raise ValueError(f"{name}: entry {idx[0] if len(idx) == 1 else idx} is {float(x[idx])!r}; must be {need}")
+
+
+def _check_inputs(state, n_steps, external) -> int:
+    """``n_steps`` as an int (ValueError unless a positive integer) after checking that the state
+    and an array ``external`` are finite (ValueError naming the field, the index and the value)."""
+    if type(n_steps) is not int and (isinstance(n_steps, (bool, np.bool_))
+                                     or not isinstance(n_steps, (int, np.integer))) or n_steps < 1:
+        raise ValueError(f"n_steps: must be a positive integer (steps per call), got {n_steps!r}")
+    q, qd = state.q, state.qd
+    if not (_numba_available() and type(q) is np.ndarray and type(qd) is np.ndarray and q.ndim == 3
+            and q.dtype == np.float64 and qd.dtype == np.float64 and q.flags.c_contiguous
+            and qd.flags.c_contiguous and qd.ndim == 3 and _KERNELS.finite_pair(q, qd)):
+        _check_entries(np.asarray(q), "state.q")      # the NumPy check, which names the entry
+        _check_entries(np.asarray(qd), "state.qd")
+    if external is not None and not callable(external):
+        _check_entries(np.asarray(external, dtype=float), "external")
+    return int(n_steps)
 
 
 def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit_euler", *,
@@ -391,10 +423,15 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
         with row b's masses, stiffnesses, damping, rest lengths, node drag, gravity, anchors);
         default None: the model's own values. With ``params`` the stability check is skipped
         (the model's estimated limit need not hold for other values).
+
+    ValueError naming the field, the index and the value for a non-finite state, rest length,
+    force density or external force, a negative rest length, and for ``n_steps`` that is not a
+    positive integer.
     """
     info = resolve(integrator)
     if not ((math.isfinite(dt) if type(dt) is float else np.isfinite(dt)) and dt > 0):
         raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
+    n_steps = _check_inputs(state, n_steps, external)
     if backend == "torch":   # torch backend: NumPy State in and out, computed on `device` in `dtype`
         from . import torch_backend
         if info.name not in _EXPLICIT:

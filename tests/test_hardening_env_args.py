@@ -140,3 +140,50 @@ def test_named_action_errors():
         env.step(np.zeros(3))
     with pytest.raises(ValueError, match=r"action: expected an array of numbers with shape \(9,\), got 'up'"):
         env.step("up")
+
+
+@pytest.mark.parametrize("env_id", [SHAPE, ROLL])
+def test_unknown_reset_options_are_refused(env_id):
+    """An option the env would silently ignore is an error naming it; reset_mask still works."""
+    env = gym.make(env_id)
+    with pytest.raises(ValueError, match=r"options: unknown key\(s\) \['goal_direction'\]; this env's reset takes "
+                                         r"no options"):
+        env.reset(seed=0, options={"goal_direction": [0.0, 1.0]})
+    env.reset(seed=0, options={})
+    venv = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
+    venv.reset(seed=0, options={"reset_mask": np.array([True, False])})
+    with pytest.raises(ValueError, match=r"options: unknown key\(s\) \['seed'\]"):
+        venv.reset(options={"reset_mask": np.array([True, False]), "seed": 3})
+
+
+def test_step_inputs_name_field_index_and_value():
+    """tensegrity_gym.step: a NaN/inf state, rest length, force density or external force, a
+    negative rest length, or n_steps not a positive integer is a ValueError naming it (before: NaN
+    rest lengths silently made strings slack, n_steps=0 still advanced t by dt, and 1.5 gave a bare
+    TypeError)."""
+    import tensegrity_gym as tg
+    model = tg.compile_model(tg.prism(3))
+    st0 = tg.initial_state(model, 2)
+    rl = np.tile(model.rest_length, (2, 1))
+    rl[1, 4] = np.nan
+    for backend in ("auto", "numpy"):
+        with pytest.raises(ValueError, match=r"rest_length: entry \(1, 4\) is nan; must be finite and >= 0"):
+            tg.step(model, st0, 1e-3, rest_length=rl, backend=backend)
+    with pytest.raises(ValueError, match=r"rest_length: entry 2 is -0.5; must be finite and >= 0"):
+        tg.step(model, st0, 1e-3, rest_length=np.r_[model.rest_length[:2], -0.5, model.rest_length[3:]])
+    with pytest.raises(ValueError, match=r"force_density: entry 0 is inf; must be finite"):
+        tg.step(model, st0, 1e-3, force_density=np.r_[np.inf, np.zeros(8)])
+    ext = np.zeros((2, model.n_nodes, 3))
+    ext[0, 5, 2] = np.nan
+    with pytest.raises(ValueError, match=r"external: entry \(0, 5, 2\) is nan; must be finite"):
+        tg.step(model, st0, 1e-3, external=ext)
+    q = st0.q.copy()
+    q[1, 2, 3] = np.inf
+    with pytest.raises(ValueError, match=r"state.q: entry \(1, 2, 3\) is inf; must be finite"):
+        tg.step(model, tg.State(q=q, qd=st0.qd), 1e-3, integrator="rk4")
+    for n in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match=r"n_steps: must be a positive integer \(steps per call\), got"):
+            tg.step(model, st0, 1e-3, n_steps=n)
+    assert tg.step(model, st0, 1e-3, n_steps=np.int64(2)).t == pytest.approx(2e-3)
+    # force densities may be negative (added to the strings' own, the sum clipped at 0)
+    assert np.isfinite(tg.step(model, st0, 1e-3, force_density=-np.ones(9)).q).all()

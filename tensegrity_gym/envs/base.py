@@ -56,6 +56,8 @@ class BatchedTask:
     track_last_velocity = False
     #: (B, na) cable speeds of the actuation's motor model (unit/s); None: no motor state
     speed = None
+    #: the keys ``reset(options=...)`` takes (none: the tasks draw everything from the seed)
+    RESET_OPTIONS: tuple = ()
 
     def _init_physics(self, model: dyn.Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
                       backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
@@ -162,7 +164,14 @@ class BatchedTask:
 
     def reset(self, idx: np.ndarray, rngs: Sequence[np.random.Generator], options: dict | None = None) -> dict:
         """Reset copies ``idx``: robot parameters drawn first (if randomised), then the task's
-        :meth:`reset_idx`; ``info["params"]`` reports the parameters when any are set."""
+        :meth:`reset_idx`; ``info["params"]`` reports the parameters when any are set.
+        ``options``: the keys of :attr:`RESET_OPTIONS` only (ValueError naming any other: an
+        option that would be silently ignored)."""
+        unknown = sorted(set(options or ()) - set(self.RESET_OPTIONS))
+        if unknown:
+            takes = f"only {list(self.RESET_OPTIONS)}" if self.RESET_OPTIONS else "no options"
+            raise ValueError(f"options: unknown key(s) {unknown}; this env's reset takes {takes} (a vector env "
+                             "also 'reset_mask'); the robot, goal and noise come from the constructor and the seed")
         dom = self.domain
         if dom.randomized:
             dom.sample(idx, rngs)
