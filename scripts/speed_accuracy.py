@@ -503,8 +503,9 @@ RECOMMENDATION = """\
 **Default for the envs: `semi_implicit_euler` at dt = 1 ms, numba backend** (what
 `TensegrityShape-v0` and `TensegrityRoll-v0` use). Why, from the tables below: on the default
 scenes (1e3 N/m strings, 0.2-1 kg rods; omega_max 80-250 rad/s, explicit limit 8-25 ms) the
-cheapest run under 1 mm node error and 1 % energy error is semi-implicit Euler at 2 ms; 1 ms
-halves its error (about 1e-4 m after 0.5 s of a 0.3 m/s kick) for about 1 us per step with
+cheapest runs under 1 mm node error and 1 % energy error are semi-implicit Euler at 2 ms and
+RK4 at 5 ms (with numba within the timing noise of each other; the list above names whichever
+measured cheaper in this run); for semi-implicit Euler 1 ms halves its error (about 1e-4 m after 0.5 s of a 0.3 m/s kick) for about 1 us per step with
 numba, leaves a factor of 8 or more to the stability limit when actions stiffen the
 structure, and stays under the contact limit of the rolling robot (about 2.5 ms,
 `contact.stable_step`). Contact forces are held over a step, which is exact for
@@ -574,8 +575,6 @@ def main(argv=None):
         for integ in FIXED:
             for dt in sc["dts"][integ]:
                 for backend in backends:
-                    if backend == "numba" and integ == "implicit_euler":
-                        continue
                     if (backend == "numpy" and integ != "implicit_euler" and "numba" in backends
                             and sc["T"] / dt > 2500):
                         continue   # long NumPy runs: same numbers as numba's rows, only slower
