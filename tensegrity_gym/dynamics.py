@@ -207,17 +207,35 @@ def compile_model(structure: Structure, active_strings: Iterable[int] | None = N
 
 def initial_state(model: Model, batch_size: int = 1, nodes: np.ndarray | None = None,
                   velocities: np.ndarray | None = None) -> State:
-    """State from node positions (n, 3) or (B, n, 3) and velocities (default: the structure's).
+    """State from node positions (n, 3) or (B, n, 3) m and velocities (n, 3) or (B, n, 3) m/s
+    (default: the structure's), ``batch_size`` copies of (n, 3) inputs.
 
-    Rod lengths are taken from the model; ``b`` is normalised."""
+    Rod lengths are taken from the model; ``b`` is normalised. ValueError naming the argument for
+    a batch size that is not a positive integer, a wrong shape, a NaN/inf entry or a rod whose
+    two nodes coincide."""
+    if isinstance(batch_size, (bool, np.bool_)) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
+        raise ValueError(f"batch_size: must be a positive integer (copies), got {batch_size!r}")
     s = model.structure
+    n = model.n_nodes
     nodes = s.nodes if nodes is None else np.asarray(nodes, float)
     vel = s.velocities if velocities is None else np.asarray(velocities, float)
+    for x, name in ((nodes, "nodes"), (vel, "velocities")):
+        if x.shape[-2:] != (n, 3) or x.ndim not in (2, 3):
+            raise ValueError(f"{name}: expected shape ({n}, 3) or (B, {n}, 3), got {x.shape}")
+        if not np.isfinite(x).all():
+            idx = tuple(int(i) for i in np.argwhere(~np.isfinite(x))[0])
+            raise ValueError(f"{name}: entry {idx} is {float(x[idx])!r}; must be finite")
     if nodes.ndim == 2:
         nodes = np.broadcast_to(nodes, (batch_size,) + nodes.shape)
     if vel.ndim == 2:
         vel = np.broadcast_to(vel, (nodes.shape[0],) + vel.shape)
+    elif vel.shape[0] != nodes.shape[0]:
+        raise ValueError(f"velocities: {vel.shape[0]} copies for {nodes.shape[0]} copies of nodes")
     na, nc = nodes[:, model.rod_a], nodes[:, model.rod_c]
+    zero = ~(np.linalg.norm(nc - na, axis=-1) > 0)
+    if zero.any():
+        b, j = (int(i) for i in np.argwhere(zero)[0])
+        raise ValueError(f"nodes: rod {j} (nodes {model.rod_a[j]} and {model.rod_c[j]}) has zero length in copy {b}")
     va, vc = vel[:, model.rod_a], vel[:, model.rod_c]
     d = nc - na
     b = d / np.linalg.norm(d, axis=-1, keepdims=True)

@@ -187,3 +187,24 @@ def test_step_inputs_name_field_index_and_value():
     assert tg.step(model, st0, 1e-3, n_steps=np.int64(2)).t == pytest.approx(2e-3)
     # force densities may be negative (added to the strings' own, the sum clipped at 0)
     assert np.isfinite(tg.step(model, st0, 1e-3, force_density=-np.ones(9)).q).all()
+
+
+def test_initial_state_checks_its_inputs():
+    """initial_state: batch_size 0 gave an empty state and -1 NumPy's broadcast message; wrong
+    node shapes, NaN nodes and coinciding rod ends are named."""
+    import tensegrity_gym as tg
+    model = tg.compile_model(tg.prism(3))
+    for bad in (0, -1, 2.0, True):
+        with pytest.raises(ValueError, match=r"batch_size: must be a positive integer \(copies\), got"):
+            tg.initial_state(model, bad)
+    with pytest.raises(ValueError, match=r"nodes: expected shape \(6, 3\) or \(B, 6, 3\), got \(5, 3\)"):
+        tg.initial_state(model, nodes=np.zeros((5, 3)))
+    nodes = model.structure.nodes.copy()
+    nodes[2, 1] = np.nan
+    with pytest.raises(ValueError, match=r"nodes: entry \(2, 1\) is nan; must be finite"):
+        tg.initial_state(model, nodes=nodes)
+    with pytest.raises(ValueError, match=r"nodes: rod 0 \(nodes 0 and \d\) has zero length in copy 0"):
+        tg.initial_state(model, nodes=np.zeros((6, 3)))
+    with pytest.raises(ValueError, match=r"velocities: 2 copies for 3 copies of nodes"):
+        tg.initial_state(model, nodes=np.tile(model.structure.nodes, (3, 1, 1)), velocities=np.zeros((2, 6, 3)))
+    assert tg.initial_state(model, np.int64(3)).q.shape == (3, 3, 6)
