@@ -6,10 +6,13 @@ import math
 
 import numpy as np
 
-__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_action", "check_action_tensor", "load_npz"]
+__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_action", "check_action_tensor", "load_npz",
+           "check_frame_size", "MAX_FRAME_SIZE"]
 
 #: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
 ACTION_TOL = 1e-6
+#: largest rendered frame side, pixels (an 8192 x 8192 RGB frame is 192 MiB)
+MAX_FRAME_SIZE = 8192
 
 
 def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -> float:
@@ -25,6 +28,18 @@ def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -
         raise ValueError(f"{name}: must be {'>= 0' if allow_zero else 'positive'} and finite"
                          f"{' (' + unit + ')' if unit else ''}, got {value!r}")
     return v
+
+
+def check_frame_size(width, height) -> tuple[int, int]:
+    """``(width, height)`` of rendered frames as ints in 1 .. :data:`MAX_FRAME_SIZE` pixels;
+    ValueError naming the argument and the value otherwise (checked at construction, not at the
+    first ``render()``)."""
+    out = []
+    for v, name in ((width, "width"), (height, "height")):
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_FRAME_SIZE:
+            raise ValueError(f"{name}: must be an integer number of pixels in 1..{MAX_FRAME_SIZE}, got {v!r}")
+        out.append(int(v))
+    return out[0], out[1]
 
 
 def load_npz(path, expected: str) -> dict:

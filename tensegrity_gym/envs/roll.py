@@ -24,7 +24,7 @@ from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SE
                          robot_prism, settle)
 from .sensors import RobotSensors
 from .shells import TaskEnv, TaskVectorEnv
-from .validate import ACTION_MODES, check_positive, check_stable_dt, resolve_actuated
+from .validate import ACTION_MODES, check_positive, check_rest_length_bounds, check_stable_dt, resolve_actuated
 
 __all__ = ["RollTask", "TensegrityRollEnv", "TensegrityRollVectorEnv", "robot_prism", "robot_icosahedron",
            "place_on_ground", "GRAVITY"]
@@ -86,11 +86,7 @@ class RollTask(RollObservation, BatchedTask):
             raise ValueError(f"goal_direction: expected a non-zero finite (x, y) vector, got {goal_direction!r}")
         self.goal_direction = g / np.linalg.norm(g)
         self.randomize_goal = bool(randomize_goal)
-        lo, hi = (float(x) for x in rest_length_bounds)
-        if not (0 < lo <= 1 <= hi) or not math.isfinite(hi):
-            raise ValueError(f"rest_length_bounds: need 0 < low <= 1 <= high (fractions of the nominal rest "
-                             f"lengths), got {rest_length_bounds}")
-        self.rest_length_bounds = (lo, hi)
+        self.rest_length_bounds = lo, hi = check_rest_length_bounds(rest_length_bounds)
         act = resolve_actuated(actuated, s.n_strings)
         self.actuated = act
 

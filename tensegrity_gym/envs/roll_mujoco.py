@@ -87,6 +87,7 @@ from gymnasium import spaces
 from .. import dynamics as dyn
 from ..mjcf import initial_qpos_qvel, to_mjcf
 from ..rewards import quadratic_cost
+from ..checks import check_frame_size
 from .common import check_action, check_positive
 from .roll import MAX_PATH, SETTLE_TIME, RollTask
 from .twin_params import TwinParams, check_twin_kwargs, contact_timeconst
@@ -155,7 +156,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (task.action_size,), np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (task.observation_size,), np.float32)
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / task.control_dt)))
-        self.render_mode, self._size, self._renderer = render_mode, (int(height), int(width)), None
+        self.render_mode, self._size, self._renderer = render_mode, check_frame_size(width, height)[::-1], None
         self._settle()
         task.record_path = render_mode is not None
         self.start = np.zeros(3)

@@ -18,7 +18,7 @@ from .docs import SHAPE_DOC as _DOC
 from .shape_fused import FusedShapeStep
 from .sensors import RobotSensors
 from .shells import TaskEnv, TaskVectorEnv
-from .validate import ACTION_MODES, check_positive, check_stable_dt, resolve_actuated
+from .validate import ACTION_MODES, check_positive, check_rest_length_bounds, check_stable_dt, resolve_actuated
 
 __all__ = ["ShapeTask", "TensegrityShapeEnv", "TensegrityShapeVectorEnv", "DEFAULT_STRING_DAMPING",
            "DEFAULT_NODE_DAMPING"]
@@ -73,11 +73,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         self.target_range = check_positive(target_range, "target_range", allow_zero=True)
         if self.target_range >= 1:
             raise ValueError(f"target_range: relative rest-length change must be < 1, got {target_range}")
-        lo, hi = (float(x) for x in rest_length_bounds)
-        if not (0 < lo <= 1 <= hi):
-            raise ValueError(f"rest_length_bounds: need 0 < low <= 1 <= high (fractions of the structure's rest "
-                             f"lengths), got {rest_length_bounds}")
-        self.rest_length_bounds = (lo, hi)
+        self.rest_length_bounds = lo, hi = check_rest_length_bounds(rest_length_bounds)
         self.max_speed = check_positive(max_speed, "max_speed", "m/s")
 
         # the elastic model (targets) and the nominal equilibrium (start shape)

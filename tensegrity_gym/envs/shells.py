@@ -9,6 +9,7 @@ import gymnasium as gym
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
+from ..checks import check_frame_size
 from ..rewards import combine
 from .base import BatchedTask
 from .validate import check_action
@@ -52,7 +53,7 @@ class TaskEnv(gym.Env):
         self.metadata = dict(self.metadata)
         self.metadata["render_fps"] = int(round(1.0 / task.control_dt))
         self.action_space, self.observation_space = _spaces(task)
-        self._width, self._height, self._title = int(width), int(height), title
+        self._width, self._height, self._title = *check_frame_size(width, height), title
         self._renderer = None
         self._needs_reset = True
 
@@ -216,7 +217,7 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)
         self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
         self._autoreset = np.zeros(self.num_envs, bool)
-        self._width, self._height, self._title = int(width), int(height), title
+        self._width, self._height, self._title = *check_frame_size(width, height), title
         self._renderers: dict[int, Any] = {}
 
     def _vector_info(self, infos: dict, mask: np.ndarray, out: dict | None = None) -> dict:

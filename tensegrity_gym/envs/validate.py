@@ -13,7 +13,8 @@ from .. import checks
 from ..checks import ACTION_TOL, check_positive
 from . import compiled
 
-__all__ = ["ACTION_MODES", "ACTION_TOL", "check_positive", "check_action", "check_stable_dt", "resolve_actuated"]
+__all__ = ["ACTION_MODES", "ACTION_TOL", "check_positive", "check_action", "check_stable_dt", "resolve_actuated",
+           "check_rest_length_bounds"]
 
 
 def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
@@ -28,6 +29,19 @@ def check_action(action, shape: tuple, clip: bool = True, name: str = "action") 
         if compiled.clip_action(a.reshape(-1), clip, ACTION_TOL):
             return a
     return checks.check_action(action, shape, clip, name)
+
+
+def check_rest_length_bounds(bounds) -> tuple[float, float]:
+    """``(low, high)`` fractions of the nominal rest lengths, ``0 < low <= 1 <= high``; ValueError
+    naming ``rest_length_bounds`` and the value otherwise."""
+    try:
+        lo, hi = (float(x) for x in bounds)
+    except (TypeError, ValueError):
+        raise ValueError(f"rest_length_bounds: expected two numbers (low, high), got {bounds!r}") from None
+    if not (0 < lo <= 1 <= hi) or not np.isfinite(hi):
+        raise ValueError(f"rest_length_bounds: need 0 < low <= 1 <= high, finite (fractions of the nominal rest "
+                         f"lengths), got {bounds!r}")
+    return lo, hi
 
 
 def check_stable_dt(model: dyn.Model, limit: float, dt: float, integrator: str, allow: bool, what: str) -> None:
