@@ -606,8 +606,8 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
                 if rb_path.exists():
                     model.load_replay_buffer(str(rb_path))
                 else:
-                    print(f"warning: no replay buffer {rb_path.name} (saved on Ctrl-C, or in checkpoints with "
-                          "--save-replay-buffer): continuing with an empty buffer")
+                    print(f"warning: no replay buffer {rb_path.name} (saved on Ctrl-C or --max-wall-time, or in "
+                          "checkpoints with --save-replay-buffer): continuing with an empty buffer")
             print(f"resuming {run_dir} from {load_path.name} at {model.num_timesteps} steps "
                   f"(target {n_timesteps})")
         else:
@@ -678,13 +678,13 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         run_state.data["traceback"] = traceback.format_exc()[-4000:]
     finally:
         with _DeferInterrupts():
+            if stopper is not None and stopper.hit and status == "finished":
+                status = "time_limit"
             _save_final(model, run_dir, status, run_state)
             elapsed = time.time() - t0
             best = prev_state.get("best_mean_reward")
             if ecb is not None and np.isfinite(ecb.best_mean_reward):
                 best = float(ecb.best_mean_reward)
-            if stopper is not None and stopper.hit and status == "finished":
-                status = "time_limit"
             split = timer.split()
             run_state.update(status=status, num_timesteps=int(model.num_timesteps), target_timesteps=n_timesteps,
                              best_mean_reward=best,
@@ -708,7 +708,8 @@ def _save_final(model, run_dir: Path, status: str, run_state: RunState) -> None:
     """Save the model at the end of a segment, every file atomically, statistics before the model.
 
     finished / interrupted / time_limit: ``vecnormalize.pkl``, (``replay_buffer.pkl`` when
-    interrupted, off-policy), ``model.zip``. crashed: the last good ``model.zip`` and checkpoints
+    interrupted or stopped by ``--max-wall-time``, off-policy: the segments ``--resume`` continues;
+    a stale buffer of an earlier segment would otherwise be loaded), ``model.zip``. crashed: the last good ``model.zip`` and checkpoints
     are kept; the crashing model goes to ``crashed_model.zip`` (+ ``crashed_vecnormalize.pkl``)
     for inspection only (``--resume`` does not use it)."""
     prefix = "crashed_" if status == "crashed" else ""
@@ -716,7 +717,7 @@ def _save_final(model, run_dir: Path, status: str, run_state: RunState) -> None:
         vn = model.get_vec_normalize_env()
         if vn is not None:
             common.save_pickle_atomic(vn, run_dir / f"{prefix}vecnormalize.pkl")
-        if hasattr(model, "replay_buffer") and status == "interrupted":
+        if hasattr(model, "replay_buffer") and status in ("interrupted", "time_limit"):
             common.save_replay_buffer_atomic(model, run_dir / "replay_buffer.pkl")
         common.save_model_atomic(model, run_dir / f"{prefix}model.zip")
         if not prefix:

@@ -341,3 +341,24 @@ def test_state_records_where_the_time_went(tmp_path, algo):
     assert all(v >= 0 for v in split.values())
     assert sum(split.values()) <= st["wall_time_s"] + 1e-3
     assert split["learner"] > 0 and split["rollout"] > 0 and split["evaluation_and_checkpoints"] > 0
+
+
+def test_wall_time_stop_keeps_the_replay_buffer_for_resume(tmp_path, capsys):
+    """An off-policy run stopped by --max-wall-time saves its replay buffer (before, only Ctrl-C
+    did, so --resume of a time-limited SAC segment started from an empty buffer, or from the stale
+    buffer of an earlier interrupted segment); --resume loads it."""
+    run = tmp_path / "run"
+    args = ["--algo", "sac", "--env", "Pendulum-v1", "--log-dir", str(run), "--n-timesteps", "100000",
+            "--max-wall-time", "2", "--eval-freq", "-1", "--save-freq", "-1", "--no-progress-bar",
+            "--hyperparams", "learning_starts=50", "batch_size=32", "buffer_size=5000"]
+    train.train(args)
+    st = json.loads((run / "state.json").read_text())
+    assert st["status"] == "time_limit" and 0 < st["num_timesteps"] < 100000
+    assert (run / "replay_buffer.pkl").exists() and (run / "model.zip").exists()
+    from stable_baselines3 import SAC
+    saved = SAC.load(run / "model.zip")
+    saved.load_replay_buffer(run / "replay_buffer.pkl")
+    assert min(st["num_timesteps"], 5000) - 1 <= saved.replay_buffer.size() <= min(st["num_timesteps"], 5000)
+    capsys.readouterr()
+    train.train(["--resume", str(run), "--max-wall-time", "1", "--no-progress-bar"])
+    assert "no replay buffer" not in capsys.readouterr().out
