@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_action", "check_action_tensor", "load_npz",
-           "check_frame_size", "MAX_FRAME_SIZE"]
+__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_finite", "is_integer", "check_action",
+           "check_action_tensor", "load_npz", "check_frame_size", "MAX_FRAME_SIZE"]
 
 #: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
 ACTION_TOL = 1e-6
@@ -30,13 +30,18 @@ def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -
     return v
 
 
+def is_integer(value) -> bool:
+    """True for a Python or NumPy integer that is not a bool (``2.0``, ``"2"`` and ``True`` are not)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
 def check_frame_size(width, height) -> tuple[int, int]:
     """``(width, height)`` of rendered frames as ints in 1 .. :data:`MAX_FRAME_SIZE` pixels;
     ValueError naming the argument and the value otherwise (checked at construction, not at the
     first ``render()``)."""
     out = []
     for v, name in ((width, "width"), (height, "height")):
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_FRAME_SIZE:
+        if not is_integer(v) or not 1 <= v <= MAX_FRAME_SIZE:
             raise ValueError(f"{name}: must be an integer number of pixels in 1..{MAX_FRAME_SIZE}, got {v!r}")
         out.append(int(v))
     return out[0], out[1]
@@ -80,6 +85,18 @@ def check_array(value, shape: tuple, name: str) -> np.ndarray:
         idx = _first(bad)
         raise ValueError(f"{name}: entry {_index(idx)} is not finite: {float(a[idx])!r}")
     return a
+
+
+def check_finite(x: np.ndarray, name: str, nonnegative: bool = False) -> None:
+    """ValueError ``"{name}: entry {index} is {value}; must be finite"`` (``"finite and >= 0"``
+    with ``nonnegative``) for the first offending entry of the float array ``x``."""
+    ok = np.isfinite(x)
+    if nonnegative:
+        ok &= x >= 0
+    if not ok.all():
+        idx = _first(~ok)
+        need = "finite and >= 0" if nonnegative else "finite"
+        raise ValueError(f"{name}: entry {_index(idx)} is {float(x[idx])!r}; must be {need}")
 
 
 def _first(mask) -> tuple:

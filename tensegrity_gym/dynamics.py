@@ -54,6 +54,7 @@ from typing import Iterable
 
 import numpy as np
 
+from .checks import check_finite, is_integer
 from .structure import Structure, mass_moments
 from .params import Params, default_params
 
@@ -213,7 +214,7 @@ def initial_state(model: Model, batch_size: int = 1, nodes: np.ndarray | None = 
     Rod lengths are taken from the model; ``b`` is normalised. ValueError naming the argument for
     a batch size that is not a positive integer, a wrong shape, a NaN/inf entry or a rod whose
     two nodes coincide."""
-    if isinstance(batch_size, (bool, np.bool_)) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
+    if not is_integer(batch_size) or batch_size < 1:
         raise ValueError(f"batch_size: must be a positive integer (copies), got {batch_size!r}")
     s = model.structure
     n = model.n_nodes
@@ -222,9 +223,7 @@ def initial_state(model: Model, batch_size: int = 1, nodes: np.ndarray | None = 
     for x, name in ((nodes, "nodes"), (vel, "velocities")):
         if x.shape[-2:] != (n, 3) or x.ndim not in (2, 3):
             raise ValueError(f"{name}: expected shape ({n}, 3) or (B, {n}, 3), got {x.shape}")
-        if not np.isfinite(x).all():
-            idx = tuple(int(i) for i in np.argwhere(~np.isfinite(x))[0])
-            raise ValueError(f"{name}: entry {idx} is {float(x[idx])!r}; must be finite")
+        check_finite(x, name)
     if nodes.ndim == 2:
         nodes = np.broadcast_to(nodes, (batch_size,) + nodes.shape)
     if vel.ndim == 2:
@@ -232,13 +231,13 @@ def initial_state(model: Model, batch_size: int = 1, nodes: np.ndarray | None = 
     elif vel.shape[0] != nodes.shape[0]:
         raise ValueError(f"velocities: {vel.shape[0]} copies for {nodes.shape[0]} copies of nodes")
     na, nc = nodes[:, model.rod_a], nodes[:, model.rod_c]
-    zero = ~(np.linalg.norm(nc - na, axis=-1) > 0)
-    if zero.any():
-        b, j = (int(i) for i in np.argwhere(zero)[0])
+    d = nc - na
+    length = np.linalg.norm(d, axis=-1, keepdims=True)
+    if not (length > 0).all():
+        b, j, _ = (int(i) for i in np.argwhere(~(length > 0))[0])
         raise ValueError(f"nodes: rod {j} (nodes {model.rod_a[j]} and {model.rod_c[j]}) has zero length in copy {b}")
     va, vc = vel[:, model.rod_a], vel[:, model.rod_c]
-    d = nc - na
-    b = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    b = d / length
     L = model.length[None, :, None]
     bd = (vc - va) / L
     sig = model.sigma[None, :, None]

@@ -64,6 +64,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from .dynamics import Model, State
+from .checks import check_finite, is_integer
 from .params import check_params
 
 __all__ = ["INTEGRATORS", "step", "simulate", "accelerations", "Schedule", "IntegratorInfo", "SimulationDiverged",
@@ -278,13 +279,22 @@ def accelerations(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None,
     (:func:`tensegrity_gym._kernels.accelerations`, the ones every fixed step runs) with
     ``backend`` "auto" (numba installed) or "numba", else the NumPy reference
     :func:`tensegrity_gym.dynamics.accelerations` (``backend="numpy"``); the two agree to round-off."""
-    if backend != "numpy" and _use_numba(backend, INTEGRATORS["rk4"], None):
+    if _numba_backend(backend):
         return _KERNELS.accelerations(model, q, qd, rest_length, force_density, external, params)
     return dyn.accelerations(model, q, qd, rest_length, force_density, external, params)
 
 
 def _use_numba(backend: str, info: IntegratorInfo, external) -> bool:
+    """Whether :func:`step` runs the numba kernels (fixed-step methods with array inputs)."""
     if backend == "numpy" or info.adaptive or callable(external):
+        return False
+    return _numba_backend(backend)
+
+
+def _numba_backend(backend: str) -> bool:
+    """Whether ``backend`` ("auto", "numpy" or "numba") means the numba kernels; RuntimeError for
+    "numba" without numba, ValueError for another name."""
+    if backend == "numpy":
         return False
     if backend == "numba":
         if not _numba_available():
@@ -370,36 +380,29 @@ def _as_batch(x, B, m, name):
     x = np.asarray(x, dtype=float)
     if x.shape not in ((m,), (B, m)):
         raise ValueError(f"{name}: expected shape ({m},) or ({B}, {m}), got {x.shape}")
-    _check_entries(x, name, nonnegative=name == "rest_length")
+    check_finite(x, name, nonnegative=name == "rest_length")
     return x
 
 
-def _check_entries(x: np.ndarray, name: str, nonnegative: bool = False) -> None:
-    """ValueError naming ``name``, the first offending index and its value for a NaN/inf entry
-    (or a negative one with ``nonnegative``)."""
-    ok = np.isfinite(x)
-    if nonnegative:
-        ok &= x >= 0
-    if not ok.all():
-        idx = tuple(int(i) for i in np.argwhere(~ok)[0])
-        need = "finite and >= 0" if nonnegative else "finite"
-        raise ValueError(f"{name}: entry {idx[0] if len(idx) == 1 else idx} is {float(x[idx])!r}; must be {need}")
+def _finite_state(q, qd) -> bool:
+    """True if the state arrays are finite, by the compiled pass (``_kernels.finite_pair``) when
+    they are C-contiguous float64 (B, k, 6) ndarrays and numba runs, else False (the caller then
+    runs :func:`~tensegrity_gym.checks.check_finite`, which also names the entry)."""
+    return (type(q) is np.ndarray and type(qd) is np.ndarray and q.ndim == 3 and qd.ndim == 3
+            and q.dtype == np.float64 and qd.dtype == np.float64 and q.flags.c_contiguous
+            and qd.flags.c_contiguous and _numba_available() and _KERNELS.finite_pair(q, qd))
 
 
 def _check_inputs(state, n_steps, external) -> int:
     """``n_steps`` as an int (ValueError unless a positive integer) after checking that the state
     and an array ``external`` are finite (ValueError naming the field, the index and the value)."""
-    if type(n_steps) is not int and (isinstance(n_steps, (bool, np.bool_))
-                                     or not isinstance(n_steps, (int, np.integer))) or n_steps < 1:
+    if not is_integer(n_steps) or n_steps < 1:
         raise ValueError(f"n_steps: must be a positive integer (steps per call), got {n_steps!r}")
-    q, qd = state.q, state.qd
-    if not (_numba_available() and type(q) is np.ndarray and type(qd) is np.ndarray and q.ndim == 3
-            and q.dtype == np.float64 and qd.dtype == np.float64 and q.flags.c_contiguous
-            and qd.flags.c_contiguous and qd.ndim == 3 and _KERNELS.finite_pair(q, qd)):
-        _check_entries(np.asarray(q), "state.q")      # the NumPy check, which names the entry
-        _check_entries(np.asarray(qd), "state.qd")
+    if not _finite_state(state.q, state.qd):
+        check_finite(np.asarray(state.q), "state.q")
+        check_finite(np.asarray(state.qd), "state.qd")
     if external is not None and not callable(external):
-        _check_entries(np.asarray(external, dtype=float), "external")
+        check_finite(np.asarray(external, dtype=float), "external")
     return int(n_steps)
 
 
