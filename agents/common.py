@@ -11,10 +11,12 @@
 from __future__ import annotations
 
 import ast
+import difflib
 import importlib
 import json
 import os
 import platform
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -291,10 +293,55 @@ def check_env_id(env_id: str):
                          + (f" (did you mean {close}?)" if close else ""))
 
 
+_UNEXPECTED = re.compile(r"unexpected keyword argument '([^']+)'")
+
+
+def make_env(env_id: str, env_kwargs: dict, **extra):
+    """``gymnasium.make(env_id, **extra, **env_kwargs)``; a keyword the env does not take is a
+    ValueError naming ``--env-kwargs``, the key and the nearest accepted names (the env's own
+    TypeError would reach a CLI user as a traceback)."""
+    import gymnasium as gym
+    try:
+        return gym.make(env_id, **extra, **env_kwargs)
+    except TypeError as e:
+        m = _UNEXPECTED.search(str(e))
+        if m is None or m.group(1) not in env_kwargs:
+            raise
+        key = m.group(1)
+        names = env_argument_names(env_id)
+        close = difflib.get_close_matches(key, names, n=3)
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        raise ValueError(f"--env-kwargs: {env_id} takes no argument {key!r}{hint}; its arguments: "
+                         f"{', '.join(names)}") from None
+
+
+def env_argument_names(env_id: str) -> list[str]:
+    """The keyword arguments ``gymnasium.make(env_id, ...)`` accepts: the env class's named
+    arguments and, where it forwards ``**kwargs`` to a task (``task_class``), the task's."""
+    import inspect
+    from gymnasium.envs.registration import load_env_creator, registry
+    ep = registry[env_id].entry_point
+    names: list[str] = []
+    fn = load_env_creator(ep) if isinstance(ep, str) else ep
+    while fn is not None:
+        params = inspect.signature(fn).parameters.values()
+        names += [p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+                  and p.name not in names and p.name not in ("self", "num_envs")]
+        fn = getattr(fn, "task_class", None) if any(p.kind is p.VAR_KEYWORD for p in params) else None
+    return names
+
+
+def check_seed(seed: int, flag: str = "--seed", top: int = 2**32 - 1) -> int:
+    """``seed`` if it is an integer in 0..``top``; ValueError naming ``flag`` otherwise (NumPy's
+    and Gymnasium's own messages do not say which argument)."""
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= seed <= top:
+        raise ValueError(f"{flag}: must be an integer in 0..{top}, got {seed!r}")
+    return int(seed)
+
+
 def probe_info_keys(env_id: str, env_kwargs: dict) -> tuple[list[str], list[str]]:
     """(scalar numeric info keys of one step, reward_* keys among them) of a single env."""
-    import gymnasium as gym
-    env = gym.make(env_id, **env_kwargs)
+    env = make_env(env_id, env_kwargs)
     try:
         env.reset(seed=0)
         _, _, _, _, info = env.step(env.action_space.sample())

@@ -487,6 +487,8 @@ def evaluate(argv=None) -> dict:
     cfg, trained, model_path, model = load_trained(run_dir, args.model)
     env_id = cfg["env"]
     env_kwargs = {**cfg["env_kwargs"], **common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs")}
+    common.check_seed(args.seed)
+    common.make_env(env_id, env_kwargs).close()     # an unknown --env-kwargs key: named, no traceback
     out = Path(args.out) if args.out else run_dir / "evaluation"
     out.mkdir(parents=True, exist_ok=True)
     seeds = list(range(args.seed, args.seed + args.n_episodes))

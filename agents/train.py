@@ -480,7 +480,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         cli_env_kwargs = common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs")
         env_kwargs = {**dict(raw_hp.get("env_kwargs") or {}), **cli_env_kwargs}
         raw_hp["env_kwargs"] = env_kwargs
-        seed = args.seed
+        seed = common.check_seed(args.seed)
         n_timesteps = int(args.n_timesteps) if args.n_timesteps is not None else \
             int(float(raw_hp.get("n_timesteps", 1e5)))
         n_envs = args.n_envs if args.n_envs is not None else int(raw_hp.get("n_envs", 1))

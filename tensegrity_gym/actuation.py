@@ -95,6 +95,10 @@ class Actuation:
             raise ValueError(f"action_mode: unknown {mode!r}; choose one of {ACTION_MODES}")
         l0 = np.asarray(rest_length, float)[actuated]
         if mode == "rest_length":
+            for name, v in (("force_density_max", force_density_max), ("force_density_rate", force_density_rate)):
+                if v is not None:   # not silently ignored
+                    raise ValueError(f"{name}: only with action_mode='force_density' (this task has "
+                                     f"action_mode='rest_length'), got {v!r}")
             lo, hi = bounds
             return cls("rest_length", actuated, lo * l0, hi * l0, max_speed, control_dt, rest_length, l0,
                        max_accel=max_accel)

@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 
-__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_finite", "is_integer", "check_action",
+__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_finite", "is_integer", "check_count",
+           "check_flag", "check_options", "check_action",
            "check_action_tensor", "load_npz", "check_frame_size", "MAX_FRAME_SIZE"]
 
 #: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
@@ -33,6 +34,34 @@ def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -
 def is_integer(value) -> bool:
     """True for a Python or NumPy integer that is not a bool (``2.0``, ``"2"`` and ``True`` are not)."""
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def check_count(value, name: str, minimum: int = 0, what: str = "") -> int:
+    """``value`` as an int if it is an integer (or an integral float such as ``20.0``) >= ``minimum``;
+    ValueError naming ``name``, what it counts and the value otherwise (a bool, a string, NaN,
+    ``2.5`` or a number below ``minimum``)."""
+    ok = is_integer(value) or (isinstance(value, (float, np.floating)) and math.isfinite(value)
+                               and float(value).is_integer())
+    if not ok or value < minimum:
+        raise ValueError(f"{name}: must be an integer >= {minimum}{f' ({what})' if what else ''}, got {value!r}")
+    return int(value)
+
+
+def check_flag(value, name: str) -> bool:
+    """``value`` as a bool if it is ``True`` or ``False`` (Python or NumPy); ValueError naming
+    ``name`` otherwise (a string such as ``"false"`` would otherwise count as true)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: must be True or False, got {value!r}")
+    return bool(value)
+
+
+def check_options(options) -> dict:
+    """``reset(options=...)`` as a (new) dict; ValueError unless a dict or None."""
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise ValueError(f"options: expected a dict or None, got {options!r}")
+    return dict(options)
 
 
 def check_frame_size(width, height) -> tuple[int, int]:
@@ -74,10 +103,7 @@ def load_npz(path, expected: str) -> dict:
 def check_array(value, shape: tuple, name: str) -> np.ndarray:
     """``value`` as a float64 array of ``shape``; ValueError naming ``name`` for another shape, and
     naming the first offending index and its value for a NaN/inf entry."""
-    try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected an array of numbers with shape {tuple(shape)}, got {value!r}") from None
+    a = _real_array(value, shape, name)
     if a.shape != tuple(shape):
         raise ValueError(f"{name}: expected shape {tuple(shape)}, got {a.shape}")
     bad = ~np.isfinite(a)
@@ -85,6 +111,24 @@ def check_array(value, shape: tuple, name: str) -> np.ndarray:
         idx = _first(bad)
         raise ValueError(f"{name}: entry {_index(idx)} is not finite: {float(a[idx])!r}")
     return a
+
+
+def _real_array(value, shape: tuple, name: str) -> np.ndarray:
+    """``value`` as a float64 array; ValueError naming ``name`` for text, ragged lists or complex
+    numbers (NumPy would drop an imaginary part with only a warning)."""
+    try:
+        if np.iscomplexobj(value):
+            raise TypeError
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected an array of real numbers with shape {tuple(shape)}, "
+                         f"got {_brief(value)}") from None
+
+
+def _brief(value, width: int = 120) -> str:
+    """``repr(value)`` on one line, at most ``width`` characters (error messages are one line)."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= width else text[:width - 3] + "..."
 
 
 def check_finite(x: np.ndarray, name: str, nonnegative: bool = False) -> None:
@@ -126,10 +170,7 @@ def check_action(action, shape: tuple, clip: bool = True, name: str = "action") 
       Gymnasium's MuJoCo envs whose actuators saturate), else ValueError naming the index when
       beyond ``ACTION_TOL`` of the bounds (round-off within it is clipped).
     """
-    try:
-        a = np.asarray(action, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected an array of numbers with shape {shape}, got {action!r}") from None
+    a = _real_array(action, shape, name)
     if a.shape != tuple(shape):
         if a.size == int(np.prod(shape)) and a.ndim <= 1 and len(shape) == 1:
             a = a.reshape(shape)

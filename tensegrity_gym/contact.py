@@ -179,7 +179,10 @@ class GroundContact:
             raise ValueError(f"backend: unknown {self.backend!r}; choose 'auto', 'numpy' or 'numba'")
         if self.backend == "numba" and not _NUMBA:
             raise RuntimeError("backend='numba' requested but numba is not installed")
-        cmax = float(self.max_damping)
+        try:
+            cmax = float(self.max_damping)
+        except (TypeError, ValueError):
+            raise ValueError(f"max_damping: expected a number (N s/m), got {self.max_damping!r}") from None
         if not cmax > 0:   # NaN or <= 0
             raise ValueError(f"max_damping: must be positive (N s/m; inf = no cap), got {self.max_damping!r}")
         s(self, "max_damping", cmax)

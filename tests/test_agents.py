@@ -4,6 +4,7 @@ Small budgets only: each training run is a few hundred env steps.
 """
 from __future__ import annotations
 
+import importlib.util
 import json
 import subprocess
 import sys
@@ -254,6 +255,30 @@ def test_bad_arguments_give_clear_errors(tmp_path):
     with pytest.raises(ValueError, match="not allowed|unsupported"):
         train.train(["--algo", "ppo", "--env", "Pendulum-v1", "--log-dir", str(tmp_path / "c"),
                      "--hyperparams", "policy_kwargs=dict(x=__import__('os'))"])
+    # a misspelt env argument: named with the nearest accepted one (was gym.make's TypeError traceback)
+    with pytest.raises(ValueError, match=r"--env-kwargs: TensegrityShape-v0 takes no argument 'tracking_weigth' "
+                                         r"\(did you mean tracking_weight\?\); its arguments: .*success_tolerance"):
+        train.train(["--algo", "ppo", "--env", "TensegrityShape-v0", "--log-dir", str(tmp_path / "d"),
+                     "--env-kwargs", '{"tracking_weigth": 1}', "-n", "64"])
+    with pytest.raises(ValueError, match=r"--seed: must be an integer in 0..4294967295, got -3"):
+        train.train(["--algo", "ppo", "--env", "Pendulum-v1", "--log-dir", str(tmp_path / "e"), "--seed", "-3"])
+
+
+def test_env_kwargs_checked_for_every_registered_env():
+    """common.make_env names an unknown key for the roll env (its task's arguments) and the MuJoCo
+    twin (its own and the task's), and passes known ones through."""
+    from agents import common
+    names = common.env_argument_names("TensegrityRoll-v0")
+    assert {"frame_skip", "ground_stiffness", "observation_mode", "width"} <= set(names)
+    assert "num_envs" not in names and "kwargs" not in names
+    with pytest.raises(ValueError, match=r"TensegrityRoll-v0 takes no argument 'ground_stifness' "
+                                         r"\(did you mean ground_stiffness"):
+        common.make_env("TensegrityRoll-v0", {"ground_stifness": 1e4})
+    if importlib.util.find_spec("mujoco"):
+        assert {"mj_integrator", "friction"} <= set(common.env_argument_names("TensegrityRollMuJoCo-v0"))
+    env = common.make_env("TensegrityShape-v0", {"frame_skip": 10})
+    assert env.unwrapped.task.frame_skip == 10
+    env.close()
 
 
 # ---------------------------------------------------------------------- rl-baselines3-zoo compatibility

@@ -130,8 +130,8 @@ def test_slack_start_and_its_bounds():
     ({"randomize": {"stiffness": 1.5}}, r"randomize\['stiffness'\]: spread must be in \[0, 1\)"),
     ({"randomize": {"rest_length_offset": -0.1}}, r"randomize\['rest_length_offset'\]: spread must be a finite"),
     ({"randomize": {"friction": True}}, r"randomize\['friction'\]: spread must be"),
-    ({"action_delay": -1}, r"action_delay: must be a non-negative integer"),
-    ({"action_delay": 1.5}, r"action_delay: must be a non-negative integer"),
+    ({"action_delay": -1}, r"action_delay: must be an integer >= 0 \(control steps\)"),
+    ({"action_delay": 1.5}, r"action_delay: must be an integer >= 0 \(control steps\)"),
 ])
 def test_bad_domain_arguments_name_the_parameter(kw, match):
     with pytest.raises(ValueError, match=match):

@@ -11,6 +11,7 @@ from .. import dynamics as dyn
 from .. import integrators, pipeline
 from ..params import default_params
 from .domain import Domain
+from ..checks import check_array, check_count, check_flag, check_options
 from .validate import check_positive
 
 __all__ = ["BatchedTask", "fixed_step"]
@@ -58,19 +59,17 @@ class BatchedTask:
     speed = None
     #: the keys ``reset(options=...)`` takes (none: the tasks draw everything from the seed)
     RESET_OPTIONS: tuple = ()
+    #: True when the env shell renders (set by the shells): a task may then record what it draws
+    record_path: bool = False
 
     def _init_physics(self, model: dyn.Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
                       backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
-        if int(num_envs) != num_envs or num_envs < 1:
-            raise ValueError(f"num_envs: must be a positive integer, got {num_envs}")
-        self.num_envs = int(num_envs)
+        self.num_envs = check_count(num_envs, "num_envs", 1, "copies")
         self.model = model
         info = integrators.INTEGRATORS.get(integrator)   # the task passes the name it resolved (fixed_step)
         self.integrator = integrator if info is not None and not info.adaptive else fixed_step(integrator)
         self.dt = check_positive(dt, "dt", "s")
-        if int(frame_skip) != frame_skip or frame_skip < 1:
-            raise ValueError(f"frame_skip: must be a positive integer, got {frame_skip}")
-        self.frame_skip = int(frame_skip)
+        self.frame_skip = check_count(frame_skip, "frame_skip", 1, "physics steps per action")
         if backend == "torch":
             raise ValueError("backend='torch' runs the batch on a torch device as a vector env: "
                              "gymnasium.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point', "
@@ -80,7 +79,7 @@ class BatchedTask:
             raise ValueError(f"backend: unknown {backend!r}; choose 'auto', 'numpy' or 'numba'")
         self.backend = backend
         self._kernels_run = pipeline.compiled_physics(self.integrator, backend)   # the numba kernels step it
-        self.clip_actions = bool(clip_actions)
+        self.clip_actions = check_flag(clip_actions, "clip_actions")
         nodes0 = model.structure.nodes
         self.center0 = nodes0.mean(axis=0)
         size = float(np.max(np.linalg.norm(nodes0 - self.center0, axis=1)))
@@ -109,16 +108,16 @@ class BatchedTask:
                    "node_damping": model.node_damping, "gravity": g, "rest_length_offset": np.zeros(model.n_strings)}
         nominal.update(extra_nominal or {})
         self.domain = Domain(nominal, B, params, randomize)
-        if isinstance(action_delay, (bool, np.bool_)) or int(action_delay) != action_delay or action_delay < 0:
-            raise ValueError(f"action_delay: must be a non-negative integer (control steps), got {action_delay!r}")
-        self.action_delay = int(action_delay)
+        self.action_delay = check_count(action_delay, "action_delay", 0, "control steps")
         self._action_queue = np.zeros((B, self.action_delay, self.action_size))
         act = self.actuation
         self.start_control = act.nominal.copy()
         if start_rest_length_offset is not None:
             if act.mode != "rest_length":
                 raise ValueError("start_rest_length_offset: only with action_mode='rest_length'")
-            off = np.broadcast_to(np.asarray(start_rest_length_offset, float), act.nominal.shape)
+            off = start_rest_length_offset      # m: one number, or one per actuated cable
+            shape = () if np.ndim(off) == 0 else act.nominal.shape
+            off = np.broadcast_to(check_array(off, shape, "start_rest_length_offset"), act.nominal.shape)
             start = act.nominal + off
             bad = ~np.isfinite(start) | (start < act.low) | (start > act.high)
             if bad.any():
@@ -167,7 +166,7 @@ class BatchedTask:
         :meth:`reset_idx`; ``info["params"]`` reports the parameters when any are set.
         ``options``: the keys of :attr:`RESET_OPTIONS` only (ValueError naming any other: an
         option that would be silently ignored)."""
-        unknown = sorted(set(options or ()) - set(self.RESET_OPTIONS))
+        unknown = sorted(set(check_options(options)) - set(self.RESET_OPTIONS))
         if unknown:
             takes = f"only {list(self.RESET_OPTIONS)}" if self.RESET_OPTIONS else "no options"
             raise ValueError(f"options: unknown key(s) {unknown}; this env's reset takes {takes} (a vector env "

@@ -141,7 +141,7 @@ ROLL_DOC = r"""
     | ``max_cable_speed`` | ``0.2`` | m/s (rest-length mode) |
     | ``max_cable_acceleration`` | ``2.0`` | m/s^2, cable motor acceleration limit (rest-length mode; ``None``: none, the speed follows the action at once) |
     | ``rest_length_bounds`` | ``(0.5, 1.1)`` | fractions of the nominal rest lengths |
-    | ``force_density_max``, ``force_density_rate`` | ``None`` | N/m, N/(m s) (force-density mode) |
+    | ``force_density_max``, ``force_density_rate`` | ``None`` | N/m, N/(m s) (force-density mode only; an error in rest-length mode) |
     | ``friction`` | ``1.0`` | Coulomb coefficient of the caps |
     | ``ground_stiffness``, ``ground_damping`` | ``1e4``, ``10`` | N/m, s/m (Hunt-Crossley) |
     | ``tangential_stiffness``, ``tangential_damping`` | ``None`` (= ground_stiffness), ``10`` | N/m, N s/m (stick spring) |
@@ -188,6 +188,8 @@ ROLL_DOC = r"""
       observation of rest-length mode (the id was kept): policies trained before it need
       ``max_cable_acceleration=None``, which reproduces the old env exactly.
       ``force_density`` mode is unchanged.
+    * v0 (argument checks): force-density limits in rest-length mode, non-bool flags and non-integer counts
+      are ValueErrors naming the argument (were ignored or converted); valid arguments unchanged.
 """
 
 
@@ -324,7 +326,7 @@ SHAPE_DOC = r"""
     | ``target_range`` | ``0.1`` | relative rest-length range of target draws |
     | ``rest_length_bounds`` | ``(0.8, 1.1)`` | fractions of the structure's rest lengths |
     | ``max_speed`` | ``0.1`` | m/s, rest-length mode |
-    | ``force_density_max``, ``force_density_rate`` | ``None`` | N/m and N/(m s); default 3 x the largest nominal force density and twice that per second |
+    | ``force_density_max``, ``force_density_rate`` | ``None`` | N/m and N/(m s); default 3 x the largest nominal force density and twice that per second (force-density mode only; an error in rest-length mode) |
     | ``backend`` | ``"auto"`` | physics backend (numba kernels when available) |
     | ``divergence_limit`` | ``None`` | m |
     | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
@@ -344,4 +346,6 @@ SHAPE_DOC = r"""
     * v0: initial version.
     * v0 (0.2): ``params``, ``randomize``, ``action_delay``, ``start_rest_length_offset``; defaults unchanged (bit-identical).
     * v0 (0.2): ``observation_mode="robot"``, ``sensor_noise``, ``history``; defaults unchanged (bit-identical).
+    * v0 (argument checks): force-density limits in rest-length mode, non-bool flags and non-integer counts
+      are ValueErrors naming the argument (were ignored or converted); valid arguments unchanged.
 """

@@ -16,6 +16,7 @@ from .. import dynamics as dyn
 from .. import integrators
 from ..rewards import quadratic_cost
 from ..actuation import Actuation
+from ..checks import check_array, check_flag
 from .base import BatchedTask, fixed_step
 from .docs import ROLL_DOC as _DOC
 from .roll_obs import RollObservation
@@ -31,6 +32,10 @@ __all__ = ["RollTask", "TensegrityRollEnv", "TensegrityRollVectorEnv", "robot_pr
 
 ENV_ID = "TensegrityRoll-v0"
 
+
+#: GroundContact field -> this task's argument (for error messages)
+_CONTACT_ARGS = {"stiffness": "ground_stiffness", "damping": "ground_damping", "radius": "cap_radius",
+                 "max_damping": "ground_max_damping"}
 
 class RollTask(RollObservation, BatchedTask):
     """Batched rolling task on ``num_envs`` copies (arguments: see :class:`TensegrityRollEnv`).
@@ -58,6 +63,7 @@ class RollTask(RollObservation, BatchedTask):
                  start_rest_length_offset=None, observation_mode: str = "state", sensor_noise: dict | None = None,
                  history: int = 1, allow_unstable_dt: bool = False):
         RobotSensors.check_mode(observation_mode, sensor_noise, history)   # before the robot is built
+        allow_unstable_dt = check_flag(allow_unstable_dt, "allow_unstable_dt")
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode: unknown {action_mode!r}; choose one of {ACTION_MODES}")
         if string_damping is not None:
@@ -68,11 +74,15 @@ class RollTask(RollObservation, BatchedTask):
         dt = check_positive(dt, "dt", "s")
         if ground_max_damping is None:   # keep c dt / m_eff <= 1 in fast impacts (m_eff = m/4 of the lightest rod)
             ground_max_damping = float(s.bar_mass.min()) / 4.0 / dt
-        self.contact = gc.GroundContact(stiffness=ground_stiffness, damping=ground_damping, friction=friction,
-                                        tangential_stiffness=tangential_stiffness,
-                                        tangential_damping=tangential_damping, radius=cap_radius,
-                                        max_damping=ground_max_damping,
-                                        backend="numpy" if backend == "numpy" else "auto")
+        try:
+            self.contact = gc.GroundContact(stiffness=ground_stiffness, damping=ground_damping, friction=friction,
+                                            tangential_stiffness=tangential_stiffness,
+                                            tangential_damping=tangential_damping, radius=cap_radius,
+                                            max_damping=ground_max_damping,
+                                            backend="numpy" if backend == "numpy" else "auto")
+        except ValueError as e:   # name this task's argument, not GroundContact's field
+            field, _, rest = str(e).partition(":")
+            raise ValueError(f"{_CONTACT_ARGS.get(field, field)}:{rest}") from None
         self.forward_reward_weight = check_positive(forward_reward_weight, "forward_reward_weight", "s/m",
                                                     allow_zero=True)
         self.ctrl_cost_weight = check_positive(ctrl_cost_weight, "ctrl_cost_weight", allow_zero=True)
@@ -81,11 +91,11 @@ class RollTask(RollObservation, BatchedTask):
         if max_cable_acceleration is not None:
             max_cable_acceleration = check_positive(max_cable_acceleration, "max_cable_acceleration", "m/s^2")
         self.max_cable_acceleration = max_cable_acceleration
-        g = np.asarray(goal_direction, float).reshape(-1)
-        if g.shape != (2,) or not np.all(np.isfinite(g)) or np.linalg.norm(g) == 0:
-            raise ValueError(f"goal_direction: expected a non-zero finite (x, y) vector, got {goal_direction!r}")
+        g = check_array(goal_direction, (2,), "goal_direction")
+        if np.linalg.norm(g) == 0:
+            raise ValueError(f"goal_direction: expected a non-zero (x, y) vector, got {goal_direction!r}")
         self.goal_direction = g / np.linalg.norm(g)
-        self.randomize_goal = bool(randomize_goal)
+        self.randomize_goal = check_flag(randomize_goal, "randomize_goal")
         self.rest_length_bounds = lo, hi = check_rest_length_bounds(rest_length_bounds)
         act = resolve_actuated(actuated, s.n_strings)
         self.actuated = act
@@ -131,7 +141,6 @@ class RollTask(RollObservation, BatchedTask):
         self.q = np.tile(self.q_nominal, (B, 1, 1))
         self.qd = np.zeros_like(self.q)
         self.start = dyn.center_of_mass(model, self.q)
-        self.record_path = False
         self.paths: dict[int, list] = {}
         self._init_observation(model)
         self._W = np.zeros((B, n, 3))
@@ -266,17 +275,8 @@ class RollTask(RollObservation, BatchedTask):
                 "caption": f"t = {self.elapsed[i] * self.control_dt:.2f} s, rolled {dist:.2f} m"}
 
 
-class TensegrityRollEnv(TaskEnv):
-    __doc__ = _DOC
-
-    def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480, **kwargs):
-        task = RollTask(num_envs=1, **kwargs)
-        self._init_task(task, render_mode, width, height, title=ENV_ID)
-        task.record_path = render_mode is not None
-
-
-class TensegrityRollVectorEnv(TaskVectorEnv):
-    __doc__ = _DOC + r"""
+TensegrityRollEnv = TaskEnv.for_task(RollTask, ENV_ID, _DOC, __name__)
+TensegrityRollVectorEnv = TaskVectorEnv.for_task(RollTask, ENV_ID, _DOC + r"""
     ## Vector env
     ``gymnasium.make_vec("TensegrityRoll-v0", num_envs=N, vectorization_mode="vector_entry_point")``
     or ``TensegrityRollVectorEnv(num_envs=N, **kwargs)``: the same task on N copies, stepped with
@@ -284,10 +284,4 @@ class TensegrityRollVectorEnv(TaskVectorEnv):
     Next-step autoreset; ``reset(seed=s)`` seeds env i with s + i (equal to N single envs with
     those seeds); ``max_episode_steps`` truncates every env (``make_vec`` passes the registered
     1000). See :class:`tensegrity_gym.envs.common.TaskVectorEnv`.
-"""
-
-    def __init__(self, num_envs: int = 1, max_episode_steps="registered", render_mode: str | None = None,
-                 width: int = 480, height: int = 480, **kwargs):
-        task = RollTask(num_envs=num_envs, **kwargs)
-        self._init_task(task, ENV_ID, max_episode_steps, render_mode, width, height, title=ENV_ID)
-        task.record_path = render_mode is not None
+""", __name__)

@@ -111,6 +111,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+    task_class = RollTask   # where ``**kwargs`` go (the arguments agents' CLIs check)
 
     def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480,
                  mj_integrator: str = "implicitfast", contact_dampratio: float = 1.0,

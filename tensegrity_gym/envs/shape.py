@@ -11,6 +11,7 @@ import numpy as np
 from .. import dynamics as dyn
 from .. import integrators, pipeline, statics
 from ..actuation import Actuation
+from ..checks import check_flag
 from ..rewards import quadratic_cost, tolerance
 from . import compiled
 from .base import BatchedTask, fixed_step
@@ -53,6 +54,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
                  params: dict | None = None, randomize: dict | None = None, action_delay: int = 0,
                  start_rest_length_offset=None, allow_unstable_dt: bool = False, observation_mode: str = "state",
                  sensor_noise: dict | None = None, history: int = 1):
+        allow_unstable_dt = check_flag(allow_unstable_dt, "allow_unstable_dt")
         s = _load(structure)
         if not s.node_constraints and s.anchors.size == 0:
             raise ValueError(f"structure {s.name!r}: the shape task needs an anchored structure (node_constraints "
@@ -320,16 +322,8 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         return out
 
 
-class TensegrityShapeEnv(TaskEnv):
-    __doc__ = _DOC
-
-    def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480, **kwargs):
-        task = ShapeTask(num_envs=1, **kwargs)
-        self._init_task(task, render_mode, width, height, title=ENV_ID)
-
-
-class TensegrityShapeVectorEnv(TaskVectorEnv):
-    __doc__ = _DOC + r"""
+TensegrityShapeEnv = TaskEnv.for_task(ShapeTask, ENV_ID, _DOC, __name__)
+TensegrityShapeVectorEnv = TaskVectorEnv.for_task(ShapeTask, ENV_ID, _DOC + r"""
     ## Vector env
     ``gymnasium.make_vec("TensegrityShape-v0", num_envs=N, vectorization_mode="vector_entry_point")``
     or ``TensegrityShapeVectorEnv(num_envs=N, **kwargs)``: the same task on N copies stepped in
@@ -337,9 +331,4 @@ class TensegrityShapeVectorEnv(TaskVectorEnv):
     (equal to N single envs with those seeds); ``max_episode_steps`` truncates every env
     (``make_vec`` passes the registered 200; constructed directly, ``"registered"`` looks it up;
     ``None`` disables it). See :class:`tensegrity_gym.envs.common.TaskVectorEnv`.
-"""
-
-    def __init__(self, num_envs: int = 1, max_episode_steps="registered", render_mode: str | None = None,
-                 width: int = 480, height: int = 480, **kwargs):
-        task = ShapeTask(num_envs=num_envs, **kwargs)
-        self._init_task(task, ENV_ID, max_episode_steps, render_mode, width, height, title=ENV_ID)
+""", __name__)

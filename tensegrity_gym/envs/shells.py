@@ -9,7 +9,7 @@ import gymnasium as gym
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from ..checks import check_frame_size
+from ..checks import check_count, check_frame_size, check_options
 from ..rewards import combine
 from .base import BatchedTask
 from .validate import check_action
@@ -33,22 +33,43 @@ def _scalar(v):
 
 
 # ---------------------------------------------------------------------- single env shell
+def _for_task(cls, task_class: type, env_id: str, doc: str, module: str) -> type:
+    """The subclass of the shell ``cls`` for one task: named after ``env_id``
+    (``TensegrityRoll-v0`` -> ``TensegrityRollEnv`` / ``TensegrityRollVectorEnv``), building
+    ``task_class`` from the constructor's ``**kwargs``, documented by ``doc``; ``module`` is the
+    defining module's ``__name__`` (where pickle and the registry's entry point find the class)."""
+    name = env_id.split("-")[0] + ("VectorEnv" if issubclass(cls, gym.vector.VectorEnv) else "Env")
+    return type(name, (cls,), {"__doc__": doc, "__module__": module, "__qualname__": name,
+                               "task_class": task_class, "env_id": env_id})
+
+
 class TaskEnv(gym.Env):
     """``gymnasium.Env`` shell around a :class:`BatchedTask` with B = 1.
 
-    Subclasses build their task and call ``self._init_task(task, render_mode, width, height)``.
+    A task's env is ``TaskEnv.for_task(task_class, env_id, doc, __name__)``: its constructor builds
+    ``task_class(num_envs=1, **kwargs)``.
     ``step`` validates the action (:func:`check_action`), steps the task, returns
     ``(obs, reward, terminated, truncated, info)`` with ``truncated = info["diverged"]`` (the
     time limit is added at registration by ``gymnasium.make``'s ``TimeLimit``).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+    #: the task the constructor builds; its arguments are the constructor's ``**kwargs``
+    task_class: type | None = None
+    #: the registered id (window title, registered time limit)
+    env_id: str = ""
+
+    for_task = classmethod(_for_task)
+
+    def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480, **kwargs):
+        self._init_task(self.task_class(num_envs=1, **kwargs), render_mode, width, height, title=self.env_id)
 
     def _init_task(self, task: BatchedTask, render_mode: str | None, width: int = 480, height: int = 480,
                    title: str | None = None):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode: unknown {render_mode!r}; choose one of {self.metadata['render_modes']} or None")
         self.task = task
+        task.record_path = render_mode is not None
         self.render_mode = render_mode
         self.metadata = dict(self.metadata)
         self.metadata["render_fps"] = int(round(1.0 / task.control_dt))
@@ -143,6 +164,16 @@ def registered_max_episode_steps(env_id: str) -> int | None:
     return None if spec is None else spec.max_episode_steps
 
 
+def episode_limit(max_episode_steps, env_id: str) -> int | None:
+    """The vector envs' truncation limit in control steps: ``"registered"`` looks up ``env_id``'s,
+    None means no limit, else an integer >= 1 (ValueError naming ``max_episode_steps`` otherwise)."""
+    if isinstance(max_episode_steps, str) and max_episode_steps == "registered":
+        return registered_max_episode_steps(env_id)
+    if max_episode_steps is None:
+        return None
+    return check_count(max_episode_steps, "max_episode_steps", 1, "control steps; or None")
+
+
 class VectorSeeding:
     """What the NumPy and the torch vector envs share: the control step ``dt`` (s), the per-env
     generators ``np_random_list`` (``self._rngs``) and the ``reset_mask`` option."""
@@ -161,7 +192,7 @@ class VectorSeeding:
         """(mask (N,) bool of the envs to reset, the other options) from ``options['reset_mask']``
         (default: all; a torch tensor is brought to the host)."""
         N = self.num_envs
-        options = dict(options) if options else {}
+        options = check_options(options)
         mask = options.pop("reset_mask", None)
         if mask is None:
             return np.ones(N, bool), options
@@ -194,6 +225,14 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50,
                 "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
+    task_class: type | None = None     # as TaskEnv's
+    env_id: str = ""
+    for_task = classmethod(_for_task)
+
+    def __init__(self, num_envs: int = 1, max_episode_steps="registered", render_mode: str | None = None,
+                 width: int = 480, height: int = 480, **kwargs):
+        self._init_task(self.task_class(num_envs=num_envs, **kwargs), self.env_id, max_episode_steps, render_mode,
+                        width, height, title=self.env_id)
 
     def _init_task(self, task: BatchedTask, env_id: str, max_episode_steps="registered",
                    render_mode: str | None = None, width: int = 480, height: int = 480, title: str | None = None):
@@ -201,14 +240,9 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             raise ValueError(f"render_mode: the vector env supports {self.metadata['render_modes']} or None, "
                              f"got {render_mode!r}")
         self.task = task
+        task.record_path = render_mode is not None
         self.num_envs = task.num_envs
-        if max_episode_steps == "registered":
-            max_episode_steps = registered_max_episode_steps(env_id)
-        if max_episode_steps is not None:
-            if int(max_episode_steps) != max_episode_steps or max_episode_steps < 1:
-                raise ValueError(f"max_episode_steps: must be a positive integer or None, got {max_episode_steps}")
-            max_episode_steps = int(max_episode_steps)
-        self.max_episode_steps = max_episode_steps
+        self.max_episode_steps = episode_limit(max_episode_steps, env_id)
         self.metadata = dict(self.metadata)
         self.metadata["render_fps"] = int(round(1.0 / task.control_dt))
         self.render_mode = render_mode

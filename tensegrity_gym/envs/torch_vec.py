@@ -73,8 +73,7 @@ from gymnasium.utils import seeding
 
 from .. import torch_backend as tb
 from ..checks import check_action_tensor
-from .common import registered_max_episode_steps
-from .shells import VectorSeeding, reseed
+from .shells import VectorSeeding, episode_limit, reseed
 from .torch_sensors import TorchSensors
 
 __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "roll_vector_env", "shape_vector_env"]
@@ -139,14 +138,7 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         tb._integrator_name(task.integrator)          # ValueError for an implicit method
         self.task = task
         self.num_envs = N = task.num_envs
-        if max_episode_steps == "registered":
-            max_episode_steps = registered_max_episode_steps(self.ENV_ID)
-        if max_episode_steps is not None:
-            if isinstance(max_episode_steps, bool) or int(max_episode_steps) != max_episode_steps \
-                    or max_episode_steps < 1:
-                raise ValueError(f"max_episode_steps: must be a positive integer or None, got {max_episode_steps!r}")
-            max_episode_steps = int(max_episode_steps)
-        self.max_episode_steps = max_episode_steps
+        self.max_episode_steps = episode_limit(max_episode_steps, self.ENV_ID)
         self.render_mode = None
         self.metadata = dict(self.metadata)
         self.metadata["render_fps"] = int(round(1.0 / task.control_dt))

@@ -69,7 +69,7 @@ def resolve_actuated(actuated, n_strings: int) -> np.ndarray:
     else:
         arr = arr.reshape(-1)
         if arr.size and (not np.issubdtype(arr.dtype, np.integer)):
-            if not np.all(np.asarray(arr, float) == np.round(np.asarray(arr, float))):
+            if not np.issubdtype(arr.dtype, np.floating) or not np.all(arr == np.round(arr)):
                 raise ValueError(f"actuated: string indices must be integers, got {actuated!r}")
             arr = arr.astype(int)
         for i in arr:
