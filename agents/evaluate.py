@@ -100,7 +100,8 @@ def resolve_model(run_dir: Path, which: str) -> tuple[Path, Path | None]:
         if "rl_model_" in m.name:  # a checkpoint
             v = m.with_name(m.name.replace("rl_model_", "rl_model_vecnormalize_").replace(".zip", ".pkl"))
     if not m.exists():
-        raise FileNotFoundError(f"model {m} does not exist")
+        raise FileNotFoundError(f"--model: {m} does not exist" + ("" if which in ("best", "final") else
+                                " (choose best, final, or the path of a model .zip)"))
     return m, (v if v.exists() else None)
 
 

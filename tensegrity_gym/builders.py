@@ -12,6 +12,7 @@ All lengths in m, masses in kg, stiffness in N/m, tensions in N, gravity in m/s^
 """
 from __future__ import annotations
 
+import difflib
 import math
 
 import numpy as np
@@ -255,6 +256,13 @@ def tower(q: int = 3, p: int = 3, radius: float = 0.5, stage_height: float = 1.0
                      rest_length=(1 - pretension) * L, damping=damping, gravity=gravity, name=f"tower{q}")
 
 
+def _robot(builder: str) -> Structure:
+    """One of TensegrityRoll-v0's robots (:mod:`tensegrity_gym.envs.roll_scene`): 0.2 kg rods,
+    gravity, the env's string stiffness, prestress and damping (before it is put on the ground)."""
+    from .envs import roll_scene
+    return getattr(roll_scene, builder)()
+
+
 BUILDERS = {
     "prism3": lambda: prism(3),
     "prism4": lambda: prism(4),
@@ -264,6 +272,8 @@ BUILDERS = {
     "icosahedron": icosahedron,
     "tower3": lambda: tower(3),
     "tower30": lambda: tower(30),
+    "prism_robot": lambda: _robot("robot_prism"),              # TensegrityRoll-v0's structure="prism"
+    "icosahedron_robot": lambda: _robot("robot_icosahedron"),  # ... and structure="icosahedron"
 }
 
 
@@ -274,5 +284,7 @@ def build(name: str) -> Structure:
     for prefix, fn in (("prism", prism), ("tower", tower)):
         if name.startswith(prefix) and name[len(prefix):].isdigit():
             return fn(int(name[len(prefix):]))
-    raise StructureError(f"unknown structure {name!r}; built-in names: {sorted(BUILDERS)} "
+    close = difflib.get_close_matches(name, BUILDERS, n=4, cutoff=0.5)
+    raise StructureError(f"unknown structure {name!r}" + (f" (did you mean {', '.join(close)}?)" if close else "")
+                         + f"; built-in names: {sorted(BUILDERS)} "
                          "(or prism<p>, tower<q>), or a path to a JSON file")

@@ -184,3 +184,16 @@ def test_self_stress_and_rest_lengths():
     assert_self_equilibrium(s.replace(rest_length=l0))
     with pytest.raises(StructureError, match=r"string 0: force density .*needs stiffness above"):
         rest_lengths_for_force_densities([1.0], [2000.0], [1000.0])
+
+
+def test_roll_robots_are_built_in_structures():
+    """TensegrityRoll-v0's robots load by name everywhere a structure is taken (CLI info/export,
+    load_structure), equal to the env's builders: users can export the exact robot the policies
+    were trained on."""
+    from tensegrity_gym import load_structure
+    from tensegrity_gym.envs import roll_scene
+    for name, ref in (("prism_robot", roll_scene.robot_prism()), ("icosahedron_robot", roll_scene.robot_icosahedron())):
+        s = load_structure(name)
+        for field in ("nodes", "bars", "strings", "bar_mass", "stiffness", "rest_length", "damping"):
+            np.testing.assert_array_equal(getattr(s, field), getattr(ref, field), err_msg=f"{name}.{field}")
+        np.testing.assert_array_equal(s.gravity, [0.0, 0.0, -9.81])

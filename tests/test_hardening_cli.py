@@ -249,8 +249,9 @@ def _proc(args, **kw):
 def test_module_entry_point_prog_name_and_exit_code(tmp_path):
     r = _proc(["info", "prism"])
     assert r.returncode == 3 and r.stderr.strip().splitlines() == [
-        "error: structure 'prism': unknown structure 'prism'; built-in names: ['constrained_prism', 'icosahedron', "
-        "'pinned_rod', 'prism3', 'prism4', 'prism6', 'tower3', 'tower30'] (or prism<p>, tower<q>), or a path to a JSON file"]
+        "error: structure 'prism': unknown structure 'prism' (did you mean prism6, prism4, prism3, prism_robot?); "
+        "built-in names: ['constrained_prism', 'icosahedron', 'icosahedron_robot', 'pinned_rod', 'prism3', 'prism4', "
+        "'prism6', 'prism_robot', 'tower3', 'tower30'] (or prism<p>, tower<q>), or a path to a JSON file"]
     r = _proc(["simulate", "prism3", "--dt", "x"])
     assert r.returncode == 2
     assert r.stderr == ("error: python -m tensegrity_gym simulate: argument --dt: expected a number, got 'x' "

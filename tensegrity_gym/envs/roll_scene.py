@@ -40,7 +40,8 @@ def robot_prism(string_damping: float = STRING_DAMPING) -> Structure:
 def robot_icosahedron(string_damping: float = STRING_DAMPING) -> Structure:
     """The 6-bar icosahedron robot (SUPERball's shape at the 3-bar robot's rod scale): rods 0.4 m, 0.2 kg."""
     return builders.icosahedron(length=ICO_LENGTH, bar_mass=ROD_MASS, stiffness=STRING_STIFFNESS,
-                                prestress=ICO_PRESTRESS, damping=string_damping, gravity=GRAVITY)
+                                prestress=ICO_PRESTRESS, damping=string_damping,
+                                gravity=GRAVITY).replace(name="icosahedron_robot")
 
 
 def _rot_to(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -107,7 +108,7 @@ def load_robot(structure, string_damping):
         s = robot_prism(STRING_DAMPING if string_damping is None else string_damping)
         axis = s.nodes[3:].mean(0) - s.nodes[:3].mean(0)
         return s, axis
-    if isinstance(structure, str) and structure == "icosahedron":
+    if isinstance(structure, str) and structure in ("icosahedron", "icosahedron_robot"):
         s = robot_icosahedron(STRING_DAMPING if string_damping is None else string_damping)
         return s, None
     from .. import load_structure
