@@ -27,7 +27,7 @@ def load_structure(spec) -> Structure:
         if s.endswith(".json") or os.path.exists(s):
             return load_json(s)
         return build(s)
-    raise TypeError(f"structure: expected a Structure, a builder name or a JSON path, got {type(spec).__name__}")
+    raise StructureError(f"structure: expected a Structure, a builder name or a JSON path, got {spec!r}")
 
 
 def _register() -> None:

@@ -243,6 +243,8 @@ _ALIASES = {"euler": "semi_implicit_euler", "symplectic_euler": "semi_implicit_e
 
 def resolve(name: str) -> IntegratorInfo:
     """The :class:`IntegratorInfo` for a name or alias; ValueError listing the choices otherwise."""
+    if not isinstance(name, str):
+        raise ValueError(f"integrator: expected a method name (one of {sorted(INTEGRATORS)}), got {name!r}")
     key = _ALIASES.get(name, name)
     if key not in INTEGRATORS:
         raise ValueError(f"integrator: unknown name {name!r}; choose one of {sorted(INTEGRATORS)}")

@@ -141,6 +141,17 @@ def initial_qpos_qvel(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
     return np.array(qpos), np.array(qvel)
 
 
+#: MuJoCo's integrators (``<option integrator=...>``)
+MJ_INTEGRATORS = ("RK4", "Euler", "implicit", "implicitfast")
+
+
+def check_mj_integrator(name, field: str = "integrator") -> str:
+    """``name`` if it is one of :data:`MJ_INTEGRATORS`; ValueError naming ``field`` otherwise."""
+    if not (isinstance(name, str) and name in MJ_INTEGRATORS):
+        raise ValueError(f"{field}: one of {', '.join(MJ_INTEGRATORS)}, got {name!r}")
+    return name
+
+
 def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-3, integrator: str = "RK4",
             rod_radius: float | None = None, string_width: float | None = None, ground_height: float = 0.0,
             friction: float = 1.0, model_name: str | None = None) -> str:
@@ -159,8 +170,7 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
         raise TypeError(f"structure: expected a Structure, got {type(s).__name__}")
     if not (isinstance(timestep, (int, float)) and math.isfinite(timestep) and timestep > 0):
         raise ValueError(f"timestep: must be a positive finite number of seconds, got {timestep!r}")
-    if integrator not in ("RK4", "Euler", "implicit", "implicitfast"):
-        raise ValueError(f"integrator: one of RK4, Euler, implicit, implicitfast, got {integrator!r}")
+    check_mj_integrator(integrator)
     r = 0.01 * float(s.bar_lengths.max()) if rod_radius is None else float(rod_radius)
     if not (math.isfinite(r) and r > 0):
         raise ValueError(f"rod_radius: must be positive and finite (m), got {rod_radius!r}")

@@ -254,3 +254,44 @@ def test_initial_state_checks_its_inputs():
     with pytest.raises(ValueError, match=r"velocities: 2 copies for 3 copies of nodes"):
         tg.initial_state(model, nodes=np.tile(model.structure.nodes, (3, 1, 1)), velocities=np.zeros((2, 6, 3)))
     assert tg.initial_state(model, np.int64(3)).q.shape == (3, 3, 6)
+
+
+# every constructor argument, five wrong values: a ValueError naming the argument, or (the pairs
+# below) a valid value; nothing silently converted (e.g. "abc" taken as True), no anonymous error
+_WRONG = ["abc", -1.0, math.nan, [1, 2], {"x": 1}]
+_VALID = {("actuated", "[1, 2]"), ("rest_length_bounds", "[1, 2]"), ("goal_direction", "[1, 2]")}
+
+
+def _arguments(fn):
+    import inspect
+    return [p.name for p in inspect.signature(fn).parameters.values()
+            if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name not in ("self", "num_envs")]
+
+
+@pytest.mark.parametrize("env_id", [SHAPE, ROLL, "TensegrityRollMuJoCo-v0"])
+def test_every_argument_refuses_wrong_values_by_name(env_id):
+    env_cls = gym.envs.registration.load_env_creator(gym.spec(env_id).entry_point) \
+        if env_id != "TensegrityRollMuJoCo-v0" else pytest.importorskip("tensegrity_gym.envs.roll_mujoco").TensegrityRollMuJoCoEnv
+    if env_id == "TensegrityRollMuJoCo-v0":   # the twin's own arguments (the task's are covered above)
+        names = [n for n in _arguments(env_cls) if n not in ("render_mode", "width", "height")]
+    else:
+        names = _arguments(env_cls.task_class)
+        assert len(names) > 25
+    problems = []
+    for name in names:
+        for value in _WRONG:
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    env = gym.make(env_id, **{name: value})
+                    env.reset(seed=0)
+                    env.step(env.action_space.sample())
+                    env.close()
+                if (name, repr(value)) not in _VALID:
+                    problems.append(f"{name}={value!r}: accepted")
+            except ValueError as e:
+                if not str(e).startswith(name) and f"{name}:" not in str(e) and f"{name}[" not in str(e):
+                    problems.append(f"{name}={value!r}: message does not name it: {e}")
+            except Exception as e:  # noqa: BLE001 -- anything else is a finding
+                problems.append(f"{name}={value!r}: {type(e).__name__}: {e}")
+    assert not problems, "\n".join(problems)

@@ -85,7 +85,7 @@ import numpy as np
 from gymnasium import spaces
 
 from .. import dynamics as dyn
-from ..mjcf import initial_qpos_qvel, to_mjcf
+from ..mjcf import check_mj_integrator, initial_qpos_qvel, to_mjcf
 from ..rewards import quadratic_cost
 from ..checks import check_frame_size
 from .common import check_action, check_positive
@@ -129,6 +129,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             raise ValueError(f"action_delay: not supported by {ENV_ID}, got {kwargs['action_delay']!r}")
         if kwargs.get("action_mode", "rest_length") != "rest_length":
             raise ValueError(f"action_mode: {ENV_ID} supports 'rest_length' only, got {kwargs['action_mode']!r}")
+        check_mj_integrator(mj_integrator, "mj_integrator")
         self.spin_damping = check_positive(spin_damping, "spin_damping", "N m s", allow_zero=True)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode: unknown {render_mode!r}; choose 'rgb_array' or None")

@@ -111,8 +111,8 @@ def load_robot(structure, string_damping):
     if isinstance(structure, str) and structure in ("icosahedron", "icosahedron_robot"):
         s = robot_icosahedron(STRING_DAMPING if string_damping is None else string_damping)
         return s, None
-    from .. import load_structure
-    s = load_structure(structure)
+    from .validate import load_env_structure
+    s = load_env_structure(structure)
     if s.node_constraints or s.anchors.size:
         raise ValueError(f"structure {s.name!r}: the roll task needs a free structure (no node constraints, "
                          "no fixed anchor nodes)")

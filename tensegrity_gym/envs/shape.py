@@ -31,8 +31,8 @@ MAX_TARGET_TRIES = 50
 
 
 def _load(structure):
-    from .. import load_structure
-    return load_structure(structure)
+    from .validate import load_env_structure
+    return load_env_structure(structure)
 
 
 class ShapeTask(FusedShapeStep, BatchedTask):

@@ -14,7 +14,7 @@ from ..checks import ACTION_TOL, check_positive
 from . import compiled
 
 __all__ = ["ACTION_MODES", "ACTION_TOL", "check_positive", "check_action", "check_stable_dt", "resolve_actuated",
-           "check_rest_length_bounds"]
+           "check_rest_length_bounds", "load_env_structure"]
 
 
 def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
@@ -55,6 +55,16 @@ def check_stable_dt(model: dyn.Model, limit: float, dt: float, integrator: str, 
                      f"(strings up to {k:.4g} N/m and {c:.4g} N s/m; the state would blow up); use a smaller dt, "
                      "less stiffness or string damping, integrator='implicit_euler' where the task allows it, or "
                      "allow_unstable_dt=True to run it anyway")
+
+
+def load_env_structure(spec):
+    """:func:`tensegrity_gym.load_structure` for an env's ``structure`` argument (a Structure, a
+    built-in name or a JSON path); its errors name the argument (``structure: ...``)."""
+    from .. import load_structure
+    try:
+        return load_structure(spec)
+    except ValueError as e:
+        raise ValueError(str(e) if str(e).startswith("structure") else f"structure: {e}") from None
 
 
 def resolve_actuated(actuated, n_strings: int) -> np.ndarray:
