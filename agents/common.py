@@ -250,8 +250,41 @@ def resolve_hyperparams(algo: str, hp: dict) -> dict:
         hp.pop("noise_std", None)
     for k in ("n_envs", "n_timesteps"):
         hp.pop(k, None)
+    check_model_kwargs(algo, hp)
     out["model_kwargs"] = hp
     return out
+
+
+#: hyperparameters that are fractions in [0, 1] and counts (minimum) in SB3's algorithms
+_FRACTIONS = ("gamma", "gae_lambda", "tau", "exploration_fraction", "exploration_initial_eps",
+              "exploration_final_eps", "target_update_interval_fraction")
+_COUNTS = {"n_steps": 1, "batch_size": 2, "n_epochs": 1, "buffer_size": 1, "learning_starts": 0,
+           "target_update_interval": 1, "policy_delay": 1}
+
+
+def check_model_kwargs(algo: str, kwargs: dict) -> None:
+    """ValueError naming ``--hyperparams`` and the key for a keyword ``algo``'s constructor does
+    not take (with the nearest names), a fraction outside [0, 1] or a count that is not an
+    integer >= its minimum: SB3 would answer with a TypeError/AssertionError traceback, or train
+    to NaN (gamma = 2)."""
+    import inspect
+    cls = get_algo(algo)
+    params = inspect.signature(cls.__init__).parameters
+    names = [p for p in params if p not in ("self", "policy", "env")]
+    for key, value in kwargs.items():
+        if key not in names:
+            close = difflib.get_close_matches(key, names, n=3)
+            hint = f" (did you mean {', '.join(close)}?)" if close else ""
+            raise ValueError(f"--hyperparams: {cls.__name__} takes no hyperparameter {key!r}{hint}")
+        if key in _FRACTIONS and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                      and 0.0 <= value <= 1.0):
+            raise ValueError(f"--hyperparams: {key} must be a number in [0, 1], got {value!r}")
+        if key in _COUNTS and not (isinstance(value, int) and not isinstance(value, bool) and value >= _COUNTS[key]):
+            raise ValueError(f"--hyperparams: {key} must be an integer >= {_COUNTS[key]}, got {value!r}")
+        default = params[key].default
+        if isinstance(default, (int, float)) and not isinstance(default, bool) and isinstance(value, str):
+            raise ValueError(f"--hyperparams: {key} must be a number ({cls.__name__}'s default is {default!r}), "
+                             f"got {value!r}")
 
 
 def to_yaml_safe(obj):

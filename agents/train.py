@@ -611,8 +611,12 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
             print(f"resuming {run_dir} from {load_path.name} at {model.num_timesteps} steps "
                   f"(target {n_timesteps})")
         else:
-            model = Algo(hp["policy"], env, seed=seed, device=args.device, verbose=args.verbose,
-                         tensorboard_log=str(run_dir / "tb"), **model_kwargs)
+            try:
+                model = Algo(hp["policy"], env, seed=seed, device=args.device, verbose=args.verbose,
+                             tensorboard_log=str(run_dir / "tb"), **model_kwargs)
+            except (AssertionError, TypeError, ValueError, RuntimeError) as e:   # SB3's checks: one line
+                raise ValueError(f"--hyperparams: {Algo.__name__} refused them: {type(e).__name__}: "
+                                 f"{' '.join(str(e).split())}") from e
     except BaseException as e:  # failed before the first step: record it; the folder can be started again
         run_state.update(status="crashed" if not isinstance(e, KeyboardInterrupt) else "interrupted",
                          error=f"{type(e).__name__}: {e}", failed_before_first_step=True,

@@ -262,6 +262,19 @@ def test_bad_arguments_give_clear_errors(tmp_path):
                      "--env-kwargs", '{"tracking_weigth": 1}', "-n", "64"])
     with pytest.raises(ValueError, match=r"--seed: must be an integer in 0..4294967295, got -3"):
         train.train(["--algo", "ppo", "--env", "Pendulum-v1", "--log-dir", str(tmp_path / "e"), "--seed", "-3"])
+    # hyperparameters SB3 answers with a traceback (or trains to NaN: gamma = 2), named before any run folder
+    base = ["--algo", "ppo", "--env", "Pendulum-v1", "-n", "64", "--n-envs", "1", "--eval-freq", "-1",
+            "--save-freq", "-1", "--no-progress-bar", "--hyperparams"]
+    for i, (hp, pattern) in enumerate([
+            ("bach_size=64", r"--hyperparams: PPO takes no hyperparameter 'bach_size' \(did you mean batch_size\?\)"),
+            ("gamma=2", r"--hyperparams: gamma must be a number in \[0, 1\], got 2"),
+            ("batch_size=-1", r"--hyperparams: batch_size must be an integer >= 2, got -1"),
+            ("n_epochs=abc", r"--hyperparams: n_epochs must be an integer >= 1, got 'abc'"),
+            ("ent_coef=abc", r"--hyperparams: ent_coef must be a number \(PPO's default is 0.0\), got 'abc'"),
+            ("policy_kwargs=dict(net_arch=[-5])", r"--hyperparams: PPO refused them: RuntimeError: .*negative dimension")]):
+        with pytest.raises(ValueError, match=pattern):
+            train.train(base + [hp, "--log-dir", str(tmp_path / f"hp{i}")])
+        assert not (tmp_path / f"hp{i}" / "model.zip").exists()
 
 
 def test_env_kwargs_checked_for_every_registered_env():
