@@ -148,13 +148,27 @@ def parse_kv_list(items: list[str] | None, sep: str, what: str) -> dict:
 
 
 # ---------------------------------------------------------------------- hyperparameters (zoo format)
-def load_hyperparams_file(path: str | Path) -> dict:
+def read_yaml(path: str | Path):
+    """The YAML document in ``path``; ValueError naming the file, the line and the problem for a
+    file that is not valid YAML or not UTF-8 text (PyYAML's parser traceback otherwise)."""
     import yaml
+    path = Path(path)
+    try:
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text (UTF-8) file") from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise ValueError(f"{path}: not valid YAML{where}: {problem}") from None
+
+
+def load_hyperparams_file(path: str | Path) -> dict:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"hyperparameter file {path} does not exist")
-    with open(path) as f:
-        data = yaml.safe_load(f) or {}
+    data = read_yaml(path) or {}
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a mapping from env id to hyperparameters")
     return data

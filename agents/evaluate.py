@@ -106,8 +106,7 @@ def resolve_model(run_dir: Path, which: str) -> tuple[Path, Path | None]:
 
 
 def load_trained(run_dir: Path, which: str, device: str = "cpu"):
-    import yaml
-    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    cfg = common.read_yaml(run_dir / "config.yaml")
     model_path, vn_path = resolve_model(run_dir, which)
     if cfg["hyperparams_resolved"].get("normalize") is not None and vn_path is None:
         raise FileNotFoundError(f"{run_dir}: trained with VecNormalize but its statistics beside {model_path.name} "
@@ -525,7 +524,6 @@ def evaluate(argv=None) -> dict:
         results[name] = summarize(eps, scales)
         print(f"  {name}: {len(sd)} episodes in {timings[name]:.1f} s")
 
-    import yaml
     state = json.loads((run_dir / "state.json").read_text()) if (run_dir / "state.json").exists() else {}
     table = format_table(results)
     print(f"\n{env_id} {env_kwargs}  model {model_path} ({model.num_timesteps} training steps)\n"

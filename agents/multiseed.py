@@ -188,13 +188,12 @@ def run(argv: list[str] | None = None) -> dict:
         raise ValueError(f"runs: two run directories share a name ({names}); each seed needs its own")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    import yaml
     from agents.evaluate import HELD_OUT_SEED
     per_seed, curves, env_ids = [], [], set()
     for r in runs:
         m = _evaluate_seed(r, out / "seeds" / r.name, args)
         res = m["results"][next(k for k in m["results"] if k.endswith("(trained)"))]
-        cfg = yaml.safe_load((r / "config.yaml").read_text())
+        cfg = common.read_yaml(r / "config.yaml")
         env_ids.add(m["env"])
         st = json.loads((r / "state.json").read_text()) if (r / "state.json").exists() else {}
         row = {"run": str(r), "seed": cfg.get("seed"), "model": m["model"],

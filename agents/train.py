@@ -51,7 +51,6 @@ import sys
 import time
 from collections import deque
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -456,7 +455,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         if _running_elsewhere(_read_state(resume_dir)):
             raise FileExistsError(f"--resume {resume_dir}: a training (pid {_read_state(resume_dir)['pid']}) "
                                   "is running in it")
-        cfg = yaml.safe_load(cfg_path.read_text())
+        cfg = common.read_yaml(cfg_path)
         run_dir = resume_dir
         fresh_restart = not _has_saved_model(run_dir)
         algo, env_id, seed = cfg["algo"], cfg["env"], int(cfg["seed"])
@@ -524,7 +523,6 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
     from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
     InfoLoggerCallback, ScheduledCheckpoint, ResumableEvalCallback, _, StopAfterWallTime, TimeSplit = _callbacks()
 
-    import json
     import socket
     state_path = run_dir / "state.json"
     prev_state = _read_state(run_dir) if (resume_dir is not None and not fresh_restart) else {}
@@ -566,7 +564,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
             config["hyperparams_source"] = source
             common.write_text(run_dir / "config.yaml", yaml.safe_dump(common.to_yaml_safe(config), sort_keys=False))
         else:
-            old = yaml.safe_load((run_dir / "config.yaml").read_text())
+            old = common.read_yaml(run_dir / "config.yaml")
             old["n_timesteps"] = n_timesteps
             common.write_text(run_dir / "config.yaml", yaml.safe_dump(old, sort_keys=False))
         with open(run_dir / "command.txt", "a") as f:

@@ -43,7 +43,6 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -58,11 +57,10 @@ TRAIN_KEYS = {"algo", "env", "n_timesteps", "n_envs", "eval_freq", "eval_episode
 # ---------------------------------------------------------------------- config
 def load_config(path: str | Path) -> dict:
     """Read and validate a sweep config (errors name the field and the value)."""
-    import yaml
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"sweep config {path} does not exist")
-    cfg = yaml.safe_load(path.read_text()) or {}
+    cfg = common.read_yaml(path) or {}
     if not isinstance(cfg, dict):
         raise ValueError(f"{path}: expected a mapping")
     unknown = set(cfg) - {"name", "train", "variants", "search", "seeds", "metric", "mode", "max_concurrent",
@@ -267,8 +265,7 @@ def summarize(exp_dir: Path, metric: str = "eval_return") -> dict:
             z = np.load(ev)
             m["curve_steps"] = z["timesteps"].tolist()
             m["curve_return"] = z["results"].mean(axis=1).tolist()
-        import yaml
-        rc = yaml.safe_load((d / "config.yaml").read_text()) or {}
+        rc = common.read_yaml(d / "config.yaml") or {}
         m["params"] = {**{f"hyperparams.{k}": v for k, v in (rc.get("hyperparams_raw") or {}).items()
                           if k != "env_kwargs"},
                        **{f"env_kwargs.{k}": v for k, v in (rc.get("env_kwargs") or {}).items()},

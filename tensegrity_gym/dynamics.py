@@ -323,8 +323,7 @@ def nodal_forces(model: Model, q, qd, rest_length=None, force_density=None, exte
 
 
 def _rod_accelerations(model: Model, q, qd, F, params=None):
-    r, b = q[..., :3], q[..., 3:]
-    rd, bd = qd[..., :3], qd[..., 3:]
+    b, bd = q[..., 3:], qd[..., 3:]
     Fa, Fc = F[:, model.rod_a], F[:, model.rod_c]
     fr = Fa + Fc
     fb = model.eta[None, :, 0, None] * Fa + model.eta[None, :, 1, None] * Fc

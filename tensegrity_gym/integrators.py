@@ -54,7 +54,6 @@ NumPy path; ``"auto"`` (default) picks numba when it is installed and applicable
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import math
 import warnings

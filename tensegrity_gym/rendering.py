@@ -699,7 +699,6 @@ class BrowserViewer:
         self.playing = False
 
     def _loop(self) -> None:
-        import time
         dt_frame = 1.0 / 30.0
         t = float(self.times[self.index])
         while not self._stop.wait(dt_frame):

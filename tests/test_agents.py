@@ -275,6 +275,14 @@ def test_bad_arguments_give_clear_errors(tmp_path):
         with pytest.raises(ValueError, match=pattern):
             train.train(base + [hp, "--log-dir", str(tmp_path / f"hp{i}")])
         assert not (tmp_path / f"hp{i}" / "model.zip").exists()
+    # a malformed YAML file (hyperparameters, sweep config): file, line and problem (was PyYAML's traceback)
+    bad = tmp_path / "bad.yml"
+    bad.write_text("foo: [\n")
+    with pytest.raises(ValueError, match=r"bad.yml: not valid YAML at line 2, column 1: expected the node content"):
+        train.train(["--algo", "ppo", "--env", "Pendulum-v1", "--conf-file", str(bad), "--log-dir", str(tmp_path / "y")])
+    from agents import tune
+    with pytest.raises(ValueError, match=r"bad.yml: not valid YAML at line 2"):
+        tune.load_config(bad)
 
 
 def test_env_kwargs_checked_for_every_registered_env():

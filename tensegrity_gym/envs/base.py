@@ -85,7 +85,7 @@ class BatchedTask:
         size = float(np.max(np.linalg.norm(nodes0 - self.center0, axis=1)))
         self.divergence_limit = (100.0 * max(size, 1e-3) if divergence_limit is None
                                  else check_positive(divergence_limit, "divergence_limit", "m"))
-        B, k = self.num_envs, model.n_bars
+        B = self.num_envs
         st = dyn.initial_state(model, B)
         self.q = st.q.copy()
         self.qd = st.qd.copy()
