@@ -280,7 +280,8 @@ def check_model_kwargs(algo: str, kwargs: dict) -> None:
     """ValueError naming ``--hyperparams`` and the key for a keyword ``algo``'s constructor does
     not take (with the nearest names), a fraction outside [0, 1] or a count that is not an
     integer >= its minimum: SB3 would answer with a TypeError/AssertionError traceback, or train
-    to NaN (gamma = 2)."""
+    to NaN (gamma = 2). Counts given as integral floats (``buffer_size=1e6``) become ints in
+    ``kwargs``."""
     import inspect
     cls = get_algo(algo)
     params = inspect.signature(cls.__init__).parameters
@@ -293,8 +294,9 @@ def check_model_kwargs(algo: str, kwargs: dict) -> None:
         if key in _FRACTIONS and not (isinstance(value, (int, float)) and not isinstance(value, bool)
                                       and 0.0 <= value <= 1.0):
             raise ValueError(f"--hyperparams: {key} must be a number in [0, 1], got {value!r}")
-        if key in _COUNTS and not (isinstance(value, int) and not isinstance(value, bool) and value >= _COUNTS[key]):
-            raise ValueError(f"--hyperparams: {key} must be an integer >= {_COUNTS[key]}, got {value!r}")
+        if key in _COUNTS:   # an integral float such as buffer_size=1e6 is the integer it names
+            from tensegrity_gym.checks import check_count
+            kwargs[key] = check_count(value, f"--hyperparams: {key}", _COUNTS[key])
         default = params[key].default
         if isinstance(default, (int, float)) and not isinstance(default, bool) and isinstance(value, str):
             raise ValueError(f"--hyperparams: {key} must be a number ({cls.__name__}'s default is {default!r}), "

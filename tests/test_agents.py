@@ -268,13 +268,15 @@ def test_bad_arguments_give_clear_errors(tmp_path):
     for i, (hp, pattern) in enumerate([
             ("bach_size=64", r"--hyperparams: PPO takes no hyperparameter 'bach_size' \(did you mean batch_size\?\)"),
             ("gamma=2", r"--hyperparams: gamma must be a number in \[0, 1\], got 2"),
-            ("batch_size=-1", r"--hyperparams: batch_size must be an integer >= 2, got -1"),
-            ("n_epochs=abc", r"--hyperparams: n_epochs must be an integer >= 1, got 'abc'"),
+            ("batch_size=-1", r"--hyperparams: batch_size: must be an integer >= 2, got -1"),
+            ("n_epochs=abc", r"--hyperparams: n_epochs: must be an integer >= 1, got 'abc'"),
             ("ent_coef=abc", r"--hyperparams: ent_coef must be a number \(PPO's default is 0.0\), got 'abc'"),
             ("policy_kwargs=dict(net_arch=[-5])", r"--hyperparams: PPO refused them: RuntimeError: .*negative dimension")]):
         with pytest.raises(ValueError, match=pattern):
             train.train(base + [hp, "--log-dir", str(tmp_path / f"hp{i}")])
         assert not (tmp_path / f"hp{i}" / "model.zip").exists()
+    from agents import common
+    assert common.resolve_hyperparams("sac", {"buffer_size": 1e6})["model_kwargs"]["buffer_size"] == 1000000
     # a malformed YAML file (hyperparameters, sweep config): file, line and problem (was PyYAML's traceback)
     bad = tmp_path / "bad.yml"
     bad.write_text("foo: [\n")
