@@ -283,19 +283,17 @@ def check_model_kwargs(algo: str, kwargs: dict) -> None:
     to NaN (gamma = 2). Counts given as integral floats (``buffer_size=1e6``) become ints in
     ``kwargs``."""
     import inspect
+    from tensegrity_gym.checks import check_count
     cls = get_algo(algo)
     params = inspect.signature(cls.__init__).parameters
     names = [p for p in params if p not in ("self", "policy", "env")]
     for key, value in kwargs.items():
         if key not in names:
-            close = difflib.get_close_matches(key, names, n=3)
-            hint = f" (did you mean {', '.join(close)}?)" if close else ""
-            raise ValueError(f"--hyperparams: {cls.__name__} takes no hyperparameter {key!r}{hint}")
+            raise ValueError(f"--hyperparams: {cls.__name__} takes no hyperparameter {key!r}{_did_you_mean(key, names)}")
         if key in _FRACTIONS and not (isinstance(value, (int, float)) and not isinstance(value, bool)
                                       and 0.0 <= value <= 1.0):
             raise ValueError(f"--hyperparams: {key} must be a number in [0, 1], got {value!r}")
         if key in _COUNTS:   # an integral float such as buffer_size=1e6 is the integer it names
-            from tensegrity_gym.checks import check_count
             kwargs[key] = check_count(value, f"--hyperparams: {key}", _COUNTS[key])
         default = params[key].default
         if isinstance(default, (int, float)) and not isinstance(default, bool) and isinstance(value, str):
@@ -342,6 +340,12 @@ def check_env_id(env_id: str):
                          + (f" (did you mean {close}?)" if close else ""))
 
 
+def _did_you_mean(key: str, names) -> str:
+    """`` (did you mean a, b?)`` for the accepted names nearest ``key``, or ``""``."""
+    close = difflib.get_close_matches(key, names, n=3)
+    return f" (did you mean {', '.join(close)}?)" if close else ""
+
+
 _UNEXPECTED = re.compile(r"unexpected keyword argument '([^']+)'")
 
 
@@ -358,9 +362,7 @@ def make_env(env_id: str, env_kwargs: dict, **extra):
             raise
         key = m.group(1)
         names = env_argument_names(env_id)
-        close = difflib.get_close_matches(key, names, n=3)
-        hint = f" (did you mean {', '.join(close)}?)" if close else ""
-        raise ValueError(f"--env-kwargs: {env_id} takes no argument {key!r}{hint}; its arguments: "
+        raise ValueError(f"--env-kwargs: {env_id} takes no argument {key!r}{_did_you_mean(key, names)}; its arguments: "
                          f"{', '.join(names)}") from None
 
 
@@ -383,7 +385,8 @@ def env_argument_names(env_id: str) -> list[str]:
 def check_seed(seed: int, flag: str = "--seed", top: int = 2**32 - 1) -> int:
     """``seed`` if it is an integer in 0..``top``; ValueError naming ``flag`` otherwise (NumPy's
     and Gymnasium's own messages do not say which argument)."""
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= seed <= top:
+    from tensegrity_gym.checks import is_integer
+    if not is_integer(seed) or not 0 <= seed <= top:
         raise ValueError(f"{flag}: must be an integer in 0..{top}, got {seed!r}")
     return int(seed)
 
