@@ -100,6 +100,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from . import integrators
+from .checks import check_positive
 
 __all__ = ["GroundContact", "ContactState", "init_contact_state", "contact_forces", "forces_inplace",
            "contact_energy",
@@ -110,16 +111,6 @@ try:  # optional compiled kernel
     _NUMBA = True
 except Exception:  # pragma: no cover
     _NUMBA = False
-
-
-def _positive(v, name, unit, allow_zero=False):
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a number ({unit}), got {v!r}") from None
-    if not math.isfinite(x) or x < 0 or (x == 0 and not allow_zero):
-        raise ValueError(f"{name}: must be {'>= 0' if allow_zero else 'positive'} and finite ({unit}), got {v!r}")
-    return x
 
 
 @dataclass(frozen=True)
@@ -156,18 +147,18 @@ class GroundContact:
 
     def __post_init__(self):
         s = object.__setattr__
-        s(self, "stiffness", _positive(self.stiffness, "stiffness", "N/m^exponent"))
-        s(self, "damping", _positive(self.damping, "damping", "s/m", allow_zero=True))
-        e = _positive(self.exponent, "exponent", "1")
+        s(self, "stiffness", check_positive(self.stiffness, "stiffness", "N/m^exponent"))
+        s(self, "damping", check_positive(self.damping, "damping", "s/m", allow_zero=True))
+        e = check_positive(self.exponent, "exponent", "1")
         if e < 1:
             raise ValueError(f"exponent: must be >= 1 (1 linear, 1.5 Hertz), got {self.exponent!r}")
         s(self, "exponent", e)
-        s(self, "friction", _positive(self.friction, "friction", "1", allow_zero=True))
+        s(self, "friction", check_positive(self.friction, "friction", "1", allow_zero=True))
         kt = self.stiffness if self.tangential_stiffness is None else self.tangential_stiffness
-        s(self, "tangential_stiffness", _positive(kt, "tangential_stiffness", "N/m"))
-        s(self, "tangential_damping", _positive(self.tangential_damping, "tangential_damping", "N s/m",
+        s(self, "tangential_stiffness", check_positive(kt, "tangential_stiffness", "N/m"))
+        s(self, "tangential_damping", check_positive(self.tangential_damping, "tangential_damping", "N s/m",
                                                 allow_zero=True))
-        s(self, "radius", _positive(self.radius, "radius", "m", allow_zero=True))
+        s(self, "radius", check_positive(self.radius, "radius", "m", allow_zero=True))
         try:
             h = float(self.height)
         except (TypeError, ValueError):

@@ -80,6 +80,20 @@ class Equilibrium:
         return self.force_density <= 0
 
 
+def tangent_basis(b: np.ndarray) -> np.ndarray:
+    """(..., 3, 2) orthonormal basis of the plane normal to each rod direction ``b`` (..., 3)
+    (any length): ``t1 = b x e / |b x e|`` with ``e`` the axis along b's smallest component,
+    ``t2 = b x t1``. The one chart of the rods' directions (statics, stability, sysid)."""
+    bn = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    helper = np.zeros_like(bn)
+    ax = np.argmin(np.abs(bn), axis=-1)
+    np.put_along_axis(helper, ax[..., None], 1.0, axis=-1)
+    t1 = np.cross(bn, helper)
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    t2 = np.cross(bn, t1)
+    return np.stack([t1, t2], axis=-1)
+
+
 class ReducedCoordinates:
     """Local coordinates ``x = (z, u)`` of a model's configuration space (see the module doc)."""
 
@@ -97,17 +111,7 @@ class ReducedCoordinates:
         self.dz = len(z_rod)
         self.nx = self.dz + 2 * model.n_bars
 
-    @staticmethod
-    def tangent_basis(b: np.ndarray) -> np.ndarray:
-        """(B, k, 3, 2) orthonormal basis of the plane normal to each b (B, k, 3)."""
-        bn = b / np.linalg.norm(b, axis=-1, keepdims=True)
-        helper = np.zeros_like(bn)
-        ax = np.argmin(np.abs(bn), axis=-1)
-        np.put_along_axis(helper, ax[..., None], 1.0, axis=-1)
-        t1 = np.cross(bn, helper)
-        t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
-        t2 = np.cross(bn, t1)
-        return np.stack([t1, t2], axis=-1)
+    tangent_basis = staticmethod(tangent_basis)   # the module's chart, as rc.tangent_basis
 
     def retract(self, q: np.ndarray, T: np.ndarray, dx: np.ndarray) -> np.ndarray:
         """Configuration at local coordinates ``dx`` (B, nx) around ``q`` (B, k, 6), chart ``T``."""

@@ -80,6 +80,7 @@ from .checks import load_npz
 from .dynamics import Model, State
 from .integrators import resolve, step
 from .params import Params, default_params
+from .statics import tangent_basis
 
 __all__ = ["identify", "SysIdResult", "SysIdWarning", "FITTABLE", "load_csv", "load_trajectory"]
 
@@ -336,17 +337,6 @@ def _parse_fit(model: Model, fit, mode, initial):
 
 
 # ----------------------------------------------------------------------------- state coordinates
-def _tangent_basis(b):
-    """Two unit vectors (..., 3) orthogonal to the unit vectors ``b`` and to each other."""
-    a = np.zeros_like(b)
-    use_x = np.abs(b[..., 0]) < 0.9
-    a[..., 0] = np.where(use_x, 1.0, 0.0)
-    a[..., 1] = np.where(use_x, 0.0, 1.0)
-    t1 = np.cross(b, a)
-    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
-    return t1, np.cross(b, t1)
-
-
 class _Problem:
     """The multiple-shooting problem: windows, their state coordinates, batched simulation."""
 
@@ -469,7 +459,8 @@ class _Problem:
         """States (C, k, 6) from bases ``q0``, ``qd0`` and coordinates ``x`` (C, ns)."""
         r, b = q0[..., :3].copy(), q0[..., 3:]
         rd, bd = qd0[..., :3].copy(), qd0[..., 3:].copy()
-        t1, t2 = _tangent_basis(b)
+        T = tangent_basis(b)
+        t1, t2 = T[..., 0], T[..., 1]
         bn = b.copy()
         o = 0
         for j, E in enumerate(self.E):
@@ -678,7 +669,8 @@ class _Problem:
             x = z[:, nu:]
             # window states as _Problem.apply (tangent basis at the base state)
             q0c, qd0c = np.repeat(q0, nc, 0), np.repeat(qd0, nc, 0)
-            t1, t2 = (t_(a) for a in _tangent_basis(q0c[..., 3:]))
+            T0 = tangent_basis(q0c[..., 3:])
+            t1, t2 = t_(T0[..., 0]), t_(T0[..., 1])
             q0t, qd0t = t_(q0c), t_(qd0c)
             rs, bs, rds, bds, o = [], [], [], [], 0
             for j, E in enumerate(self.E):
