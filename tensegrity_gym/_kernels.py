@@ -103,7 +103,7 @@ if AVAILABLE and "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THRE
     # ~0.1 ms with numba's own workqueue pool. Set NUMBA_THREADING_LAYER to choose otherwise.
     numba.config.THREADING_LAYER = "workqueue"
 
-__all__ = ["AVAILABLE", "step", "step_inplace", "accelerations", "PARALLEL_MIN_WORK", "clear_cache"]
+__all__ = ["AVAILABLE", "step", "step_inplace", "accelerations", "project", "PARALLEL_MIN_WORK", "clear_cache"]
 
 #: a call runs the multi-threaded kernel when B * n_steps * (strings + rods) * (4 for RK4, else 1)
 #: reaches this (about 0.3 ms of single-core work: below it, waking threads costs more than they save,
@@ -121,6 +121,7 @@ _CONS = 64
 _L0DEF = 128   # use the model's rest lengths stored in the buffer
 _NDAMP = 256   # per-node viscous drag (model.node_damping)
 _ACC = 512     # no step: write the accelerations [r'', b''] of (q, qd) into qdo (q into qo)
+_PONLY = 1024  # no step: write the projection of (q, qd) onto the constraints (_project) into qo, qdo
 _CHUNK_SHIFT = 16   # the parallel kernel's chunk count rides in flags >> _CHUNK_SHIFT
 _SINC_SMALL = 1e-4    # integrators._SINC_SMALL: below this angle per step sin(x)/x = 1 - x^2/6
 _SOA_MIN_BATCH = 16   # serial calls with at least this many environments use the SIMD (SoA) loop
@@ -491,6 +492,8 @@ if AVAILABLE:
         has_fd = (flags & _FD) != 0
         has_ext = (flags & _EXT) != 0
         acc_only = (flags & _ACC) != 0
+        proj_only = (flags & _PONLY) != 0
+        n_loop = 0 if proj_only else n_steps
         h = 0.5 * dt
         c6 = dt / 6.0
         nl, nf, ne_ = l0.shape[0], fd.shape[0], ext.shape[0]
@@ -533,7 +536,9 @@ if AVAILABLE:
                             qo[c0 + e, j, i] = Q[j, i, e]
                             qdo[c0 + e, j, i] = A1[j, i, e]
                 continue
-            for _ in range(n_steps):
+            if proj_only:                               # projection only (the entry `project`)
+                _project(w, ib, o_rod, k, Q, QD, E, any_cons)
+            for _ in range(n_loop):
                 Qi = Q
                 Vi = QD
                 A = A1
@@ -918,7 +923,7 @@ def _controls(p, flags, rest_length, force_density, external):
     if external is not None:
         if callable(external):
             raise TypeError("external: the numba kernels take an array held over the step; "
-                            "use backend='numpy' for a callable")
+                            "integrators.step evaluates a callable and passes its arrays")
         ext = external if getattr(external, "ndim", 0) == 3 else _array(external, 3, "external")
         flags |= _EXT
     return l0, fd, ext, flags
@@ -1071,6 +1076,21 @@ def accelerations(model, q, qd, rest_length=None, force_density=None, external=N
     else:
         _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, 0.0, 1, flags)
     return qdo.reshape(shape)
+
+
+def project(model, q, qd):
+    """``(q, qd)`` projected onto the constraints ((B, k, 6) or (k, 6), new arrays of the same
+    shape): ``|b| = 1``, ``b . b' = 0``, constrained reference points back on their point, line
+    or plane with their velocity tangent to it; free rods' reference points untouched. The loop
+    driver's own ``_project`` (what every fixed step with ``project=True`` ends with), no step
+    taken. The projection is topology only: per-copy parameters do not enter it."""
+    p = _CACHE.get(id(model)) or _packed(model)
+    flags = (p.flags & _CONS) | _PONLY | _L0DEF
+    shape = np.shape(q)
+    q, qd = _array(q, 3, "q"), _array(qd, 3, "qd")
+    qo, qdo = np.empty(q.shape), np.empty(q.shape)
+    _shared_step(model, p, q, qd, qo, qdo, None, None, None, 0.0, 1, flags)
+    return qo.reshape(shape), qdo.reshape(shape)
 
 
 from .dynamics import State  # noqa: E402  (after the kernels: dynamics never imports this module)

@@ -48,8 +48,9 @@ project inside ``solve_ivp``; their drift is set by their tolerances.
 Backends
 --------
 ``backend="numba"`` runs fused compiled kernels (:mod:`tensegrity_gym._kernels`) for the
-fixed-step methods when there is no callable ``external``; ``"numpy"`` runs the reference
-NumPy path; ``"auto"`` (default) picks numba when it is installed and applicable.
+fixed-step methods (with a callable ``external``, Python calls it and the kernels do the
+physics: :func:`_callable_step`); ``"numpy"`` runs the reference NumPy path; ``"auto"``
+(default) picks numba when it is installed and applicable.
 """
 from __future__ import annotations
 
@@ -285,9 +286,9 @@ def accelerations(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None,
     return dyn.accelerations(model, q, qd, rest_length, force_density, external, params)
 
 
-def _use_numba(backend: str, info: IntegratorInfo, external) -> bool:
-    """Whether :func:`step` runs the numba kernels (fixed-step methods with array inputs)."""
-    if backend == "numpy" or info.adaptive or callable(external):
+def _use_numba(backend: str, info: IntegratorInfo) -> bool:
+    """Whether :func:`step` runs the numba kernels (the fixed-step explicit methods)."""
+    if backend == "numpy" or info.adaptive:
         return False
     return _numba_backend(backend)
 
@@ -460,7 +461,10 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
         return implicit.step(model, state, dt, info.name, rest_length=rest_length,
                              force_density=force_density, external=external, project=project,
                              n_steps=n_steps, params=params, backend=backend)
-    if _use_numba(backend, info, external):
+    if _use_numba(backend, info):
+        if callable(external):
+            return _callable_step(model, state, dt, info.name, rest_length, force_density, external, project,
+                                  n_steps, params)
         return _KERNELS.step(model, state, dt, info.name, rest_length=rest_length,
                              force_density=force_density, external=external, project=project,
                              n_steps=n_steps, params=params)
@@ -488,6 +492,40 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
             qd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
         if project:
             q, qd = dyn.project(model, q, qd)
+        t = t + dt
+    return State(q=q, qd=qd, t=t)
+
+
+def _callable_step(model, state, dt, name, rest_length, force_density, external, project, n_steps, params):
+    """Fixed steps with a callable ``external(q, qd, t)`` on the numba kernels: Python calls the
+    function, the kernels do the physics. Semi-implicit Euler evaluates it once per step, at the
+    step's start, so each step is one kernel step with that force held; RK4 evaluates it at each
+    of the four stages, so the stages' accelerations come from the kernels' ``accelerations``
+    entry and the projection from their ``project`` entry (the same equations as the compiled
+    steps: an ``external`` that returns a constant array gives their result to round-off)."""
+    q, qd, t = state.q, state.qd, state.t
+    for _ in range(n_steps):
+        if name == "semi_implicit_euler":
+            nxt = _KERNELS.step(model, State(q, qd, t), dt, name, rest_length=rest_length,
+                                force_density=force_density, external=_ext(external, q, qd, t), project=project,
+                                params=params)
+            q, qd = nxt.q, nxt.qd
+        else:   # rk4
+            def acc(q, qd, t):
+                return _KERNELS.accelerations(model, q, qd, rest_length, force_density, _ext(external, q, qd, t),
+                                              params)
+            h = 0.5 * dt
+            a1 = acc(q, qd, t)
+            q2, qd2 = q + h * qd, qd + h * a1
+            a2 = acc(q2, qd2, t + h)
+            q3, qd3 = q + h * qd2, qd + h * a2
+            a3 = acc(q3, qd3, t + h)
+            q4, qd4 = q + dt * qd3, qd + dt * a3
+            a4 = acc(q4, qd4, t + dt)
+            q = q + dt / 6.0 * (qd + 2.0 * qd2 + 2.0 * qd3 + qd4)
+            qd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+            if project:
+                q, qd = _KERNELS.project(model, q, qd)
         t = t + dt
     return State(q=q, qd=qd, t=t)
 

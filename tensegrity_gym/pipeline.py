@@ -70,7 +70,7 @@ def compiled_physics(integrator: str, backend: str = "auto") -> bool:
     if info.name not in integrators._EXPLICIT:
         return False
     try:
-        return integrators._use_numba(backend, info, None)
+        return integrators._use_numba(backend, info)
     except (RuntimeError, ValueError):
         return False
 

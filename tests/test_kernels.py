@@ -326,3 +326,58 @@ def test_accelerations_entry_parallel_params_and_shapes(monkeypatch):
         K.accelerations(model, st.q, st.qd, force_density=np.zeros((24, model.n_strings + 1)))
     with pytest.raises(ValueError, match="qd"):
         K.accelerations(model, st.q, st.qd[:, :2])
+
+
+@pytest.mark.parametrize("scene", SCENES)
+@pytest.mark.parametrize("B", [1, 5, 40])
+def test_project_entry_matches_numpy(scene, B, monkeypatch):
+    """``_kernels.project`` (the loop driver's ``_project``, no step) equals
+    ``dynamics.project`` to round-off on states off the constraint manifold (|b| != 1,
+    b . b' != 0, constrained points off their line/plane), serial, SIMD and parallel; a (k, 6)
+    state keeps its shape; the input arrays are not modified."""
+    model, st, _ = _scene(scene, B)
+    rng = np.random.default_rng(7)
+    q = st.q + 0.05 * rng.normal(size=st.q.shape)
+    qd = st.qd + rng.normal(size=st.qd.shape)
+    q0, qd0 = q.copy(), qd.copy()
+    ref = dyn.project(model, q, qd)
+    for min_work in (K.PARALLEL_MIN_WORK, 1):
+        monkeypatch.setattr(K, "PARALLEL_MIN_WORK", min_work)
+        out = K.project(model, q, qd)
+        assert np.abs(out[0] - ref[0]).max() <= 1e-14 and np.abs(out[1] - ref[1]).max() <= RTOL * np.abs(qd).max()
+    np.testing.assert_array_equal(q, q0)
+    np.testing.assert_array_equal(qd, qd0)
+    assert np.abs(np.linalg.norm(out[0][..., 3:], axis=-1) - 1).max() < 1e-15
+    assert np.abs(np.einsum("bki,bki->bk", out[0][..., 3:], out[1][..., 3:])).max() < 1e-13 * np.abs(qd).max()
+    assert np.abs(out[0] - q).max() > 1e-3                 # it did project
+    one = K.project(model, q[0], qd[0])
+    assert one[0].shape == (model.n_bars, 6)
+    np.testing.assert_array_equal(one[0], K.project(model, q[:1], qd[:1])[0][0])
+
+
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
+@pytest.mark.parametrize("scene", ["prism_damped_gravity", "constrained_prism"])
+def test_callable_external_runs_on_the_kernels(scene, integrator, monkeypatch):
+    """A callable ``external(q, qd, t)`` on the numba backend: Python calls it (once per step
+    for semi-implicit Euler, at each RK4 stage), the kernels do the physics. A callable
+    returning a constant array gives the array's result bit for bit; a state- and
+    time-dependent one agrees with the NumPy reference to round-off; the NumPy step loop is
+    not used (made to fail here)."""
+    model, st, ctl = _scene(scene, 3)
+    E = np.random.default_rng(3).normal(scale=2.0, size=(3, model.n_nodes, 3))
+    ctl = {k: v for k, v in ctl.items() if k != "external"}
+
+    def f(q, qd, t):
+        return E * np.sin(5.0 * t) - 0.5 * dyn.node_velocities(model, qd)
+
+    ref_const = integrators.step(model, st, DT, integrator, n_steps=60, external=E, **ctl)
+    ref = integrators.step(model, st, DT, integrator, n_steps=60, external=f, backend="numpy", **ctl)
+    monkeypatch.setattr(integrators, "_sphere_drift", None)      # the NumPy loop would fail
+    monkeypatch.setattr(dyn, "accelerations", None)
+    const = integrators.step(model, st, DT, integrator, n_steps=60, external=lambda q, qd, t: E, **ctl)
+    np.testing.assert_array_equal(const.q, ref_const.q)
+    np.testing.assert_array_equal(const.qd, ref_const.qd)
+    out = integrators.step(model, st, DT, integrator, n_steps=60, external=f, **ctl)
+    assert _rel_err(ref, out) < RTOL
+    assert out.t == pytest.approx(st.t + 60 * DT)
+    assert _rel_err(out, const) > 1e-6                  # the time- and state-dependence mattered
