@@ -4,7 +4,7 @@
 What it measures (wall clock, best of a few repeats, everything timed in the same run):
 
 * wall time per environment step and environment steps per second for the fixed-step
-  integrators (``semi_implicit_euler``, ``rk4``), numba and NumPy backends, on the free
+  integrators (``semi_implicit_euler``, ``rk4``), the numba kernels (NumPy: no longer a backend), on the free
   3-bar prism, the 6-bar icosahedron and a 30-stage prism tower (``tower(30)``), for
   B = 1, 64, 1024, 4096 copies, dt = 1 ms;
 * the same scenes in MuJoCo (PyPI ``mujoco``): each rod a free body with thin-rod inertia
@@ -110,17 +110,11 @@ def mujoco_slack_check(mujoco):
 def bench_ours(model, B, integ, backend, target, repeats, numpy_limit):
     st = perturbed_state(model, B, 0.05)
     if backend == "numpy":
-        if B * (model.n_strings + model.n_bars) > numpy_limit:
-            return None, "skipped (NumPy too slow at this size)"
-        state = [st]
+        return None, "not a backend since issue 12 (the NumPy path is the test oracle)"
+    q, qd = st.q.copy(), st.qd.copy()
 
-        def fn():
-            state[0] = integrators.step(model, state[0], DT, integ, backend="numpy")
-    else:
-        q, qd = st.q.copy(), st.qd.copy()
-
-        def fn():
-            _kernels.step_inplace(model, q, qd, DT, integ)
+    def fn():
+        _kernels.step_inplace(model, q, qd, DT, integ)
     t = timeit(fn, target, repeats)
     return (None, "skipped (one call > 2 s)") if t is None else (t / B, "")
 
@@ -166,13 +160,9 @@ def single_env_api(model, integ, target, repeats):
 
     def inplace():
         _kernels.step_inplace(model, q, qd, DT, integ)
-
-    def numpy_step():
-        holder[2] = integrators.step(model, holder[2], DT, integ, backend="numpy")
     return {"integrators.step (numba)": timeit(public, target, repeats),
             "_kernels.step": timeit(kstep, target, repeats),
-            "_kernels.step_inplace": timeit(inplace, target, repeats),
-            "integrators.step (numpy)": timeit(numpy_step, target, repeats)}
+            "_kernels.step_inplace": timeit(inplace, target, repeats)}
 
 
 def dop853_cost(model, sim_time):
@@ -293,8 +283,8 @@ def main(argv=None):
     results["info"]["kernel_load_or_compile_s"] = time.perf_counter() - t0
     print(f"\n(numba kernels compiled or loaded from the disk cache in {time.perf_counter() - t0:.1f} s)")
     print("\n## Wall time per environment step (us) and environment steps per second")
-    print("ours numba = _kernels.step_inplace (one call per step for the whole batch); ours numpy = "
-          "integrators.step(backend='numpy'); MuJoCo B = 1: mj_step; MuJoCo B > 1: mujoco.rollout "
+    print("ours numba = _kernels.step_inplace (one call per step for the whole batch); numpy: no longer a "
+          "backend (issue 12: the NumPy path is the test oracle; older tables measured it); MuJoCo B = 1: mj_step; MuJoCo B > 1: mujoco.rollout "
           f"({os.cpu_count()} threads, 4 steps per call) and a Python loop of mj_step over B MjData.")
     hdr = (f"{'scene':12s} {'integrator':20s} {'B':>5s} | {'numba us':>9s} {'numba /s':>11s} | {'numpy us':>9s} "
            f"{'numpy /s':>11s} | {'MuJoCo us':>9s} {'MuJoCo /s':>11s} | {'mj loop us':>10s} | {'ours/MuJoCo':>11s}")

@@ -7,7 +7,7 @@ For each prism tower (``builders.tower(q)``: 3 q rods, 6 q nodes, ~15 q strings)
   included; the issue's target: under 2 s for tower300) and of the in-process summary
   (:func:`tensegrity_gym.cli.structure_summary`: compile, accelerations, stable-step estimate);
 * us per step of ``integrators.step`` (semi-implicit Euler, dt = 1 ms, B = 1, ``n_steps`` steps
-  in one call so per-call overhead is amortised), numba and NumPy backends, best of 3;
+  in one call so per-call overhead is amortised), the numba kernels (the NumPy backend became the test oracle, issue 12), best of 3;
 * the per-step cost per rod (ns/rod), which stays flat when the cost is linear in the size;
 * the stable-step estimate's method (dense <= 20 rods, sparse above) and its seconds.
 
@@ -76,8 +76,8 @@ def _cli_info_s(name: str) -> tuple[float, float]:
 
 def scaling_table(stages) -> list[str]:
     rows = ["| structure | rods | strings | nodes | `info` CLI wall (s) | `info` CLI CPU (s) | summary CPU (s) "
-            "| estimate | us/step numba | us/step numpy | ns/step/rod numba | ns/step/rod numpy |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+            "| estimate | us/step numba | ns/step/rod numba |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(rows), flush=True)
     for q in stages:
         s = builders.tower(q)
@@ -89,11 +89,10 @@ def scaling_table(stages) -> list[str]:
         model = dyn.compile_model(s)
         method = dyn.stable_step_estimate(model)["method"]
         us_nb = _per_step_us(model, "numba")
-        us_np = _per_step_us(model, "numpy")
         k = s.n_bars
         rows.append(f"| {name} | {k} | {s.n_strings} | {s.n_nodes} | {cli_wall:.2f} | {cli_cpu:.2f} | {summ:.3f} "
                     f"| {method} | "
-                    f"{us_nb:.2f} | {us_np:.1f} | {1e3 * us_nb / k:.1f} | {1e3 * us_np / k:.1f} |")
+                    f"{us_nb:.2f} | {1e3 * us_nb / k:.1f} |")
         print(rows[-1], flush=True)
     return rows
 

@@ -21,8 +21,8 @@ import sys
 import numpy as np
 
 SCENES = ("prism3", "prism4", "pinned_rod", "constrained_prism", "icosahedron", "tower3")
-RUNS = (("semi_implicit_euler", "numba", 200), ("rk4", "numba", 200), ("semi_implicit_euler", "numpy", 20),
-        ("rk4", "numpy", 20), ("dop853", "auto", 20), ("implicit_euler", "auto", 20))
+RUNS = (("semi_implicit_euler", "numba", 200), ("rk4", "numba", 200), ("dop853", "auto", 20),
+        ("implicit_euler", "auto", 20))   # (the "numpy" runs went with the NumPy backend, issue 12)
 
 
 def _rollout(env, rng, steps: int = 100):

@@ -5,7 +5,7 @@ Scene: the 3-bar prism (``builders.prism(3)``, string damping 5 N s/m, no gravit
 from its prestressed equilibrium. A hidden set of rest lengths (the vertical strings
 shortened, the top ones lengthened by a few percent) gives the *target shape*: the node
 positions after 1 s of semi-implicit Euler (dt = 2 ms), computed with the NumPy reference path
-(:func:`tensegrity_gym.integrators.step`, ``backend="numpy"``). Starting from the nominal rest
+(:func:`tensegrity_gym.integrators.step`, the numba kernels). Starting from the nominal rest
 lengths, Adam adjusts the rest lengths of all 9 strings (held over the rollout) to minimise the
 mean squared node distance to the target after the same 1 s, with the gradient computed by
 autograd through all 500 steps of :func:`tensegrity_gym.torch_backend.step` (float64, CPU or
@@ -13,7 +13,7 @@ autograd through all 500 steps of :func:`tensegrity_gym.torch_backend.step` (flo
 ``torch_backend`` module doc for what the gradient is at a slack switch).
 
 Prints the shape error (RMS node distance, m) before and after the fit, checked again with the
-NumPy path, and how far the fitted rest lengths are from the hidden ones.
+numba kernels (the NumPy path until issue 12), and how far the fitted rest lengths are from the hidden ones.
 
 Usage::
 
@@ -53,11 +53,11 @@ def main(argv=None):
     hidden = l0 * (1.0 + change)
 
     def shape_error_numpy(rest):
-        out = integrators.step(model, st, DT, "semi_implicit_euler", n_steps=n, backend="numpy", rest_length=rest)
+        out = integrators.step(model, st, DT, "semi_implicit_euler", n_steps=n, rest_length=rest)
         N = dyn.node_positions(model, out.q)[0]
         return float(np.sqrt(np.mean(np.sum((N - target) ** 2, axis=-1))))
 
-    ref = integrators.step(model, st, DT, "semi_implicit_euler", n_steps=n, backend="numpy", rest_length=hidden)
+    ref = integrators.step(model, st, DT, "semi_implicit_euler", n_steps=n, rest_length=hidden)
     target = dyn.node_positions(model, ref.q)[0]
     tm = tb.torch_model(model, dev, torch.float64)
     prm = tb.torch_params(tm, None, 1)
@@ -82,7 +82,7 @@ def main(argv=None):
                   f"({time.perf_counter() - t0:.1f} s)", flush=True)
     fitted = rest.detach().cpu().numpy()
     after = shape_error_numpy(fitted)
-    print(f"after {args.iters} iterations: RMS node error {after:.3e} m (checked with the NumPy path); "
+    print(f"after {args.iters} iterations: RMS node error {after:.3e} m (checked with the numba kernels); "
           f"{before / max(after, 1e-300):.0f}x smaller")
     print(f"rest lengths: largest distance from the hidden ones {np.abs(fitted - hidden).max():.2e} m "
           f"(was {np.abs(l0 - hidden).max():.2e} m)")

@@ -1,9 +1,11 @@
 """Compiled (numba) kernels for the fixed-step integrators of :mod:`tensegrity_gym.integrators`.
 
-This module reproduces, operation for operation, :func:`tensegrity_gym.dynamics.accelerations`
-followed by the semi-implicit Euler or classic RK4 step of :func:`tensegrity_gym.integrators.step`
-and :func:`tensegrity_gym.dynamics.project` (the NumPy code stays the reference; the two agree
-to round-off, checked in ``tests/test_kernels.py``). It never imports gymnasium. SI units
+This module is the one implementation of the rod accelerations ((5.37)/(5.40) and the reduced
+form (5.49)-(5.51)), the semi-implicit Euler and classic RK4 steps and the projection onto the
+constraints that :func:`tensegrity_gym.integrators.step`, :func:`tensegrity_gym.dynamics.project`
+and every env run. It reproduces, operation for operation, the vectorised NumPy formulation kept
+as the test oracle ``tests/oracle_numpy.py`` (the two agree to round-off, checked in
+``tests/test_kernels.py``). It never imports gymnasium. SI units
 throughout (m, kg, s, N).
 
 Why numba: one NumPy call costs about 1 us, and a NumPy step of even the 3-bar prism chains
@@ -40,7 +42,7 @@ string force densities, result clipped at 0), ``external`` (n, 3) or (B, n, 3) n
 in N held constant over the step(s). ``project``: normalise ``b``, remove the component of
 ``b'`` along ``b`` and put constrained reference points back on their point/line/plane after
 every step (exactly :func:`tensegrity_gym.dynamics.project`); semi-implicit Euler then moves
-``b`` along its great circle (``_drift_rod``, exactly ``integrators._sphere_drift``). ``n_steps``: steps taken in
+``b`` along its great circle (``_drift_rod``; NumPy reference ``tests/oracle_numpy.sphere_drift``). ``n_steps``: steps taken in
 one call (all inside the compiled loop).
 
 Implementation notes
@@ -243,7 +245,7 @@ if AVAILABLE:
 
     @njit(inline="always", **_opts)
     def _drift_rod(q0, q1, q2, b0, b1, b2, v0, v1, v2, d0, d1, d2, dt):
-        """Semi-implicit Euler drift with projection for one rod (integrators._sphere_drift, same
+        """Semi-implicit Euler drift with projection for one rod (oracle_numpy.sphere_drift, same
         operations in the same order): r += dt r'; b along its great circle. Returns the new
         (r, b, b') as a 9-tuple (r' is unchanged)."""
         q0 = q0 + dt * v0
@@ -965,7 +967,7 @@ def _parallel(p, B, n_steps, flags, compile_kernel=True):
 
 def _packed(model):
     if not AVAILABLE:
-        raise RuntimeError("tensegrity_gym._kernels: numba is not installed; use backend='numpy'")
+        raise RuntimeError("tensegrity_gym._kernels: numba is not installed (a required dependency: pip install numba)")
     if not _READY["serial"]:
         _compile("serial")
     return _pack(model)

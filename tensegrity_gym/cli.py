@@ -345,7 +345,7 @@ def cmd_simulate(args) -> int:
             continue
         flag = "--" + name.replace("_", "-")
         if args.backend == "torch":
-            raise CLIError(EXIT_USAGE, f"{flag}: command schedules run with --backend auto, numba or numpy")
+            raise CLIError(EXIT_USAGE, f"{flag}: command schedules run with --backend auto or numba")
         try:
             sched = load_schedule(path, name, model.n_strings)
             sched.rows(np.zeros(1), args.dt)       # the first command must be at the start (t = 0 s)
@@ -419,7 +419,8 @@ def structure_summary(s, stable_step: bool = True) -> dict:
     L = s.string_lengths
     tension = s.initial_tensions()
     slack = np.flatnonzero(L <= s.rest_length)
-    acc = dyn.accelerations(model, dyn.initial_state(model).q, dyn.initial_state(model).qd)
+    st0 = dyn.initial_state(model)
+    acc = dyn.accelerations(model, st0.q, st0.qd)
     est = dyn.stable_step_estimate(model) if stable_step else \
         {"omega_max": None, "semi_implicit_euler": None, "rk4": None}
     span = lambda x: [float(np.min(x)), float(np.max(x))] if len(x) else None
@@ -709,8 +710,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     sp.add_argument("--force", action="store_true", help="overwrite an existing output")
     sp.add_argument("--record-every", type=_positive(int), default=1, help="keep every K-th step")
     sp.add_argument("--no-project", action="store_true", help="do not project onto the rod constraints")
-    sp.add_argument("--backend", default="auto", choices=["auto", "numpy", "numba", "torch"],
-                    help="compiled kernels (numba), the NumPy reference, or torch (optional extra) on --device")
+    sp.add_argument("--backend", default="auto", choices=["auto", "numba", "torch"],
+                    help="the compiled numba kernels (auto = numba), or torch (optional extra) on --device")
     sp.add_argument("--device", default="cpu", help="torch device for --backend torch (cpu, cuda)")
     sp.add_argument("--rtol", type=_positive(float), default=1e-10, help="adaptive methods only")
     sp.add_argument("--atol", type=_positive(float), default=1e-12, help="adaptive methods only")

@@ -106,11 +106,9 @@ __all__ = ["GroundContact", "ContactState", "init_contact_state", "contact_force
            "contact_energy",
            "stable_step", "step", "contact_nodes"]
 
-try:  # optional compiled kernel
-    from numba import njit
-    _NUMBA = True
-except Exception:  # pragma: no cover
-    _NUMBA = False
+from numba import njit   # a required dependency: the contact forces exist only as this kernel
+
+from .integrators import NUMPY_REMOVED
 
 
 @dataclass(frozen=True)
@@ -131,7 +129,7 @@ class GroundContact:
         An explicit step is unstable once ``c dt / m_eff > 2``; in a fast impact the
         Hunt-Crossley coefficient grows with the penetration, so envs cap it at
         ``m_eff / dt`` (TensegrityRoll-v0: 50 N s/m for 0.2 kg rods at 1 ms).
-    backend : "auto" (numba when installed), "numpy" or "numba".
+    backend : "auto" or "numba" (the same: the contact forces are a numba kernel).
     """
 
     stiffness: float = 1e4
@@ -166,10 +164,10 @@ class GroundContact:
         if not math.isfinite(h):
             raise ValueError(f"height: must be finite (m), got {self.height!r}")
         s(self, "height", h)
-        if self.backend not in ("auto", "numpy", "numba"):
-            raise ValueError(f"backend: unknown {self.backend!r}; choose 'auto', 'numpy' or 'numba'")
-        if self.backend == "numba" and not _NUMBA:
-            raise RuntimeError("backend='numba' requested but numba is not installed")
+        if self.backend == "numpy":
+            raise ValueError(f"backend: {NUMPY_REMOVED}")
+        if self.backend not in ("auto", "numba"):
+            raise ValueError(f"backend: unknown {self.backend!r}; choose 'auto' or 'numba'")
         try:
             cmax = float(self.max_damping)
         except (TypeError, ValueError):
@@ -181,7 +179,6 @@ class GroundContact:
                          self.tangential_stiffness, self.tangential_damping, cmax]], float)   # (1, 9): see PRM_FIELDS
         prm.setflags(write=False)
         s(self, "_prm", prm)
-        s(self, "_numba", self.backend == "numba" or (self.backend == "auto" and _NUMBA))
 
     def replace(self, **kw) -> "GroundContact":
         return replace(self, **kw)
@@ -191,10 +188,6 @@ class GroundContact:
         contact's values: pass it as ``prm`` to :func:`contact_forces` / :func:`forces_inplace`
         after changing rows with :func:`set_copy_values` (each copy its own friction, stiffness...)."""
         return np.repeat(self._prm, int(batch_size), axis=0)
-
-    @property
-    def use_numba(self) -> bool:
-        return self.backend == "numba" or (self.backend == "auto" and _NUMBA)
 
 
 #: columns of the (P, 9) contact parameter array (the kernels' ``prm``): SI units as in GroundContact
@@ -247,111 +240,73 @@ def init_contact_state(model: dyn.Model, batch_size: int = 1) -> ContactState:
     return ContactState(np.zeros((batch_size, nc, 2)), np.zeros((batch_size, nc), bool))
 
 
-# ---------------------------------------------------------------------- NumPy reference
-def _forces_numpy(c: GroundContact, model, q, qd, anchor, active, prm=None):
-    B = q.shape[0]
-    # parameters: (1, 1) or (B, 1) columns of the per-copy array (the contact's own values by default)
-    P = c._prm if prm is None else prm
-    height, radius, kn, dn, _, mu, kt, ct, cmax = (P[:, i:i + 1] for i in range(9))
-    k = model.n_bars
-    r, b = q[..., :3], q[..., 3:]
-    rd, bd = qd[..., :3], qd[..., 3:]
-    eta = model.eta  # (k, 2)
-    # contact positions / velocities (B, k, 2, 3) -> (B, 2k, 3), order rod j end a, end c
-    Pc = (r[:, :, None, :] + eta[None, :, :, None] * b[:, :, None, :]).reshape(B, 2 * k, 3)
-    V = (rd[:, :, None, :] + eta[None, :, :, None] * bd[:, :, None, :]).reshape(B, 2 * k, 3)
-    delta = height + radius - Pc[..., 2]
-    touch = delta > 0.0
-    dpos = np.where(touch, delta, 0.0)
-    de = dpos if c.exponent == 1.0 else dpos ** c.exponent
-    kd = kn * de
-    cn = np.minimum(kd * dn, cmax)
-    Fn = np.where(touch, np.maximum(kd - cn * V[..., 2], 0.0), 0.0)
-    pt = Pc[..., :2]
-    anchor = np.where((touch & ~active)[..., None], pt, anchor)
-    xi = pt - anchor
-    Ft = -kt[..., None] * xi - ct[..., None] * V[..., :2]
-    norm = np.sqrt(np.einsum("bci,bci->bc", Ft, Ft))
-    lim = mu * Fn
-    slip = touch & (norm > lim)
-    scale = np.where(slip, lim / np.where(slip, norm, 1.0), 1.0)
-    Ft = Ft * scale[..., None]
-    anchor = np.where(slip[..., None], pt + Ft / kt[..., None], anchor)
-    Ft = np.where(touch[..., None], Ft, 0.0)
-    Fc = np.concatenate([Ft, Fn[..., None]], axis=-1)  # (B, 2k, 3)
-    W = np.zeros((B, model.n_nodes, 3))
-    W[:, model.rod_a] = Fc[:, 0::2]
-    W[:, model.rod_c] = Fc[:, 1::2]
-    return W, anchor, touch, slip
+@njit(inline="always", cache=True, nogil=True)
+def _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, lo, hi):
+    """The contact forces (the one implementation; its NumPy reference is the test oracle
+    ``tests/oracle_numpy.contact_forces``) of copies
+    ``lo`` ... ``hi - 1`` into ``W``, their anchors, active and slip flags updated in place;
+    ``prm`` (1, 9) shared or (B, 9) one row per copy. Inlined into :func:`_forces_kernel`
+    (the whole batch) and into the pipeline's compiled contact loop (a chunk of it)."""
+    k = q.shape[1]
+    per_copy = prm.shape[0] > 1
+    for e in range(lo, hi):
+        pe = e if per_copy else 0      # prm (1, 9) shared or (B, 9) one row per copy
+        height, radius, kn, dn, ex, mu = prm[pe, 0], prm[pe, 1], prm[pe, 2], prm[pe, 3], prm[pe, 4], prm[pe, 5]
+        kt, ct, cmax = prm[pe, 6], prm[pe, 7], prm[pe, 8]
+        for p in range(W.shape[1]):
+            W[e, p, 0] = 0.0
+            W[e, p, 1] = 0.0
+            W[e, p, 2] = 0.0
+        for j in range(k):
+            for end in range(2):
+                ci = 2 * j + end
+                h = eta[j, end]
+                node = rod_a[j] if end == 0 else rod_c[j]
+                px = q[e, j, 0] + h * q[e, j, 3]
+                py = q[e, j, 1] + h * q[e, j, 4]
+                pz = q[e, j, 2] + h * q[e, j, 5]
+                delta = height + radius - pz
+                if not (delta > 0.0):
+                    active[e, ci] = False
+                    slip[e, ci] = False
+                    continue
+                vx = qd[e, j, 0] + h * qd[e, j, 3]
+                vy = qd[e, j, 1] + h * qd[e, j, 4]
+                vz = qd[e, j, 2] + h * qd[e, j, 5]
+                de = delta if ex == 1.0 else delta ** ex
+                fs = kn * de
+                cn = fs * dn
+                if cn > cmax:
+                    cn = cmax
+                fn = fs - cn * vz
+                if fn < 0.0:
+                    fn = 0.0
+                if not active[e, ci]:
+                    anchor[e, ci, 0] = px
+                    anchor[e, ci, 1] = py
+                fx = -kt * (px - anchor[e, ci, 0]) - ct * vx
+                fy = -kt * (py - anchor[e, ci, 1]) - ct * vy
+                nrm = math.sqrt(fx * fx + fy * fy)
+                lim = mu * fn
+                if nrm > lim:
+                    s = lim / nrm
+                    fx *= s
+                    fy *= s
+                    anchor[e, ci, 0] = px + fx / kt
+                    anchor[e, ci, 1] = py + fy / kt
+                    slip[e, ci] = True
+                else:
+                    slip[e, ci] = False
+                active[e, ci] = True
+                W[e, node, 0] += fx
+                W[e, node, 1] += fy
+                W[e, node, 2] += fn
 
 
-if _NUMBA:
-    @njit(inline="always", cache=True, nogil=True)
-    def _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, lo, hi):
-        """The contact forces (the one numba implementation of :func:`_forces_numpy`) of copies
-        ``lo`` ... ``hi - 1`` into ``W``, their anchors, active and slip flags updated in place;
-        ``prm`` (1, 9) shared or (B, 9) one row per copy. Inlined into :func:`_forces_kernel`
-        (the whole batch) and into the pipeline's compiled contact loop (a chunk of it)."""
-        k = q.shape[1]
-        per_copy = prm.shape[0] > 1
-        for e in range(lo, hi):
-            pe = e if per_copy else 0      # prm (1, 9) shared or (B, 9) one row per copy
-            height, radius, kn, dn, ex, mu = prm[pe, 0], prm[pe, 1], prm[pe, 2], prm[pe, 3], prm[pe, 4], prm[pe, 5]
-            kt, ct, cmax = prm[pe, 6], prm[pe, 7], prm[pe, 8]
-            for p in range(W.shape[1]):
-                W[e, p, 0] = 0.0
-                W[e, p, 1] = 0.0
-                W[e, p, 2] = 0.0
-            for j in range(k):
-                for end in range(2):
-                    ci = 2 * j + end
-                    h = eta[j, end]
-                    node = rod_a[j] if end == 0 else rod_c[j]
-                    px = q[e, j, 0] + h * q[e, j, 3]
-                    py = q[e, j, 1] + h * q[e, j, 4]
-                    pz = q[e, j, 2] + h * q[e, j, 5]
-                    delta = height + radius - pz
-                    if not (delta > 0.0):
-                        active[e, ci] = False
-                        slip[e, ci] = False
-                        continue
-                    vx = qd[e, j, 0] + h * qd[e, j, 3]
-                    vy = qd[e, j, 1] + h * qd[e, j, 4]
-                    vz = qd[e, j, 2] + h * qd[e, j, 5]
-                    de = delta if ex == 1.0 else delta ** ex
-                    fs = kn * de
-                    cn = fs * dn
-                    if cn > cmax:
-                        cn = cmax
-                    fn = fs - cn * vz
-                    if fn < 0.0:
-                        fn = 0.0
-                    if not active[e, ci]:
-                        anchor[e, ci, 0] = px
-                        anchor[e, ci, 1] = py
-                    fx = -kt * (px - anchor[e, ci, 0]) - ct * vx
-                    fy = -kt * (py - anchor[e, ci, 1]) - ct * vy
-                    nrm = math.sqrt(fx * fx + fy * fy)
-                    lim = mu * fn
-                    if nrm > lim:
-                        s = lim / nrm
-                        fx *= s
-                        fy *= s
-                        anchor[e, ci, 0] = px + fx / kt
-                        anchor[e, ci, 1] = py + fy / kt
-                        slip[e, ci] = True
-                    else:
-                        slip[e, ci] = False
-                    active[e, ci] = True
-                    W[e, node, 0] += fx
-                    W[e, node, 1] += fy
-                    W[e, node, 2] += fn
-
-
-    @njit(cache=True, nogil=True)
-    def _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm):
-        """:func:`_forces_range` on the whole batch."""
-        _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, 0, q.shape[0])
+@njit(cache=True, nogil=True)
+def _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm):
+    """:func:`_forces_range` on the whole batch."""
+    _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, 0, q.shape[0])
 
 
 def contact_forces(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: np.ndarray,
@@ -370,29 +325,18 @@ def contact_forces(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: 
     if cstate.anchor.shape != (B, nc, 2) or cstate.active.shape != (B, nc):
         raise ValueError(f"contact state: expected anchor ({B}, {nc}, 2) and active ({B}, {nc}), got "
                          f"{cstate.anchor.shape} and {cstate.active.shape}")
-    if contact.use_numba:
-        anchor = cstate.anchor if inplace else cstate.anchor.copy()
-        active = cstate.active if inplace else cstate.active.copy()
-        W = out if out is not None else np.empty((B, model.n_nodes, 3))
-        slip = np.empty((B, nc), bool)
-        qc = np.ascontiguousarray(q, dtype=np.float64)
-        qdc = np.ascontiguousarray(qd, dtype=np.float64)
-        if not _forces_kernel.signatures:       # first call: one line on stderr if numba compiles
-            from ._compile_notice import compile_with_notice
-            compile_with_notice(((_forces_kernel, None),), "ground-contact kernel")
-        _forces_kernel(qc, qdc, model.eta, model.rod_a, model.rod_c, anchor, active, W, slip,
-                       contact._prm if prm is None else _prm_rows(contact, prm, B))
-        return W, (cstate if inplace else ContactState(anchor, active)), slip
-    W, anchor, active, slip = _forces_numpy(contact, model, q, qd, cstate.anchor, cstate.active,
-                                            None if prm is None else _prm_rows(contact, prm, B))
-    if inplace:
-        cstate.anchor[...] = anchor
-        cstate.active[...] = active
-        if out is not None:
-            out[...] = W
-            W = out
-        return W, cstate, slip
-    return W, ContactState(anchor, active), slip
+    anchor = cstate.anchor if inplace else cstate.anchor.copy()
+    active = cstate.active if inplace else cstate.active.copy()
+    W = out if out is not None else np.empty((B, model.n_nodes, 3))
+    slip = np.empty((B, nc), bool)
+    qc = np.ascontiguousarray(q, dtype=np.float64)
+    qdc = np.ascontiguousarray(qd, dtype=np.float64)
+    if not _forces_kernel.signatures:       # first call: one line on stderr if numba compiles
+        from ._compile_notice import compile_with_notice
+        compile_with_notice(((_forces_kernel, None),), "ground-contact kernel")
+    _forces_kernel(qc, qdc, model.eta, model.rod_a, model.rod_c, anchor, active, W, slip,
+                   contact._prm if prm is None else _prm_rows(contact, prm, B))
+    return W, (cstate if inplace else ContactState(anchor, active)), slip
 
 
 def _prm_rows(contact, prm, B):
@@ -413,14 +357,7 @@ def forces_inplace(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: 
     ``prm``: (B, 9) C-contiguous float64 per-copy parameters (:meth:`GroundContact.per_copy`) or
     None (the contact's own)."""
     prm = contact._prm if prm is None else prm
-    if contact._numba:
-        _forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, cstate.anchor, cstate.active, W, slip, prm)
-        return
-    Wn, anchor, active, sl = _forces_numpy(contact, model, q, qd, cstate.anchor, cstate.active, prm)
-    W[...] = Wn
-    cstate.anchor[...] = anchor
-    cstate.active[...] = active
-    slip[...] = sl
+    _forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, cstate.anchor, cstate.active, W, slip, prm)
 
 
 def contact_energy(contact: GroundContact, model: dyn.Model, q: np.ndarray, cstate: ContactState) -> np.ndarray:

@@ -322,33 +322,6 @@ def nodal_forces(model: Model, q, qd, rest_length=None, force_density=None, exte
     return F, gamma
 
 
-def _rod_accelerations(model: Model, q, qd, F, params=None):
-    b, bd = q[..., 3:], qd[..., 3:]
-    Fa, Fc = F[:, model.rod_a], F[:, model.rod_c]
-    fr = Fa + Fc
-    fb = model.eta[None, :, 0, None] * Fa + model.eta[None, :, 1, None] * Fc
-    bb = np.einsum("bki,bki->bk", b, b)[..., None]
-    w = np.einsum("bki,bki->bk", bd, bd)[..., None] / bb
-    Pfb = fb - b * np.einsum("bki,bki->bk", b, fb)[..., None] / bb
-    p = model if params is None else params
-    f = p.f[..., None]
-    J = p.J[..., None]
-    m = p.mass[..., None]
-    h = fr - (f / J) * Pfb + f * w * b
-    # A h with A = (Pi - beta u u^T/(alpha + beta |u|^2)) / alpha, u = Pi b / |b|
-    alpha = m - f * f / J
-    beta = f * f / J
-    Pi = model.proj
-    u = np.einsum("kij,bkj->bki", Pi, b) / np.sqrt(bb)
-    Pih = np.einsum("kij,bkj->bki", Pi, h)
-    uu = np.einsum("bki,bki->bk", u, u)[..., None]
-    uh = np.einsum("bki,bki->bk", u, h)[..., None]
-    rdd = (Pih - beta * u * uh / (alpha + beta * uu)) / alpha
-    Prdd = rdd - b * np.einsum("bki,bki->bk", b, rdd)[..., None] / bb
-    bdd = Pfb / J - (f / J) * Prdd - w * b
-    return np.concatenate([rdd, bdd], axis=-1)
-
-
 def accelerations(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
                   external=None, params=None) -> np.ndarray:
     """Second derivatives (B, k, 6) ``[r'', b'']`` of the configuration (m/s^2, 1/s^2).
@@ -358,23 +331,22 @@ def accelerations(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None,
     ``external``: (B, n, 3) or (n, 3) external nodal forces, N (gravity is added
     by the model itself when the structure has it).
     ``params``: a :class:`~tensegrity_gym.params.Params` with 1 or B rows: copy b's masses,
-    stiffnesses, damping, rest lengths, node drag, gravity and anchors (default: the model's)."""
-    F, _ = nodal_forces(model, q, qd, rest_length, force_density, external, params)
-    return _rod_accelerations(model, q, qd, F, params)
+    stiffnesses, damping, rest lengths, node drag, gravity and anchors (default: the model's).
+    Computed by the numba kernels (:func:`tensegrity_gym.integrators.accelerations`: the
+    equations every step runs); the NumPy reference is the test oracle ``tests/oracle_numpy.py``."""
+    from .integrators import accelerations as kernel_accelerations
+    return kernel_accelerations(model, q, qd, rest_length, force_density, external, params)
 
 
 def project(model: Model, q: np.ndarray, qd: np.ndarray):
     """Project onto the constraint manifold: ``|b| = 1``, ``b . b' = 0``, the constrained
     nodes back on their line/plane/point (and their velocity tangent to it).
-    Returns new ``(q, qd)``; free rods' reference points are untouched."""
-    r, b = q[..., :3], q[..., 3:]
-    rd, bd = qd[..., :3], qd[..., 3:]
-    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    bd = bd - b * np.einsum("bki,bki->bk", b, bd)[..., None]
-    if model.constrained.any():
-        r = model.offset + np.einsum("kij,bkj->bki", model.proj, r)
-        rd = np.einsum("kij,bkj->bki", model.proj, rd)
-    return np.concatenate([r, b], axis=-1), np.concatenate([rd, bd], axis=-1)
+    ``q``, ``qd`` (B, k, 6) or (k, 6); returns new ``(q, qd)`` of the same shape; free rods'
+    reference points are untouched. Computed by the numba kernels' own projection (the one
+    every fixed step ends with: :func:`tensegrity_gym._kernels.project`); its NumPy reference
+    is the test oracle ``tests/oracle_numpy.py``."""
+    from . import _kernels
+    return _kernels.project(model, q, qd)
 
 
 # ---------------------------------------------------------------------- diagnostics

@@ -9,7 +9,7 @@ name                     order  notes
 =======================  =====  ========================================================
 ``semi_implicit_euler``  1      symplectic Euler: v += dt a(q, v); q += dt v. With
                                 ``project=True`` each rod direction moves along its great
-                                circle instead of ``b += dt b'`` (:func:`_sphere_drift`), so
+                                circle instead of ``b += dt b'`` (``_kernels._drift_rod``), so
                                 energy stays bounded and angular momentum is kept (no
                                 secular drift, spinning bodies included) without damping.
 ``rk4``                  4      classic Runge-Kutta.
@@ -47,10 +47,12 @@ project inside ``solve_ivp``; their drift is set by their tolerances.
 
 Backends
 --------
-``backend="numba"`` runs fused compiled kernels (:mod:`tensegrity_gym._kernels`) for the
-fixed-step methods (with a callable ``external``, Python calls it and the kernels do the
-physics: :func:`_callable_step`); ``"numpy"`` runs the reference NumPy path; ``"auto"``
-(default) picks numba when it is installed and applicable.
+The fixed-step methods run fused compiled kernels (:mod:`tensegrity_gym._kernels`; with a
+callable ``external``, Python calls it and the kernels do the physics: :func:`_callable_step`);
+the adaptive and implicit methods evaluate the same kernels' accelerations. ``backend`` is
+"auto" (default) or "numba" (the same), or "torch" in :func:`step` / :func:`simulate`
+(:mod:`tensegrity_gym.torch_backend`). The NumPy formulation the kernels were transcribed from
+is the test oracle ``tests/oracle_numpy.py`` (not installed), no longer a backend.
 """
 from __future__ import annotations
 
@@ -278,33 +280,35 @@ def accelerations(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None,
     """Accelerations ``[r'', b'']`` (B, k, 6) (m/s^2, 1/s^2) of the states ``q``, ``qd`` (B, k, 6)
     (or (k, 6)), inputs as :func:`step` takes them (``external`` an array). What the adaptive and
     implicit methods and the finite-difference Jacobians evaluate: the numba kernels' equations
-    (:func:`tensegrity_gym._kernels.accelerations`, the ones every fixed step runs) with
-    ``backend`` "auto" (numba installed) or "numba", else the NumPy reference
-    :func:`tensegrity_gym.dynamics.accelerations` (``backend="numpy"``); the two agree to round-off."""
-    if _numba_backend(backend):
-        return _KERNELS.accelerations(model, q, qd, rest_length, force_density, external, params)
-    return dyn.accelerations(model, q, qd, rest_length, force_density, external, params)
+    (:func:`tensegrity_gym._kernels.accelerations`, the ones every fixed step runs; their NumPy
+    reference is the test oracle ``tests/oracle_numpy.py``). ``backend``: "auto" or "numba"."""
+    _numba_backend(backend)
+    return _KERNELS.accelerations(model, q, qd, rest_length, force_density, external, params)
 
 
 def _use_numba(backend: str, info: IntegratorInfo) -> bool:
     """Whether :func:`step` runs the numba kernels (the fixed-step explicit methods)."""
-    if backend == "numpy" or info.adaptive:
-        return False
-    return _numba_backend(backend)
+    return not info.adaptive and _numba_backend(backend)
+
+
+#: what ``backend="numpy"`` says since the NumPy step path became the test oracle (issue 12)
+NUMPY_REMOVED = ("'numpy' is no longer a backend: every fixed step, projection, acceleration and contact "
+                 "force runs on the numba kernels (the NumPy reference equations are the test oracle "
+                 "tests/oracle_numpy.py of the repository); choose 'auto' or 'numba'")
 
 
 def _numba_backend(backend: str) -> bool:
-    """Whether ``backend`` ("auto", "numpy" or "numba") means the numba kernels; RuntimeError for
-    "numba" without numba, ValueError for another name."""
+    """True when ``backend`` ("auto" or "numba") can run (the numba kernels); RuntimeError when
+    numba cannot be imported, ValueError naming ``backend`` for another name ("numpy": no longer a
+    backend, :data:`NUMPY_REMOVED`)."""
     if backend == "numpy":
-        return False
-    if backend == "numba":
-        if not _numba_available():
-            raise RuntimeError("backend='numba' requested but numba is not installed")
-        return True
-    if backend != "auto":
-        raise ValueError(f"backend: unknown {backend!r}; choose 'auto', 'numpy' or 'numba'")
-    return _numba_available()
+        raise ValueError(f"backend: {NUMPY_REMOVED}")
+    if backend not in ("auto", "numba"):
+        raise ValueError(f"backend: unknown {backend!r}; choose 'auto' or 'numba'")
+    if not _numba_available():
+        raise RuntimeError("the numba kernels could not be imported (numba is a required dependency of "
+                           "tensegrity_gym: pip install numba)")
+    return True
 
 
 _LIMIT_CACHE: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
@@ -421,7 +425,7 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     external : (B, n, 3) nodal forces in N held over the step, or a callable
         ``external(q, qd, t) -> (B, n, 3)`` evaluated at every stage.
     project : project onto the constraints after each fixed step (see module doc).
-    backend : "auto", "numpy", "numba" or "torch" (:mod:`tensegrity_gym.torch_backend`, fixed-step
+    backend : "auto", "numba" (the same) or "torch" (:mod:`tensegrity_gym.torch_backend`, fixed-step
         methods, array ``external`` only; ``device`` / ``dtype``: torch device and float32/float64).
     rtol, atol : tolerances of the adaptive methods.
     params : :class:`~tensegrity_gym.params.Params` with 1 row (shared) or B rows (copy b steps
@@ -461,39 +465,13 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
         return implicit.step(model, state, dt, info.name, rest_length=rest_length,
                              force_density=force_density, external=external, project=project,
                              n_steps=n_steps, params=params, backend=backend)
-    if _use_numba(backend, info):
-        if callable(external):
-            return _callable_step(model, state, dt, info.name, rest_length, force_density, external, project,
-                                  n_steps, params)
-        return _KERNELS.step(model, state, dt, info.name, rest_length=rest_length,
-                             force_density=force_density, external=external, project=project,
-                             n_steps=n_steps, params=params)
-    q, qd, t = state.q, state.qd, state.t
-    def acc(model, q, qd, rest_length, force_density, ext):
-        return dyn.accelerations(model, q, qd, rest_length, force_density, ext, params)
-
-    for _ in range(n_steps):
-        if info.name == "semi_implicit_euler":
-            qd = qd + dt * acc(model, q, qd, rest_length, force_density, _ext(external, q, qd, t))
-            if project:
-                q, qd = _sphere_drift(q, qd, dt)
-            else:
-                q = q + dt * qd
-        else:  # rk4
-            h = 0.5 * dt
-            a1 = acc(model, q, qd, rest_length, force_density, _ext(external, q, qd, t))
-            q2, qd2 = q + h * qd, qd + h * a1
-            a2 = acc(model, q2, qd2, rest_length, force_density, _ext(external, q2, qd2, t + h))
-            q3, qd3 = q + h * qd2, qd + h * a2
-            a3 = acc(model, q3, qd3, rest_length, force_density, _ext(external, q3, qd3, t + h))
-            q4, qd4 = q + dt * qd3, qd + dt * a3
-            a4 = acc(model, q4, qd4, rest_length, force_density, _ext(external, q4, qd4, t + dt))
-            q = q + dt / 6.0 * (qd + 2.0 * qd2 + 2.0 * qd3 + qd4)
-            qd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-        if project:
-            q, qd = dyn.project(model, q, qd)
-        t = t + dt
-    return State(q=q, qd=qd, t=t)
+    _numba_backend(backend)
+    if callable(external):
+        return _callable_step(model, state, dt, info.name, rest_length, force_density, external, project,
+                              n_steps, params)
+    return _KERNELS.step(model, state, dt, info.name, rest_length=rest_length,
+                         force_density=force_density, external=external, project=project,
+                         n_steps=n_steps, params=params)
 
 
 def _callable_step(model, state, dt, name, rest_length, force_density, external, project, n_steps, params):
@@ -511,53 +489,29 @@ def _callable_step(model, state, dt, name, rest_length, force_density, external,
                                 params=params)
             q, qd = nxt.q, nxt.qd
         else:   # rk4
-            def acc(q, qd, t):
-                return _KERNELS.accelerations(model, q, qd, rest_length, force_density, _ext(external, q, qd, t),
-                                              params)
-            h = 0.5 * dt
-            a1 = acc(q, qd, t)
-            q2, qd2 = q + h * qd, qd + h * a1
-            a2 = acc(q2, qd2, t + h)
-            q3, qd3 = q + h * qd2, qd + h * a2
-            a3 = acc(q3, qd3, t + h)
-            q4, qd4 = q + dt * qd3, qd + dt * a3
-            a4 = acc(q4, qd4, t + dt)
-            q = q + dt / 6.0 * (qd + 2.0 * qd2 + 2.0 * qd3 + qd4)
-            qd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+            q, qd = rk4_update(lambda q, qd, t: _KERNELS.accelerations(
+                model, q, qd, rest_length, force_density, _ext(external, q, qd, t), params), q, qd, t, dt)
             if project:
                 q, qd = _KERNELS.project(model, q, qd)
         t = t + dt
     return State(q=q, qd=qd, t=t)
 
 
-_SINC_SMALL = 1e-4   # below this rotation angle (rad) per step sin(x)/x = 1 - x^2/6 to round-off
-
-
-def _sphere_drift(q, qd, dt):
-    """Drift half of semi-implicit Euler with ``project=True``: ``r += dt r'`` and each rod
-    direction moved along its great circle (the exact geodesic flow on the unit sphere).
-
-    With ``b`` normalised, ``b'`` made tangent (``b' -= b (b . b')``), ``w = |b'|`` (1/s) and
-    ``x = w dt``: ``b <- b cos x + b' sin(x)/w``, ``b' <- -b w sin x + b' cos x``. This keeps
-    ``|b| = 1``, ``b . b' = 0``, ``|b'|`` and ``b x b'`` exactly, so a freely spinning rod
-    neither gains energy nor angular momentum (the Euler update ``b += dt b'`` followed by a
-    normalisation shrinks ``b'`` relative to the rotation and does). The radial part of
-    ``b''`` (the centripetal term ``-|b'|^2 b``) is what the great circle replaces. Operation
-    order mirrored by ``_kernels`` (round-off agreement)."""
-    r, b = q[..., :3], q[..., 3:]
-    rd, bd = qd[..., :3], qd[..., 3:]
-    r = r + dt * rd
-    b = b * (1.0 / np.sqrt(np.einsum("bki,bki->bk", b, b)))[..., None]
-    bd = bd - b * np.einsum("bki,bki->bk", b, bd)[..., None]
-    w = np.sqrt(np.einsum("bki,bki->bk", bd, bd))[..., None]
-    x = w * dt
-    small = x < _SINC_SMALL
-    xs = np.where(small, 1.0, x)
-    sinc = np.where(small, 1.0 - x * x / 6.0, np.sin(xs) / xs)   # sin(x)/x
-    c = np.cos(x)
-    bn = b * c + bd * (dt * sinc)
-    bdn = bd * c - b * (w * (x * sinc))                          # w sin x = w x sinc
-    return np.concatenate([r, bn], axis=-1), np.concatenate([rd, bdn], axis=-1)
+def rk4_update(acc, q, qd, t, dt):
+    """One classic RK4 step of ``(q, qd)`` over ``dt`` s for accelerations ``acc(q, qd, t)``
+    (returns the new ``(q, qd)``, unprojected). The operations and their order are those of the
+    kernels' RK4 (``_kernels._advance_py`` with ``_stage_soa``), so the results agree bit for bit
+    when ``acc`` is the kernels' accelerations entry."""
+    h = 0.5 * dt
+    a1 = acc(q, qd, t)
+    q2, qd2 = q + h * qd, qd + h * a1
+    a2 = acc(q2, qd2, t + h)
+    q3, qd3 = q + h * qd2, qd + h * a2
+    a3 = acc(q3, qd3, t + h)
+    q4, qd4 = q + dt * qd3, qd + dt * a3
+    a4 = acc(q4, qd4, t + dt)
+    return (q + dt / 6.0 * (qd + 2.0 * qd2 + 2.0 * qd3 + qd4),
+            qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4))
 
 
 @dataclass(frozen=True)

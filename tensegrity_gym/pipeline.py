@@ -2,7 +2,7 @@
 
 The public entry points the environments (and any other caller that owns its state arrays) use;
 no gymnasium import, SI units. Every function here runs the equations written once in the
-backends (:mod:`tensegrity_gym.dynamics` NumPy reference, ``_kernels`` numba) through
+backend (``_kernels``, numba; the NumPy oracle is ``tests/oracle_numpy.py``) through
 :func:`tensegrity_gym.integrators.step` or its in-place compiled twin; nothing here copies a
 kernel loop.
 
@@ -35,8 +35,8 @@ once (``_contact_range``: per sub-step the contact forces of a range of copies, 
 the loop driver on them) and run either on the whole batch on this thread (``_contact_loop``) or
 on chunks of whole SIMD blocks on all threads (``_contact_parallel``, when one sub-step has the
 parallel kernel's work: every sub-step of a chunk runs inside one ``prange`` iteration). The
-Python loop of :func:`advance` (the same calls, in the same order, bit for bit) is the NumPy
-backend's. numba's on-disk cache does not notice edits of the kernels that these and
+Python loop of :func:`advance` (the same calls, in the same order, bit for bit) serves implicit
+Euler and tests. numba's on-disk cache does not notice edits of the kernels that these and
 :func:`run_plan` inline or call: clear ``__pycache__`` (``*.nbi``, ``*.nbc``) after editing
 ``_kernels.py`` or ``contact.py``.
 
@@ -101,7 +101,7 @@ def advance(model: Model, q: np.ndarray, qd: np.ndarray, dt: float, integrator: 
         forces = np.empty((B, model.n_nodes, 3))
     if slip is None:
         slip = np.empty((B, 2 * model.n_bars), bool)
-    if compiled and contact._numba and _contact_compiled(
+    if compiled and _contact_compiled(
             model, q, qd, dt, integrator, n_steps, rest_length, force_density, external, params, project, contact,
             cstate, contact_params, forces, slip):
         return
@@ -313,7 +313,7 @@ def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_
     """A :class:`Plan` for ``n_steps`` steps of ``integrator`` (projected) on ``batch_size``
     copies whose control is ``control`` per string (``"rest_length"``, m, or
     ``"force_density"``, N/m, with the model's rest lengths), or None where the fused serial
-    kernel does not apply (no numba, the NumPy backend, an implicit method, or a batch large
+    kernel does not apply (no numba, an implicit method, or a batch large
     enough for the parallel kernel: then :func:`step` runs it). Issues the stability warning
     of :func:`integrators.step` once, as it would."""
     if not (AVAILABLE and compiled_physics(integrator, backend)):

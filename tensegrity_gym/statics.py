@@ -263,7 +263,7 @@ def _relax(model: Model, q: np.ndarray, rest_length, force_density, steps: int, 
     for s in range(1, steps + 1):
         with np.errstate(all="ignore"):
             st = integrators.step(model, dyn.State(q, qd, 0.0), dt, "semi_implicit_euler",
-                                  rest_length=rest_length, force_density=force_density, backend="numpy")
+                                  rest_length=rest_length, force_density=force_density)
         q, qd = st.q, st.qd
         with np.errstate(all="ignore"):
             ke = dyn.kinetic_energy(model, qd)

@@ -136,7 +136,9 @@ CASES = [
     # diverged: exit 6, trajectory up to the divergence kept and flagged
     ("diverged-nonfinite", ["simulate", "prism3", "--dt", "0.2", "--duration", "20", "--integrator", "semi_implicit_euler",
                             "--out", "{tmp}/d.npz"], 6,
-     r"simulation diverged: semi_implicit_euler: state became non-finite between t = 3.8 s and t = 4 s .*; wrote 20 records"),
+     # the prism starts at rest in equilibrium: the unstable step amplifies round-off, so the step at
+     # which it overflows moves with the last bit of the initial state (4.0 s or 4.2 s)
+     r"simulation diverged: semi_implicit_euler: state became non-finite between t = (3.8 s and t = 4|4 s and t = 4.2) s .*; wrote (20|21) records"),
     ("diverged-energy", ["simulate", "{tmp}/spin.json", "--dt", "0.025", "--integrator", "semi_implicit_euler",
                          "--out", "{tmp}/e.npz"], 6, r"the energy grew from 22.6 J to .* J by t = .* s \(dt = 0.025 s\)"),
     ("diverged-dop853", ["simulate", "prism3", "--integrator", "dop853", "--dt", "1", "--duration", "1e6", "--rtol", "1e-14",
@@ -180,7 +182,7 @@ def test_cli_case(tmp, capsys, case_id, argv, code, pattern):
         d = np.load(out_path)
         assert bool(d["diverged"]) and str(d["message"])
         if case_id == "diverged-nonfinite":
-            assert d["t"].shape == (20,) and np.all(np.isfinite(d["nodes"]))
+            assert d["t"].shape in ((20,), (21,)) and np.all(np.isfinite(d["nodes"]))
 
 
 def test_no_leftover_temporary_files(tmp, capsys):
@@ -290,7 +292,7 @@ _option = st.one_of(
     st.tuples(st.sampled_from(["--duration", "--dt", "--record-every", "--rtol", "--atol", "--max-memory",
                                "--integrator", "--backend"]), _value).map(list),
     st.sampled_from([["--no-project"], ["--integrator", "semi_implicit_euler"], ["--integrator", "radau"],
-                     ["--backend", "numpy"], ["--json"], ["--bogus"], ["-h"]]))
+                     ["--backend", "numba"], ["--backend", "numpy"], ["--json"], ["--bogus"], ["-h"]]))
 
 
 @settings(max_examples=60, deadline=None)

@@ -59,7 +59,7 @@ CASES = [
     ("roll-goal-text", ROLL, dict(goal_direction="abc"), r"goal_direction: expected an array of real numbers with shape \(2,\), got 'abc'"),
     ("roll-actuated-text", ROLL, dict(actuated="abc"), r"actuated: string indices must be integers, got 'abc'"),
     ("roll-ground-stiffness", ROLL, dict(ground_stiffness=-1.0), r"ground_stiffness: must be positive and finite \(N/m\^exponent\), got -1.0"),
-    ("roll-ground-damping-text", ROLL, dict(ground_damping="abc"), r"ground_damping: expected a number \(s/m\), got 'abc'"),
+    ("roll-ground-damping-text", ROLL, dict(ground_damping="abc"), r"ground_damping: expected a number in s/m, got 'abc'"),
     ("roll-cap-radius-nan", ROLL, dict(cap_radius=math.nan), r"cap_radius: must be >= 0 and finite \(m\), got nan"),
     ("roll-max-damping-text", ROLL, dict(ground_max_damping="abc"), r"ground_max_damping: expected a number \(N s/m\), got 'abc'"),
     # flags: a string such as "false" would count as true
@@ -74,6 +74,7 @@ CASES = [
     ("shape-adaptive", SHAPE, dict(integrator="dop853"), r"integrator: 'dop853' is adaptive; envs need a fixed-step method"),
     ("shape-integrator-unknown", SHAPE, dict(integrator="leapfrog"), r"integrator: unknown name 'leapfrog'"),
     ("shape-backend", SHAPE, dict(backend="gpu"), r"backend: unknown 'gpu'"),
+    ("shape-backend-numpy", SHAPE, dict(backend="numpy"), r"backend: 'numpy' is no longer a backend.*tests/oracle_numpy.py"),
     ("shape-action-mode", SHAPE, dict(action_mode="torque"), r"action_mode: unknown 'torque'"),
     ("roll-damping-negative", ROLL, dict(string_damping=-1.0), r"string_damping: must be >= 0 and finite \(N s/m\), got -1.0"),
 ]
@@ -212,9 +213,11 @@ def test_step_inputs_name_field_index_and_value():
     st0 = tg.initial_state(model, 2)
     rl = np.tile(model.rest_length, (2, 1))
     rl[1, 4] = np.nan
-    for backend in ("auto", "numpy"):
+    for backend in ("auto", "numba"):
         with pytest.raises(ValueError, match=r"rest_length: entry \(1, 4\) is nan; must be finite and >= 0"):
             tg.step(model, st0, 1e-3, rest_length=rl, backend=backend)
+    with pytest.raises(ValueError, match=r"backend: 'numpy' is no longer a backend"):
+        tg.step(model, st0, 1e-3, backend="numpy")
     with pytest.raises(ValueError, match=r"rest_length: entry 2 is -0.5; must be finite and >= 0"):
         tg.step(model, st0, 1e-3, rest_length=np.r_[model.rest_length[:2], -0.5, model.rest_length[3:]])
     with pytest.raises(ValueError, match=r"force_density: entry 0 is inf; must be finite"):

@@ -15,6 +15,8 @@ import pytest
 import tensegrity_gym as tg
 from tensegrity_gym import builders, dynamics as dyn, integrators
 
+import oracle_numpy as oracle
+
 K = pytest.importorskip("tensegrity_gym._kernels")
 if not K.AVAILABLE:  # pragma: no cover
     pytest.skip("numba not installed", allow_module_level=True)
@@ -85,7 +87,7 @@ SCENES = ["prism_slack", "prism_damped_gravity", "constrained_prism", "pinned_ro
 @pytest.mark.parametrize("B", [1, 5])
 def test_numba_matches_numpy(scene, integrator, project, B):
     model, st, ctl = _scene(scene, B)
-    ref = integrators.step(model, st, DT, integrator, project=project, n_steps=N_STEPS, backend="numpy", **ctl)
+    ref = oracle.step(model, st, DT, integrator, project=project, n_steps=N_STEPS, **ctl)
     q0, qd0 = st.q.copy(), st.qd.copy()
     out = K.step(model, st, DT, integrator, project=project, n_steps=N_STEPS, **ctl)
     assert np.all(np.isfinite(ref.q)) and np.abs(ref.q - st.q).max() > 1e-3, "the scene must move"
@@ -105,7 +107,7 @@ def test_simd_batch_loop_matches_numpy(scene, integrator):
     B = 19
     assert B >= K._SOA_MIN_BATCH
     model, st, ctl = _scene(scene, B, seed=5)
-    ref = integrators.step(model, st, DT, integrator, n_steps=100, backend="numpy", **ctl)
+    ref = oracle.step(model, st, DT, integrator, n_steps=100, **ctl)
     out = K.step(model, st, DT, integrator, n_steps=100, **ctl)
     assert _rel_err(ref, out) < RTOL
     one = K.step(model, dyn.State(st.q[7:8], st.qd[7:8], st.t), DT, integrator, n_steps=100,
@@ -119,7 +121,7 @@ def test_branches_are_exercised():
     slack_seen = taut_seen = 0
     s = st
     for _ in range(30):
-        s = integrators.step(model, s, DT, "semi_implicit_euler", n_steps=10, backend="numpy", **ctl)
+        s = oracle.step(model, s, DT, "semi_implicit_euler", n_steps=10, **ctl)
         _, L, _ = dyn.string_state(model, s.q)
         slack_seen += int(np.sum(L <= ctl["rest_length"]))
         taut_seen += int(np.sum(L > ctl["rest_length"]))
@@ -133,7 +135,7 @@ def test_branches_are_exercised():
 def test_comparison_can_fail():
     """A 1e-9 relative change of one rest length is seen by the comparison (it is not vacuous)."""
     model, st, ctl = _scene("prism_slack", 5)
-    ref = integrators.step(model, st, DT, "rk4", n_steps=N_STEPS, backend="numpy", **ctl)
+    ref = oracle.step(model, st, DT, "rk4", n_steps=N_STEPS, **ctl)
     l0 = ctl["rest_length"].copy()
     l0[2, 4] *= 1.0 + 1e-9
     out = K.step(model, st, DT, "rk4", n_steps=N_STEPS, rest_length=l0)
@@ -155,7 +157,7 @@ def test_parallel_batch_matches_numpy(monkeypatch, min_work):
     monkeypatch.setattr(K, "_run_parallel", lambda *a: calls.append(1) or real(*a))
     l0 = model.rest_length * (1.0 + np.linspace(-0.02, 0.05, B))[:, None]
     for integrator in ("semi_implicit_euler", "rk4"):
-        ref = integrators.step(model, st, DT, integrator, n_steps=50, backend="numpy", rest_length=l0, **ctl)
+        ref = oracle.step(model, st, DT, integrator, n_steps=50, rest_length=l0, **ctl)
         out = K.step(model, st, DT, integrator, n_steps=50, rest_length=l0, **ctl)
         assert _rel_err(ref, out) < RTOL
         q, qd = st.q.copy(), st.qd.copy()
@@ -178,7 +180,7 @@ def test_step_inplace_equals_step(integrator):
     # and without controls (the lean single-env path), one step at a time
     model = dyn.compile_model(builders.prism(3))
     st = _perturbed(model, 1, 7)
-    ref = integrators.step(model, st, DT, integrator, n_steps=25, backend="numpy")
+    ref = oracle.step(model, st, DT, integrator, n_steps=25)
     q, qd = st.q.copy(), st.qd.copy()
     for _ in range(25):
         K.step_inplace(model, q, qd, DT, integrator)
@@ -252,7 +254,7 @@ def test_great_circle_drift_matches_numpy(B):
     omega[0] = 0.0                                        # copy 0: the prestressed prism at rest
     vel = np.cross(omega[:, None, :], (s.nodes - s.nodes.mean(axis=0))[None])
     st = dyn.initial_state(model, nodes=np.broadcast_to(s.nodes, (B,) + s.nodes.shape), velocities=vel)
-    ref = integrators.step(model, st, 2e-3, "semi_implicit_euler", n_steps=200, backend="numpy")
+    ref = oracle.step(model, st, 2e-3, "semi_implicit_euler", n_steps=200)
     out = K.step(model, st, 2e-3, "semi_implicit_euler", n_steps=200)
     step_angle = np.linalg.norm(st.qd[..., 3:], axis=-1).max() * 2e-3
     assert step_angle > 0.05 and np.linalg.norm(st.qd[0, :, 3:], axis=-1).max() * 2e-3 < K._SINC_SMALL
@@ -260,7 +262,7 @@ def test_great_circle_drift_matches_numpy(B):
     # the difference grows with the (string-coupled) motion; 1e-10 still rules out any other change
     assert _rel_err(ref, out) < 1e-10, _rel_err(ref, out)
     # the unprojected update (plain q += dt qd) takes a visibly different path
-    plain = integrators.step(model, st, 2e-3, "semi_implicit_euler", n_steps=200, backend="numpy",
+    plain = oracle.step(model, st, 2e-3, "semi_implicit_euler", n_steps=200,
                              project=False)
     assert np.abs(plain.q - ref.q).max() > 1e-4
 
@@ -278,11 +280,11 @@ def test_node_damping_matches_numpy(B, integrator, monkeypatch):
     rng = np.random.default_rng(2)
     ctl = dict(rest_length=model.rest_length * rng.uniform(0.97, 1.02, (B, model.n_strings)),
                external=rng.normal(size=(B, model.n_nodes, 3)))
-    ref = integrators.step(model, st, DT, integrator, n_steps=100, backend="numpy", **ctl)
+    ref = oracle.step(model, st, DT, integrator, n_steps=100, **ctl)
     out = K.step(model, st, DT, integrator, n_steps=100, **ctl)
     assert _rel_err(ref, out) < RTOL, _rel_err(ref, out)
     lean = K.step(model, st, DT, integrator, n_steps=100)               # no controls: the lean entry point
-    assert _rel_err(integrators.step(model, st, DT, integrator, n_steps=100, backend="numpy"), lean) < RTOL
+    assert _rel_err(oracle.step(model, st, DT, integrator, n_steps=100), lean) < RTOL
     no_drag = K.step(dyn.compile_model(s), st, DT, integrator, n_steps=100, **ctl)
     assert _rel_err(out, no_drag) > 1e-6
     monkeypatch.setattr(K, "PARALLEL_MIN_WORK", 0)
@@ -297,7 +299,7 @@ def test_accelerations_entry_matches_numpy(scene, B):
     """``_kernels.accelerations`` (the loop driver's force and rod equations, no step) equals
     ``dynamics.accelerations`` to round-off: one copy at a time (B < 16) and SIMD blocks (B = 40)."""
     model, st, ctrl = _scene(scene, B)
-    a_ref = dyn.accelerations(model, st.q, st.qd, **ctrl)
+    a_ref = oracle.accelerations(model, st.q, st.qd, **ctrl)
     a = K.accelerations(model, st.q, st.qd, **ctrl)
     assert a.shape == st.q.shape
     assert np.abs(a - a_ref).max() <= RTOL * np.abs(a_ref).max()
@@ -308,14 +310,14 @@ def test_accelerations_entry_parallel_params_and_shapes(monkeypatch):
     """The parallel kernel, per-copy Params, an unbatched (k, 6) state and bad shapes."""
     from tensegrity_gym.params import default_params
     model, st, ctrl = _scene("constrained_prism", 24)
-    ref = dyn.accelerations(model, st.q, st.qd, **ctrl)
+    ref = oracle.accelerations(model, st.q, st.qd, **ctrl)
     monkeypatch.setattr(K, "PARALLEL_MIN_WORK", 1)
     assert np.abs(K.accelerations(model, st.q, st.qd, **ctrl) - ref).max() <= RTOL * np.abs(ref).max()
     monkeypatch.undo()
     rng = np.random.default_rng(5)
     prm = default_params(model, 24).replace(stiffness=model.stiffness * rng.uniform(0.8, 1.2, (24, model.n_strings)),
                                             mass=model.mass * rng.uniform(0.8, 1.2, (24, model.n_bars)))
-    ref_p = dyn.accelerations(model, st.q, st.qd, params=prm, **ctrl)
+    ref_p = oracle.accelerations(model, st.q, st.qd, params=prm, **ctrl)
     assert np.abs(ref_p - ref).max() > 1e-3 * np.abs(ref).max()     # the parameters matter
     a_p = K.accelerations(model, st.q, st.qd, params=prm, **ctrl)
     assert np.abs(a_p - ref_p).max() <= RTOL * np.abs(ref_p).max()
@@ -340,7 +342,7 @@ def test_project_entry_matches_numpy(scene, B, monkeypatch):
     q = st.q + 0.05 * rng.normal(size=st.q.shape)
     qd = st.qd + rng.normal(size=st.qd.shape)
     q0, qd0 = q.copy(), qd.copy()
-    ref = dyn.project(model, q, qd)
+    ref = oracle.project(model, q, qd)
     for min_work in (K.PARALLEL_MIN_WORK, 1):
         monkeypatch.setattr(K, "PARALLEL_MIN_WORK", min_work)
         out = K.project(model, q, qd)
@@ -361,8 +363,7 @@ def test_callable_external_runs_on_the_kernels(scene, integrator, monkeypatch):
     """A callable ``external(q, qd, t)`` on the numba backend: Python calls it (once per step
     for semi-implicit Euler, at each RK4 stage), the kernels do the physics. A callable
     returning a constant array gives the array's result bit for bit; a state- and
-    time-dependent one agrees with the NumPy reference to round-off; the NumPy step loop is
-    not used (made to fail here)."""
+    time-dependent one agrees with the NumPy oracle to round-off."""
     model, st, ctl = _scene(scene, 3)
     E = np.random.default_rng(3).normal(scale=2.0, size=(3, model.n_nodes, 3))
     ctl = {k: v for k, v in ctl.items() if k != "external"}
@@ -371,9 +372,7 @@ def test_callable_external_runs_on_the_kernels(scene, integrator, monkeypatch):
         return E * np.sin(5.0 * t) - 0.5 * dyn.node_velocities(model, qd)
 
     ref_const = integrators.step(model, st, DT, integrator, n_steps=60, external=E, **ctl)
-    ref = integrators.step(model, st, DT, integrator, n_steps=60, external=f, backend="numpy", **ctl)
-    monkeypatch.setattr(integrators, "_sphere_drift", None)      # the NumPy loop would fail
-    monkeypatch.setattr(dyn, "accelerations", None)
+    ref = oracle.step(model, st, DT, integrator, n_steps=60, external=f, **ctl)
     const = integrators.step(model, st, DT, integrator, n_steps=60, external=lambda q, qd, t: E, **ctl)
     np.testing.assert_array_equal(const.q, ref_const.q)
     np.testing.assert_array_equal(const.qd, ref_const.qd)

@@ -51,8 +51,7 @@ def _moving_state(model, rng, n=B):
     return dyn.State(q=q, qd=qd)
 
 
-CASES = [("semi_implicit_euler", "numba", 1e-3, 200), ("semi_implicit_euler", "numpy", 1e-3, 50),
-         ("rk4", "numba", 1e-3, 200), ("rk4", "numpy", 1e-3, 50), ("implicit_euler", "auto", 1e-3, 10),
+CASES = [("semi_implicit_euler", "numba", 1e-3, 200), ("rk4", "numba", 1e-3, 200), ("implicit_euler", "auto", 1e-3, 10),
          ("dop853", "auto", 1e-3, 20), ("radau", "auto", 1e-3, 5)]
 
 
@@ -78,7 +77,7 @@ def test_copy_equals_model_compiled_with_its_values(name, structure, drag, integ
     assert np.abs(out.q[0] - out.q[1]).max() > 1e-6
 
 
-@pytest.mark.parametrize("backend", ["numba", "numpy"])
+@pytest.mark.parametrize("backend", ["numba", "auto"])
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
 def test_shared_params_are_bit_identical_to_no_params(backend, integrator):
     model = tg.compile_model(tg.constrained_prism(damping=0.5), node_damping=0.3)

@@ -19,6 +19,7 @@ from tensegrity_gym import dynamics as dyn
 from tensegrity_gym import integrators as integ
 from tensegrity_gym.structure import StructureError
 
+import oracle_numpy as oracle
 from reference import NodeReference, rigid_perturbation
 
 GRAVITY = (0.0, 0.0, -9.81)
@@ -206,7 +207,7 @@ def test_node_accelerations_agree_with_reference(name):
     for _ in range(4):
         nodes, vel = rigid_perturbation(s, rng, pos=0.05, rot=0.2, vel=1.0, omega=3.0)
         st = dyn.initial_state(model, nodes=nodes, velocities=vel)
-        a = dyn.accelerations(model, st.q, st.qd)
+        a = tg.integrators.accelerations(model, st.q, st.qd)
         acc = dyn.node_velocities(model, a)[0]          # linear map: node accelerations
         acc_ref = ref.node_accelerations(nodes, vel)
         scale = np.abs(acc_ref).max()
@@ -232,7 +233,7 @@ def test_controls_and_batch_agree_with_reference(name):
     rest = s.rest_length * rng.uniform(0.9, 1.05, (B, m))
     u = rng.uniform(-20.0, 20.0, (B, m))
     ext = rng.normal(0.0, 5.0, (B, n, 3))
-    acc = dyn.node_velocities(model, dyn.accelerations(model, st.q, st.qd, rest_length=rest,
+    acc = dyn.node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd, rest_length=rest,
                                                        force_density=u, external=ext))
     for i in range(B):
         ref = NodeReference(s, rest_length=rest[i], force_density=u[i], external=ext[i])
@@ -270,21 +271,20 @@ def test_energy_conserved_with_slack_strings_dop853():
 def test_energy_conserved_rk4_and_symplectic_euler():
     # smooth case, RK4, small dt: essentially exact
     s, model, st = smooth_case()
-    ts, q, qd = integ.simulate(model, st, 2e-4, 1000, "rk4", record_every=50, backend="numpy")
+    ts, q, qd = integ.simulate(model, st, 2e-4, 1000, "rk4", record_every=50)
     E = energies(model, q, qd)
     drift_smooth = np.abs(E - E[0]).max() / abs(E[0])
     assert drift_smooth < 1e-10, f"rk4 dt=2e-4: relative energy drift {drift_smooth:.3g}"
     # slack strings: the string force has a kink at each slack transition, where RK4 loses
     # order (observed ~2.7), but the energy error stays small
     d = case_data("free_prism_slack")
-    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 1500, "rk4", record_every=30, backend="numpy")
+    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 1500, "rk4", record_every=30)
     E = energies(d["model"], q, qd)
     drift = np.abs(E - E[0]).max() / abs(E[0])
     assert slack_counts(d["s"], np.stack([dyn.node_positions(d["model"], a)[0] for a in q])).max() >= 2
     assert drift < 1e-5, f"rk4 dt=2e-4 with slack strings: relative energy drift {drift:.3g}"
     # symplectic Euler: bounded oscillating energy error, no secular growth
-    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 3000, "semi_implicit_euler", record_every=25,
-                               backend="numpy")
+    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 3000, "semi_implicit_euler", record_every=25)
     E = energies(d["model"], q, qd)
     err = np.abs(E - E[0]) / abs(E[0])
     half = err.size // 2
@@ -303,7 +303,7 @@ def test_energy_only_decreases_with_damping():
     model = dyn.compile_model(s)
     nodes0, vel0 = rigid_perturbation(s, np.random.default_rng(5), pos=0.03, rot=0.1, vel=0.5, omega=2.0)
     st = dyn.initial_state(model, nodes=nodes0, velocities=vel0)
-    ts, q, qd = integ.simulate(model, st, 5e-4, 600, "rk4", backend="numpy")
+    ts, q, qd = integ.simulate(model, st, 5e-4, 600, "rk4")
     E = energies(model, q, qd)
     assert slack_counts(s, np.stack([dyn.node_positions(model, a)[0] for a in q])).max() >= 1
     assert np.diff(E).max() < 1e-9 * np.abs(E).max(), f"energy increased by {np.diff(E).max():.3g} J"
@@ -344,11 +344,11 @@ def test_momentum_conserved_free_structure():
                       for a, b in zip(q, qd)])
         return np.abs(P - P[0]).max(), np.abs(L - L[0]).max()
 
-    ts, q, qd = integ.simulate(model, d["state"], 1e-3, 300, "rk4", record_every=30, backend="numpy")
+    ts, q, qd = integ.simulate(model, d["state"], 1e-3, 300, "rk4", record_every=30)
     dP, dL = momenta(q, qd)
     assert dP < 1e-13 and dL < 1e-7, ("rk4", dP, dL)
     ts, q, qd = integ.simulate(model, d["state"], 1e-3, 300, "semi_implicit_euler", record_every=30,
-                               project=False, backend="numpy")
+                               project=False)
     dP, dL = momenta(q, qd)
     assert dP < 1e-13 and dL < 1e-13, ("semi_implicit_euler", dP, dL)
 
@@ -360,7 +360,7 @@ def test_rod_length_drift_projection():
     out = {}
     for name in ("rk4", "semi_implicit_euler"):
         for proj in (True, False):
-            ts, q, qd = integ.simulate(model, st, 1e-3, 500, name, project=proj, record_every=50, backend="numpy")
+            ts, q, qd = integ.simulate(model, st, 1e-3, 500, name, project=proj, record_every=50)
             drift = max(dyn.rod_length_drift(model, a)[0] for a in q)
             viol = max(dyn.constraint_violation(model, a, b)[0] for a, b in zip(q, qd))
             X = dyn.node_positions(model, q[-1])[0]
@@ -385,7 +385,7 @@ def test_constrained_examples_keep_constraints():
         viol = max(dyn.constraint_violation(model, a, b)[0] for a, b in zip(d["q"], d["qd"]))
         assert viol < 1e-9, f"{name}: dop853 constraint violation {viol:.3g}"
         # fixed step with projection: exact
-        ts, q, qd = integ.simulate(model, d["state"], 1e-3, 500, "rk4", record_every=50, backend="numpy")
+        ts, q, qd = integ.simulate(model, d["state"], 1e-3, 500, "rk4", record_every=50)
         viol = max(dyn.constraint_violation(model, a, b)[0] for a, b in zip(q, qd))
         assert viol < 1e-13, f"{name}: rk4+projection constraint violation {viol:.3g}"
         for X in (dyn.node_positions(model, a)[0] for a in q):
@@ -410,7 +410,7 @@ def test_convergence_order(integrator, dts, order, project):
     N_ref = dyn.node_positions(model, ref.q)
     errs = []
     for dt in dts:
-        out = integ.step(model, st, dt, integrator, n_steps=int(round(T / dt)), project=project, backend="numpy")
+        out = integ.step(model, st, dt, integrator, n_steps=int(round(T / dt)), project=project)
         errs.append(np.abs(dyn.node_positions(model, out.q) - N_ref).max())
     errs = np.array(errs)
     observed = np.log2(errs[:-1] / errs[1:])
@@ -438,14 +438,14 @@ def test_prestressed_prism_has_zero_acceleration(p):
     s = tg.prism(p)
     model = dyn.compile_model(s)
     st = dyn.initial_state(model)
-    acc = dyn.node_velocities(model, dyn.accelerations(model, st.q, st.qd))[0]
+    acc = dyn.node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd))[0]
     scale = s.initial_tensions().max() / s.bar_mass.min()     # m/s^2
     assert np.abs(acc).max() < 1e-9 * scale, f"prism{p}: |a| = {np.abs(acc).max():.3g} m/s^2"
     np.testing.assert_allclose(twist_angles(s.nodes, p), np.pi / 2 - np.pi / p, atol=1e-12)
     # a wrong rest length breaks the equilibrium: the check can fail
     rl = s.rest_length.copy()
     rl[-1] *= 0.99
-    acc2 = dyn.node_velocities(model, dyn.accelerations(model, st.q, st.qd, rest_length=rl))[0]
+    acc2 = dyn.node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd, rest_length=rl))[0]
     assert np.abs(acc2).max() > 1e-3 * scale
 
 
@@ -468,7 +468,7 @@ def test_damped_prism_settles_at_equilibrium_twist(p):
     def drag(q, qd, t):
         return -3.0 * dyn.node_velocities(model, qd)
 
-    out = integ.step(model, st, 1e-2, "rk4", n_steps=700, external=drag, backend="numpy")
+    out = integ.step(model, st, 1e-2, "rk4", n_steps=700, external=drag)
     X = dyn.node_positions(model, out.q)[0]
     dev = np.abs(twist_angles(X, p) - target).max()
     assert dev < 1e-6, f"prism{p}: twist {twist_angles(X, p)} rad, expected {target}"
@@ -484,7 +484,7 @@ def test_string_damping_alone_dissipates_and_oscillates_about_equilibrium_twist(
     st = dyn.initial_state(model, nodes=nodes0, velocities=np.zeros_like(nodes0))
     eq = dyn.initial_state(model)
     E_eq = dyn.energy(model, eq.q, eq.qd)[0]
-    ts, q, qd = integ.simulate(model, st, 4e-3, 750, "rk4", record_every=3, backend="numpy")
+    ts, q, qd = integ.simulate(model, st, 4e-3, 750, "rk4", record_every=3)
     E = energies(model, q, qd) - E_eq
     assert np.diff(E).max() < 1e-9 and E[-1] < 0.01 * E[0]
     tw = np.array([twist_angles(dyn.node_positions(model, a)[0], 3).mean() for a in q[len(q) // 2:]])
@@ -543,13 +543,11 @@ def test_stable_step_estimate(factory):
     E0 = dyn.energy(model, st.q, st.qd)[0]
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
-        ts, q, qd = integ.simulate(model, st, 0.5 * est["semi_implicit_euler"], 400, "semi_implicit_euler",
-                                   backend="numpy")
+        ts, q, qd = integ.simulate(model, st, 0.5 * est["semi_implicit_euler"], 400, "semi_implicit_euler")
         E = energies(model, q, qd)
         assert np.abs(E - E0).max() < 1e-2 * abs(E0), "unstable at half the estimated step"
         try:
-            ts, q, qd = integ.simulate(model, st, 1.5 * est["semi_implicit_euler"], 400, "semi_implicit_euler",
-                                       backend="numpy")
+            ts, q, qd = integ.simulate(model, st, 1.5 * est["semi_implicit_euler"], 400, "semi_implicit_euler")
             E = energies(model, q, qd)
             blew_up = not np.all(np.isfinite(E)) or np.nanmax(np.abs(E - E0)) > 1e3 * abs(E0)
         except integ.SimulationDiverged:
@@ -563,7 +561,7 @@ def test_semi_implicit_euler_spinning_prism_no_secular_drift():
     vel = np.cross([1.0, 2.0, 4.0], s.nodes - s.nodes.mean(axis=0))
     model = dyn.compile_model(s)
     st = dyn.initial_state(model, velocities=vel)
-    ts, q, qd = integ.simulate(model, st, 1e-3, 2000, "semi_implicit_euler", record_every=500, backend="numpy")
+    ts, q, qd = integ.simulate(model, st, 1e-3, 2000, "semi_implicit_euler", record_every=500)
     E = energies(model, q, qd)
     L = np.array([np.linalg.norm(dyn.angular_momentum(model, a, b, about=dyn.center_of_mass(model, a))[0])
                   for a, b in zip(q, qd)])
@@ -586,7 +584,7 @@ def test_semi_implicit_euler_rotates_free_rod_exactly():
     w, dt, n = 3.0, 0.1, 7                            # 0.3 rad per step
     vel = np.array([[0.0, -0.5 * w, 0.0], [0.0, 0.5 * w, 0.0]])
     st = dyn.initial_state(model, velocities=vel)
-    out = integ.step(model, st, dt, "semi_implicit_euler", n_steps=n, backend="numpy")
+    out = integ.step(model, st, dt, "semi_implicit_euler", n_steps=n)
     ang = w * dt * n
     np.testing.assert_allclose(out.q[0, 0, 3:], [np.cos(ang), np.sin(ang), 0.0], atol=1e-14)
     np.testing.assert_allclose(out.qd[0, 0, 3:], [-w * np.sin(ang), w * np.cos(ang), 0.0], atol=1e-13)
@@ -604,14 +602,14 @@ def test_stable_step_estimate_accounts_for_damping():
         warnings.simplefilter("ignore")
         for name in ("semi_implicit_euler", "rk4"):
             try:
-                ts, q, qd = integ.simulate(model, st, 0.5 * est[name], 200, name, backend="numpy")
+                ts, q, qd = integ.simulate(model, st, 0.5 * est[name], 200, name)
                 E = energies(model, q, qd)
                 ok = np.all(np.isfinite(E)) and E.max() <= E0 * (1 + 1e-6)
             except integ.SimulationDiverged:
                 ok = False
             assert ok, f"{name} diverges at half the estimated stable step {est[name]:.3g} s"
             # and the estimate is not merely conservative: 1.5x it gains energy (unstable)
-            ts, q, qd = integ.simulate(model, st, 1.5 * est[name], 400, name, backend="numpy")
+            ts, q, qd = integ.simulate(model, st, 1.5 * est[name], 400, name)
             E = energies(model, q, qd)
             assert not (np.all(np.isfinite(E)) and E.max() <= E0 * (1 + 1e-3)), \
                 f"{name} still stable at 1.5x the estimated step {est[name]:.3g} s"
@@ -634,14 +632,13 @@ def _drag_scene(name):
     return s, c, nodes0, vel0
 
 
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("name", ["constrained_prism", "hanging_rod", "lumped_prism"])
-def test_node_damping_in_model_equals_external_drag(name, backend):
+def test_node_damping_in_model_equals_external_drag(name):
     """``compile_model(node_damping=c)`` with ONE call of n_steps equals the old path (drag
     ``-c v`` passed as an external force recomputed every step, one call per step) to round-off
-    for semi-implicit Euler; for RK4 it equals the drag re-evaluated at every stage."""
-    if backend == "numba":
-        pytest.importorskip("numba")
+    for semi-implicit Euler; for RK4 it equals the drag re-evaluated at every stage (the NumPy
+    oracle's RK4 with the callable drag)."""
+    backend = "numba"
     s, c, nodes0, vel0 = _drag_scene(name)
     plain = dyn.compile_model(s)
     damped = dyn.compile_model(s, node_damping=c)
@@ -663,14 +660,14 @@ def test_node_damping_in_model_equals_external_drag(name, backend):
         (np.abs(new.q - old.q).max(), np.abs(new.qd - old.qd).max())
     undamped = integ.step(plain, st, dt, "semi_implicit_euler", n_steps=n, backend=backend)
     assert np.abs(undamped.qd - new.qd).max() > 1e-3 * scale        # the drag really acts
-    ref = integ.step(plain, st, dt, "rk4", n_steps=n, external=drag, backend="numpy")   # callable: every stage
+    ref = oracle.step(plain, st, dt, "rk4", n_steps=n, external=drag)   # callable: every stage
     out = integ.step(damped, st, dt, "rk4", n_steps=n, backend=backend)
     assert np.abs(out.q - ref.q).max() < 1e-13 and np.abs(out.qd - ref.qd).max() < 1e-12 * scale
     # the accelerations themselves, and node drag combined with an external force
     ext = np.random.default_rng(0).normal(size=(B, s.n_nodes, 3))
-    np.testing.assert_allclose(dyn.accelerations(damped, st.q, st.qd, external=ext),
-                               dyn.accelerations(plain, st.q, st.qd, external=ext + drag(st.q, st.qd)),
-                               rtol=0, atol=1e-12 * np.abs(dyn.accelerations(plain, st.q, st.qd)).max())
+    np.testing.assert_allclose(tg.integrators.accelerations(damped, st.q, st.qd, external=ext),
+                               tg.integrators.accelerations(plain, st.q, st.qd, external=ext + drag(st.q, st.qd)),
+                               rtol=0, atol=1e-12 * np.abs(tg.integrators.accelerations(plain, st.q, st.qd)).max())
 
 
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])
@@ -723,23 +720,21 @@ def print_figures():
     d = case_data("free_prism_slack")
     print(f"energy drift, dop853 rtol 1e-12, slack prism 0.3 s: {_rel_drift(energies(d['model'], d['q'], d['qd'])):.2e}")
     s, model, st = smooth_case()
-    ts, q, qd = integ.simulate(model, st, 2e-4, 1000, "rk4", record_every=50, backend="numpy")
+    ts, q, qd = integ.simulate(model, st, 2e-4, 1000, "rk4", record_every=50)
     print(f"energy drift, rk4 dt 2e-4, taut prism 0.2 s: {_rel_drift(energies(model, q, qd)):.2e}")
-    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 1500, "rk4", record_every=30, backend="numpy")
+    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 1500, "rk4", record_every=30)
     print(f"energy drift, rk4 dt 2e-4, slack prism 0.3 s: {_rel_drift(energies(d['model'], q, qd)):.2e}")
-    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 3000, "semi_implicit_euler", record_every=25,
-                               backend="numpy")
+    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 3000, "semi_implicit_euler", record_every=25)
     print(f"energy error, semi-implicit Euler dt 2e-4, slack prism 0.6 s: {_rel_drift(energies(d['model'], q, qd)):.2e}")
     for name in ("rk4", "semi_implicit_euler"):
         for proj in (True, False):
-            ts, q, qd = integ.simulate(d["model"], d["state"], 1e-3, 500, name, project=proj, record_every=50,
-                                       backend="numpy")
+            ts, q, qd = integ.simulate(d["model"], d["state"], 1e-3, 500, name, project=proj, record_every=50)
             drift = max(dyn.rod_length_drift(d["model"], a)[0] for a in q)
             print(f"rod-length drift, {name} dt 1e-3, 0.5 s, project={proj}: {drift:.2e}")
     s, model, st = smooth_case(damping=2.0)
     ref = dyn.node_positions(model, integ.step(model, st, 0.2, "dop853", rtol=1e-13, atol=1e-13).q)
     for integrator, dts in (("semi_implicit_euler", (2e-3, 1e-3, 5e-4)), ("rk4", (4e-3, 2e-3, 1e-3))):
-        errs = np.array([np.abs(dyn.node_positions(model, integ.step(model, st, dt, integrator, backend="numpy",
+        errs = np.array([np.abs(dyn.node_positions(model, integ.step(model, st, dt, integrator,
                                                                      n_steps=int(round(0.2 / dt))).q) - ref).max()
                          for dt in dts])
         print(f"order {integrator}: errors {errs} m at dt {dts} s, observed orders {np.log2(errs[:-1] / errs[1:])}")

@@ -268,21 +268,31 @@ def test_sb3_adapter_on_the_batched_vector_env():
     assert np.all(np.isfinite(obs))
 
 
-def test_numpy_reference_backend_matches_the_fast_path():
-    """backend='numpy' (integrators.step + NumPy contact per physics step) and the default
-    compiled path (same equations, numba kernels) give the same trajectory to round-off."""
-    a, b = TensegrityRollEnv(backend="numpy"), TensegrityRollEnv()
-    a.reset(seed=3)
-    b.reset(seed=3)
-    rng = np.random.default_rng(0)
-    for _ in range(25):
-        act = rng.uniform(-1, 1, a.action_space.shape)
-        a.step(act)
-        b.step(act)
-    assert a.task.cstate.active.any()
-    np.testing.assert_allclose(a.task.q, b.task.q, rtol=0, atol=1e-10)
-    np.testing.assert_allclose(a.task.qd, b.task.qd, rtol=0, atol=1e-8)
-    np.testing.assert_array_equal(a.task.cstate.active, b.task.cstate.active)
+def test_python_contact_loop_matches_the_fast_path(monkeypatch):
+    """The generic path (a Python loop of contact forces and one integrators.step per physics
+    step, NumPy bookkeeping) and the default compiled path give the same trajectory to
+    round-off. (The NumPy oracle of the contact step: tests/test_contact.py.)"""
+    from tensegrity_gym import pipeline
+    acts = np.random.default_rng(0).uniform(-1, 1, (25, 9))
+    calls = []
+    real = pipeline._contact_compiled
+    monkeypatch.setattr(pipeline, "_contact_compiled", lambda *a: calls.append(1) or real(*a))
+    fast = TensegrityRollEnv()
+    fast.reset(seed=3)
+    for act in acts:
+        fast.step(act)
+    assert calls or fast.task._compiled_physics()     # the compiled path ran
+    monkeypatch.setattr(pipeline, "AVAILABLE", False)          # NumPy bookkeeping
+    monkeypatch.setattr(pipeline, "_contact_compiled", lambda *a: False)   # the Python contact loop
+    slow = TensegrityRollEnv()
+    slow.task._kernels_run = False                             # integrators.step per physics step
+    slow.reset(seed=3)
+    for act in acts:
+        slow.step(act)
+    assert slow.task.cstate.active.any()
+    np.testing.assert_allclose(slow.task.q, fast.task.q, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(slow.task.qd, fast.task.qd, rtol=0, atol=1e-8)
+    np.testing.assert_array_equal(slow.task.cstate.active, fast.task.cstate.active)
 
 
 def test_step_above_the_contact_stability_limit_warns():

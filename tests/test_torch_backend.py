@@ -80,7 +80,7 @@ def test_accelerations_match_numpy_with_slack_and_params():
     st = _released(model, B=4)
     rl = np.tile(model.rest_length, (4, 1))
     rl[1, :3] *= 1.5                      # copy 1: its bottom strings slack
-    a_np = dyn.accelerations(model, st.q, st.qd, rl)
+    a_np = integrators.accelerations(model, st.q, st.qd, rl)
     q, qd = torch.tensor(st.q), torch.tensor(st.qd)
     a_t = tb.accelerations(model, q, qd, rest_length=torch.tensor(rl))
     assert np.abs(a_t.numpy() - a_np).max() < 1e-10 * np.abs(a_np).max()
@@ -89,8 +89,8 @@ def test_accelerations_match_numpy_with_slack_and_params():
     stiff[2] *= 2.0
     a_p = tb.accelerations(model, q, qd, params={"stiffness": stiff})
     m2 = replace(model, stiffness=model.stiffness * 2.0)
-    assert np.allclose(a_p[2].numpy(), dyn.accelerations(m2, st.q[2:3], st.qd[2:3])[0], rtol=0, atol=1e-10)
-    assert np.allclose(a_p[0].numpy(), dyn.accelerations(model, st.q[:1], st.qd[:1])[0], rtol=0, atol=1e-10)
+    assert np.allclose(a_p[2].numpy(), integrators.accelerations(m2, st.q[2:3], st.qd[2:3])[0], rtol=0, atol=1e-10)
+    assert np.allclose(a_p[0].numpy(), integrators.accelerations(model, st.q[:1], st.qd[:1])[0], rtol=0, atol=1e-10)
 
 
 def test_per_copy_params_agree_with_numba():
@@ -123,7 +123,7 @@ def _roll_scene():
     nodes, _ = roll.place_on_ground(s.nodes, com, 0.02, exclude_axis=axis)
     s = s.replace(nodes=nodes + np.array([0.0, 0.0, 0.01]))   # dropped from 1 cm: touch-down, stick and slip
     model = dyn.compile_model(s)
-    contact = gc.GroundContact(radius=0.02, max_damping=0.2 / 4 / 1e-3, backend="numpy")
+    contact = gc.GroundContact(radius=0.02, max_damping=0.2 / 4 / 1e-3)
     return model, contact
 
 
@@ -136,8 +136,7 @@ def test_contact_agrees_with_contact_step():
     st = dyn.State(*dyn.project(model, st.q, qd))
     rl = model.rest_length * (1 + 0.05 * rng.standard_normal((2, model.n_strings)))
     cs = gc.init_contact_state(model, 2)
-    ref, cs_ref = gc.step(model, contact, st, cs, 1e-3, "semi_implicit_euler", n_steps=400, rest_length=rl,
-                          backend="numpy")
+    ref, cs_ref = gc.step(model, contact, st, cs, 1e-3, "semi_implicit_euler", n_steps=400, rest_length=rl)
     q, qd = torch.tensor(st.q), torch.tensor(st.qd)
     anchor, active = tb.init_contact_state(model, 2)
     slipped = torch.zeros((), dtype=torch.bool)
@@ -182,7 +181,7 @@ W_LOSS = np.random.default_rng(11).standard_normal((2, 6, 3))
 
 
 def _loss_numpy(model, st, rest_length=None, force_density=None, params=None):
-    out = integrators.step(model, st, DT_GRAD, "rk4", n_steps=N_GRAD, backend="numpy", rest_length=rest_length,
+    out = integrators.step(model, st, DT_GRAD, "rk4", n_steps=N_GRAD, rest_length=rest_length,
                            force_density=force_density, params=params)
     return float(np.sum(W_LOSS * dyn.node_positions(model, out.q)))
 
@@ -202,7 +201,7 @@ def test_smooth_stretch_has_no_switch():
     model, st = _grad_scene()
     q, qd = st.q, st.qd
     for _ in range(N_GRAD // 10):
-        s = integrators.step(model, dyn.State(q, qd), DT_GRAD, "rk4", n_steps=10, backend="numpy")
+        s = integrators.step(model, dyn.State(q, qd), DT_GRAD, "rk4", n_steps=10)
         q, qd = s.q, s.qd
         _, L, _ = dyn.string_state(model, q)
         assert np.min(L - model.rest_length) > 1e-3   # all strings taut by a margin

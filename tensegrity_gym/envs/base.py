@@ -74,9 +74,8 @@ class BatchedTask:
             raise ValueError("backend='torch' runs the batch on a torch device as a vector env: "
                              "gymnasium.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point', "
                              "backend='torch', device=...) (docs/bench_gpu.md); this NumPy/numba task takes "
-                             "backend 'auto', 'numpy' or 'numba'")
-        if backend not in ("auto", "numpy", "numba"):
-            raise ValueError(f"backend: unknown {backend!r}; choose 'auto', 'numpy' or 'numba'")
+                             "backend 'auto' or 'numba'")
+        integrators._numba_backend(backend)   # "auto"/"numba"; ValueError naming "backend" otherwise
         self.backend = backend
         self._kernels_run = pipeline.compiled_physics(self.integrator, backend)   # the numba kernels step it
         self.clip_actions = check_flag(clip_actions, "clip_actions")
@@ -270,7 +269,7 @@ class BatchedTask:
 
     def _compiled_physics(self) -> bool:
         """True if :meth:`simulate` runs the numba kernels and the compiled bookkeeping
-        (explicit integrator, numba present, backend not "numpy"); decided once per task."""
+        (explicit integrator); decided once per task."""
         c = self.__dict__.get("_compiled")
         if c is None:
             c = self._compiled = bool(pipeline.AVAILABLE and self._kernels_run)

@@ -147,7 +147,7 @@ ROLL_DOC = r"""
     | ``tangential_stiffness``, ``tangential_damping`` | ``None`` (= ground_stiffness), ``10`` | N/m, N s/m (stick spring) |
     | ``cap_radius`` | ``0.02`` | m |
     | ``ground_max_damping`` | ``None`` (= m/(4 dt), 50 N s/m) | N s/m, cap on the Hunt-Crossley damping coefficient (explicit stability in fast impacts) |
-    | ``backend`` | ``"auto"`` | ``"numpy"`` / ``"numba"`` |
+    | ``backend`` | ``"auto"`` | ``"auto"`` / ``"numba"`` (the same: the numba kernels; ``"numpy"`` is no longer a backend) |
     | ``divergence_limit`` | ``None`` | m (default 100 x the robot's size) |
     | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
     | ``params`` | ``None`` | fix robot parameters by name, absolute SI values (``rod_mass``, ``stiffness``, ``damping``, ``node_damping``, ``gravity``, ``rest_length_offset``, ``friction``, ``ground_stiffness``, ``ground_damping``, ``max_cable_speed``, ``max_cable_acceleration``; a number or one per rod/string/node/cable): see :mod:`tensegrity_gym.envs.domain` |
@@ -190,6 +190,9 @@ ROLL_DOC = r"""
       ``force_density`` mode is unchanged.
     * v0 (argument checks): force-density limits in rest-length mode, non-bool flags and non-integer counts
       are ValueErrors naming the argument (were ignored or converted); valid arguments unchanged.
+    * v0 (one backend): ``backend="numpy"`` is refused (the NumPy step path became the test oracle);
+      reset states are projected by the numba kernels, which differ from the old NumPy projection
+      by round-off only (1e-16 m).
 """
 
 
@@ -327,7 +330,7 @@ SHAPE_DOC = r"""
     | ``rest_length_bounds`` | ``(0.8, 1.1)`` | fractions of the structure's rest lengths |
     | ``max_speed`` | ``0.1`` | m/s, rest-length mode |
     | ``force_density_max``, ``force_density_rate`` | ``None`` | N/m and N/(m s); default 3 x the largest nominal force density and twice that per second (force-density mode only; an error in rest-length mode) |
-    | ``backend`` | ``"auto"`` | physics backend (numba kernels when available) |
+    | ``backend`` | ``"auto"`` | ``"auto"`` / ``"numba"`` (the same: the numba kernels) |
     | ``divergence_limit`` | ``None`` | m |
     | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
     | ``params`` | ``None`` | fix robot parameters by name, absolute SI values (``rod_mass``, ``stiffness``, ``damping``, ``node_damping``, ``gravity``, ``rest_length_offset``; a number or one per rod/string/node): see :mod:`tensegrity_gym.envs.domain`. Targets stay those of the nominal model (a controller that believes the nominal model then meets a different robot) |
@@ -348,4 +351,7 @@ SHAPE_DOC = r"""
     * v0 (0.2): ``observation_mode="robot"``, ``sensor_noise``, ``history``; defaults unchanged (bit-identical).
     * v0 (argument checks): force-density limits in rest-length mode, non-bool flags and non-integer counts
       are ValueErrors naming the argument (were ignored or converted); valid arguments unchanged.
+    * v0 (one backend): ``backend="numpy"`` is refused (the NumPy step path became the test oracle);
+      reset states are projected by the numba kernels, which differ from the old NumPy projection
+      by round-off only (1e-16 m).
 """

@@ -78,8 +78,7 @@ class RollTask(RollObservation, BatchedTask):
             self.contact = gc.GroundContact(stiffness=ground_stiffness, damping=ground_damping, friction=friction,
                                             tangential_stiffness=tangential_stiffness,
                                             tangential_damping=tangential_damping, radius=cap_radius,
-                                            max_damping=ground_max_damping,
-                                            backend="numpy" if backend == "numpy" else "auto")
+                                            max_damping=ground_max_damping)
         except ValueError as e:   # name this task's argument, not GroundContact's field
             field, _, rest = str(e).partition(":")
             raise ValueError(f"{_CONTACT_ARGS.get(field, field)}:{rest}") from None

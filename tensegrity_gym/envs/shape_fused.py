@@ -21,7 +21,7 @@ class FusedShapeStep:
     def _fused_setup(self):
         """Constants of the fused compiled step (:func:`tensegrity_gym.envs.compiled.shape_step`
         running a :func:`tensegrity_gym.pipeline.compiled_plan`), or False when it does not apply:
-        no numba, numpy backend / implicit integrator, an anchored tracked node, or a batch large
+        an implicit integrator, an anchored tracked node, or a batch large
         enough for the parallel kernel (then the pipeline runs it). Decided once per task, at its
         first step."""
         fz = False

@@ -1,0 +1,198 @@
+"""The NumPy reference of the physics equations: the test oracle of the numba kernels.
+
+Issue 12 ("each equation written once per backend; the NumPy path becomes a test oracle under
+tests/"): the package computes every step, projection, rod acceleration and contact force with
+the numba kernels (:mod:`tensegrity_gym._kernels`, :mod:`tensegrity_gym.pipeline`; torch in
+:mod:`tensegrity_gym.torch_backend`). This module keeps the vectorised NumPy formulation they
+were written from, so the tests can check the kernels against a second, independent transcription
+of the same equations (the node-coordinate model in ``tests/reference.py`` checks the
+formulation itself):
+
+* :func:`rod_accelerations` -- free rod (5.37)/(5.40) and the reduced form of constrained rods
+  (5.49)-(5.51) (Sherman-Morrison), from the generalized forces of ``dynamics.nodal_forces``
+  (the package's string-force equation, which observations and statics use too);
+* :func:`accelerations`, :func:`project`;
+* :func:`step` -- semi-implicit Euler (with the great-circle drift :func:`sphere_drift` when
+  projecting) and RK4, a callable ``external`` evaluated at every stage;
+* :func:`contact_forces` and :func:`contact_step` -- the ground contact (Hunt-Crossley normal
+  force, stick/slip Coulomb friction) and its sub-step loop.
+
+SI units; shapes as the package's functions take them. Not installed with the package.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from tensegrity_gym import dynamics as dyn, integrators
+from tensegrity_gym.contact import ContactState
+from tensegrity_gym.dynamics import State
+from tensegrity_gym.params import check_params
+
+
+def rod_accelerations(model, q, qd, F, params=None):
+    b, bd = q[..., 3:], qd[..., 3:]
+    Fa, Fc = F[:, model.rod_a], F[:, model.rod_c]
+    fr = Fa + Fc
+    fb = model.eta[None, :, 0, None] * Fa + model.eta[None, :, 1, None] * Fc
+    bb = np.einsum("bki,bki->bk", b, b)[..., None]
+    w = np.einsum("bki,bki->bk", bd, bd)[..., None] / bb
+    Pfb = fb - b * np.einsum("bki,bki->bk", b, fb)[..., None] / bb
+    p = model if params is None else params
+    f = p.f[..., None]
+    J = p.J[..., None]
+    m = p.mass[..., None]
+    h = fr - (f / J) * Pfb + f * w * b
+    # A h with A = (Pi - beta u u^T/(alpha + beta |u|^2)) / alpha, u = Pi b / |b|
+    alpha = m - f * f / J
+    beta = f * f / J
+    Pi = model.proj
+    u = np.einsum("kij,bkj->bki", Pi, b) / np.sqrt(bb)
+    Pih = np.einsum("kij,bkj->bki", Pi, h)
+    uu = np.einsum("bki,bki->bk", u, u)[..., None]
+    uh = np.einsum("bki,bki->bk", u, h)[..., None]
+    rdd = (Pih - beta * u * uh / (alpha + beta * uu)) / alpha
+    Prdd = rdd - b * np.einsum("bki,bki->bk", b, rdd)[..., None] / bb
+    bdd = Pfb / J - (f / J) * Prdd - w * b
+    return np.concatenate([rdd, bdd], axis=-1)
+
+
+def accelerations(model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
+                  external=None, params=None) -> np.ndarray:
+    """NumPy ``[r'', b'']`` (B, k, 6), m/s^2 and 1/s^2: :func:`rod_accelerations` of the nodal forces
+    of ``dynamics.nodal_forces``; arguments as :func:`tensegrity_gym.dynamics.accelerations`."""
+    F, _ = dyn.nodal_forces(model, q, qd, rest_length, force_density, external, params)
+    return rod_accelerations(model, q, qd, F, params)
+
+
+def project(model, q: np.ndarray, qd: np.ndarray):
+    """Project onto the constraint manifold: ``|b| = 1``, ``b . b' = 0``, the constrained
+    nodes back on their line/plane/point (and their velocity tangent to it).
+    Returns new ``(q, qd)``; free rods' reference points are untouched."""
+    r, b = q[..., :3], q[..., 3:]
+    rd, bd = qd[..., :3], qd[..., 3:]
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    bd = bd - b * np.einsum("bki,bki->bk", b, bd)[..., None]
+    if model.constrained.any():
+        r = model.offset + np.einsum("kij,bkj->bki", model.proj, r)
+        rd = np.einsum("kij,bkj->bki", model.proj, rd)
+    return np.concatenate([r, b], axis=-1), np.concatenate([rd, bd], axis=-1)
+
+
+_project = project   # step's keyword ``project`` (a flag) shadows the function inside it
+
+_SINC_SMALL = 1e-4   # _kernels' value: below this angle per step sin(x)/x = 1 - x^2/6 to round-off
+
+
+def sphere_drift(q, qd, dt):
+    """Drift half of semi-implicit Euler with ``project=True``: ``r += dt r'`` and each rod
+    direction moved along its great circle (the exact geodesic flow on the unit sphere).
+
+    With ``b`` normalised, ``b'`` made tangent (``b' -= b (b . b')``), ``w = |b'|`` (1/s) and
+    ``x = w dt``: ``b <- b cos x + b' sin(x)/w``, ``b' <- -b w sin x + b' cos x``. This keeps
+    ``|b| = 1``, ``b . b' = 0``, ``|b'|`` and ``b x b'`` exactly, so a freely spinning rod
+    neither gains energy nor angular momentum (the Euler update ``b += dt b'`` followed by a
+    normalisation shrinks ``b'`` relative to the rotation and does). The radial part of
+    ``b''`` (the centripetal term ``-|b'|^2 b``) is what the great circle replaces. Operation
+    order mirrored by ``_kernels._drift_rod`` (round-off agreement)."""
+    r, b = q[..., :3], q[..., 3:]
+    rd, bd = qd[..., :3], qd[..., 3:]
+    r = r + dt * rd
+    b = b * (1.0 / np.sqrt(np.einsum("bki,bki->bk", b, b)))[..., None]
+    bd = bd - b * np.einsum("bki,bki->bk", b, bd)[..., None]
+    w = np.sqrt(np.einsum("bki,bki->bk", bd, bd))[..., None]
+    x = w * dt
+    small = x < _SINC_SMALL
+    xs = np.where(small, 1.0, x)
+    sinc = np.where(small, 1.0 - x * x / 6.0, np.sin(xs) / xs)   # sin(x)/x
+    c = np.cos(x)
+    bn = b * c + bd * (dt * sinc)
+    bdn = bd * c - b * (w * (x * sinc))                          # w sin x = w x sinc
+    return np.concatenate([r, bn], axis=-1), np.concatenate([rd, bdn], axis=-1)
+
+
+def contact_forces(c, model, q, qd, anchor, active, prm=None):
+    B = q.shape[0]
+    # parameters: (1, 1) or (B, 1) columns of the per-copy array (the contact's own values by default)
+    P = c._prm if prm is None else prm
+    height, radius, kn, dn, _, mu, kt, ct, cmax = (P[:, i:i + 1] for i in range(9))
+    k = model.n_bars
+    r, b = q[..., :3], q[..., 3:]
+    rd, bd = qd[..., :3], qd[..., 3:]
+    eta = model.eta  # (k, 2)
+    # contact positions / velocities (B, k, 2, 3) -> (B, 2k, 3), order rod j end a, end c
+    Pc = (r[:, :, None, :] + eta[None, :, :, None] * b[:, :, None, :]).reshape(B, 2 * k, 3)
+    V = (rd[:, :, None, :] + eta[None, :, :, None] * bd[:, :, None, :]).reshape(B, 2 * k, 3)
+    delta = height + radius - Pc[..., 2]
+    touch = delta > 0.0
+    dpos = np.where(touch, delta, 0.0)
+    de = dpos if c.exponent == 1.0 else dpos ** c.exponent
+    kd = kn * de
+    cn = np.minimum(kd * dn, cmax)
+    Fn = np.where(touch, np.maximum(kd - cn * V[..., 2], 0.0), 0.0)
+    pt = Pc[..., :2]
+    anchor = np.where((touch & ~active)[..., None], pt, anchor)
+    xi = pt - anchor
+    Ft = -kt[..., None] * xi - ct[..., None] * V[..., :2]
+    norm = np.sqrt(np.einsum("bci,bci->bc", Ft, Ft))
+    lim = mu * Fn
+    slip = touch & (norm > lim)
+    scale = np.where(slip, lim / np.where(slip, norm, 1.0), 1.0)
+    Ft = Ft * scale[..., None]
+    anchor = np.where(slip[..., None], pt + Ft / kt[..., None], anchor)
+    Ft = np.where(touch[..., None], Ft, 0.0)
+    Fc = np.concatenate([Ft, Fn[..., None]], axis=-1)  # (B, 2k, 3)
+    W = np.zeros((B, model.n_nodes, 3))
+    W[:, model.rod_a] = Fc[:, 0::2]
+    W[:, model.rod_c] = Fc[:, 1::2]
+    return W, anchor, touch, slip
+
+
+def step(model, state, dt, integrator="semi_implicit_euler", *, rest_length=None, force_density=None,
+         external=None, project=True, n_steps=1, params=None):
+    """``n_steps`` fixed steps of ``dt`` s (``integrator`` "semi_implicit_euler" or "rk4"),
+    inputs as :func:`tensegrity_gym.integrators.step` takes them (``external`` an array held
+    over the step or a callable ``external(q, qd, t)`` evaluated at every stage). Returns a new
+    State; ``t`` summed step by step."""
+    name = integrators.resolve(integrator).name
+    if name not in ("semi_implicit_euler", "rk4"):
+        raise ValueError(f"the oracle steps semi_implicit_euler and rk4, not {name!r}")
+    B, m = state.batch_size, model.n_strings
+    rest_length = integrators._as_batch(rest_length, B, m, "rest_length")
+    force_density = integrators._as_batch(force_density, B, m, "force_density")
+    if params is not None:
+        params = check_params(model, params, B)
+
+    def acc(q, qd, t):
+        ext = external(q, qd, t) if callable(external) else external
+        return accelerations(model, q, qd, rest_length, force_density, ext, params)
+
+    q, qd, t = state.q, state.qd, state.t
+    for _ in range(int(n_steps)):
+        if name == "semi_implicit_euler":
+            qd = qd + dt * acc(q, qd, t)
+            if project:
+                q, qd = sphere_drift(q, qd, dt)
+            else:
+                q = q + dt * qd
+        else:   # the RK4 combination of stages (four lines of arithmetic) is the package's
+            q, qd = integrators.rk4_update(acc, q, qd, t, dt)
+        if project:
+            q, qd = _project(model, q, qd)
+        t = t + dt
+    return State(q=q, qd=qd, t=t)
+
+
+def contact_step(model, contact, state, cstate, dt, integrator="semi_implicit_euler", n_steps=1, external=None,
+                 contact_params=None, **inputs):
+    """``n_steps`` steps with ground contact, as :func:`tensegrity_gym.pipeline.step` with
+    ``contact``: per step the contact forces of the whole batch from the state at the step's
+    start (anchors updated), then one :func:`step` with those forces (plus ``external``) held.
+    Returns ``(State, ContactState)``, new objects."""
+    anchor, active = cstate.anchor.copy(), cstate.active.copy()
+    st = state
+    for _ in range(int(n_steps)):
+        W, anchor, active, _ = contact_forces(contact, model, st.q, st.qd, anchor, active, contact_params)
+        if external is not None:
+            W = W + external
+        st = step(model, st, dt, integrator, external=W, **inputs)
+    return st, ContactState(anchor, active)
