@@ -108,7 +108,6 @@ __all__ = ["GroundContact", "ContactState", "init_contact_state", "contact_force
 
 from numba import njit   # a required dependency: the contact forces exist only as this kernel
 
-from .integrators import NUMPY_REMOVED
 
 
 @dataclass(frozen=True)
@@ -164,10 +163,7 @@ class GroundContact:
         if not math.isfinite(h):
             raise ValueError(f"height: must be finite (m), got {self.height!r}")
         s(self, "height", h)
-        if self.backend == "numpy":
-            raise ValueError(f"backend: {NUMPY_REMOVED}")
-        if self.backend not in ("auto", "numba"):
-            raise ValueError(f"backend: unknown {self.backend!r}; choose 'auto' or 'numba'")
+        integrators._numba_backend(self.backend)   # "auto"/"numba"; the same ValueError as step's otherwise
         try:
             cmax = float(self.max_damping)
         except (TypeError, ValueError):
