@@ -16,9 +16,6 @@ cores with ``prange`` when the batch is large.
 
 Entry points
 ------------
-``AVAILABLE``
-    True if numba imports. Without numba, :func:`step` raises ``RuntimeError`` and
-    ``integrators.step(backend="auto")`` uses NumPy.
 :func:`step` ``(model, state, dt, name, *, rest_length, force_density, external, project, n_steps)``
     Same arguments and result as ``integrators.step`` for ``name`` in
     ``{"semi_implicit_euler", "rk4"}``; returns a new :class:`~tensegrity_gym.dynamics.State`
@@ -90,22 +87,17 @@ import weakref
 
 import numpy as np
 
-try:  # pragma: no cover - exercised by the import itself
-    import numba
-    from numba import njit, prange
-    AVAILABLE = True
-except Exception:  # pragma: no cover - numba missing or broken
-    numba = None
-    AVAILABLE = False
+import numba   # a required dependency: these kernels are the package's only step implementation
+from numba import njit, prange
 
-if AVAILABLE and "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
+if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
     # numba's default picks GNU OpenMP here; on a machine with more runnable threads than cores
     # (other jobs, or torch's own OpenMP pool during training) each parallel call then waits
     # ~12-16 ms for a descheduled worker, measured on the 2-core benchmark machine, against
     # ~0.1 ms with numba's own workqueue pool. Set NUMBA_THREADING_LAYER to choose otherwise.
     numba.config.THREADING_LAYER = "workqueue"
 
-__all__ = ["AVAILABLE", "step", "step_inplace", "accelerations", "project", "PARALLEL_MIN_WORK", "clear_cache"]
+__all__ = ["step", "step_inplace", "accelerations", "project", "PARALLEL_MIN_WORK", "clear_cache"]
 
 #: a call runs the multi-threaded kernel when B * n_steps * (strings + rods) * (4 for RK4, else 1)
 #: reaches this (about 0.3 ms of single-core work: below it, waking threads costs more than they save,
@@ -180,562 +172,561 @@ def _soa_width(k):
     return 16 if k <= 24 else 8
 
 
-if AVAILABLE:
-    # The kernels index one flat float64 buffer ``w`` (model data + scratch, see _layout) with
-    # computed offsets instead of slicing views: every numba array view costs reference-count
-    # traffic that, at B = 1, is larger than the physics of a small structure.
-    _opts = dict(cache=True, fastmath=False, error_model="numpy")
-    _layout_nb = njit(**_opts)(_layout)
-    _soa_width_nb = njit(inline="always", **_opts)(_soa_width)
+# The kernels index one flat float64 buffer ``w`` (model data + scratch, see _layout) with
+# computed offsets instead of slicing views: every numba array view costs reference-count
+# traffic that, at B = 1, is larger than the physics of a small structure.
+_opts = dict(cache=True, fastmath=False, error_model="numpy")
+_layout_nb = njit(**_opts)(_layout)
+_soa_width_nb = njit(inline="always", **_opts)(_soa_width)
 
-    @njit(inline="always", **_opts)
-    def _lane_width(k, B):
-        """E for a serial call on B copies: SIMD blocks from _SOA_MIN_BATCH copies, else one copy
-        at a time (a padded block would compute up to 15 copies for nothing)."""
-        return _soa_width_nb(k) if B >= _SOA_MIN_BATCH else 1
+@njit(inline="always", **_opts)
+def _lane_width(k, B):
+    """E for a serial call on B copies: SIMD blocks from _SOA_MIN_BATCH copies, else one copy
+    at a time (a padded block would compute up to 15 copies for nothing)."""
+    return _soa_width_nb(k) if B >= _SOA_MIN_BATCH else 1
 
-    @njit(inline="always", **_opts)
-    def _rod_acc(b0, b1, b2, bd0, bd1, bd2, Fa0, Fa1, Fa2, Fc0, Fc1, Fc2, ea, ec, free, im, iJ, fJ, beta, alpha,
-                 ialpha, fm, w, pj):
-        """(r'', b'') of one rod from its direction ``b``, rate ``b'``, the forces on its nodes
-        ``F_a``, ``F_c`` (N) at ``eta_a``, ``eta_c`` and its constants (1/m, 1/J, f/J, beta,
-        alpha, 1/alpha, f; projector Pi at ``w[pj:pj + 9]``, read only for a constrained rod;
-        at most 30 arguments: CPython passes more as a tuple, which numba cannot inline):
-        (5.37)/(5.40) for a free rod at its centre of mass
-        (``free``: f = 0, A = I/m), the reduced form (5.49)-(5.51) with the branch-free
-        Sherman-Morrison ``A`` for a constrained one (see dynamics.py). The one copy of the rod
-        equations of the numba backend (_acc inlines it)."""
-        fr0 = Fa0 + Fc0
-        fr1 = Fa1 + Fc1
-        fr2 = Fa2 + Fc2
-        fb0 = ea * Fa0 + ec * Fc0
-        fb1 = ea * Fa1 + ec * Fc1
-        fb2 = ea * Fa2 + ec * Fc2
-        ibb = 1.0 / (b0 * b0 + b1 * b1 + b2 * b2)
-        wv = (bd0 * bd0 + bd1 * bd1 + bd2 * bd2) * ibb
-        c = (b0 * fb0 + b1 * fb1 + b2 * fb2) * ibb
-        P0 = fb0 - b0 * c
-        P1 = fb1 - b1 * c
-        P2 = fb2 - b2 * c
-        if free:
-            return (fr0 * im, fr1 * im, fr2 * im, P0 * iJ - wv * b0, P1 * iJ - wv * b1, P2 * iJ - wv * b2)
-        fw = fm * wv         # f w
-        h0 = fr0 - fJ * P0 + fw * b0
-        h1 = fr1 - fJ * P1 + fw * b1
-        h2 = fr2 - fJ * P2 + fw * b2
-        isb = math.sqrt(ibb)
-        p00, p01, p02 = w[pj], w[pj + 1], w[pj + 2]
-        p10, p11, p12 = w[pj + 3], w[pj + 4], w[pj + 5]
-        p20, p21, p22 = w[pj + 6], w[pj + 7], w[pj + 8]
-        u0 = (p00 * b0 + p01 * b1 + p02 * b2) * isb
-        u1 = (p10 * b0 + p11 * b1 + p12 * b2) * isb
-        u2 = (p20 * b0 + p21 * b1 + p22 * b2) * isb
-        Ph0 = p00 * h0 + p01 * h1 + p02 * h2
-        Ph1 = p10 * h0 + p11 * h1 + p12 * h2
-        Ph2 = p20 * h0 + p21 * h1 + p22 * h2
-        uu = u0 * u0 + u1 * u1 + u2 * u2
-        uh = u0 * h0 + u1 * h1 + u2 * h2
-        cu = beta * uh / (alpha + beta * uu)
-        r0 = (Ph0 - cu * u0) * ialpha
-        r1 = (Ph1 - cu * u1) * ialpha
-        r2 = (Ph2 - cu * u2) * ialpha
-        br = (b0 * r0 + b1 * r1 + b2 * r2) * ibb
-        return (r0, r1, r2, P0 * iJ - fJ * (r0 - b0 * br) - wv * b0, P1 * iJ - fJ * (r1 - b1 * br) - wv * b1,
-                P2 * iJ - fJ * (r2 - b2 * br) - wv * b2)
+@njit(inline="always", **_opts)
+def _rod_acc(b0, b1, b2, bd0, bd1, bd2, Fa0, Fa1, Fa2, Fc0, Fc1, Fc2, ea, ec, free, im, iJ, fJ, beta, alpha,
+             ialpha, fm, w, pj):
+    """(r'', b'') of one rod from its direction ``b``, rate ``b'``, the forces on its nodes
+    ``F_a``, ``F_c`` (N) at ``eta_a``, ``eta_c`` and its constants (1/m, 1/J, f/J, beta,
+    alpha, 1/alpha, f; projector Pi at ``w[pj:pj + 9]``, read only for a constrained rod;
+    at most 30 arguments: CPython passes more as a tuple, which numba cannot inline):
+    (5.37)/(5.40) for a free rod at its centre of mass
+    (``free``: f = 0, A = I/m), the reduced form (5.49)-(5.51) with the branch-free
+    Sherman-Morrison ``A`` for a constrained one (see dynamics.py). The one copy of the rod
+    equations of the numba backend (_acc inlines it)."""
+    fr0 = Fa0 + Fc0
+    fr1 = Fa1 + Fc1
+    fr2 = Fa2 + Fc2
+    fb0 = ea * Fa0 + ec * Fc0
+    fb1 = ea * Fa1 + ec * Fc1
+    fb2 = ea * Fa2 + ec * Fc2
+    ibb = 1.0 / (b0 * b0 + b1 * b1 + b2 * b2)
+    wv = (bd0 * bd0 + bd1 * bd1 + bd2 * bd2) * ibb
+    c = (b0 * fb0 + b1 * fb1 + b2 * fb2) * ibb
+    P0 = fb0 - b0 * c
+    P1 = fb1 - b1 * c
+    P2 = fb2 - b2 * c
+    if free:
+        return (fr0 * im, fr1 * im, fr2 * im, P0 * iJ - wv * b0, P1 * iJ - wv * b1, P2 * iJ - wv * b2)
+    fw = fm * wv         # f w
+    h0 = fr0 - fJ * P0 + fw * b0
+    h1 = fr1 - fJ * P1 + fw * b1
+    h2 = fr2 - fJ * P2 + fw * b2
+    isb = math.sqrt(ibb)
+    p00, p01, p02 = w[pj], w[pj + 1], w[pj + 2]
+    p10, p11, p12 = w[pj + 3], w[pj + 4], w[pj + 5]
+    p20, p21, p22 = w[pj + 6], w[pj + 7], w[pj + 8]
+    u0 = (p00 * b0 + p01 * b1 + p02 * b2) * isb
+    u1 = (p10 * b0 + p11 * b1 + p12 * b2) * isb
+    u2 = (p20 * b0 + p21 * b1 + p22 * b2) * isb
+    Ph0 = p00 * h0 + p01 * h1 + p02 * h2
+    Ph1 = p10 * h0 + p11 * h1 + p12 * h2
+    Ph2 = p20 * h0 + p21 * h1 + p22 * h2
+    uu = u0 * u0 + u1 * u1 + u2 * u2
+    uh = u0 * h0 + u1 * h1 + u2 * h2
+    cu = beta * uh / (alpha + beta * uu)
+    r0 = (Ph0 - cu * u0) * ialpha
+    r1 = (Ph1 - cu * u1) * ialpha
+    r2 = (Ph2 - cu * u2) * ialpha
+    br = (b0 * r0 + b1 * r1 + b2 * r2) * ibb
+    return (r0, r1, r2, P0 * iJ - fJ * (r0 - b0 * br) - wv * b0, P1 * iJ - fJ * (r1 - b1 * br) - wv * b1,
+            P2 * iJ - fJ * (r2 - b2 * br) - wv * b2)
 
-    @njit(inline="always", **_opts)
-    def _drift_rod(q0, q1, q2, b0, b1, b2, v0, v1, v2, d0, d1, d2, dt):
-        """Semi-implicit Euler drift with projection for one rod (oracle_numpy.sphere_drift, same
-        operations in the same order): r += dt r'; b along its great circle. Returns the new
-        (r, b, b') as a 9-tuple (r' is unchanged)."""
-        q0 = q0 + dt * v0
-        q1 = q1 + dt * v1
-        q2 = q2 + dt * v2
-        inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-        b0 = b0 * inb
-        b1 = b1 * inb
-        b2 = b2 * inb
-        dot = b0 * d0 + b1 * d1 + b2 * d2
-        d0 = d0 - b0 * dot
-        d1 = d1 - b1 * dot
-        d2 = d2 - b2 * dot
-        wv = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        x = wv * dt
-        if x < _SINC_SMALL:
-            sinc = 1.0 - x * x / 6.0
-        else:
-            sinc = math.sin(x) / x
-        c = math.cos(x)
-        ds = dt * sinc
-        ws = wv * (x * sinc)
-        return (q0, q1, q2, b0 * c + d0 * ds, b1 * c + d1 * ds, b2 * c + d2 * ds,
-                d0 * c - b0 * ws, d1 * c - b1 * ws, d2 * c - b2 * ws)
+@njit(inline="always", **_opts)
+def _drift_rod(q0, q1, q2, b0, b1, b2, v0, v1, v2, d0, d1, d2, dt):
+    """Semi-implicit Euler drift with projection for one rod (oracle_numpy.sphere_drift, same
+    operations in the same order): r += dt r'; b along its great circle. Returns the new
+    (r, b, b') as a 9-tuple (r' is unchanged)."""
+    q0 = q0 + dt * v0
+    q1 = q1 + dt * v1
+    q2 = q2 + dt * v2
+    inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    b0 = b0 * inb
+    b1 = b1 * inb
+    b2 = b2 * inb
+    dot = b0 * d0 + b1 * d1 + b2 * d2
+    d0 = d0 - b0 * dot
+    d1 = d1 - b1 * dot
+    d2 = d2 - b2 * dot
+    wv = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    x = wv * dt
+    if x < _SINC_SMALL:
+        sinc = 1.0 - x * x / 6.0
+    else:
+        sinc = math.sin(x) / x
+    c = math.cos(x)
+    ds = dt * sinc
+    ws = wv * (x * sinc)
+    return (q0, q1, q2, b0 * c + d0 * ds, b1 * c + d1 * ds, b2 * c + d2 * ds,
+            d0 * c - b0 * ws, d1 * c - b1 * ws, d2 * c - b2 * ws)
 
-    @njit(inline="always", **_opts)
-    def _rod_topology(w, ib, o_rod, j):
-        """(slot of rod j in the packed buffer, node a, node c, eta_a, eta_c)."""
-        rj = o_rod + _ROD * j
-        return rj, ib[rj], ib[rj + 1], w[rj + 3], w[rj + 4]
+@njit(inline="always", **_opts)
+def _rod_topology(w, ib, o_rod, j):
+    """(slot of rod j in the packed buffer, node a, node c, eta_a, eta_c)."""
+    rj = o_rod + _ROD * j
+    return rj, ib[rj], ib[rj + 1], w[rj + 3], w[rj + 4]
 
-    @njit(inline="always", **_opts)
-    def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
-        """Accelerations A (k, 6, E) of E copies at once (dynamics.accelerations), in
-        structure-of-arrays scratch: Qi, Vi, A (k, 6, E), N, V, F, EX (n, 3, E), L0, FD (m, E).
-        The innermost loops run over the copies (SIMD; one iteration in the E = 1 instance).
-        Topology (node indices, eta, projectors) comes from ``w``; the physical constants of lane
-        e from ``PC[slot, e]`` (the buffer's slots, one column per lane: see _lane_physics)."""
-        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
-        has_damp = (flags & _DAMP) != 0
-        need_v = (flags & (_DAMP | _NDAMP)) != 0
-        for j in range(k):
-            rj, ia, ic, ea, ec = _rod_topology(w, ib, o_rod, j)
+@njit(inline="always", **_opts)
+def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
+    """Accelerations A (k, 6, E) of E copies at once (dynamics.accelerations), in
+    structure-of-arrays scratch: Qi, Vi, A (k, 6, E), N, V, F, EX (n, 3, E), L0, FD (m, E).
+    The innermost loops run over the copies (SIMD; one iteration in the E = 1 instance).
+    Topology (node indices, eta, projectors) comes from ``w``; the physical constants of lane
+    e from ``PC[slot, e]`` (the buffer's slots, one column per lane: see _lane_physics)."""
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
+    has_damp = (flags & _DAMP) != 0
+    need_v = (flags & (_DAMP | _NDAMP)) != 0
+    for j in range(k):
+        rj, ia, ic, ea, ec = _rod_topology(w, ib, o_rod, j)
+        for i in range(3):
+            for e in range(E):
+                N[ia, i, e] = Qi[j, i, e] + ea * Qi[j, 3 + i, e]
+                N[ic, i, e] = Qi[j, i, e] + ec * Qi[j, 3 + i, e]
+        if need_v:
             for i in range(3):
                 for e in range(E):
-                    N[ia, i, e] = Qi[j, i, e] + ea * Qi[j, 3 + i, e]
-                    N[ic, i, e] = Qi[j, i, e] + ec * Qi[j, 3 + i, e]
-            if need_v:
-                for i in range(3):
-                    for e in range(E):
-                        V[ia, i, e] = Vi[j, i, e] + ea * Vi[j, 3 + i, e]
-                        V[ic, i, e] = Vi[j, i, e] + ec * Vi[j, 3 + i, e]
-        F[:] = 0.0
-        has_fd = (flags & _FD) != 0
-        for s in range(m):
-            ps = o_str + _STR * s
-            si = ib[ps]
-            sj = ib[ps + 1]
-            for e in range(E):
-                kk = PC[ps + 2, e]
-                cc = PC[ps + 3, e]
-                s0 = N[sj, 0, e] - N[si, 0, e]
-                s1 = N[sj, 1, e] - N[si, 1, e]
-                s2 = N[sj, 2, e] - N[si, 2, e]
-                Ls = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-                l0s = L0[s, e]
-                tension = kk * (Ls - l0s)
-                if has_damp:
-                    d0 = V[sj, 0, e] - V[si, 0, e]
-                    d1 = V[sj, 1, e] - V[si, 1, e]
-                    d2 = V[sj, 2, e] - V[si, 2, e]
-                    tension = tension + cc * ((s0 * d0 + s1 * d1 + s2 * d2) / Ls)
-                g = tension / Ls
-                if not (Ls > l0s) or tension < 0.0:
+                    V[ia, i, e] = Vi[j, i, e] + ea * Vi[j, 3 + i, e]
+                    V[ic, i, e] = Vi[j, i, e] + ec * Vi[j, 3 + i, e]
+    F[:] = 0.0
+    has_fd = (flags & _FD) != 0
+    for s in range(m):
+        ps = o_str + _STR * s
+        si = ib[ps]
+        sj = ib[ps + 1]
+        for e in range(E):
+            kk = PC[ps + 2, e]
+            cc = PC[ps + 3, e]
+            s0 = N[sj, 0, e] - N[si, 0, e]
+            s1 = N[sj, 1, e] - N[si, 1, e]
+            s2 = N[sj, 2, e] - N[si, 2, e]
+            Ls = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+            l0s = L0[s, e]
+            tension = kk * (Ls - l0s)
+            if has_damp:
+                d0 = V[sj, 0, e] - V[si, 0, e]
+                d1 = V[sj, 1, e] - V[si, 1, e]
+                d2 = V[sj, 2, e] - V[si, 2, e]
+                tension = tension + cc * ((s0 * d0 + s1 * d1 + s2 * d2) / Ls)
+            g = tension / Ls
+            if not (Ls > l0s) or tension < 0.0:
+                g = 0.0
+            if has_fd:
+                g = g + FD[s, e]
+                if g < 0.0:
                     g = 0.0
-                if has_fd:
-                    g = g + FD[s, e]
-                    if g < 0.0:
-                        g = 0.0
-                F[sj, 0, e] -= g * s0
-                F[sj, 1, e] -= g * s1
-                F[sj, 2, e] -= g * s2
-                F[si, 0, e] += g * s0
-                F[si, 1, e] += g * s1
-                F[si, 2, e] += g * s2
-        if (flags & _GRAV) != 0:
-            for p in range(n):
-                for i in range(3):
-                    for e in range(E):
-                        F[p, i, e] = F[p, i, e] + PC[o_W0 + 3 * p + i, e]
-        if (flags & _NDAMP) != 0:
-            for p in range(n):
-                for i in range(3):
-                    for e in range(E):
-                        F[p, i, e] = F[p, i, e] - PC[o_cn + 3 * p + i, e] * V[p, i, e]
-        if (flags & _EXT) != 0:
-            for p in range(n):
-                for i in range(3):
-                    for e in range(E):
-                        F[p, i, e] = F[p, i, e] + EX[p, i, e]
-        for j in range(k):
-            rj, fa, fc, ea, ec = _rod_topology(w, ib, o_rod, j)
-            free = ib[rj + 2] == 0
-            for e in range(E):
-                (A[j, 0, e], A[j, 1, e], A[j, 2, e], A[j, 3, e], A[j, 4, e], A[j, 5, e]) = _rod_acc(
-                    Qi[j, 3, e], Qi[j, 4, e], Qi[j, 5, e], Vi[j, 3, e], Vi[j, 4, e], Vi[j, 5, e],
-                    F[fa, 0, e], F[fa, 1, e], F[fa, 2, e], F[fc, 0, e], F[fc, 1, e], F[fc, 2, e], ea, ec, free,
-                    PC[rj + 5, e], PC[rj + 6, e], PC[rj + 7, e], PC[rj + 8, e], PC[rj + 9, e], PC[rj + 10, e],
-                    PC[rj + 11, e], w, rj + 12)
-
-    @njit(inline="always", **_opts)
-    def _lane_physics(PC, N, src, L, k, m, n, e):
-        """Lane e of the SoA scratch takes the physical constants of the packed buffer ``src``:
-        rod constants (slots 5..11), string stiffness and damping, default rest lengths, gravity
-        loads, node drag (into ``PC[slot, e]``) and the anchor positions (rows of ``N``)."""
-        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
-        for j in range(k):
-            rj = o_rod + _ROD * j
-            for x in range(rj + 5, rj + 12):
-                PC[x, e] = src[x]
-        for s in range(m):
-            ps = o_str + _STR * s
-            PC[ps + 2, e] = src[ps + 2]
-            PC[ps + 3, e] = src[ps + 3]
-            PC[o_l0 + s, e] = src[o_l0 + s]
-        for p in range(3 * n):
-            PC[o_W0 + p, e] = src[o_W0 + p]
-            PC[o_cn + p, e] = src[o_cn + p]
-        _lane_physics_anchors(N, src, L, n, e)
-
-    @njit(inline="always", **_opts)
-    def _lane_physics_anchors(N, src, L, n, e):
-        """Lane e of the node scratch ``N`` takes the node rows of the packed buffer ``src``
-        (anchors: their fixed positions; rod nodes are overwritten by every force evaluation)."""
-        o_N = L[5]
+            F[sj, 0, e] -= g * s0
+            F[sj, 1, e] -= g * s1
+            F[sj, 2, e] -= g * s2
+            F[si, 0, e] += g * s0
+            F[si, 1, e] += g * s1
+            F[si, 2, e] += g * s2
+    if (flags & _GRAV) != 0:
         for p in range(n):
             for i in range(3):
-                N[p, i, e] = src[o_N + 3 * p + i]
-
-    @njit(inline="always", **_opts)
-    def _stage_soa(Q, QD, V, A, c, QS, QDn, k, E):
-        """An RK4 stage state of E lanes: ``QS = Q + c V``, ``QDn = QD + c A`` (k, 6, E)."""
-        for j in range(k):
-            for i in range(6):
                 for e in range(E):
-                    QS[j, i, e] = Q[j, i, e] + c * V[j, i, e]
-                    QDn[j, i, e] = QD[j, i, e] + c * A[j, i, e]
-
-    @njit(inline="always", **_opts)
-    def _project(w, ib, o_rod, k, Q, QD, E, any_cons):
-        """In place on Q, QD (k, 6, E): |b| = 1, b.b' = 0 and constrained reference points back on
-        their point/line/plane with tangent velocity (dynamics.project, same operations)."""
-        for j in range(k):
-            rj = o_rod + _ROD * j
-            for e in range(E):
-                b0 = Q[j, 3, e]
-                b1 = Q[j, 4, e]
-                b2 = Q[j, 5, e]
-                inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-                b0 = b0 * inb
-                b1 = b1 * inb
-                b2 = b2 * inb
-                Q[j, 3, e] = b0
-                Q[j, 4, e] = b1
-                Q[j, 5, e] = b2
-                dot = b0 * QD[j, 3, e] + b1 * QD[j, 4, e] + b2 * QD[j, 5, e]
-                QD[j, 3, e] = QD[j, 3, e] - b0 * dot
-                QD[j, 4, e] = QD[j, 4, e] - b1 * dot
-                QD[j, 5, e] = QD[j, 5, e] - b2 * dot
-            if any_cons and ib[rj + 2] != 0:
-                pj = rj + 12
-                oj = rj + 21
+                    F[p, i, e] = F[p, i, e] + PC[o_W0 + 3 * p + i, e]
+    if (flags & _NDAMP) != 0:
+        for p in range(n):
+            for i in range(3):
                 for e in range(E):
-                    x0 = Q[j, 0, e]
-                    x1 = Q[j, 1, e]
-                    x2 = Q[j, 2, e]
-                    v0 = QD[j, 0, e]
-                    v1 = QD[j, 1, e]
-                    v2 = QD[j, 2, e]
-                    for i in range(3):
-                        Q[j, i, e] = w[oj + i] + (w[pj + 3 * i] * x0 + w[pj + 3 * i + 1] * x1
-                                                  + w[pj + 3 * i + 2] * x2)
-                        QD[j, i, e] = w[pj + 3 * i] * v0 + w[pj + 3 * i + 1] * v1 + w[pj + 3 * i + 2] * v2
+                    F[p, i, e] = F[p, i, e] - PC[o_cn + 3 * p + i, e] * V[p, i, e]
+    if (flags & _EXT) != 0:
+        for p in range(n):
+            for i in range(3):
+                for e in range(E):
+                    F[p, i, e] = F[p, i, e] + EX[p, i, e]
+    for j in range(k):
+        rj, fa, fc, ea, ec = _rod_topology(w, ib, o_rod, j)
+        free = ib[rj + 2] == 0
+        for e in range(E):
+            (A[j, 0, e], A[j, 1, e], A[j, 2, e], A[j, 3, e], A[j, 4, e], A[j, 5, e]) = _rod_acc(
+                Qi[j, 3, e], Qi[j, 4, e], Qi[j, 5, e], Vi[j, 3, e], Vi[j, 4, e], Vi[j, 5, e],
+                F[fa, 0, e], F[fa, 1, e], F[fa, 2, e], F[fc, 0, e], F[fc, 1, e], F[fc, 2, e], ea, ec, free,
+                PC[rj + 5, e], PC[rj + 6, e], PC[rj + 7, e], PC[rj + 8, e], PC[rj + 9, e], PC[rj + 10, e],
+                PC[rj + 11, e], w, rj + 12)
 
-    @numba.extending.intrinsic
-    def _address(typingctx, arr, offset):
-        """Pointer to ``arr.flat[offset]`` (C-contiguous ``arr``), for numba.carray views into the
-        packed buffer that cost no reference counting and no reshape call."""
-        def codegen(context, builder, sig, args):
-            return builder.gep(context.make_array(sig.args[0])(context, builder, args[0]).data, [args[1]])
-        return numba.types.CPointer(arr.dtype)(arr, offset), codegen
+@njit(inline="always", **_opts)
+def _lane_physics(PC, N, src, L, k, m, n, e):
+    """Lane e of the SoA scratch takes the physical constants of the packed buffer ``src``:
+    rod constants (slots 5..11), string stiffness and damping, default rest lengths, gravity
+    loads, node drag (into ``PC[slot, e]``) and the anchor positions (rows of ``N``)."""
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
+    for j in range(k):
+        rj = o_rod + _ROD * j
+        for x in range(rj + 5, rj + 12):
+            PC[x, e] = src[x]
+    for s in range(m):
+        ps = o_str + _STR * s
+        PC[ps + 2, e] = src[ps + 2]
+        PC[ps + 3, e] = src[ps + 3]
+        PC[o_l0 + s, e] = src[o_l0 + s]
+    for p in range(3 * n):
+        PC[o_W0 + p, e] = src[o_W0 + p]
+        PC[o_cn + p, e] = src[o_cn + p]
+    _lane_physics_anchors(N, src, L, n, e)
 
-    @njit(inline="always", **_opts)
-    def _view(arr, offset, shape):
-        """C-contiguous view of ``arr`` from flat index ``offset`` with ``shape`` (no bounds check:
-        the caller's layout guarantees it). Unlike slicing and reshape, it costs no reference
-        counting and no library call, which matter at one copy and one step per call."""
-        return numba.carray(_address(arr, offset), shape)
+@njit(inline="always", **_opts)
+def _lane_physics_anchors(N, src, L, n, e):
+    """Lane e of the node scratch ``N`` takes the node rows of the packed buffer ``src``
+    (anchors: their fixed positions; rod nodes are overwritten by every force evaluation)."""
+    o_N = L[5]
+    for p in range(n):
+        for i in range(3):
+            N[p, i, e] = src[o_N + 3 * p + i]
 
-    @njit(inline="always", **_opts)
-    def _scratch(w, L, k, m, n, E, per_copy):
-        """The driver's scratch for E lanes, (S, N, V, F, L0, FD, EX, PC): stage arrays S
-        (10, k, 6, E), node positions / velocities / forces (n, 3, E), rest lengths and force
-        densities (m, E), external forces (n, 3, E), and the lanes' physical constants PC
-        (len, E). Separate arrays (the compiler may assume they do not overlap). Where every
-        copy shares ``w`` (``per_copy`` False) its constants and anchor rows are written here,
-        once; one copy reads them from ``w`` in place. Reusable across calls of the same model
-        and E (V's anchor rows, FD and EX stay 0 where unused)."""
-        if E == 1:        # one copy (serial calls, GIL held): the packed buffer's own scratch
-            o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
-            o_x = o_cn + 3 * n
-            PC = _view(w, 0, (0 if per_copy else w.shape[0], 1))
-            return (_view(w, o_ws, (10, k, 6, 1)), _view(w, o_N, (n, 3, 1)), _view(w, o_V, (n, 3, 1)),
-                    _view(w, o_F, (n, 3, 1)), _view(w, o_x, (m, 1)), _view(w, o_x + m, (m, 1)),
-                    _view(w, o_x + 2 * m, (n, 3, 1)), PC)
-        N = np.empty((n, 3, E))
-        if per_copy:
-            PC = np.empty((0, E))
-        else:
-            PC = np.empty((L[9], E))
+@njit(inline="always", **_opts)
+def _stage_soa(Q, QD, V, A, c, QS, QDn, k, E):
+    """An RK4 stage state of E lanes: ``QS = Q + c V``, ``QDn = QD + c A`` (k, 6, E)."""
+    for j in range(k):
+        for i in range(6):
             for e in range(E):
-                _lane_physics(PC, N, w, L, k, m, n, e)
-        return (np.empty((10, k, 6, E)), N, np.zeros((n, 3, E)), np.empty((n, 3, E)), np.empty((m, E)),
-                np.zeros((m, E)), np.zeros((n, 3, E)), PC)
+                QS[j, i, e] = Q[j, i, e] + c * V[j, i, e]
+                QDn[j, i, e] = QD[j, i, e] + c * A[j, i, e]
 
-    def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E):
-        """``n_steps`` fixed steps of copies lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e]) (which
-        may be the same arrays): the one loop driver of the numba backend. E copies at a time in
-        structure-of-arrays scratch (k, 6, E), so that every inner loop runs over copies and
-        compiles to SIMD code; E = 1 (one copy at a time) for small batches. The equations are
-        inlined (_acc, _rod_acc, _drift_rod, _project), so nothing is called per copy or per step.
-        ``w``/``ib``: the packed buffer (topology; its physical constants where every copy shares
-        them). ``lanes`` (ceil(B/E), len, E): the copies' packed buffers in blocks of E lanes
-        (:func:`_lanes`, or (P, len, 1) for E = 1; per-copy parameters, ``lo`` a multiple of E),
-        read in place: no copy per call; or (0, 1, 1): every copy uses ``w``'s constants.
-        Its scratch (:func:`_scratch`) is made here: fresh arrays for SIMD blocks (which the
-        compiler knows do not overlap), views of ``w``'s own scratch for E = 1."""
-        S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, E, lanes.shape[0] > 0)
-        Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
-        per_copy = lanes.shape[0] > 0
-        rk4 = (flags & _RK4) != 0
-        n_stages = 4 if rk4 else 1
-        do_proj = (flags & _PROJ) != 0
-        any_cons = (flags & _CONS) != 0
-        l0def = (flags & _L0DEF) != 0
-        has_fd = (flags & _FD) != 0
-        has_ext = (flags & _EXT) != 0
-        acc_only = (flags & _ACC) != 0
-        proj_only = (flags & _PONLY) != 0
-        n_loop = 0 if proj_only else n_steps
-        h = 0.5 * dt
-        c6 = dt / 6.0
-        nl, nf, ne_ = l0.shape[0], fd.shape[0], ext.shape[0]
-        o_l0 = L[2]
-        o_rod = L[0]
-        o_N = L[5]
-        for c0 in range(lo, hi, E):
-            ne = min(E, hi - c0)
-            if per_copy:                                # this block's lane constants and anchor rows
-                PC = lanes[c0 // E]
-                if E == 1:
-                    # one copy at a time: its node scratch is its own buffer's node rows (anchors
-                    # included); the shared scratch of w would carry this copy's anchors into the
-                    # next call of copy 0, whose buffer w is
-                    N = _view(PC, o_N, (n, 3, 1))
+@njit(inline="always", **_opts)
+def _project(w, ib, o_rod, k, Q, QD, E, any_cons):
+    """In place on Q, QD (k, 6, E): |b| = 1, b.b' = 0 and constrained reference points back on
+    their point/line/plane with tangent velocity (dynamics.project, same operations)."""
+    for j in range(k):
+        rj = o_rod + _ROD * j
+        for e in range(E):
+            b0 = Q[j, 3, e]
+            b1 = Q[j, 4, e]
+            b2 = Q[j, 5, e]
+            inb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            b0 = b0 * inb
+            b1 = b1 * inb
+            b2 = b2 * inb
+            Q[j, 3, e] = b0
+            Q[j, 4, e] = b1
+            Q[j, 5, e] = b2
+            dot = b0 * QD[j, 3, e] + b1 * QD[j, 4, e] + b2 * QD[j, 5, e]
+            QD[j, 3, e] = QD[j, 3, e] - b0 * dot
+            QD[j, 4, e] = QD[j, 4, e] - b1 * dot
+            QD[j, 5, e] = QD[j, 5, e] - b2 * dot
+        if any_cons and ib[rj + 2] != 0:
+            pj = rj + 12
+            oj = rj + 21
+            for e in range(E):
+                x0 = Q[j, 0, e]
+                x1 = Q[j, 1, e]
+                x2 = Q[j, 2, e]
+                v0 = QD[j, 0, e]
+                v1 = QD[j, 1, e]
+                v2 = QD[j, 2, e]
+                for i in range(3):
+                    Q[j, i, e] = w[oj + i] + (w[pj + 3 * i] * x0 + w[pj + 3 * i + 1] * x1
+                                              + w[pj + 3 * i + 2] * x2)
+                    QD[j, i, e] = w[pj + 3 * i] * v0 + w[pj + 3 * i + 1] * v1 + w[pj + 3 * i + 2] * v2
+
+@numba.extending.intrinsic
+def _address(typingctx, arr, offset):
+    """Pointer to ``arr.flat[offset]`` (C-contiguous ``arr``), for numba.carray views into the
+    packed buffer that cost no reference counting and no reshape call."""
+    def codegen(context, builder, sig, args):
+        return builder.gep(context.make_array(sig.args[0])(context, builder, args[0]).data, [args[1]])
+    return numba.types.CPointer(arr.dtype)(arr, offset), codegen
+
+@njit(inline="always", **_opts)
+def _view(arr, offset, shape):
+    """C-contiguous view of ``arr`` from flat index ``offset`` with ``shape`` (no bounds check:
+    the caller's layout guarantees it). Unlike slicing and reshape, it costs no reference
+    counting and no library call, which matter at one copy and one step per call."""
+    return numba.carray(_address(arr, offset), shape)
+
+@njit(inline="always", **_opts)
+def _scratch(w, L, k, m, n, E, per_copy):
+    """The driver's scratch for E lanes, (S, N, V, F, L0, FD, EX, PC): stage arrays S
+    (10, k, 6, E), node positions / velocities / forces (n, 3, E), rest lengths and force
+    densities (m, E), external forces (n, 3, E), and the lanes' physical constants PC
+    (len, E). Separate arrays (the compiler may assume they do not overlap). Where every
+    copy shares ``w`` (``per_copy`` False) its constants and anchor rows are written here,
+    once; one copy reads them from ``w`` in place. Reusable across calls of the same model
+    and E (V's anchor rows, FD and EX stay 0 where unused)."""
+    if E == 1:        # one copy (serial calls, GIL held): the packed buffer's own scratch
+        o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
+        o_x = o_cn + 3 * n
+        PC = _view(w, 0, (0 if per_copy else w.shape[0], 1))
+        return (_view(w, o_ws, (10, k, 6, 1)), _view(w, o_N, (n, 3, 1)), _view(w, o_V, (n, 3, 1)),
+                _view(w, o_F, (n, 3, 1)), _view(w, o_x, (m, 1)), _view(w, o_x + m, (m, 1)),
+                _view(w, o_x + 2 * m, (n, 3, 1)), PC)
+    N = np.empty((n, 3, E))
+    if per_copy:
+        PC = np.empty((0, E))
+    else:
+        PC = np.empty((L[9], E))
+        for e in range(E):
+            _lane_physics(PC, N, w, L, k, m, n, e)
+    return (np.empty((10, k, 6, E)), N, np.zeros((n, 3, E)), np.empty((n, 3, E)), np.empty((m, E)),
+            np.zeros((m, E)), np.zeros((n, 3, E)), PC)
+
+def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E):
+    """``n_steps`` fixed steps of copies lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e]) (which
+    may be the same arrays): the one loop driver of the numba backend. E copies at a time in
+    structure-of-arrays scratch (k, 6, E), so that every inner loop runs over copies and
+    compiles to SIMD code; E = 1 (one copy at a time) for small batches. The equations are
+    inlined (_acc, _rod_acc, _drift_rod, _project), so nothing is called per copy or per step.
+    ``w``/``ib``: the packed buffer (topology; its physical constants where every copy shares
+    them). ``lanes`` (ceil(B/E), len, E): the copies' packed buffers in blocks of E lanes
+    (:func:`_lanes`, or (P, len, 1) for E = 1; per-copy parameters, ``lo`` a multiple of E),
+    read in place: no copy per call; or (0, 1, 1): every copy uses ``w``'s constants.
+    Its scratch (:func:`_scratch`) is made here: fresh arrays for SIMD blocks (which the
+    compiler knows do not overlap), views of ``w``'s own scratch for E = 1."""
+    S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, E, lanes.shape[0] > 0)
+    Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
+    per_copy = lanes.shape[0] > 0
+    rk4 = (flags & _RK4) != 0
+    n_stages = 4 if rk4 else 1
+    do_proj = (flags & _PROJ) != 0
+    any_cons = (flags & _CONS) != 0
+    l0def = (flags & _L0DEF) != 0
+    has_fd = (flags & _FD) != 0
+    has_ext = (flags & _EXT) != 0
+    acc_only = (flags & _ACC) != 0
+    proj_only = (flags & _PONLY) != 0
+    n_loop = 0 if proj_only else n_steps
+    h = 0.5 * dt
+    c6 = dt / 6.0
+    nl, nf, ne_ = l0.shape[0], fd.shape[0], ext.shape[0]
+    o_l0 = L[2]
+    o_rod = L[0]
+    o_N = L[5]
+    for c0 in range(lo, hi, E):
+        ne = min(E, hi - c0)
+        if per_copy:                                # this block's lane constants and anchor rows
+            PC = lanes[c0 // E]
+            if E == 1:
+                # one copy at a time: its node scratch is its own buffer's node rows (anchors
+                # included); the shared scratch of w would carry this copy's anchors into the
+                # next call of copy 0, whose buffer w is
+                N = _view(PC, o_N, (n, 3, 1))
+            for p in range(n):
+                for i in range(3):
+                    for e in range(E):
+                        N[p, i, e] = PC[o_N + 3 * p + i, e]
+        for e in range(E):
+            src = c0 + e if e < ne else c0          # pad lanes repeat the first environment
+            for j in range(k):
+                for i in range(6):
+                    Q[j, i, e] = q[src, j, i]
+                    QD[j, i, e] = qd[src, j, i]
+            for s in range(m):
+                L0[s, e] = PC[o_l0 + s, e] if l0def else l0[src if nl > 1 else 0, s]
+            if has_fd:
+                for s in range(m):
+                    FD[s, e] = fd[src if nf > 1 else 0, s]
+            if has_ext:
                 for p in range(n):
                     for i in range(3):
-                        for e in range(E):
-                            N[p, i, e] = PC[o_N + 3 * p + i, e]
-            for e in range(E):
-                src = c0 + e if e < ne else c0          # pad lanes repeat the first environment
-                for j in range(k):
-                    for i in range(6):
-                        Q[j, i, e] = q[src, j, i]
-                        QD[j, i, e] = qd[src, j, i]
-                for s in range(m):
-                    L0[s, e] = PC[o_l0 + s, e] if l0def else l0[src if nl > 1 else 0, s]
-                if has_fd:
-                    for s in range(m):
-                        FD[s, e] = fd[src if nf > 1 else 0, s]
-                if has_ext:
-                    for p in range(n):
-                        for i in range(3):
-                            EX[p, i, e] = ext[src if ne_ > 1 else 0, p, i]
-            if acc_only:                                # accelerations only (the entry `accelerations`)
-                _acc(w, ib, L, k, m, n, Q, QD, A1, N, V, F, L0, FD, EX, E, flags, PC)
-                for e in range(ne):
-                    for j in range(k):
-                        for i in range(6):
-                            qo[c0 + e, j, i] = Q[j, i, e]
-                            qdo[c0 + e, j, i] = A1[j, i, e]
-                continue
-            if proj_only:                               # projection only (the entry `project`)
-                _project(w, ib, o_rod, k, Q, QD, E, any_cons)
-            for _ in range(n_loop):
-                Qi = Q
-                Vi = QD
-                A = A1
-                for stage in range(n_stages):
-                    _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC)
-                    if not rk4 and do_proj:
-                        for j in range(k):
-                            for i in range(6):
-                                for e in range(E):
-                                    QD[j, i, e] = QD[j, i, e] + dt * A1[j, i, e]
-                            for e in range(E):
-                                (Q[j, 0, e], Q[j, 1, e], Q[j, 2, e], Q[j, 3, e], Q[j, 4, e], Q[j, 5, e],
-                                 QD[j, 3, e], QD[j, 4, e], QD[j, 5, e]) = _drift_rod(
-                                    Q[j, 0, e], Q[j, 1, e], Q[j, 2, e], Q[j, 3, e], Q[j, 4, e], Q[j, 5, e],
-                                    QD[j, 0, e], QD[j, 1, e], QD[j, 2, e], QD[j, 3, e], QD[j, 4, e],
-                                    QD[j, 5, e], dt)
-                    elif not rk4:
-                        for j in range(k):
-                            for i in range(6):
-                                for e in range(E):
-                                    QD[j, i, e] = QD[j, i, e] + dt * A1[j, i, e]
-                                    Q[j, i, e] = Q[j, i, e] + dt * QD[j, i, e]
-                    elif stage == 0:
-                        _stage_soa(Q, QD, QD, A1, h, QS, QD2, k, E)
-                        Qi, Vi, A = QS, QD2, A2
-                    elif stage == 1:
-                        _stage_soa(Q, QD, QD2, A2, h, QS, QD3, k, E)
-                        Qi, Vi, A = QS, QD3, A3
-                    elif stage == 2:
-                        _stage_soa(Q, QD, QD3, A3, dt, QS, QD4, k, E)
-                        Qi, Vi, A = QS, QD4, A4
-                    else:
-                        for j in range(k):
-                            for i in range(6):
-                                for e in range(E):
-                                    Q[j, i, e] = Q[j, i, e] + c6 * (QD[j, i, e] + 2.0 * QD2[j, i, e]
-                                                                    + 2.0 * QD3[j, i, e] + QD4[j, i, e])
-                                    QD[j, i, e] = QD[j, i, e] + c6 * (A1[j, i, e] + 2.0 * A2[j, i, e]
-                                                                      + 2.0 * A3[j, i, e] + A4[j, i, e])
-                if do_proj:
-                    _project(w, ib, o_rod, k, Q, QD, E, any_cons)
+                        EX[p, i, e] = ext[src if ne_ > 1 else 0, p, i]
+        if acc_only:                                # accelerations only (the entry `accelerations`)
+            _acc(w, ib, L, k, m, n, Q, QD, A1, N, V, F, L0, FD, EX, E, flags, PC)
             for e in range(ne):
                 for j in range(k):
                     for i in range(6):
                         qo[c0 + e, j, i] = Q[j, i, e]
-                        qdo[c0 + e, j, i] = QD[j, i, e]
+                        qdo[c0 + e, j, i] = A1[j, i, e]
+            continue
+        if proj_only:                               # projection only (the entry `project`)
+            _project(w, ib, o_rod, k, Q, QD, E, any_cons)
+        for _ in range(n_loop):
+            Qi = Q
+            Vi = QD
+            A = A1
+            for stage in range(n_stages):
+                _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC)
+                if not rk4 and do_proj:
+                    for j in range(k):
+                        for i in range(6):
+                            for e in range(E):
+                                QD[j, i, e] = QD[j, i, e] + dt * A1[j, i, e]
+                        for e in range(E):
+                            (Q[j, 0, e], Q[j, 1, e], Q[j, 2, e], Q[j, 3, e], Q[j, 4, e], Q[j, 5, e],
+                             QD[j, 3, e], QD[j, 4, e], QD[j, 5, e]) = _drift_rod(
+                                Q[j, 0, e], Q[j, 1, e], Q[j, 2, e], Q[j, 3, e], Q[j, 4, e], Q[j, 5, e],
+                                QD[j, 0, e], QD[j, 1, e], QD[j, 2, e], QD[j, 3, e], QD[j, 4, e],
+                                QD[j, 5, e], dt)
+                elif not rk4:
+                    for j in range(k):
+                        for i in range(6):
+                            for e in range(E):
+                                QD[j, i, e] = QD[j, i, e] + dt * A1[j, i, e]
+                                Q[j, i, e] = Q[j, i, e] + dt * QD[j, i, e]
+                elif stage == 0:
+                    _stage_soa(Q, QD, QD, A1, h, QS, QD2, k, E)
+                    Qi, Vi, A = QS, QD2, A2
+                elif stage == 1:
+                    _stage_soa(Q, QD, QD2, A2, h, QS, QD3, k, E)
+                    Qi, Vi, A = QS, QD3, A3
+                elif stage == 2:
+                    _stage_soa(Q, QD, QD3, A3, dt, QS, QD4, k, E)
+                    Qi, Vi, A = QS, QD4, A4
+                else:
+                    for j in range(k):
+                        for i in range(6):
+                            for e in range(E):
+                                Q[j, i, e] = Q[j, i, e] + c6 * (QD[j, i, e] + 2.0 * QD2[j, i, e]
+                                                                + 2.0 * QD3[j, i, e] + QD4[j, i, e])
+                                QD[j, i, e] = QD[j, i, e] + c6 * (A1[j, i, e] + 2.0 * A2[j, i, e]
+                                                                  + 2.0 * A3[j, i, e] + A4[j, i, e])
+            if do_proj:
+                _project(w, ib, o_rod, k, Q, QD, E, any_cons)
+        for e in range(ne):
+            for j in range(k):
+                for i in range(6):
+                    qo[c0 + e, j, i] = Q[j, i, e]
+                    qdo[c0 + e, j, i] = QD[j, i, e]
 
-    # The one driver, inlined into its two instances with E known to the compiler: SIMD blocks
-    # (E = 16 or 8) and one copy at a time (E = 1, lane loops dropped). Same source, same operations.
-    _advance_inline = njit(inline="always", **_opts)(_advance_py)
+# The one driver, inlined into its two instances with E known to the compiler: SIMD blocks
+# (E = 16 or 8) and one copy at a time (E = 1, lane loops dropped). Same source, same operations.
+_advance_inline = njit(inline="always", **_opts)(_advance_py)
 
-    @njit(**_opts)
-    def _advance(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
-        """_advance_py in SIMD blocks of E = :func:`_soa_width` copies (fresh scratch arrays)."""
-        _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes,
-                        _soa_width_nb(k))
+@njit(**_opts)
+def _advance(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
+    """_advance_py in SIMD blocks of E = :func:`_soa_width` copies (fresh scratch arrays)."""
+    _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes,
+                    _soa_width_nb(k))
 
-    @njit(**_opts)
-    def _advance_one(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
-        """_advance one copy at a time (E = 1, a compile-time constant), in the scratch of ``w``."""
-        _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1)
+@njit(**_opts)
+def _advance_one(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
+    """_advance one copy at a time (E = 1, a compile-time constant), in the scratch of ``w``."""
+    _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1)
 
-    @njit(inline="always", **_opts)
-    def _serial_setup(bufs, B):
-        """(layout, k, m, n, E, lanes) of serial calls on B copies with ``bufs`` (1, len)
-        shared or (B, len) one packed buffer per copy; ``lanes`` is for E = 1 only (the buffers
-        themselves, (B, len, 1)); a SIMD call takes the caller's :func:`_lanes` blocks."""
-        ibs = bufs.view(np.int64)
-        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
-        L = _layout_nb(k, m, n)
-        E = _lane_width(k, B)
-        per_copy = bufs.shape[0] > 1
-        lanes = _view(bufs, 0, (bufs.shape[0] if per_copy else 0, bufs.shape[1], 1))
-        return L, k, m, n, E, lanes
+@njit(inline="always", **_opts)
+def _serial_setup(bufs, B):
+    """(layout, k, m, n, E, lanes) of serial calls on B copies with ``bufs`` (1, len)
+    shared or (B, len) one packed buffer per copy; ``lanes`` is for E = 1 only (the buffers
+    themselves, (B, len, 1)); a SIMD call takes the caller's :func:`_lanes` blocks."""
+    ibs = bufs.view(np.int64)
+    k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+    L = _layout_nb(k, m, n)
+    E = _lane_width(k, B)
+    per_copy = bufs.shape[0] > 1
+    lanes = _view(bufs, 0, (bufs.shape[0] if per_copy else 0, bufs.shape[1], 1))
+    return L, k, m, n, E, lanes
 
-    @njit(inline="always", **_opts)
-    def _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, setup):
-        """The serial step of every copy (checks, then the driver: its E = 1 instance for one copy
-        at a time); ``setup`` from :func:`_serial_setup`, reusable for repeated calls (the contact
-        sub-steps). Returns the error code (0: done)."""
-        L, k, m, n, E, lanes1 = setup
-        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
-        if err == 0 and bufs.shape[0] != q.shape[0] and bufs.shape[0] != 1:
-            err = 7
-        if err:
-            return err
-        ib = bufs[0].view(np.int64)
-        if E == 1:
-            _advance_one(bufs[0], ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
-                         lanes1)
-        else:
-            _advance(bufs[0], ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
-                     _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2])))
-        return 0
-
-
-    @njit(**_opts)
-    def _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags):
-        B = q.shape[0]
-        if q.shape[1] != k or q.shape[2] != 6:
-            return 1
-        if qd.shape[0] != B or qd.shape[1] != k or qd.shape[2] != 6:
-            return 2
-        if qo.shape[0] != B or qo.shape[1] != k or qo.shape[2] != 6:
-            return 6
-        if qdo.shape[0] != B or qdo.shape[1] != k or qdo.shape[2] != 6:
-            return 6
-        if (flags & _L0DEF) == 0 and (l0.shape[1] != m or (l0.shape[0] != 1 and l0.shape[0] != B)):
-            return 3
-        if (flags & _FD) != 0 and (fd.shape[1] != m or (fd.shape[0] != 1 and fd.shape[0] != B)):
-            return 4
-        if (flags & _EXT) != 0 and (ext.shape[1] != n or ext.shape[2] != 3
-                                    or (ext.shape[0] != 1 and ext.shape[0] != B)):
-            return 5
-        return 0
-
-    # explicit signatures (no other variant is ever compiled): C-contiguous float64 arrays
-    _f8 = numba.types.float64
-    _a1, _a2, _a3 = (numba.types.Array(_f8, d, "C") for d in (1, 2, 3))
-    _i64 = numba.types.int64
-    _SIG = _i64(_a3, _a3, _a3, _a3, _a1, _a2, _a2, _a3, _f8, _i64, _i64)
-    _SIG_LEAN = _i64(_a3, _a3, _a3, _a3, _a1, _f8, _i64, _i64)
-    _SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64, _a3)
-
-    # Entry points are compiled lazily for ONE explicit signature each (see _compile): the serial
-    # ones on first use of any model, the parallel one on first use of a large batch.
-    @njit(cache=True, fastmath=False, error_model="numpy")   # holds the GIL: it uses the scratch inside buf
-    def _run_serial(q, qd, qo, qdo, buf, l0, fd, ext, dt, n_steps, flags):
-        bufs = _view(buf, 0, (1, buf.shape[0]))
-        return _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, _view(buf, 0, (1, buf.shape[0], 1)),
-                       _serial_setup(bufs, q.shape[0]))
-
-    @njit(cache=True, fastmath=False, error_model="numpy")
-    def _run_lean(q, qd, qo, qdo, buf, dt, n_steps, flags):
-        """_run_serial with the model's rest lengths and no force density / external force:
-        three array arguments fewer to convert at the Python boundary (single-env fast path)."""
-        flags = (flags | _L0DEF) & ~(_FD | _EXT)
-        d2 = q[0]                             # placeholders of the right type, never read
-        bufs = _view(buf, 0, (1, buf.shape[0]))
-        return _serial(q, qd, qo, qdo, bufs, d2, d2, q, dt, n_steps, flags, _view(buf, 0, (1, buf.shape[0], 1)),
-                       _serial_setup(bufs, q.shape[0]))
-
-    @njit(inline="always", **_opts)
-    def _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, shared):
-        """(error code, int64 view of bufs, layout, k, m, n) of a call on packed buffers (P, len):
-        the shape checks of _check, and one buffer per copy of q, or one (``shared`` allowed)
-        (error 7 otherwise)."""
-        ibs = bufs.view(np.int64)
-        k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
-        err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
-        if err == 0 and ibs.shape[0] != q.shape[0] and not (shared and ibs.shape[0] == 1):
-            err = 7
-        return err, ibs, _layout_nb(k, m, n), k, m, n
-
-    # holds the GIL too: then no two Python threads can be inside the thread pool at once (the
-    # workqueue threading layer, chosen below, does not support concurrent callers)
-    # Per-copy parameters: bufs (P, len) holds one packed buffer per copy (its physics and its
-    # scratch, P = B), or the one buffer shared by every copy (P = 1).
-    @njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
-    def _run_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
-        """The batch in chunks of whole SIMD blocks on all threads (``prange``), each chunk the
-        SIMD loop; ``bufs`` (1, len) shared or (B, len) one packed buffer per copy, ``lanes`` their
-        lane blocks (:func:`_lanes`) or (0, 1, 1)."""
-        err, ibs, L, k, m, n = _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, True)
-        if err:
-            return err
-        B = q.shape[0]
-        E = _soa_width_nb(k)
-        nb = (B + E - 1) // E                             # SIMD blocks
-        nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))      # number of chunks in the high bits of flags
-        for c in prange(nch):
-            # _advance only reads the buffers; each chunk has its own scratch: threads share nothing written
-            _advance(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, (c * nb // nch) * E,
-                     min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes)
-        return 0
+@njit(inline="always", **_opts)
+def _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, setup):
+    """The serial step of every copy (checks, then the driver: its E = 1 instance for one copy
+    at a time); ``setup`` from :func:`_serial_setup`, reusable for repeated calls (the contact
+    sub-steps). Returns the error code (0: done)."""
+    L, k, m, n, E, lanes1 = setup
+    err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+    if err == 0 and bufs.shape[0] != q.shape[0] and bufs.shape[0] != 1:
+        err = 7
+    if err:
+        return err
+    ib = bufs[0].view(np.int64)
+    if E == 1:
+        _advance_one(bufs[0], ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
+                     lanes1)
+    else:
+        _advance(bufs[0], ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
+                 _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2])))
+    return 0
 
 
+@njit(**_opts)
+def _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags):
+    B = q.shape[0]
+    if q.shape[1] != k or q.shape[2] != 6:
+        return 1
+    if qd.shape[0] != B or qd.shape[1] != k or qd.shape[2] != 6:
+        return 2
+    if qo.shape[0] != B or qo.shape[1] != k or qo.shape[2] != 6:
+        return 6
+    if qdo.shape[0] != B or qdo.shape[1] != k or qdo.shape[2] != 6:
+        return 6
+    if (flags & _L0DEF) == 0 and (l0.shape[1] != m or (l0.shape[0] != 1 and l0.shape[0] != B)):
+        return 3
+    if (flags & _FD) != 0 and (fd.shape[1] != m or (fd.shape[0] != 1 and fd.shape[0] != B)):
+        return 4
+    if (flags & _EXT) != 0 and (ext.shape[1] != n or ext.shape[2] != 3
+                                or (ext.shape[0] != 1 and ext.shape[0] != B)):
+        return 5
+    return 0
 
-    @njit(cache=True, nogil=True)
-    def finite_pair(a, b):
-        """True if every entry of the C-contiguous float64 arrays ``a`` and ``b`` (3-D: a state's
-        ``q``, ``qd``) is finite: the input check of ``integrators.step`` in one compiled pass.
-        It counts entries whose exponent bits are all set (inf or NaN) with integer operations,
-        which the compiler vectorises (a float test per entry would not be)."""
-        bad = 0
-        for x in (a, b):
-            bits = x.reshape(-1).view(np.int64)
-            for i in range(bits.size):
-                bad += (bits[i] & 0x7FF0000000000000) == 0x7FF0000000000000
-        return bad == 0
+# explicit signatures (no other variant is ever compiled): C-contiguous float64 arrays
+_f8 = numba.types.float64
+_a1, _a2, _a3 = (numba.types.Array(_f8, d, "C") for d in (1, 2, 3))
+_i64 = numba.types.int64
+_SIG = _i64(_a3, _a3, _a3, _a3, _a1, _a2, _a2, _a3, _f8, _i64, _i64)
+_SIG_LEAN = _i64(_a3, _a3, _a3, _a3, _a1, _f8, _i64, _i64)
+_SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64, _a3)
 
-    # one packed buffer per copy (bufs (B, len)), each lane reading its copy's constants
-    @njit(cache=True, fastmath=False, error_model="numpy")
-    def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
-        return _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, _serial_setup(bufs, q.shape[0]))
+# Entry points are compiled lazily for ONE explicit signature each (see _compile): the serial
+# ones on first use of any model, the parallel one on first use of a large batch.
+@njit(cache=True, fastmath=False, error_model="numpy")   # holds the GIL: it uses the scratch inside buf
+def _run_serial(q, qd, qo, qdo, buf, l0, fd, ext, dt, n_steps, flags):
+    bufs = _view(buf, 0, (1, buf.shape[0]))
+    return _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, _view(buf, 0, (1, buf.shape[0], 1)),
+                   _serial_setup(bufs, q.shape[0]))
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _run_lean(q, qd, qo, qdo, buf, dt, n_steps, flags):
+    """_run_serial with the model's rest lengths and no force density / external force:
+    three array arguments fewer to convert at the Python boundary (single-env fast path)."""
+    flags = (flags | _L0DEF) & ~(_FD | _EXT)
+    d2 = q[0]                             # placeholders of the right type, never read
+    bufs = _view(buf, 0, (1, buf.shape[0]))
+    return _serial(q, qd, qo, qdo, bufs, d2, d2, q, dt, n_steps, flags, _view(buf, 0, (1, buf.shape[0], 1)),
+                   _serial_setup(bufs, q.shape[0]))
+
+@njit(inline="always", **_opts)
+def _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, shared):
+    """(error code, int64 view of bufs, layout, k, m, n) of a call on packed buffers (P, len):
+    the shape checks of _check, and one buffer per copy of q, or one (``shared`` allowed)
+    (error 7 otherwise)."""
+    ibs = bufs.view(np.int64)
+    k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+    err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+    if err == 0 and ibs.shape[0] != q.shape[0] and not (shared and ibs.shape[0] == 1):
+        err = 7
+    return err, ibs, _layout_nb(k, m, n), k, m, n
+
+# holds the GIL too: then no two Python threads can be inside the thread pool at once (the
+# workqueue threading layer, chosen below, does not support concurrent callers)
+# Per-copy parameters: bufs (P, len) holds one packed buffer per copy (its physics and its
+# scratch, P = B), or the one buffer shared by every copy (P = 1).
+@njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+def _run_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
+    """The batch in chunks of whole SIMD blocks on all threads (``prange``), each chunk the
+    SIMD loop; ``bufs`` (1, len) shared or (B, len) one packed buffer per copy, ``lanes`` their
+    lane blocks (:func:`_lanes`) or (0, 1, 1)."""
+    err, ibs, L, k, m, n = _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, True)
+    if err:
+        return err
+    B = q.shape[0]
+    E = _soa_width_nb(k)
+    nb = (B + E - 1) // E                             # SIMD blocks
+    nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))      # number of chunks in the high bits of flags
+    for c in prange(nch):
+        # _advance only reads the buffers; each chunk has its own scratch: threads share nothing written
+        _advance(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, (c * nb // nch) * E,
+                 min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes)
+    return 0
+
+
+
+@njit(cache=True, nogil=True)
+def finite_pair(a, b):
+    """True if every entry of the C-contiguous float64 arrays ``a`` and ``b`` (3-D: a state's
+    ``q``, ``qd``) is finite: the input check of ``integrators.step`` in one compiled pass.
+    It counts entries whose exponent bits are all set (inf or NaN) with integer operations,
+    which the compiler vectorises (a float test per entry would not be)."""
+    bad = 0
+    for x in (a, b):
+        bits = x.reshape(-1).view(np.int64)
+        for i in range(bits.size):
+            bad += (bits[i] & 0x7FF0000000000000) == 0x7FF0000000000000
+    return bad == 0
+
+# one packed buffer per copy (bufs (B, len)), each lane reading its copy's constants
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
+    return _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, _serial_setup(bufs, q.shape[0]))
 
 
 # ---------------------------------------------------------------------- Python side
@@ -966,8 +957,6 @@ def _parallel(p, B, n_steps, flags, compile_kernel=True):
 
 
 def _packed(model):
-    if not AVAILABLE:
-        raise RuntimeError("tensegrity_gym._kernels: numba is not installed (a required dependency: pip install numba)")
     if not _READY["serial"]:
         _compile("serial")
     return _pack(model)
@@ -1097,7 +1086,7 @@ def project(model, q, qd):
 
 from .dynamics import State  # noqa: E402  (after the kernels: dynamics never imports this module)
 
-_NCHUNK = 4 * (numba.get_num_threads() if AVAILABLE else 1)   # chunks of the parallel batch loop
+_NCHUNK = 4 * numba.get_num_threads()   # chunks of the parallel batch loop
 
 
 def _fast_state_ok() -> bool:

@@ -4,8 +4,9 @@ limits and the cable motor model. SI units. No gymnasium import (a physics-layer
 :meth:`Actuation.update` is the one entry that turns actions in [-1, 1] (B, na) into new
 controls, the motor's new cable speeds and the ``rest_length`` / ``force_density`` inputs of
 :func:`tensegrity_gym.pipeline.step`; :func:`tensegrity_gym.pipeline.control_step` runs it and
-the physics in one call. The compiled update is :func:`tensegrity_gym.pipeline.apply_controls` /
-:func:`~tensegrity_gym.pipeline.apply_motor` (bit-identical to the NumPy methods here).
+the physics in one call. The update itself is compiled, written once:
+:func:`tensegrity_gym.pipeline.apply_controls` / :func:`~tensegrity_gym.pipeline.apply_motor`
+(their NumPy reference is the test oracle ``tests/oracle_numpy.py``).
 """
 from __future__ import annotations
 
@@ -38,7 +39,7 @@ class Actuation:
 
     Without ``max_accel``, an action ``a`` in [-1, 1]^na changes the control by
     ``a * max_rate * control_dt`` per control step, then the control is clipped to
-    [``low``, ``high``] (:meth:`apply`, :meth:`advance`).
+    [``low``, ``high``] (:meth:`advance`).
 
     With ``max_accel`` (a motor model, :meth:`advance_motor`) the action commands the rate
     ``v_cmd = a * max_rate``; the rate ``v`` (B, na) is state (m/s for rest lengths) and moves
@@ -145,10 +146,6 @@ class Actuation:
     def unit(self) -> str:
         return "m" if self.mode == "rest_length" else "N/m"
 
-    def apply(self, ctrl: np.ndarray, action: np.ndarray) -> np.ndarray:
-        """New control (B, na) from the current control (B, na) and an action in [-1, 1] (B, na)."""
-        return np.clip(ctrl + action * self._rate, self.low, self.high)
-
     def physics_inputs(self, ctrl: np.ndarray) -> dict:
         """Keyword arguments ``rest_length`` / ``force_density`` (B, m) for ``integrators.step``."""
         B = ctrl.shape[0]
@@ -161,52 +158,49 @@ class Actuation:
         fd[:, self.actuated] = ctrl
         return {"rest_length": None, "force_density": fd}
 
-    def advance(self, ctrl: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, dict]:
-        """``(new, physics_inputs(new))`` with ``new = apply(ctrl, action)``: one compiled call
-        for C-contiguous float64 (B, na) arrays (the env's own), the two methods otherwise."""
-        if (pipeline.AVAILABLE and type(ctrl) is np.ndarray and type(action) is np.ndarray
-                and ctrl.ndim == 2 and ctrl.shape == action.shape and ctrl.dtype == np.float64
-                and action.dtype == np.float64 and ctrl.flags.c_contiguous and action.flags.c_contiguous):
-            new = np.empty(ctrl.shape)
-            phys = np.empty((ctrl.shape[0], self.n_strings))
-            rl = self.mode == "rest_length"
-            pipeline.apply_controls(ctrl, action, self._rate, self.low, self.high, self.actuated,
-                                 self.base_rest_length, rl, new, phys)
-            return new, ({"rest_length": phys} if rl else {"rest_length": None, "force_density": phys})
-        new = self.apply(ctrl, action)
-        return new, self.physics_inputs(new)
+    def _batch(self, ctrl, *others) -> tuple:
+        """``ctrl`` (B, na) and the other (B, na) arrays as C-contiguous float64 (the compiled
+        update's inputs); ValueError naming the array and its shape otherwise."""
+        ctrl = np.ascontiguousarray(ctrl, dtype=np.float64)
+        if ctrl.ndim != 2 or ctrl.shape[1] != self.size:
+            raise ValueError(f"ctrl: expected shape (B, {self.size}), got {ctrl.shape}")
+        out = [ctrl]
+        for name, x in others:
+            x = np.ascontiguousarray(x, dtype=np.float64)
+            if x.shape != ctrl.shape:
+                raise ValueError(f"{name}: expected shape {ctrl.shape} (as ctrl), got {x.shape}")
+            out.append(x)
+        return tuple(out)
 
-    def apply_motor(self, ctrl: np.ndarray, speed: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Motor model (needs ``max_accel``): ``(new control, new rate)`` (B, na) from the current
-        control, the current rate ``speed`` (unit/s) and an action in [-1, 1] (the NumPy reference
-        of :meth:`advance_motor`)."""
-        if self.max_accel is None:
-            raise ValueError("apply_motor: this Actuation has no max_accel (use apply)")
-        dv = self._dv[:, None]
-        v = speed + np.clip(action * self.rate_rows - speed, -dv, dv)
-        new = np.clip(ctrl + v * self.control_dt, self.low, self.high)
-        stop = ((new <= self.low) & (v < 0.0)) | ((new >= self.high) & (v > 0.0))
-        v = np.where(stop, 0.0, v)
-        return new, v
+    def _inputs(self, phys: np.ndarray) -> dict:
+        return {"rest_length": phys} if self.mode == "rest_length" else {"rest_length": None, "force_density": phys}
+
+    def advance(self, ctrl: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, dict]:
+        """``(new, physics_inputs(new))`` without a motor model: ``new = clip(ctrl + action *
+        max_rate * control_dt, low, high)`` (B, na) from the current control and an action in
+        [-1, 1] (B, na). One compiled call (:func:`tensegrity_gym.pipeline.apply_controls`)."""
+        ctrl, action = self._batch(ctrl, ("action", action))
+        new = np.empty(ctrl.shape)
+        phys = np.empty((ctrl.shape[0], self.n_strings))
+        pipeline.apply_controls(ctrl, action, self._rate, self.low, self.high, self.actuated,
+                                self.base_rest_length, self.mode == "rest_length", new, phys)
+        return new, self._inputs(phys)
 
     def advance_motor(self, ctrl: np.ndarray, speed: np.ndarray,
                       action: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
-        """``(new, new_speed, physics_inputs(new))`` of the motor model (:meth:`apply_motor`): one
-        compiled call for C-contiguous float64 (B, na) arrays, NumPy otherwise (same numbers)."""
+        """``(new, new_speed, physics_inputs(new))`` of the motor model (needs ``max_accel``; see
+        the class doc) from the current control, the current rate ``speed`` (unit/s) and an
+        action in [-1, 1], all (B, na). One compiled call
+        (:func:`tensegrity_gym.pipeline.apply_motor`)."""
         if self.max_accel is None:
             raise ValueError("advance_motor: this Actuation has no max_accel (use advance)")
-        if (pipeline.AVAILABLE and all(type(x) is np.ndarray and x.ndim == 2 and x.shape == ctrl.shape
-                                       and x.dtype == np.float64 and x.flags.c_contiguous
-                                       for x in (ctrl, speed, action))):
-            new = np.empty(ctrl.shape)
-            v = np.empty(ctrl.shape)
-            phys = np.empty((ctrl.shape[0], self.n_strings))
-            rl = self.mode == "rest_length"
-            pipeline.apply_motor(ctrl, speed, action, self.rate_rows, self._dv, self.control_dt, self.low, self.high,
-                                 self.actuated, self.base_rest_length, rl, new, v, phys)
-            return new, v, ({"rest_length": phys} if rl else {"rest_length": None, "force_density": phys})
-        new, v = self.apply_motor(ctrl, speed, action)
-        return new, v, self.physics_inputs(new)
+        ctrl, speed, action = self._batch(ctrl, ("speed", speed), ("action", action))
+        new = np.empty(ctrl.shape)
+        v = np.empty(ctrl.shape)
+        phys = np.empty((ctrl.shape[0], self.n_strings))
+        pipeline.apply_motor(ctrl, speed, action, self.rate_rows, self._dv, self.control_dt, self.low, self.high,
+                             self.actuated, self.base_rest_length, self.mode == "rest_length", new, v, phys)
+        return new, v, self._inputs(phys)
 
     def update(self, ctrl: np.ndarray, action: np.ndarray, speed: np.ndarray | None = None,
                rest_offset: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, dict]:

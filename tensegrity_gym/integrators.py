@@ -68,6 +68,7 @@ from . import dynamics as dyn
 from .dynamics import Model, State
 from .checks import check_finite, is_integer
 from .params import check_params
+from . import _kernels as _KERNELS   # numba is a required dependency: no fallback when it is missing
 
 __all__ = ["INTEGRATORS", "step", "simulate", "accelerations", "Schedule", "IntegratorInfo", "SimulationDiverged",
            "StabilityWarning", "EvaluationBudgetExceeded", "stability_limit"]
@@ -261,20 +262,6 @@ def _ext(external, q, qd, t):
     return external
 
 
-_KERNELS = None   # the _kernels module, once imported (an import statement per step costs ~1 us)
-
-
-def _numba_available() -> bool:
-    global _KERNELS
-    if _KERNELS is None:
-        try:
-            from . import _kernels
-        except Exception:  # pragma: no cover - numba missing or broken
-            return False
-        _KERNELS = _kernels
-    return _KERNELS.AVAILABLE
-
-
 def accelerations(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
                   external=None, params=None, backend: str = "auto") -> np.ndarray:
     """Accelerations ``[r'', b'']`` (B, k, 6) (m/s^2, 1/s^2) of the states ``q``, ``qd`` (B, k, 6)
@@ -298,16 +285,12 @@ NUMPY_REMOVED = ("'numpy' is no longer a backend: every fixed step, projection, 
 
 
 def _numba_backend(backend: str) -> bool:
-    """True when ``backend`` ("auto" or "numba") can run (the numba kernels); RuntimeError when
-    numba cannot be imported, ValueError naming ``backend`` for another name ("numpy": no longer a
-    backend, :data:`NUMPY_REMOVED`)."""
+    """True for ``backend`` "auto" or "numba" (the numba kernels); ValueError naming ``backend``
+    for another name ("numpy": no longer a backend, :data:`NUMPY_REMOVED`)."""
     if backend == "numpy":
         raise ValueError(f"backend: {NUMPY_REMOVED}")
     if backend not in ("auto", "numba"):
         raise ValueError(f"backend: unknown {backend!r}; choose 'auto' or 'numba'")
-    if not _numba_available():
-        raise RuntimeError("the numba kernels could not be imported (numba is a required dependency of "
-                           "tensegrity_gym: pip install numba)")
     return True
 
 
@@ -396,7 +379,7 @@ def _finite_state(q, qd) -> bool:
     runs :func:`~tensegrity_gym.checks.check_finite`, which also names the entry)."""
     return (type(q) is np.ndarray and type(qd) is np.ndarray and q.ndim == 3 and qd.ndim == 3
             and q.dtype == np.float64 and qd.dtype == np.float64 and q.flags.c_contiguous
-            and qd.flags.c_contiguous and _numba_available() and _KERNELS.finite_pair(q, qd))
+            and qd.flags.c_contiguous and _KERNELS.finite_pair(q, qd))
 
 
 def _check_inputs(state, n_steps, external) -> int:

@@ -40,9 +40,9 @@ Euler and tests. numba's on-disk cache does not notice edits of the kernels that
 :func:`run_plan` inline or call: clear ``__pycache__`` (``*.nbi``, ``*.nbc``) after editing
 ``_kernels.py`` or ``contact.py``.
 
-``AVAILABLE`` (numba importable) switches the compiled bookkeeping (divergence check, control
-update, fused steps); set it False to run the NumPy references (the tests do). The physics
-kernels themselves follow ``backend`` as in :func:`integrators.step`.
+The bookkeeping around the physics (control update :func:`apply_controls` / :func:`apply_motor`,
+divergence check :func:`diverged`) is compiled too, written once; numba is a required dependency,
+so nothing here has a NumPy twin (the tests compare with ``tests/oracle_numpy.py``).
 """
 from __future__ import annotations
 
@@ -50,16 +50,17 @@ from typing import NamedTuple
 
 import numpy as np
 
+from numba import njit, prange
+
 from . import _kernels
 from . import contact as gc
 from . import integrators
 from .checks import check_action, check_array
 from .dynamics import Model, State
 
-__all__ = ["AVAILABLE", "step", "control_step", "ControlStep", "advance", "diverged", "compiled_physics",
-           "apply_controls", "apply_motor", "state_ok", "state_ok_local", "Plan", "compiled_plan", "run_plan"]
-
-AVAILABLE = _kernels.AVAILABLE
+__all__ = ["step", "control_step", "ControlStep", "advance", "diverged", "compiled_physics",
+           "apply_controls", "apply_motor", "state_ok", "state_ok_local", "bad_copies", "Plan", "compiled_plan",
+           "run_plan"]
 
 
 def compiled_physics(integrator: str, backend: str = "auto") -> bool:
@@ -269,26 +270,15 @@ def diverged(q: np.ndarray, qd: np.ndarray, center, limit: float, local: bool = 
     point farther than ``limit`` m (per coordinate) from ``center`` (3,) m; with ``local`` (a
     robot that travels) from its copy's mean reference point instead, that mean's height
     checked against ``center[2]`` (horizontal travel is not limited). One compiled pass over
-    the batch when nothing is off; per copy in NumPy otherwise."""
-    if (AVAILABLE and type(q) is np.ndarray and type(qd) is np.ndarray and q.dtype == np.float64
-            and qd.dtype == np.float64 and q.ndim == 3 and q.shape == qd.shape):
-        ok = state_ok_local(q, qd, center[2], limit) if local else state_ok(q, qd, center, limit)
-        if ok:
-            return np.zeros(q.shape[0], bool)
-    with np.errstate(all="ignore"):
-        q, qd = np.asarray(q), np.asarray(qd)
-        if local:
-            finite = np.isfinite(q).all(axis=(1, 2)) & np.isfinite(qd).all(axis=(1, 2))
-            r = np.where(np.isfinite(q[..., :3]), q[..., :3], 0.0)
-            m = r.mean(axis=1, keepdims=True)
-            far = ~((np.abs(r - m).max(axis=(1, 2)) <= limit) & (np.abs(m[:, 0, 2] - center[2]) <= limit))
-            return ~finite | far
-        # one reduction each for the whole batch; per copy only when something is off
-        if np.isfinite(q.sum() + qd.sum()) and np.abs(q[..., :3] - center).max() <= limit:
-            return np.zeros(q.shape[0], bool)
-        finite = np.isfinite(q).all(axis=(1, 2)) & np.isfinite(qd).all(axis=(1, 2))
-        far = ~(np.abs(np.where(np.isfinite(q[..., :3]), q[..., :3], 0.0) - center).max(axis=(1, 2)) <= limit)
-        return ~finite | far
+    the batch (:func:`bad_copies`)."""
+    q = np.ascontiguousarray(q, dtype=np.float64)
+    qd = np.ascontiguousarray(qd, dtype=np.float64)
+    if q.ndim != 3 or q.shape != qd.shape or q.shape[2] != 6:
+        raise ValueError(f"diverged: q and qd must both have shape (B, k, 6); got {q.shape} and {qd.shape}")
+    center = np.ascontiguousarray(center, dtype=np.float64).reshape(3)
+    out = np.empty(q.shape[0], np.bool_)
+    bad_copies(q, qd, center, float(limit), bool(local), out)
+    return out
 
 
 # ---------------------------------------------------------------------- fused steps
@@ -316,7 +306,7 @@ def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_
     kernel does not apply (no numba, an implicit method, or a batch large
     enough for the parallel kernel: then :func:`step` runs it). Issues the stability warning
     of :func:`integrators.step` once, as it would."""
-    if not (AVAILABLE and compiled_physics(integrator, backend)):
+    if not compiled_physics(integrator, backend):
         return None
     info = integrators.resolve(integrator)
     p = _kernels._CACHE.get(id(model)) or _kernels._packed(model)
@@ -333,193 +323,218 @@ def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_
     return plan
 
 
-if AVAILABLE:
-    from numba import njit, prange
+_run_serial, _serial_setup = _kernels._run_serial, _kernels._serial_setup
 
-    _run_serial, _serial_setup = _kernels._run_serial, _kernels._serial_setup
+_advance, _advance_one, _copies_check = _kernels._advance, _kernels._advance_one, _kernels._copies_check
+_forces_range, _view, _soa_width_nb = gc._forces_range, _kernels._view, _kernels._soa_width_nb
 
-    _advance, _advance_one, _copies_check = _kernels._advance, _kernels._advance_one, _kernels._copies_check
-    _forces_range, _view, _soa_width_nb = gc._forces_range, _kernels._view, _kernels._soa_width_nb
+@njit(inline="always", cache=True)
+def _contact_range(q, qd, w, ib, L, k, m, n, lanes, one, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a,
+                   rod_c, anchor, active, slip, prm, lo, hi):
+    """The contact sub-steps of copies lo..hi-1, in place, ``n_steps`` times: their contact
+    forces ``W`` from the state at the step's start (anchors and slip flags updated), plus
+    ``ext`` (1 or B, n, 3) N if it has rows, then ONE step of the loop driver with those
+    forces (``flags`` carry ``external``): its one-copy instance if ``one``, else the SIMD
+    one. The one compiled form of :func:`advance`'s contact loop: the serial entry runs it on
+    the whole batch, the parallel entry on chunks of whole SIMD blocks."""
+    per_ext = ext.shape[0] > 1
+    for _ in range(n_steps):
+        _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, lo, hi)
+        if ext.shape[0] > 0:
+            for e in range(lo, hi):
+                r = e if per_ext else 0
+                for i in range(n):
+                    for c in range(3):
+                        W[e, i, c] += ext[r, i, c]
+        if one:
+            _advance_one(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, 1, flags, lanes)
+        else:
+            _advance(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, 1, flags, lanes)
 
-    @njit(inline="always", cache=True)
-    def _contact_range(q, qd, w, ib, L, k, m, n, lanes, one, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a,
-                       rod_c, anchor, active, slip, prm, lo, hi):
-        """The contact sub-steps of copies lo..hi-1, in place, ``n_steps`` times: their contact
-        forces ``W`` from the state at the step's start (anchors and slip flags updated), plus
-        ``ext`` (1 or B, n, 3) N if it has rows, then ONE step of the loop driver with those
-        forces (``flags`` carry ``external``): its one-copy instance if ``one``, else the SIMD
-        one. The one compiled form of :func:`advance`'s contact loop: the serial entry runs it on
-        the whole batch, the parallel entry on chunks of whole SIMD blocks."""
-        per_ext = ext.shape[0] > 1
-        for _ in range(n_steps):
-            _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, lo, hi)
-            if ext.shape[0] > 0:
-                for e in range(lo, hi):
-                    r = e if per_ext else 0
-                    for i in range(n):
-                        for c in range(3):
-                            W[e, i, c] += ext[r, i, c]
-            if one:
-                _advance_one(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, 1, flags, lanes)
+@njit(inline="always", cache=True)
+def _contact_check(q, qd, bufs, l0, fd, W, ext, flags):
+    """(error code, int64 view of bufs, layout, k, m, n) of a contact loop call: the driver's
+    checks (``_kernels._copies_check``, W as its external force) and ext rows 0, 1 or B of
+    (n, 3) (error 5 otherwise)."""
+    err, ibs, L, k, m, n = _copies_check(q, qd, q, qd, bufs, l0, fd, W, flags, True)
+    if err == 0 and ext.shape[0] > 0 and ((ext.shape[0] != 1 and ext.shape[0] != q.shape[0])
+                                          or ext.shape[1] != n or ext.shape[2] != 3):
+        err = 5
+    return err, ibs, L, k, m, n
+
+@njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
+def _contact_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active,
+                  slip, prm):
+    """:func:`_contact_range` on the whole batch, on this thread. ``bufs`` (1, len) the shared
+    packed buffer or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the
+    kernel's error code (0: done)."""
+    err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
+    if err:
+        return err
+    E, lanes1 = _serial_setup(bufs, q.shape[0])[4:]     # the serial kernels' choice of instance
+    if E != 1:       # the SIMD instance reads per-copy constants from the lane blocks, shared ones from w
+        lanes1 = _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2]))
+    _contact_range(q, qd, bufs[0], ibs[0], L, k, m, n, lanes1, E == 1, l0, fd, W, ext, dt, n_steps, flags, eta,
+                   rod_a, rod_c, anchor, active, slip, prm, 0, q.shape[0])
+    return 0
+
+@njit(parallel=True, cache=True)   # holds the GIL, as _kernels._run_parallel does
+def _contact_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor,
+                      active, slip, prm):
+    """:func:`_contact_range` on chunks of whole SIMD blocks on all threads (``prange``; the
+    chunk count in ``flags >> _CHUNK_SHIFT``): each chunk runs all ``n_steps`` sub-steps of
+    its copies (contact forces, then the SIMD driver with its own scratch), so the threads
+    meet once per call, not once per sub-step. Same arguments and bits as
+    :func:`_contact_loop`."""
+    err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
+    if err:
+        return err
+    B = q.shape[0]
+    E = _soa_width_nb(k)
+    nb = (B + E - 1) // E
+    nch = min(nb, max(flags >> _kernels._CHUNK_SHIFT, 1))
+    for c in prange(nch):
+        # the driver only reads the buffers; each chunk has its own scratch and copies
+        _contact_range(q, qd, bufs[0], ibs[0], L, k, m, n, lanes, False, l0, fd, W, ext, dt, n_steps,
+                       flags, eta, rod_a, rod_c, anchor, active, slip, prm, (c * nb // nch) * E,
+                       min(B, ((c + 1) * nb // nch) * E))
+    return 0
+
+@njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
+def run_plan(q, qd, qo, qdo, buf, controls, dt, n_steps, flags):
+    """From njit code: the physics of a :class:`Plan` (its ``buf``, ``dt``, ``n_steps``,
+    ``flags``) from ``q``, ``qd`` into ``qo``, ``qdo`` (B, k, 6) with ``controls`` (B, m)
+    the rest lengths or force densities of its control mode. Returns the kernel's error
+    code (0: done)."""
+    return _run_serial(q, qd, qo, qdo, buf, controls, controls, q, dt, n_steps, flags)
+
+@njit(inline="always", cache=True, nogil=True)
+def _update(ctrl, speed, action, rate, dv, dt, low, high, actuated, base, fill_base, motor, ctrl_out,
+            speed_out, phys_out):
+    B, na = ctrl.shape
+    m = phys_out.shape[1]
+    per_copy = rate.shape[0] > 1
+    for b in range(B):
+        if fill_base:            # the physics row before its actuated columns are set
+            for j in range(m):
+                phys_out[b, j] = base[j]
+        else:
+            for j in range(m):
+                phys_out[b, j] = 0.0
+        rb = b if per_copy else 0
+        for i in range(na):
+            v = 0.0
+            if motor:
+                d = action[b, i] * rate[rb, i] - speed[b, i]
+                if d < -dv[rb]:
+                    d = -dv[rb]
+                if d > dv[rb]:
+                    d = dv[rb]
+                v = speed[b, i] + d
+                x = ctrl[b, i] + v * dt
             else:
-                _advance(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, 1, flags, lanes)
+                x = ctrl[b, i] + action[b, i] * rate[rb, i]
+            # np.clip(x, lo, hi) == minimum(maximum(x, lo), hi), NaN propagating
+            if x < low[i]:
+                x = low[i]
+            if x > high[i]:
+                x = high[i]
+            if motor:
+                if (x <= low[i] and v < 0.0) or (x >= high[i] and v > 0.0):
+                    v = 0.0
+                speed_out[b, i] = v
+            ctrl_out[b, i] = x
+            phys_out[b, actuated[i]] = x
 
-    @njit(inline="always", cache=True)
-    def _contact_check(q, qd, bufs, l0, fd, W, ext, flags):
-        """(error code, int64 view of bufs, layout, k, m, n) of a contact loop call: the driver's
-        checks (``_kernels._copies_check``, W as its external force) and ext rows 0, 1 or B of
-        (n, 3) (error 5 otherwise)."""
-        err, ibs, L, k, m, n = _copies_check(q, qd, q, qd, bufs, l0, fd, W, flags, True)
-        if err == 0 and ext.shape[0] > 0 and ((ext.shape[0] != 1 and ext.shape[0] != q.shape[0])
-                                              or ext.shape[1] != n or ext.shape[2] != 3):
-            err = 5
-        return err, ibs, L, k, m, n
+@njit(cache=True, nogil=True)
+def apply_controls(ctrl, action, rate, low, high, actuated, base, fill_base, ctrl_out, phys_out):
+    """``ctrl_out = clip(ctrl + action * rate, low, high)`` (B, na) and the physics input
+    ``phys_out`` (B, m): ``base`` (m,) (rest lengths; zeros for force densities when
+    ``fill_base`` is False) with the actuated columns set to ``ctrl_out``. ``rate`` (P, na):
+    one row shared by every copy (P = 1) or one per copy (P = B)."""
+    _update(ctrl, ctrl, action, rate, low, 0.0, low, high, actuated, base, fill_base, False, ctrl_out,
+            ctrl_out, phys_out)
 
-    @njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
-    def _contact_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active,
-                      slip, prm):
-        """:func:`_contact_range` on the whole batch, on this thread. ``bufs`` (1, len) the shared
-        packed buffer or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the
-        kernel's error code (0: done)."""
-        err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
-        if err:
-            return err
-        E, lanes1 = _serial_setup(bufs, q.shape[0])[4:]     # the serial kernels' choice of instance
-        if E != 1:       # the SIMD instance reads per-copy constants from the lane blocks, shared ones from w
-            lanes1 = _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2]))
-        _contact_range(q, qd, bufs[0], ibs[0], L, k, m, n, lanes1, E == 1, l0, fd, W, ext, dt, n_steps, flags, eta,
-                       rod_a, rod_c, anchor, active, slip, prm, 0, q.shape[0])
-        return 0
+@njit(cache=True, nogil=True)
+def apply_motor(ctrl, speed, action, max_rate, dv, dt, low, high, actuated, base, fill_base,
+                ctrl_out, speed_out, phys_out):
+    """Motor model of ``Actuation.apply_motor``: ``v = speed + clip(action * max_rate - speed,
+    -dv, dv)``, ``ctrl_out = clip(ctrl + v * dt, low, high)``, ``v = 0`` where the control
+    sits on a bound and ``v`` pushes beyond it (``speed_out``), and the physics input
+    ``phys_out`` as :func:`apply_controls`. ``max_rate`` (P, na) and ``dv`` (P,): one row
+    shared (P = 1) or one per copy (P = B)."""
+    _update(ctrl, speed, action, max_rate, dv, dt, low, high, actuated, base, fill_base, True, ctrl_out,
+            speed_out, phys_out)
 
-    @njit(parallel=True, cache=True)   # holds the GIL, as _kernels._run_parallel does
-    def _contact_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor,
-                          active, slip, prm):
-        """:func:`_contact_range` on chunks of whole SIMD blocks on all threads (``prange``; the
-        chunk count in ``flags >> _CHUNK_SHIFT``): each chunk runs all ``n_steps`` sub-steps of
-        its copies (contact forces, then the SIMD driver with its own scratch), so the threads
-        meet once per call, not once per sub-step. Same arguments and bits as
-        :func:`_contact_loop`."""
-        err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
-        if err:
-            return err
-        B = q.shape[0]
-        E = _soa_width_nb(k)
-        nb = (B + E - 1) // E
-        nch = min(nb, max(flags >> _kernels._CHUNK_SHIFT, 1))
-        for c in prange(nch):
-            # the driver only reads the buffers; each chunk has its own scratch and copies
-            _contact_range(q, qd, bufs[0], ibs[0], L, k, m, n, lanes, False, l0, fd, W, ext, dt, n_steps,
-                           flags, eta, rod_a, rod_c, anchor, active, slip, prm, (c * nb // nch) * E,
-                           min(B, ((c + 1) * nb // nch) * E))
-        return 0
-
-    @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
-    def run_plan(q, qd, qo, qdo, buf, controls, dt, n_steps, flags):
-        """From njit code: the physics of a :class:`Plan` (its ``buf``, ``dt``, ``n_steps``,
-        ``flags``) from ``q``, ``qd`` into ``qo``, ``qdo`` (B, k, 6) with ``controls`` (B, m)
-        the rest lengths or force densities of its control mode. Returns the kernel's error
-        code (0: done)."""
-        return _run_serial(q, qd, qo, qdo, buf, controls, controls, q, dt, n_steps, flags)
-
-    @njit(inline="always", cache=True, nogil=True)
-    def _update(ctrl, speed, action, rate, dv, dt, low, high, actuated, base, fill_base, motor, ctrl_out,
-                speed_out, phys_out):
-        B, na = ctrl.shape
-        m = phys_out.shape[1]
-        per_copy = rate.shape[0] > 1
-        for b in range(B):
-            if fill_base:            # the physics row before its actuated columns are set
-                for j in range(m):
-                    phys_out[b, j] = base[j]
-            else:
-                for j in range(m):
-                    phys_out[b, j] = 0.0
-            rb = b if per_copy else 0
-            for i in range(na):
-                v = 0.0
-                if motor:
-                    d = action[b, i] * rate[rb, i] - speed[b, i]
-                    if d < -dv[rb]:
-                        d = -dv[rb]
-                    if d > dv[rb]:
-                        d = dv[rb]
-                    v = speed[b, i] + d
-                    x = ctrl[b, i] + v * dt
-                else:
-                    x = ctrl[b, i] + action[b, i] * rate[rb, i]
-                # np.clip(x, lo, hi) == minimum(maximum(x, lo), hi), NaN propagating
-                if x < low[i]:
-                    x = low[i]
-                if x > high[i]:
-                    x = high[i]
-                if motor:
-                    if (x <= low[i] and v < 0.0) or (x >= high[i] and v > 0.0):
-                        v = 0.0
-                    speed_out[b, i] = v
-                ctrl_out[b, i] = x
-                phys_out[b, actuated[i]] = x
-
-    @njit(cache=True, nogil=True)
-    def apply_controls(ctrl, action, rate, low, high, actuated, base, fill_base, ctrl_out, phys_out):
-        """``ctrl_out = clip(ctrl + action * rate, low, high)`` (B, na) and the physics input
-        ``phys_out`` (B, m): ``base`` (m,) (rest lengths; zeros for force densities when
-        ``fill_base`` is False) with the actuated columns set to ``ctrl_out``. ``rate`` (P, na):
-        one row shared by every copy (P = 1) or one per copy (P = B)."""
-        _update(ctrl, ctrl, action, rate, low, 0.0, low, high, actuated, base, fill_base, False, ctrl_out,
-                ctrl_out, phys_out)
-
-    @njit(cache=True, nogil=True)
-    def apply_motor(ctrl, speed, action, max_rate, dv, dt, low, high, actuated, base, fill_base,
-                    ctrl_out, speed_out, phys_out):
-        """Motor model of ``Actuation.apply_motor``: ``v = speed + clip(action * max_rate - speed,
-        -dv, dv)``, ``ctrl_out = clip(ctrl + v * dt, low, high)``, ``v = 0`` where the control
-        sits on a bound and ``v`` pushes beyond it (``speed_out``), and the physics input
-        ``phys_out`` as :func:`apply_controls`. ``max_rate`` (P, na) and ``dv`` (P,): one row
-        shared (P = 1) or one per copy (P = B)."""
-        _update(ctrl, speed, action, max_rate, dv, dt, low, high, actuated, base, fill_base, True, ctrl_out,
-                speed_out, phys_out)
-
-    @njit(cache=True, nogil=True)
-    def state_ok(q, qd, center, limit):
-        """True if every entry of ``q``, ``qd`` (B, k, 6) is finite and every reference point is
-        within ``limit`` (per coordinate) of ``center`` (3,)."""
-        B, k, _ = q.shape
-        for b in range(B):
-            for j in range(k):
-                for c in range(6):
-                    if not (np.isfinite(q[b, j, c]) and np.isfinite(qd[b, j, c])):
-                        return False
-                for c in range(3):
-                    if not (abs(q[b, j, c] - center[c]) <= limit):
-                        return False
-        return True
-
-    @njit(cache=True, nogil=True)
-    def state_ok_local(q, qd, center_z, limit):
-        """Like :func:`state_ok` for a robot that travels: every entry of ``q``, ``qd`` (B, k, 6)
-        finite, every reference point within ``limit`` (per coordinate) of its copy's mean
-        reference point, and that mean's height within ``limit`` of ``center_z``."""
-        B, k, _ = q.shape
-        for b in range(B):
-            m0 = 0.0
-            m1 = 0.0
-            m2 = 0.0
-            for j in range(k):
-                for c in range(6):
-                    if not (np.isfinite(q[b, j, c]) and np.isfinite(qd[b, j, c])):
-                        return False
-                m0 += q[b, j, 0]
-                m1 += q[b, j, 1]
-                m2 += q[b, j, 2]
-            m0 /= k
-            m1 /= k
-            m2 /= k
-            if not (abs(m2 - center_z) <= limit):
+@njit(inline="always", cache=True, nogil=True)
+def _copy_ok(q, qd, b, center, limit):
+    """Copy b of ``q``, ``qd`` (B, k, 6): every entry finite and every reference point within
+    ``limit`` (per coordinate) of ``center`` (3,)."""
+    k = q.shape[1]
+    for j in range(k):
+        for c in range(6):
+            if not (np.isfinite(q[b, j, c]) and np.isfinite(qd[b, j, c])):
                 return False
-            for j in range(k):
-                if not (abs(q[b, j, 0] - m0) <= limit and abs(q[b, j, 1] - m1) <= limit
-                        and abs(q[b, j, 2] - m2) <= limit):
-                    return False
-        return True
-else:  # pragma: no cover
-    run_plan = apply_controls = apply_motor = state_ok = state_ok_local = None
+        for c in range(3):
+            if not (abs(q[b, j, c] - center[c]) <= limit):
+                return False
+    return True
+
+
+@njit(inline="always", cache=True, nogil=True)
+def _copy_ok_local(q, qd, b, center_z, limit):
+    """Copy b of a robot that travels: every entry finite, every reference point within
+    ``limit`` (per coordinate) of the copy's mean reference point, that mean's height within
+    ``limit`` of ``center_z``."""
+    k = q.shape[1]
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    for j in range(k):
+        for c in range(6):
+            if not (np.isfinite(q[b, j, c]) and np.isfinite(qd[b, j, c])):
+                return False
+        m0 += q[b, j, 0]
+        m1 += q[b, j, 1]
+        m2 += q[b, j, 2]
+    m0 /= k
+    m1 /= k
+    m2 /= k
+    if not (abs(m2 - center_z) <= limit):
+        return False
+    for j in range(k):
+        if not (abs(q[b, j, 0] - m0) <= limit and abs(q[b, j, 1] - m1) <= limit
+                and abs(q[b, j, 2] - m2) <= limit):
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def state_ok(q, qd, center, limit):
+    """True if every copy of ``q``, ``qd`` (B, k, 6) is finite with every reference point within
+    ``limit`` (per coordinate) of ``center`` (3,) (the fused steps' check, from njit code)."""
+    for b in range(q.shape[0]):
+        if not _copy_ok(q, qd, b, center, limit):
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def state_ok_local(q, qd, center_z, limit):
+    """Like :func:`state_ok` for a robot that travels (see :func:`diverged`, ``local``)."""
+    for b in range(q.shape[0]):
+        if not _copy_ok_local(q, qd, b, center_z, limit):
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def bad_copies(q, qd, center, limit, local, out):
+    """``out[b]`` (B,) bool: copy b failed the check of :func:`state_ok` (``local`` False) or of
+    :func:`state_ok_local` (``local``: ``center[2]`` the height); returns how many failed."""
+    n_bad = 0
+    for b in range(q.shape[0]):
+        ok = _copy_ok_local(q, qd, b, center[2], limit) if local else _copy_ok(q, qd, b, center, limit)
+        out[b] = not ok
+        n_bad += not ok
+    return n_bad

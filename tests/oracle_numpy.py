@@ -15,11 +15,16 @@ formulation itself):
 * :func:`step` -- semi-implicit Euler (with the great-circle drift :func:`sphere_drift` when
   projecting) and RK4, a callable ``external`` evaluated at every stage;
 * :func:`contact_forces` and :func:`contact_step` -- the ground contact (Hunt-Crossley normal
-  force, stick/slip Coulomb friction) and its sub-step loop.
+  force, stick/slip Coulomb friction) and its sub-step loop;
+* the bookkeeping of a control step that the package compiles: :func:`actuation_apply` and
+  :func:`actuation_apply_motor` (rate limits, the cable motor), :func:`diverged`,
+  :func:`roll_observation`.
 
 SI units; shapes as the package's functions take them. Not installed with the package.
 """
 from __future__ import annotations
+
+import contextlib
 
 import numpy as np
 
@@ -196,3 +201,103 @@ def contact_step(model, contact, state, cstate, dt, integrator="semi_implicit_eu
             W = W + external
         st = step(model, st, dt, integrator, external=W, **inputs)
     return st, ContactState(anchor, active)
+
+
+# ---------------------------------------------------------------------- bookkeeping of the control step
+# (compiled once in the package: pipeline.apply_controls / apply_motor / bad_copies, envs.compiled.roll_observe)
+def actuation_apply(act, ctrl, action):
+    """New control (B, na) of :class:`tensegrity_gym.actuation.Actuation` without a motor model:
+    ``clip(ctrl + action * max_rate * control_dt, low, high)``."""
+    return np.clip(ctrl + action * act._rate, act.low, act.high)
+
+
+def actuation_apply_motor(act, ctrl, speed, action):
+    """``(new control, new rate)`` (B, na) of the motor model: the rate moves toward ``action *
+    max_rate`` by at most ``max_accel * control_dt``, the control by ``rate * control_dt`` within
+    its bounds, and the rate drops to 0 where the control sits on a bound it pushes against."""
+    dv = act._dv[:, None]
+    v = speed + np.clip(action * act.rate_rows - speed, -dv, dv)
+    new = np.clip(ctrl + v * act.control_dt, act.low, act.high)
+    stop = ((new <= act.low) & (v < 0.0)) | ((new >= act.high) & (v > 0.0))
+    return new, np.where(stop, 0.0, v)
+
+
+def diverged(q, qd, center, limit, local=False):
+    """(B,) bool of :func:`tensegrity_gym.pipeline.diverged`: a non-finite entry, or a reference
+    point farther than ``limit`` (per coordinate) from ``center`` (with ``local``: from its copy's
+    mean reference point, that mean's height checked against ``center[2]``)."""
+    with np.errstate(all="ignore"):
+        q, qd = np.asarray(q), np.asarray(qd)
+        finite = np.isfinite(q).all(axis=(1, 2)) & np.isfinite(qd).all(axis=(1, 2))
+        r = np.where(np.isfinite(q[..., :3]), q[..., :3], 0.0)
+        if local:
+            m = r.mean(axis=1, keepdims=True)
+            far = ~((np.abs(r - m).max(axis=(1, 2)) <= limit) & (np.abs(m[:, 0, 2] - center[2]) <= limit))
+        else:
+            far = ~(np.abs(r - np.asarray(center)).max(axis=(1, 2)) <= limit)
+        return ~finite | far
+
+
+def roll_observation(task):
+    """The state observation of TensegrityRoll-v0 (``RollObservation.observe``), float32 (B, size):
+    node positions relative to the centre of mass, node velocities, controls, contact flags, goal
+    direction, centre-of-mass height, cable speeds."""
+    q, qd, B = task.q, task.qd, task.num_envs
+    rod, e = task._node_rod, task._node_eta_1d[None, :, None]   # node i at r + e_i b of rod rod[i]
+    N = q[:, rod, :3] + e * q[:, rod, 3:]
+    V = qd[:, rod, :3] + e * qd[:, rod, 3:]
+    com = task._com(q)
+    na, nc = task.ctrl.shape[1], task.n_contacts
+    obs = np.empty((B, task.observation_size), np.float32)
+    n3 = N.shape[1] * 3
+    obs[:, :n3] = (N - com[:, None, :]).reshape(B, -1)
+    obs[:, n3:2 * n3] = V.reshape(B, -1)
+    i = 2 * n3
+    obs[:, i:i + na] = task.ctrl
+    i += na
+    obs[:, i:i + nc] = task.cstate.active
+    i += nc
+    obs[:, i:i + 2] = task.goal
+    obs[:, i + 2] = com[:, 2]
+    obs[:, i + 3:] = task.speed
+    return obs
+
+
+def _ref_advance(act, ctrl, action):
+    new = actuation_apply(act, ctrl, action)
+    return new, act.physics_inputs(new)
+
+
+def _ref_advance_motor(act, ctrl, speed, action):
+    if act.max_accel is None:
+        raise ValueError("advance_motor: this Actuation has no max_accel (use advance)")
+    new, v = actuation_apply_motor(act, ctrl, speed, action)
+    return new, v, act.physics_inputs(new)
+
+
+def _ref_roll_observe(task):
+    if task.sensors is not None:
+        return task._readings.reshape(task.num_envs, -1).astype(np.float32)
+    return roll_observation(task)
+
+
+@contextlib.contextmanager
+def reference_paths():
+    """Inside the block the envs run the NumPy references above instead of the package's compiled
+    bookkeeping: the control update (``Actuation.advance`` / ``advance_motor``), the divergence
+    check (``pipeline.diverged``), the roll observation, the action check (always the reference
+    ``checks.check_action``); a shape task made inside the block tracks its nodes with the NumPy
+    observation and takes no fused step (``compiled.node_sources`` says none applies)."""
+    import pytest
+    from tensegrity_gym import pipeline
+    from tensegrity_gym.actuation import Actuation
+    from tensegrity_gym.envs import compiled
+    from tensegrity_gym.envs.roll_obs import RollObservation
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(Actuation, "advance", _ref_advance)
+        m.setattr(Actuation, "advance_motor", _ref_advance_motor)
+        m.setattr(pipeline, "diverged", diverged)
+        m.setattr(RollObservation, "observe", _ref_roll_observe)
+        m.setattr(compiled, "clip_action", lambda a, clip, tol: False)       # falls back to checks.check_action
+        m.setattr(compiled, "node_sources", lambda model, nodes: (None, None))
+        yield

@@ -1,8 +1,6 @@
 """The compiled per-step helpers (tensegrity_gym/pipeline.py, tensegrity_gym/envs/compiled.py) and the small-array fast paths
 give bit-identical results to the NumPy reference paths, and bad input still raises the same
 errors."""
-import contextlib
-
 import numpy as np
 import pytest
 
@@ -12,18 +10,10 @@ from tensegrity_gym.envs import compiled
 from tensegrity_gym.envs.common import check_action
 from tensegrity_gym.envs.shape import TensegrityShapeEnv, TensegrityShapeVectorEnv
 
-pytestmark = pytest.mark.skipif(not pipeline.AVAILABLE, reason="numba not installed")
+import oracle_numpy as oracle
 
-
-@contextlib.contextmanager
-def reference():
-    """Run the NumPy reference paths (as without numba) inside the block."""
-    old = pipeline.AVAILABLE
-    pipeline.AVAILABLE = False
-    try:
-        yield
-    finally:
-        pipeline.AVAILABLE = old
+#: the NumPy references of the compiled bookkeeping (tests/oracle_numpy.py) inside the block
+reference = oracle.reference_paths
 
 
 def same(a, b):
@@ -51,7 +41,6 @@ def test_shape_env_fast_path_is_bit_identical(mode):
         assert same(r1[0], r2[0]), t
         assert r1[1:4] == r2[1:4], t
         assert r1[4] == r2[4] and all(type(r1[4][k]) is type(r2[4][k]) for k in r1[4]), t
-    assert fast.task._compiled is True and ref.task._compiled is False
     assert fast.task._fused and ref.task._fused is False     # the fused step ran (see below)
 
 
@@ -259,3 +248,78 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
     assert len(calls) == 6 * (2 if kw.get("observation_mode") == "robot" else 1)   # robot: IMUs split the last step
     assert set(calls) == {"_contact_parallel" if n >= 200 else "_contact_loop"}, (n, set(calls))
     assert packed[0] is not None and all(p is packed[0] for p in packed)
+
+
+@pytest.mark.parametrize("mode", ["rest_length", "force_density"])
+@pytest.mark.parametrize("per_copy", [False, True])
+def test_actuation_update_matches_the_numpy_oracle(mode, per_copy):
+    """Actuation.advance / advance_motor (the compiled update, the package's only one) against
+    the NumPy reference, bit for bit, with per-copy limits; any float array layout is accepted
+    (float32, strided); a wrong shape is a ValueError naming the array."""
+    from tensegrity_gym.actuation import Actuation
+    rng = np.random.default_rng(7)
+    B, m = 12, 9
+    act_idx = np.array([0, 2, 3, 7])
+    acc = 2.0 if mode == "rest_length" else None
+    act = Actuation(mode, act_idx, 0.1, 0.5, 0.2, 0.02, np.full(m, 0.3), 0.3, max_accel=acc)
+    if per_copy:
+        act.set_copy_limits(B, np.arange(B), max_rate=rng.uniform(0.1, 0.3, (B, 4)),
+                            max_accel=rng.uniform(1, 3, B) if acc else None)
+    ctrl = rng.uniform(0.1, 0.5, (B, 4))
+    ctrl[:3] = 0.5
+    speed = rng.uniform(-0.2, 0.2, (B, 4))
+    for t in range(10):
+        action = rng.choice([-1.0, 1.0, 0.4, -0.7], (B, 4))
+        if acc:
+            new, v, phys = act.advance_motor(ctrl, speed, action)
+            new_r, v_r = oracle.actuation_apply_motor(act, ctrl, speed, action)
+            assert same(v, v_r), t
+            speed = v
+        else:
+            new, phys = act.advance(ctrl, action)
+            new_r = oracle.actuation_apply(act, ctrl, action)
+        assert same(new, new_r), t
+        ref_phys = act.physics_inputs(new_r)
+        assert phys.keys() == ref_phys.keys(), t
+        assert all((phys[k] is None and ref_phys[k] is None) or same(phys[k], ref_phys[k]) for k in phys), t
+        ctrl = new
+    wide = np.zeros((B, 8), np.float32)
+    wide[:, ::2] = 0.5
+    if acc:
+        out = act.advance_motor(ctrl, speed, wide[:, ::2])
+        assert same(out[0], act.advance_motor(ctrl, speed, np.full((B, 4), 0.5))[0])
+        with pytest.raises(ValueError, match="speed"):
+            act.advance_motor(ctrl, speed[:, :3], wide[:, ::2])
+    else:
+        out = act.advance(ctrl, wide[:, ::2])
+        assert same(out[0], act.advance(ctrl, np.full((B, 4), 0.5))[0])
+    with pytest.raises(ValueError, match="action"):
+        (act.advance_motor(ctrl, speed, np.zeros((B, 3))) if acc else act.advance(ctrl, np.zeros((B, 3))))
+
+
+@pytest.mark.parametrize("local", [False, True])
+def test_diverged_matches_the_numpy_oracle(local):
+    """pipeline.diverged (one compiled pass) flags exactly the copies the NumPy reference flags:
+    NaN or inf in q or qd, a reference point beyond the limit (absolute, or from its copy's mean
+    and that mean's height with ``local``); lists, float32 and strided arrays are accepted."""
+    rng = np.random.default_rng(3)
+    B, k, limit = 40, 3, 1.0
+    center = np.array([0.1, -0.2, 0.3])
+    q = rng.uniform(-0.5, 0.5, (B, k, 6))
+    q[..., :3] += center
+    qd = rng.normal(size=(B, k, 6))
+    q[1, 0, 4] = np.nan
+    qd[2, 2, 1] = np.inf
+    q[3, 1, 0] += 4.0                    # one rod far off: beyond the limit either way
+    q[4, :, 2] += 5.0                    # the whole copy lifted: off the centre and off the height
+    q[5, :, 0] += 50.0                   # the whole copy travelled: only the absolute check flags it
+    got = pipeline.diverged(q, qd, center, limit, local)
+    want = oracle.diverged(q, qd, center, limit, local)
+    assert same(got, want) and got[[1, 2, 3, 4]].all() and got[5] == (not local) and not got[6:].any()
+    assert same(pipeline.diverged(q.astype(np.float32), qd.tolist(), list(center), limit, local),
+                oracle.diverged(q.astype(np.float32), qd, center, limit, local))
+    wide = np.zeros((B, k, 12))
+    wide[..., ::2] = q
+    assert same(pipeline.diverged(wide[..., ::2], qd, center, limit, local), want)
+    with pytest.raises(ValueError, match="shape"):
+        pipeline.diverged(q, qd[:, :2], center, limit, local)

@@ -17,9 +17,7 @@ from tensegrity_gym import builders, dynamics as dyn, integrators
 
 import oracle_numpy as oracle
 
-K = pytest.importorskip("tensegrity_gym._kernels")
-if not K.AVAILABLE:  # pragma: no cover
-    pytest.skip("numba not installed", allow_module_level=True)
+from tensegrity_gym import _kernels as K
 
 RTOL = 1e-12
 DT = 1e-3

@@ -163,14 +163,10 @@ def test_travelling_far_is_not_divergence():
         assert not info["diverged"] and not trunc
     assert info["com_position"][0] > 1000.0 and np.all(np.isfinite(obs))
     from tensegrity_gym import pipeline
+    import oracle_numpy as oracle
 
-    def reference(q, qd):      # the NumPy path of pipeline.diverged
-        old = pipeline.AVAILABLE
-        pipeline.AVAILABLE = False
-        try:
-            return pipeline.diverged(q, qd, task.center0, limit, local=True)
-        finally:
-            pipeline.AVAILABLE = old
+    def reference(q, qd):      # the NumPy reference of pipeline.diverged
+        return oracle.diverged(q, qd, task.center0, limit, local=True)
     assert task.travels
     assert not reference(task.q, task.qd).any()
     torn = task.q.copy()
@@ -179,12 +175,12 @@ def test_travelling_far_is_not_divergence():
     lifted = task.q.copy()
     lifted[0, :, 2] += 2.0 * limit
     assert reference(lifted, task.qd).all()
-    if pipeline.AVAILABLE:
-        z = task.center0[2]
-        assert pipeline.state_ok_local(task.q, task.qd, z, limit)
-        assert not pipeline.state_ok_local(torn, task.qd, z, limit)
-        assert not pipeline.state_ok_local(lifted, task.qd, z, limit)
-        assert pipeline.diverged(torn, task.qd, task.center0, limit, local=True).all()
+    z = task.center0[2]
+    assert pipeline.state_ok_local(task.q, task.qd, z, limit)
+    assert not pipeline.state_ok_local(torn, task.qd, z, limit)
+    assert not pipeline.state_ok_local(lifted, task.qd, z, limit)
+    assert pipeline.diverged(torn, task.qd, task.center0, limit, local=True).all()
+    assert not pipeline.diverged(task.q, task.qd, task.center0, limit, local=True).any()
 
 
 def test_gait_rolls_the_prism_forward_more_than_a_body_length():
@@ -281,14 +277,15 @@ def test_python_contact_loop_matches_the_fast_path(monkeypatch):
     fast.reset(seed=3)
     for act in acts:
         fast.step(act)
-    assert calls or fast.task._compiled_physics()     # the compiled path ran
-    monkeypatch.setattr(pipeline, "AVAILABLE", False)          # NumPy bookkeeping
+    assert calls or fast.task._kernels_run     # the compiled path ran
+    import oracle_numpy as oracle
     monkeypatch.setattr(pipeline, "_contact_compiled", lambda *a: False)   # the Python contact loop
-    slow = TensegrityRollEnv()
-    slow.task._kernels_run = False                             # integrators.step per physics step
-    slow.reset(seed=3)
-    for act in acts:
-        slow.step(act)
+    with oracle.reference_paths():                             # NumPy bookkeeping
+        slow = TensegrityRollEnv()
+        slow.task._kernels_run = False                         # integrators.step per physics step
+        slow.reset(seed=3)
+        for act in acts:
+            slow.step(act)
     assert slow.task.cstate.active.any()
     np.testing.assert_allclose(slow.task.q, fast.task.q, rtol=0, atol=1e-10)
     np.testing.assert_allclose(slow.task.qd, fast.task.qd, rtol=0, atol=1e-8)

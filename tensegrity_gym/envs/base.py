@@ -233,7 +233,7 @@ class BatchedTask:
             qd_prev[diverged] = self.qd[diverged]
             self._qd_prev = qd_prev
             return diverged
-        if self._compiled_physics():
+        if self._kernels_run:
             # the compiled kernel raises no floating-point warnings: no np.errstate
             st = pipeline.step(model, dyn.State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
         else:
@@ -266,14 +266,6 @@ class BatchedTask:
                 self._qd_prev[diverged] = qd[diverged]
         self.elapsed += 1
         return diverged
-
-    def _compiled_physics(self) -> bool:
-        """True if :meth:`simulate` runs the numba kernels and the compiled bookkeeping
-        (explicit integrator); decided once per task."""
-        c = self.__dict__.get("_compiled")
-        if c is None:
-            c = self._compiled = bool(pipeline.AVAILABLE and self._kernels_run)
-        return c
 
     def _settle_divergence(self, q0, qd0, q, qd) -> np.ndarray:
         """Divergence check (:func:`tensegrity_gym.pipeline.diverged`) and state update of

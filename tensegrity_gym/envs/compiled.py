@@ -18,11 +18,14 @@ divergence check (:func:`tensegrity_gym.pipeline.state_ok`), the observation, th
 the tracking term in ONE compiled call per ``step()``. Everything physical is a call into the
 pipeline; nothing here knows the kernels' flags or buffer layout.
 
-The switch is :data:`tensegrity_gym.pipeline.AVAILABLE` (False: the NumPy references run).
+numba is a required dependency: these helpers always run where they apply; the NumPy paths of the
+envs remain for what they do not cover (a tracked node that is an anchor, robot observations).
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
+from numba import njit
 
 from .. import pipeline
 
@@ -33,9 +36,9 @@ __all__ = ["clip_action", "shape_observe", "mean_max", "roll_observe", "shape_st
 def node_sources(model, nodes: np.ndarray):
     """``(rod, eta)`` of the compiled observations: node ``nodes[t]`` sits at ``r + eta[t] b`` of
     rod ``rod[t]`` (int64, float64 (t,)), exactly as ``dynamics.node_positions`` writes it (rod_c
-    after rod_a, so the last rod wins); ``(None, None)`` (the NumPy path) without numba or when a
-    node is an anchor or on no rod."""
-    if not pipeline.AVAILABLE or np.isin(nodes, model.anchor_idx).any():
+    after rod_a, so the last rod wins); ``(None, None)`` (the NumPy path) when a node is an
+    anchor or on no rod."""
+    if np.isin(nodes, model.anchor_idx).any():
         return None, None
     src_rod = np.full(model.n_nodes, -1)
     src_eta = np.zeros(model.n_nodes)
@@ -47,197 +50,197 @@ def node_sources(model, nodes: np.ndarray):
     return (np.ascontiguousarray(src_rod[nodes], dtype=np.int64),
             np.ascontiguousarray(src_eta[nodes], dtype=np.float64))
 
-if pipeline.AVAILABLE:
-    import numba
-    from numba import njit
 
-    # the pipeline's compiled entry points, called from shape_step (numba binds globals at compile time)
-    _apply_controls, _run_plan, _state_ok = pipeline.apply_controls, pipeline.run_plan, pipeline.state_ok
+# the pipeline's compiled entry points, called from shape_step (numba binds globals at compile time)
+_apply_controls, _run_plan, _state_ok = pipeline.apply_controls, pipeline.run_plan, pipeline.state_ok
 
-    @njit(cache=True, nogil=True)
-    def clip_action(a, clip, tol):
-        """``a``: 1-d float64 (the raveled action, modified in place). Returns False (and leaves
-        ``a`` partly clipped) if an entry is non-finite, or with ``clip`` False beyond ``1 + tol``
-        of the box: the caller then runs the reference check, which raises the right error.
-        Otherwise clips ``a`` to [-1, 1] in place (``np.clip`` semantics) and returns True."""
-        for i in range(a.size):
-            v = a[i]
-            if not np.isfinite(v):
-                return False
-            if not clip and abs(v) > 1.0 + tol:
-                return False
-            if v < -1.0:
-                a[i] = -1.0
-            elif v > 1.0:
-                a[i] = 1.0
-        return True
 
-    @njit(cache=True, nogil=True)
-    def shape_observe(q, qd, rod, eta, ctrl, target, obs, dist):
-        """Observation of the shape task (see ``ShapeTask.observe``) into ``obs`` (B, 12 nt + na)
-        float32 and the node errors |target - N| into ``dist`` (B, nt) float64. Tracked node
-        ``t`` sits at ``r + eta[t] b`` of rod ``rod[t]`` (as ``dynamics.node_positions``)."""
-        B = q.shape[0]
-        nt = rod.size
-        na = ctrl.shape[1]
-        o_v = 3 * nt
-        o_c = 6 * nt
-        o_t = 6 * nt + na
-        o_e = 9 * nt + na
-        for b in range(B):
-            for t in range(nt):
-                j = rod[t]
-                e = eta[t]
-                s = 0.0
-                for c in range(3):
-                    x = q[b, j, c] + e * q[b, j, 3 + c]
-                    v = qd[b, j, c] + e * qd[b, j, 3 + c]
-                    g = target[b, t, c]
-                    d = x - g
-                    obs[b, 3 * t + c] = np.float32(x)
-                    obs[b, o_v + 3 * t + c] = np.float32(v)
-                    obs[b, o_t + 3 * t + c] = np.float32(g)
-                    obs[b, o_e + 3 * t + c] = np.float32(g - x)
-                    if c == 0:
-                        s = d * d
-                    else:
-                        s = s + d * d
-                dist[b, t] = np.sqrt(s)
-            for i in range(na):
-                obs[b, o_c + i] = np.float32(ctrl[b, i])
-
-    @njit(cache=True, nogil=True)
-    def mean_max(dist, mean, mx):
-        """Row means and maxima of ``dist`` (B, nt) into ``mean``, ``mx`` (B,), exactly as
-        ``np.add.reduce(dist, 1) / nt`` and ``np.maximum.reduce(dist, 1)``: NumPy sums fewer than
-        8 numbers strictly left to right (its pairwise summation starts unrolling at 8), so this
-        returns False, computing nothing, when nt >= 8; the caller then uses NumPy."""
-        B, nt = dist.shape
-        if nt >= 8 or nt == 0:
+@njit(cache=True, nogil=True)
+def clip_action(a, clip, tol):
+    """``a``: 1-d float64 (the raveled action, modified in place). Returns False (and leaves
+    ``a`` partly clipped) if an entry is non-finite, or with ``clip`` False beyond ``1 + tol``
+    of the box: the caller then runs the reference check, which raises the right error.
+    Otherwise clips ``a`` to [-1, 1] in place (``np.clip`` semantics) and returns True."""
+    for i in range(a.size):
+        v = a[i]
+        if not np.isfinite(v):
             return False
-        for b in range(B):
-            s = dist[b, 0]
-            m = dist[b, 0]
-            for t in range(1, nt):
-                v = dist[b, t]
-                s = s + v
-                if m == m and (v != v or v > m):   # NaN propagates, as in np.maximum
-                    m = v
-            mean[b] = s / nt
-            mx[b] = m
-        return True
+        if not clip and abs(v) > 1.0 + tol:
+            return False
+        if v < -1.0:
+            a[i] = -1.0
+        elif v > 1.0:
+            a[i] = 1.0
+    return True
 
-    @njit(cache=True, nogil=True)
-    def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, speed, obs):
-        """Observation of the roll task (see ``RollTask.observe``) into ``obs`` (B, size) float32:
-        node positions relative to ``com`` (B, 3), node velocities, controls, contact flags,
-        goal direction, centre-of-mass height, then the cable speeds ``speed`` (B, ns) (ns = 0
-        without the motor model). Node ``i`` sits at ``r + eta[i] b`` of rod ``rod[i]``."""
-        B = q.shape[0]
-        n = rod.size
-        na = ctrl.shape[1]
-        nc = active.shape[1]
-        n3 = 3 * n
-        for b in range(B):
-            for i in range(n):
-                j = rod[i]
-                e = eta[i]
-                for c in range(3):
-                    x = q[b, j, c] + e * q[b, j, 3 + c]
-                    obs[b, 3 * i + c] = np.float32(x - com[b, c])
-                    obs[b, n3 + 3 * i + c] = np.float32(qd[b, j, c] + e * qd[b, j, 3 + c])
-            o = 2 * n3
-            for i in range(na):
-                obs[b, o + i] = np.float32(ctrl[b, i])
-            o += na
-            for i in range(nc):
-                obs[b, o + i] = np.float32(1.0) if active[b, i] else np.float32(0.0)
-            o += nc
-            obs[b, o] = np.float32(goal[b, 0])
-            obs[b, o + 1] = np.float32(goal[b, 1])
-            obs[b, o + 2] = np.float32(com[b, 2])
-            o += 3
-            for i in range(speed.shape[1]):
-                obs[b, o + i] = np.float32(speed[b, i])
 
-    @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
-    def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out, obs,
-                   dist, stats, success, elapsed):
-        """One control step of the shape task in ONE compiled call (``ShapeTask.step``'s fast
-        path): the control update (``pipeline.apply_controls``), the physics of a
-        :class:`tensegrity_gym.pipeline.Plan` (``buf``, ``dt``, ``n_steps``, ``flags``:
-        ``pipeline.run_plan``), the divergence check (``pipeline.state_ok``), the observation and
-        node errors (:func:`shape_observe`) and the error statistics (:func:`mean_max`; ``stats``
-        (4, B): mean error, max error, the proximity term's exponent ``-0.5 t^2`` of
-        ``rewards.tolerance`` (NaN inside the tolerance; the exp itself is left to NumPy, whose
-        exp may differ from LLVM's in the last bit) and the tracking term
-        ``-tracking_weight * mean error``), ``success`` (B,) bool (max error within the
-        tolerance) and ``elapsed`` (B,) int64 incremented (both only when mean/max are done
-        here)).
-
-        ``offset`` (P, m): rest-length offsets (m) added to the physics input in rest-length mode
-        (P = 1 shared, P = B per copy, P = 0 none), as ``BatchedTask.with_offset`` adds them.
-        ``fcon``: divergence limit, centre (3), tolerance, margin, gaussian scale,
-        -tracking_weight, then per actuated string rate, low, high, base rest lengths (m), then
-        eta (nt). ``icon``: fill_base, na, m, nt, then actuated (na), rod (nt).
-        Inputs are only read; results go to the fresh output arrays. Returns 0 (all done), 2
-        (done but mean/max left to NumPy: nt >= 8), 1 (physics done, state diverged: outputs
-        ``qo``, ``qdo``, ``ctrl_out`` valid, the rest not computed) or -1 (shapes do not fit:
-        nothing valid, the caller runs the reference path, which raises the right error)."""
-        fill_base, na, m, nt = icon[0] != 0, icon[1], icon[2], icon[3]
-        B = q.shape[0]
-        if (ctrl.shape[0] != B or ctrl.shape[1] != na or action.shape[0] != B or action.shape[1] != na
-                or target.shape[0] != B or target.shape[1] != nt or target.shape[2] != 3
-                or qo.shape[0] != B or ctrl_out.shape[0] != B or ctrl_out.shape[1] != na
-                or obs.shape[0] != B or obs.shape[1] != 12 * nt + na or dist.shape[0] != B
-                or dist.shape[1] != nt or stats.shape[0] != 4 or stats.shape[1] != B
-                or success.shape[0] != B or elapsed.shape[0] != B):
-            return -1
-        o = 8
-        phys = np.empty((B, m))
-        _apply_controls(ctrl, action, fcon[o:o + na].reshape((1, na)), fcon[o + na:o + 2 * na],
-                        fcon[o + 2 * na:o + 3 * na], icon[4:4 + na], fcon[o + 3 * na:o + 3 * na + m], fill_base,
-                        ctrl_out, phys)
-        if fill_base and offset.shape[0] > 0:      # rest_length + rest_offset (with_offset)
-            if offset.shape[1] != m or (offset.shape[0] != 1 and offset.shape[0] != B):
-                return -1
-            per = offset.shape[0] > 1
-            for b in range(B):
-                for j in range(m):
-                    phys[b, j] = phys[b, j] + offset[b if per else 0, j]
-        if _run_plan(q, qd, qo, qdo, buf, phys, dt, n_steps, flags):
-            return -1
-        if not _state_ok(qo, qdo, fcon[1:4], fcon[0]):
-            return 1
-        shape_observe(qo, qdo, icon[4 + na:4 + na + nt], fcon[o + 3 * na + m:o + 3 * na + m + nt], ctrl_out,
-                      target, obs, dist)
-        done = mean_max(dist, stats[0], stats[1])
-        if done:
-            tol, margin, scale, neg_w = fcon[4], fcon[5], fcon[6], fcon[7]
-            for b in range(B):
-                stats[3, b] = neg_w * stats[0, b]
-                x = stats[1, b]
-                success[b] = x <= tol
-                if 0.0 <= x and x <= tol:
-                    stats[2, b] = np.nan
+@njit(cache=True, nogil=True)
+def shape_observe(q, qd, rod, eta, ctrl, target, obs, dist):
+    """Observation of the shape task (see ``ShapeTask.observe``) into ``obs`` (B, 12 nt + na)
+    float32 and the node errors |target - N| into ``dist`` (B, nt) float64. Tracked node
+    ``t`` sits at ``r + eta[t] b`` of rod ``rod[t]`` (as ``dynamics.node_positions``)."""
+    B = q.shape[0]
+    nt = rod.size
+    na = ctrl.shape[1]
+    o_v = 3 * nt
+    o_c = 6 * nt
+    o_t = 6 * nt + na
+    o_e = 9 * nt + na
+    for b in range(B):
+        for t in range(nt):
+            j = rod[t]
+            e = eta[t]
+            s = 0.0
+            for c in range(3):
+                x = q[b, j, c] + e * q[b, j, 3 + c]
+                v = qd[b, j, c] + e * qd[b, j, 3 + c]
+                g = target[b, t, c]
+                d = x - g
+                obs[b, 3 * t + c] = np.float32(x)
+                obs[b, o_v + 3 * t + c] = np.float32(v)
+                obs[b, o_t + 3 * t + c] = np.float32(g)
+                obs[b, o_e + 3 * t + c] = np.float32(g - x)
+                if c == 0:
+                    s = d * d
                 else:
-                    t = ((0.0 - x if x < 0.0 else x - tol) / margin) * scale
-                    stats[2, b] = -0.5 * (t * t)
-        if not done:
-            return 2
-        for b in range(B):
-            elapsed[b] += 1
-        return 0
+                    s = s + d * d
+            dist[b, t] = np.sqrt(s)
+        for i in range(na):
+            obs[b, o_c + i] = np.float32(ctrl[b, i])
 
-    _c1 = "C"
-    _F8, _I8 = numba.types.float64, numba.types.int64
-    SHAPE_STEP_SIG = _I8(*[numba.types.Array(_F8, d, _c1) for d in (3, 3, 2, 2, 3, 1)], _F8, _I8, _I8,
-                         numba.types.Array(_F8, 2, _c1), numba.types.Array(_F8, 1, _c1),
-                         numba.types.Array(_I8, 1, _c1),
-                         *[numba.types.Array(_F8, d, _c1) for d in (3, 3, 2)],
-                         numba.types.Array(numba.types.float32, 2, _c1),
-                         *[numba.types.Array(_F8, d, _c1) for d in (2, 2)],
-                         numba.types.Array(numba.types.boolean, 1, _c1), numba.types.Array(_I8, 1, _c1))
-else:  # pragma: no cover
-    clip_action = shape_observe = mean_max = roll_observe = None
-    shape_step = SHAPE_STEP_SIG = None
+
+@njit(cache=True, nogil=True)
+def mean_max(dist, mean, mx):
+    """Row means and maxima of ``dist`` (B, nt) into ``mean``, ``mx`` (B,), exactly as
+    ``np.add.reduce(dist, 1) / nt`` and ``np.maximum.reduce(dist, 1)``: NumPy sums fewer than
+    8 numbers strictly left to right (its pairwise summation starts unrolling at 8), so this
+    returns False, computing nothing, when nt >= 8; the caller then uses NumPy."""
+    B, nt = dist.shape
+    if nt >= 8 or nt == 0:
+        return False
+    for b in range(B):
+        s = dist[b, 0]
+        m = dist[b, 0]
+        for t in range(1, nt):
+            v = dist[b, t]
+            s = s + v
+            if m == m and (v != v or v > m):   # NaN propagates, as in np.maximum
+                m = v
+        mean[b] = s / nt
+        mx[b] = m
+    return True
+
+
+@njit(cache=True, nogil=True)
+def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, speed, obs):
+    """Observation of the roll task (see ``RollTask.observe``) into ``obs`` (B, size) float32:
+    node positions relative to ``com`` (B, 3), node velocities, controls, contact flags,
+    goal direction, centre-of-mass height, then the cable speeds ``speed`` (B, ns) (ns = 0
+    without the motor model). Node ``i`` sits at ``r + eta[i] b`` of rod ``rod[i]``."""
+    B = q.shape[0]
+    n = rod.size
+    na = ctrl.shape[1]
+    nc = active.shape[1]
+    n3 = 3 * n
+    for b in range(B):
+        for i in range(n):
+            j = rod[i]
+            e = eta[i]
+            for c in range(3):
+                x = q[b, j, c] + e * q[b, j, 3 + c]
+                obs[b, 3 * i + c] = np.float32(x - com[b, c])
+                obs[b, n3 + 3 * i + c] = np.float32(qd[b, j, c] + e * qd[b, j, 3 + c])
+        o = 2 * n3
+        for i in range(na):
+            obs[b, o + i] = np.float32(ctrl[b, i])
+        o += na
+        for i in range(nc):
+            obs[b, o + i] = np.float32(1.0) if active[b, i] else np.float32(0.0)
+        o += nc
+        obs[b, o] = np.float32(goal[b, 0])
+        obs[b, o + 1] = np.float32(goal[b, 1])
+        obs[b, o + 2] = np.float32(com[b, 2])
+        o += 3
+        for i in range(speed.shape[1]):
+            obs[b, o + i] = np.float32(speed[b, i])
+
+
+@njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
+def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out, obs,
+               dist, stats, success, elapsed):
+    """One control step of the shape task in ONE compiled call (``ShapeTask.step``'s fast
+    path): the control update (``pipeline.apply_controls``), the physics of a
+    :class:`tensegrity_gym.pipeline.Plan` (``buf``, ``dt``, ``n_steps``, ``flags``:
+    ``pipeline.run_plan``), the divergence check (``pipeline.state_ok``), the observation and
+    node errors (:func:`shape_observe`) and the error statistics (:func:`mean_max`; ``stats``
+    (4, B): mean error, max error, the proximity term's exponent ``-0.5 t^2`` of
+    ``rewards.tolerance`` (NaN inside the tolerance; the exp itself is left to NumPy, whose
+    exp may differ from LLVM's in the last bit) and the tracking term
+    ``-tracking_weight * mean error``), ``success`` (B,) bool (max error within the
+    tolerance) and ``elapsed`` (B,) int64 incremented (both only when mean/max are done
+    here)).
+
+    ``offset`` (P, m): rest-length offsets (m) added to the physics input in rest-length mode
+    (P = 1 shared, P = B per copy, P = 0 none), as ``BatchedTask.with_offset`` adds them.
+    ``fcon``: divergence limit, centre (3), tolerance, margin, gaussian scale,
+    -tracking_weight, then per actuated string rate, low, high, base rest lengths (m), then
+    eta (nt). ``icon``: fill_base, na, m, nt, then actuated (na), rod (nt).
+    Inputs are only read; results go to the fresh output arrays. Returns 0 (all done), 2
+    (done but mean/max left to NumPy: nt >= 8), 1 (physics done, state diverged: outputs
+    ``qo``, ``qdo``, ``ctrl_out`` valid, the rest not computed) or -1 (shapes do not fit:
+    nothing valid, the caller runs the reference path, which raises the right error)."""
+    fill_base, na, m, nt = icon[0] != 0, icon[1], icon[2], icon[3]
+    B = q.shape[0]
+    if (ctrl.shape[0] != B or ctrl.shape[1] != na or action.shape[0] != B or action.shape[1] != na
+            or target.shape[0] != B or target.shape[1] != nt or target.shape[2] != 3
+            or qo.shape[0] != B or ctrl_out.shape[0] != B or ctrl_out.shape[1] != na
+            or obs.shape[0] != B or obs.shape[1] != 12 * nt + na or dist.shape[0] != B
+            or dist.shape[1] != nt or stats.shape[0] != 4 or stats.shape[1] != B
+            or success.shape[0] != B or elapsed.shape[0] != B):
+        return -1
+    o = 8
+    phys = np.empty((B, m))
+    _apply_controls(ctrl, action, fcon[o:o + na].reshape((1, na)), fcon[o + na:o + 2 * na],
+                    fcon[o + 2 * na:o + 3 * na], icon[4:4 + na], fcon[o + 3 * na:o + 3 * na + m], fill_base,
+                    ctrl_out, phys)
+    if fill_base and offset.shape[0] > 0:      # rest_length + rest_offset (with_offset)
+        if offset.shape[1] != m or (offset.shape[0] != 1 and offset.shape[0] != B):
+            return -1
+        per = offset.shape[0] > 1
+        for b in range(B):
+            for j in range(m):
+                phys[b, j] = phys[b, j] + offset[b if per else 0, j]
+    if _run_plan(q, qd, qo, qdo, buf, phys, dt, n_steps, flags):
+        return -1
+    if not _state_ok(qo, qdo, fcon[1:4], fcon[0]):
+        return 1
+    shape_observe(qo, qdo, icon[4 + na:4 + na + nt], fcon[o + 3 * na + m:o + 3 * na + m + nt], ctrl_out,
+                  target, obs, dist)
+    done = mean_max(dist, stats[0], stats[1])
+    if done:
+        tol, margin, scale, neg_w = fcon[4], fcon[5], fcon[6], fcon[7]
+        for b in range(B):
+            stats[3, b] = neg_w * stats[0, b]
+            x = stats[1, b]
+            success[b] = x <= tol
+            if 0.0 <= x and x <= tol:
+                stats[2, b] = np.nan
+            else:
+                t = ((0.0 - x if x < 0.0 else x - tol) / margin) * scale
+                stats[2, b] = -0.5 * (t * t)
+    if not done:
+        return 2
+    for b in range(B):
+        elapsed[b] += 1
+    return 0
+
+
+_c1 = "C"
+_F8, _I8 = numba.types.float64, numba.types.int64
+SHAPE_STEP_SIG = _I8(*[numba.types.Array(_F8, d, _c1) for d in (3, 3, 2, 2, 3, 1)], _F8, _I8, _I8,
+                     numba.types.Array(_F8, 2, _c1), numba.types.Array(_F8, 1, _c1),
+                     numba.types.Array(_I8, 1, _c1),
+                     *[numba.types.Array(_F8, d, _c1) for d in (3, 3, 2)],
+                     numba.types.Array(numba.types.float32, 2, _c1),
+                     *[numba.types.Array(_F8, d, _c1) for d in (2, 2)],
+                     numba.types.Array(numba.types.boolean, 1, _c1), numba.types.Array(_I8, 1, _c1))

@@ -1,13 +1,12 @@
 """The state observation of TensegrityRoll-v0 (a mixin of :class:`~tensegrity_gym.envs.roll.RollTask`):
 node positions relative to the centre of mass, node velocities, controls, contact flags, goal,
-height and cable speeds, in one compiled pass (:func:`tensegrity_gym.envs.compiled.roll_observe`)
-bit-identical to the NumPy reference here. SI units."""
+height and cable speeds, in one compiled pass (:func:`tensegrity_gym.envs.compiled.roll_observe`; its NumPy reference is
+the test oracle ``tests/oracle_numpy.py``). SI units."""
 from __future__ import annotations
 
 import numpy as np
 
 from .. import dynamics as dyn
-from .. import pipeline
 from . import compiled
 
 __all__ = ["RollObservation"]
@@ -26,7 +25,6 @@ class RollObservation:
         eta = np.empty(n)
         eta[model.rod_a] = model.eta[:, 0]
         eta[model.rod_c] = model.eta[:, 1]
-        self._node_eta = eta[None, :, None]
         self._node_rod_i64 = np.ascontiguousarray(self._node_rod, dtype=np.int64)
         self._node_eta_1d = np.ascontiguousarray(eta, dtype=np.float64)
         self._com_at_r = bool(np.all(model.com_eta == 0.0))
@@ -44,36 +42,9 @@ class RollObservation:
         B = self.num_envs
         if self.sensors is not None:
             return self._readings.reshape(B, -1).astype(np.float32)
-        q, qd = self.q, self.qd
-        if pipeline.AVAILABLE:   # one compiled pass, bit-identical to the NumPy below
-            com = self._com(q)
-            arrs = (q, qd, com, self.ctrl, self.goal, self.speed)
-            if all(type(x) is np.ndarray and x.dtype == np.float64 for x in arrs) and \
-                    type(self.cstate.active) is np.ndarray and self.cstate.active.dtype == np.bool_:
-                obs = np.empty((B, self.observation_size), np.float32)
-                compiled.roll_observe(q, qd, self._node_rod_i64, self._node_eta_1d, com, self.ctrl,
-                                   self.cstate.active, self.goal, self.speed, obs)
-                return obs
-        e = self._node_eta
-        # node positions / velocities (= dynamics.node_positions / node_velocities of a free structure)
-        N = q[:, self._node_rod, :3] + e * q[:, self._node_rod, 3:]
-        V = qd[:, self._node_rod, :3] + e * qd[:, self._node_rod, 3:]
-        com = self._com(q)
         obs = np.empty((B, self.observation_size), np.float32)
-        n3 = N.shape[1] * 3
-        obs[:, :n3] = (N - com[:, None, :]).reshape(B, -1)
-        obs[:, n3:2 * n3] = V.reshape(B, -1)
-        i = 2 * n3
-        na = self.ctrl.shape[1]
-        obs[:, i:i + na] = self.ctrl
-        i += na
-        obs[:, i:i + self.n_contacts] = self.cstate.active
-        i += self.n_contacts
-        obs[:, i:i + 2] = self.goal
-        obs[:, i + 2] = com[:, 2]
-        i += 3
-        if self.n_speed:
-            obs[:, i:i + self.n_speed] = self.speed
+        compiled.roll_observe(self.q, self.qd, self._node_rod_i64, self._node_eta_1d, self._com(self.q), self.ctrl,
+                              self.cstate.active, self.goal, self.speed, obs)
         return obs
 
     def observation_layout(self) -> list[tuple[str, slice, str]]:

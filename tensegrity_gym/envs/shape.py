@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics as dyn
-from .. import integrators, pipeline, statics
+from .. import integrators, statics
 from ..actuation import Actuation
 from ..checks import check_flag
 from ..rewards import quadratic_cost, tolerance
@@ -220,7 +220,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
 
     def _compiled_observe(self):
         """(obs (B, size) float32, node errors d (B, nt)) in one compiled call, or None when the
-        compiled helpers do not apply (no numba, anchored tracked node, foreign array types).
+        compiled helpers do not apply (anchored tracked node, robot observation, foreign array types).
         Bit-identical to the NumPy path of :meth:`observe` and :meth:`step`."""
         if self._obs_rod is None:
             return None
@@ -243,7 +243,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         fz = self.__dict__.get("_fused")
         if fz is None:
             fz = self._fused_setup()
-        if fz and pipeline.AVAILABLE:
+        if fz:
             out = self._fused_step(fz, action)
             if out is not None:
                 return out

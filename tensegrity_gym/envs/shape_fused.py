@@ -27,7 +27,7 @@ class FusedShapeStep:
         fz = False
         act = self.actuation
         plan = None
-        if self._obs_rod is not None and self._compiled_physics():
+        if self._obs_rod is not None and self._kernels_run:
             plan = pipeline.compiled_plan(self.model, self.integrator, self.dt, self.frame_skip, self.num_envs,
                                           act.mode, self.backend)
         if plan is not None:

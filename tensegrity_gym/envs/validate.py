@@ -7,7 +7,6 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics as dyn
-from .. import pipeline
 from ..actuation import ACTION_MODES
 from .. import checks
 from ..checks import ACTION_TOL, check_positive
@@ -23,7 +22,7 @@ def check_action(action, shape: tuple, clip: bool = True, name: str = "action") 
     [-1, 1] or raise naming the index with ``clip=False``), behind a compiled fast path for the
     common case (a float ndarray of the right shape, checked and clipped in one pass; anything
     wrong falls through to the reference check, which raises)."""
-    if (pipeline.AVAILABLE and type(action) is np.ndarray and action.shape == shape
+    if (type(action) is np.ndarray and action.shape == shape
             and (action.dtype == np.float32 or action.dtype == np.float64)):
         a = np.array(action, dtype=np.float64, order="C")
         if compiled.clip_action(a.reshape(-1), clip, ACTION_TOL):
