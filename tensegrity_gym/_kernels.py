@@ -97,7 +97,7 @@ if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER ==
     # ~0.1 ms with numba's own workqueue pool. Set NUMBA_THREADING_LAYER to choose otherwise.
     numba.config.THREADING_LAYER = "workqueue"
 
-__all__ = ["step", "step_inplace", "accelerations", "project", "PARALLEL_MIN_WORK", "clear_cache"]
+__all__ = ["step", "step_inplace", "accelerations", "string_forces", "project", "PARALLEL_MIN_WORK", "clear_cache"]
 
 #: a call runs the multi-threaded kernel when B * n_steps * (strings + rods) * (4 for RK4, else 1)
 #: reaches this (about 0.3 ms of single-core work: below it, waking threads costs more than they save,
@@ -269,15 +269,9 @@ def _rod_topology(w, ib, o_rod, j):
     return rj, ib[rj], ib[rj + 1], w[rj + 3], w[rj + 4]
 
 @njit(inline="always", **_opts)
-def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
-    """Accelerations A (k, 6, E) of E copies at once (dynamics.accelerations), in
-    structure-of-arrays scratch: Qi, Vi, A (k, 6, E), N, V, F, EX (n, 3, E), L0, FD (m, E).
-    The innermost loops run over the copies (SIMD; one iteration in the E = 1 instance).
-    Topology (node indices, eta, projectors) comes from ``w``; the physical constants of lane
-    e from ``PC[slot, e]`` (the buffer's slots, one column per lane: see _lane_physics)."""
-    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
-    has_damp = (flags & _DAMP) != 0
-    need_v = (flags & (_DAMP | _NDAMP)) != 0
+def _nodes(w, ib, o_rod, k, Qi, Vi, N, V, E, need_v):
+    """Node positions N (n, 3, E) (and velocities V if ``need_v``) of the rods' end nodes from
+    the configuration Qi (and Vi) (k, 6, E): N = Q Psi^T (+ Y: the anchor rows are preset)."""
     for j in range(k):
         rj, ia, ic, ea, ec = _rod_topology(w, ib, o_rod, j)
         for i in range(3):
@@ -289,6 +283,19 @@ def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
                 for e in range(E):
                     V[ia, i, e] = Vi[j, i, e] + ea * Vi[j, 3 + i, e]
                     V[ic, i, e] = Vi[j, i, e] + ec * Vi[j, 3 + i, e]
+
+
+@njit(inline="always", **_opts)
+def _forces(w, ib, L, k, m, n, Qi, Vi, N, V, F, L0, FD, EX, E, flags, PC, G, LS, store):
+    """Total nodal forces F (n, 3, E), N, of E copies: the strings' -C^T Gamma C N (the string
+    force equation: tension k (L - l0) + c dL/dt, zero when slack or pushing, over L, plus the
+    force density control FD, clipped at 0), gravity loads, node drag and external forces EX.
+    With ``store`` (a compile-time constant at each call) also each string's force density
+    G (m, E), N/m, and length LS (m, E), m. The one copy of these equations in the numba
+    backend (:func:`_acc` inlines it; :func:`_run_forces` returns its results)."""
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
+    has_damp = (flags & _DAMP) != 0
+    _nodes(w, ib, o_rod, k, Qi, Vi, N, V, E, (flags & (_DAMP | _NDAMP)) != 0)
     F[:] = 0.0
     has_fd = (flags & _FD) != 0
     for s in range(m):
@@ -316,6 +323,9 @@ def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
                 g = g + FD[s, e]
                 if g < 0.0:
                     g = 0.0
+            if store:
+                G[s, e] = g
+                LS[s, e] = Ls
             F[sj, 0, e] -= g * s0
             F[sj, 1, e] -= g * s1
             F[sj, 2, e] -= g * s2
@@ -337,6 +347,18 @@ def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
             for i in range(3):
                 for e in range(E):
                     F[p, i, e] = F[p, i, e] + EX[p, i, e]
+
+
+@njit(inline="always", **_opts)
+def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
+    """Accelerations A (k, 6, E) of E copies at once (dynamics.accelerations), in
+    structure-of-arrays scratch: Qi, Vi, A (k, 6, E), N, V, F, EX (n, 3, E), L0, FD (m, E).
+    The innermost loops run over the copies (SIMD; one iteration in the E = 1 instance).
+    Topology (node indices, eta, projectors) comes from ``w``; the physical constants of lane
+    e from ``PC[slot, e]`` (the buffer's slots, one column per lane: see _lane_physics).
+    The nodal forces are :func:`_forces`, the rod equations :func:`_rod_acc`."""
+    _forces(w, ib, L, k, m, n, Qi, Vi, N, V, F, L0, FD, EX, E, flags, PC, L0, L0, False)
+    o_rod = L[0]
     for j in range(k):
         rj, fa, fc, ea, ec = _rod_topology(w, ib, o_rod, j)
         free = ib[rj + 2] == 0
@@ -346,6 +368,7 @@ def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
                 F[fa, 0, e], F[fa, 1, e], F[fa, 2, e], F[fc, 0, e], F[fc, 1, e], F[fc, 2, e], ea, ec, free,
                 PC[rj + 5, e], PC[rj + 6, e], PC[rj + 7, e], PC[rj + 8, e], PC[rj + 9, e], PC[rj + 10, e],
                 PC[rj + 11, e], w, rj + 12)
+
 
 @njit(inline="always", **_opts)
 def _lane_physics(PC, N, src, L, k, m, n, e):
@@ -462,6 +485,33 @@ def _scratch(w, L, k, m, n, E, per_copy):
     return (np.empty((10, k, 6, E)), N, np.zeros((n, 3, E)), np.empty((n, 3, E)), np.empty((m, E)),
             np.zeros((m, E)), np.zeros((n, 3, E)), PC)
 
+@njit(inline="always", **_opts)
+def _load(q, qd, l0, fd, ext, c0, ne, Q, QD, L0, FD, EX, PC, o_l0, k, m, n, E, flags):
+    """Lanes 0..E-1 of the scratch take copies c0..c0+ne-1 (pad lanes repeat copy c0): the
+    state ``q``, ``qd`` (B, k, 6) into Q, QD (k, 6, E), the rest lengths (the lane's defaults in
+    ``PC`` with _L0DEF, else ``l0`` (1 or B, m)), force densities ``fd`` (with _FD) and external
+    forces ``ext`` (with _EXT), each one row shared or one per copy."""
+    l0def = (flags & _L0DEF) != 0
+    has_fd = (flags & _FD) != 0
+    has_ext = (flags & _EXT) != 0
+    nl, nf, ne_ = l0.shape[0], fd.shape[0], ext.shape[0]
+    for e in range(E):
+        src = c0 + e if e < ne else c0          # pad lanes repeat the first environment
+        for j in range(k):
+            for i in range(6):
+                Q[j, i, e] = q[src, j, i]
+                QD[j, i, e] = qd[src, j, i]
+        for s in range(m):
+            L0[s, e] = PC[o_l0 + s, e] if l0def else l0[src if nl > 1 else 0, s]
+        if has_fd:
+            for s in range(m):
+                FD[s, e] = fd[src if nf > 1 else 0, s]
+        if has_ext:
+            for p in range(n):
+                for i in range(3):
+                    EX[p, i, e] = ext[src if ne_ > 1 else 0, p, i]
+
+
 def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E):
     """``n_steps`` fixed steps of copies lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e]) (which
     may be the same arrays): the one loop driver of the numba backend. E copies at a time in
@@ -481,15 +531,11 @@ def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_st
     n_stages = 4 if rk4 else 1
     do_proj = (flags & _PROJ) != 0
     any_cons = (flags & _CONS) != 0
-    l0def = (flags & _L0DEF) != 0
-    has_fd = (flags & _FD) != 0
-    has_ext = (flags & _EXT) != 0
     acc_only = (flags & _ACC) != 0
     proj_only = (flags & _PONLY) != 0
     n_loop = 0 if proj_only else n_steps
     h = 0.5 * dt
     c6 = dt / 6.0
-    nl, nf, ne_ = l0.shape[0], fd.shape[0], ext.shape[0]
     o_l0 = L[2]
     o_rod = L[0]
     o_N = L[5]
@@ -506,21 +552,7 @@ def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_st
                 for i in range(3):
                     for e in range(E):
                         N[p, i, e] = PC[o_N + 3 * p + i, e]
-        for e in range(E):
-            src = c0 + e if e < ne else c0          # pad lanes repeat the first environment
-            for j in range(k):
-                for i in range(6):
-                    Q[j, i, e] = q[src, j, i]
-                    QD[j, i, e] = qd[src, j, i]
-            for s in range(m):
-                L0[s, e] = PC[o_l0 + s, e] if l0def else l0[src if nl > 1 else 0, s]
-            if has_fd:
-                for s in range(m):
-                    FD[s, e] = fd[src if nf > 1 else 0, s]
-            if has_ext:
-                for p in range(n):
-                    for i in range(3):
-                        EX[p, i, e] = ext[src if ne_ > 1 else 0, p, i]
+        _load(q, qd, l0, fd, ext, c0, ne, Q, QD, L0, FD, EX, PC, o_l0, k, m, n, E, flags)
         if acc_only:                                # accelerations only (the entry `accelerations`)
             _acc(w, ib, L, k, m, n, Q, QD, A1, N, V, F, L0, FD, EX, E, flags, PC)
             for e in range(ne):
@@ -655,6 +687,7 @@ _i64 = numba.types.int64
 _SIG = _i64(_a3, _a3, _a3, _a3, _a1, _a2, _a2, _a3, _f8, _i64, _i64)
 _SIG_LEAN = _i64(_a3, _a3, _a3, _a3, _a1, _f8, _i64, _i64)
 _SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64, _a3)
+_SIG_FORCES = _i64(_a3, _a3, _a2, _a2, _a2, _a3, _i64, _a2, _a2, _a3)
 
 # Entry points are compiled lazily for ONE explicit signature each (see _compile): the serial
 # ones on first use of any model, the parallel one on first use of a large batch.
@@ -727,6 +760,36 @@ def finite_pair(a, b):
 @njit(cache=True, fastmath=False, error_model="numpy")
 def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
     return _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, _serial_setup(bufs, q.shape[0]))
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")   # holds the GIL: it uses the scratch inside bufs
+def _run_forces(q, qd, bufs, l0, fd, ext, flags, G, LS, FO):
+    """The string force densities G (B, m), N/m, string lengths LS (B, m), m, and total nodal
+    forces FO (B, n, 3), N, of the states ``q``, ``qd`` (B, k, 6): :func:`_forces` (the
+    equations every step runs) one copy at a time, each with its packed buffer ``bufs[b]``
+    ((B, len) per copy, or (1, len) shared). Returns the error code (0: done)."""
+    err, ibs, L, k, m, n = _copies_check(q, qd, q, qd, bufs, l0, fd, ext, flags, True)
+    if err:
+        return err
+    if G.shape[0] != q.shape[0] or G.shape[1] != m or LS.shape[0] != q.shape[0] or LS.shape[1] != m \
+            or FO.shape[0] != q.shape[0] or FO.shape[1] != n or FO.shape[2] != 3:
+        return 6
+    per_copy = bufs.shape[0] > 1
+    g1 = np.empty((m, 1))
+    ls1 = np.empty((m, 1))
+    for b in range(q.shape[0]):
+        w = bufs[b if per_copy else 0]        # the copy's own buffer: its constants, anchors and scratch
+        ib = ibs[b if per_copy else 0]
+        S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, 1, False)
+        _load(q, qd, l0, fd, ext, b, 1, S[0], S[1], L0, FD, EX, PC, L[2], k, m, n, 1, flags)
+        _forces(w, ib, L, k, m, n, S[0], S[1], N, V, F, L0, FD, EX, 1, flags, PC, g1, ls1, True)
+        for s in range(m):
+            G[b, s] = g1[s, 0]
+            LS[b, s] = ls1[s, 0]
+        for p in range(n):
+            for i in range(3):
+                FO[b, p, i] = F[p, i, 0]
+    return 0
 
 
 # ---------------------------------------------------------------------- Python side
@@ -922,7 +985,7 @@ def _controls(p, flags, rest_length, force_density, external):
     return l0, fd, ext, flags
 
 
-_READY = {"serial": False, "parallel": False, "copies": False}
+_READY = {"serial": False, "parallel": False, "copies": False, "forces": False}
 
 
 def _compile(which: str) -> None:
@@ -934,6 +997,8 @@ def _compile(which: str) -> None:
         pairs = ((_run_lean, _SIG_LEAN), (_run_serial, _SIG))
     elif which == "copies":
         pairs = ((_run_copies_serial, _SIG_COPIES),)
+    elif which == "forces":
+        pairs = ((_run_forces, _SIG_FORCES),)
     else:
         pairs = ((_run_parallel, _SIG_COPIES),)
     compile_with_notice(pairs, f"{'physics' if which == 'serial' else which + ' physics'} kernels")
@@ -1067,6 +1132,27 @@ def accelerations(model, q, qd, rest_length=None, force_density=None, external=N
     else:
         _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, 0.0, 1, flags)
     return qdo.reshape(shape)
+
+
+def string_forces(model, q, qd, rest_length=None, force_density=None, external=None, params=None):
+    """``(gamma, L, F)`` of the states ``q``, ``qd`` (B, k, 6): string force densities gamma
+    (B, m), N/m (tension / length, >= 0), string lengths L (B, m), m, and total nodal forces F
+    (B, n, 3), N (strings, gravity, node drag, ``external``): the loop driver's own force
+    equations (:func:`_forces`, what every step evaluates), no step taken. Inputs as
+    :func:`step` (``external`` an array); ``params`` per-copy physical values (1 or B rows)."""
+    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
+    if not _READY["forces"]:
+        _compile("forces")
+    q, qd = _array(q, 3, "q"), _array(qd, 3, "qd")
+    l0, fd, ext, flags = _controls(p, p.flags, rest_length, force_density, external)
+    l0, fd, ext = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external")
+    B, m, n = q.shape[0], model.n_strings, model.n_nodes
+    G, LS, F = np.empty((B, m)), np.empty((B, m)), np.empty((B, n, 3))
+    bufs = p.bufs if p.bufs is not None else p.buf[None]
+    err = _run_forces(q, qd, bufs, l0, fd, ext, flags, G, LS, F)
+    if err:
+        _raise(err, model, q, qd, rest_length, force_density, external)
+    return G, LS, F
 
 
 def project(model, q, qd):

@@ -287,38 +287,30 @@ def string_state(model: Model, q: np.ndarray, qd: np.ndarray | None = None, para
 
 def force_densities(model: Model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
                     params=None):
-    """String force densities gamma (B, m), N/m (tension / length, >= 0). See the module doc.
-    ``params``: a :class:`~tensegrity_gym.params.Params` (P = 1 or B copies) whose stiffness,
-    damping, rest lengths, ... replace the model's (default None: the model's)."""
-    p = model if params is None else params
-    l0 = p.rest_length if rest_length is None else rest_length
-    S, L, Ld = string_state(model, q, qd if p.has_damping else None, params)
-    taut = L > l0
-    safeL = np.where(taut, L, 1.0)
-    tension = p.stiffness * (L - l0)
-    if p.has_damping:
-        tension = tension + p.damping * Ld
-    gamma = np.where(taut, np.maximum(tension, 0.0) / safeL, 0.0)
-    if force_density is not None:
-        gamma = np.maximum(gamma + force_density, 0.0)
-    return gamma, S, L
+    """``(gamma, S, L)``: string force densities gamma (B, m), N/m (tension / length, >= 0: the
+    tension ``k (L - l0) + c dL/dt`` while the string is longer than its rest length and pulls,
+    else 0, plus the ``force_density`` control, clipped at 0), string vectors S (B, m, 3) =
+    n_j - n_i, m, and lengths L (B, m), m, of the states ``q``, ``qd`` (B, k, 6).
+    ``rest_length`` (m,) or (B, m), m, and ``force_density`` (m,) or (B, m), N/m, as
+    :func:`accelerations` takes them; ``params``: a :class:`~tensegrity_gym.params.Params`
+    (P = 1 or B copies) whose stiffness, damping, rest lengths, ... replace the model's.
+    Computed by the numba kernels' own string-force equation (the one every step evaluates:
+    :func:`tensegrity_gym._kernels.string_forces`); its NumPy reference is the test oracle
+    ``tests/oracle_numpy.py``."""
+    from . import _kernels
+    gamma, L, _ = _kernels.string_forces(model, q, qd, rest_length, force_density, None, params)
+    N = node_positions(model, np.asarray(q, dtype=np.float64).reshape(-1, model.n_bars, 6), params)
+    return gamma, N[:, model.str_j] - N[:, model.str_i], L
 
 
 def nodal_forces(model: Model, q, qd, rest_length=None, force_density=None, external=None, params=None):
-    """Total nodal forces W - N C_S^T Gamma C_S (B, n, 3), N, and gamma (B, m). ``W``: gravity
-    loads, node drag ``-c v`` (if the model has ``node_damping``) and ``external``.
-    ``params``: per-copy physical values (see :func:`force_densities`)."""
-    p = model if params is None else params
-    gamma, S, _ = force_densities(model, q, qd, rest_length, force_density, params)
-    # -C^T (gamma s), scattered by the string index arrays (cost linear in B m, no m x n product):
-    # node j of string i gets -gamma_i s_i, node i gets +gamma_i s_i
-    F = _scatter_string_forces(model, gamma[..., None] * S)
-    if p.has_gravity:
-        F = F + p.W0
-    if p.has_node_damping:
-        F = F - p.node_damping[..., None] * node_velocities(model, qd)
-    if external is not None:
-        F = F + external
+    """Total nodal forces ``W - N C_S^T Gamma C_S`` (B, n, 3), N, and the force densities gamma
+    (B, m), N/m (:func:`force_densities`). ``W``: gravity loads, node drag ``-c v`` (if the model
+    has ``node_damping``) and ``external`` ((n, 3) or (B, n, 3), N). ``params``: per-copy
+    physical values. Computed by the numba kernels' force equations
+    (:func:`tensegrity_gym._kernels.string_forces`; NumPy reference: ``tests/oracle_numpy.py``)."""
+    from . import _kernels
+    gamma, _, F = _kernels.string_forces(model, q, qd, rest_length, force_density, external, params)
     return F, gamma
 
 
@@ -445,29 +437,6 @@ def configuration_matrix(model: Model, q: np.ndarray):
 
 
 # ---------------------------------------------------------------------- sparse connectivity
-def _scatter_string_forces(model: Model, X: np.ndarray) -> np.ndarray:
-    """(B, n, 3) nodal forces ``-C_S^T X`` of per-string vectors X (B, m, 3) = gamma s (N): node
-    ``str_i`` of string i gets ``+X_i``, node ``str_j`` gets ``-X_i``. ``np.add.at`` for a few
-    strings (lowest call overhead), else one ``np.bincount`` per component (fast for large B m).
-    Both sum each node's ``+X`` terms and its ``-X`` terms separately, in string order, and
-    subtract: the same operations, so a copy's forces do not depend on the batch size."""
-    B, n = X.shape[0], model.n_nodes
-    if B * model.n_strings <= 128:
-        Fi = np.zeros((B, n, 3))
-        Fj = np.zeros((B, n, 3))
-        np.add.at(Fi, (slice(None), model.str_i), X)
-        np.add.at(Fj, (slice(None), model.str_j), X)
-        return Fi - Fj
-    base = (np.arange(B) * n)[:, None]
-    ii = (base + model.str_i).ravel()
-    jj = (base + model.str_j).ravel()
-    F = np.empty((B, n, 3))
-    for c in range(3):
-        xc = X[..., c].ravel()
-        F[..., c] = (np.bincount(ii, xc, minlength=B * n) - np.bincount(jj, xc, minlength=B * n)).reshape(B, n)
-    return F
-
-
 def connectivity(model: Model):
     """The string connectivity ``C_S`` (m, n) of the seed ((5.21); +1 at ``str_j``, -1 at ``str_i``)
     as a ``scipy.sparse.csr_matrix`` (built on demand; the dynamics use the index arrays)."""

@@ -9,8 +9,10 @@ of the same equations (the node-coordinate model in ``tests/reference.py`` check
 formulation itself):
 
 * :func:`rod_accelerations` -- free rod (5.37)/(5.40) and the reduced form of constrained rods
-  (5.49)-(5.51) (Sherman-Morrison), from the generalized forces of ``dynamics.nodal_forces``
-  (the package's string-force equation, which observations and statics use too);
+  (5.49)-(5.51) (Sherman-Morrison), from the nodal forces of :func:`nodal_forces`;
+* :func:`force_densities`, :func:`nodal_forces` -- the string force equation (tension over
+  length, slack strings and pushing dampers carry nothing, the force-density control) and the
+  nodal forces ``W - C_S^T Gamma C_S N`` with gravity, node drag and external forces;
 * :func:`accelerations`, :func:`project`;
 * :func:`step` -- semi-implicit Euler (with the great-circle drift :func:`sphere_drift` when
   projecting) and RK4, a callable ``external`` evaluated at every stage;
@@ -34,6 +36,69 @@ from tensegrity_gym.dynamics import State
 from tensegrity_gym.params import check_params
 
 
+# ---------------------------------------------------------------------- string forces
+def force_densities(model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
+                    params=None):
+    """NumPy string force densities gamma (B, m), N/m (tension / length, >= 0), the string vectors
+    S (B, m, 3) and lengths L (B, m) (:func:`tensegrity_gym.dynamics.force_densities`).
+    ``params``: a :class:`~tensegrity_gym.params.Params` (P = 1 or B copies) whose stiffness,
+    damping, rest lengths, ... replace the model's (default None: the model's)."""
+    p = model if params is None else params
+    l0 = p.rest_length if rest_length is None else rest_length
+    S, L, Ld = dyn.string_state(model, q, qd if p.has_damping else None, params)
+    taut = L > l0
+    safeL = np.where(taut, L, 1.0)
+    tension = p.stiffness * (L - l0)
+    if p.has_damping:
+        tension = tension + p.damping * Ld
+    gamma = np.where(taut, np.maximum(tension, 0.0) / safeL, 0.0)
+    if force_density is not None:
+        gamma = np.maximum(gamma + force_density, 0.0)
+    return gamma, S, L
+
+
+def nodal_forces(model, q, qd, rest_length=None, force_density=None, external=None, params=None):
+    """Total nodal forces W - N C_S^T Gamma C_S (B, n, 3), N, and gamma (B, m). ``W``: gravity
+    loads, node drag ``-c v`` (if the model has ``node_damping``) and ``external``.
+    ``params``: per-copy physical values (see :func:`force_densities`)."""
+    p = model if params is None else params
+    gamma, S, _ = force_densities(model, q, qd, rest_length, force_density, params)
+    # -C^T (gamma s), scattered by the string index arrays (cost linear in B m, no m x n product):
+    # node j of string i gets -gamma_i s_i, node i gets +gamma_i s_i
+    F = _scatter_string_forces(model, gamma[..., None] * S)
+    if p.has_gravity:
+        F = F + p.W0
+    if p.has_node_damping:
+        F = F - p.node_damping[..., None] * dyn.node_velocities(model, qd)
+    if external is not None:
+        F = F + external
+    return F, gamma
+
+
+def _scatter_string_forces(model, X: np.ndarray) -> np.ndarray:
+    """(B, n, 3) nodal forces ``-C_S^T X`` of per-string vectors X (B, m, 3) = gamma s (N): node
+    ``str_i`` of string i gets ``+X_i``, node ``str_j`` gets ``-X_i``. ``np.add.at`` for a few
+    strings (lowest call overhead), else one ``np.bincount`` per component (fast for large B m).
+    Both sum each node's ``+X`` terms and its ``-X`` terms separately, in string order, and
+    subtract: the same operations, so a copy's forces do not depend on the batch size."""
+    B, n = X.shape[0], model.n_nodes
+    if B * model.n_strings <= 128:
+        Fi = np.zeros((B, n, 3))
+        Fj = np.zeros((B, n, 3))
+        np.add.at(Fi, (slice(None), model.str_i), X)
+        np.add.at(Fj, (slice(None), model.str_j), X)
+        return Fi - Fj
+    base = (np.arange(B) * n)[:, None]
+    ii = (base + model.str_i).ravel()
+    jj = (base + model.str_j).ravel()
+    F = np.empty((B, n, 3))
+    for c in range(3):
+        xc = X[..., c].ravel()
+        F[..., c] = (np.bincount(ii, xc, minlength=B * n) - np.bincount(jj, xc, minlength=B * n)).reshape(B, n)
+    return F
+
+
+# ---------------------------------------------------------------------- rod equations
 def rod_accelerations(model, q, qd, F, params=None):
     b, bd = q[..., 3:], qd[..., 3:]
     Fa, Fc = F[:, model.rod_a], F[:, model.rod_c]
@@ -64,8 +129,8 @@ def rod_accelerations(model, q, qd, F, params=None):
 def accelerations(model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
                   external=None, params=None) -> np.ndarray:
     """NumPy ``[r'', b'']`` (B, k, 6), m/s^2 and 1/s^2: :func:`rod_accelerations` of the nodal forces
-    of ``dynamics.nodal_forces``; arguments as :func:`tensegrity_gym.dynamics.accelerations`."""
-    F, _ = dyn.nodal_forces(model, q, qd, rest_length, force_density, external, params)
+    of :func:`nodal_forces`; arguments as :func:`tensegrity_gym.dynamics.accelerations`."""
+    F, _ = nodal_forces(model, q, qd, rest_length, force_density, external, params)
     return rod_accelerations(model, q, qd, F, params)
 
 

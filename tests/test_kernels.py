@@ -329,6 +329,40 @@ def test_accelerations_entry_parallel_params_and_shapes(monkeypatch):
 
 
 @pytest.mark.parametrize("scene", SCENES)
+@pytest.mark.parametrize("B", [1, 5])
+def test_string_forces_entry_matches_numpy(scene, B):
+    """``_kernels.string_forces`` (the loop driver's own string and nodal force equations, which
+    ``dynamics.force_densities`` / ``nodal_forces`` return to observations, rendering and statics)
+    equals the NumPy oracle to round-off: slack strings, damping, gravity, node drag, anchors,
+    force-density controls (some clipped at 0), external forces, per-copy parameters."""
+    from tensegrity_gym.params import default_params
+    model, st, ctrl = _scene(scene, B)
+    fd_kw = {k: v for k, v in ctrl.items() if k != "external"}
+    g_ref, S_ref, L_ref = oracle.force_densities(model, st.q, st.qd, **fd_kw)
+    F_ref, _ = oracle.nodal_forces(model, st.q, st.qd, **ctrl)
+    gamma, L, F = K.string_forces(model, st.q, st.qd, **ctrl)
+    assert gamma.shape == (B, model.n_strings) and L.shape == gamma.shape and F.shape == (B, model.n_nodes, 3)
+    assert np.abs(gamma - g_ref).max() <= RTOL * np.abs(g_ref).max()
+    assert np.abs(L - L_ref).max() <= RTOL * np.abs(L_ref).max()
+    assert np.abs(F - F_ref).max() <= RTOL * np.abs(F_ref).max()
+    assert (gamma == 0).any() == (g_ref == 0).any() and np.array_equal(gamma > 0, g_ref > 0)
+    g2, S2, L2 = dyn.force_densities(model, st.q, st.qd, **fd_kw)      # the package's entry: the kernel
+    assert np.array_equal(g2, gamma) and np.array_equal(L2, L) and np.abs(S2 - S_ref).max() < 1e-14
+    F2, g3 = dyn.nodal_forces(model, st.q, st.qd, **ctrl)
+    assert np.array_equal(F2, F) and np.array_equal(g3, gamma)
+    rng = np.random.default_rng(9)
+    prm = default_params(model, B).replace(stiffness=model.stiffness * rng.uniform(0.7, 1.3, (B, model.n_strings)),
+                                           damping=model.damping * rng.uniform(0.5, 1.5, (B, model.n_strings)))
+    g_ref, _, _ = oracle.force_densities(model, st.q, st.qd, params=prm, **fd_kw)
+    F_ref, _ = oracle.nodal_forces(model, st.q, st.qd, params=prm, **ctrl)
+    gamma, _, F = K.string_forces(model, st.q, st.qd, params=prm, **ctrl)
+    assert np.abs(gamma - g_ref).max() <= RTOL * np.abs(g_ref).max()
+    assert np.abs(F - F_ref).max() <= RTOL * np.abs(F_ref).max()
+    with pytest.raises(ValueError, match="rest_length"):
+        K.string_forces(model, st.q, st.qd, rest_length=np.ones(model.n_strings + 1))
+
+
+@pytest.mark.parametrize("scene", SCENES)
 @pytest.mark.parametrize("B", [1, 5, 40])
 def test_project_entry_matches_numpy(scene, B, monkeypatch):
     """``_kernels.project`` (the loop driver's ``_project``, no step) equals
