@@ -49,7 +49,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-
 from numba import njit, prange
 
 from . import _kernels
@@ -303,7 +302,7 @@ def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_
     """A :class:`Plan` for ``n_steps`` steps of ``integrator`` (projected) on ``batch_size``
     copies whose control is ``control`` per string (``"rest_length"``, m, or
     ``"force_density"``, N/m, with the model's rest lengths), or None where the fused serial
-    kernel does not apply (no numba, an implicit method, or a batch large
+    kernel does not apply (an implicit method, or a batch large
     enough for the parallel kernel: then :func:`step` runs it). Issues the stability warning
     of :func:`integrators.step` once, as it would."""
     if not compiled_physics(integrator, backend):
