@@ -61,18 +61,22 @@ def nodal_forces(model, q, qd, rest_length=None, force_density=None, external=No
     """Total nodal forces W - N C_S^T Gamma C_S (B, n, 3), N, and gamma (B, m). ``W``: gravity
     loads, node drag ``-c v`` (if the model has ``node_damping``) and ``external``.
     ``params``: per-copy physical values (see :func:`force_densities`)."""
-    p = model if params is None else params
     gamma, S, _ = force_densities(model, q, qd, rest_length, force_density, params)
     # -C^T (gamma s), scattered by the string index arrays (cost linear in B m, no m x n product):
     # node j of string i gets -gamma_i s_i, node i gets +gamma_i s_i
-    F = _scatter_string_forces(model, gamma[..., None] * S)
+    return add_loads(model, _scatter_string_forces(model, gamma[..., None] * S), qd, external, params), gamma
+
+
+def add_loads(model, F, qd, external=None, params=None):
+    """``F`` (B, n, 3) plus the loads ``W``: gravity, node drag ``-c v`` and ``external``, N."""
+    p = model if params is None else params
     if p.has_gravity:
         F = F + p.W0
     if p.has_node_damping:
         F = F - p.node_damping[..., None] * dyn.node_velocities(model, qd)
     if external is not None:
         F = F + external
-    return F, gamma
+    return F
 
 
 def _scatter_string_forces(model, X: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ from tensegrity_gym import jacobian as jac
 from tensegrity_gym import sizing
 from tensegrity_gym.builders import tower
 
+import oracle_numpy as oracle
 from reference import rigid_perturbation
 
 
@@ -27,16 +28,9 @@ def _dense_connectivity(model):
 
 def _dense_nodal_forces(model, q, qd, rest_length=None, force_density=None, external=None, params=None):
     """The pre-issue-12 formula W - N C_S^T Gamma C_S with the dense C (oracle)."""
-    p = model if params is None else params
     gamma, S, _ = dyn.force_densities(model, q, qd, rest_length, force_density, params)
     F = -np.einsum("mn,bmi->bni", _dense_connectivity(model), gamma[..., None] * S)
-    if p.has_gravity:
-        F = F + p.W0
-    if p.has_node_damping:
-        F = F - p.node_damping[..., None] * dyn.node_velocities(model, qd)
-    if external is not None:
-        F = F + external
-    return F, gamma
+    return oracle.add_loads(model, F, qd, external, params), gamma
 
 
 def _scenes():
