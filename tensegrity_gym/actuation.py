@@ -148,15 +148,10 @@ class Actuation:
 
     def physics_inputs(self, ctrl: np.ndarray) -> dict:
         """Keyword arguments ``rest_length`` / ``force_density`` (B, m) for ``integrators.step``."""
-        B = ctrl.shape[0]
-        if self.mode == "rest_length":
-            rl = np.empty((B, self.n_strings))
-            rl[:] = self.base_rest_length
-            rl[:, self.actuated] = ctrl
-            return {"rest_length": rl}
-        fd = np.zeros((B, self.n_strings))
-        fd[:, self.actuated] = ctrl
-        return {"rest_length": None, "force_density": fd}
+        phys = np.empty((ctrl.shape[0], self.n_strings))
+        phys[:] = self.base_rest_length if self.mode == "rest_length" else 0.0
+        phys[:, self.actuated] = ctrl
+        return self._inputs(phys)
 
     def _batch(self, ctrl, *others) -> tuple:
         """``ctrl`` (B, na) and the other (B, na) arrays as C-contiguous float64 (the compiled
@@ -173,6 +168,7 @@ class Actuation:
         return tuple(out)
 
     def _inputs(self, phys: np.ndarray) -> dict:
+        """The keyword arguments of ``integrators.step`` for the physics input ``phys`` (B, m)."""
         return {"rest_length": phys} if self.mode == "rest_length" else {"rest_length": None, "force_density": phys}
 
     def advance(self, ctrl: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, dict]:

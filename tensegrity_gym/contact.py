@@ -109,7 +109,6 @@ __all__ = ["GroundContact", "ContactState", "init_contact_state", "contact_force
 from numba import njit   # a required dependency: the contact forces exist only as this kernel
 
 
-
 @dataclass(frozen=True)
 class GroundContact:
     """Parameters of the ground half-space ``z >= height`` and the end caps (SI units).

@@ -312,7 +312,7 @@ def roll_observation(task):
     node positions relative to the centre of mass, node velocities, controls, contact flags, goal
     direction, centre-of-mass height, cable speeds."""
     q, qd, B = task.q, task.qd, task.num_envs
-    rod, e = task._node_rod, task._node_eta_1d[None, :, None]   # node i at r + e_i b of rod rod[i]
+    rod, e = task._node_rod_i64, task._node_eta_1d[None, :, None]   # node i at r + e_i b of rod rod[i]
     N = q[:, rod, :3] + e * q[:, rod, 3:]
     V = qd[:, rod, :3] + e * qd[:, rod, 3:]
     com = task._com(q)

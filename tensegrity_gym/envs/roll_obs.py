@@ -1,7 +1,7 @@
 """The state observation of TensegrityRoll-v0 (a mixin of :class:`~tensegrity_gym.envs.roll.RollTask`):
 node positions relative to the centre of mass, node velocities, controls, contact flags, goal,
-height and cable speeds, in one compiled pass (:func:`tensegrity_gym.envs.compiled.roll_observe`; its NumPy reference is
-the test oracle ``tests/oracle_numpy.py``). SI units."""
+height and cable speeds, in one compiled pass (:func:`tensegrity_gym.envs.compiled.roll_observe`;
+its NumPy reference is the test oracle ``tests/oracle_numpy.py``). SI units."""
 from __future__ import annotations
 
 import numpy as np
@@ -19,14 +19,12 @@ class RollObservation:
     def _init_observation(self, model: dyn.Model) -> None:
         """node -> (rod, signed distance from the rod's reference point) maps, the rods' mass fractions."""
         n, k = model.n_nodes, model.n_bars
-        self._node_rod = np.empty(n, int)
-        self._node_rod[model.rod_a] = np.arange(k)
-        self._node_rod[model.rod_c] = np.arange(k)
-        eta = np.empty(n)
-        eta[model.rod_a] = model.eta[:, 0]
-        eta[model.rod_c] = model.eta[:, 1]
-        self._node_rod_i64 = np.ascontiguousarray(self._node_rod, dtype=np.int64)
-        self._node_eta_1d = np.ascontiguousarray(eta, dtype=np.float64)
+        self._node_rod_i64 = np.empty(n, np.int64)
+        self._node_rod_i64[model.rod_a] = np.arange(k)
+        self._node_rod_i64[model.rod_c] = np.arange(k)
+        self._node_eta_1d = np.empty(n)
+        self._node_eta_1d[model.rod_a] = model.eta[:, 0]
+        self._node_eta_1d[model.rod_c] = model.eta[:, 1]
         self._com_at_r = bool(np.all(model.com_eta == 0.0))
         self._mass_frac = model.mass / model.mass.sum()
 

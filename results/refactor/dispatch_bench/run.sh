@@ -8,8 +8,9 @@ HERE=$(cd "$(dirname "$0")" && pwd)
 PY=${PY:-python}
 export NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1
 for round in 1 2; do
-  for b in dispatch_bench env_step_bench; do
-    PYTHONPATH=$OLD $PY "$HERE/$b.py" > "$HERE/before_${b}_$round.txt" 2>/dev/null
-    PYTHONPATH=$NEW $PY "$HERE/$b.py" > "$HERE/after_${b}_$round.txt" 2>/dev/null
+  for script in "$HERE/dispatch_bench.py" "$HERE/../string_forces_bench/env_step_bench.py"; do
+    b=$(basename "$script" .py)
+    PYTHONPATH=$OLD $PY "$script" > "$HERE/before_${b}_$round.txt" 2>/dev/null
+    PYTHONPATH=$NEW $PY "$script" > "$HERE/after_${b}_$round.txt" 2>/dev/null
   done
 done
