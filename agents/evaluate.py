@@ -468,8 +468,10 @@ def build_parser():
     p.add_argument("--env-kwargs", nargs="*", metavar="KEY:VALUE",
                    help="override env kwargs for evaluation (e.g. backend:numpy)")
     p.add_argument("--copy-run-files", action="store_true",
-                   help="copy the run's config.yaml, command.txt, versions.json, state.json and the evaluated "
-                        "model (+ VecNormalize statistics, if under 5 MB) into --out (for committed results)")
+                   help="copy the run's config.yaml, command.txt, versions.json, state.json, its evaluations "
+                        "during training (eval/evaluations.npz: agents.multiseed draws learning curves from it) "
+                        "and the evaluated model (+ VecNormalize statistics, if under 5 MB) into --out (for "
+                        "committed results)")
     p.add_argument("--num-threads", type=int, default=1)
     return p
 
@@ -556,8 +558,9 @@ def evaluate(argv=None) -> dict:
         print(f"wrote {out / 'rollout.gif'} ({n} frames)")
     if args.copy_run_files and out.resolve() != run_dir.resolve():
         import shutil
-        for f in ("config.yaml", "command.txt", "versions.json", "state.json"):
+        for f in ("config.yaml", "command.txt", "versions.json", "state.json", "eval/evaluations.npz"):
             if (run_dir / f).exists():
+                (out / f).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(run_dir / f, out / f)
         vn = resolve_model(run_dir, args.model)[1]
         if model_path.stat().st_size < 5e6:

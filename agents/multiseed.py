@@ -210,6 +210,7 @@ def run(argv: list[str] | None = None) -> dict:
                "held_out_seeds": [HELD_OUT_SEED, HELD_OUT_SEED + args.n_episodes - 1],
                "model": args.model, "eval_env_kwargs": common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs"),
                "per_seed": per_seed, "aggregate": agg,
+               "learning_curve_runs": [str(r) for r, c in zip(runs, curves) if c is not None],
                "interval": "IQM (25 % trimmed mean) over training seeds, 95 % percentile bootstrap "
                            "(scipy.stats.bootstrap, 2000 resamples, seed 0)",
                "command": " ".join(["python", "-m", "agents.multiseed"] + (argv if argv is not None else sys.argv[1:])),
@@ -242,6 +243,10 @@ def _table(s: dict) -> str:
     for r in s["per_seed"]:
         lines.append(f"| {Path(r['run']).name} | {f(r['seed'])} | {f(r['model_num_timesteps'])} | "
                      f"{f(r['training_wall_time_s'])} | " + " | ".join(f(r[k]) for k in keys) + " |")
+    lc = s.get("learning_curve_runs")
+    if lc is not None and len(lc) < s["n_seeds"]:
+        lines += ["", f"Learning curves (`learning_curves.png`): {len(lc)} of {s['n_seeds']} seeds; the other runs "
+                      "have no `eval/evaluations.npz`."]
     lines += ["", f"Interval: {s['interval']}.", "", f"Command: `{s['command']}`", ""]
     return "\n".join(lines)
 

@@ -57,9 +57,22 @@ def test_two_seeds_end_to_end(tmp_path):
     assert (out / "summary.md").read_text().startswith("# TensegrityShape-v0")
     assert (out / "learning_curves.png").stat().st_size > 0
     assert json.loads((out / "summary.json").read_text())["aggregate"]["success_rate"]["goal"] == 0.95
+    assert s["learning_curve_runs"] == runs and "Learning curves" not in (out / "summary.md").read_text()
     # a second call with --reuse evaluates nothing new and gives the same summary
     s2 = multiseed.run([*runs, "--out", str(out), "--n-episodes", "2", "--reuse"])
     assert s2["per_seed"] == s["per_seed"]
+    # a committed result folder (agents.evaluate --copy-run-files) keeps the run's evaluations, so
+    # its learning curve is drawn after the run folder is gone
+    res = tmp_path / "results" / "s0"
+    evaluate.evaluate([runs[0], "--n-episodes", "1", "--no-baselines", "--no-random", "--out", str(res),
+                       "--copy-run-files"])
+    assert (res / "eval" / "evaluations.npz").exists() and (res / "model.zip").exists()
+    s3 = multiseed.run([str(res), runs[1], "--out", str(tmp_path / "out3"), "--n-episodes", "1"])
+    assert s3["learning_curve_runs"] == [str(res), runs[1]]
+    (res / "eval" / "evaluations.npz").unlink()
+    s4 = multiseed.run([str(res), runs[1], "--out", str(tmp_path / "out4"), "--n-episodes", "1"])
+    assert s4["learning_curve_runs"] == [runs[1]]
+    assert "Learning curves (`learning_curves.png`): 1 of 2 seeds" in (tmp_path / "out4" / "summary.md").read_text()
 
 
 def test_not_a_run_dir_or_duplicate_names(tmp_path):
