@@ -1,12 +1,13 @@
 """Compiled (numba) kernels for the fixed-step integrators of :mod:`tensegrity_gym.integrators`.
 
 This module is the one implementation of the rod accelerations ((5.37)/(5.40) and the reduced
-form (5.49)-(5.51)), the semi-implicit Euler and classic RK4 steps and the projection onto the
-constraints that :func:`tensegrity_gym.integrators.step`, :func:`tensegrity_gym.dynamics.project`
-and every env run. It reproduces, operation for operation, the vectorised NumPy formulation kept
-as the test oracle ``tests/oracle_numpy.py`` (the two agree to round-off, checked in
-``tests/test_kernels.py``). It never imports gymnasium. SI units
-throughout (m, kg, s, N).
+form (5.49)-(5.51)), the semi-implicit Euler and classic RK4 steps, the projection onto the
+constraints and the ground-contact forces (``_point_force``: the driver runs them at every
+contact sub-step, ``contact.py`` through ``_forces_kernel``) that
+:func:`tensegrity_gym.integrators.step`, :func:`tensegrity_gym.dynamics.project` and every env
+run. It reproduces, operation for operation, the vectorised NumPy formulation kept as the test
+oracle ``tests/oracle_numpy.py`` (the two agree to round-off, checked in ``tests/test_kernels.py``
+and ``tests/test_contact.py``). It never imports gymnasium. SI units throughout (m, kg, s, N).
 
 Why numba: one NumPy call costs about 1 us, and a NumPy step of even the 3-bar prism chains
 dozens of them, so a single-environment step cannot reach MuJoCo's ``mj_step`` rate without a
@@ -263,6 +264,107 @@ def _drift_rod(q0, q1, q2, b0, b1, b2, v0, v1, v2, d0, d1, d2, dt):
             d0 * c - b0 * ws, d1 * c - b1 * ws, d2 * c - b2 * ws)
 
 @njit(inline="always", **_opts)
+def _point_force(px, py, pz, vx, vy, vz, ax, ay, was_active, height, radius, kn, dn, ex, mu, kt, ct, cmax):
+    """The ground-contact force on one rod-end point (the one implementation of the contact
+    equation; NumPy reference ``tests/oracle_numpy.contact_forces``): cap of radius ``radius``
+    m at (px, py, pz) m moving at (vx, vy, vz) m/s over the plane z = ``height`` m.
+    Hunt-Crossley normal force ``fn = k d^e - min(k d^e dn, cmax) vz`` >= 0 N (d the
+    penetration, m); stick-slip Coulomb friction: a tangential spring ``kt`` N/m to the anchor
+    (ax, ay) m (set at touch-down, ``was_active`` False) with damping ``ct`` N s/m, capped at
+    ``mu fn`` (the anchor then follows the point: slip). Returns (touching, fx, fy, fn, ax, ay,
+    slip); no force and the anchor unchanged when the cap is clear of the ground."""
+    delta = height + radius - pz
+    if not (delta > 0.0):
+        return False, 0.0, 0.0, 0.0, ax, ay, False
+    de = delta if ex == 1.0 else delta ** ex
+    fs = kn * de
+    cn = fs * dn
+    if cn > cmax:
+        cn = cmax
+    fn = fs - cn * vz
+    if fn < 0.0:
+        fn = 0.0
+    if not was_active:
+        ax = px
+        ay = py
+    fx = -kt * (px - ax) - ct * vx
+    fy = -kt * (py - ay) - ct * vy
+    nrm = math.sqrt(fx * fx + fy * fy)
+    lim = mu * fn
+    if nrm > lim:
+        s = lim / nrm
+        fx *= s
+        fy *= s
+        return True, fx, fy, fn, px + fx / kt, py + fy / kt, True
+    return True, fx, fy, fn, ax, ay, False
+
+@njit(inline="always", **_opts)
+def _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, ext, c0, ne, k, n, E):
+    """Ground-contact forces of E lanes (copies c0..c0+ne-1; pad lanes repeat copy c0) into
+    EX (n, 3, E) N from the rods' state Q, QD (k, 6, E) (m, m/s): every rod end (node
+    ``rod_a[j]`` at ``eta[j, 0]``, ``rod_c[j]`` at ``eta[j, 1]``; contact 2j + end) through
+    :func:`_point_force`, its anchor AN (2k, 2, E) m and active / slip flags AC, SL (2k, E)
+    updated in place; then ``ext`` (0, 1 or B rows of (n, 3)) N added. ``prm`` (1 or B, 9)
+    (``contact.PRM_FIELDS``: height, radius, kn, dn, exponent, mu, kt, ct, cmax) one row shared
+    or one per copy. The one loop over contact points: the driver runs it on its lanes at every
+    step (:func:`_advance_py` with ``contact``), ``contact._forces_kernel`` one copy at a time."""
+    per_prm = prm.shape[0] > 1
+    per_ext = ext.shape[0] > 1
+    has_ext = ext.shape[0] > 0
+    for e in range(E):
+        src = c0 + e if e < ne else c0
+        pe = src if per_prm else 0
+        height, radius, kn, dn, ex, mu = prm[pe, 0], prm[pe, 1], prm[pe, 2], prm[pe, 3], prm[pe, 4], prm[pe, 5]
+        kt, ct, cmax = prm[pe, 6], prm[pe, 7], prm[pe, 8]
+        for p in range(n):
+            EX[p, 0, e] = 0.0
+            EX[p, 1, e] = 0.0
+            EX[p, 2, e] = 0.0
+        for j in range(k):
+            for end in range(2):
+                ci = 2 * j + end
+                h = eta[j, end]
+                node = rod_a[j] if end == 0 else rod_c[j]
+                touch, fx, fy, fn, AN[ci, 0, e], AN[ci, 1, e], SL[ci, e] = _point_force(
+                    Q[j, 0, e] + h * Q[j, 3, e], Q[j, 1, e] + h * Q[j, 4, e], Q[j, 2, e] + h * Q[j, 5, e],
+                    QD[j, 0, e] + h * QD[j, 3, e], QD[j, 1, e] + h * QD[j, 4, e], QD[j, 2, e] + h * QD[j, 5, e],
+                    AN[ci, 0, e], AN[ci, 1, e], AC[ci, e], height, radius, kn, dn, ex, mu, kt, ct, cmax)
+                AC[ci, e] = touch
+                if touch:
+                    EX[node, 0, e] += fx
+                    EX[node, 1, e] += fy
+                    EX[node, 2, e] += fn
+        if has_ext:
+            r = src if per_ext else 0
+            for p in range(n):
+                for i in range(3):
+                    EX[p, i, e] += ext[r, p, i]
+
+@njit(inline="always", **_opts)
+def _contact_load(anchor, active, AN, AC, c0, ne, k, E):
+    """Lanes 0..E-1 of the contact scratch AN (2k, 2, E), AC (2k, E) take the anchors and
+    active flags of copies c0..c0+ne-1 (pad lanes repeat copy c0)."""
+    for e in range(E):
+        src = c0 + e if e < ne else c0
+        for ci in range(2 * k):
+            AN[ci, 0, e] = anchor[src, ci, 0]
+            AN[ci, 1, e] = anchor[src, ci, 1]
+            AC[ci, e] = active[src, ci]
+
+@njit(inline="always", **_opts)
+def _contact_store(anchor, active, slip, W, AN, AC, SL, EX, c0, ne, k, n):
+    """Copies c0..c0+ne-1 take their lanes' anchors, active and slip flags and forces EX."""
+    for e in range(ne):
+        for ci in range(2 * k):
+            anchor[c0 + e, ci, 0] = AN[ci, 0, e]
+            anchor[c0 + e, ci, 1] = AN[ci, 1, e]
+            active[c0 + e, ci] = AC[ci, e]
+            slip[c0 + e, ci] = SL[ci, e]
+        for p in range(n):
+            for i in range(3):
+                W[c0 + e, p, i] = EX[p, i, e]
+
+@njit(inline="always", **_opts)
 def _rod_topology(w, ib, o_rod, j):
     """(slot of rod j in the packed buffer, node a, node c, eta_a, eta_c)."""
     rj = o_rod + _ROD * j
@@ -512,7 +614,7 @@ def _load(q, qd, l0, fd, ext, c0, ne, Q, QD, L0, FD, EX, PC, o_l0, k, m, n, E, f
                     EX[p, i, e] = ext[src if ne_ > 1 else 0, p, i]
 
 
-def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E):
+def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E, contact):
     """``n_steps`` fixed steps of copies lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e]) (which
     may be the same arrays): the one loop driver of the numba backend. E copies at a time in
     structure-of-arrays scratch (k, 6, E), so that every inner loop runs over copies and
@@ -523,8 +625,20 @@ def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_st
     (:func:`_lanes`, or (P, len, 1) for E = 1; per-copy parameters, ``lo`` a multiple of E),
     read in place: no copy per call; or (0, 1, 1): every copy uses ``w``'s constants.
     Its scratch (:func:`_scratch`) is made here: fresh arrays for SIMD blocks (which the
-    compiler knows do not overlap), views of ``w``'s own scratch for E = 1."""
+    compiler knows do not overlap), views of ``w``'s own scratch for E = 1.
+    ``contact``: None (the instances without ground contact: the compiler prunes every
+    ``contact is not None`` branch, so they carry no contact code) or the tuple
+    (eta, rod_a, rod_c, prm, anchor, active, slip, cext) of the contact sub-steps: at the start
+    of every step the contact forces of the lanes (:func:`_contact_lanes`, from the step's
+    start, plus ``cext``) replace the external forces EX for that step (``flags`` carry
+    ``_EXT``; ``ext`` is the (B, n, 3) output of the last step's forces); anchors, active and
+    slip flags stay in lane scratch for all ``n_steps`` and are stored with the state."""
     S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, E, lanes.shape[0] > 0)
+    if contact is not None:
+        eta, rod_a, rod_c, prm, anchor, active, slip, cext = contact
+        AN = np.empty((2 * k, 2, E))
+        AC = np.zeros((2 * k, E), np.bool_)
+        SL = np.zeros((2 * k, E), np.bool_)
     Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
     per_copy = lanes.shape[0] > 0
     rk4 = (flags & _RK4) != 0
@@ -553,6 +667,8 @@ def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_st
                     for e in range(E):
                         N[p, i, e] = PC[o_N + 3 * p + i, e]
         _load(q, qd, l0, fd, ext, c0, ne, Q, QD, L0, FD, EX, PC, o_l0, k, m, n, E, flags)
+        if contact is not None:
+            _contact_load(anchor, active, AN, AC, c0, ne, k, E)
         if acc_only:                                # accelerations only (the entry `accelerations`)
             _acc(w, ib, L, k, m, n, Q, QD, A1, N, V, F, L0, FD, EX, E, flags, PC)
             for e in range(ne):
@@ -564,6 +680,8 @@ def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_st
         if proj_only:                               # projection only (the entry `project`)
             _project(w, ib, o_rod, k, Q, QD, E, any_cons)
         for _ in range(n_loop):
+            if contact is not None:                 # held over the step, as contact.step does
+                _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)
             Qi = Q
             Vi = QD
             A = A1
@@ -610,6 +728,8 @@ def _advance_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_st
                 for i in range(6):
                     qo[c0 + e, j, i] = Q[j, i, e]
                     qdo[c0 + e, j, i] = QD[j, i, e]
+        if contact is not None:
+            _contact_store(anchor, active, slip, ext, AN, AC, SL, EX, c0, ne, k, n)
 
 # The one driver, inlined into its two instances with E known to the compiler: SIMD blocks
 # (E = 16 or 8) and one copy at a time (E = 1, lane loops dropped). Same source, same operations.
@@ -619,12 +739,24 @@ _advance_inline = njit(inline="always", **_opts)(_advance_py)
 def _advance(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_advance_py in SIMD blocks of E = :func:`_soa_width` copies (fresh scratch arrays)."""
     _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes,
-                    _soa_width_nb(k))
+                    _soa_width_nb(k), None)
 
 @njit(**_opts)
 def _advance_one(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_advance one copy at a time (E = 1, a compile-time constant), in the scratch of ``w``."""
-    _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1)
+    _advance_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1, None)
+
+@njit(**_opts)
+def _advance_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
+    """_advance with ground contact (``contact`` the tuple of :func:`_advance_py`), in place on
+    q, qd; ``W`` (B, n, 3) receives each copy's forces of its last step."""
+    _advance_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
+                    _soa_width_nb(k), contact)
+
+@njit(**_opts)
+def _advance_one_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
+    """_advance_one with ground contact (see :func:`_advance_contact`)."""
+    _advance_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, contact)
 
 @njit(inline="always", **_opts)
 def _serial_setup(bufs, B):

@@ -106,7 +106,9 @@ __all__ = ["GroundContact", "ContactState", "init_contact_state", "contact_force
            "contact_energy",
            "stable_step", "step", "contact_nodes"]
 
-from numba import njit   # a required dependency: the contact forces exist only as this kernel
+from numba import njit   # a required dependency: the contact forces exist only as compiled code
+
+from ._kernels import _contact_lanes, _contact_load, _contact_store
 
 
 @dataclass(frozen=True)
@@ -235,73 +237,30 @@ def init_contact_state(model: dyn.Model, batch_size: int = 1) -> ContactState:
     return ContactState(np.zeros((batch_size, nc, 2)), np.zeros((batch_size, nc), bool))
 
 
-@njit(inline="always", cache=True, nogil=True)
-def _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, lo, hi):
-    """The contact forces (the one implementation; its NumPy reference is the test oracle
-    ``tests/oracle_numpy.contact_forces``) of copies
-    ``lo`` ... ``hi - 1`` into ``W``, their anchors, active and slip flags updated in place;
-    ``prm`` (1, 9) shared or (B, 9) one row per copy. Inlined into :func:`_forces_kernel`
-    (the whole batch) and into the pipeline's compiled contact loop (a chunk of it)."""
-    k = q.shape[1]
-    per_copy = prm.shape[0] > 1
-    for e in range(lo, hi):
-        pe = e if per_copy else 0      # prm (1, 9) shared or (B, 9) one row per copy
-        height, radius, kn, dn, ex, mu = prm[pe, 0], prm[pe, 1], prm[pe, 2], prm[pe, 3], prm[pe, 4], prm[pe, 5]
-        kt, ct, cmax = prm[pe, 6], prm[pe, 7], prm[pe, 8]
-        for p in range(W.shape[1]):
-            W[e, p, 0] = 0.0
-            W[e, p, 1] = 0.0
-            W[e, p, 2] = 0.0
-        for j in range(k):
-            for end in range(2):
-                ci = 2 * j + end
-                h = eta[j, end]
-                node = rod_a[j] if end == 0 else rod_c[j]
-                px = q[e, j, 0] + h * q[e, j, 3]
-                py = q[e, j, 1] + h * q[e, j, 4]
-                pz = q[e, j, 2] + h * q[e, j, 5]
-                delta = height + radius - pz
-                if not (delta > 0.0):
-                    active[e, ci] = False
-                    slip[e, ci] = False
-                    continue
-                vx = qd[e, j, 0] + h * qd[e, j, 3]
-                vy = qd[e, j, 1] + h * qd[e, j, 4]
-                vz = qd[e, j, 2] + h * qd[e, j, 5]
-                de = delta if ex == 1.0 else delta ** ex
-                fs = kn * de
-                cn = fs * dn
-                if cn > cmax:
-                    cn = cmax
-                fn = fs - cn * vz
-                if fn < 0.0:
-                    fn = 0.0
-                if not active[e, ci]:
-                    anchor[e, ci, 0] = px
-                    anchor[e, ci, 1] = py
-                fx = -kt * (px - anchor[e, ci, 0]) - ct * vx
-                fy = -kt * (py - anchor[e, ci, 1]) - ct * vy
-                nrm = math.sqrt(fx * fx + fy * fy)
-                lim = mu * fn
-                if nrm > lim:
-                    s = lim / nrm
-                    fx *= s
-                    fy *= s
-                    anchor[e, ci, 0] = px + fx / kt
-                    anchor[e, ci, 1] = py + fy / kt
-                    slip[e, ci] = True
-                else:
-                    slip[e, ci] = False
-                active[e, ci] = True
-                W[e, node, 0] += fx
-                W[e, node, 1] += fy
-                W[e, node, 2] += fn
-
-
 @njit(cache=True, nogil=True)
 def _forces_kernel(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm):
-    """:func:`_forces_range` on the whole batch."""
-    _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, 0, q.shape[0])
+    """The contact forces of every copy of ``q``, ``qd`` (B, k, 6) into ``W`` (B, n, 3) N, their
+    anchors, active and slip flags updated in place; ``prm`` (1, 9) shared or (B, 9) one row
+    per copy. One copy at a time through the loop driver's own contact pieces
+    (``_kernels._contact_load``, ``_contact_lanes``, ``_contact_store`` with one lane): the
+    contact equation exists once (``_kernels._point_force``; NumPy reference
+    ``tests/oracle_numpy.contact_forces``)."""
+    B, k, n = q.shape[0], q.shape[1], W.shape[1]
+    Q = np.empty((k, 6, 1))
+    QD = np.empty((k, 6, 1))
+    EX = np.empty((n, 3, 1))
+    AN = np.empty((2 * k, 2, 1))
+    AC = np.empty((2 * k, 1), np.bool_)
+    SL = np.empty((2 * k, 1), np.bool_)
+    no_ext = np.empty((0, n, 3))
+    for e in range(B):
+        for j in range(k):
+            for i in range(6):
+                Q[j, i, 0] = q[e, j, i]
+                QD[j, i, 0] = qd[e, j, i]
+        _contact_load(anchor, active, AN, AC, e, 1, k, 1)
+        _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, no_ext, e, 1, k, n, 1)
+        _contact_store(anchor, active, slip, W, AN, AC, SL, EX, e, 1, k, n)
 
 
 def contact_forces(contact: GroundContact, model: dyn.Model, q: np.ndarray, qd: np.ndarray,

@@ -31,10 +31,12 @@ kernel loop.
     opaque :class:`Plan`, and the njit-callable that runs it.
 
 With the numba kernels the contact steps of :func:`advance` run in ONE compiled call, written
-once (``_contact_range``: per sub-step the contact forces of a range of copies, then one step of
-the loop driver on them) and run either on the whole batch on this thread (``_contact_loop``) or
-on chunks of whole SIMD blocks on all threads (``_contact_parallel``, when one sub-step has the
-parallel kernel's work: every sub-step of a chunk runs inside one ``prange`` iteration). The
+inside the loop driver (``_kernels._advance_py`` with its ``contact`` tuple: at every step the
+contact forces of its SIMD lanes, ``_kernels._contact_lanes``, then the integrator step, the
+lanes kept in structure-of-arrays scratch for all sub-steps) and run either on the whole batch
+on this thread (``_contact_loop``) or on chunks of whole SIMD blocks on all threads
+(``_contact_parallel``, when one sub-step has the parallel kernel's work: every sub-step of a
+chunk runs inside one ``prange`` iteration). The
 Python loop of :func:`advance` (the same calls, in the same order, bit for bit) serves implicit
 Euler and tests. numba's on-disk cache does not notice edits of the kernels that these and
 :func:`run_plan` inline or call: clear ``__pycache__`` (``*.nbi``, ``*.nbc``) after editing
@@ -324,31 +326,8 @@ def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_
 
 _run_serial, _serial_setup = _kernels._run_serial, _kernels._serial_setup
 
-_advance, _advance_one, _copies_check = _kernels._advance, _kernels._advance_one, _kernels._copies_check
-_forces_range, _view, _soa_width_nb = gc._forces_range, _kernels._view, _kernels._soa_width_nb
-
-@njit(inline="always", cache=True)
-def _contact_range(q, qd, w, ib, L, k, m, n, lanes, one, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a,
-                   rod_c, anchor, active, slip, prm, lo, hi):
-    """The contact sub-steps of copies lo..hi-1, in place, ``n_steps`` times: their contact
-    forces ``W`` from the state at the step's start (anchors and slip flags updated), plus
-    ``ext`` (1 or B, n, 3) N if it has rows, then ONE step of the loop driver with those
-    forces (``flags`` carry ``external``): its one-copy instance if ``one``, else the SIMD
-    one. The one compiled form of :func:`advance`'s contact loop: the serial entry runs it on
-    the whole batch, the parallel entry on chunks of whole SIMD blocks."""
-    per_ext = ext.shape[0] > 1
-    for _ in range(n_steps):
-        _forces_range(q, qd, eta, rod_a, rod_c, anchor, active, W, slip, prm, lo, hi)
-        if ext.shape[0] > 0:
-            for e in range(lo, hi):
-                r = e if per_ext else 0
-                for i in range(n):
-                    for c in range(3):
-                        W[e, i, c] += ext[r, i, c]
-        if one:
-            _advance_one(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, 1, flags, lanes)
-        else:
-            _advance(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, 1, flags, lanes)
+_advance_c, _advance_one_c = _kernels._advance_contact, _kernels._advance_one_contact
+_copies_check, _view, _soa_width_nb = _kernels._copies_check, _kernels._view, _kernels._soa_width_nb
 
 @njit(inline="always", cache=True)
 def _contact_check(q, qd, bufs, l0, fd, W, ext, flags):
@@ -364,7 +343,11 @@ def _contact_check(q, qd, bufs, l0, fd, W, ext, flags):
 @njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
 def _contact_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active,
                   slip, prm):
-    """:func:`_contact_range` on the whole batch, on this thread. ``bufs`` (1, len) the shared
+    """The contact sub-steps of :func:`advance` on the whole batch, on this thread, in place: the
+    loop driver with contact (``_kernels._advance_contact``, or its one-copy instance below
+    ``_SOA_MIN_BATCH`` copies), ``n_steps`` steps, each with the contact forces of its start
+    plus ``ext`` (0, 1 or B rows of (n, 3) N); ``W`` (B, n, 3) gets the last step's forces,
+    ``anchor``, ``active``, ``slip`` the contact state. ``bufs`` (1, len) the shared
     packed buffer or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the
     kernel's error code (0: done)."""
     err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
@@ -373,14 +356,19 @@ def _contact_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, r
     E, lanes1 = _serial_setup(bufs, q.shape[0])[4:]     # the serial kernels' choice of instance
     if E != 1:       # the SIMD instance reads per-copy constants from the lane blocks, shared ones from w
         lanes1 = _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2]))
-    _contact_range(q, qd, bufs[0], ibs[0], L, k, m, n, lanes1, E == 1, l0, fd, W, ext, dt, n_steps, flags, eta,
-                   rod_a, rod_c, anchor, active, slip, prm, 0, q.shape[0])
+    contact = (eta, rod_a, rod_c, prm, anchor, active, slip, ext)
+    if E == 1:
+        _advance_one_c(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
+                       contact)
+    else:
+        _advance_c(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
+                   contact)
     return 0
 
 @njit(parallel=True, cache=True)   # holds the GIL, as _kernels._run_parallel does
 def _contact_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor,
                       active, slip, prm):
-    """:func:`_contact_range` on chunks of whole SIMD blocks on all threads (``prange``; the
+    """:func:`_contact_loop` on chunks of whole SIMD blocks on all threads (``prange``; the
     chunk count in ``flags >> _CHUNK_SHIFT``): each chunk runs all ``n_steps`` sub-steps of
     its copies (contact forces, then the SIMD driver with its own scratch), so the threads
     meet once per call, not once per sub-step. Same arguments and bits as
@@ -392,11 +380,11 @@ def _contact_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, et
     E = _soa_width_nb(k)
     nb = (B + E - 1) // E
     nch = min(nb, max(flags >> _kernels._CHUNK_SHIFT, 1))
+    contact = (eta, rod_a, rod_c, prm, anchor, active, slip, ext)
     for c in prange(nch):
         # the driver only reads the buffers; each chunk has its own scratch and copies
-        _contact_range(q, qd, bufs[0], ibs[0], L, k, m, n, lanes, False, l0, fd, W, ext, dt, n_steps,
-                       flags, eta, rod_a, rod_c, anchor, active, slip, prm, (c * nb // nch) * E,
-                       min(B, ((c + 1) * nb // nch) * E))
+        _advance_c(bufs[0], ibs[0], L, k, m, n, q, qd, (c * nb // nch) * E, min(B, ((c + 1) * nb // nch) * E),
+                   l0, fd, W, dt, n_steps, flags, lanes, contact)
     return 0
 
 @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf

@@ -243,7 +243,10 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
             m.setattr(pipeline, "_contact_compiled", lambda *x: False)     # the Python loop
             r2 = loop.step(a)
         assert same(r1[0], r2[0]) and same(r1[1], r2[1]), t
-        assert same(fused.unwrapped.task.cstate.anchor, loop.unwrapped.task.cstate.anchor), t
+        ft, lt = fused.unwrapped.task, loop.unwrapped.task
+        assert same(ft.cstate.anchor, lt.cstate.anchor) and same(ft.cstate.active, lt.cstate.active), t
+        # the last sub-step's contact forces and slip flags, which the driver stores with the state
+        assert same(ft._W, lt._W) and same(ft._slip, lt._slip), t
         packed.append(_kernels._CACHE.get(id(fused.unwrapped.task.model)))
     assert len(calls) == 6 * (2 if kw.get("observation_mode") == "robot" else 1)   # robot: IMUs split the last step
     assert set(calls) == {"_contact_parallel" if n >= 200 else "_contact_loop"}, (n, set(calls))
