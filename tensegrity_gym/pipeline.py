@@ -235,12 +235,12 @@ def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_densit
     if external is None:
         ext = _NO_EXTERNAL
     elif type(external) is np.ndarray and external.dtype == np.float64 and external.ndim == 3:
-        ext = external
+        ext = _frozen(np.ascontiguousarray(external))
     else:
         return False
     l0, fd, _, flags = _kernels._controls(p, flags, rest_length, force_density, forces)
     l0, fd = _kernels._array(l0, 2, "rest_length"), _kernels._array(fd, 2, "force_density")
-    prm = contact._prm if contact_params is None else contact_params
+    prm = _frozen(contact._prm if contact_params is None else contact_params)
     bufs = p.buf[None] if p.bufs is None else p.bufs
     B = q.shape[0]
     # parallel when ONE sub-step has the parallel kernel's work (not all n_steps together): the
@@ -253,8 +253,8 @@ def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_densit
         if p.bufs is not None and not _kernels._READY["copies"]:
             _kernels._compile("copies")
     try:
-        err = kernel(q, qd, bufs, p.lanes, l0, fd, forces, ext, float(dt), int(n_steps), flags, model.eta,
-                     model.rod_a, model.rod_c, cstate.anchor, cstate.active, slip, prm)
+        err = kernel(q, qd, bufs, p.lanes, l0, fd, forces, ext, float(dt), int(n_steps), flags, _frozen(model.eta),
+                     _frozen(model.rod_a), _frozen(model.rod_c), cstate.anchor, cstate.active, slip, prm)
     except TypeError:      # an array of another type or layout: the Python loop converts it
         return False
     if err:
@@ -262,7 +262,19 @@ def _contact_compiled(model, q, qd, dt, name, n_steps, rest_length, force_densit
     return True
 
 
-_NO_EXTERNAL = np.empty((0, 1, 3))   # no external force added to the contact forces
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """``a`` read-only (a view if it is writable). The compiled contact loop carries the model's
+    and the contact's read-only arrays into the loop driver's contact instances, whose numba
+    type includes the flag: a writable copy (a deep-copied env's model, per-copy contact
+    parameters, a caller's external force) would otherwise compile a second instance of the
+    driver (about a minute on 2 cores) instead of reusing the first."""
+    if a.flags.writeable:
+        a = a.view()
+        a.flags.writeable = False
+    return a
+
+
+_NO_EXTERNAL = _frozen(np.empty((0, 1, 3)))   # no external force added to the contact forces
 
 
 # ---------------------------------------------------------------------- divergence

@@ -253,6 +253,28 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
     assert packed[0] is not None and all(p is packed[0] for p in packed)
 
 
+def test_contact_loop_is_compiled_once_for_copied_envs_and_per_copy_contact():
+    """The compiled contact loop takes the model's and the contact's arrays read-only
+    (pipeline._frozen): a deep-copied env (whose model arrays deepcopy makes writable) and a
+    randomised env (writable per-copy contact parameters) run the instance already compiled,
+    not a second one of the loop driver (a minute of compilation on 2 cores), with the same bits."""
+    import copy
+    from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
+    env = TensegrityRollEnv()
+    env.reset(seed=4)
+    a = np.linspace(-1, 1, env.action_space.shape[0])
+    env.step(a)
+    n_sigs = len(pipeline._contact_loop.signatures)
+    twin = copy.deepcopy(env)
+    assert twin.unwrapped.task.model.eta.flags.writeable and not env.unwrapped.task.model.eta.flags.writeable
+    r1, r2 = env.step(a), twin.step(a)
+    assert same(r1[0], r2[0]) and r1[1] == r2[1]
+    rnd = TensegrityRollVectorEnv(num_envs=2, max_episode_steps=None, randomize={"friction": 0.2, "ground_stiffness": 0.2})
+    rnd.reset(seed=0)
+    rnd.step(np.tile(a, (2, 1)))
+    assert len(pipeline._contact_loop.signatures) == n_sigs
+
+
 @pytest.mark.parametrize("mode", ["rest_length", "force_density"])
 @pytest.mark.parametrize("per_copy", [False, True])
 def test_actuation_update_matches_the_numpy_oracle(mode, per_copy):
