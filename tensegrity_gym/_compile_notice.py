@@ -45,7 +45,7 @@ def compile_with_notice(pairs, what: str) -> None:
     cold = not all(cached(d) for d, _ in pairs)
     if cold:
         say(f"tensegrity_gym: compiling the numba {what} (once after install or an update, about "
-            "1-2 min on 2 cores; cached in __pycache__ for later runs) ...")
+            "1.5-2 min on 2 cores; cached in __pycache__ for later runs) ...")
     t0 = time.perf_counter()
     for d, sig in pairs:
         if sig is not None:
