@@ -145,6 +145,8 @@ def _plot(path: Path, curves: list[dict], title: str) -> bool:
         if band is not None:
             ax.fill_between(grid, band[:, 0], band[:, 1], color="C0", alpha=0.25, label="95 % bootstrap CI")
         ax.set_xlabel(names[x])
+        if x == "timesteps":  # 100000 200000 ... ran into each other below 1e6
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
         ax.set_ylabel(names[y])
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
