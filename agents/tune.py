@@ -49,6 +49,9 @@ import numpy as np
 from agents import common
 
 SEARCH_KINDS = ("uniform", "loguniform", "randint", "choice", "quniform")
+METRIC_MEANING = {"eval_return": "mean return of the last evaluation",
+                  "eval_success": "success rate of the last evaluation",
+                  "timesteps": "env steps trained"}
 TRAIN_KEYS = {"algo", "env", "n_timesteps", "n_envs", "eval_freq", "eval_episodes", "n_eval_envs", "save_freq",
               "save_replay_buffer", "max_wall_time", "vec_env", "env_kwargs", "hyperparams", "device", "conf_file",
               "gym_packages"}
@@ -72,6 +75,9 @@ def load_config(path: str | Path) -> dict:
     cfg.setdefault("seeds", [0])
     cfg.setdefault("metric", "eval_return")
     cfg.setdefault("mode", "max")
+    if cfg["metric"] not in METRIC_MEANING:
+        raise ValueError(f"{path}: metric must be one of {sorted(METRIC_MEANING)} (what each trial reports), "
+                         f"got {cfg['metric']!r}")
     if cfg["mode"] not in ("max", "min"):
         raise ValueError(f"{path}: mode must be max or min, got {cfg['mode']!r}")
     if not isinstance(cfg["seeds"], list) or not cfg["seeds"] or not all(isinstance(s, int) for s in cfg["seeds"]):
@@ -294,7 +300,7 @@ def summarize(exp_dir: Path, metric: str = "eval_return") -> dict:
     common.write_json(exp_dir / "summary.json", out)
     lines = [f"# {exp_dir.name}: final evaluation per variant", "",
              f"IQM over training seeds with a 95 % percentile-bootstrap interval (scipy.stats.bootstrap). "
-             f"Metric: `{metric}` = mean return of the last evaluation.", "",
+             f"Metric: `{metric}` = {METRIC_MEANING.get(metric, metric)}.", "",
              f"| variant | settings | seeds | {metric} per seed | IQM [95 % CI] | success IQM [95 % CI] | steps | status |",
              "|---|---|---|---|---|---|---|---|"]
 

@@ -58,6 +58,7 @@ def test_bad_configs_name_the_field(tmp_path):
         "search: {space: {hyperparams.gamma: {normal: [0, 1]}}}\n": "hyperparams.gamma",
         "search: {search_alg: grid, space: {hyperparams.gamma: {choice: [1]}}}\n": "search_alg",
         "train: {log_dir: x}\nvariants: [{name: a}]\n": "log_dir",
+        "metric: success\nvariants: [{name: a}]\n": "metric must be one of .*'success'",
     }
     for i, (text, match) in enumerate(cases.items()):
         p = tmp_path / f"c{i}.yml"
