@@ -436,8 +436,9 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
     """Run training from command-line arguments; returns the run directory.
 
     ``extra_callbacks``: additional SB3 callbacks (tests use one to emulate Ctrl-C).
-    ``report``: called with :func:`evaluation_metrics` after every evaluation (``agents.tune``
-    passes Ray Tune's ``tune.report``).
+    ``report``: called with :func:`evaluation_metrics` and ``wall_time_s`` (the run's wall time so
+    far, s, earlier segments included) after every evaluation (``agents.tune`` passes Ray Tune's
+    ``tune.report``).
     """
     args = build_parser().parse_args(argv)
     import yaml
@@ -634,7 +635,13 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         cbs.append(ckpt)
     ecb = None
     if eval_env is not None:
-        ecb = ResumableEvalCallback(eval_env, eval_freq, run_dir, run_state=run_state, report=report,
+        report_fn = None
+        if report is not None:   # each evaluation's metrics plus the run's wall time so far (earlier segments too)
+            wall0 = float(prev_state.get("wall_time_s", 0.0))
+
+            def report_fn(metrics):
+                report({**metrics, "wall_time_s": wall0 + time.time() - t0})
+        ecb = ResumableEvalCallback(eval_env, eval_freq, run_dir, run_state=run_state, report=report_fn,
                                     n_eval_episodes=eval_episodes, deterministic=True, verbose=args.verbose,
                                     warn=False)
         if resume_dir is not None and not fresh_restart:

@@ -105,6 +105,12 @@ def load_config(path: str | Path) -> dict:
             raise ValueError(f"{path}: search.search_alg must be optuna or random, got {s['search_alg']!r}")
         if s["scheduler"] not in ("asha", "none"):
             raise ValueError(f"{path}: search.scheduler must be asha or none, got {s['scheduler']!r}")
+        s.setdefault("time_attr", "timesteps")
+        if s["time_attr"] not in ("timesteps", "wall_time_s"):
+            raise ValueError(f"{path}: search.time_attr must be timesteps (env steps) or wall_time_s (training "
+                             f"wall clock, s), got {s['time_attr']!r}")
+        if s["time_attr"] == "wall_time_s" and cfg["train"].get("max_wall_time") is None:
+            raise ValueError(f"{path}: search.time_attr wall_time_s needs train.max_wall_time (ASHA's max_t)")
         if not isinstance(s.get("space"), dict) or not s["space"]:
             raise ValueError(f"{path}: search.space must map 'hyperparams.<key>' / 'env_kwargs.<key>' to a "
                              "distribution")
@@ -427,8 +433,11 @@ def tune_main(argv: list[str] | None = None) -> dict:
         scheduler = None
         if s["scheduler"] == "asha":
             from ray.tune.schedulers import ASHAScheduler
-            n = int(float(cfg["train"].get("n_timesteps", 1e5)))
-            scheduler = ASHAScheduler(time_attr="timesteps", max_t=n,
+            if s["time_attr"] == "wall_time_s":   # rungs in seconds of training wall clock
+                n = int(float(cfg["train"]["max_wall_time"]))
+            else:                                   # rungs in env steps
+                n = int(float(cfg["train"].get("n_timesteps", 1e5)))
+            scheduler = ASHAScheduler(time_attr=s["time_attr"], max_t=n,
                                       grace_period=int(float(s.get("grace_period", max(n // 8, 1)))),
                                       reduction_factor=int(s.get("reduction_factor", 3)))
         tune_cfg = tune.TuneConfig(metric=cfg["metric"], mode=cfg["mode"], search_alg=search_alg, scheduler=scheduler,

@@ -59,6 +59,9 @@ def test_bad_configs_name_the_field(tmp_path):
         "search: {search_alg: grid, space: {hyperparams.gamma: {choice: [1]}}}\n": "search_alg",
         "train: {log_dir: x}\nvariants: [{name: a}]\n": "log_dir",
         "metric: success\nvariants: [{name: a}]\n": "metric must be one of .*'success'",
+        "search: {time_attr: seconds, space: {hyperparams.gamma: {choice: [1]}}}\n": "time_attr .*'seconds'",
+        "search: {time_attr: wall_time_s, space: {hyperparams.gamma: {choice: [1]}}}\n":
+            "wall_time_s needs train.max_wall_time",
     }
     for i, (text, match) in enumerate(cases.items()):
         p = tmp_path / f"c{i}.yml"
@@ -161,3 +164,16 @@ def test_without_ray_the_cli_says_how_to_install_it(tmp_path, monkeypatch, capsy
     assert "pip install 'tensegrity_gym[tune]'" in capsys.readouterr().err
     assert tune.main([str(tmp_path / "missing.yml")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_train_reports_each_evaluation_with_its_wall_time(tmp_path):
+    """What agents.tune's trials report (ASHA's time_attr: timesteps or wall_time_s)."""
+    from agents import train
+    got = []
+    train.train(["--algo", "ppo", "--env", "Pendulum-v1", "-n", "128", "--n-envs", "2", "--eval-freq", "64",
+                 "--eval-episodes", "1", "--save-freq", "-1", "--no-progress-bar", "--log-dir", str(tmp_path / "r"),
+                 "--hyperparams", "n_steps=32", "batch_size=32", "n_epochs=1", "policy_kwargs=dict(net_arch=[8])"],
+                report=got.append)
+    assert [m["timesteps"] for m in got] == [64, 128]
+    assert 0 < got[0]["wall_time_s"] <= got[1]["wall_time_s"]
+    assert {"eval_return", "n_evaluations"} <= set(got[-1])
