@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -150,7 +151,8 @@ def _plot(path: Path, curves: list[dict], title: str) -> bool:
         ax.set_ylabel(names[y])
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle(title, fontsize=9)
+    # a long title wraps to the figure's width (9 pt: about 15 characters per inch)
+    fig.suptitle(textwrap.fill(title, max(40, int(15 * 4.6 * len(panels)))), fontsize=9)
     fig.tight_layout()
     common.atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
     plt.close(fig)

@@ -303,6 +303,13 @@ def summarize(exp_dir: Path, metric: str = "eval_return") -> dict:
     out = {"experiment": str(exp_dir), "metric": metric,
            "interval": "95 % percentile bootstrap of the IQM over seeds (scipy.stats.bootstrap, 2000 resamples, "
                        "seed 0)", "variants": rows}
+    old = exp_dir / "summary.json"   # --summary-only keeps what only the sweep itself knew
+    if old.exists():
+        try:
+            prev = json.loads(old.read_text())
+        except (OSError, ValueError):
+            prev = {}
+        out.update({k: prev[k] for k in ("sweep_wall_time_s", "max_concurrent", "errors") if k in prev})
     common.write_json(exp_dir / "summary.json", out)
     lines = [f"# {exp_dir.name}: final evaluation per variant", "",
              f"IQM over training seeds with a 95 % percentile-bootstrap interval (scipy.stats.bootstrap). "
@@ -330,22 +337,23 @@ def _plot(path: Path, per: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from scipy import stats
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    for name, runs in sorted(per.items()):
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    styles = ("-", "--", ":", "-.")   # the colour cycle has 10 colours: more variants change the line style
+    for i, (name, runs) in enumerate(sorted(per.items())):
         curves = [(np.asarray(r["curve_steps"]), np.asarray(r["curve_return"])) for r in runs if r.get("curve_steps")]
         if not curves:
             continue
         grid = np.unique(np.concatenate([c[0] for c in curves]))
         Y = np.array([np.interp(grid, s, y, left=np.nan, right=np.nan) for s, y in curves])
         iqm = np.array([stats.trim_mean(c[np.isfinite(c)], 0.25) if np.isfinite(c).any() else np.nan for c in Y.T])
-        line, = ax.plot(grid, iqm, label=f"{name} ({len(curves)} seeds)")
+        line, = ax.plot(grid, iqm, styles[(i // 10) % len(styles)], label=f"{name} ({len(curves)} seeds)")
         if len(curves) >= 2:
             band = np.array([iqm_interval(c)[1:] for c in Y.T])
             ax.fill_between(grid, band[:, 0], band[:, 1], color=line.get_color(), alpha=0.2)
     ax.set_xlabel("env steps")
     ax.set_ylabel("evaluation return (IQM over seeds, 95 % CI band)")
     if ax.lines:
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     tmp = path.with_name(f".{path.stem}{common.TMP_TAG}{os.getpid()}.png")
     fig.savefig(tmp, dpi=110)

@@ -101,9 +101,9 @@ def test_hyperparam_files_parse_and_name_registered_envs(algo):
 
 
 def test_time_to_policy_conf_files_resolve():
-    """agents/hyperparams/one_minute/*.yml (for --conf-file): registered env ids, every entry
+    """agents/hyperparams/time_to_policy/*.yml (for --conf-file): registered env ids, every entry
     resolves, and the 1-minute shape entry is the one results/ppo_shape_1min_5seeds/ trained."""
-    files = sorted((ROOT / "agents" / "hyperparams" / "one_minute").glob("*.yml"))
+    files = sorted((ROOT / "agents" / "hyperparams" / "time_to_policy").glob("*.yml"))
     assert [f.name for f in files] == ["ppo.yml"]
     for path in files:
         data = common.load_hyperparams_file(path)
@@ -112,7 +112,7 @@ def test_time_to_policy_conf_files_resolve():
             common.resolve_hyperparams(path.stem, hp)
     hp, source = common.hyperparams_for("ppo", "TensegrityShape-v0", files[0])
     r = common.resolve_hyperparams("ppo", hp)
-    assert source.endswith("one_minute/ppo.yml:TensegrityShape-v0")
+    assert source.endswith("time_to_policy/ppo.yml:TensegrityShape-v0")
     assert r["n_envs"] == 256
     mk = r["model_kwargs"]
     assert (mk["n_steps"], mk["batch_size"], mk["n_epochs"], mk["gamma"], mk["gae_lambda"]) == (16, 128, 2, 0.8, 0.8)

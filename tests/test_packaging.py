@@ -74,7 +74,7 @@ def test_installed_package_ships_agents_hyperparams_adapter_and_license(installe
     paths = json.loads(out.strip().splitlines()[-1])
     for p in paths:
         assert Path(p).resolve().is_relative_to(site.resolve()), p   # from the install, not the repository
-    for name in ("ppo.yml", "sac.yml", "td3.yml", "one_minute/ppo.yml"):
+    for name in ("ppo.yml", "sac.yml", "td3.yml", "time_to_policy/ppo.yml"):
         assert (site / "agents" / "hyperparams" / name).exists()
     for name in ("smoke.yml", "sweep1.yml"):
         assert (site / "agents" / "sweeps" / name).exists()

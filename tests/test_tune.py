@@ -177,3 +177,14 @@ def test_train_reports_each_evaluation_with_its_wall_time(tmp_path):
     assert [m["timesteps"] for m in got] == [64, 128]
     assert 0 < got[0]["wall_time_s"] <= got[1]["wall_time_s"]
     assert {"eval_return", "n_evaluations"} <= set(got[-1])
+
+
+def test_summary_only_keeps_what_the_sweep_recorded(tmp_path):
+    """--summary-only rewrites the table and plot from the run folders; the sweep's wall time,
+    concurrency and errors, which only the sweep itself knew, stay in summary.json."""
+    exp = tmp_path / "exp"
+    (exp / "runs").mkdir(parents=True)
+    (exp / "summary.json").write_text(json.dumps({"sweep_wall_time_s": 12.5, "max_concurrent": 2, "errors": []}))
+    out = tune.summarize(exp)
+    assert (out["sweep_wall_time_s"], out["max_concurrent"], out["errors"]) == (12.5, 2, [])
+    assert json.loads((exp / "summary.json").read_text())["sweep_wall_time_s"] == 12.5
