@@ -639,8 +639,9 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         if report is not None:   # each evaluation's metrics plus the run's wall time so far (earlier segments too)
             wall0 = float(prev_state.get("wall_time_s", 0.0))
 
-            def report_fn(metrics):
+            def _report(metrics):
                 report({**metrics, "wall_time_s": wall0 + time.time() - t0})
+            report_fn = _report
         ecb = ResumableEvalCallback(eval_env, eval_freq, run_dir, run_state=run_state, report=report_fn,
                                     n_eval_episodes=eval_episodes, deterministic=True, verbose=args.verbose,
                                     warn=False)
