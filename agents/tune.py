@@ -262,9 +262,11 @@ def iqm_interval(x, confidence: float = 0.95, n_resamples: int = 2000, seed: int
     return iqm, float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
-def summarize(exp_dir: Path, metric: str = "eval_return") -> dict:
+def summarize(exp_dir: Path, metric: str = "eval_return", sweep: dict | None = None) -> dict:
     """Per-variant table from the trial run directories under ``exp_dir/runs``; writes
-    ``summary.json``, ``summary.md`` and ``summary.png`` in ``exp_dir``."""
+    ``summary.json``, ``summary.md`` and ``summary.png`` in ``exp_dir``. ``sweep``: what only the
+    sweep itself knows (``sweep_wall_time_s``, ``max_concurrent``, ``errors``); without it
+    (``--summary-only``) those of an earlier ``summary.json`` are kept."""
     runs_dir = exp_dir / "runs"
     per: dict[str, list[dict]] = {}
     for d in sorted(p for p in runs_dir.iterdir() if p.is_dir()) if runs_dir.exists() else []:
@@ -303,13 +305,14 @@ def summarize(exp_dir: Path, metric: str = "eval_return") -> dict:
     out = {"experiment": str(exp_dir), "metric": metric,
            "interval": "95 % percentile bootstrap of the IQM over seeds (scipy.stats.bootstrap, 2000 resamples, "
                        "seed 0)", "variants": rows}
-    old = exp_dir / "summary.json"   # --summary-only keeps what only the sweep itself knew
-    if old.exists():
+    old = exp_dir / "summary.json"
+    if sweep is None and old.exists():
         try:
             prev = json.loads(old.read_text())
         except (OSError, ValueError):
             prev = {}
-        out.update({k: prev[k] for k in ("sweep_wall_time_s", "max_concurrent", "errors") if k in prev})
+        sweep = {k: prev[k] for k in ("sweep_wall_time_s", "max_concurrent", "errors") if k in prev}
+    out.update(sweep or {})
     common.write_json(exp_dir / "summary.json", out)
     lines = [f"# {exp_dir.name}: final evaluation per variant", "",
              f"IQM over training seeds with a 95 % percentile-bootstrap interval (scipy.stats.bootstrap). "
@@ -464,11 +467,9 @@ def tune_main(argv: list[str] | None = None) -> dict:
         tuner = tune.Tuner(trainable_fn, param_space=param_space, tune_config=tune_cfg, run_config=run_cfg)
     t0 = time.time()
     grid = tuner.fit()
-    summary = summarize(exp_dir, cfg["metric"])
-    summary["sweep_wall_time_s"] = time.time() - t0
-    summary["max_concurrent"] = max_conc
-    summary["errors"] = [str(r.error) for r in grid if r.error is not None]
-    common.write_json(exp_dir / "summary.json", summary)
+    summary = summarize(exp_dir, cfg["metric"], sweep={
+        "sweep_wall_time_s": time.time() - t0, "max_concurrent": max_conc,
+        "errors": [str(r.error) for r in grid if r.error is not None]})
     print((exp_dir / "summary.md").read_text())
     print(f"summary: {exp_dir / 'summary.md'}, {exp_dir / 'summary.png'} ({summary['sweep_wall_time_s']:.0f} s, "
           f"{max_conc} trials at a time)")

@@ -82,9 +82,10 @@ def test_resolve_hyperparams_schedules_and_unsupported_keys():
 
 
 # ---------------------------------------------------------------------- hyperparameter files
-@pytest.mark.parametrize("algo", ["ppo", "sac", "td3"])
-def test_hyperparam_files_parse_and_name_registered_envs(algo):
-    path = ROOT / "agents" / "hyperparams" / f"{algo}.yml"
+@pytest.mark.parametrize("name", ["ppo.yml", "sac.yml", "td3.yml", "time_to_policy/ppo.yml"])
+def test_hyperparam_files_parse_and_name_registered_envs(name):
+    path = ROOT / "agents" / "hyperparams" / name
+    algo = path.stem
     data = common.load_hyperparams_file(path)
     assert data, f"{path} is empty"
     for env_id, hp in data.items():
@@ -100,23 +101,26 @@ def test_hyperparam_files_parse_and_name_registered_envs(algo):
         assert env_id in data or algo == "td3", f"{path} has no entry for {env_id}"
 
 
-def test_time_to_policy_conf_files_resolve():
-    """agents/hyperparams/time_to_policy/*.yml (for --conf-file): registered env ids, every entry
-    resolves, and the 1-minute shape entry is the one results/ppo_shape_1min_5seeds/ trained."""
-    files = sorted((ROOT / "agents" / "hyperparams" / "time_to_policy").glob("*.yml"))
-    assert [f.name for f in files] == ["ppo.yml"]
-    for path in files:
-        data = common.load_hyperparams_file(path)
-        for env_id, hp in data.items():
-            assert env_id in gym.envs.registry, f"{path}: {env_id} is not a registered env id"
-            common.resolve_hyperparams(path.stem, hp)
-    hp, source = common.hyperparams_for("ppo", "TensegrityShape-v0", files[0])
+def test_time_to_policy_entries_are_the_ones_the_results_trained():
+    """agents/hyperparams/time_to_policy/ppo.yml (for --conf-file; parsed and resolved by the test
+    above): the only file there, and its entries are those of results/ppo_shape_1min/ and
+    results/ppo_roll_5min/lin_lr_std1/."""
+    folder = ROOT / "agents" / "hyperparams" / "time_to_policy"
+    assert [f.name for f in folder.glob("*.yml")] == ["ppo.yml"]
+    hp, source = common.hyperparams_for("ppo", "TensegrityShape-v0", folder / "ppo.yml")
     r = common.resolve_hyperparams("ppo", hp)
     assert source.endswith("time_to_policy/ppo.yml:TensegrityShape-v0")
     assert r["n_envs"] == 256
     mk = r["model_kwargs"]
     assert (mk["n_steps"], mk["batch_size"], mk["n_epochs"], mk["gamma"], mk["gae_lambda"]) == (16, 128, 2, 0.8, 0.8)
     assert mk["policy_kwargs"]["net_arch"] == {"pi": [64, 64], "vf": [64, 64]}
+    hp, _ = common.hyperparams_for("ppo", "TensegrityRoll-v0", folder / "ppo.yml")
+    r = common.resolve_hyperparams("ppo", hp)
+    assert (r["n_envs"], r["n_timesteps"]) == (128, 9_000_000)
+    mk = r["model_kwargs"]
+    assert (mk["n_steps"], mk["batch_size"], mk["n_epochs"], mk["gamma"], mk["gae_lambda"]) == (128, 2048, 2, 0.995, 0.98)
+    assert mk["learning_rate"](1.0) == pytest.approx(1.12e-3) and mk["learning_rate"](0.0) == 0.0
+    assert mk["policy_kwargs"] == {"log_std_init": 0.0, "net_arch": {"pi": [128, 128], "vf": [128, 128]}}
 
 
 # ---------------------------------------------------------------------- train -> save -> reload -> evaluate
