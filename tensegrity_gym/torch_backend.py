@@ -84,7 +84,7 @@ import weakref
 
 import numpy as np
 
-__all__ = ["resolve_device", "resolve_dtype", "TorchModel", "torch_model", "torch_params", "node_positions",
+__all__ = ["resolve_device", "resolve_dtype", "TorchModel", "torch_model", "torch_params", "mass_moments", "node_positions",
            "node_velocities", "string_state", "force_densities", "nodal_forces", "accelerations", "project",
            "sphere_drift", "step", "contact_forces", "contact_step", "contact_substep", "init_contact_state", "motor", "advance",
            "physics_inputs", "step_state", "simulate", "diverged", "PARAM_FIELDS"]
@@ -276,10 +276,7 @@ def torch_params(tm: TorchModel, params=None, batch_size: int | None = None) -> 
             raise ValueError(f"params.{name}: leading axis {P} is neither 1 nor the batch size {batch_size}")
         out[name] = val
     if "mass" in given and "f" not in given and "J" not in given:
-        # mass alone: the rod's mass distribution is kept (as Params.replace), so f and J scale with it
-        m0 = tm.defaults["mass"]
-        out["f"] = out["mass"] * (tm.defaults["f"] / m0)
-        out["J"] = out["mass"] * (tm.defaults["J"] / m0)
+        out["f"], out["J"] = mass_moments(tm, out["mass"])
     # ("given" maps a provided field to "may be non-zero")
     out["has_damping"] = tm.has_damping or given.get("damping", False)
     out["has_gravity"] = tm.has_gravity or given.get("gravity", False)
@@ -289,6 +286,14 @@ def torch_params(tm: TorchModel, params=None, batch_size: int | None = None) -> 
     Wa, Wc = tm.com_a * mass * g, tm.com_c * mass * g                 # (P, k, 3)
     out["W0"] = tm.gather_nodes(Wa, Wc)                               # (P, n, 3); anchors get 0
     return out
+
+
+def mass_moments(tm: TorchModel, mass):
+    """(P, k) first and second mass moments ``f`` (kg m), ``J`` (kg m^2) of rods of mass ``mass``
+    (P, k) kg with the model's mass distribution: each rod's distribution keeps its shape, so
+    ``f`` and ``J`` scale with the mass (as ``Params.replace(mass=...)``)."""
+    m0 = tm.defaults["mass"]
+    return mass * (tm.defaults["f"] / m0), mass * (tm.defaults["J"] / m0)
 
 
 def _dot(a, b):

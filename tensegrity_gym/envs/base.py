@@ -160,16 +160,20 @@ class BatchedTask:
             inputs["rest_length"] = inputs["rest_length"] + self.rest_offset
         return inputs
 
-    def reset(self, idx: np.ndarray, rngs: Sequence[np.random.Generator], options: dict | None = None) -> dict:
-        """Reset copies ``idx``: robot parameters drawn first (if randomised), then the task's
-        :meth:`reset_idx`; ``info["params"]`` reports the parameters when any are set.
-        ``options``: the keys of :attr:`RESET_OPTIONS` only (ValueError naming any other: an
-        option that would be silently ignored)."""
+    def check_reset_options(self, options: dict | None) -> None:
+        """ValueError naming any key of ``options`` that is not one of :attr:`RESET_OPTIONS`."""
         unknown = sorted(set(check_options(options)) - set(self.RESET_OPTIONS))
         if unknown:
             takes = f"only {list(self.RESET_OPTIONS)}" if self.RESET_OPTIONS else "no options"
             raise ValueError(f"options: unknown key(s) {unknown}; this env's reset takes {takes} (a vector env "
                              "also 'reset_mask'); the robot, goal and noise come from the constructor and the seed")
+
+    def reset(self, idx: np.ndarray, rngs: Sequence[np.random.Generator], options: dict | None = None) -> dict:
+        """Reset copies ``idx``: robot parameters drawn first (if randomised), then the task's
+        :meth:`reset_idx`; ``info["params"]`` reports the parameters when any are set.
+        ``options``: the keys of :attr:`RESET_OPTIONS` only (ValueError naming any other: an
+        option that would be silently ignored)."""
+        self.check_reset_options(options)
         dom = self.domain
         if dom.randomized:
             dom.sample(idx, rngs)

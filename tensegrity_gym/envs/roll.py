@@ -37,6 +37,10 @@ ENV_ID = "TensegrityRoll-v0"
 _CONTACT_ARGS = {"stiffness": "ground_stiffness", "damping": "ground_damping", "radius": "cap_radius",
                  "max_damping": "ground_max_damping"}
 
+#: randomised contact parameter (envs/domain.py name) -> its column of the per-copy contact array
+CONTACT_DOMAIN = {"friction": "friction", "ground_stiffness": "stiffness", "ground_damping": "damping"}
+
+
 class RollTask(RollObservation, BatchedTask):
     """Batched rolling task on ``num_envs`` copies (arguments: see :class:`TensegrityRollEnv`).
 
@@ -165,11 +169,10 @@ class RollTask(RollObservation, BatchedTask):
         v, B = self.domain.values, self.num_envs
         # randomised: copies idx take their own rows; fixed: every copy takes row 0
         rows, src = (idx, idx) if self.domain.randomized else (np.arange(B), np.zeros(B, int))
-        contact = {"friction": "friction", "ground_stiffness": "stiffness", "ground_damping": "damping"}
-        if any(n in v for n in contact):
+        if any(n in v for n in CONTACT_DOMAIN):
             if self._contact_prm is None:
                 self._contact_prm = self.contact.per_copy(B)
-            for name, fld in contact.items():
+            for name, fld in CONTACT_DOMAIN.items():
                 if name in v:
                     gc.set_copy_values(self._contact_prm, rows, fld, v[name][src])
         if "max_cable_speed" in v or "max_cable_acceleration" in v:

@@ -86,20 +86,24 @@ class TorchSensors:
         """Reset rows ``it`` get the host task's reset readings (r, history, frame_size)."""
         self.readings[it] = self.env._T(host_readings)
 
-    def frame(self, q, qd, qd_prev, ctrl, speed, contact, command):
+    def frame(self, q, qd, qd_prev, ctrl, speed, contact, command, gravity=None):
         """(N, frame_size) readings after a control step (:meth:`RobotSensors.frame` in torch):
-        state ``q``, ``qd`` (N, k, 6), the velocities one physics step earlier ``qd_prev``,
-        controls, motor speeds, contact flags (N, 2k) bool (None where the env has no such
-        block), the command (N, size); gravity is the copies' own (:meth:`gravity`)."""
+        state ``q``, ``qd`` (N, k, 6), the velocities one physics step earlier ``qd_prev`` (None:
+        at rest, as at a reset), controls, motor speeds, contact flags (N, 2k) bool (None where
+        the env has no such block), the command (N, size); ``gravity`` (N or 1, 3) m/s^2, default
+        the copies' own (:meth:`gravity`)."""
         torch = tb._torch()
         env = self.env
         N = q.shape[0]
         _, L, _ = tb.string_state(env.tm, q, qd, env._node_prm, False)
         b, bd = q[..., 3:], qd[..., 3:]
         R = rod_frames(b)
-        d = (qd - qd_prev) / env.task.dt
-        acc = d[..., :3] + self.com_eta * d[..., 3:]
-        spec = acc - self.gravity()[:, None, :]
+        if qd_prev is None:
+            acc = torch.zeros_like(q[..., :3])
+        else:
+            d = (qd - qd_prev) / env.task.dt
+            acc = d[..., :3] + self.com_eta * d[..., 3:]
+        spec = acc - (self.gravity() if gravity is None else gravity)[:, None, :]
         omega = torch.linalg.cross(b, bd, dim=-1)
         parts = {"cable_length": L, "control": ctrl, "cable_speed": speed,
                  "imu_accel": torch.einsum("bkij,bkj->bki", R, spec).reshape(N, -1),
@@ -115,6 +119,16 @@ class TorchSensors:
             else:
                 out[:, sl] += s * torch.randn(shape, generator=self.generator, dtype=out.dtype, device=out.device)
         return out
+
+    def reset_rows(self, it, q, qd, ctrl, speed, contact, command) -> None:
+        """Envs ``it`` (a device reset, ``reset_sampling="device"``): every history slot holds the
+        reading at rest (no IMU acceleration but gravity), noise from the device generator, as
+        the host task's reset readings."""
+        g = self.gravity()
+        if g.shape[0] > 1:
+            g = g[it]
+        f = self.frame(q, qd, None, ctrl, speed, contact, command, gravity=g)
+        self.readings[it] = f[:, None, :].expand(-1, self.readings.shape[1], -1)
 
     def record(self, *args) -> None:
         """Push :meth:`frame` ``(*args)`` into the history (newest first)."""

@@ -17,6 +17,7 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
     """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc)."""
 
     ENV_ID = "TensegrityRoll-v0"
+    DEVICE_RESET = True
 
     def _make_task(self, num_envs, kwargs):
         from .roll import RollTask
@@ -34,6 +35,12 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
         self.speed = self._T(task.speed)
         self.goal = self._T(task.goal)
         self.start = self._T(task.start)
+        # device resets (reset_sampling="device"): the resting robot, rod lengths, lowest node height
+        self._q_nominal = self._T(task.q_nominal)
+        self._length = self._T(task.model.length)[None, :, None]
+        self._z_floor = float(task.nodes_nominal[:, 2].min())
+        self._start_control = self._T(task.start_control)[None]
+        self._goal_default = self._T(task.goal_direction)[None]
 
     def _upload_rows(self, it, idx):
         torch = tb._torch()
@@ -47,13 +54,62 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
         self.goal[it] = self._T(task.goal[idx])
         self.start[it] = self._T(task.start[idx])
 
-    def _com(self, q):
-        """(N, 3) centre of mass, m (as ``RollTask._com``)."""
+    def _com(self, q, it=None):
+        """(N, 3) centre of mass, m (as ``RollTask._com``); of envs ``it`` when ``q`` holds only them."""
         r = q[..., :3]
         if not self.task._com_at_r:
             r = r + self._com_eta * q[..., 3:]
-        mf = self._mass_frac[..., None]
-        return (mf * r).sum(dim=1)
+        mf = self._mass_frac
+        if it is not None and mf.shape[0] > 1:
+            mf = mf[it]
+        return (mf[..., None] * r).sum(dim=1)
+
+    def _reset_draws(self) -> int:
+        """Uniforms a device reset of one env reads for the task: the initial-state noise (4 x k x 3:
+        rod centres, axes, their rates), then the goal angle with ``randomize_goal``."""
+        task = self.task
+        return (12 * task.model.n_bars if task.reset_noise_scale > 0 else 0) + (1 if task.randomize_goal else 0)
+
+    def _device_reset_rows(self, it, u) -> dict:
+        """``RollTask.reset_idx`` on the device for envs ``it`` from their uniforms ``u`` (r, n)
+        float64: the resting robot plus U(-s, s) noise on the rod centres (m) and velocities (m/s)
+        and, divided by the rod length, on the axes and their rates, projected (unit axes), lifted
+        so that no node is below the resting robot's lowest; no contact anchors; the start
+        control; the goal (angle U(0, 2 pi) with ``randomize_goal``)."""
+        torch = tb._torch()
+        task = self.task
+        r, k, s = it.shape[0], task.model.n_bars, task.reset_noise_scale
+        q = self._q_nominal.expand(r, -1, -1).clone()
+        qd = torch.zeros_like(q)
+        used = 0
+        if s > 0:
+            x = (-s + (s - -s) * u[:, :12 * k]).to(self.dtype).reshape(r, 4, k, 3)   # U(-s, s) as NumPy's
+            q[..., :3] += x[:, 0]
+            q[..., 3:] += x[:, 1] / self._length
+            qd[..., :3] = x[:, 2]
+            qd[..., 3:] = x[:, 3] / self._length
+            used = 12 * k
+        if task.randomize_goal:
+            th = 0.0 + (2.0 * np.pi - 0.0) * u[:, used]     # U(0, 2 pi) as NumPy's
+            goal = torch.stack([torch.cos(th), torch.sin(th)], dim=1).to(self.dtype)
+        else:
+            goal = self._goal_default.expand(r, -1)
+        q, qd = tb.project(self.tm, q, qd)
+        zmin = tb.node_positions(self.tm, q, self._node_prm)[..., 2].amin(dim=1)
+        q[..., 2] += torch.clamp(self._z_floor - zmin, min=0.0)[:, None]
+        ctrl = self._start_control.expand(r, -1)
+        self.q[it], self.qd[it] = q, qd
+        self.anchor[it] = 0.0
+        self.active[it] = False
+        self.ctrl[it] = ctrl
+        self.speed[it] = 0.0
+        self.goal[it] = goal
+        com = self._com(q, it)
+        self.start[it] = com
+        if self._sens is not None:
+            self._sens.reset_rows(it, q, qd, ctrl, self.speed[it], self.active[it], goal)
+        return {"com_position": com, "com_velocity": torch.zeros_like(com),
+                "distance_rolled": com.new_zeros(r), "goal_direction": goal.clone()}
 
     def _observe(self):
         torch = tb._torch()
@@ -122,6 +178,8 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
     :func:`tensegrity_gym.torch_backend.step_once`)."""
 
     ENV_ID = "TensegrityShape-v0"
+    _NO_DEVICE_RESET = ("its targets are stable static equilibria found by Newton's method with rejection, "
+                        "statics.solve_equilibria, on the host")
 
     def _make_task(self, num_envs, kwargs):
         from .shape import ShapeTask

@@ -74,13 +74,14 @@ from gymnasium.utils import seeding
 from .. import torch_backend as tb
 from ..checks import check_action_tensor
 from .shells import VectorSeeding, episode_limit, reseed
+from .torch_reset import RESET_SAMPLING, CounterStreams, TorchDomain
 from .torch_sensors import TorchSensors
 
 __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "roll_vector_env", "shape_vector_env"]
 
 
 def _no_torch_kwargs(kwargs):
-    for name in ("device", "dtype", "compile"):
+    for name in ("device", "dtype", "compile", "reset_sampling"):
         if name in kwargs:
             raise ValueError(f"{name}: only with backend='torch' (got backend={kwargs.get('backend', 'auto')!r})")
 
@@ -119,14 +120,28 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     ``dtype`` (``"float64"`` default or ``"float32"``; anything else is a ValueError) and
     ``max_episode_steps`` (control steps; ``"registered"``: the id's 1000; None: no limit) and
     ``compile`` (default False: wrap the task's physics step in ``torch.compile``; the
-    first steps then compile for tens of seconds; measured in ``docs/bench_gpu.md``).
+    first steps then compile for tens of seconds; measured in ``docs/bench_gpu.md``) and
+    ``reset_sampling`` (``"host"`` default: resets drawn from the per-env NumPy generators, the
+    NumPy env's numbers; ``"device"``: drawn and applied on the device from per-env counter-based
+    streams, :mod:`tensegrity_gym.envs.torch_reset`; tasks with ``DEVICE_RESET``).
     """
+
+    #: the task can reset on the device (``reset_sampling="device"``): it implements
+    #: ``_reset_draws`` and ``_device_reset_rows``
+    DEVICE_RESET = False
+    _NO_DEVICE_RESET = ""     # why not, for the error message
 
     metadata = {"render_modes": [], "render_fps": 50, "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, max_episode_steps="registered", device=None, dtype=None,
-                 backend: str = "torch", render_mode: str | None = None, compile: bool = False, **kwargs):
+                 backend: str = "torch", render_mode: str | None = None, compile: bool = False,
+                 reset_sampling: str = "host", **kwargs):
         torch = tb._torch()
+        if reset_sampling not in RESET_SAMPLING:
+            raise ValueError(f"reset_sampling: expected one of {RESET_SAMPLING}, got {reset_sampling!r}")
+        if reset_sampling == "device" and not self.DEVICE_RESET:
+            raise ValueError(f"reset_sampling: 'device' is not available for {self.ENV_ID} ({self._NO_DEVICE_RESET}); "
+                             "use reset_sampling='host'")
         if backend != "torch":
             raise ValueError(f"backend: {type(self).__name__} runs backend='torch', got {backend!r}")
         if render_mode is not None:
@@ -165,6 +180,11 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self._substep = torch.compile(one, dynamic=False) if compile else None
         # per-copy parameters (domain): uploaded whole here, by reset rows when randomised
         self._upload_domain(None)
+        self.reset_sampling = reset_sampling
+        self._streams = self._tdomain = None
+        if reset_sampling == "device":     # envs/torch_reset.py: per-env counter-based streams on the device
+            self._streams = CounterStreams(N, dev)
+            self._tdomain = TorchDomain(self) if task.domain.enabled else None
 
     # ------------------------------------------------------------------ host <-> device
     def _T(self, x):
@@ -207,33 +227,60 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             mf = np.asarray(task._mass_frac, float)
             put("_mass_frac", mf if mf.ndim == 2 else mf[None])
 
-    def _reset_envs(self, idx: np.ndarray, options) -> dict:
-        """Reset envs ``idx`` (host draws, one upload of their rows); infos as (N,) tensors."""
+    def _reset_envs(self, mask, options) -> dict:
+        """Reset the envs where ``mask`` (N,) bool (a device tensor) is true: drawn on the host
+        (one upload of their rows) or on the device (``reset_sampling``); infos as (N,) tensors."""
         torch = tb._torch()
         task = self.task
-        info = task.reset(idx, [self._rngs[i] for i in idx], options)
-        self._upload_domain(idx)
-        it = torch.as_tensor(idx, dtype=torch.int64, device=self.device)
-        self._upload_rows(it, idx)
-        if self._sens is not None:
-            self._sens.upload_reset(it, task._readings[idx])
+        if self._streams is not None:
+            task.check_reset_options(options)
+            it = mask.nonzero()[:, 0]
+            info = self._device_reset(it)
+        else:
+            idx = np.flatnonzero(mask.cpu().numpy())
+            info = task.reset(idx, [self._rngs[i] for i in idx], options)
+            self._upload_domain(idx)
+            it = torch.as_tensor(idx, dtype=torch.int64, device=self.device)
+            self._upload_rows(it, idx)
+            if self._sens is not None:
+                self._sens.upload_reset(it, task._readings[idx])
         self.elapsed[it] = 0
         self._autoreset[it] = False
         if self._queue.shape[1]:
             self._queue[it] = 0.0
         return self._full_info(info, it)
 
+    def _device_reset(self, it) -> dict:
+        """Reset envs ``it`` (int64 index tensor) on the device: their uniforms
+        (:class:`~tensegrity_gym.envs.torch_reset.CounterStreams`: the task's draws, then the
+        domain's), the randomised parameters applied first, then the task's rows
+        (``_device_reset_rows``); (r, ...) infos, ``params`` when the domain is set."""
+        n_task = self._reset_draws()
+        dom = self._tdomain
+        n_dom = dom.size if dom is not None else 0
+        u = self._streams.uniform(it, n_task + n_dom)
+        if n_dom:
+            dom.apply(it, dom.sample(it, u[:, n_task:]))
+        info = self._device_reset_rows(it, u[:, :n_task])
+        if dom is not None:
+            info["params"] = dom.report(it)
+        return info
+
     def _full_info(self, info: dict, it) -> dict:
-        """(r, ...) host infos of envs ``it`` -> (N, ...) device tensors (zeros elsewhere)."""
+        """(r, ...) infos of envs ``it`` (host arrays or device tensors) -> (N, ...) device
+        tensors (zeros elsewhere)."""
         torch = tb._torch()
         out = {}
         for k, v in info.items():
             if isinstance(v, dict):
                 out[k] = self._full_info(v, it)
                 continue
-            v = np.asarray(v)
-            t = (torch.as_tensor(v, device=self.device) if v.dtype == np.bool_ else self._T(v))
-            arr = torch.zeros((self.num_envs,) + tuple(v.shape[1:]), dtype=t.dtype, device=self.device)
+            if isinstance(v, torch.Tensor):
+                t = v
+            else:
+                v = np.asarray(v)
+                t = (torch.as_tensor(v, device=self.device) if v.dtype == np.bool_ else self._T(v))
+            arr = torch.zeros((self.num_envs,) + tuple(t.shape[1:]), dtype=t.dtype, device=self.device)
             arr[it] = t
             out[k] = arr
         return out
@@ -295,12 +342,15 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         torch = tb._torch()
         super().reset(seed=None)
         mask, options = self._reset_mask(options)
-        reseed(self._rngs, seed, mask)
+        if self._streams is not None:
+            self._streams.seed(seed, mask)
+        else:
+            reseed(self._rngs, seed, mask)
         if self._sens is not None:
             self._sens.seed(seed)
-        idx = np.flatnonzero(mask)
-        info = self._reset_envs(idx, options or None)
-        return self._observe(), self._vector_info(info, torch.as_tensor(mask, device=self.device))
+        mask_t = torch.as_tensor(mask, device=self.device)
+        info = self._reset_envs(mask_t, options or None)
+        return self._observe(), self._vector_info(info, mask_t)
 
     def step(self, actions):
         torch = tb._torch()
@@ -322,8 +372,7 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             all_infos[f"reward_{name}"] = v
         out = self._vector_info(all_infos, ~reset_now)
         if any_reset:
-            idx = np.flatnonzero(reset_now.cpu().numpy())
-            rinfo = self._reset_envs(idx, None)
+            rinfo = self._reset_envs(reset_now, None)
             self._vector_info(rinfo, reset_now, out)
             reward = torch.where(reset_now, torch.zeros_like(reward), reward)
             terminated = terminated & ~reset_now

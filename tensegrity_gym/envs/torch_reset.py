@@ -1,0 +1,241 @@
+"""Resets drawn on the device (``reset_sampling="device"`` of the torch vector envs; SI units).
+
+By default (``reset_sampling="host"``) a torch vector env draws each reset env's noise, goal and
+randomised robot parameters on the host, from that env's NumPy generator, exactly as the NumPy
+vector env, and copies the reset rows to the device (:mod:`tensegrity_gym.envs.torch_vec`).
+That costs a Python loop over the reset envs (about 35 us per env on a 2-core CPU), and when
+every env of a large batch reaches the time limit in the same step, seconds.
+
+With ``reset_sampling="device"`` the reset runs on the device, with no host loop and no copy of
+reset rows; its random numbers come from :class:`CounterStreams`:
+
+* **Per-env streams, keyed by the seed.** ``reset(seed=s)`` keys env i with ``s + i`` (a list
+  keys each env; None keeps the key; an env never keyed gets a random key at its first reset,
+  from the operating system's entropy), the same rule as the NumPy envs' generators.
+* **Counter-based.** The k-th reset of an env after it was keyed reads the uniforms
+  ``u_j = U(key, k, j)``, j = 0, 1, ..., where ``U`` is SplitMix64's output function (Steele,
+  Lea & Flood 2014; the generator Java's ``SplittableRandom`` uses) applied to the key, the reset
+  count and the draw index (:func:`reference_uniforms` is the definition, in plain Python
+  integers). Nothing is carried from one draw to the next, so the numbers an env reads depend
+  only on its key and how many times it was reset: not on ``num_envs``, not on which other envs
+  reset in the same step, not on the device (the uniforms are bit-identical on CPU and CUDA:
+  64-bit integer arithmetic), and not on thread counts.
+* **Not the NumPy generators' numbers.** A device reset draws the same *distributions* as the
+  host reset (the task's noise, goal and :mod:`~tensegrity_gym.envs.domain` draws, same order
+  of names and items), from other numbers. ``tests/test_torch_env.py`` checks that a host reset
+  fed these numbers gives the device reset's state, observation and infos to round-off.
+
+:class:`TorchDomain` is the device side of :class:`~tensegrity_gym.envs.domain.Domain`: the
+randomised parameter values of the reset envs drawn from the uniforms and written into the env's
+per-copy tensors (the physics ``Params`` rows, the cables' rest-length offsets, the contact
+parameters, the motor limits, the rods' mass fractions), as ``BatchedTask._apply_domain`` and the
+task's ``_apply_task_domain`` do on the host.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import torch_backend as tb
+from .domain import SPECS
+
+__all__ = ["CounterStreams", "TorchDomain", "reference_uniforms", "RESET_SAMPLING"]
+
+RESET_SAMPLING = ("host", "device")
+
+_MASK64 = (1 << 64) - 1
+_GOLDEN = 0x9E3779B97F4A7C15      # SplitMix64's increment (2^64 / golden ratio, odd)
+_M1 = 0xBF58476D1CE4E5B9           # SplitMix64's output-function multipliers
+_M2 = 0x94D049BB133111EB
+_EPISODE = 0xD1B54A32D192ED03      # odd multiplier of the reset count (another Weyl sequence)
+_SALT = 0x7A3C5E0F12D4B689         # keys are not the seeds themselves (nor the NumPy streams')
+
+
+def _signed(x: int) -> int:
+    """A 64-bit pattern as the int64 value with the same bits."""
+    x &= _MASK64
+    return x - (1 << 64) if x >> 63 else x
+
+
+def _mix_int(z: int) -> int:
+    """SplitMix64's output function on a Python int (mod 2^64)."""
+    z &= _MASK64
+    z = ((z ^ (z >> 30)) * _M1) & _MASK64
+    z = ((z ^ (z >> 27)) * _M2) & _MASK64
+    return z ^ (z >> 31)
+
+
+def reference_uniforms(seed: int, reset: int, n: int) -> np.ndarray:
+    """The definition of the device streams, in Python integers: the ``n`` uniforms in [0, 1)
+    that the ``reset``-th reset (0 first) of an env keyed with ``seed`` reads. Key ``K =
+    mix(seed ^ SALT)``, stream ``S = mix(K + (reset + 1) C)``, ``u_j = (mix(S + (j + 1) G) >> 11)
+    2^-53`` with SplitMix64's ``mix`` and increment ``G``."""
+    key = _mix_int((int(seed) & _MASK64) ^ _SALT)
+    st = _mix_int(key + (int(reset) + 1) * _EPISODE)
+    return np.array([(_mix_int(st + (j + 1) * _GOLDEN) >> 11) * 2.0 ** -53 for j in range(int(n))])
+
+
+def _lsr(z, k: int):
+    """Logical right shift of an int64 tensor (torch's ``>>`` is arithmetic)."""
+    return (z >> k) & ((1 << (64 - k)) - 1)
+
+
+def _mix(z):
+    """SplitMix64's output function on an int64 tensor (wrapping products: the bits of the uint64 ones)."""
+    z = (z ^ _lsr(z, 30)) * _signed(_M1)
+    z = (z ^ _lsr(z, 27)) * _signed(_M2)
+    return z ^ _lsr(z, 31)
+
+
+def _check_seed(value, i: int) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f"seed: env {i}: expected a non-negative int or None, got {value!r}")
+    return int(value)
+
+
+class CounterStreams:
+    """Per-env counter-based random streams on a torch device (see the module doc).
+
+    ``keys`` (N,) int64: each env's key; ``resets`` (N,) int64: how many resets it drew since it
+    was keyed."""
+
+    def __init__(self, num_envs: int, device):
+        torch = tb._torch()
+        self.num_envs = int(num_envs)
+        self.device = device
+        self.keys = torch.zeros(self.num_envs, dtype=torch.int64, device=device)
+        self.resets = torch.zeros(self.num_envs, dtype=torch.int64, device=device)
+        self._keyed = np.zeros(self.num_envs, bool)
+
+    def seed(self, seed, mask: np.ndarray) -> None:
+        """Key the envs selected by ``mask`` (N,) bool from ``seed`` (the vector envs' rule: an
+        int s keys env i with s + i, a list keys each env (None: keep), None keeps every key;
+        envs still unkeyed afterwards get random keys). Rekeyed envs start again at reset 0."""
+        torch = tb._torch()
+        N = self.num_envs
+        if seed is None:
+            seeds = [None] * N
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+            seeds = [_check_seed(seed, 0) + i for i in range(N)]
+        else:
+            if isinstance(seed, (bool, np.bool_, str, bytes)) or not hasattr(seed, "__len__"):
+                raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {seed!r:.80}")
+            seeds = list(seed)
+            if len(seeds) != N:
+                raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {len(seeds)}")
+        chosen = np.array([bool(mask[i]) and seeds[i] is not None for i in range(N)])
+        fresh = np.asarray(mask, bool) & ~chosen & ~self._keyed
+        if not (chosen.any() or fresh.any()):
+            return
+        raw = np.zeros(N, dtype=np.uint64)
+        for i in np.flatnonzero(chosen):
+            raw[i] = _check_seed(seeds[i], i) & _MASK64
+        if fresh.any():
+            raw[fresh] = np.random.SeedSequence().generate_state(int(fresh.sum()), np.uint64)
+        sel = chosen | fresh
+        idx = torch.as_tensor(np.flatnonzero(sel), dtype=torch.int64, device=self.device)
+        vals = torch.as_tensor(raw[sel].view(np.int64), device=self.device)
+        self.keys[idx] = _mix(vals ^ _signed(_SALT))
+        self.resets[idx] = 0
+        self._keyed |= sel
+
+    def uniform(self, it, n: int):
+        """(len(it), n) float64 uniforms in [0, 1) of the next reset of envs ``it`` (an int64
+        index tensor on the device); counts that reset."""
+        torch = tb._torch()
+        st = _mix(self.keys[it] + (self.resets[it] + 1) * _signed(_EPISODE))
+        j = torch.arange(1, int(n) + 1, dtype=torch.int64, device=self.device)
+        z = _mix(st[:, None] + j[None, :] * _signed(_GOLDEN))
+        self.resets[it] = self.resets[it] + 1
+        return _lsr(z, 11).to(torch.float64) * (2.0 ** -53)
+
+
+class TorchDomain:
+    """The randomised robot parameters (:class:`~tensegrity_gym.envs.domain.Domain`) of a torch
+    vector env, drawn on the device at reset.
+
+    ``size``: the uniforms one reset reads (one per item of each randomised name, one per
+    ``gravity``; names in alphabetical order, as the host draws them); ``values``: name ->
+    (N, ...) float64 tensor, each env's current values (what ``info["params"]`` reports)."""
+
+    def __init__(self, env):
+        torch = tb._torch()
+        dom = env.task.domain
+        self.env = env
+        self.dom = dom
+        dev = env.device
+        self.values = {name: torch.as_tensor(np.asarray(dom.values[name], float), dtype=torch.float64, device=dev)
+                       for name in dom.names}
+        if not dom.randomized:   # fixed values: every env reports row 0
+            self.values = {name: v[:1].expand((env.num_envs,) + tuple(v.shape[1:])) for name, v in self.values.items()}
+        self.base = {name: torch.as_tensor(np.asarray(dom.base[name], float), dtype=torch.float64, device=dev)
+                     for name in dom.spread}
+        self.layout = []
+        start = 0
+        for name, s in dom.spread.items():          # sorted by name (Domain)
+            count = 1 if SPECS[name].per == "vector" else int(self.base[name].numel())
+            self.layout.append((name, float(s), start, count))
+            start += count
+        self.size = start
+        model = env.task.model
+        self._elastic_off = torch.as_tensor(np.array(model.active, bool), device=dev)     # force-density strings
+        self._rest0 = torch.as_tensor(np.array(model.rest_length, float), dtype=torch.float64, device=dev)
+
+    def sample(self, it, u) -> dict:
+        """name -> (r, ...) float64 values of the reset envs ``it`` from their uniforms ``u``
+        (r, size) (as :meth:`Domain.sample`: relative ``base x U(1 - s, 1 + s)``, absolute
+        ``base + U(-s, s)``, one factor for the gravity vector); stored in :attr:`values`."""
+        out = {}
+        r = u.shape[0]
+        for name, s, start, count in self.layout:
+            base = self.base[name]
+            x = u[:, start:start + count]
+            lo, hi = (-s, s) if SPECS[name].absolute else (1.0 - s, 1.0 + s)
+            x = lo + (hi - lo) * x                  # U(lo, hi) as NumPy's Generator.uniform computes it
+            if SPECS[name].absolute:
+                v = base + x.reshape((r,) + tuple(base.shape))
+            elif SPECS[name].per == "vector":
+                v = base * x
+            else:
+                v = base * x.reshape((r,) + tuple(base.shape))
+            self.values[name][it] = v
+            out[name] = v
+        return out
+
+    def apply(self, it, vals: dict) -> None:
+        """Envs ``it`` take the drawn ``vals`` in the env's per-copy tensors (as
+        ``BatchedTask._apply_domain`` and ``RollTask._apply_task_domain`` on the host)."""
+        torch = tb._torch()
+        env = self.env
+        from .base import _PHYSICS_FIELDS
+        from .roll import CONTACT_DOMAIN
+        from ..contact import PRM_FIELDS
+        T = lambda x: x.to(env.dtype)   # noqa: E731
+        prm = env._params
+        for name, v in vals.items():
+            fld = _PHYSICS_FIELDS.get(name)
+            if fld == "rest_length":
+                prm["rest_length"][it] = T(self._rest0 + v)
+                env._rest_offset[it] = T(v)
+            elif fld is not None:
+                if fld not in prm:            # a node drag the model lacks: its nominal (0) stays 0
+                    continue
+                if fld in ("stiffness", "damping"):
+                    v = torch.where(self._elastic_off, torch.zeros_like(v), v)
+                prm[fld][it] = T(v)
+                if fld == "mass":
+                    f, J = tb.mass_moments(env.tm, T(v))
+                    prm["f"][it], prm["J"][it] = f, J
+                    env._mass_frac[it] = T(v / v.sum(dim=1, keepdim=True))
+            elif name in CONTACT_DOMAIN:
+                env._contact_prm[it, PRM_FIELDS.index(CONTACT_DOMAIN[name])] = T(v)
+            elif name == "max_cable_speed":
+                env._max_rate[it] = T(v)
+            elif name == "max_cable_acceleration":
+                env._max_accel[it, 0] = T(v)
+            else:   # a name SPECS knows but this env does not apply: refuse rather than ignore
+                raise ValueError(f"randomize[{name!r}]: not supported with reset_sampling='device' by "
+                                 f"{type(env).__name__}")
+
+    def report(self, it) -> dict:
+        """name -> (r, ...) values of envs ``it`` in the env's dtype (``info["params"]``)."""
+        return {name: v[it].to(self.env.dtype) for name, v in self.values.items()}

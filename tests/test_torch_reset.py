@@ -1,0 +1,239 @@
+"""Resets drawn on the device (``reset_sampling="device"``, tensegrity_gym.envs.torch_reset).
+
+The device reset must be the host reset with other random numbers: fed the same uniforms (a
+stand-in generator that returns the device streams' numbers through NumPy's ``uniform``
+formula), the host path of the torch env gives the device reset's state, observation, infos
+and per-copy parameters to round-off, and the same rollout after it. The streams themselves
+must equal their plain-integer definition bit for bit, and follow the vector envs' seeding rule.
+"""
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+import gymnasium as gym  # noqa: E402
+
+import tensegrity_gym  # noqa: E402,F401  (registers the envs)
+from tensegrity_gym.envs.torch_reset import CounterStreams, reference_uniforms  # noqa: E402
+
+ID = "TensegrityRoll-v0"
+MK = dict(vectorization_mode="vector_entry_point", backend="torch", device="cpu", dtype="float64")
+
+ALL_NAMES = {"rod_mass": 0.2, "stiffness": 0.1, "damping": 0.3, "gravity": 0.05, "rest_length_offset": 0.004,
+             "friction": 0.3, "ground_stiffness": 0.2, "ground_damping": 0.2, "max_cable_speed": 0.2,
+             "max_cable_acceleration": 0.2}
+
+CASES = {
+    "default": dict(),
+    "goal_and_every_parameter": dict(randomize_goal=True, randomize=ALL_NAMES, params={"damping": 3.0}),
+    "fixed_params_only": dict(params={"friction": 0.7, "stiffness": 900.0}),
+    "force_density": dict(action_mode="force_density", randomize={"rod_mass": 0.3, "friction": 0.2}),
+    "robot_observation": dict(observation_mode="robot", history=2, randomize={"gravity": 0.1, "rod_mass": 0.2},
+                              randomize_goal=True),
+    "no_noise_icosahedron": dict(structure="icosahedron", reset_noise_scale=0.0, randomize={"stiffness": 0.2}),
+}
+
+
+class _StandIn:
+    """A generator that returns given uniforms through NumPy's ``uniform`` formula
+    (``low + (high - low) u``); its spawned child (the domain draws) reads from ``n_task`` on."""
+
+    def __init__(self, u, n_task):
+        self.u, self.pos, self.n_task = np.asarray(u), 0, n_task
+
+    def uniform(self, low=0.0, high=1.0, size=None):
+        n = 1 if size is None else int(np.prod(size))
+        x = self.u[self.pos:self.pos + n]
+        assert x.size == n, "the host reset read more numbers than the device reset draws"
+        self.pos += n
+        out = low + (high - low) * x
+        return float(out[0]) if size is None else out.reshape(size)
+
+    def spawn(self, n):
+        assert n == 1
+        return [_StandIn(self.u[self.n_task:], 0)]
+
+
+def _feed(host, seeds, reset_no, n_task, n_dom, idx=None):
+    for i in (range(host.num_envs) if idx is None else idx):
+        host._rngs[i] = _StandIn(reference_uniforms(seeds[i], reset_no, n_task + n_dom), n_task)
+
+
+def _same(a, b, tol, what):
+    if isinstance(a, dict):
+        assert set(a) == set(b), what
+        for k in a:
+            _same(a[k], b[k], tol, f"{what}.{k}")
+        return
+    if a is None or b is None:
+        assert a is None and b is None, what
+        return
+    if a.dtype == torch.bool:
+        assert torch.equal(a, b), what
+        return
+    assert a.shape == b.shape, what
+    if a.numel():
+        err = float((a - b).abs().max())
+        assert err <= tol * (1.0 + float(b.abs().max())), (what, err)
+
+
+_STATE = ("q", "qd", "anchor", "active", "ctrl", "speed", "goal", "start", "_rest_offset", "_contact_prm",
+          "_max_rate", "_max_accel", "_mass_frac")
+
+
+def _same_env(dev, host, tol=1e-12):
+    for name in _STATE:
+        _same(getattr(dev, name), getattr(host, name), tol, name)
+    _same({k: v for k, v in (dev._params or {}).items() if not isinstance(v, bool)},
+          {k: v for k, v in (host._params or {}).items() if not isinstance(v, bool)}, tol, "params")
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_device_reset_is_the_host_reset_fed_the_same_numbers(case):
+    """Two resets (seeded, then an explicit one) and 10 control steps after each: the device env
+    equals the host env fed the device streams' uniforms (state, obs, infos with params, rewards)."""
+    kw = CASES[case]
+    N, seed = 3, 7
+    dev = gym.make_vec(ID, num_envs=N, reset_sampling="device", max_episode_steps=None, **kw, **MK)
+    host = gym.make_vec(ID, num_envs=N, max_episode_steps=None, **kw, **MK)
+    n_task = dev._reset_draws()
+    n_dom = dev._tdomain.size if dev._tdomain is not None else 0
+    assert (n_dom > 0) == bool(kw.get("randomize"))
+    seeds = [seed + i for i in range(N)]
+    rng = np.random.default_rng(0)
+    for reset_no in range(2):
+        _feed(host, seeds, reset_no, n_task, n_dom)
+        o_d, i_d = dev.reset(seed=seed) if reset_no == 0 else dev.reset()
+        o_h, i_h = host.reset()
+        _same(o_d, o_h, 1e-12, "obs")
+        _same(i_d, i_h, 1e-12, "info")
+        assert ("params" in i_d) == bool(kw.get("randomize") or kw.get("params"))
+        _same_env(dev, host)
+        for _ in range(10):
+            a = torch.as_tensor(rng.uniform(-1, 1, (N, dev.single_action_space.shape[0])))
+            o_d, r_d, _, _, i_d = dev.step(a)
+            o_h, r_h, _, _, i_h = host.step(a)
+            _same(o_d, o_h, 1e-10, "obs after steps")
+            _same(r_d, r_h, 1e-10, "reward")
+    # the draws moved the robots: a test of robots left at rest would prove little
+    assert float((dev.q - dev._q_nominal).abs().max()) > 1e-4
+
+
+def test_streams_equal_their_definition_and_look_uniform():
+    seeds = [0, 1, 2 ** 63 - 1, 2 ** 63, 2 ** 64 - 1, 12345678901234567890]
+    cs = CounterStreams(len(seeds), torch.device("cpu"))
+    cs.seed(seeds, np.ones(len(seeds), bool))
+    it = torch.arange(len(seeds))
+    for reset_no in range(3):
+        u = cs.uniform(it, 9).numpy()
+        for i, s in enumerate(seeds):
+            assert np.array_equal(u[i], reference_uniforms(s, reset_no, 9)), (s, reset_no)
+    # many streams (consecutive seeds, as envs get) x draws: uniform, uncorrelated
+    from scipy import stats
+    cs = CounterStreams(4096, torch.device("cpu"))
+    cs.seed(1000, np.ones(4096, bool))
+    u = cs.uniform(torch.arange(4096), 64).numpy()
+    assert u.min() >= 0.0 and u.max() < 1.0
+    assert stats.kstest(u.ravel(), "uniform").pvalue > 1e-4
+    c_env = np.corrcoef(u[:-1].ravel(), u[1:].ravel())[0, 1]        # env i vs env i + 1 (seeds s, s + 1)
+    c_draw = np.corrcoef(u[:, :-1].ravel(), u[:, 1:].ravel())[0, 1]  # draw j vs j + 1
+    assert abs(c_env) < 4 / np.sqrt(u.size) and abs(c_draw) < 4 / np.sqrt(u.size)
+    with pytest.raises(ValueError, match="seed: env 1: expected a non-negative int or None, got -3"):
+        cs.seed([0, -3] + [None] * 4094, np.ones(4096, bool))
+    with pytest.raises(ValueError, match="seed: expected an int, None or a list of 4096 seeds, got 2"):
+        cs.seed([1, 2], np.ones(4096, bool))
+
+
+def test_device_reset_follows_the_seeding_rules():
+    kw = dict(randomize_goal=True, randomize={"rod_mass": 0.2, "friction": 0.3}, **MK)
+    env = gym.make_vec(ID, num_envs=4, reset_sampling="device", max_episode_steps=3, **kw)
+    o_all, _ = env.reset(seed=11)
+    one = gym.make_vec(ID, num_envs=1, reset_sampling="device", max_episode_steps=3, **kw)
+    assert torch.equal(one.reset(seed=13)[0][0], o_all[2])           # env i is keyed seed + i
+    o_list, _ = env.reset(seed=[13, None, None, 11])                 # a list: each env its own
+    assert torch.equal(o_list[0], o_all[2]) and torch.equal(o_list[3], o_all[0])
+    # the next reset of an env reads its next stream: a masked reset of env 0 equals the second
+    # reset of a lone env keyed the same, whatever the other envs do
+    env.reset(seed=11)
+    a = torch.full((4, 9), 0.2, dtype=torch.float64)
+    env.step(a)
+    before = env.q.clone()
+    o_m, _ = env.reset(options={"reset_mask": torch.tensor([True, False, False, False])})
+    assert torch.equal(env.q[1:], before[1:])
+    one.reset(seed=11)
+    o_second, _ = one.reset()
+    assert torch.equal(o_m[0], o_second[0])
+    # autoreset (time limit 3): env 2 resets alone on the device and reads its second stream
+    env.reset(seed=11)
+    for _ in range(3):
+        env.step(a)
+    o_auto, r, te, tr, info = env.step(a)
+    one.reset(seed=13)
+    assert torch.equal(o_auto[2], one.reset()[0][0]) and (r == 0).all() and info["_params"].all()
+    # same seed, same numbers, on a new env of another size
+    big = gym.make_vec(ID, num_envs=6, reset_sampling="device", **kw)
+    assert torch.equal(big.reset(seed=11)[0][:4], env.reset(seed=11)[0])
+    # an env never seeded gets a random key at its first reset
+    r1 = gym.make_vec(ID, num_envs=2, reset_sampling="device", **kw).reset()[0]
+    r2 = gym.make_vec(ID, num_envs=2, reset_sampling="device", **kw).reset()[0]
+    assert not torch.equal(r1, r2)
+
+
+def test_device_reset_draws_within_the_spreads():
+    N = 512
+    env = gym.make_vec(ID, num_envs=N, reset_sampling="device", randomize_goal=True,
+                       randomize={"rod_mass": 0.2, "friction": 0.3, "rest_length_offset": 0.004}, **MK)
+    _, info = env.reset(seed=0)
+    task = env.task
+    m = info["params"]["rod_mass"] / torch.as_tensor(task.domain.base["rod_mass"])
+    assert float(m.min()) >= 0.8 and float(m.max()) <= 1.2 and abs(float(m.mean()) - 1.0) < 0.01
+    off = info["params"]["rest_length_offset"]
+    assert float(off.abs().max()) <= 0.004 and torch.allclose(env._rest_offset, off)
+    assert torch.allclose(env._params["mass"], info["params"]["rod_mass"])
+    th = torch.atan2(env.goal[:, 1], env.goal[:, 0])
+    from scipy import stats
+    assert stats.kstest(((th.numpy() + 2 * np.pi) % (2 * np.pi)) / (2 * np.pi), "uniform").pvalue > 1e-4
+    b = env.q[..., 3:]
+    assert float(((b * b).sum(-1) - 1).abs().max()) < 1e-12                       # unit axes
+    z = __import__("tensegrity_gym").torch_backend.node_positions(env.tm, env.q, env._node_prm)[..., 2]
+    assert float(z.amin(dim=1).min()) >= task.nodes_nominal[:, 2].min() - 1e-12   # lifted, none below
+
+
+def test_reset_sampling_bad_input_named():
+    with pytest.raises(ValueError, match="reset_sampling: expected one of \\('host', 'device'\\), got 'gpu'"):
+        gym.make_vec(ID, num_envs=2, reset_sampling="gpu", **MK)
+    with pytest.raises(ValueError, match="reset_sampling: 'device' is not available for TensegrityShape-v0"):
+        gym.make_vec("TensegrityShape-v0", num_envs=2, reset_sampling="device", **MK)
+    with pytest.raises(ValueError, match="reset_sampling: only with backend='torch'"):
+        gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point", reset_sampling="device")
+    env = gym.make_vec(ID, num_envs=2, reset_sampling="device", **MK)
+    with pytest.raises(ValueError, match="options: unknown key"):
+        env.reset(seed=0, options={"goal": 1})
+    with pytest.raises(ValueError, match="seed: env 0: expected a non-negative int or None, got -1"):
+        env.reset(seed=-1)
+
+
+def test_sb3_adapter_with_device_resets():
+    from tensegrity_gym.sb3 import make_sb3_torch_vec_env
+    venv = make_sb3_torch_vec_env(gym.make_vec(ID, num_envs=3, reset_sampling="device", max_episode_steps=2, **MK))
+    venv.seed(4)
+    obs = venv.reset()
+    assert obs.shape == (3, venv.observation_space.shape[0])
+    for t in range(2):
+        obs, rew, done, infos = venv.step(np.zeros((3, 9), np.float32))
+    assert done.all() and all("terminal_observation" in i for i in infos)
+    venv.seed(4)                                  # a reseed gives the first episode again
+    first = venv.reset()
+    assert not np.array_equal(venv.reset(), first)
+    venv.seed(4)
+    assert np.array_equal(venv.reset(), first)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_device_reset_on_cuda_equals_cpu():
+    kw = dict(num_envs=5, vectorization_mode="vector_entry_point", backend="torch", dtype="float64",
+              reset_sampling="device", randomize_goal=True, randomize={"rod_mass": 0.2, "friction": 0.3})
+    envs = [gym.make_vec(ID, device=d, **kw) for d in ("cpu", "cuda")]
+    outs = [e.reset(seed=9)[0] for e in envs]
+    assert torch.equal(envs[0]._streams.keys, envs[1]._streams.keys.cpu())    # integer streams: bit-identical
+    assert float((outs[0] - outs[1].cpu()).abs().max()) < 1e-12
