@@ -27,6 +27,12 @@ NumPy/numba vector env (``make_vec`` default) at B in ``--env-batch``, random ac
 box (drawn once per B, on the env's device), reported as control steps x B per second and
 as physics env-steps/s (x ``frame_skip`` = 20).
 
+``--env-reset`` times resets of the same envs: ``reset()`` of all B envs, and control steps
+with a time limit of ``--env-reset-episode`` steps (so every env resets on every 11th step by
+default, as when a whole batch reaches its time limit together), for the NumPy/numba env and the
+torch env in float32 with ``reset_sampling="host"`` (drawn per env on the host, rows copied) and
+``"device"`` (drawn and applied on the device, :mod:`tensegrity_gym.envs.torch_reset`).
+
 ``--compile`` also times the prism step wrapped in ``torch.compile`` (inductor) at the
 largest B. ``--agreement`` runs the 1 s RK4 (dt = 1e-4) agreement of torch float64 and float32
 with numba on the prism, the icosahedron and the constrained prism (node error, m).
@@ -38,6 +44,7 @@ Usage::
         --out results/bench_gpu_cpu.json --label "2-core CPU, no GPU in this session"
     .venv/bin/python scripts/bench_gpu.py --device cuda --batch 1024 16384 262144 1048576
     .venv/bin/python scripts/bench_gpu.py --scenes --env --env-batch 256 1024 4096 --threads 1
+    .venv/bin/python scripts/bench_gpu.py --scenes --env-reset --env-batch 256 1024 4096 16384 --threads 1
 """
 from __future__ import annotations
 
@@ -251,6 +258,33 @@ def bench_env(B, dev, dtype, min_time, compile_=False):
     return out
 
 
+def bench_env_resets(B, dev, dtype, sampling, min_time, episode):
+    """TensegrityRoll-v0's vector env with resets: the NumPy/numba env (``dtype`` None) or the torch
+    env on ``dev`` with ``reset_sampling=sampling``. Times ``reset()`` of all B envs (s per call,
+    after a first seeded reset) and control steps with a time limit of ``episode`` steps (every
+    env resets on every ``episode + 1``-th step; the steps are timed in whole cycles)."""
+    import gymnasium as gym
+    import tensegrity_gym  # noqa: F401  (registers the ids)
+    kw = {} if dtype is None else {"backend": "torch", "device": str(dev), "dtype": dtype, "reset_sampling": sampling}
+    env = gym.make_vec("TensegrityRoll-v0", num_envs=B, vectorization_mode="vector_entry_point",
+                       max_episode_steps=episode, **kw)
+    sdev = dev if dtype is not None else torch.device("cpu")
+    env.reset(seed=0)
+    reset_s = time_loop(lambda n: [env.reset() for _ in range(n)], 1, min_time, sdev)
+    na = env.single_action_space.shape[0]
+    a = np.random.default_rng(0).uniform(-1, 1, (B, na))
+    act = a if dtype is None else torch.as_tensor(a, device=dev).to(tb.resolve_dtype(dtype))
+    env.reset(seed=1)
+    cycle = episode + 1          # episode steps, then the autoreset step
+
+    def fn(n):
+        for _ in range(n * cycle):
+            env.step(act)
+    sec = time_loop(fn, 1, min_time, sdev) / cycle
+    return {"reset_all_s": reset_s, "reset_per_env_us": reset_s / B * 1e6, "episode_steps": episode,
+            "control_steps_per_s_with_resets": B / sec}
+
+
 def agreement(dev):
     """1 s of RK4 at dt = 1e-4: torch float64 and float32 against numba (max node error, m)."""
     out = {}
@@ -335,6 +369,16 @@ def markdown(result) -> str:
                 v = r[k]
                 lines.append(f"| {r['B']} | {r['env']} | {k.replace('_vs_', ' vs ')} | {v['max']:.1e} | {v['median']:.1e} | "
                              f"{v['p99']:.1e} | {v['envs_over_1e-2']} |")
+    if result.get("env_resets"):
+        rr = result["env_resets"]
+        lines += ["", f"TensegrityRoll-v0 vector env with resets: `reset()` of all B envs, and control steps with a "
+                  f"time limit of {rr[0]['episode_steps']} steps (every env resets on every "
+                  f"{rr[0]['episode_steps'] + 1}th step; the step that resets counts as a control step):", "",
+                  "| B | env | reset of all B envs (ms) | per env (us) | control steps x B / s with resets | "
+                  "ratio vs NumPy/numba env |", "|---:|---|---:|---:|---:|---:|"]
+        for r in rr:
+            lines.append(f"| {r['B']} | {r['env']} | {r['reset_all_s'] * 1e3:,.1f} | {r['reset_per_env_us']:.2f} | "
+                         f"{r['control_steps_per_s_with_resets']:,.0f} | {r['ratio_vs_numpy']:.3f}x |")
     if result.get("compile"):
         c = result["compile"]
         lines += ["", f"torch.compile (inductor), free prism, B = {c['B']}:", ""]
@@ -381,6 +425,10 @@ def main(argv=None):
     ap.add_argument("--env", action="store_true", help="time the TensegrityRoll-v0 vector envs (torch vs NumPy/numba)")
     ap.add_argument("--env-batch", type=int, nargs="+", default=[256, 1024, 4096], help="B of --env")
     ap.add_argument("--env-compile", action="store_true", help="--env also with compile=True (float32, float64)")
+    ap.add_argument("--env-reset", action="store_true",
+                    help="time resets of the TensegrityRoll-v0 vector envs: NumPy/numba, torch with reset_sampling "
+                         "'host' and 'device' (float32), at B in --env-batch")
+    ap.add_argument("--env-reset-episode", type=int, default=10, help="time limit (control steps) of --env-reset")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     ap.add_argument("--label", default=None, help="machine label written into the output")
     ap.add_argument("--out", default=None, help="write JSON here")
@@ -471,6 +519,20 @@ def main(argv=None):
                 for k in ("compiled_vs_eager", "eager_vs_eager_f64", "compiled_vs_eager_f64"):
                     if k in r:
                         print(f"    obs after 5 control steps, {k} (per-env largest entry): {r[k]}", flush=True)
+                save(args.out, result)
+    if args.env_reset:
+        rrows = result["env_resets"] = []
+        for B in args.env_batch:
+            base = None
+            for label, dtype, sampling in (("numpy/numba f64", None, None),
+                                           (f"torch {dev.type} f32, host resets", "float32", "host"),
+                                           (f"torch {dev.type} f32, device resets", "float32", "device")):
+                r = bench_env_resets(B, dev, dtype, sampling, args.min_time, args.env_reset_episode)
+                base = r["control_steps_per_s_with_resets"] if base is None else base
+                rrows.append({"B": B, "env": label, **r, "ratio_vs_numpy": r["control_steps_per_s_with_resets"] / base})
+                print(f"env resets B={B:6d} {label:32s} reset all {r['reset_all_s'] * 1e3:9.1f} ms "
+                      f"({r['reset_per_env_us']:.2f} us/env); with resets {r['control_steps_per_s_with_resets']:10,.0f} "
+                      f"control steps x B/s ({r['control_steps_per_s_with_resets'] / base:.3f}x)", flush=True)
                 save(args.out, result)
     if args.compile and not args.scenes:   # no scene timed: the eager/compiled pair on the prism alone
         model, _ = sc["prism"]

@@ -8,6 +8,8 @@ the equations of :meth:`RobotSensors.frame` written once more in torch, as
 
 * **reset readings** are the host task's own (``RollTask`` / ``ShapeTask`` compute them at reset
   with each env's generator, as the NumPy env does), copied to the device with the reset rows;
+  with ``reset_sampling="device"`` they are computed here (:meth:`TorchSensors.reset_rows`: the
+  robot at rest, its noise from the device generator below);
 * **noise of later readings** (``sensor_noise``) comes from ONE ``torch.Generator`` on the
   device, seeded from ``reset(seed=...)`` (an int, or the list of per-env seeds; a fresh random
   seed when the first reset has none), not from the per-env NumPy generators: a step reads no

@@ -16,10 +16,19 @@ the same keyword arguments (robot, actuation, contact, rewards, limits, ``params
 ``randomize=`` / ``action_delay`` / ``start_rest_length_offset``) and uses it
 
 * as the configuration (model, contact, actuation, weights, divergence limit), and
-* **on the host at reset only**: ``RollTask.reset`` draws each reset env's robot parameters,
-  initial-state noise and goal from that env's own NumPy generator (exactly the numbers the
-  NumPy vector env draws: env i seeded ``seed + i``); the reset rows are then copied to the
-  device once (state, control, goal, start, and the per-copy parameters when randomised).
+* **on the host at reset only** (``reset_sampling="host"``, the default): ``RollTask.reset``
+  draws each reset env's robot parameters, initial-state noise and goal from that env's own
+  NumPy generator (exactly the numbers the NumPy vector env draws: env i seeded ``seed + i``);
+  the reset rows are then copied to the device once (state, control, goal, start, and the
+  per-copy parameters when randomised).
+
+With ``reset_sampling="device"`` (``TensegrityRoll-v0``) the reset runs on the device too: the
+same draws (noise, goal, randomised parameters; same distributions, same order) from per-env
+counter-based streams keyed by the same seeding rule, applied to the device tensors with no host
+loop and no copy (:mod:`tensegrity_gym.envs.torch_reset`: what the numbers depend on, and the
+test that a host reset fed them gives the same state). An autoreset then reads nothing from the
+host but the 3 flags of every step. ``TensegrityShape-v0`` refuses it (its targets are Newton
+equilibria with rejection, solved on the host).
 
 The step loop runs on the device: the cable motor / control update
 (:func:`tensegrity_gym.torch_backend.motor` / :func:`~tensegrity_gym.torch_backend.advance`),
@@ -28,8 +37,9 @@ the physics inputs, ``frame_skip`` physics steps with ground contact
 parameters), the divergence check and restore, the observation, the reward terms and the time
 limit. Per ``step`` the host reads ONE small tensor (3 bools: an action entry non-finite, one
 out of the box with ``clip_actions=False``, an env to autoreset) to raise a clear error and to
-know whether to reset; when an env finished, its mask (N bools) is read and its reset drawn on
-the host as above. Nothing else crosses between host and device in a step.
+know whether to reset; when an env finished, with host resets its mask (N bools) is read and its
+reset drawn on the host as above (with device resets, nothing more). Nothing else crosses
+between host and device in a step.
 
 Matching the NumPy env: in float64 on CPU the observations, reward terms and infos equal the
 NumPy vector env's to round-off (``tests/test_torch_env.py``: 50 control steps, autoreset,
@@ -54,11 +64,14 @@ render), the implicit integrators (the torch backend has ``semi_implicit_euler``
 compile (10-35 s on a 2-core CPU, 7-17 s on an H100), then a control step ran 2-8x faster than
 eager on CPU, and 4.5-6.1x on an H100 at N = 65,536 (roll: 74-123M physics env-steps/s), in
 ``scripts/bench_gpu.py --env --env-compile`` (``docs/bench_gpu.md``). Reset sampling on the host
-costs a Python loop over the reset envs (about 35 us per env on a 2-core CPU, the same as the
-NumPy env's reset; ``docs/bench_gpu.md``), paid when envs finish.
+costs a Python loop over the reset envs (14-35 us per env on a 2-core CPU, the same as the
+NumPy env's reset), paid when envs finish; ``reset_sampling="device"`` took 1.7-1.9 us per env
+on the same CPU at B = 1,024-16,384 (``scripts/bench_gpu.py --env-reset``, ``docs/bench_gpu.md``).
 
 Autoreset and seeding are those of :class:`~tensegrity_gym.envs.common.TaskVectorEnv`:
-``AutoresetMode.NEXT_STEP``; ``reset(seed=s)`` seeds env i with ``s + i``; ``reset(options=
+``AutoresetMode.NEXT_STEP``; ``reset(seed=s)`` seeds env i with ``s + i`` (with device resets:
+keys env i's stream with ``s + i``; ``np_random_list`` then holds host generators the env does
+not read); ``reset(options=
 {"reset_mask": mask})`` resets the envs where the (N,) bool mask (NumPy or tensor) is true;
 ``max_episode_steps`` (``make_vec`` passes the registered 1000) truncates every env.
 """
