@@ -410,12 +410,12 @@ def probe_info_keys(env_id: str, env_kwargs: dict) -> tuple[list[str], list[str]
 
 def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str = "auto",
              monitor_file: str | None = None, info_keywords: tuple = (), env_device: str = "cpu",
-             env_dtype: str = "float32", info_keys: tuple = ()):
+             env_dtype: str = "float32", info_keys: tuple = (), env_reset_sampling: str = "host"):
     """A monitored SB3 VecEnv of ``n_envs`` copies of ``env_id``, env i seeded with ``seed + i``.
 
     ``vec_env``: ``"batched"`` (the env's ``vector_entry_point``: one batched physics call per step,
     through :func:`tensegrity_gym.sb3.make_sb3_vec_env`), ``"torch"`` (the device-resident torch
-    vector env on ``env_device`` in ``env_dtype``, through
+    vector env on ``env_device`` in ``env_dtype`` with ``reset_sampling=env_reset_sampling``, through
     :func:`tensegrity_gym.sb3.make_sb3_torch_vec_env`, which copies ``info_keys`` to the host),
     ``"dummy"``, ``"subproc"``, or ``"auto"`` (batched when available, else dummy).
     """
@@ -438,6 +438,7 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
         from tensegrity_gym.sb3 import make_sb3_torch_vec_env
         venv = make_sb3_torch_vec_env(gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
                                                    backend="torch", device=env_device, dtype=env_dtype,
+                                                   reset_sampling=env_reset_sampling,
                                                    **env_kwargs), info_keys=tuple(info_keys))
         venv.seed(seed)
     elif vec_env in ("dummy", "subproc"):

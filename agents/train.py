@@ -308,6 +308,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                       "else cpu)")
     p.add_argument("--env-dtype", default=None, choices=["float32", "float64"],
                    help="--vec-env torch: env dtype (default float32)")
+    p.add_argument("--env-reset-sampling", default=None, choices=["host", "device"],
+                   help="--vec-env torch: draw resets on the host (default; the NumPy env's numbers) or on the "
+                        "device (per-env counter-based streams, no host loop; TensegrityRoll-v0)")
     p.add_argument("--eval-freq", type=int, default=None,
                    help="evaluate every this many env steps (default n_timesteps/20; <= 0 disables)")
     p.add_argument("--eval-episodes", type=int, default=20)
@@ -467,6 +470,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         n_timesteps = int(args.n_timesteps) if args.n_timesteps is not None else int(cfg["n_timesteps"])
         vec_mode = cfg.get("vec_env", "auto")
         env_device, env_dtype = cfg.get("env_device"), cfg.get("env_dtype", "float32")
+        env_reset_sampling = cfg.get("env_reset_sampling", "host")
         eval_freq, save_freq = cfg["eval_freq"], cfg["save_freq"]
         eval_episodes, n_eval_envs = cfg["eval_episodes"], cfg["n_eval_envs"]
     else:
@@ -487,14 +491,16 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         if n_envs < 1:
             raise ValueError(f"--n-envs: must be >= 1, got {n_envs}")
         vec_mode = args.vec_env
-        env_device, env_dtype = args.env_device, args.env_dtype
-        for flag, value in (("--env-device", env_device), ("--env-dtype", env_dtype)):
+        env_device, env_dtype, env_reset_sampling = args.env_device, args.env_dtype, args.env_reset_sampling
+        for flag, value in (("--env-device", env_device), ("--env-dtype", env_dtype),
+                            ("--env-reset-sampling", env_reset_sampling)):
             if vec_mode != "torch" and value is not None:
                 raise ValueError(f"{flag}: only with --vec-env torch")
         if vec_mode == "torch":
             import torch
             env_device = env_device or ("cuda" if torch.cuda.is_available() else "cpu")
             env_dtype = env_dtype or "float32"
+            env_reset_sampling = env_reset_sampling or "host"
         eval_freq = args.eval_freq if args.eval_freq is not None else max(n_timesteps // 20, 1)
         save_freq = args.save_freq if args.save_freq is not None else max(n_timesteps // 10, 1)
         eval_episodes = args.eval_episodes
@@ -539,7 +545,8 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         env, vec_used = common.make_vec(env_id, n_envs, seed, env_kwargs, vec_mode,
                                         monitor_file=str(run_dir / "monitor" / f"train_{segment}"),
                                         info_keywords=tuple(k for k in info_keys if not k.startswith("reward_")),
-                                        env_device=env_device, env_dtype=env_dtype, info_keys=info_keys)
+                                        env_device=env_device, env_dtype=env_dtype, info_keys=info_keys,
+                                        env_reset_sampling=env_reset_sampling)
         if eval_freq and eval_freq > 0:
             eval_env, _ = common.make_vec(env_id, n_eval_envs, seed + EVAL_SEED_OFFSET, env_kwargs,
                                           "batched" if vec_mode == "torch" else vec_mode)
@@ -554,7 +561,8 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         config = {
             "algo": algo, "env": env_id, "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": n_timesteps,
             "n_envs": n_envs, "vec_env": vec_used, "eval_freq": eval_freq, "save_freq": save_freq,
-            **({"env_device": env_device, "env_dtype": env_dtype} if vec_used == "torch" else {}),
+            **({"env_device": env_device, "env_dtype": env_dtype, "env_reset_sampling": env_reset_sampling}
+               if vec_used == "torch" else {}),
             "eval_episodes": eval_episodes, "n_eval_envs": n_eval_envs, "eval_seed": seed + EVAL_SEED_OFFSET,
             "hyperparams_raw": common.to_yaml_safe(raw_hp),
             "hyperparams_resolved": common.to_yaml_safe({**hp["model_kwargs"], "policy": hp["policy"],

@@ -177,10 +177,13 @@ def test_train_on_the_torch_vector_env(tmp_path, env_id):
     the evaluation env stays the NumPy one, and the saved model evaluates like any other."""
     pytest.importorskip("torch")
     run = tmp_path / "run"
+    sampling = "device" if env_id == "TensegrityRoll-v0" else "host"     # resets drawn on the device (roll)
     train.train(["--algo", "ppo", "--env", env_id, "--log-dir", str(run), "--vec-env", "torch",
-                 "--env-device", "cpu", "--env-dtype", "float64", *TINY, *_tiny_hp("ppo")])
+                 "--env-device", "cpu", "--env-dtype", "float64", "--env-reset-sampling", sampling,
+                 *TINY, *_tiny_hp("ppo")])
     cfg = yaml.safe_load((run / "config.yaml").read_text())
-    assert (cfg["vec_env"], cfg["env_device"], cfg["env_dtype"]) == ("torch", "cpu", "float64")
+    assert (cfg["vec_env"], cfg["env_device"], cfg["env_dtype"], cfg["env_reset_sampling"]) == (
+        "torch", "cpu", "float64", sampling)
     state = json.loads((run / "state.json").read_text())
     assert state["status"] == "finished" and state["num_timesteps"] >= 256
     rows = (run / "monitor" / "train_0.monitor.csv").read_text().splitlines()
@@ -190,7 +193,7 @@ def test_train_on_the_torch_vector_env(tmp_path, env_id):
 
 
 def test_env_device_needs_the_torch_vec_env(tmp_path):
-    for flag, value in (("--env-device", "cpu"), ("--env-dtype", "float64")):
+    for flag, value in (("--env-device", "cpu"), ("--env-dtype", "float64"), ("--env-reset-sampling", "device")):
         with pytest.raises(ValueError, match=f"{flag}: only with --vec-env torch"):
             train.train(["--algo", "ppo", "--env", "TensegrityShape-v0", flag, value,
                          "--log-dir", str(tmp_path / flag.strip("-")), *TINY])
