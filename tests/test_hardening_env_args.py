@@ -203,6 +203,27 @@ def test_unknown_reset_options_are_refused(env_id):
         venv.reset(options={"reset_mask": np.array([True, False]), "seed": 3})
 
 
+VECTOR_KINDS = [(SHAPE, {}), (ROLL, {}), (SHAPE, {"backend": "torch", "device": "cpu"}),
+                (ROLL, {"backend": "torch", "device": "cpu"}),
+                (ROLL, {"backend": "torch", "device": "cpu", "reset_sampling": "device"})]
+
+
+@pytest.mark.parametrize("env_id,kw", VECTOR_KINDS, ids=lambda x: x if isinstance(x, str) else
+                         "-".join(str(v) for v in x.values()) or "numpy")
+@pytest.mark.parametrize("observation_mode", ["state", "robot"])
+def test_reset_mask_selecting_no_env_changes_nothing(env_id, kw, observation_mode):
+    """A reset_mask that selects no env is a no-op (it crashed in the shape env's noise draw and in
+    the robot observation's reset reading: reshapes of zero rows)."""
+    if kw.get("backend") == "torch":
+        pytest.importorskip("torch")
+    venv = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", observation_mode=observation_mode,
+                        randomize={"rod_mass": 0.1}, **kw)
+    o0, _ = venv.reset(seed=1)
+    o1, info = venv.reset(options={"reset_mask": np.zeros(3, bool)})
+    assert np.array_equal(np.asarray(o0), np.asarray(o1))
+    assert not any(np.asarray(v).any() for k, v in info.items() if k.startswith("_"))
+
+
 def test_step_inputs_name_field_index_and_value():
     """tensegrity_gym.step: a NaN/inf state, rest length, force density or external force, a
     negative rest length, or n_steps not a positive integer is a ValueError naming it (before: NaN

@@ -144,10 +144,10 @@ class RobotSensors:
         spec = acc - g[:, None, :]
         omega = np.cross(b, bd)
         parts = {"cable_length": L, "control": ctrl, "cable_speed": speed,
-                 "imu_accel": np.einsum("bkij,bkj->bki", R, spec).reshape(r, -1),
-                 "imu_gyro": np.einsum("bkij,bkj->bki", R, omega).reshape(r, -1),
+                 "imu_accel": np.einsum("bkij,bkj->bki", R, spec).reshape(r, 3 * model.n_bars),
+                 "imu_gyro": np.einsum("bkij,bkj->bki", R, omega).reshape(r, 3 * model.n_bars),
                  "contact": None if contact is None else contact.astype(float),
-                 self.command[0]: np.asarray(command, float).reshape(r, -1)}
+                 self.command[0]: np.asarray(command, float).reshape(r, self.command[1])}
         out = np.concatenate([parts[name] for name, _, _ in self.blocks], axis=1)
         for j in range(r) if self.noise else ():
             for sl, s, flip in self.noise:

@@ -193,8 +193,12 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         # start: nominal equilibrium with small noise on the reduced coordinates (m, m/s)
         q0 = np.repeat(self.q_nominal, r, 0)
         nx, s = self.rc.nx, self.reset_noise_scale
-        dx = np.stack([rngs[j].uniform(-s, s, nx) for j in range(r)]) if s > 0 else np.zeros((r, nx))
-        dv = np.stack([rngs[j].uniform(-s, s, nx) for j in range(r)]) if s > 0 else np.zeros((r, nx))
+        dx, dv = np.zeros((r, nx)), np.zeros((r, nx))      # (r may be 0: a reset_mask that selects no env)
+        if s > 0:
+            for j in range(r):
+                dx[j] = rngs[j].uniform(-s, s, nx)
+            for j in range(r):
+                dv[j] = rngs[j].uniform(-s, s, nx)
         q, qd = dyn.project(self.model, *self.rc.perturb(q0, dx, dv))
         self.q[idx], self.qd[idx] = q, qd
         self.ctrl[idx] = self.start_control
@@ -203,7 +207,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         self._N = None
         self._obs = None
         if self.sensors is not None:
-            self.sensors.reset_reading(self, idx, rngs, self.target[idx].reshape(r, -1))
+            self.sensors.reset_reading(self, idx, rngs, self.target[idx].reshape(r, 3 * self.tracked.size))
         err, emax = self._errors(idx)
         return {"tracking_error": err, "max_node_error": emax, "is_success": emax <= self.success_tolerance}
 

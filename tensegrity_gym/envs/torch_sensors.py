@@ -108,10 +108,10 @@ class TorchSensors:
         spec = acc - (self.gravity() if gravity is None else gravity)[:, None, :]
         omega = torch.linalg.cross(b, bd, dim=-1)
         parts = {"cable_length": L, "control": ctrl, "cable_speed": speed,
-                 "imu_accel": torch.einsum("bkij,bkj->bki", R, spec).reshape(N, -1),
-                 "imu_gyro": torch.einsum("bkij,bkj->bki", R, omega).reshape(N, -1),
+                 "imu_accel": torch.einsum("bkij,bkj->bki", R, spec).reshape(N, 3 * env.tm.k),
+                 "imu_gyro": torch.einsum("bkij,bkj->bki", R, omega).reshape(N, 3 * env.tm.k),
                  "contact": None if contact is None else contact.to(q.dtype),
-                 self.sens.command[0]: command.reshape(N, -1)}
+                 self.sens.command[0]: command.reshape(N, self.sens.command[1])}
         out = torch.cat([parts[name] for name in self.blocks], dim=1)
         for sl, s, flip in self.noise:
             shape = (N, sl.stop - sl.start)
