@@ -38,7 +38,7 @@ import numpy as np
 from .. import torch_backend as tb
 from .domain import SPECS
 
-__all__ = ["CounterStreams", "TorchDomain", "reference_uniforms", "RESET_SAMPLING"]
+__all__ = ["CounterStreams", "TorchDomain", "reference_uniforms", "RESET_SAMPLING", "SALTS"]
 
 RESET_SAMPLING = ("host", "device")
 
@@ -47,7 +47,9 @@ _GOLDEN = 0x9E3779B97F4A7C15      # SplitMix64's increment (2^64 / golden ratio,
 _M1 = 0xBF58476D1CE4E5B9           # SplitMix64's output-function multipliers
 _M2 = 0x94D049BB133111EB
 _EPISODE = 0xD1B54A32D192ED03      # odd multiplier of the reset count (another Weyl sequence)
-_SALT = 0x7A3C5E0F12D4B689         # keys are not the seeds themselves (nor the NumPy streams')
+_STEP = 0xA0761D6478BD642F         # odd multiplier of the step count (sensor noise)
+#: per use, keys are not the seeds themselves (nor the NumPy streams', nor each other's)
+SALTS = {"reset": 0x7A3C5E0F12D4B689, "sensor_noise": 0x3C6EF372FE94F82B}
 
 
 def _signed(x: int) -> int:
@@ -64,13 +66,17 @@ def _mix_int(z: int) -> int:
     return z ^ (z >> 31)
 
 
-def reference_uniforms(seed: int, reset: int, n: int) -> np.ndarray:
+def reference_uniforms(seed: int, reset: int, n: int, step: int | None = None, use: str = "reset") -> np.ndarray:
     """The definition of the device streams, in Python integers: the ``n`` uniforms in [0, 1)
-    that the ``reset``-th reset (0 first) of an env keyed with ``seed`` reads. Key ``K =
-    mix(seed ^ SALT)``, stream ``S = mix(K + (reset + 1) C)``, ``u_j = (mix(S + (j + 1) G) >> 11)
+    that the ``reset``-th reset (0 first) of an env keyed with ``seed`` reads (``use="reset"``),
+    or that its sensor noise reads at step ``step`` of its ``reset``-th episode
+    (``use="sensor_noise"``). Key ``K = mix(seed ^ SALT[use])``, stream ``S = mix(K + (reset + 1)
+    C)`` (then ``S = mix(S + (step + 1) D)`` with a step), ``u_j = (mix(S + (j + 1) G) >> 11)
     2^-53`` with SplitMix64's ``mix`` and increment ``G``."""
-    key = _mix_int((int(seed) & _MASK64) ^ _SALT)
+    key = _mix_int((int(seed) & _MASK64) ^ SALTS[use])
     st = _mix_int(key + (int(reset) + 1) * _EPISODE)
+    if step is not None:
+        st = _mix_int(st + (int(step) + 1) * _STEP)
     return np.array([(_mix_int(st + (j + 1) * _GOLDEN) >> 11) * 2.0 ** -53 for j in range(int(n))])
 
 
@@ -96,12 +102,14 @@ class CounterStreams:
     """Per-env counter-based random streams on a torch device (see the module doc).
 
     ``keys`` (N,) int64: each env's key; ``resets`` (N,) int64: how many resets it drew since it
-    was keyed."""
+    was keyed; ``use``: ``"reset"`` or ``"sensor_noise"`` (another salt: other numbers from the
+    same seeds)."""
 
-    def __init__(self, num_envs: int, device):
+    def __init__(self, num_envs: int, device, use: str = "reset"):
         torch = tb._torch()
         self.num_envs = int(num_envs)
         self.device = device
+        self.salt = SALTS[use]
         self.keys = torch.zeros(self.num_envs, dtype=torch.int64, device=device)
         self.resets = torch.zeros(self.num_envs, dtype=torch.int64, device=device)
         self._keyed = np.zeros(self.num_envs, bool)
@@ -134,18 +142,27 @@ class CounterStreams:
         sel = chosen | fresh
         idx = torch.as_tensor(np.flatnonzero(sel), dtype=torch.int64, device=self.device)
         vals = torch.as_tensor(raw[sel].view(np.int64), device=self.device)
-        self.keys[idx] = _mix(vals ^ _signed(_SALT))
+        self.keys[idx] = _mix(vals ^ _signed(self.salt))
         self.resets[idx] = 0
         self._keyed |= sel
 
     def uniform(self, it, n: int):
         """(len(it), n) float64 uniforms in [0, 1) of the next reset of envs ``it`` (an int64
         index tensor on the device); counts that reset."""
-        torch = tb._torch()
-        st = _mix(self.keys[it] + (self.resets[it] + 1) * _signed(_EPISODE))
-        j = torch.arange(1, int(n) + 1, dtype=torch.int64, device=self.device)
-        z = _mix(st[:, None] + j[None, :] * _signed(_GOLDEN))
+        u = self.uniform_at(self.keys[it], self.resets[it], None, n)
         self.resets[it] = self.resets[it] + 1
+        return u
+
+    @staticmethod
+    def uniform_at(keys, resets, steps, n: int):
+        """(r, n) float64 uniforms of envs with ``keys`` at reset count ``resets`` and, when not
+        None, step ``steps`` ((r,) int64 tensors; :func:`reference_uniforms`); stateless."""
+        torch = tb._torch()
+        st = _mix(keys + (resets + 1) * _signed(_EPISODE))
+        if steps is not None:
+            st = _mix(st + (steps + 1) * _signed(_STEP))
+        j = torch.arange(1, int(n) + 1, dtype=torch.int64, device=keys.device)
+        z = _mix(st[:, None] + j[None, :] * _signed(_GOLDEN))
         return _lsr(z, 11).to(torch.float64) * (2.0 ** -53)
 
 

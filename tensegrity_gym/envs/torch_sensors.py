@@ -9,24 +9,27 @@ the equations of :meth:`RobotSensors.frame` written once more in torch, as
 * **reset readings** are the host task's own (``RollTask`` / ``ShapeTask`` compute them at reset
   with each env's generator, as the NumPy env does), copied to the device with the reset rows;
   with ``reset_sampling="device"`` they are computed here (:meth:`TorchSensors.reset_rows`: the
-  robot at rest, its noise from the device generator below);
-* **noise of later readings** (``sensor_noise``) comes from ONE ``torch.Generator`` on the
-  device, seeded from ``reset(seed=...)`` (an int, or the list of per-env seeds; a fresh random
-  seed when the first reset has none), not from the per-env NumPy generators: a step reads no
-  host random numbers. Same seed, same noise on the same device; the noisy readings are not
-  equal number for number to the NumPy env's (without noise they are, to round-off:
-  ``tests/test_torch_env.py``).
+  robot at rest, its noise from the device streams below, at step 0);
+* **noise of later readings** (``sensor_noise``) comes from per-env counter-based streams on
+  the device (:class:`~tensegrity_gym.envs.torch_reset.CounterStreams` with their own salt),
+  keyed by ``reset(seed=...)`` with the vector envs' rule (env i: seed + i; a list per env; an
+  env never seeded gets a random key at its first reset), not from the per-env NumPy generators:
+  a step reads no host random numbers. The reading at step t of an env's e-th episode reads
+  the uniforms of (key, e, t) (:func:`~tensegrity_gym.envs.torch_reset.reference_uniforms`,
+  ``use="sensor_noise"``): Gaussian noise by the Box-Muller transform of two uniforms per
+  entry, a contact switch read wrong when its uniform is below the probability. So an env's
+  noise does not depend on ``num_envs``, on the other envs or on the device (the uniforms are
+  bit-identical on CPU and CUDA). The noisy readings are not equal number for number to the
+  NumPy env's (without noise they are, to round-off: ``tests/test_torch_env.py``).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .. import torch_backend as tb
+from .torch_reset import CounterStreams
 
 __all__ = ["TorchSensors", "rod_frames"]
-
-#: mixes the user's seed so that the device noise stream is not the NumPy generators' stream
-_NOISE_SALT = 0x5E4503
 
 
 def rod_frames(b):
@@ -66,34 +69,31 @@ class TorchSensors:
         self.gravity0 = env._T(np.zeros(3) if g is None else np.asarray(g, float))[None]
         self.readings = torch.zeros((env.num_envs, sens.history, sens.frame_size), dtype=env.dtype,
                                     device=env.device)
-        self.generator = torch.Generator(device=env.device)
-        self._seeded = False
+        self.streams = CounterStreams(env.num_envs, env.device, use="sensor_noise")
+        # uniforms per reading: two per Gaussian entry (Box-Muller), one per contact switch
+        self.n_draws = sum((1 if flip else 2) * (sl.stop - sl.start) for sl, _, flip in self.noise)
 
-    def seed(self, seed) -> None:
-        """Seed the device noise generator from ``reset(seed=...)``: an int or a list of per-env
-        seeds (None entries skipped); None seeds it randomly once, at the first reset."""
-        if seed is None:
-            if not self._seeded:
-                self.generator.seed()
-                self._seeded = True
-            return
-        parts = [int(s) for s in (seed if isinstance(seed, (list, tuple, np.ndarray)) else [seed]) if s is not None]
-        if not parts:
-            return
-        state = np.random.SeedSequence([*parts, _NOISE_SALT]).generate_state(1, np.uint64)[0]
-        self.generator.manual_seed(int(state) & ((1 << 63) - 1))
-        self._seeded = True
+    def seed(self, seed, mask) -> None:
+        """Key the noise streams of the envs selected by ``mask`` (N,) bool from ``reset(seed=...)``
+        (:meth:`CounterStreams.seed`: seed + i, a list, None keeps; unkeyed envs get random keys)."""
+        self.streams.seed(seed, mask)
+
+    def _count_episode(self, it) -> None:
+        self.streams.resets[it] = self.streams.resets[it] + 1
 
     def upload_reset(self, it, host_readings) -> None:
-        """Reset rows ``it`` get the host task's reset readings (r, history, frame_size)."""
+        """Reset rows ``it`` get the host task's reset readings (r, history, frame_size); their
+        noise streams start a new episode."""
+        self._count_episode(it)
         self.readings[it] = self.env._T(host_readings)
 
-    def frame(self, q, qd, qd_prev, ctrl, speed, contact, command, gravity=None):
+    def frame(self, q, qd, qd_prev, ctrl, speed, contact, command, gravity=None, rows=None):
         """(N, frame_size) readings after a control step (:meth:`RobotSensors.frame` in torch):
         state ``q``, ``qd`` (N, k, 6), the velocities one physics step earlier ``qd_prev`` (None:
         at rest, as at a reset), controls, motor speeds, contact flags (N, 2k) bool (None where
         the env has no such block), the command (N, size); ``gravity`` (N or 1, 3) m/s^2, default
-        the copies' own (:meth:`gravity`)."""
+        the copies' own (:meth:`gravity`); ``rows``: the envs these are (an index tensor; None:
+        all), whose noise streams are read at their current episode and step (``env.elapsed``)."""
         torch = tb._torch()
         env = self.env
         N = q.shape[0]
@@ -113,27 +113,39 @@ class TorchSensors:
                  "contact": None if contact is None else contact.to(q.dtype),
                  self.sens.command[0]: command.reshape(N, self.sens.command[1])}
         out = torch.cat([parts[name] for name in self.blocks], dim=1)
+        if not self.n_draws:
+            return out
+        st = self.streams
+        keys, resets, steps = ((st.keys, st.resets, env.elapsed) if rows is None
+                               else (st.keys[rows], st.resets[rows], env.elapsed[rows]))
+        u = st.uniform_at(keys, resets, steps, self.n_draws)
+        j = 0
         for sl, s, flip in self.noise:
-            shape = (N, sl.stop - sl.start)
+            n = sl.stop - sl.start
             if flip:       # contact switches: each reads wrong with probability s
-                wrong = torch.rand(shape, generator=self.generator, dtype=out.dtype, device=out.device) < s
+                wrong = u[:, j:j + n] < s
                 out[:, sl] = torch.where(wrong, 1.0 - out[:, sl], out[:, sl])
-            else:
-                out[:, sl] += s * torch.randn(shape, generator=self.generator, dtype=out.dtype, device=out.device)
+                j += n
+            else:          # Box-Muller: N(0, 1) from two uniforms (1 - u in (0, 1]: no log of 0)
+                z = torch.sqrt(-2.0 * torch.log1p(-u[:, j:j + n])) * torch.cos((2.0 * np.pi) * u[:, j + n:j + 2 * n])
+                out[:, sl] += s * z.to(out.dtype)
+                j += 2 * n
         return out
 
     def reset_rows(self, it, q, qd, ctrl, speed, contact, command) -> None:
         """Envs ``it`` (a device reset, ``reset_sampling="device"``): every history slot holds the
-        reading at rest (no IMU acceleration but gravity), noise from the device generator, as
+        reading at rest (no IMU acceleration but gravity), noise from the env's stream at step 0, as
         the host task's reset readings."""
         g = self.gravity()
         if g.shape[0] > 1:
             g = g[it]
-        f = self.frame(q, qd, None, ctrl, speed, contact, command, gravity=g)
+        self._count_episode(it)
+        f = self.frame(q, qd, None, ctrl, speed, contact, command, gravity=g, rows=it)
         self.readings[it] = f[:, None, :].expand(-1, self.readings.shape[1], -1)
 
     def record(self, *args) -> None:
-        """Push :meth:`frame` ``(*args)`` into the history (newest first)."""
+        """Push :meth:`frame` ``(*args)`` of all envs into the history (newest first); call it
+        after the env counted the step (``env.elapsed``: its noise is that step's)."""
         torch = tb._torch()
         self.readings = torch.cat([self.frame(*args)[:, None], self.readings[:, :-1]], dim=1)
 

@@ -147,10 +147,10 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
         self.qd = torch.where(d3, qd0, qd)
         self.anchor = torch.where(d3, anchor0, anchor)
         self.active = torch.where(diverged[:, None], active0, active)
+        self.elapsed = self.elapsed + 1
         if qd_prev is not None:
             self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self.ctrl, self.speed, self.active,
                               self.goal)
-        self.elapsed = self.elapsed + 1
         com = self._com(self.q)
         vel = (com - com0) / task.control_dt
         forward = vel[:, 0] * self.goal[:, 0] + vel[:, 1] * self.goal[:, 1]
@@ -220,9 +220,9 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
+        self.elapsed = self.elapsed + 1
         if qd_prev is not None:
             self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self.ctrl, None, None, self.target)
-        self.elapsed = self.elapsed + 1
         N = self._tracked_nodes(self.q)
         D = N - self.target
         d = torch.sqrt((D * D).sum(dim=-1))

@@ -54,7 +54,7 @@ the device; it equals the NumPy vector env to round-off in the same tests.
 
 ``observation_mode="robot"`` (what a lab robot senses, :mod:`tensegrity_gym.envs.sensors`) is
 computed on the device by :class:`~tensegrity_gym.envs.torch_sensors.TorchSensors`; its
-``sensor_noise`` comes from a device generator seeded by ``reset(seed=...)`` (that module's doc).
+``sensor_noise`` comes from per-env counter-based streams on the device keyed by ``reset(seed=...)`` (that module's doc).
 Not supported here (``ValueError`` at construction): ``render_mode`` (use the NumPy env to
 render), the implicit integrators (the torch backend has ``semi_implicit_euler`` and ``rk4``).
 
@@ -248,6 +248,7 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         if self._streams is not None:
             task.check_reset_options(options)
             it = mask.nonzero()[:, 0]
+            self.elapsed[it] = 0          # (before the reset reading: its noise is step 0's)
             info = self._device_reset(it)
         else:
             idx = np.flatnonzero(mask.cpu().numpy())
@@ -360,7 +361,7 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         else:
             reseed(self._rngs, seed, mask)
         if self._sens is not None:
-            self._sens.seed(seed)
+            self._sens.seed(seed, mask)
         mask_t = torch.as_tensor(mask, device=self.device)
         info = self._reset_envs(mask_t, options or None)
         return self._observe(), self._vector_info(info, mask_t)
