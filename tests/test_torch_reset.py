@@ -232,11 +232,17 @@ def test_sb3_adapter_with_device_resets():
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
 def test_device_reset_on_cuda_equals_cpu():
     kw = dict(num_envs=5, vectorization_mode="vector_entry_point", backend="torch", dtype="float64",
-              reset_sampling="device", randomize_goal=True, randomize={"rod_mass": 0.2, "friction": 0.3})
+              reset_sampling="device", randomize_goal=True, randomize={"rod_mass": 0.2, "friction": 0.3},
+              observation_mode="robot", sensor_noise={"imu_accel": 0.5, "contact": 0.1})
     envs = [gym.make_vec(ID, device=d, **kw) for d in ("cpu", "cuda")]
     outs = [e.reset(seed=9)[0] for e in envs]
+    assert outs[1].device.type == "cuda"
     assert torch.equal(envs[0]._streams.keys, envs[1]._streams.keys.cpu())    # integer streams: bit-identical
+    assert torch.equal(envs[0]._sens.streams.keys, envs[1]._sens.streams.keys.cpu())
     assert float((outs[0] - outs[1].cpu()).abs().max()) < 1e-12
+    for _ in range(3):
+        outs = [e.step(torch.full((5, 9), 0.3, dtype=torch.float64, device=e.device))[0] for e in envs]
+    assert float((outs[0] - outs[1].cpu()).abs().max()) < 1e-9
 
 
 @pytest.mark.parametrize("sampling", ["host", "device"])
