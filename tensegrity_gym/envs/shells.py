@@ -137,21 +137,27 @@ class TaskEnv(gym.Env):
 
 
 # ---------------------------------------------------------------------- vector env shell
-def reseed(rngs: list, seed, mask: np.ndarray) -> None:
-    """Vector-env seeding (Gymnasium's rule): ``seed`` an int gives env i the generator of
-    ``seed + i``, a list gives each env its own (None: keep), None keeps every generator; only the
-    envs selected by ``mask`` (N,) bool are reseeded, in place in ``rngs``."""
-    N = len(rngs)
+def per_env_seeds(seed, N: int) -> list:
+    """The vector envs' seeding rule (Gymnasium's): ``seed`` an int gives env i ``seed + i``, a
+    list gives each env its own (None: keep), None keeps every env's; returns the N seeds (None
+    where kept). ValueError naming ``seed`` for anything else or a list of another length."""
     if seed is None:
-        seeds = [None] * N
-    elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-        seeds = [int(seed) + i for i in range(N)]
-    else:
-        if isinstance(seed, bool):
-            raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {seed!r}")
-        seeds = list(seed)
-        if len(seeds) != N:
-            raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {len(seeds)}")
+        return [None] * N
+    if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+        return [int(seed) + i for i in range(N)]
+    if isinstance(seed, (bool, np.bool_, str, bytes)) or not hasattr(seed, "__len__"):
+        raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {seed!r:.80}")
+    seeds = list(seed)
+    if len(seeds) != N:
+        raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {len(seeds)}")
+    return seeds
+
+
+def reseed(rngs: list, seed, mask: np.ndarray) -> None:
+    """Vector-env seeding (:func:`per_env_seeds`): only the envs selected by ``mask`` (N,) bool
+    and given a seed get a new generator, in place in ``rngs``."""
+    N = len(rngs)
+    seeds = per_env_seeds(seed, N)
     for i in range(N):
         if mask[i] and seeds[i] is not None:
             rngs[i] = seeding.np_random(int(seeds[i]))[0]

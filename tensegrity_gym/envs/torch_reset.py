@@ -3,7 +3,7 @@
 By default (``reset_sampling="host"``) a torch vector env draws each reset env's noise, goal and
 randomised robot parameters on the host, from that env's NumPy generator, exactly as the NumPy
 vector env, and copies the reset rows to the device (:mod:`tensegrity_gym.envs.torch_vec`).
-That costs a Python loop over the reset envs (about 35 us per env on a 2-core CPU), and when
+That costs a Python loop over the reset envs (14-35 us per env on a 2-core CPU), and when
 every env of a large batch reaches the time limit in the same step, seconds.
 
 With ``reset_sampling="device"`` the reset runs on the device, with no host loop and no copy of
@@ -22,7 +22,7 @@ reset rows; its random numbers come from :class:`CounterStreams`:
   64-bit integer arithmetic), and not on thread counts.
 * **Not the NumPy generators' numbers.** A device reset draws the same *distributions* as the
   host reset (the task's noise, goal and :mod:`~tensegrity_gym.envs.domain` draws, same order
-  of names and items), from other numbers. ``tests/test_torch_env.py`` checks that a host reset
+  of names and items), from other numbers. ``tests/test_torch_reset.py`` checks that a host reset
   fed these numbers gives the device reset's state, observation and infos to round-off.
 
 :class:`TorchDomain` is the device side of :class:`~tensegrity_gym.envs.domain.Domain`: the
@@ -37,6 +37,7 @@ import numpy as np
 
 from .. import torch_backend as tb
 from .domain import SPECS
+from .shells import per_env_seeds
 
 __all__ = ["CounterStreams", "TorchDomain", "reference_uniforms", "RESET_SAMPLING", "SALTS"]
 
@@ -120,16 +121,9 @@ class CounterStreams:
         envs still unkeyed afterwards get random keys). Rekeyed envs start again at reset 0."""
         torch = tb._torch()
         N = self.num_envs
-        if seed is None:
-            seeds = [None] * N
-        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
-            seeds = [_check_seed(seed, 0) + i for i in range(N)]
-        else:
-            if isinstance(seed, (bool, np.bool_, str, bytes)) or not hasattr(seed, "__len__"):
-                raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {seed!r:.80}")
-            seeds = list(seed)
-            if len(seeds) != N:
-                raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {len(seeds)}")
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+            _check_seed(seed, 0)
+        seeds = per_env_seeds(seed, N)
         chosen = np.array([bool(mask[i]) and seeds[i] is not None for i in range(N)])
         fresh = np.asarray(mask, bool) & ~chosen & ~self._keyed
         if not (chosen.any() or fresh.any()):
@@ -178,7 +172,6 @@ class TorchDomain:
         torch = tb._torch()
         dom = env.task.domain
         self.env = env
-        self.dom = dom
         dev = env.device
         self.values = {name: torch.as_tensor(np.asarray(dom.values[name], float), dtype=torch.float64, device=dev)
                        for name in dom.names}
