@@ -465,6 +465,7 @@ def build_parser():
     p.add_argument("--baseline-episodes", type=int, default=None,
                    help="episodes for the baselines/random (default = --n-episodes)")
     p.add_argument("--gif", action="store_true", help="write rollout.gif of the trained policy (seed --seed)")
+    p.add_argument("--gif-size", type=int, default=256, help="GIF frame width and height, pixels (default 256)")
     p.add_argument("--env-kwargs", nargs="*", metavar="KEY:VALUE",
                    help="override env kwargs for evaluation (e.g. backend:numpy)")
     p.add_argument("--copy-run-files", action="store_true",
@@ -486,6 +487,8 @@ def evaluate(argv=None) -> dict:
         raise FileNotFoundError(f"{run_dir}: no config.yaml (not a run directory of agents.train)")
     if args.n_episodes < 1:
         raise ValueError(f"--n-episodes: must be >= 1, got {args.n_episodes}")
+    if not 16 <= args.gif_size <= 2048:
+        raise ValueError(f"--gif-size: must be in [16, 2048] pixels, got {args.gif_size}")
     cfg, trained, model_path, model = load_trained(run_dir, args.model)
     env_id = cfg["env"]
     env_kwargs = {**cfg["env_kwargs"], **common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs")}
@@ -554,7 +557,7 @@ def evaluate(argv=None) -> dict:
     if plot_episodes(all_eps, scales, out / "episodes.png", title):
         print(f"wrote {out / 'episodes.png'}")
     if args.gif:
-        n = write_gif(env_id, env_kwargs, trained, seeds[0], out / "rollout.gif")
+        n = write_gif(env_id, env_kwargs, trained, seeds[0], out / "rollout.gif", size=args.gif_size)
         print(f"wrote {out / 'rollout.gif'} ({n} frames)")
     if args.copy_run_files and out.resolve() != run_dir.resolve():
         import shutil

@@ -55,6 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import common
+from agents.progress import progress_callback
 
 EVAL_SEED_OFFSET = 10_000
 
@@ -321,7 +322,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also checkpoint the replay buffer of off-policy algorithms (large)")
     p.add_argument("--num-threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu; MLP policies gain nothing on GPU)")
-    p.add_argument("--no-progress-bar", action="store_true")
+    p.add_argument("--no-progress-bar", action="store_true",
+                   help="no progress lines (by default one every 10 s: steps, speed, ETA, last evaluation)")
     p.add_argument("--gym-packages", nargs="*", default=[],
                    help="extra modules to import (to register their envs); tensegrity_gym always is")
     p.add_argument("--max-wall-time", type=float, default=None, metavar="SECONDS",
@@ -526,7 +528,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         _clear_failed_start(run_dir)
 
     from stable_baselines3.common.vec_env import VecNormalize
-    from stable_baselines3.common.callbacks import CallbackList, ProgressBarCallback
+    from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
     InfoLoggerCallback, ScheduledCheckpoint, ResumableEvalCallback, _, StopAfterWallTime, TimeSplit = _callbacks()
 
@@ -656,8 +658,8 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         if resume_dir is not None and not fresh_restart:
             ecb.load_previous(str(run_dir / "eval" / "evaluations.npz"), prev_state.get("best_mean_reward"))
         cbs.append(ecb)
-    if not args.no_progress_bar:
-        cbs.append(ProgressBarCallback())
+    if not args.no_progress_bar:   # a line every 10 s: readable on a terminal and in a log alike
+        cbs.append(progress_callback(n_timesteps, max_wall_time=args.max_wall_time, eval_callback=ecb))
     stopper = None
     if args.max_wall_time is not None:
         stopper = StopAfterWallTime(args.max_wall_time)

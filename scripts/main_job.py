@@ -1,89 +1,120 @@
-"""The README's main job: PPO training on the default scene, evaluation, results folder.
+"""The README's main job: PPO on the default scene, held-out evaluation, a new results folder.
 
-    python scripts/main_job.py                      # about 5-8 min on a 2-core machine
-    python scripts/main_job.py --train-seconds 60   # shorter
+    python scripts/main_job.py                          # about 5 min on a quiet 2-core machine
+    python scripts/main_job.py --out runs/my_main_job   # a folder of your choice (must not exist)
 
-1. trains PPO (``agents/hyperparams/ppo.yml``, entry ``TensegrityShape-v0``) on the default
-   ``TensegrityShape-v0`` scene (the seed's Example 5.8 prism, rest-length actions) for at most
-   ``--n-timesteps`` env steps or ``--train-seconds`` of wall time, whichever comes first;
-2. evaluates the trained policy on ``--n-episodes`` held-out targets beside the NNLS baseline
-   controller and a random policy (:mod:`agents.evaluate`);
-3. writes ``results/main_job/``: ``metrics.json`` (numbers), ``table.md``, ``learning_curve.png``,
-   ``episodes.png``, ``rollout.gif``, and the run's ``config.yaml``, ``command.txt``,
-   ``versions.json``, ``model.zip``, ``vecnormalize.pkl``.
-
-With the file's tuned entry (1.5M steps, about 3 min of training on 2 cores) this is the full
-training behind the committed result ``results/ppo_shape_rest_length/`` (94 % success on 100
-held-out targets); a machine slower than that stops at ``--train-seconds`` with less. Every
-committed result and its command: ``results/README.md``.
+1. trains PPO with the time-to-policy settings (``agents/hyperparams/time_to_policy/ppo.yml``,
+   entry ``TensegrityShape-v0``: 256 envs, short horizon, small updates) on the default
+   ``TensegrityShape-v0`` scene (a 3-bar prism tracking target shapes with rest-length actions)
+   for a budget of ``--n-timesteps`` env steps. The budget is in steps, not seconds, so the
+   result does not depend on the machine's speed; progress is printed as a line every 10 s;
+2. evaluates the final policy on ``--n-episodes`` held-out targets beside the NNLS baseline
+   controller and a random policy (:mod:`agents.evaluate`), with a GIF of one episode;
+3. writes everything into a NEW folder (default ``runs/main_job/<date_time>``; an existing
+   folder is refused, so nothing saved before is overwritten): ``metrics.json``, ``table.md``,
+   ``README.md``, ``learning_curve.png``, ``episodes.png``, ``rollout.gif``, and ``run/`` (the
+   training run: model, normalisation statistics, config, command, versions);
+4. says what was reached against what the project reaches with the same command
+   (``results/main_job/reference.json``: the same budget over 5 training seeds), and says so
+   when the budget was cut short (Ctrl-C or ``--max-wall-time``).
 """
 from __future__ import annotations
 
 import argparse
-import os
-import shutil
+import json
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+CONF = ROOT / "agents" / "hyperparams" / "time_to_policy" / "ppo.yml"
+REFERENCE = ROOT / "results" / "main_job" / "reference.json"
+ENV_ID = "TensegrityShape-v0"
+BUDGET = 1_200_000
+
+
+def reference() -> dict | None:
+    """The committed multi-seed figure of this job (None if the file is absent)."""
+    try:
+        return json.loads(REFERENCE.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def verdict(success: float, trained_steps: int, budget: int, status: str, ref: dict | None) -> str:
+    """One paragraph: what was reached, against the reference, and whether the budget ran out."""
+    lines = [f"Success on held-out targets: {100 * success:.0f} % after {trained_steps:,} env steps "
+             f"of training (budget {budget:,})."]
+    complete = status == "finished" and trained_steps >= budget
+    if not complete:
+        lines.append(f"TRAINING WAS CUT SHORT ({status}: {trained_steps:,} of {budget:,} steps): this policy is "
+                     f"not the trained result; run again without interrupting it (and without --max-wall-time).")
+    if ref is not None:
+        s = ref["success_rate"]
+        lines.append(f"The project reaches {100 * s['iqm']:.0f} % (IQM over {ref['n_seeds']} training seeds, "
+                     f"95 % CI [{100 * s['ci'][0]:.0f}, {100 * s['ci'][1]:.0f}] %, per seed "
+                     f"{100 * s['min']:.0f}-{100 * s['max']:.0f} %) with this command and budget "
+                     f"({REFERENCE.relative_to(ROOT)}).")
+    return " ".join(lines)
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", default=str(ROOT / "results" / "main_job"))
-    p.add_argument("--train-seconds", type=float, default=360.0, help="wall-time budget of the training (s)")
-    p.add_argument("--n-timesteps", type=int, default=1_500_000, help="env-step budget of the training")
+    p.add_argument("--out", default=None, help="a new output folder (default runs/main_job/<date_time>)")
+    p.add_argument("--n-timesteps", type=int, default=BUDGET, help=f"env-step budget of the training "
+                                                                   f"(default {BUDGET:,})")
+    p.add_argument("--max-wall-time", type=float, default=None, metavar="SECONDS",
+                   help="also stop training after this many seconds (the summary then says it was cut short)")
     p.add_argument("--n-episodes", type=int, default=100, help="held-out evaluation episodes (trained policy)")
     p.add_argument("--baseline-episodes", type=int, default=50, help="episodes for the NNLS baseline and random")
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
+    if args.n_timesteps < 1:
+        p.error(f"--n-timesteps: must be >= 1, got {args.n_timesteps}")
+    out = Path(args.out) if args.out else ROOT / "runs" / "main_job" / time.strftime("%Y%m%d_%H%M%S")
+    try:
+        out.mkdir(parents=True, exist_ok=False)   # claims the folder: a second run into it is refused here
+    except FileExistsError:
+        p.error(f"--out: {out} exists; the main job writes only into a new folder (nothing is overwritten)")
 
     from agents import evaluate, train
 
     t0 = time.time()
-    out = Path(args.out)
-    run = ROOT / "runs" / f"main_job_{time.strftime('%Y%m%d_%H%M%S')}"
-    print(f"[main job] 1/3 training PPO on TensegrityShape-v0 for at most {args.n_timesteps} steps / "
-          f"{args.train_seconds:.0f} s -> {run}")
-    train.train(["--algo", "ppo", "--env", "TensegrityShape-v0", "--seed", str(args.seed), "--log-dir", str(run),
-                 "--n-timesteps", str(args.n_timesteps), "--max-wall-time", str(args.train_seconds),
-                 "--eval-freq", str(max(args.n_timesteps // 15, 1)), "--eval-episodes", "10",
-                 "--save-freq", "-1"])
+    run = out / "run"
+    cap = f" or {args.max_wall_time:.0f} s" if args.max_wall_time is not None else ""
+    print(f"[main job] 1/3 training PPO on {ENV_ID} for {args.n_timesteps:,} env steps{cap} -> {run}", flush=True)
+    argv_train = ["--algo", "ppo", "--env", ENV_ID, "--conf-file", str(CONF), "--seed", str(args.seed),
+                  "--log-dir", str(run), "--n-timesteps", str(args.n_timesteps),
+                  "--eval-freq", str(max(args.n_timesteps // 12, 1)), "--eval-episodes", "20", "--save-freq", "-1"]
+    if args.max_wall_time is not None:
+        argv_train += ["--max-wall-time", str(args.max_wall_time)]
+    train.train(argv_train)
     t1 = time.time()
-    print(f"[main job] 2/3 evaluating on {args.n_episodes} held-out targets (NNLS baseline and random on "
-          f"{args.baseline_episodes})")
-    # write into a fresh folder beside OUT and swap it in only at the end: an interrupted run
-    # (Ctrl-C, crash) leaves the previous results untouched
-    final = out
-    out = final.parent / f".{final.name}.partial-{os.getpid()}"
-    out.mkdir(parents=True)
-    metrics = evaluate.evaluate([str(run), "--model", "best", "--n-episodes", str(args.n_episodes),
-                                 "--baseline-episodes", str(args.baseline_episodes), "--gif", "--out", str(out)])
+    print(f"[main job] 2/3 evaluating the final policy on {args.n_episodes} held-out targets (NNLS baseline and "
+          f"random on {args.baseline_episodes})", flush=True)
+    metrics = evaluate.evaluate([str(run), "--model", "final", "--n-episodes", str(args.n_episodes),
+                                 "--baseline-episodes", str(args.baseline_episodes), "--gif", "--gif-size", "400",
+                                 "--out", str(out)])
     t2 = time.time()
-    print("[main job] 3/3 copying the run's config, command, versions and model")
-    for f in ("config.yaml", "command.txt", "versions.json", "state.json", "best_model.zip",
-              "best_vecnormalize.pkl"):
-        if (run / f).exists():
-            shutil.copy2(run / f, out / f)
-    summary = (f"training {t1 - t0:.0f} s ({metrics['model_num_timesteps']} steps of the best model), "
-               f"evaluation {t2 - t1:.0f} s, total {time.time() - t0:.0f} s")
+    state = json.loads((run / "state.json").read_text())
+    status, steps = state.get("status", "unknown"), int(metrics["model_num_timesteps"])
+    success = metrics["results"]["ppo (trained)"]["success_rate"]
+    ref = reference()
+    text = verdict(success, steps, args.n_timesteps, status, ref)
+    metrics["main_job"] = {"budget_steps": args.n_timesteps, "trained_steps": steps, "training_status": status,
+                           "training_complete": status == "finished" and steps >= args.n_timesteps,
+                           "training_s": t1 - t0, "evaluation_s": t2 - t1, "verdict": text,
+                           "reference": ref, "command": " ".join(["python", "scripts/main_job.py"] +
+                                                                 list(argv if argv is not None else sys.argv[1:]))}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str) + "\n")
     (out / "README.md").write_text(
-        "# Main job: PPO training on TensegrityShape-v0 (default scene)\n\n"
-        f"{summary}.\n\nHeld-out evaluation ({args.n_episodes} targets for the trained policy, "
-        f"{args.baseline_episodes} for the baselines):\n\n```\n{(out / 'table.md').read_text()}```\n\n"
-        "Reproduce: `python scripts/main_job.py`. The same training without the wall-time cap, and "
-        "every other committed result with its command: `results/README.md`:\n\n"
-        "```\npython -m agents.train --algo ppo --env TensegrityShape-v0 --seed 0 --log-dir runs/ppo_shape\n"
-        "python -m agents.evaluate runs/ppo_shape --gif --copy-run-files --out results/ppo_shape\n```\n")
-    if final.exists():   # swap: old -> backup, new -> OUT, then drop the backup
-        backup = final.parent / f".{final.name}.old-{os.getpid()}"
-        final.rename(backup)
-        out.rename(final)
-        shutil.rmtree(backup)
-    else:
-        out.rename(final)
-    print(f"[main job] done: {summary}; results in {final}")
+        f"# Main job: PPO on {ENV_ID} (default scene)\n\n{text}\n\n"
+        f"Training {t1 - t0:.0f} s, evaluation {t2 - t1:.0f} s.\n\n"
+        f"Held-out evaluation ({args.n_episodes} targets for the trained policy, {args.baseline_episodes} for the "
+        f"baselines):\n\n```\n{(out / 'table.md').read_text()}```\n\n"
+        f"Command: `{metrics['main_job']['command']}`\n")
+    print(f"[main job] 3/3 done in {time.time() - t0:.0f} s (training {t1 - t0:.0f} s, evaluation {t2 - t1:.0f} s); "
+          f"results in {out}\n\n{text}", flush=True)
     return 0
 
 
