@@ -4,7 +4,7 @@
 What it measures (wall clock, best of a few repeats, everything timed in the same run):
 
 * wall time per environment step and environment steps per second for the fixed-step
-  integrators (``semi_implicit_euler``, ``rk4``), the numba kernels (NumPy: no longer a backend), on the free
+  integrators (``semi_implicit_euler``, ``rk4``), the numba kernels (the NumPy equations are the test oracle, not timed), on the free
   3-bar prism, the 6-bar icosahedron and a 30-stage prism tower (``tower(30)``), for
   B = 1, 64, 1024, 4096 copies, dt = 1 ms;
 * the same scenes in MuJoCo (PyPI ``mujoco``): each rod a free body with thin-rod inertia
@@ -31,7 +31,7 @@ Usage::
     .venv/bin/python scripts/bench_dynamics.py --quick            # smoke run (~1 min)
     .venv/bin/python scripts/bench_dynamics.py --out results/bench_dynamics.json
 
-Targets (issue 2; free 3-prism, dt = 1 ms, this 2-core machine): single-env step at least as
+Targets (free 3-prism, dt = 1 ms, this 2-core machine): single-env step at least as
 fast as ``mj_step`` (same integrator), B = 4096 >= 3M env-steps/s with semi-implicit Euler,
 RK4 dt = 1e-4 within 1e-8 m of the reference over 2 s, energy drift < 1e-9 over 10 s.
 """
@@ -111,7 +111,7 @@ def mujoco_slack_check(mujoco):
 def bench_ours(model, B, integ, backend, target, repeats, numpy_limit):
     st = perturbed_state(model, B, 0.05)
     if backend == "numpy":
-        return None, "not a backend since issue 12 (the NumPy path is the test oracle)"
+        return None, "not a backend (the NumPy path is the test oracle)"
     q, qd = st.q.copy(), st.qd.copy()
 
     def fn():
@@ -379,7 +379,7 @@ def main(argv=None):
         duration_s=acc["energy_duration_s"])
     results["targets"] = tg
     results["info"]["load_average_end"] = os.getloadavg()
-    print("\n## Targets (issue 2)" + ("  [--quick: shortened, not the real check]" if quick else ""))
+    print("\n## Targets" + ("  [--quick: shortened, not the real check]" if quick else ""))
     for k, v in tg.items():
         met = v.get("met")
         vals = ", ".join(f"{a} = {b:,.4g}" if isinstance(b, float) else f"{a} = {b}"

@@ -801,3 +801,30 @@ def test_public_step_inplace_refuses_arrays_it_cannot_write_and_bad_input():
             physics.step_inplace(model, dyn.State(q, qd, 0.0), dt, n_steps=n)
     np.testing.assert_array_equal(q, st.q)
     np.testing.assert_array_equal(qd, st.qd)
+
+
+def test_old_module_paths_re_export_the_layered_modules():
+    """Every module path of the flat package still imports and gives the same objects as the
+    layered one (a module that moved whole is the same module object; renamed functions keep
+    their old names as aliases), and every name of their ``__all__`` resolves."""
+    import importlib
+
+    import tensegrity_gym.core.sizing
+    import tensegrity_gym.physics.pipeline
+    from tensegrity_gym import physics
+    from tensegrity_gym.backends.torch import actuation as torch_actuation
+    for old in ("dynamics", "integrators", "pipeline", "params", "contact", "actuation", "checks", "statics",
+                "structure", "builders", "torch_backend", "implicit", "jacobian", "sizing", "_kernels",
+                "_compile_notice"):
+        mod = importlib.import_module(f"tensegrity_gym.{old}")
+        for name in getattr(mod, "__all__", ()):
+            assert getattr(mod, name) is not None, (old, name)
+    from tensegrity_gym import (actuation, contact, dynamics, integrators, params, pipeline, sizing, structure,
+                                torch_backend)
+    assert sizing is tensegrity_gym.core.sizing and params.default_params is tg.core.params.default_params
+    assert structure.Structure is tg.Structure and actuation.Actuation.advance is actuation.Actuation.update_rate
+    assert pipeline.advance is physics.run_steps is tensegrity_gym.physics.pipeline.run_steps
+    assert pipeline.control_step is physics.control_step and integrators.step is physics.step
+    assert integrators.simulate is physics.simulate and dynamics.node_positions is physics.geometry.node_positions
+    assert contact.step is physics.pipeline.contact_step
+    assert torch_backend.advance is torch_actuation.update_rate and torch_backend.motor is torch_actuation.update_motor

@@ -1,9 +1,12 @@
-"""Errors and warnings of the simulation (the structure's own errors live beside it:
-:class:`~tensegrity_gym.core.structure.StructureError`,
+"""Errors and warnings of the structure and the simulation (a structure too large for memory:
 :class:`~tensegrity_gym.core.sizing.StructureTooLarge`)."""
 from __future__ import annotations
 
-__all__ = ["SimulationDiverged", "EvaluationBudgetExceeded", "StabilityWarning"]
+__all__ = ["StructureError", "SimulationDiverged", "EvaluationBudgetExceeded", "StabilityWarning"]
+
+
+class StructureError(ValueError):
+    """Raised when a structure is not a valid class-1 tensegrity."""
 
 
 class SimulationDiverged(FloatingPointError):

@@ -5,6 +5,7 @@ cache (:func:`stability_limit`), the once-per-(model, integrator, dt) :class:`St
 """
 from __future__ import annotations
 
+import contextlib
 import warnings
 import weakref
 
@@ -174,7 +175,6 @@ def _top_eigenvalues(A, nev: int) -> np.ndarray:
         from threadpoolctl import threadpool_limits     # spinning BLAS threads on a busy machine cost 20x
         limit = threadpool_limits(1, user_api="blas")
     except ImportError:  # pragma: no cover - threadpoolctl missing
-        import contextlib
         limit = contextlib.nullcontext()
     n = A.shape[0]
     v0 = np.random.default_rng(0).standard_normal(n)

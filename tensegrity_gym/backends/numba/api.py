@@ -63,10 +63,10 @@ Implementation notes
   when a call carries at least ``PARALLEL_MIN_WORK`` units of work; it takes the packed buffers
   (P, len): the shared one, P = 1, or one per copy). The serial ones compile
   (or load from numba's disk cache) on the first call, the parallel one on the first large
-  batch. All of them run ONE loop driver, ``_advance_py``, on structure-of-arrays scratch
-  (k, 6, E), through its two instances: ``_advance``, E = 16 (8 above 24 rods) environments
+  batch. All of them run ONE loop driver, ``driver._drive_py``, on structure-of-arrays scratch
+  (k, 6, E), through its two instances: ``_drive_lanes``, E = 16 (8 above 24 rods) environments
   per SIMD block from ``_SOA_MIN_BATCH`` = 16 environments (fresh scratch per call), and
-  ``_advance_one``, one at a time with E = 1 a compile-time constant, in the packed buffer's
+  ``_drive_one``, one at a time with E = 1 a compile-time constant, in the packed buffer's
   own scratch reached through ``numba.carray`` views (``_view``: no reference counting)
   (bit-identical results either way).
 * numba's threading layer is set to ``workqueue`` unless the user chose one
@@ -82,6 +82,8 @@ Implementation notes
   later processes load the machine code from ``__pycache__`` in about a second.
 """
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -394,7 +396,6 @@ def packed(model, params=None):
 
 
 def _fast_state_ok() -> bool:
-    import dataclasses
     return (dataclasses.is_dataclass(State) and [f.name for f in dataclasses.fields(State)] == ["q", "qd", "t"]
             and not hasattr(State, "__post_init__") and not hasattr(State, "__slots__"))
 

@@ -56,7 +56,7 @@ def _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, ext, c0, ne, k
     updated in place; then ``ext`` (0, 1 or B rows of (n, 3)) N added. ``prm`` (1 or B, 9)
     (``contact.PRM_FIELDS``: height, radius, kn, dn, exponent, mu, kt, ct, cmax) one row shared
     or one per copy. The one loop over contact points: the driver runs it on its lanes at every
-    step (:func:`_advance_py` with ``contact``), ``contact._forces_kernel`` one copy at a time."""
+    step (:func:`.driver._drive_py` with ``contact``), :func:`forces_kernel` one copy at a time."""
     per_prm = prm.shape[0] > 1
     per_ext = ext.shape[0] > 1
     has_ext = ext.shape[0] > 0

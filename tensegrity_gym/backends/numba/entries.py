@@ -187,7 +187,8 @@ def _contact_check(q, qd, bufs, l0, fd, W, ext, flags):
 @njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
 def _contact_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active,
                   slip, prm):
-    """The contact sub-steps of :func:`advance` on the whole batch, on this thread, in place: the
+    """The contact sub-steps of :func:`tensegrity_gym.physics.pipeline.run_steps` on the whole batch,
+    on this thread, in place: the
     loop driver with contact (``_drive_lanes_contact``, or its one-copy instance below
     ``_SOA_MIN_BATCH`` copies), ``n_steps`` steps, each with the contact forces of its start
     plus ``ext`` (0, 1 or B rows of (n, 3) N); ``W`` (B, n, 3) gets the last step's forces,

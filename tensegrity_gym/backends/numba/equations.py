@@ -185,7 +185,7 @@ def _forces(w, ib, L, k, m, n, Qi, Vi, N, V, F, L0, FD, EX, E, flags, PC, G, LS,
 
 @njit(inline="always", **_opts)
 def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
-    """Accelerations A (k, 6, E) of E copies at once (dynamics.accelerations), in
+    """Accelerations A (k, 6, E) of E copies at once (physics.accelerations), in
     structure-of-arrays scratch: Qi, Vi, A (k, 6, E), N, V, F, EX (n, 3, E), L0, FD (m, E).
     The innermost loops run over the copies (SIMD; one iteration in the E = 1 instance).
     Topology (node indices, eta, projectors) comes from ``w``; the physical constants of lane
@@ -208,7 +208,7 @@ def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
 @njit(inline="always", **_opts)
 def _project(w, ib, o_rod, k, Q, QD, E, any_cons):
     """In place on Q, QD (k, 6, E): |b| = 1, b.b' = 0 and constrained reference points back on
-    their point/line/plane with tangent velocity (dynamics.project, same operations)."""
+    their point/line/plane with tangent velocity (physics.project, same operations)."""
     for j in range(k):
         rj = o_rod + _ROD * j
         for e in range(E):

@@ -90,7 +90,7 @@ def nodal_forces(tm: TorchModel, q, qd, prm, rest_length=None, force_density=Non
 
 
 def _rod_accelerations(tm: TorchModel, q, qd, F, prm):
-    """The branch-free Sherman-Morrison form of ``dynamics._rod_accelerations`` (free and
+    """The branch-free Sherman-Morrison form of the numba backend's ``_rod_acc`` (free and
     constrained rods alike)."""
     torch = _torch()
     b = q[..., 3:]
