@@ -1,7 +1,9 @@
-"""The structure file format's JSON Schema (``tensegrity_gym/structure.schema.json``, draft
+"""The rules of a structure file: the format's JSON Schema (``tensegrity_gym/structure.schema.json``, draft
 2020-12) and the validator of the keywords it uses: :func:`validate_dict` raises
 :class:`~tensegrity_gym.core.errors.StructureError` naming the key, the index and the value and
-citing the schema's description of the key.
+citing the schema's description of the key; the value checks of
+:class:`~tensegrity_gym.core.structure.Structure` (numbers, ranges, per-item values) and the
+strict JSON reader :func:`loads`.
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ import numpy as np
 
 from .errors import StructureError
 
-__all__ = ["SCHEMA_PATH", "schema", "validate_dict"]
+__all__ = ["SCHEMA_PATH", "schema", "validate_dict", "loads"]
 
 #: the JSON Schema (draft 2020-12) of the structure file format, shipped with the package
 SCHEMA_PATH = Path(__file__).parent.parent / "structure.schema.json"   # package data of tensegrity_gym
@@ -214,5 +216,97 @@ def validate_dict(d: Mapping[str, Any]) -> None:
         desc = _describe(key) if isinstance(key, str) else ""
         msg = f"{_loc(e.path)}: {e.problem}"
         raise StructureError(msg + (f" (schema, {key}: {desc})" if desc else "")) from None
+
+
+# ---------------------------------------------------------------------- values
+def _numeric(value, key: str) -> np.ndarray:
+    """``value`` as a float array; a :class:`StructureError` naming ``key``, the index and the
+    value for booleans, strings, null, ragged lists and numbers too large for a double."""
+    if isinstance(value, np.ndarray) and value.dtype.kind in "iuf":
+        return np.array(value, dtype=float)
+
+    def shape(x, path):
+        if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating,
+                                                                     list, tuple, np.ndarray)):
+            raise StructureError(f"{_loc([key] + path)}: expected a number, got {_show(x)}")
+        if isinstance(x, (list, tuple, np.ndarray)):
+            if isinstance(x, np.ndarray) and x.dtype.kind in "iuf":
+                return x.shape
+            shapes = [shape(v, path + [i]) for i, v in enumerate(x)]
+            for i, s in enumerate(shapes):
+                if s != shapes[0]:
+                    raise StructureError(
+                        f"{_loc([key] + path + [i])}: ragged list: expected "
+                        f"{'a number' if not shapes[0] else f'a list of {shapes[0][0]} items'} like item 0, "
+                        f"got {_show(x[i])}")
+            return (len(x),) + (shapes[0] if shapes else ())
+        if isinstance(x, (int, np.integer)) and not isinstance(x, np.integer):
+            try:
+                float(x)
+            except OverflowError:
+                raise StructureError(f"{_loc([key] + path)}: {_show(x)} is too large for a double") from None
+        return ()
+    shape(value, [])
+    return np.array(value, dtype=float)
+
+
+def _in_range(arr: np.ndarray, key: str, kind: str, unit: str, item: str) -> None:
+    """Raise if an entry of ``arr`` is outside the schema's ``$defs[kind]`` range."""
+    spec = schema()["$defs"][kind]
+    lo, hi = spec.get("minimum", -math.inf), spec.get("maximum", math.inf)
+    bad = np.argwhere((arr < lo) | (arr > hi))
+    if bad.size:
+        idx = tuple(int(i) for i in bad[0])
+        where = key + "".join(f"[{i}]" for i in idx) + (f" ({item} {idx[0]})" if idx else "")
+        desc = _describe(key.split("[")[0])
+        raise StructureError(f"{where}: {float(arr[idx]):.6g} {unit} is outside the accepted range "
+                             f"[{lo:g}, {hi:g}] {unit}" + (f" (schema, {key.split('[')[0]}: {desc})" if desc else ""))
+
+
+def _as_per_item(value: Any, count: int, field_name: str, item: str) -> np.ndarray:
+    """Broadcast a number or per-item list to a float array of length ``count``."""
+    arr = _numeric(value, field_name)
+    if arr.ndim == 0:
+        arr = np.full(count, float(arr))
+    if arr.shape != (count,):
+        raise StructureError(
+            f"{field_name}: expected a number or a list of {count} values (one per {item}), "
+            f"got shape {arr.shape}")
+    return arr
+
+
+# ---------------------------------------------------------------------- JSON text
+def _strict_number(text: str) -> float:
+    v = float(text)
+    if not math.isfinite(v):
+        raise ValueError(f"the number {text[:30]} is too large for a double")
+    return v
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def _no_duplicates(pairs):
+    d = {}
+    for k, v in pairs:
+        if k in d:
+            raise ValueError(f"duplicate key {k!r}")
+        d[k] = v
+    return d
+
+
+def loads(text: str, source: str = "<string>") -> Any:
+    """Strict JSON parsing: no NaN/Infinity, no number beyond a double's range, no duplicate
+    keys; a :class:`StructureError` naming ``source`` and the line otherwise."""
+    try:
+        return json.loads(text, parse_float=_strict_number, parse_constant=_reject_constant,
+                          object_pairs_hook=_no_duplicates)
+    except json.JSONDecodeError as e:
+        raise StructureError(f"{source}: not valid JSON ({e})") from None
+    except ValueError as e:      # from the hooks above; also int() of more than 4300 digits
+        raise StructureError(f"{source}: not valid JSON ({e})") from None
+    except RecursionError:
+        raise StructureError(f"{source}: not valid JSON (nested too deeply)") from None
 
 

@@ -51,7 +51,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .errors import StructureError
-from .schema import SCHEMA_PATH, _describe, _loc, _show, schema, validate_dict
+from .schema import SCHEMA_PATH, _as_per_item, _describe, _in_range, _numeric, _show, loads, schema, validate_dict
 
 __all__ = ["Structure", "StructureError", "mass_moments", "load_json", "save_json", "from_dict",
            "SCHEMA_PATH", "schema", "validate_dict", "MIN_STABLE_STEP", "MAX_FILE_BYTES"]
@@ -60,37 +60,6 @@ __all__ = ["Structure", "StructureError", "mass_moments", "load_json", "save_jso
 MIN_STABLE_STEP = 1e-9
 #: largest structure file :func:`load_json` reads, bytes (about 3 million nodes)
 MAX_FILE_BYTES = 256 * 2**20
-
-
-def _numeric(value, key: str) -> np.ndarray:
-    """``value`` as a float array; a :class:`StructureError` naming ``key``, the index and the
-    value for booleans, strings, null, ragged lists and numbers too large for a double."""
-    if isinstance(value, np.ndarray) and value.dtype.kind in "iuf":
-        return np.array(value, dtype=float)
-
-    def shape(x, path):
-        if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating,
-                                                                     list, tuple, np.ndarray)):
-            raise StructureError(f"{_loc([key] + path)}: expected a number, got {_show(x)}")
-        if isinstance(x, (list, tuple, np.ndarray)):
-            if isinstance(x, np.ndarray) and x.dtype.kind in "iuf":
-                return x.shape
-            shapes = [shape(v, path + [i]) for i, v in enumerate(x)]
-            for i, s in enumerate(shapes):
-                if s != shapes[0]:
-                    raise StructureError(
-                        f"{_loc([key] + path + [i])}: ragged list: expected "
-                        f"{'a number' if not shapes[0] else f'a list of {shapes[0][0]} items'} like item 0, "
-                        f"got {_show(x[i])}")
-            return (len(x),) + (shapes[0] if shapes else ())
-        if isinstance(x, (int, np.integer)) and not isinstance(x, np.integer):
-            try:
-                float(x)
-            except OverflowError:
-                raise StructureError(f"{_loc([key] + path)}: {_show(x)} is too large for a double") from None
-        return ()
-    shape(value, [])
-    return np.array(value, dtype=float)
 
 
 def mass_moments(length: float, mass: float, sigma: float,
@@ -111,19 +80,6 @@ def mass_moments(length: float, mass: float, sigma: float,
         f = float(length * np.sum(mk * (mu - sigma)))
         J = float(length**2 * np.sum(mk * (mu - sigma) ** 2))
     return float(f), float(J)
-
-
-def _in_range(arr: np.ndarray, key: str, kind: str, unit: str, item: str) -> None:
-    """Raise if an entry of ``arr`` is outside the schema's ``$defs[kind]`` range."""
-    spec = schema()["$defs"][kind]
-    lo, hi = spec.get("minimum", -math.inf), spec.get("maximum", math.inf)
-    bad = np.argwhere((arr < lo) | (arr > hi))
-    if bad.size:
-        idx = tuple(int(i) for i in bad[0])
-        where = key + "".join(f"[{i}]" for i in idx) + (f" ({item} {idx[0]})" if idx else "")
-        desc = _describe(key.split("[")[0])
-        raise StructureError(f"{where}: {float(arr[idx]):.6g} {unit} is outside the accepted range "
-                             f"[{lo:g}, {hi:g}] {unit}" + (f" (schema, {key.split('[')[0]}: {desc})" if desc else ""))
 
 
 def _check_string_modes(nodes, bars, strings, bar_mass, mass_points, cons, stiffness, damping, rod_len):
@@ -194,18 +150,6 @@ def _check_string_modes(nodes, bars, strings, bar_mass, mass_points, cons, stiff
                 f"{ends}: {what} allows an explicit step of only {dts[i]:.3g} s, below the accepted "
                 f"{MIN_STABLE_STEP:g} s (a 1 s simulation would need over 1e9 steps; check the units of "
                 f"{name} and bar_mass) (schema, {name}: {_describe(name)})")
-
-
-def _as_per_item(value: Any, count: int, field_name: str, item: str) -> np.ndarray:
-    """Broadcast a number or per-item list to a float array of length ``count``."""
-    arr = _numeric(value, field_name)
-    if arr.ndim == 0:
-        arr = np.full(count, float(arr))
-    if arr.shape != (count,):
-        raise StructureError(
-            f"{field_name}: expected a number or a list of {count} values (one per {item}), "
-            f"got shape {arr.shape}")
-    return arr
 
 
 @dataclass(frozen=True, eq=False, init=False)
@@ -585,40 +529,6 @@ def from_dict(d: Mapping[str, Any]) -> Structure:
         if desc and "(schema," not in str(e):
             raise StructureError(f"{e} (schema, {key}: {desc})") from None
         raise
-
-
-def _strict_number(text: str) -> float:
-    v = float(text)
-    if not math.isfinite(v):
-        raise ValueError(f"the number {text[:30]} is too large for a double")
-    return v
-
-
-def _reject_constant(name: str):
-    raise ValueError(f"{name} is not a JSON number")
-
-
-def _no_duplicates(pairs):
-    d = {}
-    for k, v in pairs:
-        if k in d:
-            raise ValueError(f"duplicate key {k!r}")
-        d[k] = v
-    return d
-
-
-def loads(text: str, source: str = "<string>") -> Any:
-    """Strict JSON parsing: no NaN/Infinity, no number beyond a double's range, no duplicate
-    keys; a :class:`StructureError` naming ``source`` and the line otherwise."""
-    try:
-        return json.loads(text, parse_float=_strict_number, parse_constant=_reject_constant,
-                          object_pairs_hook=_no_duplicates)
-    except json.JSONDecodeError as e:
-        raise StructureError(f"{source}: not valid JSON ({e})") from None
-    except ValueError as e:      # from the hooks above; also int() of more than 4300 digits
-        raise StructureError(f"{source}: not valid JSON ({e})") from None
-    except RecursionError:
-        raise StructureError(f"{source}: not valid JSON (nested too deeply)") from None
 
 
 def load_json(path: str | Path) -> Structure:
