@@ -4,7 +4,7 @@
 What it measures (wall clock, best of a few repeats, everything timed in the same run):
 
 * wall time per environment step and environment steps per second for the fixed-step
-  integrators (``semi_implicit_euler``, ``rk4``), the numba kernels (NumPy: no longer a backend), on the free
+  integrators (``semi_implicit_euler``, ``rk4``), the numba kernels (the NumPy equations are the test oracle, not timed), on the free
   3-bar prism, the 6-bar icosahedron and a 30-stage prism tower (``tower(30)``), for
   B = 1, 64, 1024, 4096 copies, dt = 1 ms;
 * the same scenes in MuJoCo (PyPI ``mujoco``): each rod a free body with thin-rod inertia
@@ -15,8 +15,9 @@ What it measures (wall clock, best of a few repeats, everything timed in the sam
   ``mujoco.rollout`` over B states with one MjData per core (its fastest batched path), and
   a Python loop of ``mj_step`` over B MjData where that is affordable;
 * ratios ours / MuJoCo in steps per second (> 1: tensegrity_gym is faster);
-* B = 1 per-call cost of each of our entry points (``integrators.step``, ``_kernels.step``,
-  ``_kernels.step_inplace``);
+* B = 1 per-call cost of each of our entry points (the public ``physics.step`` and
+  ``physics.step_inplace``, the numba backend's ``step`` and ``step_inplace``), each with its
+  ratio to the kernel's ``step_inplace`` measured in the same run;
 * ``dop853`` (scipy, rtol = atol = 1e-10) wall seconds per simulated second, B = 1;
 * checks: MuJoCo's tendon dead band (a stretched tendon pulls with k (L - l0), a short one
   carries no force), MuJoCo's prism at rest in its prestressed equilibrium and following the
@@ -30,7 +31,7 @@ Usage::
     .venv/bin/python scripts/bench_dynamics.py --quick            # smoke run (~1 min)
     .venv/bin/python scripts/bench_dynamics.py --out results/bench_dynamics.json
 
-Targets (issue 2; free 3-prism, dt = 1 ms, this 2-core machine): single-env step at least as
+Targets (free 3-prism, dt = 1 ms, this 2-core machine): single-env step at least as
 fast as ``mj_step`` (same integrator), B = 4096 >= 3M env-steps/s with semi-implicit Euler,
 RK4 dt = 1e-4 within 1e-8 m of the reference over 2 s, energy drift < 1e-9 over 10 s.
 """
@@ -49,8 +50,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from tensegrity_gym import builders, dynamics as dyn, integrators  # noqa: E402
-from tensegrity_gym import _kernels  # noqa: E402
+from tensegrity_gym import builders, dynamics as dyn, integrators, physics  # noqa: E402
+from tensegrity_gym.backends.numba import api as numba_api  # noqa: E402
 from tensegrity_gym._bench import mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers)
 
 DT = 1e-3
@@ -110,11 +111,11 @@ def mujoco_slack_check(mujoco):
 def bench_ours(model, B, integ, backend, target, repeats, numpy_limit):
     st = perturbed_state(model, B, 0.05)
     if backend == "numpy":
-        return None, "not a backend since issue 12 (the NumPy path is the test oracle)"
+        return None, "not a backend (the NumPy path is the test oracle)"
     q, qd = st.q.copy(), st.qd.copy()
 
     def fn():
-        _kernels.step_inplace(model, q, qd, DT, integ)
+        numba_api.step_inplace(model, q, qd, DT, integ)
     t = timeit(fn, target, repeats)
     return (None, "skipped (one call > 2 s)") if t is None else (t / B, "")
 
@@ -150,19 +151,24 @@ def single_env_api(model, integ, target, repeats):
     """B = 1, one step per call, per entry point: seconds per call."""
     st = perturbed_state(model, 1, 0.05)
     q, qd = st.q.copy(), st.qd.copy()
-    holder = [st, st, st]
+    holder = [st, st, dyn.State(st.q.copy(), st.qd.copy(), st.t)]
 
     def public():
-        holder[0] = integrators.step(model, holder[0], DT, integ)
+        holder[0] = physics.step(model, holder[0], DT, integ)
 
     def kstep():
-        holder[1] = _kernels.step(model, holder[1], DT, integ)
+        holder[1] = numba_api.step(model, holder[1], DT, integ)
+
+    def public_inplace():
+        holder[2] = physics.step_inplace(model, holder[2], DT, integ)
 
     def inplace():
-        _kernels.step_inplace(model, q, qd, DT, integ)
-    return {"integrators.step (numba)": timeit(public, target, repeats),
-            "_kernels.step": timeit(kstep, target, repeats),
-            "_kernels.step_inplace": timeit(inplace, target, repeats)}
+        numba_api.step_inplace(model, q, qd, DT, integ)
+    # interleaved, so that a change of load hits every entry point alike
+    return {"physics.step": timeit(public, target, repeats),
+            "physics.step_inplace": timeit(public_inplace, target, repeats),
+            "numba step": timeit(kstep, target, repeats),
+            "numba step_inplace": timeit(inplace, target, repeats)}
 
 
 def dop853_cost(model, sim_time):
@@ -278,13 +284,13 @@ def main(argv=None):
     for integ in ("semi_implicit_euler", "rk4"):
         for B in (1, 4096):
             st = perturbed_state(models["prism3"], B, 0.05)
-            _kernels.step_inplace(models["prism3"], st.q, st.qd, DT, integ)
-            _kernels.step_inplace(models["prism3"], st.q, st.qd, DT, integ, rest_length=models["prism3"].rest_length)
+            numba_api.step_inplace(models["prism3"], st.q, st.qd, DT, integ)
+            numba_api.step_inplace(models["prism3"], st.q, st.qd, DT, integ, rest_length=models["prism3"].rest_length)
     results["info"]["kernel_load_or_compile_s"] = time.perf_counter() - t0
     print(f"\n(numba kernels compiled or loaded from the disk cache in {time.perf_counter() - t0:.1f} s)")
     print("\n## Wall time per environment step (us) and environment steps per second")
-    print("ours numba = _kernels.step_inplace (one call per step for the whole batch); numpy: no longer a "
-          "backend (issue 12: the NumPy path is the test oracle; older tables measured it); MuJoCo B = 1: mj_step; MuJoCo B > 1: mujoco.rollout "
+    print("ours numba = the numba backend's step_inplace (one call per step for the whole batch); numpy: the "
+          "NumPy equations are the test oracle, not timed; MuJoCo B = 1: mj_step; MuJoCo B > 1: mujoco.rollout "
           f"({os.cpu_count()} threads, 4 steps per call) and a Python loop of mj_step over B MjData.")
     hdr = (f"{'scene':12s} {'integrator':20s} {'B':>5s} | {'numba us':>9s} {'numba /s':>11s} | {'numpy us':>9s} "
            f"{'numpy /s':>11s} | {'MuJoCo us':>9s} {'MuJoCo /s':>11s} | {'mj loop us':>10s} | {'ours/MuJoCo':>11s}")
@@ -312,16 +318,21 @@ def main(argv=None):
           f"is skipped where B x (strings + rods) > {numpy_limit:.0e}, the mj_step loop where B x tendons is large)")
 
     print("\n## B = 1 free 3-prism, one step per call: cost of each entry point (us per step)")
+    tg_inplace = {}
     prism = models["prism3"]
     for integ in ("semi_implicit_euler", "rk4"):
         api = single_env_api(prism, integ, target, repeats)
         mj = next((r["mujoco_s_per_env_step"] for r in results["rows"]
                    if r["scene"] == "prism3" and r["integrator"] == integ and r["B"] == 1), None)
         api["MuJoCo mj_step"] = mj
+        kernel = api["numba step_inplace"]
         for k, v in api.items():
             rel = "" if (mj is None or v is None) else f"   ours/MuJoCo = {mj / v:.2f}"
-            print(f"  {integ:20s} {k:26s} {fmt_t(v)} us  {fmt_r(v)} steps/s{rel}")
+            vs = "" if (v is None or k == "MuJoCo mj_step") else f"   / kernel step_inplace = {v / kernel:.2f}"
+            print(f"  {integ:20s} {k:26s} {fmt_t(v)} us  {fmt_r(v)} steps/s{vs}{rel}")
         results["single_env"].append(dict(integrator=integ, **{k: v for k, v in api.items()}))
+        ratio = api["physics.step_inplace"] / kernel
+        tg_inplace[integ] = ratio
 
     print("\n## dop853 (scipy solve_ivp, rtol = atol = 1e-10), B = 1: wall seconds per simulated second")
     results["dop853_wall_s_per_sim_s"] = {}
@@ -348,11 +359,14 @@ def main(argv=None):
     for integ, absolute in (("semi_implicit_euler", 300e3), ("rk4", 80e3)):
         api = next(s for s in results["single_env"] if s["integrator"] == integ)
         mj = api.get("MuJoCo mj_step")
-        for k in ("_kernels.step_inplace", "_kernels.step", "integrators.step (numba)"):
+        for k in ("numba step_inplace", "numba step", "physics.step", "physics.step_inplace"):
             ours = api[k]
             tg[f"single env {integ}, {k}: >= mj_step"] = dict(
                 ours_steps_per_s=1 / ours, mujoco_steps_per_s=None if mj is None else 1 / mj,
                 reference_steps_per_s=absolute, met=None if mj is None else ours <= mj)
+    for integ, ratio in tg_inplace.items():
+        tg[f"single env {integ}: physics.step_inplace within 1.5x of the kernel's step_inplace"] = dict(
+            ratio=ratio, met=ratio <= 1.5)
     r4096 = row("prism3", "semi_implicit_euler", 4096)
     if r4096 is not None and r4096["numba_s_per_env_step"]:
         v = 1 / r4096["numba_s_per_env_step"]
@@ -365,7 +379,7 @@ def main(argv=None):
         duration_s=acc["energy_duration_s"])
     results["targets"] = tg
     results["info"]["load_average_end"] = os.getloadavg()
-    print("\n## Targets (issue 2)" + ("  [--quick: shortened, not the real check]" if quick else ""))
+    print("\n## Targets" + ("  [--quick: shortened, not the real check]" if quick else ""))
     for k, v in tg.items():
         met = v.get("met")
         vals = ", ".join(f"{a} = {b:,.4g}" if isinstance(b, float) else f"{a} = {b}"

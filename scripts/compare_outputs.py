@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Outputs of two versions of the package on the committed scenes (issue 12: a refactor keeps
+"""Outputs of two versions of the package on the committed scenes (a refactor keeps
 every output equal to 1e-12 relative).
 
     PYTHONPATH=/path/to/old/checkout python scripts/compare_outputs.py dump old.npz
@@ -22,7 +22,7 @@ import numpy as np
 
 SCENES = ("prism3", "prism4", "pinned_rod", "constrained_prism", "icosahedron", "tower3")
 RUNS = (("semi_implicit_euler", "numba", 200), ("rk4", "numba", 200), ("dop853", "auto", 20),
-        ("implicit_euler", "auto", 20))   # (the "numpy" runs went with the NumPy backend, issue 12)
+        ("implicit_euler", "auto", 20))
 
 
 def _rollout(env, rng, steps: int = 100):

@@ -2,7 +2,7 @@
 
 Issue 12 ("each equation written once per backend; the NumPy path becomes a test oracle under
 tests/"): the package computes every step, projection, rod acceleration and contact force with
-the numba kernels (:mod:`tensegrity_gym._kernels`, :mod:`tensegrity_gym.pipeline`; torch in
+the numba kernels (:mod:`tensegrity_gym.backends.numba`, :mod:`tensegrity_gym.physics.pipeline`; torch in
 :mod:`tensegrity_gym.torch_backend`). This module keeps the vectorised NumPy formulation they
 were written from, so the tests can check the kernels against a second, independent transcription
 of the same equations (the node-coordinate model in ``tests/reference.py`` checks the
@@ -34,6 +34,7 @@ from tensegrity_gym import dynamics as dyn, integrators
 from tensegrity_gym.contact import ContactState
 from tensegrity_gym.dynamics import State
 from tensegrity_gym.params import check_params
+from tensegrity_gym.physics.step import _as_batch
 
 
 # ---------------------------------------------------------------------- string forces
@@ -154,7 +155,7 @@ def project(model, q: np.ndarray, qd: np.ndarray):
 
 _project = project   # step's keyword ``project`` (a flag) shadows the function inside it
 
-_SINC_SMALL = 1e-4   # _kernels' value: below this angle per step sin(x)/x = 1 - x^2/6 to round-off
+_SINC_SMALL = 1e-4   # the numba backend's value: below this angle per step sin(x)/x = 1 - x^2/6 to round-off
 
 
 def sphere_drift(q, qd, dt):
@@ -167,7 +168,7 @@ def sphere_drift(q, qd, dt):
     neither gains energy nor angular momentum (the Euler update ``b += dt b'`` followed by a
     normalisation shrinks ``b'`` relative to the rotation and does). The radial part of
     ``b''`` (the centripetal term ``-|b'|^2 b``) is what the great circle replaces. Operation
-    order mirrored by ``_kernels._drift_rod`` (round-off agreement)."""
+    order mirrored by ``backends/numba/equations._drift_rod`` (round-off agreement)."""
     r, b = q[..., :3], q[..., 3:]
     rd, bd = qd[..., :3], qd[..., 3:]
     r = r + dt * rd
@@ -231,8 +232,8 @@ def step(model, state, dt, integrator="semi_implicit_euler", *, rest_length=None
     if name not in ("semi_implicit_euler", "rk4"):
         raise ValueError(f"the oracle steps semi_implicit_euler and rk4, not {name!r}")
     B, m = state.batch_size, model.n_strings
-    rest_length = integrators._as_batch(rest_length, B, m, "rest_length")
-    force_density = integrators._as_batch(force_density, B, m, "force_density")
+    rest_length = _as_batch(rest_length, B, m, "rest_length")
+    force_density = _as_batch(force_density, B, m, "force_density")
     if params is not None:
         params = check_params(model, params, B)
 
@@ -273,7 +274,7 @@ def contact_step(model, contact, state, cstate, dt, integrator="semi_implicit_eu
 
 
 # ---------------------------------------------------------------------- bookkeeping of the control step
-# (compiled once in the package: pipeline.apply_controls / apply_motor / bad_copies, envs.compiled.roll_observe)
+# (compiled once in the package: backends.numba.actuation.apply_controls / apply_motor, backends.numba.divergence.bad_copies, envs.compiled.roll_observe)
 def actuation_apply(act, ctrl, action):
     """New control (B, na) of :class:`tensegrity_gym.actuation.Actuation` without a motor model:
     ``clip(ctrl + action * max_rate * control_dt, low, high)``."""
@@ -339,7 +340,7 @@ def _ref_advance(act, ctrl, action):
 
 def _ref_advance_motor(act, ctrl, speed, action):
     if act.max_accel is None:
-        raise ValueError("advance_motor: this Actuation has no max_accel (use advance)")
+        raise ValueError("update_motor: this Actuation has no max_accel (use update_rate)")
     new, v = actuation_apply_motor(act, ctrl, speed, action)
     return new, v, act.physics_inputs(new)
 
@@ -353,19 +354,21 @@ def _ref_roll_observe(task):
 @contextlib.contextmanager
 def reference_paths():
     """Inside the block the envs run the NumPy references above instead of the package's compiled
-    bookkeeping: the control update (``Actuation.advance`` / ``advance_motor``), the divergence
+    bookkeeping: the control update (``Actuation.update_rate`` / ``update_motor``), the divergence
     check (``pipeline.diverged``), the roll observation, the action check (always the reference
     ``checks.check_action``); a shape task made inside the block tracks its nodes with the NumPy
     observation and takes no fused step (``compiled.node_sources`` says none applies)."""
     import pytest
     from tensegrity_gym import pipeline
+    from tensegrity_gym.physics import pipeline as physics_pipeline
     from tensegrity_gym.actuation import Actuation
     from tensegrity_gym.envs import compiled
     from tensegrity_gym.envs.roll_obs import RollObservation
     with pytest.MonkeyPatch.context() as m:
-        m.setattr(Actuation, "advance", _ref_advance)
-        m.setattr(Actuation, "advance_motor", _ref_advance_motor)
+        m.setattr(Actuation, "update_rate", _ref_advance)
+        m.setattr(Actuation, "update_motor", _ref_advance_motor)
         m.setattr(pipeline, "diverged", diverged)
+        m.setattr(physics_pipeline, "diverged", diverged)
         m.setattr(RollObservation, "observe", _ref_roll_observe)
         m.setattr(compiled, "clip_action", lambda a, clip, tol: False)       # falls back to checks.check_action
         m.setattr(compiled, "node_sources", lambda model, nodes: (None, None))

@@ -238,6 +238,8 @@ def test_contact_steps_with_external_force_compiled_equal_python_loop(monkeypatc
     compiled contact loop (serial for 1, 6 and 64 copies, the parallel chunks for 900) gives the bits
     of the Python loop (contact forces + external, then one integrator step, per sub-step)."""
     from tensegrity_gym import pipeline
+    from tensegrity_gym.backends.numba import api as numba_api
+    from tensegrity_gym.physics import pipeline as physics_pipeline
     rng = np.random.default_rng(3)
     m = resting_prism(drop=0.01)
     st = dyn.initial_state(m, B)
@@ -247,10 +249,10 @@ def test_contact_steps_with_external_force_compiled_equal_python_loop(monkeypatc
     g = C.GroundContact(friction=0.4)
     calls = []
     for name in ("_contact_loop", "_contact_parallel"):
-        monkeypatch.setattr(pipeline, name, lambda *a, _f=getattr(pipeline, name), _n=name: calls.append(_n) or _f(*a))
+        monkeypatch.setattr(numba_api, name, lambda *a, _f=getattr(numba_api, name), _n=name: calls.append(_n) or _f(*a))
     s1, c1 = pipeline.step(m, st, DT, n_steps=20, contact=g, cstate=cs, external=ext)
     assert calls == ["_contact_parallel" if B >= 900 else "_contact_loop"]
-    monkeypatch.setattr(pipeline, "_contact_compiled", lambda *a: False)
+    monkeypatch.setattr(physics_pipeline, "_contact_compiled", lambda *a: False)
     s2, c2 = pipeline.step(m, st, DT, n_steps=20, contact=g, cstate=cs, external=ext)
     assert np.array_equal(s1.q, s2.q) and np.array_equal(s1.qd, s2.qd)
     assert np.array_equal(c1.anchor, c2.anchor) and np.array_equal(c1.active, c2.active)

@@ -85,7 +85,7 @@ def _prism_actuation(max_accel=None):
 
 
 def test_control_step_motor_matches_actuation_then_step():
-    """With a motor: Actuation.advance_motor, then pipeline.step with its physics inputs."""
+    """With a motor: Actuation.update_motor, then pipeline.step with its physics inputs."""
     model, act = _prism_actuation(max_accel=2.0)
     B = 3
     state = dyn.initial_state(model, B)
@@ -93,7 +93,7 @@ def test_control_step_motor_matches_actuation_then_step():
     speed = np.zeros((B, 3))
     action = np.array([[1.0, -0.5, 0.2], [0.0, 1.0, -1.0], [-1.0, -1.0, 0.5]])
     out = pipeline.control_step(model, state, act, ctrl, action, 1e-3, "rk4", n_steps=10, speed=speed)
-    new, v, inputs = act.advance_motor(ctrl, speed, action)
+    new, v, inputs = act.update_motor(ctrl, speed, action)
     ref = pipeline.step(model, state, 1e-3, "rk4", n_steps=10, **inputs)
     assert np.array_equal(out.controls, new) and np.array_equal(out.speed, v)
     assert np.array_equal(out.state.q, ref.q) and np.array_equal(out.state.qd, ref.qd)

@@ -223,8 +223,9 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
     """pipeline.advance's contact steps in ONE compiled call (_contact_loop on this thread, or
     _contact_parallel on chunks of the batch when one sub-step has the parallel kernel's work:
     210 and 220 copies with RK4) give the same bits as its Python loop of contact.forces_inplace +
-    _kernels.step_inplace, and reuse the model's packed buffer (no repacking per control step)."""
-    from tensegrity_gym import _kernels
+    the numba backend's step_inplace, and reuse the model's packed buffer (no repacking per control step)."""
+    from tensegrity_gym.backends.numba import api as numba_api
+    from tensegrity_gym.physics import pipeline as physics_pipeline
     from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
     n = kw.pop("num_envs", 1)
     make = (lambda: TensegrityRollEnv(**kw)) if n == 1 else \
@@ -232,7 +233,7 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
     fused, loop = make(), make()
     calls = []
     for name in ("_contact_loop", "_contact_parallel"):
-        monkeypatch.setattr(pipeline, name, lambda *a, _f=getattr(pipeline, name), _n=name: calls.append(_n) or _f(*a))
+        monkeypatch.setattr(numba_api, name, lambda *a, _f=getattr(numba_api, name), _n=name: calls.append(_n) or _f(*a))
     assert same(fused.reset(seed=1)[0], loop.reset(seed=1)[0])
     packed = []
     rng = np.random.default_rng(2)
@@ -240,14 +241,14 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
         a = rng.uniform(-1, 1, fused.action_space.shape)
         r1 = fused.step(a)
         with monkeypatch.context() as m:
-            m.setattr(pipeline, "_contact_compiled", lambda *x: False)     # the Python loop
+            m.setattr(physics_pipeline, "_contact_compiled", lambda *x: False)     # the Python loop
             r2 = loop.step(a)
         assert same(r1[0], r2[0]) and same(r1[1], r2[1]), t
         ft, lt = fused.unwrapped.task, loop.unwrapped.task
         assert same(ft.cstate.anchor, lt.cstate.anchor) and same(ft.cstate.active, lt.cstate.active), t
         # the last sub-step's contact forces and slip flags, which the driver stores with the state
         assert same(ft._W, lt._W) and same(ft._slip, lt._slip), t
-        packed.append(_kernels._CACHE.get(id(fused.unwrapped.task.model)))
+        packed.append(numba_api._CACHE.get(id(fused.unwrapped.task.model)))
     assert len(calls) == 6 * (2 if kw.get("observation_mode") == "robot" else 1)   # robot: IMUs split the last step
     assert set(calls) == {"_contact_parallel" if n >= 200 else "_contact_loop"}, (n, set(calls))
     assert packed[0] is not None and all(p is packed[0] for p in packed)
@@ -255,7 +256,7 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
 
 def test_contact_loop_is_compiled_once_for_copied_envs_and_per_copy_contact():
     """The compiled contact loop takes the model's and the contact's arrays read-only
-    (pipeline._frozen): a deep-copied env (whose model arrays deepcopy makes writable) and a
+    (backends.numba.api._frozen): a deep-copied env (whose model arrays deepcopy makes writable) and a
     randomised env (writable per-copy contact parameters) run the instance already compiled,
     not a second one of the loop driver (a minute of compilation on 2 cores), with the same bits."""
     import copy
@@ -264,7 +265,8 @@ def test_contact_loop_is_compiled_once_for_copied_envs_and_per_copy_contact():
     env.reset(seed=4)
     a = np.linspace(-1, 1, env.action_space.shape[0])
     env.step(a)
-    n_sigs = len(pipeline._contact_loop.signatures)
+    from tensegrity_gym.backends.numba.entries import _contact_loop
+    n_sigs = len(_contact_loop.signatures)
     twin = copy.deepcopy(env)
     assert twin.unwrapped.task.model.eta.flags.writeable and not env.unwrapped.task.model.eta.flags.writeable
     r1, r2 = env.step(a), twin.step(a)
@@ -272,13 +274,13 @@ def test_contact_loop_is_compiled_once_for_copied_envs_and_per_copy_contact():
     rnd = TensegrityRollVectorEnv(num_envs=2, max_episode_steps=None, randomize={"friction": 0.2, "ground_stiffness": 0.2})
     rnd.reset(seed=0)
     rnd.step(np.tile(a, (2, 1)))
-    assert len(pipeline._contact_loop.signatures) == n_sigs
+    assert len(_contact_loop.signatures) == n_sigs
 
 
 @pytest.mark.parametrize("mode", ["rest_length", "force_density"])
 @pytest.mark.parametrize("per_copy", [False, True])
 def test_actuation_update_matches_the_numpy_oracle(mode, per_copy):
-    """Actuation.advance / advance_motor (the compiled update, the package's only one) against
+    """Actuation.update_rate / update_motor (the compiled update, the package's only one) against
     the NumPy reference, bit for bit, with per-copy limits; any float array layout is accepted
     (float32, strided); a wrong shape is a ValueError naming the array."""
     from tensegrity_gym.actuation import Actuation
@@ -296,12 +298,12 @@ def test_actuation_update_matches_the_numpy_oracle(mode, per_copy):
     for t in range(10):
         action = rng.choice([-1.0, 1.0, 0.4, -0.7], (B, 4))
         if acc:
-            new, v, phys = act.advance_motor(ctrl, speed, action)
+            new, v, phys = act.update_motor(ctrl, speed, action)
             new_r, v_r = oracle.actuation_apply_motor(act, ctrl, speed, action)
             assert same(v, v_r), t
             speed = v
         else:
-            new, phys = act.advance(ctrl, action)
+            new, phys = act.update_rate(ctrl, action)
             new_r = oracle.actuation_apply(act, ctrl, action)
         assert same(new, new_r), t
         ref_phys = act.physics_inputs(new_r)
@@ -311,15 +313,15 @@ def test_actuation_update_matches_the_numpy_oracle(mode, per_copy):
     wide = np.zeros((B, 8), np.float32)
     wide[:, ::2] = 0.5
     if acc:
-        out = act.advance_motor(ctrl, speed, wide[:, ::2])
-        assert same(out[0], act.advance_motor(ctrl, speed, np.full((B, 4), 0.5))[0])
+        out = act.update_motor(ctrl, speed, wide[:, ::2])
+        assert same(out[0], act.update_motor(ctrl, speed, np.full((B, 4), 0.5))[0])
         with pytest.raises(ValueError, match="speed"):
-            act.advance_motor(ctrl, speed[:, :3], wide[:, ::2])
+            act.update_motor(ctrl, speed[:, :3], wide[:, ::2])
     else:
-        out = act.advance(ctrl, wide[:, ::2])
-        assert same(out[0], act.advance(ctrl, np.full((B, 4), 0.5))[0])
+        out = act.update_rate(ctrl, wide[:, ::2])
+        assert same(out[0], act.update_rate(ctrl, np.full((B, 4), 0.5))[0])
     with pytest.raises(ValueError, match="action"):
-        (act.advance_motor(ctrl, speed, np.zeros((B, 3))) if acc else act.advance(ctrl, np.zeros((B, 3))))
+        (act.update_motor(ctrl, speed, np.zeros((B, 3))) if acc else act.update_rate(ctrl, np.zeros((B, 3))))
 
 
 @pytest.mark.parametrize("local", [False, True])

@@ -17,7 +17,7 @@ from tensegrity_gym import builders, dynamics as dyn, integrators
 
 import oracle_numpy as oracle
 
-from tensegrity_gym import _kernels as K
+from tensegrity_gym.backends.numba import api as K, compile as KC, layout as KL, pack as KP
 
 RTOL = 1e-12
 DT = 1e-3
@@ -103,7 +103,7 @@ def test_numba_matches_numpy(scene, integrator, project, B):
 def test_simd_batch_loop_matches_numpy(scene, integrator):
     """B >= 16 runs the structure-of-arrays (SIMD) loop; 19 copies also exercise the padded lanes."""
     B = 19
-    assert B >= K._SOA_MIN_BATCH
+    assert B >= KL._SOA_MIN_BATCH
     model, st, ctl = _scene(scene, B, seed=5)
     ref = oracle.step(model, st, DT, integrator, n_steps=100, **ctl)
     out = K.step(model, st, DT, integrator, n_steps=100, **ctl)
@@ -145,10 +145,10 @@ def test_parallel_batch_matches_numpy(monkeypatch, min_work):
     """The multi-threaded kernel (forced with PARALLEL_MIN_WORK = 0, and chosen by the default rule
     for this amount of work) matches NumPy; per-copy controls stay with their copy."""
     if min_work is not None:
-        monkeypatch.setattr(K, "PARALLEL_MIN_WORK", min_work)
+        monkeypatch.setattr(KC, "PARALLEL_MIN_WORK", min_work)
     B = 37
     model, st, ctl = _scene("prism_damped_gravity", B, seed=3)
-    assert K._parallel(K._CACHE.get(id(model)) or K._pack(model), B, 50, 0)
+    assert K._parallel(K._CACHE.get(id(model)) or KP._pack(model), B, 50, 0)
     integrators.stability_limit(model)   # cached now: its Jacobian's acceleration calls are not counted below
     calls = []
     real = K._run_parallel
@@ -255,7 +255,7 @@ def test_great_circle_drift_matches_numpy(B):
     ref = oracle.step(model, st, 2e-3, "semi_implicit_euler", n_steps=200)
     out = K.step(model, st, 2e-3, "semi_implicit_euler", n_steps=200)
     step_angle = np.linalg.norm(st.qd[..., 3:], axis=-1).max() * 2e-3
-    assert step_angle > 0.05 and np.linalg.norm(st.qd[0, :, 3:], axis=-1).max() * 2e-3 < K._SINC_SMALL
+    assert step_angle > 0.05 and np.linalg.norm(st.qd[0, :, 3:], axis=-1).max() * 2e-3 < KL._SINC_SMALL
     # 200 steps of a fast spin: numba's and NumPy's sin/cos/sqrt may differ in the last bit and
     # the difference grows with the (string-coupled) motion; 1e-10 still rules out any other change
     assert _rel_err(ref, out) < 1e-10, _rel_err(ref, out)
@@ -285,7 +285,7 @@ def test_node_damping_matches_numpy(B, integrator, monkeypatch):
     assert _rel_err(oracle.step(model, st, DT, integrator, n_steps=100), lean) < RTOL
     no_drag = K.step(dyn.compile_model(s), st, DT, integrator, n_steps=100, **ctl)
     assert _rel_err(out, no_drag) > 1e-6
-    monkeypatch.setattr(K, "PARALLEL_MIN_WORK", 0)
+    monkeypatch.setattr(KC, "PARALLEL_MIN_WORK", 0)
     if B >= 8:
         par = K.step(model, st, DT, integrator, n_steps=100, **ctl)
         np.testing.assert_array_equal(par.q, out.q)
@@ -294,7 +294,7 @@ def test_node_damping_matches_numpy(B, integrator, monkeypatch):
 @pytest.mark.parametrize("scene", SCENES)
 @pytest.mark.parametrize("B", [1, 5, 40])
 def test_accelerations_entry_matches_numpy(scene, B):
-    """``_kernels.accelerations`` (the loop driver's force and rod equations, no step) equals
+    """``backends.numba.api.accelerations`` (the loop driver's force and rod equations, no step) equals
     ``dynamics.accelerations`` to round-off: one copy at a time (B < 16) and SIMD blocks (B = 40)."""
     model, st, ctrl = _scene(scene, B)
     a_ref = oracle.accelerations(model, st.q, st.qd, **ctrl)
@@ -309,7 +309,7 @@ def test_accelerations_entry_parallel_params_and_shapes(monkeypatch):
     from tensegrity_gym.params import default_params
     model, st, ctrl = _scene("constrained_prism", 24)
     ref = oracle.accelerations(model, st.q, st.qd, **ctrl)
-    monkeypatch.setattr(K, "PARALLEL_MIN_WORK", 1)
+    monkeypatch.setattr(KC, "PARALLEL_MIN_WORK", 1)
     assert np.abs(K.accelerations(model, st.q, st.qd, **ctrl) - ref).max() <= RTOL * np.abs(ref).max()
     monkeypatch.undo()
     rng = np.random.default_rng(5)
@@ -331,7 +331,7 @@ def test_accelerations_entry_parallel_params_and_shapes(monkeypatch):
 @pytest.mark.parametrize("scene", SCENES)
 @pytest.mark.parametrize("B", [1, 5])
 def test_string_forces_entry_matches_numpy(scene, B):
-    """``_kernels.string_forces`` (the loop driver's own string and nodal force equations, which
+    """``backends.numba.api.string_forces`` (the loop driver's own string and nodal force equations, which
     ``dynamics.force_densities`` / ``nodal_forces`` return to observations, rendering and statics)
     equals the NumPy oracle to round-off: slack strings, damping, gravity, node drag, anchors,
     force-density controls (some clipped at 0), external forces, per-copy parameters."""
@@ -365,7 +365,7 @@ def test_string_forces_entry_matches_numpy(scene, B):
 @pytest.mark.parametrize("scene", SCENES)
 @pytest.mark.parametrize("B", [1, 5, 40])
 def test_project_entry_matches_numpy(scene, B, monkeypatch):
-    """``_kernels.project`` (the loop driver's ``_project``, no step) equals
+    """``backends.numba.api.project`` (the loop driver's ``_project``, no step) equals
     ``dynamics.project`` to round-off on states off the constraint manifold (|b| != 1,
     b . b' != 0, constrained points off their line/plane), serial, SIMD and parallel; a (k, 6)
     state keeps its shape; the input arrays are not modified."""
@@ -375,8 +375,8 @@ def test_project_entry_matches_numpy(scene, B, monkeypatch):
     qd = st.qd + rng.normal(size=st.qd.shape)
     q0, qd0 = q.copy(), qd.copy()
     ref = oracle.project(model, q, qd)
-    for min_work in (K.PARALLEL_MIN_WORK, 1):
-        monkeypatch.setattr(K, "PARALLEL_MIN_WORK", min_work)
+    for min_work in (KC.PARALLEL_MIN_WORK, 1):
+        monkeypatch.setattr(KC, "PARALLEL_MIN_WORK", min_work)
         out = K.project(model, q, qd)
         assert np.abs(out[0] - ref[0]).max() <= 1e-14 and np.abs(out[1] - ref[1]).max() <= RTOL * np.abs(qd).max()
     np.testing.assert_array_equal(q, q0)

@@ -195,14 +195,14 @@ def test_actuation_motor_numpy_and_compiled_agree_at_bounds():
     speed = rng.uniform(-0.2, 0.2, (B, na))
     action = rng.choice([-1.0, 1.0, 0.3], (B, na))
     new_np, v_np = oracle.actuation_apply_motor(act, ctrl, speed, action)
-    new_c, v_c, phys = act.advance_motor(ctrl, speed, action)
+    new_c, v_c, phys = act.update_motor(ctrl, speed, action)
     np.testing.assert_array_equal(new_np, new_c)
     np.testing.assert_array_equal(v_np, v_c)
     np.testing.assert_array_equal(phys["rest_length"][:, :na], new_c)
     np.testing.assert_array_equal(phys["rest_length"][:, na:], 1.0)
     assert np.all(v_c[new_c <= 0.5] >= 0) and np.all(v_c[new_c >= 1.0] <= 0)
     with pytest.raises(ValueError, match="max_accel"):
-        Actuation("rest_length", np.arange(na), 0.5, 1.0, 0.2, 0.02, np.ones(na), 0.75).advance_motor(
+        Actuation("rest_length", np.arange(na), 0.5, 1.0, 0.2, 0.02, np.ones(na), 0.75).update_motor(
             ctrl, speed, action)
 
 

@@ -89,14 +89,14 @@ def test_shared_params_are_bit_identical_to_no_params(backend, integrator):
 
 
 def test_parallel_per_copy_kernel_matches_serial():
-    from tensegrity_gym import _kernels
+    from tensegrity_gym.backends.numba import api as _kernels, compile as _compile
     model = tg.compile_model(tg.prism(3, prestress=100.0))
     rng = np.random.default_rng(3)
     n = 64
     params = default_params(model, n).replace(stiffness=model.stiffness * rng.uniform(0.5, 1.5, (n, model.n_strings)))
     st = _moving_state(model, rng, n)
     big = tg.step(model, st, 1e-3, "rk4", n_steps=200, params=params)      # above PARALLEL_MIN_WORK
-    assert n * 200 * (model.n_strings + model.n_bars) * 4 >= _kernels.PARALLEL_MIN_WORK
+    assert n * 200 * (model.n_strings + model.n_bars) * 4 >= _compile.PARALLEL_MIN_WORK
     for b in (0, 17, 63):
         one = tg.step(model, dyn.State(q=st.q[b:b + 1], qd=st.qd[b:b + 1]), 1e-3, "rk4", n_steps=200,
                       params=params.take([b]))
@@ -104,7 +104,7 @@ def test_parallel_per_copy_kernel_matches_serial():
 
 
 def test_step_inplace_per_copy_and_diagnostics():
-    from tensegrity_gym import _kernels
+    from tensegrity_gym.backends.numba import api as _kernels
     model = tg.compile_model(tg.prism(3, prestress=100.0).replace(gravity=np.array([0, 0, -9.81])))
     rng = np.random.default_rng(4)
     params = _random_params(model, rng)

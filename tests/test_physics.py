@@ -742,3 +742,89 @@ def print_figures():
 
 if __name__ == "__main__":
     print_figures()
+
+
+# ---------------------------------------------------------------------- the public in-place step
+@pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4", "implicit_euler"])
+@pytest.mark.parametrize("inputs", ["none", "controls", "params", "callable"])
+def test_public_step_inplace_equals_step(integrator, inputs):
+    """physics.step_inplace writes exactly what physics.step returns into the state's own arrays
+    (bit for bit, every integrator, with controls, per-copy parameters or a callable external
+    force), returns a State holding those arrays with the same time, and leaves the input of
+    step untouched."""
+    from tensegrity_gym import physics
+    model = dyn.compile_model(tg.prism(3, damping=2.0, gravity=GRAVITY))
+    B, rng = 3, np.random.default_rng(11)
+    st0 = dyn.initial_state(model, B)
+    st0 = dyn.State(st0.q + rng.normal(0, 0.01, st0.q.shape), rng.normal(0, 0.1, st0.q.shape), 0.25)
+    kw = {}
+    if inputs == "controls":
+        kw = dict(rest_length=model.rest_length * (1.0 + 0.02 * rng.uniform(-1, 1, (B, model.n_strings))),
+                  external=rng.normal(0, 0.5, (B, model.n_nodes, 3)))
+    elif inputs == "params":
+        from tensegrity_gym.params import default_params
+        kw = dict(params=default_params(model, B).replace(mass=model.mass * rng.uniform(0.9, 1.1, (B, 3))))
+    elif inputs == "callable":
+        kw = dict(external=lambda q, qd, t: -0.3 * dyn.node_velocities(model, qd))
+    q0, qd0 = st0.q.copy(), st0.qd.copy()
+    out = physics.step(model, st0, 1e-3, integrator, n_steps=7, **kw)
+    np.testing.assert_array_equal(st0.q, q0)
+    st = dyn.State(q0.copy(), qd0.copy(), st0.t)
+    ret = physics.step_inplace(model, st, 1e-3, integrator, n_steps=7, **kw)
+    assert ret.q is st.q and ret.qd is st.qd and ret.t == out.t
+    np.testing.assert_array_equal(st.q, out.q)
+    np.testing.assert_array_equal(st.qd, out.qd)
+
+
+def test_public_step_inplace_refuses_arrays_it_cannot_write_and_bad_input():
+    """ValueError naming the field for a state it cannot write in place (float32, read-only,
+    strided), a non-finite state, a bad dt or n_steps; the arrays are left as they were."""
+    from tensegrity_gym import physics
+    model = dyn.compile_model(tg.prism(3))
+    st = dyn.initial_state(model, 2)
+    with pytest.raises(ValueError, match="state.q and state.qd must be writable C-contiguous float64"):
+        physics.step_inplace(model, dyn.State(st.q.astype(np.float32), st.qd, 0.0), 1e-3)
+    ro = st.q.copy()
+    ro.flags.writeable = False
+    with pytest.raises(ValueError, match="writable"):
+        physics.step_inplace(model, dyn.State(ro, st.qd.copy(), 0.0), 1e-3)
+    wide = np.zeros((2, 3, 12))
+    with pytest.raises(ValueError, match="C-contiguous"):
+        physics.step_inplace(model, dyn.State(wide[..., ::2], st.qd.copy(), 0.0), 1e-3)
+    bad = st.q.copy()
+    bad[1, 2, 4] = np.nan
+    with pytest.raises(ValueError, match=r"state.q"):
+        physics.step_inplace(model, dyn.State(bad, st.qd.copy(), 0.0), 1e-3)
+    q, qd = st.q.copy(), st.qd.copy()
+    for dt, n in ((0.0, 1), (float("nan"), 1), (1e-3, 0), (1e-3, 1.5)):
+        with pytest.raises(ValueError, match="dt|n_steps"):
+            physics.step_inplace(model, dyn.State(q, qd, 0.0), dt, n_steps=n)
+    np.testing.assert_array_equal(q, st.q)
+    np.testing.assert_array_equal(qd, st.qd)
+
+
+def test_old_module_paths_re_export_the_layered_modules():
+    """Every module path of the flat package still imports and gives the same objects as the
+    layered one (a module that moved whole is the same module object; renamed functions keep
+    their old names as aliases), and every name of their ``__all__`` resolves."""
+    import importlib
+
+    import tensegrity_gym.core.sizing
+    import tensegrity_gym.physics.pipeline
+    from tensegrity_gym import physics
+    from tensegrity_gym.backends.torch import actuation as torch_actuation
+    for old in ("dynamics", "integrators", "pipeline", "params", "contact", "actuation", "checks", "statics",
+                "structure", "builders", "torch_backend", "implicit", "jacobian", "sizing", "_kernels",
+                "_compile_notice"):
+        mod = importlib.import_module(f"tensegrity_gym.{old}")
+        for name in getattr(mod, "__all__", ()):
+            assert getattr(mod, name) is not None, (old, name)
+    from tensegrity_gym import (actuation, contact, dynamics, integrators, params, pipeline, sizing, structure,
+                                torch_backend)
+    assert sizing is tensegrity_gym.core.sizing and params.default_params is tg.core.params.default_params
+    assert structure.Structure is tg.Structure and actuation.Actuation.advance is actuation.Actuation.update_rate
+    assert pipeline.advance is physics.run_steps is tensegrity_gym.physics.pipeline.run_steps
+    assert pipeline.control_step is physics.control_step and integrators.step is physics.step
+    assert integrators.simulate is physics.simulate and dynamics.node_positions is physics.geometry.node_positions
+    assert contact.step is physics.pipeline.contact_step
+    assert torch_backend.advance is torch_actuation.update_rate and torch_backend.motor is torch_actuation.update_motor

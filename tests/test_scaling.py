@@ -12,6 +12,7 @@ import tensegrity_gym as tg
 from tensegrity_gym import dynamics as dyn
 from tensegrity_gym import jacobian as jac
 from tensegrity_gym import sizing
+from tensegrity_gym.physics import stability
 from tensegrity_gym.builders import tower
 
 import oracle_numpy as oracle
@@ -157,7 +158,7 @@ def test_dense_stability_path_kept_for_small_structures():
 def test_sparse_stability_estimate_is_conservative(scene):
     """Mid-size structures where both run: the sparse estimate's omega/lambda equal the dense
     ones (to Arnoldi's tolerance), its steps are never above the dense ones and at most the stated
-    factor below (2.5 semi-implicit Euler, 1.12 RK4: the docstring of dynamics._stable_step_sparse)."""
+    factor below (2.5 semi-implicit Euler, 1.12 RK4: the docstring of physics.stability._stable_step_sparse)."""
     st = None
     if scene == "tower8":
         m = dyn.compile_model(tower(8))
@@ -193,7 +194,7 @@ def test_sparse_estimate_fallback_bound_is_rigorous(monkeypatch):
     def fail(A, nev):
         raise ArpackNoConvergence("no convergence (test)", np.array([]), np.array([]))
 
-    monkeypatch.setattr(dyn, "_top_eigenvalues", fail)
+    monkeypatch.setattr(stability, "_top_eigenvalues", fail)
     sp = dyn.stable_step_estimate(m, method="sparse")
     assert sp["lambda_max"] >= d["lambda_max"] and sp["omega_max"] >= d["omega_max"]
     assert sp["lambda_max"] < 3 * d["lambda_max"]

@@ -158,7 +158,7 @@ def test_motor_matches_actuation():
     speed = rng.uniform(-0.2, 0.2, (64, 3))
     a = rng.uniform(-1, 1, (64, 3))
     for _ in range(20):
-        new, v = act.advance_motor(ctrl, speed, a)[:2]
+        new, v = act.update_motor(ctrl, speed, a)[:2]
         nt, vt = tb.motor(act, torch.tensor(ctrl), torch.tensor(speed), torch.tensor(a))
         assert np.array_equal(nt.numpy(), new) and np.array_equal(vt.numpy(), v)
         rl = tb.physics_inputs(act, nt)["rest_length"].numpy()

@@ -5,7 +5,9 @@ import math
 
 import numpy as np
 
-from .. import builders
+from ..core.builders import (GRAVITY, ICO_LENGTH, ICO_PRESTRESS, PRISM_HEIGHT, PRISM_PRESTRESS,  # noqa: F401
+                             PRISM_RADIUS, ROD_MASS, STRING_DAMPING, STRING_STIFFNESS, robot_icosahedron,
+                             robot_prism)
 from .. import contact as gc
 from .. import dynamics as dyn
 from ..structure import Structure
@@ -13,35 +15,11 @@ from ..structure import Structure
 __all__ = ["robot_prism", "robot_icosahedron", "place_on_ground", "put_on_ground", "settle", "load_robot",
            "GRAVITY"]
 
-GRAVITY = (0.0, 0.0, -9.81)
-
-# default robot (see the class docstring, "Scene")
-ROD_MASS = 0.2          # kg per rod
-STRING_STIFFNESS = 1000.0   # N/m
-STRING_DAMPING = 2.0    # N s/m
-PRISM_RADIUS = 0.15     # m
-PRISM_HEIGHT = 0.25     # m
-PRISM_PRESTRESS = 20.0  # N in the vertical strings
+# default robot (see the class docstring, "Scene"): its structure and constants live in core.builders
 MAX_CABLE_ACCELERATION = 2.0   # m/s^2, cable motor acceleration limit (0.2 m/s reached in 0.1 s)
-ICO_LENGTH = 0.4        # m
-ICO_PRESTRESS = 10.0    # N in every string
 SETTLE_TIME = 1.5       # s of simulated settling at construction
 MAX_PATH = 5000         # centre-of-mass points kept per env for rendering
 _SETTLED: dict = {}     # settled rest states of the built-in scenes, by parameters
-
-
-def robot_prism(string_damping: float = STRING_DAMPING) -> Structure:
-    """The default 3-bar prism robot (not yet placed on the ground): rods 0.383 m, 0.2 kg."""
-    return builders.prism(3, radius=PRISM_RADIUS, height=PRISM_HEIGHT, bar_mass=ROD_MASS,
-                          stiffness=STRING_STIFFNESS, prestress=PRISM_PRESTRESS, damping=string_damping,
-                          gravity=GRAVITY, name="prism_robot")
-
-
-def robot_icosahedron(string_damping: float = STRING_DAMPING) -> Structure:
-    """The 6-bar icosahedron robot (SUPERball's shape at the 3-bar robot's rod scale): rods 0.4 m, 0.2 kg."""
-    return builders.icosahedron(length=ICO_LENGTH, bar_mass=ROD_MASS, stiffness=STRING_STIFFNESS,
-                                prestress=ICO_PRESTRESS, damping=string_damping,
-                                gravity=GRAVITY).replace(name="icosahedron_robot")
 
 
 def _rot_to(a: np.ndarray, b: np.ndarray) -> np.ndarray:

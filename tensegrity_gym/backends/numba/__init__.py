@@ -1,0 +1,12 @@
+"""The numba backend: compiled loops over one packed float64 buffer per model.
+
+Modules: ``layout`` (buffer layout, flag bits, error codes), ``equations`` (rod accelerations,
+string forces, projection, great-circle drift), ``contact`` (ground-contact forces),
+``driver`` (the one loop driver and its compiled instances), ``entries`` (the compiled entry
+kernels with their explicit signatures), ``pack`` (packing a model or a ``Params`` into
+buffers), ``compile`` (threading layer, compile-once management), ``api`` (the Python entry
+points ``step``, ``step_inplace``, ``accelerations``, ``string_forces``, ``project``,
+``contact_steps``, ``make_plan``), ``actuation`` (compiled control updates) and ``divergence``.
+numba's on-disk cache does not notice edits of kernels inlined into kernels of another module:
+after editing one run ``find tensegrity_gym -name '*.nbi' -o -name '*.nbc' | xargs rm -f``.
+"""

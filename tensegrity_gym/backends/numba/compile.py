@@ -1,0 +1,112 @@
+"""Compile management of the numba backend: the threading layer, the chunk count of the
+parallel loops, and the one-line notice on stderr when numba really compiles.
+
+The first compiled call after an install (or after the package's source changed) compiles the
+numba kernels; later processes load them from numba's on-disk cache (``__pycache__/*.nbi`` /
+``*.nbc`` beside the modules) in well under a second. Loading from the cache prints nothing.
+Set ``TENSEGRITY_GYM_QUIET=1`` to silence the message.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+import numba
+
+from .entries import (_run_copies_serial, _run_forces, _run_lean, _run_parallel, _run_serial, _SIG, _SIG_COPIES,
+                      _SIG_FORCES, _SIG_LEAN)
+from .layout import _RK4
+
+if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
+    # numba's default picks GNU OpenMP here; on a machine with more runnable threads than cores
+    # (other jobs, or torch's own OpenMP pool during training) each parallel call then waits
+    # ~12-16 ms for a descheduled worker, measured on the 2-core benchmark machine, against
+    # ~0.1 ms with numba's own workqueue pool. Set NUMBA_THREADING_LAYER to choose otherwise.
+    numba.config.THREADING_LAYER = "workqueue"
+
+NCHUNK = 4 * numba.get_num_threads()   # chunks of the parallel batch loops
+
+_said = False
+
+def cached(dispatcher) -> bool:
+    """True if numba's on-disk cache holds a current entry for ``dispatcher`` (its index file
+    exists and its source stamp matches the module); True as well when that cannot be told
+    (then :func:`compile_with_notice` reports after a slow compile instead)."""
+    if dispatcher.signatures:               # already compiled or loaded in this process
+        return True
+    try:
+        return bool(dispatcher._cache._cache_file._load_index())
+    except Exception:                       # numba internals changed, or caching disabled
+        return True
+
+
+def say(message: str) -> None:
+    """Print ``message`` to stderr once per process (the first call only)."""
+    global _said
+    if _said or os.environ.get("TENSEGRITY_GYM_QUIET"):
+        return
+    _said = True
+    try:
+        print(message, file=sys.stderr, flush=True)
+    except (OSError, ValueError):           # pragma: no cover - stderr closed
+        pass
+
+
+def compile_with_notice(pairs, what: str) -> None:
+    """Compile ``(dispatcher, signature)`` pairs (``signature`` None: nothing to compile here,
+    the first call will) announcing a cold compile up front and a slow unannounced one after."""
+    cold = not all(cached(d) for d, _ in pairs)
+    if cold:
+        say(f"tensegrity_gym: compiling the numba {what} (once after install or an update, about "
+            "1.5-2 min on 2 cores; cached in __pycache__ for later runs) ...")
+    t0 = time.perf_counter()
+    for d, sig in pairs:
+        if sig is not None:
+            d.compile(sig)
+    took = time.perf_counter() - t0
+    if not cold and took > 5.0:
+        say(f"tensegrity_gym: compiled the numba {what} in {took:.0f} s (cached for later runs)")
+
+
+#: a call runs the multi-threaded kernel when B * n_steps * (strings + rods) * (4 for RK4, else 1)
+#: reaches this (about 0.3 ms of single-core work: below it, waking threads costs more than they save,
+#: and much more on a loaded machine). B < 8 is always serial.
+PARALLEL_MIN_WORK = 10_000
+
+
+_READY = {"serial": False, "parallel": False, "copies": False, "forces": False}
+
+
+def _compile(which: str) -> None:
+    """Compile (or load from numba's on-disk cache) the serial entry points or the parallel one
+    for their single signature, then forbid further compilation: an argument of another type
+    raises TypeError (handled by converting it) instead of compiling a new variant."""
+    if which == "serial":
+        pairs = ((_run_lean, _SIG_LEAN), (_run_serial, _SIG))
+    elif which == "copies":
+        pairs = ((_run_copies_serial, _SIG_COPIES),)
+    elif which == "forces":
+        pairs = ((_run_forces, _SIG_FORCES),)
+    else:
+        pairs = ((_run_parallel, _SIG_COPIES),)
+    compile_with_notice(pairs, f"{'physics' if which == 'serial' else which + ' physics'} kernels")
+    for disp, _ in pairs:
+        disp.disable_compile()
+    _READY[which] = True
+
+
+def _parallel(p, B, n_steps, flags, compile_kernel=True):
+    """True if this call should run the multi-threaded kernel (see PARALLEL_MIN_WORK); compiles
+    ``_run_parallel`` then unless ``compile_kernel`` is False (a caller with its own parallel kernel)."""
+    try:
+        work = B * int(n_steps) * p.cost * (4 if flags & _RK4 else 1)
+    except (TypeError, ValueError):
+        return False
+    if work < PARALLEL_MIN_WORK:
+        return False
+    if compile_kernel and not _READY["parallel"]:
+        _compile("parallel")
+    return True
+
+

@@ -1,0 +1,241 @@
+"""The compiled entry kernels of the numba backend, each for ONE explicit signature
+(C-contiguous float64 arrays; other inputs are converted at the boundary by :mod:`.api`, never
+compiled again): ``_run_lean`` (no control arrays: the single-env fast path), ``_run_serial``,
+``_run_copies_serial`` (one packed buffer per copy), ``_run_parallel`` (``prange`` over chunks
+of the batch), ``_run_forces`` (string and nodal forces, no step), the contact loops
+``_contact_loop`` / ``_contact_parallel`` and :func:`run_plan` (a fused caller's step).
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .driver import (_drive_lanes, _drive_lanes_contact, _drive_one, _drive_one_contact, _load, _scratch,
+                     _view)
+from .equations import _forces
+from .layout import _CHUNK_SHIFT, _EXT, _FD, _L0DEF, _lane_width, _layout_nb, _opts, _soa_width_nb
+
+@njit(inline="always", **_opts)
+def _serial_setup(bufs, B):
+    """(layout, k, m, n, E, lanes) of serial calls on B copies with ``bufs`` (1, len)
+    shared or (B, len) one packed buffer per copy; ``lanes`` is for E = 1 only (the buffers
+    themselves, (B, len, 1)); a SIMD call takes the caller's :func:`_lanes` blocks."""
+    ibs = bufs.view(np.int64)
+    k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+    L = _layout_nb(k, m, n)
+    E = _lane_width(k, B)
+    per_copy = bufs.shape[0] > 1
+    lanes = _view(bufs, 0, (bufs.shape[0] if per_copy else 0, bufs.shape[1], 1))
+    return L, k, m, n, E, lanes
+
+@njit(inline="always", **_opts)
+def _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, setup):
+    """The serial step of every copy (checks, then the driver: its E = 1 instance for one copy
+    at a time); ``setup`` from :func:`_serial_setup`, reusable for repeated calls (the contact
+    sub-steps). Returns the error code (0: done)."""
+    L, k, m, n, E, lanes1 = setup
+    err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+    if err == 0 and bufs.shape[0] != q.shape[0] and bufs.shape[0] != 1:
+        err = 7
+    if err:
+        return err
+    ib = bufs[0].view(np.int64)
+    if E == 1:
+        _drive_one(bufs[0], ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
+                     lanes1)
+    else:
+        _drive_lanes(bufs[0], ib, L, k, m, n, q, qd, qo, qdo, 0, q.shape[0], l0, fd, ext, dt, n_steps, flags,
+                 _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2])))
+    return 0
+
+
+@njit(**_opts)
+def _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags):
+    B = q.shape[0]
+    if q.shape[1] != k or q.shape[2] != 6:
+        return 1
+    if qd.shape[0] != B or qd.shape[1] != k or qd.shape[2] != 6:
+        return 2
+    if qo.shape[0] != B or qo.shape[1] != k or qo.shape[2] != 6:
+        return 6
+    if qdo.shape[0] != B or qdo.shape[1] != k or qdo.shape[2] != 6:
+        return 6
+    if (flags & _L0DEF) == 0 and (l0.shape[1] != m or (l0.shape[0] != 1 and l0.shape[0] != B)):
+        return 3
+    if (flags & _FD) != 0 and (fd.shape[1] != m or (fd.shape[0] != 1 and fd.shape[0] != B)):
+        return 4
+    if (flags & _EXT) != 0 and (ext.shape[1] != n or ext.shape[2] != 3
+                                or (ext.shape[0] != 1 and ext.shape[0] != B)):
+        return 5
+    return 0
+
+# explicit signatures (no other variant is ever compiled): C-contiguous float64 arrays
+_f8 = numba.types.float64
+_a1, _a2, _a3 = (numba.types.Array(_f8, d, "C") for d in (1, 2, 3))
+_i64 = numba.types.int64
+_SIG = _i64(_a3, _a3, _a3, _a3, _a1, _a2, _a2, _a3, _f8, _i64, _i64)
+_SIG_LEAN = _i64(_a3, _a3, _a3, _a3, _a1, _f8, _i64, _i64)
+_SIG_COPIES = _i64(_a3, _a3, _a3, _a3, _a2, _a2, _a2, _a3, _f8, _i64, _i64, _a3)
+_SIG_FORCES = _i64(_a3, _a3, _a2, _a2, _a2, _a3, _i64, _a2, _a2, _a3)
+
+# Entry points are compiled lazily for ONE explicit signature each (see _compile): the serial
+# ones on first use of any model, the parallel one on first use of a large batch.
+@njit(cache=True, fastmath=False, error_model="numpy")   # holds the GIL: it uses the scratch inside buf
+def _run_serial(q, qd, qo, qdo, buf, l0, fd, ext, dt, n_steps, flags):
+    bufs = _view(buf, 0, (1, buf.shape[0]))
+    return _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, _view(buf, 0, (1, buf.shape[0], 1)),
+                   _serial_setup(bufs, q.shape[0]))
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _run_lean(q, qd, qo, qdo, buf, dt, n_steps, flags):
+    """_run_serial with the model's rest lengths and no force density / external force:
+    three array arguments fewer to convert at the Python boundary (single-env fast path)."""
+    flags = (flags | _L0DEF) & ~(_FD | _EXT)
+    d2 = q[0]                             # placeholders of the right type, never read
+    bufs = _view(buf, 0, (1, buf.shape[0]))
+    return _serial(q, qd, qo, qdo, bufs, d2, d2, q, dt, n_steps, flags, _view(buf, 0, (1, buf.shape[0], 1)),
+                   _serial_setup(bufs, q.shape[0]))
+
+@njit(inline="always", **_opts)
+def _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, shared):
+    """(error code, int64 view of bufs, layout, k, m, n) of a call on packed buffers (P, len):
+    the shape checks of _check, and one buffer per copy of q, or one (``shared`` allowed)
+    (error 7 otherwise)."""
+    ibs = bufs.view(np.int64)
+    k, m, n = ibs[0, 0], ibs[0, 1], ibs[0, 2]
+    err = _check(q, qd, qo, qdo, k, m, n, l0, fd, ext, flags)
+    if err == 0 and ibs.shape[0] != q.shape[0] and not (shared and ibs.shape[0] == 1):
+        err = 7
+    return err, ibs, _layout_nb(k, m, n), k, m, n
+
+# holds the GIL too: then no two Python threads can be inside the thread pool at once (the
+# workqueue threading layer, chosen below, does not support concurrent callers)
+# Per-copy parameters: bufs (P, len) holds one packed buffer per copy (its physics and its
+# scratch, P = B), or the one buffer shared by every copy (P = 1).
+@njit(parallel=True, cache=True, fastmath=False, error_model="numpy")
+def _run_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
+    """The batch in chunks of whole SIMD blocks on all threads (``prange``), each chunk the
+    SIMD loop; ``bufs`` (1, len) shared or (B, len) one packed buffer per copy, ``lanes`` their
+    lane blocks (:func:`_lanes`) or (0, 1, 1)."""
+    err, ibs, L, k, m, n = _copies_check(q, qd, qo, qdo, bufs, l0, fd, ext, flags, True)
+    if err:
+        return err
+    B = q.shape[0]
+    E = _soa_width_nb(k)
+    nb = (B + E - 1) // E                             # SIMD blocks
+    nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))      # number of chunks in the high bits of flags
+    for c in prange(nch):
+        # _drive_lanes only reads the buffers; each chunk has its own scratch: threads share nothing written
+        _drive_lanes(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, (c * nb // nch) * E,
+                 min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes)
+    return 0
+
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _run_copies_serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
+    return _serial(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes, _serial_setup(bufs, q.shape[0]))
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")   # holds the GIL: it uses the scratch inside bufs
+def _run_forces(q, qd, bufs, l0, fd, ext, flags, G, LS, FO):
+    """The string force densities G (B, m), N/m, string lengths LS (B, m), m, and total nodal
+    forces FO (B, n, 3), N, of the states ``q``, ``qd`` (B, k, 6): :func:`_forces` (the
+    equations every step runs) one copy at a time, each with its packed buffer ``bufs[b]``
+    ((B, len) per copy, or (1, len) shared). Returns the error code (0: done)."""
+    err, ibs, L, k, m, n = _copies_check(q, qd, q, qd, bufs, l0, fd, ext, flags, True)
+    if err:
+        return err
+    if G.shape[0] != q.shape[0] or G.shape[1] != m or LS.shape[0] != q.shape[0] or LS.shape[1] != m \
+            or FO.shape[0] != q.shape[0] or FO.shape[1] != n or FO.shape[2] != 3:
+        return 6
+    per_copy = bufs.shape[0] > 1
+    g1 = np.empty((m, 1))
+    ls1 = np.empty((m, 1))
+    for b in range(q.shape[0]):
+        w = bufs[b if per_copy else 0]        # the copy's own buffer: its constants, anchors and scratch
+        ib = ibs[b if per_copy else 0]
+        S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, 1, False)
+        _load(q, qd, l0, fd, ext, b, 1, S[0], S[1], L0, FD, EX, PC, L[2], k, m, n, 1, flags)
+        _forces(w, ib, L, k, m, n, S[0], S[1], N, V, F, L0, FD, EX, 1, flags, PC, g1, ls1, True)
+        for s in range(m):
+            G[b, s] = g1[s, 0]
+            LS[b, s] = ls1[s, 0]
+        for p in range(n):
+            for i in range(3):
+                FO[b, p, i] = F[p, i, 0]
+    return 0
+
+
+# ---------------------------------------------------------------------- Python side
+_CACHE: dict = {}
+
+
+# ---------------------------------------------------------------------- contact loops and fused plans
+@njit(inline="always", cache=True)
+def _contact_check(q, qd, bufs, l0, fd, W, ext, flags):
+    """(error code, int64 view of bufs, layout, k, m, n) of a contact loop call: the driver's
+    checks (``_copies_check``, W as its external force) and ext rows 0, 1 or B of
+    (n, 3) (error 5 otherwise)."""
+    err, ibs, L, k, m, n = _copies_check(q, qd, q, qd, bufs, l0, fd, W, flags, True)
+    if err == 0 and ext.shape[0] > 0 and ((ext.shape[0] != 1 and ext.shape[0] != q.shape[0])
+                                          or ext.shape[1] != n or ext.shape[2] != 3):
+        err = 5
+    return err, ibs, L, k, m, n
+
+@njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
+def _contact_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active,
+                  slip, prm):
+    """The contact sub-steps of :func:`tensegrity_gym.physics.pipeline.run_steps` on the whole batch,
+    on this thread, in place: the
+    loop driver with contact (``_drive_lanes_contact``, or its one-copy instance below
+    ``_SOA_MIN_BATCH`` copies), ``n_steps`` steps, each with the contact forces of its start
+    plus ``ext`` (0, 1 or B rows of (n, 3) N); ``W`` (B, n, 3) gets the last step's forces,
+    ``anchor``, ``active``, ``slip`` the contact state. ``bufs`` (1, len) the shared
+    packed buffer or (B, len) one per copy (``lanes``: their SIMD lane blocks). Returns the
+    kernel's error code (0: done)."""
+    err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
+    if err:
+        return err
+    E, lanes1 = _serial_setup(bufs, q.shape[0])[4:]     # the serial kernels' choice of instance
+    if E != 1:       # the SIMD instance reads per-copy constants from the lane blocks, shared ones from w
+        lanes1 = _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2]))
+    contact = (eta, rod_a, rod_c, prm, anchor, active, slip, ext)
+    if E == 1:
+        _drive_one_contact(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
+                       contact)
+    else:
+        _drive_lanes_contact(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
+                   contact)
+    return 0
+
+@njit(parallel=True, cache=True)   # holds the GIL, as _run_parallel does
+def _contact_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor,
+                      active, slip, prm):
+    """:func:`_contact_loop` on chunks of whole SIMD blocks on all threads (``prange``; the
+    chunk count in ``flags >> _CHUNK_SHIFT``): each chunk runs all ``n_steps`` sub-steps of
+    its copies (contact forces, then the SIMD driver with its own scratch), so the threads
+    meet once per call, not once per sub-step. Same arguments and bits as
+    :func:`_contact_loop`."""
+    err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
+    if err:
+        return err
+    B = q.shape[0]
+    E = _soa_width_nb(k)
+    nb = (B + E - 1) // E
+    nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))
+    contact = (eta, rod_a, rod_c, prm, anchor, active, slip, ext)
+    for c in prange(nch):
+        # the driver only reads the buffers; each chunk has its own scratch and copies
+        _drive_lanes_contact(bufs[0], ibs[0], L, k, m, n, q, qd, (c * nb // nch) * E, min(B, ((c + 1) * nb // nch) * E),
+                   l0, fd, W, dt, n_steps, flags, lanes, contact)
+    return 0
+
+@njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
+def run_plan(q, qd, qo, qdo, buf, controls, dt, n_steps, flags):
+    """From njit code: the physics of a :class:`Plan` (its ``buf``, ``dt``, ``n_steps``,
+    ``flags``) from ``q``, ``qd`` into ``qo``, ``qdo`` (B, k, 6) with ``controls`` (B, m)
+    the rest lengths or force densities of its control mode. Returns the kernel's error
+    code (0: done)."""
+    return _run_serial(q, qd, qo, qdo, buf, controls, controls, q, dt, n_steps, flags)

@@ -1,0 +1,223 @@
+"""Checks of user input shared by the physics and the environments: every error is a
+``ValueError`` naming the argument and the value."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["ACTION_TOL", "check_positive", "check_array", "check_finite", "is_integer", "check_count",
+           "check_flag", "check_options", "check_action",
+           "check_action_tensor", "load_npz", "check_frame_size", "MAX_FRAME_SIZE"]
+
+#: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
+ACTION_TOL = 1e-6
+#: largest rendered frame side, pixels (an 8192 x 8192 RGB frame is 192 MiB)
+MAX_FRAME_SIZE = 8192
+
+
+def check_positive(value, name: str, unit: str = "", allow_zero: bool = False) -> float:
+    """``float(value)`` if finite and > 0 (>= 0 with ``allow_zero``), else ValueError naming ``name``.
+    A string or a bool is not a number here (``"1e-3"`` and ``True`` are refused, not converted)."""
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"{name}: expected a number{' in ' + unit if unit else ''}, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number{' in ' + unit if unit else ''}, got {value!r}") from None
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise ValueError(f"{name}: must be {'>= 0' if allow_zero else 'positive'} and finite"
+                         f"{' (' + unit + ')' if unit else ''}, got {value!r}")
+    return v
+
+
+def is_integer(value) -> bool:
+    """True for a Python or NumPy integer that is not a bool (``2.0``, ``"2"`` and ``True`` are not)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def check_count(value, name: str, minimum: int = 0, what: str = "") -> int:
+    """``value`` as an int if it is an integer (or an integral float such as ``20.0``) >= ``minimum``;
+    ValueError naming ``name``, what it counts and the value otherwise (a bool, a string, NaN,
+    ``2.5`` or a number below ``minimum``)."""
+    ok = is_integer(value) or (isinstance(value, (float, np.floating)) and math.isfinite(value)
+                               and float(value).is_integer())
+    if not ok or value < minimum:
+        raise ValueError(f"{name}: must be an integer >= {minimum}{f' ({what})' if what else ''}, got {value!r}")
+    return int(value)
+
+
+def check_flag(value, name: str) -> bool:
+    """``value`` as a bool if it is ``True`` or ``False`` (Python or NumPy); ValueError naming
+    ``name`` otherwise (a string such as ``"false"`` would otherwise count as true)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: must be True or False, got {value!r}")
+    return bool(value)
+
+
+def check_options(options) -> dict:
+    """``reset(options=...)`` as a (new) dict; ValueError unless a dict or None."""
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise ValueError(f"options: expected a dict or None, got {options!r}")
+    return dict(options)
+
+
+def check_frame_size(width, height) -> tuple[int, int]:
+    """``(width, height)`` of rendered frames as ints in 1 .. :data:`MAX_FRAME_SIZE` pixels;
+    ValueError naming the argument and the value otherwise (checked at construction, not at the
+    first ``render()``)."""
+    out = []
+    for v, name in ((width, "width"), (height, "height")):
+        if not is_integer(v) or not 1 <= v <= MAX_FRAME_SIZE:
+            raise ValueError(f"{name}: must be an integer number of pixels in 1..{MAX_FRAME_SIZE}, got {v!r}")
+        out.append(int(v))
+    return out[0], out[1]
+
+
+def load_npz(path, expected: str) -> dict:
+    """The arrays of the NumPy ``.npz`` archive at ``path`` as a dict (pickled objects refused).
+    ValueError naming the file for anything else (a single ``.npy`` array, a pickle, text, a
+    damaged archive), with ``expected`` saying what the file should hold; FileNotFoundError and
+    IsADirectoryError pass unchanged (the callers word them)."""
+    import zipfile
+    p = str(path)
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (FileNotFoundError, IsADirectoryError):
+        raise
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile):
+        raise ValueError(f"{p}: not a NumPy .npz archive (expected {expected})") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise ValueError(f"{p}: a single NumPy array (.npy), not an .npz archive of named arrays "
+                         f"(expected {expected})")
+    with z:
+        try:
+            return {k: z[k] for k in z.files}
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+            raise ValueError(f"{p}: a damaged .npz archive or one holding pickled objects (expected {expected}): "
+                             f"{' '.join(str(e).split())[:200]}") from None
+
+
+def check_array(value, shape: tuple, name: str) -> np.ndarray:
+    """``value`` as a float64 array of ``shape``; ValueError naming ``name`` for another shape, and
+    naming the first offending index and its value for a NaN/inf entry."""
+    a = _real_array(value, shape, name)
+    if a.shape != tuple(shape):
+        raise ValueError(f"{name}: expected shape {tuple(shape)}, got {a.shape}")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        idx = _first(bad)
+        raise ValueError(f"{name}: entry {_index(idx)} is not finite: {float(a[idx])!r}")
+    return a
+
+
+def _real_array(value, shape: tuple, name: str) -> np.ndarray:
+    """``value`` as a float64 array; ValueError naming ``name`` for text, ragged lists or complex
+    numbers (NumPy would drop an imaginary part with only a warning)."""
+    try:
+        if np.iscomplexobj(value):
+            raise TypeError
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected an array of real numbers with shape {tuple(shape)}, "
+                         f"got {_brief(value)}") from None
+
+
+def _brief(value, width: int = 120) -> str:
+    """``repr(value)`` on one line, at most ``width`` characters (error messages are one line)."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def check_finite(x: np.ndarray, name: str, nonnegative: bool = False) -> None:
+    """ValueError ``"{name}: entry {index} is {value}; must be finite"`` (``"finite and >= 0"``
+    with ``nonnegative``) for the first offending entry of the float array ``x``."""
+    ok = np.isfinite(x)
+    if nonnegative:
+        ok &= x >= 0
+    if not ok.all():
+        idx = _first(~ok)
+        need = "finite and >= 0" if nonnegative else "finite"
+        raise ValueError(f"{name}: entry {_index(idx)} is {float(x[idx])!r}; must be {need}")
+
+
+def _first(mask) -> tuple:
+    return tuple(int(i) for i in np.argwhere(mask)[0])
+
+
+def _index(idx: tuple):
+    return idx[0] if len(idx) == 1 else idx
+
+
+def _nonfinite_action(name, idx, value):
+    return ValueError(f"{name}: entry {_index(idx)} is {value!r}; actions must be finite numbers in [-1, 1]")
+
+
+def _outside_action(name, idx, value):
+    return ValueError(f"{name}: entry {_index(idx)} is {value:.6g}, outside the action space [-1, 1] "
+                      "(clip it first, or construct the env with clip_actions=True to saturate instead)")
+
+
+def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
+    """An action as a float64 array of ``shape`` in [-1, 1] (the reference check; the envs'
+    :func:`tensegrity_gym.envs.validate.check_action` adds a compiled fast path in front of it):
+
+    * wrong shape -> ValueError (a flat sequence of the right size is reshaped for a 1-D ``shape``);
+    * NaN or inf -> ValueError naming the (first) offending index and the value;
+    * entries outside [-1, 1]: clipped to the box if ``clip`` (the documented Box contract, like
+      Gymnasium's MuJoCo envs whose actuators saturate), else ValueError naming the index when
+      beyond ``ACTION_TOL`` of the bounds (round-off within it is clipped).
+    """
+    a = _real_array(action, shape, name)
+    if a.shape != tuple(shape):
+        if a.size == int(np.prod(shape)) and a.ndim <= 1 and len(shape) == 1:
+            a = a.reshape(shape)
+        else:
+            raise ValueError(f"{name}: expected shape {tuple(shape)}, got {a.shape}")
+    finite = np.isfinite(a)
+    if not finite.all():
+        idx = _first(~finite)
+        raise _nonfinite_action(name, idx, a[idx])
+    if not clip:
+        bad = np.abs(a) > 1.0 + ACTION_TOL
+        if bad.any():
+            idx = _first(bad)
+            raise _outside_action(name, idx, a[idx])
+    return np.clip(a, -1.0, 1.0)
+
+
+def check_action_tensor(actions, shape: tuple, device, dtype, clip: bool, extra=None):
+    """:func:`check_action` for a batch on a torch ``device`` (the device-resident vector envs):
+    ``actions`` a tensor on ``device`` or anything ``torch.as_tensor`` takes, of ``shape`` (N, na);
+    returns ``(the actions in dtype clipped to [-1, 1], bool(extra))`` after ONE small device ->
+    host read (``extra``: a bool scalar tensor the caller needs on the host too, e.g. "an env
+    must autoreset"). Errors as :func:`check_action`, plus a tensor on another device."""
+    import torch
+    name = "actions"
+    if isinstance(actions, torch.Tensor):
+        if actions.device != device:
+            raise ValueError(f"{name}: tensor on device {str(actions.device)!r}, but the env runs on "
+                             f"{str(device)!r}; move it with .to({str(device)!r})")
+        if not (actions.is_floating_point() or actions.dtype in (torch.int32, torch.int64)):
+            raise ValueError(f"{name}: expected a float tensor, got {actions.dtype}")
+        a = actions.to(dtype)
+    else:
+        try:
+            a = torch.as_tensor(np.array(actions, dtype=float), dtype=dtype, device=device)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: expected a tensor or array of numbers with shape {tuple(shape)}, "
+                             f"got {type(actions).__name__}") from None
+    if tuple(a.shape) != tuple(shape):
+        raise ValueError(f"{name}: expected shape {tuple(shape)}, got {tuple(a.shape)}")
+    nonfinite = ~torch.isfinite(a)
+    outside = a.abs() > 1.0 + ACTION_TOL
+    no = torch.zeros((), dtype=torch.bool, device=device)
+    flags = torch.stack([nonfinite.any(), no if clip else outside.any(),
+                         no if extra is None else extra]).cpu().tolist()
+    for bad, err, fmt in ((flags[0], nonfinite, _nonfinite_action), (flags[1], outside, _outside_action)):
+        if bad:
+            idx = tuple(int(x) for x in torch.nonzero(err)[0].cpu())
+            raise fmt(name, idx, float(a[idx]))
+    return torch.clamp(a, -1.0, 1.0), bool(flags[2])
