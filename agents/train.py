@@ -324,6 +324,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress-bar", action="store_true")
     p.add_argument("--gym-packages", nargs="*", default=[],
                    help="extra modules to import (to register their envs); tensegrity_gym always is")
+    p.add_argument("--steal-lock", action="store_true",
+                   help="take over the run folder's lock left by a training that no longer runs here (or "
+                        "runs on another host); --resume takes over a killed run's lock by itself")
     p.add_argument("--max-wall-time", type=float, default=None, metavar="SECONDS",
                    help="stop training after this many seconds (saved as usual; status time_limit)")
     p.add_argument("--verbose", type=int, default=0)
@@ -405,12 +408,6 @@ def _has_saved_model(run_dir: Path) -> bool:
     return (run_dir / "model.zip").exists() or _latest_checkpoint(run_dir)[1] is not None
 
 
-def _running_elsewhere(state: dict) -> bool:
-    import socket
-    return (state.get("status") == "running" and state.get("pid") not in (None, os.getpid())
-            and state.get("host") == socket.gethostname() and common.pid_alive(state["pid"]))
-
-
 def _clear_failed_start(run_dir: Path) -> None:
     """A run that failed before saving any model: drop its monitor / evaluation files so that a
     restart in the same folder starts clean (config.yaml and command.txt are rewritten / appended)."""
@@ -442,7 +439,27 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
     ``report``: called with :func:`evaluation_metrics` and ``wall_time_s`` (the run's wall time so
     far, s, earlier segments included) after every evaluation (``agents.tune`` passes Ray Tune's
     ``tune.report``).
+
+    The run folder is claimed before anything is written into it (its ``.lock`` names this
+    process: :class:`tensegrity_gym.io.atomic.Claim`); a second training into it is refused at once
+    (``FileExistsError`` naming the holder's pid, host and start time) and the lock is removed when
+    the training ends.
     """
+    claims = []
+    try:
+        return _train(argv, extra_callbacks, report, claims)
+    finally:
+        for c in claims:
+            c.release()
+
+
+def _claim_run_dir(run_dir: Path, args, flag: str, resume: bool):
+    """Claim ``run_dir`` for this training (``--resume`` takes over the lock of a killed run)."""
+    from tensegrity_gym.io.atomic import Claim
+    return Claim(run_dir, folder=True, label=flag, steal=args.steal_lock, take_over_dead=resume)
+
+
+def _train(argv, extra_callbacks, report, claims: list) -> Path:
     args = build_parser().parse_args(argv)
     import yaml
     import torch
@@ -456,9 +473,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         cfg_path = resume_dir / "config.yaml"
         if not cfg_path.exists():
             raise FileNotFoundError(f"--resume {resume_dir}: no config.yaml there (not a run directory)")
-        if _running_elsewhere(_read_state(resume_dir)):
-            raise FileExistsError(f"--resume {resume_dir}: a training (pid {_read_state(resume_dir)['pid']}) "
-                                  "is running in it")
+        claims.append(_claim_run_dir(resume_dir, args, "--resume", resume=True))
         cfg = common.read_yaml(cfg_path)
         run_dir = resume_dir
         fresh_restart = not _has_saved_model(run_dir)
@@ -506,9 +521,10 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         eval_episodes = args.eval_episodes
         n_eval_envs = args.n_eval_envs or max(1, min(eval_episodes, 10))
         run_dir = Path(args.log_dir) if args.log_dir else Path("runs") / f"{algo}_{env_id}_s{seed}"
+        claims.append(_claim_run_dir(run_dir, args, "--log-dir", resume=False))
         if (run_dir / "config.yaml").exists():
             st = _read_state(run_dir)
-            if _has_saved_model(run_dir) or _running_elsewhere(st):
+            if _has_saved_model(run_dir):
                 raise FileExistsError(f"--log-dir {run_dir} already holds a run; use --resume {run_dir} to "
                                       "continue it or choose another --log-dir")
             print(f"note: {run_dir} holds a run that stopped before saving any model "

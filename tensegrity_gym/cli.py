@@ -19,10 +19,15 @@
   slider, play/pause): a window where there is a display, else a browser view (viser).
 
 ``STRUCTURE`` is a JSON file or a built-in name (``prism3``, ``icosahedron``, ...).
-Output files are written atomically (temporary file in the same folder, fsync, rename) with
-the user's umask: an interrupted run (Ctrl-C or SIGTERM) never leaves a truncated file, a
-temporary file or a destroyed existing one. An existing output is replaced only with
-``--force``; the output path is checked before anything is simulated.
+Outputs are written by :mod:`tensegrity_gym.io.atomic`: every output of a command is claimed
+before anything is simulated (a lock file ``.<name>.lock`` beside it names the run; a second run
+to the same output is refused at once naming the first one's pid, host and start time; a lock
+left by a run that no longer runs is taken over only with ``--steal-lock``), written to a
+temporary file in the same folder with the user's umask, and published together at the end
+(``simulate`` + ``--video``, ``identify`` + ``--plot``, ``demo``'s files: all or none). An
+existing output is replaced only with ``--force``, also one created by someone else during the
+run. An interrupted run (Ctrl-C or SIGTERM) never leaves a truncated or temporary file and says
+which outputs it wrote.
 
 Requests are estimated before they run and refused above the limits: ``--max-steps``
 (default 1e9 integration steps) and ``--max-memory`` (GiB; default half the machine's
@@ -54,7 +59,6 @@ import os
 import re
 import signal
 import sys
-import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -65,6 +69,7 @@ from . import __version__
 from . import dynamics as dyn
 from .builders import BUILDERS
 from .checks import load_npz
+from .io.atomic import OutputError, Transaction
 from .integrators import INTEGRATORS, EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
 from .sizing import StructureTooLarge
 from .structure import StructureError
@@ -152,50 +157,32 @@ def _load(spec: str, args):
 
 
 # --------------------------------------------------------------------------- output files
-def _check_out(path: Path, force: bool, flag: str = "--out", create_folders: bool = True) -> None:
-    """Fail before any work if ``path`` cannot be written (or would be overwritten); missing
-    folders are created when writing unless ``create_folders`` is False (then an error)."""
-    if not create_folders and not path.parent.is_dir():
-        raise CLIError(EXIT_OUTPUT, f"{flag} {str(path)!r}: folder {str(path.parent)!r} does not exist")
-    if path.is_dir():
-        raise CLIError(EXIT_OUTPUT, f"{flag} {str(path)!r} is a directory; give a file name")
-    if path.exists() and not force:
-        raise CLIError(EXIT_OUTPUT, f"{flag} {str(path)!r} exists; pass --force to overwrite it")
-    folder = path.parent
-    while not folder.exists():
-        folder = folder.parent
-    if not folder.is_dir():
-        raise CLIError(EXIT_OUTPUT, f"{flag} {str(path)!r}: {str(folder)!r} is a file, not a folder")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise CLIError(EXIT_OUTPUT, f"{flag} {str(path)!r}: folder {str(folder)!r} is not writable")
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def _atomic_write(path: Path, writer) -> None:
-    """``writer(file object)`` into a temporary file beside ``path``, fsync, chmod to the
-    user's umask, rename over ``path``; the temporary file is removed on any failure."""
+def _claim(args, outputs, create_folders: bool = True) -> Transaction:
+    """Claim a command's outputs ``[(path, flag), ...]`` before any work (one transaction, kept in
+    ``args.outputs`` so that :func:`main` reports truthfully what an interrupt left written)."""
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as e:
-        raise CLIError(EXIT_OUTPUT, f"cannot write {str(path)!r}: {e.strerror or e}") from None
+        tx = Transaction(outputs, force=args.force, steal=args.steal_lock, create_folders=create_folders)
+    except OutputError as e:
+        raise CLIError(EXIT_OUTPUT, str(e)) from None
+    args.outputs = tx
+    return tx
+
+
+def _stage(tx: Transaction, path, writer=None, *, fill=None) -> None:
     try:
-        with os.fdopen(fd, "wb") as f:
-            writer(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        if fill is not None:
+            tx.stage_file(path, fill)
+        else:
+            tx.stage(path, writer)
     except OSError as e:
-        raise CLIError(EXIT_OUTPUT, f"cannot write {str(path)!r}: {e.strerror or e}") from None
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+        raise CLIError(EXIT_OUTPUT, f"cannot write {str(path)!r}: {e.strerror or e}; {tx.report()}") from None
+
+
+def _commit(tx: Transaction) -> None:
+    try:
+        tx.commit()
+    except OutputError as e:
+        raise CLIError(EXIT_OUTPUT, str(e)) from None
 
 
 def _number(kind, what: str, ok, rule: str):
@@ -298,14 +285,12 @@ def _run(model, state, args, n_steps: int, progress: bool):
 
 
 def _outputs_and_model(args, second, flag: str):
-    """``(out path, structure, model)`` of a command writing ``--out`` and optionally ``second``
-    (the path given to ``flag``): both checked before any work, then the structure loaded."""
+    """``(out path, transaction, structure, model)`` of a command writing ``--out`` and optionally
+    ``second`` (the path given to ``flag``): both claimed before any work, then the structure loaded."""
     out = Path(args.out)
-    _check_out(out, args.force)
-    if second:
-        _check_out(Path(second), args.force, flag)
+    tx = _claim(args, [(out, "--out")] + ([(Path(second), flag)] if second else []))
     s = _load(args.structure, args)
-    return out, s, dyn.compile_model(s)
+    return out, tx, s, dyn.compile_model(s)
 
 
 def load_schedule(path, name: str, n_strings: int) -> Schedule:
@@ -338,7 +323,7 @@ def load_schedule(path, name: str, n_strings: int) -> Schedule:
 
 
 def cmd_simulate(args) -> int:
-    out, s, model = _outputs_and_model(args, args.video, "--video")
+    out, tx, s, model = _outputs_and_model(args, args.video, "--video")
     for name in ("rest_length", "force_density"):
         path = getattr(args, name)
         if path is None:
@@ -390,16 +375,21 @@ def cmd_simulate(args) -> int:
             arrays[name] = sched.values[sched.rows(t, args.dt)]
     if diverged is not None:
         arrays.update(diverged=np.array(True), message=np.array(_one_line(diverged)))
-    _atomic_write(out, lambda f: np.savez(f, **arrays))
+    _stage(tx, out, lambda f: np.savez(f, **arrays))
     if diverged is not None:
+        _commit(tx)
         raise CLIError(EXIT_DIVERGED, f"simulation diverged: {_one_line(diverged)}; wrote {S} records "
-                                      f"(up to the divergence) to {out}, flagged diverged=True")
+                                      f"(up to the divergence) to {out}, flagged diverged=True"
+                       + (f"; no video written to {args.video}" if args.video else ""))
+    frames = _stage_video(tx, args, s, model, t, qf, qdf)
+    _commit(tx)
     drift = float(np.max(np.abs(E - E[0])) / max(abs(E[0]), 1e-300))
     print(f"{s.name}: {n_steps} steps of {args.dt:g} s with {args.integrator} in {wall:.3g} s wall "
           f"({n_steps / wall:,.0f} steps/s); {S} records -> {out}")
     print(f"max relative energy change {drift:.3e}; final rod-length drift "
           f"{float(dyn.rod_length_drift(model, qf[-1:])[0]):.3e}")
-    return _video(args, s, model, t, qf, qdf)
+    _print_video(args, frames)
+    return 0
 
 
 def _stable_step_bytes(k: int, m: int = 0) -> float:
@@ -491,10 +481,7 @@ def cmd_demo(args) -> int:
     if out.exists() and not out.is_dir():
         raise CLIError(EXIT_OUTPUT, f"--out {str(out)!r} is a file; give a folder")
     png, summary_path = out / "demo_prism.png", out / "demo_summary.json"
-    _check_out(png, args.force)
-    _check_out(summary_path, args.force)
-    if args.video:
-        _check_out(Path(args.video), args.force, "--video")
+    tx = _claim(args, [(png, "--out"), (summary_path, "--out")] + ([(Path(args.video), "--video")] if args.video else []))
     try:
         s = prism(3, damping=args.damping)
     except StructureError as e:
@@ -530,39 +517,49 @@ def cmd_demo(args) -> int:
         a.plot(nodes[-1, [i, j], 0], nodes[-1, [i, j], 1], c="k", lw=3)
     a.set(aspect="equal", title="final shape (top view)", xlabel="x [m]", ylabel="y [m]")
     fig.tight_layout()
-    _atomic_write(png, lambda f: fig.savefig(f, dpi=100, format="png"))
+    _stage(tx, png, lambda f: fig.savefig(f, dpi=100, format="png"))
     plt.close(fig)
     summary = {"structure": s.name, "integrator": args.integrator, "dt_s": dt, "duration_s": T,
                "wall_s": wall, "steps_per_s": n / wall, "initial_energy_J": float(E[0]),
                "final_energy_J": float(E[-1]), "final_twist_deg": float(twist[-1]),
                "expected_twist_deg": 90 - 180 / 3,
                "final_rod_length_drift": float(dyn.rod_length_drift(model, q1[-1:])[0])}
-    _atomic_write(summary_path, lambda f: f.write(json.dumps(summary, indent=1).encode()))
+    _stage(tx, summary_path, lambda f: f.write(json.dumps(summary, indent=1).encode()))
+    frames = _stage_video(tx, args, s, model, t, q1, qd1)
+    _commit(tx)
     print(json.dumps(summary, indent=1))
     print(f"wrote {png} and {summary_path}")
-    return _video(args, s, model, t, q1, qd1)
+    _print_video(args, frames)
+    return 0
 
 
-def _video(args, s, model, t, q, qd) -> int:
-    """``--video PATH``: render the recorded trajectory (q, qd: (S, 1, k, 6)) in real time at 30 frames/s."""
+def _stage_video(tx: Transaction, args, s, model, t, q, qd) -> int:
+    """``--video PATH``: render the recorded trajectory (q, qd: (S, 1, k, 6)) in real time at
+    30 frames/s into the transaction (published with the other outputs); returns the frame count."""
     if not getattr(args, "video", None):
         return 0
-    from .rendering import RendererUnavailable, write_video
+    from .rendering import RendererUnavailable, render_video
     q, qd = q.reshape((len(t),) + q.shape[-2:]), qd.reshape((len(t),) + qd.shape[-2:])
     gamma, _, L = dyn.force_densities(model, q, qd)
+    frames = []
     try:
-        n = write_video(args.video, s, dyn.node_positions(model, q), gamma * L, t)
+        tx.stage_file(args.video, lambda tmp: frames.append(
+            render_video(tmp, s, dyn.node_positions(model, q), gamma * L, t)))
     except (RendererUnavailable, ValueError, OSError) as e:
-        raise CLIError(EXIT_OUTPUT, f"--video {args.video}: {e}") from None
-    print(f"wrote {n} frames -> {args.video}")
-    return 0
+        raise CLIError(EXIT_OUTPUT, f"--video {args.video}: {e}; no output file was changed") from None
+    return frames[0]
+
+
+def _print_video(args, frames: int) -> None:
+    if getattr(args, "video", None):
+        print(f"wrote {frames} frames -> {args.video}")
 
 
 def cmd_export(args) -> int:
     """``export STRUCTURE --format mjcf|json --out PATH``: exit 0, 3 (bad structure) or 4 (output)."""
-    from .mjcf import export
+    from .mjcf import to_mjcf
     out = Path(args.out)
-    _check_out(out, args.force, "export: --out", create_folders=False)
+    tx = _claim(args, [(out, "export: --out")], create_folders=False)
     if args.source == "tnsgrt":
         from .tnsgrt import from_tnsgrt
         try:
@@ -573,13 +570,15 @@ def cmd_export(args) -> int:
         s = _load(args.structure, args)
     try:
         if args.format == "mjcf":
-            export(s, out, ground=args.ground, timestep=args.timestep)
-        else:   # the bytes of save_json, written atomically
-            _atomic_write(out, lambda f: f.write(json.dumps(s.to_dict(), indent=1).encode()))
+            text = to_mjcf(s, ground=args.ground, timestep=args.timestep)
+        else:   # the bytes of save_json
+            text = json.dumps(s.to_dict(), indent=1)
     except (StructureError, ValueError) as e:
         raise CLIError(EXIT_STRUCTURE, f"export: {e}") from None
     except OSError as e:
         raise CLIError(EXIT_OUTPUT, f"export: {e}") from None
+    _stage(tx, out, lambda f: f.write(text.encode("utf-8")))
+    _commit(tx)
     print(f"{s.name}: {s.n_bars} rods, {s.n_strings} strings -> {out} ({args.format})")
     return 0
 
@@ -622,7 +621,7 @@ def cmd_identify(args) -> int:
         if sysid._ALIASES.get(f, f) not in sysid.FITTABLE:
             raise CLIError(EXIT_USAGE, f"--fit: unknown parameter {f!r}; choose from {sorted(sysid.FITTABLE)} "
                            f"(aliases {sorted(sysid._ALIASES)})")
-    out, s, model = _outputs_and_model(args, args.plot, "--plot")
+    out, tx, s, model = _outputs_and_model(args, args.plot, "--plot")
     try:
         t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes)
     except FileNotFoundError:
@@ -650,12 +649,12 @@ def cmd_identify(args) -> int:
                        "starting values closer to the robot's") from None
     d = res.to_dict()
     d.update(structure=s.name, trajectory=str(args.trajectory))
-    _atomic_write(out, lambda f: f.write(json.dumps(d, indent=1).encode()))
+    _stage(tx, out, lambda f: f.write(json.dumps(d, indent=1).encode()))
     if args.plot:
         import matplotlib
         matplotlib.use("Agg")
-        pl = Path(args.plot)
-        _atomic_write(pl, lambda f: res.plot().savefig(f, dpi=100, format="png"))
+        _stage(tx, Path(args.plot), lambda f: res.plot().savefig(f, dpi=100, format="png"))
+    _commit(tx)
     for g in res.fields:
         for i, v, e, ok in zip(res.items[g], res.values[g], res.std_errors[g], res.identifiable[g]):
             err = f"+- {e:.3g}" if np.isfinite(e) else "(not identifiable)"
@@ -708,6 +707,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     sp.add_argument("--integrator", default="rk4", choices=sorted(INTEGRATORS), help="integration method")
     sp.add_argument("--out", default="traj.npz", help="output .npz (t, nodes, energy)")
     sp.add_argument("--force", action="store_true", help="overwrite an existing output")
+    sp.add_argument("--steal-lock", action="store_true",
+                    help="take over an output's lock left by a run that no longer runs (or runs on another host)")
     sp.add_argument("--record-every", type=_positive(int), default=1, help="keep every K-th step")
     sp.add_argument("--no-project", action="store_true", help="do not project onto the rod constraints")
     sp.add_argument("--backend", default="auto", choices=["auto", "numba", "torch"],
@@ -750,11 +751,15 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     yp.add_argument("--out", default="fit.json", help="output JSON")
     yp.add_argument("--plot", default=None, help="PNG of recorded vs fitted motion")
     yp.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    yp.add_argument("--steal-lock", action="store_true",
+                    help="take over an output's lock left by a run that no longer runs (or runs on another host)")
     limits(yp)
     yp.set_defaults(func=cmd_identify)
     dp = sub.add_parser("demo", help="simulate the default prism, write a plot and summary", formatter_class=fmt)
     dp.add_argument("--out", default="results/demo", help="output folder")
     dp.add_argument("--force", action="store_true", help="overwrite existing demo files")
+    dp.add_argument("--steal-lock", action="store_true",
+                    help="take over an output's lock left by a run that no longer runs (or runs on another host)")
     dp.add_argument("--duration", type=_positive(float), default=5.0, help="simulated time, s")
     dp.add_argument("--damping", type=_non_negative, default=5.0, help="string damping, N s/m")
     dp.add_argument("--perturbation", type=_non_negative, default=0.02, help="node perturbation std, m")
@@ -773,6 +778,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     ep.add_argument("--ground", action="store_true", help="MJCF: add a ground plane at z = 0")
     ep.add_argument("--timestep", type=_positive(float), default=1e-3, help="MJCF: MuJoCo time step, s")
     ep.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    ep.add_argument("--steal-lock", action="store_true",
+                    help="take over an output's lock left by a run that no longer runs (or runs on another host)")
     limits(ep)
     ep.set_defaults(func=cmd_export)
     vp = sub.add_parser("view", help="interactive view of a simulate output (time slider, play/pause)",
@@ -811,12 +818,18 @@ def _quiet_stdout() -> None:
         pass
 
 
+def _written(args) -> str:
+    """What an interrupted command left written: "no output file was changed" or "wrote ..."."""
+    tx = getattr(args, "outputs", None)
+    return tx.report() if tx is not None else "no output file was changed"
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (see the module docstring)."""
     def on_term(signum, frame):
         raise _Terminated()
 
-    old = None
+    old = args = None
     try:
         old = signal.signal(signal.SIGTERM, on_term)
     except ValueError:   # not the main thread
@@ -849,12 +862,14 @@ def main(argv=None) -> int:
         _quiet_stdout()
         return EXIT_PIPE
     except KeyboardInterrupt:
-        _error("interrupted; no output file was changed")
+        _error(f"interrupted; {_written(args)}")
         return EXIT_INTERRUPTED
     except _Terminated:
-        _error("terminated (SIGTERM); no output file was changed")
+        _error(f"terminated (SIGTERM); {_written(args)}")
         return EXIT_TERMINATED
     finally:
+        if getattr(args, "outputs", None) is not None:
+            args.outputs.release()    # unpublished temporary files and the locks
         if old is not None:
             signal.signal(signal.SIGTERM, old)
 

@@ -53,12 +53,12 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from .io.atomic import write_atomic
 from .structure import Structure, mass_moments
 
 __all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel"]
@@ -243,25 +243,7 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
 
 
 def export(structure: Structure, path: str | os.PathLike, **kwargs) -> Path:
-    """Write :func:`to_mjcf` to ``path`` atomically (temporary file in the same folder, fsync,
-    rename: an interrupted export never leaves a half-written model). Returns the path."""
+    """Write :func:`to_mjcf` to ``path`` atomically (:func:`tensegrity_gym.io.atomic.write_atomic`:
+    an interrupted export never leaves a half-written model). Returns the path."""
     text = to_mjcf(structure, **kwargs)
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    return path
+    return write_atomic(path, lambda f: f.write(text.encode("utf-8")))

@@ -535,16 +535,25 @@ def make_renderer(width: int = 480, height: int = 480, *, backend: str | None = 
         return Renderer(width, height, **kw)
 
 
-def write_video(path, structure, nodes, tensions=None, times=None, *, fps: float = 30.0, width: int = 480,
-                height: int = 480, title: str | None = None, ground_z=None, backend: str | None = None) -> int:
-    """Render a recorded trajectory to a video file (``.mp4`` via imageio-ffmpeg, or ``.gif``).
+def write_video(path, structure, nodes, tensions=None, times=None, **kw) -> int:
+    """Render a recorded trajectory to a video file (``.mp4`` via imageio-ffmpeg, or ``.gif``),
+    written atomically (:func:`tensegrity_gym.io.atomic.write_atomic`: a temporary file in the
+    same folder renamed when complete). Arguments as :func:`render_video`; returns the number of
+    frames written."""
+    from .io.atomic import write_atomic
+    frames = []
+    write_atomic(path, fill=lambda tmp: frames.append(render_video(tmp, structure, nodes, tensions, times, **kw)))
+    return frames[0]
+
+
+def render_video(path, structure, nodes, tensions=None, times=None, *, fps: float = 30.0, width: int = 480,
+                 height: int = 480, title: str | None = None, ground_z=None, backend: str | None = None) -> int:
+    """Render a recorded trajectory straight into the video file ``path`` (its suffix picks the
+    format: ``.mp4``, ``.gif``, ...; :func:`write_video` is the atomic form).
 
     ``nodes`` (S, n, 3) m; ``tensions`` (S, m) N or None; ``times`` (S,) s: records are picked
     so that the video plays in real time at ``fps`` frames/s (all records if ``times`` is None).
-    The file is written to a temporary name in the same folder and renamed when complete.
     Returns the number of frames written."""
-    import os
-    import tempfile
     from pathlib import Path
     try:
         import imageio.v2 as imageio
@@ -571,26 +580,18 @@ def write_video(path, structure, nodes, tensions=None, times=None, *, fps: float
     if tensions is not None:
         tensions = np.asarray(tensions, float)
         tmax = max(float(np.nanmax(tensions, initial=0.0)), 1e-9)   # one colour scale for the whole video
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent if str(path.parent) else ".")
-    os.close(fd)
     try:
         kw = {"fps": fps} if suffix != ".gif" else {"duration": 1000.0 / fps, "loop": 0}
         if suffix == ".mp4":
             kw.update(codec="libx264", quality=7, macro_block_size=8)
-        with imageio.get_writer(tmp, **kw) as w:
+        with imageio.get_writer(str(path), **kw) as w:
             for i in idx:
                 cap = None if times is None else f"t = {times[i]:.2f} s"
                 T = None if tensions is None else tensions[i]
                 w.append_data(r.render(nodes[i], structure.bars, structure.strings, T, ground_z=ground_z,
                                        caption=cap, tension_max=tmax))
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
     finally:
         r.close()
-        if os.path.exists(tmp):
-            os.remove(tmp)
     return len(idx)
 
 

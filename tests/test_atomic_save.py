@@ -20,6 +20,7 @@ pytest.importorskip("stable_baselines3")
 pytest.importorskip("yaml")
 
 from agents import common, train  # noqa: E402
+from tensegrity_gym.io import atomic  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 PPO_TINY = ["--algo", "ppo", "--env", "Pendulum-v1", "--n-envs", "2", "--no-progress-bar",
@@ -51,6 +52,130 @@ def test_stale_tmp_files_of_dead_processes_are_removed(tmp_path):
     mine.write_bytes(b"x")
     assert common.remove_stale_tmp(tmp_path) == [stale]
     assert mine.exists()
+
+
+# ---------------------------------------------------------------------- claims and transactions
+def _dead_pid() -> int:
+    return int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True).stdout)
+
+
+def test_two_threads_claiming_one_output_exactly_one_wins(tmp_path):
+    """Threads of one process race for a claim: exactly one holds it, the others are refused at once."""
+    import threading
+    target = tmp_path / "out.npz"
+    barrier = threading.Barrier(8)
+    results = []
+
+    def claim():
+        barrier.wait(timeout=30)
+        try:
+            results.append(atomic.Claim(target))
+        except atomic.OutputBusy as e:
+            results.append(e)
+
+    threads = [threading.Thread(target=claim) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30)
+    won = [r for r in results if isinstance(r, atomic.Claim)]
+    assert len(results) == 8 and len(won) == 1
+    assert all(f"pid {os.getpid()}" in str(r) for r in results if not isinstance(r, atomic.Claim))
+    won[0].release()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_stale_lock_is_detected_and_taken_over_only_when_asked(tmp_path):
+    target = tmp_path / "fit.json"
+    lock = tmp_path / ".fit.json.lock"
+    dead = _dead_pid()
+    lock.write_text(json.dumps({**atomic.holder_record(), "pid": dead, "process_start": None}))
+    with pytest.raises(atomic.StaleClaim, match=f"pid {dead} .*no longer runs.*--steal-lock"):
+        atomic.Claim(target)
+    c = atomic.Claim(target, steal=True)
+    assert c.took_over["pid"] == dead and atomic.read_lock(lock)["pid"] == os.getpid()
+    c.release()
+    assert not lock.exists()
+
+
+def test_a_reused_pid_does_not_keep_a_lock_alive(tmp_path):
+    """The lock records the holder's process start time: a live process that reuses the pid is not the holder."""
+    run = tmp_path / "run"
+    run.mkdir()
+    rec = atomic.holder_record()
+    if rec["process_start"] is None:
+        pytest.skip("no /proc: process start times unknown")
+    (run / ".lock").write_text(json.dumps({**rec, "process_start": "1"}))   # this pid, another process
+    with pytest.raises(atomic.StaleClaim):
+        atomic.Claim(run, folder=True)
+    atomic.Claim(run, folder=True, take_over_dead=True).release()
+    # a holder on another host cannot be checked: take_over_dead does not take it, steal does
+    (run / ".lock").write_text(json.dumps({**rec, "host": "elsewhere"}))
+    with pytest.raises(atomic.OutputBusy, match="another host"):
+        atomic.Claim(run, folder=True, take_over_dead=True)
+    atomic.Claim(run, folder=True, steal=True).release()
+
+
+def test_transaction_publishes_all_or_none(tmp_path):
+    a, b = tmp_path / "a.npz", tmp_path / "b.png"
+    with atomic.Transaction([(a, "--out"), (b, "--plot")]) as tx:
+        tx.stage(a, lambda f: f.write(b"A"))
+        tx.stage(b, lambda f: f.write(b"B"))
+        b.write_bytes(b"someone else's")          # appears at an output during the run
+        with pytest.raises(atomic.OutputChanged, match="--plot .*b.png.* during this run; nothing was written"):
+            tx.commit()
+        assert not a.exists() and b.read_bytes() == b"someone else's" and tx.report() == "no output file was changed"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.png"]   # temporary files and locks are gone
+    b.unlink()
+    with atomic.Transaction([(a, "--out"), (b, "--plot")]) as tx:
+        tx.stage(a, lambda f: f.write(b"A"))
+        tx.stage(b, lambda f: f.write(b"B"))
+        assert tx.commit() == [a, b] and tx.report() == f"wrote {a}, {b}"
+    assert a.read_bytes() == b"A" and b.read_bytes() == b"B"
+    with pytest.raises(atomic.OutputExists, match="--plot .* exists; pass --force"):   # claimed before any work
+        atomic.Transaction([(tmp_path / "c", "--out"), (b, "--plot")])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz", "b.png"]
+    with atomic.Transaction([(a, "--out")], force=True) as tx:         # --force replaces, also a file changed since
+        tx.stage(a, lambda f: f.write(b"A2"))
+        a.write_bytes(b"changed")
+        tx.commit()
+    assert a.read_bytes() == b"A2"
+
+
+def test_exclusive_write_never_replaces_a_file(tmp_path):
+    p = tmp_path / "x"
+    atomic.write_atomic(p, lambda f: f.write(b"1"), exclusive=True)
+    with pytest.raises(atomic.OutputChanged):
+        atomic.write_atomic(p, lambda f: f.write(b"2"), exclusive=True)
+    assert p.read_bytes() == b"1" and [q.name for q in tmp_path.iterdir()] == ["x"]
+
+
+# ---------------------------------------------------------------------- two trainings into one folder
+def test_a_second_training_into_a_busy_log_dir_is_refused_at_once_naming_the_first(tmp_path):
+    """Two ``agents.train`` runs into one --log-dir, the second started while the first starts up:
+    the second exits at once (status 2) naming the first's pid; the first keeps its folder."""
+    run = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    cmd = [sys.executable, "-m", "agents.train", "--log-dir", str(run), "--n-timesteps", "1000000",
+           "--save-freq", "-1", "--eval-freq", "-1", *PPO_TINY]
+    first = subprocess.Popen(cmd, cwd=str(ROOT), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        t_end = time.time() + 180
+        while not ((run / ".lock").exists() or (run / "state.json").exists()) and time.time() < t_end:
+            assert first.poll() is None, first.stderr.read().decode()
+            time.sleep(0.05)
+        second = subprocess.run(cmd, cwd=str(ROOT), env=env, capture_output=True, text=True, timeout=180)
+        assert second.returncode == 2, second.stderr[-2000:]
+        assert f"pid {first.pid}" in second.stderr and "Traceback" not in second.stderr, second.stderr
+        assert first.poll() is None        # the first run goes on
+        assert json.loads((run / "state.json").read_text())["pid"] == first.pid
+    finally:
+        first.kill()
+        first.wait(timeout=60)
+    # the killed run left its lock: a new run is refused as stale until --steal-lock
+    with pytest.raises(FileExistsError, match=f"pid {first.pid} .*no longer runs.*--steal-lock"):
+        train.train(["--log-dir", str(run), "--n-timesteps", "64", *PPO_TINY])
 
 
 # ---------------------------------------------------------------------- kills in the middle of saves
