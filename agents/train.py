@@ -10,8 +10,8 @@ Usage (from any directory once the package is installed; from the repository roo
 
 Hyperparameters come from ``agents/hyperparams/<algo>.yml`` keyed by env id, in
 rl-baselines3-zoo's format, so the zoo uses the same file:
-``python -m rl_zoo3.train --gym-packages tensegrity_gym --algo ppo --env TensegrityShape-v0``
-reads it without ``--conf-file`` (:mod:`tensegrity_gym.zoo`). ``--hyperparams key=value ...`` overrides entries;
+``python -m rl_zoo3.train --gym-packages tensegrity_gym.integrations.zoo --algo ppo --env TensegrityShape-v0``
+reads it without ``--conf-file`` (:mod:`tensegrity_gym.integrations.zoo`). ``--hyperparams key=value ...`` overrides entries;
 ``--env-kwargs key:value ...`` (or one JSON object) are merged over the file's ``env_kwargs``.
 Values are parsed as JSON / Python literals (never ``eval``).
 

@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from tensegrity_gym import builders, dynamics as dyn, integrators  # noqa: E402
 from tensegrity_gym import _kernels  # noqa: E402
-from tensegrity_gym._bench import mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers)
+from _bench import mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers, a sibling module)
 
 DT = 1e-3
 

@@ -102,7 +102,7 @@ def test_installed_train_and_evaluate_from_any_directory(installed):
 @pytest.mark.slow
 def test_installed_zoo_reads_the_packaged_hyperparameters(installed):
     pytest.importorskip("rl_zoo3")
-    code = ("import argparse, rl_zoo3.exp_manager, tensegrity_gym\n"
+    code = ("import argparse, rl_zoo3.exp_manager, tensegrity_gym.integrations.zoo\n"
             "from rl_zoo3.exp_manager import ExperimentManager\n"
             "m = ExperimentManager(argparse.Namespace(), 'ppo', 'TensegrityRoll-v0', 'logs')\n"
             "print('CONF', m.config)\n"
@@ -125,9 +125,24 @@ def test_no_sys_path_edits_in_scripts_agents_or_package():
     assert not offenders, offenders
 
 
+def _script_helpers():
+    """scripts/_bench.py, which the scripts import as a sibling module (it is not installed)."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("_bench", ROOT / "scripts" / "_bench.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_benchmark_helpers_are_not_in_the_package():
+    assert not (ROOT / "tensegrity_gym" / "_bench.py").exists()
+    assert not list((ROOT / "results").rglob("*.py")) and not list((ROOT / "results").rglob("*.sh"))
+
+
 def test_shared_script_helpers():
     import numpy as np
-    from tensegrity_gym import _bench, builders, dynamics as dyn
+    from tensegrity_gym import builders, dynamics
+    _bench = _script_helpers()
     rng = np.random.default_rng(0)
     for z in list(rng.normal(size=(5, 3))) + [np.array([0, 0, 1.0]), np.array([0, 0, -1.0])]:
         z = z / np.linalg.norm(z)
@@ -140,7 +155,7 @@ def test_shared_script_helpers():
     assert 0 < t < 1e-3
     out, wall = _bench.timed(lambda: 3, wall_min=0.0)
     assert out == 3 and wall >= 0
-    m = dyn.compile_model(builders.prism(3))
+    m = dynamics.compile_model(builders.prism(3))
     xml = _bench.mjcf(m)
     assert xml.count("<freejoint/>") == m.n_bars and xml.count("<spatial") == m.n_strings
     # a rigid rotation of a node set is recovered
