@@ -441,7 +441,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
     ``tune.report``).
 
     The run folder is claimed before anything is written into it (its ``.lock`` names this
-    process: :class:`tensegrity_gym.io.atomic.Claim`); a second training into it is refused at once
+    process: :class:`tensegrity_gym.io.claim.Claim`); a second training into it is refused at once
     (``FileExistsError`` naming the holder's pid, host and start time) and the lock is removed when
     the training ends.
     """
@@ -455,7 +455,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
 
 def _claim_run_dir(run_dir: Path, args, flag: str, resume: bool):
     """Claim ``run_dir`` for this training (``--resume`` takes over the lock of a killed run)."""
-    from tensegrity_gym.io.atomic import Claim
+    from tensegrity_gym.io.claim import Claim
     return Claim(run_dir, folder=True, label=flag, steal=args.steal_lock, take_over_dead=resume)
 
 

@@ -20,7 +20,7 @@ pytest.importorskip("stable_baselines3")
 pytest.importorskip("yaml")
 
 from agents import common, train  # noqa: E402
-from tensegrity_gym.io import atomic  # noqa: E402
+from tensegrity_gym.io import atomic, claim  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 PPO_TINY = ["--algo", "ppo", "--env", "Pendulum-v1", "--n-envs", "2", "--no-progress-bar",
@@ -67,21 +67,21 @@ def test_two_threads_claiming_one_output_exactly_one_wins(tmp_path):
     barrier = threading.Barrier(8)
     results = []
 
-    def claim():
+    def take():
         barrier.wait(timeout=30)
         try:
-            results.append(atomic.Claim(target))
-        except atomic.OutputBusy as e:
+            results.append(claim.Claim(target))
+        except claim.OutputBusy as e:
             results.append(e)
 
-    threads = [threading.Thread(target=claim) for _ in range(8)]
+    threads = [threading.Thread(target=take) for _ in range(8)]
     for t in threads:
         t.start()
     for t in threads:
         t.join(timeout=30)
-    won = [r for r in results if isinstance(r, atomic.Claim)]
+    won = [r for r in results if isinstance(r, claim.Claim)]
     assert len(results) == 8 and len(won) == 1
-    assert all(f"pid {os.getpid()}" in str(r) for r in results if not isinstance(r, atomic.Claim))
+    assert all(f"pid {os.getpid()}" in str(r) for r in results if not isinstance(r, claim.Claim))
     won[0].release()
     assert list(tmp_path.iterdir()) == []
 
@@ -90,11 +90,11 @@ def test_stale_lock_is_detected_and_taken_over_only_when_asked(tmp_path):
     target = tmp_path / "fit.json"
     lock = tmp_path / ".fit.json.lock"
     dead = _dead_pid()
-    lock.write_text(json.dumps({**atomic.holder_record(), "pid": dead, "process_start": None}))
-    with pytest.raises(atomic.StaleClaim, match=f"pid {dead} .*no longer runs.*--steal-lock"):
-        atomic.Claim(target)
-    c = atomic.Claim(target, steal=True)
-    assert c.took_over["pid"] == dead and atomic.read_lock(lock)["pid"] == os.getpid()
+    lock.write_text(json.dumps({**claim.holder_record(), "pid": dead, "process_start": None}))
+    with pytest.raises(claim.StaleClaim, match=f"pid {dead} .*no longer runs.*--steal-lock"):
+        claim.Claim(target)
+    c = claim.Claim(target, steal=True)
+    assert c.took_over["pid"] == dead and claim.read_lock(lock)["pid"] == os.getpid()
     c.release()
     assert not lock.exists()
 
@@ -103,23 +103,23 @@ def test_a_reused_pid_does_not_keep_a_lock_alive(tmp_path):
     """The lock records the holder's process start time: a live process that reuses the pid is not the holder."""
     run = tmp_path / "run"
     run.mkdir()
-    rec = atomic.holder_record()
+    rec = claim.holder_record()
     if rec["process_start"] is None:
         pytest.skip("no /proc: process start times unknown")
     (run / ".lock").write_text(json.dumps({**rec, "process_start": "1"}))   # this pid, another process
-    with pytest.raises(atomic.StaleClaim):
-        atomic.Claim(run, folder=True)
-    atomic.Claim(run, folder=True, take_over_dead=True).release()
+    with pytest.raises(claim.StaleClaim):
+        claim.Claim(run, folder=True)
+    claim.Claim(run, folder=True, take_over_dead=True).release()
     # a holder on another host cannot be checked: take_over_dead does not take it, steal does
     (run / ".lock").write_text(json.dumps({**rec, "host": "elsewhere"}))
-    with pytest.raises(atomic.OutputBusy, match="another host"):
-        atomic.Claim(run, folder=True, take_over_dead=True)
-    atomic.Claim(run, folder=True, steal=True).release()
+    with pytest.raises(claim.OutputBusy, match="another host"):
+        claim.Claim(run, folder=True, take_over_dead=True)
+    claim.Claim(run, folder=True, steal=True).release()
 
 
 def test_transaction_publishes_all_or_none(tmp_path):
     a, b = tmp_path / "a.npz", tmp_path / "b.png"
-    with atomic.Transaction([(a, "--out"), (b, "--plot")]) as tx:
+    with claim.Transaction([(a, "--out"), (b, "--plot")]) as tx:
         tx.stage(a, lambda f: f.write(b"A"))
         tx.stage(b, lambda f: f.write(b"B"))
         b.write_bytes(b"someone else's")          # appears at an output during the run
@@ -128,15 +128,15 @@ def test_transaction_publishes_all_or_none(tmp_path):
         assert not a.exists() and b.read_bytes() == b"someone else's" and tx.report() == "no output file was changed"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.png"]   # temporary files and locks are gone
     b.unlink()
-    with atomic.Transaction([(a, "--out"), (b, "--plot")]) as tx:
+    with claim.Transaction([(a, "--out"), (b, "--plot")]) as tx:
         tx.stage(a, lambda f: f.write(b"A"))
         tx.stage(b, lambda f: f.write(b"B"))
         assert tx.commit() == [a, b] and tx.report() == f"wrote {a}, {b}"
     assert a.read_bytes() == b"A" and b.read_bytes() == b"B"
     with pytest.raises(atomic.OutputExists, match="--plot .* exists; pass --force"):   # claimed before any work
-        atomic.Transaction([(tmp_path / "c", "--out"), (b, "--plot")])
+        claim.Transaction([(tmp_path / "c", "--out"), (b, "--plot")])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz", "b.png"]
-    with atomic.Transaction([(a, "--out")], force=True) as tx:         # --force replaces, also a file changed since
+    with claim.Transaction([(a, "--out")], force=True) as tx:         # --force replaces, also a file changed since
         tx.stage(a, lambda f: f.write(b"A2"))
         a.write_bytes(b"changed")
         tx.commit()

@@ -19,15 +19,15 @@
   slider, play/pause): a window where there is a display, else a browser view (viser).
 
 ``STRUCTURE`` is a JSON file or a built-in name (``prism3``, ``icosahedron``, ...).
-Outputs are written by :mod:`tensegrity_gym.io.atomic`: every output of a command is claimed
-before anything is simulated (a lock file ``.<name>.lock`` beside it names the run; a second run
-to the same output is refused at once naming the first one's pid, host and start time; a lock
-left by a run that no longer runs is taken over only with ``--steal-lock``), written to a
-temporary file in the same folder with the user's umask, and published together at the end
-(``simulate`` + ``--video``, ``identify`` + ``--plot``, ``demo``'s files: all or none). An
-existing output is replaced only with ``--force``, also one created by someone else during the
-run. An interrupted run (Ctrl-C or SIGTERM) never leaves a truncated or temporary file and says
-which outputs it wrote.
+Outputs are written by :mod:`tensegrity_gym.io.claim` and :mod:`tensegrity_gym.io.atomic`: every
+output of a command is claimed before anything is simulated (a lock file ``.<name>.lock`` beside
+it names the run; a second run to the same output is refused at once naming the first one's pid,
+host and start time; a lock left by a run that no longer runs is taken over only with
+``--steal-lock``), written to a temporary file in the same folder with the user's umask, and
+published together at the end (``simulate`` + ``--video``, ``identify`` + ``--plot``, ``demo``'s
+files: all or none). An existing output is replaced only with ``--force``, also one created by
+someone else during the run. An interrupted run (Ctrl-C or SIGTERM) never leaves a truncated or
+temporary file and says which outputs it wrote.
 
 Requests are estimated before they run and refused above the limits: ``--max-steps``
 (default 1e9 integration steps) and ``--max-memory`` (GiB; default half the machine's

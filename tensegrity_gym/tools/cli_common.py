@@ -10,7 +10,8 @@ import numpy as np
 
 from .. import load_structure
 from ..builders import BUILDERS
-from ..io.atomic import OutputError, Transaction
+from ..io.atomic import OutputError
+from ..io.claim import Transaction
 from ..sizing import memory_estimate
 from ..structure import StructureError
 

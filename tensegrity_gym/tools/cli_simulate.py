@@ -11,7 +11,7 @@ from .. import dynamics
 from ..builders import prism
 from ..checks import load_npz
 from ..integrators import EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
-from ..io.atomic import Transaction
+from ..io.claim import Transaction
 from ..structure import StructureError
 from .rendering import RendererUnavailable, render_video
 from .cli_common import (ADAPTIVE_EVALUATIONS_PER_STEP, CHUNK_STEPS, ENERGY_BLOWUP, EXIT_DIVERGED, EXIT_OUTPUT,
