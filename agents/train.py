@@ -55,6 +55,8 @@ from pathlib import Path
 import numpy as np
 
 from agents import common
+from tensegrity_gym.io.atomic import OutputError
+from tensegrity_gym.io.claim import Claim
 
 EVAL_SEED_OFFSET = 10_000
 
@@ -455,7 +457,6 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
 
 def _claim_run_dir(run_dir: Path, args, flag: str, resume: bool):
     """Claim ``run_dir`` for this training (``--resume`` takes over the lock of a killed run)."""
-    from tensegrity_gym.io.claim import Claim
     return Claim(run_dir, folder=True, label=flag, steal=args.steal_lock, take_over_dead=resume)
 
 
@@ -766,7 +767,7 @@ def main(argv: list[str] | None = None) -> int:
     import json
     try:
         run_dir = train(argv)
-    except (ValueError, FileNotFoundError, FileExistsError) as e:
+    except (ValueError, FileNotFoundError, FileExistsError, OutputError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     state = json.loads((run_dir / "state.json").read_text())

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Env-steps per second of the tensegrity envs under each way of running N copies (issue 6, item 2).
+"""Env-steps per second of the tensegrity envs under each way of running N copies.
 
 For N = 1, 16, 256, 4096 (``--n-envs``) and ``TensegrityShape-v0`` (default) or
 ``TensegrityRoll-v0`` (``--env roll`` / ``--env all``) it measures, in one process, wall clock:
@@ -42,7 +42,7 @@ Usage::
     .venv/bin/python scripts/bench_envs.py --quick             # CI-size smoke run (N = 1, 16; short windows; no files)
     .venv/bin/python scripts/bench_envs.py --n-envs 1 256 --seconds 1 --out /tmp/b
 
-Targets (issue 6): batched vector env >= 10x the best of the others at N = 4096; single-env
+Targets: batched vector env >= 10x the best of the others at N = 4096; single-env
 step() <= 2x its physics.
 """
 from __future__ import annotations

@@ -41,7 +41,7 @@ Usage::
 
     .venv/bin/python scripts/bench_gpu.py --quick                       # ~1-2 min on 2 CPU cores
     .venv/bin/python scripts/bench_gpu.py --batch 1024 4096 16384 --agreement --compile \\
-        --out results/bench_gpu_cpu.json --label "2-core CPU, no GPU in this session"
+        --out results/bench_gpu_cpu.json --label "2-core CPU, no GPU"
     .venv/bin/python scripts/bench_gpu.py --device cuda --batch 1024 16384 262144 1048576
     .venv/bin/python scripts/bench_gpu.py --scenes --env --env-batch 256 1024 4096 --threads 1
     .venv/bin/python scripts/bench_gpu.py --scenes --env-reset --env-batch 256 1024 4096 16384 --threads 1
@@ -54,7 +54,6 @@ import os
 import platform
 import resource
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -67,6 +66,7 @@ from tensegrity_gym.contact import GroundContact, init_contact_state
 from tensegrity_gym.contact import forces_inplace as contact_forces_inplace
 from tensegrity_gym import torch_backend
 from tensegrity_gym.envs import roll
+from tensegrity_gym.io.atomic import write_atomic  # noqa: E402
 
 DT = 1e-3
 
@@ -565,14 +565,8 @@ def save(path, result):
     """Write ``result`` as JSON atomically (temporary file in the same folder, fsync, rename)."""
     if not path:
         return
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(result, fh, indent=1)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, out)
+    text = json.dumps(result, indent=1)
+    write_atomic(path, lambda f: f.write(text.encode()))
 
 
 if __name__ == "__main__":

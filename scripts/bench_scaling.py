@@ -7,7 +7,7 @@ For each prism tower (``builders.tower(q)``: 3 q rods, 6 q nodes, ~15 q strings)
   included; the issue's target: under 2 s for tower300) and of the in-process summary
   (:func:`tensegrity_gym.cli.structure_summary`: compile, accelerations, stable-step estimate);
 * us per step of ``integrators.step`` (semi-implicit Euler, dt = 1 ms, B = 1, ``n_steps`` steps
-  in one call so per-call overhead is amortised), the numba kernels (the NumPy backend became the test oracle, issue 12), best of 3;
+  in one call so per-call overhead is amortised), the numba kernels (the NumPy formulation is the test oracle, not a backend), best of 3;
 * the per-step cost per rod (ns/rod), which stays flat when the cost is linear in the size;
 * the stable-step estimate's method (dense <= 20 rods, sparse above) and its seconds.
 
@@ -28,7 +28,6 @@ import platform
 import resource
 import subprocess
 import sys
-import tempfile
 import time
 import warnings
 
@@ -36,6 +35,7 @@ import numpy as np
 
 from tensegrity_gym import builders, dynamics, integrators
 from tensegrity_gym.cli import structure_summary
+from tensegrity_gym.io.atomic import write_atomic  # noqa: E402
 
 DT = 1e-3
 
@@ -161,17 +161,7 @@ def main(argv=None) -> int:
     est = estimate_table()
     if args.out:
         text = "\n".join(head + rows + est_head + est) + "\n"
-        d = os.path.dirname(os.path.abspath(args.out))
-        fd, tmp = tempfile.mkstemp(dir=d, prefix=".bench_scaling.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w") as fh:
-                fh.write(text)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, args.out)
-        finally:
-            if os.path.exists(tmp):
-                os.remove(tmp)
+        write_atomic(args.out, lambda f: f.write(text.encode()))
         print(f"wrote {args.out}")
     return 0
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Single TensegrityShape-v0 step() against the physics it runs (issue 6 target: <= 2x).
+"""Single TensegrityShape-v0 step() against the physics it runs (target: <= 2x).
 
     NUMBA_NUM_THREADS=1 python scripts/bench_step_overhead.py [--rounds 40] [--repeats 3]
 

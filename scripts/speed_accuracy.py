@@ -402,8 +402,8 @@ def fmt(x, spec=".2e"):
 def recommend(rows, backend="numba"):
     """Cheapest (integrator, dt) per scene whose node error is below 1 mm and energy error
     below 1 %, without a stability warning, among the rows of ``backend`` (the implicit
-    method competes too); returns {scene: row}. (Tables before issue 12 also had "numpy" rows:
-    the NumPy path is now the test oracle, not a backend.)"""
+    method competes too); returns {scene: row}. (The NumPy formulation is the test
+    oracle, not a backend: it has no rows.)"""
     best = {}
     for r in rows:
         if r["backend"] != backend:

@@ -1,4 +1,4 @@
-"""System identification results (issue 13, item 5): recover perturbed per-string stiffness and
+"""System identification results: recover perturbed per-string stiffness and
 damping and per-rod masses of a prism from one recorded 5 s trajectory, and tabulate how the error
 grows with position noise and shrinks with record length.
 
@@ -39,7 +39,6 @@ import argparse
 import json
 import os
 import platform
-import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -50,6 +49,7 @@ import tensegrity_gym as tg
 from tensegrity_gym import dynamics
 from tensegrity_gym.params import default_params
 from tensegrity_gym.sysid import SysIdWarning, identify
+from tensegrity_gym.io.atomic import write_atomic  # noqa: E402
 
 FIELDS = ("stiffness", "damping", "mass")
 EXCITE_AMPLITUDE = 0.005    # m, amplitude of each sine of a string's rest-length command
@@ -133,12 +133,7 @@ def fit(model, true, t, nodes, noise_m, rest_length=None, design="actuated", see
 
 
 def atomic_write(path: Path, text: str):
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    write_atomic(path, lambda f: f.write(text.encode()))
 
 
 def record_stats():
@@ -262,7 +257,7 @@ def write_readme(out: Path, summary: dict):
     worst_d = max(r["max_rel_error_by_field"]["damping"] for r in r1s)
     by = {r["design"]: r for r in design_rows if r["noise_mm"] == 1}
     ex = summary["excitation"]
-    readme = f"""# System identification of a perturbed prism (issue 13, item 5)
+    readme = f"""# System identification of a perturbed prism
 
 Command (total {total:.0f} s on this shared 2-core machine, of which {gen_s:.0f} s generating the
 DOP853 records):

@@ -13,7 +13,7 @@ autograd through all 500 steps of :func:`tensegrity_gym.torch_backend.step` (flo
 ``torch_backend`` module doc for what the gradient is at a slack switch).
 
 Prints the shape error (RMS node distance, m) before and after the fit, checked again with the
-numba kernels (the NumPy path until issue 12), and how far the fitted rest lengths are from the hidden ones.
+numba kernels, and how far the fitted rest lengths are from the hidden ones.
 
 Usage::
 
