@@ -338,10 +338,12 @@ def test_sigterm_between_two_outputs_reports_truthfully(tmp_path):
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     try:
         t_end = time.time() + 240
-        while time.time() < t_end and p.poll() is None:   # the video's temporary file: rendering has begun
-            if any(q.name.startswith(".") and q.name.endswith(".gif") for q in tmp_path.iterdir()):
+        while time.time() < t_end and p.poll() is None:   # the trajectory is written (or staged): the video is next
+            if out.read_bytes() != b"the old trajectory" or any(
+                    q.name.startswith(".t.npz") and not q.name.endswith(".lock") for q in tmp_path.iterdir()):
                 break
             time.sleep(0.005)
+        time.sleep(0.5)                                  # well inside the rendering of 600 frames
         assert p.poll() is None, p.communicate()[1].decode()
         p.send_signal(signal.SIGTERM)
         _, err = p.communicate(timeout=120)
