@@ -323,8 +323,8 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
 
     def run(theta_start):
         try:
-            # 'lm' (MINPACK): its QR of the tall Jacobian runs in its own loops (BLAS threads on a
-            # loaded machine made trf's SVD of the same matrix 20x slower)
+            # 'lm' (MINPACK): its QR of the tall Jacobian runs in its own loops, not in threaded BLAS
+            # (trf's SVD of the same matrix is much slower on a loaded machine)
             sol = least_squares(fun, theta_start, jac=jac, method="lm", x_scale=1.0, ftol=1e-10, xtol=1e-8,
                                 gtol=1e-10, max_nfev=max_nfev, verbose=verbose)
             return sol.x, sol.status, sol.message

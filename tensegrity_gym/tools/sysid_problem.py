@@ -319,7 +319,7 @@ class _Problem:
         double-backward trick (``u -> (du/dz)^T``, then its derivative along the tangent; copies
         are independent, so one pair of backward passes gives every column). The columns are
         exact derivatives instead of differences. (torch's forward-mode AD computes the same
-        numbers but ran 30-100x slower per operation on CPU with torch 2.13.) They are taken
+        numbers, much more slowly per operation on CPU.) They are taken
         with respect to the log values of the fitted items and chained with :meth:`log_jacobian`
         (d log value / d theta)."""
         import torch

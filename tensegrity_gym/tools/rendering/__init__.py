@@ -13,15 +13,15 @@ Backends
 * :class:`MujocoRenderer` (``backend="mujoco"``): a real 3-D renderer (MuJoCo's offscreen
   OpenGL renderer: shaded capsules for rods, strings as thin capsules coloured by tension, a
   checkered ground, lighting and shadows, title, caption and a colour-bar legend drawn by
-  MuJoCo's own text overlay). Several hundred frames/s at 480 x 480 on a CPU
-  (``scripts/bench_render.py``). Needs ``mujoco`` (``pip install tensegrity_gym[mujoco]``) and an
+  MuJoCo's own text overlay); much faster than matplotlib (frame rates: ``scripts/bench_render.py``).
+  Needs ``mujoco`` (``pip install tensegrity_gym[mujoco]``) and an
   OpenGL backend; without a display it uses EGL (Debian: ``libegl1 libegl-mesa0``, Mesa's
   software rasteriser is enough) or OSMesa (``libosmesa6``). The backend comes from
   ``MUJOCO_GL`` when set (``egl``, ``osmesa``, ``glfw``), else the first of egl, osmesa,
   glfw (only with a ``DISPLAY``) that creates a context; :class:`RendererUnavailable` says
   what was tried and which package to install.
-* :class:`Renderer` (``backend="matplotlib"``): the original matplotlib 3-D renderer (Agg
-  canvas), about 10-40 frames/s; always available.
+* :class:`Renderer` (``backend="matplotlib"``): the matplotlib 3-D renderer (Agg canvas);
+  always available.
 
 ``make_renderer(backend="auto")`` (the env default; ``TENSEGRITY_RENDERER=matplotlib`` or
 ``mujoco`` in the environment forces one) takes MuJoCo when it works and otherwise falls back

@@ -9,7 +9,7 @@ from .scene import _scene_arrays
 
 
 class Renderer:
-    """Reusable matplotlib renderer (one figure kept between frames: about 20-40 ms a frame).
+    """Reusable matplotlib renderer (one figure kept between frames).
 
     Parameters
     ----------
