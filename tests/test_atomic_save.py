@@ -351,3 +351,23 @@ def test_resume_keeps_the_checkpoint_and_evaluation_schedule(tmp_path):
     ev = np.load(run / "eval" / "evaluations.npz")["timesteps"].tolist()
     assert ev == [128, 256, 384, 512]
     assert not (run / "eval" / ".evaluations_scratch.npz").exists()
+
+
+def test_exclusive_publish_without_hard_links(tmp_path, monkeypatch):
+    """A file system without hard links: the exclusive publish still never replaces a file."""
+    import errno
+
+    def no_links(src, dst):
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "link", no_links)
+    p = tmp_path / "x"
+    atomic.write_atomic(p, lambda f: f.write(b"1"), exclusive=True)
+    with pytest.raises(atomic.OutputChanged):
+        atomic.write_atomic(p, lambda f: f.write(b"2"), exclusive=True)
+    assert p.read_bytes() == b"1" and [q.name for q in tmp_path.iterdir()] == ["x"]
+    with claim.Claim(tmp_path / "y") as c:
+        assert claim.read_lock(c.lock)["pid"] == os.getpid()
+        with pytest.raises(claim.OutputBusy):
+            claim.Claim(tmp_path / "y")
+    assert [q.name for q in tmp_path.iterdir()] == ["x"]

@@ -13,6 +13,7 @@ together) are :mod:`tensegrity_gym.io.claim`, built on :func:`stage` and :func:`
 """
 from __future__ import annotations
 
+import errno
 import os
 import re
 from pathlib import Path
@@ -21,7 +22,7 @@ TMP_TAG = ".tmp-"
 _TMP_PID = re.compile(re.escape(TMP_TAG) + r"(\d+)")
 _COUNTER = iter(range(1 << 62))
 
-__all__ = ["write_atomic", "stage", "publish", "tmp_path", "remove_stale_tmp", "check_writable", "pid_alive",
+__all__ = ["write_atomic", "stage", "publish", "link_exclusive", "tmp_path", "remove_stale_tmp", "check_writable", "pid_alive",
            "OutputError", "OutputExists", "OutputChanged", "TMP_TAG"]
 
 
@@ -113,6 +114,24 @@ def stage(path: str | Path, writer=None, *, fill=None) -> Path:
     return tmp
 
 
+def link_exclusive(src: Path, dst: Path) -> None:
+    """Give the file ``src`` the second name ``dst``, failing with FileExistsError if ``dst``
+    exists (a hard link: atomic and exclusive). Where the file system has no hard links, the
+    name is checked, then the file renamed (a window of a few microseconds)."""
+    try:
+        os.link(src, dst)
+    except FileExistsError:
+        raise
+    except OSError as e:
+        if e.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK, errno.ENOSYS):
+            raise
+        if os.path.lexists(dst):
+            raise FileExistsError(errno.EEXIST, "File exists", str(dst)) from None
+        fd = os.open(str(dst), os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)   # the name, exclusively
+        os.close(fd)
+        os.replace(src, dst)
+
+
 def publish(tmp: Path, path: str | Path, *, exclusive: bool = False, label: str = "output") -> None:
     """Move the staged ``tmp`` onto ``path``: renamed over it, or with ``exclusive`` hard-linked
     (fails with :class:`OutputChanged` if ``path`` exists: never replaces a file) then unlinked."""
@@ -120,7 +139,7 @@ def publish(tmp: Path, path: str | Path, *, exclusive: bool = False, label: str 
     try:
         if exclusive:
             try:
-                os.link(tmp, path)
+                link_exclusive(tmp, path)
             except FileExistsError:
                 raise OutputChanged(f"{label} {str(path)!r} was created by someone else during this run; "
                                     "not replaced (pass --force to overwrite it)") from None

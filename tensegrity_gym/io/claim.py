@@ -25,8 +25,8 @@ import threading
 import time
 from pathlib import Path
 
-from .atomic import (OutputChanged, OutputError, OutputExists, _unlink, check_writable, pid_alive, publish,
-                     stage)
+from .atomic import (OutputChanged, OutputError, OutputExists, _unlink, check_writable, link_exclusive, pid_alive,
+                     publish, stage)
 
 LOCK_SUFFIX = ".lock"
 
@@ -154,7 +154,7 @@ class Claim:
         try:
             for _ in range(3):
                 try:
-                    os.link(tmp, self.lock)
+                    link_exclusive(tmp, self.lock)
                     break
                 except FileExistsError:
                     self._refuse_or_take_over()
