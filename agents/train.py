@@ -31,6 +31,7 @@ Run directory (``--log-dir``, default ``runs/<algo>_<env>_s<seed>``, git-ignored
     monitor/train_<segment>.monitor.csv episodes of the training env (return, length, info keys)
     tb/                                 TensorBoard: SB3 scalars + info/reward_* means + episode_end/*
     config.yaml, command.txt, versions.json, state.json
+    .lock                               while a training runs in it: its pid, host and start time
 
 Every file is written atomically (temporary file in the same folder, fsync, rename), so no
 interrupt, crash or kill destroys the last good model; a crash is recorded in ``state.json`` as
