@@ -371,7 +371,7 @@ class _Recorder:
 
     def __init__(self):
         from tensegrity_gym import contact, pipeline
-        self.modules = {"integrators": integrators, "_kernels": _kernels, "contact": gc, "pipeline": pipeline}
+        self.modules = {"integrators": integrators, "_kernels": _kernels, "contact": contact, "pipeline": pipeline}
         self.calls: list = []
         self.buffers: dict = {}          # id -> (original object kept alive, snapshot)
         self._depth = 0
