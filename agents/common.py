@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from tensegrity_gym.io import atomic
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 
@@ -481,80 +483,18 @@ def package_versions() -> dict:
 
 
 # ---------------------------------------------------------------------- atomic files
-TMP_TAG = ".tmp-"
-
-
-def _fsync_dir(folder: Path) -> None:
-    """Make a rename in ``folder`` durable (no-op where directories cannot be opened, e.g. Windows)."""
-    try:
-        fd = os.open(str(folder), os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+# The one atomic writer of the package (a run folder's files are rewritten by the run that claimed it).
+TMP_TAG = atomic.TMP_TAG
+pid_alive = atomic.pid_alive
+remove_stale_tmp = atomic.remove_stale_tmp
 
 
 def atomic_write(path: str | Path, writer) -> Path:
-    """Write ``path`` atomically: ``writer(f)`` fills a temporary file in the same folder (opened
-    ``"wb"``), which is flushed, fsynced and renamed over ``path``, then the folder is fsynced.
-
-    An interrupt, a crash or a kill at any moment leaves either the old file or the new one, never
-    a partial file under ``path``; a stale ``.<name>.tmp-<pid>`` may remain and is removed by
-    :func:`remove_stale_tmp`. Returns ``path``.
-    """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}{TMP_TAG}{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            writer(f)  # may close f (SB3's save_to_pkl does)
-        fd = os.open(str(tmp), os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-        raise
-    _fsync_dir(path.parent)
-    return path
-
-
-def remove_stale_tmp(folder: str | Path) -> list[Path]:
-    """Remove temporary files left by :func:`atomic_write` in ``folder`` (and its sub-folders) by
-    processes that no longer run; returns the removed paths."""
-    removed = []
-    for p in Path(folder).rglob(f".*{TMP_TAG}*"):
-        try:
-            pid = int(p.name.rsplit(TMP_TAG, 1)[1])
-        except ValueError:
-            continue
-        if pid != os.getpid() and not pid_alive(pid):
-            try:
-                p.unlink()
-                removed.append(p)
-            except OSError:
-                pass
-    return removed
-
-
-def pid_alive(pid: int) -> bool:
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    except (OSError, ValueError):
-        return False
-    return True
+    """Write ``path`` atomically (:func:`tensegrity_gym.io.atomic.write_atomic`): ``writer(f)``
+    fills a temporary file in the same folder, which is fsynced and renamed over ``path``. An
+    interrupt, a crash or a kill at any moment leaves the old file or the new one, never a partial
+    one; a stale temporary file is removed by :func:`remove_stale_tmp`. Returns ``path``."""
+    return atomic.write_atomic(path, writer)
 
 
 def save_model_atomic(model, path: str | Path) -> Path:

@@ -10,8 +10,8 @@ Usage (from any directory once the package is installed; from the repository roo
 
 Hyperparameters come from ``agents/hyperparams/<algo>.yml`` keyed by env id, in
 rl-baselines3-zoo's format, so the zoo uses the same file:
-``python -m rl_zoo3.train --gym-packages tensegrity_gym --algo ppo --env TensegrityShape-v0``
-reads it without ``--conf-file`` (:mod:`tensegrity_gym.zoo`). ``--hyperparams key=value ...`` overrides entries;
+``python -m rl_zoo3.train --gym-packages tensegrity_gym.integrations.zoo --algo ppo --env TensegrityShape-v0``
+reads it without ``--conf-file`` (:mod:`tensegrity_gym.integrations.zoo`). ``--hyperparams key=value ...`` overrides entries;
 ``--env-kwargs key:value ...`` (or one JSON object) are merged over the file's ``env_kwargs``.
 Values are parsed as JSON / Python literals (never ``eval``).
 
@@ -31,6 +31,7 @@ Run directory (``--log-dir``, default ``runs/<algo>_<env>_s<seed>``, git-ignored
     monitor/train_<segment>.monitor.csv episodes of the training env (return, length, info keys)
     tb/                                 TensorBoard: SB3 scalars + info/reward_* means + episode_end/*
     config.yaml, command.txt, versions.json, state.json
+    .lock                               while a training runs in it: its pid, host and start time
 
 Every file is written atomically (temporary file in the same folder, fsync, rename), so no
 interrupt, crash or kill destroys the last good model; a crash is recorded in ``state.json`` as
@@ -56,6 +57,8 @@ import numpy as np
 
 from agents import common
 from agents.progress import progress_callback
+from tensegrity_gym.io.atomic import OutputError
+from tensegrity_gym.io.claim import Claim
 
 EVAL_SEED_OFFSET = 10_000
 
@@ -326,6 +329,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="no progress lines (by default one every 10 s: steps, speed, ETA, last evaluation)")
     p.add_argument("--gym-packages", nargs="*", default=[],
                    help="extra modules to import (to register their envs); tensegrity_gym always is")
+    p.add_argument("--steal-lock", action="store_true",
+                   help="take over the run folder's lock left by a training that no longer runs here (or "
+                        "runs on another host); --resume takes over a killed run's lock by itself")
     p.add_argument("--max-wall-time", type=float, default=None, metavar="SECONDS",
                    help="stop training after this many seconds (saved as usual; status time_limit)")
     p.add_argument("--verbose", type=int, default=0)
@@ -407,12 +413,6 @@ def _has_saved_model(run_dir: Path) -> bool:
     return (run_dir / "model.zip").exists() or _latest_checkpoint(run_dir)[1] is not None
 
 
-def _running_elsewhere(state: dict) -> bool:
-    import socket
-    return (state.get("status") == "running" and state.get("pid") not in (None, os.getpid())
-            and state.get("host") == socket.gethostname() and common.pid_alive(state["pid"]))
-
-
 def _clear_failed_start(run_dir: Path) -> None:
     """A run that failed before saving any model: drop its monitor / evaluation files so that a
     restart in the same folder starts clean (config.yaml and command.txt are rewritten / appended)."""
@@ -444,7 +444,26 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
     ``report``: called with :func:`evaluation_metrics` and ``wall_time_s`` (the run's wall time so
     far, s, earlier segments included) after every evaluation (``agents.tune`` passes Ray Tune's
     ``tune.report``).
+
+    The run folder is claimed before anything is written into it (its ``.lock`` names this
+    process: :class:`tensegrity_gym.io.claim.Claim`); a second training into it is refused at once
+    (``FileExistsError`` naming the holder's pid, host and start time) and the lock is removed when
+    the training ends.
     """
+    claims = []
+    try:
+        return _train(argv, extra_callbacks, report, claims)
+    finally:
+        for c in claims:
+            c.release()
+
+
+def _claim_run_dir(run_dir: Path, args, flag: str, resume: bool):
+    """Claim ``run_dir`` for this training (``--resume`` takes over the lock of a killed run)."""
+    return Claim(run_dir, folder=True, label=flag, steal=args.steal_lock, take_over_dead=resume)
+
+
+def _train(argv, extra_callbacks, report, claims: list) -> Path:
     args = build_parser().parse_args(argv)
     import yaml
     import torch
@@ -458,9 +477,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         cfg_path = resume_dir / "config.yaml"
         if not cfg_path.exists():
             raise FileNotFoundError(f"--resume {resume_dir}: no config.yaml there (not a run directory)")
-        if _running_elsewhere(_read_state(resume_dir)):
-            raise FileExistsError(f"--resume {resume_dir}: a training (pid {_read_state(resume_dir)['pid']}) "
-                                  "is running in it")
+        claims.append(_claim_run_dir(resume_dir, args, "--resume", resume=True))
         cfg = common.read_yaml(cfg_path)
         run_dir = resume_dir
         fresh_restart = not _has_saved_model(run_dir)
@@ -508,9 +525,10 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
         eval_episodes = args.eval_episodes
         n_eval_envs = args.n_eval_envs or max(1, min(eval_episodes, 10))
         run_dir = Path(args.log_dir) if args.log_dir else Path("runs") / f"{algo}_{env_id}_s{seed}"
+        claims.append(_claim_run_dir(run_dir, args, "--log-dir", resume=False))
         if (run_dir / "config.yaml").exists():
             st = _read_state(run_dir)
-            if _has_saved_model(run_dir) or _running_elsewhere(st):
+            if _has_saved_model(run_dir):
                 raise FileExistsError(f"--log-dir {run_dir} already holds a run; use --resume {run_dir} to "
                                       "continue it or choose another --log-dir")
             print(f"note: {run_dir} holds a run that stopped before saving any model "
@@ -752,7 +770,7 @@ def main(argv: list[str] | None = None) -> int:
     import json
     try:
         run_dir = train(argv)
-    except (ValueError, FileNotFoundError, FileExistsError) as e:
+    except (ValueError, FileNotFoundError, FileExistsError, OutputError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     state = json.loads((run_dir / "state.json").read_text())

@@ -358,10 +358,8 @@ def _plot(path: Path, per: dict) -> None:
     if ax.lines:
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}{common.TMP_TAG}{os.getpid()}.png")
-    fig.savefig(tmp, dpi=110)
+    common.atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 # ---------------------------------------------------------------------- driver

@@ -1,15 +1,15 @@
 """Run an rl-baselines3-zoo command with the tensegrity envs registered.
 
-``rl_zoo3.train`` and ``rl_zoo3.enjoy`` take ``--gym-packages tensegrity_gym``; the zoo's
-``record_video`` (and ``record_training``) has no such option, so it cannot find the envs.
-This module imports ``tensegrity_gym`` (which registers the envs and makes the zoo default to
-the project's hyperparameter files, see :mod:`tensegrity_gym.zoo`) and runs the zoo command::
+``rl_zoo3.train`` and ``rl_zoo3.enjoy`` take ``--gym-packages tensegrity_gym.integrations.zoo``;
+the zoo's ``record_video`` (and ``record_training``) has no such option, so it cannot find the
+envs. This module imports :mod:`tensegrity_gym.integrations.zoo` (which registers the envs and
+makes the zoo default to the project's hyperparameter files) and runs the zoo command::
 
     python -m agents.zoo record_video --algo ppo --env TensegrityRoll-v0 -f logs -n 500
     python -m agents.zoo train --algo ppo --env TensegrityRoll-v0     # = rl_zoo3.train --gym-packages ...
 
 The same without this module (one line):
-``python -c "import tensegrity_gym, runpy; runpy.run_module('rl_zoo3.record_video', run_name='__main__')" ARGS``.
+``python -c "import tensegrity_gym.integrations.zoo, runpy; runpy.run_module('rl_zoo3.record_video', run_name='__main__')" ARGS``.
 """
 from __future__ import annotations
 
@@ -29,10 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         print("error: rl_zoo3 is not installed (pip install 'tensegrity_gym[train]')", file=sys.stderr)
         return 2
-    import rl_zoo3.exp_manager  # noqa: F401  (so that importing tensegrity_gym installs its zoo defaults)
-    import tensegrity_gym  # noqa: F401  (registers the envs)
-    from tensegrity_gym import zoo
-    zoo.install()
+    import tensegrity_gym.integrations.zoo  # noqa: F401  (registers the envs and installs the zoo defaults)
     cmd, rest = argv[0], argv[1:]
     sys.argv = [f"rl_zoo3.{cmd}"] + rest
     runpy.run_module(f"rl_zoo3.{cmd}", run_name="__main__", alter_sys=True)

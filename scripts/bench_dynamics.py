@@ -52,7 +52,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from tensegrity_gym import builders, dynamics as dyn, integrators, physics  # noqa: E402
 from tensegrity_gym.backends.numba import api as numba_api  # noqa: E402
-from tensegrity_gym._bench import mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers)
+from _bench import mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers, a sibling module)
 
 DT = 1e-3
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Env-steps per second of the tensegrity envs under each way of running N copies (issue 6, item 2).
+"""Env-steps per second of the tensegrity envs under each way of running N copies.
 
 For N = 1, 16, 256, 4096 (``--n-envs``) and ``TensegrityShape-v0`` (default) or
 ``TensegrityRoll-v0`` (``--env roll`` / ``--env all``) it measures, in one process, wall clock:
@@ -42,7 +42,7 @@ Usage::
     .venv/bin/python scripts/bench_envs.py --quick             # CI-size smoke run (N = 1, 16; short windows; no files)
     .venv/bin/python scripts/bench_envs.py --n-envs 1 256 --seconds 1 --out /tmp/b
 
-Targets (issue 6): batched vector env >= 10x the best of the others at N = 4096; single-env
+Targets: batched vector env >= 10x the best of the others at N = 4096; single-env
 step() <= 2x its physics.
 """
 from __future__ import annotations
@@ -70,8 +70,8 @@ from gymnasium import spaces  # noqa: E402
 
 import tensegrity_gym  # noqa: E402,F401  (registers the env ids)
 from tensegrity_gym import _kernels, builders, integrators  # noqa: E402
-from tensegrity_gym import dynamics as dyn  # noqa: E402
-from tensegrity_gym._bench import mjcf  # noqa: E402  (MJCF of the free prism, shared with bench_dynamics)
+from tensegrity_gym import dynamics  # noqa: E402
+from _bench import mjcf  # noqa: E402  (MJCF of the free prism, shared with bench_dynamics)
 from tensegrity_gym.sb3 import make_sb3_vec_env  # noqa: E402
 
 ENV_IDS = {"shape": "TensegrityShape-v0", "roll": "TensegrityRoll-v0"}
@@ -231,7 +231,7 @@ def mujoco_factory(env_id: str):
     dt, fs = task.dt, task.frame_skip
     mes = probe.spec.max_episode_steps or 1000
     probe.close()
-    model = dyn.compile_model(builders.prism(3))
+    model = dynamics.compile_model(builders.prism(3))
     xml = mjcf(model, "Euler", dt=dt)
     fn = functools.partial(_make_mujoco, xml, model.rest_length.copy(), dt, fs, mes)
     desc = (f"free 3-bar prism (builders.prism(3): {model.n_bars} rods, {model.n_strings} strings), MJCF from "
@@ -370,8 +370,8 @@ class _Recorder:
              ("pipeline", "advance", "integrator"))    # the env pipeline's in-place steps (contact inside)
 
     def __init__(self):
-        from tensegrity_gym import contact as gc, pipeline
-        self.modules = {"integrators": integrators, "_kernels": _kernels, "contact": gc, "pipeline": pipeline}
+        from tensegrity_gym import contact, pipeline
+        self.modules = {"integrators": integrators, "_kernels": _kernels, "contact": contact, "pipeline": pipeline}
         self.calls: list = []
         self.buffers: dict = {}          # id -> (original object kept alive, snapshot)
         self._depth = 0
@@ -395,8 +395,8 @@ class _Recorder:
             if id(x) not in self.buffers:
                 self.buffers[id(x)] = (x, copy.deepcopy(x))
             return ("buf", id(x))
-        if isinstance(x, dyn.State):     # integrators.step never modifies its input state
-            return ("val", dyn.State(np.array(x.q, copy=True), np.array(x.qd, copy=True), x.t))
+        if isinstance(x, dynamics.State):     # integrators.step never modifies its input state
+            return ("val", dynamics.State(np.array(x.q, copy=True), np.array(x.qd, copy=True), x.t))
         return ("val", x)                # models, parameter objects, scalars, strings, None
 
     def _wrap(self, orig, label, kind):

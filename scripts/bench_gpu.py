@@ -41,7 +41,7 @@ Usage::
 
     .venv/bin/python scripts/bench_gpu.py --quick                       # ~1-2 min on 2 CPU cores
     .venv/bin/python scripts/bench_gpu.py --batch 1024 4096 16384 --agreement --compile \\
-        --out results/bench_gpu_cpu.json --label "2-core CPU, no GPU in this session"
+        --out results/bench_gpu_cpu.json --label "2-core CPU, no GPU"
     .venv/bin/python scripts/bench_gpu.py --device cuda --batch 1024 16384 262144 1048576
     .venv/bin/python scripts/bench_gpu.py --scenes --env --env-batch 256 1024 4096 --threads 1
     .venv/bin/python scripts/bench_gpu.py --scenes --env-reset --env-batch 256 1024 4096 16384 --threads 1
@@ -54,16 +54,19 @@ import os
 import platform
 import resource
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from tensegrity_gym import _bench, _kernels, builders, contact as gc, dynamics as dyn, integrators
-from tensegrity_gym import torch_backend as tb
+import _bench  # noqa: E402  (shared helpers, a sibling module)
+from tensegrity_gym import _kernels, builders, dynamics, integrators
+from tensegrity_gym.contact import GroundContact, init_contact_state
+from tensegrity_gym.contact import forces_inplace as contact_forces_inplace
+from tensegrity_gym import torch_backend
 from tensegrity_gym.envs import roll
+from tensegrity_gym.io.atomic import write_atomic  # noqa: E402
 
 DT = 1e-3
 
@@ -77,21 +80,21 @@ def roll_scene():
     rod_com = (s.nodes[s.bars[:, 0]] * (1 - s.com_fraction)[:, None] + s.nodes[s.bars[:, 1]] * s.com_fraction[:, None])
     com = s.bar_mass @ rod_com / s.bar_mass.sum()
     axis = s.nodes[3:].mean(0) - s.nodes[:3].mean(0)
-    contact = gc.GroundContact(radius=0.02, max_damping=float(s.bar_mass.min()) / 4.0 / DT)
+    contact = GroundContact(radius=0.02, max_damping=float(s.bar_mass.min()) / 4.0 / DT)
     nodes, _ = roll.place_on_ground(s.nodes, com, contact.radius, exclude_axis=axis)
-    return dyn.compile_model(s.replace(nodes=nodes)), contact
+    return dynamics.compile_model(s.replace(nodes=nodes)), contact
 
 
 def scenes():
-    return {"prism": (dyn.compile_model(builders.prism(3)), None), "roll_prism": roll_scene(),
-            "icosahedron": (dyn.compile_model(builders.icosahedron()), None),
-            "tower30": (dyn.compile_model(builders.tower(30)), None)}
+    return {"prism": (dynamics.compile_model(builders.prism(3)), None), "roll_prism": roll_scene(),
+            "icosahedron": (dynamics.compile_model(builders.icosahedron()), None),
+            "tower30": (dynamics.compile_model(builders.tower(30)), None)}
 
 
 def released(model, B, scale=0.01, seed=0):
     rng = np.random.default_rng(seed)
-    st = dyn.initial_state(model, B)
-    q, qd = dyn.project(model, st.q, st.qd + scale * rng.normal(size=st.qd.shape))
+    st = dynamics.initial_state(model, B)
+    q, qd = dynamics.project(model, st.q, st.qd + scale * rng.normal(size=st.qd.shape))
     return np.ascontiguousarray(q), np.ascontiguousarray(qd)
 
 
@@ -129,9 +132,9 @@ def bench_torch(model, contact, q0, qd0, dtype, dev, n_steps, min_time, compiled
     if dev.type == "cuda":
         torch.cuda.reset_peak_memory_stats()
     if contact is None:
-        tm = tb.torch_model(model, dev, dtype)
-        prm = tb.torch_params(tm, None, B)
-        one = (lambda a, b: tb.step_once(tm, a, b, DT, "semi_implicit_euler", prm, None, None, None, True))
+        tm = torch_backend.torch_model(model, dev, dtype)
+        prm = torch_backend.torch_params(tm, None, B)
+        one = (lambda a, b: torch_backend.step_once(tm, a, b, DT, "semi_implicit_euler", prm, None, None, None, True))
         if compiled:
             one = torch.compile(one, dynamic=False)
 
@@ -142,13 +145,13 @@ def bench_torch(model, contact, q0, qd0, dtype, dev, n_steps, min_time, compiled
                     a, b = one(a, b)
                 state[0], state[1] = a, b
     else:
-        anchor, active = tb.init_contact_state(model, B, dev, dtype)
+        anchor, active = torch_backend.init_contact_state(model, B, dev, dtype)
         cs = [anchor, active]
-        sub = torch.compile(tb.contact_substep, dynamic=False) if compiled else None
+        sub = torch.compile(torch_backend.contact_substep, dynamic=False) if compiled else None
 
         def fn(n):
             with torch.no_grad():
-                state[0], state[1], cs[0], cs[1] = tb.contact_step(model, contact, state[0], state[1], cs[0], cs[1],
+                state[0], state[1], cs[0], cs[1] = torch_backend.contact_step(model, contact, state[0], state[1], cs[0], cs[1],
                                                                    DT, n_steps=n, substep=sub)
     t0 = time.perf_counter()
     sec = time_loop(fn, n_steps, min_time, dev)
@@ -161,18 +164,18 @@ def bench_numba(model, contact, q0, qd0, n_steps, min_time):
     B = q0.shape[0]
     q, qd = q0.copy(), qd0.copy()
     if contact is None:
-        st = [dyn.State(q, qd)]
+        st = [dynamics.State(q, qd)]
 
         def fn(n):
             st[0] = integrators.step(model, st[0], DT, "semi_implicit_euler", n_steps=n, backend="numba")
     else:
-        cs = gc.init_contact_state(model, B)
+        cs = init_contact_state(model, B)
         W = np.zeros((B, model.n_nodes, 3))
         slip = np.zeros((B, 2 * model.n_bars), bool)
 
         def fn(n):
             for _ in range(n):
-                gc.forces_inplace(contact, model, q, qd, cs, W, slip)
+                contact_forces_inplace(contact, model, q, qd, cs, W, slip)
                 _kernels.step_inplace(model, q, qd, DT, "semi_implicit_euler", external=W)
     sec = time_loop(fn, n_steps, min_time, torch.device("cpu"))
     return {"steps_per_s": B / sec}
@@ -180,7 +183,7 @@ def bench_numba(model, contact, q0, qd0, n_steps, min_time):
 
 def bench_mujoco(model, q0, qd0, min_time):
     """Env-steps/s of ``mujoco.rollout`` on all CPU cores over B copies of copy 0's state, the
-    scene translated by ``tensegrity_gym._bench.mjcf`` (free rods, tension-only tendons; as in
+    scene translated by ``scripts/_bench.mjcf`` (the package MJCF writer) (free rods, tension-only tendons; as in
     ``scripts/bench_dynamics.py``). None when MuJoCo is not installed."""
     try:
         import mujoco
@@ -226,7 +229,7 @@ def bench_env(B, dev, dtype, min_time, compile_=False):
     if dtype is None:
         acts = [rng.uniform(-1, 1, (B, na)) for _ in range(4)]
     else:
-        acts = [torch.as_tensor(rng.uniform(-1, 1, (B, na)), device=dev).to(tb.resolve_dtype(dtype)) for _ in range(4)]
+        acts = [torch.as_tensor(rng.uniform(-1, 1, (B, na)), device=dev).to(torch_backend.resolve_dtype(dtype)) for _ in range(4)]
     t0 = time.perf_counter()
 
     def fn(n):
@@ -247,7 +250,7 @@ def bench_env(B, dev, dtype, min_time, compile_=False):
                              max_episode_steps=None, **{**kw, "dtype": dt_, "compile": c})
             e.reset(seed=1)
             for i in range(5):
-                o = e.step(acts[i % 4].to(tb.resolve_dtype(dt_)))[0]
+                o = e.step(acts[i % 4].to(torch_backend.resolve_dtype(dt_)))[0]
             obs[name] = o.double()
         for a, b in (("compiled", "eager"), ("eager", "eager_f64"), ("compiled", "eager_f64")):
             d = (obs[a] - obs[b]).abs().amax(dim=1)   # per env, largest observation entry difference
@@ -273,7 +276,7 @@ def bench_env_resets(B, dev, dtype, sampling, min_time, episode):
     reset_s = time_loop(lambda n: [env.reset() for _ in range(n)], 1, min_time, sdev)
     na = env.single_action_space.shape[0]
     a = np.random.default_rng(0).uniform(-1, 1, (B, na))
-    act = a if dtype is None else torch.as_tensor(a, device=dev).to(tb.resolve_dtype(dtype))
+    act = a if dtype is None else torch.as_tensor(a, device=dev).to(torch_backend.resolve_dtype(dtype))
     env.reset(seed=1)
     cycle = episode + 1          # episode steps, then the autoreset step
 
@@ -290,18 +293,18 @@ def agreement(dev):
     out = {}
     for name, s in (("prism", builders.prism(3, prestress=100)), ("icosahedron", builders.icosahedron()),
                     ("constrained_prism", builders.constrained_prism())):
-        model = dyn.compile_model(s)
+        model = dynamics.compile_model(s)
         q, qd = released(model, 2, scale=0.2, seed=1)
-        st = dyn.State(q, qd)
+        st = dynamics.State(q, qd)
         ref = integrators.step(model, st, 1e-4, "rk4", n_steps=10000, backend="numba")
-        Nref = dyn.node_positions(model, ref.q)
+        Nref = dynamics.node_positions(model, ref.q)
         row = {}
         for label, dtype in (("float64", "float64"), ("float32", "float32")):
             t0 = time.perf_counter()
             out_ = integrators.step(model, st, 1e-4, "rk4", n_steps=10000, backend="torch", device=dev, dtype=dtype)
-            row[label + "_node_error_m"] = float(np.abs(dyn.node_positions(model, out_.q) - Nref).max())
+            row[label + "_node_error_m"] = float(np.abs(dynamics.node_positions(model, out_.q) - Nref).max())
             row[label + "_wall_s"] = time.perf_counter() - t0
-        row["moved_m"] = float(np.abs(Nref - dyn.node_positions(model, q)).max())
+        row["moved_m"] = float(np.abs(Nref - dynamics.node_positions(model, q)).max())
         out[name] = row
         print(f"agreement {name:18s} 1 s RK4 dt=1e-4: float64 {row['float64_node_error_m']:.2e} m, "
               f"float32 {row['float32_node_error_m']:.2e} m (nodes moved up to {row['moved_m']:.3f} m)", flush=True)
@@ -439,7 +442,7 @@ def main(argv=None):
         return 0
     if args.quick:
         args.batch, args.min_time = [1024, 4096], 0.3
-    dev = tb.resolve_device(args.device)
+    dev = torch_backend.resolve_device(args.device)
     if args.threads:
         torch.set_num_threads(args.threads)
     info = {"label": args.label, "device": str(dev), "cpu_count": os.cpu_count(), "torch": torch.__version__,
@@ -562,14 +565,8 @@ def save(path, result):
     """Write ``result`` as JSON atomically (temporary file in the same folder, fsync, rename)."""
     if not path:
         return
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(result, fh, indent=1)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, out)
+    text = json.dumps(result, indent=1)
+    write_atomic(path, lambda f: f.write(text.encode()))
 
 
 if __name__ == "__main__":

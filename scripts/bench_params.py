@@ -1,6 +1,6 @@
 #!/usr/bin/env python
-"""Cost of per-copy physical parameters (issue 12: shared values cost nothing measurable;
-issue 13: env throughput with randomisation on vs off within 10 %).
+"""Cost of per-copy physical parameters (targets: shared values cost nothing measurable;
+env throughput with randomisation on vs off within 10 %).
 
     NUMBA_NUM_THREADS=2 python scripts/bench_params.py [--rounds 15] [--out results/bench_params.json]
 

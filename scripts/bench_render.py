@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
+from tensegrity_gym import dynamics
 from tensegrity_gym.rendering import MujocoRenderer, Renderer, RendererUnavailable
 
 
@@ -25,11 +25,11 @@ def trajectory(name: str, frames: int):
     s = tg.load_structure(name)
     m = tg.compile_model(s)
     rng = np.random.default_rng(0)
-    st = dyn.initial_state(m, nodes=s.nodes + 0.01 * rng.standard_normal(s.nodes.shape))
+    st = dynamics.initial_state(m, nodes=s.nodes + 0.01 * rng.standard_normal(s.nodes.shape))
     _, q, qd = tg.simulate(m, st, 1e-3, 10 * frames, "rk4", record_every=10)
     q, qd = q[1:, 0], qd[1:, 0]
-    nodes = dyn.node_positions(m, q)
-    gamma, _, L = dyn.force_densities(m, q, qd)
+    nodes = dynamics.node_positions(m, q)
+    gamma, _, L = dynamics.force_densities(m, q, qd)
     return s, nodes, gamma * L
 
 

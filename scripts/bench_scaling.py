@@ -7,7 +7,7 @@ For each prism tower (``builders.tower(q)``: 3 q rods, 6 q nodes, ~15 q strings)
   included; the issue's target: under 2 s for tower300) and of the in-process summary
   (:func:`tensegrity_gym.cli.structure_summary`: compile, accelerations, stable-step estimate);
 * us per step of ``integrators.step`` (semi-implicit Euler, dt = 1 ms, B = 1, ``n_steps`` steps
-  in one call so per-call overhead is amortised), the numba kernels (the NumPy backend became the test oracle, issue 12), best of 3;
+  in one call so per-call overhead is amortised), the numba kernels (the NumPy formulation is the test oracle, not a backend), best of 3;
 * the per-step cost per rod (ns/rod), which stays flat when the cost is linear in the size;
 * the stable-step estimate's method (dense <= 20 rods, sparse above) and its seconds.
 
@@ -28,14 +28,14 @@ import platform
 import resource
 import subprocess
 import sys
-import tempfile
 import time
 import warnings
 
 import numpy as np
 
-from tensegrity_gym import builders, dynamics as dyn, integrators
+from tensegrity_gym import builders, dynamics, integrators
 from tensegrity_gym.cli import structure_summary
+from tensegrity_gym.io.atomic import write_atomic  # noqa: E402
 
 DT = 1e-3
 
@@ -44,7 +44,7 @@ def _per_step_us(model, backend: str, budget_s: float = 0.3) -> float:
     """Best-of-3 CPU microseconds (``time.process_time``: immune to other processes on a shared
     machine; the B = 1 step is single-threaded) per step of ``integrators.step``, ~``budget_s``
     per repeat."""
-    st = dyn.initial_state(model)
+    st = dynamics.initial_state(model)
     integrators.step(model, st, DT, "semi_implicit_euler", n_steps=2, backend=backend)   # compile / warm
     t0 = time.process_time()
     integrators.step(model, st, DT, "semi_implicit_euler", n_steps=20, backend=backend)
@@ -86,8 +86,8 @@ def scaling_table(stages) -> list[str]:
         t0 = time.process_time()
         structure_summary(s)
         summ = time.process_time() - t0
-        model = dyn.compile_model(s)
-        method = dyn.stable_step_estimate(model)["method"]
+        model = dynamics.compile_model(s)
+        method = dynamics.stable_step_estimate(model)["method"]
         us_nb = _per_step_us(model, "numba")
         k = s.n_bars
         rows.append(f"| {name} | {k} | {s.n_strings} | {s.n_nodes} | {cli_wall:.2f} | {cli_cpu:.2f} | {summ:.3f} "
@@ -106,11 +106,11 @@ def estimate_table() -> list[str]:
             "|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(rows), flush=True)
     for name, s in scenes:
-        m = dyn.compile_model(s)
+        m = dynamics.compile_model(s)
         t0 = time.process_time()
-        d = dyn.stable_step_estimate(m, method="dense")
+        d = dynamics.stable_step_estimate(m, method="dense")
         t1 = time.process_time()
-        sp = dyn.stable_step_estimate(m, method="sparse")
+        sp = dynamics.stable_step_estimate(m, method="sparse")
         t2 = time.process_time()
         rows.append(f"| {name} | {s.n_bars} | {d['omega_max']:.4f} / {sp['omega_max']:.4f} | "
                     f"{1e3 * d['semi_implicit_euler']:.4f} / {1e3 * sp['semi_implicit_euler']:.4f} | "
@@ -161,17 +161,7 @@ def main(argv=None) -> int:
     est = estimate_table()
     if args.out:
         text = "\n".join(head + rows + est_head + est) + "\n"
-        d = os.path.dirname(os.path.abspath(args.out))
-        fd, tmp = tempfile.mkstemp(dir=d, prefix=".bench_scaling.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w") as fh:
-                fh.write(text)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, args.out)
-        finally:
-            if os.path.exists(tmp):
-                os.remove(tmp)
+        write_atomic(args.out, lambda f: f.write(text.encode()))
         print(f"wrote {args.out}")
     return 0
 

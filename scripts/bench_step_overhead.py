@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Single TensegrityShape-v0 step() against the physics it runs (issue 6 target: <= 2x).
+"""Single TensegrityShape-v0 step() against the physics it runs (target: <= 2x).
 
     NUMBA_NUM_THREADS=1 python scripts/bench_step_overhead.py [--rounds 40] [--repeats 3]
 
@@ -23,7 +23,7 @@ import numpy as np
 import gymnasium as gym  # noqa: E402
 
 import tensegrity_gym  # noqa: E402,F401  (registers the envs)
-from tensegrity_gym import dynamics as dyn, integrators  # noqa: E402
+from tensegrity_gym import dynamics, integrators  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -42,7 +42,7 @@ def main(argv=None) -> int:
             for r in range(args.rounds):
                 u.reset(seed=r)
                 inputs = t.actuation.physics_inputs(t.ctrl)
-                st = dyn.State(t.q.copy(), t.qd.copy(), 0.0)
+                st = dynamics.State(t.q.copy(), t.qd.copy(), 0.0)
                 t0 = time.perf_counter()
                 for a in A:
                     u.step(a)

@@ -32,7 +32,7 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from tensegrity_gym import builders, contact as C, dynamics as dyn  # noqa: E402
+from tensegrity_gym import builders, contact as C, dynamics  # noqa: E402
 from tensegrity_gym.structure import Structure  # noqa: E402
 
 G = 9.81
@@ -42,7 +42,7 @@ OUT = ROOT / "results" / "contact"
 def flat_rod(v0=0.0, gravity=(0.0, 0.0, -G), length=0.4, mass=0.2, radius=0.02):
     s = Structure([[0, 0, radius], [length, 0, radius]], [[0, 1]], np.zeros((0, 2), int), bar_mass=mass,
                   gravity=gravity, velocities=[[v0, 0, 0], [v0, 0, 0]])
-    return dyn.compile_model(s)
+    return dynamics.compile_model(s)
 
 
 def prism(drop=0.0):
@@ -50,11 +50,11 @@ def prism(drop=0.0):
                        gravity=(0.0, 0.0, -G))
     nodes = s.nodes.copy()
     nodes[:, 2] += 0.02 + drop
-    return dyn.compile_model(s.replace(nodes=nodes))
+    return dynamics.compile_model(s.replace(nodes=nodes))
 
 
 def simulate(model, contact, T, dt=1e-3, record=None):
-    st = dyn.initial_state(model, 1)
+    st = dynamics.initial_state(model, 1)
     cs = C.init_contact_state(model, 1)
     rec = []
     for i in range(int(round(T / dt))):
@@ -74,8 +74,8 @@ def sliding(res):
     for v0 in (0.5, 1.0, 2.0):
         m = flat_rod(v0)
         T = v0 / (mu * G) + 0.3
-        _, _, rec = simulate(m, c, T, record=lambda st, cs: (st.t, dyn.center_of_mass(m, st.q)[0, 0],
-                                                             dyn.linear_momentum(m, st.qd)[0, 0] / 0.2))
+        _, _, rec = simulate(m, c, T, record=lambda st, cs: (st.t, dynamics.center_of_mass(m, st.q)[0, 0],
+                                                             dynamics.linear_momentum(m, st.qd)[0, 0] / 0.2))
         t, x, v = (np.array(a) for a in zip(*rec))
         sel = (v < 0.8 * v0) & (v > 0.2 * v0)
         a = -np.polyfit(t[sel], v[sel], 1)[0]
@@ -105,8 +105,8 @@ def slope(res):
     for dtheta in (+5.0, +1.0, -1.0, -5.0):
         th = crit + math.radians(dtheta)
         m = flat_rod(0.0, gravity=(G * math.sin(th), 0.0, -G * math.cos(th)))
-        _, _, rec = simulate(m, c, 1.0, record=lambda st, cs: (st.t, dyn.center_of_mass(m, st.q)[0, 0],
-                                                               dyn.linear_momentum(m, st.qd)[0, 0] / 0.2))
+        _, _, rec = simulate(m, c, 1.0, record=lambda st, cs: (st.t, dynamics.center_of_mass(m, st.q)[0, 0],
+                                                               dynamics.linear_momentum(m, st.qd)[0, 0] / 0.2))
         t, x, v = (np.array(a) for a in zip(*rec))
         a_th = max(G * (math.sin(th) - mu * math.cos(th)), 0.0)
         sel = t > 0.2
@@ -129,16 +129,16 @@ def creep(res):
     m = prism()
     c = C.GroundContact()
     st, cs, _ = simulate(m, c, 1.0)
-    n0 = dyn.node_positions(m, st.q)[0]
+    n0 = dynamics.node_positions(m, st.q)[0]
     t0 = st.t
     rec = []
     st2 = st
     cs2 = cs
     for i in range(10000):
         if i % 10 == 0:
-            rec.append((st2.t - t0, dyn.node_positions(m, st2.q)[0]))
+            rec.append((st2.t - t0, dynamics.node_positions(m, st2.q)[0]))
         st2, cs2 = C.step(m, c, st2, cs2, 1e-3)
-    rec.append((st2.t - t0, dyn.node_positions(m, st2.q)[0]))
+    rec.append((st2.t - t0, dynamics.node_positions(m, st2.q)[0]))
     t = np.array([r[0] for r in rec])
     N = np.array([r[1] for r in rec])
     disp = np.linalg.norm(N[:, :, :2] - n0[None, :, :2], axis=-1)   # (T, n)
@@ -154,8 +154,8 @@ def creep(res):
     fig.tight_layout()
     fig.savefig(OUT / "creep.png", dpi=120)
     plt.close(fig)
-    com0 = dyn.center_of_mass(m, st.q)[0]
-    com1 = dyn.center_of_mass(m, st2.q)[0]
+    com0 = dynamics.center_of_mass(m, st.q)[0]
+    com1 = dynamics.center_of_mass(m, st2.q)[0]
     res["creep"] = {"duration_s": 10.0, "max_cap_horizontal_displacement_m": float(disp[:, :3].max()),
                     "max_node_displacement_m": float(np.linalg.norm(N - n0[None], axis=-1).max()),
                     "com_horizontal_drift_m": float(np.linalg.norm(com1[:2] - com0[:2])),
@@ -171,8 +171,8 @@ def drop(res):
         c = C.GroundContact()
 
         def rec(st, cs):
-            return (st.t, c.radius - dyn.node_positions(m, st.q)[0, :, 2].min(),
-                    dyn.energy(m, st.q, st.qd)[0] + C.contact_energy(c, m, st.q, cs)[0])
+            return (st.t, c.radius - dynamics.node_positions(m, st.q)[0, :, 2].min(),
+                    dynamics.energy(m, st.q, st.qd)[0] + C.contact_energy(c, m, st.q, cs)[0])
         _, _, r = simulate(m, c, 1.0, dt=dt, record=rec)
         t, pen, E = (np.array(a) for a in zip(*r))
         excess = E - np.minimum.accumulate(E)
@@ -206,7 +206,7 @@ def stable_dt(res):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 st, cs, _ = simulate(m, c, 2.0, dt=dt)
-        N = dyn.node_positions(m, st.q)[0]
+        N = dynamics.node_positions(m, st.q)[0]
         ok = bool(np.all(np.isfinite(N)) and np.abs(N).max() < 2.0 and N[:, 2].min() > 0.0)
         sweep[f"{dt:g}"] = ok
     res["stable_step"] = {"estimate": est, "resting_prism_2s_stable": sweep,

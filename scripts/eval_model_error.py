@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Shape tracking under model error (issue 13): on held-out robots whose stiffness, rod masses
+"""Shape tracking under model error: on held-out robots whose stiffness, rod masses
 and cable rest lengths differ from the nominal model, the NNLS controller (which believes the
 nominal model) against a policy trained with randomisation.
 

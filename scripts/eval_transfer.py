@@ -1,4 +1,4 @@
-"""Sim-to-sim transfer table of a rolling policy (issue 13 item 4/5).
+"""Sim-to-sim transfer table of a rolling policy.
 
 Evaluates one policy object with the SB3 interface ``predict(obs, state, episode_start)`` --
 the rolling gait (:class:`tensegrity_gym.baselines.RollingGait`, ``--policy gait``), a training

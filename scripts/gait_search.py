@@ -8,7 +8,7 @@
 Every pattern runs in one env of one batched vector env (the same physics as the env): the
 rest-length targets of ``tensegrity_gym.baselines.wave_targets`` (RollingGait's wave) with
 per-env parameters, the cable-speed action that tracks them, and, per control step, the
-best-fit rigid rotation of the nodes (``tensegrity_gym._bench.rotation_vectors``, Kabsch)
+best-fit rigid rotation of the nodes (``scripts/_bench.rotation_vectors``, Kabsch)
 accumulated as a rotation vector. Prints the patterns that progressed most along +x and those
 that rotated most about a horizontal axis, and saves everything to ``--out`` (npz). A pattern
 rolls when its displacement is along (net turns) x z. Findings: ``results/gait_search/README.md``.
@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tensegrity_gym._bench import rotation_vectors
-from tensegrity_gym import dynamics as dyn  # noqa: E402
+from _bench import rotation_vectors
+from tensegrity_gym import dynamics  # noqa: E402
 from tensegrity_gym.baselines import RollingGait, wave_targets  # noqa: E402
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402
 
@@ -45,12 +45,12 @@ def run(P: dict, T: float = 10.0, seed: int = 0):
     step = act.max_rate * task.control_dt
 
     def centred_nodes():
-        N = dyn.node_positions(task.model, task.q)
+        N = dynamics.node_positions(task.model, task.q)
         return N - N.mean(axis=1, keepdims=True)
 
     prev = centred_nodes()
     rot = np.zeros((B, 3))
-    start = dyn.center_of_mass(task.model, task.q)
+    start = dynamics.center_of_mass(task.model, task.q)
     for k in range(int(round(T / task.control_dt))):
         t = np.full(B, k * task.control_dt)
         tgt = wave_targets(t, act.nominal, act.low, act.high, P["amplitude"], P["phase"], P["period"],
@@ -60,7 +60,7 @@ def run(P: dict, T: float = 10.0, seed: int = 0):
         rot += rotation_vectors(prev, cur)
         prev = cur
     env.close()
-    return dyn.center_of_mass(task.model, task.q) - start, rot / (2 * np.pi)
+    return dynamics.center_of_mass(task.model, task.q) - start, rot / (2 * np.pi)
 
 
 def sample(rng: np.random.Generator, B: int) -> dict:

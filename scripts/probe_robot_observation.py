@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Which sensors does a robot-observation rolling policy rely on? (issue 13: the transfer gap)
+"""Which sensors does a robot-observation rolling policy rely on? (the transfer gap)
 
 Runs a trained ``TensegrityRoll-v0`` policy with ``observation_mode="robot"`` on N robots of its
 own training distribution (the run's ``env_kwargs``, reset seeds 1,000,000 ... + N - 1, 20 s) and

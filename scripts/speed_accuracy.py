@@ -41,8 +41,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 import tensegrity_gym as tg  # noqa: E402
-from tensegrity_gym import dynamics as dyn, integrators as I  # noqa: E402
-from tensegrity_gym._bench import mjcf_rods, timed as _timed  # noqa: E402  (shared helpers)
+from tensegrity_gym import dynamics, integrators as I  # noqa: E402
+from _bench import timed as _timed  # noqa: E402  (shared helpers, a sibling module)
+from tensegrity_gym.io.mjcf import to_mjcf  # noqa: E402
 
 FIXED = ("semi_implicit_euler", "rk4", "implicit_euler")
 
@@ -51,10 +52,10 @@ FIXED = ("semi_implicit_euler", "rk4", "implicit_euler")
 def _perturbed(model, scale, seed):
     """The structure's initial state with random rod velocities (m/s, 1/s) of std ``scale``,
     projected onto the constraints (so b . b' = 0 and constrained nodes move on their set)."""
-    st = dyn.initial_state(model)
+    st = dynamics.initial_state(model)
     rng = np.random.default_rng(seed)
-    q, qd = dyn.project(model, st.q, scale * rng.normal(size=st.qd.shape))
-    return dyn.State(q=q, qd=qd, t=0.0)
+    q, qd = dynamics.project(model, st.q, scale * rng.normal(size=st.qd.shape))
+    return dynamics.State(q=q, qd=qd, t=0.0)
 
 
 def _contact_available():
@@ -67,19 +68,19 @@ def rolling_scene(T):
     springs), launched at 1 m/s along x with an 8 rad/s spin about y, so that it slides, tips
     and rolls. Contact is a discrete-time model (stick anchors updated once per
     step): the reference is semi-implicit Euler at dt = 5e-6 s, not DOP853."""
-    from tensegrity_gym import contact as gc
+    from tensegrity_gym import contact
     from tensegrity_gym.envs.roll import robot_prism
     s = robot_prism()
-    m = dyn.compile_model(s)
+    m = dynamics.compile_model(s)
     nodes = s.nodes.copy()
     nodes[:, 2] += 0.02 - nodes[:, 2].min()             # caps (radius 2 cm) touching the ground
-    st = dyn.initial_state(m, nodes=nodes)
+    st = dynamics.initial_state(m, nodes=nodes)
     c = st.q[0, :, :3].mean(axis=0)
     w = np.array([0.0, 8.0, 0.0])                       # rad/s spin about y, about the prism's centre
     vel = np.array([1.0, 0.0, 0.0]) + np.cross(w, nodes - c)
-    st = dyn.initial_state(m, nodes=nodes, velocities=vel)
-    q, qd = dyn.project(m, st.q, st.qd)
-    return dict(model=m, state=dyn.State(q, qd, 0.0), T=T, contact=gc.GroundContact(),
+    st = dynamics.initial_state(m, nodes=nodes, velocities=vel)
+    q, qd = dynamics.project(m, st.q, st.qd)
+    return dict(model=m, state=dynamics.State(q, qd, 0.0), T=T, contact=contact.GroundContact(),
                 description="TensegrityRoll-v0 robot prism (0.2 kg rods, 1e3 N/m strings, 2 N s/m "
                             "damping, gravity) on the ground (contact 1e4 N/m, mu = 1), launched at 1 m/s "
                             "with an 8 rad/s spin; reference: semi-implicit Euler at dt = 5e-6 s (contact "
@@ -88,19 +89,19 @@ def rolling_scene(T):
 
 def _contact_run(sc, dt, integrator, backend, n_rec):
     """Records (S+1 of them) of (q, qd, contact energy) stepping with contact.step."""
-    from tensegrity_gym import contact as gc
+    from tensegrity_gym import contact
     m, st, T, c = sc["model"], sc["state"], sc["T"], sc["contact"]
     n = int(round(T / dt))
     every = n // n_rec
-    cs = gc.init_contact_state(m)
-    qs, qds, ec = [st.q], [st.qd], [gc.contact_energy(c, m, st.q, cs)[0]]
+    cs = contact.init_contact_state(m)
+    qs, qds, ec = [st.q], [st.qd], [contact.contact_energy(c, m, st.q, cs)[0]]
     for _ in range(n_rec):
-        st, cs = gc.step(m, c, st, cs, dt, integrator, n_steps=every, backend=backend)
+        st, cs = contact.step(m, c, st, cs, dt, integrator, n_steps=every, backend=backend)
         if not (np.all(np.isfinite(st.q)) and np.all(np.isfinite(st.qd))):
             raise I.SimulationDiverged(f"{integrator}: non-finite state with contact by t = {st.t:.4g} s")
         qs.append(st.q)
         qds.append(st.qd)
-        ec.append(gc.contact_energy(c, m, st.q, cs)[0])
+        ec.append(contact.contact_energy(c, m, st.q, cs)[0])
     return np.array(qs), np.array(qds), np.array(ec)
 
 
@@ -110,7 +111,7 @@ def contact_self_convergence(sc, dts=(1e-3, 2.5e-4, 6.25e-5, 3.125e-5, 1.5625e-5
     end = {}
     for dt in dts + (5e-6,):
         q, _, _ = _contact_run(sc, dt, "semi_implicit_euler", "auto", 1)
-        end[dt] = dyn.node_positions(m, q[-1])[0]
+        end[dt] = dynamics.node_positions(m, q[-1])[0]
     return [(dt, float(np.linalg.norm(end[dt] - end[5e-6], axis=1).max())) for dt in dts]
 
 
@@ -118,22 +119,22 @@ def scenes(quick: bool):
     """name -> dict(model, state, T (s), n_rec, dts {integrator: [dt]}, description)."""
     T = 0.25 if quick else 0.5
     out = {}
-    m = dyn.compile_model(tg.prism())
+    m = dynamics.compile_model(tg.prism())
     out["free_prism"] = dict(
         model=m, state=_perturbed(m, 0.3, 0), T=T,
         description="3-prism, 1 kg rods, 1e3 N/m strings, 100 N prestress, no gravity, random "
                     "velocities 0.3 m/s", )
-    m = dyn.compile_model(tg.constrained_prism(damping=5.0))
+    m = dynamics.compile_model(tg.constrained_prism(damping=5.0))
     out["anchored_prism"] = dict(
         model=m, state=_perturbed(m, 0.3, 1), T=T,
         description="seed Example 5.8 prism (node 0 pinned, node 1 on a line, node 2 on a plane), "
                     "gravity, string damping 5 N s/m, random velocities 0.3 m/s")
-    m = dyn.compile_model(tg.icosahedron())
+    m = dynamics.compile_model(tg.icosahedron())
     out["icosahedron"] = dict(
         model=m, state=_perturbed(m, 0.3, 2), T=T,
         description="6-bar icosahedron, 1 kg rods, 1e3 N/m strings, 50 N prestress, no gravity, "
                     "random velocities 0.3 m/s")
-    m = dyn.compile_model(tg.prism(stiffness=1e5, bar_mass=0.1))
+    m = dynamics.compile_model(tg.prism(stiffness=1e5, bar_mass=0.1))
     out["stiff_prism"] = dict(
         model=m, state=_perturbed(m, 0.1, 3), T=T / 5,
         description="3-prism, 0.1 kg rods, 1e5 N/m strings (real cables), 100 N prestress, no "
@@ -171,19 +172,19 @@ def reference(sc):
     else:
         t, q, qd = I.simulate(m, st, T / S, S, "dop853", rtol=1e-12, atol=1e-12)
         ec = np.zeros(len(q))
-    nodes = np.stack([dyn.node_positions(m, qi)[0] for qi in q])
-    E = np.array([dyn.energy(m, qi, qdi)[0] for qi, qdi in zip(q, qd)]) + ec
+    nodes = np.stack([dynamics.node_positions(m, qi)[0] for qi in q])
+    E = np.array([dynamics.energy(m, qi, qdi)[0] for qi, qdi in zip(q, qd)]) + ec
     return t, nodes, E
 
 
 def errors(sc, ref, q, qd, ec=None):
     m = sc["model"]
     _, nref, Eref = ref
-    nodes = np.stack([dyn.node_positions(m, qi)[0] for qi in q])
-    E = np.array([dyn.energy(m, qi, qdi)[0] for qi, qdi in zip(q, qd)]) + (0.0 if ec is None else ec)
+    nodes = np.stack([dynamics.node_positions(m, qi)[0] for qi in q])
+    E = np.array([dynamics.energy(m, qi, qdi)[0] for qi, qdi in zip(q, qd)]) + (0.0 if ec is None else ec)
     pos = float(np.max(np.linalg.norm(nodes - nref, axis=-1)))
     en = float(np.max(np.abs(E - Eref)) / abs(Eref[0]))
-    rod = float(max(dyn.rod_length_drift(m, qi)[0] for qi in q))
+    rod = float(max(dynamics.rod_length_drift(m, qi)[0] for qi in q))
     return pos, en, rod
 
 
@@ -226,14 +227,16 @@ def warm_up(model, state):
 
 # ----------------------------------------------------------------------------- MuJoCo
 def mujoco_prism_xml(model, state, dt, integrator):
-    """MJCF of the free prism in configuration ``state`` (copy 0): one free body per rod at its
-    centre of mass (thin-rod inertia), a site at each rod end, one spatial tendon per string with
-    ``springlength="0 l0"`` (tension-only), contact disabled (:func:`tensegrity_gym._bench.mjcf_rods`)."""
-    r = state.q[0, :, :3]
-    b = state.q[0, :, 3:]
-    L = model.length
-    return mjcf_rods(model, r, b, [(-L[j] / 2, L[j] / 2) for j in range(model.n_bars)], dt, integrator,
-                     contact=False)
+    """MJCF of the free prism in configuration ``state`` (copy 0), written by the package's MJCF
+    writer (:func:`tensegrity_gym.io.mjcf.to_mjcf`) for the structure with its nodes moved to that
+    configuration: one free body per rod at its centre of mass, sites ``node<i>`` at the rod ends,
+    one tension-only spatial tendon per string, contact disabled."""
+    r, b = state.q[0, :, :3], state.q[0, :, 3:]
+    nodes = np.array(model.structure.nodes, float)
+    for j in range(model.n_bars):
+        a, c, L, sig = int(model.rod_a[j]), int(model.rod_c[j]), float(model.length[j]), float(model.sigma[j])
+        nodes[a], nodes[c] = r[j] - sig * L * b[j], r[j] + (1.0 - sig) * L * b[j]
+    return to_mjcf(model.structure.replace(nodes=nodes), timestep=dt, integrator=integrator)
 
 
 def mujoco_rows(sc, ref, dts, integrators=("Euler", "RK4")):
@@ -247,7 +250,7 @@ def mujoco_rows(sc, ref, dts, integrators=("Euler", "RK4")):
             every = n // S
             mm = mujoco.MjModel.from_xml_string(mujoco_prism_xml(m, st, dt, integ))
             d = mujoco.MjData(mm)
-            site_node = [int(mm.site(i).name[1:]) for i in range(mm.nsite)]
+            site_node = [int(mm.site(i).name[len("node"):]) for i in range(mm.nsite)]
             for j in range(m.n_bars):
                 rd, bd = st.qd[0, j, :3], st.qd[0, j, 3:]
                 w = np.cross(st.q[0, j, 3:], bd)             # world angular velocity (b . b' = 0)
@@ -306,8 +309,8 @@ def feature_costs(backends, quick):
             for integ in ("semi_implicit_euler", "rk4"):
                 timers = {}
                 for name, s in variants.items():
-                    m = dyn.compile_model(s)
-                    timers[name] = (lambda m=m, st=dyn.initial_state(m, batch_size=B):
+                    m = dynamics.compile_model(s)
+                    timers[name] = (lambda m=m, st=dynamics.initial_state(m, batch_size=B):
                                     _time_steps(m, st, integ, backend, n=n, repeat=1))
                 if _contact_available():
                     timers["+gravity +contact (contact.step)"] = (
@@ -325,21 +328,21 @@ def feature_costs(backends, quick):
 
 def _time_contact_steps(B, integrator, backend, n=200, repeat=5):
     """One step of the gravity prism standing on the ground with ``contact.step`` (us)."""
-    from tensegrity_gym import contact as gc
+    from tensegrity_gym import contact
     s = tg.prism(gravity=(0.0, 0.0, -9.81))
-    m = dyn.compile_model(s)
+    m = dynamics.compile_model(s)
     nodes = s.nodes.copy()
     nodes[:, 2] += 0.02 - nodes[:, 2].min() - 1e-4       # caps 0.1 mm into the ground: contacts active
-    st = dyn.initial_state(m, batch_size=B, nodes=nodes)
-    c = gc.GroundContact()
-    cs = gc.init_contact_state(m, B)
+    st = dynamics.initial_state(m, batch_size=B, nodes=nodes)
+    c = contact.GroundContact()
+    cs = contact.init_contact_state(m, B)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        gc.step(m, c, st, cs, 1e-3, integrator, n_steps=2, backend=backend)
+        contact.step(m, c, st, cs, 1e-3, integrator, n_steps=2, backend=backend)
         best = np.inf
         for _ in range(repeat):
             t0 = time.perf_counter()
-            gc.step(m, c, st, cs, 1e-3, integrator, n_steps=n, backend=backend)
+            contact.step(m, c, st, cs, 1e-3, integrator, n_steps=n, backend=backend)
             best = min(best, time.perf_counter() - t0)
     return best / n * 1e6
 
@@ -399,8 +402,8 @@ def fmt(x, spec=".2e"):
 def recommend(rows, backend="numba"):
     """Cheapest (integrator, dt) per scene whose node error is below 1 mm and energy error
     below 1 %, without a stability warning, among the rows of ``backend`` (the implicit
-    method competes too); returns {scene: row}. (Tables before issue 12 also had "numpy" rows:
-    the NumPy path is now the test oracle, not a backend.)"""
+    method competes too); returns {scene: row}. (The NumPy formulation is the test
+    oracle, not a backend: it has no rows.)"""
     best = {}
     for r in rows:
         if r["backend"] != backend:

@@ -32,7 +32,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 import tensegrity_gym as tg  # noqa: E402
-from tensegrity_gym import Structure, dynamics as dyn, integrators as I  # noqa: E402
+from tensegrity_gym import Structure, dynamics, integrators as I  # noqa: E402
 
 FIXED = ("semi_implicit_euler", "rk4", "implicit_euler")
 STIFFNESS = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7]
@@ -41,8 +41,8 @@ MASSES = [1e-3, 1e-2, 1e-1, 1.0, 1e1, 1e2]
 
 def _backend():
     """The numba kernels (the one backend since the NumPy path became the test oracle)."""
-    m = dyn.compile_model(tg.prism())
-    I.step(m, dyn.initial_state(m), 1e-3, "semi_implicit_euler", backend="numba")   # compile once, up front
+    m = dynamics.compile_model(tg.prism())
+    I.step(m, dynamics.initial_state(m), 1e-3, "semi_implicit_euler", backend="numba")   # compile once, up front
     return "auto"
 
 
@@ -50,24 +50,24 @@ def grid_scene(k, mass, seed=0):
     """3-prism with strings of stiffness ``k`` (N/m), rods of ``mass`` (kg), prestress set to a
     1 % strain of the vertical strings, random rod velocities of 0.05 m/s (projected)."""
     s = tg.prism(stiffness=k, bar_mass=mass, prestress=0.01 * k * 1.0)
-    m = dyn.compile_model(s)
-    st = dyn.initial_state(m)
+    m = dynamics.compile_model(s)
+    st = dynamics.initial_state(m)
     rng = np.random.default_rng(seed)
-    q, qd = dyn.project(m, st.q, 0.05 * rng.normal(size=st.qd.shape))
-    return m, dyn.State(q, qd, 0.0)
+    q, qd = dynamics.project(m, st.q, 0.05 * rng.normal(size=st.qd.shape))
+    return m, dynamics.State(q, qd, 0.0)
 
 
 def grid_cell(k, mass, integrator, dt=1e-3, T=0.5, backend="auto"):
     """Run one cell; returns dict(warned, outcome in {"stable", "diverged", "energy xN"}, dE)."""
     m, st = grid_scene(k, mass)
-    E0 = dyn.energy(m, st.q, st.qd)[0]
+    E0 = dynamics.energy(m, st.q, st.qd)[0]
     n = int(round(T / dt))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", I.StabilityWarning)
         warnings.simplefilter("ignore", RuntimeWarning)
         try:
             _, q, qd = I.simulate(m, st, dt, n, integrator, record_every=max(1, n // 50), backend=backend)
-            E = np.array([dyn.energy(m, a, b)[0] for a, b in zip(q, qd)])
+            E = np.array([dynamics.energy(m, a, b)[0] for a, b in zip(q, qd)])
             dE = float(np.max(np.abs(E - E0)) / E0)
             grow = float(np.max(E) / E0)
             outcome = "stable" if (np.all(np.isfinite(E)) and grow < 1.5) else f"energy x{grow:.3g}"
@@ -129,23 +129,23 @@ def analytic_free_rods(model, st, t):
     r = r0 + v0 * t
     b = b0 * np.cos(w * t) + np.where(w > 0, bd0 / safe, 0.0) * np.sin(w * t)
     q = np.concatenate([r, b], axis=1)[None]
-    return dyn.node_positions(model, q)[0]
+    return dynamics.node_positions(model, q)[0]
 
 
 def ballistic_errors(dt=1e-3, T=1.0, backend="auto"):
-    m = dyn.compile_model(slack_prism())
-    st = dyn.initial_state(m)
+    m = dynamics.compile_model(slack_prism())
+    st = dynamics.initial_state(m)
     rng = np.random.default_rng(4)
-    q, qd = dyn.project(m, st.q, rng.normal(size=st.qd.shape))
-    st = dyn.State(q, qd, 0.0)
+    q, qd = dynamics.project(m, st.q, rng.normal(size=st.qd.shape))
+    st = dynamics.State(q, qd, 0.0)
     out = {}
     n = int(round(T / dt))
     exact = analytic_free_rods(m, st, T)
     for integ in FIXED + ("dop853",):
         kw = dict(rtol=1e-12, atol=1e-12) if integ == "dop853" else {}
         end = I.step(m, st, dt, integ, n_steps=n, backend=backend, **kw)
-        N = dyn.node_positions(m, end.q)[0]
-        com_err = float(np.max(np.abs(dyn.center_of_mass(m, end.q)[0] - dyn.center_of_mass(m, st.q)[0]
+        N = dynamics.node_positions(m, end.q)[0]
+        com_err = float(np.max(np.abs(dynamics.center_of_mass(m, end.q)[0] - dynamics.center_of_mass(m, st.q)[0]
                                       - T * np.mean(st.qd[0, :, :3], axis=0))))
         out[integ] = (float(np.max(np.linalg.norm(N - exact, axis=1))), com_err)
     return out
@@ -165,23 +165,23 @@ def zero_length_runs(backend="auto"):
     {(l0, integrator): (min length reached, energy error)}."""
     res = {}
     for l0 in (0.0, 0.05):
-        m = dyn.compile_model(crossing_structure(l0))
+        m = dynamics.compile_model(crossing_structure(l0))
         nodes = m.structure.nodes.copy()
         nodes[[0, 1], 0] = 0.0
         nodes[[2, 3], 0] = 0.0          # node 0 and node 2 coincide: the string has length 0
         vel = np.zeros_like(nodes)
         vel[[0, 1], 0] = -0.3
         vel[[2, 3], 0] = 0.3
-        st = dyn.initial_state(m, nodes=nodes, velocities=vel)
-        E0 = dyn.energy(m, st.q, st.qd)[0]
+        st = dynamics.initial_state(m, nodes=nodes, velocities=vel)
+        E0 = dynamics.energy(m, st.q, st.qd)[0]
         for integ in FIXED + ("dop853",):
             with warnings.catch_warnings(), np.errstate(divide="raise", over="raise", invalid="raise"):
                 warnings.simplefilter("error")
                 warnings.simplefilter("ignore", I.StabilityWarning)
                 _, q, qd = I.simulate(m, st, 1e-3, 2000, integ, record_every=1 if integ != "dop853" else 1,
                                       backend=backend)
-                _, L, _ = dyn.string_state(m, q.reshape(-1, 2, 6))
-                E = dyn.energy(m, q.reshape(-1, 2, 6), qd.reshape(-1, 2, 6))
+                _, L, _ = dynamics.string_state(m, q.reshape(-1, 2, 6))
+                E = dynamics.energy(m, q.reshape(-1, 2, 6), qd.reshape(-1, 2, 6))
             res[(l0, integ)] = (float(L.min()), float(np.max(np.abs(E - E0)) / E0))
     return res
 
@@ -189,12 +189,12 @@ def zero_length_runs(backend="auto"):
 # ----------------------------------------------------------------------------- long run
 def long_run(n_steps, integrator, project, backend, chunks=10, dt=1e-3):
     """Perturbed free prism; returns per chunk (t_end, max |E - E0|/E0, max rod drift)."""
-    m = dyn.compile_model(tg.prism())
-    st = dyn.initial_state(m)
+    m = dynamics.compile_model(tg.prism())
+    st = dynamics.initial_state(m)
     rng = np.random.default_rng(0)
-    q, qd = dyn.project(m, st.q, 0.3 * rng.normal(size=st.qd.shape))
-    st = dyn.State(q, qd, 0.0)
-    E0 = dyn.energy(m, st.q, st.qd)[0]
+    q, qd = dynamics.project(m, st.q, 0.3 * rng.normal(size=st.qd.shape))
+    st = dynamics.State(q, qd, 0.0)
+    E0 = dynamics.energy(m, st.q, st.qd)[0]
     per = n_steps // chunks
     rec = max(1, per // 200)
     out = []
@@ -204,10 +204,10 @@ def long_run(n_steps, integrator, project, backend, chunks=10, dt=1e-3):
             warnings.simplefilter("ignore", RuntimeWarning)
             _, qs, qds = I.simulate(m, st, dt, per, integrator, record_every=rec, project=project, backend=backend)
         qs2, qds2 = qs.reshape(-1, 3, 6), qds.reshape(-1, 3, 6)
-        E = dyn.energy(m, qs2, qds2)
+        E = dynamics.energy(m, qs2, qds2)
         out.append((st.t + per * dt, float(np.max(np.abs(E - E0)) / E0),
-                    float(np.max(dyn.rod_length_drift(m, qs2)))))
-        st = dyn.State(qs[-1], qds[-1], st.t + per * dt)
+                    float(np.max(dynamics.rod_length_drift(m, qs2)))))
+        st = dynamics.State(qs[-1], qds[-1], st.t + per * dt)
     return out, time.perf_counter() - t0
 
 
@@ -258,12 +258,12 @@ def main(argv=None):
            "| damping (N s/m) | integrator | undamped estimate (s) | limit used (s) | 0.9x | 2x |",
            "|---|---|---|---|---|---|"]
     for c in (5.0, 50.0, 500.0):
-        m = dyn.compile_model(tg.prism(damping=c))
-        raw, lim = dyn.stable_step_estimate(m, damping=False), I.stability_limit(m)
-        st0 = dyn.initial_state(m)
-        q0, qd0 = dyn.project(m, st0.q, 0.01 * np.random.default_rng(0).normal(size=st0.qd.shape))
-        st0 = dyn.State(q0, qd0, 0.0)
-        E0 = dyn.energy(m, q0, qd0)[0]
+        m = dynamics.compile_model(tg.prism(damping=c))
+        raw, lim = dynamics.stable_step_estimate(m, damping=False), I.stability_limit(m)
+        st0 = dynamics.initial_state(m)
+        q0, qd0 = dynamics.project(m, st0.q, 0.01 * np.random.default_rng(0).normal(size=st0.qd.shape))
+        st0 = dynamics.State(q0, qd0, 0.0)
+        E0 = dynamics.energy(m, q0, qd0)[0]
         for integ in ("semi_implicit_euler", "rk4"):
             res = []
             for f in (0.9, 2.0):
@@ -272,7 +272,7 @@ def main(argv=None):
                     try:
                         _, q, qd = I.simulate(m, st0, f * lim[integ], 2000, integ, record_every=200,
                                               backend=backend)
-                        E = dyn.energy(m, q.reshape(-1, 3, 6), qd.reshape(-1, 3, 6))
+                        E = dynamics.energy(m, q.reshape(-1, 3, 6), qd.reshape(-1, 3, 6))
                         res.append("stable" if np.all(np.isfinite(E)) and E.max() <= 1.5 * E0 else "unstable")
                     except I.SimulationDiverged:
                         res.append("diverged")
@@ -359,9 +359,9 @@ def main(argv=None):
               if ("rk4", True) in runs else "slowly."), ""]
 
     print("== divergence message")
-    m = dyn.compile_model(tg.prism(stiffness=1e6, bar_mass=0.1))
-    st = dyn.initial_state(m)
-    st = dyn.State(st.q, dyn.project(m, st.q, 0.1 * np.ones_like(st.qd))[1], 0.0)
+    m = dynamics.compile_model(tg.prism(stiffness=1e6, bar_mass=0.1))
+    st = dynamics.initial_state(m)
+    st = dynamics.State(st.q, dynamics.project(m, st.q, 0.1 * np.ones_like(st.qd))[1], 0.0)
     msgs = []
     for integ in ("semi_implicit_euler", "rk4"):
         with warnings.catch_warnings(record=True) as caught:

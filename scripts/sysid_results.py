@@ -1,4 +1,4 @@
-"""System identification results (issue 13, item 5): recover perturbed per-string stiffness and
+"""System identification results: recover perturbed per-string stiffness and
 damping and per-rod masses of a prism from one recorded 5 s trajectory, and tabulate how the error
 grows with position noise and shrinks with record length.
 
@@ -39,7 +39,6 @@ import argparse
 import json
 import os
 import platform
-import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -47,9 +46,10 @@ from pathlib import Path
 import numpy as np
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
+from tensegrity_gym import dynamics
 from tensegrity_gym.params import default_params
 from tensegrity_gym.sysid import SysIdWarning, identify
+from tensegrity_gym.io.atomic import write_atomic  # noqa: E402
 
 FIELDS = ("stiffness", "damping", "mass")
 EXCITE_AMPLITUDE = 0.005    # m, amplitude of each sine of a string's rest-length command
@@ -85,23 +85,23 @@ def record(T, seed=0, actuated=True):
     rng = np.random.default_rng(seed)
     true = {f: getattr(model, f) * rng.uniform(0.8, 1.2, getattr(model, f).shape) for f in FIELDS}
     st = tg.initial_state(model, nodes=s.nodes + 0.03 * rng.standard_normal(s.nodes.shape))
-    st = dyn.State(*dyn.project(model, st.q, st.qd))
+    st = dynamics.State(*dynamics.project(model, st.q, st.qd))
     P = default_params(model).replace(**true)
     S = int(round(T / SAMPLE_DT)) + 1
     t = np.arange(S) * SAMPLE_DT
     if not actuated:
         t, q, _ = tg.simulate(model, st, SAMPLE_DT, S - 1, "dop853", params=P, rtol=1e-10, atol=1e-12)
-        return model, true, t, dyn.node_positions(model, q[:, 0]), None
+        return model, true, t, dynamics.node_positions(model, q[:, 0]), None
     rl = excitation(model, t, seed)
     nodes = np.empty((S, model.n_nodes, 3))
-    nodes[0] = dyn.node_positions(model, st.q)[0]
+    nodes[0] = dynamics.node_positions(model, st.q)[0]
     nh, i = int(round(HOLD / SAMPLE_DT)), 0
     while i < S - 1:
         j = min(i + nh, S - 1)
         _, q, qd = tg.simulate(model, st, SAMPLE_DT, j - i, "dop853", params=P, rest_length=rl[i],
                                rtol=1e-10, atol=1e-12)
-        nodes[i + 1:j + 1] = dyn.node_positions(model, q[1:, 0])
-        st = dyn.State(q[-1], qd[-1], 0.0)
+        nodes[i + 1:j + 1] = dynamics.node_positions(model, q[1:, 0])
+        st = dynamics.State(q[-1], qd[-1], 0.0)
         i = j
     return model, true, t, nodes, rl
 
@@ -133,12 +133,7 @@ def fit(model, true, t, nodes, noise_m, rest_length=None, design="actuated", see
 
 
 def atomic_write(path: Path, text: str):
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    write_atomic(path, lambda f: f.write(text.encode()))
 
 
 def record_stats():
@@ -262,7 +257,7 @@ def write_readme(out: Path, summary: dict):
     worst_d = max(r["max_rel_error_by_field"]["damping"] for r in r1s)
     by = {r["design"]: r for r in design_rows if r["noise_mm"] == 1}
     ex = summary["excitation"]
-    readme = f"""# System identification of a perturbed prism (issue 13, item 5)
+    readme = f"""# System identification of a perturbed prism
 
 Command (total {total:.0f} s on this shared 2-core machine, of which {gen_s:.0f} s generating the
 DOP853 records):

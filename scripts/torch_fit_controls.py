@@ -13,7 +13,7 @@ autograd through all 500 steps of :func:`tensegrity_gym.torch_backend.step` (flo
 ``torch_backend`` module doc for what the gradient is at a slack switch).
 
 Prints the shape error (RMS node distance, m) before and after the fit, checked again with the
-numba kernels (the NumPy path until issue 12), and how far the fitted rest lengths are from the hidden ones.
+numba kernels, and how far the fitted rest lengths are from the hidden ones.
 
 Usage::
 
@@ -29,8 +29,8 @@ import time
 import numpy as np
 import torch
 
-from tensegrity_gym import builders, dynamics as dyn, integrators
-from tensegrity_gym import torch_backend as tb
+from tensegrity_gym import builders, dynamics, integrators
+from tensegrity_gym import torch_backend
 
 DT = 2e-3
 DURATION = 1.0
@@ -43,9 +43,9 @@ def main(argv=None):
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--seed", type=int, default=0, help="seed of the hidden rest-length change")
     args = ap.parse_args(argv)
-    dev = tb.resolve_device(args.device)
-    model = dyn.compile_model(builders.prism(3, damping=5.0))
-    st = dyn.initial_state(model, 1)
+    dev = torch_backend.resolve_device(args.device)
+    model = dynamics.compile_model(builders.prism(3, damping=5.0))
+    st = dynamics.initial_state(model, 1)
     n = int(round(DURATION / DT))
     rng = np.random.default_rng(args.seed)
     l0 = model.rest_length
@@ -54,13 +54,13 @@ def main(argv=None):
 
     def shape_error_numpy(rest):
         out = integrators.step(model, st, DT, "semi_implicit_euler", n_steps=n, rest_length=rest)
-        N = dyn.node_positions(model, out.q)[0]
+        N = dynamics.node_positions(model, out.q)[0]
         return float(np.sqrt(np.mean(np.sum((N - target) ** 2, axis=-1))))
 
     ref = integrators.step(model, st, DT, "semi_implicit_euler", n_steps=n, rest_length=hidden)
-    target = dyn.node_positions(model, ref.q)[0]
-    tm = tb.torch_model(model, dev, torch.float64)
-    prm = tb.torch_params(tm, None, 1)
+    target = dynamics.node_positions(model, ref.q)[0]
+    tm = torch_backend.torch_model(model, dev, torch.float64)
+    prm = torch_backend.torch_params(tm, None, 1)
     q0 = torch.as_tensor(st.q, device=dev)
     qd0 = torch.as_tensor(st.qd, device=dev)
     tgt = torch.as_tensor(target, device=dev)
@@ -72,8 +72,8 @@ def main(argv=None):
     t0 = time.perf_counter()
     for it in range(args.iters):
         opt.zero_grad()
-        q, qd = tb.step(model, q0, qd0, DT, "semi_implicit_euler", n, rest_length=rest)
-        N = tb.node_positions(tm, q, prm)[0]
+        q, qd = torch_backend.step(model, q0, qd0, DT, "semi_implicit_euler", n, rest_length=rest)
+        N = torch_backend.node_positions(tm, q, prm)[0]
         loss = ((N - tgt) ** 2).sum(-1).mean()
         loss.backward()
         opt.step()

@@ -3,6 +3,10 @@
 Physics (NumPy/numba only, no gymnasium): :mod:`~tensegrity_gym.structure`,
 :mod:`~tensegrity_gym.builders`, :mod:`~tensegrity_gym.dynamics`, :mod:`~tensegrity_gym.integrators`.
 Environments (registered on import): ``TensegrityShape-v0``, ``TensegrityRoll-v0``.
+File input and output: :mod:`~tensegrity_gym.io`; command line, system identification, rendering
+and baselines: :mod:`~tensegrity_gym.tools`; Stable-Baselines3 and rl_zoo3:
+:mod:`~tensegrity_gym.integrations` (for rl_zoo3 name ``tensegrity_gym.integrations.zoo`` in
+``--gym-packages``).
 All quantities in SI units.
 """
 from .structure import Structure, StructureError, load_json, save_json, from_dict
@@ -39,9 +43,3 @@ def _register() -> None:
 
 
 _register()
-
-if "rl_zoo3.exp_manager" in __import__("sys").modules:
-    # imported by rl_zoo3 (--gym-packages tensegrity_gym): the zoo reads the project's tuned
-    # hyperparameter files for the tensegrity envs unless given --conf-file (tensegrity_gym/zoo.py)
-    from .zoo import install as _install_zoo
-    _install_zoo()

@@ -20,6 +20,7 @@ pytest.importorskip("stable_baselines3")
 pytest.importorskip("yaml")
 
 from agents import common, train  # noqa: E402
+from tensegrity_gym.io import atomic, claim  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 PPO_TINY = ["--algo", "ppo", "--env", "Pendulum-v1", "--n-envs", "2", "--no-progress-bar",
@@ -51,6 +52,137 @@ def test_stale_tmp_files_of_dead_processes_are_removed(tmp_path):
     mine.write_bytes(b"x")
     assert common.remove_stale_tmp(tmp_path) == [stale]
     assert mine.exists()
+
+
+# ---------------------------------------------------------------------- claims and transactions
+def _dead_pid() -> int:
+    return int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True).stdout)
+
+
+def test_two_threads_claiming_one_output_exactly_one_wins(tmp_path):
+    """Threads of one process race for a claim: exactly one holds it, the others are refused at once."""
+    import threading
+    target = tmp_path / "out.npz"
+    barrier = threading.Barrier(8)
+    results = []
+
+    def take():
+        barrier.wait(timeout=30)
+        try:
+            results.append(claim.Claim(target))
+        except claim.OutputBusy as e:
+            results.append(e)
+
+    threads = [threading.Thread(target=take) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30)
+    won = [r for r in results if isinstance(r, claim.Claim)]
+    assert len(results) == 8 and len(won) == 1
+    assert all(f"pid {os.getpid()}" in str(r) for r in results if not isinstance(r, claim.Claim))
+    won[0].release()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_stale_lock_is_detected_and_taken_over_only_when_asked(tmp_path):
+    target = tmp_path / "fit.json"
+    lock = tmp_path / ".fit.json.lock"
+    dead = _dead_pid()
+    lock.write_text(json.dumps({**claim.holder_record(), "pid": dead, "process_start": None}))
+    with pytest.raises(claim.StaleClaim, match=f"pid {dead} .*no longer runs.*--steal-lock"):
+        claim.Claim(target)
+    c = claim.Claim(target, steal=True)
+    assert c.took_over["pid"] == dead and claim.read_lock(lock)["pid"] == os.getpid()
+    c.release()
+    assert not lock.exists()
+
+
+def test_a_reused_pid_does_not_keep_a_lock_alive(tmp_path):
+    """The lock records the holder's process start time: a live process that reuses the pid is not the holder."""
+    run = tmp_path / "run"
+    run.mkdir()
+    rec = claim.holder_record()
+    if rec["process_start"] is None:
+        pytest.skip("no /proc: process start times unknown")
+    (run / ".lock").write_text(json.dumps({**rec, "process_start": "1"}))   # this pid, another process
+    with pytest.raises(claim.StaleClaim):
+        claim.Claim(run, folder=True)
+    claim.Claim(run, folder=True, take_over_dead=True).release()
+    # a holder on another host cannot be checked: take_over_dead does not take it, steal does
+    (run / ".lock").write_text(json.dumps({**rec, "host": "elsewhere"}))
+    with pytest.raises(claim.OutputBusy, match="another host"):
+        claim.Claim(run, folder=True, take_over_dead=True)
+    claim.Claim(run, folder=True, steal=True).release()
+
+
+def test_transaction_publishes_all_or_none(tmp_path):
+    a, b = tmp_path / "a.npz", tmp_path / "b.png"
+    with claim.Transaction([(a, "--out"), (b, "--plot")]) as tx:
+        tx.stage(a, lambda f: f.write(b"A"))
+        tx.stage(b, lambda f: f.write(b"B"))
+        b.write_bytes(b"someone else's")          # appears at an output during the run
+        with pytest.raises(atomic.OutputChanged, match="--plot .*b.png.* during this run; nothing was written"):
+            tx.commit()
+        assert not a.exists() and b.read_bytes() == b"someone else's" and tx.report() == "no output file was changed"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.png"]   # temporary files and locks are gone
+    b.unlink()
+    with claim.Transaction([(a, "--out"), (b, "--plot")]) as tx:
+        tx.stage(a, lambda f: f.write(b"A"))
+        tx.stage(b, lambda f: f.write(b"B"))
+        assert tx.commit() == [a, b] and tx.report() == f"wrote {a}, {b}"
+    assert a.read_bytes() == b"A" and b.read_bytes() == b"B"
+    with pytest.raises(atomic.OutputExists, match="--plot .* exists; pass --force"):   # claimed before any work
+        claim.Transaction([(tmp_path / "c", "--out"), (b, "--plot")])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz", "b.png"]
+    with claim.Transaction([(a, "--out")], force=True) as tx:         # --force replaces, also a file changed since
+        tx.stage(a, lambda f: f.write(b"A2"))
+        a.write_bytes(b"changed")
+        tx.commit()
+    assert a.read_bytes() == b"A2"
+
+
+def test_exclusive_write_never_replaces_a_file(tmp_path):
+    p = tmp_path / "x"
+    atomic.write_atomic(p, lambda f: f.write(b"1"), exclusive=True)
+    with pytest.raises(atomic.OutputChanged):
+        atomic.write_atomic(p, lambda f: f.write(b"2"), exclusive=True)
+    assert p.read_bytes() == b"1" and [q.name for q in tmp_path.iterdir()] == ["x"]
+
+
+# ---------------------------------------------------------------------- two trainings into one folder
+def test_two_trainings_started_a_second_apart_into_one_log_dir(tmp_path):
+    """Two ``agents.train`` runs into one --log-dir, started a second apart: one holds the folder
+    and goes on, the other exits at once (status 2) naming the holder's pid."""
+    run = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    cmd = [sys.executable, "-m", "agents.train", "--log-dir", str(run), "--n-timesteps", "1000000",
+           "--save-freq", "-1", "--eval-freq", "-1", *PPO_TINY]
+    procs = []
+    try:
+        for _ in range(2):
+            procs.append(subprocess.Popen(cmd, cwd=str(ROOT), env=env, stdout=subprocess.DEVNULL,
+                                          stderr=subprocess.PIPE, text=True))
+            time.sleep(1.0)
+        t_end = time.time() + 240
+        while all(p.poll() is None for p in procs) and time.time() < t_end:
+            time.sleep(0.1)
+        done = [p for p in procs if p.poll() is not None]
+        assert len(done) == 1, "neither run was refused: both train into one folder"
+        refused, holder = done[0], next(p for p in procs if p is not done[0])
+        err = refused.stderr.read()
+        assert refused.returncode == 2 and f"pid {holder.pid}" in err and "Traceback" not in err, err
+        time.sleep(1.0)
+        assert holder.poll() is None        # the holder goes on
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait(timeout=60)
+    # the killed holder left its lock: a new run is refused as stale until --steal-lock
+    with pytest.raises(FileExistsError, match=f"pid {holder.pid} .*no longer runs.*--steal-lock"):
+        train.train(["--log-dir", str(run), "--n-timesteps", "64", *PPO_TINY])
 
 
 # ---------------------------------------------------------------------- kills in the middle of saves
@@ -219,3 +351,23 @@ def test_resume_keeps_the_checkpoint_and_evaluation_schedule(tmp_path):
     ev = np.load(run / "eval" / "evaluations.npz")["timesteps"].tolist()
     assert ev == [128, 256, 384, 512]
     assert not (run / "eval" / ".evaluations_scratch.npz").exists()
+
+
+def test_exclusive_publish_without_hard_links(tmp_path, monkeypatch):
+    """A file system without hard links: the exclusive publish still never replaces a file."""
+    import errno
+
+    def no_links(src, dst):
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "link", no_links)
+    p = tmp_path / "x"
+    atomic.write_atomic(p, lambda f: f.write(b"1"), exclusive=True)
+    with pytest.raises(atomic.OutputChanged):
+        atomic.write_atomic(p, lambda f: f.write(b"2"), exclusive=True)
+    assert p.read_bytes() == b"1" and [q.name for q in tmp_path.iterdir()] == ["x"]
+    with claim.Claim(tmp_path / "y") as c:
+        assert claim.read_lock(c.lock)["pid"] == os.getpid()
+        with pytest.raises(claim.OutputBusy):
+            claim.Claim(tmp_path / "y")
+    assert [q.name for q in tmp_path.iterdir()] == ["x"]

@@ -23,6 +23,7 @@ from hypothesis import given, settings, strategies as st
 
 import tensegrity_gym as tg
 from tensegrity_gym import cli
+from tensegrity_gym.io import atomic
 from tensegrity_gym.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -213,7 +214,7 @@ def test_interrupt_inside_write_leaves_no_temp_file(tmp_path):
         f.write(b"partial")
         raise cli._Terminated()
     with pytest.raises(cli._Terminated):
-        cli._atomic_write(target, writer)
+        atomic.write_atomic(target, writer)
     assert target.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["t.npz"]
 
 
@@ -282,6 +283,82 @@ def test_sigterm_exits_143_without_temp_files(tmp_path):
     assert err.splitlines()[-1] == "error: terminated (SIGTERM); no output file was changed"
     assert "Traceback" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------- outputs never lost
+def test_a_file_created_at_the_output_during_the_run_is_not_overwritten(tmp_path, monkeypatch, capsys):
+    """Someone creates the output file while the simulation runs (here: just before the result is
+    written): it is kept and the run exits 4 naming it; with --force it is replaced."""
+    out = tmp_path / "t.npz"
+    real = np.savez
+
+    def savez_after_someone_else(f, **arrays):
+        if not out.exists():
+            out.write_bytes(b"someone else's")
+        real(f, **arrays)
+
+    monkeypatch.setattr(np, "savez", savez_after_someone_else)
+    code, _, err = run_main(S + ["--out", str(out)], capsys)
+    assert code == 4 and "was created or changed by someone else during this run" in err, err
+    assert out.read_bytes() == b"someone else's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.npz"]
+    code, _, err = run_main(S + ["--out", str(out), "--force"], capsys)
+    assert code == 0, err
+    assert set(np.load(out)) >= {"t", "nodes", "energy"}
+
+
+def test_a_second_cli_run_to_one_output_is_refused_at_once_naming_the_first(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = tmp_path / "t.npz"
+    first = subprocess.Popen([sys.executable, "-m", "tensegrity_gym", "simulate", "prism3", "--duration", "1e5",
+                              "--record-every", "1000", "--out", str(out)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    try:
+        assert first.stderr.read(1)                 # the progress bar: the output is claimed, the run started
+        r = _proc(["simulate", "prism3", "--duration", "0.01", "--out", str(out)], cwd=tmp_path)
+        assert r.returncode == 4, r.stderr
+        assert re.fullmatch(rf"error: --out '.*t.npz' is in use by another run \(pid {first.pid} on host \S+, "
+                            r"started \S+; lock .*\); wait for it or choose another path\n", r.stderr), r.stderr
+        assert not out.exists()
+    finally:
+        first.send_signal(signal.SIGTERM)
+        first.communicate(timeout=120)
+    assert first.returncode == 143 and list(tmp_path.iterdir()) == []
+
+
+def test_sigterm_between_two_outputs_reports_truthfully(tmp_path):
+    """SIGTERM while ``simulate --video`` renders its video, after the trajectory was computed: the
+    message says exactly what was written; here nothing, so the old trajectory is untouched."""
+    pytest.importorskip("imageio")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), TENSEGRITY_RENDERER="matplotlib")
+    out, video = tmp_path / "t.npz", tmp_path / "v.gif"
+    out.write_bytes(b"the old trajectory")
+    p = subprocess.Popen([sys.executable, "-m", "tensegrity_gym", "simulate", "prism3", "--duration", "20",
+                          "--out", str(out), "--video", str(video), "--force", "--no-progress"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    try:
+        t_end = time.time() + 240
+        while time.time() < t_end and p.poll() is None:   # the trajectory is written (or staged): the video is next
+            if out.read_bytes() != b"the old trajectory" or any(
+                    q.name.startswith(".t.npz") and not q.name.endswith(".lock") for q in tmp_path.iterdir()):
+                break
+            time.sleep(0.005)
+        time.sleep(0.5)                                  # well inside the rendering of 600 frames
+        assert p.poll() is None, p.communicate()[1].decode()
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    err = err.decode()
+    assert p.returncode == 143, err
+    last = err.splitlines()[-1]
+    if last == "error: terminated (SIGTERM); no output file was changed":
+        assert out.read_bytes() == b"the old trajectory" and not video.exists()
+    else:     # the signal landed while the outputs were published: they were written, and the message says so
+        assert last == f"error: terminated (SIGTERM); wrote {out}, {video}", last
+        assert set(np.load(out)) >= {"t", "nodes"} and video.stat().st_size > 0
+    assert sorted(q.name for q in tmp_path.iterdir()) in (["t.npz"], ["t.npz", "v.gif"])
 
 
 # ---------------------------------------------------------------------- property-based

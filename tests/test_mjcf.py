@@ -1,7 +1,7 @@
 """MJCF export: MuJoCo's RK4 trajectory of the exported model matches ours.
 
 Tolerance 1e-9 m in node positions over 0.5 s (RK4, dt = 1e-4 s on both sides); measured
-agreement is ~1e-14 m (round-off), see tensegrity_gym/mjcf.py.
+agreement is ~1e-14 m (round-off), see tensegrity_gym/io/mjcf.py.
 """
 import math
 import xml.etree.ElementTree as ET
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
+from tensegrity_gym import dynamics
 from tensegrity_gym.mjcf import export, to_mjcf
 
 mujoco = pytest.importorskip("mujoco")
@@ -23,7 +23,7 @@ def _ours(s):
     m = tg.compile_model(s)
     n = int(round(T / DT))
     _, q, qd = tg.simulate(m, tg.initial_state(m), DT, n, "rk4", record_every=n // REC)
-    return np.array([dyn.node_positions(m, qq)[0] for qq in q]), m, q, qd
+    return np.array([dynamics.node_positions(m, qq)[0] for qq in q]), m, q, qd
 
 
 def _mujoco(s, **kw):
@@ -86,7 +86,7 @@ def test_mujoco_rk4_matches_ours(name):
     assert err < TOL, f"{name}: max node difference {err:.3g} m over {T} s"
     if np.any(s.damping > 0):
         # MuJoCo's tendon damping acts also when slack; agreement needs taut strings throughout
-        gamma, _, L = dyn.force_densities(m, q.reshape(-1, *q.shape[2:]), qd.reshape(-1, *qd.shape[2:]))
+        gamma, _, L = dynamics.force_densities(m, q.reshape(-1, *q.shape[2:]), qd.reshape(-1, *qd.shape[2:]))
         assert np.all(L > m.rest_length) and np.all(gamma > 0)
 
 

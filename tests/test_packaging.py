@@ -102,7 +102,7 @@ def test_installed_train_and_evaluate_from_any_directory(installed):
 @pytest.mark.slow
 def test_installed_zoo_reads_the_packaged_hyperparameters(installed):
     pytest.importorskip("rl_zoo3")
-    code = ("import argparse, rl_zoo3.exp_manager, tensegrity_gym\n"
+    code = ("import argparse, rl_zoo3.exp_manager, tensegrity_gym.integrations.zoo\n"
             "from rl_zoo3.exp_manager import ExperimentManager\n"
             "m = ExperimentManager(argparse.Namespace(), 'ppo', 'TensegrityRoll-v0', 'logs')\n"
             "print('CONF', m.config)\n"
@@ -125,9 +125,24 @@ def test_no_sys_path_edits_in_scripts_agents_or_package():
     assert not offenders, offenders
 
 
+def _script_helpers():
+    """scripts/_bench.py, which the scripts import as a sibling module (it is not installed)."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("_bench", ROOT / "scripts" / "_bench.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_benchmark_helpers_are_not_in_the_package():
+    assert not (ROOT / "tensegrity_gym" / "_bench.py").exists()
+    assert not list((ROOT / "results").rglob("*.py")) and not list((ROOT / "results" / "refactor").rglob("*.sh"))
+
+
 def test_shared_script_helpers():
     import numpy as np
-    from tensegrity_gym import _bench, builders, dynamics as dyn
+    from tensegrity_gym import builders, dynamics
+    _bench = _script_helpers()
     rng = np.random.default_rng(0)
     for z in list(rng.normal(size=(5, 3))) + [np.array([0, 0, 1.0]), np.array([0, 0, -1.0])]:
         z = z / np.linalg.norm(z)
@@ -140,9 +155,9 @@ def test_shared_script_helpers():
     assert 0 < t < 1e-3
     out, wall = _bench.timed(lambda: 3, wall_min=0.0)
     assert out == 3 and wall >= 0
-    m = dyn.compile_model(builders.prism(3))
+    m = dynamics.compile_model(builders.prism(3))
     xml = _bench.mjcf(m)
-    assert xml.count("<freejoint/>") == m.n_bars and xml.count("<spatial") == m.n_strings
+    assert xml.count("<freejoint") == m.n_bars and xml.count("<spatial") == m.n_strings
     # a rigid rotation of a node set is recovered
     from scipy.spatial.transform import Rotation
     p = rng.normal(size=(1, 6, 3))
@@ -150,3 +165,23 @@ def test_shared_script_helpers():
     rv = np.array([[0.1, -0.2, 0.3]])
     cur = p @ Rotation.from_rotvec(rv[0]).as_matrix().T
     np.testing.assert_allclose(_bench.rotation_vectors(p, cur), rv, atol=1e-12)
+
+
+def test_script_mjcf_is_the_package_writer_and_takes_our_state():
+    """scripts/_bench.mjcf is io.mjcf.to_mjcf; mj_set_state puts our state into it: MuJoCo's node
+    sites land on our node positions."""
+    mujoco = pytest.importorskip("mujoco")
+    import numpy as np
+    from tensegrity_gym import builders, dynamics
+    from tensegrity_gym.io.mjcf import to_mjcf
+    _bench = _script_helpers()
+    m = dynamics.compile_model(builders.prism(3))
+    assert _bench.mjcf(m, "RK4", dt=1e-4) == to_mjcf(m.structure, timestep=1e-4, integrator="RK4")
+    mm = mujoco.MjModel.from_xml_string(_bench.mjcf(m))
+    d = mujoco.MjData(mm)
+    st = dynamics.initial_state(m, nodes=m.structure.nodes + 0.01 * np.random.default_rng(1).standard_normal(
+        m.structure.nodes.shape))
+    _bench.mj_set_state(mujoco, mm, d, m, st.q[0], st.qd[0])
+    ours = dynamics.node_positions(m, st.q)[0]
+    for i in range(m.n_nodes):
+        np.testing.assert_allclose(d.site(f"node{i}").xpos, ours[i], atol=1e-12)

@@ -9,6 +9,7 @@ import pytest
 
 import tensegrity_gym as tg
 from tensegrity_gym import rendering
+from tensegrity_gym.tools.rendering import mujoco_renderer
 from tensegrity_gym.rendering import MujocoRenderer, Renderer, RendererUnavailable, make_renderer
 
 
@@ -81,7 +82,7 @@ def test_make_renderer_backends(monkeypatch):
     with pytest.raises(ValueError, match="backend"):
         make_renderer(64, 64, backend="vulkan")
     # no OpenGL: "auto" falls back to matplotlib with one warning, "mujoco" raises
-    monkeypatch.setattr(rendering, "_GL_CACHE", {"error": "MuJoCo renderer: no OpenGL backend works here"})
+    monkeypatch.setattr(mujoco_renderer, "_GL_CACHE", {"error": "MuJoCo renderer: no OpenGL backend works here"})
     with pytest.warns(UserWarning, match="matplotlib"):
         r = make_renderer(64, 64, backend="auto")
     assert isinstance(r, Renderer)
@@ -93,7 +94,7 @@ def test_make_renderer_backends(monkeypatch):
 
 def test_unknown_gl_backend_message(monkeypatch):
     pytest.importorskip("mujoco")
-    monkeypatch.setattr(rendering, "_GL_CACHE", {})
+    monkeypatch.setattr(mujoco_renderer, "_GL_CACHE", {})
     monkeypatch.setenv("MUJOCO_GL", "vulkan")
     with pytest.raises(RendererUnavailable, match="MUJOCO_GL='vulkan'"):
         rendering.gl_backend()
@@ -170,13 +171,14 @@ def test_window_viewer_widgets_headless():
 
 
 def test_cli_view(tmp_path, monkeypatch, capsys):
-    from tensegrity_gym import cli, rendering as rmod
+    from tensegrity_gym import cli
+    from tensegrity_gym.tools import cli_commands
     seen = {}
 
     def fake_view(structure, nodes, tensions, times, mode, **kw):
         seen.update(structure=structure, nodes=nodes, tensions=tensions, times=times, mode=mode, kw=kw)
 
-    monkeypatch.setattr(rmod, "view_trajectory", fake_view)
+    monkeypatch.setattr(cli_commands, "view_trajectory", fake_view)
     out = tmp_path / "t.npz"
     assert cli.main(["simulate", "prism3", "--duration", "0.01", "--out", str(out)]) == 0
     assert cli.main(["view", str(out), "--structure", "prism3", "--mode", "browser", "--port", "0"]) == 0

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
+from tensegrity_gym import dynamics
 from tensegrity_gym.structure import StructureError
 from tensegrity_gym.tnsgrt import from_tnsgrt, to_tnsgrt_dict
 

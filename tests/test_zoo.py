@@ -28,17 +28,17 @@ def _run(args, cwd, timeout=300):
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
-    """rl_zoo3.train --algo ppo --env TensegrityRoll-v0 --gym-packages tensegrity_gym, no --conf-file."""
+    """rl_zoo3.train --algo ppo --env TensegrityRoll-v0 --gym-packages tensegrity_gym.integrations.zoo, no --conf-file."""
     cwd = tmp_path_factory.mktemp("zoo")
     rc, out = _run(["-m", "rl_zoo3.train", "--algo", "ppo", "--env", "TensegrityRoll-v0", "--gym-packages",
-                    "tensegrity_gym", "-f", "logs", *TINY], cwd)
+                    "tensegrity_gym.integrations.zoo", "-f", "logs", *TINY], cwd)
     assert rc == 0, out[-4000:]
     return cwd, out
 
 
 def test_zoo_train_uses_the_project_hyperparameters_without_conf_file(trained):
     cwd, out = trained
-    from tensegrity_gym.zoo import hyperparams_file
+    from tensegrity_gym.integrations.zoo import hyperparams_file
     assert f"Loading hyperparameters from: {hyperparams_file('ppo')}" in out
     class Loader(yaml.SafeLoader):  # the zoo saves an OrderedDict: read it as its list of pairs, no objects
         pass
@@ -55,7 +55,7 @@ def test_zoo_train_uses_the_project_hyperparameters_without_conf_file(trained):
 
 def test_zoo_without_project_hyperparameters_fails_with_a_message_saying_how(tmp_path):
     rc, out = _run(["-m", "rl_zoo3.train", "--algo", "a2c", "--env", "TensegrityRoll-v0", "--gym-packages",
-                    "tensegrity_gym", "-f", "logs", "-n", "64"], tmp_path)
+                    "tensegrity_gym.integrations.zoo", "-f", "logs", "-n", "64"], tmp_path)
     assert rc != 0
     assert "no tuned a2c hyperparameters for TensegrityRoll-v0" in out and "--conf-file" in out
 
@@ -63,7 +63,7 @@ def test_zoo_without_project_hyperparameters_fails_with_a_message_saying_how(tmp
 def test_zoo_explicit_conf_file_and_other_envs_are_left_to_the_zoo():
     import argparse
     from rl_zoo3.exp_manager import ExperimentManager
-    from tensegrity_gym import zoo
+    from tensegrity_gym.integrations import zoo
     assert zoo.install() and zoo.install()                      # idempotent
     zoo_file = str(Path(rl_zoo3.__file__).parent / "hyperparams" / "ppo.yml")
     ns = argparse.Namespace()
@@ -72,10 +72,20 @@ def test_zoo_explicit_conf_file_and_other_envs_are_left_to_the_zoo():
     assert Path(ExperimentManager(ns, "ppo", "Pendulum-v1", "logs").config).resolve() == Path(zoo_file).resolve()
 
 
+def test_importing_the_package_leaves_rl_zoo3_alone():
+    """``import tensegrity_gym`` (even after the zoo) patches nothing; the registration is the
+    module named in --gym-packages."""
+    code = ("import rl_zoo3.exp_manager as m; init = m.ExperimentManager.__init__; import tensegrity_gym; "
+            "assert m.ExperimentManager.__init__ is init; import tensegrity_gym.integrations.zoo; "
+            "assert m.ExperimentManager.__init__ is not init; print('ok')")
+    rc, out = _run(["-c", code], ROOT)
+    assert rc == 0 and out.strip().endswith("ok"), out[-2000:]
+
+
 def test_zoo_enjoy(trained):
     cwd, _ = trained
     rc, out = _run(["-m", "rl_zoo3.enjoy", "--algo", "ppo", "--env", "TensegrityRoll-v0", "--gym-packages",
-                    "tensegrity_gym", "-f", "logs", "-n", "30", "--no-render", "--num-threads", "1"], cwd)
+                    "tensegrity_gym.integrations.zoo", "-f", "logs", "-n", "30", "--no-render", "--num-threads", "1"], cwd)
     assert rc == 0, out[-3000:]
     assert "Loading running average" in out  # the saved VecNormalize statistics were used
 
@@ -96,7 +106,7 @@ def test_zoo_optimize_writes_its_report(tmp_path):
     pytest.importorskip("pandas")
     # --seed 2 with the random sampler draws n_steps 32, batch 32, 1 epoch: one small trial
     rc, out = _run(["-m", "rl_zoo3.train", "--algo", "ppo", "--env", "TensegrityShape-v0", "--gym-packages",
-                    "tensegrity_gym", "-f", "logs", "-n", "128", "-optimize", "--n-trials", "1", "--n-jobs", "1",
+                    "tensegrity_gym.integrations.zoo", "-f", "logs", "-n", "128", "-optimize", "--n-trials", "1", "--n-jobs", "1",
                     "--sampler", "random", "--pruner", "none", "--n-evaluations", "1", "--eval-episodes", "1",
                     "--seed", "2", "--num-threads", "1", "--no-optim-plots", "-params", "n_envs:2"], tmp_path)
     assert rc == 0, out[-4000:]

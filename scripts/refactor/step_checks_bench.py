@@ -1,6 +1,6 @@
 """Process time of one tensegrity_gym.step call (prism3, semi-implicit Euler, one step), B = 1, 64,
 4096; best of 5 windows of 0.2 s. Run with two checkouts, alternating:
-    PYTHONPATH=<checkout> NUMBA_NUM_THREADS=1 taskset -c 0 python results/refactor/step_checks_bench.py"""
+    PYTHONPATH=<checkout> NUMBA_NUM_THREADS=1 taskset -c 0 python scripts/refactor/step_checks_bench.py"""
 import time, numpy as np, tensegrity_gym as tg
 m = tg.compile_model(tg.prism(3)); 
 for B in (1, 64, 4096):

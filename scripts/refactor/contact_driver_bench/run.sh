@@ -9,14 +9,15 @@ set -u
 OLD=${OLD:-/tmp/before}
 NEW=${NEW:-$(cd "$(dirname "$0")/../../.." && pwd)}
 HERE=$(cd "$(dirname "$0")" && pwd)
+OUT=${OUT:-$HERE/../../../results/refactor/$(basename "$HERE")}   # raw outputs stay under results/
 PY=${PY:-$NEW/.venv/bin/python}
 export OMP_NUM_THREADS=1
 for round in 1 2; do
   for script in "$HERE/../contact_loop_bench.py" "$HERE/../kernel_call_bench.py"; do
     b=$(basename "$script" .py)
     if [ "$b" = kernel_call_bench ]; then export NUMBA_NUM_THREADS=1; else unset NUMBA_NUM_THREADS; fi
-    PYTHONPATH=$OLD $PY "$script" > "$HERE/before_${b}_$round.txt" 2>/dev/null
-    PYTHONPATH=$NEW $PY "$script" > "$HERE/after_${b}_$round.txt" 2>/dev/null
+    PYTHONPATH=$OLD $PY "$script" > "$OUT/before_${b}_$round.txt" 2>/dev/null
+    PYTHONPATH=$NEW $PY "$script" > "$OUT/after_${b}_$round.txt" 2>/dev/null
   done
 done
 # the project's env benchmark, roll env, the batched vector env and SyncVectorEnv (2 threads)
@@ -24,5 +25,5 @@ unset NUMBA_NUM_THREADS
 for side in before after; do
   if [ $side = before ]; then P=$OLD; else P=$NEW; fi
   PYTHONPATH=$P $PY "$NEW/scripts/bench_envs.py" --env roll --methods batched sync --n-envs 1 16 256 4096 \
-    --seconds 2 --out "$HERE/${side}_bench_envs" > "$HERE/${side}_bench_envs.txt" 2>/dev/null
+    --seconds 2 --out "$OUT/${side}_bench_envs" > "$OUT/${side}_bench_envs.txt" 2>/dev/null
 done

@@ -1,10 +1,11 @@
-"""Helpers shared by the benchmark and analysis scripts (``scripts/*.py``): timing, the MuJoCo
-translation of a free class-1 structure, and rod rotation vectors. Private: no API promise.
+"""Helpers shared by the benchmark and analysis scripts (``scripts/*.py``, which import it as a
+sibling module: ``from _bench import timeit``): timing, MuJoCo state and rollout timing, and rod
+rotation vectors. Not part of the installed package.
 
 * :func:`timeit` -- best wall time (s) of one call, calls batched to about ``target`` s;
 * :func:`timed` -- wall time of one run (best of 3 when the run is short);
-* :func:`quat_z_to`, :func:`mj_float`, :func:`mjcf_rods`, :func:`mjcf` -- MJCF of free rods
-  (one free body per rod, a site per node, one tension-only spatial tendon per string);
+* :func:`quat_z_to` -- the quaternion of a rod body; :func:`mjcf` -- the MJCF of a structure
+  (:func:`tensegrity_gym.io.mjcf.to_mjcf`);
 * :func:`mj_set_state`, :func:`mujoco_rollout_time` -- our state into MjData, and the
   per-env-step time of ``mujoco.rollout`` on all cores;
 * :func:`rotation_vectors` -- best-fit rigid rotation between two node sets (Kabsch).
@@ -15,8 +16,9 @@ import time
 
 import numpy as np
 
-__all__ = ["timeit", "timed", "quat_z_to", "mj_float", "mjcf_rods", "mjcf", "mj_set_state", "mujoco_rollout_time",
-           "rotation_vectors"]
+from tensegrity_gym.io.mjcf import to_mjcf
+
+__all__ = ["timeit", "timed", "quat_z_to", "mjcf", "mj_set_state", "mujoco_rollout_time", "rotation_vectors"]
 
 
 # ---------------------------------------------------------------------------- timing
@@ -73,61 +75,11 @@ def quat_z_to(z):
     return q / np.linalg.norm(q)
 
 
-def mj_float(x) -> str:
-    """Shortest exact decimal form of a float for MJCF."""
-    return repr(float(x))
-
-
-def mjcf_rods(model, centres, axes, ends, dt, integrator="Euler", axial_inertia=1e-6, capsules=False,
-              contact=True) -> str:
-    """MJCF of the rods of ``model`` as free bodies without gravity: rod j at ``centres[j]`` (m),
-    body z axis along the unit vector ``axes[j]``, thin-rod inertia (``model.J``, axial
-    ``J * axial_inertia``), sites ``n<node>`` at body z = ``ends[j]`` (m, the two rod ends);
-    one spatial tendon per string with ``springlength="0 l0"`` (tension only, no damping).
-    ``capsules``: add a massless, non-colliding capsule per rod (for viewing); ``contact=False``
-    disables MuJoCo's contact pass."""
-    f = mj_float
-    bodies = []
-    for j in range(model.n_bars):
-        a, c = int(model.rod_a[j]), int(model.rod_c[j])
-        ctr, qt = centres[j], quat_z_to(axes[j])
-        m, J = float(model.mass[j]), float(model.J[j])
-        za, zc = float(ends[j][0]), float(ends[j][1])
-        geom = (f'<geom type="capsule" fromto="0 0 {f(za)} 0 0 {f(zc)}" size="0.01" mass="0" '
-                f'contype="0" conaffinity="0"/>') if capsules else ""
-        bodies.append(
-            f'<body name="rod{j}" pos="{f(ctr[0])} {f(ctr[1])} {f(ctr[2])}" '
-            f'quat="{f(qt[0])} {f(qt[1])} {f(qt[2])} {f(qt[3])}"><freejoint/>'
-            f'<inertial pos="0 0 0" mass="{f(m)}" diaginertia="{f(J)} {f(J)} {f(J * axial_inertia)}"/>'
-            f'{geom}<site name="n{a}" pos="0 0 {f(za)}"/><site name="n{c}" pos="0 0 {f(zc)}"/></body>')
-    tendons = []
-    for i in range(model.n_strings):
-        tendons.append(
-            f'<spatial name="s{i}" stiffness="{f(float(model.stiffness[i]))}" damping="0" '
-            f'springlength="0 {f(float(model.rest_length[i]))}"><site site="n{int(model.str_i[i])}"/>'
-            f'<site site="n{int(model.str_j[i])}"/></spatial>')
-    option = f'<option timestep="{f(dt)}" integrator="{integrator}" gravity="0 0 0"'
-    option += '/>' if contact else '><flag contact="disable"/></option>'
-
-    return (f'<mujoco>{option}<worldbody>{"".join(bodies)}</worldbody>'
-            f'<tendon>{"".join(tendons)}</tendon></mujoco>')
-
-
-def mjcf(model, integrator="Euler", dt=1e-3, axial_inertia=1e-6):
-    """MJCF of a free class-1 structure (no anchors, no node constraints, no gravity, no damping)
-    in its built configuration: each rod's body at its centre of mass (``sigma``), sites at the
-    rod ends (``eta``), a viewing capsule per rod (see :func:`mjcf_rods`)."""
-    if model.anchor_idx.size or model.constrained.any() or model.has_gravity or model.has_damping:
-        raise ValueError("mjcf(): only free, undamped structures without gravity are translated")
-    s = model.structure
-    centres, axes, ends = [], [], []
-    for j in range(model.n_bars):
-        pa, pc = s.nodes[int(model.rod_a[j])], s.nodes[int(model.rod_c[j])]
-        L = float(np.linalg.norm(pc - pa))
-        centres.append(pa + model.sigma[j] * (pc - pa))
-        axes.append((pc - pa) / L)
-        ends.append((float(model.eta[j, 0]), float(model.eta[j, 1])))
-    return mjcf_rods(model, centres, axes, ends, dt, integrator, axial_inertia, capsules=True)
+def mjcf(model, integrator="Euler", dt=1e-3) -> str:
+    """MJCF of the structure of ``model`` in its built configuration: the package's one MJCF
+    writer (:func:`tensegrity_gym.io.mjcf.to_mjcf`: a free rod is a body at its centre of mass
+    with z along the rod, sites ``node<i>`` at the rod ends, a tension-only tendon per string)."""
+    return to_mjcf(model.structure, timestep=dt, integrator=integrator)
 
 
 def mj_set_state(mujoco, mm, d, model, q, qd):

@@ -1,5 +1,5 @@
 """B = 1 cost of one `integrators.step` call (us; best of 7 timeit repeats), the public entry whose
-dispatch changed when the NumPy path became the test oracle (session 21, 3acede3): per scene,
+dispatch changed when the NumPy path became the test oracle (commit 3acede3): per scene,
 integrator and steps per call, plus `integrators.accelerations` of one state. Run with a checkout
 first on PYTHONPATH and NUMBA_NUM_THREADS=1."""
 import sys, timeit, numpy as np

@@ -5,7 +5,7 @@ runs the same call with ``backend="numpy"`` (the NumPy reference, what these met
 before) and ``backend="auto"`` (numba) in the same process, alternating, best of 5 repeats
 (process time), and prints the ratio.
 
-    python results/refactor/accelerations_bench.py
+    python scripts/refactor/accelerations_bench.py
 
 The results agree to round-off (the last column: max relative difference of the outputs)."""
 import time
@@ -13,15 +13,15 @@ import time
 import numpy as np
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn, integrators
+from tensegrity_gym import dynamics, integrators
 from tensegrity_gym.jacobian import acceleration_jacobians
 
 
 def _state(model, B, seed=0):
     rng = np.random.default_rng(seed)
-    st = dyn.initial_state(model, B)
-    q, qd = dyn.project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
-    return dyn.State(q=q, qd=qd)
+    st = dynamics.initial_state(model, B)
+    q, qd = dynamics.project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
+    return dynamics.State(q=q, qd=qd)
 
 
 def _time(fn, repeats=5):

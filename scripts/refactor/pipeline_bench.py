@@ -2,7 +2,7 @@
 windows of 0.3 s, for the roll and shape envs at N = 1, 16, 256, the randomised roll env at
 N = 256 and the shape single env with a rest-length offset.
 
-    PYTHONPATH=<checkout> python results/refactor/pipeline_bench.py [case numbers]
+    PYTHONPATH=<checkout> python scripts/refactor/pipeline_bench.py [case numbers]
 
 Prints one line per case: 'index env N=.. variant .. us/step'. Run with two checkouts,
 alternating, and compare the lines (the machine's load moves single runs by 5-10 %)."""

@@ -1,16 +1,16 @@
 """B = 1 cost of one `_kernels.step_inplace` call (us), per scene, integrator and steps per call: the
 fixed cost the one-driver change had to keep. Run with each checkout first on PYTHONPATH:
-`PYTHONPATH=<checkout> python results/refactor/kernel_call_bench.py`."""
+`PYTHONPATH=<checkout> python scripts/refactor/kernel_call_bench.py`."""
 import sys, timeit, numpy as np
 import tensegrity_gym as tg
-from tensegrity_gym import _kernels, builders, dynamics as dyn
+from tensegrity_gym import _kernels, builders, dynamics
 print(tg.__file__, file=sys.stderr)
 rows = []
 for name, s in {"prism3": builders.prism(3), "icosahedron": builders.icosahedron(), "tower30": builders.tower(30)}.items():
-    model = dyn.compile_model(s)
+    model = dynamics.compile_model(s)
     rng = np.random.default_rng(0)
-    st = dyn.initial_state(model, 1)
-    q, qd = dyn.project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
+    st = dynamics.initial_state(model, 1)
+    q, qd = dynamics.project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
     q = np.ascontiguousarray(q); qd = np.ascontiguousarray(qd)
     for integ in ("semi_implicit_euler", "rk4"):
         for ns in (1, 20):

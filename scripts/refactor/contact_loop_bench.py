@@ -3,7 +3,7 @@ results/refactor/contact_loop.md: N = 1, 16, 64, 256, 1024 copies, nominal, and 
 per-copy robots (randomize). Best of 5 windows of 0.5 s (time.perf_counter: the parallel kernel's
 threads count once, as a user waits for them).
 
-    PYTHONPATH=<checkout> python results/refactor/contact_loop_bench.py [case numbers]
+    PYTHONPATH=<checkout> python scripts/refactor/contact_loop_bench.py [case numbers]
 
 Prints one line per case: 'index N=.. variant .. us/step  .. env-steps/s'. Run with two
 checkouts, alternating, and compare the lines."""

@@ -1,0 +1,249 @@
+"""Export a :class:`~tensegrity_gym.structure.Structure` to a MuJoCo model (MJCF XML).
+
+SI units throughout (m, kg, s, N). The model is built from the structure alone; MuJoCo is
+needed only to *load* the result (``mujoco.MjModel.from_xml_string(to_mjcf(s))``), not to write it.
+
+Mapping
+-------
+* **Rods** are rigid bodies named ``rod<j>``. The body frame has its z axis along the rod's unit
+  vector ``b`` (node a -> node c) and its origin at the rod's reference point: the centre of
+  mass of a free rod (``<freejoint/>``), the constrained node of a constrained rod. Mass and
+  centre of mass are the structure's (``bar_mass``, ``mass_points``); the inertia about the
+  centre of mass is ``diag(J, J, I_axial)`` with ``J`` the rod's second mass moment about its
+  centre of mass (``m l^2 / 12`` for a uniform rod, ``sum m_k (mu_k - sigma)^2 l^2`` for lumped
+  masses).
+* **Axial inertia.** Our rods are 1-D bodies with no spin about their own axis (5 DOF). MuJoCo
+  bodies have 6 DOF and need a positive inertia, so ``I_axial = m r^2 / 2`` (a solid cylinder
+  of radius ``rod_radius``; default 1 % of the longest rod). This changes nothing in the motion:
+  every force on a rod (string forces and contact at its nodes, gravity at its centre of mass)
+  acts at a point of its axis, so the torque about the axis is zero; and the inertia is
+  axisymmetric (``I_1 = I_2 = J``), so Euler's equation for the axial spin is
+  ``I_axial w_3' = (I_1 - I_2) w_1 w_2 + tau_3 = 0``. A rod that starts without axial spin
+  (the initial velocities built from node velocities have none) never gets any, and the
+  transverse equations ``J w_1' = tau_1 + (J - I_axial) w_2 w_3`` reduce to ours exactly, for any
+  ``I_axial > 0``. ``tests/test_mjcf.py`` checks this numerically (two very different
+  ``rod_radius`` give the same trajectory to ~1e-12 m).
+* **Node constraints** ``D n = D n0`` (``node_constraints``): the rod's body gets one slide
+  joint per column of an orthonormal basis ``E`` of the null space of ``D`` (plane: 2, line: 1,
+  pinned: 0), then a ball joint at the node.
+* **Nodes** are sites named ``node<i>``: on their rod's body, or, for anchors (nodes on no rod),
+  fixed sites in the world body.
+* **Strings** are spatial tendons ``string<i>`` between the two node sites with
+  ``stiffness`` = k, ``damping`` = c and the two-value ``springlength="0 l0"``: MuJoCo's dead
+  band, no spring force for lengths in [0, l0], ``-k (L - l0)`` above, so a string never pushes.
+* **Damping difference.** MuJoCo's tendon damping ``-c L'`` acts at every length, slack or
+  taut, and can make the total tendon force push; ours acts only while the string is taut and
+  the total force density is clipped at 0 (a string never pushes). With ``damping > 0`` the two
+  models therefore agree only while every damped string stays taut and pulling; undamped
+  strings agree exactly. MuJoCo has no per-tendon switch for this, so it is documented, not
+  reproduced.
+* **Gravity** is ``<option gravity>`` (zero if the structure has none).
+* **Ground** (``ground=True``): a plane at ``ground_height``; rods are capsules of radius
+  ``rod_radius`` that collide with the ground only (never with each other, like ours). MuJoCo's
+  soft-constraint contact is not our Hunt-Crossley + stick/slip model: trajectories with
+  contact agree qualitatively, not to round-off. Without ground, contact is disabled.
+* **Initial state**: a keyframe ``initial`` holds the structure's node positions and velocities
+  (``mujoco.mj_resetDataKeyframe(model, data, 0)``); ``qpos0`` is the same pose.
+
+Agreement (``tests/test_mjcf.py``): MuJoCo's RK4 at ``timestep=1e-4`` against our RK4 at the
+same step, over 0.5 s, node positions agree to about 2e-14 m (round-off) for a free prism released off
+equilibrium, the icosahedron and the constrained prism (pinned, line and plane nodes).
+"""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from .atomic import write_atomic
+from ..structure import Structure, mass_moments
+
+__all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel"]
+
+
+def _fmt(x) -> str:
+    return " ".join(repr(float(v)) for v in np.atleast_1d(np.asarray(x, float)).ravel())
+
+
+def _quat_z_to(b: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) rotating the z axis onto the unit vector ``b``."""
+    z = np.array([0.0, 0.0, 1.0])
+    c = float(z @ b)
+    if c < -1.0 + 1e-12:                     # b = -z: half turn about x
+        return np.array([0.0, 1.0, 0.0, 0.0])
+    axis = np.cross(z, b)
+    q = np.array([1.0 + c, axis[0], axis[1], axis[2]])
+    return q / np.linalg.norm(q)
+
+
+def _rotation(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _null_basis(D: np.ndarray) -> np.ndarray:
+    """(3, 3-p) orthonormal basis of the null space of D (p, 3)."""
+    _, sv, vt = np.linalg.svd(D)
+    p = int(np.sum(sv > 1e-9 * sv.max()))
+    return vt[p:].T
+
+
+def rod_frame(structure: Structure, j: int) -> dict:
+    """Body frame of rod ``j`` as exported: ``pos`` (3,) m (reference point), ``quat`` (4,),
+    ``sigma`` (fraction of the reference point from node a), ``com`` (fraction of the centre of
+    mass), ``length`` m, ``mass`` kg, ``J`` kg m^2 (about the centre of mass), ``node``
+    (constrained node or None), ``E`` (3, d) allowed directions of the reference point."""
+    s = structure
+    a, c = (int(v) for v in s.bars[j])
+    na, nc = s.nodes[a], s.nodes[c]
+    L = float(np.linalg.norm(nc - na))
+    b = (nc - na) / L
+    pts = None if s.mass_points is None else s.mass_points[j]
+    com = float(s.com_fraction[j])
+    _, J = mass_moments(L, float(s.bar_mass[j]), com, pts)
+    node, sigma, E = None, com, np.eye(3)
+    for end, nd in ((0.0, a), (1.0, c)):
+        if nd in s.node_constraints:
+            node, sigma, E = nd, end, _null_basis(s.node_constraints[nd])
+    return {"pos": na + sigma * L * b, "quat": _quat_z_to(b), "sigma": sigma, "com": com, "length": L,
+            "mass": float(s.bar_mass[j]), "J": J, "node": node, "E": E, "a": a, "c": c, "b": b}
+
+
+def initial_qpos_qvel(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
+    """MuJoCo ``qpos``, ``qvel`` of the exported model at the structure's initial nodes and
+    velocities (free joint: position, quaternion, linear velocity (world), angular velocity
+    (body frame); slides: 0 and the node's velocity along the slide; ball: identity and the
+    angular velocity in the body frame)."""
+    s = structure
+    qpos, qvel = [], []
+    for j in range(s.n_bars):
+        f = rod_frame(s, j)
+        va, vc = s.velocities[f["a"]], s.velocities[f["c"]]
+        bdot = (vc - va) / f["length"]
+        w_world = np.cross(f["b"], bdot)
+        R = _rotation(f["quat"])
+        w_body = R.T @ w_world
+        v_ref = va + f["sigma"] * f["length"] * bdot
+        if f["node"] is None:
+            qpos += list(f["pos"]) + list(f["quat"])
+            qvel += list(v_ref) + list(w_body)
+        else:
+            for e in f["E"].T:
+                qpos.append(0.0)
+                qvel.append(float(e @ v_ref))
+            qpos += [1.0, 0.0, 0.0, 0.0]
+            qvel += list(w_body)
+    return np.array(qpos), np.array(qvel)
+
+
+#: MuJoCo's integrators (``<option integrator=...>``)
+MJ_INTEGRATORS = ("RK4", "Euler", "implicit", "implicitfast")
+
+
+def check_mj_integrator(name, field: str = "integrator") -> str:
+    """``name`` if it is one of :data:`MJ_INTEGRATORS`; ValueError naming ``field`` otherwise."""
+    if not (isinstance(name, str) and name in MJ_INTEGRATORS):
+        raise ValueError(f"{field}: one of {', '.join(MJ_INTEGRATORS)}, got {name!r}")
+    return name
+
+
+def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-3, integrator: str = "RK4",
+            rod_radius: float | None = None, string_width: float | None = None, ground_height: float = 0.0,
+            friction: float = 1.0, model_name: str | None = None) -> str:
+    """The MJCF XML text of ``structure`` (see the module docstring for the mapping).
+
+    Parameters
+    ----------
+    ground : add a ground plane at ``ground_height`` (m) with Coulomb ``friction``.
+    timestep : MuJoCo step, s. integrator : MuJoCo integrator ("RK4", "Euler", "implicit", "implicitfast").
+    rod_radius : rod capsule radius, m (drawing, contact and the axial inertia ``m r^2 / 2``);
+        default 1 % of the longest rod.
+    string_width : tendon drawing radius, m; default ``rod_radius / 3``.
+    """
+    s = structure
+    if not isinstance(s, Structure):
+        raise TypeError(f"structure: expected a Structure, got {type(s).__name__}")
+    if not (isinstance(timestep, (int, float)) and math.isfinite(timestep) and timestep > 0):
+        raise ValueError(f"timestep: must be a positive finite number of seconds, got {timestep!r}")
+    check_mj_integrator(integrator)
+    r = 0.01 * float(s.bar_lengths.max()) if rod_radius is None else float(rod_radius)
+    if not (math.isfinite(r) and r > 0):
+        raise ValueError(f"rod_radius: must be positive and finite (m), got {rod_radius!r}")
+    w = r / 3 if string_width is None else float(string_width)
+    if not (math.isfinite(w) and w > 0):
+        raise ValueError(f"string_width: must be positive and finite (m), got {string_width!r}")
+    for nm, v in (("ground_height", ground_height), ("friction", friction)):
+        if not math.isfinite(float(v)) or (nm == "friction" and v < 0):
+            raise ValueError(f"{nm}: must be finite{' and >= 0' if nm == 'friction' else ''}, got {v!r}")
+    g = np.zeros(3) if s.gravity is None else np.asarray(s.gravity, float)
+    name = model_name or s.name
+    out = [f"<mujoco model={quoteattr(name)}>",
+           '  <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>',
+           f'  <option timestep="{timestep!r}" integrator="{integrator}" gravity="{_fmt(g)}">',
+           "" if ground else '    <flag contact="disable"/>',
+           "  </option>",
+           "  <visual>",
+           '    <global offwidth="1920" offheight="1080"/>',
+           "  </visual>",
+           "  <asset>",
+           '    <texture name="grid" type="2d" builtin="checker" rgb1=".82 .84 .86" rgb2=".74 .76 .78" '
+           'width="512" height="512"/>',
+           '    <material name="grid" texture="grid" texrepeat="4 4" texuniform="true" reflectance="0"/>',
+           "  </asset>",
+           "  <worldbody>",
+           '    <light name="sun" directional="true" pos="0 0 10" dir="-0.3 -0.3 -1" diffuse=".8 .8 .8"/>']
+    out = [line for line in out if line]
+    if ground:
+        out.append(f'    <geom name="ground" type="plane" size="0 0 1" pos="0 0 {ground_height!r}" '
+                   f'material="grid" contype="0" conaffinity="1" friction="{float(friction)!r} 0.005 0.0001"/>')
+    for i in s.anchors:
+        out.append(f'    <site name="node{i}" pos="{_fmt(s.nodes[i])}" size="{2 * r!r}" rgba=".2 .6 .2 1"/>')
+    for j in range(s.n_bars):
+        f = rod_frame(s, j)
+        L, sig = f["length"], f["sigma"]
+        R = _rotation(f["quat"])
+        out.append(f'    <body name="rod{j}" pos="{_fmt(f["pos"])}" quat="{_fmt(f["quat"])}">')
+        if f["node"] is None:
+            out.append(f'      <freejoint name="rod{j}"/>')
+        else:
+            for d, e in enumerate(f["E"].T):
+                out.append(f'      <joint name="rod{j}_slide{d}" type="slide" axis="{_fmt(R.T @ e)}"/>')
+            out.append(f'      <joint name="rod{j}_ball" type="ball" pos="0 0 0"/>')
+        Ia = 0.5 * f["mass"] * r * r
+        out.append(f'      <inertial pos="0 0 {(f["com"] - sig) * L!r}" mass="{f["mass"]!r}" '
+                   f'diaginertia="{f["J"]!r} {f["J"]!r} {Ia!r}"/>')
+        za, zc = -sig * L, (1.0 - sig) * L
+        out.append(f'      <geom name="rod{j}" type="capsule" fromto="0 0 {za!r} 0 0 {zc!r}" size="{r!r}" '
+                   'contype="1" conaffinity="0" rgba=".25 .27 .3 1"/>')
+        out.append(f'      <site name="node{f["a"]}" pos="0 0 {za!r}" size="{1.2 * r!r}"/>')
+        out.append(f'      <site name="node{f["c"]}" pos="0 0 {zc!r}" size="{1.2 * r!r}"/>')
+        out.append("    </body>")
+    out.append("  </worldbody>")
+    if s.n_strings:
+        out.append("  <tendon>")
+        for i, (a, c) in enumerate(s.strings):
+            out.append(f'    <spatial name="string{i}" stiffness="{float(s.stiffness[i])!r}" '
+                       f'damping="{float(s.damping[i])!r}" springlength="0 {float(s.rest_length[i])!r}" '
+                       f'width="{w!r}" rgba=".85 .3 .2 1">')
+            out.append(f'      <site site="node{a}"/>')
+            out.append(f'      <site site="node{c}"/>')
+            out.append("    </spatial>")
+        out.append("  </tendon>")
+    qpos, qvel = initial_qpos_qvel(s)
+    out.append("  <keyframe>")
+    out.append(f'    <key name="initial" qpos="{_fmt(qpos)}" qvel="{_fmt(qvel)}"/>')
+    out.append("  </keyframe>")
+    out.append("</mujoco>")
+    return "\n".join(out) + "\n"
+
+
+def export(structure: Structure, path: str | os.PathLike, **kwargs) -> Path:
+    """Write :func:`to_mjcf` to ``path`` atomically (:func:`tensegrity_gym.io.atomic.write_atomic`:
+    an interrupted export never leaves a half-written model). Returns the path."""
+    text = to_mjcf(structure, **kwargs)
+    return write_atomic(path, lambda f: f.write(text.encode("utf-8")))

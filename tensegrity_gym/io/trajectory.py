@@ -1,0 +1,82 @@
+"""Recorded trajectories for system identification: motion-capture CSV files and ``.npz`` records
+(times s, node positions m, optional rest lengths m and tracked-node mask)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..checks import load_npz
+
+__all__ = ["load_csv", "load_trajectory"]
+
+
+def load_csv(path, n_nodes: int):
+    """Read a long-format motion-capture CSV: a header line with the columns ``t,node,x,y,z``
+    (any order, extra columns ignored), one row per tracked node per sample; ``t`` in s,
+    ``node`` the 0-based node index of the structure, ``x,y,z`` in m. A node missing from a
+    sample (no row, or NaN coordinates) is untracked at that sample.
+
+    Returns ``t`` (S,), ``nodes`` (S, n_nodes, 3) with NaN where untracked, and the mask
+    (S, n_nodes). Raises ValueError naming the line for bad rows."""
+    import csv
+    with open(path, newline="") as fh:
+        rd = csv.reader(fh)
+        try:
+            header = [h.strip().lower() for h in next(rd)]
+        except StopIteration:
+            raise ValueError(f"{path}: empty CSV file") from None
+        need = ("t", "node", "x", "y", "z")
+        miss = [c for c in need if c not in header]
+        if miss:
+            raise ValueError(f"{path}: missing column(s) {miss}; expected a header with t,node,x,y,z")
+        col = [header.index(c) for c in need]
+        rows = []
+        for ln, row in enumerate(rd, start=2):
+            if not row or all(not x.strip() for x in row):
+                continue
+            try:
+                tt = float(row[col[0]])
+                nd = float(row[col[1]])
+                xyz = [float(row[c]) if row[c].strip() else float("nan") for c in col[2:]]
+            except (ValueError, IndexError):
+                raise ValueError(f"{path}: line {ln}: cannot read {row!r} as t,node,x,y,z numbers") from None
+            if not np.isfinite(tt):
+                raise ValueError(f"{path}: line {ln}: t is {row[col[0]]!r}; sample times must be finite")
+            if nd != int(nd) or not 0 <= nd < n_nodes:
+                raise ValueError(f"{path}: line {ln}: node {row[col[1]]!r} is not a node index 0..{n_nodes - 1}")
+            rows.append((tt, int(nd), *xyz))
+    if not rows:
+        raise ValueError(f"{path}: no data rows")
+    a = np.array(rows, dtype=float)
+    t, inv = np.unique(a[:, 0], return_inverse=True)
+    nodes = np.full((t.size, n_nodes, 3), np.nan)
+    seen = np.zeros((t.size, n_nodes), bool)
+    for r, (s_, nd) in enumerate(zip(inv, a[:, 1].astype(int))):
+        if seen[s_, nd]:
+            raise ValueError(f"{path}: node {nd} appears twice at t = {t[s_]!r} s")
+        seen[s_, nd] = True
+        nodes[s_, nd] = a[r, 2:]
+    mask = np.isfinite(nodes).all(axis=2)
+    return t, nodes, mask
+
+
+def load_trajectory(path, n_nodes: int):
+    """``(t, nodes, rest_length, mask)`` from a ``.npz`` as written by ``simulate`` (``t``,
+    ``nodes``, optional ``rest_length``, optional bool ``node_mask`` (n,) or (S, n)) or a
+    long-format CSV (:func:`load_csv`; NaN / missing rows = untracked)."""
+    p = str(path)
+    if p.lower().endswith(".csv"):
+        t, nodes, mask = load_csv(p, n_nodes)
+        return t, nodes, None, mask
+    z = load_npz(p, "t (S,) s and nodes (S, n, 3) m as written by `python -m tensegrity_gym simulate`, "
+                    "or a long-format .csv")
+    for k in ("t", "nodes"):
+        if k not in z:
+            raise ValueError(f"{p}: no array {k!r} (found {sorted(z)}); expected t (S,) s and nodes "
+                             f"(S, n, 3) m as written by `python -m tensegrity_gym simulate`")
+    t, nodes = z["t"], z["nodes"]
+    rl, mask = z.get("rest_length"), z.get("node_mask")
+    if mask is None and np.asarray(nodes).ndim == 3:
+        fin = np.isfinite(np.asarray(nodes, float)).all(axis=2)
+        if not fin.all() and (fin | ~fin.any(axis=0)).all():
+            mask = fin        # whole nodes NaN: untracked nodes (other NaN samples are reported as errors)
+    return t, nodes, rl, mask

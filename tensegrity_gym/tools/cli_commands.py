@@ -1,0 +1,205 @@
+"""``info``, ``export``, ``view`` and ``identify``: the command-line verbs that do not integrate a run of their own."""
+from __future__ import annotations
+
+import json
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from .. import dynamics
+from ..checks import load_npz
+from ..io.mjcf import to_mjcf
+from ..io.tnsgrt import from_tnsgrt
+from ..sizing import stability_bytes
+from ..structure import StructureError
+from .cli_common import (EXIT_DIVERGED, EXIT_OUTPUT, EXIT_STRUCTURE, EXIT_USAGE, CLIError, _claim, _commit, _load,
+                         _require_memory, _stage)
+from .cli_simulate import _outputs_and_model
+from .rendering import RendererUnavailable, view_trajectory
+
+
+def _stable_step_bytes(k: int, m: int = 0) -> float:
+    """Memory of dynamics.stable_step_estimate: up to DENSE_STABILITY_MAX_RODS rods finite-difference
+    Jacobians on 24 k states and the eigenvalues of the (12 k x 12 k) first-order matrix (about six
+    such matrices); above, the sparse path (linear in k and the m strings: sizing.stability_bytes)."""
+    if k > dynamics.DENSE_STABILITY_MAX_RODS:
+        return float(stability_bytes(k, m))
+    return 8.0 * (6 * (12 * k) ** 2 + 24 * k * (6 * k) * 12)
+
+
+def structure_summary(s, stable_step: bool = True) -> dict:
+    """Summary numbers of a structure (SI units) as printed by ``info``; ``stable_step=False``
+    skips the eigenvalue estimate (``None`` entries)."""
+    model = dynamics.compile_model(s)
+    L = s.string_lengths
+    tension = s.initial_tensions()
+    slack = np.flatnonzero(L <= s.rest_length)
+    st0 = dynamics.initial_state(model)
+    acc = dynamics.accelerations(model, st0.q, st0.qd)
+    est = dynamics.stable_step_estimate(model) if stable_step else \
+        {"omega_max": None, "semi_implicit_euler": None, "rk4": None}
+    span = lambda x: [float(np.min(x)), float(np.max(x))] if len(x) else None
+    return {
+        "name": s.name, "nodes": s.n_nodes, "bars": s.n_bars, "strings": s.n_strings,
+        "anchors": int(len(s.anchors)), "constrained_nodes": {int(k): int(v.shape[0]) for k, v in
+                                                             s.node_constraints.items()},
+        "total_mass_kg": s.total_mass, "bar_mass_kg": [float(x) for x in s.bar_mass],
+        "bar_length_m": [float(x) for x in s.bar_lengths],
+        "stiffness_N_per_m": span(s.stiffness),
+        "damping_Ns_per_m": span(s.damping),
+        "gravity_m_per_s2": None if s.gravity is None else s.gravity.tolist(),
+        "tension_N": [float(x) for x in tension], "slack_strings": [int(i) for i in slack],
+        "max_initial_acceleration": float(np.abs(acc).max()),
+        "omega_max_rad_per_s": est["omega_max"],
+        "stable_dt_s": {"semi_implicit_euler": est["semi_implicit_euler"], "rk4": est["rk4"]},
+    }
+
+
+def cmd_info(args) -> int:
+    s = _load(args.structure, args)
+    if not args.no_stable_step:
+        how = ("sparse Jacobians and Arnoldi" if s.n_bars > dynamics.DENSE_STABILITY_MAX_RODS else
+               f"eigenvalues of a {12 * s.n_bars} x {12 * s.n_bars} matrix")
+        _require_memory(_stable_step_bytes(s.n_bars, s.n_strings), args,
+                        f"the stable-step estimate of {s.n_bars} rods ({how}; --no-stable-step skips it)")
+    d = structure_summary(s, stable_step=not args.no_stable_step)
+    if args.json:
+        print(json.dumps(d, indent=1))
+        return 0
+    print(f"structure        {d['name']}")
+    print(f"nodes/bars/strings {d['nodes']} / {d['bars']} / {d['strings']}   anchors {d['anchors']}")
+    if d["constrained_nodes"]:
+        kinds = {1: "plane", 2: "line", 3: "pinned"}
+        print("constraints      " + ", ".join(f"node {k}: {kinds[v]}" for k, v in d["constrained_nodes"].items()))
+    print(f"total mass       {d['total_mass_kg']:.4g} kg   rod lengths {min(d['bar_length_m']):.4g}.."
+          f"{max(d['bar_length_m']):.4g} m")
+    if d["strings"]:
+        print(f"stiffness        {d['stiffness_N_per_m'][0]:.4g}..{d['stiffness_N_per_m'][1]:.4g} N/m   "
+              f"damping {d['damping_Ns_per_m'][0]:.4g}..{d['damping_Ns_per_m'][1]:.4g} N s/m")
+    else:
+        print("stiffness        no strings")
+    print(f"gravity          {d['gravity_m_per_s2']}")
+    t = np.array(d["tension_N"])
+    if t.size:
+        print(f"prestress        tension {t.min():.4g}..{t.max():.4g} N; slack strings: "
+              f"{d['slack_strings'] if d['slack_strings'] else 'none'}")
+    else:
+        print("prestress        no strings")
+    print(f"initial |accel|  {d['max_initial_acceleration']:.3g} (max over rods, SI)")
+    if d["omega_max_rad_per_s"] is None:
+        print("stable step      not estimated (--no-stable-step)")
+    else:
+        print(f"stable step      omega_max {d['omega_max_rad_per_s']:.4g} rad/s -> dt < "
+              f"{d['stable_dt_s']['semi_implicit_euler']:.3g} s (semi-implicit Euler), "
+              f"< {d['stable_dt_s']['rk4']:.3g} s (RK4)")
+    return 0
+
+
+def cmd_export(args) -> int:
+    """``export STRUCTURE --format mjcf|json --out PATH``: exit 0, 3 (bad structure) or 4 (output)."""
+    out = Path(args.out)
+    tx = _claim(args, [(out, "export: --out")], create_folders=False)
+    if args.source == "tnsgrt":
+        try:
+            s = from_tnsgrt(args.structure)
+        except (StructureError, OSError, ValueError, KeyError, TypeError) as e:
+            raise CLIError(EXIT_STRUCTURE, f"export: {e}") from None
+    else:
+        s = _load(args.structure, args)
+    try:
+        if args.format == "mjcf":
+            text = to_mjcf(s, ground=args.ground, timestep=args.timestep)
+        else:   # the bytes of save_json
+            text = json.dumps(s.to_dict(), indent=1)
+    except (StructureError, ValueError) as e:
+        raise CLIError(EXIT_STRUCTURE, f"export: {e}") from None
+    except OSError as e:
+        raise CLIError(EXIT_OUTPUT, f"export: {e}") from None
+    _stage(tx, out, lambda f: f.write(text.encode("utf-8")))
+    _commit(tx)
+    print(f"{s.name}: {s.n_bars} rods, {s.n_strings} strings -> {out} ({args.format})")
+    return 0
+
+
+def cmd_view(args) -> int:
+    """``view TRAJ.npz``: interactive view of a simulate output; exit 3 on a bad trajectory or
+    structure, 4 when no viewer can be opened."""
+    from types import SimpleNamespace
+    try:
+        z = load_npz(args.trajectory, "a simulate output with t, nodes, bars, strings")
+        t, nodes, bars, strings = z["t"], z["nodes"], z["bars"], z["strings"]
+    except ValueError as e:
+        raise CLIError(EXIT_STRUCTURE, f"view: {e}") from None
+    except (OSError, KeyError) as e:
+        raise CLIError(EXIT_STRUCTURE, f"view: {args.trajectory}: not a simulate output (.npz with t, nodes, bars, "
+                                       f"strings): {e}") from None
+    tensions = None
+    s = SimpleNamespace(bars=bars, strings=strings, n_strings=len(strings), gravity=None,
+                        name=Path(args.trajectory).stem)
+    if args.structure:
+        st = _load(args.structure, args)
+        if st.n_nodes != nodes.shape[1] or not np.array_equal(st.strings, strings):
+            raise CLIError(EXIT_STRUCTURE, f"view: structure {args.structure!r} does not match the trajectory's "
+                                           "nodes/strings")
+        L = np.linalg.norm(nodes[:, strings[:, 1]] - nodes[:, strings[:, 0]], axis=-1)
+        tensions = st.stiffness * np.maximum(0.0, L - st.rest_length)   # elastic part, N
+        s = st
+    try:
+        view_trajectory(s, nodes, tensions, t, mode=args.mode, **({"port": args.port} if args.mode != "window" else {}))
+    except (RendererUnavailable, ValueError, OSError) as e:
+        raise CLIError(EXIT_OUTPUT, f"view: {e}") from None
+    return 0
+
+
+def cmd_identify(args) -> int:
+    """Fit parameters to a recorded trajectory; write the fit as JSON (atomically) and a plot."""
+    from . import sysid     # scipy: imported only when identify runs
+    for f in args.fit:
+        if sysid._ALIASES.get(f, f) not in sysid.FITTABLE:
+            raise CLIError(EXIT_USAGE, f"--fit: unknown parameter {f!r}; choose from {sorted(sysid.FITTABLE)} "
+                           f"(aliases {sorted(sysid._ALIASES)})")
+    out, tx, s, model = _outputs_and_model(args, args.plot, "--plot")
+    try:
+        t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes)
+    except FileNotFoundError:
+        raise CLIError(EXIT_STRUCTURE, f"trajectory file {args.trajectory!r} not found") from None
+    except (ValueError, OSError, KeyError) as e:
+        raise CLIError(EXIT_STRUCTURE, f"trajectory {args.trajectory!r}: {e}") from None
+    if args.nodes is not None:
+        sel = np.zeros(model.n_nodes, bool)
+        for i in args.nodes:
+            if not 0 <= i < model.n_nodes:
+                raise CLIError(EXIT_USAGE, f"--nodes: node {i} does not exist (structure has {model.n_nodes} nodes)")
+            sel[i] = True
+        mask = sel if mask is None else (np.asarray(mask, bool) & sel)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", sysid.SysIdWarning)   # reported below from the result
+            res = sysid.identify(model, t, nodes, fit=args.fit, mode="scale" if args.scale else "per_member",
+                                 rest_length=rl, node_mask=mask, window=args.window, integrator=args.integrator,
+                                 dt=args.dt, stride=args.stride, total_mass=args.total_mass)
+    except ValueError as e:     # the trajectory does not fit the structure, too short, ...: bad input
+        raise CLIError(EXIT_STRUCTURE, str(e)) from None
+    except FloatingPointError as e:   # SimulationDiverged: the starting values blow the model up
+        raise CLIError(EXIT_DIVERGED, f"the simulation diverged during the fit ({e}); try a smaller --dt or "
+                       "starting values closer to the robot's") from None
+    d = res.to_dict()
+    d.update(structure=s.name, trajectory=str(args.trajectory))
+    _stage(tx, out, lambda f: f.write(json.dumps(d, indent=1).encode()))
+    if args.plot:
+        import matplotlib
+        matplotlib.use("Agg")
+        _stage(tx, Path(args.plot), lambda f: res.plot().savefig(f, dpi=100, format="png"))
+    _commit(tx)
+    for g in res.fields:
+        for i, v, e, ok in zip(res.items[g], res.values[g], res.std_errors[g], res.identifiable[g]):
+            err = f"+- {e:.3g}" if np.isfinite(e) else "(not identifiable)"
+            print(f"{g:12s} {sysid.FITTABLE[g]} {i:3d}  {v:.6g} {err} {sysid._UNITS[g]}")
+    print(f"RMS node error {res.rms_m * 1e3:.4g} mm (initial values {res.rms_initial_m * 1e3:.4g} mm); "
+          f"{res.n_windows} windows of {res.window_s:g} s; converged: {res.converged}; wrote {out}"
+          + (f" and {args.plot}" if args.plot else ""))
+    for w in res.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    return 0 if res.ok else 3

@@ -1,0 +1,270 @@
+"""``simulate`` and ``demo``: integrate a structure, write the trajectory, a plot, a summary and a video."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import dynamics
+from ..builders import prism
+from ..checks import load_npz
+from ..integrators import EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
+from ..io.claim import Transaction
+from ..structure import StructureError
+from .rendering import RendererUnavailable, render_video
+from .cli_common import (ADAPTIVE_EVALUATIONS_PER_STEP, CHUNK_STEPS, ENERGY_BLOWUP, EXIT_DIVERGED, EXIT_OUTPUT,
+                         EXIT_STRUCTURE, EXIT_TOO_LARGE, EXIT_USAGE, PROGRESS_MIN_STEPS, CLIError, _claim, _commit, _load, _n_steps, _one_line,
+                         _require_memory, _stage, _trajectory_bytes)
+
+
+def _run(model, state, args, n_steps: int, progress: bool):
+    """``simulate`` in chunks (fixed-step methods) so that a divergence keeps the records before
+    it. Returns ``(t, q, qd, message)``, ``message`` None unless the run diverged."""
+    info = resolve(args.integrator)
+    kw = dict(project=not args.no_project, backend=args.backend, rtol=args.rtol, atol=args.atol,
+              rest_length=args.rest_length, force_density=args.force_density)
+    if info.adaptive:
+        try:
+            t, q, qd = simulate(model, state, args.dt, n_steps, args.integrator, record_every=args.record_every,
+                                progress=progress, max_evaluations=int(ADAPTIVE_EVALUATIONS_PER_STEP * args.max_steps),
+                                **kw)
+        except EvaluationBudgetExceeded as e:
+            raise CLIError(EXIT_TOO_LARGE, f"{info.name}: {e}; loosen --rtol/--atol, shorten --duration or raise "
+                           f"--max-steps (it allows {ADAPTIVE_EVALUATIONS_PER_STEP} evaluations per step)") from None
+        except SimulationDiverged as e:
+            empty = np.empty((0,) + state.q.shape)
+            return np.zeros(0), empty, empty, str(e)
+        return t, q, qd, None
+    every = args.record_every
+    n_rec = n_steps // every
+    per_chunk = max(1, CHUNK_STEPS // every)
+    ts = state.t + args.dt * every * np.arange(n_rec + 1)
+    qs = np.empty((n_rec + 1,) + state.q.shape)
+    qds = np.empty_like(qs)
+    qs[0], qds[0] = state.q, state.qd
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=n_steps, unit="step", desc=info.name)
+    done, st, message = 0, state, None
+    try:
+        while done < n_rec:
+            r = min(per_chunk, n_rec - done)
+            try:
+                _, q, qd = simulate(model, st, args.dt, r * every, args.integrator, record_every=every, **kw)
+            except SimulationDiverged as e:
+                # failure path only: redo this chunk one record at a time to keep the records before it
+                message = str(e)
+                for _ in range(r):
+                    try:
+                        _, q, qd = simulate(model, st, args.dt, every, args.integrator, record_every=every, **kw)
+                    except SimulationDiverged as e2:
+                        message = str(e2)
+                        break
+                    done += 1
+                    qs[done], qds[done] = q[1], qd[1]
+                    st = dynamics.State(q[-1], qd[-1], ts[done])
+                break
+            qs[done + 1:done + r + 1], qds[done + 1:done + r + 1] = q[1:], qd[1:]
+            done += r
+            st = dynamics.State(q[-1], qd[-1], ts[done])
+            if bar is not None:
+                bar.update(r * every)
+    finally:
+        if bar is not None:
+            bar.close()
+    S = done + 1
+    return ts[:S], qs[:S], qds[:S], message
+
+
+def _outputs_and_model(args, second, flag: str):
+    """``(out path, transaction, structure, model)`` of a command writing ``--out`` and optionally
+    ``second`` (the path given to ``flag``): both claimed before any work, then the structure loaded."""
+    out = Path(args.out)
+    tx = _claim(args, [(out, "--out")] + ([(Path(second), flag)] if second else []))
+    s = _load(args.structure, args)
+    return out, tx, s, dynamics.compile_model(s)
+
+
+def load_schedule(path, name: str, n_strings: int) -> Schedule:
+    """A command schedule (:class:`tensegrity_gym.integrators.Schedule`) from ``.npz`` (arrays
+    ``t`` (C,) s and ``name`` (C, m)) or ``.csv`` (a header row, then one row per command: the
+    time in s, then the m strings' values). ValueError naming the file, the row and the value."""
+    p = str(path)
+    unit = "m" if name == "rest_length" else "N/m"
+    if p.lower().endswith(".csv"):
+        try:
+            a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as e:
+            raise ValueError(f"{p}: not a CSV of numbers after its header row ({_one_line(e)})") from None
+        if a.shape[1] != n_strings + 1:
+            raise ValueError(f"{p}: expected {n_strings + 1} columns (t in s, then {n_strings} strings' {name} in "
+                             f"{unit}), got {a.shape[1]}")
+        t, v = a[:, 0], a[:, 1:]
+    else:
+        z = load_npz(p, f"arrays t (C,) s and {name} (C, {n_strings}) {unit}, or a .csv")
+        for k in ("t", name):
+            if k not in z:
+                raise ValueError(f"{p}: no array {k!r} (found {sorted(z)}); expected t (C,) s and {name} "
+                                 f"(C, {n_strings}) {unit}")
+        t, v = z["t"], z[name]
+    v = np.asarray(v, dtype=float)
+    if v.ndim != 2 or v.shape[1] != n_strings:
+        raise ValueError(f"{p}: {name} must have shape (C, {n_strings}) (one row per command time, one column per "
+                         f"string), got {v.shape}")
+    return Schedule(t, v, name)
+
+
+def cmd_simulate(args) -> int:
+    out, tx, s, model = _outputs_and_model(args, args.video, "--video")
+    for name in ("rest_length", "force_density"):
+        path = getattr(args, name)
+        if path is None:
+            continue
+        flag = "--" + name.replace("_", "-")
+        if args.backend == "torch":
+            raise CLIError(EXIT_USAGE, f"{flag}: command schedules run with --backend auto or numba")
+        try:
+            sched = load_schedule(path, name, model.n_strings)
+            sched.rows(np.zeros(1), args.dt)       # the first command must be at the start (t = 0 s)
+            setattr(args, name, sched)
+        except FileNotFoundError:
+            raise CLIError(EXIT_STRUCTURE, f"{flag}: file {path!r} not found") from None
+        except (ValueError, OSError, KeyError) as e:
+            raise CLIError(EXIT_STRUCTURE, f"{flag} {path!r}: {_one_line(e)}") from None
+    state = dynamics.initial_state(model)
+    n_steps = _n_steps(args.duration, args.dt, args)
+    _require_memory(_trajectory_bytes(model, n_steps // args.record_every + 1), args,
+                    f"recording {n_steps // args.record_every + 1} states of {s.n_nodes} nodes")
+    progress = (not args.no_progress) and n_steps >= PROGRESS_MIN_STEPS
+    t0 = time.perf_counter()
+    if args.backend == "torch":   # optional torch backend (tensegrity_gym.torch_backend) on --device
+        try:
+            from .. import torch_backend     # optional: needs torch
+            t, q, qd = torch_backend.simulate(model, state, args.dt, n_steps, args.integrator, device=args.device,
+                                              record_every=args.record_every, project=not args.no_project)
+        except (ImportError, ValueError) as exc:
+            raise CLIError(EXIT_USAGE, f"--backend torch: {exc}") from None
+        diverged = None if (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))) else \
+            "the torch backend's state became non-finite"
+    else:
+        t, q, qd, diverged = _run(model, state, args, n_steps, progress)
+    wall = time.perf_counter() - t0
+    S = len(t)
+    qf, qdf = q.reshape((S,) + q.shape[2:]), qd.reshape((S,) + qd.shape[2:])
+    nodes = dynamics.node_positions(model, qf) if S else np.zeros((0, s.n_nodes, 3))
+    E = dynamics.energy(model, qf, qdf) if S else np.zeros(0)
+    if diverged is None and S > 1:
+        scale = max(abs(float(E[0])), s.total_mass * 9.81 * max(float(np.ptp(s.nodes, axis=0).max()), 1e-3))
+        grown = np.flatnonzero(~(E - E[0] <= ENERGY_BLOWUP * scale))
+        if grown.size:
+            i = int(grown[0])
+            diverged = (f"{args.integrator}: the energy grew from {E[0]:.4g} J to {E[i]:.4g} J by t = {t[i]:.6g} s "
+                        f"(dt = {args.dt:g} s): the step is unstable; reduce --dt")
+    arrays = dict(t=t, nodes=nodes, energy=E, bars=s.bars, strings=s.strings)
+    for name in ("rest_length", "force_density"):
+        sched = getattr(args, name)
+        if sched is not None and S:   # the row in force over the step from each record on
+            arrays[name] = sched.values[sched.rows(t, args.dt)]
+    if diverged is not None:
+        arrays.update(diverged=np.array(True), message=np.array(_one_line(diverged)))
+    _stage(tx, out, lambda f: np.savez(f, **arrays))
+    if diverged is not None:
+        _commit(tx)
+        raise CLIError(EXIT_DIVERGED, f"simulation diverged: {_one_line(diverged)}; wrote {S} records "
+                                      f"(up to the divergence) to {out}, flagged diverged=True"
+                       + (f"; no video written to {args.video}" if args.video else ""))
+    frames = _stage_video(tx, args, s, model, t, qf, qdf)
+    _commit(tx)
+    drift = float(np.max(np.abs(E - E[0])) / max(abs(E[0]), 1e-300))
+    print(f"{s.name}: {n_steps} steps of {args.dt:g} s with {args.integrator} in {wall:.3g} s wall "
+          f"({n_steps / wall:,.0f} steps/s); {S} records -> {out}")
+    print(f"max relative energy change {drift:.3e}; final rod-length drift "
+          f"{float(dynamics.rod_length_drift(model, qf[-1:])[0]):.3e}")
+    _print_video(args, frames)
+    return 0
+
+
+def cmd_demo(args) -> int:
+    """Simulate the default prism released off equilibrium; write a plot and a summary."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise CLIError(EXIT_OUTPUT, f"--out {str(out)!r} is a file; give a folder")
+    png, summary_path = out / "demo_prism.png", out / "demo_summary.json"
+    tx = _claim(args, [(png, "--out"), (summary_path, "--out")] + ([(Path(args.video), "--video")] if args.video else []))
+    try:
+        s = prism(3, damping=args.damping)
+    except StructureError as e:
+        raise CLIError(EXIT_USAGE, f"--damping {args.damping}: {e}") from None
+    model = dynamics.compile_model(s)
+    rng = np.random.default_rng(args.seed)
+    st = dynamics.initial_state(model, nodes=s.nodes + args.perturbation * rng.standard_normal(s.nodes.shape))
+    dt, T = 1e-3, args.duration
+    n = _n_steps(T, dt, args)
+    _require_memory(_trajectory_bytes(model, n // 10 + 1), args, f"recording {n // 10 + 1} states")
+    t0 = time.perf_counter()
+    t, q, qd = simulate(model, st, dt, n, args.integrator, record_every=10)
+    wall = time.perf_counter() - t0
+    q1, qd1 = q[:, 0], qd[:, 0]
+    E = dynamics.energy(model, q1, qd1)
+    nodes = dynamics.node_positions(model, q1)
+    top = nodes[:, 3:6]
+    bot = nodes[:, 0:3]
+    ang = lambda P: np.arctan2(P[..., 1] - P[..., 1].mean(-1, keepdims=True),
+                               P[..., 0] - P[..., 0].mean(-1, keepdims=True))
+    twist = np.degrees(np.angle(np.mean(np.exp(1j * (ang(top) - ang(bot))), axis=-1)))
+    fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
+    ax[0].plot(t, E)
+    ax[0].set(xlabel="t [s]", ylabel="energy [J]", title="energy (damped strings)")
+    ax[1].plot(t, twist)
+    ax[1].axhline(90 - 180 / 3, ls="--", c="k", lw=0.8, label="pi/2 - pi/p")
+    ax[1].set(xlabel="t [s]", ylabel="twist [deg]", title="twist between top and bottom")
+    ax[1].legend()
+    a = ax[2]
+    for (i, j) in s.strings:
+        a.plot(nodes[-1, [i, j], 0], nodes[-1, [i, j], 1], c="tab:red", lw=0.8)
+    for (i, j) in s.bars:
+        a.plot(nodes[-1, [i, j], 0], nodes[-1, [i, j], 1], c="k", lw=3)
+    a.set(aspect="equal", title="final shape (top view)", xlabel="x [m]", ylabel="y [m]")
+    fig.tight_layout()
+    _stage(tx, png, lambda f: fig.savefig(f, dpi=100, format="png"))
+    plt.close(fig)
+    summary = {"structure": s.name, "integrator": args.integrator, "dt_s": dt, "duration_s": T,
+               "wall_s": wall, "steps_per_s": n / wall, "initial_energy_J": float(E[0]),
+               "final_energy_J": float(E[-1]), "final_twist_deg": float(twist[-1]),
+               "expected_twist_deg": 90 - 180 / 3,
+               "final_rod_length_drift": float(dynamics.rod_length_drift(model, q1[-1:])[0])}
+    _stage(tx, summary_path, lambda f: f.write(json.dumps(summary, indent=1).encode()))
+    frames = _stage_video(tx, args, s, model, t, q1, qd1)
+    _commit(tx)
+    print(json.dumps(summary, indent=1))
+    print(f"wrote {png} and {summary_path}")
+    _print_video(args, frames)
+    return 0
+
+
+def _stage_video(tx: Transaction, args, s, model, t, q, qd) -> int:
+    """``--video PATH``: render the recorded trajectory (q, qd: (S, 1, k, 6)) in real time at
+    30 frames/s into the transaction (published with the other outputs); returns the frame count."""
+    if not getattr(args, "video", None):
+        return 0
+    q, qd = q.reshape((len(t),) + q.shape[-2:]), qd.reshape((len(t),) + qd.shape[-2:])
+    gamma, _, L = dynamics.force_densities(model, q, qd)
+    frames = []
+    try:
+        tx.stage_file(args.video, lambda tmp: frames.append(
+            render_video(tmp, s, dynamics.node_positions(model, q), gamma * L, t)))
+    except (RendererUnavailable, ValueError, OSError) as e:
+        raise CLIError(EXIT_OUTPUT, f"--video {args.video}: {e}; no output file was changed") from None
+    return frames[0]
+
+
+def _print_video(args, frames: int) -> None:
+    if getattr(args, "video", None):
+        print(f"wrote {frames} frames -> {args.video}")

@@ -1,0 +1,409 @@
+"""System identification: fit physical parameters so that simulated motion matches a recorded one.
+
+:func:`identify` fits named :class:`~tensegrity_gym.params.Params` fields of a structure (string
+``stiffness`` N/m, string ``damping`` N s/m, rod ``mass`` kg, ``node_damping`` N s/m) to a
+recorded trajectory: times ``t`` (S,) in s and node positions ``nodes`` (S, n, 3) in m, with
+the strings' rest lengths ``rest_length`` (S, m) in m when the cables were actuated, and a
+``node_mask`` when only some nodes were tracked (motion capture).
+
+Method: multiple shooting with variable projection
+--------------------------------------------------
+The record is cut into W windows of K consecutive samples (``window`` seconds each; windows do
+not share samples, so every sample is counted once). Each window is simulated from its own
+initial state with the fit's ``integrator`` and step ``dt`` (which divides the sample spacing),
+so an error in the parameters cannot accumulate over the whole record: short windows keep the
+problem close to linear and well conditioned, long enough windows (about one period of the
+slowest mode you want to see) keep the parameters observable.
+
+The initial state of each window (rod positions *and* velocities) is an unknown of the fit,
+not read off the record. It starts from the recorded node positions of the window's first
+sample and velocities from a local quadratic fit to its first samples (untracked nodes: the
+structure's reference shape rigidly aligned to the tracked ones), then is fitted together with
+the parameters. Why unknowns rather than finite differences: with 1 mm of position noise a
+finite-difference velocity at 1 kHz is off by ~0.1 m/s, and a noisy initial state is an
+errors-in-variables bias in every window; untracked nodes have no recorded state at all. As
+unknowns, each window's state is set by all K samples of the window (a maximum-likelihood fit
+for Gaussian position noise). Per rod the state has ``2 d + 4`` coordinates (``d`` = 3 for a
+free rod, fewer for a rod with a constrained node: position and velocity of its reference
+point in the allowed directions, 2 tangent directions of ``b`` and 2 of ``b'``).
+
+The state unknowns are eliminated by *variable projection*: for given parameters ``theta`` each
+window's state is fitted by a batched Levenberg-Marquardt (all windows in one call), and
+:func:`scipy.optimize.least_squares` minimises the remaining residual over ``theta`` alone with
+the Jacobian ``(I - J_x J_x^+) J_theta`` per window (Kaufman's projection; ``J_x``: window
+state, ``J_theta``: parameters). Every Jacobian is a forward finite difference, and all its
+columns, for every window, are ONE batched :func:`~tensegrity_gym.integrators.step` call: copy
+``c`` carries its own physical values through per-copy :class:`~tensegrity_gym.params.Params`
+(W x (1 + p + n_state) copies). Positive quantities are fitted in log space:
+``theta = log(value / initial)``, so a step of 0.01 is a 1 % change, the fit cannot make a
+value negative, and ``mode="scale"`` fits one ``log`` factor per field.
+
+Standard errors
+---------------
+``cov(theta) = sigma^2 (J^T J)^-1`` with the projected Jacobian ``J`` (the parameter block of
+the inverse of the full normal matrix, i.e. the window states' uncertainty is accounted for)
+and ``sigma^2 = SSR / (N_obs - p - W n_state)``, the residual variance per observed coordinate.
+They are the 1-sigma errors of a locally linear, unbiased fit with independent Gaussian
+position noise of the same size on every coordinate: they say how well the *record*
+determines the values, not how wrong the *model* is (integrator error, unmodelled friction).
+Standard errors in SI are ``value * se(theta)`` (first order). A parameter with a (near) zero
+direction of ``J^T J`` (singular value of the column-scaled Jacobian below ``rank_rtol`` times
+the largest, e.g. the damping of a string that never goes taut, anything when nothing moves)
+is flagged ``identifiable = False`` with an infinite standard error, and the result is not
+``ok``; a fit that stops without meeting its tolerances is ``converged = False``. Both also
+raise a :class:`SysIdWarning`. A weak pull towards the starting values (rows
+``rank_rtol |J| theta``) keeps the optimiser from wandering along such a flat direction; when
+every direction turns out determined, the fit is polished without it (no bias).
+
+Mass, stiffness and damping: string forces scale with stiffness and damping, weight and
+inertia with mass, so a robot with all three scaled by one factor moves identically (gravity
+and supports do not break this). Motion fixes the ratios; pass the weighed total rod mass
+(``total_mass``, kg) and the rod masses are held to sum to it (their ratios are fitted).
+Without it such a fit is flagged.
+
+Units: SI throughout (s, m, kg, N/m, N s/m). ``jacobian="torch"`` computes the outer residual
+Jacobian by forward-mode autograd through the torch backend's rollout instead
+(:meth:`_Problem.torch_jacobian`, exact to round-off); the default stays the batched forward
+differences (exact to ~1e-7 relative, one numba call per Jacobian), which are faster on CPU.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+
+from .. import dynamics
+from ..dynamics import Model
+from ..integrators import resolve
+from ..io.trajectory import load_csv, load_trajectory
+from ..params import default_params
+from .sysid_problem import _Problem
+from .sysid_result import _ALIASES, _UNITS, FITTABLE, SysIdResult, SysIdWarning
+
+__all__ = ["identify", "SysIdResult", "SysIdWarning", "FITTABLE", "load_csv", "load_trajectory"]
+
+
+# ----------------------------------------------------------------------------- input checks
+def _model_of(structure_or_model) -> Model:
+    if isinstance(structure_or_model, Model):
+        return structure_or_model
+    from . import load_structure
+    return dynamics.compile_model(load_structure(structure_or_model))
+
+
+def _check_record(model: Model, t, nodes, rest_length, node_mask):
+    t = np.asarray(t, dtype=float)
+    if t.ndim != 1 or t.size < 3:
+        raise ValueError(f"t: expected a 1-D array of at least 3 sample times (s), got shape {t.shape}")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise ValueError(f"t: sample {bad[0]} is {t[bad[0]]!r}; sample times must be finite (s)")
+    dtt = np.diff(t)
+    bad = np.flatnonzero(dtt <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise ValueError(f"t: times must be strictly increasing; sample {i} (t = {t[i]!r} s) does not come after "
+                         f"sample {i - 1} (t = {t[i - 1]!r} s)")
+    h = float(np.median(dtt))
+    bad = np.flatnonzero(np.abs(dtt - h) > 1e-6 * h + 1e-12)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise ValueError(f"t: samples must be evenly spaced (a fixed capture rate); sample {i} is {dtt[i - 1]:.6g} s "
+                         f"after sample {i - 1}, the median spacing is {h:.6g} s (give missing frames as NaN rows "
+                         f"instead of leaving them out)")
+    nodes = np.asarray(nodes, dtype=float)
+    n = model.n_nodes
+    if nodes.ndim != 3 or nodes.shape[2] != 3:
+        raise ValueError(f"nodes: expected shape (S, n, 3) in m, got {nodes.shape}")
+    if nodes.shape[0] != t.size:
+        raise ValueError(f"nodes: {nodes.shape[0]} samples but t has {t.size}")
+    if nodes.shape[1] != n:
+        raise ValueError(f"nodes: the trajectory has {nodes.shape[1]} nodes per sample but structure "
+                         f"{model.structure.name!r} has {n} nodes")
+    S = t.size
+    if node_mask is None:
+        mask = np.ones((S, n), bool)
+    else:
+        nm = np.asarray(node_mask)
+        if nm.dtype != bool:
+            idx = nm.astype(int).ravel()
+            if idx.size and (idx.min() < 0 or idx.max() >= n):
+                b = idx[(idx < 0) | (idx >= n)][0]
+                raise ValueError(f"node_mask: node {b} does not exist (structure has {n} nodes)")
+            nm = np.zeros(n, bool)
+            nm[idx] = True
+        if nm.shape == (n,):
+            mask = np.broadcast_to(nm, (S, n)).copy()
+        elif nm.shape == (S, n):
+            mask = nm.copy()
+        else:
+            raise ValueError(f"node_mask: expected node indices, a bool array ({n},) or ({S}, {n}), got shape "
+                             f"{nm.shape}")
+    finite = np.isfinite(nodes).all(axis=2)
+    bad = np.argwhere(mask & ~finite)
+    if bad.size:
+        s_, i = bad[0]
+        raise ValueError(f"nodes: sample {s_} (t = {t[s_]:.6g} s), node {i} is {nodes[s_, i].tolist()}: tracked "
+                         f"nodes must be finite; mark untracked nodes / dropped frames with node_mask")
+    if model.anchor_idx.size:
+        mask[:, model.anchor_idx] = False   # anchors do not move: no information
+    if not mask.any():
+        raise ValueError("node_mask: no moving node is tracked in any sample")
+    rl = None
+    if rest_length is not None:
+        rl = np.asarray(rest_length, dtype=float)
+        if rl.shape != (S, model.n_strings):
+            raise ValueError(f"rest_length: expected shape ({S}, {model.n_strings}) (one row per sample, m), "
+                             f"got {rl.shape}")
+        bad = np.argwhere(~(np.isfinite(rl) & (rl >= 0)))
+        if bad.size:
+            s_, i = bad[0]
+            raise ValueError(f"rest_length: sample {s_}, string {i} is {rl[s_, i]!r}; must be finite and >= 0 m")
+    return t, np.where(mask[..., None], nodes, 0.0), mask, rl, h
+
+
+def _parse_fit(model: Model, fit, mode, initial):
+    if isinstance(fit, str):
+        fit = (fit,)
+    names = []
+    for f in fit:
+        g = _ALIASES.get(f, f)
+        if g not in FITTABLE:
+            raise ValueError(f"fit: unknown parameter {f!r}; fittable parameters are {sorted(FITTABLE)} "
+                             f"(aliases {sorted(_ALIASES)})")
+        if g in names:
+            raise ValueError(f"fit: parameter {f!r} named twice")
+        names.append(g)
+    if not names:
+        raise ValueError("fit: name at least one parameter to fit")
+    if mode not in ("per_member", "scale"):
+        raise ValueError(f"mode: expected 'per_member' or 'scale', got {mode!r}")
+    base = default_params(model)
+    initial = dict(initial or {})
+    for k in list(initial):
+        g = _ALIASES.get(k, k)
+        if g not in FITTABLE:
+            raise ValueError(f"initial: unknown parameter {k!r}; fittable parameters are {sorted(FITTABLE)}")
+        initial[g] = initial.pop(k)
+    if initial:
+        base = base.replace(**initial)
+    items, init = {}, {}
+    for g in names:
+        vals = getattr(base, g)[0]
+        if g in ("stiffness", "damping"):
+            idx = np.flatnonzero(~np.asarray(model.active))
+        elif g == "node_damping":
+            idx = np.setdiff1d(np.arange(model.n_nodes), model.anchor_idx)
+        else:
+            idx = np.arange(model.n_bars)
+        if idx.size == 0:
+            raise ValueError(f"fit: {g!r} has nothing to fit in this structure")
+        bad = idx[~(vals[idx] > 0)]
+        if bad.size:
+            raise ValueError(f"initial: {g} of {FITTABLE[g]} {bad[0]} starts at {float(vals[bad[0]])!r} {_UNITS[g]}; it is "
+                             f"fitted in log space and needs a positive starting value (pass initial={{{g!r}: ...}})")
+        items[g], init[g] = idx, vals[idx].copy()
+    return names, items, init, base
+
+
+# ----------------------------------------------------------------------------- main entry
+def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"), mode: str = "per_member", *,
+             rest_length=None, node_mask=None, window: float = 0.2, integrator: str = "rk4", dt=None,
+             stride: int = 1, initial=None, total_mass=None, max_nfev: int = 60, rank_rtol: float = 1e-4,
+             verbose: int = 0, jacobian: str = "fd") -> SysIdResult:
+    """Fit physical parameters so that simulated motion matches a recorded one (see module doc).
+
+    Parameters
+    ----------
+    structure_or_model : Structure, built-in name, JSON path or compiled Model. Its values are
+        the starting point of the fit (and the fixed values of everything not fitted).
+    t : (S,) sample times, s, strictly increasing and evenly spaced.
+    nodes : (S, n, 3) recorded node positions, m (NaN allowed where ``node_mask`` is False).
+    fit : names of the fitted fields: ``"stiffness"`` (per string, N/m), ``"damping"`` (per
+        string, N s/m), ``"mass"`` (alias ``"rod_mass"``; per rod, kg), ``"node_damping"``
+        (per node, N s/m). Force-density-actuated strings and anchors are never fitted.
+    mode : ``"per_member"`` (one value per string / rod / node) or ``"scale"`` (one factor
+        per field multiplying the starting values).
+    rest_length : (S, m) recorded rest lengths, m, for actuated cables; held constant over each
+        sample interval at the interval's first value. Default: the structure's.
+    node_mask : tracked nodes: node indices, a bool (n,) array or a bool (S, n) array (dropped
+        frames). Default: every node, every sample.
+    window : shooting window length, s. integrator : ``"rk4"`` (default) or
+        ``"semi_implicit_euler"``/``"implicit_euler"``. dt : fit step, s, rounded so that it
+        divides the sample spacing (default: ``0.2 / omega_max`` of the structure or the spacing).
+    stride : fit every ``stride``-th sample only (the fit step is unchanged).
+    initial : {field: value or per-item array} starting values replacing the structure's.
+    total_mass : the structure's weighed total rod mass, kg. Motion alone cannot tell a robot
+        from one with every mass, stiffness and damping scaled by the same factor (weight scales
+        with mass too), so fitting ``mass`` together with ``stiffness``/``damping`` needs one
+        absolute number: with ``total_mass`` the fitted rod masses are held to sum to it (their
+        ratios are fitted). Without it such a fit is flagged unidentifiable.
+    max_nfev : most evaluations of the outer least-squares problem.
+    rank_rtol : singular values of the (column-scaled) projected Jacobian below ``rank_rtol``
+        times the largest mark the directions as unidentifiable.
+    jacobian : how the outer problem's residual Jacobian (parameters and window states) is
+        computed: ``"fd"`` (default: batched forward differences, one numba call) or ``"torch"``
+        (forward-mode autograd through the torch backend's float64 rollout, exact to round-off;
+        needs PyTorch and ``integrator`` ``"rk4"`` or ``"semi_implicit_euler"``). The two agree
+        to ~1e-6 relative; fd stays the default because it is faster on CPU
+        (``docs/sysid.md``). The inner window-state fits use forward differences either way.
+
+    Returns a :class:`SysIdResult`. Raises ValueError naming the field for bad input.
+    """
+    from scipy.optimize import least_squares
+    t0 = time.perf_counter()
+    model = _model_of(structure_or_model)
+    names, items, init, base = _parse_fit(model, fit, mode, initial)
+    t, rec, mask, rl, h = _check_record(model, t, nodes, rest_length, node_mask)
+    if total_mass is not None:
+        if "mass" not in names:
+            raise ValueError("total_mass: only used when 'mass' is fitted")
+        if not (np.isfinite(total_mass) and total_mass > 0):
+            raise ValueError(f"total_mass: must be a positive mass in kg, got {total_mass!r}")
+        total_mass = float(total_mass)
+    if jacobian not in ("fd", "torch"):
+        raise ValueError(f"jacobian: expected 'fd' or 'torch', got {jacobian!r}")
+    if jacobian == "torch":
+        try:
+            import torch  # noqa: F401
+        except ImportError:
+            raise ValueError("jacobian: 'torch' needs PyTorch (pip install 'tensegrity_gym[torch]'); "
+                             "use jacobian='fd'") from None
+        if resolve(integrator).name not in ("rk4", "semi_implicit_euler"):
+            raise ValueError(f"jacobian: 'torch' supports integrator 'rk4' or 'semi_implicit_euler', "
+                             f"got {resolve(integrator).name!r}; use jacobian='fd'")
+    pb = _Problem(model, t, rec, mask, rl, h, names, items, init, base, mode, float(window), integrator, dt, stride,
+                  total_mass)
+    if jacobian == "torch":
+        pb.jacobian = "torch"
+    q0, qd0 = pb.guess()
+    cache = {"key": None}
+
+    def solve(theta):
+        key = theta.tobytes()
+        if cache["key"] != key:
+            q, qd = cache.get("q", q0), cache.get("qd", qd0)
+            q, qd, res, ok = pb.fit_states(theta, q, qd, Jx_old=cache.get("Jx"))
+            if not np.isfinite(res).all():   # a trial step that blew up: restart states from the data
+                q, qd, res, ok = pb.fit_states(theta, q0, qd0)
+            cache.update(key=key, q=q, qd=qd, res=res, ok=ok)
+            pb.nfev += 1
+        return cache
+
+    reg = {"lam": 0.0}
+
+    def fun(theta):
+        c = solve(theta)
+        r = c["res"].ravel()
+        return np.concatenate([np.where(np.isfinite(r), r, 1e3),   # a diverged copy: large, finite
+                               reg["lam"] * theta])
+
+    def jac(theta):
+        c = solve(theta)
+        if c.get("Jp_key") != c["key"]:
+            sim = pb.simulate(c["q"], c["qd"], pb.params(theta), np.arange(pb.W))
+            Jp, Jx = pb.full_jacobian(theta, c["q"], c["qd"], sim)
+            pb.njev += 1
+            c.update(Jp=Jp, Jp_key=c["key"])
+            cache["Jx"] = Jx
+        J = np.where(np.isfinite(c["Jp"]), c["Jp"], 0.0).reshape(-1, pb.p)
+        return np.concatenate([J, reg["lam"] * np.eye(pb.p)])
+
+    theta0 = np.zeros(pb.p)
+    r0 = fun(theta0)[:-pb.p]
+    rms0 = float(np.sqrt(np.sum(r0 ** 2) / max(pb.n_obs, 1)))
+    # a weak pull towards the starting values (rows lam * theta, lam = rank_rtol x the largest
+    # column norm): it keeps a flat (unidentifiable) direction where it started instead of letting
+    # the optimiser wander along it. When the fit then finds every direction determined, it is
+    # polished without the pull (which would shift a parameter of relative singular value s by
+    # ~(rank_rtol / s)^2 of its change).
+    reg["lam"] = rank_rtol * float(np.linalg.norm(jac(theta0)[:-pb.p], axis=0).max())
+    warn_list = []
+
+    def run(theta_start):
+        try:
+            # 'lm' (MINPACK): its QR of the tall Jacobian runs in its own loops, not in threaded BLAS
+            # (trf's SVD of the same matrix is much slower on a loaded machine)
+            sol = least_squares(fun, theta_start, jac=jac, method="lm", x_scale=1.0, ftol=1e-10, xtol=1e-8,
+                                gtol=1e-10, max_nfev=max_nfev, verbose=verbose)
+            return sol.x, sol.status, sol.message
+        except (np.linalg.LinAlgError, ValueError) as e:
+            return theta_start, -1, f"optimiser failed: {e}"
+
+    def assess(theta):
+        """Projected Jacobian at ``theta`` and which parameters it determines (log coordinates)."""
+        solve(theta)
+        jac(theta)
+        Jp = cache["Jp"].reshape(-1, pb.p)
+        G = Jp.T @ Jp
+        colnorm = np.sqrt(np.diag(G))
+        scale = np.where(colnorm > 0, colnorm, 1.0)
+        ev, V = np.linalg.eigh(G / np.outer(scale, scale))     # singular values^2 of the column-scaled Jacobian
+        sv = np.sqrt(np.clip(ev, 0, None))
+        smax = sv.max() if sv.size and sv.max() > 0 else 0.0
+        null = (sv <= rank_rtol * smax) if smax > 0 else np.ones_like(sv, bool)
+        ident = np.ones(pb.p, bool)
+        ident[colnorm <= 1e-12 * max(colnorm.max(), 1e-300)] = False
+        for v in V.T[null]:
+            u = v / scale                      # the flat direction in log coordinates (relative changes)
+            ident[np.abs(u) > 0.01 * np.abs(u).max()] = False
+        return Jp, ident
+
+    theta, status, message = run(theta0)
+    Jp, ident = assess(theta)
+    if status > 0 and ident.all():
+        # every direction is determined: polish without the pull, so it biases nothing
+        reg["lam"] = 0.0
+        theta, status, message = run(theta)
+        Jp, ident = assess(theta)
+    c = cache
+    inner_ok = bool(c["ok"])
+    res = c["res"]
+    ssr = float(np.sum(res ** 2))
+    rms = float(np.sqrt(ssr / pb.n_obs))
+    converged = bool(status > 0 and inner_ok and np.isfinite(res).all() and np.isfinite(Jp).all())
+    if not inner_ok:
+        message += "; the window-state fits did not all converge"
+    sigma2 = ssr / pb.dof
+    cov = np.full((pb.p, pb.p), np.inf)
+    if ident.any():
+        Ji = Jp[:, ident]
+        cov_i = sigma2 * np.linalg.pinv(Ji.T @ Ji, rcond=rank_rtol ** 2, hermitian=True)
+        ii = np.flatnonzero(ident)
+        cov[np.ix_(ii, ii)] = cov_i
+    vals = pb.values(theta)
+    LJ = pb.log_jacobian(theta)
+    covf = np.where(np.isfinite(cov), cov, 0.0)
+    values, std, rel, idf, scl, scl_se = {}, {}, {}, {}, {}, {}
+    for g in names:
+        values[g] = vals[g]
+        Gg = LJ[g]                                  # (n_items, p): d log value / d theta
+        dep = np.abs(Gg) > 1e-9
+        idf[g] = ~np.any(dep & ~ident[None], axis=1)
+        var = np.einsum("ip,pq,iq->i", Gg, covf, Gg)
+        rel[g] = np.where(idf[g], np.sqrt(np.abs(var)), np.inf)
+        std[g] = values[g] * rel[g]
+        if mode == "scale":
+            scl[g] = float(values[g][0] / init[g][0])
+            scl_se[g] = float(scl[g] * rel[g][0])
+    bad = [f"{g} {FITTABLE[g]} {i}" for g in names for i, ok in zip(items[g], idf[g]) if not ok]
+    if bad:
+        warn_list.append("not identifiable from this record (flat or degenerate directions of the residual; "
+                         "infinite standard error): " + ", ".join(bad))
+    if not converged:
+        warn_list.append(f"the fit did not converge: {message}")
+    for w_ in warn_list:
+        warnings.warn(w_, SysIdWarning, stacklevel=2)
+    fitted_params = pb.params(theta)
+    sim = pb.simulate(c["q"], c["qd"], fitted_params, np.arange(pb.W))
+    err = np.linalg.norm(sim - pb.rec, axis=-1)[pb.mask]
+    return SysIdResult(
+        fields=tuple(names), mode=mode, items={g: items[g].copy() for g in names}, values=values, initial=init,
+        std_errors=std, rel_std_errors=rel, identifiable=idf, scale=scl, scale_std_errors=scl_se,
+        converged=converged, rms_m=rms, rms_initial_m=rms0, max_error_m=float(err.max()) if err.size else 0.0,
+        message=str(message), warnings=warn_list, n_windows=pb.W, samples_per_window=pb.K,
+        window_s=(pb.K - 1) * pb.h, sample_dt_s=pb.h, dt_s=pb.dt, n_substeps=pb.n_sub, integrator=pb.integrator,
+        n_observations=pb.n_obs, n_state_unknowns=pb.W * pb.ns, nfev=pb.nfev, njev=pb.njev,
+        wall_s=time.perf_counter() - t0, params=fitted_params,
+        _plot={"t": pb.t, "recorded": pb.rec, "fitted": sim, "mask": pb.mask})
