@@ -84,12 +84,15 @@ import weakref
 
 import numpy as np
 
+from .core.param_table import physics_fields
+
 __all__ = ["resolve_device", "resolve_dtype", "TorchModel", "torch_model", "torch_params", "mass_moments", "node_positions",
            "node_velocities", "string_state", "force_densities", "nodal_forces", "accelerations", "project",
            "sphere_drift", "step", "contact_forces", "contact_step", "contact_substep", "init_contact_state", "motor", "advance",
            "physics_inputs", "step_state", "simulate", "diverged", "PARAM_FIELDS"]
 
-PARAM_FIELDS = ("mass", "f", "J", "stiffness", "damping", "rest_length", "node_damping", "gravity", "anchor_pos")
+#: the Params fields, in order (a view of tensegrity_gym.core.param_table)
+PARAM_FIELDS = physics_fields()
 _SINC_SMALL = 1e-4   # rad: below this rotation per step sin(x)/x = 1 - x^2/6 (as integrators._SINC_SMALL)
 
 

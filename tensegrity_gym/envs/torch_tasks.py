@@ -1,4 +1,4 @@
-"""The two device-resident task envs on :class:`~tensegrity_gym.envs.torch_vec._TorchTaskVectorEnv`:
+"""The two device-resident task envs on :class:`~tensegrity_gym.envs.torch_shell.TorchTaskVectorEnv`:
 the rolling robot (``TensegrityRoll-v0``) and shape tracking (``TensegrityShape-v0``) with
 ``backend="torch"`` (see :mod:`tensegrity_gym.envs.torch_vec` for what runs where)."""
 from __future__ import annotations
@@ -8,19 +8,20 @@ import math
 import numpy as np
 
 from .. import torch_backend as tb
-from .torch_vec import _TorchTaskVectorEnv
+from .roll import RollTask
+from .shape import ShapeTask
+from .torch_shell import TorchTaskVectorEnv
 
 __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv"]
 
 
-class TorchRollVectorEnv(_TorchTaskVectorEnv):
+class TorchRollVectorEnv(TorchTaskVectorEnv):
     """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc)."""
 
     ENV_ID = "TensegrityRoll-v0"
     DEVICE_RESET = True
 
     def _make_task(self, num_envs, kwargs):
-        from .roll import RollTask
         return RollTask(num_envs=num_envs, **kwargs)
 
     def _init_state(self):
@@ -168,7 +169,7 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
 _GAUSS_SCALE = math.sqrt(-2.0 * math.log(0.1))
 
 
-class TorchShapeVectorEnv(_TorchTaskVectorEnv):
+class TorchShapeVectorEnv(TorchTaskVectorEnv):
     """``TensegrityShape-v0`` on N copies stepped on a torch device: the task of
     :class:`~tensegrity_gym.envs.shape.ShapeTask` (targets and initial states drawn on the host
     at reset from each env's generator; control update, physics with the model's node drag,
@@ -182,7 +183,6 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
                         "statics.solve_equilibria, on the host")
 
     def _make_task(self, num_envs, kwargs):
-        from .shape import ShapeTask
         return ShapeTask(num_envs=num_envs, **kwargs)
 
     def _init_state(self):

@@ -1,0 +1,1 @@
+"""Data and rules of the package: the layer every other one may import."""
