@@ -203,3 +203,11 @@ def test_config_of_another_type_is_named(env_id):
     if env_id == "TensegrityShape-v0":
         with pytest.raises(ValueError, match=r"config: expected a ShapeConfig"):
             gym.make(env_id, config=roll_config())
+
+
+def test_the_manuals_name_every_env_parameter():
+    """The user docs of the robot parameters (envs/domain.py) and of the twin's mapping
+    (envs/twin_params.py) list every env parameter of the table."""
+    for name in pt.env_params():
+        assert f"``{name}``" in domain.__doc__, name
+        assert f"``{name}``" in twin_params.__doc__, name

@@ -14,7 +14,6 @@ import numpy as np
 from .. import contact as gc
 from .. import dynamics as dyn
 from .. import integrators
-from ..rewards import quadratic_cost
 from ..actuation import Actuation
 from ..checks import check_array, check_flag
 from ..core.param_table import contact_arguments, env_fields
@@ -23,6 +22,7 @@ from .config import RollConfig, flat_signature, roll_config, with_flat
 from .domain import container_nominal
 from .docs import ROLL_DOC as _DOC
 from .roll_obs import RollObservation
+from .roll_terms import roll_step_terms
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
                          STRING_DAMPING, load_robot, place_on_ground, put_on_ground, robot_icosahedron,
                          robot_prism, settle)
@@ -239,19 +239,15 @@ class RollTask(RollObservation, BatchedTask):
         com0 = self._com(self.q)
         diverged = self.simulate(action)
         com = self._com(self.q)
-        vel = (com - com0) / self.control_dt
-        forward = np.einsum("bi,bi->b", vel[:, :2], self.goal)
-        terms = {"forward": self.forward_reward_weight * forward,
-                 "ctrl": -self.ctrl_cost_weight * quadratic_cost(action)}
-        dist = np.einsum("bi,bi->b", (com - self.start)[:, :2], self.goal)
+        terms, infos = roll_step_terms(com0, com, self.start, self.goal, action, self.control_dt,
+                                       self.forward_reward_weight, self.ctrl_cost_weight)
         if self.record_path:   # centre-of-mass path for render(), last MAX_PATH points per env
             for i in range(self.num_envs):
                 p = self.paths.setdefault(i, [])
                 p.append(com[i].copy())
                 if len(p) > MAX_PATH:
                     del p[: len(p) - MAX_PATH]
-        infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward,
-                 "diverged": diverged}
+        infos["diverged"] = diverged
         if self.sensors is not None:
             frame = self.sensors.frame(self.q, self.qd, self._qd_prev, self.dt, self._gravity(slice(None)), self.ctrl,
                                        self.speed, self.cstate.active, self.goal, self._sensor_rngs)

@@ -9,6 +9,7 @@ import numpy as np
 
 from .. import torch_backend as tb
 from .roll import RollTask
+from .roll_terms import roll_step_terms
 from .shape import ShapeTask
 from .torch_shell import TorchTaskVectorEnv
 
@@ -153,14 +154,9 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
             self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self.ctrl, self.speed, self.active,
                               self.goal)
         com = self._com(self.q)
-        vel = (com - com0) / task.control_dt
-        forward = vel[:, 0] * self.goal[:, 0] + vel[:, 1] * self.goal[:, 1]
-        terms = {"forward": task.forward_reward_weight * forward,
-                 "ctrl": -task.ctrl_cost_weight * (action * action).sum(dim=1)}
-        disp = com - self.start
-        dist = disp[:, 0] * self.goal[:, 0] + disp[:, 1] * self.goal[:, 1]
-        infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward,
-                 "diverged": diverged}
+        terms, infos = roll_step_terms(com0, com, self.start, self.goal, action, task.control_dt,
+                                       task.forward_reward_weight, task.ctrl_cost_weight)
+        infos["diverged"] = diverged
         return terms, infos
 
 
