@@ -38,3 +38,23 @@ def test_torch_terms_equal_the_numpy_terms():
         np.testing.assert_allclose(t_terms[name].numpy(), n_terms[name], rtol=1e-14, atol=1e-14)
     for name in n_infos:
         np.testing.assert_allclose(t_infos[name].numpy(), n_infos[name], rtol=1e-14, atol=1e-14)
+
+
+@pytest.mark.parametrize("kw", [dict(), dict(max_cable_acceleration=None, randomize={"rod_mass": 0.2}),
+                                dict(structure="icosahedron", action_mode="force_density")])
+def test_compiled_observation_equals_the_one_definition(kw):
+    """RollTask.observe's compiled single pass is roll_state_observation cast to float32, bit for bit."""
+    from tensegrity_gym.envs.roll import RollTask
+    from tensegrity_gym.envs.roll_terms import roll_state_observation
+    task = RollTask(num_envs=3, frame_skip=5, **kw)
+    rngs = [np.random.default_rng(i) for i in range(3)]
+    task.reset(np.arange(3), rngs)
+    rng = np.random.default_rng(7)
+    for _ in range(4):
+        task.step(rng.uniform(-1, 1, (3, task.action_size)))
+        q, qd = task.q, task.qd
+        rod, e = task._node_rod_i64, task._node_eta_1d[None, :, None]    # node i at r + e_i b of rod rod[i]
+        nodes, vel = q[:, rod, :3] + e * q[:, rod, 3:], qd[:, rod, :3] + e * qd[:, rod, 3:]
+        ref = roll_state_observation(nodes, vel, task._com(q), task.ctrl, task.cstate.active, task.goal, task.speed)
+        assert ref.dtype == np.float64
+        np.testing.assert_array_equal(task.observe(), ref.astype(np.float32))

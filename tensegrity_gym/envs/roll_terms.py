@@ -1,12 +1,15 @@
-"""The roll task's reward terms and step infos, written once for NumPy arrays (the NumPy envs)
-and torch tensors (the device vector env). SI units."""
+"""The roll task's reward terms, step infos and state observation, written once for NumPy arrays
+and torch tensors. The NumPy envs and the device vector env both compute the reward terms and
+infos with :func:`roll_step_terms`; the device vector env builds its observation with
+:func:`roll_state_observation`, and the NumPy envs with its compiled single pass
+(:func:`tensegrity_gym.envs.compiled.roll_observe`, tested equal to it). SI units."""
 from __future__ import annotations
 
 import numpy as np
 
 from ..rewards import quadratic_cost
 
-__all__ = ["sum_squares", "roll_step_terms"]
+__all__ = ["sum_squares", "roll_step_terms", "roll_state_observation"]
 
 
 def sum_squares(x):
@@ -15,6 +18,14 @@ def sum_squares(x):
     if isinstance(x, np.ndarray):
         return quadratic_cost(x)
     return (x * x).sum(dim=-1)
+
+
+def _concat(parts):
+    """``parts`` (each (B, ...)) joined along axis 1, NumPy or torch."""
+    if isinstance(parts[0], np.ndarray):
+        return np.concatenate(parts, axis=1)
+    import torch   # an optional dependency, reached only with torch tensors
+    return torch.cat(parts, dim=1)
 
 
 def roll_step_terms(com0, com, start, goal, action, control_dt: float, forward_weight: float,
@@ -34,3 +45,17 @@ def roll_step_terms(com0, com, start, goal, action, control_dt: float, forward_w
     dist = disp[:, 0] * goal[:, 0] + disp[:, 1] * goal[:, 1]
     infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward}
     return terms, infos
+
+
+def roll_state_observation(nodes, node_vel, com, ctrl, active, goal, speed):
+    """The roll task's state observation (B, 6n + na + nc + 3 + ns), in the dtype of ``nodes``:
+    node positions relative to the centre of mass (m), node velocities (m/s), controls (m or
+    N/m), contact flags (1 touching, 0 not), goal direction, centre-of-mass height (m), cable
+    speeds (m/s; ns = 0 without the motor model).
+
+    ``nodes`` / ``node_vel`` (B, n, 3); ``com`` (B, 3); ``ctrl`` (B, na); ``active`` (B, nc) bool;
+    ``goal`` (B, 2); ``speed`` (B, ns)."""
+    B = nodes.shape[0]
+    flags = active.astype(nodes.dtype) if isinstance(active, np.ndarray) else active.to(nodes.dtype)
+    return _concat([(nodes - com[:, None, :]).reshape(B, -1), node_vel.reshape(B, -1), ctrl, flags, goal,
+                    com[:, 2:3], speed])

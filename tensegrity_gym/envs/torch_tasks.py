@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import torch_backend as tb
 from .roll import RollTask
-from .roll_terms import roll_step_terms
+from .roll_terms import roll_state_observation, roll_step_terms
 from .shape import ShapeTask
 from .torch_shell import TorchTaskVectorEnv
 
@@ -114,16 +114,11 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
                 "distance_rolled": com.new_zeros(r), "goal_direction": goal.clone()}
 
     def _observe(self):
-        torch = tb._torch()
         if self._sens is not None:
             return self._sens.observation()
         q, qd = self.q, self.qd
-        B = q.shape[0]
-        com = self._com(q)
-        Np = tb.node_positions(self.tm, q, self._node_prm) - com[:, None, :]
-        V = tb.node_velocities(self.tm, qd)
-        return torch.cat([Np.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.active.to(self.dtype),
-                          self.goal, com[:, 2:3], self.speed], dim=1)
+        return roll_state_observation(tb.node_positions(self.tm, q, self._node_prm), tb.node_velocities(self.tm, qd),
+                                      self._com(q), self.ctrl, self.active, self.goal, self.speed)
 
     def _act(self, action):
         """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
