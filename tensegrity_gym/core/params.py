@@ -41,22 +41,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .param_table import params_fields
 from .structure import mass_moments
 
 __all__ = ["Params", "default_params", "PARAM_FIELDS"]
 
 #: field -> (what its second axis counts, unit, constraint) for validation and messages
-PARAM_FIELDS: dict[str, tuple[str, str, str]] = {
-    "mass": ("rod", "kg", "positive"),
-    "f": ("rod", "kg m", "finite"),
-    "J": ("rod", "kg m^2", "positive"),
-    "stiffness": ("string", "N/m", "nonnegative"),
-    "damping": ("string", "N s/m", "nonnegative"),
-    "rest_length": ("string", "m", "nonnegative"),
-    "node_damping": ("node", "N s/m", "nonnegative"),
-    "gravity": ("component", "m/s^2", "finite"),
-    "anchor_pos": ("anchor", "m", "finite"),
-}
+#: (a view of the parameter table, tensegrity_gym.core.param_table)
+PARAM_FIELDS: dict[str, tuple[str, str, str]] = params_fields()
 
 
 @dataclass(frozen=True, eq=False)

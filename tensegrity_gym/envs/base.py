@@ -10,15 +10,16 @@ import numpy as np
 from .. import dynamics as dyn
 from .. import integrators, pipeline
 from ..params import default_params
-from .domain import Domain
+from ..core.param_table import env_fields
+from .domain import Domain, physics_nominal, write_copies
 from ..checks import check_array, check_count, check_flag, check_options
 from .validate import check_positive
 
 __all__ = ["BatchedTask", "fixed_step"]
 
-#: robot parameters (envs/domain.py) that are Params fields of the physics (tensegrity_gym.params)
-_PHYSICS_FIELDS = {"rod_mass": "mass", "stiffness": "stiffness", "damping": "damping", "node_damping": "node_damping",
-                   "gravity": "gravity", "rest_length_offset": "rest_length"}
+#: robot parameters (envs/domain.py) that are Params fields of the physics (tensegrity_gym.params):
+#: a view of the parameter table (tensegrity_gym.core.param_table)
+_PHYSICS_FIELDS = env_fields("physics")
 
 
 def fixed_step(integrator: str) -> str:
@@ -102,9 +103,7 @@ class BatchedTask:
         (``start_rest_length_offset``, m: the actuated cables start at their nominal rest length
         plus this, rest-length mode). Call at the end of the task's ``__init__``."""
         model, B = self.model, self.num_envs
-        g = np.zeros(3) if model.gravity is None else np.asarray(model.gravity, float)
-        nominal = {"rod_mass": model.mass, "stiffness": model.structure.stiffness, "damping": model.structure.damping,
-                   "node_damping": model.node_damping, "gravity": g, "rest_length_offset": np.zeros(model.n_strings)}
+        nominal = physics_nominal(model)
         nominal.update(extra_nominal or {})
         self.domain = Domain(nominal, B, params, randomize)
         self.action_delay = check_count(action_delay, "action_delay", 0, "control steps")
@@ -124,35 +123,70 @@ class BatchedTask:
                 raise ValueError(f"start_rest_length_offset: actuated cable {int(act.actuated[i])} would start at "
                                  f"{start[i]:.6g} m, outside its bounds [{act.low[i]:.6g}, {act.high[i]:.6g}] m")
             self.start_control = start
-        phys_names = set(self.domain.names) & set(_PHYSICS_FIELDS)
-        if phys_names:   # Params: one row when fixed, one per copy when randomised (per-copy kernel)
-            per_copy = bool(phys_names & set(self.domain.spread))
-            self.params = default_params(model, B if per_copy else 1)
+        physics = env_fields("physics")
+        phys_names = set(self.domain.names) & set(physics)
+        # Params: one row when fixed, one per copy when randomised (per-copy kernel; P = B also when B = 1)
+        self._physics_per_copy = bool(phys_names & set(self.domain.spread))
+        if phys_names:
+            self.params = default_params(model, B if self._physics_per_copy else 1)
         if self.domain.enabled:
             self._apply_domain(np.arange(B) if self.domain.randomized else np.zeros(1, int), init=True)
 
     def _apply_domain(self, idx: np.ndarray, init: bool = False) -> None:
-        """Copies ``idx`` take the domain's current values. ``self.params`` has one row (set once,
-        at ``init``) when no physics parameter is randomised, else one per copy (set per reset)."""
-        v, model, P = self.domain.values, self.model, (0 if self.params is None else self.params.batch_size)
-        # per copy: a physics parameter is randomised (then P = B, also when B = 1)
-        per_copy = P > 0 and bool(set(self.domain.spread) & set(_PHYSICS_FIELDS))
-        if per_copy or (P == 1 and init):
-            rows = idx if per_copy else np.zeros(1, int)
-            phys = {}
-            for name, fld in _PHYSICS_FIELDS.items():
-                if name in v and fld != "rest_length":
-                    phys[fld] = v[name][rows]
-                    if fld in ("stiffness", "damping"):          # force-density-actuated strings: no elastic part
-                        phys[fld] = np.where(model.active, 0.0, phys[fld])
-            if "rest_length_offset" in v:
-                phys["rest_length"] = model.rest_length + v["rest_length_offset"][rows]
-                self.rest_offset = v["rest_length_offset"] if per_copy else v["rest_length_offset"][:1]
-            self.params = self.params.set_rows(rows, **phys) if per_copy else self.params.replace(**phys)
+        """Copies ``idx`` take the domain's current values (:func:`~tensegrity_gym.envs.domain.write_copies`).
+        ``self.params`` has one row (set once, at ``init``) when no physics parameter is
+        randomised, else one per copy (set per reset). The other containers (contact, motor
+        limits): copies ``idx`` take their own rows when anything is randomised, else every copy
+        row 0."""
+        v, B = self.domain.values, self.num_envs
+        physics = env_fields("physics")
+        phys = [name for name in v if name in physics]
+        if phys and (self._physics_per_copy or init):
+            rows = idx if self._physics_per_copy else np.zeros(1, int)
+            write_copies(self, rows, {name: v[name][rows] for name in phys})
+        rest = [name for name in v if name not in physics]
+        if rest:
+            rows, src = (idx, idx) if self.domain.randomized else (np.arange(B), np.zeros(B, int))
+            write_copies(self, rows, {name: v[name][src] for name in rest})
         self._apply_task_domain(idx)
 
+    # the per-copy containers, as write_copies writes them (the NumPy side)
+    def nominal(self, field: str) -> np.ndarray:
+        """The model's nominal value of a ``Params`` field."""
+        return getattr(self.model, field)
+
+    @property
+    def no_elastic_part(self) -> np.ndarray:
+        """(m,) bool: the force-density-actuated strings (no stiffness, no damping)."""
+        return self.model.active
+
+    @staticmethod
+    def zero_where(mask, v):
+        return np.where(mask, 0.0, v)
+
+    def write_physics(self, rows, fields: dict, offsets: dict) -> None:
+        """``Params`` rows ``rows`` (one row when not per copy) take ``fields``; ``offsets``
+        (``rest_length``) become the copies' rest-length offsets (:meth:`with_offset`)."""
+        if "rest_length" in offsets:
+            off = offsets["rest_length"]
+            if self._physics_per_copy:
+                if self.rest_offset is None:
+                    self.rest_offset = np.zeros((self.num_envs,) + off.shape[1:])
+                self.rest_offset[rows] = off
+            else:
+                self.rest_offset = off
+        if fields:
+            self.params = (self.params.set_rows(rows, **fields) if self._physics_per_copy
+                           else self.params.replace(**fields))
+
+    def write_contact(self, rows, columns: dict) -> None:
+        raise ValueError(f"params / randomize: {sorted(columns)}: this task has no ground contact")
+
+    def write_actuation(self, rows, fields: dict) -> None:
+        raise ValueError(f"params / randomize: {sorted(fields)}: this task has no motor limits to set per copy")
+
     def _apply_task_domain(self, idx: np.ndarray) -> None:
-        """Task-specific parameters (contact, motor limits) of copies ``idx``; see RollTask."""
+        """Task-specific values derived from the parameters of copies ``idx``; see RollTask."""
 
     def with_offset(self, inputs: dict) -> dict:
         """Physics inputs with the cables' rest-length offsets added (``rest_length_offset``)."""

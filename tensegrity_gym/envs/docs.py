@@ -124,7 +124,9 @@ ROLL_DOC = r"""
     finite one, so observations stay finite. Horizontal travel is not limited.
 
     ## Arguments
-    ``gymnasium.make("TensegrityRoll-v0", **kwargs)``:
+    ``gymnasium.make("TensegrityRoll-v0", **kwargs)``, or grouped: ``config=`` a
+    :class:`tensegrity_gym.envs.config.RollConfig` (groups robot, simulation, actuation, contact, reward, goal, observation, randomization; defaults
+    ``roll_config()``), each keyword below then replacing its field of ``config``:
 
     | argument | default | meaning |
     |----------|---------|---------|
@@ -310,7 +312,9 @@ SHAPE_DOC = r"""
     put back to the last finite one, so observations stay finite.
 
     ## Arguments
-    ``gymnasium.make("TensegrityShape-v0", **kwargs)``:
+    ``gymnasium.make("TensegrityShape-v0", **kwargs)``, or grouped: ``config=`` a
+    :class:`tensegrity_gym.envs.config.ShapeConfig` (groups robot, simulation, actuation, reward, target, observation, randomization; defaults
+    ``shape_config()``), each keyword below then replacing its field of ``config``:
 
     | argument | default | meaning |
     |----------|---------|---------|

@@ -33,37 +33,16 @@ With neither argument nothing is drawn and no per-copy code runs (defaults are b
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-__all__ = ["SPECS", "Domain"]
+from ..core.param_table import DomainSpec, domain_specs, env_params
+from ..params import default_params
 
+__all__ = ["SPECS", "Domain", "physics_nominal", "container_nominal", "write_copies"]
 
-@dataclass(frozen=True)
-class Spec:
-    per: str        # rod | string | node | vector | copy | actuated
-    unit: str
-    absolute: bool  # absolute spread (offsets) instead of relative
-
-
-SPECS: dict[str, Spec] = {
-    "rod_mass": Spec("rod", "kg", False),
-    "stiffness": Spec("string", "N/m", False),
-    "damping": Spec("string", "N s/m", False),
-    "node_damping": Spec("node", "N s/m", False),
-    "gravity": Spec("vector", "m/s^2", False),
-    "rest_length_offset": Spec("string", "m", True),
-    "friction": Spec("copy", "", False),
-    "ground_stiffness": Spec("copy", "N/m", False),
-    "ground_damping": Spec("copy", "s/m", False),
-    "max_cable_speed": Spec("actuated", "m/s", False),
-    "max_cable_acceleration": Spec("copy", "m/s^2", False),
-}
-
-
-_RULES = {"damping": "nonnegative", "node_damping": "nonnegative", "ground_damping": "nonnegative",
-          "friction": "nonnegative", "gravity": "finite", "rest_length_offset": "finite"}
+Spec = DomainSpec
+#: env parameter name -> what Domain reads of its row (a view of tensegrity_gym.core.param_table)
+SPECS: dict[str, DomainSpec] = domain_specs()
 
 
 def _number_array(value, name: str, what: str) -> np.ndarray:
@@ -85,6 +64,7 @@ class Domain:
     def __init__(self, nominal: dict[str, np.ndarray], num_envs: int, params: dict | None = None,
                  randomize: dict | None = None):
         self.num_envs = int(num_envs)
+        self.specs = SPECS = domain_specs()   # read at construction: the table's current rows
         params = {} if params is None else params
         randomize = {} if randomize is None else randomize
         for arg, d in (("params", params), ("randomize", randomize)):
@@ -106,7 +86,7 @@ class Domain:
                 raise ValueError(f"params[{name!r}]: expected a number or {nom.shape[0] if nom.ndim else 1} values "
                                  f"(one per {SPECS[name].per}), got shape {a.shape}")
             sp = SPECS[name]
-            rule = _RULES.get(name, "positive")
+            rule = sp.valid
             ok = np.isfinite(a) & {"positive": a > 0, "nonnegative": a >= 0, "finite": True}[rule]
             if not np.all(ok):
                 i = int(np.flatnonzero(~ok.reshape(-1))[0])
@@ -144,9 +124,9 @@ class Domain:
             rng = rngs[j].spawn(1)[0]   # a child stream: the task's own draws are those of fixed values
             for name, s in self.spread.items():      # sorted by name
                 base = self.base[name]
-                if SPECS[name].absolute:
+                if self.specs[name].absolute:
                     v = base + rng.uniform(-s, s, base.shape)
-                elif SPECS[name].per == "vector":
+                elif self.specs[name].one_factor:
                     v = base * rng.uniform(1.0 - s, 1.0 + s)
                 else:
                     v = base * rng.uniform(1.0 - s, 1.0 + s, base.shape)
@@ -155,3 +135,71 @@ class Domain:
     def report(self, idx: np.ndarray) -> dict[str, np.ndarray]:
         """name -> (len(idx),) + item values of copies ``idx`` (what ``info["params"]`` holds)."""
         return {name: self.values[name][idx].copy() for name in self.names}
+
+
+def physics_nominal(model) -> dict[str, np.ndarray]:
+    """Env parameter name -> nominal value of the ``"physics"`` rows of the parameter table, read
+    from the compiled ``model``: an ``"elastic"`` row the structure's own value (also on the
+    force-density-actuated strings), an ``"offset"`` row zeros, any other its ``Params`` field."""
+    from_params = None
+    out = {}
+    for name, row in env_params().items():
+        if row.group != "physics":
+            continue
+        if row.write == "elastic":
+            out[name] = getattr(model.structure, row.field)
+        elif row.write == "offset":
+            out[name] = np.zeros(np.shape(getattr(model, row.field)))
+        else:
+            if from_params is None:
+                from_params = default_params(model)
+            out[name] = getattr(from_params, row.field)[0]
+    return out
+
+
+def container_nominal(group: str, container) -> dict[str, np.ndarray]:
+    """Env parameter name -> nominal value (an array copy) of the rows of ``group`` (``"contact"``:
+    a ``GroundContact``; ``"actuation"``: an ``Actuation``), read from the container's fields;
+    a field the container does not have (None: no motor model) is not a parameter of the task."""
+    out = {}
+    for name, row in env_params().items():
+        value = getattr(container, row.field, None) if row.group == group else None
+        if value is not None:
+            out[name] = np.array(value, dtype=float)
+    return out
+
+
+def write_copies(sink, rows, values: dict) -> None:
+    """Write per-copy parameter values into their containers: the one writer of the single env,
+    the NumPy vector env and the torch vector env (host and device resets).
+
+    ``values``: env parameter name -> (len(rows), ...) values of copies ``rows`` (NumPy arrays or
+    torch tensors). Each name goes where its row of the parameter table says: a ``"physics"``
+    row into the ``Params`` field (``"elastic"``: 0 on the force-density-actuated strings;
+    ``"offset"``: the model's nominal field plus the value, the value also kept as the copies'
+    offset), a ``"contact"`` row into its contact parameter column, an ``"actuation"`` row into
+    its ``Actuation`` limit. ``sink`` holds the containers and provides ``nominal(field)``,
+    ``no_elastic_part`` (m,) bool, ``zero_where(mask, v)``, ``write_physics(rows, fields,
+    offsets)``, ``write_contact(rows, columns)`` and ``write_actuation(rows, fields)`` (each
+    dict: field -> values)."""
+    specs = env_params()
+    physics, offsets, contact, actuation = {}, {}, {}, {}
+    for name, v in values.items():
+        row = specs[name]
+        if row.group == "physics":
+            if row.write == "elastic":
+                v = sink.zero_where(sink.no_elastic_part, v)
+            elif row.write == "offset":
+                offsets[row.field] = v
+                v = sink.nominal(row.field) + v
+            physics[row.field] = v
+        elif row.group == "contact":
+            contact[row.field] = v
+        else:
+            actuation[row.field] = v
+    if physics or offsets:
+        sink.write_physics(rows, physics, offsets)
+    if contact:
+        sink.write_contact(rows, contact)
+    if actuation:
+        sink.write_actuation(rows, actuation)

@@ -14,12 +14,15 @@ import numpy as np
 from .. import contact as gc
 from .. import dynamics as dyn
 from .. import integrators
-from ..rewards import quadratic_cost
 from ..actuation import Actuation
 from ..checks import check_array, check_flag
+from ..core.param_table import contact_arguments, env_fields
 from .base import BatchedTask, fixed_step
+from .config import RollConfig, flat_signature, roll_config, with_flat
+from .domain import container_nominal
 from .docs import ROLL_DOC as _DOC
 from .roll_obs import RollObservation
+from .roll_terms import roll_step_terms
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
                          STRING_DAMPING, load_robot, place_on_ground, put_on_ground, robot_icosahedron,
                          robot_prism, settle)
@@ -33,12 +36,12 @@ __all__ = ["RollTask", "TensegrityRollEnv", "TensegrityRollVectorEnv", "robot_pr
 ENV_ID = "TensegrityRoll-v0"
 
 
-#: GroundContact field -> this task's argument (for error messages)
-_CONTACT_ARGS = {"stiffness": "ground_stiffness", "damping": "ground_damping", "radius": "cap_radius",
-                 "max_damping": "ground_max_damping"}
+#: GroundContact field -> this task's argument (for error messages; a view of the parameter table)
+_CONTACT_ARGS = contact_arguments()
 
 #: randomised contact parameter (envs/domain.py name) -> its column of the per-copy contact array
-CONTACT_DOMAIN = {"friction": "friction", "ground_stiffness": "stiffness", "ground_damping": "damping"}
+#: (a view of the parameter table, tensegrity_gym.core.param_table)
+CONTACT_DOMAIN = env_fields("contact")
 
 
 class RollTask(RollObservation, BatchedTask):
@@ -51,21 +54,27 @@ class RollTask(RollObservation, BatchedTask):
     ``goal`` (B, 2) unit goal direction in the ground plane; ``start`` (B, 3) centre of mass at reset, m.
     """
 
-    def __init__(self, num_envs: int = 1, structure="prism", action_mode: str = "rest_length", actuated=None,
-                 integrator: str = "semi_implicit_euler", dt: float = 1e-3, frame_skip: int = 20,
-                 string_damping: float | None = STRING_DAMPING,
-                 forward_reward_weight: float = 1.0, ctrl_cost_weight: float = 0.01,
-                 goal_direction=(1.0, 0.0), randomize_goal: bool = False, reset_noise_scale: float = 1e-3,
-                 max_cable_speed: float = 0.2, max_cable_acceleration: float | None = MAX_CABLE_ACCELERATION,
-                 rest_length_bounds=(0.5, 1.1),
-                 force_density_max: float | None = None, force_density_rate: float | None = None,
-                 friction: float = 1.0, ground_stiffness: float = 1e4, ground_damping: float = 10.0,
-                 tangential_stiffness: float | None = None, tangential_damping: float = 10.0,
-                 cap_radius: float = 0.02, ground_max_damping: float | None = None, backend: str = "auto",
-                 divergence_limit: float | None = None, clip_actions: bool = True,
-                 params: dict | None = None, randomize: dict | None = None, action_delay: int = 0,
-                 start_rest_length_offset=None, observation_mode: str = "state", sensor_noise: dict | None = None,
-                 history: int = 1, allow_unstable_dt: bool = False):
+    def __init__(self, num_envs: int = 1, config: RollConfig | None = None, **kwargs):
+        self.config = c = with_flat(config, kwargs, "RollTask.__init__", RollConfig)
+        structure, string_damping = c.robot.structure, c.robot.string_damping
+        integrator, dt, frame_skip = c.simulation.integrator, c.simulation.dt, c.simulation.frame_skip
+        backend, divergence_limit = c.simulation.backend, c.simulation.divergence_limit
+        allow_unstable_dt = c.simulation.allow_unstable_dt
+        a = c.actuation
+        action_mode, actuated, max_cable_speed = a.action_mode, a.actuated, a.max_cable_speed
+        max_cable_acceleration, rest_length_bounds = a.max_cable_acceleration, a.rest_length_bounds
+        force_density_max, force_density_rate, clip_actions = a.force_density_max, a.force_density_rate, a.clip_actions
+        action_delay, start_rest_length_offset = a.action_delay, a.start_rest_length_offset
+        g = c.contact
+        friction, ground_stiffness, ground_damping = g.friction, g.ground_stiffness, g.ground_damping
+        tangential_stiffness, tangential_damping = g.tangential_stiffness, g.tangential_damping
+        cap_radius, ground_max_damping = g.cap_radius, g.ground_max_damping
+        forward_reward_weight, ctrl_cost_weight = c.reward.forward_reward_weight, c.reward.ctrl_cost_weight
+        goal_direction, randomize_goal = c.goal.goal_direction, c.goal.randomize_goal
+        observation_mode, sensor_noise, history = (c.observation.observation_mode, c.observation.sensor_noise,
+                                                   c.observation.history)
+        reset_noise_scale, params, randomize = (c.randomization.reset_noise_scale, c.randomization.params,
+                                                c.randomization.randomize)
         RobotSensors.check_mode(observation_mode, sensor_noise, history)   # before the robot is built
         allow_unstable_dt = check_flag(allow_unstable_dt, "allow_unstable_dt")
         if action_mode not in ACTION_MODES:
@@ -149,10 +158,8 @@ class RollTask(RollObservation, BatchedTask):
         self._W = np.zeros((B, n, 3))
         self._slip = np.zeros((B, self.n_contacts), bool)
         self._contact_prm = None     # (B, 9) per-copy contact parameters once any is set (domain)
-        extra = {"friction": np.array(self.contact.friction), "ground_stiffness": np.array(self.contact.stiffness),
-                 "ground_damping": np.array(self.contact.damping), "max_cable_speed": self.actuation.max_rate.copy()}
-        if self.motor:
-            extra["max_cable_acceleration"] = np.array(self.actuation.max_accel)
+        extra = container_nominal("contact", self.contact)
+        extra.update(container_nominal("actuation", self.actuation))
         self._init_domain(params, randomize, action_delay, start_rest_length_offset, extra)
         self.travels = True      # divergence: measured from each copy's own centre (it rolls away)
         limit = gc.stable_step(self.contact, model)["semi_implicit_euler"]
@@ -164,23 +171,21 @@ class RollTask(RollObservation, BatchedTask):
                 f"{ENV_ID}: dt = {self.dt:.4g} s is above the estimated stability limit {limit:.4g} s of "
                 "semi-implicit Euler with this robot's strings and ground contact"), stacklevel=3)
 
+    def write_contact(self, rows, columns: dict) -> None:
+        """Rows ``rows`` of the per-copy contact parameters take ``columns`` (field -> values)."""
+        if self._contact_prm is None:
+            self._contact_prm = self.contact.per_copy(self.num_envs)
+        for fld, values in columns.items():
+            gc.set_copy_values(self._contact_prm, rows, fld, values)
+
+    def write_actuation(self, rows, fields: dict) -> None:
+        """Copies ``rows`` take their own motor limits ``fields`` (``max_rate``, ``max_accel``)."""
+        self.actuation.set_copy_limits(self.num_envs, rows, **fields)
+
     def _apply_task_domain(self, idx) -> None:
-        """Contact, motor and mass-fraction values of copies ``idx`` (see BatchedTask._apply_domain)."""
-        v, B = self.domain.values, self.num_envs
-        # randomised: copies idx take their own rows; fixed: every copy takes row 0
-        rows, src = (idx, idx) if self.domain.randomized else (np.arange(B), np.zeros(B, int))
-        if any(n in v for n in CONTACT_DOMAIN):
-            if self._contact_prm is None:
-                self._contact_prm = self.contact.per_copy(B)
-            for name, fld in CONTACT_DOMAIN.items():
-                if name in v:
-                    gc.set_copy_values(self._contact_prm, rows, fld, v[name][src])
-        if "max_cable_speed" in v or "max_cable_acceleration" in v:
-            self.actuation.set_copy_limits(
-                B, rows, max_rate=v["max_cable_speed"][src] if "max_cable_speed" in v else None,
-                max_accel=v["max_cable_acceleration"][src] if "max_cable_acceleration" in v else None)
-        if "rod_mass" in v:
-            mass = np.broadcast_to(self.params.mass, (B, self.model.n_bars))
+        """The rods' mass fractions after the masses of copies ``idx`` changed."""
+        if "rod_mass" in self.domain.values:
+            mass = np.broadcast_to(self.params.mass, (self.num_envs, self.model.n_bars))
             self._mass_frac = mass / mass.sum(axis=1, keepdims=True)
 
     # ------------------------------------------------------------------ scene
@@ -234,19 +239,15 @@ class RollTask(RollObservation, BatchedTask):
         com0 = self._com(self.q)
         diverged = self.simulate(action)
         com = self._com(self.q)
-        vel = (com - com0) / self.control_dt
-        forward = np.einsum("bi,bi->b", vel[:, :2], self.goal)
-        terms = {"forward": self.forward_reward_weight * forward,
-                 "ctrl": -self.ctrl_cost_weight * quadratic_cost(action)}
-        dist = np.einsum("bi,bi->b", (com - self.start)[:, :2], self.goal)
+        terms, infos = roll_step_terms(com0, com, self.start, self.goal, action, self.control_dt,
+                                       self.forward_reward_weight, self.ctrl_cost_weight)
         if self.record_path:   # centre-of-mass path for render(), last MAX_PATH points per env
             for i in range(self.num_envs):
                 p = self.paths.setdefault(i, [])
                 p.append(com[i].copy())
                 if len(p) > MAX_PATH:
                     del p[: len(p) - MAX_PATH]
-        infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward,
-                 "diverged": diverged}
+        infos["diverged"] = diverged
         if self.sensors is not None:
             frame = self.sensors.frame(self.q, self.qd, self._qd_prev, self.dt, self._gravity(slice(None)), self.ctrl,
                                        self.speed, self.cstate.active, self.goal, self._sensor_rngs)
@@ -276,6 +277,9 @@ class RollTask(RollObservation, BatchedTask):
                 "path": path, "goal": goal,
                 "caption": f"t = {self.elapsed[i] * self.control_dt:.2f} s, rolled {dist:.2f} m"}
 
+
+#: the flat arguments (introspection: agents.common.env_argument_names, the shells' manuals)
+RollTask.__signature__ = flat_signature(roll_config(), RollConfig)
 
 TensegrityRollEnv = TaskEnv.for_task(RollTask, ENV_ID, _DOC, __name__)
 TensegrityRollVectorEnv = TaskVectorEnv.for_task(RollTask, ENV_ID, _DOC + r"""

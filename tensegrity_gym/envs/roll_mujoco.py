@@ -89,6 +89,7 @@ from ..mjcf import check_mj_integrator, initial_qpos_qvel, to_mjcf
 from ..rewards import quadratic_cost
 from ..checks import check_frame_size
 from .common import check_action, check_positive
+from .config import RollConfig, flatten, with_flat
 from .roll import MAX_PATH, SETTLE_TIME, RollTask
 from .twin_params import TwinParams, check_twin_kwargs, contact_timeconst
 
@@ -121,6 +122,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         except ImportError:
             raise ImportError(f"{ENV_ID} needs MuJoCo: pip install 'tensegrity_gym[mujoco]'") from None
         self._mj = mujoco
+        # the task's arguments, flat (a grouped config= and flat keywords alike), checked below
+        kwargs = flatten(with_flat(kwargs.pop("config", None), kwargs, "RollTask.__init__", RollConfig))
         for name in _UNSUPPORTED:
             if kwargs.get(name) is not None:
                 raise ValueError(f"{name}: not supported by {ENV_ID}")

@@ -11,6 +11,7 @@ from ..core.builders import (GRAVITY, ICO_LENGTH, ICO_PRESTRESS, PRISM_HEIGHT, P
 from .. import contact as gc
 from .. import dynamics as dyn
 from ..structure import Structure
+from .validate import load_env_structure
 
 __all__ = ["robot_prism", "robot_icosahedron", "place_on_ground", "put_on_ground", "settle", "load_robot",
            "GRAVITY"]
@@ -89,7 +90,6 @@ def load_robot(structure, string_damping):
     if isinstance(structure, str) and structure in ("icosahedron", "icosahedron_robot"):
         s = robot_icosahedron(STRING_DAMPING if string_damping is None else string_damping)
         return s, None
-    from .validate import load_env_structure
     s = load_env_structure(structure)
     if s.node_constraints or s.anchors.size:
         raise ValueError(f"structure {s.name!r}: the roll task needs a free structure (no node constraints, "

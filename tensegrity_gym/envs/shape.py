@@ -15,24 +15,22 @@ from ..checks import check_flag
 from ..rewards import quadratic_cost, tolerance
 from . import compiled
 from .base import BatchedTask, fixed_step
+from .config import (DEFAULT_SHAPE_NODE_DAMPING, DEFAULT_SHAPE_STRING_DAMPING, ShapeConfig, flat_signature,
+                     shape_config, with_flat)
 from .docs import SHAPE_DOC as _DOC
 from .shape_fused import FusedShapeStep
 from .sensors import RobotSensors
 from .shells import TaskEnv, TaskVectorEnv
-from .validate import ACTION_MODES, check_positive, check_rest_length_bounds, check_stable_dt, resolve_actuated
+from .validate import (ACTION_MODES, check_positive, check_rest_length_bounds, check_stable_dt, load_env_structure,
+                       resolve_actuated)
 
 __all__ = ["ShapeTask", "TensegrityShapeEnv", "TensegrityShapeVectorEnv", "DEFAULT_STRING_DAMPING",
            "DEFAULT_NODE_DAMPING"]
 
 ENV_ID = "TensegrityShape-v0"
-DEFAULT_STRING_DAMPING = 5.0   # N s/m per string
-DEFAULT_NODE_DAMPING = 2.0     # N s/m per rod node (viscous drag / joint friction)
+DEFAULT_STRING_DAMPING = DEFAULT_SHAPE_STRING_DAMPING   # N s/m per string
+DEFAULT_NODE_DAMPING = DEFAULT_SHAPE_NODE_DAMPING       # N s/m per rod node (viscous drag / joint friction)
 MAX_TARGET_TRIES = 50
-
-
-def _load(structure):
-    from .validate import load_env_structure
-    return load_env_structure(structure)
 
 
 class ShapeTask(FusedShapeStep, BatchedTask):
@@ -42,20 +40,25 @@ class ShapeTask(FusedShapeStep, BatchedTask):
     (N/m) of the actuated strings; ``target`` (B, nt, 3) target positions of the tracked nodes, m.
     """
 
-    def __init__(self, num_envs: int = 1, structure="constrained_prism", action_mode: str = "rest_length",
-                 actuated=None, integrator: str = "semi_implicit_euler", dt: float = 1e-3, frame_skip: int = 20,
-                 string_damping: float | None = DEFAULT_STRING_DAMPING,
-                 node_damping: float = DEFAULT_NODE_DAMPING,
-                 tracking_weight: float = 10.0, proximity_weight: float = 1.0, ctrl_cost_weight: float = 0.01,
-                 success_tolerance: float | None = None, reset_noise_scale: float = 5e-3,
-                 target_range: float = 0.1, rest_length_bounds=(0.8, 1.1), max_speed: float = 0.1,
-                 force_density_max: float | None = None, force_density_rate: float | None = None,
-                 backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True,
-                 params: dict | None = None, randomize: dict | None = None, action_delay: int = 0,
-                 start_rest_length_offset=None, allow_unstable_dt: bool = False, observation_mode: str = "state",
-                 sensor_noise: dict | None = None, history: int = 1):
+    def __init__(self, num_envs: int = 1, config: ShapeConfig | None = None, **kwargs):
+        self.config = c = with_flat(config, kwargs, "ShapeTask.__init__", ShapeConfig)
+        structure, string_damping, node_damping = c.robot.structure, c.robot.string_damping, c.robot.node_damping
+        integrator, dt, frame_skip = c.simulation.integrator, c.simulation.dt, c.simulation.frame_skip
+        backend, divergence_limit = c.simulation.backend, c.simulation.divergence_limit
+        allow_unstable_dt = c.simulation.allow_unstable_dt
+        a = c.actuation
+        action_mode, actuated, rest_length_bounds, max_speed = a.action_mode, a.actuated, a.rest_length_bounds, a.max_speed
+        force_density_max, force_density_rate, clip_actions = a.force_density_max, a.force_density_rate, a.clip_actions
+        action_delay, start_rest_length_offset = a.action_delay, a.start_rest_length_offset
+        r = c.reward
+        tracking_weight, proximity_weight, ctrl_cost_weight = r.tracking_weight, r.proximity_weight, r.ctrl_cost_weight
+        success_tolerance, target_range = r.success_tolerance, c.target.target_range
+        observation_mode, sensor_noise, history = (c.observation.observation_mode, c.observation.sensor_noise,
+                                                   c.observation.history)
+        reset_noise_scale, params, randomize = (c.randomization.reset_noise_scale, c.randomization.params,
+                                                c.randomization.randomize)
         allow_unstable_dt = check_flag(allow_unstable_dt, "allow_unstable_dt")
-        s = _load(structure)
+        s = load_env_structure(structure)
         if not s.node_constraints and s.anchors.size == 0:
             raise ValueError(f"structure {s.name!r}: the shape task needs an anchored structure (node_constraints "
                              "or fixed anchor nodes); a free structure has no unique shape under gravity")
@@ -325,6 +328,9 @@ class ShapeTask(FusedShapeStep, BatchedTask):
             i += n
         return out
 
+
+#: the flat arguments (introspection: agents.common.env_argument_names, the shells' manuals)
+ShapeTask.__signature__ = flat_signature(shape_config(), ShapeConfig)
 
 TensegrityShapeEnv = TaskEnv.for_task(ShapeTask, ENV_ID, _DOC, __name__)
 TensegrityShapeVectorEnv = TaskVectorEnv.for_task(ShapeTask, ENV_ID, _DOC + r"""

@@ -28,15 +28,16 @@ reset rows; its random numbers come from :class:`CounterStreams`:
 :class:`TorchDomain` is the device side of :class:`~tensegrity_gym.envs.domain.Domain`: the
 randomised parameter values of the reset envs drawn from the uniforms and written into the env's
 per-copy tensors (the physics ``Params`` rows, the cables' rest-length offsets, the contact
-parameters, the motor limits, the rods' mass fractions), as ``BatchedTask._apply_domain`` and the
-task's ``_apply_task_domain`` do on the host.
+parameters, the motor limits, the rods' mass fractions) by the host's writer,
+:func:`~tensegrity_gym.envs.domain.write_copies`, with the device tensors as its sink.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .. import torch_backend as tb
-from .domain import SPECS
+from ..core.param_table import contact_columns
+from .domain import write_copies
 from .shells import per_env_seeds
 
 __all__ = ["CounterStreams", "TorchDomain", "reference_uniforms", "RESET_SAMPLING", "SALTS"]
@@ -181,8 +182,9 @@ class TorchDomain:
                      for name in dom.spread}
         self.layout = []
         start = 0
+        self.specs = dom.specs
         for name, s in dom.spread.items():          # sorted by name (Domain)
-            count = 1 if SPECS[name].per == "vector" else int(self.base[name].numel())
+            count = 1 if self.specs[name].one_factor else int(self.base[name].numel())
             self.layout.append((name, float(s), start, count))
             start += count
         self.size = start
@@ -199,11 +201,12 @@ class TorchDomain:
         for name, s, start, count in self.layout:
             base = self.base[name]
             x = u[:, start:start + count]
-            lo, hi = (-s, s) if SPECS[name].absolute else (1.0 - s, 1.0 + s)
+            absolute = self.specs[name].absolute
+            lo, hi = (-s, s) if absolute else (1.0 - s, 1.0 + s)
             x = lo + (hi - lo) * x                  # U(lo, hi) as NumPy's Generator.uniform computes it
-            if SPECS[name].absolute:
+            if absolute:
                 v = base + x.reshape((r,) + tuple(base.shape))
-            elif SPECS[name].per == "vector":
+            elif self.specs[name].one_factor:
                 v = base * x
             else:
                 v = base * x.reshape((r,) + tuple(base.shape))
@@ -212,39 +215,56 @@ class TorchDomain:
         return out
 
     def apply(self, it, vals: dict) -> None:
-        """Envs ``it`` take the drawn ``vals`` in the env's per-copy tensors (as
-        ``BatchedTask._apply_domain`` and ``RollTask._apply_task_domain`` on the host)."""
+        """Envs ``it`` take the drawn ``vals`` in the env's per-copy tensors
+        (:func:`~tensegrity_gym.envs.domain.write_copies`, the host's writer, with this object
+        as the sink)."""
+        write_copies(self, it, vals)
+
+    # the per-copy tensors, as write_copies writes them (the device side)
+    def nominal(self, field: str):
+        """The model's nominal value of a ``Params`` field (float64 on the device)."""
+        if field != "rest_length":
+            raise ValueError(f"{field}: no nominal value to offset on the device")
+        return self._rest0
+
+    @property
+    def no_elastic_part(self):
+        return self._elastic_off
+
+    @staticmethod
+    def zero_where(mask, v):
         torch = tb._torch()
+        return torch.where(mask, torch.zeros_like(v), v)
+
+    def write_physics(self, it, fields: dict, offsets: dict) -> None:
         env = self.env
-        from .base import _PHYSICS_FIELDS
-        from .roll import CONTACT_DOMAIN
-        from ..contact import PRM_FIELDS
-        T = lambda x: x.to(env.dtype)   # noqa: E731
         prm = env._params
-        for name, v in vals.items():
-            fld = _PHYSICS_FIELDS.get(name)
-            if fld == "rest_length":
-                prm["rest_length"][it] = T(self._rest0 + v)
-                env._rest_offset[it] = T(v)
-            elif fld is not None:
-                if fld not in prm:            # a node drag the model lacks: its nominal (0) stays 0
-                    continue
-                if fld in ("stiffness", "damping"):
-                    v = torch.where(self._elastic_off, torch.zeros_like(v), v)
-                prm[fld][it] = T(v)
-                if fld == "mass":
-                    f, J = tb.mass_moments(env.tm, T(v))
-                    prm["f"][it], prm["J"][it] = f, J
-                    env._mass_frac[it] = T(v / v.sum(dim=1, keepdim=True))
-            elif name in CONTACT_DOMAIN:
-                env._contact_prm[it, PRM_FIELDS.index(CONTACT_DOMAIN[name])] = T(v)
-            elif name == "max_cable_speed":
-                env._max_rate[it] = T(v)
-            elif name == "max_cable_acceleration":
-                env._max_accel[it, 0] = T(v)
-            else:   # a name SPECS knows but this env does not apply: refuse rather than ignore
-                raise ValueError(f"randomize[{name!r}]: not supported with reset_sampling='device' by "
-                                 f"{type(env).__name__}")
+        for fld, v in fields.items():
+            if fld not in prm:            # a node drag the model lacks: its nominal (0) stays 0
+                continue
+            prm[fld][it] = v.to(env.dtype)
+            if fld == "mass":
+                f, J = tb.mass_moments(env.tm, v.to(env.dtype))
+                prm["f"][it], prm["J"][it] = f, J
+                env._mass_frac[it] = (v / v.sum(dim=1, keepdim=True)).to(env.dtype)
+        if "rest_length" in offsets:
+            env._rest_offset[it] = offsets["rest_length"].to(env.dtype)
+
+    def write_contact(self, it, columns: dict) -> None:
+        cols = contact_columns()
+        for fld, v in columns.items():
+            self.env._contact_prm[it, cols.index(fld)] = v.to(self.env.dtype)
+
+    def write_actuation(self, it, fields: dict) -> None:
+        env = self.env
+        for fld, v in fields.items():
+            if fld == "max_rate":
+                env._max_rate[it] = v.to(env.dtype)
+            elif fld == "max_accel":
+                env._max_accel[it, 0] = v.to(env.dtype)
+            else:   # a limit this env does not hold: refuse rather than ignore
+                raise ValueError(f"randomize: actuation limit {fld!r} not supported with reset_sampling='device' "
+                                 f"by {type(env).__name__}")
 
     def report(self, it) -> dict:
         """name -> (r, ...) values of envs ``it`` in the env's dtype (``info["params"]``)."""

@@ -56,7 +56,7 @@ class TorchSensors:
     """Readings (history x frame, newest first) of a torch vector env's robot observation.
 
     ``sens``: the host task's :class:`~tensegrity_gym.envs.sensors.RobotSensors`; ``env``: the
-    :class:`~tensegrity_gym.envs.torch_vec._TorchTaskVectorEnv` (device, dtype, model)."""
+    :class:`~tensegrity_gym.envs.torch_shell.TorchTaskVectorEnv` (device, dtype, model)."""
 
     def __init__(self, sens, env):
         torch = tb._torch()

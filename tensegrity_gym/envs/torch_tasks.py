@@ -1,4 +1,4 @@
-"""The two device-resident task envs on :class:`~tensegrity_gym.envs.torch_vec._TorchTaskVectorEnv`:
+"""The two device-resident task envs on :class:`~tensegrity_gym.envs.torch_shell.TorchTaskVectorEnv`:
 the rolling robot (``TensegrityRoll-v0``) and shape tracking (``TensegrityShape-v0``) with
 ``backend="torch"`` (see :mod:`tensegrity_gym.envs.torch_vec` for what runs where)."""
 from __future__ import annotations
@@ -8,19 +8,21 @@ import math
 import numpy as np
 
 from .. import torch_backend as tb
-from .torch_vec import _TorchTaskVectorEnv
+from .roll import RollTask
+from .roll_terms import roll_state_observation, roll_step_terms
+from .shape import ShapeTask
+from .torch_shell import TorchTaskVectorEnv
 
 __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv"]
 
 
-class TorchRollVectorEnv(_TorchTaskVectorEnv):
+class TorchRollVectorEnv(TorchTaskVectorEnv):
     """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc)."""
 
     ENV_ID = "TensegrityRoll-v0"
     DEVICE_RESET = True
 
     def _make_task(self, num_envs, kwargs):
-        from .roll import RollTask
         return RollTask(num_envs=num_envs, **kwargs)
 
     def _init_state(self):
@@ -112,16 +114,11 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
                 "distance_rolled": com.new_zeros(r), "goal_direction": goal.clone()}
 
     def _observe(self):
-        torch = tb._torch()
         if self._sens is not None:
             return self._sens.observation()
         q, qd = self.q, self.qd
-        B = q.shape[0]
-        com = self._com(q)
-        Np = tb.node_positions(self.tm, q, self._node_prm) - com[:, None, :]
-        V = tb.node_velocities(self.tm, qd)
-        return torch.cat([Np.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.active.to(self.dtype),
-                          self.goal, com[:, 2:3], self.speed], dim=1)
+        return roll_state_observation(tb.node_positions(self.tm, q, self._node_prm), tb.node_velocities(self.tm, qd),
+                                      self._com(q), self.ctrl, self.active, self.goal, self.speed)
 
     def _act(self, action):
         """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
@@ -152,14 +149,9 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
             self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self.ctrl, self.speed, self.active,
                               self.goal)
         com = self._com(self.q)
-        vel = (com - com0) / task.control_dt
-        forward = vel[:, 0] * self.goal[:, 0] + vel[:, 1] * self.goal[:, 1]
-        terms = {"forward": task.forward_reward_weight * forward,
-                 "ctrl": -task.ctrl_cost_weight * (action * action).sum(dim=1)}
-        disp = com - self.start
-        dist = disp[:, 0] * self.goal[:, 0] + disp[:, 1] * self.goal[:, 1]
-        infos = {"com_position": com, "com_velocity": vel, "distance_rolled": dist, "forward_velocity": forward,
-                 "diverged": diverged}
+        terms, infos = roll_step_terms(com0, com, self.start, self.goal, action, task.control_dt,
+                                       task.forward_reward_weight, task.ctrl_cost_weight)
+        infos["diverged"] = diverged
         return terms, infos
 
 
@@ -168,7 +160,7 @@ class TorchRollVectorEnv(_TorchTaskVectorEnv):
 _GAUSS_SCALE = math.sqrt(-2.0 * math.log(0.1))
 
 
-class TorchShapeVectorEnv(_TorchTaskVectorEnv):
+class TorchShapeVectorEnv(TorchTaskVectorEnv):
     """``TensegrityShape-v0`` on N copies stepped on a torch device: the task of
     :class:`~tensegrity_gym.envs.shape.ShapeTask` (targets and initial states drawn on the host
     at reset from each env's generator; control update, physics with the model's node drag,
@@ -182,7 +174,6 @@ class TorchShapeVectorEnv(_TorchTaskVectorEnv):
                         "statics.solve_equilibria, on the host")
 
     def _make_task(self, num_envs, kwargs):
-        from .shape import ShapeTask
         return ShapeTask(num_envs=num_envs, **kwargs)
 
     def _init_state(self):

@@ -41,23 +41,25 @@ import math
 
 import numpy as np
 
+from ..core.param_table import twin_params, twin_refusals
+
 __all__ = ["TWIN_PARAMS", "NOT_REPRESENTABLE", "check_twin_kwargs", "contact_timeconst", "TwinParams"]
 
-#: robot parameters (envs/domain.py SPECS) the twin represents (module doc: the MuJoCo fields)
-TWIN_PARAMS = ("damping", "friction", "gravity", "ground_damping", "ground_stiffness", "max_cable_acceleration",
-               "max_cable_speed", "rest_length_offset", "rod_mass", "stiffness")
-NOT_REPRESENTABLE = {"node_damping": "MuJoCo damps a rod's free-joint DOFs (centre-of-mass translation, "
-                                     "body-frame rotation), not its end nodes"}
+#: robot parameters (envs/domain.py SPECS) the twin represents (module doc: the MuJoCo fields), and
+#: those it refuses, with the reason: views of the parameter table (its ``mujoco`` / ``no_mujoco``)
+TWIN_PARAMS = twin_params()
+NOT_REPRESENTABLE = twin_refusals()
 
 
 def check_twin_kwargs(kwargs: dict, env_id: str) -> None:
     """ValueError naming ``params[name]`` / ``randomize[name]`` for a parameter the twin cannot represent."""
+    refused = twin_refusals()
     for arg in ("params", "randomize"):
         d = kwargs.get(arg)
         for name in (d if isinstance(d, dict) else ()):
-            if name in NOT_REPRESENTABLE:
-                raise ValueError(f"{arg}[{name!r}]: {env_id} cannot represent it ({NOT_REPRESENTABLE[name]}); "
-                                 f"it takes {list(TWIN_PARAMS)}")
+            if name in refused:
+                raise ValueError(f"{arg}[{name!r}]: {env_id} cannot represent it ({refused[name]}); "
+                                 f"it takes {list(twin_params())}")
 
 
 def contact_timeconst(rod_mass_min: float, ground_stiffness: float, dt: float) -> float:

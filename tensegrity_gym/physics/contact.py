@@ -104,6 +104,7 @@ from ..backends.numba.contact import forces_kernel
 from ..core.checks import check_positive
 from ..core.integrators import numba_backend
 from ..core.model import Model
+from ..core.param_table import contact_columns
 from .stability import stability_limit
 
 __all__ = ["GroundContact", "ContactState", "init_contact_state", "contact_forces", "forces_inplace",
@@ -194,8 +195,7 @@ class GroundContact:
 
 
 #: columns of the (P, 9) contact parameter array (the kernels' ``prm``): SI units as in GroundContact
-PRM_FIELDS = ("height", "radius", "stiffness", "damping", "exponent", "friction", "tangential_stiffness",
-              "tangential_damping", "max_damping")
+PRM_FIELDS = contact_columns()   # a view of tensegrity_gym.core.param_table
 #: the fields that may differ per copy (the exponent is one per contact model)
 PER_COPY_FIELDS = tuple(f for f in PRM_FIELDS if f != "exponent")
 

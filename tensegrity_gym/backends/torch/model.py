@@ -8,10 +8,13 @@ import weakref
 
 import numpy as np
 
+from ...core.param_table import physics_fields
+
 __all__ = ["torch_module", "resolve_device", "resolve_dtype", "TorchModel", "torch_model", "torch_params",
            "mass_moments", "PARAM_FIELDS"]
 
-PARAM_FIELDS = ("mass", "f", "J", "stiffness", "damping", "rest_length", "node_damping", "gravity", "anchor_pos")
+#: the Params fields, in order (a view of tensegrity_gym.core.param_table)
+PARAM_FIELDS = physics_fields()
 
 
 def torch_module():

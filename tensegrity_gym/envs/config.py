@@ -1,0 +1,243 @@
+"""Grouped task configurations: frozen dataclasses, one per concern, as MuJoCo Playground's
+``default_config()`` (SI units).
+
+A task takes ``config=`` (a :class:`RollConfig` / :class:`ShapeConfig`, default
+:func:`roll_config` / :func:`shape_config`) and any of the flat keyword arguments the env ids
+document (``gymnasium.make("TensegrityRoll-v0", dt=5e-4, friction=0.8)``): each flat name is the
+field of exactly one group, and a flat argument replaces that field of ``config``::
+
+    cfg = roll_config()
+    cfg = replace(cfg, contact=replace(cfg.contact, friction=0.8))
+    env = gymnasium.make("TensegrityRoll-v0", config=cfg, dt=5e-4)
+
+The values are checked where the task uses them (errors name the flat argument). The meaning and
+unit of every field: the env's manual (``help(tensegrity_gym.envs.roll.TensegrityRollEnv)``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import inspect
+from dataclasses import dataclass
+
+from .roll_scene import MAX_CABLE_ACCELERATION, STRING_DAMPING
+
+__all__ = ["SimulationConfig", "ObservationConfig", "RandomizationConfig", "RollRobotConfig", "RollActuationConfig",
+           "ContactConfig", "RollRewardConfig", "GoalConfig", "RollConfig", "ShapeRobotConfig",
+           "ShapeActuationConfig", "ShapeRewardConfig", "TargetConfig", "ShapeConfig", "roll_config", "shape_config",
+           "flat_fields", "flatten", "with_flat", "flat_signature"]
+
+DEFAULT_SHAPE_STRING_DAMPING = 5.0   # N s/m per string
+DEFAULT_SHAPE_NODE_DAMPING = 2.0     # N s/m per rod node (viscous drag / joint friction)
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """How the physics is stepped: integrator, ``dt`` (s), ``frame_skip`` physics steps per
+    action, compute ``backend``, ``divergence_limit`` (m), ``allow_unstable_dt``."""
+
+    integrator: str = "semi_implicit_euler"
+    dt: float = 1e-3
+    frame_skip: int = 20
+    backend: str = "auto"
+    divergence_limit: float | None = None
+    allow_unstable_dt: bool = False
+
+
+@dataclass(frozen=True)
+class ObservationConfig:
+    """What the policy observes: ``observation_mode`` (``"state"`` or ``"robot"``), the robot
+    observation's ``sensor_noise`` and ``history`` frames."""
+
+    observation_mode: str = "state"
+    sensor_noise: dict | None = None
+    history: int = 1
+
+
+@dataclass(frozen=True)
+class RandomizationConfig:
+    """What is drawn or fixed per copy: the initial-state noise ``reset_noise_scale``, the robot
+    parameters ``params`` (fixed) and ``randomize`` (spreads, :mod:`tensegrity_gym.envs.domain`)."""
+
+    reset_noise_scale: float = 1e-3
+    params: dict | None = None
+    randomize: dict | None = None
+
+
+@dataclass(frozen=True)
+class RollRobotConfig:
+    """The rolling robot: ``structure`` (a built-in name, a JSON path or a Structure) and its
+    ``string_damping`` (N s/m; None: the structure's own)."""
+
+    structure: object = "prism"
+    string_damping: float | None = STRING_DAMPING
+
+
+@dataclass(frozen=True)
+class RollActuationConfig:
+    """The cables: ``action_mode``, which strings are ``actuated``, the rate and motor limits,
+    the bounds, ``clip_actions``, ``action_delay`` and the slack start."""
+
+    action_mode: str = "rest_length"
+    actuated: object = None
+    max_cable_speed: float = 0.2
+    max_cable_acceleration: float | None = MAX_CABLE_ACCELERATION
+    rest_length_bounds: tuple = (0.5, 1.1)
+    force_density_max: float | None = None
+    force_density_rate: float | None = None
+    clip_actions: bool = True
+    action_delay: int = 0
+    start_rest_length_offset: object = None
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    """Ground contact (:class:`tensegrity_gym.contact.GroundContact`; the names its rows carry in
+    :mod:`tensegrity_gym.core.param_table`)."""
+
+    friction: float = 1.0
+    ground_stiffness: float = 1e4
+    ground_damping: float = 10.0
+    tangential_stiffness: float | None = None
+    tangential_damping: float = 10.0
+    cap_radius: float = 0.02
+    ground_max_damping: float | None = None
+
+
+@dataclass(frozen=True)
+class RollRewardConfig:
+    """Reward weights: ``forward_reward_weight`` (s/m), ``ctrl_cost_weight``."""
+
+    forward_reward_weight: float = 1.0
+    ctrl_cost_weight: float = 0.01
+
+
+@dataclass(frozen=True)
+class GoalConfig:
+    """The goal: ``goal_direction`` (x, y) and ``randomize_goal`` (a uniform direction per reset)."""
+
+    goal_direction: tuple = (1.0, 0.0)
+    randomize_goal: bool = False
+
+
+@dataclass(frozen=True)
+class RollConfig:
+    """Every argument of ``TensegrityRoll-v0``'s task, grouped."""
+
+    robot: RollRobotConfig = RollRobotConfig()
+    simulation: SimulationConfig = SimulationConfig()
+    actuation: RollActuationConfig = RollActuationConfig()
+    contact: ContactConfig = ContactConfig()
+    reward: RollRewardConfig = RollRewardConfig()
+    goal: GoalConfig = GoalConfig()
+    observation: ObservationConfig = ObservationConfig()
+    randomization: RandomizationConfig = RandomizationConfig(reset_noise_scale=1e-3)
+
+
+@dataclass(frozen=True)
+class ShapeRobotConfig:
+    """The anchored structure (``structure``), its ``string_damping`` (N s/m; None: its own) and
+    ``node_damping`` (N s/m per node)."""
+
+    structure: object = "constrained_prism"
+    string_damping: float | None = DEFAULT_SHAPE_STRING_DAMPING
+    node_damping: float = DEFAULT_SHAPE_NODE_DAMPING
+
+
+@dataclass(frozen=True)
+class ShapeActuationConfig:
+    """The cables: ``action_mode``, ``actuated``, bounds, ``max_speed`` (m/s), force-density
+    limits, ``clip_actions``, ``action_delay`` and the slack start."""
+
+    action_mode: str = "rest_length"
+    actuated: object = None
+    rest_length_bounds: tuple = (0.8, 1.1)
+    max_speed: float = 0.1
+    force_density_max: float | None = None
+    force_density_rate: float | None = None
+    clip_actions: bool = True
+    action_delay: int = 0
+    start_rest_length_offset: object = None
+
+
+@dataclass(frozen=True)
+class ShapeRewardConfig:
+    """Reward weights and the success tolerance (m; None: the task's default)."""
+
+    tracking_weight: float = 10.0
+    proximity_weight: float = 1.0
+    ctrl_cost_weight: float = 0.01
+    success_tolerance: float | None = None
+
+
+@dataclass(frozen=True)
+class TargetConfig:
+    """The targets: ``target_range`` (the spread of the rest lengths the targets are drawn from)."""
+
+    target_range: float = 0.1
+
+
+@dataclass(frozen=True)
+class ShapeConfig:
+    """Every argument of ``TensegrityShape-v0``'s task, grouped."""
+
+    robot: ShapeRobotConfig = ShapeRobotConfig()
+    simulation: SimulationConfig = SimulationConfig()
+    actuation: ShapeActuationConfig = ShapeActuationConfig()
+    reward: ShapeRewardConfig = ShapeRewardConfig()
+    target: TargetConfig = TargetConfig()
+    observation: ObservationConfig = ObservationConfig()
+    randomization: RandomizationConfig = RandomizationConfig(reset_noise_scale=5e-3)
+
+
+def roll_config() -> RollConfig:
+    """The default configuration of ``TensegrityRoll-v0``'s task."""
+    return RollConfig()
+
+
+def shape_config() -> ShapeConfig:
+    """The default configuration of ``TensegrityShape-v0``'s task."""
+    return ShapeConfig()
+
+
+def flat_fields(config) -> dict[str, str]:
+    """Flat argument name -> its group in ``config`` (an instance of a grouped config)."""
+    out = {}
+    for g in dataclasses.fields(config):
+        for f in dataclasses.fields(getattr(config, g.name)):
+            out[f.name] = g.name
+    return out
+
+
+def flatten(config) -> dict:
+    """Flat argument name -> value of ``config``."""
+    return {name: getattr(getattr(config, group), name) for name, group in flat_fields(config).items()}
+
+
+def with_flat(config, kwargs: dict, owner: str, config_type=None):
+    """``config`` (None: ``config_type()``, the defaults) with the flat arguments ``kwargs``
+    replacing their fields. ValueError naming ``config`` when it is not a ``config_type``; a name
+    no group has is the TypeError Python raises for an unknown keyword argument of ``owner``."""
+    if config_type is not None:
+        if config is None:
+            config = config_type()
+        elif not isinstance(config, config_type):
+            raise ValueError(f"config: expected a {config_type.__name__} (grouped arguments, "
+                             f"tensegrity_gym.envs.config), got {config!r:.80}")
+    where = flat_fields(config)
+    changes: dict[str, dict] = {}
+    for name, value in kwargs.items():
+        if name not in where:
+            raise TypeError(f"{owner}() got an unexpected keyword argument {name!r}")
+        changes.setdefault(where[name], {})[name] = value
+    return dataclasses.replace(config, **{g: dataclasses.replace(getattr(config, g), **c) for g, c in changes.items()})
+
+
+def flat_signature(config, config_type) -> inspect.Signature:
+    """The signature ``(num_envs=1, config=None, *, <every flat argument with its default>)`` of a
+    task built from ``config`` (what introspection, e.g. ``agents.common.env_argument_names``,
+    lists as the task's arguments)."""
+    P = inspect.Parameter
+    params = [P("num_envs", P.POSITIONAL_OR_KEYWORD, default=1, annotation=int),
+              P("config", P.POSITIONAL_OR_KEYWORD, default=None, annotation=config_type | None)]
+    params += [P(name, P.KEYWORD_ONLY, default=value) for name, value in flatten(config).items()]
+    return inspect.Signature(params)

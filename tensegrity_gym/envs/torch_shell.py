@@ -1,0 +1,297 @@
+"""The device-resident vector env shell: a batched task stepped on a torch device (seeding,
+resets on the host or the device, Gymnasium vector infos, action checks, next-step autoreset).
+What runs where: :mod:`tensegrity_gym.envs.torch_vec`; the two tasks:
+:mod:`tensegrity_gym.envs.torch_tasks`. SI units."""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import gymnasium as gym
+from gymnasium import spaces
+from gymnasium.utils import seeding
+
+from .. import torch_backend as tb
+from ..checks import check_action_tensor
+from ..core.param_table import PARAMS
+from .shells import VectorSeeding, episode_limit, reseed
+from .torch_reset import RESET_SAMPLING, CounterStreams, TorchDomain
+from .torch_sensors import TorchSensors
+
+__all__ = ["TorchTaskVectorEnv"]
+
+
+class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
+    """A batched task (:class:`~tensegrity_gym.envs.common.BatchedTask`) stepped on a torch
+    device: seeding, resets on the host, Gymnasium vector infos, action checks, next-step
+    autoreset. Subclasses set ``ENV_ID`` and implement ``_make_task``, ``_init_state``,
+    ``_upload_rows``, ``_act`` and ``_observe``.
+
+    Arguments: those of the id's env plus ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``; ValueError when it does not exist),
+    ``dtype`` (``"float64"`` default or ``"float32"``; anything else is a ValueError) and
+    ``max_episode_steps`` (control steps; ``"registered"``: the id's 1000; None: no limit) and
+    ``compile`` (default False: wrap the task's physics step in ``torch.compile``; the
+    first steps then compile for tens of seconds; measured in ``docs/bench_gpu.md``) and
+    ``reset_sampling`` (``"host"`` default: resets drawn from the per-env NumPy generators, the
+    NumPy env's numbers; ``"device"``: drawn and applied on the device from per-env counter-based
+    streams, :mod:`tensegrity_gym.envs.torch_reset`; tasks with ``DEVICE_RESET``).
+    """
+
+    #: the task can reset on the device (``reset_sampling="device"``): it implements
+    #: ``_reset_draws`` and ``_device_reset_rows``
+    DEVICE_RESET = False
+    _NO_DEVICE_RESET = ""     # why not, for the error message
+
+    metadata = {"render_modes": [], "render_fps": 50, "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, max_episode_steps="registered", device=None, dtype=None,
+                 backend: str = "torch", render_mode: str | None = None, compile: bool = False,
+                 reset_sampling: str = "host", **kwargs):
+        torch = tb._torch()
+        if reset_sampling not in RESET_SAMPLING:
+            raise ValueError(f"reset_sampling: expected one of {RESET_SAMPLING}, got {reset_sampling!r}")
+        if reset_sampling == "device" and not self.DEVICE_RESET:
+            raise ValueError(f"reset_sampling: 'device' is not available for {self.ENV_ID} ({self._NO_DEVICE_RESET}); "
+                             "use reset_sampling='host'")
+        if backend != "torch":
+            raise ValueError(f"backend: {type(self).__name__} runs backend='torch', got {backend!r}")
+        if render_mode is not None:
+            raise ValueError(f"render_mode: {render_mode!r} is not supported by backend='torch' (render the "
+                             f"NumPy env: gymnasium.make({self.ENV_ID!r}, render_mode='rgb_array'))")
+        self.device = tb.resolve_device(device)
+        self.dtype = tb.resolve_dtype(dtype)
+        task = self._make_task(num_envs, kwargs)
+        tb._integrator_name(task.integrator)          # ValueError for an implicit method
+        self.task = task
+        self.num_envs = N = task.num_envs
+        self.max_episode_steps = episode_limit(max_episode_steps, self.ENV_ID)
+        self.render_mode = None
+        self.metadata = dict(self.metadata)
+        self.metadata["render_fps"] = int(round(1.0 / task.control_dt))
+        np_dtype = np.float64 if self.dtype == torch.float64 else np.float32
+        self.single_action_space = spaces.Box(-1.0, 1.0, (task.action_size,), np.float32)
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, (task.observation_size,), np_dtype)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, N)
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, N)
+        self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(N)]
+
+        dev, dt = self.device, self.dtype
+        self.tm = tb.torch_model(task.model, dev, dt)
+        self._node_prm = tb.torch_params(self.tm, None)          # model defaults (anchor positions)
+        self._init_state()
+        sens = getattr(task, "sensors", None)      # observation_mode="robot": the readings on the device
+        self._sens = None if sens is None else TorchSensors(sens, self)
+        self.elapsed = torch.zeros(N, dtype=torch.int64, device=dev)
+        self._autoreset = torch.zeros(N, dtype=torch.bool, device=dev)
+        self._queue = torch.zeros((N, task.action_delay, task.action_size), dtype=dt, device=dev)
+        if not isinstance(compile, (bool, np.bool_)):
+            raise ValueError(f"compile: expected True or False, got {compile!r}")
+        # compile: the one physics step each task repeats (with contact: contact forces + integrator step)
+        one = tb.contact_substep if getattr(task, "contact", None) is not None else tb.step_once
+        self._substep = torch.compile(one, dynamic=False) if compile else None
+        # per-copy parameters (domain): uploaded whole here, by reset rows when randomised
+        self._upload_domain(None)
+        self.reset_sampling = reset_sampling
+        self._streams = self._tdomain = None
+        if reset_sampling == "device":     # envs/torch_reset.py: per-env counter-based streams on the device
+            self._streams = CounterStreams(N, dev)
+            self._tdomain = TorchDomain(self) if task.domain.enabled else None
+
+    # ------------------------------------------------------------------ host <-> device
+    def _T(self, x):
+        torch = tb._torch()
+        return torch.as_tensor(np.array(x, dtype=float), dtype=self.dtype, device=self.device)
+
+    def _upload_domain(self, idx) -> None:
+        """Copy the host task's parameter rows to the device: all (``idx`` None) or rows ``idx``
+        (a randomised domain after a reset)."""
+        task = self.task
+        if idx is not None and not task.domain.randomized:
+            return
+        torch = tb._torch()
+        idx_t = None if idx is None else torch.as_tensor(idx, dtype=torch.int64, device=self.device)
+
+        def rows(cur, host):      # the whole array, or rows idx written into the device tensor
+            if idx_t is None or cur is None or cur.shape[0] != host.shape[0] or host.shape[0] == 1:
+                return self._T(host)
+            cur[idx_t] = self._T(host[idx])
+            return cur
+
+        def put(name, host):
+            setattr(self, name, None if host is None else rows(getattr(self, name, None), host))
+        prm = task.params
+        if prm is None:
+            self._params = None
+        else:
+            self._params = getattr(self, "_params", None) or {}
+            # the Params fields the env parameters write (and those derived from them); the node
+            # drag only where the model has one
+            fields = [r.field for r in PARAMS if r.group == "physics" and (r.randomizable or r.write == "derived")
+                      and (r.field != "node_damping" or prm.has_node_damping)]
+            for f in fields:
+                self._params[f] = rows(self._params.get(f), np.asarray(getattr(prm, f), float))
+        put("_rest_offset", None if task.rest_offset is None else np.asarray(task.rest_offset, float))
+        put("_contact_prm", getattr(task, "_contact_prm", None))
+        act = task.actuation
+        put("_max_rate", act.rate_rows)
+        put("_max_accel", None if act.accel_rows is None else np.asarray(act.accel_rows, float)[:, None])
+        if hasattr(task, "_mass_frac"):
+            mf = np.asarray(task._mass_frac, float)
+            put("_mass_frac", mf if mf.ndim == 2 else mf[None])
+
+    def _reset_envs(self, mask, options) -> dict:
+        """Reset the envs where ``mask`` (N,) bool (a device tensor) is true: drawn on the host
+        (one upload of their rows) or on the device (``reset_sampling``); infos as (N,) tensors."""
+        torch = tb._torch()
+        task = self.task
+        if self._streams is not None:
+            task.check_reset_options(options)
+            it = mask.nonzero()[:, 0]
+            self.elapsed[it] = 0          # (before the reset reading: its noise is step 0's)
+            info = self._device_reset(it)
+        else:
+            idx = np.flatnonzero(mask.cpu().numpy())
+            info = task.reset(idx, [self._rngs[i] for i in idx], options)
+            self._upload_domain(idx)
+            it = torch.as_tensor(idx, dtype=torch.int64, device=self.device)
+            self._upload_rows(it, idx)
+            if self._sens is not None:
+                self._sens.upload_reset(it, task._readings[idx])
+        self.elapsed[it] = 0
+        self._autoreset[it] = False
+        if self._queue.shape[1]:
+            self._queue[it] = 0.0
+        return self._full_info(info, it)
+
+    def _device_reset(self, it) -> dict:
+        """Reset envs ``it`` (int64 index tensor) on the device: their uniforms
+        (:class:`~tensegrity_gym.envs.torch_reset.CounterStreams`: the task's draws, then the
+        domain's), the randomised parameters applied first, then the task's rows
+        (``_device_reset_rows``); (r, ...) infos, ``params`` when the domain is set."""
+        n_task = self._reset_draws()
+        dom = self._tdomain
+        n_dom = dom.size if dom is not None else 0
+        u = self._streams.uniform(it, n_task + n_dom)
+        if n_dom:
+            dom.apply(it, dom.sample(it, u[:, n_task:]))
+        info = self._device_reset_rows(it, u[:, :n_task])
+        if dom is not None:
+            info["params"] = dom.report(it)
+        return info
+
+    def _full_info(self, info: dict, it) -> dict:
+        """(r, ...) infos of envs ``it`` (host arrays or device tensors) -> (N, ...) device
+        tensors (zeros elsewhere)."""
+        torch = tb._torch()
+        out = {}
+        for k, v in info.items():
+            if isinstance(v, dict):
+                out[k] = self._full_info(v, it)
+                continue
+            if isinstance(v, torch.Tensor):
+                t = v
+            else:
+                v = np.asarray(v)
+                t = (torch.as_tensor(v, device=self.device) if v.dtype == np.bool_ else self._T(v))
+            arr = torch.zeros((self.num_envs,) + tuple(t.shape[1:]), dtype=t.dtype, device=self.device)
+            arr[it] = t
+            out[k] = arr
+        return out
+
+    def _vector_info(self, infos: dict, mask, out: dict | None = None) -> dict:
+        """Gymnasium's vector info dict (tensors): values where ``mask``, zeros elsewhere, ``"_key"`` masks."""
+        torch = tb._torch()
+        out = {} if out is None else out
+        for k, v in infos.items():
+            if isinstance(v, dict):
+                out[k] = self._vector_info(v, mask, out.get(k))
+                out["_" + k] = mask.clone() if "_" + k not in out else out["_" + k] | mask
+                continue
+            m = mask.reshape((-1,) + (1,) * (v.ndim - 1))
+            if k in out:
+                out[k] = torch.where(m, v, out[k])
+                out["_" + k] = out["_" + k] | mask
+            else:
+                out[k] = torch.where(m, v, torch.zeros_like(v))
+                out["_" + k] = mask.clone()
+        return out
+
+    def _delayed(self, action):
+        """``action_delay`` (``BatchedTask.act``): the action given that many steps earlier."""
+        torch = tb._torch()
+        if not self._queue.shape[1]:
+            return action
+        out = self._queue[:, 0]
+        self._queue = torch.cat([self._queue[:, 1:], action[:, None]], dim=1)
+        return out
+
+    def _advance(self, fn, state):
+        """``frame_skip`` physics steps ``fn(n, *state) -> state`` (``state[1]``: the velocities);
+        with robot sensors as ``frame_skip - 1`` steps, then 1 (the same arithmetic), keeping the
+        velocities before the last physics step (what the IMUs read), as ``BatchedTask.simulate``
+        does. Returns ``(state, qd_prev)`` (``qd_prev`` None without sensors)."""
+        n = self.task.frame_skip
+        if self._sens is None:
+            return fn(n, *state), None
+        mid = fn(n - 1, *state)
+        return fn(1, *mid), mid[1]
+
+    def _physics_inputs(self):
+        """``rest_length`` / ``force_density`` (N, m) of the current controls, the cables'
+        rest-length offsets added (``BatchedTask.with_offset``)."""
+        inputs = tb.physics_inputs(self.task.actuation, self.ctrl)
+        if self._rest_offset is not None and inputs.get("rest_length") is not None:
+            inputs["rest_length"] = inputs["rest_length"] + self._rest_offset
+        return inputs
+
+    def _check_actions(self, actions):
+        """``(actions clipped to the box, any env to autoreset)`` after ONE small device -> host
+        read (:func:`tensegrity_gym.checks.check_action_tensor`)."""
+        return check_action_tensor(actions, (self.num_envs, self.task.action_size), self.device, self.dtype,
+                                   self.task.clip_actions, self._autoreset.any())
+
+    # ------------------------------------------------------------------ VectorEnv API
+    def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
+        torch = tb._torch()
+        super().reset(seed=None)
+        mask, options = self._reset_mask(options)
+        if self._streams is not None:
+            self._streams.seed(seed, mask)
+        else:
+            reseed(self._rngs, seed, mask)
+        if self._sens is not None:
+            self._sens.seed(seed, mask)
+        mask_t = torch.as_tensor(mask, device=self.device)
+        info = self._reset_envs(mask_t, options or None)
+        return self._observe(), self._vector_info(info, mask_t)
+
+    def step(self, actions):
+        torch = tb._torch()
+        a, any_reset = self._check_actions(actions)
+        reset_now = self._autoreset.clone()
+        if any_reset:
+            a = torch.where(reset_now[:, None], torch.zeros_like(a), a)
+        terms, infos = self._act(a)
+        reward = None
+        for v in terms.values():                      # rewards.combine: the terms in order
+            reward = v if reward is None else reward + v
+        diverged = infos["diverged"]
+        terminated = torch.zeros_like(diverged)      # neither task terminates
+        truncated = diverged.clone()
+        if self.max_episode_steps is not None:
+            truncated = truncated | (self.elapsed >= self.max_episode_steps)
+        all_infos = dict(infos)
+        for name, v in terms.items():
+            all_infos[f"reward_{name}"] = v
+        out = self._vector_info(all_infos, ~reset_now)
+        if any_reset:
+            rinfo = self._reset_envs(reset_now, None)
+            self._vector_info(rinfo, reset_now, out)
+            reward = torch.where(reset_now, torch.zeros_like(reward), reward)
+            terminated = terminated & ~reset_now
+            truncated = truncated & ~reset_now
+        self._autoreset = terminated | truncated
+        return self._observe(), reward, terminated, truncated, out
+
+    def close_extras(self, **kwargs):
+        pass
