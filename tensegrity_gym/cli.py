@@ -218,6 +218,7 @@ def _positive(kind):
 
 _non_negative = _number(float, "a number", lambda v: np.isfinite(v) and v >= 0, "must be >= 0 and finite")
 _seed = _number(int, "an integer", lambda v: v >= 0, "must be >= 0")
+_port = _number(int, "an integer", lambda v: 0 <= v <= 65535, "must be a TCP port in 0..65535 (0: any free port)")
 
 
 def _n_steps(duration: float, dt: float, args) -> int:
@@ -781,7 +782,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     vp.add_argument("--structure", default=None, help="the simulated structure: strings coloured by tension")
     vp.add_argument("--mode", default="auto", choices=["auto", "window", "browser"],
                     help="window (needs a display), browser (viser web view) or auto")
-    vp.add_argument("--port", type=int, default=8080, help="browser mode: port of the web viewer")
+    vp.add_argument("--port", type=_port, default=8080, help="browser mode: TCP port of the web viewer (0..65535; 0: any free port)")
     limits(vp)
     vp.set_defaults(func=cmd_view)
     return p

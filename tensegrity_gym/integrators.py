@@ -66,7 +66,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from .dynamics import Model, State
-from .checks import check_finite, is_integer
+from .checks import check_finite, check_unit_axes, is_integer
 from .params import check_params
 from . import _kernels as _KERNELS   # numba is a required dependency: no fallback when it is missing
 
@@ -390,6 +390,7 @@ def _check_inputs(state, n_steps, external) -> int:
     if not _finite_state(state.q, state.qd):
         check_finite(np.asarray(state.q), "state.q")
         check_finite(np.asarray(state.qd), "state.qd")
+    check_unit_axes(state.q, "state.q", 1e-3)
     if external is not None and not callable(external):
         check_finite(np.asarray(external, dtype=float), "external")
     return int(n_steps)

@@ -48,6 +48,8 @@ import warnings
 
 import numpy as np
 
+from .hardening_checks import close_after_error
+
 __all__ = ["Renderer", "MujocoRenderer", "RendererUnavailable", "make_renderer", "render_frame", "write_video",
            "view_trajectory", "BrowserViewer", "WindowViewer",
            "gl_backend"]
@@ -577,12 +579,17 @@ def write_video(path, structure, nodes, tensions=None, times=None, *, fps: float
         kw = {"fps": fps} if suffix != ".gif" else {"duration": 1000.0 / fps, "loop": 0}
         if suffix == ".mp4":
             kw.update(codec="libx264", quality=7, macro_block_size=8)
-        with imageio.get_writer(tmp, **kw) as w:
+        w = imageio.get_writer(tmp, **kw)
+        try:
             for i in idx:
                 cap = None if times is None else f"t = {times[i]:.2f} s"
                 T = None if tensions is None else tensions[i]
                 w.append_data(r.render(nodes[i], structure.bars, structure.strings, T, ground_z=ground_z,
                                        caption=cap, tension_max=tmax))
+        except BaseException:
+            close_after_error(w)   # the writer's own error on close (ffmpeg's pipe) would hide this one
+            raise
+        w.close()
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
@@ -801,6 +808,9 @@ def view_trajectory(structure, nodes, tensions=None, times=None, *, mode: str = 
         interactive = "agg" not in matplotlib.get_backend().lower()
         mode = "window" if _has_display() and interactive else "browser"
     if mode == "window":
+        if not _has_display():   # a window on a headless machine would show nothing and return at once
+            raise RendererUnavailable("mode 'window': no display (DISPLAY / WAYLAND_DISPLAY unset); use mode "
+                                      "'browser' (the web viewer works headless)")
         v = WindowViewer(structure, nodes, tensions, times, **kw)
     else:
         v = BrowserViewer(structure, nodes, tensions, times, **kw)

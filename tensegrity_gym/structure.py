@@ -50,6 +50,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .checks import read_bounded
+
 __all__ = ["Structure", "StructureError", "mass_moments", "load_json", "save_json", "from_dict",
            "SCHEMA_PATH", "schema", "validate_dict", "MIN_STABLE_STEP", "MAX_FILE_BYTES"]
 
@@ -825,11 +827,9 @@ def load_json(path: str | Path) -> Structure:
     if path.is_dir():
         raise StructureError(f"{path}: is a directory, not a structure file")
     try:
-        size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise StructureError(f"{path}: {size / 2**20:.0f} MiB is larger than the {MAX_FILE_BYTES / 2**20:.0f} "
-                                 "MiB a structure file may have")
-        raw = path.read_bytes()
+        raw = read_bounded(path, MAX_FILE_BYTES, "structure file", binary=True)
+    except ValueError as e:
+        raise StructureError(str(e)) from None
     except PermissionError as e:
         raise StructureError(f"{path}: cannot be read ({e.strerror})") from None
     except IsADirectoryError:

@@ -76,7 +76,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import dynamics as dyn
-from .checks import load_npz
+from .checks import check_real, load_npz, read_bounded
 from .dynamics import Model, State
 from .integrators import resolve, step
 from .params import Params, default_params
@@ -87,6 +87,8 @@ __all__ = ["identify", "SysIdResult", "SysIdWarning", "FITTABLE", "load_csv", "l
 #: fittable field -> what its items are (positive quantities, fitted in log space)
 FITTABLE = {"stiffness": "string", "damping": "string", "mass": "rod", "node_damping": "node"}
 _ALIASES = {"rod_mass": "mass", "bar_mass": "mass"}
+#: largest trajectory CSV read, bytes (counted while reading: a device or FIFO reports no size)
+MAX_CSV_BYTES = 1 << 30
 _UNITS = {"stiffness": "N/m", "damping": "N s/m", "mass": "kg", "node_damping": "N s/m"}
 
 _EPS_THETA = 1e-6      # FD step in log space (relative change of a parameter)
@@ -760,6 +762,8 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     """
     from scipy.optimize import least_squares
     t0 = time.perf_counter()
+    check_real(t, "t", "sample times, s")          # before anything else: NumPy would drop the imaginary part
+    check_real(nodes, "nodes", "node positions, m")
     model = _model_of(structure_or_model)
     names, items, init, base = _parse_fit(model, fit, mode, initial)
     t, rec, mask, rl, h = _check_record(model, t, nodes, rest_length, node_mask)
@@ -926,7 +930,9 @@ def load_csv(path, n_nodes: int):
     Returns ``t`` (S,), ``nodes`` (S, n_nodes, 3) with NaN where untracked, and the mask
     (S, n_nodes). Raises ValueError naming the line for bad rows."""
     import csv
-    with open(path, newline="") as fh:
+    import io
+    text = read_bounded(path, MAX_CSV_BYTES, "trajectory CSV")     # a BOM is dropped; /dev/zero, FIFOs refused
+    with io.StringIO(text, newline="") as fh:
         rd = csv.reader(fh)
         try:
             header = [h.strip().lower() for h in next(rd)]
@@ -949,7 +955,7 @@ def load_csv(path, n_nodes: int):
                 raise ValueError(f"{path}: line {ln}: cannot read {row!r} as t,node,x,y,z numbers") from None
             if not np.isfinite(tt):
                 raise ValueError(f"{path}: line {ln}: t is {row[col[0]]!r}; sample times must be finite")
-            if nd != int(nd) or not 0 <= nd < n_nodes:
+            if not np.isfinite(nd) or nd != int(nd) or not 0 <= nd < n_nodes:
                 raise ValueError(f"{path}: line {ln}: node {row[col[1]]!r} is not a node index 0..{n_nodes - 1}")
             rows.append((tt, int(nd), *xyz))
     if not rows:

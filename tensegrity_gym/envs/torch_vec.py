@@ -87,6 +87,7 @@ from gymnasium.utils import seeding
 from .. import torch_backend as tb
 from ..checks import check_action_tensor
 from .shells import VectorSeeding, episode_limit, reseed
+from ..hardening_checks import check_autoreset_mode, check_reset_called
 from .torch_reset import RESET_SAMPLING, CounterStreams, TorchDomain
 from .torch_sensors import TorchSensors
 
@@ -150,6 +151,7 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
                  backend: str = "torch", render_mode: str | None = None, compile: bool = False,
                  reset_sampling: str = "host", **kwargs):
         torch = tb._torch()
+        kwargs = check_autoreset_mode(kwargs)
         if reset_sampling not in RESET_SAMPLING:
             raise ValueError(f"reset_sampling: expected one of {RESET_SAMPLING}, got {reset_sampling!r}")
         if reset_sampling == "device" and not self.DEVICE_RESET:
@@ -364,9 +366,11 @@ class _TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             self._sens.seed(seed, mask)
         mask_t = torch.as_tensor(mask, device=self.device)
         info = self._reset_envs(mask_t, options or None)
+        self._reset_called = True
         return self._observe(), self._vector_info(info, mask_t)
 
     def step(self, actions):
+        check_reset_called(self)
         torch = tb._torch()
         a, any_reset = self._check_actions(actions)
         reset_now = self._autoreset.clone()
