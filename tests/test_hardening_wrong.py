@@ -211,8 +211,9 @@ def test_mujoco_twin_pickles():
 
 
 # ---------------------------------------------------------------- the MuJoCo twin's divergence
-def test_twin_flags_an_unstable_run():
+def test_twin_flags_an_unstable_run(tmp_path, monkeypatch):
     pytest.importorskip("mujoco")
+    monkeypatch.chdir(tmp_path)     # MuJoCo logs its warning to MUJOCO_LOG.TXT in the working folder
     env = gym.make("TensegrityRollMuJoCo-v0", params={"stiffness": 1e9}, allow_unstable_dt=True,
                    max_episode_steps=50)
     env.reset(seed=0)
