@@ -548,6 +548,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
     run_state = RunState(state_path, {
         **prev_state, "status": "starting", "pid": os.getpid(), "host": socket.gethostname(),
         "num_timesteps": int(prev_state.get("num_timesteps", 0)), "target_timesteps": n_timesteps})
+    _install_interrupt_handlers()   # a SIGTERM during start-up is recorded (status interrupted), not left "starting"
     run_state.update()
     t0 = time.time()
     env = eval_env = model = None
@@ -765,6 +766,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError) as e:   # OSError: a read-only --log-dir, ... (FileNotFound/Exists included)
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:   # Ctrl-C / SIGTERM before the first step: state.json says interrupted
+        print("interrupted during start-up (no model saved)", file=sys.stderr)
+        return interrupted_exit_code()
     state = json.loads((run_dir / "state.json").read_text())
     return interrupted_exit_code() if state.get("status") == "interrupted" else 0
 

@@ -173,3 +173,32 @@ def test_subproc_vec_env_builds_the_package_envs():
         assert obs.shape[0] == 2 and np.all(np.isfinite(obs))
     finally:
         venv.close()
+
+
+def test_sigterm_during_a_training_exits_143_and_records_it(tmp_path):
+    """A real process: SIGTERM as soon as state.json appears (start-up, or the first steps)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    run = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "agents.train", "--env", "Pendulum-v1", "-n", "1e7", "--log-dir",
+                          str(run), "--no-progress-bar", "--eval-freq", "-1", "--save-freq", "-1"],
+                         cwd=root, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.time()
+        while not (run / "state.json").exists() and time.time() - t0 < 240 and p.poll() is None:
+            time.sleep(0.02)
+        assert (run / "state.json").exists(), p.communicate()
+        p.send_signal(signal.SIGTERM)
+        out, err = p.communicate(timeout=240)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 143, (p.returncode, err[-2000:])
+    assert "Traceback" not in err, err[-2000:]
+    assert json.loads((run / "state.json").read_text())["status"] == "interrupted"
