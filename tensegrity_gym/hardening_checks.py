@@ -149,13 +149,14 @@ def check_noise_sigma(name: str, sigma, flip: bool) -> float:
 
 
 
-def check_seed_value(seed, name: str = "seed"):
-    """``seed`` if it is None or a non-negative integer (not a bool, float or string); ValueError
-    naming ``name`` otherwise (as the single env's ``reset(seed=...)``)."""
+def check_seed_value(seed, i: int = 0):
+    """``seed`` of env ``i`` as an int if it is a non-negative integer (not a bool, float or
+    string), None kept; ValueError naming the env otherwise (the vector envs' seeding rule, as the
+    single env's ``reset(seed=...)`` refuses them)."""
     if seed is None:
         return None
     if not is_integer(seed) or seed < 0:
-        raise ValueError(f"{name}: expected a non-negative integer or None, got {seed!r}")
+        raise ValueError(f"seed: env {i}: expected a non-negative int or None, got {seed!r}")
     return int(seed)
 
 

@@ -35,8 +35,8 @@ def venv():
     v.close()
 
 
-@pytest.mark.parametrize("seed, where", [([1.9, 2, 3], r"seed\[0\]: .*got 1.9"), ([1, True, 3], r"seed\[1\]: .*got True"),
-                                         ([1, 2, "7"], r"seed\[2\]: .*got '7'"), ([1, -2, 3], r"seed\[1\]")])
+@pytest.mark.parametrize("seed, where", [([1.9, 2, 3], r"seed: env 0: .*got 1.9"), ([1, True, 3], r"seed: env 1: .*got True"),
+                                         ([1, 2, "7"], r"seed: env 2: .*got '7'"), ([1, -2, 3], r"seed: env 1: .*got -2")])
 def test_vector_reset_refuses_non_integer_seeds(venv, seed, where):
     with pytest.raises(ValueError, match=where):
         venv.reset(seed=seed)

@@ -154,7 +154,7 @@ def per_env_seeds(seed, N: int) -> list:
     seeds = list(seed)
     if len(seeds) != N:
         raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {len(seeds)}")
-    return [check_seed_value(s, f"seed[{i}]") for i, s in enumerate(seeds)]
+    return [check_seed_value(s, i) for i, s in enumerate(seeds)]
 
 
 def reseed(rngs: list, seed, mask: np.ndarray) -> None:
