@@ -391,8 +391,17 @@ class RunState:
     def __init__(self, path: Path, initial: dict):
         self.path = Path(path)
         self.data = dict(initial)
+        self._clock = None
+
+    def start_clock(self, wall_before: float, t0: float) -> None:
+        """From now on every update records ``wall_time_s`` = ``wall_before`` (s, earlier segments)
+        + the time since ``t0``: a segment killed without a final update keeps its time up to
+        its last checkpoint or evaluation for ``--resume``."""
+        self._clock = (float(wall_before), float(t0))
 
     def update(self, **kw):
+        if self._clock is not None and "wall_time_s" not in kw:
+            kw["wall_time_s"] = self._clock[0] + time.time() - self._clock[1]
         self.data.update(kw)
         common.write_json(self.path, self.data)
 
@@ -687,6 +696,7 @@ def train(argv: list[str] | None = None, extra_callbacks: list | None = None, re
     run_state.data.pop("error", None)
     run_state.data.pop("traceback", None)
     run_state.data.pop("failed_before_first_step", None)
+    run_state.start_clock(float(prev_state.get("wall_time_s", 0.0)), t0)
     run_state.update(status="running", num_timesteps=int(model.num_timesteps))
     try:
         if remaining > 0:

@@ -202,3 +202,35 @@ def test_sigterm_during_a_training_exits_143_and_records_it(tmp_path):
     assert p.returncode == 143, (p.returncode, err[-2000:])
     assert "Traceback" not in err, err[-2000:]
     assert json.loads((run / "state.json").read_text())["status"] == "interrupted"
+
+
+def test_killed_segment_keeps_its_wall_time(tmp_path):
+    """kill -9 after a checkpoint: state.json holds the segment's wall time so far (``--resume``
+    adds the next segment's to it) instead of none."""
+    import glob
+    import json
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    run = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "agents.train", "--env", "Pendulum-v1", "-n", "1e7", "--log-dir",
+                          str(run), "--no-progress-bar", "--eval-freq", "-1", "--save-freq", "256",
+                          "--hyperparams", "n_steps=64", "batch_size=64", "n_epochs=1"],
+                         cwd=root, env=dict(os.environ, PYTHONPATH=str(root)), stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.time()
+        while not glob.glob(str(run / "checkpoints" / "rl_model_*_steps.zip")) and time.time() - t0 < 240:
+            assert p.poll() is None, p.communicate()
+            time.sleep(0.05)
+        time.sleep(0.5)
+        p.kill()
+        p.wait(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    state = json.loads((run / "state.json").read_text())
+    assert state["status"] == "running" and state["wall_time_s"] > 0, state
