@@ -10,7 +10,6 @@ import warnings
 
 import gymnasium as gym
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, event, given, settings, strategies as st
 
 import tensegrity_gym as tg
