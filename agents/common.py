@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import ast
 import difflib
+import functools
 import importlib
 import json
+import math
 import os
 import platform
 import re
@@ -166,6 +168,78 @@ def read_yaml(path: str | Path):
         raise ValueError(f"{path}: not valid YAML{where}: {problem}") from None
 
 
+#: keys every config.yaml written by agents.train holds
+RUN_CONFIG_KEYS = ("algo", "env", "env_kwargs", "seed", "n_envs", "n_timesteps", "hyperparams_raw",
+                   "hyperparams_resolved")
+
+
+def read_run_config(path: str | Path) -> dict:
+    """The ``config.yaml`` of a run directory as a dict; ValueError naming the file for an empty
+    file, one that is not a mapping, or one that lacks a key agents.train writes."""
+    path = Path(path)
+    cfg = read_yaml(path)
+    if not isinstance(cfg, dict):
+        raise ValueError(f"{path}: {'empty' if cfg is None else 'not a mapping of settings'}; expected the "
+                         "config.yaml agents.train writes")
+    missing = [k for k in RUN_CONFIG_KEYS if k not in cfg]
+    if missing:
+        raise ValueError(f"{path}: missing {missing}; expected the config.yaml agents.train writes")
+    if not isinstance(cfg["env_kwargs"] or {}, dict) or not isinstance(cfg["hyperparams_resolved"] or {}, dict):
+        raise ValueError(f"{path}: env_kwargs and hyperparams_resolved must be mappings")
+    return cfg
+
+
+def load_model_file(Algo, path: str | Path, **kwargs):
+    """``Algo.load(path, **kwargs)``; ValueError naming the file for a zip SB3 cannot load (a
+    damaged or foreign zip, one without ``data``, a garbage ``policy.pth``)."""
+    try:
+        return Algo.load(str(path), **kwargs)
+    except (FileNotFoundError, IsADirectoryError):
+        raise
+    except Exception as e:  # noqa: BLE001 -- SB3/torch/zipfile raise many kinds; all mean "not a model"
+        raise ValueError(f"{path}: not a loadable {Algo.__name__} model ({type(e).__name__}: "
+                         f"{' '.join(str(e).split())[:200]})") from None
+
+
+def load_vecnormalize_file(path: str | Path, venv=None):
+    """VecNormalize statistics from the pickle at ``path`` (attached to ``venv`` when given, as
+    ``VecNormalize.load``; else as pickled); ValueError naming the file for anything that is not
+    such a pickle."""
+    import pickle
+    from stable_baselines3.common.vec_env import VecNormalize
+    try:
+        if venv is not None:
+            return VecNormalize.load(str(path), venv)
+        with open(path, "rb") as f:
+            vn = pickle.load(f)
+    except (FileNotFoundError, IsADirectoryError):
+        raise
+    except Exception as e:  # noqa: BLE001 -- unpickling garbage raises many kinds
+        raise ValueError(f"{path}: not VecNormalize statistics ({type(e).__name__}: "
+                         f"{' '.join(str(e).split())[:200]})") from None
+    if not isinstance(vn, VecNormalize):
+        raise ValueError(f"{path}: holds a {type(vn).__name__}, not VecNormalize statistics")
+    return vn
+
+
+def arg_type(check, kind=float):
+    """An argparse ``type=`` from a check of this package (``check(value)`` -> value or
+    ValueError): the text is parsed by ``kind``, then checked; errors become argparse's one-line
+    usage errors (exit code 2)."""
+    import argparse
+
+    def parse(text):
+        try:
+            v = kind(text)
+        except (TypeError, ValueError, OverflowError):
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        try:
+            return check(v)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e).split(": ", 1)[-1]) from None
+    return parse
+
+
 def load_hyperparams_file(path: str | Path) -> dict:
     path = Path(path)
     if not path.exists():
@@ -235,10 +309,10 @@ def resolve_hyperparams(algo: str, hp: dict) -> dict:
         if k in hp:
             raise ValueError(f"hyperparameter {k!r} (rl-zoo wrapper/callback key) is not supported by "
                              "agents/train.py; use rl_zoo3.train for it or remove it")
-    out["n_timesteps"] = int(float(hp.pop("n_timesteps", 1e5)))
-    out["n_envs"] = int(hp.pop("n_envs", 1))
+    out["n_timesteps"] = check_hp_count(hp.pop("n_timesteps", 1e5), "n_timesteps", 1)
+    out["n_envs"] = check_hp_count(hp.pop("n_envs", 1), "n_envs", 1)
     out["policy"] = hp.pop("policy", "MlpPolicy")
-    out["env_kwargs"] = dict(hp.pop("env_kwargs", {}) or {})
+    out["env_kwargs"] = check_env_kwargs(hp.pop("env_kwargs", {}))
     norm = hp.pop("normalize", False)
     if isinstance(norm, str):
         norm = safe_literal(norm)
@@ -248,6 +322,7 @@ def resolve_hyperparams(algo: str, hp: dict) -> dict:
         norm = None
     elif not isinstance(norm, dict):
         raise ValueError(f"normalize: expected true/false or dict(...), got {norm!r}")
+    check_normalize_kwargs(norm)
     if norm is not None and "gamma" in hp and "gamma" not in norm:
         norm["gamma"] = hp["gamma"]
     out["normalize"] = norm
@@ -267,6 +342,7 @@ def resolve_hyperparams(algo: str, hp: dict) -> dict:
     for k in ("n_envs", "n_timesteps"):
         hp.pop(k, None)
     check_model_kwargs(algo, hp)
+    check_schedules_and_arch(hp)
     out["model_kwargs"] = hp
     return out
 
@@ -303,6 +379,91 @@ def check_model_kwargs(algo: str, kwargs: dict) -> None:
                              f"got {value!r}")
 
 
+def check_hp_count(value, key: str, minimum: int) -> int:
+    """A count hyperparameter (``n_timesteps``, ``n_envs``) as an int: an integer or an integral
+    number (``1e5``, ``"1e5"`` from a YAML file); ValueError naming ``--hyperparams`` and the key."""
+    from tensegrity_gym.checks import check_count
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise ValueError(f"--hyperparams: {key} must be an integer >= {minimum}, got {value!r}") from None
+    return check_count(value, f"--hyperparams: {key}", minimum)
+
+
+def check_env_kwargs(value) -> dict:
+    """``env_kwargs`` as a dict (None: empty); ValueError naming it for anything else."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ValueError(f"--hyperparams: env_kwargs must be a dict of env keyword arguments, got {value!r}")
+    return dict(value)
+
+
+def check_normalize_kwargs(norm) -> None:
+    """ValueError naming ``normalize`` and the key for a keyword SB3's ``VecNormalize`` does not
+    take, and for ``clip_obs`` / ``clip_reward`` that are not positive numbers (a clip of -1 turns
+    every observation into -1), ``epsilon`` not positive, ``gamma`` outside [0, 1]."""
+    if not norm:
+        return
+    import inspect
+    from stable_baselines3.common.vec_env import VecNormalize
+    names = [p for p in inspect.signature(VecNormalize.__init__).parameters if p not in ("self", "venv")]
+    for key, value in norm.items():
+        if key not in names:
+            raise ValueError(f"--hyperparams: normalize takes no key {key!r}{_did_you_mean(str(key), names)} "
+                             f"(VecNormalize's keywords: {names})")
+        if key in ("clip_obs", "clip_reward", "epsilon"):
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+            if not ok:
+                raise ValueError(f"--hyperparams: normalize {key} must be a positive finite number, got {value!r}")
+        if key in ("norm_obs", "norm_reward", "training") and not isinstance(value, bool):
+            raise ValueError(f"--hyperparams: normalize {key} must be true or false, got {value!r}")
+        if key == "gamma" and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                   and 0.0 <= value <= 1.0):
+            raise ValueError(f"--hyperparams: normalize gamma must be a number in [0, 1], got {value!r}")
+
+
+def check_schedules_and_arch(kwargs: dict) -> None:
+    """ValueError naming ``--hyperparams`` and the key for a ``learning_rate`` / ``clip_range`` /
+    ``clip_range_vf`` that is not positive (a number, or the start of a ``lin_`` schedule), and a
+    ``policy_kwargs`` ``net_arch`` layer that is not a positive integer (``[0]``: no layer at all)."""
+    for key in ("learning_rate", "clip_range", "clip_range_vf"):
+        if key not in kwargs or kwargs[key] is None or (callable(kwargs[key]) and not isinstance(kwargs[key],
+                                                                                                _LinearSchedule)):
+            continue
+        v = kwargs[key].initial if isinstance(kwargs[key], _LinearSchedule) else kwargs[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise ValueError(f"--hyperparams: {key} must be a positive finite number or lin_<positive number>, "
+                             f"got {v!r}")
+    pk = kwargs.get("policy_kwargs")
+    if pk is None:
+        return
+    if not isinstance(pk, dict):
+        raise ValueError(f"--hyperparams: policy_kwargs must be dict(...), got {pk!r}")
+    arch = pk.get("net_arch")
+    if arch is None:
+        return
+    layers = []
+    if isinstance(arch, dict):
+        for name, sub in arch.items():
+            layers += [(f"net_arch[{name!r}]", i, x) for i, x in enumerate(sub if isinstance(sub, (list, tuple)) else [sub])]
+    elif isinstance(arch, (list, tuple)):
+        for i, x in enumerate(arch):
+            if isinstance(x, dict):
+                for name, sub in x.items():
+                    layers += [(f"net_arch[{i}][{name!r}]", j, y)
+                               for j, y in enumerate(sub if isinstance(sub, (list, tuple)) else [sub])]
+            else:
+                layers.append(("net_arch", i, x))
+    else:
+        raise ValueError(f"--hyperparams: policy_kwargs net_arch must be a list of layer sizes, got {arch!r}")
+    for where, i, x in layers:
+        if isinstance(x, bool) or not isinstance(x, int) or x < 1:
+            raise ValueError(f"--hyperparams: policy_kwargs {where} entry {i} is {x!r}; layer sizes must be "
+                             "integers >= 1")
+
+
 def to_yaml_safe(obj):
     """Config values as plain YAML/JSON types (classes by name, schedules as lin_x)."""
     if isinstance(obj, dict):
@@ -326,6 +487,15 @@ def to_yaml_safe(obj):
 def import_env_packages(packages=("tensegrity_gym",)):
     for p in packages:
         importlib.import_module(p)
+
+
+def make_registered_env(env_id: str, **kwargs):
+    """``gymnasium.make(env_id, **kwargs)`` after importing the env packages: the env factory of
+    ``--vec-env subproc``, whose worker processes do not import ``tensegrity_gym`` otherwise (its
+    ids would be unknown there). Module level, so that it pickles."""
+    import gymnasium as gym
+    import_env_packages()
+    return gym.make(env_id, **kwargs)
 
 
 def has_vector_entry_point(env_id: str) -> bool:
@@ -444,7 +614,8 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
                                                    **env_kwargs), info_keys=tuple(info_keys))
         venv.seed(seed)
     elif vec_env in ("dummy", "subproc"):
-        venv = sb3_make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs,
+        venv = sb3_make_vec_env(functools.partial(make_registered_env, env_id), n_envs=n_envs, seed=seed,
+                                env_kwargs=env_kwargs,
                                 vec_env_cls=DummyVecEnv if vec_env == "dummy" else SubprocVecEnv)
         # make_vec_env wraps each env in Monitor already; VecMonitor below writes the csv + keywords
     else:

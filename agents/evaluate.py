@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import pickle
 import sys
 import time
 from pathlib import Path
@@ -39,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import common
+from tensegrity_gym.checks import check_count
 
 HELD_OUT_SEED = 1_000_000
 
@@ -79,8 +79,7 @@ class RandomPolicy:
 
 def load_vecnormalize(path: Path):
     """VecNormalize statistics from a pickle (no env needed: only ``normalize_obs`` is used)."""
-    with open(path, "rb") as f:
-        vn = pickle.load(f)
+    vn = common.load_vecnormalize_file(path)
     vn.training = False
     return vn
 
@@ -106,13 +105,13 @@ def resolve_model(run_dir: Path, which: str) -> tuple[Path, Path | None]:
 
 
 def load_trained(run_dir: Path, which: str, device: str = "cpu"):
-    cfg = common.read_yaml(run_dir / "config.yaml")
+    cfg = common.read_run_config(run_dir / "config.yaml")
     model_path, vn_path = resolve_model(run_dir, which)
     if cfg["hyperparams_resolved"].get("normalize") is not None and vn_path is None:
         raise FileNotFoundError(f"{run_dir}: trained with VecNormalize but its statistics beside {model_path.name} "
                                 "are missing")
     Algo = common.get_algo(cfg["algo"])
-    model = Algo.load(str(model_path), device=device)
+    model = common.load_model_file(Algo, model_path, device=device)
     vn = load_vecnormalize(vn_path) if vn_path is not None else None
     return cfg, TrainedPolicy(model, vn), model_path, model
 
@@ -457,7 +456,7 @@ def build_parser():
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", help="run directory written by agents.train")
     p.add_argument("--model", default="best", help="best (default), final, or a path to a model zip")
-    p.add_argument("--n-episodes", type=int, default=100)
+    p.add_argument("--n-episodes", type=common.arg_type(lambda v: check_count(v, "--n-episodes", 1)), default=100)
     p.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default 1000000)")
     p.add_argument("--out", default=None, help="output directory (default RUN_DIR/evaluation)")
     p.add_argument("--no-baselines", action="store_true", help="skip the non-learning baselines")
@@ -578,7 +577,7 @@ def evaluate(argv=None) -> dict:
 
 
 def main(argv=None) -> int:
-    return common.run_cli(evaluate, argv)
+    return common.run_cli(evaluate, argv, errors=(ValueError, OSError))   # OSError: a read-only --out, ...
 
 
 if __name__ == "__main__":

@@ -57,6 +57,7 @@ import numpy as np
 
 from agents import common
 from agents.progress import progress_callback
+from tensegrity_gym.checks import check_count, check_positive
 from tensegrity_gym.io.atomic import OutputError
 from tensegrity_gym.io.claim import Claim
 
@@ -293,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", default="TensegrityShape-v0", help="registered Gymnasium env id")
     p.add_argument("--env-kwargs", nargs="*", metavar="KEY:VALUE",
                    help="env constructor arguments as key:value pairs or one JSON object")
-    p.add_argument("--n-timesteps", "-n", type=float, default=None,
+    p.add_argument("--n-timesteps", "-n", type=common.arg_type(lambda v: check_count(v, "--n-timesteps", 1)), default=None,
                    help="total env steps (default: the hyperparameter file's n_timesteps)")
     p.add_argument("--n-envs", type=int, default=None, help="parallel envs (default: the file's n_envs)")
     p.add_argument("--seed", type=int, default=0)
@@ -317,7 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "device (per-env counter-based streams, no host loop; TensegrityRoll-v0)")
     p.add_argument("--eval-freq", type=int, default=None,
                    help="evaluate every this many env steps (default n_timesteps/20; <= 0 disables)")
-    p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument("--eval-episodes", type=common.arg_type(lambda v: check_count(v, "--eval-episodes", 1)), default=20)
     p.add_argument("--n-eval-envs", type=int, default=None, help="default min(eval episodes, 10)")
     p.add_argument("--save-freq", type=int, default=None,
                    help="checkpoint every this many env steps (default n_timesteps/10; <= 0 disables)")
@@ -332,7 +333,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steal-lock", action="store_true",
                    help="take over the run folder's lock left by a training that no longer runs here (or "
                         "runs on another host); --resume takes over a killed run's lock by itself")
-    p.add_argument("--max-wall-time", type=float, default=None, metavar="SECONDS",
+    p.add_argument("--max-wall-time", type=common.arg_type(lambda v: check_positive(v, "--max-wall-time", "s")),
+                   default=None, metavar="SECONDS",
                    help="stop training after this many seconds (saved as usual; status time_limit)")
     p.add_argument("--verbose", type=int, default=0)
     return p
@@ -348,6 +350,10 @@ def _latest_checkpoint(run_dir: Path) -> tuple[int, Path | None]:
     return best_steps, best
 
 
+#: signals turned into KeyboardInterrupt by the handlers below, in order
+_SIGNALS_RECEIVED: list = []
+
+
 def _install_interrupt_handlers():
     """Ctrl-C (SIGINT, even where a shell started us with SIGINT ignored) and SIGTERM raise
     KeyboardInterrupt, so that the model is saved before exiting."""
@@ -357,6 +363,7 @@ def _install_interrupt_handlers():
         return
 
     def _raise(signum, frame):
+        _SIGNALS_RECEIVED.append(signum)   # main() exits 128 + the signal (SIGTERM 143, as the CLI)
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -392,8 +399,17 @@ class RunState:
     def __init__(self, path: Path, initial: dict):
         self.path = Path(path)
         self.data = dict(initial)
+        self._clock = None
+
+    def start_clock(self, wall_before: float, t0: float) -> None:
+        """From now on every update records ``wall_time_s`` = ``wall_before`` (s, earlier segments)
+        + the time since ``t0``: a segment killed without a final update keeps its time up to
+        its last checkpoint or evaluation for ``--resume``."""
+        self._clock = (float(wall_before), float(t0))
 
     def update(self, **kw):
+        if self._clock is not None and "wall_time_s" not in kw:
+            kw["wall_time_s"] = self._clock[0] + time.time() - self._clock[1]
         self.data.update(kw)
         common.write_json(self.path, self.data)
 
@@ -404,9 +420,14 @@ def _read_state(run_dir: Path) -> dict:
     if not p.exists():
         return {}
     try:
-        return json.loads(p.read_text())
-    except (OSError, ValueError):
-        return {}
+        state = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{p}: damaged run state ({type(e).__name__}: {' '.join(str(e).split())[:120]}); "
+                         "repair or delete it to use this run directory") from None
+    if not isinstance(state, dict):
+        raise ValueError(f"{p}: damaged run state (a JSON {type(state).__name__}, not an object); "
+                         "repair or delete it to use this run directory")
+    return state
 
 
 def _has_saved_model(run_dir: Path) -> bool:
@@ -478,7 +499,7 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
         if not cfg_path.exists():
             raise FileNotFoundError(f"--resume {resume_dir}: no config.yaml there (not a run directory)")
         claims.append(_claim_run_dir(resume_dir, args, "--resume", resume=True))
-        cfg = common.read_yaml(cfg_path)
+        cfg = common.read_run_config(cfg_path)
         run_dir = resume_dir
         fresh_restart = not _has_saved_model(run_dir)
         algo, env_id, seed = cfg["algo"], cfg["env"], int(cfg["seed"])
@@ -505,7 +526,7 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
         raw_hp["env_kwargs"] = env_kwargs
         seed = common.check_seed(args.seed)
         n_timesteps = int(args.n_timesteps) if args.n_timesteps is not None else \
-            int(float(raw_hp.get("n_timesteps", 1e5)))
+            common.check_hp_count(raw_hp.get("n_timesteps", 1e5), "n_timesteps", 1)
         n_envs = args.n_envs if args.n_envs is not None else int(raw_hp.get("n_envs", 1))
         if n_envs < 1:
             raise ValueError(f"--n-envs: must be >= 1, got {n_envs}")
@@ -556,6 +577,7 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
     run_state = RunState(state_path, {
         **prev_state, "status": "starting", "pid": os.getpid(), "host": socket.gethostname(),
         "num_timesteps": int(prev_state.get("num_timesteps", 0)), "target_timesteps": n_timesteps})
+    _install_interrupt_handlers()   # a SIGTERM during start-up is recorded (status interrupted), not left "starting"
     run_state.update()
     t0 = time.time()
     env = eval_env = model = None
@@ -625,10 +647,10 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
             if norm is not None:
                 if not vn_path.exists():
                     raise FileNotFoundError(f"--resume: normalisation statistics {vn_path} are missing")
-                env = VecNormalize.load(str(vn_path), env.venv)
+                env = common.load_vecnormalize_file(vn_path, env.venv)
                 env.training = True
-            model = Algo.load(str(load_path), env=env, device=args.device,
-                              tensorboard_log=str(run_dir / "tb"))
+            model = common.load_model_file(Algo, load_path, env=env, device=args.device,
+                                           tensorboard_log=str(run_dir / "tb"))
             if hasattr(model, "replay_buffer"):
                 if rb_path.exists():
                     model.load_replay_buffer(str(rb_path))
@@ -694,6 +716,7 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
     run_state.data.pop("error", None)
     run_state.data.pop("traceback", None)
     run_state.data.pop("failed_before_first_step", None)
+    run_state.start_clock(float(prev_state.get("wall_time_s", 0.0)), t0)
     run_state.update(status="running", num_timesteps=int(model.num_timesteps))
     try:
         if remaining > 0:
@@ -770,11 +793,20 @@ def main(argv: list[str] | None = None) -> int:
     import json
     try:
         run_dir = train(argv)
-    except (ValueError, FileNotFoundError, FileExistsError, OutputError) as e:
+    except (ValueError, OSError, OutputError) as e:   # OSError: a read-only --log-dir, ... (FileNotFound/Exists included)
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:   # Ctrl-C / SIGTERM before the first step: state.json says interrupted
+        print("interrupted during start-up (no model saved)", file=sys.stderr)
+        return interrupted_exit_code()
     state = json.loads((run_dir / "state.json").read_text())
-    return 130 if state.get("status") == "interrupted" else 0
+    return interrupted_exit_code() if state.get("status") == "interrupted" else 0
+
+
+def interrupted_exit_code() -> int:
+    """128 + the signal that interrupted the training (SIGTERM: 143, as the CLI), 130 for Ctrl-C."""
+    import signal
+    return 143 if signal.SIGTERM in _SIGNALS_RECEIVED else 130
 
 
 if __name__ == "__main__":

@@ -7,10 +7,10 @@ from .core.integrators import INTEGRATORS, NUMPY_REMOVED, IntegratorInfo, numba_
 from .physics.evaluate import accelerations
 from .physics.simulate import Schedule, simulate
 from .physics.stability import stability_limit
-from .physics.step import rk4_update, step, step_inplace
+from .physics.step import AXIS_TOLERANCE, rk4_update, step, step_inplace
 
 _numba_backend = numba_backend   # the name the envs used for the backend-name check
 
 __all__ = ["INTEGRATORS", "step", "step_inplace", "simulate", "accelerations", "Schedule", "IntegratorInfo",
            "SimulationDiverged", "StabilityWarning", "EvaluationBudgetExceeded", "stability_limit", "resolve",
-           "rk4_update", "NUMPY_REMOVED", "numba_backend"]
+           "rk4_update", "NUMPY_REMOVED", "numba_backend", "AXIS_TOLERANCE"]

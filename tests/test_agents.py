@@ -297,7 +297,7 @@ def test_bad_arguments_give_clear_errors(tmp_path):
             ("batch_size=-1", r"--hyperparams: batch_size: must be an integer >= 2, got -1"),
             ("n_epochs=abc", r"--hyperparams: n_epochs: must be an integer >= 1, got 'abc'"),
             ("ent_coef=abc", r"--hyperparams: ent_coef must be a number \(PPO's default is 0.0\), got 'abc'"),
-            ("policy_kwargs=dict(net_arch=[-5])", r"--hyperparams: PPO refused them: RuntimeError: .*negative dimension")]):
+            ("policy_kwargs=dict(net_arch=[-5])", r"--hyperparams: policy_kwargs net_arch entry 0 is -5; layer sizes")]):
         with pytest.raises(ValueError, match=pattern):
             train.train(base + [hp, "--log-dir", str(tmp_path / f"hp{i}")])
         assert not (tmp_path / f"hp{i}" / "model.zip").exists()

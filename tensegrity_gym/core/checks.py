@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import math
+import re
+import os
+import stat
 
 import numpy as np
 
 __all__ = ["ACTION_TOL", "check_positive", "check_array", "check_finite", "is_integer", "check_count",
            "check_flag", "check_options", "check_action",
-           "check_action_tensor", "load_npz", "check_frame_size", "MAX_FRAME_SIZE"]
+           "check_action_tensor", "load_npz", "check_frame_size", "MAX_FRAME_SIZE", "check_unit_axes",
+           "read_bounded", "check_real", "xml_text"]
 
 #: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
 ACTION_TOL = 1e-6
@@ -221,3 +225,65 @@ def check_action_tensor(actions, shape: tuple, device, dtype, clip: bool, extra=
             idx = tuple(int(x) for x in torch.nonzero(err)[0].cpu())
             raise fmt(name, idx, float(a[idx]))
     return torch.clamp(a, -1.0, 1.0), bool(flags[2])
+
+
+def check_unit_axes(q, name: str = "state.q", tol: float = 1e-6) -> None:
+    """ValueError naming the first rod whose axis ``b`` (entries 3:6 of ``q`` (..., k, 6)) is not a
+    unit vector (``| |b| - 1 | > tol``; a zero axis would give NaN in the dynamics)."""
+    b = np.asarray(q, float)[..., 3:6]
+    norm = np.linalg.norm(b, axis=-1)
+    bad = ~(np.abs(norm - 1.0) <= tol)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"{name}: rod axis b of rod {idx[-1]}{' (copy ' + str(idx[0]) + ')' if len(idx) > 1 else ''} "
+                         f"has length {float(norm[idx]):.6g}; the axis must be a unit vector (|b| = 1 within {tol:g})")
+
+def read_bounded(path, cap: int, what: str = "file", binary: bool = False):
+    """The contents of ``path`` read in chunks, ValueError naming the file as soon as more than
+    ``cap`` bytes were read (a device such as /dev/zero or a FIFO reports size 0, so the bytes
+    read, not ``st_size``, bound the read). A FIFO or another non-regular file is refused before
+    reading (a FIFO with no writer would block). Text is decoded as UTF-8 (a BOM is dropped)."""
+    p = os.fspath(path)
+    st = os.stat(p)
+    if stat.S_ISFIFO(st.st_mode) or stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) or stat.S_ISSOCK(st.st_mode):
+        raise ValueError(f"{p}: not a regular file (a device, FIFO or socket); the {what} must be a file")
+    chunks, total = [], 0
+    with open(p, "rb") as fh:
+        while True:
+            chunk = fh.read(min(1 << 20, cap + 1 - total))
+            if not chunk:
+                break
+            total += len(chunk)
+            if total > cap:
+                raise ValueError(f"{p}: larger than the {cap / 2**20:.4g} MiB a {what} may have (stopped reading there)")
+            chunks.append(chunk)
+    data = b"".join(chunks)
+    if binary:
+        return data
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{p}: not UTF-8 text (byte {e.start}); the {what} must be UTF-8") from None
+
+
+def check_real(value, name: str, what: str = "") -> None:
+    """ValueError naming ``name`` for complex numbers (NumPy would drop the imaginary part with
+    only a warning when converting to float); anything else passes (the caller checks it)."""
+    try:
+        cplx = np.iscomplexobj(value)
+    except (TypeError, ValueError):     # ragged: the caller's conversion words it
+        return
+    if cplx:
+        raise ValueError(f"{name}: complex numbers are not accepted{' (' + what + ')' if what else ''}; "
+                         f"expected real numbers, got {_brief(value)}")
+
+
+#: characters XML 1.0 cannot hold, not even as character references (C0 controls but tab, newline
+#: and carriage return; surrogates; U+FFFE, U+FFFF)
+_XML_INVALID = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+
+
+def xml_text(text: str) -> str:
+    """``text`` with every character XML 1.0 cannot hold replaced by its Python escape
+    (``"\\x01"`` for U+0001), so that a name from a user's file gives a parsable document."""
+    return _XML_INVALID.sub(lambda m: m.group(0).encode("unicode_escape").decode("ascii"), text)

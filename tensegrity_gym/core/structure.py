@@ -50,6 +50,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .checks import read_bounded
 from .errors import StructureError
 from .schema import SCHEMA_PATH, _as_per_item, _describe, _in_range, _numeric, _show, loads, schema, validate_dict
 
@@ -537,11 +538,9 @@ def load_json(path: str | Path) -> Structure:
     if path.is_dir():
         raise StructureError(f"{path}: is a directory, not a structure file")
     try:
-        size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise StructureError(f"{path}: {size / 2**20:.0f} MiB is larger than the {MAX_FILE_BYTES / 2**20:.0f} "
-                                 "MiB a structure file may have")
-        raw = path.read_bytes()
+        raw = read_bounded(path, MAX_FILE_BYTES, "structure file", binary=True)
+    except ValueError as e:
+        raise StructureError(str(e)) from None
     except PermissionError as e:
         raise StructureError(f"{path}: cannot be read ({e.strerror})") from None
     except IsADirectoryError:

@@ -135,7 +135,7 @@ ROLL_DOC = r"""
     | ``actuated`` | ``None`` (all) | string indices or boolean mask |
     | ``integrator`` | ``"semi_implicit_euler"`` | (``"rk4"`` holds contact forces over each step: first order in contact) |
     | ``dt``, ``frame_skip`` | ``1e-3``, ``20`` | physics step (s), steps per control step |
-    | ``allow_unstable_dt`` | ``False`` | a ``dt`` above the estimated stability limit (strings + contact) raises ValueError unless True (then it warns) |
+    | ``allow_unstable_dt`` | ``False`` | a ``dt`` above the estimated stability limit (strings + contact), also for the worst-case draw of ``params`` / ``randomize``, raises ValueError unless True (then it warns) |
     | ``string_damping`` | ``2.0`` | N s/m on every string (``None``: the structure's) |
     | ``forward_reward_weight``, ``ctrl_cost_weight`` | ``1.0``, ``0.01`` | reward weights |
     | ``goal_direction``, ``randomize_goal`` | ``(1, 0)``, ``False`` | goal in the ground plane |
@@ -323,7 +323,7 @@ SHAPE_DOC = r"""
     | ``actuated`` | ``None`` (all) | string indices or boolean mask |
     | ``integrator`` | ``"semi_implicit_euler"`` | fixed-step integrator (``"rk4"``) |
     | ``dt`` | ``1e-3`` | physics step, s (default well under the explicit limit, 0.025 s for the default prism) |
-    | ``allow_unstable_dt`` | ``False`` | a ``dt`` above the integrator's estimated stability limit raises ValueError unless True (then it warns) |
+    | ``allow_unstable_dt`` | ``False`` | a ``dt`` above the integrator's estimated stability limit, also for the worst-case draw of ``params`` / ``randomize``, raises ValueError unless True (then it warns) |
     | ``frame_skip`` | ``20`` | physics steps per control step |
     | ``string_damping`` | ``5.0`` | N s/m on every string, ``None`` keeps the structure's |
     | ``node_damping`` | ``2.0`` | N s/m viscous drag on every rod node |

@@ -98,6 +98,8 @@ class Domain:
         self.spread: dict[str, float] = {}
         for name, s in sorted(randomize.items()):
             try:
+                if isinstance(s, (str, bytes)):   # a number, not text (as params and every other argument)
+                    raise TypeError
                 s = float(s)
             except (TypeError, ValueError):
                 raise ValueError(f"randomize[{name!r}]: expected a number (spread), got {s!r:.80}") from None

@@ -28,6 +28,7 @@ from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SE
                          robot_prism, settle)
 from .sensors import RobotSensors
 from .shells import TaskEnv, TaskVectorEnv
+from ..hardening_checks import check_domain_rest_lengths, check_domain_stable_dt
 from .validate import ACTION_MODES, check_positive, check_rest_length_bounds, check_stable_dt, resolve_actuated
 
 __all__ = ["RollTask", "TensegrityRollEnv", "TensegrityRollVectorEnv", "robot_prism", "robot_icosahedron",
@@ -161,6 +162,8 @@ class RollTask(RollObservation, BatchedTask):
         extra = container_nominal("contact", self.contact)
         extra.update(container_nominal("actuation", self.actuation))
         self._init_domain(params, randomize, action_delay, start_rest_length_offset, extra)
+        check_domain_rest_lengths(self)
+        check_domain_stable_dt(self, allow_unstable_dt, lambda m, c: gc.stable_step(c, m)["semi_implicit_euler"])
         self.travels = True      # divergence: measured from each copy's own centre (it rolls away)
         limit = gc.stable_step(self.contact, model)["semi_implicit_euler"]
         if self.integrator in ("semi_implicit_euler", "rk4"):

@@ -88,6 +88,7 @@ from .. import dynamics as dyn
 from ..mjcf import check_mj_integrator, initial_qpos_qvel, to_mjcf
 from ..rewards import quadratic_cost
 from ..checks import check_frame_size
+from ..hardening_checks import clear_mujoco_warnings, picklable_state, restore_state, twin_diverged
 from .common import check_action, check_positive
 from .config import RollConfig, flatten, with_flat
 from .roll import MAX_PATH, SETTLE_TIME, RollTask
@@ -157,7 +158,6 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self._rest_offset = np.zeros(m.ntendon)   # rest_length_offset of this episode, m
         self._eta = task.model.eta                          # (k, 2) node offsets from the reference point, m
         self._act = task.actuated
-        self._badqacc = mujoco.mjtWarning.mjWARN_BADQACC
         self.action_space = spaces.Box(-1.0, 1.0, (task.action_size,), np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (task.observation_size,), np.float32)
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / task.control_dt)))
@@ -275,17 +275,19 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         t.ctrl, t.speed, _ = t.actuation.update(t.ctrl, a, t.speed)
         m.tendon_lengthspring[self._act, 1] = t.ctrl[0] + self._rest_offset[self._act]
         com0 = self.com()
-        qpos0, qvel0, bad0 = d.qpos.copy(), d.qvel.copy(), d.warning[self._badqacc].number
+        qpos0, qvel0 = d.qpos.copy(), d.qvel.copy()
+        clear_mujoco_warnings(mj, d)
         for sub in range(t.frame_skip):
             if sub == t.frame_skip - 1 and t.sensors is not None:
                 mj.mj_kinematics(m, d)
                 t._qd_prev = self.rod_state()[1]   # the IMUs read the last physics step's change of velocity
             mj.mj_step(m, d)
-        diverged = not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))) \
-            or d.warning[self._badqacc].number > bad0
+        with np.errstate(all="ignore"):
+            self._sync()
+        diverged = twin_diverged(mj, d, t)
         if diverged:
             d.qpos[:], d.qvel[:] = qpos0, qvel0
-        self._sync()
+            self._sync()
         t.elapsed += 1
         com = self.com()
         vel = (com - com0) / t.control_dt
@@ -320,6 +322,12 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             from ..rendering import make_renderer
             self._renderer = make_renderer(self._size[1], self._size[0], title=ENV_ID)
         return self._renderer.render(**self.task.render_data(0))
+
+    def __getstate__(self):   # the mujoco module by name, no renderer (MjModel / MjData pickle)
+        return picklable_state(self.__dict__)
+
+    def __setstate__(self, state):
+        restore_state(self, state)
 
     def close(self):
         if self._renderer is not None:

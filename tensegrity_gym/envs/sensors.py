@@ -50,6 +50,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics as dyn
+from ..hardening_checks import check_noise_sigma
 
 __all__ = ["NOISY_BLOCKS", "rod_frames", "RobotSensors"]
 
@@ -99,13 +100,7 @@ class RobotSensors:
                 raise ValueError(f"sensor_noise: unknown or noiseless block {name!r}; noisy blocks of this env: "
                                  f"{[n for n in NOISY_BLOCKS if n in names]}")
             flip = name == "contact"          # a switch: the probability of a wrong reading
-            try:
-                s = float(sigma)
-            except (TypeError, ValueError):
-                s = float("nan")
-            if isinstance(sigma, bool) or not (np.isfinite(s) and 0 <= s <= (1 if flip else np.inf)):
-                raise ValueError(f"sensor_noise[{name!r}]: " + ("the probability that a switch reads wrong, in [0, 1]"
-                                 if flip else "must be a finite standard deviation >= 0 (a number)") + f"; got {sigma!r}")
+            s = check_noise_sigma(name, sigma, flip)
             if s > 0:
                 i = names.index(name)
                 start = sum(b[1] for b in self.blocks[:i])

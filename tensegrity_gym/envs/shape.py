@@ -21,6 +21,7 @@ from .docs import SHAPE_DOC as _DOC
 from .shape_fused import FusedShapeStep
 from .sensors import RobotSensors
 from .shells import TaskEnv, TaskVectorEnv
+from ..hardening_checks import check_domain_rest_lengths, check_domain_stable_dt
 from .validate import (ACTION_MODES, check_positive, check_rest_length_bounds, check_stable_dt, load_env_structure,
                        resolve_actuated)
 
@@ -140,6 +141,8 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         if self.sensors is not None:
             self._obs_rod = None
         self._init_domain(params, randomize, action_delay, start_rest_length_offset)
+        check_domain_rest_lengths(self)
+        check_domain_stable_dt(self, allow_unstable_dt, lambda m, c: integrators.stability_limit(m)[self.integrator])
 
     # ------------------------------------------------------------------ targets
     def _sample_rest_lengths(self, rng: np.random.Generator) -> np.ndarray:

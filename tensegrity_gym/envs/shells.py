@@ -11,6 +11,7 @@ from gymnasium.utils import seeding
 
 from ..checks import check_count, check_frame_size, check_options
 from ..rewards import combine
+from ..hardening_checks import check_autoreset_mode, check_reset_called, check_seed_value, picklable_state
 from .base import BatchedTask
 from .validate import check_action
 
@@ -130,6 +131,9 @@ class TaskEnv(gym.Env):
             self._renderer = make_renderer(self._width, self._height, title=self._title)
         return self._renderer.render(**self.task.render_data(i))
 
+    def __getstate__(self):   # picklable after render(): the renderer is made again when needed
+        return picklable_state(self.__dict__)
+
     def close(self):
         if self._renderer is not None:
             self._renderer.close()
@@ -150,7 +154,7 @@ def per_env_seeds(seed, N: int) -> list:
     seeds = list(seed)
     if len(seeds) != N:
         raise ValueError(f"seed: expected an int, None or a list of {N} seeds, got {len(seeds)}")
-    return seeds
+    return [check_seed_value(s, i) for i, s in enumerate(seeds)]
 
 
 def reseed(rngs: list, seed, mask: np.ndarray) -> None:
@@ -237,6 +241,7 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, max_episode_steps="registered", render_mode: str | None = None,
                  width: int = 480, height: int = 480, **kwargs):
+        kwargs = check_autoreset_mode(kwargs)
         self._init_task(self.task_class(num_envs=num_envs, **kwargs), self.env_id, max_episode_steps, render_mode,
                         width, height, title=self.env_id)
 
@@ -304,9 +309,11 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         reseed(self._rngs, seed, mask)
         idx = np.flatnonzero(mask)
         info = self._reset_envs(idx, options or None)
+        self._reset_called = True
         return self.task.observe().copy(), self._vector_info(info, mask)
 
     def step(self, actions):
+        check_reset_called(self)
         N = self.num_envs
         a = check_action(actions, (N, self.task.action_size), clip=self.task.clip_actions, name="actions")
         reset_now = self._autoreset.copy()
@@ -347,6 +354,9 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
                 self._renderers[i] = make_renderer(self._width, self._height, title=self._title)
             frames.append(self._renderers[i].render(**self.task.render_data(i)))
         return tuple(frames)
+
+    def __getstate__(self):   # picklable after render(): the renderers are made again when needed
+        return picklable_state(self.__dict__)
 
     def close_extras(self, **kwargs):
         self._renderers.clear()

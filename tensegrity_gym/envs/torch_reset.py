@@ -39,6 +39,7 @@ from .. import torch_backend as tb
 from ..core.param_table import contact_columns
 from .domain import write_copies
 from .shells import per_env_seeds
+from ..hardening_checks import check_seed_value
 
 __all__ = ["CounterStreams", "TorchDomain", "reference_uniforms", "RESET_SAMPLING", "SALTS"]
 
@@ -94,10 +95,7 @@ def _mix(z):
     return z ^ _lsr(z, 31)
 
 
-def _check_seed(value, i: int) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
-        raise ValueError(f"seed: env {i}: expected a non-negative int or None, got {value!r}")
-    return int(value)
+_check_seed = check_seed_value   # the vector envs' per-env seed check (one implementation)
 
 
 class CounterStreams:

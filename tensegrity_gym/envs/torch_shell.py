@@ -14,6 +14,7 @@ from gymnasium.utils import seeding
 from .. import torch_backend as tb
 from ..checks import check_action_tensor
 from ..core.param_table import PARAMS
+from ..hardening_checks import check_autoreset_mode, check_reset_called
 from .shells import VectorSeeding, episode_limit, reseed
 from .torch_reset import RESET_SAMPLING, CounterStreams, TorchDomain
 from .torch_sensors import TorchSensors
@@ -47,6 +48,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def __init__(self, num_envs: int = 1, max_episode_steps="registered", device=None, dtype=None,
                  backend: str = "torch", render_mode: str | None = None, compile: bool = False,
                  reset_sampling: str = "host", **kwargs):
+        kwargs = check_autoreset_mode(kwargs)
         torch = tb._torch()
         if reset_sampling not in RESET_SAMPLING:
             raise ValueError(f"reset_sampling: expected one of {RESET_SAMPLING}, got {reset_sampling!r}")
@@ -263,9 +265,11 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             self._sens.seed(seed, mask)
         mask_t = torch.as_tensor(mask, device=self.device)
         info = self._reset_envs(mask_t, options or None)
+        self._reset_called = True
         return self._observe(), self._vector_info(info, mask_t)
 
     def step(self, actions):
+        check_reset_called(self)
         torch = tb._torch()
         a, any_reset = self._check_actions(actions)
         reset_now = self._autoreset.clone()

@@ -59,6 +59,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .atomic import write_atomic
+from ..checks import xml_text
 from ..structure import Structure, mass_moments
 
 __all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel"]
@@ -181,7 +182,7 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
         if not math.isfinite(float(v)) or (nm == "friction" and v < 0):
             raise ValueError(f"{nm}: must be finite{' and >= 0' if nm == 'friction' else ''}, got {v!r}")
     g = np.zeros(3) if s.gravity is None else np.asarray(s.gravity, float)
-    name = model_name or s.name
+    name = xml_text(model_name or s.name)   # XML 1.0 holds no control characters
     out = [f"<mujoco model={quoteattr(name)}>",
            '  <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>',
            f'  <option timestep="{timestep!r}" integrator="{integrator}" gravity="{_fmt(g)}">',

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks import load_npz
+from ..checks import load_npz, read_bounded
 
-__all__ = ["load_csv", "load_trajectory"]
+__all__ = ["load_csv", "load_trajectory", "MAX_CSV_BYTES"]
+
+#: largest trajectory CSV read, bytes (counted while reading: a device or FIFO reports no size)
+MAX_CSV_BYTES = 1 << 30
 
 
 def load_csv(path, n_nodes: int):
@@ -18,7 +21,9 @@ def load_csv(path, n_nodes: int):
     Returns ``t`` (S,), ``nodes`` (S, n_nodes, 3) with NaN where untracked, and the mask
     (S, n_nodes). Raises ValueError naming the line for bad rows."""
     import csv
-    with open(path, newline="") as fh:
+    import io
+    text = read_bounded(path, MAX_CSV_BYTES, "trajectory CSV")     # a BOM is dropped; /dev/zero, FIFOs refused
+    with io.StringIO(text, newline="") as fh:
         rd = csv.reader(fh)
         try:
             header = [h.strip().lower() for h in next(rd)]
@@ -41,7 +46,7 @@ def load_csv(path, n_nodes: int):
                 raise ValueError(f"{path}: line {ln}: cannot read {row!r} as t,node,x,y,z numbers") from None
             if not np.isfinite(tt):
                 raise ValueError(f"{path}: line {ln}: t is {row[col[0]]!r}; sample times must be finite")
-            if nd != int(nd) or not 0 <= nd < n_nodes:
+            if not np.isfinite(nd) or nd != int(nd) or not 0 <= nd < n_nodes:
                 raise ValueError(f"{path}: line {ln}: node {row[col[1]]!r} is not a node index 0..{n_nodes - 1}")
             rows.append((tt, int(nd), *xyz))
     if not rows:

@@ -63,9 +63,9 @@ import numpy as np
 
 from ..backends.numba import api as numba_api
 from ..backends.numba.api import new_state as _new_state
-from ..backends.numba.divergence import finite_pair
+from ..backends.numba.divergence import finite_pair, unit_axes
 from ..backends.torch import driver as torch_driver
-from ..core.checks import check_finite, is_integer
+from ..core.checks import check_finite, check_unit_axes, is_integer
 from ..core.integrators import EXPLICIT, IMPLICIT, numba_backend, resolve
 from ..core.model import Model, State
 from ..core.params import check_params
@@ -89,23 +89,31 @@ def _as_batch(x, B, m, name):
     return x
 
 
-def _finite_state(q, qd) -> bool:
-    """True if the state arrays are finite, by the compiled pass (:func:`~tensegrity_gym.backends.numba.divergence.finite_pair`) when
-    they are C-contiguous float64 (B, k, 6) ndarrays and numba runs, else False (the caller then
-    runs :func:`~tensegrity_gym.checks.check_finite`, which also names the entry)."""
+#: | |b| - 1 | above which :func:`step` refuses a rod axis ``b`` of the state it is given: a zero
+#: or badly scaled axis is an error, the small drift of a run without projection is not
+AXIS_TOLERANCE = 0.5
+
+
+def _state_ok(q, qd) -> bool:
+    """True if the state arrays are finite and every rod axis has unit length within
+    :data:`AXIS_TOLERANCE`, by compiled passes (:func:`~tensegrity_gym.backends.numba.divergence.finite_pair`,
+    :func:`~tensegrity_gym.backends.numba.divergence.unit_axes`) when they are C-contiguous float64
+    (B, k, 6) ndarrays, else False (the caller then runs the NumPy checks, which name the entry)."""
     return (type(q) is np.ndarray and type(qd) is np.ndarray and q.ndim == 3 and qd.ndim == 3
             and q.dtype == np.float64 and qd.dtype == np.float64 and q.flags.c_contiguous
-            and qd.flags.c_contiguous and finite_pair(q, qd))
+            and qd.flags.c_contiguous and finite_pair(q, qd) and unit_axes(q, AXIS_TOLERANCE))
 
 
 def _check_inputs(state, n_steps, external) -> int:
     """``n_steps`` as an int (ValueError unless a positive integer) after checking that the state
-    and an array ``external`` are finite (ValueError naming the field, the index and the value)."""
+    is finite with unit rod axes and an array ``external`` is finite (ValueError naming the field,
+    the index and the value)."""
     if not is_integer(n_steps) or n_steps < 1:
         raise ValueError(f"n_steps: must be a positive integer (steps per call), got {n_steps!r}")
-    if not _finite_state(state.q, state.qd):
+    if not _state_ok(state.q, state.qd):
         check_finite(np.asarray(state.q), "state.q")
         check_finite(np.asarray(state.qd), "state.qd")
+        check_unit_axes(state.q, "state.q", AXIS_TOLERANCE)
     if external is not None and not callable(external):
         check_finite(np.asarray(external, dtype=float), "external")
     return int(n_steps)
@@ -132,9 +140,9 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
         default None: the model's own values. With ``params`` the stability check is skipped
         (the model's estimated limit need not hold for other values).
 
-    ValueError naming the field, the index and the value for a non-finite state, rest length,
-    force density or external force, a negative rest length, and for ``n_steps`` that is not a
-    positive integer.
+    ValueError naming the field, the index and the value for a non-finite state, a rod axis ``b``
+    whose length is not 1 (within :data:`AXIS_TOLERANCE`), a non-finite rest length, force density
+    or external force, a negative rest length, and for ``n_steps`` that is not a positive integer.
     """
     info = resolve(integrator)
     if not ((math.isfinite(dt) if type(dt) is float else np.isfinite(dt)) and dt > 0):

@@ -70,7 +70,7 @@ from ..structure import StructureError
 from .cli_commands import cmd_export, cmd_identify, cmd_info, cmd_view, structure_summary
 from .cli_common import (DEFAULT_MAX_STEPS, EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_STRUCTURE,
                          EXIT_TERMINATED, EXIT_TOO_LARGE, EXIT_USAGE, CLIError, _default_max_memory_gib,
-                         _non_negative, _one_line, _positive, _seed, _Terminated)
+                         _non_negative, _one_line, _port, _positive, _seed, _Terminated)
 from .cli_simulate import cmd_demo, cmd_simulate, load_schedule
 
 __all__ = ["main", "build_parser", "CLIError", "structure_summary", "load_schedule", "cmd_simulate", "cmd_info",
@@ -198,7 +198,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     vp.add_argument("--structure", default=None, help="the simulated structure: strings coloured by tension")
     vp.add_argument("--mode", default="auto", choices=["auto", "window", "browser"],
                     help="window (needs a display), browser (viser web view) or auto")
-    vp.add_argument("--port", type=int, default=8080, help="browser mode: port of the web viewer")
+    vp.add_argument("--port", type=_port, default=8080, help="browser mode: TCP port of the web viewer (0..65535; 0: any free port)")
     limits(vp)
     vp.set_defaults(func=cmd_view)
     return p

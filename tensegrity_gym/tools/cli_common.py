@@ -145,6 +145,7 @@ def _positive(kind):
 
 _non_negative = _number(float, "a number", lambda v: np.isfinite(v) and v >= 0, "must be >= 0 and finite")
 _seed = _number(int, "an integer", lambda v: v >= 0, "must be >= 0")
+_port = _number(int, "an integer", lambda v: 0 <= v <= 65535, "must be a TCP port in 0..65535 (0: any free port)")
 
 
 def _n_steps(duration: float, dt: float, args) -> int:

@@ -74,6 +74,7 @@ import warnings
 import numpy as np
 
 from .. import dynamics
+from ..checks import check_real
 from ..dynamics import Model
 from ..integrators import resolve
 from ..io.trajectory import load_csv, load_trajectory
@@ -254,6 +255,8 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     from scipy.optimize import least_squares
     t0 = time.perf_counter()
     model = _model_of(structure_or_model)
+    check_real(t, "t", "sample times, s")          # before anything else: NumPy would drop the imaginary part
+    check_real(nodes, "nodes", "node positions, m")
     names, items, init, base = _parse_fit(model, fit, mode, initial)
     t, rec, mask, rl, h = _check_record(model, t, nodes, rest_length, node_mask)
     if total_mass is not None:

@@ -21,6 +21,20 @@ def finite_pair(a, b):
             bad += (bits[i] & 0x7FF0000000000000) == 0x7FF0000000000000
     return bad == 0
 
+
+@njit(cache=True, nogil=True)
+def unit_axes(q, tol):
+    """True if every rod axis ``b`` (entries 3:6 of the C-contiguous float64 ``q`` (B, k, 6)) has
+    a length within ``tol`` of 1: with :func:`finite_pair`, the input check of ``physics.step``
+    (a zero axis would give NaN, a badly scaled one wrong rod lengths)."""
+    for c in range(q.shape[0]):
+        for j in range(q.shape[1]):
+            n2 = q[c, j, 3] * q[c, j, 3] + q[c, j, 4] * q[c, j, 4] + q[c, j, 5] * q[c, j, 5]
+            if not abs(np.sqrt(n2) - 1.0) <= tol:
+                return False
+    return True
+
+
 # one packed buffer per copy (bufs (B, len)), each lane reading its copy's constants
 
 @njit(inline="always", cache=True, nogil=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...io.atomic import write_atomic
+from ...hardening_checks import close_after_error
 from .factory import make_renderer
 from .scene import RendererUnavailable
 
@@ -56,12 +57,17 @@ def render_video(path, structure, nodes, tensions=None, times=None, *, fps: floa
         kw = {"fps": fps} if suffix != ".gif" else {"duration": 1000.0 / fps, "loop": 0}
         if suffix == ".mp4":
             kw.update(codec="libx264", quality=7, macro_block_size=8)
-        with imageio.get_writer(str(path), **kw) as w:
+        w = imageio.get_writer(str(path), **kw)
+        try:
             for i in idx:
                 cap = None if times is None else f"t = {times[i]:.2f} s"
                 T = None if tensions is None else tensions[i]
                 w.append_data(r.render(nodes[i], structure.bars, structure.strings, T, ground_z=ground_z,
                                        caption=cap, tension_max=tmax))
+        except BaseException:
+            close_after_error(w)   # the writer's own error on close (ffmpeg's pipe) would hide this one
+            raise
+        w.close()
     finally:
         r.close()
     return len(idx)

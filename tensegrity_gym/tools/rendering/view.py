@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from .browser_viewer import BrowserViewer
+from .scene import RendererUnavailable
 from .window_viewer import WindowViewer, _has_display
 
 
@@ -20,6 +21,9 @@ def view_trajectory(structure, nodes, tensions=None, times=None, *, mode: str = 
         interactive = "agg" not in matplotlib.get_backend().lower()
         mode = "window" if _has_display() and interactive else "browser"
     if mode == "window":
+        if not _has_display():   # a window on a headless machine would show nothing and return at once
+            raise RendererUnavailable("mode 'window': no display (DISPLAY / WAYLAND_DISPLAY unset); use mode "
+                                      "'browser' (the web viewer works headless)")
         v = WindowViewer(structure, nodes, tensions, times, **kw)
     else:
         v = BrowserViewer(structure, nodes, tensions, times, **kw)
