@@ -499,6 +499,7 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
         if not cfg_path.exists():
             raise FileNotFoundError(f"--resume {resume_dir}: no config.yaml there (not a run directory)")
         claims.append(_claim_run_dir(resume_dir, args, "--resume", resume=True))
+        _read_state(resume_dir)          # a damaged state.json is named before anything else
         cfg = common.read_run_config(cfg_path)
         run_dir = resume_dir
         fresh_restart = not _has_saved_model(run_dir)
