@@ -64,7 +64,7 @@ import numpy as np
 from . import __version__
 from . import dynamics as dyn
 from .builders import BUILDERS
-from .checks import load_npz
+from .checks import check_trajectory_arrays, load_npz
 from .integrators import INTEGRATORS, EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
 from .sizing import StructureTooLarge
 from .structure import StructureError
@@ -593,6 +593,7 @@ def cmd_view(args) -> int:
     try:
         z = load_npz(args.trajectory, "a simulate output with t, nodes, bars, strings")
         t, nodes, bars, strings = z["t"], z["nodes"], z["bars"], z["strings"]
+        check_trajectory_arrays(t, nodes, args.trajectory)
     except ValueError as e:
         raise CLIError(EXIT_STRUCTURE, f"view: {e}") from None
     except (OSError, KeyError) as e:
