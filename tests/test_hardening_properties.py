@@ -148,3 +148,39 @@ def test_cli_csv_trajectory_files(tmp_path_factory, capsys, rows, bom):
     event(f"exit {code}")
     if code:
         assert err.splitlines()[-1].startswith("error: "), err
+
+
+arrays = st.sampled_from(["ok", "complex", "nan", "inf", "wrong_shape", "text", "empty", "int", "huge"])
+
+
+def _array(kind, good):
+    with np.errstate(all="ignore"):
+        return _arrays_of(kind, good)
+
+
+def _arrays_of(kind, good):
+    return {"ok": good, "complex": good + 1j, "nan": np.where(np.arange(good.size).reshape(good.shape) == 1, np.nan, good),
+            "inf": good * np.inf, "wrong_shape": good.reshape(-1)[:-1], "text": np.array(["a", "b"]),
+            "empty": good[:0], "int": good.astype(np.int64), "huge": good * 1e300}[kind]
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(t_kind=arrays, n_kind=arrays, command=st.sampled_from(["identify", "view"]))
+def test_cli_npz_trajectory_files(tmp_path_factory, capsys, monkeypatch, t_kind, n_kind, command):
+    from tensegrity_gym import rendering
+    monkeypatch.setattr(rendering, "view_trajectory", lambda *a, **k: None)   # no viewer is opened
+    d = tmp_path_factory.mktemp("n")
+    s = tg.load_structure("prism3")
+    t = np.arange(6) * 0.01
+    nodes = np.repeat(s.nodes[None], 6, axis=0)
+    np.savez(d / "t.npz", t=_array(t_kind, t), nodes=_array(n_kind, nodes), bars=s.bars, strings=s.strings)
+    argv = (["identify", "prism3", str(d / "t.npz"), "--out", str(d / "fit.json")] if command == "identify"
+            else ["view", str(d / "t.npz"), "--structure", "prism3", "--mode", "browser"])
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert code in (0, 3, 4, 5, 6), (code, err)
+    event(f"{command} exit {code}")
+    if code:
+        lines = err.splitlines()
+        assert lines[-1].startswith("error: ") and sum(x.startswith("error: ") for x in lines) == 1, err

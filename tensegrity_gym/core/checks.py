@@ -12,7 +12,7 @@ import numpy as np
 __all__ = ["ACTION_TOL", "check_positive", "check_array", "check_finite", "is_integer", "check_count",
            "check_flag", "check_options", "check_action",
            "check_action_tensor", "load_npz", "check_frame_size", "MAX_FRAME_SIZE", "check_unit_axes",
-           "read_bounded", "check_real", "xml_text"]
+           "read_bounded", "check_real", "xml_text", "check_trajectory_arrays"]
 
 #: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
 ACTION_TOL = 1e-6
@@ -287,3 +287,16 @@ def xml_text(text: str) -> str:
     """``text`` with every character XML 1.0 cannot hold replaced by its Python escape
     (``"\\x01"`` for U+0001), so that a name from a user's file gives a parsable document."""
     return _XML_INVALID.sub(lambda m: m.group(0).encode("unicode_escape").decode("ascii"), text)
+
+
+def check_trajectory_arrays(t, nodes, source: str) -> None:
+    """ValueError naming ``source`` unless ``nodes`` is a real (S, n, 3) array (m) with S >= 1 and
+    ``t`` real of shape (S,) (s): what a simulate output holds."""
+    for name, a, what in (("t", t, "(S,) sample times, s"), ("nodes", nodes, "(S, n, 3) node positions, m")):
+        if np.asarray(a).dtype.kind not in "fiu":
+            raise ValueError(f"{source}: {name} holds {np.asarray(a).dtype} values; expected real numbers, {what}")
+    nodes, t = np.asarray(nodes), np.asarray(t)
+    if nodes.ndim != 3 or nodes.shape[2] != 3 or nodes.shape[0] < 1:
+        raise ValueError(f"{source}: nodes has shape {nodes.shape}; expected (S, n, 3) node positions, m, S >= 1")
+    if t.shape != nodes.shape[:1]:
+        raise ValueError(f"{source}: t has shape {t.shape}; expected ({nodes.shape[0]},), one time per sample of nodes")

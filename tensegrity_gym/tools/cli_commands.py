@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import dynamics
-from ..checks import load_npz
+from ..checks import check_trajectory_arrays, load_npz
 from ..io.mjcf import to_mjcf
 from ..io.tnsgrt import from_tnsgrt
 from ..sizing import stability_bytes
@@ -130,6 +130,7 @@ def cmd_view(args) -> int:
     try:
         z = load_npz(args.trajectory, "a simulate output with t, nodes, bars, strings")
         t, nodes, bars, strings = z["t"], z["nodes"], z["bars"], z["strings"]
+        check_trajectory_arrays(t, nodes, args.trajectory)
     except ValueError as e:
         raise CLIError(EXIT_STRUCTURE, f"view: {e}") from None
     except (OSError, KeyError) as e:
