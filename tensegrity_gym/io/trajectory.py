@@ -1,15 +1,34 @@
-"""Recorded trajectories for system identification: motion-capture CSV files and ``.npz`` records
-(times s, node positions m, optional rest lengths m and tracked-node mask)."""
+"""Trajectories on disk: the output of ``simulate`` (:func:`save_simulate_output`,
+:func:`load_simulate_output`) and recorded motions for system identification: motion-capture CSV
+files and ``.npz`` records (times s, node positions m, optional rest lengths m and tracked-node
+mask; :func:`load_trajectory`)."""
 from __future__ import annotations
 
 import numpy as np
 
-from ..checks import load_npz, read_bounded
+from ..checks import check_trajectory_arrays, load_npz, read_bounded
 
-__all__ = ["load_csv", "load_trajectory", "MAX_CSV_BYTES"]
+__all__ = ["load_csv", "load_trajectory", "save_simulate_output", "load_simulate_output", "MAX_CSV_BYTES"]
 
 #: largest trajectory CSV read, bytes (counted while reading: a device or FIFO reports no size)
 MAX_CSV_BYTES = 1 << 30
+
+
+def save_simulate_output(f, *, t, nodes, energy, bars, strings, **extra) -> None:
+    """Write a ``simulate`` output as ``.npz`` to the binary file object ``f``: ``t`` (S,) s,
+    ``nodes`` (S, n, 3) m, ``energy`` (S,) J, ``bars`` (k, 2) and ``strings`` (m, 2) node
+    indices, and ``extra`` arrays (``rest_length`` / ``force_density`` (S, m) in force from each
+    record on; ``diverged`` and ``message`` when the run diverged)."""
+    np.savez(f, t=t, nodes=nodes, energy=energy, bars=bars, strings=strings, **extra)
+
+
+def load_simulate_output(path) -> tuple:
+    """``(t, nodes, bars, strings)`` of a ``simulate`` output (:func:`save_simulate_output`).
+    ValueError naming the file when it is not an ``.npz``; KeyError when an array is missing."""
+    z = load_npz(path, "a simulate output with t, nodes, bars, strings")
+    t, nodes = z["t"], z["nodes"]
+    check_trajectory_arrays(t, nodes, path)
+    return t, nodes, z["bars"], z["strings"]
 
 
 def load_csv(path, n_nodes: int):

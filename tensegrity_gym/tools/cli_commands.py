@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from .. import dynamics
-from ..checks import check_trajectory_arrays, load_npz
 from ..io.mjcf import to_mjcf
 from ..io.tnsgrt import from_tnsgrt
+from ..io.trajectory import load_simulate_output
 from ..sizing import stability_bytes
 from ..structure import StructureError
 from .cli_common import (EXIT_DIVERGED, EXIT_OUTPUT, EXIT_STRUCTURE, EXIT_USAGE, CLIError, _claim, _commit, _load,
@@ -128,9 +128,7 @@ def cmd_view(args) -> int:
     structure, 4 when no viewer can be opened."""
     from types import SimpleNamespace
     try:
-        z = load_npz(args.trajectory, "a simulate output with t, nodes, bars, strings")
-        t, nodes, bars, strings = z["t"], z["nodes"], z["bars"], z["strings"]
-        check_trajectory_arrays(t, nodes, args.trajectory)
+        t, nodes, bars, strings = load_simulate_output(args.trajectory)
     except ValueError as e:
         raise CLIError(EXIT_STRUCTURE, f"view: {e}") from None
     except (OSError, KeyError) as e:

@@ -12,6 +12,7 @@ from ..builders import prism
 from ..checks import load_npz
 from ..integrators import EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
 from ..io.claim import Transaction
+from ..io.trajectory import save_simulate_output
 from ..structure import StructureError
 from .rendering import RendererUnavailable, render_video
 from .cli_common import (ADAPTIVE_EVALUATIONS_PER_STEP, CHUNK_STEPS, ENERGY_BLOWUP, EXIT_DIVERGED, EXIT_OUTPUT,
@@ -170,7 +171,7 @@ def cmd_simulate(args) -> int:
             arrays[name] = sched.values[sched.rows(t, args.dt)]
     if diverged is not None:
         arrays.update(diverged=np.array(True), message=np.array(_one_line(diverged)))
-    _stage(tx, out, lambda f: np.savez(f, **arrays))
+    _stage(tx, out, lambda f: save_simulate_output(f, **arrays))
     if diverged is not None:
         _commit(tx)
         raise CLIError(EXIT_DIVERGED, f"simulation diverged: {_one_line(diverged)}; wrote {S} records "

@@ -4,16 +4,16 @@ integrator and steps per call, plus `integrators.accelerations` of one state. Ru
 first on PYTHONPATH and NUMBA_NUM_THREADS=1."""
 import sys, timeit, numpy as np
 import tensegrity_gym as tg
-from tensegrity_gym import builders, dynamics as dyn, integrators
+from tensegrity_gym import builders, dynamics, integrators
 print(tg.__file__, file=sys.stderr)
 rows = []
 for name, s in {"prism3": builders.prism(3), "icosahedron": builders.icosahedron(),
                 "constrained_prism": builders.constrained_prism(damping=0.5)}.items():
-    model = dyn.compile_model(s)
+    model = dynamics.compile_model(s)
     rng = np.random.default_rng(0)
-    st = dyn.initial_state(model, 1)
-    q, qd = dyn.project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
-    st = dyn.State(q=np.ascontiguousarray(q), qd=np.ascontiguousarray(qd), t=0.0)
+    st = dynamics.initial_state(model, 1)
+    q, qd = dynamics.project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
+    st = dynamics.State(q=np.ascontiguousarray(q), qd=np.ascontiguousarray(qd), t=0.0)
     for integ in ("semi_implicit_euler", "rk4"):
         for ns in (1, 20):
             f = lambda: integrators.step(model, st, 1e-4, integ, n_steps=ns)

@@ -1,13 +1,13 @@
 """ns per env-step of one step_inplace call on B = 1024 and 4096 copies (the parallel kernel at the
 machine's thread count): best of 7 timeit repeats. Run with a checkout first on PYTHONPATH."""
 import sys, timeit, numpy as np
-from tensegrity_gym import _kernels, builders, dynamics as dyn
+from tensegrity_gym import _kernels, builders, dynamics
 for name, s in {"prism3": builders.prism(3), "icosahedron": builders.icosahedron()}.items():
-    model = dyn.compile_model(s)
+    model = dynamics.compile_model(s)
     for B in (1024, 4096):
-        st = dyn.initial_state(model, B)
+        st = dynamics.initial_state(model, B)
         rng = np.random.default_rng(0)
-        q, qd = dyn.project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
+        q, qd = dynamics.project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
         q = np.ascontiguousarray(q); qd = np.ascontiguousarray(qd)
         for integ in ("semi_implicit_euler", "rk4"):
             f = lambda: _kernels.step_inplace(model, q, qd, 1e-4, integ)

@@ -1,15 +1,15 @@
 """ns per env-step of one step_inplace call, B = 64, 1024, 4096 (run with NUMBA_NUM_THREADS=1 to take
 thread scheduling out): best of 5 timeit repeats. Run with a checkout first on PYTHONPATH."""
 import sys, timeit, numpy as np
-from tensegrity_gym import _kernels, builders, dynamics as dyn
+from tensegrity_gym import _kernels, builders, dynamics
 out = []
 for name, s in {"prism3": builders.prism(3), "icosahedron": builders.icosahedron(), "tower30": builders.tower(30)}.items():
-    model = dyn.compile_model(s)
+    model = dynamics.compile_model(s)
     for B in (64, 1024, 4096):
         if name == "tower30" and B == 4096: continue
         rng = np.random.default_rng(0)
-        st = dyn.initial_state(model, B)
-        q, qd = dyn.project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
+        st = dynamics.initial_state(model, B)
+        q, qd = dynamics.project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
         q = np.ascontiguousarray(q); qd = np.ascontiguousarray(qd)
         for integ in ("semi_implicit_euler", "rk4"):
             f = lambda: _kernels.step_inplace(model, q, qd, 1e-4, integ)
