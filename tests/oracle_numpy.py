@@ -34,7 +34,7 @@ from tensegrity_gym import dynamics as dyn, integrators
 from tensegrity_gym.contact import ContactState
 from tensegrity_gym.dynamics import State
 from tensegrity_gym.params import check_params
-from tensegrity_gym.physics.step import _as_batch
+from tensegrity_gym.physics.integrate import _as_batch
 
 
 # ---------------------------------------------------------------------- string forces

@@ -48,7 +48,7 @@ from ..core.integrators import EXPLICIT, resolve, uses_numba
 from ..core.model import Model, State
 from .contact import ContactState, GroundContact, check_prm_rows, forces_inplace
 from .stability import check_stability
-from .step import _as_batch, step as physics_step
+from .integrate import _as_batch, step as physics_step
 
 __all__ = ["step", "contact_step", "control_step", "ControlStep", "run_steps", "diverged", "compiled_physics",
            "compiled_plan"]
