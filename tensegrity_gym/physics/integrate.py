@@ -196,7 +196,7 @@ def step_inplace(model: Model, state: State, dt: float, integrator: str = "semi_
     plans = model.__dict__.get("_inplace_plans")
     if (plans is not None and rest_length is None and force_density is None and external is None and params is None
             and type(n_steps) is int and n_steps > 0 and type(q) is np.ndarray and type(qd) is np.ndarray
-            and q.dtype is _F8 and qd.dtype is _F8):
+            and q.dtype is _F8 and qd.dtype is _F8 and q.flags.carray and qd.flags.carray):
         plan = plans.get((integrator, dt, project, backend))
         if plan is not None and q.shape[0] < 8 and finite_pair(q, qd):
             kernel, buf, flags = plan
@@ -206,8 +206,9 @@ def step_inplace(model: Model, state: State, dt: float, integrator: str = "semi_
                 err = -1
             if err == 0:
                 t = state.t + dt
-                for _ in range(n_steps - 1):
-                    t = t + dt
+                if n_steps > 1:
+                    for _ in range(n_steps - 1):
+                        t = t + dt
                 return t
     info = resolve(integrator)
     if not ((math.isfinite(dt) if type(dt) is float else np.isfinite(dt)) and dt > 0):
