@@ -5,9 +5,9 @@ runs (:mod:`tensegrity_gym.physics.simulate`) and the stability checks
 from .core.errors import EvaluationBudgetExceeded, SimulationDiverged, StabilityWarning
 from .core.integrators import INTEGRATORS, NUMPY_REMOVED, IntegratorInfo, numba_backend, resolve
 from .physics.evaluate import accelerations
-from .physics.simulate import Schedule, simulate
+from .physics.rollout import Schedule, simulate
 from .physics.stability import stability_limit
-from .physics.step import AXIS_TOLERANCE, rk4_update, step, step_inplace
+from .physics.integrate import AXIS_TOLERANCE, rk4_update, step, step_inplace
 
 _numba_backend = numba_backend   # the name the envs used for the backend-name check
 

@@ -34,7 +34,7 @@ from tensegrity_gym import dynamics as dyn, integrators
 from tensegrity_gym.contact import ContactState
 from tensegrity_gym.dynamics import State
 from tensegrity_gym.params import check_params
-from tensegrity_gym.physics.step import _as_batch
+from tensegrity_gym.physics.integrate import _as_batch
 
 
 # ---------------------------------------------------------------------- string forces
@@ -333,12 +333,12 @@ def roll_observation(task):
     return obs
 
 
-def _ref_advance(act, ctrl, action):
+def _ref_update_rate(act, ctrl, action):
     new = actuation_apply(act, ctrl, action)
     return new, act.physics_inputs(new)
 
 
-def _ref_advance_motor(act, ctrl, speed, action):
+def _ref_update_motor(act, ctrl, speed, action):
     if act.max_accel is None:
         raise ValueError("update_motor: this Actuation has no max_accel (use update_rate)")
     new, v = actuation_apply_motor(act, ctrl, speed, action)
@@ -365,8 +365,8 @@ def reference_paths():
     from tensegrity_gym.envs import compiled
     from tensegrity_gym.envs.roll_obs import RollObservation
     with pytest.MonkeyPatch.context() as m:
-        m.setattr(Actuation, "update_rate", _ref_advance)
-        m.setattr(Actuation, "update_motor", _ref_advance_motor)
+        m.setattr(Actuation, "update_rate", _ref_update_rate)
+        m.setattr(Actuation, "update_motor", _ref_update_motor)
         m.setattr(pipeline, "diverged", diverged)
         m.setattr(physics_pipeline, "diverged", diverged)
         m.setattr(RollObservation, "observe", _ref_roll_observe)

@@ -268,7 +268,7 @@ def test_python_contact_loop_matches_the_fast_path(monkeypatch):
     """The generic path (a Python loop of contact forces and one integrators.step per physics
     step, NumPy bookkeeping) and the default compiled path give the same trajectory to
     round-off. (The NumPy oracle of the contact step: tests/test_contact.py.)"""
-    from tensegrity_gym import pipeline
+    from tensegrity_gym.physics import pipeline   # where the compiled contact call is looked up
     acts = np.random.default_rng(0).uniform(-1, 1, (25, 9))
     calls = []
     real = pipeline._contact_compiled

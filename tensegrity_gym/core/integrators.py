@@ -24,6 +24,10 @@ __all__ = ["INTEGRATORS", "IntegratorInfo", "resolve", "EXPLICIT", "IMPLICIT", "
 
 @dataclass(frozen=True)
 class IntegratorInfo:
+    """One integrator: its canonical ``name``, convergence ``order``, whether it is ``adaptive``
+    (error-controlled steps in ``scipy.integrate.solve_ivp``) or ``symplectic``, and a one-line
+    ``description``."""
+
     name: str
     order: int
     adaptive: bool

@@ -96,9 +96,9 @@ class Model:
     rest_length: np.ndarray    # (m,) default rest lengths, m
     active: np.ndarray         # (m,) bool: force-density-controlled strings
     W0: np.ndarray             # (n, 3) constant external nodal loads (gravity), N
-    gravity: np.ndarray | None
-    has_gravity: bool
-    has_damping: bool
+    gravity: np.ndarray | None  # (3,) gravitational acceleration, m/s^2, or None without gravity
+    has_gravity: bool          # W0 is not all zero (the kernels skip the loads otherwise)
+    has_damping: bool          # some string is damped (the kernels skip string length rates otherwise)
     com_eta: np.ndarray = field(default=None)  # (k,) signed distance of centre of mass from ref. point, m
     node_damping: np.ndarray = field(default=None)  # (n,) viscous drag coefficient per node, N s/m
     has_node_damping: bool = False

@@ -4,16 +4,16 @@ state's own arrays), :func:`simulate`, :func:`accelerations`, :func:`project`,
 of :mod:`tensegrity_gym.backends`.
 
 Modules: ``geometry`` (nodes, strings, energies, momenta), ``evaluate`` (accelerations, forces,
-projection: no step), ``step`` (fixed steps, implicit and adaptive dispatch), ``simulate``
-(recorded runs, schedules, the adaptive methods), ``implicit`` (backward Euler),
+projection: no step), ``integrate`` (fixed steps, implicit and adaptive dispatch), ``rollout``
+(recorded runs, schedules), ``adaptive`` (``solve_ivp`` methods), ``implicit`` (backward Euler),
 ``jacobian`` (finite-difference Jacobians), ``stability`` (stable-step estimates and checks),
 ``statics`` (equilibria), ``contact`` (ground-contact parameters and forces), ``actuation``
 (actions -> controls) and ``pipeline`` (actuation -> contact -> integration of a batch).
 """
 from .evaluate import accelerations, project, string_forces
 from .pipeline import ControlStep, control_step, diverged, run_steps
-from .simulate import simulate
-from .step import step, step_inplace
+from .rollout import simulate
+from .integrate import step, step_inplace
 
 __all__ = ["step", "step_inplace", "simulate", "accelerations", "project", "string_forces", "control_step",
            "ControlStep", "diverged", "run_steps"]

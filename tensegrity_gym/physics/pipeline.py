@@ -48,7 +48,8 @@ from ..core.integrators import EXPLICIT, resolve, uses_numba
 from ..core.model import Model, State
 from .contact import ContactState, GroundContact, check_prm_rows, forces_inplace
 from .stability import check_stability
-from .step import _as_batch, step as physics_step
+from . import integrate   # integrate.step looked up at call time: a caller may wrap it
+from .integrate import _as_batch
 
 __all__ = ["step", "contact_step", "control_step", "ControlStep", "run_steps", "diverged", "compiled_physics",
            "compiled_plan"]
@@ -113,8 +114,8 @@ def _physics(model, q, qd, dt, name, n_steps, rest_length, force_density, extern
         numba_api.step_inplace(model, q, qd, dt, name, rest_length=rest_length, force_density=force_density,
                                external=external, project=project, n_steps=n_steps, params=params)
         return
-    st = physics_step(model, State(q, qd, 0.0), dt, name, rest_length=rest_length, force_density=force_density,
-                      external=external, project=project, n_steps=n_steps, backend=backend, params=params)
+    st = integrate.step(model, State(q, qd, 0.0), dt, name, rest_length=rest_length, force_density=force_density,
+                        external=external, project=project, n_steps=n_steps, backend=backend, params=params)
     q[...] = st.q
     qd[...] = st.qd
 
@@ -129,8 +130,8 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     (B, n, 3) N is added to the contact forces of every step. ``inputs``: ``rest_length``,
     ``force_density``, ``params``, ``project`` as :func:`tensegrity_gym.physics.step` takes them."""
     if contact is None:
-        return physics_step(model, state, dt, integrator, n_steps=n_steps, external=external, backend=backend,
-                            **inputs)
+        return integrate.step(model, state, dt, integrator, n_steps=n_steps, external=external, backend=backend,
+                              **inputs)
     info = resolve(integrator)
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")

@@ -41,7 +41,7 @@ from ..core.structure import Structure
 from .evaluate import force_densities, nodal_forces, project
 from .geometry import kinetic_energy, node_positions, string_state
 from .jacobian import fd_jacobian
-from .step import step
+from .integrate import step
 
 __all__ = ["EquilibriumError", "Equilibrium", "ReducedCoordinates", "equilibrium", "solve_equilibria",
            "equilibrium_matrix", "generalized_residual", "stiffness_matrix"]

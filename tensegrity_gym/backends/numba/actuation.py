@@ -57,7 +57,7 @@ def apply_controls(ctrl, action, rate, low, high, actuated, base, fill_base, ctr
 @njit(cache=True, nogil=True)
 def apply_motor(ctrl, speed, action, max_rate, dv, dt, low, high, actuated, base, fill_base,
                 ctrl_out, speed_out, phys_out):
-    """Motor model of ``Actuation.apply_motor``: ``v = speed + clip(action * max_rate - speed,
+    """Motor model of ``Actuation.update_motor``: ``v = speed + clip(action * max_rate - speed,
     -dv, dv)``, ``ctrl_out = clip(ctrl + v * dt, low, high)``, ``v = 0`` where the control
     sits on a bound and ``v`` pushes beyond it (``speed_out``), and the physics input
     ``phys_out`` as :func:`apply_controls`. ``max_rate`` (P, na) and ``dv`` (P,): one row

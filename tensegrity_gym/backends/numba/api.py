@@ -96,7 +96,7 @@ from .layout import _ACC, _CHUNK_SHIFT, _CONS, _ERRORS, _EXT, _FD, _L0DEF, _PONL
 from .pack import _CACHE, _array, _flags, _packed, _pack_params, clear_cache
 
 __all__ = ["step", "step_inplace", "accelerations", "string_forces", "project", "contact_steps", "Plan",
-           "make_plan", "packed", "PARALLEL_MIN_WORK", "clear_cache"]
+           "make_plan", "packed", "lean_plan", "new_state", "PARALLEL_MIN_WORK", "clear_cache"]
 
 
 def _check_inplace(q, qd):
@@ -386,6 +386,17 @@ def make_plan(model, name: str, dt: float, n_steps: int, batch_size: int, contro
     plan = Plan()
     plan.model, plan.buf, plan.flags, plan.dt, plan.n_steps = model, p.buf, int(flags), float(dt), int(n_steps)
     return plan
+
+
+def lean_plan(model, name: str, project: bool = True):
+    """``(kernel, buf, flags)``: the compiled call that :func:`step_inplace` makes for ``model``
+    stepped by the fixed-step method ``name`` (a resolved name) with no control arrays and no
+    per-copy parameters on fewer than 8 copies: ``kernel(q, qd, q, qd, buf, dt, n_steps, flags)``
+    steps ``q``, ``qd`` (B, k, 6) in place and returns the error code (0: done; the arrays are
+    untouched otherwise). It raises TypeError for arrays it does not take as they are (another
+    dtype, layout or a read-only array): :func:`step_inplace` converts or refuses those."""
+    p = _CACHE.get(id(model)) or _packed(model)
+    return _run_lean, p.buf, _flags(p, name, project)
 
 
 def packed(model, params=None):

@@ -12,7 +12,7 @@ from ..core.model import Model, State
 from ..core.params import check_params
 from .adaptive import adaptive
 from .stability import check_stability, divergence_cause
-from .step import _as_batch, step
+from .integrate import _as_batch, step
 
 __all__ = ["simulate", "Schedule"]
 

@@ -62,7 +62,6 @@ import math
 import numpy as np
 
 from ..backends.numba import api as numba_api
-from ..backends.numba.api import new_state as _new_state
 from ..backends.numba.divergence import finite_pair, unit_axes
 from ..backends.torch import driver as torch_driver
 from ..core.checks import check_finite, check_unit_axes, is_integer
@@ -75,6 +74,8 @@ from .evaluate import external_forces
 from .stability import check_stability
 
 __all__ = ["step", "step_inplace", "rk4_update"]
+
+_F8 = np.dtype(np.float64)
 
 
 def _as_batch(x, B, m, name):
@@ -181,22 +182,45 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
 
 def step_inplace(model: Model, state: State, dt: float, integrator: str = "semi_implicit_euler", *,
                  rest_length=None, force_density=None, external=None, project: bool = True, n_steps: int = 1,
-                 params=None, backend: str = "auto", rtol: float = 1e-10, atol: float = 1e-12) -> State:
+                 params=None, backend: str = "auto", rtol: float = 1e-10, atol: float = 1e-12) -> float:
     """:func:`step` into the state's own arrays: ``state.q`` and ``state.qd`` (B, k, 6), writable
     C-contiguous float64 (m, 1, m/s, 1/s), are overwritten with the state after ``n_steps`` steps
-    of ``dt`` s. Returns a :class:`State` holding those same arrays and the time after the steps
-    (``State`` is frozen: keep the returned one to track time). Bit for bit what :func:`step`
-    returns, with the same arguments and the same checks (ValueError naming the field, the index
-    and the value).
+    of ``dt`` s. Returns the time after the steps, s (``state.t`` plus ``dt`` added step by step,
+    as :func:`step` sums it; ``State`` is frozen, so ``state.t`` itself stays: keep the returned
+    time, or ``State(state.q, state.qd, t)``). Bit for bit what :func:`step` returns, with the
+    same arguments and the same checks (ValueError naming the field, the index and the value).
 
     The fixed-step explicit methods on the numba backend with array inputs (the fast path: no
     allocation, one compiled call, about the kernel's own cost per call) write in place; any
     other method, backend or a callable ``external`` runs :func:`step` and copies its result in.
-    ValueError if ``state.q`` / ``state.qd`` are not writable C-contiguous float64 arrays."""
+    ValueError if ``state.q`` / ``state.qd`` are not writable C-contiguous float64 arrays.
+
+    A call that repeats an earlier one's method, ``dt``, ``project`` and ``backend`` on fewer than
+    8 copies without control arrays or ``params`` reuses that call's checks of those arguments
+    (kept on the model) and checks only ``n_steps`` and the state: then its cost is the compiled
+    call's."""
+    q = state.q
+    qd = state.qd
+    plans = model.__dict__.get("_inplace_plans")
+    if (plans is not None and rest_length is None and force_density is None and external is None and params is None
+            and type(n_steps) is int and n_steps > 0 and type(q) is np.ndarray and type(qd) is np.ndarray
+            and q.dtype is _F8 and qd.dtype is _F8 and q.flags.carray and qd.flags.carray):
+        plan = plans.get((integrator, dt, project, backend))
+        if plan is not None and q.shape[0] < 8 and finite_pair(q, qd) and unit_axes(q, AXIS_TOLERANCE):
+            kernel, buf, flags = plan
+            try:
+                err = kernel(q, qd, q, qd, buf, dt, n_steps, flags)
+            except TypeError:      # an array the compiled call does not take: the checks below say why
+                err = -1
+            if err == 0:
+                t = state.t + dt
+                if n_steps > 1:
+                    for _ in range(n_steps - 1):
+                        t = t + dt
+                return t
     info = resolve(integrator)
     if not ((math.isfinite(dt) if type(dt) is float else np.isfinite(dt)) and dt > 0):
         raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
-    q, qd = state.q, state.qd
     if not (type(q) is np.ndarray and type(qd) is np.ndarray and q.dtype == np.float64 and qd.dtype == np.float64
             and q.ndim == 3 and q.flags.c_contiguous and qd.flags.c_contiguous and q.flags.writeable
             and qd.flags.writeable):
@@ -209,7 +233,7 @@ def step_inplace(model: Model, state: State, dt: float, integrator: str = "semi_
                    params=params)
         q[...] = new.q
         qd[...] = new.qd
-        return _new_state(q, qd, new.t)
+        return new.t
     n_steps = _check_inputs(state, n_steps, external)
     B, m = q.shape[0], model.n_strings
     if rest_length is not None:
@@ -222,10 +246,15 @@ def step_inplace(model: Model, state: State, dt: float, integrator: str = "semi_
         check_stability(model, info, dt)
     numba_api.step_inplace(model, q, qd, dt, info.name, rest_length=rest_length, force_density=force_density,
                            external=external, project=project, n_steps=n_steps, params=params)
+    if rest_length is None and force_density is None and external is None and params is None and B < 8:
+        plans = model.__dict__.setdefault("_inplace_plans", {})
+        if len(plans) >= 64:       # a caller that varies dt from call to call: keep the memo small
+            plans.clear()
+        plans[(integrator, dt, project, backend)] = numba_api.lean_plan(model, info.name, project)
     t = state.t + dt
     for _ in range(n_steps - 1):
         t = t + dt
-    return _new_state(q, qd, t)
+    return t
 
 
 def _callable_step(model, state, dt, name, rest_length, force_density, external, project, n_steps, params):
