@@ -1,4 +1,5 @@
-"""Re-exports: the compile notice of the numba backend (:mod:`tensegrity_gym.backends.numba.compile`)."""
-from .backends.numba.compile import cached, compile_with_notice, say
+"""Re-exports: the compile step of the numba backend (:mod:`tensegrity_gym.backends.numba.compile`);
+its progress messages come from :mod:`tensegrity_gym.backends.numba.watch`."""
+from .backends.numba.compile import compile_with_notice
 
-__all__ = ["cached", "compile_with_notice", "say"]
+__all__ = ["compile_with_notice"]

@@ -85,7 +85,7 @@ def test_randomize_string_number_refused():
 
 
 def test_noise_sigma_unit():
-    from tensegrity_gym import hardening_checks as hc
+    from tensegrity_gym.envs import limits as hc
     assert hc.check_noise_sigma("x", 0.5, False) == 0.5
     assert hc.check_noise_sigma("x", hc.MAX_FLOAT32_NOISE, False) == hc.MAX_FLOAT32_NOISE
     for bad in (1e39, -1.0, math.nan, True, "1", None):

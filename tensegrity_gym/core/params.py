@@ -155,7 +155,7 @@ class Params:
         return _frozen(model, **cur, W0=W0)
 
 
-def _moments(model, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def rod_moments(model, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(P, k) first and second mass moments of rods of mass ``mass`` (P, k) kg with the
     structure's mass distribution (uniform, or its lumped masses scaled to ``mass``), computed
     as :func:`~tensegrity_gym.core.model.compile_model` does (the same operations: a copy equals
@@ -292,3 +292,5 @@ def check_params(model, params: Params, batch_size: int) -> Params:
                          "give 1 (shared) or one per copy")
     return params
 
+
+_moments = rod_moments   # the name the per-copy code of this module calls

@@ -28,7 +28,7 @@ from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SE
                          robot_prism, settle)
 from .sensors import RobotSensors
 from .shells import TaskEnv, TaskVectorEnv
-from ..hardening_checks import check_domain_rest_lengths, check_domain_stable_dt
+from .limits import check_domain_rest_lengths, check_domain_stable_dt
 from .validate import ACTION_MODES, check_positive, check_rest_length_bounds, check_stable_dt, resolve_actuated
 
 __all__ = ["RollTask", "TensegrityRollEnv", "TensegrityRollVectorEnv", "robot_prism", "robot_icosahedron",

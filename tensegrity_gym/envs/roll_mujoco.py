@@ -88,7 +88,8 @@ from .. import dynamics as dyn
 from ..mjcf import check_mj_integrator, initial_qpos_qvel, to_mjcf
 from ..rewards import quadratic_cost
 from ..checks import check_frame_size
-from ..hardening_checks import clear_mujoco_warnings, picklable_state, restore_state, twin_diverged
+from .pickling import picklable_state, restore_state
+from .twin_divergence import clear_mujoco_warnings, twin_diverged
 from .common import check_action, check_positive
 from .config import RollConfig, flatten, with_flat
 from .roll import MAX_PATH, SETTLE_TIME, RollTask

@@ -50,7 +50,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics as dyn
-from ..hardening_checks import check_noise_sigma
+from .limits import check_noise_sigma
 
 __all__ = ["NOISY_BLOCKS", "rod_frames", "RobotSensors"]
 

@@ -21,7 +21,7 @@ from .docs import SHAPE_DOC as _DOC
 from .shape_fused import FusedShapeStep
 from .sensors import RobotSensors
 from .shells import TaskEnv, TaskVectorEnv
-from ..hardening_checks import check_domain_rest_lengths, check_domain_stable_dt
+from .limits import check_domain_rest_lengths, check_domain_stable_dt
 from .validate import (ACTION_MODES, check_positive, check_rest_length_bounds, check_stable_dt, load_env_structure,
                        resolve_actuated)
 

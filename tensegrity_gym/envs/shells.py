@@ -11,7 +11,8 @@ from gymnasium.utils import seeding
 
 from ..checks import check_count, check_frame_size, check_options
 from ..rewards import combine
-from ..hardening_checks import check_autoreset_mode, check_reset_called, check_seed_value, picklable_state
+from .pickling import picklable_state
+from .vector_rules import check_autoreset_mode, check_reset_called, check_seed_value
 from .base import BatchedTask
 from .validate import check_action
 

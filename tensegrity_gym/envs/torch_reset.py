@@ -39,7 +39,7 @@ from .. import torch_backend as tb
 from ..core.param_table import contact_columns
 from .domain import write_copies
 from .shells import per_env_seeds
-from ..hardening_checks import check_seed_value
+from .vector_rules import check_seed_value
 
 __all__ = ["CounterStreams", "TorchDomain", "reference_uniforms", "RESET_SAMPLING", "SALTS"]
 

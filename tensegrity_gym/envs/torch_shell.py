@@ -14,7 +14,7 @@ from gymnasium.utils import seeding
 from .. import torch_backend as tb
 from ..checks import check_action_tensor
 from ..core.param_table import PARAMS
-from ..hardening_checks import check_autoreset_mode, check_reset_called
+from .vector_rules import check_autoreset_mode, check_reset_called
 from .shells import VectorSeeding, episode_limit, reseed
 from .torch_reset import RESET_SAMPLING, CounterStreams, TorchDomain
 from .torch_sensors import TorchSensors

@@ -22,7 +22,7 @@ TMP_TAG = ".tmp-"
 _TMP_PID = re.compile(re.escape(TMP_TAG) + r"(\d+)")
 _COUNTER = iter(range(1 << 62))
 
-__all__ = ["write_atomic", "stage", "publish", "link_exclusive", "tmp_path", "remove_stale_tmp", "check_writable", "pid_alive",
+__all__ = ["close_after_error", "write_atomic", "stage", "publish", "link_exclusive", "tmp_path", "remove_stale_tmp", "check_writable", "pid_alive",
            "OutputError", "OutputExists", "OutputChanged", "TMP_TAG"]
 
 
@@ -193,3 +193,12 @@ def check_writable(path: str | Path, label: str = "--out", *, create_folders: bo
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputError(f"{label} {str(path)!r}: folder {str(folder)!r} is not writable")
     return path
+
+
+def close_after_error(resource) -> None:
+    """``resource.close()`` on an error path: an error of the close itself (a full disk, a broken
+    pipe to a dead encoder) is dropped, so that the error being handled is the one reported."""
+    try:
+        resource.close()
+    except Exception:  # noqa: BLE001 -- the original error propagates
+        pass

@@ -9,4 +9,8 @@ points ``step``, ``step_inplace``, ``accelerations``, ``string_forces``, ``proje
 ``contact_steps``, ``make_plan``), ``actuation`` (compiled control updates) and ``divergence``.
 numba's on-disk cache does not notice edits of kernels inlined into kernels of another module:
 after editing one run ``find tensegrity_gym -name '*.nbi' -o -name '*.nbc' | xargs rm -f``.
+``watch`` prints progress on stderr while numba compiles this package's functions.
 """
+from .watch import install as _install_watch
+
+_install_watch()

@@ -3,14 +3,12 @@ parallel loops, and the one-line notice on stderr when numba really compiles.
 
 The first compiled call after an install (or after the package's source changed) compiles the
 numba kernels; later processes load them from numba's on-disk cache (``__pycache__/*.nbi`` /
-``*.nbc`` beside the modules) in well under a second. Loading from the cache prints nothing.
-Set ``TENSEGRITY_GYM_QUIET=1`` to silence the message.
+``*.nbc`` beside the modules) in well under a second. :mod:`~tensegrity_gym.backends.numba.watch`
+prints the progress of a real compile.
 """
 from __future__ import annotations
 
 import os
-import sys
-import time
 
 import numba
 
@@ -27,46 +25,13 @@ if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER ==
 
 NCHUNK = 4 * numba.get_num_threads()   # chunks of the parallel batch loops
 
-_said = False
-
-def cached(dispatcher) -> bool:
-    """True if numba's on-disk cache holds a current entry for ``dispatcher`` (its index file
-    exists and its source stamp matches the module); True as well when that cannot be told
-    (then :func:`compile_with_notice` reports after a slow compile instead)."""
-    if dispatcher.signatures:               # already compiled or loaded in this process
-        return True
-    try:
-        return bool(dispatcher._cache._cache_file._load_index())
-    except Exception:                       # numba internals changed, or caching disabled
-        return True
-
-
-def say(message: str) -> None:
-    """Print ``message`` to stderr once per process (the first call only)."""
-    global _said
-    if _said or os.environ.get("TENSEGRITY_GYM_QUIET"):
-        return
-    _said = True
-    try:
-        print(message, file=sys.stderr, flush=True)
-    except (OSError, ValueError):           # pragma: no cover - stderr closed
-        pass
-
-
 def compile_with_notice(pairs, what: str) -> None:
-    """Compile ``(dispatcher, signature)`` pairs (``signature`` None: nothing to compile here,
-    the first call will) announcing a cold compile up front and a slow unannounced one after."""
-    cold = not all(cached(d) for d, _ in pairs)
-    if cold:
-        say(f"tensegrity_gym: compiling the numba {what} (once after install or an update, about "
-            "1.5-2 min on 2 cores; cached in __pycache__ for later runs) ...")
-    t0 = time.perf_counter()
+    """Compile ``(dispatcher, signature)`` pairs (``signature`` None: nothing to compile here, the
+    first call will). Progress of a real compile (a cache miss) is printed by
+    :mod:`~tensegrity_gym.backends.numba.watch`; ``what`` names the kernels for callers' clarity."""
     for d, sig in pairs:
         if sig is not None:
             d.compile(sig)
-    took = time.perf_counter() - t0
-    if not cold and took > 5.0:
-        say(f"tensegrity_gym: compiled the numba {what} in {took:.0f} s (cached for later runs)")
 
 
 #: a call runs the multi-threaded kernel when B * n_steps * (strings + rods) * (4 for RK4, else 1)

@@ -3,8 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...io.atomic import write_atomic
-from ...hardening_checks import close_after_error
+from ...io.atomic import close_after_error, write_atomic
 from .factory import make_renderer
 from .scene import RendererUnavailable
 

@@ -1,25 +1,19 @@
-"""Checks of user input that would otherwise fail late (inside a step, hours into a training) or
-silently: robot parameters against what the physics can take, noise in the observation's dtype,
-bounded reads of input files, ports. Every error is a ``ValueError`` naming the argument, the
-index and the value, and the accepted range. SI units.
+"""What the physics can take, checked when an env is built: rest lengths stay positive and the
+stable step stays above ``dt`` for every draw of ``params`` / ``randomize``, and observation noise
+fits the observation's float32. Every error is a ``ValueError`` naming the argument, the index and
+the value, and the accepted range. SI units.
 """
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
-import types
 
 import numpy as np
 
-from . import pipeline
-from .checks import is_integer
-from .params import _moments
+from ..core.params import rod_moments
 
 __all__ = ["check_domain_rest_lengths", "check_domain_stable_dt", "check_noise_sigma", "worst_case_values",
-           "check_seed_value", "check_reset_called",
-           "check_autoreset_mode", "clear_mujoco_warnings", "twin_diverged", "MUJOCO_DIVERGENCE_WARNINGS",
-           "picklable_state", "restore_state", "close_after_error"]
+           "STABILITY_PARAMETERS", "MAX_FLOAT32_NOISE"]
 
 
 def _spread(domain, name: str) -> float:
@@ -64,7 +58,7 @@ def _worst_model(model, dom, names):
     kw = {}
     if "rod_mass" in names:
         mass = worst_case_values(dom, "rod_mass")
-        f, J = _moments(model, mass[None])
+        f, J = rod_moments(model, mass[None])
         kw.update(mass=mass, f=f[0], J=J[0])
     for name in ("stiffness", "damping"):
         if name in names:
@@ -144,103 +138,3 @@ def check_noise_sigma(name: str, sigma, flip: bool) -> float:
                          if flip else f"must be a finite standard deviation in [0, {hi:.3g}] (a number; the "
                          "observation is float32)") + f"; got {sigma!r}")
     return s
-
-
-
-
-
-def check_seed_value(seed, i: int = 0):
-    """``seed`` of env ``i`` as an int if it is a non-negative integer (not a bool, float or
-    string), None kept; ValueError naming the env otherwise (the vector envs' seeding rule, as the
-    single env's ``reset(seed=...)`` refuses them)."""
-    if seed is None:
-        return None
-    if not is_integer(seed) or seed < 0:
-        raise ValueError(f"seed: env {i}: expected a non-negative int or None, got {seed!r}")
-    return int(seed)
-
-
-def check_reset_called(env) -> None:
-    """Gymnasium's ``ResetNeeded`` when a vector env is stepped before its first ``reset()`` (as
-    ``gymnasium.make`` does for a single env)."""
-    if not getattr(env, "_reset_called", False):
-        from gymnasium.error import ResetNeeded
-        raise ResetNeeded("Cannot call env.step() before calling env.reset()")
-
-
-def check_autoreset_mode(kwargs: dict) -> dict:
-    """``kwargs`` without ``autoreset_mode``: the vector envs autoreset on the next step only
-    (``gymnasium.vector.AutoresetMode.NEXT_STEP``, or ``"next_step"``); any other request is a
-    ValueError saying which autoreset mode the env implements."""
-    if "autoreset_mode" not in kwargs:
-        return kwargs
-    from gymnasium.vector import AutoresetMode
-    kwargs = dict(kwargs)
-    mode = kwargs.pop("autoreset_mode")
-    ok = mode is AutoresetMode.NEXT_STEP or (isinstance(mode, str) and mode.replace("_", "").lower() == "nextstep")
-    if not ok:
-        raise ValueError(f"autoreset_mode: these vector envs autoreset in NEXT_STEP mode only (an env that ended "
-                         f"is reset by the following step() call), got {mode!r}; choose "
-                         "gymnasium.vector.AutoresetMode.NEXT_STEP or wrap single envs in SyncVectorEnv("
-                         "..., autoreset_mode=...) for SAME_STEP / DISABLED")
-    return kwargs
-
-
-#: MuJoCo warnings that mean the simulation blew up (MuJoCo resets the data on a bad acceleration, so
-#: the state alone can look fine afterwards)
-MUJOCO_DIVERGENCE_WARNINGS = ("mjWARN_BADQACC", "mjWARN_BADQPOS", "mjWARN_BADQVEL")
-
-
-def clear_mujoco_warnings(mujoco, data) -> None:
-    """Zero the counters of :data:`MUJOCO_DIVERGENCE_WARNINGS` in ``data`` (an ``MjData``), so that
-    the next step's warnings are seen even where MuJoCo's own reset re-counts them from zero."""
-    for name in MUJOCO_DIVERGENCE_WARNINGS:
-        data.warning[getattr(mujoco.mjtWarning, name)].number = 0
-
-
-def twin_diverged(mujoco, data, task) -> bool:
-    """True if the MuJoCo twin's last control step diverged, by the native env's rule and more:
-    a MuJoCo divergence warning since :func:`clear_mujoco_warnings`, a non-finite ``qpos`` /
-    ``qvel``, or the task's state (``task.q``, ``task.qd``, synced from MuJoCo) out of the task's
-    ``divergence_limit`` (m) as :func:`tensegrity_gym.pipeline.diverged` measures it for the native env."""
-    if any(data.warning[getattr(mujoco.mjtWarning, n)].number > 0 for n in MUJOCO_DIVERGENCE_WARNINGS):
-        return True
-    if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
-        return True
-    return bool(pipeline.diverged(task.q, task.qd, task.center0, task.divergence_limit, task.travels)[0])
-
-
-class _ModuleRef:
-    """A module held by an env, pickled by name (modules do not pickle)."""
-
-    def __init__(self, name: str):
-        self.name = name
-
-
-def picklable_state(state: dict) -> dict:
-    """An env's ``__dict__`` for pickling: renderers (a window, a GL context: not picklable, and
-    made again at the next ``render()``) left out, modules held by name."""
-    out = dict(state)
-    for k, v in state.items():
-        if k == "_renderer":
-            out[k] = None
-        elif k == "_renderers":
-            out[k] = {}
-        elif isinstance(v, types.ModuleType):
-            out[k] = _ModuleRef(v.__name__)
-    return out
-
-
-def restore_state(obj, state: dict) -> None:
-    """Inverse of :func:`picklable_state`: ``obj.__dict__`` from ``state``, modules imported again."""
-    obj.__dict__.update({k: importlib.import_module(v.name) if isinstance(v, _ModuleRef) else v
-                         for k, v in state.items()})
-
-
-def close_after_error(resource) -> None:
-    """``resource.close()`` on an error path: an error of the close itself (a full disk, a broken
-    pipe to a dead encoder) is dropped, so that the error being handled is the one reported."""
-    try:
-        resource.close()
-    except Exception:  # noqa: BLE001 -- the original error propagates
-        pass
