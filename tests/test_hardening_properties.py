@@ -167,8 +167,8 @@ def _arrays_of(kind, good):
 @settings(max_examples=80, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
 @given(t_kind=arrays, n_kind=arrays, command=st.sampled_from(["identify", "view"]))
 def test_cli_npz_trajectory_files(tmp_path_factory, capsys, monkeypatch, t_kind, n_kind, command):
-    from tensegrity_gym import rendering
-    monkeypatch.setattr(rendering, "view_trajectory", lambda *a, **k: None)   # no viewer is opened
+    from tensegrity_gym.tools import cli_commands
+    monkeypatch.setattr(cli_commands, "view_trajectory", lambda *a, **k: None)   # no viewer is opened
     d = tmp_path_factory.mktemp("n")
     s = tg.load_structure("prism3")
     t = np.arange(6) * 0.01
