@@ -81,9 +81,9 @@ def test_module_entry_point():
     assert "pinned_rod" in r.stdout
 
 
-def test_readme_json_example_loads():
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"### Structure JSON format\s+```json\n(.*?)```", text, re.S).group(1)
+def test_docs_json_example_loads():
+    text = (ROOT / "docs" / "structures.md").read_text()
+    block = re.search(r"# Structure JSON format\s+```json\n(.*?)```", text, re.S).group(1)
     s = from_dict(json.loads(block))
     assert s.n_bars == 1 and s.n_strings == 3 and 0 in s.node_constraints
     assert s.gravity is not None and s.damping[0] == 2.0
