@@ -162,6 +162,20 @@ def test_bounded_read_stops_at_the_cap(tmp_path):
     assert read_bounded(p, 5000, "x") == " " * 5000
 
 
+def test_structure_file_over_the_cap_is_refused_before_parsing(tmp_path, capsys):
+    """A structure file over MAX_FILE_BYTES (a 250 MB file took minutes and 4 GB to parse) is refused
+    after reading at most the cap, with the cap named."""
+    import time
+    from tensegrity_gym.structure import MAX_FILE_BYTES
+    p = tmp_path / "huge.json"
+    with open(p, "wb") as fh:
+        fh.write(b'{"nodes": [' + b"[0, 0, 0], " * ((MAX_FILE_BYTES // 11) + 10) + b"[0, 0, 0]]}")
+    t0 = time.perf_counter()
+    code = main(["info", str(p)])
+    assert code == 3 and time.perf_counter() - t0 < 30
+    assert "MiB a structure file may have" in _one_error_line(capsys)
+
+
 def test_simulate_video_on_a_full_disk_closes_the_writer(tmp_path, capsys, monkeypatch):
     imageio = pytest.importorskip("imageio.v2")
     closed = []
