@@ -414,3 +414,22 @@ def test_adaptive_solver_is_bounded_by_max_steps(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code in (5, 6) and sum(x.startswith("error: ") for x in err) == 1, (code, err)
     assert time.perf_counter() - t0 < 120
+
+
+def test_sigterm_swallowed_by_a_callback_still_publishes_nothing(tmp_path, monkeypatch, capsys):
+    """Python ignores an exception raised inside a weakref callback or ``__del__``; a SIGTERM landing
+    there (matplotlib's transforms have such callbacks) must still stop the command before it
+    publishes anything, and exit 143."""
+    from tensegrity_gym.tools import cli_common, cli_simulate
+    out = tmp_path / "t.npz"
+    out.write_bytes(b"the old trajectory")
+    real = cli_common._commit
+
+    def commit_after_a_swallowed_sigterm(tx):
+        cli_common.TERMINATED.set()          # what the handler does before its exception is lost
+        return real(tx)
+    monkeypatch.setattr(cli_simulate, "_commit", commit_after_a_swallowed_sigterm)
+    code = main(["simulate", "prism3", "--duration", "0.01", "--out", str(out), "--force", "--no-progress"])
+    assert code == 143
+    assert out.read_bytes() == b"the old trajectory"
+    assert "terminated (SIGTERM); no output file was changed" in capsys.readouterr().err

@@ -70,7 +70,7 @@ from ..structure import StructureError
 from .cli_commands import cmd_export, cmd_identify, cmd_info, cmd_view, structure_summary
 from .cli_common import (DEFAULT_MAX_STEPS, EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_STRUCTURE,
                          EXIT_TERMINATED, EXIT_TOO_LARGE, EXIT_USAGE, CLIError, _default_max_memory_gib,
-                         _non_negative, _one_line, _port, _positive, _seed, _Terminated)
+                         _non_negative, _one_line, _port, _positive, _seed, TERMINATED, _Terminated)
 from .cli_simulate import cmd_demo, cmd_simulate, load_schedule
 
 __all__ = ["main", "build_parser", "CLIError", "structure_summary", "load_schedule", "cmd_simulate", "cmd_info",
@@ -237,7 +237,10 @@ def _written(args) -> str:
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (see the module docstring)."""
     def on_term(signum, frame):
+        TERMINATED.set()
         raise _Terminated()
+
+    TERMINATED.clear()
 
     old = args = None
     try:
@@ -253,6 +256,8 @@ def main(argv=None) -> int:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning
             code = args.func(args)
+        if TERMINATED.is_set():        # the handler's exception was swallowed (see cli_common.TERMINATED)
+            raise _Terminated()
         sys.stdout.flush()
         return code
     except CLIError as e:

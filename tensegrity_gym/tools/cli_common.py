@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import threading
 
 import numpy as np
 
@@ -37,6 +38,12 @@ class CLIError(Exception):
 
 class _Terminated(BaseException):
     """Raised by the SIGTERM handler so that ``finally`` blocks remove temporary files."""
+
+
+#: set by the SIGTERM handler as well: Python ignores an exception raised while it runs a weakref
+#: callback or ``__del__`` (matplotlib's transforms have such callbacks), so a SIGTERM that lands
+#: there would let the command run on; :func:`_commit` and the end of ``main`` check this instead
+TERMINATED = threading.Event()
 
 
 def _one_line(text) -> str:
@@ -119,6 +126,8 @@ def _stage(tx: Transaction, path, writer=None, *, fill=None) -> None:
 
 
 def _commit(tx: Transaction) -> None:
+    if TERMINATED.is_set():     # a SIGTERM whose exception was swallowed: publish nothing
+        raise _Terminated()
     try:
         tx.commit()
     except OutputError as e:
