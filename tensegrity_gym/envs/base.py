@@ -7,7 +7,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .. import dynamics as dyn
+from .. import dynamics
 from .. import integrators, pipeline
 from ..params import default_params
 from ..core.param_table import env_fields
@@ -63,7 +63,7 @@ class BatchedTask:
     #: True when the env shell renders (set by the shells): a task may then record what it draws
     record_path: bool = False
 
-    def _init_physics(self, model: dyn.Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
+    def _init_physics(self, model: dynamics.Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
                       backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
         self.num_envs = check_count(num_envs, "num_envs", 1, "copies")
         self.model = model
@@ -76,7 +76,7 @@ class BatchedTask:
                              "gymnasium.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point', "
                              "backend='torch', device=...) (docs/bench_gpu.md); this NumPy/numba task takes "
                              "backend 'auto' or 'numba'")
-        integrators._numba_backend(backend)   # "auto"/"numba"; ValueError naming "backend" otherwise
+        integrators.numba_backend(backend)   # "auto"/"numba"; ValueError naming "backend" otherwise
         self.backend = backend
         self._kernels_run = pipeline.compiled_physics(self.integrator, backend)   # the numba kernels step it
         self.clip_actions = check_flag(clip_actions, "clip_actions")
@@ -86,7 +86,7 @@ class BatchedTask:
         self.divergence_limit = (100.0 * max(size, 1e-3) if divergence_limit is None
                                  else check_positive(divergence_limit, "divergence_limit", "m"))
         B = self.num_envs
-        st = dyn.initial_state(model, B)
+        st = dynamics.initial_state(model, B)
         self.q = st.q.copy()
         self.qd = st.qd.copy()
         self.elapsed = np.zeros(B, dtype=np.int64)
@@ -262,7 +262,7 @@ class BatchedTask:
             # the frame_skip steps as two calls (n - 1, then 1; the same per-step arithmetic) to keep
             # the velocities before the last physics step (what IMUs read)
             with np.errstate(all="ignore"):
-                st = dyn.State(q0, qd0, 0.0)
+                st = dynamics.State(q0, qd0, 0.0)
                 if n > 1:
                     st = pipeline.step(model, st, dt, name, n_steps=n - 1, **kw)
                 qd_prev = np.array(st.qd, dtype=float)
@@ -273,10 +273,10 @@ class BatchedTask:
             return diverged
         if self._kernels_run:
             # the compiled kernel raises no floating-point warnings: no np.errstate
-            st = pipeline.step(model, dyn.State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
+            st = pipeline.step(model, dynamics.State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
         else:
             with np.errstate(all="ignore"):
-                st = pipeline.step(model, dyn.State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
+                st = pipeline.step(model, dynamics.State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
         return self._settle_divergence(q0, qd0, st.q, st.qd)
 
     def _simulate_contact(self, inputs: dict) -> np.ndarray:

@@ -84,7 +84,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .. import dynamics as dyn
+from .. import dynamics
 from ..mjcf import check_mj_integrator, initial_qpos_qvel, to_mjcf
 from ..rewards import quadratic_cost
 from ..checks import check_frame_size
@@ -186,7 +186,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         if not np.all(np.isfinite(q)):
             raise ValueError(f"{ENV_ID}: settling on MuJoCo's ground diverged at dt = {t.dt} s; reduce dt")
         t.q_nominal = q.copy()
-        t.nodes_nominal = dyn.node_positions(t.model, q)[0]
+        t.nodes_nominal = dynamics.node_positions(t.model, q)[0]
 
     @property
     def dt(self) -> float:
@@ -250,8 +250,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         if t.domain.enabled:   # this episode's robot into the MjModel (envs/twin_params.py)
             self._rest_offset, self.contact_timeconst = self._params.apply(
                 mj, m, d, {name: x[0] for name, x in t.domain.values.items()})
-        N = dyn.node_positions(t.model, t.q)[0]
-        V = dyn.node_velocities(t.model, t.qd)[0]
+        N = dynamics.node_positions(t.model, t.q)[0]
+        V = dynamics.node_velocities(t.model, t.qd)[0]
         mj.mj_resetData(m, d)
         d.qpos[:], d.qvel[:] = initial_qpos_qvel(t.structure.replace(nodes=N, velocities=V))
         m.tendon_lengthspring[self._act, 1] = t.ctrl[0] + self._rest_offset[self._act]

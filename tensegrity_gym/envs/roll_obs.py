@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import dynamics as dyn
+from .. import dynamics
 from . import compiled
 
 __all__ = ["RollObservation"]
@@ -16,7 +16,7 @@ class RollObservation:
     """``observe``, ``observation_layout`` and the centre of mass of the roll task; the task sets
     ``q``, ``qd``, ``ctrl``, ``speed``, ``goal``, ``cstate``, ``sensors`` and the sizes."""
 
-    def _init_observation(self, model: dyn.Model) -> None:
+    def _init_observation(self, model: dynamics.Model) -> None:
         """node -> (rod, signed distance from the rod's reference point) maps, the rods' mass fractions."""
         n, k = model.n_nodes, model.n_bars
         self._node_rod_i64 = np.empty(n, np.int64)
@@ -34,7 +34,7 @@ class RollObservation:
             if self._mass_frac.ndim == 2:     # per-copy rod masses
                 return np.einsum("bk,bki->bi", self._mass_frac, q[..., :3])
             return np.einsum("k,bki->bi", self._mass_frac, q[..., :3])
-        return dyn.center_of_mass(self.model, q, self.params)
+        return dynamics.center_of_mass(self.model, q, self.params)
 
     def observe(self) -> np.ndarray:
         B = self.num_envs

@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import dynamics as dyn
+from .. import dynamics
 from .limits import check_noise_sigma
 
 __all__ = ["NOISY_BLOCKS", "rod_frames", "RobotSensors"]
@@ -127,7 +127,7 @@ class RobotSensors:
         per copy)."""
         model = self.model
         r = q.shape[0]
-        _, L, _ = dyn.string_state(model, q)
+        _, L, _ = dynamics.string_state(model, q)
         b, bd = q[..., 3:], qd[..., 3:]
         R = rod_frames(b)
         if qd_prev is None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import dynamics as dyn
+from .. import dynamics
 from .. import integrators, statics
 from ..actuation import Actuation
 from ..checks import check_flag
@@ -83,7 +83,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         self.max_speed = check_positive(max_speed, "max_speed", "m/s")
 
         # the elastic model (targets) and the nominal equilibrium (start shape)
-        self.elastic_model = dyn.compile_model(s)
+        self.elastic_model = dynamics.compile_model(s)
         integ = fixed_step(integrator)     # the integrator's name, decoded once
         # before the equilibrium solve, whose relaxation would fail with a misleading message
         check_stable_dt(self.elastic_model, integrators.stability_limit(self.elastic_model).get(integ, float("inf")),
@@ -100,7 +100,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
             raise ValueError(f"actuated string {bad} is slack at the nominal equilibrium; actuate taut strings")
         # node drag is part of the model (dynamics.compile_model(node_damping=...)): one fused
         # integrator call per control step, no drag code at all when node_damping == 0
-        model = dyn.compile_model(s, act if action_mode == "force_density" else None,
+        model = dynamics.compile_model(s, act if action_mode == "force_density" else None,
                                   node_damping=self.node_damping if self.node_damping > 0 else None)
         self.height = s.height if s.height > 0 else float(np.ptp(eq.nodes, axis=0).max())
         self.success_tolerance = (0.01 * self.height if success_tolerance is None
@@ -205,7 +205,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
                 dx[j] = rngs[j].uniform(-s, s, nx)
             for j in range(r):
                 dv[j] = rngs[j].uniform(-s, s, nx)
-        q, qd = dyn.project(self.model, *self.rc.perturb(q0, dx, dv))
+        q, qd = dynamics.project(self.model, *self.rc.perturb(q0, dx, dv))
         self.q[idx], self.qd[idx] = q, qd
         self.ctrl[idx] = self.start_control
         self._last_action[idx] = 0.0
@@ -220,7 +220,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
     def _errors(self, idx=None):
         q = self.q if idx is None else self.q[idx]
         tgt = self.target if idx is None else self.target[idx]
-        d = np.linalg.norm(dyn.node_positions(self.model, q)[:, self.tracked] - tgt, axis=-1)
+        d = np.linalg.norm(dynamics.node_positions(self.model, q)[:, self.tracked] - tgt, axis=-1)
         return d.mean(axis=1), d.max(axis=1)
 
     def simulate_controls(self):
@@ -269,7 +269,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
             self._obs_of = (self.q, self.qd, self.ctrl, self.target)
             self._N = None
         else:
-            self._N = dyn.node_positions(self.model, self.q)[:, self.tracked]
+            self._N = dynamics.node_positions(self.model, self.q)[:, self.tracked]
             self._N_of = self.q
             d = np.linalg.norm(self._N - self.target, axis=-1)
         err, emax = np.empty(d.shape[0]), np.empty(d.shape[0])
@@ -298,9 +298,9 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         if fast is not None:
             return fast[0]
         cached = self._N is not None and self._N_of is self.q
-        N = self._N if cached else dyn.node_positions(self.model, self.q)[:, self.tracked]
+        N = self._N if cached else dynamics.node_positions(self.model, self.q)[:, self.tracked]
         self._N = None
-        V = dyn.node_velocities(self.model, self.qd)[:, self.tracked]
+        V = dynamics.node_velocities(self.model, self.qd)[:, self.tracked]
         B = self.num_envs
         obs = np.concatenate([N.reshape(B, -1), V.reshape(B, -1), self.ctrl,
                               self.target.reshape(B, -1), (self.target - N).reshape(B, -1)], axis=1)
@@ -309,9 +309,9 @@ class ShapeTask(FusedShapeStep, BatchedTask):
     def render_data(self, i: int) -> dict:
         q, qd = self.q[i:i + 1], self.qd[i:i + 1]
         inputs = self.actuation.physics_inputs(self.ctrl[i:i + 1])
-        gamma, _, L = dyn.force_densities(self.model, q, qd, inputs.get("rest_length"), inputs.get("force_density"))
+        gamma, _, L = dynamics.force_densities(self.model, q, qd, inputs.get("rest_length"), inputs.get("force_density"))
         _, emax = self._errors(np.array([i]))
-        return {"nodes": dyn.node_positions(self.model, q)[0], "rods": self.structure.bars,
+        return {"nodes": dynamics.node_positions(self.model, q)[0], "rods": self.structure.bars,
                 "strings": self.structure.strings, "tensions": (gamma * L)[0], "targets": self.target[i],
                 "caption": f"t = {self.elapsed[i] * self.control_dt:.2f} s, max error {emax[0] * 1e3:.1f} mm"}
 

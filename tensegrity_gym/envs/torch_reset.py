@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import torch_backend as tb
+from .. import torch_backend
 from ..core.param_table import contact_columns
 from .domain import write_copies
 from .shells import per_env_seeds
@@ -106,7 +106,7 @@ class CounterStreams:
     same seeds)."""
 
     def __init__(self, num_envs: int, device, use: str = "reset"):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         self.num_envs = int(num_envs)
         self.device = device
         self.salt = SALTS[use]
@@ -118,7 +118,7 @@ class CounterStreams:
         """Key the envs selected by ``mask`` (N,) bool from ``seed`` (the vector envs' rule: an
         int s keys env i with s + i, a list keys each env (None: keep), None keeps every key;
         envs still unkeyed afterwards get random keys). Rekeyed envs start again at reset 0."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         N = self.num_envs
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
             _check_seed(seed, 0)
@@ -150,7 +150,7 @@ class CounterStreams:
     def uniform_at(keys, resets, steps, n: int):
         """(r, n) float64 uniforms of envs with ``keys`` at reset count ``resets`` and, when not
         None, step ``steps`` ((r,) int64 tensors; :func:`reference_uniforms`); stateless."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         st = _mix(keys + (resets + 1) * _signed(_EPISODE))
         if steps is not None:
             st = _mix(st + (steps + 1) * _signed(_STEP))
@@ -168,7 +168,7 @@ class TorchDomain:
     (N, ...) float64 tensor, each env's current values (what ``info["params"]`` reports)."""
 
     def __init__(self, env):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         dom = env.task.domain
         self.env = env
         dev = env.device
@@ -231,7 +231,7 @@ class TorchDomain:
 
     @staticmethod
     def zero_where(mask, v):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         return torch.where(mask, torch.zeros_like(v), v)
 
     def write_physics(self, it, fields: dict, offsets: dict) -> None:
@@ -242,7 +242,7 @@ class TorchDomain:
                 continue
             prm[fld][it] = v.to(env.dtype)
             if fld == "mass":
-                f, J = tb.mass_moments(env.tm, v.to(env.dtype))
+                f, J = torch_backend.mass_moments(env.tm, v.to(env.dtype))
                 prm["f"][it], prm["J"][it] = f, J
                 env._mass_frac[it] = (v / v.sum(dim=1, keepdim=True)).to(env.dtype)
         if "rest_length" in offsets:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import torch_backend as tb
+from .. import torch_backend
 from .torch_reset import CounterStreams
 
 __all__ = ["TorchSensors", "rod_frames"]
@@ -36,7 +36,7 @@ def rod_frames(b):
     """(B, k, 3, 3) rows x, y, z of each rod's frame from unit axes ``b`` (B, k, 3) (as
     :func:`tensegrity_gym.envs.sensors.rod_frames`: x = world up made perpendicular to the rod,
     the world x axis the same way within 1e-6 of vertical; y = z x x)."""
-    torch = tb._torch()
+    torch = torch_backend.torch_module()
     up = torch.zeros_like(b)
     up[..., 2] = 1.0
     x = up - b * b[..., 2:3]
@@ -59,7 +59,7 @@ class TorchSensors:
     :class:`~tensegrity_gym.envs.torch_shell.TorchTaskVectorEnv` (device, dtype, model)."""
 
     def __init__(self, sens, env):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         self.sens = sens
         self.env = env
         self.blocks = [name for name, _, _ in sens.blocks]
@@ -94,10 +94,10 @@ class TorchSensors:
         the env has no such block), the command (N, size); ``gravity`` (N or 1, 3) m/s^2, default
         the copies' own (:meth:`gravity`); ``rows``: the envs these are (an index tensor; None:
         all), whose noise streams are read at their current episode and step (``env.elapsed``)."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         env = self.env
         N = q.shape[0]
-        _, L, _ = tb.string_state(env.tm, q, qd, env._node_prm, False)
+        _, L, _ = torch_backend.string_state(env.tm, q, qd, env._node_prm, False)
         b, bd = q[..., 3:], qd[..., 3:]
         R = rod_frames(b)
         if qd_prev is None:
@@ -146,7 +146,7 @@ class TorchSensors:
     def record(self, *args) -> None:
         """Push :meth:`frame` ``(*args)`` of all envs into the history (newest first); call it
         after the env counted the step (``env.elapsed``: its noise is that step's)."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         self.readings = torch.cat([self.frame(*args)[:, None], self.readings[:, :-1]], dim=1)
 
     def gravity(self):

@@ -11,7 +11,7 @@ import gymnasium as gym
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from .. import torch_backend as tb
+from .. import torch_backend
 from ..checks import check_action_tensor
 from ..core.param_table import PARAMS
 from .vector_rules import check_autoreset_mode, check_reset_called
@@ -49,7 +49,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
                  backend: str = "torch", render_mode: str | None = None, compile: bool = False,
                  reset_sampling: str = "host", **kwargs):
         kwargs = check_autoreset_mode(kwargs)
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         if reset_sampling not in RESET_SAMPLING:
             raise ValueError(f"reset_sampling: expected one of {RESET_SAMPLING}, got {reset_sampling!r}")
         if reset_sampling == "device" and not self.DEVICE_RESET:
@@ -60,10 +60,10 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         if render_mode is not None:
             raise ValueError(f"render_mode: {render_mode!r} is not supported by backend='torch' (render the "
                              f"NumPy env: gymnasium.make({self.ENV_ID!r}, render_mode='rgb_array'))")
-        self.device = tb.resolve_device(device)
-        self.dtype = tb.resolve_dtype(dtype)
+        self.device = torch_backend.resolve_device(device)
+        self.dtype = torch_backend.resolve_dtype(dtype)
         task = self._make_task(num_envs, kwargs)
-        tb._integrator_name(task.integrator)          # ValueError for an implicit method
+        torch_backend.integrator_name(task.integrator)          # ValueError for an implicit method
         self.task = task
         self.num_envs = N = task.num_envs
         self.max_episode_steps = episode_limit(max_episode_steps, self.ENV_ID)
@@ -78,8 +78,8 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(N)]
 
         dev, dt = self.device, self.dtype
-        self.tm = tb.torch_model(task.model, dev, dt)
-        self._node_prm = tb.torch_params(self.tm, None)          # model defaults (anchor positions)
+        self.tm = torch_backend.torch_model(task.model, dev, dt)
+        self._node_prm = torch_backend.torch_params(self.tm, None)          # model defaults (anchor positions)
         self._init_state()
         sens = getattr(task, "sensors", None)      # observation_mode="robot": the readings on the device
         self._sens = None if sens is None else TorchSensors(sens, self)
@@ -89,7 +89,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         if not isinstance(compile, (bool, np.bool_)):
             raise ValueError(f"compile: expected True or False, got {compile!r}")
         # compile: the one physics step each task repeats (with contact: contact forces + integrator step)
-        one = tb.contact_substep if getattr(task, "contact", None) is not None else tb.step_once
+        one = torch_backend.contact_substep if getattr(task, "contact", None) is not None else torch_backend.step_once
         self._substep = torch.compile(one, dynamic=False) if compile else None
         # per-copy parameters (domain): uploaded whole here, by reset rows when randomised
         self._upload_domain(None)
@@ -101,7 +101,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     # ------------------------------------------------------------------ host <-> device
     def _T(self, x):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         return torch.as_tensor(np.array(x, dtype=float), dtype=self.dtype, device=self.device)
 
     def _upload_domain(self, idx) -> None:
@@ -110,7 +110,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         task = self.task
         if idx is not None and not task.domain.randomized:
             return
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         idx_t = None if idx is None else torch.as_tensor(idx, dtype=torch.int64, device=self.device)
 
         def rows(cur, host):      # the whole array, or rows idx written into the device tensor
@@ -144,7 +144,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def _reset_envs(self, mask, options) -> dict:
         """Reset the envs where ``mask`` (N,) bool (a device tensor) is true: drawn on the host
         (one upload of their rows) or on the device (``reset_sampling``); infos as (N,) tensors."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         task = self.task
         if self._streams is not None:
             task.check_reset_options(options)
@@ -184,7 +184,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def _full_info(self, info: dict, it) -> dict:
         """(r, ...) infos of envs ``it`` (host arrays or device tensors) -> (N, ...) device
         tensors (zeros elsewhere)."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         out = {}
         for k, v in info.items():
             if isinstance(v, dict):
@@ -202,7 +202,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def _vector_info(self, infos: dict, mask, out: dict | None = None) -> dict:
         """Gymnasium's vector info dict (tensors): values where ``mask``, zeros elsewhere, ``"_key"`` masks."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         out = {} if out is None else out
         for k, v in infos.items():
             if isinstance(v, dict):
@@ -220,7 +220,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def _delayed(self, action):
         """``action_delay`` (``BatchedTask.act``): the action given that many steps earlier."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         if not self._queue.shape[1]:
             return action
         out = self._queue[:, 0]
@@ -241,7 +241,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def _physics_inputs(self):
         """``rest_length`` / ``force_density`` (N, m) of the current controls, the cables'
         rest-length offsets added (``BatchedTask.with_offset``)."""
-        inputs = tb.physics_inputs(self.task.actuation, self.ctrl)
+        inputs = torch_backend.physics_inputs(self.task.actuation, self.ctrl)
         if self._rest_offset is not None and inputs.get("rest_length") is not None:
             inputs["rest_length"] = inputs["rest_length"] + self._rest_offset
         return inputs
@@ -254,7 +254,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     # ------------------------------------------------------------------ VectorEnv API
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         super().reset(seed=None)
         mask, options = self._reset_mask(options)
         if self._streams is not None:
@@ -270,7 +270,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def step(self, actions):
         check_reset_called(self)
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         a, any_reset = self._check_actions(actions)
         reset_now = self._autoreset.clone()
         if any_reset:

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from .. import torch_backend as tb
+from .. import torch_backend
 from .roll import RollTask
 from .roll_terms import roll_state_observation, roll_step_terms
 from .shape import ShapeTask
@@ -26,7 +26,7 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
         return RollTask(num_envs=num_envs, **kwargs)
 
     def _init_state(self):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         task, dev = self.task, self.device
         self._com_eta = self._T(task.model.com_eta)[None, :, None]
         self.q = self._T(task.q)
@@ -45,7 +45,7 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
         self._goal_default = self._T(task.goal_direction)[None]
 
     def _upload_rows(self, it, idx):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         task = self.task
         self.q[it] = self._T(task.q[idx])
         self.qd[it] = self._T(task.qd[idx])
@@ -78,7 +78,7 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
         and, divided by the rod length, on the axes and their rates, projected (unit axes), lifted
         so that no node is below the resting robot's lowest; no contact anchors; the start
         control; the goal (angle U(0, 2 pi) with ``randomize_goal``)."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         task = self.task
         r, k, s = it.shape[0], task.model.n_bars, task.reset_noise_scale
         q = self._q_nominal.expand(r, -1, -1).clone()
@@ -96,8 +96,8 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
             goal = torch.stack([torch.cos(th), torch.sin(th)], dim=1).to(self.dtype)
         else:
             goal = self._goal_default.expand(r, -1)
-        q, qd = tb.project(self.tm, q, qd)
-        zmin = tb.node_positions(self.tm, q, self._node_prm)[..., 2].amin(dim=1)
+        q, qd = torch_backend.project(self.tm, q, qd)
+        zmin = torch_backend.node_positions(self.tm, q, self._node_prm)[..., 2].amin(dim=1)
         q[..., 2] += torch.clamp(self._z_floor - zmin, min=0.0)[:, None]
         ctrl = self._start_control.expand(r, -1)
         self.q[it], self.qd[it] = q, qd
@@ -117,28 +117,28 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
         if self._sens is not None:
             return self._sens.observation()
         q, qd = self.q, self.qd
-        return roll_state_observation(tb.node_positions(self.tm, q, self._node_prm), tb.node_velocities(self.tm, qd),
+        return roll_state_observation(torch_backend.node_positions(self.tm, q, self._node_prm), torch_backend.node_velocities(self.tm, qd),
                                       self._com(q), self.ctrl, self.active, self.goal, self.speed)
 
     def _act(self, action):
         """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         task = self.task
         action = self._delayed(action)
         act = task.actuation
         if task.motor:
-            self.ctrl, self.speed = tb.motor(act, self.ctrl, self.speed, action, self._max_rate, self._max_accel)
+            self.ctrl, self.speed = torch_backend.motor(act, self.ctrl, self.speed, action, self._max_rate, self._max_accel)
         else:
-            self.ctrl = tb.advance(act, self.ctrl, action, self._max_rate)
+            self.ctrl = torch_backend.advance(act, self.ctrl, action, self._max_rate)
         inputs = self._physics_inputs()
         q0, qd0, anchor0, active0 = self.q, self.qd, self.anchor, self.active
         com0 = self._com(q0)
         kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                   params=self._params, contact_prm=self._contact_prm, substep=self._substep)
         (q, qd, anchor, active), qd_prev = self._advance(
-            lambda n, *s: tb.contact_step(self.tm, task.contact, *s, task.dt, task.integrator, n, **kw),
+            lambda n, *s: torch_backend.contact_step(self.tm, task.contact, *s, task.dt, task.integrator, n, **kw),
             (q0, qd0, anchor0, active0))
-        diverged = tb.diverged(q, qd, task.center0, task.divergence_limit, local=True)   # pipeline.diverged
+        diverged = torch_backend.diverged(q, qd, task.center0, task.divergence_limit, local=True)   # pipeline.diverged
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
@@ -178,7 +178,7 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv):
 
     def _init_state(self):
         task = self.task
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         self.q = self._T(task.q)
         self.qd = self._T(task.qd)
         self.ctrl = self._T(task.ctrl)
@@ -194,20 +194,20 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv):
         self.target[it] = self._T(task.target[idx])
 
     def _tracked_nodes(self, q):
-        return tb.node_positions(self.tm, q, self._node_prm).index_select(1, self._tracked)
+        return torch_backend.node_positions(self.tm, q, self._node_prm).index_select(1, self._tracked)
 
     def _act(self, action):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         task = self.task
         action = self._delayed(action)
-        self.ctrl = tb.advance(task.actuation, self.ctrl, action, self._max_rate)
+        self.ctrl = torch_backend.advance(task.actuation, self.ctrl, action, self._max_rate)
         inputs = self._physics_inputs()
         q0, qd0 = self.q, self.qd
         kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                   params=self._params, substep=self._substep)
-        (q, qd), qd_prev = self._advance(lambda n, *s: tb.step(self.tm, *s, task.dt, task.integrator, n, **kw),
+        (q, qd), qd_prev = self._advance(lambda n, *s: torch_backend.step(self.tm, *s, task.dt, task.integrator, n, **kw),
                                          (q0, qd0))
-        diverged = tb.diverged(q, qd, self._center0, task.divergence_limit)   # pipeline.diverged
+        diverged = torch_backend.diverged(q, qd, self._center0, task.divergence_limit)   # pipeline.diverged
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
@@ -229,11 +229,11 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv):
         return terms, infos
 
     def _observe(self):
-        torch = tb._torch()
+        torch = torch_backend.torch_module()
         if self._sens is not None:
             return self._sens.observation()
         B = self.num_envs
         N = self._tracked_nodes(self.q)
-        V = tb.node_velocities(self.tm, self.qd).index_select(1, self._tracked)
+        V = torch_backend.node_velocities(self.tm, self.qd).index_select(1, self._tracked)
         return torch.cat([N.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.target.reshape(B, -1),
                           (self.target - N).reshape(B, -1)], dim=1)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import dynamics as dyn
+from .. import dynamics
 from ..actuation import ACTION_MODES
 from .. import checks
 from ..checks import ACTION_TOL, check_positive
@@ -43,7 +43,7 @@ def check_rest_length_bounds(bounds) -> tuple[float, float]:
     return lo, hi
 
 
-def check_stable_dt(model: dyn.Model, limit: float, dt: float, integrator: str, allow: bool, what: str) -> None:
+def check_stable_dt(model: dynamics.Model, limit: float, dt: float, integrator: str, allow: bool, what: str) -> None:
     """ValueError if ``dt`` (s) is above the estimated stability ``limit`` (s) of ``integrator``,
     unless ``allow``; the message names the strings' stiffness and damping that set the limit."""
     if dt <= limit or allow:
