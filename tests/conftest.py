@@ -19,6 +19,10 @@ def pytest_configure(config):
     system's temporary directory on every ``learn()``: point them (and the subprocesses, whose
     environments the test modules copy at import) at one folder removed at the end."""
     global _SB3_LOGDIR
+    # numba's compile progress (stderr, from a background thread, only when a kernel really
+    # compiles: a cold cache in CI) would interleave with the one-line errors the CLI tests read;
+    # tests/test_compile_watch.py runs its processes without this
+    os.environ.setdefault("TENSEGRITY_GYM_QUIET", "1")
     if "SB3_LOGDIR" not in os.environ:
         _SB3_LOGDIR = tempfile.mkdtemp(prefix="tensegrity_gym_tests_sb3_")
         os.environ["SB3_LOGDIR"] = _SB3_LOGDIR
