@@ -234,10 +234,18 @@ def _written(args) -> str:
     return tx.report() if tx is not None else "no output file was changed"
 
 
+def _ignore_unraisable(unraisable) -> None:
+    """``sys.unraisablehook`` after a SIGTERM: finalisers' errors while the process exits are dropped."""
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (see the module docstring)."""
     def on_term(signum, frame):
         TERMINATED.set()
+        # from here the process only cleans up and exits: an exception a finaliser raises while the
+        # interrupted work unwinds (numba / llvmlite objects of a compile cut short) is not an
+        # error of this command, and Python would print its traceback after the one-line message
+        sys.unraisablehook = _ignore_unraisable
         raise _Terminated()
 
     TERMINATED.clear()
