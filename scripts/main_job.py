@@ -33,6 +33,14 @@ ENV_ID = "TensegrityShape-v0"
 BUDGET = 1_200_000
 
 
+def train_argv(seed: int, run: Path, budget: int, max_wall_time: float | None = None) -> list[str]:
+    """agents.train's arguments of the main job's training (also the reference's, one per seed)."""
+    argv = ["--algo", "ppo", "--env", ENV_ID, "--conf-file", str(CONF), "--seed", str(seed), "--log-dir", str(run),
+            "--n-timesteps", str(budget), "--eval-freq", str(max(budget // 12, 1)), "--eval-episodes", "20",
+            "--save-freq", "-1"]
+    return argv + (["--max-wall-time", str(max_wall_time)] if max_wall_time is not None else [])
+
+
 def reference() -> dict | None:
     """The committed multi-seed figure of this job (None if the file is absent)."""
     try:
@@ -83,12 +91,7 @@ def main(argv=None) -> int:
     run = out / "run"
     cap = f" or {args.max_wall_time:.0f} s" if args.max_wall_time is not None else ""
     print(f"[main job] 1/3 training PPO on {ENV_ID} for {args.n_timesteps:,} env steps{cap} -> {run}", flush=True)
-    argv_train = ["--algo", "ppo", "--env", ENV_ID, "--conf-file", str(CONF), "--seed", str(args.seed),
-                  "--log-dir", str(run), "--n-timesteps", str(args.n_timesteps),
-                  "--eval-freq", str(max(args.n_timesteps // 12, 1)), "--eval-episodes", "20", "--save-freq", "-1"]
-    if args.max_wall_time is not None:
-        argv_train += ["--max-wall-time", str(args.max_wall_time)]
-    train.train(argv_train)
+    train.train(train_argv(args.seed, run, args.n_timesteps, args.max_wall_time))
     t1 = time.time()
     print(f"[main job] 2/3 evaluating the final policy on {args.n_episodes} held-out targets (NNLS baseline and "
           f"random on {args.baseline_episodes})", flush=True)

@@ -16,14 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from main_job import BUDGET, CONF, ENV_ID, REFERENCE, ROOT
-
-
-def train_argv(seed: int, run: Path, budget: int) -> list[str]:
-    """agents.train's arguments of the main job's training (scripts/main_job.py builds the same)."""
-    return ["--algo", "ppo", "--env", ENV_ID, "--conf-file", str(CONF), "--seed", str(seed), "--log-dir", str(run),
-            "--n-timesteps", str(budget), "--eval-freq", str(max(budget // 12, 1)), "--eval-episodes", "20",
-            "--save-freq", "-1"]
+from main_job import BUDGET, CONF, ENV_ID, REFERENCE, ROOT, train_argv
 
 
 def main(argv=None) -> int:
