@@ -99,7 +99,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..backends.numba.compile import compile_with_notice
 from ..backends.numba.contact import forces_kernel
 from ..core.checks import check_positive
 from ..core.integrators import numba_backend
@@ -266,8 +265,6 @@ def contact_forces(contact: GroundContact, model: Model, q: np.ndarray, qd: np.n
     slip = np.empty((B, nc), bool)
     qc = np.ascontiguousarray(q, dtype=np.float64)
     qdc = np.ascontiguousarray(qd, dtype=np.float64)
-    if not forces_kernel.signatures:       # first call: one line on stderr if numba compiles
-        compile_with_notice(((forces_kernel, None),), "ground-contact kernel")
     forces_kernel(qc, qdc, model.eta, model.rod_a, model.rod_c, anchor, active, W, slip,
                    contact._prm if prm is None else check_prm_rows(contact, prm, B))
     return W, (cstate if inplace else ContactState(anchor, active)), slip

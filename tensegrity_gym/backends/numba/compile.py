@@ -25,13 +25,12 @@ if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER ==
 
 NCHUNK = 4 * numba.get_num_threads()   # chunks of the parallel batch loops
 
-def compile_with_notice(pairs, what: str) -> None:
-    """Compile ``(dispatcher, signature)`` pairs (``signature`` None: nothing to compile here, the
-    first call will). Progress of a real compile (a cache miss) is printed by
-    :mod:`~tensegrity_gym.backends.numba.watch`; ``what`` names the kernels for callers' clarity."""
+
+def compile_signatures(pairs) -> None:
+    """Compile (or load from the disk cache) ``(dispatcher, signature)`` pairs. Progress of a real
+    compile (a cache miss) is printed by :mod:`~tensegrity_gym.backends.numba.watch`."""
     for d, sig in pairs:
-        if sig is not None:
-            d.compile(sig)
+        d.compile(sig)
 
 
 #: a call runs the multi-threaded kernel when B * n_steps * (strings + rods) * (4 for RK4, else 1)
@@ -55,7 +54,7 @@ def _compile(which: str) -> None:
         pairs = ((_run_forces, _SIG_FORCES),)
     else:
         pairs = ((_run_parallel, _SIG_COPIES),)
-    compile_with_notice(pairs, f"{'physics' if which == 'serial' else which + ' physics'} kernels")
+    compile_signatures(pairs)
     for disp, _ in pairs:
         disp.disable_compile()
     _READY[which] = True
