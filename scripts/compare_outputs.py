@@ -91,6 +91,20 @@ def dump(path: str) -> None:
         env = gym.make_vec(env_id, num_envs=N, vectorization_mode="vector_entry_point", randomize=rnd)
         out[f"{env_id}/randomized/N={N}/obs"], out[f"{env_id}/randomized/N={N}/rew"] = _rollout(
             env, np.random.default_rng(2), steps=30)
+    # the robot observation (sensors, noise from each env's generator, history) and the MuJoCo twin
+    robot = {"observation_mode": "robot", "history": 2,
+             "sensor_noise": {"imu_accel": 0.05, "imu_gyro": 0.01, "cable_length": 1e-3}}
+    for env_id, kw in (("TensegrityRoll-v0", dict(robot, sensor_noise=dict(robot["sensor_noise"], contact=0.1))),
+                       ("TensegrityShape-v0", robot)):
+        for kind, env in (("single", gym.make(env_id, **kw)),
+                          ("vector", gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", **kw))):
+            out[f"{env_id}/robot/{kind}/obs"], out[f"{env_id}/robot/{kind}/rew"] = _rollout(
+                env, np.random.default_rng(5), steps=30)
+    for kw in ({}, robot):
+        env = gym.make("TensegrityRollMuJoCo-v0", **kw)
+        tag = "robot" if kw else "state"
+        out[f"TensegrityRoll-v0/mujoco/{tag}/obs"], out[f"TensegrityRoll-v0/mujoco/{tag}/rew"] = _rollout(
+            env, np.random.default_rng(6), steps=30)
     np.savez(path, **out)
 
 

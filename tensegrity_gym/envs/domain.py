@@ -35,7 +35,9 @@ from __future__ import annotations
 
 import numpy as np
 
+
 from ..core.param_table import DomainSpec, domain_specs, env_params
+from ..tasks.randomization import draw_count, draw_range, values_from_draws
 from ..params import default_params
 
 __all__ = ["SPECS", "Domain", "physics_nominal", "container_nominal", "write_copies"]
@@ -125,14 +127,10 @@ class Domain:
         for j, i in enumerate(idx):
             rng = rngs[j].spawn(1)[0]   # a child stream: the task's own draws are those of fixed values
             for name, s in self.spread.items():      # sorted by name
-                base = self.base[name]
-                if self.specs[name].absolute:
-                    v = base + rng.uniform(-s, s, base.shape)
-                elif self.specs[name].one_factor:
-                    v = base * rng.uniform(1.0 - s, 1.0 + s)
-                else:
-                    v = base * rng.uniform(1.0 - s, 1.0 + s, base.shape)
-                self.values[name][i] = v
+                base, spec = self.base[name], self.specs[name]
+                lo, hi = draw_range(spec, s)
+                x = rng.uniform(lo, hi, draw_count(spec, base))
+                self.values[name][i] = values_from_draws(spec, base, x[None])[0]
 
     def report(self, idx: np.ndarray) -> dict[str, np.ndarray]:
         """name -> (len(idx),) + item values of copies ``idx`` (what ``info["params"]`` holds)."""

@@ -22,7 +22,7 @@ from .config import RollConfig, flat_signature, roll_config, with_flat
 from .domain import container_nominal
 from .docs import ROLL_DOC as _DOC
 from .roll_obs import RollObservation
-from .roll_terms import roll_step_terms
+from ..tasks.roll import center_of_mass, perturbed_start, roll_step_terms
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
                          STRING_DAMPING, load_robot, place_on_ground, put_on_ground, robot_icosahedron,
                          robot_prism, settle)
@@ -196,21 +196,18 @@ class RollTask(RollObservation, BatchedTask):
     def reset_idx(self, idx, rngs, options=None) -> dict:
         idx = np.asarray(idx, dtype=int)
         r = idx.size
-        q = np.repeat(self.q_nominal, r, 0)
-        qd = np.zeros_like(q)
         s = self.reset_noise_scale
         k = self.model.n_bars
         goal = np.tile(self.goal_direction, (r, 1))
-        for j in range(r):
+        x = np.zeros((r, 4, k, 3))
+        for j in range(r):    # each copy's generator: its noise (4 k 3 uniforms), then its goal angle
             rng = rngs[j]
             if s > 0:
-                q[j, :, :3] += rng.uniform(-s, s, (k, 3))
-                q[j, :, 3:] += rng.uniform(-s, s, (k, 3)) / self.model.length[:, None]
-                qd[j, :, :3] = rng.uniform(-s, s, (k, 3))
-                qd[j, :, 3:] = rng.uniform(-s, s, (k, 3)) / self.model.length[:, None]
+                x[j] = rng.uniform(-s, s, (4, k, 3))
             if self.randomize_goal:
                 th = rng.uniform(0.0, 2.0 * np.pi)
                 goal[j] = (math.cos(th), math.sin(th))
+        q, qd = perturbed_start(self.q_nominal, self.model.length[:, None], x)
         q, qd = dynamics.project(self.model, q, qd)
         # no node below the ground plus cap: lift the copy if the noise pushed one in
         zmin = dynamics.node_positions(self.model, q)[..., 2].min(axis=1)
@@ -227,11 +224,7 @@ class RollTask(RollObservation, BatchedTask):
             idx if self.params.batch_size > 1 else np.zeros(len(idx), int)))
         self.start[idx] = com
         if self.sensors is not None:
-            for j, i in enumerate(idx):
-                self._sensor_rngs[i] = rngs[j]
-            frame = self.sensors.frame(q, qd, None, self.dt, self._gravity(idx), self.ctrl[idx], self.speed[idx],
-                                       self.cstate.active[idx], goal, rngs)
-            self._readings[idx] = frame[:, None, :]
+            self.sensors.reset_reading(self, idx, rngs, goal, self.speed[idx], self.cstate.active[idx])
         if self.record_path:
             for j, i in enumerate(idx):
                 self.paths[int(i)] = [com[j].copy()]
@@ -252,19 +245,8 @@ class RollTask(RollObservation, BatchedTask):
                     del p[: len(p) - MAX_PATH]
         infos["diverged"] = diverged
         if self.sensors is not None:
-            frame = self.sensors.frame(self.q, self.qd, self._qd_prev, self.dt, self._gravity(slice(None)), self.ctrl,
-                                       self.speed, self.cstate.active, self.goal, self._sensor_rngs)
-            R = self._readings
-            R[:, 1:] = R[:, :-1].copy()
-            R[:, 0] = frame
+            self.sensors.record(self, self.goal, self.speed, self.cstate.active)
         return terms, np.zeros(self.num_envs, bool), infos
-
-    def _gravity(self, idx) -> np.ndarray:
-        """(r, 3) or (3,) gravity of copies ``idx``, m/s^2 (the robot's own with ``params``)."""
-        if self.params is not None:
-            g = self.params.gravity
-            return g[idx] if g.shape[0] > 1 else g[0]
-        return np.zeros(3) if self.model.gravity is None else np.asarray(self.model.gravity, float)
 
     def render_data(self, i: int) -> dict:
         q, qd = self.q[i:i + 1], self.qd[i:i + 1]

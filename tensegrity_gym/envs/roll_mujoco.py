@@ -86,7 +86,7 @@ from gymnasium import spaces
 
 from .. import dynamics
 from ..mjcf import check_mj_integrator, initial_qpos_qvel, to_mjcf
-from ..rewards import quadratic_cost
+from ..tasks.roll import roll_step_terms
 from ..checks import check_frame_size
 from .pickling import picklable_state, restore_state
 from .twin_divergence import clear_mujoco_warnings, twin_diverged
@@ -259,8 +259,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self.start = self.com()
         t.start[0] = self.start
         if t.sensors is not None:   # the reset reading from MuJoCo's state (contacts included)
-            t._readings[0] = t.sensors.frame(t.q, t.qd, None, t.dt, t._gravity(slice(None)), t.ctrl, t.speed,
-                                             t.cstate.active, t.goal, [self.np_random])[0]
+            t.sensors.reset_reading(t, np.array([0]), [self.np_random], t.goal, t.speed, t.cstate.active)
         self._needs_reset = False
         out = {"com_position": self.start.copy(), "com_velocity": np.zeros(3), "distance_rolled": 0.0,
                "goal_direction": t.goal[0].copy()}
@@ -291,24 +290,20 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             self._sync()
         t.elapsed += 1
         com = self.com()
-        vel = (com - com0) / t.control_dt
-        goal = t.goal[0]
-        forward = float(vel[:2] @ goal)
-        r_fwd = t.forward_reward_weight * forward
-        r_ctrl = -t.ctrl_cost_weight * float(quadratic_cost(a)[0])
+        terms, step_info = roll_step_terms(com0[None], com[None], self.start[None], t.goal, a, t.control_dt,
+                                           t.forward_reward_weight, t.ctrl_cost_weight)
+        r_fwd, r_ctrl = float(terms["forward"][0]), float(terms["ctrl"][0])
         if t.sensors is not None:
             if diverged:
                 t._qd_prev = t.qd
-            frame = t.sensors.frame(t.q, t.qd, t._qd_prev, t.dt, t._gravity(slice(None)), t.ctrl, t.speed,
-                                    t.cstate.active, t.goal, [self.np_random])
-            t._readings[0, 1:] = t._readings[0, :-1].copy()
-            t._readings[0, 0] = frame[0]
+            t.sensors.record(t, t.goal, t.speed, t.cstate.active)
         if t.record_path:   # centre-of-mass path for render(), the last MAX_PATH points
             path = t.paths.setdefault(0, [])
             path.append(com.copy())
             del path[:-MAX_PATH]
-        info = {"com_position": com, "com_velocity": vel, "distance_rolled": float((com - self.start)[:2] @ goal),
-                "forward_velocity": forward, "diverged": bool(diverged),
+        info = {"com_position": com, "com_velocity": step_info["com_velocity"][0],
+                "distance_rolled": float(step_info["distance_rolled"][0]),
+                "forward_velocity": float(step_info["forward_velocity"][0]), "diverged": bool(diverged),
                 "reward_forward": r_fwd, "reward_ctrl": r_ctrl}
         return t.observe()[0], r_fwd + r_ctrl, False, bool(diverged), info
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics
+from ..tasks.roll import center_of_mass
 from . import compiled
 
 __all__ = ["RollObservation"]
@@ -31,9 +32,7 @@ class RollObservation:
     def _com(self, q) -> np.ndarray:
         """(B, 3) centre of mass, m (= dynamics.center_of_mass, one matrix product)."""
         if self._com_at_r:
-            if self._mass_frac.ndim == 2:     # per-copy rod masses
-                return np.einsum("bk,bki->bi", self._mass_frac, q[..., :3])
-            return np.einsum("k,bki->bi", self._mass_frac, q[..., :3])
+            return center_of_mass(q, self._mass_frac)
         return dynamics.center_of_mass(self.model, q, self.params)
 
     def observe(self) -> np.ndarray:

@@ -50,27 +50,12 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics
+from ..tasks.sensors import add_noise, reading, rod_frames
 from .limits import check_noise_sigma
 
 __all__ = ["NOISY_BLOCKS", "rod_frames", "RobotSensors"]
 
 NOISY_BLOCKS = ("cable_length", "control", "cable_speed", "imu_accel", "imu_gyro", "contact")
-
-
-def rod_frames(b: np.ndarray) -> np.ndarray:
-    """(B, k, 3, 3) rows x, y, z of each rod's frame (world coordinates) from unit axes b (B, k, 3)."""
-    up = np.array([0.0, 0.0, 1.0])
-    x = up - b * b[..., 2:3]
-    nx = np.linalg.norm(x, axis=-1, keepdims=True)
-    vertical = nx[..., 0] < 1e-6
-    if vertical.any():
-        ex = np.array([1.0, 0.0, 0.0])
-        alt = ex - b * b[..., 0:1]
-        x = np.where(vertical[..., None], alt, x)
-        nx = np.linalg.norm(x, axis=-1, keepdims=True)
-    x = x / nx
-    y = np.cross(b, x)
-    return np.stack([x, y, b], axis=-2)
 
 
 class RobotSensors:
@@ -128,29 +113,14 @@ class RobotSensors:
         model = self.model
         r = q.shape[0]
         _, L, _ = dynamics.string_state(model, q)
-        b, bd = q[..., 3:], qd[..., 3:]
-        R = rod_frames(b)
-        if qd_prev is None:
-            acc = np.zeros((r, model.n_bars, 3))
-        else:
-            d = (qd - qd_prev) / dt
-            acc = d[..., :3] + model.com_eta[None, :, None] * d[..., 3:]
-        g = np.broadcast_to(np.asarray(gravity, float), (r, 3))
-        spec = acc - g[:, None, :]
-        omega = np.cross(b, bd)
-        parts = {"cable_length": L, "control": ctrl, "cable_speed": speed,
-                 "imu_accel": np.einsum("bkij,bkj->bki", R, spec).reshape(r, 3 * model.n_bars),
-                 "imu_gyro": np.einsum("bkij,bkj->bki", R, omega).reshape(r, 3 * model.n_bars),
-                 "contact": None if contact is None else contact.astype(float),
-                 self.command[0]: np.asarray(command, float).reshape(r, self.command[1])}
-        out = np.concatenate([parts[name] for name, _, _ in self.blocks], axis=1)
-        for j in range(r) if self.noise else ():
-            for sl, s, flip in self.noise:
-                if flip:
-                    wrong = rngs[j].random(sl.stop - sl.start) < s
-                    out[j, sl] = np.where(wrong, 1.0 - out[j, sl], out[j, sl])
-                else:
-                    out[j, sl] += rngs[j].normal(0.0, s, sl.stop - sl.start)
+        g = np.asarray(gravity, float).reshape(-1, 3)
+        out = reading([name for name, _, _ in self.blocks], L, q, qd, qd_prev, dt, model.com_eta[None, :, None], g,
+                      ctrl, speed, contact, np.asarray(command, float))
+        if self.noise and r:
+            # per copy, per noisy block in order: the copy's generator's draws
+            per_copy = [[rngs[j].random(sl.stop - sl.start) if flip else rngs[j].normal(0.0, s, sl.stop - sl.start)
+                         for sl, s, flip in self.noise] for j in range(r)]
+            add_noise(out, self.noise, [np.stack([d[i] for d in per_copy]) for i in range(len(self.noise))])
         return out
 
     # ------------------------------------------------------------------ the task side

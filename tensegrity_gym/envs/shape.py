@@ -12,7 +12,8 @@ from .. import dynamics
 from .. import integrators, statics
 from ..actuation import Actuation
 from ..checks import check_flag
-from ..rewards import quadratic_cost, tolerance
+from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
+from ..tasks.xp import NUMPY
 from . import compiled
 from .base import BatchedTask, fixed_step
 from .config import (DEFAULT_SHAPE_NODE_DAMPING, DEFAULT_SHAPE_STRING_DAMPING, ShapeConfig, flat_signature,
@@ -220,8 +221,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
     def _errors(self, idx=None):
         q = self.q if idx is None else self.q[idx]
         tgt = self.target if idx is None else self.target[idx]
-        d = np.linalg.norm(dynamics.node_positions(self.model, q)[:, self.tracked] - tgt, axis=-1)
-        return d.mean(axis=1), d.max(axis=1)
+        return NUMPY.mean_max(node_errors(dynamics.node_positions(self.model, q)[:, self.tracked], tgt))
 
     def simulate_controls(self):
         """One control step of physics for the batch at the current controls: ONE batched
@@ -271,19 +271,13 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         else:
             self._N = dynamics.node_positions(self.model, self.q)[:, self.tracked]
             self._N_of = self.q
-            d = np.linalg.norm(self._N - self.target, axis=-1)
+            d = node_errors(self._N, self.target)
         err, emax = np.empty(d.shape[0]), np.empty(d.shape[0])
         if fast is None or not compiled.mean_max(d, err, emax):
-            # d.mean(axis=1) is add.reduce / count (bit-identical), without the Python of _mean
-            err, emax = np.add.reduce(d, axis=1) / d.shape[1], np.maximum.reduce(d, axis=1)
-        success = emax <= self.success_tolerance
-        terms = {
-            "tracking": -self.tracking_weight * err,
-            "proximity": self.proximity_weight * tolerance(emax, (0.0, self.success_tolerance),
-                                                           margin=10.0 * self.success_tolerance),
-            "ctrl": -self.ctrl_cost_weight * quadratic_cost(action),
-        }
-        infos = {"tracking_error": err, "max_node_error": emax, "is_success": success, "diverged": diverged}
+            err, emax = NUMPY.mean_max(d)
+        terms, infos = shape_step_terms(err, emax, np.asarray(action, float), self.success_tolerance,
+                                        self.tracking_weight, self.proximity_weight, self.ctrl_cost_weight)
+        infos["diverged"] = diverged
         return terms, np.zeros(self.num_envs, bool), infos
 
     def observe(self) -> np.ndarray:
@@ -301,10 +295,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         N = self._N if cached else dynamics.node_positions(self.model, self.q)[:, self.tracked]
         self._N = None
         V = dynamics.node_velocities(self.model, self.qd)[:, self.tracked]
-        B = self.num_envs
-        obs = np.concatenate([N.reshape(B, -1), V.reshape(B, -1), self.ctrl,
-                              self.target.reshape(B, -1), (self.target - N).reshape(B, -1)], axis=1)
-        return obs.astype(np.float32)
+        return shape_state_observation(N, V, self.ctrl, self.target).astype(np.float32)
 
     def render_data(self, i: int) -> dict:
         q, qd = self.q[i:i + 1], self.qd[i:i + 1]

@@ -8,7 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from .. import pipeline
-from ..rewards import sum_squares, tolerance
+from ..rewards import sum_squares
+from ..tasks.shape import GAUSS_SCALE, shape_step_terms
+from ..tasks.xp import NUMPY
 from . import compiled
 
 __all__ = ["FusedShapeStep"]
@@ -32,7 +34,7 @@ class FusedShapeStep:
                                           act.mode, self.backend)
         if plan is not None:
             tol = self.success_tolerance
-            scale = float(np.sqrt(-2 * np.log(0.1)))     # rewards.tolerance's gaussian, value 0.1 at the margin
+            scale = GAUSS_SCALE     # tasks.shape.proximity's gaussian, value 0.1 at the margin
             fcon = np.concatenate([[self.divergence_limit], self.center0, [tol, 10.0 * tol, scale, -self.tracking_weight],
                                    act._rate[0], act.low, act.high, act.base_rest_length, self._obs_eta])
             icon = np.concatenate([[int(act.mode == "rest_length"), act.size, act.n_strings, self.tracked.size],
@@ -81,17 +83,18 @@ class FusedShapeStep:
         self._obs, self._obs_of, self._N = obs, (qo, qdo, ctrl, self.target), None
         if rc == 2:      # mean/max left to NumPy (nt >= 8); elapsed not incremented
             self.elapsed += 1
-            err, emax = np.add.reduce(d, axis=1) / nt, np.maximum.reduce(d, axis=1)
-            success = emax <= self.success_tolerance
-            tracking = -self.tracking_weight * err
-            prox = tolerance(emax, (0.0, self.success_tolerance), margin=10.0 * self.success_tolerance)
+            err, emax = NUMPY.mean_max(d)
+            terms, infos = shape_step_terms(err, emax, action, self.success_tolerance, self.tracking_weight,
+                                            self.proximity_weight, self.ctrl_cost_weight)
+            infos["diverged"] = np.zeros(B, bool)
+            return terms, np.zeros(B, bool), infos
+        # the compiled step's err, emax, exponent y of tasks.shape.proximity (NaN inside the
+        # tolerance) and -tracking_weight * err
+        err, emax, y, tracking = st[0], st[1], st[2], st[3]
+        if B == 1:
+            prox = np.ones(1) if y[0] != y[0] else np.exp(y)
         else:
-            err, emax, y = st[0], st[1], st[2]
-            tracking = st[3]               # -tracking_weight * err, the same multiplication
-            if B == 1:   # rewards.tolerance: 1 inside the bounds, exp(-0.5 t^2) outside
-                prox = np.ones(1) if y[0] != y[0] else np.exp(y)
-            else:
-                prox = np.where(y != y, 1.0, np.exp(y))
+            prox = np.where(y != y, 1.0, np.exp(y))
         terms = {
             "tracking": tracking,
             "proximity": self.proximity_weight * prox,

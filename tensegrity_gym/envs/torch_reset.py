@@ -37,6 +37,7 @@ import numpy as np
 
 from .. import torch_backend
 from ..core.param_table import contact_columns
+from ..tasks.randomization import draw_count, draw_range, values_from_draws
 from .domain import write_copies
 from .shells import per_env_seeds
 from .vector_rules import check_seed_value
@@ -182,7 +183,7 @@ class TorchDomain:
         start = 0
         self.specs = dom.specs
         for name, s in dom.spread.items():          # sorted by name (Domain)
-            count = 1 if self.specs[name].one_factor else int(self.base[name].numel())
+            count = draw_count(self.specs[name], self.base[name])
             self.layout.append((name, float(s), start, count))
             start += count
         self.size = start
@@ -195,19 +196,11 @@ class TorchDomain:
         (r, size) (as :meth:`Domain.sample`: relative ``base x U(1 - s, 1 + s)``, absolute
         ``base + U(-s, s)``, one factor for the gravity vector); stored in :attr:`values`."""
         out = {}
-        r = u.shape[0]
         for name, s, start, count in self.layout:
-            base = self.base[name]
-            x = u[:, start:start + count]
-            absolute = self.specs[name].absolute
-            lo, hi = (-s, s) if absolute else (1.0 - s, 1.0 + s)
-            x = lo + (hi - lo) * x                  # U(lo, hi) as NumPy's Generator.uniform computes it
-            if absolute:
-                v = base + x.reshape((r,) + tuple(base.shape))
-            elif self.specs[name].one_factor:
-                v = base * x
-            else:
-                v = base * x.reshape((r,) + tuple(base.shape))
+            spec = self.specs[name]
+            lo, hi = draw_range(spec, s)
+            x = lo + (hi - lo) * u[:, start:start + count]    # U(lo, hi) as NumPy's Generator.uniform computes it
+            v = values_from_draws(spec, self.base[name], x)
             self.values[name][it] = v
             out[name] = v
         return out

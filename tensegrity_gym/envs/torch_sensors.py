@@ -3,8 +3,8 @@ device-resident torch vector envs: the same readings, computed on the device (SI
 
 The NumPy :class:`~tensegrity_gym.envs.sensors.RobotSensors` stays the definition (blocks, rod
 frame, accelerometer and gyroscope, noise, history); :class:`TorchSensors` is its torch backend,
-the equations of :meth:`RobotSensors.frame` written once more in torch, as
-:mod:`tensegrity_gym.torch_backend` is for the physics. What differs:
+computing the same reading with the same code (:func:`tensegrity_gym.tasks.sensors.reading`,
+written once for NumPy and torch). What differs:
 
 * **reset readings** are the host task's own (``RollTask`` / ``ShapeTask`` compute them at reset
   with each env's generator, as the NumPy env does), copied to the device with the reset rows;
@@ -27,29 +27,10 @@ from __future__ import annotations
 import numpy as np
 
 from .. import torch_backend
+from ..tasks.sensors import add_noise, reading, rod_frames
 from .torch_reset import CounterStreams
 
-__all__ = ["TorchSensors", "rod_frames"]
-
-
-def rod_frames(b):
-    """(B, k, 3, 3) rows x, y, z of each rod's frame from unit axes ``b`` (B, k, 3) (as
-    :func:`tensegrity_gym.envs.sensors.rod_frames`: x = world up made perpendicular to the rod,
-    the world x axis the same way within 1e-6 of vertical; y = z x x)."""
-    torch = torch_backend.torch_module()
-    up = torch.zeros_like(b)
-    up[..., 2] = 1.0
-    x = up - b * b[..., 2:3]
-    nx = torch.linalg.vector_norm(x, dim=-1, keepdim=True)
-    vertical = nx < 1e-6
-    ex = torch.zeros_like(b)
-    ex[..., 0] = 1.0
-    alt = ex - b * b[..., 0:1]
-    x = torch.where(vertical, alt, x)
-    nx = torch.where(vertical, torch.linalg.vector_norm(alt, dim=-1, keepdim=True), nx)
-    x = x / nx
-    y = torch.linalg.cross(b, x, dim=-1)
-    return torch.stack([x, y, b], dim=-2)
+__all__ = ["TorchSensors", "rod_frames"]   # rod_frames: the one definition, tasks.sensors
 
 
 class TorchSensors:
@@ -94,42 +75,28 @@ class TorchSensors:
         the env has no such block), the command (N, size); ``gravity`` (N or 1, 3) m/s^2, default
         the copies' own (:meth:`gravity`); ``rows``: the envs these are (an index tensor; None:
         all), whose noise streams are read at their current episode and step (``env.elapsed``)."""
-        torch = torch_backend.torch_module()
         env = self.env
-        N = q.shape[0]
         _, L, _ = torch_backend.string_state(env.tm, q, qd, env._node_prm, False)
-        b, bd = q[..., 3:], qd[..., 3:]
-        R = rod_frames(b)
-        if qd_prev is None:
-            acc = torch.zeros_like(q[..., :3])
-        else:
-            d = (qd - qd_prev) / env.task.dt
-            acc = d[..., :3] + self.com_eta * d[..., 3:]
-        spec = acc - (self.gravity() if gravity is None else gravity)[:, None, :]
-        omega = torch.linalg.cross(b, bd, dim=-1)
-        parts = {"cable_length": L, "control": ctrl, "cable_speed": speed,
-                 "imu_accel": torch.einsum("bkij,bkj->bki", R, spec).reshape(N, 3 * env.tm.k),
-                 "imu_gyro": torch.einsum("bkij,bkj->bki", R, omega).reshape(N, 3 * env.tm.k),
-                 "contact": None if contact is None else contact.to(q.dtype),
-                 self.sens.command[0]: command.reshape(N, self.sens.command[1])}
-        out = torch.cat([parts[name] for name in self.blocks], dim=1)
+        out = reading(self.blocks, L, q, qd, qd_prev, env.task.dt, self.com_eta,
+                      self.gravity() if gravity is None else gravity, ctrl, speed, contact, command)
         if not self.n_draws:
             return out
         st = self.streams
         keys, resets, steps = ((st.keys, st.resets, env.elapsed) if rows is None
                                else (st.keys[rows], st.resets[rows], env.elapsed[rows]))
         u = st.uniform_at(keys, resets, steps, self.n_draws)
-        j = 0
+        draws, j = [], 0
         for sl, s, flip in self.noise:
             n = sl.stop - sl.start
-            if flip:       # contact switches: each reads wrong with probability s
-                wrong = u[:, j:j + n] < s
-                out[:, sl] = torch.where(wrong, 1.0 - out[:, sl], out[:, sl])
+            if flip:       # contact switches: one uniform each
+                draws.append(u[:, j:j + n])
                 j += n
             else:          # Box-Muller: N(0, 1) from two uniforms (1 - u in (0, 1]: no log of 0)
+                torch = torch_backend.torch_module()
                 z = torch.sqrt(-2.0 * torch.log1p(-u[:, j:j + n])) * torch.cos((2.0 * np.pi) * u[:, j + n:j + 2 * n])
-                out[:, sl] += s * z.to(out.dtype)
+                draws.append(s * z.to(out.dtype))
                 j += 2 * n
+        add_noise(out, self.noise, draws)
         return out
 
     def reset_rows(self, it, q, qd, ctrl, speed, contact, command) -> None:

@@ -3,13 +3,13 @@ the rolling robot (``TensegrityRoll-v0``) and shape tracking (``TensegrityShape-
 ``backend="torch"`` (see :mod:`tensegrity_gym.envs.torch_vec` for what runs where)."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .. import torch_backend
 from .roll import RollTask
-from .roll_terms import roll_state_observation, roll_step_terms
+from ..tasks.roll import center_of_mass, perturbed_start, roll_state_observation, roll_step_terms
+from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
+from ..tasks.xp import namespace
 from .shape import ShapeTask
 from .torch_shell import TorchTaskVectorEnv
 
@@ -58,13 +58,10 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
 
     def _com(self, q, it=None):
         """(N, 3) centre of mass, m (as ``RollTask._com``); of envs ``it`` when ``q`` holds only them."""
-        r = q[..., :3]
-        if not self.task._com_at_r:
-            r = r + self._com_eta * q[..., 3:]
         mf = self._mass_frac
         if it is not None and mf.shape[0] > 1:
             mf = mf[it]
-        return (mf[..., None] * r).sum(dim=1)
+        return center_of_mass(q, mf.expand(q.shape[0], -1), None if self.task._com_at_r else self._com_eta)
 
     def _reset_draws(self) -> int:
         """Uniforms a device reset of one env reads for the task: the initial-state noise (4 x k x 3:
@@ -81,16 +78,13 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
         torch = torch_backend.torch_module()
         task = self.task
         r, k, s = it.shape[0], task.model.n_bars, task.reset_noise_scale
-        q = self._q_nominal.expand(r, -1, -1).clone()
-        qd = torch.zeros_like(q)
         used = 0
         if s > 0:
             x = (-s + (s - -s) * u[:, :12 * k]).to(self.dtype).reshape(r, 4, k, 3)   # U(-s, s) as NumPy's
-            q[..., :3] += x[:, 0]
-            q[..., 3:] += x[:, 1] / self._length
-            qd[..., :3] = x[:, 2]
-            qd[..., 3:] = x[:, 3] / self._length
             used = 12 * k
+        else:
+            x = torch.zeros((r, 4, k, 3), dtype=self.dtype, device=self.device)
+        q, qd = perturbed_start(self._q_nominal, self._length, x)
         if task.randomize_goal:
             th = 0.0 + (2.0 * np.pi - 0.0) * u[:, used]     # U(0, 2 pi) as NumPy's
             goal = torch.stack([torch.cos(th), torch.sin(th)], dim=1).to(self.dtype)
@@ -156,10 +150,6 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
 
 
 
-#: rewards.tolerance's gaussian sigmoid with its default value 0.1 at the margin (as ShapeTask's fused step)
-_GAUSS_SCALE = math.sqrt(-2.0 * math.log(0.1))
-
-
 class TorchShapeVectorEnv(TorchTaskVectorEnv):
     """``TensegrityShape-v0`` on N copies stepped on a torch device: the task of
     :class:`~tensegrity_gym.envs.shape.ShapeTask` (targets and initial states drawn on the host
@@ -214,26 +204,14 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv):
         self.elapsed = self.elapsed + 1
         if qd_prev is not None:
             self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self.ctrl, None, None, self.target)
-        N = self._tracked_nodes(self.q)
-        D = N - self.target
-        d = torch.sqrt((D * D).sum(dim=-1))
-        err, emax = d.mean(dim=1), d.amax(dim=1)
-        tol = task.success_tolerance
-        margin = 10.0 * tol
-        inside = (emax >= 0.0) & (emax <= tol)
-        t = torch.where(emax < 0.0, -emax, emax - tol) / margin * _GAUSS_SCALE
-        prox = torch.where(inside, torch.ones_like(emax), torch.exp(-0.5 * t * t))
-        terms = {"tracking": -task.tracking_weight * err, "proximity": task.proximity_weight * prox,
-                 "ctrl": -task.ctrl_cost_weight * (action * action).sum(dim=1)}
-        infos = {"tracking_error": err, "max_node_error": emax, "is_success": emax <= tol, "diverged": diverged}
+        err, emax = namespace(self.q).mean_max(node_errors(self._tracked_nodes(self.q), self.target))
+        terms, infos = shape_step_terms(err, emax, action, task.success_tolerance, task.tracking_weight,
+                                        task.proximity_weight, task.ctrl_cost_weight)
+        infos["diverged"] = diverged
         return terms, infos
 
     def _observe(self):
-        torch = torch_backend.torch_module()
         if self._sens is not None:
             return self._sens.observation()
-        B = self.num_envs
-        N = self._tracked_nodes(self.q)
         V = torch_backend.node_velocities(self.tm, self.qd).index_select(1, self._tracked)
-        return torch.cat([N.reshape(B, -1), V.reshape(B, -1), self.ctrl, self.target.reshape(B, -1),
-                          (self.target - N).reshape(B, -1)], dim=1)
+        return shape_state_observation(self._tracked_nodes(self.q), V, self.ctrl, self.target)
