@@ -362,6 +362,7 @@ def reference_paths():
     from tensegrity_gym import pipeline
     from tensegrity_gym.physics import pipeline as physics_pipeline
     from tensegrity_gym.actuation import Actuation
+    from tensegrity_gym.core import checks as core_checks
     from tensegrity_gym.envs import compiled
     from tensegrity_gym.envs.roll_obs import RollObservation
     with pytest.MonkeyPatch.context() as m:
@@ -370,6 +371,6 @@ def reference_paths():
         m.setattr(pipeline, "diverged", diverged)
         m.setattr(physics_pipeline, "diverged", diverged)
         m.setattr(RollObservation, "observe", _ref_roll_observe)
-        m.setattr(compiled, "clip_action", lambda a, clip, tol: False)       # falls back to checks.check_action
+        m.setattr(core_checks, "_clip_in_place", lambda a, clip, tol: False)   # the NumPy action check
         m.setattr(compiled, "node_sources", lambda model, nodes: (None, None))
         yield

@@ -8,6 +8,7 @@ import os
 import stat
 
 import numpy as np
+from numba import njit
 
 __all__ = ["ACTION_TOL", "check_positive", "check_array", "check_finite", "is_integer", "check_count",
            "check_flag", "check_options", "check_action",
@@ -164,16 +165,43 @@ def _outside_action(name, idx, value):
                       "(clip it first, or construct the env with clip_actions=True to saturate instead)")
 
 
+@njit(cache=True, nogil=True)
+def _clip_in_place(a, clip, tol):
+    """The common case of :func:`check_action` in one compiled pass over ``a`` (1-d float64,
+    modified in place): False (``a`` partly clipped) if an entry is non-finite, or with ``clip``
+    False beyond ``1 + tol`` of the box (the caller then runs the reference check, which raises
+    the right error); else ``a`` clipped to [-1, 1] (``np.clip`` semantics) and True."""
+    for i in range(a.size):
+        v = a[i]
+        if not np.isfinite(v):
+            return False
+        if not clip and abs(v) > 1.0 + tol:
+            return False
+        if v < -1.0:
+            a[i] = -1.0
+        elif v > 1.0:
+            a[i] = 1.0
+    return True
+
+
 def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
-    """An action as a float64 array of ``shape`` in [-1, 1] (the reference check; the envs'
-    :func:`tensegrity_gym.envs.validate.check_action` adds a compiled fast path in front of it):
+    """An action as a float64 array of ``shape`` in [-1, 1]:
 
     * wrong shape -> ValueError (a flat sequence of the right size is reshaped for a 1-D ``shape``);
     * NaN or inf -> ValueError naming the (first) offending index and the value;
     * entries outside [-1, 1]: clipped to the box if ``clip`` (the documented Box contract, like
       Gymnasium's MuJoCo envs whose actuators saturate), else ValueError naming the index when
       beyond ``ACTION_TOL`` of the bounds (round-off within it is clipped).
+
+    A float ndarray of the right shape is checked and clipped in one compiled pass; anything
+    that pass does not accept goes through the NumPy check, which raises the error (the same
+    result either way).
     """
+    if (type(action) is np.ndarray and action.shape == tuple(shape)
+            and (action.dtype == np.float32 or action.dtype == np.float64)):
+        a = np.array(action, dtype=np.float64, order="C")
+        if _clip_in_place(a.reshape(-1), clip, ACTION_TOL):
+            return a
     a = _real_array(action, shape, name)
     if a.shape != tuple(shape):
         if a.size == int(np.prod(shape)) and a.ndim <= 1 and len(shape) == 1:

@@ -1,4 +1,4 @@
-"""Compiled (numba) bookkeeping of the environments: action check, observations, error statistics
+"""Compiled (numba) bookkeeping of the environments: observations, error statistics
 and the fused step of the shape task.
 
 At B = 1 a control step of physics is one ~20 us kernel call, and each NumPy call on a tiny
@@ -29,7 +29,7 @@ from numba import njit
 
 from .. import pipeline
 
-__all__ = ["clip_action", "shape_observe", "mean_max", "roll_observe", "shape_step", "SHAPE_STEP_SIG",
+__all__ = ["shape_observe", "mean_max", "roll_observe", "shape_step", "SHAPE_STEP_SIG",
            "node_sources"]
 
 
@@ -53,25 +53,6 @@ def node_sources(model, nodes: np.ndarray):
 
 # the pipeline's compiled entry points, called from shape_step (numba binds globals at compile time)
 _apply_controls, _run_plan, _state_ok = pipeline.apply_controls, pipeline.run_plan, pipeline.state_ok
-
-
-@njit(cache=True, nogil=True)
-def clip_action(a, clip, tol):
-    """``a``: 1-d float64 (the raveled action, modified in place). Returns False (and leaves
-    ``a`` partly clipped) if an entry is non-finite, or with ``clip`` False beyond ``1 + tol``
-    of the box: the caller then runs the reference check, which raises the right error.
-    Otherwise clips ``a`` to [-1, 1] in place (``np.clip`` semantics) and returns True."""
-    for i in range(a.size):
-        v = a[i]
-        if not np.isfinite(v):
-            return False
-        if not clip and abs(v) > 1.0 + tol:
-            return False
-        if v < -1.0:
-            a[i] = -1.0
-        elif v > 1.0:
-            a[i] = 1.0
-    return True
 
 
 @njit(cache=True, nogil=True)

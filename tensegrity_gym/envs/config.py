@@ -19,9 +19,10 @@ import dataclasses
 import inspect
 from dataclasses import dataclass
 
+from ..physics.contact import GroundContact
 from .roll_scene import MAX_CABLE_ACCELERATION, STRING_DAMPING
 
-__all__ = ["SimulationConfig", "ObservationConfig", "RandomizationConfig", "RollRobotConfig", "RollActuationConfig",
+__all__ = ["TaskConfig", "CableConfig", "SimulationConfig", "ObservationConfig", "RandomizationConfig", "RollRobotConfig", "RollActuationConfig",
            "ContactConfig", "RollRewardConfig", "GoalConfig", "RollConfig", "ShapeRobotConfig",
            "ShapeActuationConfig", "ShapeRewardConfig", "TargetConfig", "ShapeConfig", "roll_config", "shape_config",
            "flat_fields", "flatten", "with_flat", "flat_signature"]
@@ -73,15 +74,13 @@ class RollRobotConfig:
 
 
 @dataclass(frozen=True)
-class RollActuationConfig:
-    """The cables: ``action_mode``, which strings are ``actuated``, the rate and motor limits,
-    the bounds, ``clip_actions``, ``action_delay`` and the slack start."""
+class CableConfig:
+    """What both tasks' cables share: ``action_mode``, which strings are ``actuated``, the
+    force-density limits (N/m, N/(m s)), ``clip_actions``, ``action_delay`` (control steps) and
+    the slack start ``start_rest_length_offset`` (m)."""
 
     action_mode: str = "rest_length"
     actuated: object = None
-    max_cable_speed: float = 0.2
-    max_cable_acceleration: float | None = MAX_CABLE_ACCELERATION
-    rest_length_bounds: tuple = (0.5, 1.1)
     force_density_max: float | None = None
     force_density_rate: float | None = None
     clip_actions: bool = True
@@ -90,17 +89,27 @@ class RollActuationConfig:
 
 
 @dataclass(frozen=True)
+class RollActuationConfig(CableConfig):
+    """The cables (:class:`CableConfig`) with the motor's rate and acceleration limits
+    (``max_cable_speed`` m/s, ``max_cable_acceleration`` m/s^2) and ``rest_length_bounds``."""
+
+    max_cable_speed: float = 0.2
+    max_cable_acceleration: float | None = MAX_CABLE_ACCELERATION
+    rest_length_bounds: tuple = (0.5, 1.1)
+
+
+@dataclass(frozen=True)
 class ContactConfig:
     """Ground contact (:class:`tensegrity_gym.contact.GroundContact`; the names its rows carry in
     :mod:`tensegrity_gym.core.param_table`)."""
 
-    friction: float = 1.0
-    ground_stiffness: float = 1e4
-    ground_damping: float = 10.0
-    tangential_stiffness: float | None = None
-    tangential_damping: float = 10.0
-    cap_radius: float = 0.02
-    ground_max_damping: float | None = None
+    friction: float = GroundContact.friction
+    ground_stiffness: float = GroundContact.stiffness
+    ground_damping: float = GroundContact.damping
+    tangential_stiffness: float | None = GroundContact.tangential_stiffness
+    tangential_damping: float = GroundContact.tangential_damping
+    cap_radius: float = GroundContact.radius
+    ground_max_damping: float | None = None     # None: the task's cap (m_eff / dt)
 
 
 @dataclass(frozen=True)
@@ -120,17 +129,24 @@ class GoalConfig:
 
 
 @dataclass(frozen=True)
-class RollConfig:
+class TaskConfig:
+    """The groups every task has: ``simulation``, ``observation``, ``randomization``."""
+
+    simulation: SimulationConfig = SimulationConfig()
+    observation: ObservationConfig = ObservationConfig()
+    randomization: RandomizationConfig = RandomizationConfig()
+
+
+@dataclass(frozen=True)
+class RollConfig(TaskConfig):
     """Every argument of ``TensegrityRoll-v0``'s task, grouped."""
 
+    randomization: RandomizationConfig = RandomizationConfig(reset_noise_scale=1e-3)
     robot: RollRobotConfig = RollRobotConfig()
-    simulation: SimulationConfig = SimulationConfig()
     actuation: RollActuationConfig = RollActuationConfig()
     contact: ContactConfig = ContactConfig()
     reward: RollRewardConfig = RollRewardConfig()
     goal: GoalConfig = GoalConfig()
-    observation: ObservationConfig = ObservationConfig()
-    randomization: RandomizationConfig = RandomizationConfig(reset_noise_scale=1e-3)
 
 
 @dataclass(frozen=True)
@@ -144,19 +160,12 @@ class ShapeRobotConfig:
 
 
 @dataclass(frozen=True)
-class ShapeActuationConfig:
-    """The cables: ``action_mode``, ``actuated``, bounds, ``max_speed`` (m/s), force-density
-    limits, ``clip_actions``, ``action_delay`` and the slack start."""
+class ShapeActuationConfig(CableConfig):
+    """The cables (:class:`CableConfig`) with ``rest_length_bounds`` and the rate limit
+    ``max_speed`` (m/s)."""
 
-    action_mode: str = "rest_length"
-    actuated: object = None
     rest_length_bounds: tuple = (0.8, 1.1)
     max_speed: float = 0.1
-    force_density_max: float | None = None
-    force_density_rate: float | None = None
-    clip_actions: bool = True
-    action_delay: int = 0
-    start_rest_length_offset: object = None
 
 
 @dataclass(frozen=True)
@@ -177,16 +186,14 @@ class TargetConfig:
 
 
 @dataclass(frozen=True)
-class ShapeConfig:
+class ShapeConfig(TaskConfig):
     """Every argument of ``TensegrityShape-v0``'s task, grouped."""
 
+    randomization: RandomizationConfig = RandomizationConfig(reset_noise_scale=5e-3)
     robot: ShapeRobotConfig = ShapeRobotConfig()
-    simulation: SimulationConfig = SimulationConfig()
     actuation: ShapeActuationConfig = ShapeActuationConfig()
     reward: ShapeRewardConfig = ShapeRewardConfig()
     target: TargetConfig = TargetConfig()
-    observation: ObservationConfig = ObservationConfig()
-    randomization: RandomizationConfig = RandomizationConfig(reset_noise_scale=5e-3)
 
 
 def roll_config() -> RollConfig:

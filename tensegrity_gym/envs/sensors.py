@@ -115,7 +115,7 @@ class RobotSensors:
         _, L, _ = dynamics.string_state(model, q)
         g = np.asarray(gravity, float).reshape(-1, 3)
         out = reading([name for name, _, _ in self.blocks], L, q, qd, qd_prev, dt, model.com_eta[None, :, None], g,
-                      ctrl, speed, contact, np.asarray(command, float))
+                      ctrl, speed, contact, np.asarray(command, float).reshape(r, self.command[1]))
         if self.noise and r:
             # per copy, per noisy block in order: the copy's generator's draws
             per_copy = [[rngs[j].random(sl.stop - sl.start) if flip else rngs[j].normal(0.0, s, sl.stop - sl.start)

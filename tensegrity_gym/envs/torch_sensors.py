@@ -78,7 +78,8 @@ class TorchSensors:
         env = self.env
         _, L, _ = torch_backend.string_state(env.tm, q, qd, env._node_prm, False)
         out = reading(self.blocks, L, q, qd, qd_prev, env.task.dt, self.com_eta,
-                      self.gravity() if gravity is None else gravity, ctrl, speed, contact, command)
+                      self.gravity() if gravity is None else gravity, ctrl, speed, contact,
+                      command.reshape(q.shape[0], self.sens.command[1]))
         if not self.n_draws:
             return out
         st = self.streams

@@ -1,4 +1,5 @@
-"""Input checks of the environments: numbers, actions, time steps, actuated strings.
+"""Input checks of the environments: numbers, time steps, actuated strings (and the action check
+of :mod:`tensegrity_gym.core.checks`, re-exported).
 
 Every error is a ``ValueError`` naming the argument, the index and the value. SI units.
 """
@@ -8,26 +9,10 @@ import numpy as np
 
 from .. import dynamics
 from ..actuation import ACTION_MODES
-from .. import checks
-from ..checks import ACTION_TOL, check_positive
-from . import compiled
+from ..checks import ACTION_TOL, check_action, check_positive
 
 __all__ = ["ACTION_MODES", "ACTION_TOL", "check_positive", "check_action", "check_stable_dt", "resolve_actuated",
            "check_rest_length_bounds", "load_env_structure"]
-
-
-def check_action(action, shape: tuple, clip: bool = True, name: str = "action") -> np.ndarray:
-    """Validate an action and return it as a float64 array of ``shape``:
-    :func:`tensegrity_gym.checks.check_action` (wrong shape, NaN/inf naming the index, clip to
-    [-1, 1] or raise naming the index with ``clip=False``), behind a compiled fast path for the
-    common case (a float ndarray of the right shape, checked and clipped in one pass; anything
-    wrong falls through to the reference check, which raises)."""
-    if (type(action) is np.ndarray and action.shape == shape
-            and (action.dtype == np.float32 or action.dtype == np.float64)):
-        a = np.array(action, dtype=np.float64, order="C")
-        if compiled.clip_action(a.reshape(-1), clip, ACTION_TOL):
-            return a
-    return checks.check_action(action, shape, clip, name)
 
 
 def check_rest_length_bounds(bounds) -> tuple[float, float]:

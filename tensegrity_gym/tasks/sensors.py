@@ -34,7 +34,7 @@ def reading(blocks, string_length, q, qd, qd_prev, dt: float, com_eta, gravity, 
     """(B, frame size) clean reading of B copies: the ``blocks`` (names, in order) of
     ``cable_length`` ``string_length`` (B, m) m, ``control`` ``ctrl`` (B, na), ``cable_speed``
     ``speed`` (B, ns) m/s, ``imu_accel`` / ``imu_gyro`` (3 k each, rod frames), ``contact``
-    ``contact`` (B, nc) bool, and the command block (any other name) ``command`` (B, ...).
+    ``contact`` (B, nc) bool, and the command block (any other name) ``command`` (B, size).
 
     State ``q``, ``qd`` (B, k, 6); ``qd_prev`` (B, k, 6) the velocities one physics step ``dt``
     (s) earlier, or None for a robot at rest; ``com_eta`` (1, k, 1) each rod's centre-of-mass
@@ -55,7 +55,7 @@ def reading(blocks, string_length, q, qd, qd_prev, dt: float, com_eta, gravity, 
              "imu_accel": xp.einsum("bkij,bkj->bki", R, spec).reshape(B, 3 * k),
              "imu_gyro": xp.einsum("bkij,bkj->bki", R, omega).reshape(B, 3 * k),
              "contact": None if contact is None else xp.to_float(contact, q)}
-    return xp.concat([parts[name] if name in parts else command.reshape(B, -1) for name in blocks], axis=1)
+    return xp.concat([parts[name] if name in parts else command for name in blocks], axis=1)
 
 
 def add_noise(out, noise, draws) -> None:

@@ -11,11 +11,13 @@ import weakref
 
 import numpy as np
 
+from ...core.integrators import fixed_step_name
 from .compile import _READY, _compile
 from .layout import _CONS, _DAMP, _GRAV, _NDAMP, _PROJ, _RK4, _ROD, _STR, _layout, _soa_width
 
 _CACHE: dict = {}
-_STEPPERS = {"semi_implicit_euler": 0, "rk4": _RK4}   # integrator name -> flag bits
+#: the kernels' flag bits of each fixed-step method (the names of core.integrators.EXPLICIT)
+_STEPPERS = {"semi_implicit_euler": 0, "rk4": _RK4}
 
 
 def clear_cache() -> None:
@@ -149,10 +151,10 @@ def _array(x, ndim, what):
 
 
 def _flags(p, name, project):
-    try:
-        flags = p.flags | _STEPPERS[name]
-    except KeyError:
-        raise ValueError(f"integrator: the numba kernels implement {sorted(_STEPPERS)}, got {name!r}") from None
+    bits = _STEPPERS.get(name)
+    if bits is None:     # an alias, or a method the kernels lack (ValueError naming it)
+        bits = _STEPPERS[fixed_step_name(name, "numba")]
+    flags = p.flags | bits
     return flags | _PROJ if project else flags
 
 
