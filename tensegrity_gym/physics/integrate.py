@@ -63,12 +63,12 @@ import numpy as np
 
 from ..backends.numba import api as numba_api
 from ..backends.numba.divergence import finite_pair, unit_axes
-from ..backends.torch import driver as torch_driver
 from ..core.checks import check_finite, check_unit_axes, is_integer
-from ..core.integrators import EXPLICIT, IMPLICIT, numba_backend, resolve
+from ..core.integrators import EXPLICIT, IMPLICIT, resolve
 from ..core.model import Model, State
 from ..core.params import check_params
 from . import implicit
+from .backends import get_backend
 from .adaptive import adaptive
 from .evaluate import external_forces
 from .stability import check_stability
@@ -149,14 +149,18 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     if not ((math.isfinite(dt) if type(dt) is float else np.isfinite(dt)) and dt > 0):
         raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
     n_steps = _check_inputs(state, n_steps, external)
-    if backend == "torch":   # torch backend: NumPy State in and out, computed on `device` in `dtype`
-        if info.name not in EXPLICIT:
-            raise ValueError(f"integrator: backend='torch' runs 'semi_implicit_euler' and 'rk4', not {info.name!r}")
+    be = get_backend(backend)
+    if be.options:    # a backend on another array library: NumPy State in and out, its fixed-step methods
+        if info.name not in be.methods:
+            raise ValueError(f"integrator: backend={be.name!r} runs {list(be.methods)}, not {info.name!r}")
         if params is None:
             check_stability(model, info, dt)
-        return torch_driver.step_state(model, state, dt, info.name, rest_length=rest_length,
-                                       force_density=force_density, external=external, project=project,
-                                       n_steps=n_steps, device=device, dtype=dtype, params=params)
+        return be.step_state(model, state, dt, info.name, rest_length=rest_length,
+                             force_density=force_density, external=external, project=project,
+                             n_steps=n_steps, device=device, dtype=dtype, params=params)
+    if device is not None or dtype is not None:
+        raise ValueError(f"device / dtype: options of backend='torch'; backend={backend!r} computes in float64 "
+                         "on the CPU")
     B, m = state.batch_size, model.n_strings
     rest_length = _as_batch(rest_length, B, m, "rest_length")
     force_density = _as_batch(force_density, B, m, "force_density")
@@ -171,7 +175,6 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
         return implicit.step(model, state, dt, info.name, rest_length=rest_length,
                              force_density=force_density, external=external, project=project,
                              n_steps=n_steps, params=params, backend=backend)
-    numba_backend(backend)
     if callable(external):
         return _callable_step(model, state, dt, info.name, rest_length, force_density, external, project,
                               n_steps, params)
@@ -227,7 +230,7 @@ def step_inplace(model: Model, state: State, dt: float, integrator: str = "semi_
         raise ValueError("step_inplace: state.q and state.qd must be writable C-contiguous float64 arrays (B, k, 6); "
                          f"got {type(q).__name__} {getattr(q, 'dtype', '')} {np.shape(q)} and "
                          f"{type(qd).__name__} {getattr(qd, 'dtype', '')} {np.shape(qd)}")
-    if info.name not in EXPLICIT or backend not in ("auto", "numba") or callable(external):
+    if info.name not in EXPLICIT or get_backend(backend).name != "numba" or callable(external):
         new = step(model, state, dt, integrator, rest_length=rest_length, force_density=force_density,
                    external=external, project=project, n_steps=n_steps, backend=backend, rtol=rtol, atol=atol,
                    params=params)
