@@ -151,6 +151,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     grp = yp.add_mutually_exclusive_group()
     grp.add_argument("--per-member", action="store_true", help="one value per string / rod (default)")
     grp.add_argument("--scale", action="store_true", help="one factor per parameter group")
+    yp.add_argument("--initial", nargs="+", default=None, metavar="NAME=VALUE",
+                    help="starting values instead of the structure's: a number for every member, or one per "
+                         "member separated by commas (e.g. --initial damping=0.5 stiffness=800,800,...; SI units)")
     yp.add_argument("--total-mass", type=_positive(float), default=None,
                     help="weighed total rod mass, kg (needed to fit mass together with stiffness/damping)")
     yp.add_argument("--nodes", type=int, nargs="+", default=None, help="use only these tracked nodes")

@@ -152,6 +152,36 @@ def cmd_view(args) -> int:
     return 0
 
 
+def parse_initial(items, model, fittable: dict, aliases: dict) -> dict:
+    """``--initial NAME=VALUE ...`` as ``{name: value}``: VALUE one number for every member, or one
+    per member separated by commas; CLIError naming the item otherwise."""
+    from ..params import default_params
+    out = {}
+    for item in items or ():
+        name, eq, text = item.partition("=")
+        g = aliases.get(name, name)
+        if not eq or not text:
+            raise CLIError(EXIT_USAGE, f"--initial {item!r}: expected NAME=VALUE (e.g. damping=0.5)")
+        if g not in fittable:
+            raise CLIError(EXIT_USAGE, f"--initial {item!r}: unknown parameter {name!r}; choose from {sorted(fittable)}")
+        try:
+            vals = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise CLIError(EXIT_USAGE, f"--initial {item!r}: VALUE must be a number or numbers separated by commas")
+        value = np.array(vals[0] if len(vals) == 1 else vals)
+        bad = ~(np.isfinite(value) & (value > 0))
+        if bad.any():
+            i = int(np.flatnonzero(bad.reshape(-1))[0])
+            raise CLIError(EXIT_USAGE, f"--initial {name}: value {i} is {float(value.reshape(-1)[i])!r}; starting "
+                           "values must be finite and > 0 (they are fitted in log space)")
+        try:
+            default_params(model).replace(**{g: value})
+        except ValueError as e:
+            raise CLIError(EXIT_USAGE, f"--initial {name}: {str(e).partition(': ')[2] or e}") from None
+        out[g] = value
+    return out
+
+
 def cmd_identify(args) -> int:
     """Fit parameters to a recorded trajectory; write the fit as JSON (atomically) and a plot."""
     from . import sysid     # scipy: imported only when identify runs
@@ -160,6 +190,7 @@ def cmd_identify(args) -> int:
             raise CLIError(EXIT_USAGE, f"--fit: unknown parameter {f!r}; choose from {sorted(sysid.FITTABLE)} "
                            f"(aliases {sorted(sysid._ALIASES)})")
     out, tx, s, model = _outputs_and_model(args, args.plot, "--plot")
+    initial = parse_initial(args.initial, model, sysid.FITTABLE, sysid._ALIASES)
     try:
         t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes)
     except FileNotFoundError:
@@ -178,7 +209,10 @@ def cmd_identify(args) -> int:
             warnings.simplefilter("ignore", sysid.SysIdWarning)   # reported below from the result
             res = sysid.identify(model, t, nodes, fit=args.fit, mode="scale" if args.scale else "per_member",
                                  rest_length=rl, node_mask=mask, window=args.window, integrator=args.integrator,
-                                 dt=args.dt, stride=args.stride, total_mass=args.total_mass)
+                                 dt=args.dt, stride=args.stride, total_mass=args.total_mass, initial=initial)
+    except sysid.StartValueError as e:     # a zero start value: the command-line remedy
+        raise CLIError(EXIT_USAGE, f"{e.problem}; give a positive start value with --initial {e.name}=VALUE "
+                       f"({e.unit})") from None
     except ValueError as e:     # the trajectory does not fit the structure, too short, ...: bad input
         raise CLIError(EXIT_STRUCTURE, str(e)) from None
     except FloatingPointError as e:   # SimulationDiverged: the starting values blow the model up

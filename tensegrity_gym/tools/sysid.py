@@ -82,7 +82,7 @@ from ..params import default_params
 from .sysid_problem import _Problem
 from .sysid_result import _ALIASES, _UNITS, FITTABLE, SysIdResult, SysIdWarning
 
-__all__ = ["identify", "SysIdResult", "SysIdWarning", "FITTABLE", "load_csv", "load_trajectory"]
+__all__ = ["identify", "SysIdResult", "SysIdWarning", "StartValueError", "FITTABLE", "load_csv", "load_trajectory"]
 
 
 # ----------------------------------------------------------------------------- input checks
@@ -202,10 +202,20 @@ def _parse_fit(model: Model, fit, mode, initial):
             raise ValueError(f"fit: {g!r} has nothing to fit in this structure")
         bad = idx[~(vals[idx] > 0)]
         if bad.size:
-            raise ValueError(f"initial: {g} of {FITTABLE[g]} {bad[0]} starts at {float(vals[bad[0]])!r} {_UNITS[g]}; it is "
-                             f"fitted in log space and needs a positive starting value (pass initial={{{g!r}: ...}})")
+            raise StartValueError(g, _UNITS[g], f"{g} of {FITTABLE[g]} {bad[0]} starts at {float(vals[bad[0]])!r} "
+                                  f"{_UNITS[g]}; it is fitted in log space and needs a positive starting value")
         items[g], init[g] = idx, vals[idx].copy()
     return names, items, init, base
+
+
+class StartValueError(ValueError):
+    """A fitted parameter starts at a value <= 0 (it is fitted in log space): ``name`` the
+    parameter, ``unit`` its unit, ``problem`` what is wrong. The message ends with the Python
+    remedy (``initial={name: value}``); the command line gives its own (``--initial``)."""
+
+    def __init__(self, name: str, unit: str, problem: str):
+        self.name, self.unit, self.problem = name, unit, problem
+        super().__init__(f"initial: {problem} (pass initial={{{name!r}: value}})")
 
 
 # ----------------------------------------------------------------------------- main entry
