@@ -356,9 +356,10 @@ def _closest_part(part, p):
         dout = np.linalg.norm(outside, axis=-1)
         inside = np.max(q, axis=-1) < 0
         ax = np.argmax(q, axis=-1)
-        face = np.sign(loc) * (np.arange(3) == ax[..., None])
+        sgn = np.where(loc >= 0, 1.0, -1.0)
+        face = sgn * (np.arange(3) == ax[..., None])
         with np.errstate(invalid="ignore", divide="ignore"):
-            nout = np.sign(loc) * outside / dout[..., None]
+            nout = sgn * outside / dout[..., None]
         nloc = np.where(inside[..., None] | (dout[..., None] == 0), face, nout)
         d = np.where(inside, np.max(q, axis=-1), dout)
         return d, nloc @ R.T
