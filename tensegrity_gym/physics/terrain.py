@@ -129,14 +129,17 @@ class TerrainContact:
 
 @dataclass(frozen=True, eq=False)
 class TerrainState:
-    """Stick/slip state of B x S contact slots (S = 3 k F): ``anchor`` (B, S, 3) m, ``active``
-    (B, S) bool (the slot touched at the last force evaluation)."""
+    """Stick/slip state of B x S contact slots (S = 3 k F): ``anchor`` (B, S, 3) m (a point on the
+    feature's surface), ``eta0`` (B, S) m (the rod coordinate of the material point the anchor
+    holds: the node's for the node slots, where it touched or last slipped for the interior slot),
+    ``active`` (B, S) bool (the slot touched at the last force evaluation)."""
 
     anchor: np.ndarray
+    eta0: np.ndarray
     active: np.ndarray
 
     def copy(self) -> "TerrainState":
-        return TerrainState(self.anchor.copy(), self.active.copy())
+        return TerrainState(self.anchor.copy(), self.eta0.copy(), self.active.copy())
 
 
 def n_slots(tc: TerrainContact, model: Model) -> int:
@@ -146,7 +149,7 @@ def n_slots(tc: TerrainContact, model: Model) -> int:
 def init_terrain_state(tc: TerrainContact, model: Model, batch_size: int = 1) -> TerrainState:
     """No slot active, anchors zero."""
     S = n_slots(tc, model)
-    return TerrainState(np.zeros((batch_size, S, 3)), np.zeros((batch_size, S), bool))
+    return TerrainState(np.zeros((batch_size, S, 3)), np.zeros((batch_size, S)), np.zeros((batch_size, S), bool))
 
 
 def _rows(arr, default, B, width, name):
@@ -180,7 +183,7 @@ def contact_forces(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState
     inf = np.empty((B, S, 6) if info else (0, 0, 6))
     terrain_forces_kernel(np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(qd, dtype=np.float64),
                           model.eta, model.rod_a, model.rod_c, _rows(geom, tc.geom, B, 10, "geom"),
-                          _rows(prm, tc.prm, B, 8, "prm"), ts.anchor, ts.active, slip, W, inf)
+                          _rows(prm, tc.prm, B, 8, "prm"), ts.anchor, ts.eta0, ts.active, slip, W, inf)
     return (W, ts, slip, inf) if info else (W, ts, slip)
 
 
@@ -190,7 +193,7 @@ def forces_inplace(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState
     ``slip`` (B, S) and ``tstate`` updated in place; C-contiguous float64 inputs, shapes are the
     caller's duty."""
     terrain_forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, tc.geom if geom is None else geom,
-                          tc.prm if prm is None else prm, tstate.anchor, tstate.active, slip, W,
+                          tc.prm if prm is None else prm, tstate.anchor, tstate.eta0, tstate.active, slip, W,
                           np.empty((0, 0, 6)))
 
 

@@ -14,7 +14,10 @@ Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
   s = 1 node c, s = 2 the interior point of the segment nearest a box (used only when it is
   strictly deeper than both ends, as when a rod lies across a box edge; a plane's nearest
   point is always an end, so its slot 2 never touches). ``anchor`` (B, S, 3) m (a point on the
-  feature's surface), ``active`` / ``slip`` (B, S) bool.
+  feature's surface), ``eta0`` (B, S) m the rod coordinate of the material point the anchor
+  holds (the slot's own eta for the node slots; for the interior slot the point where it
+  touched or last slipped, so that friction holds the rod's material while the contact point
+  moves along the rod), ``active`` / ``slip`` (B, S) bool.
 * ``info`` (B, S, 6) or (0, 0, 6): per slot the rod coordinate eta m of the contact point, the
   signed distance m of that point to the feature, the feature's outward normal there and the
   energy J of the slot's springs at the given state with the anchors before the update.
@@ -133,15 +136,16 @@ def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g):
 
 
 @njit(inline="always", **_opts)
-def _slot_force(px, py, pz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, was_active,
+def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, was_active,
                 radius, kn, dn, ex, mu, kt, ct, cmax):
     """Contact force (N) on the rod point p (its velocity v m/s) at signed distance ``sd`` m from
     a feature with outward normal n: penetration ``delta = radius - sd``, Hunt-Crossley normal
     force ``fn = k delta^e - min(k delta^e dn, cmax) v.n >= 0``, and a tangential spring ``kt``
-    (damper ``ct``) from the surface point ``s = p - sd n`` to the anchor (set at touch-down),
-    projected on the tangent plane and capped at ``mu fn`` (slip: the anchor follows to
-    ``s + F_t / kt``). Returns (touching, fx, fy, fz, ax, ay, az, slip, energy J of the springs
-    with the anchor before the update)."""
+    (damper ``ct``) from the anchor (a surface point, set at touch-down to ``s = p - sd n``) to
+    the rod's material point m that touched there (p itself for a node slot), projected on the
+    tangent plane and capped at ``mu fn`` (slip: the anchor follows to ``s + F_t / kt``).
+    Returns (touching, fx, fy, fz, ax, ay, az, slip, energy J of the springs with the anchor
+    before the update)."""
     delta = radius - sd
     if not (delta > 0.0):
         return False, 0.0, 0.0, 0.0, ax, ay, az, False, 0.0
@@ -157,7 +161,8 @@ def _slot_force(px, py, pz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, was_active,
     sx, sy, sz = px - sd * nx, py - sd * ny, pz - sd * nz
     if not was_active:
         ax, ay, az = sx, sy, sz
-    x0, x1, x2 = sx - ax, sy - ay, sz - az
+        mx, my, mz = px, py, pz
+    x0, x1, x2 = mx - ax, my - ay, mz - az
     xn = x0 * nx + x1 * ny + x2 * nz
     x0, x1, x2 = x0 - xn * nx, x1 - xn * ny, x2 - xn * nz
     energy = fs * delta / (ex + 1.0) + 0.5 * kt * (x0 * x0 + x1 * x1 + x2 * x2)
@@ -177,10 +182,11 @@ def _slot_force(px, py, pz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, was_active,
 
 
 @njit(cache=True, nogil=True)
-def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, anchor, active, slip, W, info):
+def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, anchor, eta0, active, slip, W, info):
     """Terrain contact forces of every copy of ``q``, ``qd`` (B, k, 6) as nodal forces ``W``
-    (B, n, 3) N; anchors, active and slip flags (B, S) updated in place; ``info`` filled when
-    it has B rows (see the module doc). A force F at the rod point ``r + eta b`` goes to the
+    (B, n, 3) N; anchors, the material coordinates ``eta0`` (B, S) m of the rod points anchored,
+    active and slip flags (B, S) updated in place; ``info`` filled when it has B rows (see the
+    module doc). A force F at the rod point ``r + eta b`` goes to the
     rod's nodes a, c (at eta_a, eta_c) as ``(eta_c - eta) / (eta_c - eta_a) F`` and
     ``(eta - eta_a) / (eta_c - eta_a) F``: the generalized force ``[F, eta F]`` exactly."""
     B, k, n = q.shape[0], q.shape[1], W.shape[1]
@@ -221,10 +227,15 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, anchor, active, s
                     vx = qd[c, j, 0] + e * qd[c, j, 3]
                     vy = qd[c, j, 1] + e * qd[c, j, 4]
                     vz = qd[c, j, 2] + e * qd[c, j, 5]
+                    # the anchored material point: where the rod touched (the interior slot's
+                    # contact point moves along the rod; friction holds the material, not the point)
+                    e0 = eta0[c, ci] if (s == 2 and active[c, ci]) else e
                     touch, fx, fy, fz, ax, ay, az, sl, en = _slot_force(
-                        px, py, pz, vx, vy, vz, sd, nx, ny, nz, anchor[c, ci, 0], anchor[c, ci, 1],
-                        anchor[c, ci, 2], active[c, ci], radius, pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
+                        px, py, pz, r0 + e0 * b0, r1 + e0 * b1, r2 + e0 * b2, vx, vy, vz, sd, nx, ny, nz,
+                        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], radius,
+                        pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
                     anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
+                    eta0[c, ci] = e if (sl or not active[c, ci]) else e0
                     active[c, ci] = touch
                     slip[c, ci] = sl
                     if has_info:
