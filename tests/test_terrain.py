@@ -269,3 +269,36 @@ def test_stable_step_estimate():
     est = T.stable_step(T.TerrainContact(Terrain(boxes=[Box([0, 0, 0], [1, 1, 1], stiffness=4e4)])), m)
     assert est["feature"] == 1 and est["omega_contact"] == pytest.approx(math.sqrt(4e4 / 0.05))
     assert est["semi_implicit_euler"] < C.stable_step(C.GroundContact(), m)["semi_implicit_euler"]
+
+
+def test_torch_equals_numba():
+    """The torch terrain forces and steps equal the numba kernel's to round-off (per-copy
+    parameters and per-copy geometry)."""
+    torch = pytest.importorskip("torch")
+    from tensegrity_gym.backends.torch import terrain as TT
+    m, tc, q, qd, ts = random_scene(B=6, seed=2)
+    B = q.shape[0]
+    prm = tc.per_copy(B)
+    prm[:, :, 4] = np.linspace(0.2, 1.0, B)[:, None]          # friction per copy
+    prm[:, 1, 1] *= np.linspace(0.8, 1.5, B)                   # stiffness of box 0 per copy
+    geom = np.repeat(tc.geom, B, axis=0)
+    geom[:, 1, 1] += np.linspace(-0.02, 0.02, B)               # box 0 moved per copy
+    W1, s1, sl1 = T.contact_forces(tc, m, q, qd, ts, prm=prm, geom=geom)
+    t = lambda x: torch.as_tensor(x)
+    W2, a2, e2, ac2, sl2 = TT.terrain_forces(m, t(q), t(qd), geom, prm, t(ts.anchor), t(ts.eta0), t(ts.active))
+    assert s1.active.reshape(B, 3, 3, 3)[..., 2].any() and sl1.any()
+    np.testing.assert_array_equal(ac2.numpy(), s1.active)
+    np.testing.assert_array_equal(sl2.numpy(), sl1)
+    np.testing.assert_allclose(W2.numpy(), W1, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(a2.numpy(), s1.anchor, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(e2.numpy(), s1.eta0, rtol=1e-9, atol=1e-9)
+    # 200 steps of a prism dropped on the slope and the boxes
+    m = prism(lift=0.08)
+    st = dyn.initial_state(m, 3)
+    ts = T.init_terrain_state(tc, m, 3)
+    s1, ts1 = T.step(m, st, DT, tc, ts, n_steps=200, prm=prm[:3])
+    q2, qd2, a2, e2, ac2 = TT.terrain_step(m, tc.geom, prm[:3], t(st.q), t(st.qd), t(ts.anchor), t(ts.eta0),
+                                           t(ts.active), DT, n_steps=200)
+    assert ts1.active.any()
+    assert np.abs(q2.numpy() - s1.q).max() < 1e-9 and np.abs(qd2.numpy() - s1.qd).max() < 1e-7
+    np.testing.assert_array_equal(ac2.numpy(), ts1.active)

@@ -215,7 +215,7 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, anchor, eta0, act
                 far = _closest(r0 + em * b0, r1 + em * b1, r2 + em * b2, g)[0] - 0.5 * abs(span) >= radius
                 for s in range(3):
                     ci = base + s
-                    e = ea if s == 0 else ec
+                    e = ea if s == 0 else (ec if s == 1 else em)
                     use = not far
                     if use and s == 2:
                         if g[0] == PLANE:
