@@ -111,7 +111,7 @@ class Plane:
         return np.array([-math.sin(a) * math.cos(p), -math.sin(a) * math.sin(p), math.cos(a)])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Box:
     """A solid box: ``center`` (3,) m, ``size`` (3,) full edge lengths m (> 0), ``yaw_deg``
     about the vertical; contact overrides optional."""
@@ -137,7 +137,7 @@ class Box:
         return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Heightfield:
     """The solid below ``z = h(x, y)``: ``heights`` (ny, nx) m (at least 2 x 2, finite) on a grid of
     ``cell`` m from ``origin`` (x0, y0) m; bilinear, edge values held outside the grid."""

@@ -90,10 +90,15 @@ class TerrainContact:
             s(self, "tangential_stiffness", check_positive(self.tangential_stiffness, "tangential_stiffness", "N/m"))
         s(self, "tangential_damping", check_positive(self.tangential_damping, "tangential_damping", "N s/m",
                                                      allow_zero=True))
-        cmax = float(self.max_damping) if not isinstance(self.max_damping, (str, bool)) else math.nan
+        try:
+            cmax = math.nan if isinstance(self.max_damping, (str, bool)) else float(self.max_damping)
+        except (TypeError, ValueError):
+            cmax = math.nan
         if not cmax > 0:
             raise ValueError(f"max_damping: must be positive (N s/m; inf = no cap), got {self.max_damping!r}")
         s(self, "max_damping", cmax)
+        if not self.terrain.parts():
+            raise ValueError("terrain: no plane and no box, nothing to touch (a Terrain() is a level plane)")
         geom, prm = [], []
         for part in self.terrain.parts():
             row = np.zeros(10)
