@@ -1,0 +1,254 @@
+"""Terrain contact on the numba backend: the rod capsules (segments between a rod's nodes,
+swept by a sphere of the cap radius) against a sloped plane and boxes, with the Hunt-Crossley
+normal force and stick-slip Coulomb friction of the ground contact. SI units.
+
+Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
+
+* ``geom`` (G, F, 10), G = 1 (shared) or B (one terrain per copy): feature f's kind in
+  column 0 (:data:`PLANE` = 0: outward normal (1:4) and offset (4), the solid is
+  ``n.p <= offset``; :data:`BOX` = 1: centre (1:4) m, half sizes (4:7) m, cos and sin of the
+  yaw (7:9)).
+* ``prm`` (P, F, 8), P = 1 or B: per feature the contact parameters ``radius`` m, ``kn``
+  N/m^e, ``dn`` s/m, exponent ``e``, ``mu``, ``kt`` N/m, ``ct`` N s/m, ``cmax`` N s/m.
+* contact slots: three per rod per feature, slot ``(j F + f) 3 + s``: s = 0 the rod's node a,
+  s = 1 node c, s = 2 the interior point of the segment nearest a box (used only when it is
+  strictly deeper than both ends, as when a rod lies across a box edge; a plane's nearest
+  point is always an end, so its slot 2 never touches). ``anchor`` (B, S, 3) m (a point on the
+  feature's surface), ``eta0`` (B, S) m the rod coordinate of the material point the anchor
+  holds (the slot's own eta for the node slots; for the interior slot the point where it
+  touched or last slipped, so that friction holds the rod's material while the contact point
+  moves along the rod), ``active`` / ``slip`` (B, S) bool.
+* ``info`` (B, S, 6) or (0, 0, 6): per slot the rod coordinate eta m of the contact point, the
+  signed distance m of that point to the feature, the feature's outward normal there and the
+  energy J of the slot's springs at the given state with the anchors before the update.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .layout import _opts
+
+#: feature kinds (column 0 of ``geom``)
+PLANE = 0.0
+BOX = 1.0
+#: golden-section iterations of the interior search (interval shrinks to 0.618^40 = 4e-9 of the rod)
+GOLDEN_ITERS = 40
+#: the interior slot touches only where it is deeper than both ends by this much, m; it sits at the
+#: middle of the part of the rod within this distance of the deepest point (a rod lying flat on a
+#: ridge rests on the middle of the ridge, not on an arbitrary point of it)
+LEVEL_TOL = 1e-7
+_GR = 0.6180339887498949
+
+
+@njit(inline="always", **_opts)
+def _box_closest(px, py, pz, g):
+    """Signed distance (m; < 0 inside) of (px, py, pz) to the box ``g`` (a geom row) and the
+    outward normal there (nearest face inside, direction to the nearest surface point outside)."""
+    dx, dy, dz = px - g[1], py - g[2], pz - g[3]
+    c, s = g[7], g[8]
+    l0 = c * dx + s * dy
+    l1 = -s * dx + c * dy
+    l2 = dz
+    q0, q1, q2 = abs(l0) - g[4], abs(l1) - g[5], abs(l2) - g[6]
+    s0 = 1.0 if l0 >= 0.0 else -1.0
+    s1 = 1.0 if l1 >= 0.0 else -1.0
+    s2 = 1.0 if l2 >= 0.0 else -1.0
+    o0, o1, o2 = max(q0, 0.0), max(q1, 0.0), max(q2, 0.0)
+    dout = math.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+    if dout > 0.0:
+        n0, n1, n2 = s0 * o0 / dout, s1 * o1 / dout, s2 * o2 / dout
+        d = dout
+    else:
+        n0, n1, n2 = s0, 0.0, 0.0
+        d = q0
+        if q1 > d:
+            n0, n1, n2 = 0.0, s1, 0.0
+            d = q1
+        if q2 > d:
+            n0, n1, n2 = 0.0, 0.0, s2
+            d = q2
+    return d, c * n0 - s * n1, s * n0 + c * n1, n2
+
+
+@njit(inline="always", **_opts)
+def _closest(px, py, pz, g):
+    """Signed distance and outward normal of a point to the feature ``g`` (plane or box)."""
+    if g[0] == PLANE:
+        return g[1] * px + g[2] * py + g[3] * pz - g[4], g[1], g[2], g[3]
+    return _box_closest(px, py, pz, g)
+
+
+@njit(inline="always", **_opts)
+def _sd_at(e, r0, r1, r2, b0, b1, b2, g):
+    """Signed distance of the rod point ``r + e b`` to the box ``g``."""
+    return _box_closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g)[0]
+
+
+@njit(inline="always", **_opts)
+def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g):
+    """The interior contact point of a rod segment [ea, ec] against the box ``g``: the signed
+    distance is convex along the segment (the box is convex), so a golden-section search finds
+    its minimum; the point returned is the middle of the part within ``LEVEL_TOL`` of it (found
+    by bisection on both sides). Returns (eta, deeper): deeper = the point is deeper than both
+    ends by more than ``LEVEL_TOL``."""
+    fa = _sd_at(ea, r0, r1, r2, b0, b1, b2, g)
+    fc = _sd_at(ec, r0, r1, r2, b0, b1, b2, g)
+    lo, hi = ea, ec
+    x1 = hi - _GR * (hi - lo)
+    x2 = lo + _GR * (hi - lo)
+    f1 = _sd_at(x1, r0, r1, r2, b0, b1, b2, g)
+    f2 = _sd_at(x2, r0, r1, r2, b0, b1, b2, g)
+    for _ in range(GOLDEN_ITERS):
+        if f1 <= f2:
+            hi = x2
+            x2, f2 = x1, f1
+            x1 = hi - _GR * (hi - lo)
+            f1 = _sd_at(x1, r0, r1, r2, b0, b1, b2, g)
+        else:
+            lo = x1
+            x1, f1 = x2, f2
+            x2 = lo + _GR * (hi - lo)
+            f2 = _sd_at(x2, r0, r1, r2, b0, b1, b2, g)
+    em = 0.5 * (lo + hi)
+    fm = _sd_at(em, r0, r1, r2, b0, b1, b2, g)
+    if not (fm < min(fa, fc) - LEVEL_TOL):
+        return em, False
+    level = fm + LEVEL_TOL
+    a, b = ea, em                     # left edge of the level set: f(a) > level >= f(b)
+    for _ in range(GOLDEN_ITERS):
+        mid = 0.5 * (a + b)
+        if _sd_at(mid, r0, r1, r2, b0, b1, b2, g) > level:
+            a = mid
+        else:
+            b = mid
+    left = b
+    a, b = em, ec                     # right edge: f(a) <= level < f(b)
+    for _ in range(GOLDEN_ITERS):
+        mid = 0.5 * (a + b)
+        if _sd_at(mid, r0, r1, r2, b0, b1, b2, g) > level:
+            b = mid
+        else:
+            a = mid
+    return 0.5 * (left + a), True
+
+
+@njit(inline="always", **_opts)
+def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, was_active,
+                radius, kn, dn, ex, mu, kt, ct, cmax):
+    """Contact force (N) on the rod point p (its velocity v m/s) at signed distance ``sd`` m from
+    a feature with outward normal n: penetration ``delta = radius - sd``, Hunt-Crossley normal
+    force ``fn = k delta^e - min(k delta^e dn, cmax) v.n >= 0``, and a tangential spring ``kt``
+    (damper ``ct``) from the anchor (a surface point, set at touch-down to ``s = p - sd n``) to
+    the rod's material point m that touched there (p itself for a node slot), projected on the
+    tangent plane and capped at ``mu fn`` (slip: the anchor follows to ``s + F_t / kt``).
+    Returns (touching, fx, fy, fz, ax, ay, az, slip, energy J of the springs with the anchor
+    before the update)."""
+    delta = radius - sd
+    if not (delta > 0.0):
+        return False, 0.0, 0.0, 0.0, ax, ay, az, False, 0.0
+    de = delta if ex == 1.0 else delta ** ex
+    fs = kn * de
+    cn = fs * dn
+    if cn > cmax:
+        cn = cmax
+    vn = vx * nx + vy * ny + vz * nz
+    fn = fs - cn * vn
+    if fn < 0.0:
+        fn = 0.0
+    sx, sy, sz = px - sd * nx, py - sd * ny, pz - sd * nz
+    if not was_active:
+        ax, ay, az = sx, sy, sz
+        mx, my, mz = px, py, pz
+    x0, x1, x2 = mx - ax, my - ay, mz - az
+    xn = x0 * nx + x1 * ny + x2 * nz
+    x0, x1, x2 = x0 - xn * nx, x1 - xn * ny, x2 - xn * nz
+    energy = fs * delta / (ex + 1.0) + 0.5 * kt * (x0 * x0 + x1 * x1 + x2 * x2)
+    fx = -kt * x0 - ct * (vx - vn * nx)
+    fy = -kt * x1 - ct * (vy - vn * ny)
+    fz = -kt * x2 - ct * (vz - vn * nz)
+    nrm = math.sqrt(fx * fx + fy * fy + fz * fz)
+    lim = mu * fn
+    slip = nrm > lim
+    if slip:
+        s = lim / nrm
+        fx *= s
+        fy *= s
+        fz *= s
+        ax, ay, az = sx + fx / kt, sy + fy / kt, sz + fz / kt
+    return True, fx + fn * nx, fy + fn * ny, fz + fn * nz, ax, ay, az, slip, energy
+
+
+@njit(cache=True, nogil=True)
+def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, anchor, eta0, active, slip, W, info):
+    """Terrain contact forces of every copy of ``q``, ``qd`` (B, k, 6) as nodal forces ``W``
+    (B, n, 3) N; anchors, the material coordinates ``eta0`` (B, S) m of the rod points anchored,
+    active and slip flags (B, S) updated in place; ``info`` filled when it has B rows (see the
+    module doc). A force F at the rod point ``r + eta b`` goes to the
+    rod's nodes a, c (at eta_a, eta_c) as ``(eta_c - eta) / (eta_c - eta_a) F`` and
+    ``(eta - eta_a) / (eta_c - eta_a) F``: the generalized force ``[F, eta F]`` exactly."""
+    B, k, n = q.shape[0], q.shape[1], W.shape[1]
+    F = geom.shape[1]
+    has_info = info.shape[0] > 0
+    for c in range(B):
+        g_row = c if geom.shape[0] > 1 else 0
+        p_row = c if prm.shape[0] > 1 else 0
+        for p in range(n):
+            W[c, p, 0] = 0.0
+            W[c, p, 1] = 0.0
+            W[c, p, 2] = 0.0
+        for j in range(k):
+            r0, r1, r2 = q[c, j, 0], q[c, j, 1], q[c, j, 2]
+            b0, b1, b2 = q[c, j, 3], q[c, j, 4], q[c, j, 5]
+            ea, ec = eta[j, 0], eta[j, 1]
+            span = ec - ea
+            em = 0.5 * (ea + ec)
+            for f in range(F):
+                g = geom[g_row, f]
+                pr = prm[p_row, f]
+                radius = pr[0]
+                base = (j * F + f) * 3
+                # the signed distance is 1-Lipschitz: a rod whose middle is farther than half its
+                # length plus the cap radius touches nowhere
+                far = _closest(r0 + em * b0, r1 + em * b1, r2 + em * b2, g)[0] - 0.5 * abs(span) >= radius
+                for s in range(3):
+                    ci = base + s
+                    e = ea if s == 0 else (ec if s == 1 else em)
+                    use = not far
+                    if use and s == 2:
+                        if g[0] == PLANE:
+                            use = False
+                        else:
+                            e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g)
+                    px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
+                    sd, nx, ny, nz = _closest(px, py, pz, g) if use else (math.inf, 0.0, 0.0, 1.0)
+                    vx = qd[c, j, 0] + e * qd[c, j, 3]
+                    vy = qd[c, j, 1] + e * qd[c, j, 4]
+                    vz = qd[c, j, 2] + e * qd[c, j, 5]
+                    # the anchored material point: where the rod touched (the interior slot's
+                    # contact point moves along the rod; friction holds the material, not the point)
+                    e0 = eta0[c, ci] if (s == 2 and active[c, ci]) else e
+                    touch, fx, fy, fz, ax, ay, az, sl, en = _slot_force(
+                        px, py, pz, r0 + e0 * b0, r1 + e0 * b1, r2 + e0 * b2, vx, vy, vz, sd, nx, ny, nz,
+                        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], radius,
+                        pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
+                    anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
+                    eta0[c, ci] = e if (sl or not active[c, ci]) else e0
+                    active[c, ci] = touch
+                    slip[c, ci] = sl
+                    if has_info:
+                        info[c, ci, 0], info[c, ci, 1] = e, sd
+                        info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = nx, ny, nz
+                        info[c, ci, 5] = en
+                    if touch:
+                        wc = (e - ea) / span
+                        wa = (ec - e) / span
+                        na, nc = rod_a[j], rod_c[j]
+                        W[c, na, 0] += wa * fx
+                        W[c, na, 1] += wa * fy
+                        W[c, na, 2] += wa * fz
+                        W[c, nc, 0] += wc * fx
+                        W[c, nc, 1] += wc * fy
+                        W[c, nc, 2] += wc * fz

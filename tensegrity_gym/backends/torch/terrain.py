@@ -1,0 +1,219 @@
+"""Terrain contact on tensors: the rod capsules against a sloped plane and boxes, batched over
+copies (:func:`terrain_forces`), and steps with it (:func:`terrain_step`). The same equations,
+slots and arithmetic as the numba kernel :mod:`tensegrity_gym.backends.numba.terrain` (see
+there for the array layouts ``geom`` (G, F, 10), ``prm`` (P, F, 8) and the slot order); the
+arrays come from :class:`tensegrity_gym.physics.terrain.TerrainContact` (``.geom``, ``.prm``,
+``.per_copy``). SI units.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..numba.terrain import GOLDEN_ITERS, LEVEL_TOL, PLANE
+from .driver import _check_external, _setup, integrator_name, step_once
+from .model import TorchModel, _torch, torch_model
+
+__all__ = ["init_terrain_state", "terrain_forces", "terrain_step"]
+
+_GR = 0.6180339887498949
+
+
+def init_terrain_state(tm_or_model, n_features: int, batch_size: int, device=None, dtype=None):
+    """``(anchor (B, S, 3) m, eta0 (B, S) m, active (B, S) bool)``, S = 3 k F: no slot active."""
+    torch = _torch()
+    tm = tm_or_model if isinstance(tm_or_model, TorchModel) else torch_model(tm_or_model, device, dtype)
+    S = 3 * tm.k * int(n_features)
+    z = dict(dtype=tm.dtype, device=tm.device)
+    return (torch.zeros((batch_size, S, 3), **z), torch.zeros((batch_size, S), **z),
+            torch.zeros((batch_size, S), dtype=torch.bool, device=tm.device))
+
+
+def _box(p0, p1, p2, g):
+    """Signed distance and outward normal of points (p0, p1, p2) to boxes ``g`` (G, 10) rows
+    broadcast against the points' leading axis (as the numba ``_box_closest``)."""
+    torch = _torch()
+    cx, cy, cz, hx, hy, hz, c, s = (g[:, i].reshape(-1, *([1] * (p0.ndim - 1))) for i in range(1, 9))
+    dx, dy, dz = p0 - cx, p1 - cy, p2 - cz
+    l0 = c * dx + s * dy
+    l1 = (-s) * dx + c * dy
+    l2 = dz
+    q0, q1, q2 = l0.abs() - hx, l1.abs() - hy, l2.abs() - hz
+    one = torch.ones_like(l0)
+    s0, s1, s2 = (torch.where(x >= 0.0, one, -one) for x in (l0, l1, l2))
+    o0, o1, o2 = q0.clamp(min=0.0), q1.clamp(min=0.0), q2.clamp(min=0.0)
+    dout = torch.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+    out = dout > 0.0
+    safe = torch.where(out, dout, one)
+    zero = torch.zeros_like(l0)
+    # inside: the nearest face, the first of the largest q (numba's sequential comparisons)
+    a1 = q1 > q0
+    d = torch.where(a1, q1, q0)
+    a2 = q2 > d
+    d = torch.where(a2, q2, d)
+    n0 = torch.where(out, s0 * o0 / safe, torch.where(a1 | a2, zero, s0))
+    n1 = torch.where(out, s1 * o1 / safe, torch.where(a1 & ~a2, s1, zero))
+    n2 = torch.where(out, s2 * o2 / safe, torch.where(a2, s2, zero))
+    d = torch.where(out, dout, d)
+    return d, c * n0 - s * n1, s * n0 + c * n1, n2
+
+
+def _closest(p0, p1, p2, g):
+    """Signed distance and outward normal of points to the features ``g`` (G, 10) of one kind
+    (all rows of one feature column share its kind)."""
+    if float(g[0, 0]) == PLANE:
+        nx, ny, nz, off = (g[:, i].reshape(-1, *([1] * (p0.ndim - 1))) for i in range(1, 5))
+        return nx * p0 + ny * p1 + nz * p2 - off, nx.expand_as(p0), ny.expand_as(p0), nz.expand_as(p0)
+    return _box(p0, p1, p2, g)
+
+
+def _interior(ea, ec, r, b, g):
+    """The interior contact point of every rod against the box ``g``, (eta, deeper) (B, k): the
+    numba ``_interior`` on tensors (golden section, then the middle of the level set)."""
+    torch = _torch()
+
+    def sd(e):
+        return _box(r[..., 0] + e * b[..., 0], r[..., 1] + e * b[..., 1], r[..., 2] + e * b[..., 2], g)[0]
+    ea, ec = ea.expand_as(r[..., 0]), ec.expand_as(r[..., 0])
+    fa, fc = sd(ea), sd(ec)
+    lo, hi = ea, ec
+    x1 = hi - _GR * (hi - lo)
+    x2 = lo + _GR * (hi - lo)
+    f1, f2 = sd(x1), sd(x2)
+    for _ in range(GOLDEN_ITERS):
+        c = f1 <= f2
+        hi_n = torch.where(c, x2, hi)
+        lo_n = torch.where(c, lo, x1)
+        x1_n = torch.where(c, hi_n - _GR * (hi_n - lo_n), x2)
+        x2_n = torch.where(c, x1, lo_n + _GR * (hi_n - lo_n))
+        fe = sd(torch.where(c, x1_n, x2_n))
+        f1, f2 = torch.where(c, fe, f2), torch.where(c, f1, fe)
+        lo, hi, x1, x2 = lo_n, hi_n, x1_n, x2_n
+    em = 0.5 * (lo + hi)
+    fm = sd(em)
+    deeper = fm < torch.minimum(fa, fc) - LEVEL_TOL
+    level = fm + LEVEL_TOL
+    a, bb = ea, em
+    for _ in range(GOLDEN_ITERS):
+        mid = 0.5 * (a + bb)
+        up = sd(mid) > level
+        a, bb = torch.where(up, mid, a), torch.where(up, bb, mid)
+    left = bb
+    a, bb = em, ec
+    for _ in range(GOLDEN_ITERS):
+        mid = 0.5 * (a + bb)
+        up = sd(mid) > level
+        a, bb = torch.where(up, a, mid), torch.where(up, mid, bb)
+    return torch.where(deeper, 0.5 * (left + a), em), deeper
+
+
+def _as(x, q, name, width):
+    torch = _torch()
+    t = x if isinstance(x, torch.Tensor) else torch.as_tensor(np.array(x, dtype=float))
+    t = t.to(device=q.device, dtype=q.dtype)
+    if t.ndim != 3 or t.shape[2] != width or t.shape[0] not in (1, q.shape[0]):
+        raise ValueError(f"{name}: expected shape (1, F, {width}) or ({q.shape[0]}, F, {width}), got {tuple(t.shape)}")
+    return t
+
+
+def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active):
+    """Terrain contact forces as the numba kernel's: returns ``(W (B, n, 3) N, anchor, eta0,
+    active, slip)``, the state as new tensors. ``geom`` (1 or B, F, 10), ``prm`` (1 or B, F, 8):
+    arrays or tensors (:class:`tensegrity_gym.physics.terrain.TerrainContact`'s ``geom`` /
+    ``per_copy``)."""
+    torch = _torch()
+    tm = model if isinstance(model, TorchModel) else torch_model(model, q.device, q.dtype)
+    B, k = q.shape[0], tm.k
+    geom, prm = _as(geom, q, "geom", 10), _as(prm, q, "prm", 8)
+    F = geom.shape[1]
+    if prm.shape[1] != F:
+        raise ValueError(f"prm: expected {F} features as geom, got {prm.shape[1]}")
+    r, b, rd, bd = q[..., :3], q[..., 3:], qd[..., :3], qd[..., 3:]
+    ea, ec = tm.eta_a[..., 0], tm.eta_c[..., 0]                          # (1, k)
+    span = ec - ea
+    an = anchor.reshape(B, k, F, 3, 3)
+    e0s = eta0.reshape(B, k, F, 3)
+    acs = active.reshape(B, k, F, 3)
+    Wa = torch.zeros_like(r)
+    Wc = torch.zeros_like(r)
+    outs = []
+    for f in range(F):
+        g = geom[:, f]
+        pr = [prm[:, f, i].reshape(-1, 1) for i in range(8)]             # (P, 1)
+        radius, kn, dn, ex, mu, kt, ct, cmax = pr
+        em = 0.5 * (ea + ec)
+        far = _closest(r[..., 0] + em * b[..., 0], r[..., 1] + em * b[..., 1], r[..., 2] + em * b[..., 2],
+                       g)[0] - 0.5 * span.abs() >= radius
+        if float(g[0, 0]) == PLANE:
+            ei, deeper = em.expand(B, k), torch.zeros((B, k), dtype=torch.bool, device=q.device)
+        else:
+            ei, deeper = _interior(ea, ec, r, b, g)
+            ei = torch.where(far, em.expand(B, k), ei)
+        E = torch.stack([ea.expand(B, k), ec.expand(B, k), ei], dim=-1)  # (B, k, 3)
+        use = torch.stack([~far, ~far, ~far & deeper], dim=-1)
+        P = r[:, :, None, :] + E[..., None] * b[:, :, None, :]          # (B, k, 3, 3)
+        V = rd[:, :, None, :] + E[..., None] * bd[:, :, None, :]
+        sd, nx, ny, nz = _closest(P[..., 0], P[..., 1], P[..., 2], g)
+        sd = torch.where(use, sd, torch.full_like(sd, math.inf))
+        n = torch.stack([nx, ny, nz], dim=-1)
+        was = acs[:, :, f]
+        slot2 = torch.tensor([False, False, True], device=q.device)
+        e0 = torch.where(slot2 & was, e0s[:, :, f], E)
+        M = r[:, :, None, :] + e0[..., None] * b[:, :, None, :]
+        rad, kn_, dn_, mu_, kt_, ct_, cmax_ = (x[..., None] for x in (radius, kn, dn, mu, kt, ct, cmax))
+        delta = rad - sd
+        touch = delta > 0.0
+        dpos = torch.where(touch, delta, torch.zeros_like(delta))
+        ex0 = float(ex.reshape(-1)[0])
+        de = dpos if ex0 == 1.0 else dpos ** ex[..., None]
+        fs = kn_ * de
+        cn = torch.minimum(fs * dn_, cmax_.expand_as(fs))
+        vn = (V * n).sum(-1)
+        fn = (fs - cn * vn).clamp(min=0.0)
+        S = P - sd[..., None] * n
+        new = (~was)[..., None]
+        A = torch.where(new, S, an[:, :, f])
+        M = torch.where(new, P, M)
+        xi = M - A
+        xn = (xi * n).sum(-1, keepdim=True)
+        xi = xi - xn * n
+        Ft = -kt_[..., None] * xi - ct_[..., None] * (V - vn[..., None] * n)
+        nrm = torch.sqrt((Ft * Ft).sum(-1))
+        lim = mu_ * fn
+        slip = touch & (nrm > lim)
+        scale = torch.where(slip, lim / torch.where(slip, nrm, torch.ones_like(nrm)), torch.ones_like(nrm))
+        Ft = Ft * scale[..., None]
+        A = torch.where(slip[..., None], S + Ft / kt_[..., None], A)
+        A = torch.where(touch[..., None], A, an[:, :, f])
+        e0n = torch.where(slip | ~was, E, e0)
+        Fc = torch.where(touch[..., None], Ft + fn[..., None] * n, torch.zeros_like(Ft))
+        wc = (E - ea[..., None]) / span[..., None]
+        wa = (ec[..., None] - E) / span[..., None]
+        Wa = Wa + (wa[..., None] * Fc).sum(2)
+        Wc = Wc + (wc[..., None] * Fc).sum(2)
+        outs.append((A, e0n, touch, slip))
+    anchor = torch.stack([o[0] for o in outs], dim=2).reshape(B, -1, 3)
+    eta0 = torch.stack([o[1] for o in outs], dim=2).reshape(B, -1)
+    active = torch.stack([o[2] for o in outs], dim=2).reshape(B, -1)
+    slip = torch.stack([o[3] for o in outs], dim=2).reshape(B, -1)
+    return tm.gather_nodes(Wa, Wc), anchor, eta0, active, slip
+
+
+def terrain_step(model, geom, prm, q, qd, anchor, eta0, active, dt: float, integrator: str = "semi_implicit_euler",
+                 n_steps: int = 1, rest_length=None, force_density=None, params=None, project: bool = True,
+                 external=None):
+    """``n_steps`` physics steps with terrain contact: per step the forces from the state at its
+    start (plus ``external``), held over one integrator step. Returns ``(q, qd, anchor, eta0, active)``."""
+    name = integrator_name(integrator)
+    dt = float(dt)
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
+    tm, p, rl, fd = _setup(model, q, params, rest_length, force_density)
+    ext = _check_external(tm, external, q.shape[0])
+    for _ in range(int(n_steps)):
+        W, anchor, eta0, active, _ = terrain_forces(tm, q, qd, geom, prm, anchor, eta0, active)
+        if ext is not None:
+            W = W + ext
+        q, qd = step_once(tm, q, qd, dt, name, p, rl, fd, W, project)
+    return q, qd, anchor, eta0, active

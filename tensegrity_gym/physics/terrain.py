@@ -1,0 +1,261 @@
+"""Contact of the rod capsules with a terrain (sloped plane, boxes): the backend-neutral API.
+
+The terrain itself is data (:class:`tensegrity_gym.core.terrain.Terrain`); this module turns it
+into the arrays of the compiled kernel (:mod:`tensegrity_gym.backends.numba.terrain`, torch twin
+:mod:`tensegrity_gym.backends.torch.terrain`) and steps a batch with it. SI units: m, kg, s, N.
+Scenes without a terrain never reach this module: the flat-ground fast path
+(:mod:`tensegrity_gym.physics.contact`) is unchanged.
+
+Geometry: a rod is a capsule, the segment between its two nodes swept by a sphere of radius
+``radius`` (the cap radius, m). Against each feature (the plane, each box) it has three
+contact slots: its two nodes, where a capsule first touches a plane, and the interior point of
+the segment nearest a box (golden-section search of the signed distance, which is convex along
+the segment because a box is convex), used when it is deeper than both ends: a rod lying across
+a box edge or a ridge is held where it touches. Slot ``(j F + f) 3 + s`` for rod j, feature f,
+s = 0 node a, 1 node c, 2 interior; F features in :meth:`Terrain.parts` order.
+
+Contact law (as :mod:`tensegrity_gym.physics.contact`, with the plane's normal n in place of
++z): penetration ``delta = radius - d`` (d the signed distance of the contact point to the
+feature), Hunt-Crossley normal force ``F_n = max(0, k delta^e - min(k delta^e d_n, c_max) v.n)``,
+and stick-slip Coulomb friction: a tangential spring ``k_t`` with damper ``c_t`` from the
+contact's surface point to its anchor (a 3-D point on the surface, set at touch-down),
+projected on the tangent plane and capped at ``mu F_n`` (the anchor then follows: slip).
+
+Generalized force: a force F at the rod point ``v(eta) = r + eta b`` enters the equations as
+``[F, eta F]`` (the seed's (5.9), (5.21)); the kernels pass it as the nodal forces
+``(eta_c - eta)/(eta_c - eta_a) F`` at node a and ``(eta - eta_a)/(eta_c - eta_a) F`` at node c,
+whose generalized force ``W Psi`` is exactly ``[F, eta F]`` (``tests/test_terrain.py``).
+
+Stepping: per step, the forces of the whole batch from the state at the step's start, held over
+one integrator step as ``external`` nodal forces (as the ground contact's Python loop; the
+ground contact's fused compiled loop has no terrain twin yet).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..backends.numba.terrain import BOX, PLANE, terrain_forces_kernel
+from ..core.checks import check_positive
+from ..core.integrators import resolve
+from ..core.model import Model, State
+from ..core.terrain import Box, Plane, Terrain
+from .contact import GroundContact, stable_step as ground_stable_step
+from .pipeline import run_steps as _run_steps
+from .stability import check_stability
+
+__all__ = ["TerrainContact", "TerrainState", "init_terrain_state", "contact_forces", "forces_inplace",
+           "contact_energy", "stable_step", "step", "PRM_FIELDS", "SLOTS"]
+
+#: columns of the (P, F, 8) per-feature contact parameters ``prm`` (SI units)
+PRM_FIELDS = ("radius", "stiffness", "damping", "exponent", "friction", "tangential_stiffness",
+              "tangential_damping", "max_damping")
+#: contact slots per rod per feature: node a, node c, the interior point nearest a box
+SLOTS = 3
+
+
+@dataclass(frozen=True, eq=False)
+class TerrainContact:
+    """Contact of the rods with a :class:`Terrain` (SI units).
+
+    ``terrain`` gives per feature the friction, the normal stiffness k (N/m^exponent) and the
+    Hunt-Crossley damping (s/m); the rest is the rods' and the contact model's, as in
+    :class:`~tensegrity_gym.physics.contact.GroundContact`: ``radius`` (cap radius, m),
+    ``exponent`` (>= 1), ``tangential_stiffness`` (N/m; None: each feature's normal stiffness),
+    ``tangential_damping`` (N s/m), ``max_damping`` (cap on the normal damping coefficient,
+    N s/m). A heightfield is refused (not in the physics yet)."""
+
+    terrain: Terrain
+    radius: float = 0.02
+    exponent: float = 1.0
+    tangential_stiffness: float | None = None
+    tangential_damping: float = 10.0
+    max_damping: float = math.inf
+
+    def __post_init__(self):
+        s = object.__setattr__
+        if not isinstance(self.terrain, Terrain):
+            raise ValueError(f"terrain: expected a Terrain, got {self.terrain!r}")
+        if self.terrain.heightfield is not None:
+            raise ValueError("terrain.heightfield: heightfield contact is not in the physics yet "
+                             "(planes and boxes are)")
+        s(self, "radius", check_positive(self.radius, "radius", "m", allow_zero=True))
+        e = check_positive(self.exponent, "exponent", "1")
+        if e < 1:
+            raise ValueError(f"exponent: must be >= 1 (1 linear, 1.5 Hertz), got {self.exponent!r}")
+        s(self, "exponent", e)
+        if self.tangential_stiffness is not None:
+            s(self, "tangential_stiffness", check_positive(self.tangential_stiffness, "tangential_stiffness", "N/m"))
+        s(self, "tangential_damping", check_positive(self.tangential_damping, "tangential_damping", "N s/m",
+                                                     allow_zero=True))
+        try:
+            cmax = math.nan if isinstance(self.max_damping, (str, bool)) else float(self.max_damping)
+        except (TypeError, ValueError):
+            cmax = math.nan
+        if not cmax > 0:
+            raise ValueError(f"max_damping: must be positive (N s/m; inf = no cap), got {self.max_damping!r}")
+        s(self, "max_damping", cmax)
+        if not self.terrain.parts():
+            raise ValueError("terrain: no plane and no box, nothing to touch (a Terrain() is a level plane)")
+        geom, prm = [], []
+        for part in self.terrain.parts():
+            row = np.zeros(10)
+            if isinstance(part, Plane):
+                row[0] = PLANE
+                row[1:4] = part.normal
+            elif isinstance(part, Box):
+                yaw = math.radians(part.yaw_deg)
+                row[0] = BOX
+                row[1:4] = part.center
+                row[4:7] = part.size / 2
+                row[7:9] = math.cos(yaw), math.sin(yaw)
+            geom.append(row)
+            mu, k, d = self.terrain.surface(part)
+            kt = k if self.tangential_stiffness is None else self.tangential_stiffness
+            prm.append([self.radius, k, d, e, mu, kt, self.tangential_damping, cmax])
+        geom = np.array(geom, float).reshape(1, -1, 10)
+        prm = np.array(prm, float).reshape(1, -1, 8)
+        geom.setflags(write=False)
+        prm.setflags(write=False)
+        s(self, "geom", geom)
+        s(self, "prm", prm)
+
+    @property
+    def n_features(self) -> int:
+        return self.geom.shape[1]
+
+    def per_copy(self, batch_size: int) -> np.ndarray:
+        """(B, F, 8) per-copy parameters (columns :data:`PRM_FIELDS`), every row this contact's:
+        change rows and pass them as ``prm`` (each copy its own friction, stiffness, ...)."""
+        return np.repeat(self.prm, int(batch_size), axis=0)
+
+
+@dataclass(frozen=True, eq=False)
+class TerrainState:
+    """Stick/slip state of B x S contact slots (S = 3 k F): ``anchor`` (B, S, 3) m (a point on the
+    feature's surface), ``eta0`` (B, S) m (the rod coordinate of the material point the anchor
+    holds: the node's for the node slots, where it touched or last slipped for the interior slot),
+    ``active`` (B, S) bool (the slot touched at the last force evaluation)."""
+
+    anchor: np.ndarray
+    eta0: np.ndarray
+    active: np.ndarray
+
+    def copy(self) -> "TerrainState":
+        return TerrainState(self.anchor.copy(), self.eta0.copy(), self.active.copy())
+
+
+def n_slots(tc: TerrainContact, model: Model) -> int:
+    return SLOTS * model.n_bars * tc.n_features
+
+
+def init_terrain_state(tc: TerrainContact, model: Model, batch_size: int = 1) -> TerrainState:
+    """No slot active, anchors zero."""
+    S = n_slots(tc, model)
+    return TerrainState(np.zeros((batch_size, S, 3)), np.zeros((batch_size, S)), np.zeros((batch_size, S), bool))
+
+
+def _rows(arr, default, B, width, name):
+    """``arr`` (1 or B, F, width) as C-contiguous float64, or ``default``; ValueError otherwise."""
+    if arr is None:
+        return default
+    a = np.ascontiguousarray(arr, dtype=np.float64)
+    if a.ndim != 3 or a.shape[0] not in (1, B) or a.shape[1:] != default.shape[1:]:
+        raise ValueError(f"{name}: expected shape (1, {default.shape[1]}, {width}) or ({B}, {default.shape[1]}, "
+                         f"{width}), got {a.shape}")
+    return a
+
+
+def contact_forces(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState, inplace: bool = False,
+                   prm=None, geom=None, info: bool = False):
+    """Terrain contact forces at ``q``, ``qd`` (B, k, 6) and the updated stick/slip state.
+
+    Returns ``(W, new_state, slip)`` (``W`` (B, n, 3) nodal forces N, ``slip`` (B, S) bool) and,
+    with ``info=True``, a fourth array (B, S, 6): per slot eta (m), signed distance (m), outward
+    normal and spring energy (J). ``prm`` (1 or B, F, 8): per-copy parameters
+    (:meth:`TerrainContact.per_copy`); ``geom`` (1 or B, F, 10): per-copy feature geometry in
+    the kernel's layout (default the contact's). ``inplace=True`` updates ``tstate``'s arrays."""
+    B = q.shape[0]
+    S = n_slots(tc, model)
+    if tstate.anchor.shape != (B, S, 3) or tstate.active.shape != (B, S):
+        raise ValueError(f"terrain state: expected anchor ({B}, {S}, 3) and active ({B}, {S}), got "
+                         f"{tstate.anchor.shape} and {tstate.active.shape}")
+    ts = tstate if inplace else tstate.copy()
+    W = np.empty((B, model.n_nodes, 3))
+    slip = np.empty((B, S), bool)
+    inf = np.empty((B, S, 6) if info else (0, 0, 6))
+    terrain_forces_kernel(np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(qd, dtype=np.float64),
+                          model.eta, model.rod_a, model.rod_c, _rows(geom, tc.geom, B, 10, "geom"),
+                          _rows(prm, tc.prm, B, 8, "prm"), ts.anchor, ts.eta0, ts.active, slip, W, inf)
+    return (W, ts, slip, inf) if info else (W, ts, slip)
+
+
+def forces_inplace(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState, W, slip, prm=None,
+                   geom=None) -> None:
+    """Allocation-free :func:`contact_forces`: forces into ``W`` (B, n, 3), slip flags into
+    ``slip`` (B, S) and ``tstate`` updated in place; C-contiguous float64 inputs, shapes are the
+    caller's duty."""
+    terrain_forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, tc.geom if geom is None else geom,
+                          tc.prm if prm is None else prm, tstate.anchor, tstate.eta0, tstate.active, slip, W,
+                          np.empty((0, 0, 6)))
+
+
+def contact_energy(tc: TerrainContact, model: Model, q, tstate: TerrainState, prm=None, geom=None) -> np.ndarray:
+    """(B,) energy stored in the contact springs, J: normal ``k delta^(e+1)/(e+1)`` plus tangential
+    ``k_t |xi_t|^2 / 2`` of every touching slot (anchors from ``tstate``, not modified)."""
+    q = np.asarray(q, dtype=np.float64)
+    _, _, _, inf = contact_forces(tc, model, q, np.zeros_like(q), tstate, prm=prm, geom=geom, info=True)
+    return inf[..., 5].sum(axis=1)
+
+
+def stable_step(tc: TerrainContact, model: Model) -> dict:
+    """Stability estimate (s) of semi-implicit Euler with terrain contact: the ground contact's
+    estimate (:func:`tensegrity_gym.physics.contact.stable_step`: a contact at a rod end, the
+    lightest effective mass m/4, strings and damping included) for each feature's parameters;
+    the smallest limit wins. Returns that feature's dict with ``"feature"`` (its index)."""
+    best = None
+    for f in range(tc.n_features):
+        radius, k, d, e, mu, kt, ct, cmax = tc.prm[0, f]
+        est = ground_stable_step(GroundContact(stiffness=k, damping=d, exponent=e, friction=mu,
+                                               tangential_stiffness=kt, tangential_damping=ct, radius=radius,
+                                               max_damping=cmax), model)
+        if best is None or est["semi_implicit_euler"] < best["semi_implicit_euler"]:
+            best = dict(est, feature=f)
+    return best
+
+
+def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: TerrainState,
+         integrator: str = "semi_implicit_euler", *, n_steps: int = 1, external=None, prm=None, geom=None,
+         backend: str = "auto", **inputs):
+    """``n_steps`` physics steps of ``dt`` s with terrain contact: per step, the contact forces of
+    the batch from the state at its start (plus ``external`` (B, n, 3) N), held over ONE
+    integrator step. ``inputs``: ``rest_length``, ``force_density``, ``params``, ``project``
+    as :func:`tensegrity_gym.physics.step` takes them. Returns ``(State, TerrainState)``, new
+    objects (the inputs are not modified)."""
+    info = resolve(integrator)
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
+    B = state.batch_size
+    if inputs.get("params") is None:
+        check_stability(model, info, dt)
+    q = np.array(state.q, dtype=np.float64, order="C")
+    qd = np.array(state.qd, dtype=np.float64, order="C")
+    ts = tstate.copy()
+    S = n_slots(tc, model)
+    if ts.anchor.shape != (B, S, 3) or ts.active.shape != (B, S):
+        raise ValueError(f"terrain state: expected anchor ({B}, {S}, 3) and active ({B}, {S}), got "
+                         f"{ts.anchor.shape} and {ts.active.shape}")
+    prm, geom = _rows(prm, tc.prm, B, 8, "prm"), _rows(geom, tc.geom, B, 10, "geom")
+    ext = None if external is None else np.asarray(external, dtype=np.float64)
+    W = np.empty((B, model.n_nodes, 3))
+    slip = np.empty((B, S), bool)
+    t = state.t
+    for _ in range(int(n_steps)):
+        forces_inplace(tc, model, q, qd, ts, W, slip, prm, geom)
+        if ext is not None:
+            W += ext
+        _run_steps(model, q, qd, dt, info.name, n_steps=1, external=W, backend=backend, **inputs)
+        t = t + dt
+    return State(q=q, qd=qd, t=t), ts

@@ -1,0 +1,304 @@
+"""Terrain (tensegrity_gym.core.terrain) and terrain contact of the rod capsules
+(tensegrity_gym.physics.terrain): file checks, the geometric oracle, rest and sliding on a
+slope, a rod held across a box edge, energy, and the backends agreeing. SI units."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from tensegrity_gym import builders, contact as C, dynamics as dyn
+from tensegrity_gym.core.terrain import SCHEMA_PATH, Box, Plane, Terrain
+from tensegrity_gym.physics import terrain as T
+from tensegrity_gym.structure import Structure
+
+G = 9.81
+DT = 1e-3
+
+
+# ---------------------------------------------------------------------- scenes
+def rod(nodes, mass=0.2, vel=None):
+    """A lone rod between two nodes under gravity."""
+    s = Structure(np.asarray(nodes, float), [[0, 1]], np.zeros((0, 2), int), bar_mass=mass,
+                  gravity=(0.0, 0.0, -G), velocities=vel)
+    return dyn.compile_model(s)
+
+
+def rod_on_slope(slope_deg, length=0.4, radius=0.02):
+    """A rod lying along the fall line of a plane rising along +x, both caps touching."""
+    a = math.radians(slope_deg)
+    u = np.array([math.cos(a), 0.0, math.sin(a)])
+    n = np.array([-math.sin(a), 0.0, math.cos(a)])
+    n0 = radius * n
+    return rod([n0, n0 + length * u]), u
+
+
+def rotated(nodes, slope_deg):
+    """Nodes rotated so that +z becomes the normal of a plane rising along +x at ``slope_deg``."""
+    a = -math.radians(slope_deg)
+    R = np.array([[math.cos(a), 0.0, -math.sin(a)], [0.0, 1.0, 0.0], [math.sin(a), 0.0, math.cos(a)]]).T
+    return nodes @ R.T
+
+
+def prism(lift=0.02, slope_deg=0.0, damping=2.0):
+    s = builders.prism(3, radius=0.15, height=0.25, bar_mass=0.2, stiffness=1000.0, prestress=20.0,
+                       damping=damping, gravity=(0.0, 0.0, -G))
+    nodes = s.nodes.copy()
+    nodes[:, 2] += lift
+    return dyn.compile_model(s.replace(nodes=rotated(nodes, slope_deg)))
+
+
+def run(model, tc, n, state=None, ts=None, every=1):
+    st = dyn.initial_state(model, 1) if state is None else state
+    ts = T.init_terrain_state(tc, model, 1) if ts is None else ts
+    com, t = [], []
+    for i in range(0, n, every):
+        st, ts = T.step(model, st, DT, tc, ts, n_steps=every)
+        com.append(dyn.center_of_mass(model, st.q)[0])
+        t.append(st.t)
+    return np.array(t), np.array(com), st, ts
+
+
+# ---------------------------------------------------------------------- data and files
+@pytest.mark.parametrize("d, msg", [
+    ({"boxes": [{"center": [0, 0, 0], "size": [1, 1, 1]}] * 2 + [{"center": [0, 0, 0], "size": [1, -0.1, 1]}]},
+     r"boxes\[2\]\.size\[1\]: must be > 0, got -0.1"),
+    ({"plane": {"slope_deg": 95}}, r"plane\.slope_deg: must be < 90, got 95"),
+    ({"plane": {"slope_deg": float("nan")}}, r"plane\.slope_deg: must be finite"),
+    ({"boxes": [{"center": [0, 0], "size": [1, 1, 1]}]}, r"boxes\[0\]\.center: expected a list of 3 numbers"),
+    ({"boxes": [{"size": [1, 1, 1]}]}, r"boxes\[0\]: missing required key 'center'"),
+    ({"boxes": [{"center": [0, 0, 0], "size": [1, 1, 1], "yaw": 3}]}, r"boxes\[0\]: unknown key 'yaw'"),
+    ({"friction": -1}, r"friction: must be >= 0, got -1"),
+    ({"stiffness": 0}, r"stiffness: must be > 0, got 0"),
+    ({"heightfield": {"heights": [[0, 1], [float("nan"), 0]], "cell": 0.1}}, r"heightfield\.heights\[1, 0\]: must be finite"),
+    ({"heightfield": {"heights": [[0, 1], [1, 0]], "cell": -0.05}}, r"heightfield\.cell: must be > 0, got -0.05"),
+    ({"heightfield": {"file": "missing.npy", "cell": 0.1}}, r"heightfield\.file: no such file"),
+    ({"hills": 1}, r"terrain: unknown key 'hills'"),
+])
+def test_bad_terrain_is_named(d, msg):
+    with pytest.raises(ValueError, match=msg):
+        Terrain.from_dict(d)
+
+
+def test_file_heightfield_and_schema(tmp_path):
+    jsonschema = pytest.importorskip("jsonschema")
+    schema = json.loads(SCHEMA_PATH.read_text())
+    jsonschema.Draft202012Validator.check_schema(schema)
+    d = {"friction": 0.8, "stiffness": 1e4, "damping": 10, "plane": {"slope_deg": 20.0, "uphill_deg": 0.0},
+         "boxes": [{"center": [1, 0, 0.1], "size": [0.5, 0.5, 0.2], "yaw_deg": 30.0, "friction": 0.3}],
+         "heightfield": {"file": "h.npy", "cell": 0.05, "origin": [-1, -1]}}
+    jsonschema.validate(d, schema)
+    np.save(tmp_path / "h.npy", np.arange(12.0).reshape(3, 4) * 0.01)
+    (tmp_path / "t.json").write_text(json.dumps(d))
+    t = Terrain.from_file(tmp_path / "t.json")
+    assert t.heightfield.heights.shape == (3, 4) and t.surface(t.boxes[0]) == (0.3, 1e4, 10.0)
+    # bilinear: h = 0.01 (i + 4 j) on the grid x = -1 + 0.05 i, y = -1 + 0.05 j
+    assert t.heightfield.height_at(-1 + 0.05 * 1.5, -1 + 0.05 * 0.5) == pytest.approx(0.01 * (1.5 + 2.0))
+    np.save(tmp_path / "h.npy", np.zeros((2, 2, 2)))
+    with pytest.raises(ValueError, match=r"heightfield\.file: expected a 2-D array"):
+        Terrain.from_file(tmp_path / "t.json")
+    with pytest.raises(ValueError, match="heightfield contact is not in the physics"):
+        T.TerrainContact(Terrain(heightfield=t.heightfield))
+    assert Terrain.from_dict({}) == Terrain() and Terrain.from_dict({"plane": None}).plane is None
+
+
+def test_height_and_closest():
+    t = Terrain(plane=Plane(slope_deg=20.0, uphill_deg=90.0),
+                boxes=[Box([0.0, 2.0, 1.0], [1.0, 0.4, 0.2], yaw_deg=90.0)])
+    assert t.height_at(5.0, 1.0) == pytest.approx(math.tan(math.radians(20.0)))
+    assert t.height_at(0.1, 2.4) == pytest.approx(1.1)          # on the (turned) box
+    d, n = t.closest(np.array([[0.0, 0.0, 1.0], [0.1, 2.4, 1.3], [0.0, 2.0, 1.05]]), per_part=True)
+    assert d[0, 0] == pytest.approx(math.cos(math.radians(20.0)))
+    assert d[1, 1] == pytest.approx(0.2) and n[1, 1] == pytest.approx([0, 0, 1])
+    assert d[1, 2] == pytest.approx(-0.05) and n[1, 2] == pytest.approx([0, 0, 1])   # inside, nearest face
+
+
+# ---------------------------------------------------------------------- physics
+def test_level_plane_is_the_ground_contact():
+    """A level terrain plane runs the ground contact's equations: the prism settles to the same
+    state, bit for bit."""
+    m = prism(lift=0.03)
+    st = dyn.initial_state(m, 1)
+    tc = T.TerrainContact(Terrain())
+    s1, ts = T.step(m, st, DT, tc, T.init_terrain_state(tc, m, 1), n_steps=800)
+    s2, cs = C.step(m, C.GroundContact(), st, C.init_contact_state(m, 1), DT, n_steps=800)
+    assert np.array_equal(s1.q, s2.q) and np.array_equal(s1.qd, s2.qd)
+    assert ts.active.sum() == cs.active.sum() == 3
+
+
+def test_force_at_eta_is_the_generalized_force():
+    """Rod across a ridge (only the interior slot touches): the nodal forces' generalized force
+    (the driver's f_r = W_a + W_c, f_b = eta_a W_a + eta_c W_c) equals [F, eta F]."""
+    m = rod([[-0.25, 0.01, 0.115], [0.15, -0.01, 0.118]])
+    tc = T.TerrainContact(Terrain(plane=None, boxes=[Box([0, 0, 0.05], [0.1, 1.0, 0.1])]))
+    ts = T.init_terrain_state(tc, m, 1)
+    W, ts, _, info = T.contact_forces(tc, m, dyn.initial_state(m, 1).q, np.zeros((1, 1, 6)), ts, info=True)
+    assert ts.active[0].tolist() == [False, False, True]
+    eta = info[0, 2, 0]
+    assert m.eta[0, 0] < eta < m.eta[0, 1]
+    Wa, Wc = W[0, m.rod_a[0]], W[0, m.rod_c[0]]
+    F = Wa + Wc
+    assert F[2] > 0
+    np.testing.assert_allclose(m.eta[0, 0] * Wa + m.eta[0, 1] * Wc, eta * F, rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("mu", [0.8, 0.2])
+def test_rod_on_20_degree_slope(mu):
+    """Along the fall line of a 20-degree plane: mu = 0.8 > tan 20 = 0.36 holds it (no creep,
+    < 1 mm in 10 s); mu = 0.2 slides at g (sin a - mu cos a)."""
+    a = math.radians(20.0)
+    m, u = rod_on_slope(20.0)
+    tc = T.TerrainContact(Terrain(plane=Plane(20.0), friction=mu))
+    t, com, _, ts = run(m, tc, 10000 if mu > 0.5 else 600, every=10)
+    s = (com - com[0]) @ u                                  # along the slope, up
+    if mu > 0.5:
+        assert abs(s[-1]) < 1e-3 and np.abs(s).max() < 1e-3, np.abs(s).max()
+        assert ts.active.sum() == 2
+    else:
+        sel = t > 0.1
+        acc = -2 * np.polyfit(t[sel], s[sel], 2)[0]
+        assert acc == pytest.approx(G * (math.sin(a) - mu * math.cos(a)), rel=0.02)
+
+
+def test_prism_on_20_degree_slope_holds_with_friction_slides_without():
+    m = prism(lift=0.02, slope_deg=20.0)
+    u = np.array([math.cos(math.radians(20.0)), 0.0, math.sin(math.radians(20.0))])
+    moved = {}
+    for mu in (0.8, 0.2):
+        tc = T.TerrainContact(Terrain(plane=Plane(20.0), friction=mu))
+        _, com, st, ts = run(m, tc, 1000, every=100)             # settle
+        _, com2, _, _ = run(m, tc, 2000, state=st, ts=ts, every=100)
+        moved[mu] = (com2[-1] - com2[0]) @ u
+    assert abs(moved[0.8]) < 1e-3, moved
+    assert moved[0.2] < -0.1, moved                             # slides down
+
+
+@pytest.mark.parametrize("x0", [0.0, 0.03])
+def test_rod_across_a_ridge_is_held(x0):
+    """A rod lying across a narrow box (both caps off the box) rests on the box top: its middle
+    stays above the top by the cap radius less a small penetration, and it does not slide."""
+    top, r = 0.1, 0.02
+    m = rod([[x0 - 0.2, 0.0, top + r], [x0 + 0.2, 0.0, top + r]])
+    tc = T.TerrainContact(Terrain(boxes=[Box([0, 0, top / 2], [0.1, 1.0, top])]))
+    zmin = np.inf
+    st, ts = dyn.initial_state(m, 1), T.init_terrain_state(tc, m, 1)
+    for _ in range(20):
+        st, ts = T.step(m, st, DT, tc, ts, n_steps=50)
+        zmin = min(zmin, dyn.center_of_mass(m, st.q)[0, 2])
+    assert np.all(np.isfinite(st.q))
+    assert zmin > top + r - 2e-3, zmin
+    # friction holds the rod's material, not the contact point (which moves along the rod as it rocks)
+    assert abs(dyn.center_of_mass(m, st.q)[0, 0] - x0) < 1e-3
+    nodes = dyn.node_positions(m, st.q)[0]
+    assert nodes[:, 2].min() > r            # neither cap came down to the ground
+
+
+def test_rod_across_a_step_edge_is_held_at_the_edge():
+    """A rod on a step, its centre of mass over the step and one cap hanging beyond the edge:
+    it rests on the other cap and the edge (the interior slot)."""
+    top, r = 0.1, 0.02
+    m = rod([[-0.15, 0.0, top + r], [0.25, 0.0, top + r]])
+    tc = T.TerrainContact(Terrain(boxes=[Box([0.5, 0, top / 2], [1.0, 1.0, top])]))
+    _, com, st, ts = run(m, tc, 1000, every=50)
+    assert com[:, 2].min() > top + r - 2e-3
+    act = ts.active[0].reshape(2, 3)        # feature 0 the plane, 1 the box; slots a, c, interior
+    assert act[1].tolist() == [False, True, True] and not act[0].any()
+
+
+def test_energy_never_grows():
+    """A prism dropped on a slope and a box: mechanical energy plus the contact springs' never
+    rises by more than the integrator's O(dt) error."""
+    m = prism(lift=0.05, slope_deg=10.0)
+    tc = T.TerrainContact(Terrain(plane=Plane(10.0), boxes=[Box([0.1, 0.0, 0.0], [0.2, 0.4, 0.1])], friction=0.5))
+    st, ts = dyn.initial_state(m, 1), T.init_terrain_state(tc, m, 1)
+    E = []
+    for _ in range(600):
+        E.append(dyn.energy(m, st.q, st.qd)[0] + T.contact_energy(tc, m, st.q, ts)[0])
+        st, ts = T.step(m, st, DT, tc, ts)
+    E = np.array(E)
+    assert ts.active.reshape(3, 2, 3)[:, 1].any()          # the box was touched
+    assert E[-1] < E[0]
+    assert np.max(E - np.minimum.accumulate(E)) < 5e-3 * abs(E[0]), np.max(E - np.minimum.accumulate(E))
+
+
+def random_scene(B=6, seed=0):
+    """Random rod states near a sloped plane and two boxes (with the contact's arrays)."""
+    rng = np.random.default_rng(seed)
+    m = prism(lift=0.0)
+    tc = T.TerrainContact(Terrain(plane=Plane(8.0, 30.0), boxes=[Box([0.05, 0, 0.0], [0.2, 0.3, 0.1], 20.0),
+                                                                Box([-0.1, 0.1, 0.2], [0.1, 0.1, 0.1], -40.0)],
+                                  friction=0.4, damping=5.0), max_damping=40.0)
+    st = dyn.initial_state(m, B)
+    q = st.q + rng.normal(0, 0.03, st.q.shape)
+    q[..., 3:] /= np.linalg.norm(q[..., 3:], axis=-1, keepdims=True)
+    qd = rng.normal(0, 0.5, st.q.shape)
+    S = T.n_slots(tc, m)
+    eta0 = rng.uniform(m.eta[0, 0], m.eta[0, 1], (B, S))
+    ts = T.TerrainState(rng.normal(0, 0.01, (B, S, 3)), eta0, rng.random((B, S)) < 0.5)
+    return m, tc, q, qd, ts
+
+
+def test_numba_geometry_agrees_with_numpy_oracle():
+    m, tc, q, qd, ts = random_scene()
+    W, ts2, slip, info = T.contact_forces(tc, m, q, qd, ts, info=True)
+    B, k, F = q.shape[0], m.n_bars, tc.n_features
+    inf = info.reshape(B, k, F, 3, 6)
+    assert ts2.active.any() and (ts2.active.reshape(B, k, F, 3)[..., 2]).any()   # interior contacts exercised
+    assert slip.any() and (ts2.active & ~slip).any()
+    for c in range(B):
+        for j in range(k):
+            r, b = q[c, j, :3], q[c, j, 3:]
+            for f in range(F):
+                for s in range(3):
+                    if not ts2.active.reshape(B, k, F, 3)[c, j, f, s]:
+                        continue
+                    eta, sd, nrm = inf[c, j, f, s, 0], inf[c, j, f, s, 1], inf[c, j, f, s, 2:5]
+                    d, n = tc.terrain.closest((r + eta * b)[None], per_part=True)
+                    assert sd == pytest.approx(d[f, 0], abs=1e-12)
+                    np.testing.assert_allclose(nrm, n[f, 0], atol=1e-12)
+                    if s == 2:   # the interior point is the segment's deepest (within the level tolerance)
+                        e = np.linspace(m.eta[j, 0], m.eta[j, 1], 2001)
+                        dd, _ = tc.terrain.closest(r + e[:, None] * b, per_part=True)
+                        assert sd <= dd[f].min() + 2e-7
+    # the nodal forces sum to the total contact force of the touching slots (normal + friction)
+    assert np.all(np.isfinite(W))
+
+
+def test_stable_step_estimate():
+    m = prism()
+    est = T.stable_step(T.TerrainContact(Terrain(boxes=[Box([0, 0, 0], [1, 1, 1], stiffness=4e4)])), m)
+    assert est["feature"] == 1 and est["omega_contact"] == pytest.approx(math.sqrt(4e4 / 0.05))
+    assert est["semi_implicit_euler"] < C.stable_step(C.GroundContact(), m)["semi_implicit_euler"]
+
+
+def test_torch_equals_numba():
+    """The torch terrain forces and steps equal the numba kernel's to round-off (per-copy
+    parameters and per-copy geometry)."""
+    torch = pytest.importorskip("torch")
+    from tensegrity_gym.backends.torch import terrain as TT
+    m, tc, q, qd, ts = random_scene(B=6, seed=2)
+    B = q.shape[0]
+    prm = tc.per_copy(B)
+    prm[:, :, 4] = np.linspace(0.2, 1.0, B)[:, None]          # friction per copy
+    prm[:, 1, 1] *= np.linspace(0.8, 1.5, B)                   # stiffness of box 0 per copy
+    geom = np.repeat(tc.geom, B, axis=0)
+    geom[:, 1, 1] += np.linspace(-0.02, 0.02, B)               # box 0 moved per copy
+    W1, s1, sl1 = T.contact_forces(tc, m, q, qd, ts, prm=prm, geom=geom)
+    t = lambda x: torch.as_tensor(x)
+    W2, a2, e2, ac2, sl2 = TT.terrain_forces(m, t(q), t(qd), geom, prm, t(ts.anchor), t(ts.eta0), t(ts.active))
+    assert s1.active.reshape(B, 3, 3, 3)[..., 2].any() and sl1.any()
+    np.testing.assert_array_equal(ac2.numpy(), s1.active)
+    np.testing.assert_array_equal(sl2.numpy(), sl1)
+    np.testing.assert_allclose(W2.numpy(), W1, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(a2.numpy(), s1.anchor, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(e2.numpy(), s1.eta0, rtol=1e-9, atol=1e-9)
+    # 200 steps of a prism dropped on the slope and the boxes
+    m = prism(lift=0.08)
+    st = dyn.initial_state(m, 3)
+    ts = T.init_terrain_state(tc, m, 3)
+    s1, ts1 = T.step(m, st, DT, tc, ts, n_steps=200, prm=prm[:3])
+    q2, qd2, a2, e2, ac2 = TT.terrain_step(m, tc.geom, prm[:3], t(st.q), t(st.qd), t(ts.anchor), t(ts.eta0),
+                                           t(ts.active), DT, n_steps=200)
+    assert ts1.active.any()
+    assert np.abs(q2.numpy() - s1.q).max() < 1e-9 and np.abs(qd2.numpy() - s1.qd).max() < 1e-7
+    np.testing.assert_array_equal(ac2.numpy(), ts1.active)
