@@ -203,7 +203,9 @@ def test_unknown_reset_options_are_refused(env_id):
         venv.reset(options={"reset_mask": np.array([True, False]), "seed": 3})
 
 
-VECTOR_KINDS = [(SHAPE, {}), (ROLL, {}), (SHAPE, {"backend": "torch", "device": "cpu"}),
+VECTOR_KINDS = [(SHAPE, {}), (ROLL, {}), ("TensegrityClimb-v0", {"slope_range": (0.0, 20.0)}),
+                ("TensegrityClimb-v0", {"slope_range": (0.0, 20.0), "backend": "torch", "device": "cpu"}),
+                (SHAPE, {"backend": "torch", "device": "cpu"}),
                 (ROLL, {"backend": "torch", "device": "cpu"}),
                 (ROLL, {"backend": "torch", "device": "cpu", "reset_sampling": "device"})]
 
@@ -283,7 +285,8 @@ def test_initial_state_checks_its_inputs():
 # every constructor argument, five wrong values: a ValueError naming the argument, or (the pairs
 # below) a valid value; nothing silently converted (e.g. "abc" taken as True), no anonymous error
 _WRONG = ["abc", -1.0, math.nan, [1, 2], {"x": 1}]
-_VALID = {("actuated", "[1, 2]"), ("rest_length_bounds", "[1, 2]"), ("goal_direction", "[1, 2]")}
+_VALID = {("actuated", "[1, 2]"), ("rest_length_bounds", "[1, 2]"), ("goal_direction", "[1, 2]"),
+          ("slope_range", "[1, 2]")}
 
 
 def _arguments(fn):
@@ -292,7 +295,7 @@ def _arguments(fn):
             if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name not in ("self", "num_envs")]
 
 
-@pytest.mark.parametrize("env_id", [SHAPE, ROLL, "TensegrityRollMuJoCo-v0"])
+@pytest.mark.parametrize("env_id", [SHAPE, ROLL, "TensegrityClimb-v0", "TensegrityRollMuJoCo-v0"])
 def test_every_argument_refuses_wrong_values_by_name(env_id):
     env_cls = gym.envs.registration.load_env_creator(gym.spec(env_id).entry_point) \
         if env_id != "TensegrityRollMuJoCo-v0" else pytest.importorskip("tensegrity_gym.envs.roll_mujoco").TensegrityRollMuJoCoEnv

@@ -5,7 +5,7 @@ Time limits are set here at registration, not inside the envs.
 """
 from __future__ import annotations
 
-ENV_IDS = ("TensegrityShape-v0", "TensegrityRoll-v0", "TensegrityRollMuJoCo-v0")
+ENV_IDS = ("TensegrityShape-v0", "TensegrityRoll-v0", "TensegrityClimb-v0", "TensegrityRollMuJoCo-v0")
 
 
 #: (id, module:class of the single env, of the vector env or None, max_episode_steps)
@@ -14,6 +14,7 @@ _REGISTRY = (
     # the device-resident torch one (envs/torch_vec.py)
     ("TensegrityShape-v0", "shape:TensegrityShapeEnv", "torch_vec:shape_vector_env", 200),
     ("TensegrityRoll-v0", "roll:TensegrityRollEnv", "torch_vec:roll_vector_env", 1000),
+    ("TensegrityClimb-v0", "climb:TensegrityClimbEnv", "torch_vec:climb_vector_env", 1000),
     # MuJoCo twin of TensegrityRoll-v0 (needs the mujoco extra)
     ("TensegrityRollMuJoCo-v0", "roll_mujoco:TensegrityRollMuJoCoEnv", None, 1000),
 )

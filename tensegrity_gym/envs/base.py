@@ -132,6 +132,12 @@ class BatchedTask:
         if self.domain.enabled:
             self._apply_domain(np.arange(B) if self.domain.randomized else np.zeros(1, int), init=True)
 
+    @property
+    def draws_physics(self) -> bool:
+        """Whether a reset draws new per-copy physics values (a device env then copies the reset
+        rows of the parameters to the device)."""
+        return self.domain.randomized
+
     def _apply_domain(self, idx: np.ndarray, init: bool = False) -> None:
         """Copies ``idx`` take the domain's current values (:func:`~tensegrity_gym.envs.domain.write_copies`).
         ``self.params`` has one row (set once, at ``init``) when no physics parameter is

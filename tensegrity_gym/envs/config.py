@@ -23,7 +23,7 @@ from ..physics.contact import GroundContact
 from .roll_scene import MAX_CABLE_ACCELERATION, STRING_DAMPING
 
 __all__ = ["TaskConfig", "CableConfig", "SimulationConfig", "ObservationConfig", "RandomizationConfig", "RollRobotConfig", "RollActuationConfig",
-           "ContactConfig", "RollRewardConfig", "GoalConfig", "RollConfig", "ShapeRobotConfig",
+           "ContactConfig", "RollRewardConfig", "GoalConfig", "RollConfig", "SlopeConfig", "ClimbConfig", "climb_config", "ShapeRobotConfig",
            "ShapeActuationConfig", "ShapeRewardConfig", "TargetConfig", "ShapeConfig", "roll_config", "shape_config",
            "flat_fields", "flatten", "with_flat", "flat_signature"]
 
@@ -147,6 +147,27 @@ class RollConfig(TaskConfig):
     contact: ContactConfig = ContactConfig()
     reward: RollRewardConfig = RollRewardConfig()
     goal: GoalConfig = GoalConfig()
+
+
+@dataclass(frozen=True)
+class SlopeConfig:
+    """The slope of ``TensegrityClimb-v0``: ``slope_deg`` (degrees, uphill along +x of the plane
+    frame) or, for curricula, ``slope_range`` (low, high) degrees drawn uniformly per reset."""
+
+    slope_deg: float = 20.0
+    slope_range: tuple | None = None
+
+
+@dataclass(frozen=True)
+class ClimbConfig(RollConfig):
+    """Every argument of ``TensegrityClimb-v0``'s task, grouped: the rolling task's plus the slope."""
+
+    slope: SlopeConfig = SlopeConfig()
+
+
+def climb_config() -> ClimbConfig:
+    """The default configuration of ``TensegrityClimb-v0``'s task."""
+    return ClimbConfig()
 
 
 @dataclass(frozen=True)

@@ -129,7 +129,7 @@ class RollTask(RollObservation, BatchedTask):
         if np.any(self.gamma_nominal[act] <= 0):
             bad = act[self.gamma_nominal[act] <= 0][0]
             raise ValueError(f"actuated string {bad} is slack in the resting robot; actuate taut strings")
-        model = dynamics.compile_model(s, act if action_mode == "force_density" else None)
+        model = dynamics.compile_model(self._scene_structure(s), act if action_mode == "force_density" else None)
         self._init_physics(model, num_envs, integ, dt, frame_skip, backend, divergence_limit, clip_actions)
         self.body_length = float(np.max(s.bar_lengths))
         self.actuation = Actuation.for_task(action_mode, act, s.rest_length, (lo, hi), self.max_cable_speed,
@@ -142,7 +142,7 @@ class RollTask(RollObservation, BatchedTask):
         self.n_speed = na if self.motor else 0
         self.n_contacts = 2 * k
         self.action_size = na
-        self.observation_size = 6 * n + na + self.n_contacts + 3 + self.n_speed
+        self.observation_size = self._state_size = 6 * n + na + self.n_contacts + 3 + self.n_speed
         self.observation_mode = observation_mode
         # robot observation (envs/sensors.py; None in state mode); the IMUs read the last physics step
         self.sensors = RobotSensors.attach(self, observation_mode, sensor_noise, history, ("goal_direction", 2, "1"),
@@ -173,6 +173,11 @@ class RollTask(RollObservation, BatchedTask):
             warnings.warn(integrators.StabilityWarning(
                 f"{ENV_ID}: dt = {self.dt:.4g} s is above the estimated stability limit {limit:.4g} s of "
                 "semi-implicit Euler with this robot's strings and ground contact"), stacklevel=3)
+
+    def _scene_structure(self, s):
+        """The placed, settled robot ``s`` as the task's physics runs it (here: as it is; a task
+        on another scene, e.g. a slope, changes what the scene changes, such as gravity)."""
+        return s
 
     def write_contact(self, rows, columns: dict) -> None:
         """Rows ``rows`` of the per-copy contact parameters take ``columns`` (field -> values)."""

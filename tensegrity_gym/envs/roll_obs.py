@@ -39,7 +39,7 @@ class RollObservation:
         B = self.num_envs
         if self.sensors is not None:
             return self._readings.reshape(B, -1).astype(np.float32)
-        obs = np.empty((B, self.observation_size), np.float32)
+        obs = np.empty((B, self._state_size), np.float32)
         compiled.roll_observe(self.q, self.qd, self._node_rod_i64, self._node_eta_1d, self._com(self.q), self.ctrl,
                               self.cstate.active, self.goal, self.speed, obs)
         return obs

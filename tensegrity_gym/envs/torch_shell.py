@@ -108,7 +108,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         """Copy the host task's parameter rows to the device: all (``idx`` None) or rows ``idx``
         (a randomised domain after a reset)."""
         task = self.task
-        if idx is not None and not task.domain.randomized:
+        if idx is not None and not task.draws_physics:
             return
         torch = torch_backend.torch_module()
         idx_t = None if idx is None else torch.as_tensor(idx, dtype=torch.int64, device=self.device)

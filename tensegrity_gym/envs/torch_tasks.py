@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import torch_backend
+from .climb import ClimbTask
 from .roll import RollTask
 from ..tasks.roll import center_of_mass, perturbed_start, roll_state_observation, roll_step_terms
 from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
@@ -215,3 +216,38 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv):
             return self._sens.observation()
         V = torch_backend.node_velocities(self.tm, self.qd).index_select(1, self._tracked)
         return shape_state_observation(self._tracked_nodes(self.q), V, self.ctrl, self.target)
+
+
+class TorchClimbVectorEnv(TorchRollVectorEnv):
+    """``TensegrityClimb-v0`` on N copies stepped on a torch device: :class:`TorchRollVectorEnv`
+    on :class:`~tensegrity_gym.envs.climb.ClimbTask` (the slope as tilted gravity in the plane
+    frame; slopes drawn per reset on the host, ``reset_sampling="host"`` only)."""
+
+    ENV_ID = "TensegrityClimb-v0"
+    DEVICE_RESET = False
+    _NO_DEVICE_RESET = "its slopes are drawn per reset on the host"
+
+    def _make_task(self, num_envs, kwargs):
+        return ClimbTask(num_envs=num_envs, **kwargs)
+
+    def _init_state(self):
+        super()._init_state()
+        self.gdir = self._T(self.task._gdir)
+        self.slope = self._T(self.task.slope)
+
+    def _upload_rows(self, it, idx):
+        super()._upload_rows(it, idx)
+        self.gdir[it] = self._T(self.task._gdir[idx])
+        self.slope[it] = self._T(self.task.slope[idx])
+
+    def _observe(self):
+        obs = super()._observe()
+        if self._sens is not None:
+            return obs
+        return namespace(obs).concat([obs, self.gdir], axis=1)
+
+    def _act(self, action):
+        terms, infos = super()._act(action)
+        infos["slope_deg"] = self.slope.clone()
+        infos["uphill_velocity"] = infos["forward_velocity"]
+        return terms, infos

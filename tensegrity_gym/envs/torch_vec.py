@@ -77,14 +77,16 @@ not read); ``reset(options=
 """
 from __future__ import annotations
 
+from .climb import TensegrityClimbVectorEnv
 from .roll import TensegrityRollVectorEnv
 from .shape import TensegrityShapeVectorEnv
 from .torch_shell import TorchTaskVectorEnv
-from .torch_tasks import TorchRollVectorEnv, TorchShapeVectorEnv
+from .torch_tasks import TorchClimbVectorEnv, TorchRollVectorEnv, TorchShapeVectorEnv
 
 _TorchTaskVectorEnv = TorchTaskVectorEnv   # the shell's former name (class paths in saved objects)
 
-__all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "roll_vector_env", "shape_vector_env"]
+__all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "TorchClimbVectorEnv", "roll_vector_env", "shape_vector_env",
+           "climb_vector_env"]
 
 
 def _no_torch_kwargs(kwargs):
@@ -111,3 +113,12 @@ def shape_vector_env(num_envs: int = 1, **kwargs):
         return TorchShapeVectorEnv(num_envs=num_envs, **kwargs)
     _no_torch_kwargs(kwargs)
     return TensegrityShapeVectorEnv(num_envs=num_envs, **kwargs)
+
+
+def climb_vector_env(num_envs: int = 1, **kwargs):
+    """``vector_entry_point`` of ``TensegrityClimb-v0``: :class:`TorchClimbVectorEnv` when
+    ``backend="torch"``, else :class:`~tensegrity_gym.envs.climb.TensegrityClimbVectorEnv`."""
+    if kwargs.get("backend") == "torch":
+        return TorchClimbVectorEnv(num_envs=num_envs, **kwargs)
+    _no_torch_kwargs(kwargs)
+    return TensegrityClimbVectorEnv(num_envs=num_envs, **kwargs)
