@@ -5,8 +5,8 @@ SI units: ``dt`` in s. :class:`Plan` is what a compiled caller (an env's fused n
 :func:`.entries.run_plan`) needs to run the serial step kernel from its own njit code;
 :func:`lean_plan` is the compiled call that :func:`.api.step_inplace` makes for a call with no
 control arrays, which :func:`tensegrity_gym.physics.step_inplace` keeps per model and repeats;
-:func:`packed` exposes the cached packed buffers. They hold no state of their own: every
-buffer comes from :mod:`.pack`'s per-model cache.
+:func:`packed` exposes the cached packed buffers. This module keeps no cache of its own:
+every buffer comes from :mod:`.pack`'s per-model cache.
 """
 from __future__ import annotations
 
