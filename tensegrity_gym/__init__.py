@@ -10,7 +10,7 @@ and baselines: :mod:`~tensegrity_gym.tools`; Stable-Baselines3 and rl_zoo3:
 All quantities in SI units.
 """
 from .structure import Structure, StructureError, load_json, save_json, from_dict
-from .builders import prism, pinned_rod, constrained_prism, icosahedron, tower, build
+from .builders import prism, pinned_rod, constrained_prism, icosahedron, tower, build, load_structure
 from .dynamics import Model, State, compile_model, initial_state
 from .integrators import step, simulate, INTEGRATORS, SimulationDiverged
 
@@ -19,19 +19,6 @@ __version__ = "0.1.0"
 __all__ = ["Structure", "StructureError", "load_json", "save_json", "from_dict", "prism", "pinned_rod",
            "constrained_prism", "icosahedron", "tower", "build", "Model", "State", "compile_model",
            "initial_state", "step", "simulate", "INTEGRATORS", "SimulationDiverged", "load_structure"]
-
-
-def load_structure(spec) -> Structure:
-    """A :class:`Structure` from a Structure, a built-in name (``"prism3"``) or a JSON path."""
-    import os
-    if isinstance(spec, Structure):
-        return spec
-    if isinstance(spec, (str, os.PathLike)):
-        s = str(spec)
-        if s.endswith(".json") or os.path.exists(s):
-            return load_json(s)
-        return build(s)
-    raise StructureError(f"structure: expected a Structure, a builder name or a JSON path, got {spec!r}")
 
 
 def _register() -> None:

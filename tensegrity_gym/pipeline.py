@@ -3,7 +3,7 @@ actuation updates (:mod:`tensegrity_gym.backends.numba.actuation`), divergence c
 (:mod:`tensegrity_gym.backends.numba.divergence`) and fused plans, under the module name they
 had before. ``advance`` is :func:`~tensegrity_gym.physics.pipeline.run_steps`."""
 from .backends.numba.actuation import apply_controls, apply_motor
-from .backends.numba.api import Plan
+from .backends.numba.plans import Plan
 from .backends.numba.divergence import bad_copies, state_ok, state_ok_local
 from .backends.numba.entries import run_plan
 from .physics.pipeline import (ControlStep, compiled_physics, compiled_plan, contact_step, control_step, diverged,

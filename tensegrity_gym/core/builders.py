@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 
 import numpy as np
 
-from .structure import Structure, StructureError
+from .structure import Structure, StructureError, load_json
 
-__all__ = ["prism", "pinned_rod", "constrained_prism", "icosahedron", "tower", "build", "BUILDERS",
+__all__ = ["load_structure", "prism", "pinned_rod", "constrained_prism", "icosahedron", "tower", "build", "BUILDERS",
            "self_stress", "rest_lengths_for_force_densities"]
 
 
@@ -307,3 +308,15 @@ def build(name: str) -> Structure:
     raise StructureError(f"unknown structure {name!r}" + (f" (did you mean {', '.join(close)}?)" if close else "")
                          + f"; built-in names: {sorted(BUILDERS)} "
                          "(or prism<p>, tower<q>), or a path to a JSON file")
+
+
+def load_structure(spec) -> Structure:
+    """A :class:`Structure` from a Structure, a built-in name (``"prism3"``) or a JSON path."""
+    if isinstance(spec, Structure):
+        return spec
+    if isinstance(spec, (str, os.PathLike)):
+        s = str(spec)
+        if s.endswith(".json") or os.path.exists(s):
+            return load_json(s)
+        return build(s)
+    raise StructureError(f"structure: expected a Structure, a builder name or a JSON path, got {spec!r}")

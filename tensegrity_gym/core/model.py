@@ -59,8 +59,9 @@ import numpy as np
 
 from .checks import check_finite, is_integer
 from .params import Params, default_params
+from .rod_mass import mass_moments
 from .sizing import check_size
-from .structure import Structure, mass_moments
+from .structure import Structure
 
 __all__ = ["Model", "State", "compile_model", "Params", "default_params", "initial_state"]
 

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .param_table import params_fields
-from .structure import mass_moments
+from .rod_mass import mass_moments
 
 __all__ = ["Params", "default_params", "PARAM_FIELDS"]
 

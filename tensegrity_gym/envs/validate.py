@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import dynamics
+from ..core.builders import load_structure
 from ..actuation import ACTION_MODES
 from ..checks import ACTION_TOL, check_action, check_positive
 
@@ -44,7 +45,6 @@ def check_stable_dt(model: dynamics.Model, limit: float, dt: float, integrator: 
 def load_env_structure(spec):
     """:func:`tensegrity_gym.load_structure` for an env's ``structure`` argument (a Structure, a
     built-in name or a JSON path); its errors name the argument (``structure: ...``)."""
-    from .. import load_structure
     try:
         return load_structure(spec)
     except ValueError as e:

@@ -60,7 +60,8 @@ import numpy as np
 
 from .atomic import write_atomic
 from ..checks import xml_text
-from ..structure import Structure, mass_moments
+from ..core.rod_mass import mass_moments
+from ..structure import Structure
 
 __all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel"]
 

@@ -7,8 +7,10 @@ Modules: ``geometry`` (nodes, strings, energies, momenta), ``evaluate`` (acceler
 projection: no step), ``integrate`` (fixed steps, implicit and adaptive dispatch), ``rollout``
 (recorded runs, schedules), ``adaptive`` (``solve_ivp`` methods), ``implicit`` (backward Euler),
 ``jacobian`` (finite-difference Jacobians), ``stability`` (stable-step estimates and checks),
-``statics`` (equilibria), ``contact`` (ground-contact parameters and forces), ``actuation``
-(actions -> controls) and ``pipeline`` (actuation -> contact -> integration of a batch).
+``reduced_coordinates`` (the local chart of the configuration space), ``generalized_forces``
+(equilibrium residual, equilibrium matrix, tangent stiffness), ``statics`` (equilibria),
+``contact`` (ground-contact parameters and forces), ``actuation`` (actions -> controls) and
+``pipeline`` (actuation -> contact -> integration of a batch).
 """
 from .evaluate import accelerations, project, string_forces
 from .pipeline import ControlStep, control_step, diverged, run_steps

@@ -63,6 +63,7 @@ import numpy as np
 
 from ..backends.numba import api as numba_api
 from ..backends.numba.divergence import finite_pair, unit_axes
+from ..backends.numba.plans import lean_plan
 from ..core.checks import check_finite, check_unit_axes, is_integer
 from ..core.integrators import EXPLICIT, IMPLICIT, resolve
 from ..core.model import Model, State
@@ -253,7 +254,7 @@ def step_inplace(model: Model, state: State, dt: float, integrator: str = "semi_
         plans = model.__dict__.setdefault("_inplace_plans", {})
         if len(plans) >= 64:       # a caller that varies dt from call to call: keep the memo small
             plans.clear()
-        plans[(integrator, dt, project, backend)] = numba_api.lean_plan(model, info.name, project)
+        plans[(integrator, dt, project, backend)] = lean_plan(model, info.name, project)
     t = state.t + dt
     for _ in range(n_steps - 1):
         t = t + dt

@@ -43,6 +43,7 @@ import numpy as np
 from ..backends.numba import api as numba_api
 from ..backends.numba.api import contact_steps as _contact_compiled
 from ..backends.numba.divergence import diverged
+from ..backends.numba.plans import make_plan
 from ..core.checks import check_action, check_array
 from ..core.integrators import EXPLICIT, resolve, uses_numba
 from ..core.model import Model, State
@@ -227,7 +228,7 @@ def contact_step(model: Model, contact: GroundContact, state: State, cstate: Con
 
 def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_size: int,
                   control: str = "rest_length", backend: str = "auto"):
-    """A :class:`~tensegrity_gym.backends.numba.api.Plan` for ``n_steps`` steps of ``integrator``
+    """A :class:`~tensegrity_gym.backends.numba.plans.Plan` for ``n_steps`` steps of ``integrator``
     (projected) on ``batch_size`` copies whose control is ``control`` per string
     (``"rest_length"``, m, or ``"force_density"``, N/m, with the model's rest lengths), or None
     where the fused serial kernel does not apply (an implicit method, or a batch large enough for
@@ -236,7 +237,7 @@ def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_
     if not compiled_physics(integrator, backend):
         return None
     info = resolve(integrator)
-    plan = numba_api.make_plan(model, info.name, dt, n_steps, batch_size, control)
+    plan = make_plan(model, info.name, dt, n_steps, batch_size, control)
     if plan is not None:
         check_stability(model, info, dt)
     return plan

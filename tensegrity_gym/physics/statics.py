@@ -2,22 +2,10 @@
 
 Pure NumPy (no gymnasium), batched over a leading axis B, SI units (m, N, N/m).
 
-Generalized forces
-------------------
-A configuration ``q`` (B, k, 6) = ``[r, b]`` (see :mod:`tensegrity_gym.core.model`) is an
-equilibrium iff, with the nodal forces ``F = W - N C_S^T Gamma C_S`` at zero velocity, every rod has
-
-    E_j^T (F_a + F_c) = 0              (force along the allowed directions of its reference point)
-    T_j^T (eta_a F_a + eta_c F_c) / l_j = 0   (moment about the reference point, 2 components)
-
-where ``E_j`` (3, d_j) spans the allowed motion of rod j's reference point (d = 3 free rod,
-2 on a plane, 1 on a line, 0 pinned) and ``T_j`` (3, 2) spans the plane normal to ``b_j``.
-These are the generalized forces conjugate to the local coordinates ``x = (z, u)`` with
-``r = r0 + E z`` and ``b = normalize(b0 + T u / l)`` (both in m), so the residual vector
-``R(x)`` (B, nx), ``nx = sum_j (d_j + 2)``, is minus the gradient of the potential energy and
-``K = -dR/dx`` (N/m) is the tangent stiffness matrix: the equilibrium is stable iff ``K`` is
-positive definite. ``R`` is linear in the force densities (the seed's key point):
-``R = A(q) gamma + w(q)`` (:func:`equilibrium_matrix`).
+A configuration is an equilibrium when its generalized forces ``R`` vanish and a stable one when
+the tangent stiffness ``K = -dR/dx`` is positive definite (both defined in
+:mod:`tensegrity_gym.physics.generalized_forces`, in the local coordinates ``x`` of
+:mod:`tensegrity_gym.physics.reduced_coordinates`). This module finds them.
 
 Solver (:func:`equilibrium`, batched :func:`solve_equilibria`)
 -------------------------------------------------------------
@@ -39,12 +27,13 @@ import numpy as np
 from ..core.model import Model, State, compile_model, initial_state
 from ..core.structure import Structure
 from .evaluate import force_densities, nodal_forces, project
+from .generalized_forces import _jacobian, equilibrium_matrix, generalized_residual, stiffness_matrix
 from .geometry import kinetic_energy, node_positions, string_state
-from .jacobian import fd_jacobian
 from .integrate import step
+from .reduced_coordinates import ReducedCoordinates, _coords, tangent_basis
 
 __all__ = ["EquilibriumError", "Equilibrium", "ReducedCoordinates", "equilibrium", "solve_equilibria",
-           "equilibrium_matrix", "generalized_residual", "stiffness_matrix"]
+           "equilibrium_matrix", "generalized_residual", "stiffness_matrix", "tangent_basis"]
 
 # status codes of solve_equilibria
 OK, NOT_CONVERGED, SLACK, MECHANISM, UNSTABLE, DIVERGED = 0, 1, 2, 3, 4, 5
@@ -80,160 +69,6 @@ class Equilibrium:
     def slack(self) -> np.ndarray:
         """(m,) bool: strings carrying no force."""
         return self.force_density <= 0
-
-
-def tangent_basis(b: np.ndarray) -> np.ndarray:
-    """(..., 3, 2) orthonormal basis of the plane normal to each rod direction ``b`` (..., 3)
-    (any length): ``t1 = b x e / |b x e|`` with ``e`` the axis along b's smallest component,
-    ``t2 = b x t1``. The one chart of the rods' directions (statics, stability, sysid)."""
-    bn = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    helper = np.zeros_like(bn)
-    ax = np.argmin(np.abs(bn), axis=-1)
-    np.put_along_axis(helper, ax[..., None], 1.0, axis=-1)
-    t1 = np.cross(bn, helper)
-    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
-    t2 = np.cross(bn, t1)
-    return np.stack([t1, t2], axis=-1)
-
-
-class ReducedCoordinates:
-    """Local coordinates ``x = (z, u)`` of a model's configuration space (see the module doc)."""
-
-    def __init__(self, model: Model):
-        self.model = model
-        E_rows, z_rod = [], []
-        for j in range(model.n_bars):
-            w, V = np.linalg.eigh(model.proj[j])
-            for c in range(3):
-                if w[c] > 0.5:
-                    E_rows.append(V[:, c])
-                    z_rod.append(j)
-        self.E = np.array(E_rows, float).reshape(-1, 3)       # (dz, 3)
-        self.z_rod = np.array(z_rod, dtype=int)               # (dz,)
-        self.dz = len(z_rod)
-        self.nx = self.dz + 2 * model.n_bars
-
-    tangent_basis = staticmethod(tangent_basis)   # the module's chart, as rc.tangent_basis
-
-    def retract(self, q: np.ndarray, T: np.ndarray, dx: np.ndarray) -> np.ndarray:
-        """Configuration at local coordinates ``dx`` (B, nx) around ``q`` (B, k, 6), chart ``T``."""
-        m = self.model
-        r = q[..., :3].copy()
-        if self.dz:
-            np.add.at(r, (slice(None), self.z_rod), dx[:, : self.dz, None] * self.E[None])
-        u = dx[:, self.dz:].reshape(q.shape[0], m.n_bars, 2) / m.length[None, :, None]
-        b = q[..., 3:] + np.einsum("bkid,bkd->bki", T, u)
-        b /= np.linalg.norm(b, axis=-1, keepdims=True)
-        return np.concatenate([r, b], axis=-1)
-
-    def perturb(self, q: np.ndarray, dx: np.ndarray, dv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """State ``(q, qd)`` (B, k, 6) at local coordinates ``dx`` (B, nx) around ``q`` moving at the
-        local rates ``dv`` (B, nx) (m and m/s: ``z`` along the free directions of constrained
-        reference points, ``u`` the rod ends' sideways offsets), before projection."""
-        m = self.model
-        T = self.tangent_basis(q[..., 3:])
-        qn = self.retract(q, T, dx)
-        qd = np.zeros_like(qn)
-        if self.dz:
-            np.add.at(qd[..., :3], (slice(None), self.z_rod), dv[:, : self.dz, None] * self.E[None])
-        u = dv[:, self.dz:].reshape(q.shape[0], m.n_bars, 2) / m.length[None, :, None]
-        qd[..., 3:] = np.einsum("bkid,bkd->bki", T, u)
-        return qn, qd
-
-    def project_forces(self, q: np.ndarray, F: np.ndarray, T: np.ndarray | None = None) -> np.ndarray:
-        """Generalized forces (B, nx), N, of nodal forces F (B, n, 3) (or (B, n, 3, c) -> (B, nx, c))."""
-        m = self.model
-        if T is None:
-            T = self.tangent_basis(q[..., 3:])
-        Fa, Fc = F[:, m.rod_a], F[:, m.rod_c]
-        extra = F.shape[3:]
-        shp = (1, m.n_bars, 1) + (1,) * len(extra)
-        fr = Fa + Fc
-        fb = (m.eta[:, 0].reshape(shp) * Fa + m.eta[:, 1].reshape(shp) * Fc) / m.length.reshape(shp)
-        # exact conjugate force of the chart b = normalize(b0 + T u / l): T^T P(b) f_b (P(b) matters
-        # when T belongs to a nearby b0, as in the finite-difference Jacobian: the rods' axial force
-        # then gives the geometric-stiffness term)
-        bn = q[..., 3:] / np.linalg.norm(q[..., 3:], axis=-1, keepdims=True)
-        bn = bn.reshape(bn.shape + (1,) * len(extra))
-        fb = fb - bn * np.sum(bn * fb, axis=2, keepdims=True)
-        if extra:
-            Rz = np.einsum("zi,bzi...->bz...", self.E, fr[:, self.z_rod])
-            Rt = np.einsum("bkid,bki...->bkd...", T, fb).reshape((F.shape[0], 2 * m.n_bars) + extra)
-        else:
-            Rz = np.einsum("zi,bzi->bz", self.E, fr[:, self.z_rod])
-            Rt = np.einsum("bkid,bki->bkd", T, fb).reshape(F.shape[0], 2 * m.n_bars)
-        return np.concatenate([Rz, Rt], axis=1)
-
-
-def _coords(model: Model, cache={}) -> ReducedCoordinates:  # noqa: B006 - per-model cache
-    key = id(model)
-    rc = cache.get(key)
-    if rc is None or rc.model is not model:
-        rc = ReducedCoordinates(model)
-        cache.clear() if len(cache) > 64 else None
-        cache[key] = rc
-    return rc
-
-
-def generalized_residual(model: Model, q: np.ndarray, rest_length=None, force_density=None,
-                         T: np.ndarray | None = None) -> np.ndarray:
-    """Generalized forces R (B, nx), N, at rest (zero velocity) -- zero at an equilibrium."""
-    F, _ = nodal_forces(model, q, np.zeros_like(q), rest_length, force_density)
-    return _coords(model).project_forces(q, F, T)
-
-
-def equilibrium_matrix(model: Model, q: np.ndarray):
-    """``A`` (B, nx, m), ``w`` (B, nx) with generalized forces ``R = A gamma + w`` at ``q``
-    for string force densities ``gamma`` (B, m) in N/m (all strings' total force densities;
-    ``w`` is the gravity load). Linear in gamma: the seed's key property."""
-    rc = _coords(model)
-    N = node_positions(model, q)
-    S = N[:, model.str_j] - N[:, model.str_i]                     # (B, m, 3)
-    B, n, m = q.shape[0], model.n_nodes, model.n_strings
-    G = np.zeros((B, n, 3, m))
-    ar = np.arange(m)
-    # force on node j of string i is -gamma_i s_i, on node i it is +gamma_i s_i
-    St = S.transpose(1, 0, 2)          # advanced indices around a slice index as (m, B, 3)
-    np.add.at(G, (slice(None), model.str_j, slice(None), ar), -St)
-    np.add.at(G, (slice(None), model.str_i, slice(None), ar), St)
-    T = rc.tangent_basis(q[..., 3:])
-    A = rc.project_forces(q, G, T)
-    W = np.broadcast_to(model.W0, (B, n, 3)) if model.has_gravity else np.zeros((B, n, 3))
-    w = rc.project_forces(q, np.ascontiguousarray(W), T)
-    return A, w
-
-
-def stiffness_matrix(model: Model, q: np.ndarray, rest_length=None, force_density=None, eps: float = 1e-7):
-    """Tangent stiffness ``K = -dR/dx`` (B, nx, nx), N/m, by finite differences (symmetric at an
-    equilibrium; its smallest eigenvalue > 0 means stable)."""
-    rc = _coords(model)
-    T = rc.tangent_basis(q[..., 3:])
-    return -_jacobian(model, rc, q, T, rest_length, force_density, eps)[0]
-
-
-def _tile(x, reps: int, B: int):
-    """(m,) stays; (B, m) -> (reps * B, m) (perturbation-major)."""
-    if x is None or np.ndim(x) == 1:
-        return x
-    return np.tile(np.asarray(x), (reps, 1))
-
-
-def _jacobian(model, rc, q, T, rest_length, force_density, eps, R0=None):
-    """Forward-difference dR/dx (B, nx, nx) in the local coordinates x (step ``eps``, m) around
-    ``q``, all nx perturbations in one batched evaluation (:func:`tensegrity_gym.jacobian.fd_jacobian`)."""
-    B, nx = q.shape[0], rc.nx
-    if R0 is None:
-        R0 = generalized_residual(model, q, rest_length, force_density, T)
-
-    def fun(dx):                                   # (P, B, nx) local coordinates -> (P, B, nx) forces
-        P = dx.shape[0]
-        qc = rc.retract(np.tile(q, (P, 1, 1)), np.tile(T, (P, 1, 1, 1)), dx.reshape(P * B, nx))
-        R = generalized_residual(model, qc, _tile(rest_length, P, B), _tile(force_density, P, B),
-                                 np.tile(T, (P, 1, 1, 1)))
-        return R.reshape(P, B, nx)
-
-    _, Jm = fd_jacobian(fun, np.zeros((B, nx)), eps, f0=R0)
-    return Jm, R0
 
 
 def _force_scale(model: Model, rest_length, force_density, q) -> np.ndarray:

@@ -9,7 +9,7 @@ import threading
 
 import numpy as np
 
-from .. import load_structure
+from ..core.builders import load_structure
 from ..builders import BUILDERS
 from ..io.atomic import OutputError
 from ..io.claim import Transaction

@@ -10,7 +10,7 @@ from .. import dynamics
 from ..dynamics import State
 from ..integrators import resolve, step
 from ..params import Params
-from ..statics import tangent_basis
+from ..physics.reduced_coordinates import tangent_basis
 
 _EPS_THETA = 1e-6      # FD step in log space (relative change of a parameter)
 _EPS_POS = 1e-6        # FD step of a position / direction coordinate, m or 1

@@ -6,7 +6,8 @@ string forces, projection, great-circle drift), ``contact`` (ground-contact forc
 kernels with their explicit signatures), ``pack`` (packing a model or a ``Params`` into
 buffers), ``compile`` (threading layer, compile-once management), ``api`` (the Python entry
 points ``step``, ``step_inplace``, ``accelerations``, ``string_forces``, ``project``,
-``contact_steps``, ``make_plan``), ``actuation`` (compiled control updates) and ``divergence``.
+``contact_steps``), ``plans`` (``Plan``, ``make_plan``, ``lean_plan``, ``packed``: a fixed-step
+call prepared once and repeated), ``actuation`` (compiled control updates) and ``divergence``.
 numba's on-disk cache does not notice edits of kernels inlined into kernels of another module:
 after editing one run ``find tensegrity_gym -name '*.nbi' -o -name '*.nbc' | xargs rm -f``.
 ``watch`` prints progress on stderr while numba compiles this package's functions.

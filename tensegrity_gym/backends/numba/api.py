@@ -33,6 +33,12 @@ Entry points
     (B, k, 6), C-contiguous float64, **in place** and returns nothing. It allocates nothing
     per call and skips the :class:`State` object; an environment that owns its state arrays
     should call this. Time is not tracked (the caller adds ``n_steps * dt``).
+:func:`string_forces`, :func:`project`, :func:`contact_steps`
+    String force densities and nodal forces, the projection onto the constraints (no step) and
+    the contact sub-steps in one compiled call.
+
+The call plans for callers that repeat one call (``Plan``, ``make_plan``, ``lean_plan``,
+``packed``) live in :mod:`tensegrity_gym.backends.numba.plans` and are importable from here.
 
 Inputs (both entry points)
 --------------------------
@@ -94,6 +100,7 @@ from .entries import (_contact_loop, _contact_parallel, _run_copies_serial, _run
                       _run_parallel, _run_serial)
 from .layout import _ACC, _CHUNK_SHIFT, _CONS, _ERRORS, _EXT, _FD, _L0DEF, _PONLY, _RK4
 from .pack import _CACHE, _array, _flags, _packed, _pack_params, clear_cache
+from .plans import Plan, lean_plan, make_plan, packed
 
 __all__ = ["step", "step_inplace", "accelerations", "string_forces", "project", "contact_steps", "Plan",
            "make_plan", "packed", "lean_plan", "new_state", "PARALLEL_MIN_WORK", "clear_cache"]
@@ -350,60 +357,6 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 
 _NO_EXTERNAL = _frozen(np.empty((0, 1, 3)))   # no external force added to the contact forces
-
-
-
-# ---------------------------------------------------------------------- fused plans
-class Plan:
-    """What a compiled caller needs to run the serial step kernel from its own
-    njit code (:func:`.entries.run_plan`): ``buf`` (the packed model), ``flags`` (integrator, projection,
-    control mode), ``dt`` (s) and ``n_steps``. Opaque: build it with :func:`make_plan`."""
-    __slots__ = ("model", "buf", "flags", "dt", "n_steps")
-
-    def buffer(self, params=None) -> np.ndarray | None:
-        """The packed buffer for ``params`` (one shared row) or the model's own (None); None
-        when ``params`` has one row per copy (the per-copy kernels do not fuse)."""
-        if params is None:
-            return self.buf
-        if params.batch_size != 1:
-            return None
-        return _pack_params(self.model, params).buf
-
-
-def make_plan(model, name: str, dt: float, n_steps: int, batch_size: int, control: str = "rest_length"):
-    """A :class:`Plan` for ``n_steps`` projected steps of the fixed-step method ``name`` (a
-    resolved name) on ``batch_size`` copies whose control is ``control`` per string
-    (``"rest_length"``, m, or ``"force_density"``, N/m, with the model's rest lengths), or None
-    when the batch is large enough for the parallel kernel (then :func:`step` runs it)."""
-    p = _CACHE.get(id(model)) or _packed(model)
-    flags = _flags(p, name, True)
-    if batch_size >= 8 and _parallel(p, batch_size, n_steps, flags):
-        return None
-    if control == "force_density":
-        flags |= _L0DEF | _FD
-    elif control != "rest_length":
-        raise ValueError(f"control: unknown {control!r}; choose 'rest_length' or 'force_density'")
-    plan = Plan()
-    plan.model, plan.buf, plan.flags, plan.dt, plan.n_steps = model, p.buf, int(flags), float(dt), int(n_steps)
-    return plan
-
-
-def lean_plan(model, name: str, project: bool = True):
-    """``(kernel, buf, flags)``: the compiled call that :func:`step_inplace` makes for ``model``
-    stepped by the fixed-step method ``name`` (a resolved name) with no control arrays and no
-    per-copy parameters on fewer than 8 copies: ``kernel(q, qd, q, qd, buf, dt, n_steps, flags)``
-    steps ``q``, ``qd`` (B, k, 6) in place and returns the error code (0: done; the arrays are
-    untouched otherwise). It raises TypeError for arrays it does not take as they are (another
-    dtype, layout or a read-only array): :func:`step_inplace` converts or refuses those."""
-    p = _CACHE.get(id(model)) or _packed(model)
-    return _run_lean, p.buf, _flags(p, name, project)
-
-
-def packed(model, params=None):
-    """The packed buffer(s) of ``model`` (or of ``params``, a :class:`~tensegrity_gym.core.params.Params`
-    of it), cached for their lifetime: an object with ``buf`` (len,) shared by every copy, or
-    ``bufs`` (B, len) one per copy. What a step reuses from call to call."""
-    return (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
 
 
 def _fast_state_ok() -> bool:
