@@ -248,10 +248,10 @@ def test_contact_steps_with_external_force_compiled_equal_python_loop(monkeypatc
     ext = rng.normal(0, 2.0, (ext_rows, m.n_nodes, 3))
     g = C.GroundContact(friction=0.4)
     calls = []
-    for name in ("_contact_loop", "_contact_parallel"):
+    for name in ("_contact_loop", "_contact_loop_simd", "_contact_parallel"):
         monkeypatch.setattr(numba_api, name, lambda *a, _f=getattr(numba_api, name), _n=name: calls.append(_n) or _f(*a))
     s1, c1 = pipeline.step(m, st, DT, n_steps=20, contact=g, cstate=cs, external=ext)
-    assert calls == ["_contact_parallel" if B >= 900 else "_contact_loop"]
+    assert calls == ["_contact_parallel" if B >= 900 else "_contact_loop_simd" if B >= 16 else "_contact_loop"]
     monkeypatch.setattr(physics_pipeline, "_contact_compiled", lambda *a: False)
     s2, c2 = pipeline.step(m, st, DT, n_steps=20, contact=g, cstate=cs, external=ext)
     assert np.array_equal(s1.q, s2.q) and np.array_equal(s1.qd, s2.qd)

@@ -232,7 +232,7 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
         (lambda: TensegrityRollVectorEnv(num_envs=n, max_episode_steps=None, **kw))
     fused, loop = make(), make()
     calls = []
-    for name in ("_contact_loop", "_contact_parallel"):
+    for name in ("_contact_loop", "_contact_loop_simd", "_contact_parallel"):
         monkeypatch.setattr(numba_api, name, lambda *a, _f=getattr(numba_api, name), _n=name: calls.append(_n) or _f(*a))
     assert same(fused.reset(seed=1)[0], loop.reset(seed=1)[0])
     packed = []
@@ -250,7 +250,8 @@ def test_compiled_contact_loop_equals_python_loop(monkeypatch, kw):
         assert same(ft._W, lt._W) and same(ft._slip, lt._slip), t
         packed.append(numba_api._CACHE.get(id(fused.unwrapped.task.model)))
     assert len(calls) == 6 * (2 if kw.get("observation_mode") == "robot" else 1)   # robot: IMUs split the last step
-    assert set(calls) == {"_contact_parallel" if n >= 200 else "_contact_loop"}, (n, set(calls))
+    expect = "_contact_parallel" if n >= 200 else "_contact_loop_simd" if n >= 16 else "_contact_loop"
+    assert set(calls) == {expect}, (n, set(calls))
     assert packed[0] is not None and all(p is packed[0] for p in packed)
 
 

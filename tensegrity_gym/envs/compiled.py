@@ -29,7 +29,7 @@ from numba import njit
 
 from .. import pipeline
 
-__all__ = ["shape_observe", "mean_max", "roll_observe", "shape_step", "SHAPE_STEP_SIG",
+__all__ = ["shape_observe", "mean_max", "roll_observe", "shape_step", "shape_step_simd", "SHAPE_STEP_SIG",
            "node_sources"]
 
 
@@ -52,7 +52,8 @@ def node_sources(model, nodes: np.ndarray):
 
 
 # the pipeline's compiled entry points, called from shape_step (numba binds globals at compile time)
-_apply_controls, _run_plan, _state_ok = pipeline.apply_controls, pipeline.run_plan, pipeline.state_ok
+_apply_controls, _run_plan, _run_plan_simd, _state_ok = (pipeline.apply_controls, pipeline.run_plan,
+                                                         pipeline.run_plan_simd, pipeline.state_ok)
 
 
 @njit(cache=True, nogil=True)
@@ -146,9 +147,8 @@ def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, speed, obs):
             obs[b, o + i] = np.float32(speed[b, i])
 
 
-@njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
-def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out, obs,
-               dist, stats, success, elapsed):
+def _shape_step_py(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out, obs,
+                   dist, stats, success, elapsed, simd):
     """One control step of the shape task in ONE compiled call (``ShapeTask.step``'s fast
     path): the control update (``pipeline.apply_controls``), the physics of a
     :class:`tensegrity_gym.pipeline.Plan` (``buf``, ``dt``, ``n_steps``, ``flags``:
@@ -169,7 +169,9 @@ def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fco
     Inputs are only read; results go to the fresh output arrays. Returns 0 (all done), 2
     (done but mean/max left to NumPy: nt >= 8), 1 (physics done, state diverged: outputs
     ``qo``, ``qdo``, ``ctrl_out`` valid, the rest not computed) or -1 (shapes do not fit:
-    nothing valid, the caller runs the reference path, which raises the right error)."""
+    nothing valid, the caller runs the reference path, which raises the right error).
+    ``simd``: None for the instance :func:`shape_step` (fewer than the SIMD batch, the plan's
+    ``simd`` False), True for :func:`shape_step_simd`."""
     fill_base, na, m, nt = icon[0] != 0, icon[1], icon[2], icon[3]
     B = q.shape[0]
     if (ctrl.shape[0] != B or ctrl.shape[1] != na or action.shape[0] != B or action.shape[1] != na
@@ -191,7 +193,11 @@ def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fco
         for b in range(B):
             for j in range(m):
                 phys[b, j] = phys[b, j] + offset[b if per else 0, j]
-    if _run_plan(q, qd, qo, qdo, buf, phys, dt, n_steps, flags):
+    if simd is None:       # a compile-time constant: each instance holds one physics kernel
+        err = _run_plan(q, qd, qo, qdo, buf, phys, dt, n_steps, flags)
+    else:
+        err = _run_plan_simd(q, qd, qo, qdo, buf, phys, dt, n_steps, flags)
+    if err:
         return -1
     if not _state_ok(qo, qdo, fcon[1:4], fcon[0]):
         return 1
@@ -214,6 +220,25 @@ def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fco
     for b in range(B):
         elapsed[b] += 1
     return 0
+
+
+_shape_step_inline = njit(inline="always", cache=True)(_shape_step_py)
+
+
+@njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
+def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out, obs,
+               dist, stats, success, elapsed):
+    """:func:`_shape_step_py` for a plan run one copy at a time (``plan.simd`` False)."""
+    return _shape_step_inline(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo,
+                              ctrl_out, obs, dist, stats, success, elapsed, None)
+
+
+@njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf
+def shape_step_simd(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out,
+                    obs, dist, stats, success, elapsed):
+    """:func:`_shape_step_py` for a plan run in SIMD blocks (``plan.simd`` True)."""
+    return _shape_step_inline(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo,
+                              ctrl_out, obs, dist, stats, success, elapsed, True)
 
 
 _c1 = "C"

@@ -39,7 +39,7 @@ class FusedShapeStep:
                                    act._rate[0], act.low, act.high, act.base_rest_length, self._obs_eta])
             icon = np.concatenate([[int(act.mode == "rest_length"), act.size, act.n_strings, self.tracked.size],
                                    act.actuated, self._obs_rod]).astype(np.int64)
-            disp = compiled.shape_step
+            disp = compiled.shape_step_simd if plan.simd else compiled.shape_step
             if not disp.signatures:
                 disp.compile(compiled.SHAPE_STEP_SIG)
                 disp.disable_compile()     # another argument type raises TypeError: reference path

@@ -25,7 +25,7 @@ Entry points
     ``backend="auto"``/``"numba"``.
 :func:`accelerations` ``(model, q, qd, rest_length, force_density, external, params)``
     The accelerations ``[r'', b'']`` of a batch of states, no step: the driver's own force and
-    rod equations (flag ``_ACC``), for the methods that evaluate accelerations themselves
+    rod equations in a kernel of their own (``_run_acc``), for the methods that evaluate accelerations themselves
     (implicit Euler, the adaptive methods, finite-difference Jacobians, through
     :func:`tensegrity_gym.physics.accelerations`).
 :func:`step_inplace` ``(model, q, qd, dt, name="semi_implicit_euler", *, ...)``
@@ -96,9 +96,9 @@ import numpy as np
 from ...core.model import State
 from . import compile as _cm
 from .compile import NCHUNK as _NCHUNK, PARALLEL_MIN_WORK, _compile, _parallel, _READY
-from .entries import (_contact_loop, _contact_parallel, _run_copies_serial, _run_forces, _run_lean,
-                      _run_parallel, _run_serial)
-from .layout import _ACC, _CHUNK_SHIFT, _CONS, _ERRORS, _EXT, _FD, _L0DEF, _PONLY, _RK4
+from .entries import (_contact_loop, _contact_loop_simd, _contact_parallel, _run_acc, _run_copies_serial, _run_forces,
+                      _run_lean, _run_parallel, _run_project, _run_serial, _run_serial_simd)
+from .layout import _ACC, _CHUNK_SHIFT, _CONS, _ERRORS, _EXT, _FD, _L0DEF, _PONLY, _RK4, _SOA_MIN_BATCH
 from .pack import _CACHE, _array, _flags, _packed, _pack_params, clear_cache
 from .plans import Plan, lean_plan, make_plan, packed
 
@@ -129,7 +129,17 @@ def _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, inplac
     flags |= _NCHUNK << _CHUNK_SHIFT
     if _parallel(p, q.shape[0], n_steps, flags):
         return _run_parallel(q, qd, qo, qdo, p.buf[None], l0, fd, ext, float(dt), int(n_steps), flags, p.lanes)
-    return _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, float(dt), int(n_steps), flags)
+    return _serial_kernel(q.shape[0])(q, qd, qo, qdo, p.buf, l0, fd, ext, float(dt), int(n_steps), flags)
+
+
+def _serial_kernel(B: int):
+    """The serial entry kernel of a batch of B copies (its instance compiled at first use):
+    ``_run_serial_simd`` (SIMD blocks) from ``_SOA_MIN_BATCH`` copies, else ``_run_serial`` (one
+    copy at a time); the two compute the same numbers."""
+    which = "serial_simd" if B >= _SOA_MIN_BATCH else "serial"
+    if not _READY[which]:
+        _compile(which)
+    return _run_serial if which == "serial" else _run_serial_simd
 
 
 def _raise(err, model, q, qd, l0, fd, ext):
@@ -218,7 +228,10 @@ def _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external,
     flags0 = flags
     big = q.shape[0] >= 8 and _parallel(p, q.shape[0], n_steps, flags)
     try:
-        if rest_length is None and force_density is None and external is None and not big:
+        if (rest_length is None and force_density is None and external is None and not big
+                and q.shape[0] < _SOA_MIN_BATCH):
+            if not _READY["lean"]:
+                _compile("lean")
             err = _run_lean(q, qd, qo, qdo, p.buf, dt, n_steps, flags)
         else:
             l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
@@ -226,7 +239,7 @@ def _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external,
                 err = _run_parallel(q, qd, qo, qdo, p.buf[None], l0, fd, ext, dt, n_steps,
                                     flags | (_NCHUNK << _CHUNK_SHIFT), p.lanes)
             else:
-                err = _run_serial(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags)
+                err = _serial_kernel(q.shape[0])(q, qd, qo, qdo, p.buf, l0, fd, ext, dt, n_steps, flags)
     except TypeError:
         l0, fd, ext, flags = _controls(p, flags0, rest_length, force_density, external)
         err = _slow_call(model, p, q, qd, qo, qdo, l0, fd, ext, dt, n_steps, flags, qo is q)
@@ -254,15 +267,17 @@ def accelerations(model, q, qd, rest_length=None, force_density=None, external=N
     NumPy reference; equal to round-off, ``tests/test_kernels.py``) computed by the loop driver's
     own force and rod equations (``_acc``), no step taken. Inputs as :func:`step`."""
     p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
-    flags = p.flags | _ACC
+    if not _READY["acc"]:
+        _compile("acc")
     shape = np.shape(q)
     q, qd = _array(q, 3, "q"), _array(qd, 3, "qd")
-    qo, qdo = np.empty(q.shape), np.empty(q.shape)
-    if p.bufs is not None:
-        _copies_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, 0.0, 1, flags, False)
-    else:
-        _shared_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, 0.0, 1, flags)
-    return qdo.reshape(shape)
+    l0, fd, ext, flags = _controls(p, p.flags, rest_length, force_density, external)
+    l0, fd, ext = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external")
+    A = np.empty(q.shape)
+    err = _run_acc(q, qd, p.bufs if p.bufs is not None else p.buf[None], l0, fd, ext, flags, A)
+    if err:
+        _raise(err, model, q, qd, rest_length, force_density, external)
+    return A.reshape(shape)
 
 
 def string_forces(model, q, qd, rest_length=None, force_density=None, external=None, params=None):
@@ -293,11 +308,14 @@ def project(model, q, qd):
     driver's own ``_project`` (what every fixed step with ``project=True`` ends with), no step
     taken. The projection is topology only: per-copy parameters do not enter it."""
     p = _CACHE.get(id(model)) or _packed(model)
-    flags = (p.flags & _CONS) | _PONLY | _L0DEF
+    if not _READY["project"]:
+        _compile("project")
     shape = np.shape(q)
     q, qd = _array(q, 3, "q"), _array(qd, 3, "qd")
     qo, qdo = np.empty(q.shape), np.empty(q.shape)
-    _shared_step(model, p, q, qd, qo, qdo, None, None, None, 0.0, 1, flags)
+    err = _run_project(q, qd, p.buf[None], p.flags & _CONS, qo, qdo)
+    if err:
+        _raise(err, model, q, qd, None, None, None)
     return qo.reshape(shape), qdo.reshape(shape)
 
 
@@ -331,9 +349,7 @@ def contact_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
     if B >= 8 and _parallel(p, B, 1, flags, compile_kernel=False):
         kernel, flags = _contact_parallel, flags | (_NCHUNK << _CHUNK_SHIFT)
     else:
-        kernel = _contact_loop
-        if p.bufs is not None and not _READY["copies"]:
-            _compile("copies")
+        kernel = _contact_loop if B < _SOA_MIN_BATCH else _contact_loop_simd
     try:
         err = kernel(q, qd, bufs, p.lanes, l0, fd, forces, ext, float(dt), int(n_steps), flags, _frozen(model.eta),
                      _frozen(model.rod_a), _frozen(model.rod_c), cstate.anchor, cstate.active, slip, prm)

@@ -12,8 +12,8 @@ import os
 
 import numba
 
-from .entries import (_run_copies_serial, _run_forces, _run_lean, _run_parallel, _run_serial, _SIG, _SIG_COPIES,
-                      _SIG_FORCES, _SIG_LEAN)
+from .entries import (_run_acc, _run_copies_serial, _run_forces, _run_lean, _run_parallel, _run_project, _run_serial,
+                      _run_serial_simd, _SIG, _SIG_ACC, _SIG_COPIES, _SIG_FORCES, _SIG_LEAN, _SIG_PROJECT)
 from .layout import _RK4
 
 if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
@@ -39,21 +39,19 @@ def compile_signatures(pairs) -> None:
 PARALLEL_MIN_WORK = 10_000
 
 
-_READY = {"serial": False, "parallel": False, "copies": False, "forces": False}
+#: each entry kernel with its one signature, compiled at its first use (a scene compiles only what it runs)
+_ENTRIES = {"lean": ((_run_lean, _SIG_LEAN),), "serial": ((_run_serial, _SIG),),
+            "serial_simd": ((_run_serial_simd, _SIG),), "copies": ((_run_copies_serial, _SIG_COPIES),),
+            "forces": ((_run_forces, _SIG_FORCES),), "parallel": ((_run_parallel, _SIG_COPIES),),
+            "acc": ((_run_acc, _SIG_ACC),), "project": ((_run_project, _SIG_PROJECT),)}
+_READY = {name: False for name in _ENTRIES}
 
 
 def _compile(which: str) -> None:
-    """Compile (or load from numba's on-disk cache) the serial entry points or the parallel one
-    for their single signature, then forbid further compilation: an argument of another type
-    raises TypeError (handled by converting it) instead of compiling a new variant."""
-    if which == "serial":
-        pairs = ((_run_lean, _SIG_LEAN), (_run_serial, _SIG))
-    elif which == "copies":
-        pairs = ((_run_copies_serial, _SIG_COPIES),)
-    elif which == "forces":
-        pairs = ((_run_forces, _SIG_FORCES),)
-    else:
-        pairs = ((_run_parallel, _SIG_COPIES),)
+    """Compile (or load from numba's on-disk cache) the entry kernel ``which`` (a key of
+    ``_ENTRIES``) for its single signature, then forbid further compilation: an argument of
+    another type raises TypeError (handled by converting it) instead of compiling a new variant."""
+    pairs = _ENTRIES[which]
     compile_signatures(pairs)
     for disp, _ in pairs:
         disp.disable_compile()

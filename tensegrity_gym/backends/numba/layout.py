@@ -35,6 +35,7 @@ _ERRORS = {
     5: "external: expected shape ({n}, 3) or (B, {n}, 3)",
     6: "output arrays: expected the same shape as q",
     7: "params: expected one row (shared) or one per copy of q",
+    9: "internal: a serial kernel was given a batch size of its other instance (one copy / SIMD)",
 }
 
 

@@ -12,7 +12,6 @@ import weakref
 import numpy as np
 
 from ...core.integrators import fixed_step_name
-from .compile import _READY, _compile
 from .layout import _CONS, _DAMP, _GRAV, _NDAMP, _PROJ, _RK4, _ROD, _STR, _layout, _soa_width
 
 _CACHE: dict = {}
@@ -160,6 +159,5 @@ def _flags(p, name, project):
 
 
 def _packed(model):
-    if not _READY["serial"]:
-        _compile("serial")
+    """The packed buffer of ``model`` (cached; compiles nothing: each entry kernel compiles at its first use)."""
     return _pack(model)

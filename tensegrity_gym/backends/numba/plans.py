@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .compile import _parallel
+from .compile import _READY, _compile, _parallel
 from .entries import _run_lean
-from .layout import _FD, _L0DEF
+from .layout import _FD, _L0DEF, _SOA_MIN_BATCH
 from .pack import _CACHE, _flags, _packed, _pack_params
 
 __all__ = ["Plan", "make_plan", "lean_plan", "packed"]
@@ -23,8 +23,10 @@ __all__ = ["Plan", "make_plan", "lean_plan", "packed"]
 class Plan:
     """What a compiled caller needs to run the serial step kernel from its own
     njit code (:func:`.entries.run_plan`): ``buf`` (the packed model), ``flags`` (integrator, projection,
-    control mode), ``dt`` (s) and ``n_steps``. Opaque: build it with :func:`make_plan`."""
-    __slots__ = ("model", "buf", "flags", "dt", "n_steps")
+    control mode), ``dt`` (s), ``n_steps`` and ``simd`` (the batch is run by
+    :func:`.entries.run_plan_simd`, in SIMD blocks, instead of :func:`.entries.run_plan`, one copy
+    at a time). Opaque: build it with :func:`make_plan`."""
+    __slots__ = ("model", "buf", "flags", "dt", "n_steps", "simd")
 
     def buffer(self, params=None) -> np.ndarray | None:
         """The packed buffer for ``params`` (one shared row) or the model's own (None); None
@@ -51,6 +53,7 @@ def make_plan(model, name: str, dt: float, n_steps: int, batch_size: int, contro
         raise ValueError(f"control: unknown {control!r}; choose 'rest_length' or 'force_density'")
     plan = Plan()
     plan.model, plan.buf, plan.flags, plan.dt, plan.n_steps = model, p.buf, int(flags), float(dt), int(n_steps)
+    plan.simd = batch_size >= _SOA_MIN_BATCH     # run by run_plan_simd (SIMD blocks), else run_plan
     return plan
 
 
@@ -62,6 +65,8 @@ def lean_plan(model, name: str, project: bool = True):
     untouched otherwise). It raises TypeError for arrays it does not take as they are (another
     dtype, layout or a read-only array): :func:`step_inplace` converts or refuses those."""
     p = _CACHE.get(id(model)) or _packed(model)
+    if not _READY["lean"]:
+        _compile("lean")
     return _run_lean, p.buf, _flags(p, name, project)
 
 
