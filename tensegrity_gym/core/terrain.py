@@ -87,17 +87,23 @@ def _surface(obj, prefix: str = "") -> None:
             s(obj, key, _number(v, prefix + key, lo=0.0, lo_open=(key == "stiffness")))
 
 
+@dataclass(frozen=True, kw_only=True)
+class SurfaceContact:
+    """Contact overrides of one terrain part (None: the terrain's own): ``friction`` (1),
+    ``stiffness`` (N/m), ``damping`` (s/m)."""
+
+    friction: float | None = None
+    stiffness: float | None = None
+    damping: float | None = None
+
+
 @dataclass(frozen=True)
-class Plane:
+class Plane(SurfaceContact):
     """The half-space below a plane through the origin: slope (deg, in (-90, 90)) rising along
     the compass direction ``uphill_deg`` (deg from +x towards +y); contact overrides optional."""
 
     slope_deg: float = 0.0
     uphill_deg: float = 0.0
-    friction: float | None = None
-    stiffness: float | None = None
-    damping: float | None = None
-
     def __post_init__(self):
         s = object.__setattr__
         s(self, "slope_deg", _number(self.slope_deg, "slope_deg", -90.0, 90.0, True, True))
@@ -112,17 +118,13 @@ class Plane:
 
 
 @dataclass(frozen=True, eq=False)
-class Box:
+class Box(SurfaceContact):
     """A solid box: ``center`` (3,) m, ``size`` (3,) full edge lengths m (> 0), ``yaw_deg``
     about the vertical; contact overrides optional."""
 
     center: np.ndarray
     size: np.ndarray
     yaw_deg: float = 0.0
-    friction: float | None = None
-    stiffness: float | None = None
-    damping: float | None = None
-
     def __post_init__(self):
         s = object.__setattr__
         s(self, "center", _vector(self.center, 3, "center"))
@@ -138,17 +140,13 @@ class Box:
 
 
 @dataclass(frozen=True, eq=False)
-class Heightfield:
+class Heightfield(SurfaceContact):
     """The solid below ``z = h(x, y)``: ``heights`` (ny, nx) m (at least 2 x 2, finite) on a grid of
     ``cell`` m from ``origin`` (x0, y0) m; bilinear, edge values held outside the grid."""
 
     heights: np.ndarray
     cell: float
     origin: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    friction: float | None = None
-    stiffness: float | None = None
-    damping: float | None = None
-
     def __post_init__(self):
         s = object.__setattr__
         try:

@@ -117,22 +117,22 @@ def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g):
     if not (fm < min(fa, fc) - LEVEL_TOL):
         return em, False
     level = fm + LEVEL_TOL
-    a, b = ea, em                     # left edge of the level set: f(a) > level >= f(b)
+    left = _level_edge(ea, em, level, r0, r1, r2, b0, b1, b2, g)     # f(ea) > level >= f(em)
+    right = _level_edge(ec, em, level, r0, r1, r2, b0, b1, b2, g)    # f(ec) > level >= f(em)
+    return 0.5 * (left + right), True
+
+
+@njit(inline="always", **_opts)
+def _level_edge(out, inside, level, r0, r1, r2, b0, b1, b2, g):
+    """Bisection for where the signed distance crosses ``level`` between ``out`` (above it) and
+    ``inside`` (at or below it): the point of the bracket's ``inside`` end after GOLDEN_ITERS halvings."""
     for _ in range(GOLDEN_ITERS):
-        mid = 0.5 * (a + b)
+        mid = 0.5 * (out + inside)
         if _sd_at(mid, r0, r1, r2, b0, b1, b2, g) > level:
-            a = mid
+            out = mid
         else:
-            b = mid
-    left = b
-    a, b = em, ec                     # right edge: f(a) <= level < f(b)
-    for _ in range(GOLDEN_ITERS):
-        mid = 0.5 * (a + b)
-        if _sd_at(mid, r0, r1, r2, b0, b1, b2, g) > level:
-            b = mid
-        else:
-            a = mid
-    return 0.5 * (left + a), True
+            inside = mid
+    return inside
 
 
 @njit(inline="always", **_opts)

@@ -4,9 +4,7 @@
 """
 from __future__ import annotations
 
-import math
-
-from .driver import _check_external, _setup, integrator_name, step_once
+from .driver import prepare_steps, step_once
 from .model import TorchModel, _torch, torch_model
 
 __all__ = ["init_contact_state", "contact_forces", "contact_step", "contact_substep"]
@@ -82,12 +80,8 @@ def contact_step(model, contact, q, qd, anchor, active, dt: float, integrator: s
     (:func:`contact_substep`). ``contact_prm``: per-copy contact parameters (``prm`` of
     :func:`contact_forces`). ``substep``: a replacement for :func:`contact_substep` with its
     signature (e.g. ``torch.compile(contact_substep)``). Returns ``(q, qd, anchor, active)``."""
-    name = integrator_name(integrator)
-    dt = float(dt)
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
-    tm, prm, rl, fd = _setup(model, q, params, rest_length, force_density)
-    ext = _check_external(tm, external, q.shape[0])
+    name, dt, tm, prm, rl, fd, ext = prepare_steps(model, q, integrator, dt, params, rest_length, force_density,
+                                                   external)
     one = contact_substep if substep is None else substep
     for _ in range(int(n_steps)):
         q, qd, anchor, active = one(tm, contact, q, qd, anchor, active, dt, name, prm, rl, fd, ext, contact_prm,

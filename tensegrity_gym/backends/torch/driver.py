@@ -14,7 +14,7 @@ from ...core.model import State
 from .equations import _accel, project, sphere_drift
 from .model import TorchModel, _torch, resolve_device, resolve_dtype, torch_model, torch_params
 
-__all__ = ["accelerations", "step_once", "step", "step_state", "simulate", "integrator_name"]
+__all__ = ["accelerations", "step_once", "step", "step_state", "simulate", "integrator_name", "prepare_steps"]
 
 
 def _setup(model, q, params, rest_length, force_density):
@@ -77,6 +77,19 @@ def integrator_name(integrator) -> str:
     """The resolved name of a method the torch backend runs (``semi_implicit_euler`` or ``rk4``);
     ValueError naming ``integrator`` otherwise."""
     return fixed_step_name(integrator, "torch")
+
+
+def prepare_steps(model, q, integrator, dt, params, rest_length, force_density, external):
+    """``(name, dt, tm, prm, rl, fd, ext)`` of a stepping loop on ``q`` (B, k, 6): the resolved
+    integrator name, ``dt`` as a float (ValueError naming it unless positive and finite, s), the
+    model, parameters and controls as tensors (:func:`_setup`) and the checked external nodal
+    forces (B or 1, n, 3) N or None."""
+    name = integrator_name(integrator)
+    dt = float(dt)
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
+    tm, prm, rl, fd = _setup(model, q, params, rest_length, force_density)
+    return name, dt, tm, prm, rl, fd, _check_external(tm, external, q.shape[0])
 
 
 def step_once(tm, q, qd, dt, name, prm, rl, fd, ext, project_):

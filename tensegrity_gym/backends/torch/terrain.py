@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from ..numba.terrain import GOLDEN_ITERS, LEVEL_TOL, PLANE
-from .driver import _check_external, _setup, integrator_name, step_once
+from .driver import prepare_steps, step_once
 from .model import TorchModel, _torch, torch_model
 
 __all__ = ["init_terrain_state", "terrain_forces", "terrain_step"]
@@ -205,12 +205,8 @@ def terrain_step(model, geom, prm, q, qd, anchor, eta0, active, dt: float, integ
                  external=None):
     """``n_steps`` physics steps with terrain contact: per step the forces from the state at its
     start (plus ``external``), held over one integrator step. Returns ``(q, qd, anchor, eta0, active)``."""
-    name = integrator_name(integrator)
-    dt = float(dt)
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
-    tm, p, rl, fd = _setup(model, q, params, rest_length, force_density)
-    ext = _check_external(tm, external, q.shape[0])
+    name, dt, tm, p, rl, fd, ext = prepare_steps(model, q, integrator, dt, params, rest_length, force_density,
+                                                 external)
     for _ in range(int(n_steps)):
         W, anchor, eta0, active, _ = terrain_forces(tm, q, qd, geom, prm, anchor, eta0, active)
         if ext is not None:
