@@ -15,8 +15,8 @@ NumPy arrays; :mod:`tensegrity_gym.envs.torch_wrappers` on tensors).
         --num-envs 16 --total-timesteps 100000
     python examples/cleanrl_ppo_continuous.py --backend torch
 
-Prints the mean return of the episodes that ended (when any did) and the mean raw reward per env
-step of the last rollout (reward units of the env).
+Prints the mean return of the training episodes that ended and the mean raw reward per env step
+of the trained policy's mean action over ``--eval-steps`` more steps (reward units of the env).
 """
 from __future__ import annotations
 
@@ -51,6 +51,7 @@ def parse_args(argv=None):
     p.add_argument("--ent-coef", type=float, default=0.0)
     p.add_argument("--vf-coef", type=float, default=0.5)
     p.add_argument("--max-grad-norm", type=float, default=0.5)
+    p.add_argument("--eval-steps", type=int, default=200, help="vector steps of the trained policy's mean action")
     return p.parse_args(argv)
 
 
@@ -175,13 +176,24 @@ def main(argv=None) -> dict:
                 loss.backward()
                 nn.utils.clip_grad_norm_(agent.parameters(), a.max_grad_norm)
                 optimizer.step()
+    seconds = time.time() - start
+    # the trained policy's mean action for eval_steps more steps (normalisation statistics frozen)
+    for w in (envs, envs.env):
+        w.update_running_mean = False
+    total = 0.0
+    with torch.no_grad():
+        for _ in range(a.eval_steps):
+            act = torch.clamp(agent.actor_mean(next_obs), -1.0, 1.0)
+            next_obs, _, _, _, info = envs.step(act if on_torch else act.cpu().numpy())
+            next_obs = T(next_obs)
+            total += float(T(_raw_reward(info)).mean())
     envs.close()
     out = {"env_steps": iterations * batch_size, "episodes": len(returns),
            "mean_return": float(np.mean(returns)) if returns else float("nan"),
-           "mean_reward_per_step": float(raw_rewards.mean()), "seconds": time.time() - start}
+           "mean_reward_per_step": total / a.eval_steps, "seconds": seconds}
     print(f"CleanRL PPO on {a.env_id} ({a.backend}, {a.device}): {out['env_steps']} env steps in "
-          f"{out['seconds']:.0f} s, {out['episodes']} episodes (mean return {out['mean_return']:.2f}), "
-          f"mean reward per step of the last rollout {out['mean_reward_per_step']:.4f}")
+          f"{seconds:.0f} s, {out['episodes']} episodes (mean return {out['mean_return']:.2f}); mean reward "
+          f"per step of the trained policy (mean action, {a.eval_steps} steps) {out['mean_reward_per_step']:.4f}")
     return out
 
 

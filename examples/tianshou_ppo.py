@@ -6,8 +6,8 @@ autoreset disabled so that tianshou's ``Collector`` resets ended envs itself).
     python examples/tianshou_ppo.py --backend torch       # the torch device env (device="cpu")
 
 tianshou's standard route works too: ``DummyVectorEnv([lambda: gymnasium.make(id) for _ in
-range(n)])`` steps n single envs one by one. Prints the mean reward per env step over the
-collected training steps (the env's reward units).
+range(n)])`` steps n single envs one by one. Prints the mean reward per env step of the trained
+policy's mean action over ``--eval-steps`` more steps (the env's reward units).
 """
 from __future__ import annotations
 
@@ -28,6 +28,7 @@ def main(argv=None) -> dict:
     p.add_argument("--backend", choices=["numpy", "torch"], default="numpy")
     p.add_argument("--max-episode-steps", type=int, default=None, help="episode length, control steps "
                    "(default: the registered 1000)")
+    p.add_argument("--eval-steps", type=int, default=200, help="vector steps of the trained policy's mean action")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
 
@@ -60,7 +61,7 @@ def main(argv=None) -> dict:
         loc, scale = loc_scale
         return Independent(Normal(loc, scale), 1)
 
-    policy = ProbabilisticActorPolicy(actor=actor, dist_fn=dist, action_space=act_space,
+    policy = ProbabilisticActorPolicy(actor=actor, dist_fn=dist, action_space=act_space, deterministic_eval=True,
                                       action_scaling=True, action_bound_method="clip")
     algorithm = PPO(policy=policy, critic=critic, optim=AdamOptimizerFactory(lr=3e-4), gamma=0.99,
                     gae_lambda=0.95, max_grad_norm=0.5, vf_coef=0.25, ent_coef=0.0)
@@ -71,13 +72,13 @@ def main(argv=None) -> dict:
         collection_step_num_env_steps=a.steps_per_collect, update_step_num_repetitions=5, batch_size=256,
         test_in_training=False, verbose=False, show_progress=False))
     steps = collector.collect_step
-    # one more collect with the trained policy (the trainer empties the buffer after each update)
+    # the trained policy's mean action (deterministic_eval outside training) for eval_steps more steps
     collector.reset_buffer()
-    collector.collect(n_step=a.steps_per_collect)
+    collector.collect(n_step=a.eval_steps * a.num_envs)
     rew = collector.buffer.rew[: len(collector.buffer)]
     out = {"env_steps": int(steps), "mean_reward_per_step": float(np.mean(rew)), "result": result}
-    print(f"tianshou PPO on {a.env_id} ({a.backend}, cpu): {out['env_steps']} env steps, "
-          f"mean reward per step of a collect after training {out['mean_reward_per_step']:.4f}")
+    print(f"tianshou PPO on {a.env_id} ({a.backend}, cpu): {out['env_steps']} env steps, mean reward per step "
+          f"of the trained policy (mean action, {a.eval_steps} steps) {out['mean_reward_per_step']:.4f}")
     envs.close()
     return out
 

@@ -7,7 +7,8 @@ mode: TorchRL resets ended envs through ``reset(options={"reset_mask": ...})``),
     python examples/torchrl_ppo.py --backend torch       # the torch device env (device="cpu")
 
 Clipped PPO with GAE, a tanh-Gaussian actor and an MLP critic, as TorchRL's PPO tutorial. Prints
-the mean reward per env step of the last collected batch (the env's reward units).
+the mean reward per env step of the trained policy's mean action over ``--eval-steps`` more steps
+(the env's reward units).
 """
 from __future__ import annotations
 
@@ -41,6 +42,7 @@ def main(argv=None) -> dict:
     p.add_argument("--autoreset-mode", default="disabled", choices=["disabled", "same_step"])
     p.add_argument("--max-episode-steps", type=int, default=None, help="episode length, control steps "
                    "(default: the registered 1000)")
+    p.add_argument("--eval-steps", type=int, default=200, help="vector steps of the trained policy's mean action")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
 
@@ -89,9 +91,13 @@ def main(argv=None) -> dict:
                 optim.step()
         last = float(data["next", "reward"].mean())
     collector.shutdown()
-    out = {"env_steps": a.frames, "mean_reward_per_step": last}
-    print(f"TorchRL PPO on {a.env_id} ({a.backend}, cpu): {a.frames} env steps, "
-          f"mean reward per step of the last batch {last:.4f}")
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():   # the mean action
+        td = env.rollout(a.eval_steps, actor, break_when_any_done=False)
+    out = {"env_steps": a.frames, "mean_reward_per_step": float(td["next", "reward"].mean()),
+           "last_batch_reward_per_step": last}
+    print(f"TorchRL PPO on {a.env_id} ({a.backend}, cpu): {a.frames} env steps, mean reward per step of the "
+          f"trained policy (mean action, {a.eval_steps} steps) {out['mean_reward_per_step']:.4f}")
     env.close()
     return out
 

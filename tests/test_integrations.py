@@ -75,6 +75,14 @@ def test_rsl_rl_refuses_an_env_that_does_not_reset_in_the_same_step():
         RslRlVecEnv(venv)
 
 
+def test_rsl_rl_command_line(capsys):
+    pytest.importorskip("rsl_rl")
+    from tensegrity_gym.integrations.rsl_rl import main
+    main(["--env-id", SHAPE, "--num-envs", "4", "--iterations", "1", "--backend", "numpy", "--eval-steps", "3",
+          "--log-dir", ""])
+    assert "rsl_rl PPO on TensegrityShape-v0 (numpy, cpu): 96 env steps" in capsys.readouterr().out
+
+
 # ---------------------------------------------------------------- skrl
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_skrl_ppo_with_wrap_env_auto_detection(backend, tmp_path):
@@ -84,9 +92,25 @@ def test_skrl_ppo_with_wrap_env_auto_detection(backend, tmp_path):
     mod = _example("skrl_ppo")
     assert isinstance(wrap_env(mod.make_env(SHAPE, 2, backend, "next_step", 0), verbose=False), GymnasiumWrapper)
     out = mod.main(["--env-id", SHAPE, "--num-envs", "4", "--timesteps", "64", "--rollouts", "16",
-                    "--max-episode-steps", "20", "--backend", backend, "--directory", str(tmp_path)])
+                    "--max-episode-steps", "20", "--backend", backend, "--directory", str(tmp_path), "--eval-steps", "5"])
     assert out["env_steps"] == 256
     _finite(out)
+
+
+def test_skrl_device_env_route_resets_by_env_idx():
+    """skrl's wrapper for device-resident envs (its ManiSkill wrapper) resets ended envs with
+    ``reset(options={"env_idx": ...})``; the torch env with autoreset disabled takes it."""
+    pytest.importorskip("skrl")
+    from skrl.envs.wrappers.torch import wrap_env
+    env = gym.make_vec(SHAPE, num_envs=3, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
+                       dtype="float32", autoreset_mode="disabled", max_episode_steps=3)
+    w = wrap_env(env, wrapper="mani-skill", verbose=False)
+    w.reset()
+    ends = []
+    for _ in range(7):
+        _, _, _, trunc, _ = w.step(torch.zeros(3, 9))
+        ends.append(bool(trunc.all()))
+    assert ends == [False, False, True] * 2 + [False] and env.elapsed.tolist() == [1, 1, 1]
 
 
 # ---------------------------------------------------------------- TorchRL
@@ -94,8 +118,8 @@ def test_skrl_ppo_with_wrap_env_auto_detection(backend, tmp_path):
 def test_torchrl_ppo_with_gym_wrapper(backend):
     pytest.importorskip("torchrl")
     mod = _example("torchrl_ppo")
-    out = mod.main(["--env-id", SHAPE, "--num-envs", "4", "--frames", "512", "--frames-per-batch", "256",
-                    "--max-episode-steps", "20", "--backend", backend])
+    out = mod.main(["--env-id", SHAPE, "--num-envs", "4", "--frames", "256", "--frames-per-batch", "128",
+                    "--max-episode-steps", "20", "--backend", backend, "--eval-steps", "5"])
     _finite(out)
 
 
@@ -114,10 +138,10 @@ def test_torchrl_check_env_specs_in_same_step_mode(backend):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_tianshou_ppo_through_the_adapter(backend):
     pytest.importorskip("tianshou")
-    out = _example("tianshou_ppo").main(["--env-id", SHAPE, "--num-envs", "4", "--steps", "512",
-                                         "--steps-per-collect", "256", "--max-episode-steps", "20",
-                                         "--backend", backend])
-    assert out["env_steps"] >= 512
+    out = _example("tianshou_ppo").main(["--env-id", SHAPE, "--num-envs", "4", "--steps", "256",
+                                         "--steps-per-collect", "128", "--max-episode-steps", "20",
+                                         "--backend", backend, "--eval-steps", "5"])
+    assert out["env_steps"] >= 256
     _finite(out)
 
 
@@ -147,6 +171,23 @@ def test_tianshou_adapter_resets_only_the_given_envs_and_refuses_subsets():
 def test_cleanrl_ppo_continuous_example(backend):
     out = _example("cleanrl_ppo_continuous").main(
         ["--env-id", SHAPE, "--backend", backend, "--num-envs", "4", "--num-steps", "32",
-         "--total-timesteps", "256", "--max-episode-steps", "20"])
+         "--total-timesteps", "256", "--max-episode-steps", "20", "--eval-steps", "5"])
     assert out["env_steps"] == 256 and out["episodes"] >= 4 and math.isfinite(out["mean_return"])
     _finite(out)
+
+
+# ---------------------------------------------------------------- SB3 adapter and the autoreset modes
+def test_sb3_adapter_refuses_a_same_step_env_and_takes_the_others():
+    pytest.importorskip("stable_baselines3")
+    from tensegrity_gym.integrations.sb3 import make_sb3_vec_env
+    with pytest.raises(ValueError, match="same_step"):
+        make_sb3_vec_env(gym.make_vec(SHAPE, num_envs=2, vectorization_mode="vector_entry_point",
+                                      autoreset_mode="same_step"))
+    for mode in ("next_step", "disabled"):
+        v = make_sb3_vec_env(gym.make_vec(SHAPE, num_envs=2, vectorization_mode="vector_entry_point",
+                                          autoreset_mode=mode, max_episode_steps=2))
+        v.reset()
+        for _ in range(3):
+            _, _, done, infos = v.step(np.zeros((2, 9), np.float32))
+            if done.any():
+                assert "terminal_observation" in infos[0]

@@ -65,14 +65,17 @@ def _build_class():
                 raise ValueError(f"RslRlVecEnv: the env must reset ended envs in the same step (rsl_rl stores the "
                                  f"step's observation as the next episode's start); got autoreset_mode={mode!r}. "
                                  "Build it with autoreset_mode='same_step' (or use make_rsl_rl_env)")
+            from ..envs.torch_shell import TorchTaskVectorEnv
             self.env = env
-            self._on_torch = hasattr(env, "device") and hasattr(env, "tm")     # the device-resident env
-            self.device = torch.device(str(env.device) if self._on_torch else (device or "cpu"))
+            self._base = env.unwrapped                                           # the env under any wrappers
+            self._on_torch = isinstance(self._base, TorchTaskVectorEnv)          # the device-resident env
+            self.device = torch.device(str(self._base.device) if self._on_torch else (device or "cpu"))
             if self._on_torch and device is not None and torch.device(device) != self.device:
                 raise ValueError(f"device: the torch env runs on {self.device}; got device={device!r}")
             self.num_envs = env.num_envs
             self.num_actions = int(env.single_action_space.shape[0])
-            self.max_episode_length = env.max_episode_steps if env.max_episode_steps is not None else 2 ** 31 - 1
+            limit = self._base.max_episode_steps
+            self.max_episode_length = limit if limit is not None else 2 ** 31 - 1
             self.cfg = dict(cfg or {})
             self._obs = None
 
@@ -90,7 +93,7 @@ def _build_class():
         def _elapsed(self):
             """The env's step counter (N,) int64: the torch env's tensor, or the NumPy env's array
             seen as a tensor (shared memory, so in-place writes reach the env)."""
-            return self.env.elapsed if self._on_torch else torch.from_numpy(self.env.task.elapsed)
+            return self._base.elapsed if self._on_torch else torch.from_numpy(self._base.task.elapsed)
 
         @property
         def episode_length_buf(self):
@@ -184,10 +187,11 @@ def train_config(num_steps_per_env: int = 24, hidden: tuple[int, ...] = (64, 64)
 
 
 def train(env_id: str = "TensegrityRoll-v0", num_envs: int = 64, iterations: int = 50, backend: str = "torch",
-          device: str = "cpu", seed: int = 0, log_dir: str | None = None, **env_kwargs) -> dict[str, Any]:
+          device: str = "cpu", seed: int = 0, log_dir: str | None = None, eval_steps: int = 200,
+          **env_kwargs) -> dict[str, Any]:
     """``iterations`` of rsl_rl's PPO (``OnPolicyRunner.learn``) on ``env_id``; returns
-    ``{"steps", "mean_reward_per_step"}`` (the mean step reward of the last iteration's rollout,
-    read through the runner's env)."""
+    ``{"steps", "mean_reward_per_step"}``: the env steps trained and the mean reward per env step
+    of the trained policy's mean action over ``eval_steps`` more steps of every env."""
     import torch
     from rsl_rl.runners import OnPolicyRunner
     torch.manual_seed(seed)
@@ -195,11 +199,11 @@ def train(env_id: str = "TensegrityRoll-v0", num_envs: int = 64, iterations: int
     cfg = train_config(seed=seed)
     runner = OnPolicyRunner(env, cfg, log_dir=log_dir, device=device)
     runner.learn(iterations)
-    policy = runner.get_inference_policy(device)
+    policy = runner.get_inference_policy(device)          # the mean action
     obs = env.get_observations()
     total, n = 0.0, 0
     with torch.inference_mode():
-        for _ in range(cfg["num_steps_per_env"]):
+        for _ in range(eval_steps):
             obs, rew, _, _ = env.step(policy(obs))
             total, n = total + float(rew.sum()), n + rew.numel()
     return {"steps": iterations * cfg["num_steps_per_env"] * num_envs, "mean_reward_per_step": total / n}
@@ -214,11 +218,14 @@ def main(argv=None) -> None:
     p.add_argument("--backend", choices=["torch", "numpy"], default="torch")
     p.add_argument("--device", default="cpu")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--log-dir", default=None, help="TensorBoard logs and checkpoints (default: none)")
+    p.add_argument("--eval-steps", type=int, default=200, help="vector steps of the trained policy's mean action")
+    p.add_argument("--log-dir", default="runs/rsl_rl", help="TensorBoard logs and checkpoints; rsl_rl prints a "
+                   "progress table per iteration when it is set ('' for neither)")
     a = p.parse_args(argv)
-    out = train(a.env_id, a.num_envs, a.iterations, a.backend, a.device, a.seed, a.log_dir)
+    out = train(a.env_id, a.num_envs, a.iterations, a.backend, a.device, a.seed, a.log_dir or None, a.eval_steps)
     print(f"rsl_rl PPO on {a.env_id} ({a.backend}, {a.device}): {out['steps']} env steps, "
-          f"mean reward per step {out['mean_reward_per_step']:.4f}")
+          f"mean reward per step of the trained policy (mean action, {a.eval_steps} steps) "
+          f"{out['mean_reward_per_step']:.4f}")
 
 
 if __name__ == "__main__":
