@@ -54,9 +54,8 @@ def test_vector_step_before_reset_raises_reset_needed():
 
 def test_autoreset_mode_requests_named():
     from gymnasium.vector import AutoresetMode
-    with pytest.raises(ValueError, match=r"autoreset_mode: these vector envs autoreset in NEXT_STEP mode only"):
-        gym.make_vec(SHAPE, num_envs=2, vectorization_mode="vector_entry_point",
-                     autoreset_mode=AutoresetMode.SAME_STEP)
+    with pytest.raises(ValueError, match=r"autoreset_mode: expected one of \['next_step', 'same_step', 'disabled'\]"):
+        gym.make_vec(SHAPE, num_envs=2, vectorization_mode="vector_entry_point", autoreset_mode="every_step")
     v = gym.make_vec(SHAPE, num_envs=2, vectorization_mode="vector_entry_point", autoreset_mode="next_step")
     assert v.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
     v.close()

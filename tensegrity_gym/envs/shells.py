@@ -1,5 +1,5 @@
 """The Gymnasium shells around a :class:`~tensegrity_gym.envs.base.BatchedTask`: the single env
-(B = 1) and the vector env (B = ``num_envs``, next-step autoreset, per-env seeding)."""
+(B = 1) and the vector env (B = ``num_envs``, selectable autoreset mode, per-env seeding)."""
 from __future__ import annotations
 
 from typing import Any, Sequence
@@ -9,10 +9,10 @@ import gymnasium as gym
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from ..checks import check_count, check_frame_size, check_options
+from ..checks import check_count, check_frame_size
 from ..rewards import combine
 from .pickling import picklable_state
-from .vector_rules import check_autoreset_mode, check_reset_called, check_seed_value
+from .vector_rules import VectorApi, check_reset_called, check_seed_value, reset_mask_option
 from .base import BatchedTask
 from .validate import check_action
 
@@ -40,8 +40,12 @@ def _for_task(cls, task_class: type, env_id: str, doc: str, module: str) -> type
     (``TensegrityRoll-v0`` -> ``TensegrityRollEnv`` / ``TensegrityRollVectorEnv``), building
     ``task_class`` from the constructor's ``**kwargs``, documented by ``doc``; ``module`` is the
     defining module's ``__name__`` (where pickle and the registry's entry point find the class)."""
-    name = env_id.split("-")[0] + ("VectorEnv" if issubclass(cls, gym.vector.VectorEnv) else "Env")
-    return type(name, (cls,), {"__doc__": doc, "__module__": module, "__qualname__": name,
+    vector = issubclass(cls, gym.vector.VectorEnv)
+    name = env_id.split("-")[0] + ("VectorEnv" if vector else "Env")
+    # gymnasium.vector.VectorEnv listed as a direct base too: libraries that pick their wrapper from
+    # the class's __bases__ (skrl's wrap_env) then recognise a Gymnasium vector env
+    bases = (cls, gym.vector.VectorEnv) if vector else (cls,)
+    return type(name, bases, {"__doc__": doc, "__module__": module, "__qualname__": name,
                                "task_class": task_class, "env_id": env_id})
 
 
@@ -185,9 +189,11 @@ def episode_limit(max_episode_steps, env_id: str) -> int | None:
     return check_count(max_episode_steps, "max_episode_steps", 1, "control steps; or None")
 
 
-class VectorSeeding:
+class VectorSeeding(VectorApi):
     """What the NumPy and the torch vector envs share: the control step ``dt`` (s), the per-env
-    generators ``np_random_list`` (``self._rngs``) and the ``reset_mask`` option."""
+    generators ``np_random_list`` (``self._rngs``), the partial-reset options
+    (:func:`~tensegrity_gym.envs.vector_rules.reset_mask_option`), ``autoreset_mode`` and
+    ``call`` / ``get_attr`` / ``set_attr`` (:class:`~tensegrity_gym.envs.vector_rules.VectorApi`)."""
 
     @property
     def dt(self) -> float:
@@ -201,32 +207,29 @@ class VectorSeeding:
 
     def _reset_mask(self, options: dict | None) -> tuple[np.ndarray, dict]:
         """(mask (N,) bool of the envs to reset, the other options) from ``options['reset_mask']``
-        (default: all; a torch tensor is brought to the host)."""
-        N = self.num_envs
-        options = check_options(options)
-        mask = options.pop("reset_mask", None)
-        if mask is None:
-            return np.ones(N, bool), options
-        if hasattr(mask, "cpu"):
-            mask = mask.cpu().numpy()
-        mask = np.asarray(mask)
-        if mask.shape != (N,) or mask.dtype != np.bool_:
-            raise ValueError(f"options['reset_mask']: expected a bool array of shape ({N},), "
-                             f"got {mask.dtype} {mask.shape}")
-        return mask, options
+        or ``options['env_idx']`` (default: all; a torch tensor is brought to the host)."""
+        return reset_mask_option(options, self.num_envs)
 
 
 class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     """``gymnasium.vector.VectorEnv`` shell around a :class:`BatchedTask` with B = ``num_envs``.
 
     * One batched physics call per ``step`` for all envs (no per-env loop, no subprocess).
-    * Autoreset: ``AutoresetMode.NEXT_STEP`` (Gymnasium 1.x default): after an env returns
+    * Autoreset: ``autoreset_mode`` (Gymnasium 1.x's ``AutoresetMode``, also in
+      ``metadata["autoreset_mode"]``): ``"next_step"`` (default): after an env returns
       ``terminated`` or ``truncated``, its next ``step`` ignores its action, resets it and
-      returns the reset observation with reward 0 and ``terminated = truncated = False``.
+      returns the reset observation with reward 0 and ``terminated = truncated = False``;
+      ``"same_step"``: the step that ends an env resets it and returns the reset observation,
+      the last one in ``info["final_obs"]`` (an object array, None for the others, as
+      ``SyncVectorEnv``) and that step's info in ``info["final_info"]``; ``"disabled"``: the
+      caller resets ended envs (``reset(options={"reset_mask": ...})``); stepping one first is
+      Gymnasium's ``ResetNeeded``.
     * Seeding: ``reset(seed=s)`` seeds env i with ``s + i``; ``reset(seed=[s0, s1, ...])``
       seeds each env; each env has its own ``np.random.Generator`` created exactly as a
       single env's ``np_random``, so env i reproduces a single env reset with the same seed.
-    * ``reset(options={"reset_mask": mask})`` resets only the envs where ``mask`` (bool (N,)) is true.
+    * ``reset(options={"reset_mask": mask})`` resets only the envs where ``mask`` (bool (N,)) is
+      true; ``reset(options={"env_idx": idx})`` only the envs ``idx`` (int indices).
+    * ``call`` / ``get_attr`` / ``set_attr``: :class:`~tensegrity_gym.envs.vector_rules.VectorApi`.
     * Time limit: ``max_episode_steps`` (control steps) truncates each env. ``gymnasium.make_vec``
       passes the registered value; constructed directly, the default ``"registered"`` looks
       it up for ``env_id``; ``None`` disables it.
@@ -241,10 +244,10 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     for_task = classmethod(_for_task)
 
     def __init__(self, num_envs: int = 1, max_episode_steps="registered", render_mode: str | None = None,
-                 width: int = 480, height: int = 480, **kwargs):
-        kwargs = check_autoreset_mode(kwargs)
+                 width: int = 480, height: int = 480, autoreset_mode="next_step", **kwargs):
         self._init_task(self.task_class(num_envs=num_envs, **kwargs), self.env_id, max_episode_steps, render_mode,
                         width, height, title=self.env_id)
+        self._init_autoreset(autoreset_mode)
 
     def _init_task(self, task: BatchedTask, env_id: str, max_episode_steps="registered",
                    render_mode: str | None = None, width: int = 480, height: int = 480, title: str | None = None):
@@ -318,7 +321,11 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         N = self.num_envs
         a = check_action(actions, (N, self.task.action_size), clip=self.task.clip_actions, name="actions")
         reset_now = self._autoreset.copy()
-        # envs to autoreset get zero actions in the physics step, then are reset (their step is discarded)
+        mode = self.autoreset_mode
+        if mode is gym.vector.AutoresetMode.DISABLED and reset_now.any():
+            raise gym.error.ResetNeeded(f"autoreset_mode='disabled': envs {np.flatnonzero(reset_now).tolist()} ended; "
+                                        "reset them (reset(options={'reset_mask': mask})) before stepping them")
+        # NEXT_STEP: envs to autoreset get zero actions in the physics step, then are reset (their step is discarded)
         if reset_now.any():
             a = a.copy()
             a[reset_now] = 0.0
@@ -329,10 +336,12 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         truncated = diverged.copy()
         if self.max_episode_steps is not None:
             truncated |= self.task.elapsed >= self.max_episode_steps
-        step_mask = ~reset_now
         all_infos = dict(infos)
         for name, v in terms.items():
             all_infos[f"reward_{name}"] = v
+        if mode is gym.vector.AutoresetMode.SAME_STEP:
+            return self._same_step(reward, terminated, truncated, all_infos)
+        step_mask = ~reset_now
         out = self._vector_info(all_infos, step_mask)
         if reset_now.any():
             idx = np.flatnonzero(reset_now)
@@ -342,6 +351,24 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             terminated[reset_now] = False
             truncated[reset_now] = False
         self._autoreset = terminated | truncated
+        return self.task.observe().copy(), reward, terminated, truncated, out
+
+    def _same_step(self, reward, terminated, truncated, all_infos):
+        """SAME_STEP: the envs that ended are reset now; their last observation and step info go
+        to ``info["final_obs"]`` / ``info["final_info"]`` (as ``SyncVectorEnv`` builds them) and
+        their ``info`` entries are the reset's."""
+        done = terminated | truncated
+        obs = self.task.observe().copy()
+        if not done.any():
+            return obs, reward, terminated, truncated, self._vector_info(all_infos, np.ones(self.num_envs, bool))
+        out = self._vector_info(all_infos, ~done)
+        final_obs = np.full(self.num_envs, None, dtype=object)
+        for i in np.flatnonzero(done):
+            final_obs[i] = obs[i].copy()
+        out["final_obs"], out["_final_obs"] = final_obs, done.copy()
+        out["final_info"], out["_final_info"] = self._vector_info(all_infos, done), done.copy()
+        rinfo = self._reset_envs(np.flatnonzero(done), None)
+        self._vector_info(rinfo, done, out)
         return self.task.observe().copy(), reward, terminated, truncated, out
 
     def render(self):

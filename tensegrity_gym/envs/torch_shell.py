@@ -1,5 +1,5 @@
 """The device-resident vector env shell: a batched task stepped on a torch device (seeding,
-resets on the host or the device, Gymnasium vector infos, action checks, next-step autoreset).
+resets on the host or the device, Gymnasium vector infos, action checks, selectable autoreset).
 What runs where: :mod:`tensegrity_gym.envs.torch_vec`; the two tasks:
 :mod:`tensegrity_gym.envs.torch_tasks`. SI units."""
 from __future__ import annotations
@@ -14,7 +14,7 @@ from gymnasium.utils import seeding
 from .. import torch_backend
 from ..checks import check_action_tensor
 from ..core.param_table import PARAMS
-from .vector_rules import check_autoreset_mode, check_reset_called
+from .vector_rules import check_reset_called
 from .shells import VectorSeeding, episode_limit, reseed
 from .torch_reset import RESET_SAMPLING, CounterStreams, TorchDomain
 from .torch_sensors import TorchSensors
@@ -24,8 +24,10 @@ __all__ = ["TorchTaskVectorEnv"]
 
 class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     """A batched task (:class:`~tensegrity_gym.envs.common.BatchedTask`) stepped on a torch
-    device: seeding, resets on the host, Gymnasium vector infos, action checks, next-step
-    autoreset. Subclasses set ``ENV_ID`` and implement ``_make_task``, ``_init_state``,
+    device: seeding, resets on the host, Gymnasium vector infos, action checks, autoreset as
+    the NumPy vector env's ``autoreset_mode`` (``"next_step"`` default, ``"same_step"``: then
+    ``info["final_obs"]`` is an (N, obs_size) tensor, valid where ``info["_final_obs"]``, and
+    ``info["final_info"]`` a vector info dict of tensors; ``"disabled"``). Subclasses set ``ENV_ID`` and implement ``_make_task``, ``_init_state``,
     ``_upload_rows``, ``_act`` and ``_observe``.
 
     Arguments: those of the id's env plus ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``; ValueError when it does not exist),
@@ -47,8 +49,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, max_episode_steps="registered", device=None, dtype=None,
                  backend: str = "torch", render_mode: str | None = None, compile: bool = False,
-                 reset_sampling: str = "host", **kwargs):
-        kwargs = check_autoreset_mode(kwargs)
+                 reset_sampling: str = "host", autoreset_mode="next_step", **kwargs):
         torch = torch_backend.torch_module()
         if reset_sampling not in RESET_SAMPLING:
             raise ValueError(f"reset_sampling: expected one of {RESET_SAMPLING}, got {reset_sampling!r}")
@@ -70,6 +71,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self.render_mode = None
         self.metadata = dict(self.metadata)
         self.metadata["render_fps"] = int(round(1.0 / task.control_dt))
+        self._init_autoreset(autoreset_mode)
         np_dtype = np.float64 if self.dtype == torch.float64 else np.float32
         self.single_action_space = spaces.Box(-1.0, 1.0, (task.action_size,), np.float32)
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (task.observation_size,), np_dtype)
@@ -272,6 +274,11 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         check_reset_called(self)
         torch = torch_backend.torch_module()
         a, any_reset = self._check_actions(actions)
+        mode = self.autoreset_mode
+        if any_reset and mode is gym.vector.AutoresetMode.DISABLED:
+            ended = self._autoreset.nonzero()[:, 0].tolist()
+            raise gym.error.ResetNeeded(f"autoreset_mode='disabled': envs {ended} ended; reset them "
+                                        "(reset(options={'env_idx': idx}) or {'reset_mask': mask}) before stepping them")
         reset_now = self._autoreset.clone()
         if any_reset:
             a = torch.where(reset_now[:, None], torch.zeros_like(a), a)
@@ -287,6 +294,8 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         all_infos = dict(infos)
         for name, v in terms.items():
             all_infos[f"reward_{name}"] = v
+        if mode is gym.vector.AutoresetMode.SAME_STEP:
+            return self._same_step(reward, terminated, truncated, all_infos)
         out = self._vector_info(all_infos, ~reset_now)
         if any_reset:
             rinfo = self._reset_envs(reset_now, None)
@@ -296,6 +305,28 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             truncated = truncated & ~reset_now
         self._autoreset = terminated | truncated
         return self._observe(), reward, terminated, truncated, out
+
+    def _same_step(self, reward, terminated, truncated, all_infos):
+        """SAME_STEP: the envs that ended are reset in this step (one more small device -> host
+        read: whether any ended); ``info["final_obs"]`` (N, obs_size) holds the observation
+        before the reset, ``info["final_info"]`` that step's infos, both masked by ``done``."""
+        done = terminated | truncated
+        obs = self._observe()
+        if not bool(done.any()):
+            return obs, reward, terminated, truncated, self._vector_info(all_infos, ~done)
+        out = self._vector_info(all_infos, ~done)
+        out["final_obs"], out["_final_obs"] = obs.clone(), done.clone()
+        out["final_info"], out["_final_info"] = self._vector_info(all_infos, done), done.clone()
+        rinfo = self._reset_envs(done, None)
+        self._vector_info(rinfo, done, out)
+        return self._observe(), reward, terminated, truncated, out
+
+    def render(self):
+        """None with a warning (the torch env does not render; render the NumPy env); a trainer
+        that renders every step (skrl's default) runs on."""
+        gym.logger.warn(f"render(): backend='torch' does not render; render the NumPy env "
+                        f"(gymnasium.make({self.ENV_ID!r}, render_mode='rgb_array'))")
+        return None
 
     def close_extras(self, **kwargs):
         pass

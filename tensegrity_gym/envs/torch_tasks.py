@@ -3,6 +3,7 @@ the rolling robot (``TensegrityRoll-v0``) and shape tracking (``TensegrityShape-
 ``backend="torch"`` (see :mod:`tensegrity_gym.envs.torch_vec` for what runs where)."""
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 
 from .. import torch_backend
@@ -16,8 +17,11 @@ from .torch_shell import TorchTaskVectorEnv
 
 __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv"]
 
+# gymnasium.vector.VectorEnv is listed as a direct base of each env class: libraries that pick their
+# wrapper from the class's __bases__ (skrl's wrap_env) then recognise a Gymnasium vector env
 
-class TorchRollVectorEnv(TorchTaskVectorEnv):
+
+class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc)."""
 
     ENV_ID = "TensegrityRoll-v0"
@@ -151,7 +155,7 @@ class TorchRollVectorEnv(TorchTaskVectorEnv):
 
 
 
-class TorchShapeVectorEnv(TorchTaskVectorEnv):
+class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     """``TensegrityShape-v0`` on N copies stepped on a torch device: the task of
     :class:`~tensegrity_gym.envs.shape.ShapeTask` (targets and initial states drawn on the host
     at reset from each env's generator; control update, physics with the model's node drag,

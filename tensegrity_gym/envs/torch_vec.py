@@ -69,10 +69,13 @@ NumPy env's reset), paid when envs finish; ``reset_sampling="device"`` took 1.7-
 on the same CPU at B = 1,024-16,384 (``scripts/bench_gpu.py --env-reset``, ``docs/bench_gpu.md``).
 
 Autoreset and seeding are those of :class:`~tensegrity_gym.envs.common.TaskVectorEnv`:
-``AutoresetMode.NEXT_STEP``; ``reset(seed=s)`` seeds env i with ``s + i`` (with device resets:
+``autoreset_mode`` ``"next_step"`` (default), ``"same_step"`` or ``"disabled"``; ``reset(seed=s)`` seeds env i with ``s + i`` (with device resets:
 keys env i's stream with ``s + i``; ``np_random_list`` then holds host generators the env does
 not read); ``reset(options=
-{"reset_mask": mask})`` resets the envs where the (N,) bool mask (NumPy or tensor) is true;
+{"reset_mask": mask})`` resets the envs where the (N,) bool mask (NumPy or tensor) is true,
+``reset(options={"env_idx": idx})`` the envs ``idx`` (the device-env convention of ManiSkill,
+Isaac Lab and skrl); :mod:`tensegrity_gym.envs.torch_wrappers` has episode statistics and
+normalisation wrappers that accept its tensors;
 ``max_episode_steps`` (``make_vec`` passes the registered 1000) truncates every env.
 """
 from __future__ import annotations

@@ -1,13 +1,23 @@
 """The vector envs' rules shared by the NumPy and the torch shells: per-env seeds, no step before
-``reset()``, and the autoreset mode they implement (Gymnasium's NEXT_STEP)."""
+``reset()``, the autoreset mode (Gymnasium 1.x's ``AutoresetMode``: ``NEXT_STEP`` default,
+``SAME_STEP``, ``DISABLED``), the partial-reset options (``reset_mask``, ``env_idx``) and
+Gymnasium's ``call`` / ``get_attr`` / ``set_attr`` on a batched env (one object for N copies)."""
 from __future__ import annotations
 
+from typing import Any
+
+import numpy as np
 from gymnasium.error import ResetNeeded
 from gymnasium.vector import AutoresetMode
 
-from ..core.checks import is_integer
+from ..core.checks import check_options, is_integer
 
-__all__ = ["check_seed_value", "check_reset_called", "check_autoreset_mode"]
+__all__ = ["check_seed_value", "check_reset_called", "check_autoreset_mode", "reset_mask_option",
+           "VectorApi"]
+
+# by name without case or separators: "next_step" / "NextStep" / "NEXT_STEP", "same_step", "disabled"
+_MODES = {m.name.replace("_", "").lower(): m for m in AutoresetMode}
+_NAMES = ["next_step", "same_step", "disabled"]
 
 
 def check_seed_value(seed, i: int = 0):
@@ -28,18 +38,126 @@ def check_reset_called(env) -> None:
         raise ResetNeeded("Cannot call env.step() before calling env.reset()")
 
 
-def check_autoreset_mode(kwargs: dict) -> dict:
-    """``kwargs`` without ``autoreset_mode``: the vector envs autoreset on the next step only
-    (``gymnasium.vector.AutoresetMode.NEXT_STEP``, or ``"next_step"``); any other request is a
-    ValueError saying which autoreset mode the env implements."""
-    if "autoreset_mode" not in kwargs:
-        return kwargs
-    kwargs = dict(kwargs)
-    mode = kwargs.pop("autoreset_mode")
-    ok = mode is AutoresetMode.NEXT_STEP or (isinstance(mode, str) and mode.replace("_", "").lower() == "nextstep")
-    if not ok:
-        raise ValueError(f"autoreset_mode: these vector envs autoreset in NEXT_STEP mode only (an env that ended "
-                         f"is reset by the following step() call), got {mode!r}; choose "
-                         "gymnasium.vector.AutoresetMode.NEXT_STEP or wrap single envs in SyncVectorEnv("
-                         "..., autoreset_mode=...) for SAME_STEP / DISABLED")
-    return kwargs
+def check_autoreset_mode(mode) -> AutoresetMode:
+    """``mode`` as a ``gymnasium.vector.AutoresetMode``: the enum itself or its value
+    (``"next_step"``, ``"same_step"``, ``"disabled"``; case and ``-`` / ``_`` ignored);
+    ValueError naming the three otherwise.
+
+    * ``NEXT_STEP``: an env that ended is reset by the following ``step()`` (its action ignored;
+      reward 0, ``terminated = truncated = False``).
+    * ``SAME_STEP``: it is reset inside the step that ended it; the step returns the reset
+      observation, the episode's last observation in ``info["final_obs"]`` and its step info in
+      ``info["final_info"]`` (masks ``"_final_obs"`` / ``"_final_info"``).
+    * ``DISABLED``: never reset by ``step()``; the caller resets ended envs with
+      ``reset(options={"reset_mask": mask})`` (or ``{"env_idx": idx}``) before stepping them.
+    """
+    if isinstance(mode, AutoresetMode):
+        return mode
+    if isinstance(mode, str):
+        key = mode.strip().lower().replace("-", "").replace("_", "")
+        if key in _MODES:
+            return _MODES[key]
+    raise ValueError(f"autoreset_mode: expected one of {_NAMES} or a gymnasium.vector.AutoresetMode, "
+                     f"got {mode!r}")
+
+
+def _host(x):
+    """A torch tensor brought to the host as a NumPy array; anything else as given."""
+    if hasattr(x, "detach") and hasattr(x, "cpu"):
+        return x.detach().cpu().numpy()
+    return x
+
+
+def reset_mask_option(options, num_envs: int) -> tuple[np.ndarray, dict]:
+    """(mask (N,) bool of the envs to reset, the other options) from ``reset(options=...)``:
+    ``"reset_mask"`` (Gymnasium: a bool (N,) array or tensor) or ``"env_idx"`` (the
+    device-env convention of ManiSkill, Isaac Lab and skrl: indices, an int array, list or
+    tensor); neither: every env. ValueError for both, a wrong shape or dtype, or an index out of
+    range."""
+    N = num_envs
+    options = check_options(options)
+    mask = options.pop("reset_mask", None)
+    idx = options.pop("env_idx", None)
+    if mask is not None and idx is not None:
+        raise ValueError("options: give 'reset_mask' or 'env_idx', not both")
+    if idx is not None:
+        idx = np.asarray(_host(idx))
+        if idx.ndim > 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
+            raise ValueError(f"options['env_idx']: expected a 1-D array of env indices, got {idx.dtype} {idx.shape}")
+        idx = idx.reshape(-1).astype(np.int64)
+        if idx.size and (idx.min() < -N or idx.max() >= N):
+            raise ValueError(f"options['env_idx']: indices must lie in [0, {N}), got {idx.tolist()}")
+        mask = np.zeros(N, bool)
+        mask[idx] = True
+        return mask, options
+    if mask is None:
+        return np.ones(N, bool), options
+    mask = np.asarray(_host(mask))
+    if mask.shape != (N,) or mask.dtype != np.bool_:
+        raise ValueError(f"options['reset_mask']: expected a bool array of shape ({N},), "
+                         f"got {mask.dtype} {mask.shape}")
+    return mask, options
+
+
+class VectorApi:
+    """Gymnasium's ``VectorEnv`` methods over the N copies of a batched env, which are one object:
+
+    * ``call(name, *args, **kwargs)``: calls the method ``name`` once (or reads the attribute);
+      a result that is a tuple or list with one entry per copy (``render()``'s frames) is
+      returned as that tuple, any other result repeated N times (Gymnasium returns one result
+      per sub-env);
+    * ``get_attr(name)``: ``call(name)``; ``"np_random"`` gives each copy's own generator;
+    * ``set_attr(name, values)``: one value (or a list / tuple of N equal values) set on the
+      shared object; ``"np_random"`` takes one generator per copy. Different values for
+      different copies of a shared attribute are a ValueError (use a ``SyncVectorEnv`` of
+      single envs for that).
+    Sets ``autoreset_mode`` (attribute and ``metadata["autoreset_mode"]``, as ``SyncVectorEnv``).
+    """
+
+    #: how ``step`` autoresets (:func:`check_autoreset_mode`)
+    autoreset_mode: AutoresetMode = AutoresetMode.NEXT_STEP
+
+    def _init_autoreset(self, mode) -> None:
+        self.autoreset_mode = check_autoreset_mode(mode)
+        self.metadata = dict(self.metadata)
+        self.metadata["autoreset_mode"] = self.autoreset_mode
+
+    def _per_copy(self, result) -> tuple:
+        if isinstance(result, (list, tuple)) and len(result) == self.num_envs:
+            return tuple(result)
+        return tuple(result for _ in range(self.num_envs))
+
+    def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
+        """The method ``name`` called with ``args`` / ``kwargs`` (an attribute: its value), as a
+        tuple of N per-copy results."""
+        if name == "np_random":
+            return tuple(self._rngs)
+        fn = getattr(self, name)
+        return self._per_copy(fn(*args, **kwargs) if callable(fn) else fn)
+
+    def get_attr(self, name: str) -> tuple[Any, ...]:
+        """The attribute ``name`` of each copy (a tuple of N)."""
+        return self.call(name)
+
+    def set_attr(self, name: str, values: list[Any] | tuple[Any, ...] | Any) -> None:
+        """Set the attribute ``name``: one value for every copy, or a list / tuple of N values
+        (equal ones for a shared attribute; one generator per copy for ``"np_random"``)."""
+        N = self.num_envs
+        per = list(values) if isinstance(values, (list, tuple)) else [values] * N
+        if len(per) != N:
+            raise ValueError(f"set_attr({name!r}): expected one value or {N} values, got {len(per)}")
+        if name == "np_random":
+            self._rngs[:] = per
+            return
+        first = per[0]
+        for v in per[1:]:
+            same = v is first
+            if not same:
+                try:
+                    same = bool(np.all(v == first))
+                except Exception:
+                    same = False
+            if not same:
+                raise ValueError(f"set_attr({name!r}): the {N} copies of this batched env share the attribute; "
+                                 "give one value (or N equal ones), or use a SyncVectorEnv of single envs")
+        setattr(self, name, first)

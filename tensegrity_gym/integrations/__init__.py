@@ -1,2 +1,5 @@
-"""Adapters to other libraries: Stable-Baselines3 (:mod:`.sb3`) and rl-baselines3-zoo (:mod:`.zoo`,
-the module to name in ``rl_zoo3 ... --gym-packages tensegrity_gym.integrations.zoo``)."""
+"""Adapters to other libraries, each importing its library only when used: Stable-Baselines3
+(:mod:`.sb3`), rl-baselines3-zoo (:mod:`.zoo`, the module to name in ``rl_zoo3 ...
+--gym-packages tensegrity_gym.integrations.zoo``), rsl_rl (:mod:`.rsl_rl`: the ``VecEnv`` of its
+``OnPolicyRunner``) and tianshou (:mod:`.tianshou`: a ``BaseVectorEnv``). skrl, TorchRL and
+CleanRL-style scripts take the vector envs as they are (``docs/integrations.md``)."""

@@ -51,6 +51,12 @@ def _build_class():
         """SB3 ``VecEnv`` over a gymnasium ``VectorEnv`` (see :func:`make_sb3_vec_env`)."""
 
         def __init__(self, venv):
+            from gymnasium.vector import AutoresetMode
+            # the adapter resets ended envs itself right after their last step: an env that already
+            # reset them in that step (same_step) would be reset twice
+            if venv.metadata.get("autoreset_mode") == AutoresetMode.SAME_STEP:
+                raise ValueError("make_sb3_vec_env: the adapter resets ended envs itself; build the vector env with "
+                                 "autoreset_mode='next_step' (the default) or 'disabled', not 'same_step'")
             self.venv = venv
             super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
             self._actions = None
