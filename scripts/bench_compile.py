@@ -42,14 +42,17 @@ env.reset(seed=0)
 t1 = time.perf_counter()
 env.step(env.action_space.sample())
 t2 = time.perf_counter()
-print(json.dumps({"make_reset_s": t1 - t0, "first_step_s": t2 - t1, "total_s": t2 - t0, "kernels_s": top}))
+print(json.dumps({"make_reset_s": t1 - t0, "first_step_s": t2 - t1, "total_s": t2 - t0, "kernels_s": top,
+                  "package": tensegrity_gym.__file__}))
 """
 
 
 def cold(env_id: str) -> dict:
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache, TENSEGRITY_GYM_QUIET="1")
-        r = subprocess.run([sys.executable, "-c", CHILD, env_id], capture_output=True, text=True, env=env)
+        # cwd: the empty folder, so that the child imports the package PYTHONPATH names, not the one
+        # in the current directory
+        r = subprocess.run([sys.executable, "-c", CHILD, env_id], capture_output=True, text=True, env=env, cwd=cache)
     if r.returncode:
         raise SystemExit(f"{env_id}: the measurement failed:\n{r.stderr[-2000:]}")
     return json.loads(r.stdout.strip().splitlines()[-1])
@@ -72,6 +75,7 @@ def main(argv=None) -> int:
         out["runs"][env_id] = runs
         for r in runs:
             ks = ", ".join(f"{k} {v:.1f}" for k, v in sorted(r["kernels_s"].items(), key=lambda kv: -kv[1]) if v >= 0.5)
+            assert r["package"].startswith(out["package"]), (r["package"], out["package"])
             print(f"| {env_id} | {r['make_reset_s']:.1f} | {r['first_step_s']:.1f} | {r['total_s']:.1f} | {ks} |",
                   flush=True)
     if args.json:
