@@ -32,8 +32,8 @@ def test_recipe_runs_and_recovers_the_true_robot(tmp_path):
     k, c = np.array(fit["values"]["stiffness"]), np.array(fit["values"]["damping"])
     np.testing.assert_allclose(k, 1200.0, rtol=0.02)
     np.testing.assert_allclose(c, 0.5, rtol=0.2)
-    # without the start value: exit status 2, the command-line remedy, no Python syntax
+    # without the start value: exit status 3 (bad input), the command-line remedy, no Python syntax
     argv = [sys.executable] + re.sub(r"--initial \S+ ", "", cmds[-1]).split()[1:]
     r = subprocess.run(argv + ["--force"], cwd=tmp_path, capture_output=True, text=True, env=env, timeout=600)
-    assert r.returncode == 2
+    assert r.returncode == 3
     assert "start it with --initial damping=VALUE (N s/m)" in r.stderr and "initial={" not in r.stderr

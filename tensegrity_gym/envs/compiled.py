@@ -147,8 +147,8 @@ def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, speed, obs):
             obs[b, o + i] = np.float32(speed[b, i])
 
 
-def _shape_step_py(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out, obs,
-                   dist, stats, success, elapsed, simd):
+def _shape_step_py(q, qd, ctrl, action, target, plan, offset, fcon, icon, qo, qdo, ctrl_out, obs, dist, stats, success,
+                   elapsed, simd):
     """One control step of the shape task in ONE compiled call (``ShapeTask.step``'s fast
     path): the control update (``pipeline.apply_controls``), the physics of a
     :class:`tensegrity_gym.pipeline.Plan` (``buf``, ``dt``, ``n_steps``, ``flags``:
@@ -170,8 +170,9 @@ def _shape_step_py(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset,
     (done but mean/max left to NumPy: nt >= 8), 1 (physics done, state diverged: outputs
     ``qo``, ``qdo``, ``ctrl_out`` valid, the rest not computed) or -1 (shapes do not fit:
     nothing valid, the caller runs the reference path, which raises the right error).
-    ``simd``: None for the instance :func:`shape_step` (fewer than the SIMD batch, the plan's
-    ``simd`` False), True for :func:`shape_step_simd`."""
+    ``plan``: the tuple (buf, dt, n_steps, flags) of :func:`shape_step`'s arguments. ``simd``:
+    None for the instance :func:`shape_step` (the plan's ``simd`` False), True for
+    :func:`shape_step_simd`."""
     fill_base, na, m, nt = icon[0] != 0, icon[1], icon[2], icon[3]
     B = q.shape[0]
     if (ctrl.shape[0] != B or ctrl.shape[1] != na or action.shape[0] != B or action.shape[1] != na
@@ -193,6 +194,7 @@ def _shape_step_py(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset,
         for b in range(B):
             for j in range(m):
                 phys[b, j] = phys[b, j] + offset[b if per else 0, j]
+    buf, dt, n_steps, flags = plan
     if simd is None:       # a compile-time constant: each instance holds one physics kernel
         err = _run_plan(q, qd, qo, qdo, buf, phys, dt, n_steps, flags)
     else:
@@ -229,7 +231,7 @@ _shape_step_inline = njit(inline="always", cache=True)(_shape_step_py)
 def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out, obs,
                dist, stats, success, elapsed):
     """:func:`_shape_step_py` for a plan run one copy at a time (``plan.simd`` False)."""
-    return _shape_step_inline(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo,
+    return _shape_step_inline(q, qd, ctrl, action, target, (buf, dt, n_steps, flags), offset, fcon, icon, qo, qdo,
                               ctrl_out, obs, dist, stats, success, elapsed, None)
 
 
@@ -237,7 +239,7 @@ def shape_step(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fco
 def shape_step_simd(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo, ctrl_out,
                     obs, dist, stats, success, elapsed):
     """:func:`_shape_step_py` for a plan run in SIMD blocks (``plan.simd`` True)."""
-    return _shape_step_inline(q, qd, ctrl, action, target, buf, dt, n_steps, flags, offset, fcon, icon, qo, qdo,
+    return _shape_step_inline(q, qd, ctrl, action, target, (buf, dt, n_steps, flags), offset, fcon, icon, qo, qdo,
                               ctrl_out, obs, dist, stats, success, elapsed, True)
 
 

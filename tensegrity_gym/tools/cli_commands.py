@@ -211,7 +211,7 @@ def cmd_identify(args) -> int:
                                  rest_length=rl, node_mask=mask, window=args.window, integrator=args.integrator,
                                  dt=args.dt, stride=args.stride, total_mass=args.total_mass, initial=initial)
     except sysid.StartValueError as e:     # a zero start value: the command-line remedy
-        raise CLIError(EXIT_USAGE, f"{e.problem}: start it with --initial {e.name}=VALUE "
+        raise CLIError(EXIT_STRUCTURE, f"{e.problem}: start it with --initial {e.name}=VALUE "
                        f"({e.unit})") from None
     except ValueError as e:     # the trajectory does not fit the structure, too short, ...: bad input
         raise CLIError(EXIT_STRUCTURE, str(e)) from None
