@@ -1,6 +1,10 @@
-"""The before/after speed table of this folder's bench_rerun.sh outputs (best of rounds 3 and 4 per row)."""
-import csv, glob, os, re
-B = os.path.dirname(os.path.abspath(__file__))
+"""The before/after speed table of run.sh's outputs (best of rounds 3 and 4 per row).
+
+    python scripts/refactor/session28_bench/table.py [results/refactor/session28]
+"""
+import csv, glob, os, re, sys
+HERE = os.path.dirname(os.path.abspath(__file__))
+B = sys.argv[1] if len(sys.argv) > 1 else os.path.join(HERE, "..", "..", "..", "results", "refactor", "session28")
 def kern(side):
     best = {}
     for f in glob.glob(f"{B}/{side}_kern_[34].txt"):

@@ -3,7 +3,7 @@
 set -u
 OLD=${OLD:?checkout before}; NEW=${NEW:?checkout after}
 export TENSEGRITY_GYM_QUIET=1
-OUT=$(cd "$(dirname "$0")" && pwd)
+OUT=${OUT:-$(cd "$(dirname "$0")/../../../results/refactor/session28" && pwd)}
 KERN=$NEW/scripts/refactor/house_bench/kern.py
 for round in 3 4; do
   for side in base main; do
