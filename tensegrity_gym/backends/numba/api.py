@@ -99,7 +99,7 @@ from .compile import NCHUNK as _NCHUNK, PARALLEL_MIN_WORK, _compile, _parallel, 
 from .entries import (_contact_loop, _contact_loop_simd, _contact_parallel, _run_acc, _run_copies_serial, _run_forces,
                       _run_lean, _run_parallel, _run_project, _run_serial, _run_serial_simd)
 from .layout import _ACC, _CHUNK_SHIFT, _CONS, _ERRORS, _EXT, _FD, _L0DEF, _PONLY, _RK4, _SOA_MIN_BATCH
-from .pack import _CACHE, _array, _flags, _packed, _pack_params, clear_cache
+from .pack import _CACHE, _array, _flags, _pack, _pack_params, clear_cache
 from .plans import Plan, lean_plan, make_plan, packed
 
 __all__ = ["step", "step_inplace", "accelerations", "string_forces", "project", "contact_steps", "Plan",
@@ -168,6 +168,12 @@ def _controls(p, flags, rest_length, force_density, external):
     return l0, fd, ext, flags
 
 
+def _control_arrays(p, flags, rest_length, force_density, external):
+    """:func:`_controls` with its arrays converted for the kernel boundary (C-contiguous float64)."""
+    l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
+    return _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external"), flags
+
+
 def _copies_step(model, p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_steps, flags, inplace):
     """:func:`step` / :func:`step_inplace` with per-copy buffers ``p.bufs`` (B, len)."""
     if inplace:
@@ -184,8 +190,7 @@ def _copies_call(p, q, qd, qo, qdo, rest_length, force_density, external, dt, n_
     """One step call with per-copy buffers ``p.bufs`` (B, len): inputs converted at the boundary."""
     if not _READY["copies"]:
         _compile("copies")
-    l0, fd, ext, flags = _controls(p, flags, rest_length, force_density, external)
-    l0, fd, ext = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external")
+    l0, fd, ext, flags = _control_arrays(p, flags, rest_length, force_density, external)
     if not (isinstance(dt, (int, float, np.floating, np.integer)) and isinstance(n_steps, (int, np.integer))):
         raise TypeError(f"dt must be a number of seconds and n_steps an integer; got {dt!r}, {n_steps!r}")
     B = q.shape[0]
@@ -207,7 +212,7 @@ def step(model, state, dt, name, *, rest_length=None, force_density=None, extern
     with ``q``, ``qd`` (B, k, 6) and ``t = state.t + n_steps * dt`` (summed step by step, as
     the NumPy path does). The input state is not modified. ``params``: per-copy physical values
     (:class:`~tensegrity_gym.core.params.Params`, 1 or B rows)."""
-    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
+    p = (_CACHE.get(id(model)) or _pack(model)) if params is None else _pack_params(model, params)
     flags = _flags(p, name, project)
     q = state.q
     qd = state.qd
@@ -253,7 +258,7 @@ def step_inplace(model, q, qd, dt, name="semi_implicit_euler", *, rest_length=No
     **in place** by ``n_steps`` steps of ``dt`` s. The fast path for environments that own
     their state arrays: no allocation, no :class:`State`. Other arguments as :func:`step`.
     Returns None; the caller tracks time. ``params``: per-copy physical values, as in :func:`step`."""
-    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
+    p = (_CACHE.get(id(model)) or _pack(model)) if params is None else _pack_params(model, params)
     flags = _flags(p, name, project)
     if p.bufs is not None:
         _copies_step(model, p, q, qd, q, qd, rest_length, force_density, external, dt, n_steps, flags, True)
@@ -266,13 +271,12 @@ def accelerations(model, q, qd, rest_length=None, force_density=None, external=N
     or (k, 6): the result has the same shape): :func:`tensegrity_gym.physics.accelerations` (the
     NumPy reference; equal to round-off, ``tests/test_kernels.py``) computed by the loop driver's
     own force and rod equations (``_acc``), no step taken. Inputs as :func:`step`."""
-    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
+    p = (_CACHE.get(id(model)) or _pack(model)) if params is None else _pack_params(model, params)
     if not _READY["acc"]:
         _compile("acc")
     shape = np.shape(q)
     q, qd = _array(q, 3, "q"), _array(qd, 3, "qd")
-    l0, fd, ext, flags = _controls(p, p.flags, rest_length, force_density, external)
-    l0, fd, ext = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external")
+    l0, fd, ext, flags = _control_arrays(p, p.flags, rest_length, force_density, external)
     A = np.empty(q.shape)
     err = _run_acc(q, qd, p.bufs if p.bufs is not None else p.buf[None], l0, fd, ext, flags, A)
     if err:
@@ -286,12 +290,11 @@ def string_forces(model, q, qd, rest_length=None, force_density=None, external=N
     (B, n, 3), N (strings, gravity, node drag, ``external``): the loop driver's own force
     equations (:func:`_forces`, what every step evaluates), no step taken. Inputs as
     :func:`step` (``external`` an array); ``params`` per-copy physical values (1 or B rows)."""
-    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
+    p = (_CACHE.get(id(model)) or _pack(model)) if params is None else _pack_params(model, params)
     if not _READY["forces"]:
         _compile("forces")
     q, qd = _array(q, 3, "q"), _array(qd, 3, "qd")
-    l0, fd, ext, flags = _controls(p, p.flags, rest_length, force_density, external)
-    l0, fd, ext = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density"), _array(ext, 3, "external")
+    l0, fd, ext, flags = _control_arrays(p, p.flags, rest_length, force_density, external)
     B, m, n = q.shape[0], model.n_strings, model.n_nodes
     G, LS, F = np.empty((B, m)), np.empty((B, m)), np.empty((B, n, 3))
     bufs = p.bufs if p.bufs is not None else p.buf[None]
@@ -307,7 +310,7 @@ def project(model, q, qd):
     or plane with their velocity tangent to it; free rods' reference points untouched. The loop
     driver's own ``_project`` (what every fixed step with ``project=True`` ends with), no step
     taken. The projection is topology only: per-copy parameters do not enter it."""
-    p = _CACHE.get(id(model)) or _packed(model)
+    p = _CACHE.get(id(model)) or _pack(model)
     if not _READY["project"]:
         _compile("project")
     shape = np.shape(q)
@@ -327,7 +330,7 @@ def contact_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
     thread) or, for a batch with enough work for the parallel kernel (``_parallel``),
     :func:`_contact_parallel` (chunks of the batch on all threads, every sub-step inside). False
     (nothing done) for arrays the kernels do not take as they are: the Python loop converts them."""
-    p = (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
+    p = (_CACHE.get(id(model)) or _pack(model)) if params is None else _pack_params(model, params)
     flags = _flags(p, name, project)
     for x in (q, qd, forces):
         if not (type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable):

@@ -98,7 +98,7 @@ def _pack_params(model, params):
     p = _CACHE.get(key)
     if p is not None:
         return p
-    base = _CACHE.get(id(model)) or _packed(model)
+    base = _CACHE.get(id(model)) or _pack(model)
     P = params.batch_size
     parent = params.parent() if params.parent is not None else None
     pp = None if parent is None else _CACHE.get(("params", id(parent), id(model)))
@@ -155,9 +155,3 @@ def _flags(p, name, project):
         bits = _STEPPERS[fixed_step_name(name, "numba")]
     flags = p.flags | bits
     return flags | _PROJ if project else flags
-
-
-
-def _packed(model):
-    """The packed buffer of ``model`` (cached; compiles nothing: each entry kernel compiles at its first use)."""
-    return _pack(model)

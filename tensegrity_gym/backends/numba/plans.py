@@ -15,7 +15,7 @@ import numpy as np
 from .compile import _READY, _compile, _parallel
 from .entries import _run_lean
 from .layout import _FD, _L0DEF, _SOA_MIN_BATCH
-from .pack import _CACHE, _flags, _packed, _pack_params
+from .pack import _CACHE, _flags, _pack, _pack_params
 
 __all__ = ["Plan", "make_plan", "lean_plan", "packed"]
 
@@ -43,7 +43,7 @@ def make_plan(model, name: str, dt: float, n_steps: int, batch_size: int, contro
     resolved name) on ``batch_size`` copies whose control is ``control`` per string
     (``"rest_length"``, m, or ``"force_density"``, N/m, with the model's rest lengths), or None
     when the batch is large enough for the parallel kernel (then :func:`step` runs it)."""
-    p = _CACHE.get(id(model)) or _packed(model)
+    p = _CACHE.get(id(model)) or _pack(model)
     flags = _flags(p, name, True)
     if batch_size >= 8 and _parallel(p, batch_size, n_steps, flags):
         return None
@@ -64,7 +64,7 @@ def lean_plan(model, name: str, project: bool = True):
     steps ``q``, ``qd`` (B, k, 6) in place and returns the error code (0: done; the arrays are
     untouched otherwise). It raises TypeError for arrays it does not take as they are (another
     dtype, layout or a read-only array): :func:`step_inplace` converts or refuses those."""
-    p = _CACHE.get(id(model)) or _packed(model)
+    p = _CACHE.get(id(model)) or _pack(model)
     if not _READY["lean"]:
         _compile("lean")
     return _run_lean, p.buf, _flags(p, name, project)
@@ -74,4 +74,4 @@ def packed(model, params=None):
     """The packed buffer(s) of ``model`` (or of ``params``, a :class:`~tensegrity_gym.core.params.Params`
     of it), cached for their lifetime: an object with ``buf`` (len,) shared by every copy, or
     ``bufs`` (B, len) one per copy. What a step reuses from call to call."""
-    return (_CACHE.get(id(model)) or _packed(model)) if params is None else _pack_params(model, params)
+    return (_CACHE.get(id(model)) or _pack(model)) if params is None else _pack_params(model, params)
