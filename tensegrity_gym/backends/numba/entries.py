@@ -248,17 +248,14 @@ def _run_project(q, qd, bufs, flags, qo, qdo):
     ``bufs[0]``). A kernel of its own so that a projection does not compile the stepping
     driver. Returns the error code (0: done)."""
     ibs = bufs.view(np.int64)
-    k = ibs[0, 0]
-    B = q.shape[0]
-    if q.shape[1] != k or q.shape[2] != 6:
-        return 1
-    if qd.shape[0] != B or qd.shape[1] != k or qd.shape[2] != 6:
-        return 2
-    if qo.shape[0] != B or qo.shape[1] != k or qo.shape[2] != 6 or qdo.shape[0] != B or qdo.shape[1] != k \
-            or qdo.shape[2] != 6:
-        return 6
     w, ib = bufs[0], ibs[0]
-    L = _layout_nb(k, ib[1], ib[2])
+    k, m, n = ib[0], ib[1], ib[2]
+    d2 = q[0]                             # control placeholders of the right type, never read (_L0DEF)
+    err = _check(q, qd, qo, qdo, k, m, n, d2, d2, q, _L0DEF)
+    if err:
+        return err
+    B = q.shape[0]
+    L = _layout_nb(k, m, n)
     Q = np.empty((k, 6, 1))
     QD = np.empty((k, 6, 1))
     any_cons = (flags & _CONS) != 0
