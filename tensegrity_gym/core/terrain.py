@@ -281,8 +281,9 @@ class Terrain:
         return cls(**kw)
 
     @classmethod
-    def from_file(cls, path) -> "Terrain":
-        """A terrain from a JSON file (a heightfield ``file`` relative to the JSON file's folder)."""
+    def from_file(cls, path, defaults: dict | None = None) -> "Terrain":
+        """A terrain from a JSON file (a heightfield ``file`` relative to the JSON file's folder);
+        ``defaults``: top-level keys (e.g. contact values) taken where the file has none."""
         p = Path(path)
         try:
             d = json.loads(p.read_text(encoding="utf-8"))
@@ -290,6 +291,8 @@ class Terrain:
             raise ValueError(f"terrain file: cannot read {str(p)!r}: {e.strerror or e}") from None
         except json.JSONDecodeError as e:
             raise ValueError(f"terrain file: not valid JSON ({str(p)!r}, line {e.lineno}: {e.msg})") from None
+        if defaults and isinstance(d, dict):
+            d = {**defaults, **d}
         return cls.from_dict(d, base_dir=p.parent)
 
     def surface(self, part) -> tuple:

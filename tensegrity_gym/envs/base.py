@@ -10,6 +10,7 @@ import numpy as np
 from .. import dynamics
 from .. import integrators, pipeline
 from ..params import default_params
+from ..physics import terrain
 from ..core.param_table import env_fields
 from .domain import Domain, physics_nominal, write_copies
 from ..checks import check_array, check_count, check_flag, check_options
@@ -20,6 +21,16 @@ __all__ = ["BatchedTask", "fixed_step"]
 #: robot parameters (envs/domain.py) that are Params fields of the physics (tensegrity_gym.params):
 #: a view of the parameter table (tensegrity_gym.core.param_table)
 _PHYSICS_FIELDS = env_fields("physics")
+
+
+def _contact_arrays(cs) -> tuple:
+    """The per-copy arrays of a contact state (ground ``ContactState`` or ``TerrainState``)."""
+    return (cs.anchor, cs.active) if not hasattr(cs, "eta0") else (cs.anchor, cs.eta0, cs.active)
+
+
+def _terrain_advance(model, q, qd, dt, name, n_steps, *, tc, tstate, **kw) -> None:
+    """:func:`tensegrity_gym.physics.terrain.advance` with the argument order of ``pipeline.advance``."""
+    terrain.advance(tc, model, q, qd, dt, name, tstate, n_steps=n_steps, **kw)
 
 
 def fixed_step(integrator: str) -> str:
@@ -52,6 +63,10 @@ class BatchedTask:
     observation_size: int
     #: ground contact (tensegrity_gym.contact.GroundContact) of the task, or None: no contact code runs
     contact = None
+    #: terrain contact (tensegrity_gym.physics.terrain.TerrainContact) in place of the level ground, or
+    #: None; with it ``tstate`` (its stick/slip state), ``terrain_geom`` / ``terrain_prm`` /
+    #: ``terrain_hf`` (per-copy feature rows) and ``cstate.active`` the rod ends' contact flags
+    terrain_contact = None
     #: divergence measured from each copy's own centre (a robot that travels), not from the start's
     travels = False
     #: keep the velocities before the last physics step of a control step (``_qd_prev``; IMUs)
@@ -289,25 +304,37 @@ class BatchedTask:
         """:meth:`simulate` with contact, in place on ``q``, ``qd``, ``cstate``; with
         ``track_last_velocity`` the velocities before the last physics step are kept in
         ``_qd_prev`` (what IMUs read)."""
-        q, qd, cs = self.q, self.qd, self.cstate
-        q0, qd0, anchor0, active0 = q.copy(), qd.copy(), cs.anchor.copy(), cs.active.copy()
-        kw = dict(backend=self.backend, params=self.params, contact=self.contact, cstate=cs,
-                  contact_params=self._contact_prm, forces=self._W, slip=self._slip,
-                  compiled=self._kernels_run, **inputs)
+        q, qd = self.q, self.qd
+        tc = self.terrain_contact
+        cs = self.cstate if tc is None else self.tstate
+        saved = [q.copy(), qd.copy()] + [a.copy() for a in _contact_arrays(cs)]
+        if tc is None:
+            kw = dict(backend=self.backend, params=self.params, contact=self.contact, cstate=cs,
+                      contact_params=self._contact_prm, forces=self._W, slip=self._slip,
+                      compiled=self._kernels_run, **inputs)
+            run = pipeline.advance
+        else:
+            kw = dict(backend=self.backend, params=self.params, prm=self.terrain_prm, geom=self.terrain_geom,
+                      forces=self._W, slip=self._terrain_slip, compiled=self._kernels_run, tc=tc, tstate=cs,
+                      **inputs)
+            run = _terrain_advance
         model, dt, name, n = self.model, self.dt, self.integrator, self.frame_skip
         with np.errstate(all="ignore"):
             if self.track_last_velocity:
-                pipeline.advance(model, q, qd, dt, name, n_steps=n - 1, **kw)
+                run(model, q, qd, dt, name, n_steps=n - 1, **kw)
                 self._qd_prev = qd.copy()
-                pipeline.advance(model, q, qd, dt, name, n_steps=1, **kw)
+                run(model, q, qd, dt, name, n_steps=1, **kw)
             else:
-                pipeline.advance(model, q, qd, dt, name, n_steps=n, **kw)
+                run(model, q, qd, dt, name, n_steps=n, **kw)
         diverged = pipeline.diverged(q, qd, self.center0, self.divergence_limit, self.travels)
         if diverged.any():
-            q[diverged], qd[diverged] = q0[diverged], qd0[diverged]
-            cs.anchor[diverged], cs.active[diverged] = anchor0[diverged], active0[diverged]
+            for now, before in zip([q, qd] + list(_contact_arrays(cs)), saved):
+                now[diverged] = before[diverged]
             if self.track_last_velocity:
                 self._qd_prev[diverged] = qd[diverged]
+        if tc is not None:      # the rod ends' flags (what the observation reports) from the terrain's slots
+            B, k = q.shape[0], q.shape[1]
+            self.cstate.active[:] = cs.active.reshape(B, k, -1, 3)[..., :2].any(axis=2).reshape(B, 2 * k)
         self.elapsed += 1
         return diverged
 

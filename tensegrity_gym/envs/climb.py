@@ -65,6 +65,9 @@ class ClimbTask(RollTask):
         if tuple(check_array(c.goal.goal_direction, (2,), "goal_direction")) != (1.0, 0.0):
             raise ValueError(f"goal_direction: the goal of TensegrityClimb-v0 is uphill, (1, 0); got "
                              f"{c.goal.goal_direction!r}")
+        if c.terrain.terrain not in (None, {}):
+            raise ValueError(f"terrain: the ground of {ENV_ID} is its slope (slope_deg, slope_range); for other "
+                             f"terrain use TensegrityRoll-v0's terrain argument, got {c.terrain.terrain!r:.80}")
         for arg in ("params", "randomize"):
             d = getattr(c.randomization, arg)
             if isinstance(d, dict) and "gravity" in d:

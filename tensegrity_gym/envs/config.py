@@ -23,7 +23,7 @@ from ..physics.contact import GroundContact
 from .roll_scene import MAX_CABLE_ACCELERATION, STRING_DAMPING
 
 __all__ = ["TaskConfig", "CableConfig", "SimulationConfig", "ObservationConfig", "RandomizationConfig", "RollRobotConfig", "RollActuationConfig",
-           "ContactConfig", "RollRewardConfig", "GoalConfig", "RollConfig", "SlopeConfig", "ClimbConfig", "climb_config", "ShapeRobotConfig",
+           "ContactConfig", "TerrainConfig", "RollRewardConfig", "GoalConfig", "RollConfig", "SlopeConfig", "ClimbConfig", "climb_config", "ShapeRobotConfig",
            "ShapeActuationConfig", "ShapeRewardConfig", "TargetConfig", "ShapeConfig", "roll_config", "shape_config",
            "flat_fields", "flatten", "with_flat", "flat_signature"]
 
@@ -113,6 +113,17 @@ class ContactConfig:
 
 
 @dataclass(frozen=True)
+class TerrainConfig:
+    """The ground the robot moves on (:mod:`tensegrity_gym.tasks.terrain`): ``terrain`` (None:
+    level ground at z = 0; a ``Terrain``, a terrain file's dict or path; or a generator,
+    ``TerrainGenerator`` or ``{"generator": kind, ...}``, drawn per episode) and
+    ``terrain_difficulty`` in [0, 1], the scale of a generated terrain (the curriculum's knob)."""
+
+    terrain: object = None
+    terrain_difficulty: float = 1.0
+
+
+@dataclass(frozen=True)
 class RollRewardConfig:
     """Reward weights: ``forward_reward_weight`` (s/m), ``ctrl_cost_weight``."""
 
@@ -147,6 +158,7 @@ class RollConfig(TaskConfig):
     contact: ContactConfig = ContactConfig()
     reward: RollRewardConfig = RollRewardConfig()
     goal: GoalConfig = GoalConfig()
+    terrain: TerrainConfig = TerrainConfig()
 
 
 @dataclass(frozen=True)

@@ -125,7 +125,7 @@ ROLL_DOC = r"""
 
     ## Arguments
     ``gymnasium.make("TensegrityRoll-v0", **kwargs)``, or grouped: ``config=`` a
-    :class:`tensegrity_gym.envs.config.RollConfig` (groups robot, simulation, actuation, contact, reward, goal, observation, randomization; defaults
+    :class:`tensegrity_gym.envs.config.RollConfig` (groups robot, simulation, actuation, contact, reward, goal, terrain, observation, randomization; defaults
     ``roll_config()``), each keyword below then replacing its field of ``config``:
 
     | argument | default | meaning |
@@ -159,10 +159,17 @@ ROLL_DOC = r"""
     | ``observation_mode`` | ``"state"`` | ``"robot"``: what a lab robot senses (cable lengths, motor encoders and speeds, rod IMUs, contact switches, goal; :mod:`tensegrity_gym.envs.sensors`) |
     | ``sensor_noise`` | ``None`` | robot mode: ``{block: sigma}`` Gaussian noise, SI units (``cable_length``, ``control``, ``cable_speed``, ``imu_accel``, ``imu_gyro``); ``contact``: the probability p that a switch reads wrong |
     | ``history`` | ``1`` | robot mode: readings stacked, newest first |
+    | ``terrain`` | ``None`` | the ground: ``None`` or ``{}`` level ground at z = 0 (unchanged, the fast path); a terrain file's dict, its JSON path or a ``Terrain`` (sloped plane, boxes, heightfield; ``docs/terrain.md``), the same every episode; or a generator drawn per episode and copy from ``np_random``: ``{"generator": "slope" / "steps" / "rough", ...}`` or a ``TerrainGenerator`` (:mod:`tensegrity_gym.tasks.terrain`). Its contact values default to ``friction``, ``ground_stiffness``, ``ground_damping``. NumPy envs only (the torch device env and the MuJoCo twin refuse it) |
+    | ``terrain_difficulty`` | ``1.0`` | in [0, 1]: scale of a generated terrain (slope, step height, bump amplitude); a curriculum changes it between episodes with ``task.set_terrain_difficulty(d)`` |
     | ``render_mode``, ``width``, ``height`` | ``None``, 480, 480 | ``"rgb_array"`` or ``"human"`` |
 
     ``render()`` draws the rods, the strings coloured by tension, the ground, the path of the
     centre of mass (orange) and a star 0.5 m ahead of it along the goal.
+
+    On a terrain the robot starts where it would on level ground (a generated terrain keeps a
+    level pad around the start), lifted clear of the terrain under it if need be; the contact
+    flags of the observation are the rod ends' contacts with any part of the terrain, and
+    ``goal_direction`` is the direction a generated slope or staircase rises along.
 
     ## Baseline
     :class:`tensegrity_gym.baselines.RollingGait` (no learning): a periodic contraction wave of

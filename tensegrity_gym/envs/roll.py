@@ -22,7 +22,9 @@ from .config import RollConfig, flat_signature, roll_config, with_flat
 from .domain import container_nominal
 from .docs import ROLL_DOC as _DOC
 from .roll_obs import RollObservation
+from ..physics import terrain
 from ..tasks.roll import center_of_mass, perturbed_start, roll_step_terms
+from ..tasks.terrain import TerrainGenerator, generate, resolve_terrain, start_lift
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
                          STRING_DAMPING, load_robot, place_on_ground, put_on_ground, robot_icosahedron,
                          robot_prism, settle)
@@ -159,6 +161,8 @@ class RollTask(RollObservation, BatchedTask):
         self._W = np.zeros((B, n, 3))
         self._slip = np.zeros((B, self.n_contacts), bool)
         self._contact_prm = None     # (B, 9) per-copy contact parameters once any is set (domain)
+        self._init_terrain(c.terrain, allow_unstable_dt, friction, ground_stiffness, ground_damping,
+                           tangential_stiffness, tangential_damping, ground_max_damping)
         extra = container_nominal("contact", self.contact)
         extra.update(container_nominal("actuation", self.actuation))
         self._init_domain(params, randomize, action_delay, start_rest_length_offset, extra)
@@ -174,6 +178,63 @@ class RollTask(RollObservation, BatchedTask):
                 f"{ENV_ID}: dt = {self.dt:.4g} s is above the estimated stability limit {limit:.4g} s of "
                 "semi-implicit Euler with this robot's strings and ground contact"), stacklevel=3)
 
+    def _init_terrain(self, tcfg, allow_unstable_dt, friction, stiffness, damping, tangential_stiffness, tangential_damping,
+                      max_damping) -> None:
+        """The terrain (``tcfg``: :class:`~tensegrity_gym.envs.config.TerrainConfig`): None keeps the
+        level ground (its fast path, no terrain code); a terrain or a generator replaces it with
+        terrain contact of the same contact law (the rods' capsules of ``cap_radius``)."""
+        self.set_terrain_difficulty(tcfg.terrain_difficulty)
+        surface = dict(friction=friction, stiffness=stiffness, damping=damping)
+        spec = resolve_terrain(tcfg.terrain, surface)
+        self.terrain_generator = spec if isinstance(spec, TerrainGenerator) else None
+        if spec is None:
+            self.terrains = None
+            return
+        B = self.num_envs
+        self.terrains = [generate(spec, np.random.default_rng(0), self.goal_direction, self.terrain_difficulty)
+                         if self.terrain_generator is not None else spec] * B
+        self._terrain_kw = dict(radius=self.contact.radius, tangential_stiffness=tangential_stiffness,
+                                tangential_damping=tangential_damping, max_damping=max_damping)
+        tc = self.terrain_contact = self._contact_of(self.terrains[0])
+        self.tstate = terrain.init_terrain_state(tc, self.model, B)
+        self._terrain_slip = np.zeros(self.tstate.active.shape, bool)
+        # per-copy rows (one terrain per copy: a generator's differ in numbers, not in shape)
+        self.terrain_geom = np.repeat(tc.geom, B, axis=0)
+        self.terrain_prm = np.repeat(tc.prm, B, axis=0)
+        limit = terrain.stable_step(tc, self.model)["semi_implicit_euler"]
+        if self.integrator in ("semi_implicit_euler", "rk4"):
+            check_stable_dt(self.model, limit, self.dt, self.integrator, allow_unstable_dt,
+                            "this robot's strings and terrain contact")
+
+    def set_terrain_difficulty(self, difficulty: float) -> None:
+        """The curriculum hook: terrains drawn from the next resets on are scaled by
+        ``difficulty`` in [0, 1] (a generator's slope, step height or bump amplitude)."""
+        d = check_positive(difficulty, "terrain_difficulty", allow_zero=True)
+        if d > 1:
+            raise ValueError(f"terrain_difficulty: must be in [0, 1], got {difficulty!r}")
+        self.terrain_difficulty = d
+
+    def _contact_of(self, t) -> "terrain.TerrainContact":
+        try:
+            return terrain.TerrainContact(t, **self._terrain_kw)
+        except ValueError as e:
+            raise ValueError(f"terrain: {e}") from None
+
+    def _reset_terrain(self, idx, rngs, goal) -> None:
+        """Copies ``idx`` on their terrain: a generator draws each copy's from its generator (after
+        the start's noise and goal); stick/slip state released."""
+        if self.terrain_generator is not None:
+            for j, i in enumerate(idx):
+                t = generate(self.terrain_generator, rngs[j], goal[j], self.terrain_difficulty)
+                tc = self._contact_of(t)
+                if tc.geom.shape[1:] != self.terrain_geom.shape[1:] or tc.hf.shape[1:] != self.terrain_contact.hf.shape[1:]:
+                    raise RuntimeError("terrain generator: a drawn terrain changed its number of parts")
+                self.terrains[i] = t
+                self.terrain_geom[i] = tc.geom[0]
+        self.tstate.anchor[idx] = 0.0
+        self.tstate.eta0[idx] = 0.0
+        self.tstate.active[idx] = False
+
     def _scene_structure(self, s):
         """The placed, settled robot ``s`` as the task's physics runs it (here: as it is; a task
         on another scene, e.g. a slope, changes what the scene changes, such as gravity)."""
@@ -185,6 +246,9 @@ class RollTask(RollObservation, BatchedTask):
             self._contact_prm = self.contact.per_copy(self.num_envs)
         for fld, values in columns.items():
             contact.set_copy_values(self._contact_prm, rows, fld, values)
+            if self.terrain_contact is not None and fld in terrain.PRM_FIELDS:   # every part of the terrain
+                col = self._contact_prm[:, contact.PRM_FIELDS.index(fld)]
+                self.terrain_prm[rows, :, terrain.PRM_FIELDS.index(fld)] = col[rows, None]
 
     def write_actuation(self, rows, fields: dict) -> None:
         """Copies ``rows`` take their own motor limits ``fields`` (``max_rate``, ``max_accel``)."""
@@ -218,6 +282,11 @@ class RollTask(RollObservation, BatchedTask):
         zmin = dynamics.node_positions(self.model, q)[..., 2].min(axis=1)
         lift = np.maximum(self.nodes_nominal[:, 2].min() - zmin, 0.0)
         q[..., 2] += lift[:, None]
+        if self.terrain_contact is not None:     # on a terrain: its own draws, then clear of it
+            self._reset_terrain(idx, rngs, goal)
+            nodes = dynamics.node_positions(self.model, q)
+            for j, i in enumerate(idx):
+                q[j, :, 2] += start_lift(self.terrains[i], nodes[j:j + 1], self.contact.radius)[0]
         self.q[idx], self.qd[idx] = q, qd
         self.cstate.anchor[idx] = 0.0
         self.cstate.active[idx] = False
@@ -262,10 +331,11 @@ class RollTask(RollObservation, BatchedTask):
         goal = com + 0.5 * np.array([self.goal[i, 0], self.goal[i, 1], 0.0])
         goal[2] = self.contact.height
         dist = float((com - self.start[i])[:2] @ self.goal[i])
+        extra = {} if self.terrains is None else {"terrain": self.terrains[i]}
         return {"nodes": dynamics.node_positions(self.model, q)[0], "rods": self.structure.bars,
                 "strings": self.structure.strings, "tensions": (gamma * L)[0], "ground_z": self.contact.height,
                 "path": path, "goal": goal,
-                "caption": f"t = {self.elapsed[i] * self.control_dt:.2f} s, rolled {dist:.2f} m"}
+                "caption": f"t = {self.elapsed[i] * self.control_dt:.2f} s, rolled {dist:.2f} m", **extra}
 
 
 #: the flat arguments (introspection: agents.common.env_argument_names, the shells' manuals)

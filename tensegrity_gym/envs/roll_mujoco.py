@@ -132,6 +132,9 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         check_twin_kwargs(kwargs, ENV_ID)
         if kwargs.get("action_delay", 0):
             raise ValueError(f"action_delay: not supported by {ENV_ID}, got {kwargs['action_delay']!r}")
+        if kwargs.get("terrain") not in (None, {}):
+            raise ValueError(f"terrain: {ENV_ID} runs on level ground only (the MuJoCo scene has a floor plane); "
+                             f"got {kwargs['terrain']!r:.80}")
         if kwargs.get("action_mode", "rest_length") != "rest_length":
             raise ValueError(f"action_mode: {ENV_ID} supports 'rest_length' only, got {kwargs['action_mode']!r}")
         check_mj_integrator(mj_integrator, "mj_integrator")

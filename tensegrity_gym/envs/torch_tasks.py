@@ -28,7 +28,11 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     DEVICE_RESET = True
 
     def _make_task(self, num_envs, kwargs):
-        return RollTask(num_envs=num_envs, **kwargs)
+        task = RollTask(num_envs=num_envs, **kwargs)
+        if task.terrain_contact is not None:
+            raise ValueError("terrain: the torch device env runs on level ground only; the NumPy vector env "
+                             "(backend 'numba') runs terrain contact")
+        return task
 
     def _init_state(self):
         torch = torch_backend.torch_module()

@@ -38,16 +38,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..backends.numba.terrain import BOX, PLANE, terrain_forces_kernel
+from ..backends.numba.terrain_steps import terrain_steps
 from ..core.checks import check_positive
 from ..core.integrators import resolve
 from ..core.model import Model, State
 from ..core.terrain import Box, Plane, Terrain
 from .contact import GroundContact, stable_step as ground_stable_step
-from .pipeline import run_steps as _run_steps
+from .pipeline import compiled_physics, run_steps as _run_steps
 from .stability import check_stability
 
 __all__ = ["TerrainContact", "TerrainState", "init_terrain_state", "contact_forces", "forces_inplace",
-           "contact_energy", "stable_step", "step", "PRM_FIELDS", "SLOTS"]
+           "contact_energy", "stable_step", "step", "advance", "PRM_FIELDS", "SLOTS"]
 
 #: columns of the (P, F, 8) per-feature contact parameters ``prm`` (SI units)
 PRM_FIELDS = ("radius", "stiffness", "damping", "exponent", "friction", "tangential_stiffness",
@@ -121,6 +122,9 @@ class TerrainContact:
         prm.setflags(write=False)
         s(self, "geom", geom)
         s(self, "prm", prm)
+        hf = np.zeros((1, 1, 1))
+        hf.setflags(write=False)
+        s(self, "hf", hf)
 
     @property
     def n_features(self) -> int:
@@ -188,7 +192,7 @@ def contact_forces(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState
     inf = np.empty((B, S, 6) if info else (0, 0, 6))
     terrain_forces_kernel(np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(qd, dtype=np.float64),
                           model.eta, model.rod_a, model.rod_c, _rows(geom, tc.geom, B, 10, "geom"),
-                          _rows(prm, tc.prm, B, 8, "prm"), ts.anchor, ts.eta0, ts.active, slip, W, inf)
+                          _rows(prm, tc.prm, B, 8, "prm"), tc.hf, ts.anchor, ts.eta0, ts.active, slip, W, inf)
     return (W, ts, slip, inf) if info else (W, ts, slip)
 
 
@@ -198,7 +202,7 @@ def forces_inplace(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState
     ``slip`` (B, S) and ``tstate`` updated in place; C-contiguous float64 inputs, shapes are the
     caller's duty."""
     terrain_forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, tc.geom if geom is None else geom,
-                          tc.prm if prm is None else prm, tstate.anchor, tstate.eta0, tstate.active, slip, W,
+                          tc.prm if prm is None else prm, tc.hf, tstate.anchor, tstate.eta0, tstate.active, slip, W,
                           np.empty((0, 0, 6)))
 
 
@@ -226,6 +230,37 @@ def stable_step(tc: TerrainContact, model: Model) -> dict:
     return best
 
 
+def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str, tstate: TerrainState, *,
+            n_steps: int = 1, external=None, prm=None, geom=None, forces=None, slip=None, backend: str = "auto",
+            compiled: bool | None = None, **inputs) -> None:
+    """In place: ``n_steps`` steps of ``dt`` s of ``q``, ``qd`` (B, k, 6), writable C-contiguous
+    float64, and of ``tstate``: per step the terrain forces of the batch from the state at its
+    start (plus ``external`` (B, n, 3) N) held over ONE step of ``integrator`` (a resolved
+    name). ``prm`` / ``geom``: per-copy rows as :func:`contact_forces` takes them (checked by
+    the caller); ``forces`` (B, n, 3) and ``slip`` (B, S) optional scratch; ``inputs``:
+    ``rest_length``, ``force_density``, ``params``, ``project``. With the numba kernels every
+    sub-step runs inside one compiled call (:mod:`tensegrity_gym.backends.numba.terrain_steps`),
+    the same kernels in the same order as the Python loop here (bit-identical)."""
+    B = q.shape[0]
+    prm = tc.prm if prm is None else prm
+    geom = tc.geom if geom is None else geom
+    W = np.empty((B, model.n_nodes, 3)) if forces is None else forces
+    sl = np.empty((B, n_slots(tc, model)), bool) if slip is None else slip
+    if compiled is None:
+        compiled = compiled_physics(integrator, backend)
+    arrays = (geom, prm, tc.hf, tstate.anchor, tstate.eta0, tstate.active, sl)
+    if compiled and terrain_steps(model, q, qd, dt, integrator, n_steps, inputs.get("rest_length"),
+                                  inputs.get("force_density"), external, inputs.get("params"),
+                                  inputs.get("project", True), arrays, W):
+        return
+    for _ in range(int(n_steps)):
+        forces_inplace(tc, model, q, qd, tstate, W, sl, prm, geom)
+        if external is not None:
+            W += external
+        _run_steps(model, q, qd, dt, integrator, n_steps=1, external=W, backend=backend, compiled=compiled,
+                   **inputs)
+
+
 def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: TerrainState,
          integrator: str = "semi_implicit_euler", *, n_steps: int = 1, external=None, prm=None, geom=None,
          backend: str = "auto", **inputs):
@@ -248,14 +283,10 @@ def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: Terr
         raise ValueError(f"terrain state: expected anchor ({B}, {S}, 3) and active ({B}, {S}), got "
                          f"{ts.anchor.shape} and {ts.active.shape}")
     prm, geom = _rows(prm, tc.prm, B, 8, "prm"), _rows(geom, tc.geom, B, 10, "geom")
-    ext = None if external is None else np.asarray(external, dtype=np.float64)
-    W = np.empty((B, model.n_nodes, 3))
-    slip = np.empty((B, S), bool)
+    ext = None if external is None else np.ascontiguousarray(external, dtype=np.float64)
+    advance(tc, model, q, qd, dt, info.name, ts, n_steps=n_steps, external=ext, prm=prm, geom=geom,
+            backend=backend, **inputs)
     t = state.t
     for _ in range(int(n_steps)):
-        forces_inplace(tc, model, q, qd, ts, W, slip, prm, geom)
-        if ext is not None:
-            W += ext
-        _run_steps(model, q, qd, dt, info.name, n_steps=1, external=W, backend=backend, **inputs)
         t = t + dt
     return State(q=q, qd=qd, t=t), ts

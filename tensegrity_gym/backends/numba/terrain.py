@@ -182,7 +182,7 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, 
 
 
 @njit(cache=True, nogil=True)
-def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, anchor, eta0, active, slip, W, info):
+def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, W, info):
     """Terrain contact forces of every copy of ``q``, ``qd`` (B, k, 6) as nodal forces ``W``
     (B, n, 3) N; anchors, the material coordinates ``eta0`` (B, S) m of the rod points anchored,
     active and slip flags (B, S) updated in place; ``info`` filled when it has B rows (see the

@@ -1,0 +1,181 @@
+"""Terrain of a locomotion task: a fixed terrain or one drawn per episode (procedural), as pure
+functions of a seeded generator. SI units: m, degrees.
+
+A task's ``terrain`` argument is one of
+
+* ``None`` (or ``{}``): today's level ground at z = 0 (the ground contact's fast path);
+* a :class:`~tensegrity_gym.core.terrain.Terrain`, a terrain file's dict or the path of a terrain
+  JSON file (:mod:`tensegrity_gym.core.terrain`): the same terrain in every episode;
+* a :class:`TerrainGenerator`, or a dict with the key ``"generator"`` (its other keys the
+  generator's fields): a new terrain per episode and copy, drawn by :func:`generate` from the
+  copy's ``np_random``, scaled by the ``difficulty`` in [0, 1] (the curriculum's knob).
+
+Every generated terrain keeps a level pad of radius ``pad`` m around the start (the origin), so
+the robot starts as on flat ground, and has the same parts and grid shape for a given generator
+(copies of a vector env differ only in numbers). The kinds:
+
+``"slope"``
+    a plane rising along the goal direction at ``difficulty * U(slope_range)`` degrees (the pad
+    is the plane itself: a slope starts at the robot);
+``"steps"``
+    ``n_steps`` ascending steps across the goal direction, the first at ``pad`` m, each ``tread``
+    m deep and ``difficulty * U(0.5, 1) * step_height`` m high, on the level plane;
+``"rough"``
+    a heightfield of ``size`` m square (``cell`` m grid) of smooth random bumps: a sum of
+    ``waves`` cosines of wavelength ``wavelength`` m in random directions and phases, scaled to
+    ``[0, difficulty * amplitude]`` m, faded to 0 inside the pad (and held at its edge values
+    outside the grid).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..core.terrain import Box, Heightfield, Plane, Terrain
+
+__all__ = ["TerrainGenerator", "generate", "resolve_terrain", "KINDS", "start_lift"]
+
+KINDS = ("slope", "steps", "rough")
+#: length of the step boxes across the goal direction and of the last step, m
+STEP_SPAN = 20.0
+
+
+@dataclass(frozen=True)
+class TerrainGenerator:
+    """A procedural terrain (see the module doc). ``kind``: one of :data:`KINDS`. Contact
+    parameters ``friction``, ``stiffness`` (N/m), ``damping`` (s/m): None takes the task's."""
+
+    kind: str
+    slope_range: tuple = (0.0, 20.0)
+    step_height: float = 0.05
+    tread: float = 0.5
+    n_steps: int = 4
+    amplitude: float = 0.02
+    wavelength: float = 0.4
+    waves: int = 8
+    size: float = 12.0
+    cell: float = 0.05
+    pad: float = 0.4
+    friction: float | None = None
+    stiffness: float | None = None
+    damping: float | None = None
+
+    def __post_init__(self):
+        s = object.__setattr__
+        if self.kind not in KINDS:
+            raise ValueError(f"terrain.generator: unknown kind {self.kind!r}; choose one of {list(KINDS)}")
+        try:
+            lo, hi = (float(v) for v in self.slope_range)
+        except (TypeError, ValueError):
+            raise ValueError(f"terrain.slope_range: expected (low, high) degrees, got {self.slope_range!r:.80}") \
+                from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and -60.0 <= lo <= hi <= 60.0):
+            raise ValueError(f"terrain.slope_range: expected -60 <= low <= high <= 60 degrees, got {self.slope_range!r}")
+        s(self, "slope_range", (lo, hi))
+        for name, lo_open in (("step_height", False), ("tread", True), ("amplitude", False), ("wavelength", True),
+                              ("size", True), ("cell", True), ("pad", False)):
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+            if not ok or v < 0 or (lo_open and v == 0):
+                raise ValueError(f"terrain.{name}: must be a {'positive' if lo_open else 'non-negative'} "
+                                 f"number (m), got {v!r}")
+            s(self, name, float(v))
+        for name in ("n_steps", "waves"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"terrain.{name}: must be a positive integer, got {v!r}")
+            s(self, name, int(v))
+        if self.size / self.cell > 2000:
+            raise ValueError(f"terrain.cell: {self.cell:g} m makes a grid of more than 2000 x 2000 cells over "
+                             f"size {self.size:g} m; use a larger cell or a smaller size")
+        if self.pad >= self.size / 2:
+            raise ValueError(f"terrain.pad: {self.pad:g} m leaves no rough ground inside size {self.size:g} m")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TerrainGenerator":
+        """A generator from ``{"generator": kind, **fields}``; ValueError naming an unknown key."""
+        d = dict(d)
+        kind = d.pop("generator")
+        names = {f.name for f in fields(cls)} - {"kind"}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"terrain: unknown key {unknown[0]!r} of a {kind!r} generator (expected some of "
+                             f"{sorted(names)})")
+        if "slope_range" in d and isinstance(d["slope_range"], list):
+            d["slope_range"] = tuple(d["slope_range"])
+        return cls(kind=kind, **d)
+
+
+def resolve_terrain(value, surface: dict):
+    """The task's ``terrain`` argument as ``None`` (level ground), a :class:`Terrain` or a
+    :class:`TerrainGenerator`. ``surface``: the task's contact values (``friction``,
+    ``stiffness``, ``damping``) taken where a file, dict or generator does not give its own."""
+    if value is None or isinstance(value, TerrainGenerator):
+        return None if value is None else _with_surface(value, surface)
+    if isinstance(value, Terrain):
+        return value
+    if isinstance(value, (str, Path)):
+        p = Path(value)
+        if p.suffix.lower() != ".json":
+            raise ValueError(f"terrain: expected a terrain JSON file, a dict, a Terrain or a generator, got {value!r}")
+        return Terrain.from_file(p, defaults=surface)
+    if not isinstance(value, dict):
+        raise ValueError(f"terrain: expected a terrain JSON file, a dict, a Terrain or a TerrainGenerator, "
+                         f"got {type(value).__name__}")
+    if "generator" in value:
+        return _with_surface(TerrainGenerator.from_dict(value), surface)
+    if not value:
+        return None                     # {} is the level plane at z = 0: the flat ground
+    return Terrain.from_dict({**surface, **value})
+
+
+def _with_surface(gen: TerrainGenerator, surface: dict) -> TerrainGenerator:
+    return replace(gen, **{k: v for k, v in surface.items() if getattr(gen, k) is None})
+
+
+def generate(gen: TerrainGenerator, rng: np.random.Generator, goal=(1.0, 0.0), difficulty: float = 1.0) -> Terrain:
+    """One terrain drawn from ``gen`` with ``rng`` (its draws in a fixed order), rising along the
+    unit ``goal`` (x, y) direction, scaled by ``difficulty`` in [0, 1]."""
+    surf = {k: getattr(gen, k) for k in ("friction", "stiffness", "damping") if getattr(gen, k) is not None}
+    d = float(difficulty)
+    gx, gy = float(goal[0]), float(goal[1])
+    heading = math.degrees(math.atan2(gy, gx))
+    if gen.kind == "slope":
+        a = d * rng.uniform(*gen.slope_range)
+        return Terrain(plane=Plane(slope_deg=a, uphill_deg=heading), **surf)
+    if gen.kind == "steps":
+        h = d * rng.uniform(0.5, 1.0, gen.n_steps) * gen.step_height
+        top = np.cumsum(h)
+        boxes = []
+        for i in range(gen.n_steps):
+            start = gen.pad + i * gen.tread       # the step's front edge, m along the goal direction
+            depth = STEP_SPAN if i == gen.n_steps - 1 else gen.tread
+            # each box rises from z = -1 m to the step's top (a solid block under the tread)
+            height = top[i] + 1.0
+            along = start + depth / 2
+            boxes.append(Box(center=[along * gx, along * gy, top[i] - height / 2], size=[depth, STEP_SPAN, height],
+                             yaw_deg=heading))
+        return Terrain(plane=Plane(), boxes=tuple(boxes), **surf)
+    n = int(round(gen.size / gen.cell)) + 1
+    x = (np.arange(n) - (n - 1) / 2) * gen.cell
+    X, Y = np.meshgrid(x, x)
+    ang = rng.uniform(0.0, 2 * np.pi, gen.waves)
+    phase = rng.uniform(0.0, 2 * np.pi, gen.waves)
+    k = 2 * np.pi / gen.wavelength
+    z = sum(np.cos(k * (np.cos(a) * X + np.sin(a) * Y) + p) for a, p in zip(ang, phase))
+    z = (z - z.min()) / max(float(np.ptp(z)), 1e-12)
+    r = np.hypot(X, Y)
+    fade = np.clip((r - gen.pad) / max(gen.wavelength, 1e-9), 0.0, 1.0)
+    heights = d * gen.amplitude * z * fade
+    return Terrain(plane=None, heightfield=Heightfield(heights=heights, cell=gen.cell, origin=[x[0], x[0]]), **surf)
+
+
+def start_lift(terrain: Terrain, nodes: np.ndarray, radius: float) -> np.ndarray:
+    """(B,) height (m) to raise each copy of ``nodes`` (B, n, 3) m by so that every node's cap of
+    ``radius`` m clears the terrain's top surface under it (0 where it already does)."""
+    ground = terrain.height_at(nodes[..., 0], nodes[..., 1])
+    gap = (nodes[..., 2] - radius) - ground
+    return np.maximum(-gap.min(axis=-1), 0.0)

@@ -1,0 +1,151 @@
+"""TensegrityRoll-v0 on terrain: the default stays the flat fast path bit for bit, fixed and
+generated terrains run through the terrain contact, generated terrains are reproducible from the
+seed, and wrong terrain arguments are refused with named errors."""
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import tensegrity_gym  # noqa: F401
+from tensegrity_gym.core.terrain import Box, Plane, Terrain
+from tensegrity_gym.envs.roll import RollTask, TensegrityRollVectorEnv
+from tensegrity_gym.physics import terrain as T
+from tensegrity_gym.tasks.terrain import TerrainGenerator, generate
+
+STEPS = {"generator": "steps", "step_height": 0.04, "n_steps": 3}
+
+
+def _rollout(n=40, seed=3, **kw):
+    env = gym.make("TensegrityRoll-v0", **kw)
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(0)
+    out = [obs]
+    for _ in range(n):
+        obs, r, *_ = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        out.append(obs)
+    env.close()
+    return np.array(out)
+
+
+def test_no_terrain_and_level_dict_are_the_flat_ground_bit_for_bit():
+    flat = _rollout()
+    assert np.array_equal(flat, _rollout(terrain=None))
+    assert np.array_equal(flat, _rollout(terrain={}))
+    task = RollTask(terrain={})
+    assert task.terrain_contact is None and task.terrains is None
+
+
+def test_level_terrain_contact_matches_the_ground_contact_at_rest():
+    """A level terrain plane with the ground's parameters holds the resting robot as the ground
+    does: after 0.5 s the two states agree to under a millimetre."""
+    flat = RollTask()
+    level = RollTask(terrain=Terrain(plane=Plane(), friction=1.0, stiffness=1e4, damping=10.0))
+    assert level.terrain_contact is not None
+    for t in (flat, level):
+        t.reset(np.array([0]), [np.random.default_rng(1)])
+        for _ in range(25):
+            t.simulate(np.zeros((1, t.action_size)))
+    assert np.abs(flat.q - level.q).max() < 1e-3
+    assert np.array_equal(flat.cstate.active, level.cstate.active)
+
+
+def test_robot_rests_on_a_box_top():
+    """The robot started over a 10 cm block stays on it (held by the block's top face)."""
+    box = Box(center=[0.0, 0.0, 0.05], size=[2.0, 2.0, 0.1])
+    task = RollTask(terrain=Terrain(plane=Plane(), boxes=(box,)))
+    task.reset(np.array([0]), [np.random.default_rng(0)])
+    for _ in range(50):                       # 1 s
+        task.simulate(np.zeros((1, task.action_size)))
+    nodes = T.TerrainContact(task.terrains[0]).terrain.height_at(0.0, 0.0)
+    zmin = min(task.q[0, :, 2])               # rod centres
+    assert nodes == pytest.approx(0.1)
+    assert zmin > 0.1                         # on the block, not through it
+    assert task.cstate.active.any()
+
+
+def test_generated_terrain_is_reproducible_and_per_copy():
+    a = RollTask(num_envs=3, terrain=STEPS)
+    b = RollTask(num_envs=3, terrain=STEPS)
+    rngs = lambda s: [np.random.default_rng(s + i) for i in range(3)]   # noqa: E731
+    a.reset(np.arange(3), rngs(10))
+    b.reset(np.arange(3), rngs(10))
+    assert np.array_equal(a.terrain_geom, b.terrain_geom)
+    assert not np.array_equal(a.terrain_geom[0], a.terrain_geom[1])    # each copy its own draw
+    b.reset(np.arange(3), rngs(20))
+    assert not np.array_equal(a.terrain_geom, b.terrain_geom)
+
+
+def test_vector_env_equals_single_envs_on_generated_terrain():
+    n, seed = 2, 5
+    vec = TensegrityRollVectorEnv(num_envs=n, terrain=STEPS)
+    obs_v, _ = vec.reset(seed=seed)
+    singles = [gym.make("TensegrityRoll-v0", terrain=STEPS) for _ in range(n)]
+    obs_s = [e.reset(seed=seed + i)[0] for i, e in enumerate(singles)]
+    rng = np.random.default_rng(1)
+    for _ in range(10):
+        act = rng.uniform(-1, 1, (n,) + singles[0].action_space.shape).astype(np.float32)
+        obs_v, *_ = vec.step(act)
+        obs_s = [e.step(act[i])[0] for i, e in enumerate(singles)]
+    np.testing.assert_array_equal(obs_v, np.array(obs_s))
+
+
+@pytest.mark.parametrize("kind", ["slope", "steps"])
+def test_difficulty_scales_the_generated_terrain(kind):
+    gen = TerrainGenerator(kind=kind, slope_range=(10.0, 20.0))
+    hard = generate(gen, np.random.default_rng(0), difficulty=1.0)
+    easy = generate(gen, np.random.default_rng(0), difficulty=0.0)
+    x = np.linspace(0.0, 3.0, 31)
+    assert np.all(easy.height_at(x, 0 * x) == 0.0)
+    assert hard.height_at(x, 0 * x).max() > 0.02
+    task = RollTask(terrain={"generator": kind})
+    task.set_terrain_difficulty(0.25)
+    assert task.terrain_difficulty == 0.25
+
+
+def test_terrain_rises_along_the_goal_direction():
+    t = generate(TerrainGenerator(kind="steps"), np.random.default_rng(0), goal=(0.0, 1.0))
+    assert t.height_at(0.0, 2.0) > 0.05 and t.height_at(2.0, 0.0) == 0.0
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(terrain="ground.txt"), "terrain: expected a terrain JSON file"),
+    (dict(terrain={"generator": "bumpy"}), "unknown kind 'bumpy'"),
+    (dict(terrain={"generator": "rough", "cell": -1.0}), "terrain.cell"),
+    (dict(terrain={"generator": "steps", "n_steps": 0}), "terrain.n_steps"),
+    (dict(terrain={"generator": "slope", "slope_range": (30, 10)}), "terrain.slope_range"),
+    (dict(terrain={"generator": "steps", "height": 0.1}), "unknown key 'height'"),
+    (dict(terrain={"plane": {"slope_deg": 95}}), "slope_deg"),
+    (dict(terrain=42), "terrain: expected"),
+    (dict(terrain_difficulty=1.5), "terrain_difficulty"),
+    (dict(terrain_difficulty=float("nan")), "terrain_difficulty"),
+])
+def test_bad_terrain_arguments_are_named(kw, match):
+    with pytest.raises(ValueError, match=match):
+        RollTask(**kw)
+
+
+def test_missing_terrain_file_is_named(tmp_path):
+    with pytest.raises(ValueError, match="terrain file"):
+        RollTask(terrain=str(tmp_path / "nope.json"))
+
+
+def test_terrain_file_takes_the_task_contact_values(tmp_path):
+    p = tmp_path / "ramp.json"
+    p.write_text('{"plane": {"slope_deg": 5.0}, "boxes": [{"center": [1, 0, 0], "size": [0.2, 1, 0.1]}]}')
+    task = RollTask(terrain=str(p), friction=0.6)
+    assert task.terrains[0].friction == 0.6
+    assert task.terrain_contact.prm[0, :, T.PRM_FIELDS.index("friction")].tolist() == [0.6, 0.6]
+
+
+def test_envs_without_terrain_physics_refuse_it():
+    with pytest.raises(ValueError, match="terrain: the ground of TensegrityClimb-v0"):
+        gym.make("TensegrityClimb-v0", terrain=STEPS)
+    pytest.importorskip("mujoco")
+    with pytest.raises(ValueError, match="terrain: TensegrityRollMuJoCo-v0"):
+        gym.make("TensegrityRollMuJoCo-v0", terrain=STEPS)
+
+
+def test_randomized_friction_reaches_every_terrain_part():
+    task = RollTask(num_envs=2, terrain=STEPS, randomize={"friction": 0.5})
+    task.reset(np.arange(2), [np.random.default_rng(i) for i in range(2)])
+    mu = task.terrain_prm[..., T.PRM_FIELDS.index("friction")]
+    assert np.all(mu == mu[:, :1]) and mu[0, 0] != mu[1, 0]
