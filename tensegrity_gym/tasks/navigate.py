@@ -1,0 +1,209 @@
+"""The navigation task (``TensegrityNavigate-v0``): courses and their planner, as pure NumPy
+functions of a seeded generator. SI units: m.
+
+A course is a sequence of goal points among obstacles on level ground: ``n_goals`` goals, each
+``U(goal_distance)`` m from the one before (the first from the start at the origin) in a random
+direction, inside the square arena ``[-arena, arena]^2``; ``n_obstacles`` boxes (walls of
+``obstacle_height`` m, sides ``U(obstacle_size)`` m, random yaw) kept ``clearance`` m clear of
+the start and of every goal; and ``n_rough`` rough patches (discs of radius ``U(rough_radius)``
+m of smooth bumps up to ``rough_amplitude`` m, a heightfield) that the robot may cross.
+
+The planner is a navigation function: on a grid of ``cell`` m over the arena (and a margin),
+the obstacles grown by ``inflate`` m (the robot's radius) are blocked, and the shortest path
+length from every free cell to each goal (8-connected Dijkstra, :func:`scipy.sparse.csgraph.dijkstra`)
+is computed once per course. The guidance at a position is the direction to the neighbouring
+cell (within ``lookahead`` cells) with the shortest remaining path: it follows the shortest path
+around the obstacles, and its value is the path distance to the goal. A course is drawn again
+until every goal is reachable along that grid from the start and from the goal before it.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from ..core.terrain import Box, Heightfield, Terrain
+
+__all__ = ["CourseSpec", "Course", "draw_course", "guidance", "MAX_TRIES"]
+
+#: courses drawn before a spec is declared unsolvable
+MAX_TRIES = 200
+
+
+@dataclass(frozen=True)
+class CourseSpec:
+    """What a course is drawn from (see the module doc; m unless said)."""
+
+    n_goals: int = 3
+    goal_distance: tuple = (1.0, 2.0)
+    goal_radius: float = 0.3
+    arena: float = 3.0
+    n_obstacles: int = 5
+    obstacle_size: tuple = (0.2, 0.5)
+    obstacle_height: float = 0.4
+    clearance: float = 0.6
+    n_rough: int = 2
+    rough_radius: tuple = (0.3, 0.6)
+    rough_amplitude: float = 0.02
+    rough_wavelength: float = 0.3
+    cell: float = 0.1
+    inflate: float = 0.3
+    lookahead: int = 3
+
+
+@dataclass(frozen=True, eq=False)
+class Course:
+    """One drawn course: ``goals`` (n_goals, 2) m, ``terrain`` (the obstacles and rough patches),
+    ``field`` (n_goals, ny, nx) path distance (m; inf where blocked) to each goal on the planner's
+    grid of ``cell`` m from ``origin`` (x0, y0) m."""
+
+    goals: np.ndarray
+    terrain: Terrain
+    field: np.ndarray
+    origin: np.ndarray
+    cell: float
+
+
+def _grid(spec: CourseSpec):
+    """Cell centres (x, y) 1-D of the planner's grid: the arena and a margin of ``inflate + 0.5`` m."""
+    half = spec.arena + spec.inflate + 0.5
+    n = int(math.ceil(2 * half / spec.cell)) + 1
+    x = -half + spec.cell * np.arange(n)
+    return x, x
+
+
+def _blocked(spec: CourseSpec, boxes, X, Y) -> np.ndarray:
+    """(ny, nx) bool: cells within ``inflate`` m of an obstacle (distance to its footprint)."""
+    blocked = np.zeros(X.shape, bool)
+    for b in boxes:
+        c, s = math.cos(math.radians(b.yaw_deg)), math.sin(math.radians(b.yaw_deg))
+        dx, dy = X - b.center[0], Y - b.center[1]
+        u, v = np.abs(c * dx + s * dy) - b.size[0] / 2, np.abs(-s * dx + c * dy) - b.size[1] / 2
+        dist = np.hypot(np.maximum(u, 0.0), np.maximum(v, 0.0))
+        blocked |= dist <= spec.inflate
+    return blocked
+
+
+def _graph(blocked: np.ndarray, cell: float):
+    """The 8-connected grid graph of the free cells (edge lengths m)."""
+    ny, nx = blocked.shape
+    idx = np.arange(ny * nx).reshape(ny, nx)
+    rows, cols, w = [], [], []
+    for dj, di in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = idx[max(0, -dj):ny - max(0, dj), max(0, -di):nx - max(0, di)]
+        b = idx[max(0, dj):max(0, dj) + a.shape[0], max(0, di):max(0, di) + a.shape[1]]
+        ok = ~blocked.reshape(-1)[a] & ~blocked.reshape(-1)[b]
+        rows.append(a[ok])
+        cols.append(b[ok])
+        w.append(np.full(ok.sum(), cell * math.hypot(dj, di)))
+    r, c, ww = np.concatenate(rows), np.concatenate(cols), np.concatenate(w)
+    n = ny * nx
+    return coo_matrix((np.concatenate([ww, ww]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(n, n)).tocsr()
+
+
+def _cell_of(p, x0: float, cell: float, n: int) -> tuple[int, int]:
+    i = int(np.clip(round((p[0] - x0) / cell), 0, n - 1))
+    j = int(np.clip(round((p[1] - x0) / cell), 0, n - 1))
+    return j, i
+
+
+def _rough(spec: CourseSpec, rng, X, Y):
+    """Heights (ny, nx) m of the rough patches (0 outside them) and their centres."""
+    h = np.zeros(X.shape)
+    centres = []
+    k = 2 * np.pi / spec.rough_wavelength
+    for _ in range(spec.n_rough):
+        cx, cy = rng.uniform(-spec.arena, spec.arena, 2)
+        rad = rng.uniform(*spec.rough_radius)
+        ang = rng.uniform(0.0, 2 * np.pi, 4)
+        ph = rng.uniform(0.0, 2 * np.pi, 4)
+        z = sum(np.cos(k * (np.cos(a) * X + np.sin(a) * Y) + p) for a, p in zip(ang, ph))
+        z = (z + 4.0) / 8.0                                     # in [0, 1]
+        r = np.hypot(X - cx, Y - cy)
+        fade = np.clip((rad - r) / (0.25 * rad), 0.0, 1.0)     # a soft rim
+        h = np.maximum(h, spec.rough_amplitude * z * fade)
+        centres.append((cx, cy, rad))
+    return h, centres
+
+
+def draw_course(spec: CourseSpec, rng: np.random.Generator, surface: dict | None = None) -> Course:
+    """A solvable course drawn from ``rng`` (see the module doc); ``surface``: the terrain's
+    contact values (``friction``, ``stiffness``, ``damping``). ValueError naming the spec when
+    :data:`MAX_TRIES` draws give no course whose goals are all reachable."""
+    surface = surface or {}
+    xs, ys = _grid(spec)
+    X, Y = np.meshgrid(xs, ys)
+    x0, n = float(xs[0]), xs.size
+    for _ in range(MAX_TRIES):
+        goals = np.zeros((spec.n_goals, 2))
+        p = np.zeros(2)
+        for g in range(spec.n_goals):
+            for _ in range(100):
+                th = rng.uniform(0.0, 2 * np.pi)
+                q = p + rng.uniform(*spec.goal_distance) * np.array([math.cos(th), math.sin(th)])
+                if np.all(np.abs(q) <= spec.arena - spec.goal_radius):
+                    break
+            goals[g] = p = q
+        keep = np.vstack([np.zeros((1, 2)), goals])
+        boxes = []
+        for _ in range(spec.n_obstacles):
+            for _ in range(100):
+                c = rng.uniform(-spec.arena, spec.arena, 2)
+                size = rng.uniform(*spec.obstacle_size, 2)
+                yaw = rng.uniform(0.0, 180.0)
+                if np.min(np.linalg.norm(keep - c, axis=1)) - 0.5 * float(np.hypot(*size)) >= spec.clearance:
+                    break
+            boxes.append(Box(center=[c[0], c[1], spec.obstacle_height / 2],
+                             size=[size[0], size[1], spec.obstacle_height], yaw_deg=yaw))
+        rough, _ = _rough(spec, rng, X, Y)
+        blocked = _blocked(spec, boxes, X, Y)
+        if any(blocked[_cell_of(p, x0, spec.cell, n)] for p in keep):
+            continue
+        G = _graph(blocked, spec.cell)
+        field = np.empty((spec.n_goals, n, n))
+        ok = True
+        for g in range(spec.n_goals):
+            d = dijkstra(G, indices=np.ravel_multi_index(_cell_of(goals[g], x0, spec.cell, n), (n, n)))
+            field[g] = d.reshape(n, n)
+            if not np.isfinite(field[g][_cell_of(keep[g], x0, spec.cell, n)]):
+                ok = False
+                break
+        if not ok:
+            continue
+        hf = Heightfield(heights=rough, cell=spec.cell, origin=[x0, x0]) if spec.n_rough else None
+        terrain = Terrain(plane=None if hf is not None else Terrain().plane, boxes=tuple(boxes), heightfield=hf,
+                          **surface)
+        return Course(goals=goals, terrain=terrain, field=field, origin=np.array([x0, x0]), cell=spec.cell)
+    raise ValueError(f"course: no solvable course in {MAX_TRIES} draws (goals {spec.n_goals} at "
+                     f"{spec.goal_distance} m, {spec.n_obstacles} obstacles of {spec.obstacle_size} m grown by "
+                     f"{spec.inflate} m, clearance {spec.clearance} m, arena +-{spec.arena} m): make the arena "
+                     "larger or the obstacles fewer or smaller")
+
+
+def guidance(course: Course, goal: int, p, lookahead: int = 3) -> tuple[np.ndarray, float]:
+    """(unit direction (2,), path distance m) from the position ``p`` (x, y) m toward goal
+    ``goal`` of ``course`` along its planner's shortest path: the direction to the cell within
+    ``lookahead`` cells with the shortest remaining path (straight at the goal within that
+    reach, or where the grid gives no better cell)."""
+    F = course.field[goal]
+    n = F.shape[0]
+    j, i = _cell_of(p, course.origin[0], course.cell, n)
+    j0, j1, i0, i1 = max(j - lookahead, 0), min(j + lookahead + 1, n), max(i - lookahead, 0), min(i + lookahead + 1, n)
+    win = F[j0:j1, i0:i1]
+    target = course.goals[goal]
+    dist = float(np.hypot(*(target - p)))
+    if np.isfinite(win).any():
+        jj, ii = np.unravel_index(np.argmin(win), win.shape)
+        best = float(win[jj, ii])
+        here = float(F[j, i])
+        if best < here and dist > lookahead * course.cell:
+            target = course.origin + course.cell * np.array([i0 + ii, j0 + jj])
+        path = here if np.isfinite(here) else best + course.cell * lookahead
+    else:
+        path = dist
+    v = np.asarray(target, float) - np.asarray(p, float)
+    nv = float(np.hypot(*v))
+    return (v / nv if nv > 0 else np.array([1.0, 0.0])), float(path)
