@@ -15,7 +15,7 @@ The terrain is the union of solids:
   ``yaw_deg`` about the vertical through their centre.
 * ``heightfield``: the solid below ``z = h(x, y)``, ``heights`` (ny, nx) m at
   ``x = x0 + i cell``, ``y = y0 + j cell`` (row j, column i), bilinear between grid points and
-  the edge values held constant outside the grid.
+  the edge values held constant outside the grid (flat across the edge).
 
 Contact parameters: ``friction`` (Coulomb coefficient), ``stiffness`` (normal, N/m),
 ``damping`` (Hunt-Crossley, s/m) are the terrain's, and each plane, box or heightfield may
@@ -171,18 +171,22 @@ class Heightfield(SurfaceContact):
         return self._interp(np.asarray(x, float), np.asarray(y, float))[0]
 
     def _interp(self, x, y):
-        """Height and its gradient (dh/dx, dh/dy) at (x, y)."""
+        """Height and its gradient (dh/dx, dh/dy) at (x, y); outside the grid the held edge is
+        flat across the edge (that gradient component is 0)."""
         ny, nx = self.heights.shape
-        u = np.clip((x - self.origin[0]) / self.cell, 0.0, nx - 1)
-        v = np.clip((y - self.origin[1]) / self.cell, 0.0, ny - 1)
+        u = (x - self.origin[0]) / self.cell
+        v = (y - self.origin[1]) / self.cell
+        out_u, out_v = (u < 0) | (u > nx - 1), (v < 0) | (v > ny - 1)
+        u = np.clip(u, 0.0, nx - 1)
+        v = np.clip(v, 0.0, ny - 1)
         i = np.minimum(np.floor(u).astype(int), nx - 2)
         j = np.minimum(np.floor(v).astype(int), ny - 2)
         fu, fv = u - i, v - j
         H = self.heights
         h00, h10, h01, h11 = H[j, i], H[j, i + 1], H[j + 1, i], H[j + 1, i + 1]
         h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
-        gx = ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / self.cell
-        gy = ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / self.cell
+        gx = np.where(out_u, 0.0, ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / self.cell)
+        gy = np.where(out_v, 0.0, ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / self.cell)
         return h, gx, gy
 
 

@@ -315,7 +315,7 @@ class BatchedTask:
             run = pipeline.advance
         else:
             kw = dict(backend=self.backend, params=self.params, prm=self.terrain_prm, geom=self.terrain_geom,
-                      forces=self._W, slip=self._terrain_slip, compiled=self._kernels_run, tc=tc, tstate=cs,
+                      hf=self.terrain_hf, forces=self._W, slip=self._terrain_slip, compiled=self._kernels_run, tc=tc, tstate=cs,
                       **inputs)
             run = _terrain_advance
         model, dt, name, n = self.model, self.dt, self.integrator, self.frame_skip

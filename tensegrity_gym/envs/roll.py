@@ -201,6 +201,7 @@ class RollTask(RollObservation, BatchedTask):
         # per-copy rows (one terrain per copy: a generator's differ in numbers, not in shape)
         self.terrain_geom = np.repeat(tc.geom, B, axis=0)
         self.terrain_prm = np.repeat(tc.prm, B, axis=0)
+        self.terrain_hf = np.repeat(tc.hf, B, axis=0) if self.terrains[0].heightfield is not None else None
         limit = terrain.stable_step(tc, self.model)["semi_implicit_euler"]
         if self.integrator in ("semi_implicit_euler", "rk4"):
             check_stable_dt(self.model, limit, self.dt, self.integrator, allow_unstable_dt,
@@ -231,6 +232,8 @@ class RollTask(RollObservation, BatchedTask):
                     raise RuntimeError("terrain generator: a drawn terrain changed its number of parts")
                 self.terrains[i] = t
                 self.terrain_geom[i] = tc.geom[0]
+                if self.terrain_hf is not None:
+                    self.terrain_hf[i] = tc.hf[0]
         self.tstate.anchor[idx] = 0.0
         self.tstate.eta0[idx] = 0.0
         self.tstate.active[idx] = False

@@ -1,4 +1,4 @@
-"""Contact of the rod capsules with a terrain (sloped plane, boxes): the backend-neutral API.
+"""Contact of the rod capsules with a terrain (sloped plane, boxes, heightfield): the backend-neutral API.
 
 The terrain itself is data (:class:`tensegrity_gym.core.terrain.Terrain`); this module turns it
 into the arrays of the compiled kernel (:mod:`tensegrity_gym.backends.numba.terrain`, torch twin
@@ -7,12 +7,17 @@ Scenes without a terrain never reach this module: the flat-ground fast path
 (:mod:`tensegrity_gym.physics.contact`) is unchanged.
 
 Geometry: a rod is a capsule, the segment between its two nodes swept by a sphere of radius
-``radius`` (the cap radius, m). Against each feature (the plane, each box) it has three
-contact slots: its two nodes, where a capsule first touches a plane, and the interior point of
-the segment nearest a box (golden-section search of the signed distance, which is convex along
-the segment because a box is convex), used when it is deeper than both ends: a rod lying across
-a box edge or a ridge is held where it touches. Slot ``(j F + f) 3 + s`` for rod j, feature f,
-s = 0 node a, 1 node c, 2 interior; F features in :meth:`Terrain.parts` order.
+``radius`` (the cap radius, m). Against each feature (the plane, each box, the heightfield) it
+has three contact slots: its two nodes, where a capsule first touches a plane, and the interior
+point of the segment nearest a box or the heightfield, used when it is deeper than both ends: a
+rod lying across a box edge, a ridge or a bump is held where it touches. For a box it is a
+golden-section search of the signed distance (convex along the segment, as a box is convex);
+for the heightfield, whose distance along a rod is not convex, a coarse scan of the segment
+picks the deepest bracket and the golden section refines it
+(:mod:`tensegrity_gym.backends.numba.terrain`). The heightfield's signed distance is the
+vertical gap times the cosine of the local slope, with the bilinear patch's normal, as
+:meth:`Terrain.closest`. Slot ``(j F + f) 3 + s`` for rod j, feature f, s = 0 node a, 1 node c,
+2 interior; F features in :meth:`Terrain.parts` order.
 
 Contact law (as :mod:`tensegrity_gym.physics.contact`, with the plane's normal n in place of
 +z): penetration ``delta = radius - d`` (d the signed distance of the contact point to the
@@ -37,12 +42,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..backends.numba.terrain import BOX, PLANE, terrain_forces_kernel
+from ..backends.numba.terrain import BOX, HFIELD, PLANE, terrain_forces_kernel
 from ..backends.numba.terrain_steps import terrain_steps
 from ..core.checks import check_positive
 from ..core.integrators import resolve
 from ..core.model import Model, State
-from ..core.terrain import Box, Plane, Terrain
+from ..core.terrain import Box, Heightfield, Plane, Terrain
 from .contact import GroundContact, stable_step as ground_stable_step
 from .pipeline import compiled_physics, run_steps as _run_steps
 from .stability import check_stability
@@ -53,7 +58,7 @@ __all__ = ["TerrainContact", "TerrainState", "init_terrain_state", "contact_forc
 #: columns of the (P, F, 8) per-feature contact parameters ``prm`` (SI units)
 PRM_FIELDS = ("radius", "stiffness", "damping", "exponent", "friction", "tangential_stiffness",
               "tangential_damping", "max_damping")
-#: contact slots per rod per feature: node a, node c, the interior point nearest a box
+#: contact slots per rod per feature: node a, node c, the interior point nearest a box or the heightfield
 SLOTS = 3
 
 
@@ -66,7 +71,11 @@ class TerrainContact:
     :class:`~tensegrity_gym.physics.contact.GroundContact`: ``radius`` (cap radius, m),
     ``exponent`` (>= 1), ``tangential_stiffness`` (N/m; None: each feature's normal stiffness),
     ``tangential_damping`` (N s/m), ``max_damping`` (cap on the normal damping coefficient,
-    N s/m). A heightfield is refused (not in the physics yet)."""
+    N s/m).
+
+    Arrays of the kernels (read-only): ``geom`` (1, F, 10) and ``prm`` (1, F, 8) per feature in
+    :meth:`Terrain.parts` order, ``hf`` (1, ny, nx) the heightfield's heights m (a (1, 1, 1)
+    zero array without one); layouts in :mod:`tensegrity_gym.backends.numba.terrain`."""
 
     terrain: Terrain
     radius: float = 0.02
@@ -79,9 +88,6 @@ class TerrainContact:
         s = object.__setattr__
         if not isinstance(self.terrain, Terrain):
             raise ValueError(f"terrain: expected a Terrain, got {self.terrain!r}")
-        if self.terrain.heightfield is not None:
-            raise ValueError("terrain.heightfield: heightfield contact is not in the physics yet "
-                             "(planes and boxes are)")
         s(self, "radius", check_positive(self.radius, "radius", "m", allow_zero=True))
         e = check_positive(self.exponent, "exponent", "1")
         if e < 1:
@@ -99,8 +105,10 @@ class TerrainContact:
             raise ValueError(f"max_damping: must be positive (N s/m; inf = no cap), got {self.max_damping!r}")
         s(self, "max_damping", cmax)
         if not self.terrain.parts():
-            raise ValueError("terrain: no plane and no box, nothing to touch (a Terrain() is a level plane)")
+            raise ValueError("terrain: no plane, no box and no heightfield, nothing to touch "
+                             "(a Terrain() is a level plane)")
         geom, prm = [], []
+        hf = np.zeros((1, 1, 1))
         for part in self.terrain.parts():
             row = np.zeros(10)
             if isinstance(part, Plane):
@@ -112,6 +120,12 @@ class TerrainContact:
                 row[1:4] = part.center
                 row[4:7] = part.size / 2
                 row[7:9] = math.cos(yaw), math.sin(yaw)
+            elif isinstance(part, Heightfield):
+                row[0] = HFIELD
+                row[1:3] = part.origin
+                row[3] = part.cell
+                row[4:6] = part.heights.shape
+                hf = np.ascontiguousarray(part.heights, dtype=np.float64)[None].copy()
             geom.append(row)
             mu, k, d = self.terrain.surface(part)
             kt = k if self.tangential_stiffness is None else self.tangential_stiffness
@@ -120,10 +134,9 @@ class TerrainContact:
         prm = np.array(prm, float).reshape(1, -1, 8)
         geom.setflags(write=False)
         prm.setflags(write=False)
+        hf.setflags(write=False)
         s(self, "geom", geom)
         s(self, "prm", prm)
-        hf = np.zeros((1, 1, 1))
-        hf.setflags(write=False)
         s(self, "hf", hf)
 
     @property
@@ -162,55 +175,88 @@ def init_terrain_state(tc: TerrainContact, model: Model, batch_size: int = 1) ->
 
 
 def _rows(arr, default, B, width, name):
-    """``arr`` (1 or B, F, width) as C-contiguous float64, or ``default``; ValueError otherwise."""
+    """``arr`` (1 or B, F, width) as a C-contiguous float64 read-only view (one compiled kernel
+    for the contact's own arrays and the caller's), or ``default``; ValueError otherwise."""
     if arr is None:
         return default
     a = np.ascontiguousarray(arr, dtype=np.float64)
     if a.ndim != 3 or a.shape[0] not in (1, B) or a.shape[1:] != default.shape[1:]:
         raise ValueError(f"{name}: expected shape (1, {default.shape[1]}, {width}) or ({B}, {default.shape[1]}, "
                          f"{width}), got {a.shape}")
+    a = a.view()
+    a.setflags(write=False)
     return a
 
 
+def _hf_rows(hf, tc: TerrainContact, B: int):
+    """Per-copy heightfield heights ``hf`` (1 or B, ny, nx) m as the kernel takes them (the
+    contact's own ``tc.hf`` when None); ValueError naming ``hf``, the shape or the bad value."""
+    if hf is None:
+        return tc.hf
+    ny, nx = tc.hf.shape[1:]
+    try:
+        a = np.ascontiguousarray(hf, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"hf: expected an array of heights (m), got {type(hf).__name__}") from None
+    if a.ndim != 3 or a.shape[0] not in (1, B) or a.shape[1:] != (ny, nx):
+        what = "heights (m) of the terrain's heightfield" if tc.terrain.heightfield is not None else \
+            "placeholder (the terrain has no heightfield)"
+        raise ValueError(f"hf: expected shape (1, {ny}, {nx}) or ({B}, {ny}, {nx}), the {what}, got {a.shape}")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        c, j, i = np.argwhere(bad)[0]
+        raise ValueError(f"hf[{c}, {j}, {i}]: must be finite (m), got {float(a[c, j, i])!r}")
+    a = a.view()
+    a.setflags(write=False)
+    return a
+
+
+def _check_state(tstate: TerrainState, B: int, S: int) -> None:
+    if tstate.anchor.shape != (B, S, 3) or tstate.active.shape != (B, S):
+        raise ValueError(f"terrain state: expected anchor ({B}, {S}, 3) and active ({B}, {S}), got "
+                         f"{tstate.anchor.shape} and {tstate.active.shape}")
+
+
 def contact_forces(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState, inplace: bool = False,
-                   prm=None, geom=None, info: bool = False):
+                   prm=None, geom=None, info: bool = False, hf=None):
     """Terrain contact forces at ``q``, ``qd`` (B, k, 6) and the updated stick/slip state.
 
     Returns ``(W, new_state, slip)`` (``W`` (B, n, 3) nodal forces N, ``slip`` (B, S) bool) and,
     with ``info=True``, a fourth array (B, S, 6): per slot eta (m), signed distance (m), outward
     normal and spring energy (J). ``prm`` (1 or B, F, 8): per-copy parameters
     (:meth:`TerrainContact.per_copy`); ``geom`` (1 or B, F, 10): per-copy feature geometry in
-    the kernel's layout (default the contact's). ``inplace=True`` updates ``tstate``'s arrays."""
+    the kernel's layout; ``hf`` (1 or B, ny, nx): per-copy heightfield heights m (defaults: the
+    contact's ``prm``, ``geom``, ``hf``). ``inplace=True`` updates ``tstate``'s arrays."""
     B = q.shape[0]
     S = n_slots(tc, model)
-    if tstate.anchor.shape != (B, S, 3) or tstate.active.shape != (B, S):
-        raise ValueError(f"terrain state: expected anchor ({B}, {S}, 3) and active ({B}, {S}), got "
-                         f"{tstate.anchor.shape} and {tstate.active.shape}")
+    _check_state(tstate, B, S)
     ts = tstate if inplace else tstate.copy()
     W = np.empty((B, model.n_nodes, 3))
     slip = np.empty((B, S), bool)
     inf = np.empty((B, S, 6) if info else (0, 0, 6))
     terrain_forces_kernel(np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(qd, dtype=np.float64),
                           model.eta, model.rod_a, model.rod_c, _rows(geom, tc.geom, B, 10, "geom"),
-                          _rows(prm, tc.prm, B, 8, "prm"), tc.hf, ts.anchor, ts.eta0, ts.active, slip, W, inf)
+                          _rows(prm, tc.prm, B, 8, "prm"), _hf_rows(hf, tc, B), ts.anchor, ts.eta0, ts.active,
+                          slip, W, inf)
     return (W, ts, slip, inf) if info else (W, ts, slip)
 
 
 def forces_inplace(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState, W, slip, prm=None,
-                   geom=None) -> None:
+                   geom=None, hf=None) -> None:
     """Allocation-free :func:`contact_forces`: forces into ``W`` (B, n, 3), slip flags into
     ``slip`` (B, S) and ``tstate`` updated in place; C-contiguous float64 inputs, shapes are the
     caller's duty."""
     terrain_forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, tc.geom if geom is None else geom,
-                          tc.prm if prm is None else prm, tc.hf, tstate.anchor, tstate.eta0, tstate.active, slip, W,
-                          np.empty((0, 0, 6)))
+                          tc.prm if prm is None else prm, tc.hf if hf is None else hf, tstate.anchor,
+                          tstate.eta0, tstate.active, slip, W, np.empty((0, 0, 6)))
 
 
-def contact_energy(tc: TerrainContact, model: Model, q, tstate: TerrainState, prm=None, geom=None) -> np.ndarray:
+def contact_energy(tc: TerrainContact, model: Model, q, tstate: TerrainState, prm=None, geom=None,
+                   hf=None) -> np.ndarray:
     """(B,) energy stored in the contact springs, J: normal ``k delta^(e+1)/(e+1)`` plus tangential
     ``k_t |xi_t|^2 / 2`` of every touching slot (anchors from ``tstate``, not modified)."""
     q = np.asarray(q, dtype=np.float64)
-    _, _, _, inf = contact_forces(tc, model, q, np.zeros_like(q), tstate, prm=prm, geom=geom, info=True)
+    _, _, _, inf = contact_forces(tc, model, q, np.zeros_like(q), tstate, prm=prm, geom=geom, info=True, hf=hf)
     return inf[..., 5].sum(axis=1)
 
 
@@ -231,43 +277,53 @@ def stable_step(tc: TerrainContact, model: Model) -> dict:
 
 
 def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str, tstate: TerrainState, *,
-            n_steps: int = 1, external=None, prm=None, geom=None, forces=None, slip=None, backend: str = "auto",
+            n_steps: int = 1, external=None, prm=None, geom=None, hf=None, forces=None, slip=None,
+            backend: str = "auto",
             compiled: bool | None = None, **inputs) -> None:
     """In place: ``n_steps`` steps of ``dt`` s of ``q``, ``qd`` (B, k, 6), writable C-contiguous
     float64, and of ``tstate``: per step the terrain forces of the batch from the state at its
     start (plus ``external`` (B, n, 3) N) held over ONE step of ``integrator`` (a resolved
-    name). ``prm`` / ``geom``: per-copy rows as :func:`contact_forces` takes them (checked by
-    the caller); ``forces`` (B, n, 3) and ``slip`` (B, S) optional scratch; ``inputs``:
+    name). ``prm`` / ``geom`` / ``hf``: per-copy rows as :func:`contact_forces` takes them
+    (checked by the caller); ``forces`` (B, n, 3) and ``slip`` (B, S) optional scratch; ``inputs``:
     ``rest_length``, ``force_density``, ``params``, ``project``. With the numba kernels every
     sub-step runs inside one compiled call (:mod:`tensegrity_gym.backends.numba.terrain_steps`),
     the same kernels in the same order as the Python loop here (bit-identical)."""
     B = q.shape[0]
-    prm = tc.prm if prm is None else prm
-    geom = tc.geom if geom is None else geom
+    prm, geom, hf = (tc.prm if prm is None else _frozen(prm), tc.geom if geom is None else _frozen(geom),
+                     tc.hf if hf is None else _frozen(hf))
     W = np.empty((B, model.n_nodes, 3)) if forces is None else forces
     sl = np.empty((B, n_slots(tc, model)), bool) if slip is None else slip
     if compiled is None:
         compiled = compiled_physics(integrator, backend)
-    arrays = (geom, prm, tc.hf, tstate.anchor, tstate.eta0, tstate.active, sl)
+    arrays = (geom, prm, hf, tstate.anchor, tstate.eta0, tstate.active, sl)
     if compiled and terrain_steps(model, q, qd, dt, integrator, n_steps, inputs.get("rest_length"),
                                   inputs.get("force_density"), external, inputs.get("params"),
                                   inputs.get("project", True), arrays, W):
         return
     for _ in range(int(n_steps)):
-        forces_inplace(tc, model, q, qd, tstate, W, sl, prm, geom)
+        forces_inplace(tc, model, q, qd, tstate, W, sl, prm, geom, hf)
         if external is not None:
             W += external
         _run_steps(model, q, qd, dt, integrator, n_steps=1, external=W, backend=backend, compiled=compiled,
                    **inputs)
 
 
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """``a`` as a read-only view (the kernels are compiled for the contact's read-only arrays)."""
+    if a.flags.writeable:
+        a = a.view()
+        a.setflags(write=False)
+    return a
+
+
 def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: TerrainState,
          integrator: str = "semi_implicit_euler", *, n_steps: int = 1, external=None, prm=None, geom=None,
-         backend: str = "auto", **inputs):
+         hf=None, backend: str = "auto", **inputs):
     """``n_steps`` physics steps of ``dt`` s with terrain contact: per step, the contact forces of
     the batch from the state at its start (plus ``external`` (B, n, 3) N), held over ONE
-    integrator step. ``inputs``: ``rest_length``, ``force_density``, ``params``, ``project``
-    as :func:`tensegrity_gym.physics.step` takes them. Returns ``(State, TerrainState)``, new
+    integrator step. ``prm``, ``geom``, ``hf``: per-copy arrays as :func:`contact_forces` takes
+    them. ``inputs``: ``rest_length``, ``force_density``, ``params``, ``project`` as
+    :func:`tensegrity_gym.physics.step` takes them. Returns ``(State, TerrainState)``, new
     objects (the inputs are not modified)."""
     info = resolve(integrator)
     if not (np.isfinite(dt) and dt > 0):
@@ -279,12 +335,10 @@ def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: Terr
     qd = np.array(state.qd, dtype=np.float64, order="C")
     ts = tstate.copy()
     S = n_slots(tc, model)
-    if ts.anchor.shape != (B, S, 3) or ts.active.shape != (B, S):
-        raise ValueError(f"terrain state: expected anchor ({B}, {S}, 3) and active ({B}, {S}), got "
-                         f"{ts.anchor.shape} and {ts.active.shape}")
-    prm, geom = _rows(prm, tc.prm, B, 8, "prm"), _rows(geom, tc.geom, B, 10, "geom")
+    _check_state(ts, B, S)
+    prm, geom, hf = _rows(prm, tc.prm, B, 8, "prm"), _rows(geom, tc.geom, B, 10, "geom"), _hf_rows(hf, tc, B)
     ext = None if external is None else np.ascontiguousarray(external, dtype=np.float64)
-    advance(tc, model, q, qd, dt, info.name, ts, n_steps=n_steps, external=ext, prm=prm, geom=geom,
+    advance(tc, model, q, qd, dt, info.name, ts, n_steps=n_steps, external=ext, prm=prm, geom=geom, hf=hf,
             backend=backend, **inputs)
     t = state.t
     for _ in range(int(n_steps)):

@@ -1,26 +1,45 @@
 """Terrain contact on the numba backend: the rod capsules (segments between a rod's nodes,
-swept by a sphere of the cap radius) against a sloped plane and boxes, with the Hunt-Crossley
-normal force and stick-slip Coulomb friction of the ground contact. SI units.
+swept by a sphere of the cap radius) against a sloped plane, boxes and a heightfield, with the
+Hunt-Crossley normal force and stick-slip Coulomb friction of the ground contact. SI units.
 
 Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
 
 * ``geom`` (G, F, 10), G = 1 (shared) or B (one terrain per copy): feature f's kind in
   column 0 (:data:`PLANE` = 0: outward normal (1:4) and offset (4), the solid is
   ``n.p <= offset``; :data:`BOX` = 1: centre (1:4) m, half sizes (4:7) m, cos and sin of the
-  yaw (7:9)).
+  yaw (7:9); :data:`HFIELD` = 2: grid origin x0, y0 (1:3) m, cell size (3) m, grid rows ny
+  and columns nx (4:6), the rest 0).
+* ``hf`` (H, ny, nx), H = 1 (shared) or B: the heightfield's heights m, ``hf[., j, i]`` at
+  ``x = x0 + i cell``, ``y = y0 + j cell``, bilinear in between, the edge values held outside
+  the grid (:meth:`tensegrity_gym.core.terrain.Terrain.closest` is the NumPy oracle). At most
+  one heightfield per terrain; without one, a (1, 1, 1) array that nothing reads.
 * ``prm`` (P, F, 8), P = 1 or B: per feature the contact parameters ``radius`` m, ``kn``
   N/m^e, ``dn`` s/m, exponent ``e``, ``mu``, ``kt`` N/m, ``ct`` N s/m, ``cmax`` N s/m.
 * contact slots: three per rod per feature, slot ``(j F + f) 3 + s``: s = 0 the rod's node a,
-  s = 1 node c, s = 2 the interior point of the segment nearest a box (used only when it is
-  strictly deeper than both ends, as when a rod lies across a box edge; a plane's nearest
-  point is always an end, so its slot 2 never touches). ``anchor`` (B, S, 3) m (a point on the
-  feature's surface), ``eta0`` (B, S) m the rod coordinate of the material point the anchor
-  holds (the slot's own eta for the node slots; for the interior slot the point where it
-  touched or last slipped, so that friction holds the rod's material while the contact point
-  moves along the rod), ``active`` / ``slip`` (B, S) bool.
+  s = 1 node c, s = 2 the interior point of the segment nearest a box or a heightfield (used
+  only when it is strictly deeper than both ends, as when a rod lies across a box edge or a
+  bump; a plane's nearest point is always an end, so its slot 2 never touches). ``anchor``
+  (B, S, 3) m (a point on the feature's surface), ``eta0`` (B, S) m the rod coordinate of the
+  material point the anchor holds (the slot's own eta for the node slots; for the interior
+  slot the point where it touched or last slipped, so that friction holds the rod's material
+  while the contact point moves along the rod), ``active`` / ``slip`` (B, S) bool.
 * ``info`` (B, S, 6) or (0, 0, 6): per slot the rod coordinate eta m of the contact point, the
   signed distance m of that point to the feature, the feature's outward normal there and the
   energy J of the slot's springs at the given state with the anchors before the update.
+
+Heightfield geometry: the signed distance of a point is its height above the bilinear surface
+times the cosine of the local slope, ``d = (z - h) / sqrt(1 + |grad h|^2)``, and the normal is
+the bilinear patch's, ``(-h_x, -h_y, 1) / sqrt(1 + |grad h|^2)`` (exact over a locally planar
+patch; outside the grid the held edge is flat across the edge, so that gradient component is
+0). Along a rod this distance is not convex (a rod over several bumps), so the interior slot
+first scans :data:`HF_SCAN` + 1 evenly spaced points of the segment (ends included), takes the
+deepest and golden-section refines between its two neighbouring samples; the level set around
+the minimum (see :data:`LEVEL_TOL`) is bounded by bisection towards the nearest samples above
+it on each side. The far early-out of a rod (no slot can touch) uses the vertical gap, whose
+Lipschitz constant along any line is at most ``sqrt(1 + L^2)`` with L bounding the field's
+slope (largest height step between grid neighbours over the cell, per axis): a rod whose
+middle is higher above the surface than ``sqrt(1 + L^2) (radius + half its length)`` touches
+nowhere (``d`` is the gap times a cosine >= 1 / sqrt(1 + L^2)).
 """
 from __future__ import annotations
 
@@ -34,6 +53,9 @@ from .layout import _opts
 #: feature kinds (column 0 of ``geom``)
 PLANE = 0.0
 BOX = 1.0
+HFIELD = 2.0
+#: samples of the coarse scan of a rod against a heightfield (intervals; HF_SCAN + 1 points, ends included)
+HF_SCAN = 16
 #: golden-section iterations of the interior search (interval shrinks to 0.618^40 = 4e-9 of the rod)
 GOLDEN_ITERS = 40
 #: the interior slot touches only where it is deeper than both ends by this much, m; it sits at the
@@ -73,62 +95,156 @@ def _box_closest(px, py, pz, g):
     return d, c * n0 - s * n1, s * n0 + c * n1, n2
 
 
+@njit(**_opts)
+def _hf_patch(px, py, g, H):
+    """Bilinear height (m) of the heightfield ``g`` (a geom row), heights ``H`` (ny, nx), at
+    (px, py) m and its gradient (dh/dx, dh/dy); the edge values are held outside the grid (the
+    gradient across a held edge is 0). Same arithmetic as ``Heightfield._interp``."""
+    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    u = (px - g[1]) / g[3]
+    v = (py - g[2]) / g[3]
+    out_u = u < 0.0 or u > nx - 1
+    out_v = v < 0.0 or v > ny - 1
+    u = min(max(u, 0.0), nx - 1.0)
+    v = min(max(v, 0.0), ny - 1.0)
+    i = min(int(math.floor(u)), nx - 2)
+    j = min(int(math.floor(v)), ny - 2)
+    fu, fv = u - i, v - j
+    h00, h10, h01, h11 = H[j, i], H[j, i + 1], H[j + 1, i], H[j + 1, i + 1]
+    h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
+    gx = 0.0 if out_u else ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / g[3]
+    gy = 0.0 if out_v else ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / g[3]
+    return h, gx, gy
+
+
+@njit(**_opts)
+def _hf_closest(px, py, pz, g, H):
+    """Signed distance (m; < 0 below the surface) of (px, py, pz) to the heightfield: the
+    vertical gap times the cosine of the local slope, and the bilinear patch's outward normal."""
+    h, gx, gy = _hf_patch(px, py, g, H)
+    c = 1.0 / math.sqrt(1.0 + gx * gx + gy * gy)
+    return (pz - h) * c, -gx * c, -gy * c, c
+
+
+@njit(**_opts)
+def _hf_lipschitz(g, H):
+    """``sqrt(1 + L^2)``: a bound on the Lipschitz constant (along any line) of the vertical gap
+    ``z - h(x, y)`` of the heightfield, L = |(largest |step| along x, along y)| / cell bounding
+    the slope (a bilinear patch's gradient is affine in the patch coordinates, so its steepest
+    is at a corner, made of one x step and one y step of the grid)."""
+    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    mx, my = 0.0, 0.0
+    for j in range(ny):
+        for i in range(nx):
+            if i + 1 < nx:
+                mx = max(mx, abs(H[j, i + 1] - H[j, i]))
+            if j + 1 < ny:
+                my = max(my, abs(H[j + 1, i] - H[j, i]))
+    return math.sqrt(1.0 + (mx * mx + my * my) / (g[3] * g[3]))
+
+
 @njit(inline="always", **_opts)
-def _closest(px, py, pz, g):
-    """Signed distance and outward normal of a point to the feature ``g`` (plane or box)."""
+def _closest(px, py, pz, g, H):
+    """Signed distance and outward normal of a point to the feature ``g`` (plane, box or
+    heightfield with heights ``H``)."""
     if g[0] == PLANE:
         return g[1] * px + g[2] * py + g[3] * pz - g[4], g[1], g[2], g[3]
+    if g[0] == HFIELD:
+        return _hf_closest(px, py, pz, g, H)
     return _box_closest(px, py, pz, g)
 
 
 @njit(inline="always", **_opts)
-def _sd_at(e, r0, r1, r2, b0, b1, b2, g):
-    """Signed distance of the rod point ``r + e b`` to the box ``g``."""
-    return _box_closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g)[0]
+def _sd_at(e, r0, r1, r2, b0, b1, b2, g, H):
+    """Signed distance of the rod point ``r + e b`` to the box or heightfield ``g``."""
+    return _closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g, H)[0]
 
 
 @njit(inline="always", **_opts)
-def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g):
-    """The interior contact point of a rod segment [ea, ec] against the box ``g``: the signed
-    distance is convex along the segment (the box is convex), so a golden-section search finds
-    its minimum; the point returned is the middle of the part within ``LEVEL_TOL`` of it (found
-    by bisection on both sides). Returns (eta, deeper): deeper = the point is deeper than both
-    ends by more than ``LEVEL_TOL``."""
-    fa = _sd_at(ea, r0, r1, r2, b0, b1, b2, g)
-    fc = _sd_at(ec, r0, r1, r2, b0, b1, b2, g)
-    lo, hi = ea, ec
+def _scan_at(i, ea, ec):
+    """Rod coordinate (m) of sample i of the coarse scan (i = 0 is ``ea``, HF_SCAN is ``ec``)."""
+    return ec if i == HF_SCAN else ea + i * ((ec - ea) / HF_SCAN)
+
+
+@njit(**_opts)
+def _scan_bracket(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
+    """The coarse scan of a heightfield along the rod: the samples on both sides of the deepest
+    sample (the first of equals), the bracket of the golden-section search."""
+    best, fbest = 0, _sd_at(ea, r0, r1, r2, b0, b1, b2, g, H)
+    for i in range(1, HF_SCAN + 1):
+        f = _sd_at(_scan_at(i, ea, ec), r0, r1, r2, b0, b1, b2, g, H)
+        if f < fbest:
+            best, fbest = i, f
+    return _scan_at(max(best - 1, 0), ea, ec), _scan_at(min(best + 1, HF_SCAN), ea, ec)
+
+
+@njit(**_opts)
+def _scan_out(em, level, towards_c, ea, ec, r0, r1, r2, b0, b1, b2, g, H):
+    """The sample of the coarse scan nearest ``em`` on the side of node c (``towards_c``) or
+    node a whose signed distance is above ``level`` (that node's eta if none): the outer end
+    of the bisection for the edge of the level set around ``em``."""
+    for n in range(HF_SCAN + 1):
+        i = n if towards_c else HF_SCAN - n
+        e = _scan_at(i, ea, ec)
+        if (e > em if towards_c else e < em) and _sd_at(e, r0, r1, r2, b0, b1, b2, g, H) > level:
+            return e
+    return ec if towards_c else ea
+
+
+@njit(inline="always", **_opts)
+def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
+    """The interior contact point of a rod segment [ea, ec] against the box or heightfield
+    ``g``. Box: the signed distance is convex along the segment (the box is convex), so a
+    golden-section search over the segment finds its minimum; heightfield: the golden section
+    runs inside the bracket of the coarse scan (:func:`_scan_bracket`). The point returned is
+    the middle of the part within ``LEVEL_TOL`` of the minimum (found by bisection on both
+    sides, from the ends for a box, from the nearest scan samples above the level for a
+    heightfield). Returns (eta, deeper): deeper = the point is deeper than both ends by more
+    than ``LEVEL_TOL``."""
+    hfield = g[0] == HFIELD
+    fa = _sd_at(ea, r0, r1, r2, b0, b1, b2, g, H)
+    fc = _sd_at(ec, r0, r1, r2, b0, b1, b2, g, H)
+    if hfield:
+        lo, hi = _scan_bracket(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+    else:
+        lo, hi = ea, ec
     x1 = hi - _GR * (hi - lo)
     x2 = lo + _GR * (hi - lo)
-    f1 = _sd_at(x1, r0, r1, r2, b0, b1, b2, g)
-    f2 = _sd_at(x2, r0, r1, r2, b0, b1, b2, g)
+    f1 = _sd_at(x1, r0, r1, r2, b0, b1, b2, g, H)
+    f2 = _sd_at(x2, r0, r1, r2, b0, b1, b2, g, H)
     for _ in range(GOLDEN_ITERS):
         if f1 <= f2:
             hi = x2
             x2, f2 = x1, f1
             x1 = hi - _GR * (hi - lo)
-            f1 = _sd_at(x1, r0, r1, r2, b0, b1, b2, g)
+            f1 = _sd_at(x1, r0, r1, r2, b0, b1, b2, g, H)
         else:
             lo = x1
             x1, f1 = x2, f2
             x2 = lo + _GR * (hi - lo)
-            f2 = _sd_at(x2, r0, r1, r2, b0, b1, b2, g)
+            f2 = _sd_at(x2, r0, r1, r2, b0, b1, b2, g, H)
     em = 0.5 * (lo + hi)
-    fm = _sd_at(em, r0, r1, r2, b0, b1, b2, g)
+    fm = _sd_at(em, r0, r1, r2, b0, b1, b2, g, H)
     if not (fm < min(fa, fc) - LEVEL_TOL):
         return em, False
     level = fm + LEVEL_TOL
-    left = _level_edge(ea, em, level, r0, r1, r2, b0, b1, b2, g)     # f(ea) > level >= f(em)
-    right = _level_edge(ec, em, level, r0, r1, r2, b0, b1, b2, g)    # f(ec) > level >= f(em)
+    if hfield:
+        out_a = _scan_out(em, level, False, ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+        out_c = _scan_out(em, level, True, ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+    else:
+        out_a, out_c = ea, ec
+    left = _level_edge(out_a, em, level, r0, r1, r2, b0, b1, b2, g, H)     # f(out_a) > level >= f(em)
+    right = _level_edge(out_c, em, level, r0, r1, r2, b0, b1, b2, g, H)    # f(out_c) > level >= f(em)
     return 0.5 * (left + right), True
 
 
 @njit(inline="always", **_opts)
-def _level_edge(out, inside, level, r0, r1, r2, b0, b1, b2, g):
+def _level_edge(out, inside, level, r0, r1, r2, b0, b1, b2, g, H):
     """Bisection for where the signed distance crosses ``level`` between ``out`` (above it) and
     ``inside`` (at or below it): the point of the bracket's ``inside`` end after GOLDEN_ITERS halvings."""
     for _ in range(GOLDEN_ITERS):
         mid = 0.5 * (out + inside)
-        if _sd_at(mid, r0, r1, r2, b0, b1, b2, g) > level:
+        if _sd_at(mid, r0, r1, r2, b0, b1, b2, g, H) > level:
             out = mid
         else:
             inside = mid
@@ -184,7 +300,7 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, 
 @njit(cache=True, nogil=True)
 def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, W, info):
     """Terrain contact forces of every copy of ``q``, ``qd`` (B, k, 6) as nodal forces ``W``
-    (B, n, 3) N; anchors, the material coordinates ``eta0`` (B, S) m of the rod points anchored,
+    (B, n, 3) N, against the features ``geom`` (heightfield heights ``hf``); anchors, the material coordinates ``eta0`` (B, S) m of the rod points anchored,
     active and slip flags (B, S) updated in place; ``info`` filled when it has B rows (see the
     module doc). A force F at the rod point ``r + eta b`` goes to the
     rod's nodes a, c (at eta_a, eta_c) as ``(eta_c - eta) / (eta_c - eta_a) F`` and
@@ -192,9 +308,15 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
     B, k, n = q.shape[0], q.shape[1], W.shape[1]
     F = geom.shape[1]
     has_info = info.shape[0] > 0
+    # the heightfield's slope bound: once per call for a shared field, per copy for per-copy ones
+    lam, lam_done = 1.0, False
+    per_copy_hf = geom.shape[0] > 1 or hf.shape[0] > 1
     for c in range(B):
         g_row = c if geom.shape[0] > 1 else 0
         p_row = c if prm.shape[0] > 1 else 0
+        H = hf[c if hf.shape[0] > 1 else 0]
+        if per_copy_hf:
+            lam_done = False
         for p in range(n):
             W[c, p, 0] = 0.0
             W[c, p, 1] = 0.0
@@ -210,9 +332,17 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                 pr = prm[p_row, f]
                 radius = pr[0]
                 base = (j * F + f) * 3
-                # the signed distance is 1-Lipschitz: a rod whose middle is farther than half its
-                # length plus the cap radius touches nowhere
-                far = _closest(r0 + em * b0, r1 + em * b1, r2 + em * b2, g)[0] - 0.5 * abs(span) >= radius
+                mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
+                if g[0] == HFIELD:
+                    # the vertical gap is sqrt(1 + L^2)-Lipschitz and d >= gap / sqrt(1 + L^2)
+                    # (module doc): a rod whose middle is that high touches nowhere
+                    if not lam_done:
+                        lam, lam_done = _hf_lipschitz(g, H), True
+                    far = mz - _hf_patch(mx, my, g, H)[0] >= lam * (radius + 0.5 * abs(span))
+                else:
+                    # the signed distance is 1-Lipschitz: a rod whose middle is farther than half
+                    # its length plus the cap radius touches nowhere
+                    far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
                 for s in range(3):
                     ci = base + s
                     e = ea if s == 0 else (ec if s == 1 else em)
@@ -221,9 +351,9 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                         if g[0] == PLANE:
                             use = False
                         else:
-                            e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g)
+                            e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
                     px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
-                    sd, nx, ny, nz = _closest(px, py, pz, g) if use else (math.inf, 0.0, 0.0, 1.0)
+                    sd, nx, ny, nz = _closest(px, py, pz, g, H) if use else (math.inf, 0.0, 0.0, 1.0)
                     vx = qd[c, j, 0] + e * qd[c, j, 3]
                     vy = qd[c, j, 1] + e * qd[c, j, 4]
                     vz = qd[c, j, 2] + e * qd[c, j, 5]

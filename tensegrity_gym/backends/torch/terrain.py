@@ -1,9 +1,10 @@
-"""Terrain contact on tensors: the rod capsules against a sloped plane and boxes, batched over
-copies (:func:`terrain_forces`), and steps with it (:func:`terrain_step`). The same equations,
-slots and arithmetic as the numba kernel :mod:`tensegrity_gym.backends.numba.terrain` (see
-there for the array layouts ``geom`` (G, F, 10), ``prm`` (P, F, 8) and the slot order); the
-arrays come from :class:`tensegrity_gym.physics.terrain.TerrainContact` (``.geom``, ``.prm``,
-``.per_copy``). SI units.
+"""Terrain contact on tensors: the rod capsules against a sloped plane, boxes and a
+heightfield, batched over copies (:func:`terrain_forces`), and steps with it
+(:func:`terrain_step`). The same equations, slots and arithmetic as the numba kernel
+:mod:`tensegrity_gym.backends.numba.terrain` (see there for the array layouts ``geom``
+(G, F, 10), ``prm`` (P, F, 8), ``hf`` (H, ny, nx), the slot order and the heightfield's
+coarse scan); the arrays come from :class:`tensegrity_gym.physics.terrain.TerrainContact`
+(``.geom``, ``.prm``, ``.hf``, ``.per_copy``). SI units.
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import math
 
 import numpy as np
 
-from ..numba.terrain import GOLDEN_ITERS, LEVEL_TOL, PLANE
+from ..numba.terrain import GOLDEN_ITERS, HF_SCAN, HFIELD, LEVEL_TOL, PLANE
 from .driver import prepare_steps, step_once
 from .model import TorchModel, _torch, torch_model
 
@@ -59,25 +60,93 @@ def _box(p0, p1, p2, g):
     return d, c * n0 - s * n1, s * n0 + c * n1, n2
 
 
-def _closest(p0, p1, p2, g):
+def _column(g, i, like):
+    """Column i of the geom rows ``g`` (G, 10), shaped to broadcast against the points ``like``."""
+    return g[:, i].reshape(-1, *([1] * (like.ndim - 1)))
+
+
+def _hf_patch(p0, p1, g, H):
+    """Bilinear height (m) and gradient of the heightfield ``g`` (G, 10) with heights ``H``
+    (1 or B, ny, nx) at points (p0, p1) whose leading axis is the copies (the numba ``_hf_patch``)."""
+    torch = _torch()
+    x0, y0, cell = _column(g, 1, p0), _column(g, 2, p0), _column(g, 3, p0)
+    ny, nx = H.shape[1], H.shape[2]
+    u = (p0 - x0) / cell
+    v = (p1 - y0) / cell
+    out_u = (u < 0.0) | (u > nx - 1)
+    out_v = (v < 0.0) | (v > ny - 1)
+    u = u.clamp(0.0, nx - 1.0)
+    v = v.clamp(0.0, ny - 1.0)
+    i = torch.floor(u).clamp(max=nx - 2)
+    j = torch.floor(v).clamp(max=ny - 2)
+    fu, fv = u - i, v - j
+    idx = j.long() * nx + i.long()
+    if H.shape[0] == 1:
+        flat = H[0].reshape(-1)
+
+        def take(o):
+            return flat[idx + o]
+    else:
+        flat = H.reshape(H.shape[0], -1)
+
+        def take(o):
+            return torch.gather(flat, 1, (idx + o).reshape(idx.shape[0], -1)).reshape(idx.shape)
+    h00, h10, h01, h11 = take(0), take(1), take(nx), take(nx + 1)
+    h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
+    zero = torch.zeros_like(h)
+    gx = torch.where(out_u, zero, ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / cell)
+    gy = torch.where(out_v, zero, ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / cell)
+    return h, gx, gy
+
+
+def _hf_lipschitz(g, H):
+    """``sqrt(1 + L^2)`` per copy row (G or B, 1): the numba ``_hf_lipschitz`` (largest height
+    step between grid neighbours along x and along y, over the cell)."""
+    torch = _torch()
+    mx = (H[:, :, 1:] - H[:, :, :-1]).abs().amax(dim=(1, 2))
+    my = (H[:, 1:, :] - H[:, :-1, :]).abs().amax(dim=(1, 2))
+    cell = g[:, 3]
+    return torch.sqrt(1.0 + (mx * mx + my * my) / (cell * cell)).reshape(-1, 1)
+
+
+def _closest(p0, p1, p2, g, H):
     """Signed distance and outward normal of points to the features ``g`` (G, 10) of one kind
-    (all rows of one feature column share its kind)."""
-    if float(g[0, 0]) == PLANE:
-        nx, ny, nz, off = (g[:, i].reshape(-1, *([1] * (p0.ndim - 1))) for i in range(1, 5))
+    (all rows of one feature column share its kind); ``H`` the heightfield's heights."""
+    torch = _torch()
+    kind = float(g[0, 0])
+    if kind == PLANE:
+        nx, ny, nz, off = (_column(g, i, p0) for i in range(1, 5))
         return nx * p0 + ny * p1 + nz * p2 - off, nx.expand_as(p0), ny.expand_as(p0), nz.expand_as(p0)
+    if kind == HFIELD:
+        h, gx, gy = _hf_patch(p0, p1, g, H)
+        c = 1.0 / torch.sqrt(1.0 + gx * gx + gy * gy)
+        return (p2 - h) * c, -gx * c, -gy * c, c
     return _box(p0, p1, p2, g)
 
 
-def _interior(ea, ec, r, b, g):
-    """The interior contact point of every rod against the box ``g``, (eta, deeper) (B, k): the
-    numba ``_interior`` on tensors (golden section, then the middle of the level set)."""
+def _interior(ea, ec, r, b, g, H):
+    """The interior contact point of every rod against the box or heightfield ``g``, (eta,
+    deeper) (B, k): the numba ``_interior`` on tensors (a heightfield's coarse scan, golden
+    section, then the middle of the level set)."""
     torch = _torch()
 
     def sd(e):
-        return _box(r[..., 0] + e * b[..., 0], r[..., 1] + e * b[..., 1], r[..., 2] + e * b[..., 2], g)[0]
+        e3 = e if e.ndim == r.ndim else e[..., None]
+        return _closest(r[..., 0, None] + e3 * b[..., 0, None], r[..., 1, None] + e3 * b[..., 1, None],
+                        r[..., 2, None] + e3 * b[..., 2, None], g, H)[0].reshape(e.shape)
     ea, ec = ea.expand_as(r[..., 0]), ec.expand_as(r[..., 0])
     fa, fc = sd(ea), sd(ec)
-    lo, hi = ea, ec
+    hfield = float(g[0, 0]) == HFIELD
+    if hfield:
+        # coarse scan: HF_SCAN + 1 samples (the numba _scan_at), bracket around the deepest
+        n = torch.arange(HF_SCAN + 1, device=r.device)
+        Es = torch.cat([ea[..., None] + n[:-1].to(r.dtype) * ((ec - ea) / HF_SCAN)[..., None], ec[..., None]], -1)
+        fs = sd(Es)
+        best = fs.argmin(dim=-1, keepdim=True)
+        lo = Es.gather(-1, (best - 1).clamp(min=0))[..., 0]
+        hi = Es.gather(-1, (best + 1).clamp(max=HF_SCAN))[..., 0]
+    else:
+        lo, hi = ea, ec
     x1 = hi - _GR * (hi - lo)
     x2 = lo + _GR * (hi - lo)
     f1, f2 = sd(x1), sd(x2)
@@ -94,13 +163,21 @@ def _interior(ea, ec, r, b, g):
     fm = sd(em)
     deeper = fm < torch.minimum(fa, fc) - LEVEL_TOL
     level = fm + LEVEL_TOL
-    a, bb = ea, em
+    out_a, out_c = ea, ec
+    if hfield:
+        # the nearest samples above the level on each side of em (the numba _scan_out)
+        above = fs > level[..., None]
+        ia = torch.where(above & (Es < em[..., None]), n, -1).amax(dim=-1, keepdim=True)
+        ic = torch.where(above & (Es > em[..., None]), n, HF_SCAN + 1).amin(dim=-1, keepdim=True)
+        out_a = torch.where(ia[..., 0] >= 0, Es.gather(-1, ia.clamp(min=0))[..., 0], ea)
+        out_c = torch.where(ic[..., 0] <= HF_SCAN, Es.gather(-1, ic.clamp(max=HF_SCAN))[..., 0], ec)
+    a, bb = out_a, em
     for _ in range(GOLDEN_ITERS):
         mid = 0.5 * (a + bb)
         up = sd(mid) > level
         a, bb = torch.where(up, mid, a), torch.where(up, bb, mid)
     left = bb
-    a, bb = em, ec
+    a, bb = em, out_c
     for _ in range(GOLDEN_ITERS):
         mid = 0.5 * (a + bb)
         up = sd(mid) > level
@@ -117,15 +194,36 @@ def _as(x, q, name, width):
     return t
 
 
-def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active):
+def _as_hf(hf, geom, q):
+    """The heights ``hf`` (1 or B, ny, nx) m as a tensor like ``q``; required (and shaped as the
+    geom rows' ny, nx) when ``geom`` has a heightfield, a (1, 1, 1) zero tensor otherwise."""
+    torch = _torch()
+    rows = [f for f in range(geom.shape[1]) if float(geom[0, f, 0]) == HFIELD]
+    if hf is None:
+        if rows:
+            raise ValueError("hf: geom has a heightfield feature; pass its heights hf (1 or B, ny, nx) m "
+                             "(TerrainContact.hf)")
+        return torch.zeros((1, 1, 1), dtype=q.dtype, device=q.device)
+    t = hf if isinstance(hf, torch.Tensor) else torch.as_tensor(np.array(hf, dtype=float))
+    t = t.to(device=q.device, dtype=q.dtype)
+    shape = (int(geom[0, rows[0], 4]), int(geom[0, rows[0], 5])) if rows else (1, 1)
+    if t.ndim != 3 or t.shape[0] not in (1, q.shape[0]) or tuple(t.shape[1:]) != shape:
+        raise ValueError(f"hf: expected shape (1, {shape[0]}, {shape[1]}) or ({q.shape[0]}, {shape[0]}, {shape[1]}), "
+                         f"got {tuple(t.shape)}")
+    return t
+
+
+def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
     """Terrain contact forces as the numba kernel's: returns ``(W (B, n, 3) N, anchor, eta0,
-    active, slip)``, the state as new tensors. ``geom`` (1 or B, F, 10), ``prm`` (1 or B, F, 8):
-    arrays or tensors (:class:`tensegrity_gym.physics.terrain.TerrainContact`'s ``geom`` /
-    ``per_copy``)."""
+    active, slip)``, the state as new tensors. ``geom`` (1 or B, F, 10), ``prm`` (1 or B, F, 8),
+    ``hf`` (1 or B, ny, nx) heightfield heights m (needed only with a heightfield): arrays or
+    tensors (:class:`tensegrity_gym.physics.terrain.TerrainContact`'s ``geom`` / ``per_copy``
+    / ``hf``)."""
     torch = _torch()
     tm = model if isinstance(model, TorchModel) else torch_model(model, q.device, q.dtype)
     B, k = q.shape[0], tm.k
     geom, prm = _as(geom, q, "geom", 10), _as(prm, q, "prm", 8)
+    H = _as_hf(hf, geom, q)
     F = geom.shape[1]
     if prm.shape[1] != F:
         raise ValueError(f"prm: expected {F} features as geom, got {prm.shape[1]}")
@@ -143,18 +241,22 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active):
         pr = [prm[:, f, i].reshape(-1, 1) for i in range(8)]             # (P, 1)
         radius, kn, dn, ex, mu, kt, ct, cmax = pr
         em = 0.5 * (ea + ec)
-        far = _closest(r[..., 0] + em * b[..., 0], r[..., 1] + em * b[..., 1], r[..., 2] + em * b[..., 2],
-                       g)[0] - 0.5 * span.abs() >= radius
+        mid = [r[..., i] + em * b[..., i] for i in range(3)]
+        if float(g[0, 0]) == HFIELD:
+            # the vertical gap's Lipschitz bound (the numba kernel's far early-out)
+            far = mid[2] - _hf_patch(mid[0], mid[1], g, H)[0] >= _hf_lipschitz(g, H) * (radius + 0.5 * span.abs())
+        else:
+            far = _closest(mid[0], mid[1], mid[2], g, H)[0] - 0.5 * span.abs() >= radius
         if float(g[0, 0]) == PLANE:
             ei, deeper = em.expand(B, k), torch.zeros((B, k), dtype=torch.bool, device=q.device)
         else:
-            ei, deeper = _interior(ea, ec, r, b, g)
+            ei, deeper = _interior(ea, ec, r, b, g, H)
             ei = torch.where(far, em.expand(B, k), ei)
         E = torch.stack([ea.expand(B, k), ec.expand(B, k), ei], dim=-1)  # (B, k, 3)
         use = torch.stack([~far, ~far, ~far & deeper], dim=-1)
         P = r[:, :, None, :] + E[..., None] * b[:, :, None, :]          # (B, k, 3, 3)
         V = rd[:, :, None, :] + E[..., None] * bd[:, :, None, :]
-        sd, nx, ny, nz = _closest(P[..., 0], P[..., 1], P[..., 2], g)
+        sd, nx, ny, nz = _closest(P[..., 0], P[..., 1], P[..., 2], g, H)
         sd = torch.where(use, sd, torch.full_like(sd, math.inf))
         n = torch.stack([nx, ny, nz], dim=-1)
         was = acs[:, :, f]
@@ -202,13 +304,14 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active):
 
 def terrain_step(model, geom, prm, q, qd, anchor, eta0, active, dt: float, integrator: str = "semi_implicit_euler",
                  n_steps: int = 1, rest_length=None, force_density=None, params=None, project: bool = True,
-                 external=None):
+                 external=None, hf=None):
     """``n_steps`` physics steps with terrain contact: per step the forces from the state at its
-    start (plus ``external``), held over one integrator step. Returns ``(q, qd, anchor, eta0, active)``."""
+    start (plus ``external``), held over one integrator step; ``hf`` the heightfield's heights
+    as :func:`terrain_forces` takes them. Returns ``(q, qd, anchor, eta0, active)``."""
     name, dt, tm, p, rl, fd, ext = prepare_steps(model, q, integrator, dt, params, rest_length, force_density,
                                                  external)
     for _ in range(int(n_steps)):
-        W, anchor, eta0, active, _ = terrain_forces(tm, q, qd, geom, prm, anchor, eta0, active)
+        W, anchor, eta0, active, _ = terrain_forces(tm, q, qd, geom, prm, anchor, eta0, active, hf)
         if ext is not None:
             W = W + ext
         q, qd = step_once(tm, q, qd, dt, name, p, rl, fd, W, project)
