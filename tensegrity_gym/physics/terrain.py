@@ -125,6 +125,7 @@ class TerrainContact:
                 row[1:3] = part.origin
                 row[3] = part.cell
                 row[4:6] = part.heights.shape
+                row[6] = hf_bound(part.heights, part.cell)
                 hf = np.ascontiguousarray(part.heights, dtype=np.float64)[None].copy()
             geom.append(row)
             mu, k, d = self.terrain.surface(part)
@@ -188,6 +189,19 @@ def _rows(arr, default, B, width, name):
     return a
 
 
+def _geom_rows(geom, hf, tc: TerrainContact, B: int):
+    """:func:`_rows` of ``geom``; with the caller's heights ``hf`` and the contact's own geometry,
+    the heightfield row's slope bound (column 6) is cleared: the kernel then bounds the slope of
+    the heights it is given. A caller passing both gives each row the bound of its own heights
+    (:func:`hf_bound`)."""
+    g = _rows(geom, tc.geom, B, 10, "geom")
+    if hf is not None and geom is None and tc.terrain.heightfield is not None:
+        g = g.copy()
+        g[..., 6] = np.where(g[..., 0] == HFIELD, 0.0, g[..., 6])
+        g.setflags(write=False)
+    return g
+
+
 def _hf_rows(hf, tc: TerrainContact, B: int):
     """Per-copy heightfield heights ``hf`` (1 or B, ny, nx) m as the kernel takes them (the
     contact's own ``tc.hf`` when None); ValueError naming ``hf``, the shape or the bad value."""
@@ -235,7 +249,7 @@ def contact_forces(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState
     slip = np.empty((B, S), bool)
     inf = np.empty((B, S, 6) if info else (0, 0, 6))
     terrain_forces_kernel(np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(qd, dtype=np.float64),
-                          model.eta, model.rod_a, model.rod_c, _rows(geom, tc.geom, B, 10, "geom"),
+                          model.eta, model.rod_a, model.rod_c, _geom_rows(geom, hf, tc, B),
                           _rows(prm, tc.prm, B, 8, "prm"), _hf_rows(hf, tc, B), ts.anchor, ts.eta0, ts.active,
                           slip, W, inf)
     return (W, ts, slip, inf) if info else (W, ts, slip)
@@ -289,8 +303,8 @@ def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str,
     sub-step runs inside one compiled call (:mod:`tensegrity_gym.backends.numba.terrain_steps`),
     the same kernels in the same order as the Python loop here (bit-identical)."""
     B = q.shape[0]
-    prm, geom, hf = (tc.prm if prm is None else _frozen(prm), tc.geom if geom is None else _frozen(geom),
-                     tc.hf if hf is None else _frozen(hf))
+    prm, geom = tc.prm if prm is None else _frozen(prm), _frozen(_geom_rows(geom, hf, tc, B))
+    hf = tc.hf if hf is None else _frozen(hf)
     W = np.empty((B, model.n_nodes, 3)) if forces is None else forces
     sl = np.empty((B, n_slots(tc, model)), bool) if slip is None else slip
     if compiled is None:
@@ -306,6 +320,16 @@ def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str,
             W += external
         _run_steps(model, q, qd, dt, integrator, n_steps=1, external=W, backend=backend, compiled=compiled,
                    **inputs)
+
+
+def hf_bound(heights: np.ndarray, cell: float) -> float:
+    """``sqrt(1 + L^2)``, L bounding the slope of the bilinear heightfield ``heights`` (ny, nx) m on
+    a grid of ``cell`` m (largest step along x and along y over the cell): column 6 of its geom row,
+    the bound of the kernel's "too far to touch" test (as the kernel's ``_hf_lipschitz``)."""
+    h = np.asarray(heights, float)
+    mx = float(np.abs(np.diff(h, axis=1)).max(initial=0.0))
+    my = float(np.abs(np.diff(h, axis=0)).max(initial=0.0))
+    return math.sqrt(1.0 + (mx * mx + my * my) / (cell * cell))
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -336,7 +360,7 @@ def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: Terr
     ts = tstate.copy()
     S = n_slots(tc, model)
     _check_state(ts, B, S)
-    prm, geom, hf = _rows(prm, tc.prm, B, 8, "prm"), _rows(geom, tc.geom, B, 10, "geom"), _hf_rows(hf, tc, B)
+    prm, geom, hf = _rows(prm, tc.prm, B, 8, "prm"), _geom_rows(geom, hf, tc, B), _hf_rows(hf, tc, B)
     ext = None if external is None else np.ascontiguousarray(external, dtype=np.float64)
     advance(tc, model, q, qd, dt, info.name, ts, n_steps=n_steps, external=ext, prm=prm, geom=geom, hf=hf,
             backend=backend, **inputs)

@@ -8,7 +8,8 @@ Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
   column 0 (:data:`PLANE` = 0: outward normal (1:4) and offset (4), the solid is
   ``n.p <= offset``; :data:`BOX` = 1: centre (1:4) m, half sizes (4:7) m, cos and sin of the
   yaw (7:9); :data:`HFIELD` = 2: grid origin x0, y0 (1:3) m, cell size (3) m, grid rows ny
-  and columns nx (4:6), the rest 0).
+  and columns nx (4:6), ``sqrt(1 + L^2)`` (6) for L the steepest slope of its heights (the
+  "too far to touch" bound; 0: computed from ``hf`` at each call), the rest 0).
 * ``hf`` (H, ny, nx), H = 1 (shared) or B: the heightfield's heights m, ``hf[., j, i]`` at
   ``x = x0 + i cell``, ``y = y0 + j cell``, bilinear in between, the edge values held outside
   the grid (:meth:`tensegrity_gym.core.terrain.Terrain.closest` is the NumPy oracle). At most
@@ -336,8 +337,8 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                 if g[0] == HFIELD:
                     # the vertical gap is sqrt(1 + L^2)-Lipschitz and d >= gap / sqrt(1 + L^2)
                     # (module doc): a rod whose middle is that high touches nowhere
-                    if not lam_done:
-                        lam, lam_done = _hf_lipschitz(g, H), True
+                    if not lam_done:      # the row's bound (column 6), else one pass over the heights
+                        lam, lam_done = (g[6] if g[6] >= 1.0 else _hf_lipschitz(g, H)), True
                     far = mz - _hf_patch(mx, my, g, H)[0] >= lam * (radius + 0.5 * abs(span))
                 else:
                     # the signed distance is 1-Lipschitz: a rod whose middle is farther than half
