@@ -289,3 +289,23 @@ def test_cli_export_terrain(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "applies to --format mjcf" in err and "heightfield: give exactly one of 'file'" in err
     assert "Traceback" not in err
+
+
+def test_docs_command_line_block_runs(tmp_path):
+    """docs/terrain.md's "Command line" block, pasted into a shell, runs and writes what it says."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    section = (root / "docs" / "terrain.md").read_text().split("## Command line", 1)[1]
+    block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
+    env = dict(os.environ, PYTHONPATH=str(root), PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
+    r = subprocess.run(["bash", "-e", "-c", block], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr and "warning" not in r.stderr
+    hold, slide = np.load(tmp_path / "ramp.npz")["nodes"], np.load(tmp_path / "slide.npz")["nodes"]
+    assert abs(hold[-1, :, 0].mean() - hold[1000, :, 0].mean()) < 2e-3       # holds on the ramp
+    assert slide[-1, :, 0].mean() < -0.3                                      # slides down onto the step
+    for name in ("flat.npz", "ramp.xml", "bumps.xml"):
+        assert (tmp_path / name).stat().st_size > 0

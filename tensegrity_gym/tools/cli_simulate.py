@@ -16,6 +16,7 @@ from ..core.placement import place_on_terrain
 from ..integrators import EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
 from ..io.claim import Transaction
 from ..io.trajectory import save_simulate_output
+from ..physics import terrain as terrain_physics
 from ..structure import StructureError
 from .rendering import RendererUnavailable, render_video
 from .cli_common import (ADAPTIVE_EVALUATIONS_PER_STEP, CHUNK_STEPS, ENERGY_BLOWUP, EXIT_DIVERGED, EXIT_OUTPUT,
@@ -99,10 +100,9 @@ def _check_terrain_options(args) -> None:
 def _terrain_setup(args, terrain, s):
     """``(structure, model, contact, lift)`` of ``simulate --terrain/--ground``: the structure lifted
     onto the terrain (:func:`tensegrity_gym.core.placement.place_on_terrain`, lift in m), its model
-    and the :class:`~tensegrity_gym.physics.terrain.TerrainContact`. CLIError for options the
-    terrain contact cannot run with; a StabilityWarning (one line) when ``--dt`` is above the
-    contact's estimated stable step."""
-    from ..physics import terrain as terrain_physics     # only runs that have a terrain load it
+    and the :class:`~tensegrity_gym.physics.terrain.TerrainContact`. CLIError (exit 3) when the
+    contact refuses the terrain or the structure cannot be placed on it; a StabilityWarning (one
+    line) when ``--dt`` is above the contact's estimated stable step."""
     radius = DEFAULT_CAP_RADIUS if args.cap_radius is None else args.cap_radius
     try:
         tc = terrain_physics.TerrainContact(terrain, radius=radius)
@@ -130,7 +130,6 @@ def _run_terrain(model, state, args, n_steps: int, progress: bool, tc):
     """``simulate`` with terrain contact (:func:`tensegrity_gym.physics.terrain.step`): the
     records of every ``--record-every`` steps, the command schedules' rows in force over each
     step. Returns ``(t, q, qd, message)`` as :func:`_run` (records up to a divergence)."""
-    from ..physics import terrain as terrain_physics
     info = resolve(args.integrator)
     every, dt = args.record_every, args.dt
     n_rec = n_steps // every
