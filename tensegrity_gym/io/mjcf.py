@@ -42,6 +42,18 @@ Mapping
   ``rod_radius`` that collide with the ground only (never with each other, like ours). MuJoCo's
   soft-constraint contact is not our Hunt-Crossley + stick/slip model: trajectories with
   contact agree qualitatively, not to round-off. Without ground, contact is disabled.
+* **Terrain** (``terrain=``, a :class:`~tensegrity_gym.core.terrain.Terrain`; instead of
+  ``ground``): the plane is a MuJoCo ``plane`` geom through the origin whose z axis is the
+  plane's outward normal (tilted by the slope about the horizontal axis perpendicular to the
+  uphill direction); each box a ``box`` geom (half sizes, yaw as a quaternion about z); the
+  heightfield an ``<hfield>`` asset (``nrow`` = ny, ``ncol`` = nx, elevations normalised to
+  [0, 1] with ``size[2]`` = the height range and ``size[3]`` a base below the lowest point, the
+  rows written from the highest y down as MuJoCo reads them) with an ``hfield`` geom at the
+  grid's centre and lowest height. Each part's ``friction`` is the geom's sliding friction; the
+  stiffness and damping are not mapped (MuJoCo's soft contact is its own). MuJoCo triangulates
+  a heightfield cell where ours is bilinear (equal at the grid points and along cell edges) and
+  ends at the grid where ours holds the edge values beyond it. Rods collide with the terrain
+  only, as with ``ground``.
 * **Initial state**: a keyframe ``initial`` holds the structure's node positions and velocities
   (``mujoco.mj_resetDataKeyframe(model, data, 0)``); ``qpos0`` is the same pose.
 
@@ -63,7 +75,11 @@ from ..checks import xml_text
 from ..core.rod_mass import mass_moments
 from ..structure import Structure
 
-__all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel"]
+__all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel", "default_rod_radius", "terrain_xml"]
+
+#: thickness (m) of the solid under a heightfield's lowest point (MuJoCo's ``size[3]``), as a
+#: fraction of the grid's larger side and at least 1 cm
+_HFIELD_BASE = 0.1
 
 
 def _fmt(x) -> str:
@@ -143,6 +159,48 @@ def initial_qpos_qvel(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
     return np.array(qpos), np.array(qvel)
 
 
+def default_rod_radius(structure: Structure) -> float:
+    """The rods' capsule radius (m) of the export when ``rod_radius`` is not given: 1 % of the longest rod."""
+    return 0.01 * float(structure.bar_lengths.max())
+
+
+def terrain_xml(terrain) -> tuple[list, list]:
+    """``(assets, geoms)``: the MJCF lines of ``terrain``'s heightfield asset and of its geoms
+    (world body; they collide with the rods only). See the module docstring for the mapping."""
+    from ..core.terrain import Terrain
+    if not isinstance(terrain, Terrain):
+        raise ValueError(f"terrain: expected a Terrain, got {type(terrain).__name__}")
+    contact = 'contype="0" conaffinity="1"'
+    fr = lambda part: f'friction="{float(terrain.surface(part)[0])!r} 0.005 0.0001"'
+    assets, geoms = [], []
+    if terrain.plane is not None:
+        geoms.append(f'    <geom name="terrain_plane" type="plane" size="0 0 1" pos="0 0 0" '
+                     f'quat="{_fmt(_quat_z_to(terrain.plane.normal))}" material="grid" {contact} '
+                     f'{fr(terrain.plane)}/>')
+    for i, b in enumerate(terrain.boxes):
+        yaw = math.radians(b.yaw_deg)
+        geoms.append(f'    <geom name="terrain_box{i}" type="box" size="{_fmt(b.size / 2)}" pos="{_fmt(b.center)}" '
+                     f'quat="{_fmt([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])}" rgba=".62 .56 .48 1" '
+                     f'{contact} {fr(b)}/>')
+    hf = terrain.heightfield
+    if hf is not None:
+        H = hf.heights
+        ny, nx = H.shape
+        lo, hi = float(H.min()), float(H.max())
+        rng = hi - lo
+        # MuJoCo keeps elevations in [0, 1] scaled by size[2] (> 0): a flat grid is zeros under any scale
+        elev = (H - lo) / rng if rng > 0 else np.zeros_like(H)
+        rx, ry = 0.5 * (nx - 1) * hf.cell, 0.5 * (ny - 1) * hf.cell
+        base = max(_HFIELD_BASE * 2 * max(rx, ry), 0.01)
+        # the attribute's first row is MuJoCo's highest y: our rows reversed
+        assets.append(f'    <hfield name="terrain_hfield" nrow="{ny}" ncol="{nx}" '
+                      f'size="{_fmt([rx, ry, rng if rng > 0 else 1e-6, base])}" elevation="{_fmt(elev[::-1])}"/>')
+        geoms.append(f'    <geom name="terrain_hfield" type="hfield" hfield="terrain_hfield" '
+                     f'pos="{_fmt([hf.origin[0] + rx, hf.origin[1] + ry, lo])}" rgba=".55 .62 .5 1" {contact} '
+                     f'{fr(hf)}/>')
+    return assets, geoms
+
+
 #: MuJoCo's integrators (``<option integrator=...>``)
 MJ_INTEGRATORS = ("RK4", "Euler", "implicit", "implicitfast")
 
@@ -156,12 +214,15 @@ def check_mj_integrator(name, field: str = "integrator") -> str:
 
 def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-3, integrator: str = "RK4",
             rod_radius: float | None = None, string_width: float | None = None, ground_height: float = 0.0,
-            friction: float = 1.0, model_name: str | None = None) -> str:
+            friction: float = 1.0, model_name: str | None = None, terrain=None) -> str:
     """The MJCF XML text of ``structure`` (see the module docstring for the mapping).
 
     Parameters
     ----------
     ground : add a ground plane at ``ground_height`` (m) with Coulomb ``friction``.
+    terrain : a :class:`~tensegrity_gym.core.terrain.Terrain` (plane, boxes, heightfield) instead
+        of ``ground``; its parts' own friction. The structure is written where it is
+        (:func:`tensegrity_gym.core.placement.place_on_terrain` lifts it onto the terrain).
     timestep : MuJoCo step, s. integrator : MuJoCo integrator ("RK4", "Euler", "implicit", "implicitfast").
     rod_radius : rod capsule radius, m (drawing, contact and the axial inertia ``m r^2 / 2``);
         default 1 % of the longest rod.
@@ -173,7 +234,11 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
     if not (isinstance(timestep, (int, float)) and math.isfinite(timestep) and timestep > 0):
         raise ValueError(f"timestep: must be a positive finite number of seconds, got {timestep!r}")
     check_mj_integrator(integrator)
-    r = 0.01 * float(s.bar_lengths.max()) if rod_radius is None else float(rod_radius)
+    if terrain is not None and ground:
+        raise ValueError("ground, terrain: give one of them (a level terrain plane is the ground)")
+    t_assets, t_geoms = ([], []) if terrain is None else terrain_xml(terrain)
+    contact = ground or terrain is not None
+    r = default_rod_radius(s) if rod_radius is None else float(rod_radius)
     if not (math.isfinite(r) and r > 0):
         raise ValueError(f"rod_radius: must be positive and finite (m), got {rod_radius!r}")
     w = r / 3 if string_width is None else float(string_width)
@@ -187,7 +252,7 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
     out = [f"<mujoco model={quoteattr(name)}>",
            '  <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>',
            f'  <option timestep="{timestep!r}" integrator="{integrator}" gravity="{_fmt(g)}">',
-           "" if ground else '    <flag contact="disable"/>',
+           "" if contact else '    <flag contact="disable"/>',
            "  </option>",
            "  <visual>",
            '    <global offwidth="1920" offheight="1080"/>',
@@ -196,6 +261,7 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
            '    <texture name="grid" type="2d" builtin="checker" rgb1=".82 .84 .86" rgb2=".74 .76 .78" '
            'width="512" height="512"/>',
            '    <material name="grid" texture="grid" texrepeat="4 4" texuniform="true" reflectance="0"/>',
+           *t_assets,
            "  </asset>",
            "  <worldbody>",
            '    <light name="sun" directional="true" pos="0 0 10" dir="-0.3 -0.3 -1" diffuse=".8 .8 .8"/>']
@@ -203,6 +269,7 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
     if ground:
         out.append(f'    <geom name="ground" type="plane" size="0 0 1" pos="0 0 {ground_height!r}" '
                    f'material="grid" contype="0" conaffinity="1" friction="{float(friction)!r} 0.005 0.0001"/>')
+    out += t_geoms
     for i in s.anchors:
         out.append(f'    <site name="node{i}" pos="{_fmt(s.nodes[i])}" size="{2 * r!r}" rgba=".2 .6 .2 1"/>')
     for j in range(s.n_bars):

@@ -11,11 +11,16 @@
   parameter is identifiable, 3 when the result is flagged.
 * ``demo --out DIR`` simulates the default prism released off equilibrium and writes a
   plot and a JSON summary.
-* ``export STRUCTURE --format mjcf --out model.xml [--ground]`` writes a MuJoCo model of the
-  structure (:mod:`tensegrity_gym.io.mjcf`); ``--format json`` writes this package's JSON;
+* ``simulate ... --terrain FILE.json`` (or ``--ground``: a level plane at z = 0) lifts the
+  structure onto the terrain (docs/terrain.md) and simulates it with terrain contact;
+  ``--friction``, ``--ground-stiffness``, ``--ground-damping`` override the file's contact
+  values, ``--cap-radius`` sets the rods' capsule radius (m).
+* ``export STRUCTURE --format mjcf --out model.xml [--ground | --terrain FILE.json]`` writes a
+  MuJoCo model of the structure (:mod:`tensegrity_gym.io.mjcf`), with the terrain's plane, boxes
+  and heightfield as MuJoCo geoms; ``--format json`` writes this package's JSON;
   ``--from tnsgrt`` reads STRUCTURE as a tnsgrt structure dict (:mod:`tensegrity_gym.io.tnsgrt`).
 * ``simulate ... --video out.mp4`` / ``demo --video out.mp4`` also render the run to a video.
-* ``view traj.npz [--structure S]`` opens an interactive view of a ``simulate`` output (time
+* ``view traj.npz [--structure S] [--terrain FILE.json]`` opens an interactive view of a ``simulate`` output (time
   slider, play/pause): a window where there is a display, else a browser view (viser).
 
 ``STRUCTURE`` is a JSON file or a built-in name (``prism3``, ``icosahedron``, ...).
@@ -41,7 +46,8 @@ Exit codes (every error is one line on stderr, never a traceback):
 0      success
 2      bad arguments (unknown option, a value that is not a positive number, ...)
 3      bad input: structure file not found or unreadable, not JSON, or invalid
-       (``StructureError``); ``view``: not a ``simulate`` output or a structure that does not match
+       (``StructureError``); a terrain file that cannot be read or is invalid (``--terrain``);
+       ``view``: not a ``simulate`` output or a structure that does not match
 4      output problem: the output is a directory, its folder is not writable, it exists and
        ``--force`` was not given, writing failed (disk full), or no renderer / viewer is available
 5      request too large: more steps or memory than the limits above (the estimate is printed)
@@ -72,6 +78,7 @@ from .cli_common import (DEFAULT_MAX_STEPS, EXIT_DIVERGED, EXIT_INTERRUPTED, EXI
                          EXIT_TERMINATED, EXIT_TOO_LARGE, EXIT_USAGE, CLIError, _default_max_memory_gib,
                          _non_negative, _one_line, _port, _positive, _seed, TERMINATED, _Terminated)
 from .cli_simulate import cmd_demo, cmd_simulate, load_schedule
+from .cli_terrain import add_terrain_args
 
 __all__ = ["main", "build_parser", "CLIError", "structure_summary", "load_schedule", "cmd_simulate", "cmd_info",
            "cmd_demo", "cmd_export", "cmd_view", "cmd_identify"]
@@ -133,6 +140,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                          "t,l_0,...,l_m-1); the output then holds rest_length (S, m) per record for identify")
     sp.add_argument("--force-density", default=None, metavar="FILE",
                     help="force densities added over time (N/m), as --rest-length (.npz array force_density)")
+    add_terrain_args(sp)
     limits(sp)
     sp.set_defaults(func=cmd_simulate)
     ip = sub.add_parser("info", help="print a summary of a structure", formatter_class=fmt)
@@ -188,7 +196,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     ep.add_argument("--out", required=True, help="output file (model.xml)")
     ep.add_argument("--from", dest="source", default="tensegrity_gym", choices=["tensegrity_gym", "tnsgrt"],
                     help="input format of STRUCTURE")
-    ep.add_argument("--ground", action="store_true", help="MJCF: add a ground plane at z = 0")
+    add_terrain_args(ep, contact=False,
+                     ground_help="MJCF: add a ground plane at z = 0 (the structure is written where it is)")
     ep.add_argument("--timestep", type=_positive(float), default=1e-3, help="MJCF: MuJoCo time step, s")
     ep.add_argument("--force", action="store_true", help="overwrite an existing output file")
     ep.add_argument("--steal-lock", action="store_true",
@@ -201,6 +210,7 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     vp.add_argument("--structure", default=None, help="the simulated structure: strings coloured by tension")
     vp.add_argument("--mode", default="auto", choices=["auto", "window", "browser"],
                     help="window (needs a display), browser (viser web view) or auto")
+    vp.add_argument("--terrain", default=None, metavar="FILE.json", help="draw this terrain (docs/terrain.md)")
     vp.add_argument("--port", type=_port, default=8080, help="browser mode: TCP port of the web viewer (0..65535; 0: any free port)")
     limits(vp)
     vp.set_defaults(func=cmd_view)

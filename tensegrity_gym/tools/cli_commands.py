@@ -9,14 +9,17 @@ from pathlib import Path
 import numpy as np
 
 from .. import dynamics
-from ..io.mjcf import to_mjcf
+from ..core.placement import place_on_terrain
+from ..core.terrain import Terrain
+from ..io.mjcf import default_rod_radius, to_mjcf
 from ..io.tnsgrt import from_tnsgrt
 from ..io.trajectory import load_simulate_output
 from ..sizing import stability_bytes
 from ..structure import StructureError
 from .cli_common import (EXIT_DIVERGED, EXIT_OUTPUT, EXIT_STRUCTURE, EXIT_USAGE, CLIError, _claim, _commit, _load,
-                         _require_memory, _stage)
+                         _one_line, _require_memory, _stage)
 from .cli_simulate import _outputs_and_model
+from .cli_terrain import terrain_from_args, terrain_label
 from .rendering import RendererUnavailable, view_trajectory
 
 
@@ -98,7 +101,13 @@ def cmd_info(args) -> int:
 
 
 def cmd_export(args) -> int:
-    """``export STRUCTURE --format mjcf|json --out PATH``: exit 0, 3 (bad structure) or 4 (output)."""
+    """``export STRUCTURE --format mjcf|json --out PATH [--ground | --terrain FILE.json]``: exit 0,
+    2 (a terrain with --format json), 3 (bad structure or terrain file) or 4 (output). With
+    ``--terrain`` the structure is lifted onto the terrain (its rod capsules clear it)."""
+    terrain = terrain_from_args(args)
+    if (terrain is not None or args.friction is not None) and args.format != "mjcf":
+        raise CLIError(EXIT_USAGE, f"export: {'--friction' if terrain is None else terrain_label(args)} "
+                                   "applies to --format mjcf")
     out = Path(args.out)
     tx = _claim(args, [(out, "export: --out")], create_folders=False)
     if args.source == "tnsgrt":
@@ -108,9 +117,16 @@ def cmd_export(args) -> int:
             raise CLIError(EXIT_STRUCTURE, f"export: {e}") from None
     else:
         s = _load(args.structure, args)
+    lift = 0.0
     try:
-        if args.format == "mjcf":
-            text = to_mjcf(s, ground=args.ground, timestep=args.timestep)
+        if args.format == "mjcf" and args.ground:
+            text = to_mjcf(s, ground=True, timestep=args.timestep,
+                           friction=1.0 if args.friction is None else args.friction)
+        elif args.format == "mjcf" and terrain is not None:
+            s, lift = place_on_terrain(s, terrain, default_rod_radius(s))
+            text = to_mjcf(s, timestep=args.timestep, terrain=terrain)
+        elif args.format == "mjcf":
+            text = to_mjcf(s, timestep=args.timestep)
         else:   # the bytes of save_json
             text = json.dumps(s.to_dict(), indent=1)
     except (StructureError, ValueError) as e:
@@ -119,7 +135,9 @@ def cmd_export(args) -> int:
         raise CLIError(EXIT_OUTPUT, f"export: {e}") from None
     _stage(tx, out, lambda f: f.write(text.encode("utf-8")))
     _commit(tx)
-    print(f"{s.name}: {s.n_bars} rods, {s.n_strings} strings -> {out} ({args.format})")
+    print(f"{s.name}: {s.n_bars} rods, {s.n_strings} strings -> {out} ({args.format})"
+          + (f"; on the terrain ({terrain_label(args)}, lifted {lift:.4g} m)" if terrain is not None and not args.ground
+             else ""))
     return 0
 
 
@@ -134,6 +152,12 @@ def cmd_view(args) -> int:
     except (OSError, KeyError) as e:
         raise CLIError(EXIT_STRUCTURE, f"view: {args.trajectory}: not a simulate output (.npz with t, nodes, bars, "
                                        f"strings): {e}") from None
+    terrain = None
+    if args.terrain is not None:
+        try:
+            terrain = Terrain.from_file(args.terrain)
+        except (ValueError, TypeError, OSError, RecursionError) as e:
+            raise CLIError(EXIT_STRUCTURE, f"view: --terrain {args.terrain!r}: {_one_line(e)}") from None
     tensions = None
     s = SimpleNamespace(bars=bars, strings=strings, n_strings=len(strings), gravity=None,
                         name=Path(args.trajectory).stem)
@@ -146,7 +170,8 @@ def cmd_view(args) -> int:
         tensions = st.stiffness * np.maximum(0.0, L - st.rest_length)   # elastic part, N
         s = st
     try:
-        view_trajectory(s, nodes, tensions, t, mode=args.mode, **({"port": args.port} if args.mode != "window" else {}))
+        view_trajectory(s, nodes, tensions, t, mode=args.mode, terrain=terrain,
+                        **({"port": args.port} if args.mode != "window" else {}))
     except (RendererUnavailable, ValueError, OSError) as e:
         raise CLIError(EXIT_OUTPUT, f"view: {e}") from None
     return 0

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -10,14 +11,18 @@ import numpy as np
 from .. import dynamics
 from ..builders import prism
 from ..checks import load_npz
+from ..core.errors import StabilityWarning
+from ..core.placement import place_on_terrain
 from ..integrators import EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
 from ..io.claim import Transaction
 from ..io.trajectory import save_simulate_output
+from ..physics import terrain as terrain_physics
 from ..structure import StructureError
 from .rendering import RendererUnavailable, render_video
 from .cli_common import (ADAPTIVE_EVALUATIONS_PER_STEP, CHUNK_STEPS, ENERGY_BLOWUP, EXIT_DIVERGED, EXIT_OUTPUT,
                          EXIT_STRUCTURE, EXIT_TOO_LARGE, EXIT_USAGE, PROGRESS_MIN_STEPS, CLIError, _claim, _commit, _load, _n_steps, _one_line,
                          _require_memory, _stage, _trajectory_bytes)
+from .cli_terrain import DEFAULT_CAP_RADIUS, terrain_from_args, terrain_label
 
 
 def _run(model, state, args, n_steps: int, progress: bool):
@@ -80,6 +85,102 @@ def _run(model, state, args, n_steps: int, progress: bool):
     return ts[:S], qs[:S], qds[:S], message
 
 
+def _check_terrain_options(args) -> None:
+    """CLIError (exit 2) for the options terrain contact cannot run with: the torch backend (its
+    terrain twin has no command-line driver) and the adaptive integrators (the contact forces are
+    held over fixed steps)."""
+    if args.backend == "torch":
+        raise CLIError(EXIT_USAGE, f"{terrain_label(args)}: terrain contact runs on the numba kernels; use "
+                                   "--backend auto or numba")
+    if resolve(args.integrator).adaptive:
+        raise CLIError(EXIT_USAGE, f"{terrain_label(args)}: terrain contact runs fixed-step methods "
+                                   f"(semi_implicit_euler, rk4, implicit_euler), not --integrator {args.integrator}")
+
+
+def _terrain_setup(args, terrain, s):
+    """``(structure, model, contact, lift)`` of ``simulate --terrain/--ground``: the structure lifted
+    onto the terrain (:func:`tensegrity_gym.core.placement.place_on_terrain`, lift in m), its model
+    and the :class:`~tensegrity_gym.physics.terrain.TerrainContact`. CLIError (exit 3) when the
+    contact refuses the terrain or the structure cannot be placed on it; a StabilityWarning (one
+    line) when ``--dt`` is above the contact's estimated stable step."""
+    radius = DEFAULT_CAP_RADIUS if args.cap_radius is None else args.cap_radius
+    try:
+        tc = terrain_physics.TerrainContact(terrain, radius=radius)
+        s, lift = place_on_terrain(s, terrain, radius)
+    except ValueError as e:
+        raise CLIError(EXIT_STRUCTURE, f"{terrain_label(args)}: {_one_line(e)}") from None
+    except StructureError as e:
+        raise CLIError(EXIT_STRUCTURE, f"{terrain_label(args)}: the structure lifted onto the terrain: {e}") from None
+    model = dynamics.compile_model(s)
+    if s.gravity is None or not np.any(s.gravity):
+        warnings.warn(f"structure {s.name!r} has no gravity: it does not fall onto the terrain (give \"gravity\" "
+                      "in a structure file)", stacklevel=2)
+    est = terrain_physics.stable_step(tc, model)
+    limit = float(est["semi_implicit_euler"])
+    if args.dt > limit:
+        k = float(tc.prm[0, est["feature"], 1])
+        warnings.warn(StabilityWarning(
+            f"terrain contact: --dt {args.dt:g} s is above its estimated stable step {limit:.3g} s (contact "
+            f"stiffness {k:.4g} N/m on the lightest rod); use --dt {limit:.2g} or lower, or a lower "
+            "--ground-stiffness"), stacklevel=2)
+    return s, model, tc, lift
+
+
+def _run_terrain(model, state, args, n_steps: int, progress: bool, tc):
+    """``simulate`` with terrain contact (:func:`tensegrity_gym.physics.terrain.step`): the
+    records of every ``--record-every`` steps, the command schedules' rows in force over each
+    step. Returns ``(t, q, qd, message)`` as :func:`_run` (records up to a divergence)."""
+    info = resolve(args.integrator)
+    every, dt = args.record_every, args.dt
+    n_rec = n_steps // every
+    ts = state.t + dt * every * np.arange(n_rec + 1)
+    qs = np.empty((n_rec + 1,) + state.q.shape)
+    qds = np.empty_like(qs)
+    qs[0], qds[0] = state.q, state.qd
+    starts = state.t + dt * np.arange(n_rec * every)
+    rows = {name: getattr(args, name).rows(starts, dt) for name in ("rest_length", "force_density")
+            if getattr(args, name) is not None}
+    # step indices where a schedule's row changes: a step run never crosses one
+    change = np.zeros(n_rec * every + 1, bool)
+    for r in rows.values():
+        change[1:-1] |= r[1:] != r[:-1]
+    change[::every] = True
+    change[-1] = True
+    cuts = np.flatnonzero(change)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=n_steps, unit="step", desc=f"{info.name}, terrain")
+    tstate = terrain_physics.init_terrain_state(tc, model)
+    st, done, message = state, 0, None
+    try:
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            inputs = {name: np.ascontiguousarray(getattr(args, name).value(int(r[a]), 1, model.n_strings),
+                                                 dtype=np.float64).reshape(1, -1) for name, r in rows.items()}
+            last = st
+            try:
+                st, tstate = terrain_physics.step(model, st, dt, tc, tstate, info.name, n_steps=int(b - a),
+                                                  project=not args.no_project, backend=args.backend, **inputs)
+                finite = bool(np.all(np.isfinite(st.q)) and np.all(np.isfinite(st.qd)))
+                what = "the state became non-finite"
+            except (ZeroDivisionError, OverflowError, FloatingPointError) as exc:   # compiled kernels
+                finite, what = False, f"{type(exc).__name__} ({exc})"
+            if not finite:
+                message = (f"{info.name} with terrain contact: {what} between t = {last.t:.6g} s and "
+                           f"t = {last.t + dt * (b - a):.6g} s (dt = {dt:g} s); reduce --dt")
+                break
+            if b % every == 0:
+                done = b // every
+                qs[done], qds[done] = st.q, st.qd
+            if bar is not None:
+                bar.update(int(b - a))
+    finally:
+        if bar is not None:
+            bar.close()
+    S = done + 1
+    return ts[:S], qs[:S], qds[:S], message
+
+
 def _outputs_and_model(args, second, flag: str):
     """``(out path, transaction, structure, model)`` of a command writing ``--out`` and optionally
     ``second`` (the path given to ``flag``): both claimed before any work, then the structure loaded."""
@@ -119,7 +220,13 @@ def load_schedule(path, name: str, n_strings: int) -> Schedule:
 
 
 def cmd_simulate(args) -> int:
+    terrain = terrain_from_args(args)     # a bad terrain file is refused before any output is claimed
+    if terrain is not None:
+        _check_terrain_options(args)
     out, tx, s, model = _outputs_and_model(args, args.video, "--video")
+    tc = None
+    if terrain is not None:
+        s, model, tc, lift = _terrain_setup(args, terrain, s)
     for name in ("rest_length", "force_density"):
         path = getattr(args, name)
         if path is None:
@@ -150,6 +257,8 @@ def cmd_simulate(args) -> int:
             raise CLIError(EXIT_USAGE, f"--backend torch: {exc}") from None
         diverged = None if (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))) else \
             "the torch backend's state became non-finite"
+    elif tc is not None:
+        t, q, qd, diverged = _run_terrain(model, state, args, n_steps, progress, tc)
     else:
         t, q, qd, diverged = _run(model, state, args, n_steps, progress)
     wall = time.perf_counter() - t0
@@ -177,11 +286,14 @@ def cmd_simulate(args) -> int:
         raise CLIError(EXIT_DIVERGED, f"simulation diverged: {_one_line(diverged)}; wrote {S} records "
                                       f"(up to the divergence) to {out}, flagged diverged=True"
                        + (f"; no video written to {args.video}" if args.video else ""))
-    frames = _stage_video(tx, args, s, model, t, qf, qdf)
+    frames = _stage_video(tx, args, s, model, t, qf, qdf, terrain)
     _commit(tx)
     drift = float(np.max(np.abs(E - E[0])) / max(abs(E[0]), 1e-300))
     print(f"{s.name}: {n_steps} steps of {args.dt:g} s with {args.integrator} in {wall:.3g} s wall "
           f"({n_steps / wall:,.0f} steps/s); {S} records -> {out}")
+    if tc is not None:
+        print(f"terrain contact ({terrain_label(args)}, {tc.n_features} parts, cap radius {tc.radius:g} m): "
+              f"the structure was lifted {lift:.4g} m to rest on it")
     print(f"max relative energy change {drift:.3e}; final rod-length drift "
           f"{float(dynamics.rod_length_drift(model, qf[-1:])[0]):.3e}")
     _print_video(args, frames)
@@ -250,9 +362,10 @@ def cmd_demo(args) -> int:
     return 0
 
 
-def _stage_video(tx: Transaction, args, s, model, t, q, qd) -> int:
+def _stage_video(tx: Transaction, args, s, model, t, q, qd, terrain=None) -> int:
     """``--video PATH``: render the recorded trajectory (q, qd: (S, 1, k, 6)) in real time at
-    30 frames/s into the transaction (published with the other outputs); returns the frame count."""
+    30 frames/s into the transaction (published with the other outputs), on ``terrain`` if one is
+    given; returns the frame count."""
     if not getattr(args, "video", None):
         return 0
     q, qd = q.reshape((len(t),) + q.shape[-2:]), qd.reshape((len(t),) + qd.shape[-2:])
@@ -260,7 +373,8 @@ def _stage_video(tx: Transaction, args, s, model, t, q, qd) -> int:
     frames = []
     try:
         tx.stage_file(args.video, lambda tmp: frames.append(
-            render_video(tmp, s, dynamics.node_positions(model, q), gamma * L, t)))
+            render_video(tmp, s, dynamics.node_positions(model, q), gamma * L, t,
+                         **({} if terrain is None else {"terrain": terrain}))))
     except (RendererUnavailable, ValueError, OSError) as e:
         raise CLIError(EXIT_OUTPUT, f"--video {args.video}: {e}; no output file was changed") from None
     return frames[0]

@@ -3,19 +3,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scene import RendererUnavailable, _tension_rgb
+from .scene import RendererUnavailable, _check_terrain, _heightfield_mesh, _plane_height, _tension_rgb
 
 
 class BrowserViewer:
     """Interactive 3-D view of a recorded trajectory in a web browser (viser, WebGL): rods,
-    strings coloured by tension, nodes, the ground; a time slider, play/pause, a speed choice.
+    strings coloured by tension, nodes, the ground or a ``terrain`` (a
+    :class:`~tensegrity_gym.core.terrain.Terrain`: plane, boxes, heightfield); a time slider,
+    play/pause, a speed choice.
 
     Works on a headless machine: open the printed URL (forward the port over ssh if remote).
     ``nodes`` (S, n, 3) m, ``tensions`` (S, m) N or None, ``times`` (S,) s (default 0, 1, 2, ...).
     """
 
     def __init__(self, structure, nodes, tensions=None, times=None, *, host: str = "127.0.0.1",
-                 port: int = 8080, ground_z=None, title: str | None = None):
+                 port: int = 8080, ground_z=None, title: str | None = None, terrain=None):
         try:
             import viser
         except ImportError:
@@ -36,9 +38,11 @@ class BrowserViewer:
         self.url = f"http://{host}:{self.server.get_port()}"
         sc, gui = self.server.scene, self.server.gui
         ext = float(np.ptp(self.nodes[0], axis=0).max()) or 1.0
-        if ground_z is None and structure.gravity is not None:
+        if ground_z is None and structure.gravity is not None and terrain is None:
             ground_z = float(self.nodes[..., 2].min())
-        if ground_z is not None:
+        if _check_terrain(terrain) is not None:
+            self._add_terrain(sc, terrain, ext)
+        elif ground_z is not None:
             c = self.nodes[0].mean(axis=0)
             sc.add_grid("/ground", width=20 * ext, height=20 * ext, cell_size=ext / 4,
                         position=(float(c[0]), float(c[1]), float(ground_z)))
@@ -61,6 +65,22 @@ class BrowserViewer:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
         self._thread.start()
+
+    def _add_terrain(self, sc, terrain, ext: float) -> None:
+        """The terrain's plane (a grid tilted onto it around the structure), boxes and heightfield (a mesh)."""
+        from ...io.mjcf import _quat_z_to
+        c = self.nodes[0].mean(axis=0)
+        if terrain.plane is not None:
+            z = float(_plane_height(terrain.plane, c[0], c[1]))
+            sc.add_grid("/terrain/plane", width=20 * ext, height=20 * ext, cell_size=ext / 4,
+                        wxyz=tuple(_quat_z_to(terrain.plane.normal)), position=(float(c[0]), float(c[1]), z))
+        for i, b in enumerate(terrain.boxes):
+            yaw = np.radians(b.yaw_deg)
+            sc.add_box(f"/terrain/box{i}", color=(158, 143, 122), dimensions=tuple(b.size),
+                       wxyz=(float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))), position=tuple(b.center))
+        if terrain.heightfield is not None:
+            v, f = _heightfield_mesh(terrain.heightfield)
+            sc.add_mesh_simple("/terrain/heightfield", v, f, color=(140, 160, 120), side="double")
 
     def _segments(self, i, pairs):
         N = self.nodes[i]

@@ -5,7 +5,7 @@ import warnings
 
 import numpy as np
 
-from .scene import _scene_arrays
+from .scene import _box_faces, _check_terrain, _heightfield_grid, _plane_height, _scene_arrays
 
 
 class Renderer:
@@ -49,15 +49,39 @@ class Renderer:
                        0.5 * float(np.max(self.limits[:, 1] - self.limits[:, 0])))
             self.limits = np.stack([c - half, c + half], axis=1)
 
+    def _draw_terrain(self, terrain) -> None:
+        """The terrain's plane (a patch over the view), boxes (shaded solids) and heightfield (a surface)."""
+        from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+        ax = self.ax
+        if terrain.plane is not None:
+            X, Y = np.meshgrid(self.limits[0], self.limits[1])
+            ax.plot_surface(X, Y, _plane_height(terrain.plane, X, Y), color="0.85", alpha=0.5, zorder=0)
+        hf = terrain.heightfield
+        if hf is not None:
+            X, Y, Z = _heightfield_grid(hf, 40)
+            # the part over the view (matplotlib's 3-D axes do not clip what lies beyond their limits)
+            (x0, x1), (y0, y1) = self.limits[0], self.limits[1]
+            c = (X[0] >= x0 - hf.cell) & (X[0] <= x1 + hf.cell)
+            r = (Y[:, 0] >= y0 - hf.cell) & (Y[:, 0] <= y1 + hf.cell)
+            if c.sum() >= 2 and r.sum() >= 2:
+                X, Y, Z = (A[np.ix_(r, c)] for A in (X, Y, Z))
+                ax.plot_surface(X, Y, Z, cmap="summer", alpha=0.75, linewidth=0.2, edgecolor="0.45", zorder=0)
+        for b in terrain.boxes:
+            ax.add_collection3d(Poly3DCollection(list(_box_faces(b)), facecolor=(.62, .56, .48, .85),
+                                                 edgecolor="0.3", linewidths=0.6))
+
     def render(self, nodes, rods, strings, tensions=None, *, slack=None, targets=None, ground_z=None,
-               path=None, goal=None, tension_max=None, caption: str | None = None) -> np.ndarray:
+               path=None, goal=None, tension_max=None, caption: str | None = None, terrain=None) -> np.ndarray:
         """Draw one frame and return it as an (height, width, 3) uint8 array.
 
         nodes (n, 3) m; rods (k, 2) and strings (m, 2) node-index pairs; tensions (m,) N or None;
         slack (m,) bool or None (default: tension <= 0); targets (t, 3) m; ground_z m;
-        path (p, 3) m; goal (3,) m; tension_max N (colour-scale top); caption: text.
+        path (p, 3) m; goal (3,) m; tension_max N (colour-scale top); caption: text;
+        terrain: a :class:`~tensegrity_gym.core.terrain.Terrain` (plane, boxes, heightfield) drawn
+        instead of the level ground of ``ground_z``.
         """
         import matplotlib
+        terrain = _check_terrain(terrain)
         nodes, rods, strings, targets, pts = _scene_arrays(nodes, rods, strings, targets, goal)
         self._update_limits(np.concatenate(pts))
         ax = self.ax
@@ -74,7 +98,9 @@ class Renderer:
         ax.set_ylabel("y (m)", fontsize=7)
         ax.set_zlabel("z (m)", fontsize=7)
         ax.tick_params(labelsize=6)
-        if ground_z is not None:
+        if terrain is not None:
+            self._draw_terrain(terrain)
+        elif ground_z is not None:
             (x0, x1), (y0, y1) = self.limits[0], self.limits[1]
             X, Y = np.meshgrid([x0, x1], [y0, y1])
             ax.plot_surface(X, Y, np.full_like(X, float(ground_z)), color="0.85", alpha=0.5, zorder=0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .matplotlib_renderer import Renderer
-from .scene import RendererUnavailable, _scene_arrays
+from .scene import RendererUnavailable, _check_terrain, _scene_arrays
 
 
 _GL_CACHE: dict = {}
@@ -77,10 +77,12 @@ _SCENE_XML = """<mujoco model="tensegrity_view">
     <texture name="sky" type="skybox" builtin="gradient" rgb1=".95 .97 1" rgb2=".70 .78 .88" width="8" height="8"/>
     <texture name="grid" type="2d" builtin="checker" rgb1=".86 .87 .88" rgb2=".76 .78 .80" width="32" height="32" mark="edge" markrgb=".6 .62 .65"/>
     <material name="grid" texture="grid" texrepeat="1 1" texuniform="true" reflectance="0"/>
+{terrain_assets}
   </asset>
   <worldbody>
     <light name="sun" directional="true" castshadow="{cast}" pos="0 0 10" dir="0.35 0.45 -1" diffuse=".6 .6 .6" specular=".2 .2 .2"/>
     <geom name="ground" type="plane" size="20 20 2" material="grid" rgba="1 1 1 0"/>
+{terrain_geoms}
   </worldbody>
 </mujoco>
 """
@@ -93,7 +95,9 @@ class MujocoRenderer:
     Rods: shaded dark capsules with node spheres; strings: thin capsules coloured by tension on
     the "turbo" scale from 0 to ``tension_max`` (default: the largest tension in the frame),
     slack strings thinner and grey; targets: translucent green spheres; path: an orange
-    polyline; goal: a green sphere; ground: a checkered plane at ``ground_z``. Overlays: the
+    polyline; goal: a green sphere; ground: a checkered plane at ``ground_z``; ``terrain``: its
+    plane (checkered), boxes and heightfield as MuJoCo geoms (the scene is rebuilt when a new
+    terrain object is given, then reused). Overlays: the
     title and caption (top left), a colour bar with its range in N (right), the time-independent
     legend (rod, slack). The camera looks at the centre of the first frame's bounding box (it
     re-frames if the structure leaves it), from ``elev`` degrees above the horizon and azimuth
@@ -117,18 +121,14 @@ class MujocoRenderer:
         self.elev, self.azim, self.title, self.follow = float(elev), float(azim), title, bool(follow)
         self.limits = None if limits is None else np.asarray(limits, float).reshape(3, 2)
         self._auto_limits = self.limits is None
-        xml = _SCENE_XML.format(w=max(self.width, 64), h=max(self.height, 64), shadow=2048 if shadows else 0,
-                                samples=int(samples), cast="true" if shadows else "false")
-        self.model = mujoco.MjModel.from_xml_string(xml)
-        self.data = mujoco.MjData(self.model)
-        mujoco.mj_forward(self.model, self.data)
+        self._xml_args = dict(w=max(self.width, 64), h=max(self.height, 64), shadow=2048 if shadows else 0,
+                              samples=int(samples), cast="true" if shadows else "false")
         self._ctx = cls(max(self.width, 64), max(self.height, 64))
         self._ctx.make_current()
-        scale = mujoco.mjtFontScale.mjFONTSCALE_150 if min(self.width, self.height) >= 400 else \
+        self._font_scale = mujoco.mjtFontScale.mjFONTSCALE_150 if min(self.width, self.height) >= 400 else \
             mujoco.mjtFontScale.mjFONTSCALE_100
-        self._con = mujoco.MjrContext(self.model, scale)
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
-        self._scn = mujoco.MjvScene(self.model, maxgeom=1000)
+        self._con = None
+        self._load_scene(None)
         self._opt = mujoco.MjvOption()
         self._cam = mujoco.MjvCamera()
         self._cam.type = mujoco.mjtCamera.mjCAMERA_FREE
@@ -142,6 +142,25 @@ class MujocoRenderer:
         self._human = None
 
     # ------------------------------------------------------------------ helpers
+    def _load_scene(self, terrain) -> None:
+        """(Re)build the MuJoCo scene model with ``terrain``'s geoms (the MJCF export's own mapping,
+        :func:`tensegrity_gym.io.mjcf.terrain_xml`: plane, boxes, heightfield) and its render context.
+        Runs once per terrain object: frames of one terrain reuse it."""
+        from ...io.mjcf import terrain_xml
+        mujoco = self._mj
+        assets, geoms = ([], []) if terrain is None else terrain_xml(terrain)
+        xml = _SCENE_XML.format(terrain_assets="\n".join(assets), terrain_geoms="\n".join(geoms), **self._xml_args)
+        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.data = mujoco.MjData(self.model)
+        mujoco.mj_forward(self.model, self.data)
+        self._ctx.make_current()
+        if self._con is not None:
+            self._con.free()
+        self._con = mujoco.MjrContext(self.model, self._font_scale)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
+        self._scn = mujoco.MjvScene(self.model, maxgeom=1000)
+        self._terrain = terrain
+
     def _update_limits(self, pts: np.ndarray) -> None:
         Renderer._update_limits(self, pts)
 
@@ -157,10 +176,12 @@ class MujocoRenderer:
         scn.ngeom += 1
 
     def render(self, nodes, rods, strings, tensions=None, *, slack=None, targets=None, ground_z=None,
-               path=None, goal=None, tension_max=None, caption: str | None = None) -> np.ndarray:
+               path=None, goal=None, tension_max=None, caption: str | None = None, terrain=None) -> np.ndarray:
         """Draw one frame and return it as an (height, width, 3) uint8 array (arguments as
-        :meth:`Renderer.render`)."""
+        :meth:`Renderer.render`; ``terrain`` replaces the checkered ground of ``ground_z``)."""
         mj = self._mj
+        if _check_terrain(terrain) is not self._terrain:
+            self._load_scene(terrain)
         nodes, rods, strings, targets, pts = _scene_arrays(nodes, rods, strings, targets, goal)
         if self.follow and self._auto_limits and self.limits is not None:
             half = 0.5 * float(np.max(self.limits[:, 1] - self.limits[:, 0]))
@@ -175,7 +196,9 @@ class MujocoRenderer:
         r_rod, r_str, r_node = self._size
         # ground
         gid = 0
-        if ground_z is not None:
+        if terrain is not None:
+            self.model.geom_rgba[gid, 3] = 0.0
+        elif ground_z is not None:
             self.model.geom_pos[gid, 2] = float(ground_z)
             self.model.geom_rgba[gid, 3] = 1.0
         else:
@@ -184,7 +207,7 @@ class MujocoRenderer:
         lo, hi = self.limits[:, 0], self.limits[:, 1]
         half = 0.5 * float(np.max(hi - lo))
         self._cam.lookat[:] = 0.5 * (lo + hi)
-        if ground_z is not None:
+        if ground_z is not None and terrain is None:
             self._cam.lookat[2] = max(self._cam.lookat[2], float(ground_z) + 0.3 * half)
         self._cam.distance = 3.5 * half
         self._cam.elevation = -self.elev

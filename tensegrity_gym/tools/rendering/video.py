@@ -19,12 +19,15 @@ def write_video(path, structure, nodes, tensions=None, times=None, **kw) -> int:
 
 
 def render_video(path, structure, nodes, tensions=None, times=None, *, fps: float = 30.0, width: int = 480,
-                 height: int = 480, title: str | None = None, ground_z=None, backend: str | None = None) -> int:
+                 height: int = 480, title: str | None = None, ground_z=None, backend: str | None = None,
+                 terrain=None) -> int:
     """Render a recorded trajectory straight into the video file ``path`` (its suffix picks the
     format: ``.mp4``, ``.gif``, ...; :func:`write_video` is the atomic form).
 
     ``nodes`` (S, n, 3) m; ``tensions`` (S, m) N or None; ``times`` (S,) s: records are picked
     so that the video plays in real time at ``fps`` frames/s (all records if ``times`` is None).
+    ``terrain``: a :class:`~tensegrity_gym.core.terrain.Terrain` drawn under the structure (instead
+    of the level ground at ``ground_z``, by default the lowest node of a structure with gravity).
     Returns the number of frames written."""
     from pathlib import Path
     try:
@@ -46,7 +49,7 @@ def render_video(path, structure, nodes, tensions=None, times=None, *, fps: floa
     if suffix not in (".mp4", ".gif", ".webm", ".mkv", ".avi", ".mov"):
         raise ValueError(f"video path {str(path)!r}: use a .mp4 or .gif file name")
     r = make_renderer(width, height, backend=backend, title=title or structure.name)
-    if ground_z is None and structure.gravity is not None:
+    if ground_z is None and structure.gravity is not None and terrain is None:
         ground_z = float(nodes[..., 2].min())
     tmax = None
     if tensions is not None:
@@ -62,7 +65,7 @@ def render_video(path, structure, nodes, tensions=None, times=None, *, fps: floa
                 cap = None if times is None else f"t = {times[i]:.2f} s"
                 T = None if tensions is None else tensions[i]
                 w.append_data(r.render(nodes[i], structure.bars, structure.strings, T, ground_z=ground_z,
-                                       caption=cap, tension_max=tmax))
+                                       caption=cap, tension_max=tmax, terrain=terrain))
         except BaseException:
             close_after_error(w)   # the writer's own error on close (ffmpeg's pipe) would hide this one
             raise

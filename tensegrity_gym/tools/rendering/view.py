@@ -13,6 +13,8 @@ def view_trajectory(structure, nodes, tensions=None, times=None, *, mode: str = 
     ``mode``: "window" (matplotlib window, needs a display and an interactive backend),
     "browser" (viser web viewer: prints its URL; works headless) or "auto" (window where
     there is a display, else browser). ``block``: wait until the window is closed / Ctrl-C.
+    ``terrain=`` (a :class:`~tensegrity_gym.core.terrain.Terrain`), ``ground_z=``, ``title=`` and
+    the viewer's own keywords go to the viewer.
     Returns the viewer (:class:`WindowViewer` or :class:`BrowserViewer`)."""
     if mode not in ("auto", "window", "browser"):
         raise ValueError(f"mode: one of 'auto', 'window', 'browser', got {mode!r}")

@@ -16,10 +16,11 @@ def _has_display() -> bool:
 
 class WindowViewer:
     """Interactive window (matplotlib widgets) showing frames of a recorded trajectory drawn by
-    :func:`make_renderer`: a time slider and a play/pause button. Needs a display."""
+    :func:`make_renderer`: a time slider and a play/pause button; ``terrain`` (a
+    :class:`~tensegrity_gym.core.terrain.Terrain`) drawn under the structure. Needs a display."""
 
     def __init__(self, structure, nodes, tensions=None, times=None, *, width: int = 640, height: int = 640,
-                 ground_z=None, title: str | None = None):
+                 ground_z=None, title: str | None = None, terrain=None):
         import matplotlib.pyplot as plt
         from matplotlib.widgets import Button, Slider
         self.nodes = np.asarray(nodes, float)
@@ -27,9 +28,9 @@ class WindowViewer:
         self.times = np.arange(S, dtype=float) if times is None else np.asarray(times, float)
         self.tensions = None if tensions is None else np.asarray(tensions, float)
         self.structure = structure
-        if ground_z is None and structure.gravity is not None:
+        if ground_z is None and structure.gravity is not None and terrain is None:
             ground_z = float(self.nodes[..., 2].min())
-        self.ground_z = ground_z
+        self.ground_z, self.terrain = ground_z, terrain
         self.renderer = make_renderer(width, height, title=title or structure.name)
         self.tmax = None if self.tensions is None else max(float(self.tensions.max()), 1e-9)
         self.fig = plt.figure(figsize=(width / 100, height / 100 + 0.6))
@@ -50,7 +51,7 @@ class WindowViewer:
     def _frame(self, i):
         T = None if self.tensions is None else self.tensions[i]
         return self.renderer.render(self.nodes[i], self.structure.bars, self.structure.strings, T,
-                                    ground_z=self.ground_z, tension_max=self.tmax,
+                                    ground_z=self.ground_z, terrain=self.terrain, tension_max=self.tmax,
                                     caption=f"t = {self.times[i]:.2f} s")
 
     def _on_slider(self, t):

@@ -1,0 +1,81 @@
+"""The command line's terrain options: ``--terrain FILE.json`` / ``--ground`` and the contact
+overrides (``--friction``, ``--ground-stiffness``, ``--ground-damping``, ``--cap-radius``), read
+into a :class:`~tensegrity_gym.core.terrain.Terrain` with one-line errors (SI units)."""
+from __future__ import annotations
+
+import dataclasses
+
+from ..core.terrain import Terrain
+from ..physics.terrain import TerrainContact
+from .cli_common import EXIT_STRUCTURE, EXIT_USAGE, CLIError, _non_negative, _one_line, _positive
+
+__all__ = ["add_terrain_args", "terrain_from_args", "terrain_label", "with_contact", "DEFAULT_CAP_RADIUS"]
+
+#: cap radius of the rods' capsules (m) when ``--cap-radius`` is not given: the physics' own default
+DEFAULT_CAP_RADIUS = TerrainContact.__dataclass_fields__["radius"].default
+
+#: the contact overrides: (command-line flag, argparse dest, Terrain field)
+_OVERRIDES = (("--friction", "friction", "friction"), ("--ground-stiffness", "ground_stiffness", "stiffness"),
+              ("--ground-damping", "ground_damping", "damping"))
+
+
+def add_terrain_args(p, *, contact: bool = True, ground_help: str | None = None) -> None:
+    """``--terrain`` / ``--ground`` (one or the other) and the contact overrides on parser ``p``;
+    ``contact=False`` keeps only ``--friction`` (``export``: MuJoCo's contact takes the friction,
+    its own soft contact replaces the stiffness and damping, and it sizes its capsules itself)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--terrain", default=None, metavar="FILE.json",
+                   help="a terrain file (docs/terrain.md: a sloped plane, boxes, a heightfield)")
+    g.add_argument("--ground", action="store_true",
+                   help=ground_help or "a level plane at z = 0 (the same as --terrain with a file holding {})")
+    p.add_argument("--friction", type=_non_negative, default=None,
+                   help="Coulomb friction coefficient of every terrain part (default: the terrain file's)")
+    if not contact:
+        return
+    p.add_argument("--ground-stiffness", type=_positive(float), default=None,
+                   help="normal contact stiffness of every terrain part, N/m (default: the terrain file's)")
+    p.add_argument("--ground-damping", type=_non_negative, default=None,
+                   help="Hunt-Crossley contact damping of every terrain part, s/m (default: the terrain file's)")
+    p.add_argument("--cap-radius", type=_positive(float), default=None,
+                   help=f"radius of the rods' end caps and capsules touching the terrain, m "
+                        f"(default {DEFAULT_CAP_RADIUS:g})")
+
+
+def with_contact(terrain: Terrain, friction=None, stiffness=None, damping=None) -> Terrain:
+    """``terrain`` with the given contact values (Coulomb 1, N/m, s/m; None: unchanged) for the
+    whole terrain: the parts' own overrides of those values are dropped, so every part uses them."""
+    changes = {k: v for k, v in (("friction", friction), ("stiffness", stiffness), ("damping", damping))
+               if v is not None}
+    if not changes:
+        return terrain
+    clear = dict.fromkeys(changes)
+    part = lambda x: None if x is None else dataclasses.replace(x, **clear)
+    return dataclasses.replace(terrain, plane=part(terrain.plane), boxes=tuple(part(b) for b in terrain.boxes),
+                               heightfield=part(terrain.heightfield), **changes)
+
+
+def terrain_from_args(args) -> Terrain | None:
+    """The terrain the options ask for (None without ``--terrain`` and ``--ground``), with the
+    contact overrides applied. CLIError: exit 3 for a bad terrain file (the message names the
+    field and the value), exit 2 for a contact option given without a terrain."""
+    path, ground = getattr(args, "terrain", None), getattr(args, "ground", False)
+    flags = [(flag, getattr(args, dest, None)) for flag, dest, _ in _OVERRIDES]
+    flags.append(("--cap-radius", getattr(args, "cap_radius", None)))
+    if path is None and not ground:
+        given = [flag for flag, v in flags if v is not None]
+        if given:
+            raise CLIError(EXIT_USAGE, f"{given[0]}: a terrain contact option; add --terrain FILE.json or --ground")
+        return None
+    if ground:
+        terrain = Terrain()
+    else:
+        try:
+            terrain = Terrain.from_file(path)
+        except (ValueError, TypeError, OSError, RecursionError) as e:
+            raise CLIError(EXIT_STRUCTURE, f"--terrain {path!r}: {_one_line(e)}") from None
+    return with_contact(terrain, **{field: getattr(args, dest, None) for _, dest, field in _OVERRIDES})
+
+
+def terrain_label(args) -> str:
+    """How the terrain was given, for messages: ``--terrain 'ramp.json'`` or ``--ground``."""
+    return "--ground" if getattr(args, "ground", False) else f"--terrain {args.terrain!r}"
