@@ -98,7 +98,9 @@ def test_file_heightfield_and_schema(tmp_path):
     with pytest.raises(ValueError, match=r"heightfield\.file: expected a 2-D array"):
         Terrain.from_file(tmp_path / "t.json")
     tc = T.TerrainContact(Terrain(heightfield=t.heightfield))     # the plane, then the heightfield
-    assert tc.geom[0, 1].tolist() == [2.0, -1.0, -1.0, 0.05, 3.0, 4.0, 0.0, 0.0, 0.0, 0.0]
+    # column 6: sqrt(1 + L^2), L the steepest grid slope (steps 0.01 along x, 0.04 along y over 0.05 m)
+    bound = np.sqrt(1 + (0.01 ** 2 + 0.04 ** 2) / 0.05 ** 2)
+    assert tc.geom[0, 1].tolist() == pytest.approx([2.0, -1.0, -1.0, 0.05, 3.0, 4.0, bound, 0.0, 0.0, 0.0])
     assert np.array_equal(tc.hf, t.heightfield.heights[None]) and not tc.hf.flags.writeable
     assert T.TerrainContact(Terrain()).hf.shape == (1, 1, 1)
     assert Terrain.from_dict({}) == Terrain() and Terrain.from_dict({"plane": None}).plane is None

@@ -42,3 +42,24 @@ def test_compiled_terrain_loop_is_the_python_loop(prism, B, per_copy):
     assert touched
     for a, b in zip(*out):
         assert np.array_equal(a, b)
+
+
+def test_heightfield_slope_bound_is_the_kernels_own(prism):
+    """The slope bound a heightfield row carries (computed once per terrain) is the kernel's own
+    scan of the heights: forces with the row's bound equal forces with it cleared (computed per call)."""
+    from tensegrity_gym.core.terrain import Heightfield
+    from tensegrity_gym.physics.terrain import hf_bound
+    rng = np.random.default_rng(0)
+    h = 0.03 * rng.random((30, 30))
+    tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights=h, cell=0.05, origin=[-0.75, -0.75])))
+    k = int(np.flatnonzero(tc.geom[0, :, 0] == 2.0)[0])
+    assert tc.geom[0, k, 6] == hf_bound(h, 0.05) > 1.0
+    cleared = tc.geom.copy()
+    cleared[0, k, 6] = 0.0
+    B = 4
+    st = dyn.initial_state(prism, B)
+    q = np.array(st.q)
+    q[..., 2] += rng.uniform(-0.01, 0.05, (B, 1))
+    out = [T.contact_forces(tc, prism, q, np.zeros_like(q), T.init_terrain_state(tc, prism, B), geom=g)[0]
+           for g in (tc.geom, cleared)]
+    assert np.abs(out[0]).sum() > 0 and np.array_equal(out[0], out[1])
