@@ -23,7 +23,8 @@ from ..physics.contact import GroundContact
 from .roll_scene import MAX_CABLE_ACCELERATION, STRING_DAMPING
 
 __all__ = ["TaskConfig", "CableConfig", "SimulationConfig", "ObservationConfig", "RandomizationConfig", "RollRobotConfig", "RollActuationConfig",
-           "ContactConfig", "TerrainConfig", "RollRewardConfig", "GoalConfig", "RollConfig", "SlopeConfig", "ClimbConfig", "climb_config", "ShapeRobotConfig",
+           "ContactConfig", "TerrainConfig", "RollRewardConfig", "GoalConfig", "RollConfig", "SlopeConfig", "ClimbConfig", "climb_config", "CourseConfig",
+           "NavigateConfig", "navigate_config", "ShapeRobotConfig",
            "ShapeActuationConfig", "ShapeRewardConfig", "TargetConfig", "ShapeConfig", "roll_config", "shape_config",
            "flat_fields", "flatten", "with_flat", "flat_signature"]
 
@@ -175,6 +176,37 @@ class ClimbConfig(RollConfig):
     """Every argument of ``TensegrityClimb-v0``'s task, grouped: the rolling task's plus the slope."""
 
     slope: SlopeConfig = SlopeConfig()
+
+
+@dataclass(frozen=True)
+class CourseConfig:
+    """The courses of ``TensegrityNavigate-v0`` (:class:`tensegrity_gym.tasks.navigate.CourseSpec`,
+    m): goals, obstacles, rough patches, the success radius, the bonus per goal reached and the
+    optional ``height_scan`` ((n, spacing m): an n x n grid of terrain heights around the robot)."""
+
+    n_goals: int = 3
+    goal_distance: tuple = (1.0, 2.0)
+    goal_radius: float = 0.3
+    arena: float = 3.0
+    n_obstacles: int = 5
+    obstacle_size: tuple = (0.2, 0.5)
+    obstacle_height: float = 0.4
+    n_rough: int = 2
+    rough_amplitude: float = 0.02
+    goal_bonus: float = 10.0
+    height_scan: tuple | None = None
+
+
+@dataclass(frozen=True)
+class NavigateConfig(RollConfig):
+    """Every argument of ``TensegrityNavigate-v0``'s task, grouped: the rolling task's plus the course."""
+
+    course: CourseConfig = CourseConfig()
+
+
+def navigate_config() -> NavigateConfig:
+    """The default configuration of ``TensegrityNavigate-v0``'s task."""
+    return NavigateConfig()
 
 
 def climb_config() -> ClimbConfig:

@@ -24,7 +24,8 @@ from .docs import ROLL_DOC as _DOC
 from .roll_obs import RollObservation
 from ..physics import terrain
 from ..tasks.roll import center_of_mass, perturbed_start, roll_step_terms
-from ..tasks.terrain import TerrainGenerator, generate, resolve_terrain, start_lift
+from ..core.terrain import Terrain
+from ..tasks.terrain import generate, resolve_terrain, start_lift
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
                          STRING_DAMPING, load_robot, place_on_ground, put_on_ground, robot_icosahedron,
                          robot_prism, settle)
@@ -184,15 +185,16 @@ class RollTask(RollObservation, BatchedTask):
         level ground (its fast path, no terrain code); a terrain or a generator replaces it with
         terrain contact of the same contact law (the rods' capsules of ``cap_radius``)."""
         self.set_terrain_difficulty(tcfg.terrain_difficulty)
-        surface = dict(friction=friction, stiffness=stiffness, damping=damping)
-        spec = resolve_terrain(tcfg.terrain, surface)
-        self.terrain_generator = spec if isinstance(spec, TerrainGenerator) else None
+        self._surface = surface = dict(friction=friction, stiffness=stiffness, damping=damping)
+        spec = self._terrain_source(tcfg, surface)
+        self.terrain_generator = None if spec is None or isinstance(spec, Terrain) else spec
         if spec is None:
             self.terrains = None
             return
         B = self.num_envs
-        self.terrains = [generate(spec, np.random.default_rng(0), self.goal_direction, self.terrain_difficulty)
-                         if self.terrain_generator is not None else spec] * B
+        first = spec if self.terrain_generator is None else \
+            self._draw_terrain(0, np.random.default_rng(0), self.goal_direction)
+        self.terrains = [first] * B
         self._terrain_kw = dict(radius=self.contact.radius, tangential_stiffness=tangential_stiffness,
                                 tangential_damping=tangential_damping, max_damping=max_damping)
         tc = self.terrain_contact = self._contact_of(self.terrains[0])
@@ -206,6 +208,15 @@ class RollTask(RollObservation, BatchedTask):
         if self.integrator in ("semi_implicit_euler", "rk4"):
             check_stable_dt(self.model, limit, self.dt, self.integrator, allow_unstable_dt,
                             "this robot's strings and terrain contact")
+
+    def _terrain_source(self, tcfg, surface: dict):
+        """None (level ground), a fixed ``Terrain``, or a source of terrains drawn per episode by
+        :meth:`_draw_terrain` (here a ``TerrainGenerator``) from the ``terrain`` argument."""
+        return resolve_terrain(tcfg.terrain, surface)
+
+    def _draw_terrain(self, i: int, rng: np.random.Generator, goal) -> Terrain:
+        """Copy ``i``'s terrain this episode, drawn from ``rng`` (goal: its unit goal direction)."""
+        return generate(self.terrain_generator, rng, goal, self.terrain_difficulty)
 
     def set_terrain_difficulty(self, difficulty: float) -> None:
         """The curriculum hook: terrains drawn from the next resets on are scaled by
@@ -226,7 +237,7 @@ class RollTask(RollObservation, BatchedTask):
         the start's noise and goal); stick/slip state released."""
         if self.terrain_generator is not None:
             for j, i in enumerate(idx):
-                t = generate(self.terrain_generator, rngs[j], goal[j], self.terrain_difficulty)
+                t = self._draw_terrain(int(i), rngs[j], goal[j])
                 tc = self._contact_of(t)
                 if tc.geom.shape[1:] != self.terrain_geom.shape[1:] or tc.hf.shape[1:] != self.terrain_contact.hf.shape[1:]:
                     raise RuntimeError("terrain generator: a drawn terrain changed its number of parts")

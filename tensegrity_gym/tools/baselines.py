@@ -20,14 +20,16 @@ __all__ = ["NNLSShapeController", "nnls_force_densities", "RollingGait", "wave_t
 
 
 def _task_of(env):
-    """The batched task behind a TensegrityShape env / vector env / wrapper, or the task itself."""
+    """The batched task behind an env / vector env / wrapper of this package, or the task itself."""
+    if hasattr(env, "observation_layout") and hasattr(env, "actuation"):     # a task
+        return env
     for attr in ("task",):
         if hasattr(env, attr):
             return getattr(env, attr)
     un = getattr(env, "unwrapped", None)
     if un is not None and hasattr(un, "task"):
         return un.task
-    raise TypeError(f"expected a TensegrityShape env, vector env or ShapeTask, got {type(env).__name__}")
+    raise TypeError(f"expected a tensegrity_gym env, vector env or task, got {type(env).__name__}")
 
 
 def nnls_force_densities(A: np.ndarray, b: np.ndarray, gamma_ref: np.ndarray | None = None,

@@ -119,6 +119,24 @@ def _hf_patch(px, py, g, H):
 
 
 @njit(**_opts)
+def _hf_flat_under(xa, ya, xc, yc, g, H) -> bool:
+    """True if every grid height that the bilinear surface uses under the segment from (xa, ya)
+    to (xc, yc) m (the cells of its bounding box, clamped to the grid) is the same: the surface is
+    level there, so a point inside the segment is never deeper than both ends (as for a plane)."""
+    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    i0 = min(max(int(math.floor((min(xa, xc) - g[1]) / g[3])), 0), nx - 2)
+    i1 = min(max(int(math.floor((max(xa, xc) - g[1]) / g[3])) + 1, 1), nx - 1)
+    j0 = min(max(int(math.floor((min(ya, yc) - g[2]) / g[3])), 0), ny - 2)
+    j1 = min(max(int(math.floor((max(ya, yc) - g[2]) / g[3])) + 1, 1), ny - 1)
+    h = H[j0, i0]
+    for j in range(j0, j1 + 1):
+        for i in range(i0, i1 + 1):
+            if H[j, i] != h:
+                return False
+    return True
+
+
+@njit(**_opts)
 def _hf_closest(px, py, pz, g, H):
     """Signed distance (m; < 0 below the surface) of (px, py, pz) to the heightfield: the
     vertical gap times the cosine of the local slope, and the bilinear patch's outward normal."""
@@ -351,6 +369,9 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                     if use and s == 2:
                         if g[0] == PLANE:
                             use = False
+                        elif g[0] == HFIELD and _hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0,
+                                                               r1 + ec * b1, g, H):
+                            use = False     # level ground under the rod: as a plane (the search finds no deeper point)
                         else:
                             e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
                     px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2

@@ -1,0 +1,223 @@
+"""TensegrityNavigate-v0: roll a tensegrity robot through a sequence of goal points among
+obstacles and rough patches.
+
+The rolling task (:class:`~tensegrity_gym.envs.roll.RollTask`, same robots, cables, actions and
+contact) on a course drawn per episode (:mod:`tensegrity_gym.tasks.navigate`): its terrain is the
+course's boxes and rough heightfield (terrain contact), and the goal direction the task rewards
+and observes is the course planner's guidance toward the current goal point. SI units.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.checks import check_array
+from ..tasks.navigate import CourseSpec, draw_course, guidance
+from .config import NavigateConfig, flat_signature, navigate_config, with_flat
+from .roll import RollTask
+from .shells import TaskEnv, TaskVectorEnv
+from .validate import check_positive
+
+__all__ = ["NavigateTask", "TensegrityNavigateEnv", "TensegrityNavigateVectorEnv"]
+
+ENV_ID = "TensegrityNavigate-v0"
+
+
+def _course_spec(c) -> CourseSpec:
+    """The :class:`CourseSpec` of the ``course`` group ``c``; ValueError naming a wrong argument."""
+    def count(v, name, lo):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise ValueError(f"{name}: must be an integer >= {lo}, got {v!r}")
+        return int(v)
+
+    def span(v, name):
+        a = check_array(v, (2,), name)
+        if not (0 < a[0] <= a[1]):
+            raise ValueError(f"{name}: expected (low, high) with 0 < low <= high (m), got {v!r}")
+        return float(a[0]), float(a[1])
+    return CourseSpec(n_goals=count(c.n_goals, "n_goals", 1), goal_distance=span(c.goal_distance, "goal_distance"),
+                      goal_radius=check_positive(c.goal_radius, "goal_radius", "m"),
+                      arena=check_positive(c.arena, "arena", "m"),
+                      n_obstacles=count(c.n_obstacles, "n_obstacles", 0),
+                      obstacle_size=span(c.obstacle_size, "obstacle_size"),
+                      obstacle_height=check_positive(c.obstacle_height, "obstacle_height", "m"),
+                      n_rough=count(c.n_rough, "n_rough", 0),
+                      rough_amplitude=check_positive(c.rough_amplitude, "rough_amplitude", "m", allow_zero=True))
+
+
+class NavigateTask(RollTask):
+    """The rolling task on a course (arguments: see :class:`TensegrityNavigateEnv`).
+
+    State: the rolling task's, with ``goal`` (B, 2) the planner's unit guidance toward the current
+    goal; ``courses`` (one :class:`~tensegrity_gym.tasks.navigate.Course` per copy),
+    ``goal_index`` (B,) the current goal (``n_goals``: all reached), ``path`` (B,) the planner's
+    path distance to it, m."""
+
+    def __init__(self, num_envs: int = 1, config: NavigateConfig | None = None, **kwargs):
+        c = with_flat(config, kwargs, "NavigateTask.__init__", NavigateConfig)
+        if c.terrain.terrain not in (None, {}):
+            raise ValueError(f"terrain: the ground of {ENV_ID} is its course (n_obstacles, n_rough, ...), got "
+                             f"{c.terrain.terrain!r:.80}")
+        if c.goal.randomize_goal:
+            raise ValueError(f"randomize_goal: the goals of {ENV_ID} are the course's goal points")
+        self.spec = _course_spec(c.course)
+        self.goal_bonus = check_positive(c.course.goal_bonus, "goal_bonus", allow_zero=True)
+        self.scan = None
+        if c.course.height_scan is not None:
+            try:
+                n, spacing = c.course.height_scan
+            except (TypeError, ValueError):
+                raise ValueError(f"height_scan: expected (n, spacing m), got {c.course.height_scan!r:.80}") from None
+            if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+                raise ValueError(f"height_scan: n must be a positive integer, got {n!r}")
+            spacing = check_positive(spacing, "height_scan spacing", "m")
+            u = (np.arange(n) - (n - 1) / 2) * spacing
+            self.scan = np.stack(np.meshgrid(u, u), -1).reshape(-1, 2)      # (n^2, 2) offsets, m
+        self.courses = [None] * max(int(num_envs), 1)
+        super().__init__(num_envs, config=c)
+        B = self.num_envs
+        self.goal_index = np.zeros(B, int)
+        self.path = np.zeros(B)
+        self.n_extra = 2 + (0 if self.scan is None else len(self.scan))
+        if self.sensors is None:
+            self.observation_size = self._state_size + self.n_extra
+
+    # ------------------------------------------------------------------ course
+    def _terrain_source(self, tcfg, surface: dict):
+        return self.spec
+
+    def _draw_terrain(self, i: int, rng: np.random.Generator, goal):
+        course = draw_course(self.spec, rng, self._surface)
+        self.courses[i] = course
+        return course.terrain
+
+    def _guide(self, idx) -> None:
+        """Guidance and path distance of copies ``idx`` toward their current goal."""
+        com = self._com(self.q[idx])
+        for j, i in enumerate(idx):
+            g = min(self.goal_index[i], self.spec.n_goals - 1)
+            self.goal[i], self.path[i] = guidance(self.courses[i], g, com[j, :2])
+
+    # ------------------------------------------------------------------ task API
+    def reset_idx(self, idx, rngs, options=None) -> dict:
+        idx = np.asarray(idx, dtype=int)
+        info = super().reset_idx(idx, rngs, options)
+        self.goal_index[idx] = 0
+        self._guide(idx)
+        info["goal_direction"] = self.goal[idx].copy()
+        info["goal_position"] = np.array([self.courses[i].goals[0] for i in idx])
+        info["path_distance"] = self.path[idx].copy()
+        return info
+
+    def step(self, action):
+        terms, terminated, infos = super().step(action)
+        B = self.num_envs
+        com = self._com(self.q)
+        reached = np.zeros(B, bool)
+        dist = np.zeros(B)
+        for i in range(B):
+            g = self.goal_index[i]
+            if g < self.spec.n_goals:
+                d = float(np.hypot(*(self.courses[i].goals[g] - com[i, :2])))
+                if d <= self.spec.goal_radius:
+                    reached[i] = True
+                    self.goal_index[i] = g = g + 1
+                if g < self.spec.n_goals:
+                    dist[i] = float(np.hypot(*(self.courses[i].goals[g] - com[i, :2]))) if reached[i] else d
+        success = self.goal_index >= self.spec.n_goals
+        self._guide(np.arange(B))
+        terms["goal"] = self.goal_bonus * reached
+        infos.update(goals_reached=self.goal_index.copy(), goal_reached=reached, success=success,
+                     distance_to_goal=dist, path_distance=np.where(success, 0.0, self.path))
+        return terms, terminated | success, infos
+
+    def observe(self) -> np.ndarray:
+        obs = super().observe()
+        if self.sensors is not None:
+            return obs
+        extra = [np.where(self.goal_index >= self.spec.n_goals, 0.0, self.path)[:, None],
+                 (self.spec.n_goals - self.goal_index)[:, None]]
+        if self.scan is not None:
+            extra.append(self._height_scan())
+        return np.concatenate([obs] + [e.astype(np.float32) for e in extra], axis=1)
+
+    def _height_scan(self) -> np.ndarray:
+        """(B, n^2) terrain heights (m) at the scan's points around each robot's centre, relative
+        to the terrain under the centre, clipped to +-1 m."""
+        com = self._com(self.q)
+        out = np.empty((self.num_envs, len(self.scan)))
+        for i in range(self.num_envs):
+            p = com[i, :2] + self.scan
+            t = self.terrains[i]
+            out[i] = t.height_at(p[:, 0], p[:, 1]) - t.height_at(com[i, 0], com[i, 1])
+        return np.clip(out, -1.0, 1.0)
+
+    def observation_layout(self) -> list[tuple[str, slice, str]]:
+        out = super().observation_layout()
+        if self.sensors is None:
+            s = self._state_size
+            out += [("path_distance", slice(s, s + 1), "m"), ("goals_left", slice(s + 1, s + 2), "1")]
+            if self.scan is not None:
+                out.append(("height_scan", slice(s + 2, s + self.n_extra), "m"))
+        return out
+
+    def render_data(self, i: int) -> dict:
+        d = super().render_data(i)
+        g = min(self.goal_index[i], self.spec.n_goals - 1)
+        d["goal"] = np.array([*self.courses[i].goals[g], 0.0])
+        d["caption"] = f"goal {min(self.goal_index[i] + 1, self.spec.n_goals)}/{self.spec.n_goals}, " + d["caption"]
+        return d
+
+
+NavigateTask.__signature__ = flat_signature(navigate_config(), NavigateConfig)
+
+_DOC = r"""
+    ## Description
+    The rolling robot of ``TensegrityRoll-v0`` (same robots, cables, actions, contact and
+    arguments) must reach ``n_goals`` goal points in turn, within ``goal_radius`` m of each,
+    on a course drawn per episode from the env's ``np_random``: goals 1-2 m apart in a
+    +-``arena`` m square, ``n_obstacles`` walls (boxes ``obstacle_height`` m tall) kept clear of
+    the start and the goals, and ``n_rough`` rough patches (bumps up to ``rough_amplitude`` m, a
+    heightfield) the robot may cross (:mod:`tensegrity_gym.tasks.navigate`). Every course is
+    solvable: the planner (a navigation function on a 0.1 m grid, the walls grown by 0.3 m)
+    reaches every goal. The task's goal direction is the planner's guidance: the direction of
+    the shortest path around the walls toward the current goal.
+
+    ## Arguments (besides those of TensegrityRoll-v0)
+    | argument | default | meaning |
+    |---|---|---|
+    | ``n_goals`` | 3 | goal points per course |
+    | ``goal_distance`` | (1.0, 2.0) | m, distance between consecutive goals (the first from the start) |
+    | ``goal_radius`` | 0.3 | m, a goal is reached when the centre of mass is this close (horizontally) |
+    | ``arena`` | 3.0 | m, half side of the square holding the course |
+    | ``n_obstacles``, ``obstacle_size``, ``obstacle_height`` | 5, (0.2, 0.5), 0.4 | walls: count, side range m, height m |
+    | ``n_rough``, ``rough_amplitude`` | 2, 0.02 | rough patches: count, bump height m |
+    | ``goal_bonus`` | 10.0 | reward per goal reached |
+    | ``height_scan`` | None | (n, spacing m): observe an n x n grid of terrain heights around the robot |
+
+    ``terrain`` and ``randomize_goal`` are refused (the course is the ground and the goals).
+
+    ## Observation
+    State mode: the rolling task's observation, whose ``goal_direction`` is the guidance, plus
+    ``path_distance`` (m, the planner's path length to the current goal) and ``goals_left``; with
+    ``height_scan`` also ``n^2`` heights (m, relative to the ground under the centre of mass,
+    world-aligned axes: a rolling robot has no fixed heading). Robot mode: the rolling task's
+    sensors with the guidance as the goal direction.
+
+    ## Rewards, info, episode end
+    ``reward_forward``: ``forward_reward_weight`` x the velocity of the centre of mass along the
+    guidance (m/s); ``reward_goal``: ``goal_bonus`` when a goal is reached; ``reward_ctrl`` as
+    TensegrityRoll-v0. ``info``: the rolling task's, plus ``goals_reached``, ``goal_reached``,
+    ``success`` (all goals reached), ``distance_to_goal`` and ``path_distance`` (m). The episode
+    terminates on success and is truncated at the registered 3000 control steps (60 s).
+
+    ## Baseline
+    :class:`tensegrity_gym.baselines.RollingGait` steered by the guidance (it reads the goal
+    direction from the observation): ``python scripts/eval_navigate.py --baseline``.
+"""
+
+TensegrityNavigateEnv = TaskEnv.for_task(NavigateTask, ENV_ID, _DOC, __name__)
+TensegrityNavigateVectorEnv = TaskVectorEnv.for_task(NavigateTask, ENV_ID, _DOC + r"""
+    ## Vector env
+    ``gymnasium.make_vec("TensegrityNavigate-v0", num_envs=N, vectorization_mode="vector_entry_point")``
+    or ``TensegrityNavigateVectorEnv(num_envs=N, **kwargs)`` (NumPy/numba only).
+""", __name__)
