@@ -129,6 +129,41 @@ def _rough(spec: CourseSpec, rng, X, Y):
     return h, centres
 
 
+def _place_goals(spec: CourseSpec, rng):
+    """(n_goals, 2) goals, each ``U(goal_distance)`` from the one before inside the arena; None
+    when one finds no place in 100 draws."""
+    goals = np.zeros((spec.n_goals, 2))
+    p = np.zeros(2)
+    for g in range(spec.n_goals):
+        for _ in range(100):
+            th = rng.uniform(0.0, 2 * np.pi)
+            q = p + rng.uniform(*spec.goal_distance) * np.array([math.cos(th), math.sin(th)])
+            if np.all(np.abs(q) <= spec.arena - spec.goal_radius):
+                break
+        else:
+            return None
+        goals[g] = p = q
+    return goals
+
+
+def _place_walls(spec: CourseSpec, rng, keep):
+    """The walls (boxes), each ``clearance`` m clear of the points ``keep`` (start and goals);
+    None when one finds no place in 100 draws."""
+    boxes = []
+    for _ in range(spec.n_obstacles):
+        for _ in range(100):
+            c = rng.uniform(-spec.arena, spec.arena, 2)
+            size = rng.uniform(*spec.obstacle_size, 2)
+            yaw = rng.uniform(0.0, 180.0)
+            if np.min(np.linalg.norm(keep - c, axis=1)) - 0.5 * float(np.hypot(*size)) >= spec.clearance:
+                break
+        else:
+            return None
+        boxes.append(Box(center=[c[0], c[1], spec.obstacle_height / 2],
+                         size=[size[0], size[1], spec.obstacle_height], yaw_deg=yaw))
+    return boxes
+
+
 def draw_course(spec: CourseSpec, rng: np.random.Generator, surface: dict | None = None) -> Course:
     """A solvable course drawn from ``rng`` (see the module doc); ``surface``: the terrain's
     contact values (``friction``, ``stiffness``, ``damping``). ValueError naming the spec when
@@ -138,26 +173,13 @@ def draw_course(spec: CourseSpec, rng: np.random.Generator, surface: dict | None
     X, Y = np.meshgrid(xs, ys)
     x0, n = float(xs[0]), xs.size
     for _ in range(MAX_TRIES):
-        goals = np.zeros((spec.n_goals, 2))
-        p = np.zeros(2)
-        for g in range(spec.n_goals):
-            for _ in range(100):
-                th = rng.uniform(0.0, 2 * np.pi)
-                q = p + rng.uniform(*spec.goal_distance) * np.array([math.cos(th), math.sin(th)])
-                if np.all(np.abs(q) <= spec.arena - spec.goal_radius):
-                    break
-            goals[g] = p = q
+        goals = _place_goals(spec, rng)
+        if goals is None:
+            continue
         keep = np.vstack([np.zeros((1, 2)), goals])
-        boxes = []
-        for _ in range(spec.n_obstacles):
-            for _ in range(100):
-                c = rng.uniform(-spec.arena, spec.arena, 2)
-                size = rng.uniform(*spec.obstacle_size, 2)
-                yaw = rng.uniform(0.0, 180.0)
-                if np.min(np.linalg.norm(keep - c, axis=1)) - 0.5 * float(np.hypot(*size)) >= spec.clearance:
-                    break
-            boxes.append(Box(center=[c[0], c[1], spec.obstacle_height / 2],
-                             size=[size[0], size[1], spec.obstacle_height], yaw_deg=yaw))
+        boxes = _place_walls(spec, rng, keep)
+        if boxes is None:
+            continue
         rough, _ = _rough(spec, rng, X, Y)
         blocked = _blocked(spec, boxes, X, Y)
         if any(blocked[_cell_of(p, x0, spec.cell, n)] for p in keep):
