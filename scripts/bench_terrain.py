@@ -1,15 +1,26 @@
 #!/usr/bin/env python
 """Cost of a physics step with terrain contact against flat ground (numba, the prism robot).
 
-    PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000]
+    PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000] \
+        [--envs 1 16 128] [--env-steps 200] [--json out.json]
 
-Prints microseconds per physics step (all copies) for: the flat-ground GroundContact (the fused
-compiled loop), a level terrain plane, a 20-degree plane, and a 20-degree plane with two boxes
-(terrain steps: the compiled forces kernel and one compiled integrator step per physics step).
+Physics table: microseconds per physics step (all copies) for the flat-ground GroundContact (the
+fused compiled loop), a level terrain plane, a 20-degree plane, and a 20-degree plane with two
+boxes (terrain steps: the forces kernel and one integrator step per physics step, all in one
+compiled call below the multi-threaded batch size).
+
+Env table (``--envs``): env-steps/s of ``TensegrityRoll-v0`` (NumPy vector env, random actions)
+on flat ground and on each terrain kind, and the cost ratio terrain / flat measured in the same
+run on the same machine: a 20-degree slope (a plane), steps (the ``steps`` generator: 4 boxes),
+rough ground (the ``rough`` generator with no level pad: a 12 m heightfield of 2 cm bumps over the
+whole floor, the robot on bumps from the start) and
+``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the planner).
 """
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 import time
 
 import numpy as np
@@ -36,10 +47,46 @@ def timed(fn, steps):
     return (time.perf_counter() - t0) / steps * 1e6
 
 
+ENV_SCENES = {"flat": ("TensegrityRoll-v0", {}),
+              "slope 20 deg": ("TensegrityRoll-v0", {"terrain": {"plane": {"slope_deg": 20.0}}}),
+              "steps (4 boxes)": ("TensegrityRoll-v0", {"terrain": {"generator": "steps"}}),
+              "rough 2 cm (heightfield)": ("TensegrityRoll-v0", {"terrain": {"generator": "rough", "amplitude": 0.02,
+                                                                                 "pad": 0.0}}),
+              "navigate (5 walls, 2 patches)": ("TensegrityNavigate-v0", {})}
+
+
+def env_rate(env_id: str, kwargs: dict, n: int, steps: int) -> float:
+    """env-steps/s of the NumPy vector env of ``n`` copies over ``steps`` steps of random actions."""
+    import gymnasium as gym
+    env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    acts = rng.uniform(-1, 1, (steps + 5, n) + env.single_action_space.shape).astype(np.float32)
+    for a in acts[:5]:
+        env.step(a)
+    t0 = time.perf_counter()
+    for a in acts[5:]:
+        env.step(a)
+    rate = n * steps / (time.perf_counter() - t0)
+    env.close()
+    return rate
+
+
+def env_table(ns, steps: int) -> dict:
+    rates = {name: [env_rate(eid, kw, n, steps) for n in ns] for name, (eid, kw) in ENV_SCENES.items()}
+    print(f"\n{'env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'cost/flat':>10}" for n in ns))
+    for name, vals in rates.items():
+        print(f"{name:<30}" + "".join(f"{v:16,.0f}{rates['flat'][i] / v:10.2f}" for i, v in enumerate(vals)))
+    return rates
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 64])
     ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--envs", type=int, nargs="*", default=[], help="env table for these numbers of copies")
+    ap.add_argument("--env-steps", type=int, default=200)
+    ap.add_argument("--json", type=str, default=None, help="write both tables here")
     a = ap.parse_args()
     m = prism()
     scenes = {"level plane": Terrain(), "20 deg plane": Terrain(plane=Plane(20.0)),
@@ -58,6 +105,17 @@ def main():
             rows[name].append(timed(lambda n: T.step(m, st, DT, tc, ts, n_steps=n), a.steps))
     for name, vals in rows.items():
         print(f"{name:<26}" + "".join(f"{v:16.2f}" for v in vals))
+    envs = env_table(a.envs, a.env_steps) if a.envs else {}
+    if a.json:
+        import json
+        import platform
+        import subprocess
+        cpu = next((ln.split(":", 1)[1].strip() for ln in subprocess.run(["lscpu"], capture_output=True, text=True)
+                    .stdout.splitlines() if ln.startswith("Model name")), platform.processor())
+        with open(a.json, "w") as f:
+            json.dump({"cpu": cpu, "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows,
+                       "envs": a.envs, "env_steps_per_s": envs, "command": "python scripts/bench_terrain.py " +
+                       " ".join(sys.argv[1:])}, f, indent=1)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.checks import check_array
-from ..tasks.navigate import CourseSpec, draw_course, guidance
+from ..tasks.navigate import CourseSpec, draw_course, guidance_batch
 from .config import NavigateConfig, flat_signature, navigate_config, with_flat
 from .roll import RollTask
 from .shells import TaskEnv, TaskVectorEnv
@@ -87,15 +87,25 @@ class NavigateTask(RollTask):
 
     def _draw_terrain(self, i: int, rng: np.random.Generator, goal):
         course = draw_course(self.spec, rng, self._surface)
+        if i == 0 and self.courses[0] is None:    # the first draw: the per-copy arrays of every course
+            B = len(self.courses)
+            self._fields = np.empty((B,) + course.field.shape)
+            self._goals = np.empty((B,) + course.goals.shape)
         self.courses[i] = course
+        self._fields[i], self._goals[i] = course.field, course.goals
         return course.terrain
+
+    def _current(self, idx):
+        """(goal index clipped to the last goal, its position (r, 2) m) of copies ``idx``."""
+        g = np.minimum(self.goal_index[idx], self.spec.n_goals - 1)
+        return g, self._goals[idx, g]
 
     def _guide(self, idx) -> None:
         """Guidance and path distance of copies ``idx`` toward their current goal."""
-        com = self._com(self.q[idx])
-        for j, i in enumerate(idx):
-            g = min(self.goal_index[i], self.spec.n_goals - 1)
-            self.goal[i], self.path[i] = guidance(self.courses[i], g, com[j, :2])
+        g, goal = self._current(idx)
+        c = self.courses[0]
+        self.goal[idx], self.path[idx] = guidance_batch(self._fields[idx, g], c.origin, c.cell, goal,
+                                                        self._com(self.q[idx])[:, :2], self.spec.lookahead)
 
     # ------------------------------------------------------------------ task API
     def reset_idx(self, idx, rngs, options=None) -> dict:
@@ -104,25 +114,21 @@ class NavigateTask(RollTask):
         self.goal_index[idx] = 0
         self._guide(idx)
         info["goal_direction"] = self.goal[idx].copy()
-        info["goal_position"] = np.array([self.courses[i].goals[0] for i in idx])
+        info["goal_position"] = self._goals[idx, 0].copy()
         info["path_distance"] = self.path[idx].copy()
         return info
 
     def step(self, action):
         terms, terminated, infos = super().step(action)
         B = self.num_envs
-        com = self._com(self.q)
-        reached = np.zeros(B, bool)
-        dist = np.zeros(B)
-        for i in range(B):
-            g = self.goal_index[i]
-            if g < self.spec.n_goals:
-                d = float(np.hypot(*(self.courses[i].goals[g] - com[i, :2])))
-                if d <= self.spec.goal_radius:
-                    reached[i] = True
-                    self.goal_index[i] = g = g + 1
-                if g < self.spec.n_goals:
-                    dist[i] = float(np.hypot(*(self.courses[i].goals[g] - com[i, :2]))) if reached[i] else d
+        xy = self._com(self.q)[:, :2]
+        idx = np.arange(B)
+        _, goal = self._current(idx)
+        open_ = self.goal_index < self.spec.n_goals
+        reached = open_ & (np.hypot(*(goal - xy).T) <= self.spec.goal_radius)
+        self.goal_index += reached
+        _, goal = self._current(idx)
+        dist = np.where(self.goal_index < self.spec.n_goals, np.hypot(*(goal - xy).T), 0.0)
         success = self.goal_index >= self.spec.n_goals
         self._guide(np.arange(B))
         terms["goal"] = self.goal_bonus * reached
@@ -163,7 +169,7 @@ class NavigateTask(RollTask):
     def render_data(self, i: int) -> dict:
         d = super().render_data(i)
         g = min(self.goal_index[i], self.spec.n_goals - 1)
-        d["goal"] = np.array([*self.courses[i].goals[g], 0.0])
+        d["goal"] = np.array([*self._goals[i, g], 0.0])
         d["caption"] = f"goal {min(self.goal_index[i] + 1, self.spec.n_goals)}/{self.spec.n_goals}, " + d["caption"]
         return d
 

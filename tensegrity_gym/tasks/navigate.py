@@ -27,7 +27,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from ..core.terrain import Box, Heightfield, Terrain
 
-__all__ = ["CourseSpec", "Course", "draw_course", "guidance", "MAX_TRIES"]
+__all__ = ["CourseSpec", "Course", "draw_course", "guidance", "guidance_batch", "MAX_TRIES"]
 
 #: courses drawn before a spec is declared unsolvable
 MAX_TRIES = 200
@@ -207,25 +207,36 @@ def draw_course(spec: CourseSpec, rng: np.random.Generator, surface: dict | None
 
 def guidance(course: Course, goal: int, p, lookahead: int = 3) -> tuple[np.ndarray, float]:
     """(unit direction (2,), path distance m) from the position ``p`` (x, y) m toward goal
-    ``goal`` of ``course`` along its planner's shortest path: the direction to the cell within
-    ``lookahead`` cells with the shortest remaining path (straight at the goal within that
-    reach, or where the grid gives no better cell)."""
-    F = course.field[goal]
-    n = F.shape[0]
-    j, i = _cell_of(p, course.origin[0], course.cell, n)
-    j0, j1, i0, i1 = max(j - lookahead, 0), min(j + lookahead + 1, n), max(i - lookahead, 0), min(i + lookahead + 1, n)
-    win = F[j0:j1, i0:i1]
-    target = course.goals[goal]
-    dist = float(np.hypot(*(target - p)))
-    if np.isfinite(win).any():
-        jj, ii = np.unravel_index(np.argmin(win), win.shape)
-        best = float(win[jj, ii])
-        here = float(F[j, i])
-        if best < here and dist > lookahead * course.cell:
-            target = course.origin + course.cell * np.array([i0 + ii, j0 + jj])
-        path = here if np.isfinite(here) else best + course.cell * lookahead
-    else:
-        path = dist
-    v = np.asarray(target, float) - np.asarray(p, float)
-    nv = float(np.hypot(*v))
-    return (v / nv if nv > 0 else np.array([1.0, 0.0])), float(path)
+    ``goal`` of ``course``: :func:`guidance_batch` for one position."""
+    d, path = guidance_batch(course.field[goal][None], course.origin, course.cell, course.goals[goal][None],
+                             np.asarray(p, float)[None], lookahead)
+    return d[0], float(path[0])
+
+
+def guidance_batch(field, origin, cell: float, goal, p, lookahead: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Guidance of B positions ``p`` (B, 2) m toward their goals ``goal`` (B, 2) m along the path
+    distances ``field`` (B, ny, nx) m of their courses (grid ``origin`` (2,) m, ``cell`` m): the
+    unit direction (B, 2) to the cell within ``lookahead`` cells with the shortest remaining path
+    (straight at the goal within that reach, or where no cell in reach is nearer), and the path
+    distance (B,) m from the cell under ``p`` (the straight distance where the grid has none)."""
+    field, p, goal = np.asarray(field, float), np.asarray(p, float), np.asarray(goal, float)
+    B, n = field.shape[0], field.shape[1]
+    rows = np.arange(B)
+    i = np.clip(np.rint((p[:, 0] - origin[0]) / cell), 0, n - 1).astype(int)
+    j = np.clip(np.rint((p[:, 1] - origin[1]) / cell), 0, n - 1).astype(int)
+    off = np.arange(-lookahead, lookahead + 1)
+    jj = np.clip(j[:, None] + off, 0, n - 1)
+    ii = np.clip(i[:, None] + off, 0, n - 1)
+    win = field[rows[:, None, None], jj[:, :, None], ii[:, None, :]].reshape(B, -1)
+    k = np.argmin(win, axis=1)
+    best = win[rows, k]
+    here = field[rows, j, i]
+    dist = np.hypot(*(goal - p).T)
+    cell_xy = origin + cell * np.stack([ii[rows, k % off.size], jj[rows, k // off.size]], axis=-1)
+    step = (best < here) & (dist > lookahead * cell)
+    v = np.where(step[:, None], cell_xy, goal) - p
+    nv = np.hypot(*v.T)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.where(nv[:, None] > 0, v / nv[:, None], np.array([1.0, 0.0]))
+    path = np.where(np.isfinite(here), here, np.where(np.isfinite(best), best + cell * lookahead, dist))
+    return d, path
