@@ -20,6 +20,7 @@ import inspect
 from dataclasses import dataclass
 
 from ..physics.contact import GroundContact
+from ..tasks.navigate import CourseSpec
 from .roll_scene import MAX_CABLE_ACCELERATION, STRING_DAMPING
 
 __all__ = ["TaskConfig", "CableConfig", "SimulationConfig", "ObservationConfig", "RandomizationConfig", "RollRobotConfig", "RollActuationConfig",
@@ -179,20 +180,12 @@ class ClimbConfig(RollConfig):
 
 
 @dataclass(frozen=True)
-class CourseConfig:
-    """The courses of ``TensegrityNavigate-v0`` (:class:`tensegrity_gym.tasks.navigate.CourseSpec`,
-    m): goals, obstacles, rough patches, the success radius, the bonus per goal reached and the
-    optional ``height_scan`` ((n, spacing m): an n x n grid of terrain heights around the robot)."""
+class CourseConfig(CourseSpec):
+    """The courses of ``TensegrityNavigate-v0``: the fields of
+    :class:`tensegrity_gym.tasks.navigate.CourseSpec` (goals, walls, rough patches, the success
+    radius and the planner's grid, m), the reward ``goal_bonus`` per goal reached and the optional
+    ``height_scan`` ((n, spacing m): an n x n grid of terrain heights around the robot)."""
 
-    n_goals: int = 3
-    goal_distance: tuple = (1.0, 2.0)
-    goal_radius: float = 0.3
-    arena: float = 3.0
-    n_obstacles: int = 5
-    obstacle_size: tuple = (0.2, 0.5)
-    obstacle_height: float = 0.4
-    n_rough: int = 2
-    rough_amplitude: float = 0.02
     goal_bonus: float = 10.0
     height_scan: tuple | None = None
 

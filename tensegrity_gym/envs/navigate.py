@@ -24,24 +24,27 @@ ENV_ID = "TensegrityNavigate-v0"
 
 def _course_spec(c) -> CourseSpec:
     """The :class:`CourseSpec` of the ``course`` group ``c``; ValueError naming a wrong argument."""
-    def count(v, name, lo):
+    def count(name, lo):
+        v = getattr(c, name)
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
             raise ValueError(f"{name}: must be an integer >= {lo}, got {v!r}")
         return int(v)
 
-    def span(v, name):
+    def span(name):
+        v = getattr(c, name)
         a = check_array(v, (2,), name)
         if not (0 < a[0] <= a[1]):
             raise ValueError(f"{name}: expected (low, high) with 0 < low <= high (m), got {v!r}")
         return float(a[0]), float(a[1])
-    return CourseSpec(n_goals=count(c.n_goals, "n_goals", 1), goal_distance=span(c.goal_distance, "goal_distance"),
-                      goal_radius=check_positive(c.goal_radius, "goal_radius", "m"),
-                      arena=check_positive(c.arena, "arena", "m"),
-                      n_obstacles=count(c.n_obstacles, "n_obstacles", 0),
-                      obstacle_size=span(c.obstacle_size, "obstacle_size"),
-                      obstacle_height=check_positive(c.obstacle_height, "obstacle_height", "m"),
-                      n_rough=count(c.n_rough, "n_rough", 0),
-                      rough_amplitude=check_positive(c.rough_amplitude, "rough_amplitude", "m", allow_zero=True))
+
+    def length(name, allow_zero=False):
+        return check_positive(getattr(c, name), name, "m", allow_zero=allow_zero)
+    return CourseSpec(n_goals=count("n_goals", 1), goal_distance=span("goal_distance"), goal_radius=length("goal_radius"),
+                      arena=length("arena"), n_obstacles=count("n_obstacles", 0), obstacle_size=span("obstacle_size"),
+                      obstacle_height=length("obstacle_height"), clearance=length("clearance", True),
+                      n_rough=count("n_rough", 0), rough_radius=span("rough_radius"),
+                      rough_amplitude=length("rough_amplitude", True), rough_wavelength=length("rough_wavelength"),
+                      cell=length("cell"), inflate=length("inflate", True), lookahead=count("lookahead", 1))
 
 
 class NavigateTask(RollTask):
@@ -197,6 +200,9 @@ _DOC = r"""
     | ``arena`` | 3.0 | m, half side of the square holding the course |
     | ``n_obstacles``, ``obstacle_size``, ``obstacle_height`` | 5, (0.2, 0.5), 0.4 | walls: count, side range m, height m |
     | ``n_rough``, ``rough_amplitude`` | 2, 0.02 | rough patches: count, bump height m |
+    | ``clearance`` | 0.6 | m, walls kept this far from the start and the goals |
+    | ``rough_radius``, ``rough_wavelength`` | (0.3, 0.6), 0.3 | m: radius range of a rough patch, wavelength of its bumps |
+    | ``cell``, ``inflate``, ``lookahead`` | 0.1, 0.3, 3 | the planner: grid cell m, walls grown by m (the robot's radius), cells of reach |
     | ``goal_bonus`` | 10.0 | reward per goal reached |
     | ``height_scan`` | None | (n, spacing m): observe an n x n grid of terrain heights around the robot |
 
