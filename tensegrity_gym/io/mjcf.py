@@ -73,6 +73,7 @@ import numpy as np
 from .atomic import write_atomic
 from ..checks import xml_text
 from ..core.rod_mass import mass_moments
+from ..core.terrain import Terrain
 from ..structure import Structure
 
 __all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel", "default_rod_radius", "terrain_xml"]
@@ -167,7 +168,6 @@ def default_rod_radius(structure: Structure) -> float:
 def terrain_xml(terrain) -> tuple[list, list]:
     """``(assets, geoms)``: the MJCF lines of ``terrain``'s heightfield asset and of its geoms
     (world body; they collide with the rods only). See the module docstring for the mapping."""
-    from ..core.terrain import Terrain
     if not isinstance(terrain, Terrain):
         raise ValueError(f"terrain: expected a Terrain, got {type(terrain).__name__}")
     contact = 'contype="0" conaffinity="1"'
