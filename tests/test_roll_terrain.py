@@ -139,9 +139,6 @@ def test_terrain_file_takes_the_task_contact_values(tmp_path):
 def test_envs_without_terrain_physics_refuse_it():
     with pytest.raises(ValueError, match="terrain: the ground of TensegrityClimb-v0"):
         gym.make("TensegrityClimb-v0", terrain=STEPS)
-    pytest.importorskip("mujoco")
-    with pytest.raises(ValueError, match="terrain: TensegrityRollMuJoCo-v0"):
-        gym.make("TensegrityRollMuJoCo-v0", terrain=STEPS)
 
 
 def test_randomized_friction_reaches_every_terrain_part():

@@ -103,8 +103,9 @@ class NavigateTask(RollTask):
         g = np.minimum(self.goal_index[idx], self.spec.n_goals - 1)
         return g, self._goals[idx, g]
 
-    def _guide(self, idx) -> None:
-        """Guidance and path distance of copies ``idx`` toward their current goal."""
+    def guide(self, idx) -> None:
+        """Guidance (``goal``) and path distance (``path``, m) of copies ``idx`` toward their current
+        goal from their current state (the MuJoCo twin calls it on its start state)."""
         g, goal = self._current(idx)
         c = self.courses[0]
         self.goal[idx], self.path[idx] = guidance_batch(self._fields[idx, g], c.origin, c.cell, goal,
@@ -115,7 +116,7 @@ class NavigateTask(RollTask):
         idx = np.asarray(idx, dtype=int)
         info = super().reset_idx(idx, rngs, options)
         self.goal_index[idx] = 0
-        self._guide(idx)
+        self.guide(idx)
         info["goal_direction"] = self.goal[idx].copy()
         info["goal_position"] = self._goals[idx, 0].copy()
         info["path_distance"] = self.path[idx].copy()
@@ -123,6 +124,17 @@ class NavigateTask(RollTask):
 
     def step(self, action):
         terms, terminated, infos = super().step(action)
+        goal_terms, success, goal_infos = self.track_goals()
+        terms.update(goal_terms)
+        infos.update(goal_infos)
+        return terms, terminated | success, infos
+
+    def track_goals(self) -> tuple[dict, np.ndarray, dict]:
+        """After a step, from the current state (``q``; the MuJoCo twin syncs its own into it):
+        the goals reached (centre of mass within ``goal_radius`` m of the current goal), the
+        guidance toward the next goal, and their reward term ``{"goal": (B,)}``, success flags
+        (B,) (all goals reached) and info (``goals_reached``, ``goal_reached``, ``success``,
+        ``distance_to_goal`` m, ``path_distance`` m)."""
         B = self.num_envs
         xy = self._com(self.q)[:, :2]
         idx = np.arange(B)
@@ -133,11 +145,10 @@ class NavigateTask(RollTask):
         _, goal = self._current(idx)
         dist = np.where(self.goal_index < self.spec.n_goals, np.hypot(*(goal - xy).T), 0.0)
         success = self.goal_index >= self.spec.n_goals
-        self._guide(np.arange(B))
-        terms["goal"] = self.goal_bonus * reached
-        infos.update(goals_reached=self.goal_index.copy(), goal_reached=reached, success=success,
+        self.guide(idx)
+        infos = dict(goals_reached=self.goal_index.copy(), goal_reached=reached, success=success,
                      distance_to_goal=dist, path_distance=np.where(success, 0.0, self.path))
-        return terms, terminated | success, infos
+        return {"goal": self.goal_bonus * reached}, success, infos
 
     def observe(self) -> np.ndarray:
         obs = super().observe()

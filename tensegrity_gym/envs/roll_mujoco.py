@@ -1,4 +1,6 @@
-"""TensegrityRollMuJoCo-v0: the rolling robot of ``TensegrityRoll-v0`` simulated by MuJoCo (sim-to-sim twin).
+"""TensegrityRollMuJoCo-v0, TensegrityNavigateMuJoCo-v0: TensegrityRoll-v0 and TensegrityNavigate-v0 simulated by MuJoCo.
+
+Sim-to-sim twins (the navigation twin: the section "Navigation" below).
 
 The same robot, action space, observation space and layout, rewards, info keys and control
 step as :class:`tensegrity_gym.envs.roll.TensegrityRollEnv`, but the motion comes from MuJoCo
@@ -62,6 +64,31 @@ Modelling differences from the project's physics (``docs/contact.md``, ``EQUATIO
   rods, as RollTask settles it) and resets add the reset noise to that pose. The contact flags
   in the reset observation are MuJoCo's contacts (ours start released: all 0).
 
+Terrain: ``terrain=``
+---------------------
+As ``TensegrityRoll-v0`` takes it (a terrain file, a dict, a ``Terrain`` or a generator,
+:mod:`tensegrity_gym.tasks.terrain`; ``None`` or ``{}``: the floor plane, unchanged). The twin's
+:class:`RollTask` resolves and draws it (a generator: per episode from ``np_random``, the same
+terrain for a reset seed as ``TensegrityRoll-v0``). The robot settles on the floor plane as above;
+then the MuJoCo scene is the robot on the terrain's geoms (:func:`tensegrity_gym.io.mjcf.terrain_xml`:
+tilted plane, boxes, heightfield) instead of the floor, and resets start from the task's reset
+state, which lifts the robot clear of the terrain (``tasks.terrain.start_lift``). A drawn terrain
+is written into the ``MjModel`` in place at each reset (same parts and grid shape, new numbers:
+:mod:`tensegrity_gym.envs.twin_terrain`). The contact flags are MuJoCo's contacts of the rod
+capsules with any terrain geom. Friction is each terrain part's own (the rods' geoms have friction
+0, and MuJoCo takes the larger of two geoms' values; a randomised ``friction`` sets every geom);
+the contact softness (``solref``) is the same on every part, from ``ground_stiffness``: a part's
+own ``stiffness`` / ``damping`` is not mapped. MuJoCo's heightfield is triangulated where ours is
+bilinear (within a few mm on gentle bumps) and ends at its grid, where ours holds the edge values.
+
+Navigation: ``TensegrityNavigateMuJoCo-v0``
+-------------------------------------------
+:class:`TensegrityNavigateMuJoCoEnv` holds a one-copy :class:`~tensegrity_gym.envs.navigate.NavigateTask`
+(the arguments of ``TensegrityNavigate-v0``): the course (walls, rough patches, goals) is drawn at
+reset as ``TensegrityNavigate-v0`` draws it and becomes the scene's terrain; the planner's guidance,
+goals reached, goal bonus (``reward_goal``), success (terminates), observation and info keys are
+the task's own, computed from MuJoCo's state. Registered with ``max_episode_steps`` = 3000 (60 s).
+
 Robot parameters: ``params=`` and ``randomize=``
 -------------------------------------------------
 As ``TensegrityRoll-v0`` (:mod:`tensegrity_gym.envs.domain`): the twin's :class:`RollTask` holds
@@ -91,13 +118,16 @@ from ..checks import check_frame_size
 from .pickling import picklable_state, restore_state
 from .twin_divergence import clear_mujoco_warnings, twin_diverged
 from .common import check_action, check_positive
-from .config import RollConfig, flatten, with_flat
+from .config import NavigateConfig, RollConfig, flatten, with_flat
+from .navigate import NavigateTask
 from .roll import MAX_PATH, SETTLE_TIME, RollTask
 from .twin_params import TwinParams, check_twin_kwargs, contact_timeconst
+from .twin_terrain import copy_terrain
 
-__all__ = ["TensegrityRollMuJoCoEnv", "ENV_ID"]
+__all__ = ["TensegrityRollMuJoCoEnv", "TensegrityNavigateMuJoCoEnv", "ENV_ID", "NAVIGATE_ENV_ID"]
 
 ENV_ID = "TensegrityRollMuJoCo-v0"
+NAVIGATE_ENV_ID = "TensegrityNavigateMuJoCo-v0"
 _UNSUPPORTED = ("start_rest_length_offset",)
 
 
@@ -105,7 +135,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
     """MuJoCo twin of ``TensegrityRoll-v0`` (see the module docstring).
 
     Arguments: those of ``TensegrityRoll-v0`` (passed to its :class:`RollTask`; rest-length mode
-    only; ``params`` / ``randomize`` as the module doc maps them onto the MjModel), plus ``mj_integrator`` ("implicitfast"), ``contact_dampratio`` (1.0, the damping ratio
+    only; ``params`` / ``randomize`` as the module doc maps them onto the MjModel; ``terrain`` as the
+    module doc's "Terrain"), plus ``mj_integrator`` ("implicitfast"), ``contact_dampratio`` (1.0, the damping ratio
     of MuJoCo's contact ``solref``), ``spin_damping`` (1.0 N m s, damping of each rod's spin
     about its own axis, see the module doc), ``render_mode`` (None or "rgb_array"), ``width``, ``height``.
     ``env.unwrapped.task`` is the :class:`RollTask` (so :class:`tensegrity_gym.baselines.RollingGait`
@@ -114,7 +145,9 @@ class TensegrityRollMuJoCoEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+    env_id = ENV_ID
     task_class = RollTask   # where ``**kwargs`` go (the arguments agents' CLIs check)
+    config_class = RollConfig   # the task's grouped arguments (``config=``)
 
     def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480,
                  mj_integrator: str = "implicitfast", contact_dampratio: float = 1.0,
@@ -122,42 +155,49 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         try:
             import mujoco
         except ImportError:
-            raise ImportError(f"{ENV_ID} needs MuJoCo: pip install 'tensegrity_gym[mujoco]'") from None
+            raise ImportError(f"{self.env_id} needs MuJoCo: pip install 'tensegrity_gym[mujoco]'") from None
         self._mj = mujoco
+        env_id = self.env_id
         # the task's arguments, flat (a grouped config= and flat keywords alike), checked below
-        kwargs = flatten(with_flat(kwargs.pop("config", None), kwargs, "RollTask.__init__", RollConfig))
+        kwargs = flatten(with_flat(kwargs.pop("config", None), kwargs, f"{self.task_class.__name__}.__init__",
+                                   self.config_class))
         for name in _UNSUPPORTED:
             if kwargs.get(name) is not None:
-                raise ValueError(f"{name}: not supported by {ENV_ID}")
-        check_twin_kwargs(kwargs, ENV_ID)
+                raise ValueError(f"{name}: not supported by {env_id}")
+        check_twin_kwargs(kwargs, env_id)
         if kwargs.get("action_delay", 0):
-            raise ValueError(f"action_delay: not supported by {ENV_ID}, got {kwargs['action_delay']!r}")
-        if kwargs.get("terrain") not in (None, {}):
-            raise ValueError(f"terrain: {ENV_ID} runs on level ground only (the MuJoCo scene has a floor plane); "
-                             f"got {kwargs['terrain']!r:.80}")
+            raise ValueError(f"action_delay: not supported by {env_id}, got {kwargs['action_delay']!r}")
         if kwargs.get("action_mode", "rest_length") != "rest_length":
-            raise ValueError(f"action_mode: {ENV_ID} supports 'rest_length' only, got {kwargs['action_mode']!r}")
+            raise ValueError(f"action_mode: {env_id} supports 'rest_length' only, got {kwargs['action_mode']!r}")
         check_mj_integrator(mj_integrator, "mj_integrator")
         self.spin_damping = check_positive(spin_damping, "spin_damping", "N m s", allow_zero=True)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode: unknown {render_mode!r}; choose 'rgb_array' or None")
         self.contact_dampratio = check_positive(contact_dampratio, "contact_dampratio")
-        self.task = task = RollTask(num_envs=1, **kwargs)
+        self.task = task = self.task_class(num_envs=1, **kwargs)
         c, s = task.contact, task.structure.replace(nodes=task.nodes_nominal)
-        xml = to_mjcf(s, ground=True, timestep=task.dt, integrator=mj_integrator, rod_radius=c.radius,
-                      ground_height=c.height, friction=c.friction, model_name="tensegrity_roll_twin")
-        self.model = m = mujoco.MjModel.from_xml_string(xml)
-        self.data = mujoco.MjData(m)
-        m.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-        m.geom_friction[:, 0] = c.friction
+        self._mjcf = dict(timestep=task.dt, integrator=mj_integrator, rod_radius=c.radius,
+                          model_name="tensegrity_roll_twin")
         self.contact_timeconst = contact_timeconst(float(s.bar_mass.min()), c.stiffness, task.dt)
-        m.geom_solref[:] = (self.contact_timeconst, self.contact_dampratio)
+        # the robot settles on a floor plane (as RollTask settles it on level ground); on a terrain,
+        # the terrain's scene then replaces the floor's (the same bodies, joints and tendons)
+        self.model = m = self._compile(to_mjcf(s, ground=True, ground_height=c.height, friction=c.friction,
+                                               **self._mjcf))
+        self.data = mujoco.MjData(m)
+        m.geom_friction[:, 0] = c.friction
         k = s.n_bars
         self._body = np.array([m.body(f"rod{j}").id for j in range(k)])
         self._dof = m.jnt_dofadr[m.body_jntadr[self._body]]
+        self._settle()
+        if task.terrains is not None:
+            self.model = m = self._compile(self._terrain_xml(task.terrains[0]))
+            self.data = mujoco.MjData(m)
+            # rods frictionless: MuJoCo takes the larger friction of two geoms, so each terrain part's own governs
+            m.geom_friction[[m.geom(f"rod{j}").id for j in range(k)], 0] = 0.0
+            m.dof_damping[self._dof + 5] = self.spin_damping
         self._rod_of_geom = np.full(m.ngeom, -1)
         self._rod_of_geom[[m.geom(f"rod{j}").id for j in range(k)]] = np.arange(k)
-        self._params = TwinParams(m, self._body, c, task.dt, self.contact_dampratio, ENV_ID, any(
+        self._params = TwinParams(m, self._body, c, task.dt, self.contact_dampratio, env_id, any(
             isinstance(kwargs.get(a), dict) and "ground_damping" in kwargs[a] for a in ("params", "randomize")))
         self._rest_offset = np.zeros(m.ntendon)   # rest_length_offset of this episode, m
         self._eta = task.model.eta                          # (k, 2) node offsets from the reference point, m
@@ -166,10 +206,22 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self.observation_space = spaces.Box(-np.inf, np.inf, (task.observation_size,), np.float32)
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / task.control_dt)))
         self.render_mode, self._size, self._renderer = render_mode, check_frame_size(width, height)[::-1], None
-        self._settle()
         task.record_path = render_mode is not None
         self.start = np.zeros(3)
         self._needs_reset = True
+
+    def _compile(self, xml: str):
+        """The ``MjModel`` of ``xml`` with the twin's contact: elliptic friction cone, ``solref`` of
+        every geom (``contact_timeconst``, ``contact_dampratio``)."""
+        m = self._mj.MjModel.from_xml_string(xml)
+        m.opt.cone = self._mj.mjtCone.mjCONE_ELLIPTIC
+        m.geom_solref[:] = (self.contact_timeconst, self.contact_dampratio)
+        return m
+
+    def _terrain_xml(self, terrain) -> str:
+        """MJCF of the settled robot on ``terrain`` (its geoms: :func:`tensegrity_gym.io.mjcf.terrain_xml`)."""
+        t = self.task
+        return to_mjcf(t.structure.replace(nodes=t.nodes_nominal), terrain=terrain, **self._mjcf)
 
     def _settle(self) -> None:
         """Let the robot settle on MuJoCo's ground (SETTLE_TIME s with viscous drag on the rods,
@@ -187,7 +239,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         mj.mj_forward(m, d)
         q, _ = self.rod_state()
         if not np.all(np.isfinite(q)):
-            raise ValueError(f"{ENV_ID}: settling on MuJoCo's ground diverged at dt = {t.dt} s; reduce dt")
+            raise ValueError(f"{self.env_id}: settling on MuJoCo's ground diverged at dt = {t.dt} s; reduce dt")
         t.q_nominal = q.copy()
         t.nodes_nominal = dynamics.node_positions(t.model, q)[0]
 
@@ -250,6 +302,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         super().reset(seed=seed)
         mj, m, d, t = self._mj, self.model, self.data, self.task
         info = t.reset(np.array([0]), [self.np_random], options)   # same params, noise, goal, controls as TensegrityRoll-v0
+        if t.terrain_generator is not None:   # this episode's terrain (same parts and grid shape, new numbers)
+            copy_terrain(m, mj.MjModel.from_xml_string(self._terrain_xml(t.terrains[0])))
         if t.domain.enabled:   # this episode's robot into the MjModel (envs/twin_params.py)
             self._rest_offset, self.contact_timeconst = self._params.apply(
                 mj, m, d, {name: x[0] for name, x in t.domain.values.items()})
@@ -261,6 +315,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self._sync()
         self.start = self.com()
         t.start[0] = self.start
+        extra = self._reset_task_state()
         if t.sensors is not None:   # the reset reading from MuJoCo's state (contacts included)
             t.sensors.reset_reading(t, np.array([0]), [self.np_random], t.goal, t.speed, t.cstate.active)
         self._needs_reset = False
@@ -268,11 +323,22 @@ class TensegrityRollMuJoCoEnv(gym.Env):
                "goal_direction": t.goal[0].copy()}
         if "params" in info:
             out["params"] = {n: x[0] for n, x in info["params"].items()}
+        out.update(extra)
         return t.observe()[0], out
+
+    def _reset_task_state(self) -> dict:
+        """The task's own state after a reset, from MuJoCo's state (synced into the task); its
+        reset info beyond the rolling task's (here none)."""
+        return {}
+
+    def _step_task_terms(self) -> tuple[dict, bool, dict]:
+        """After a step, the task's own reward terms (name -> value), termination and info, from
+        MuJoCo's state (synced into the task); here none: the rolling task never terminates."""
+        return {}, False, {}
 
     def step(self, action):
         if self._needs_reset:
-            raise RuntimeError(f"{ENV_ID}: call reset() before step()")
+            raise RuntimeError(f"{self.env_id}: call reset() before step()")
         mj, m, d, t = self._mj, self.model, self.data, self.task
         a = check_action(action, (t.action_size,), clip=t.clip_actions)[None, :].astype(np.float64)
         t.ctrl, t.speed, _ = t.actuation.update(t.ctrl, a, t.speed)
@@ -308,7 +374,13 @@ class TensegrityRollMuJoCoEnv(gym.Env):
                 "distance_rolled": float(step_info["distance_rolled"][0]),
                 "forward_velocity": float(step_info["forward_velocity"][0]), "diverged": bool(diverged),
                 "reward_forward": r_fwd, "reward_ctrl": r_ctrl}
-        return t.observe()[0], r_fwd + r_ctrl, False, bool(diverged), info
+        reward = r_fwd + r_ctrl
+        terms, terminated, extra = self._step_task_terms()
+        for name, v in terms.items():
+            reward += v
+            info[f"reward_{name}"] = v
+        info.update(extra)
+        return t.observe()[0], reward, bool(terminated), bool(diverged), info
 
     def render(self):
         """RGB frame (H, W, 3) uint8 of MuJoCo's current state, drawn by the project's renderer
@@ -319,7 +391,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             return None
         if self._renderer is None:
             from ..rendering import make_renderer
-            self._renderer = make_renderer(self._size[1], self._size[0], title=ENV_ID)
+            self._renderer = make_renderer(self._size[1], self._size[0], title=self.env_id)
         return self._renderer.render(**self.task.render_data(0))
 
     def __getstate__(self):   # the mujoco module by name, no renderer (MjModel / MjData pickle)
@@ -332,3 +404,34 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+class TensegrityNavigateMuJoCoEnv(TensegrityRollMuJoCoEnv):
+    """MuJoCo twin of ``TensegrityNavigate-v0``: the rolling twin (see the module doc) on the
+    navigation task's courses.
+
+    The env holds a one-copy :class:`~tensegrity_gym.envs.navigate.NavigateTask` (arguments: those
+    of ``TensegrityNavigate-v0``, plus the twin's own, as :class:`TensegrityRollMuJoCoEnv`), whose
+    reset draws the course from the env's ``np_random`` as ``TensegrityNavigate-v0`` does (the same
+    reset seed gives the same course, goals and start on both); the course's walls and rough patches
+    become the MuJoCo scene's terrain (changed in place per episode, :mod:`~tensegrity_gym.envs.twin_terrain`).
+    The planner's guidance, the goals reached, the goal bonus, success (it terminates the
+    episode), the observation (guidance, ``path_distance``, ``goals_left``, ``height_scan``) and
+    the info keys are the task's own (:meth:`NavigateTask.track_goals`, :meth:`NavigateTask.guide`),
+    computed from MuJoCo's state synced into the task. Registered as ``TensegrityNavigateMuJoCo-v0``
+    with ``max_episode_steps`` = 3000 (60 s), as ``TensegrityNavigate-v0``.
+    """
+
+    env_id = NAVIGATE_ENV_ID
+    task_class = NavigateTask
+    config_class = NavigateConfig
+
+    def _reset_task_state(self) -> dict:
+        t = self.task
+        t.guide([0])     # the guidance from MuJoCo's start state
+        return {"goal_position": t.courses[0].goals[0].copy(), "path_distance": float(t.path[0])}
+
+    def _step_task_terms(self) -> tuple[dict, bool, dict]:
+        terms, success, infos = self.task.track_goals()
+        return ({name: float(v[0]) for name, v in terms.items()}, bool(success[0]),
+                {k: v.item(0) for k, v in infos.items()})

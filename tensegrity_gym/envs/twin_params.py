@@ -19,7 +19,7 @@ name (SI unit)              MuJoCo field
                             of passive strings, the motor's rest length of actuated ones
                             (rewritten every control step)
 ``gravity`` (m/s^2)         ``opt.gravity``
-``friction`` (1)            ``geom_friction[:, 0]`` of every geom
+``friction`` (1)            ``geom_friction[:, 0]`` of every geom (rods and every terrain part)
 ``ground_stiffness`` (N/m)  ``geom_solref[:, 0]`` = timeconst = ``sqrt(m_eff / k)`` (floored at
                             2 steps), m_eff = a quarter of the lightest rod mass
 ``ground_damping`` (s/m)    ``geom_solref[:, 1]`` = dampratio = ``contact_dampratio`` x
@@ -99,7 +99,8 @@ class TwinParams:
         offset = np.asarray(values.get("rest_length_offset", np.zeros(m.ntendon)), float)
         m.tendon_lengthspring[:, 1] = self.rest_length + offset
         m.opt.gravity[:] = values.get("gravity", self.gravity)
-        m.geom_friction[:, 0] = float(values.get("friction", c.friction))
+        if "friction" in values:   # else each geom keeps its own (a terrain's parts may differ)
+            m.geom_friction[:, 0] = float(values["friction"])
         tc = contact_timeconst(float(mass.min()), float(values.get("ground_stiffness", c.stiffness)), self.dt)
         ratio = float(values["ground_damping"]) / c.damping if "ground_damping" in values else 1.0
         m.geom_solref[:] = (tc, self.dampratio * ratio)

@@ -1,0 +1,155 @@
+#!/usr/bin/env python
+"""Sim-to-sim transfer on terrain: the same policies on this project's physics and on its MuJoCo
+twin, with the same terrain or course and the same reset seeds.
+
+    python scripts/eval_transfer_terrain.py runs/ppo_navigate_s0 [runs/... | gait] --out results/transfer_terrain/navigate.json \
+        [--courses 20] [--model final] [--env-kwargs '{}']
+    python scripts/eval_transfer_terrain.py runs/ppo_rough_s0 gait --terrain '{"generator": "rough"}' \
+        --out results/transfer_terrain/rough.json [--episodes 8] [--steps 1000]
+
+Each policy (a run folder of ``agents.train``, loaded by ``agents.evaluate.load_trained``, or
+``gait``: :class:`tensegrity_gym.tools.baselines.RollingGait`) acts unchanged, with deterministic
+actions, on
+
+* navigation (default): ``TensegrityNavigate-v0`` and its twin ``TensegrityNavigateMuJoCo-v0``,
+  one episode on each of ``--courses`` held-out courses (reset seeds 20000, 20001, ..., the
+  courses of ``scripts/eval_navigate.py``; the course is drawn from the reset seed, so both
+  simulators get the same walls, rough patches and goals), 60 s (the registered time limit).
+  Metric: the success rate (all goals reached).
+* a terrain (``--terrain``: a terrain JSON file, or a JSON object: a terrain or a generator, see
+  ``docs/terrain.md``): ``TensegrityRoll-v0`` and its twin ``TensegrityRollMuJoCo-v0`` with that
+  terrain, ``--episodes`` episodes from reset seeds 10000, 10001, ... (a generator draws the same
+  terrain for a seed on both), ``--steps`` control steps each (default the registered 1000, 20 s).
+  Metric: the mean speed along the goal, m/s (an episode's ``distance_rolled`` over its duration).
+
+The env arguments are a run's own (its ``config.yaml``: observation, actuation, course settings)
+without the robot it was trained on (``randomize``, ``params``: both simulators run the nominal
+robot) and, with ``--terrain``, with the evaluation's terrain; then ``--env-kwargs``. Prints one
+line per policy and writes JSON (``--out``, atomically) with the per-episode numbers and the ratio
+twin / project of each policy's metric (None where the project's is 0).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import tensegrity_gym  # noqa: F401  (registers the envs)
+from agents import common
+from agents.evaluate import load_trained, run_episodes
+from tensegrity_gym.tools.baselines import RollingGait
+
+#: (project env, MuJoCo twin) of each mode
+ENVS = {"navigate": ("TensegrityNavigate-v0", "TensegrityNavigateMuJoCo-v0"),
+        "terrain": ("TensegrityRoll-v0", "TensegrityRollMuJoCo-v0")}
+#: first reset seed of each mode (held out: training seeds its envs from its seed, evaluations from 1000)
+SEED0 = {"navigate": 20000, "terrain": 10000}
+#: a run's env arguments that describe the robot it was trained on, not what it senses
+ROBOT_KEYS = ("randomize", "params")
+
+
+def load_policy(spec: str, which: str):
+    """(policy factory ``env -> policy``, the run's env arguments) of ``spec``: ``gait`` or a run folder."""
+    if spec == "gait":
+        return (lambda env: RollingGait(env)), {}
+    path = Path(spec)
+    if not (path / "config.yaml").is_file():
+        raise SystemExit(f"policy: {spec!r} is neither 'gait' nor a run folder of agents.train (no config.yaml)")
+    cfg, policy, _, _ = load_trained(path, which)
+    return (lambda env: policy), dict(cfg.get("env_kwargs") or {})
+
+
+def parse_terrain(value: str | None):
+    """``--terrain`` as the envs' ``terrain`` argument: a JSON file's path, or a JSON object."""
+    if value is None:
+        return None
+    text = value.strip()
+    if text.startswith("{"):
+        try:
+            return json.loads(text)
+        except json.JSONDecodeError as e:
+            raise SystemExit(f"--terrain: not a JSON object ({e.msg})") from None
+    if not Path(value).is_file():
+        raise SystemExit(f"--terrain: no such file {value!r} (give a terrain JSON file or a JSON object)")
+    return value
+
+
+def env_kwargs_for(run_kwargs: dict, terrain, extra: dict) -> dict:
+    """The env arguments of one policy's evaluation (see the module doc)."""
+    kw = {k: v for k, v in run_kwargs.items() if k not in ROBOT_KEYS}
+    if terrain is not None:
+        kw["terrain"] = terrain
+    kw.update(extra)
+    return kw
+
+
+def evaluate(mode: str, env_id: str, env_kwargs: dict, factory, seeds: list[int], steps: int | None) -> dict:
+    """Per-episode numbers and the metric of one policy on ``env_id``."""
+    kw = dict(env_kwargs) if steps is None else dict(env_kwargs, max_episode_steps=steps)
+    eps = run_episodes(env_id, kw, factory, seeds)
+    diverged = [bool(e["final"].get("diverged", 0.0)) for e in eps]
+    if mode == "navigate":
+        success = np.array([bool(e["final"]["success"]) for e in eps])
+        goals = [int(e["final"]["goals_reached"]) for e in eps]
+        return {"metric": float(success.mean()), "success": success.tolist(), "goals_reached": goals,
+                "mean_goals_reached": float(np.mean(goals)), "diverged": diverged}
+    speed = np.array([e["final"]["distance_rolled"] / (e["length"] * e["dt"]) for e in eps])
+    return {"metric": float(speed.mean()), "speed_m_s": speed.tolist(), "std_m_s": float(speed.std()),
+            "diverged": diverged}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("policies", nargs="+", help="run folders of agents.train, or 'gait' (the rolling gait)")
+    ap.add_argument("--out", type=Path, required=True, help="JSON output path")
+    ap.add_argument("--terrain", default=None,
+                    help="evaluate rolling on this terrain (a JSON file or object) instead of navigation")
+    ap.add_argument("--courses", type=int, default=20, help="navigation: held-out courses (reset seeds 20000+)")
+    ap.add_argument("--episodes", type=int, default=8, help="terrain: episodes (reset seeds 10000+)")
+    ap.add_argument("--steps", type=int, default=None,
+                    help="control steps per episode (default: the registered time limit)")
+    ap.add_argument("--model", default="final", help="best, final or a model .zip of each run")
+    ap.add_argument("--env-kwargs", default="{}", help="JSON object of extra env arguments (both simulators)")
+    a = ap.parse_args(argv)
+    mode = "navigate" if a.terrain is None else "terrain"
+    n = a.courses if mode == "navigate" else a.episodes
+    if n < 1 or (a.steps is not None and a.steps < 1):
+        print(f"error: --courses / --episodes and --steps must be >= 1 (got {n}, {a.steps})", file=sys.stderr)
+        return 2
+    try:
+        extra = json.loads(a.env_kwargs)
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"--env-kwargs: not JSON ({e.msg})") from None
+    if not isinstance(extra, dict):
+        raise SystemExit(f"--env-kwargs: expected a JSON object, got {a.env_kwargs!r}")
+    terrain = parse_terrain(a.terrain)
+    project_id, twin_id = ENVS[mode]
+    seeds = list(range(SEED0[mode], SEED0[mode] + n))
+    unit = "success" if mode == "navigate" else "m/s along the goal"
+    results, t0 = {}, time.time()
+    for spec in a.policies:
+        factory, run_kwargs = load_policy(spec, a.model)
+        kw = env_kwargs_for(run_kwargs, terrain, extra)
+        project = evaluate(mode, project_id, kw, factory, seeds, a.steps)
+        twin = evaluate(mode, twin_id, kw, factory, seeds, a.steps)
+        ratio = twin["metric"] / project["metric"] if project["metric"] else None
+        results[spec] = {"env_kwargs": kw, "project": project, "twin": twin, "ratio_twin_project": ratio}
+        print(f"{spec}: {project_id} {project['metric']:.4g}, {twin_id} {twin['metric']:.4g} ({unit}), "
+              f"twin/project {'-' if ratio is None else f'{ratio:.3f}'}", flush=True)
+    data = {"command": "python scripts/eval_transfer_terrain.py " + " ".join(sys.argv[1:] if argv is None else argv),
+            "mode": mode, "metric": "success_rate" if mode == "navigate" else "mean_speed_m_s",
+            "project_env": project_id, "twin_env": twin_id, "terrain": a.terrain, "model": a.model,
+            "reset_seeds": [seeds[0], seeds[-1]], "steps": a.steps, "results": results,
+            "wall_time_s": time.time() - t0}
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    common.write_json(a.out, data)
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

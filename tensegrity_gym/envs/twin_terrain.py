@@ -1,0 +1,51 @@
+"""The terrain of the MuJoCo twins (:mod:`tensegrity_gym.envs.roll_mujoco`): a terrain drawn per
+episode written into the live ``MjModel``. SI units.
+
+The terrain's MuJoCo geoms (plane, boxes, heightfield) are those of
+:func:`tensegrity_gym.io.mjcf.terrain_xml`, the one mapping of a
+:class:`~tensegrity_gym.core.terrain.Terrain` onto MuJoCo. A generator's terrains keep their parts
+and grid shape (:mod:`tensegrity_gym.tasks.terrain`), so the model's structure never changes from
+one episode to the next: each episode's terrain is compiled by MuJoCo from the same MJCF and its
+numbers are copied into the live model in place, namely the world geoms' ``geom_pos``,
+``geom_quat``, ``geom_size``, bounding sphere and box (``geom_rbound``, ``geom_aabb``) and
+``geom_friction``, the heightfield's ``hfield_size`` and ``hfield_data``, and the world body's
+bounding-volume tree (``bvh_*``: MuJoCo's collision mid-phase reads it, so a geom moved without it
+could be missed). Copying what MuJoCo compiled, rather than recomputing it, keeps MuJoCo's own
+derived values (an hfield geom's size and bounds follow from the field's height range).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["GEOM_FIELDS", "BVH_FIELDS", "world_geoms", "copy_terrain"]
+
+#: per-geom fields of the terrain's geoms copied from the compiled model
+GEOM_FIELDS = ("geom_pos", "geom_quat", "geom_size", "geom_rbound", "geom_aabb", "geom_friction")
+#: per-node fields of the world body's bounding-volume tree copied with them
+BVH_FIELDS = ("bvh_aabb", "bvh_child", "bvh_nodeid", "bvh_depth")
+
+
+def world_geoms(model) -> np.ndarray:
+    """Ids of the geoms on the world body (the terrain's: the rods' geoms are on their own bodies)."""
+    return np.flatnonzero(model.geom_bodyid == 0)
+
+
+def copy_terrain(model, source) -> None:
+    """Write the terrain of ``source`` (an ``MjModel`` of the same scene compiled with another
+    terrain of the same parts and grid shape) into ``model`` in place (see the module doc).
+    RuntimeError when the two scenes' terrains differ in parts, geom types or grid shape."""
+    g = world_geoms(model)
+    same = (np.array_equal(g, world_geoms(source)) and np.array_equal(model.geom_type[g], source.geom_type[g])
+            and model.nhfield == source.nhfield and np.array_equal(model.hfield_nrow, source.hfield_nrow)
+            and np.array_equal(model.hfield_ncol, source.hfield_ncol) and model.nbvh == source.nbvh
+            and model.body_bvhadr[0] == source.body_bvhadr[0] and model.body_bvhnum[0] == source.body_bvhnum[0])
+    if not same:
+        raise RuntimeError("terrain generator: a drawn terrain changed the MuJoCo scene's parts or grid shape")
+    for name in GEOM_FIELDS:
+        getattr(model, name)[g] = getattr(source, name)[g]
+    model.hfield_size[:] = source.hfield_size
+    model.hfield_data[:] = source.hfield_data
+    a, n = int(model.body_bvhadr[0]), int(model.body_bvhnum[0])
+    if a >= 0:
+        for name in BVH_FIELDS:
+            getattr(model, name)[a:a + n] = getattr(source, name)[a:a + n]
