@@ -15,7 +15,7 @@ mujoco = pytest.importorskip("mujoco")
 
 import tensegrity_gym  # noqa: E402,F401
 from tensegrity_gym.envs.roll_mujoco import TensegrityNavigateMuJoCoEnv, TensegrityRollMuJoCoEnv  # noqa: E402
-from tensegrity_gym.envs.twin_terrain import BVH_FIELDS, GEOM_FIELDS, world_geoms  # noqa: E402
+from tensegrity_gym.envs.twin_terrain import BVH_FIELDS, FLOOR_GAP, GEOM_FIELDS, world_geoms  # noqa: E402
 
 BLOCK = {"boxes": [{"center": [0.0, 0.0, 0.05], "size": [2.0, 2.0, 0.1]}]}
 ROUGH = {"generator": "rough", "size": 3.0, "cell": 0.1, "amplitude": 0.03}
@@ -135,6 +135,30 @@ def test_twin_terrain_heights_equal_height_at(terrain):
             b = ter.boxes[1]
             x, y = b.center[0], b.center[1] + 0.5
             assert _ray_height(env.model, env.data, x, y) == pytest.approx(b.center[2] + b.size[2] / 2, abs=1e-9)
+
+
+def test_floor_beyond_a_heightfield_without_a_plane():
+    """A course's heightfield ends at its grid in MuJoCo: the scene's floor, 1 mm under its lowest
+    point, holds the robot beyond it, where our heightfield holds its edge values (0)."""
+    env = gym.make("TensegrityNavigateMuJoCo-v0")
+    env.reset(seed=1)
+    u = env.unwrapped
+    m, ter = u.model, u.task.terrains[0]
+    assert ter.plane is None and m.geom("terrain_floor").id in world_geoms(m)
+    assert m.geom_pos[m.geom("terrain_floor").id][2] == pytest.approx(ter.heightfield.heights.min() - FLOOR_GAP)
+    edge = -ter.heightfield.origin[0] + 1.0                  # 1 m beyond the grid
+    for x, y in ((edge, 0.0), (0.0, -edge), (edge, edge)):
+        assert float(ter.height_at(x, y)) == 0.0
+        assert _ray_height(m, u.data, x, y) == pytest.approx(-FLOOR_GAP, abs=1e-9)
+    adr = m.jnt_qposadr[m.body_jntadr[u._body]]
+    for a in adr:                                            # the robot beyond the grid
+        u.data.qpos[a:a + 3] += [edge, edge, 0.002]
+    mujoco.mj_forward(m, u.data)
+    for _ in range(25):
+        *_, trunc, info = env.step(np.zeros(env.action_space.shape))
+        assert not trunc
+    assert info["com_position"][2] > 0.05                    # standing on the floor, not fallen
+    env.close()
 
 
 def test_navigation_twin_course_spaces_and_info_as_the_project_env():

@@ -79,7 +79,9 @@ capsules with any terrain geom. Friction is each terrain part's own (the rods' g
 0, and MuJoCo takes the larger of two geoms' values; a randomised ``friction`` sets every geom);
 the contact softness (``solref``) is the same on every part, from ``ground_stiffness``: a part's
 own ``stiffness`` / ``damping`` is not mapped. MuJoCo's heightfield is triangulated where ours is
-bilinear (within a few mm on gentle bumps) and ends at its grid, where ours holds the edge values.
+bilinear (within a few mm on gentle bumps) and ends at its grid, where ours holds the edge values:
+a heightfield without a plane (the navigation courses, the ``"rough"`` generator) gets a level
+floor 1 mm under its lowest point in the scene (:func:`~tensegrity_gym.envs.twin_terrain.floor_height`).
 
 Navigation: ``TensegrityNavigateMuJoCo-v0``
 -------------------------------------------
@@ -122,7 +124,7 @@ from .config import NavigateConfig, RollConfig, flatten, with_flat
 from .navigate import NavigateTask
 from .roll import MAX_PATH, SETTLE_TIME, RollTask
 from .twin_params import TwinParams, check_twin_kwargs, contact_timeconst
-from .twin_terrain import copy_terrain
+from .twin_terrain import copy_terrain, floor_height
 
 __all__ = ["TensegrityRollMuJoCoEnv", "TensegrityNavigateMuJoCoEnv", "ENV_ID", "NAVIGATE_ENV_ID"]
 
@@ -219,9 +221,11 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         return m
 
     def _terrain_xml(self, terrain) -> str:
-        """MJCF of the settled robot on ``terrain`` (its geoms: :func:`tensegrity_gym.io.mjcf.terrain_xml`)."""
+        """MJCF of the settled robot on ``terrain`` (its geoms: :func:`tensegrity_gym.io.mjcf.terrain_xml`;
+        a floor under a heightfield without a plane: :func:`~tensegrity_gym.envs.twin_terrain.floor_height`)."""
         t = self.task
-        return to_mjcf(t.structure.replace(nodes=t.nodes_nominal), terrain=terrain, **self._mjcf)
+        return to_mjcf(t.structure.replace(nodes=t.nodes_nominal), terrain=terrain, floor_height=floor_height(terrain),
+                       **self._mjcf)
 
     def _settle(self) -> None:
         """Let the robot settle on MuJoCo's ground (SETTLE_TIME s with viscous drag on the rods,

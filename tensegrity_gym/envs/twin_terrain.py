@@ -12,17 +12,41 @@ numbers are copied into the live model in place, namely the world geoms' ``geom_
 bounding-volume tree (``bvh_*``: MuJoCo's collision mid-phase reads it, so a geom moved without it
 could be missed). Copying what MuJoCo compiled, rather than recomputing it, keeps MuJoCo's own
 derived values (an hfield geom's size and bounds follow from the field's height range).
+
+A heightfield ends at its grid in MuJoCo, where ours holds its edge values beyond it. A terrain
+with a heightfield and no plane (the navigation courses, the ``"rough"`` generator) would leave the
+robot nothing to stand on past the grid, so the twin's scene adds a level floor
+(:func:`floor_height`) :data:`FLOOR_GAP` below the heightfield's lowest point: it never touches a
+robot standing on the grid (MuJoCo's caps rest about 0.01 mm deep), and beyond the grid it is ours
+to within ``FLOOR_GAP`` where the edge heights are the lowest (the courses: 0, their rough patches
+end inside the grid) and lower by at most the edge's height above the lowest point elsewhere (the
+``"rough"`` generator: its ``amplitude``).
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["GEOM_FIELDS", "BVH_FIELDS", "world_geoms", "copy_terrain"]
+from ..core.terrain import Terrain
+
+__all__ = ["GEOM_FIELDS", "BVH_FIELDS", "world_geoms", "copy_terrain", "floor_height", "FLOOR_GAP"]
 
 #: per-geom fields of the terrain's geoms copied from the compiled model
 GEOM_FIELDS = ("geom_pos", "geom_quat", "geom_size", "geom_rbound", "geom_aabb", "geom_friction")
 #: per-node fields of the world body's bounding-volume tree copied with them
 BVH_FIELDS = ("bvh_aabb", "bvh_child", "bvh_nodeid", "bvh_depth")
+
+
+#: the floor's depth below a heightfield's lowest point, m
+FLOOR_GAP = 1e-3
+
+
+def floor_height(terrain: Terrain) -> float | None:
+    """Height (m) of the floor under ``terrain``'s heightfield in the twin's scene (module doc), or
+    None (a terrain with a plane, or without a heightfield, needs none)."""
+    hf = terrain.heightfield
+    if terrain.plane is not None or hf is None:
+        return None
+    return float(hf.heights.min()) - FLOOR_GAP
 
 
 def world_geoms(model) -> np.ndarray:

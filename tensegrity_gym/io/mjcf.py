@@ -165,11 +165,15 @@ def default_rod_radius(structure: Structure) -> float:
     return 0.01 * float(structure.bar_lengths.max())
 
 
-def terrain_xml(terrain) -> tuple[list, list]:
+def terrain_xml(terrain, floor_height: float | None = None) -> tuple[list, list]:
     """``(assets, geoms)``: the MJCF lines of ``terrain``'s heightfield asset and of its geoms
-    (world body; they collide with the rods only). See the module docstring for the mapping."""
+    (world body; they collide with the rods only). See the module docstring for the mapping.
+    ``floor_height``: also a level floor plane ``terrain_floor`` at this height (m), with the
+    heightfield's friction (else the terrain's), after the terrain's geoms."""
     if not isinstance(terrain, Terrain):
         raise ValueError(f"terrain: expected a Terrain, got {type(terrain).__name__}")
+    if floor_height is not None and not math.isfinite(float(floor_height)):
+        raise ValueError(f"floor_height: must be finite (m), got {floor_height!r}")
     contact = 'contype="0" conaffinity="1"'
     fr = lambda part: f'friction="{float(terrain.surface(part)[0])!r} 0.005 0.0001"'
     assets, geoms = [], []
@@ -198,6 +202,9 @@ def terrain_xml(terrain) -> tuple[list, list]:
         geoms.append(f'    <geom name="terrain_hfield" type="hfield" hfield="terrain_hfield" '
                      f'pos="{_fmt([hf.origin[0] + rx, hf.origin[1] + ry, lo])}" rgba=".55 .62 .5 1" {contact} '
                      f'{fr(hf)}/>')
+    if floor_height is not None:
+        geoms.append(f'    <geom name="terrain_floor" type="plane" size="0 0 1" pos="0 0 {float(floor_height)!r}" '
+                     f'material="grid" {contact} {fr(hf if hf is not None else terrain)}/>')
     return assets, geoms
 
 
@@ -214,7 +221,8 @@ def check_mj_integrator(name, field: str = "integrator") -> str:
 
 def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-3, integrator: str = "RK4",
             rod_radius: float | None = None, string_width: float | None = None, ground_height: float = 0.0,
-            friction: float = 1.0, model_name: str | None = None, terrain=None) -> str:
+            friction: float = 1.0, model_name: str | None = None, terrain=None,
+            floor_height: float | None = None) -> str:
     """The MJCF XML text of ``structure`` (see the module docstring for the mapping).
 
     Parameters
@@ -223,6 +231,8 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
     terrain : a :class:`~tensegrity_gym.core.terrain.Terrain` (plane, boxes, heightfield) instead
         of ``ground``; its parts' own friction. The structure is written where it is
         (:func:`tensegrity_gym.core.placement.place_on_terrain` lifts it onto the terrain).
+    floor_height : with ``terrain``, also a level floor plane at this height, m (a floor beyond
+        a heightfield's grid, where MuJoCo's heightfield ends; :func:`terrain_xml`).
     timestep : MuJoCo step, s. integrator : MuJoCo integrator ("RK4", "Euler", "implicit", "implicitfast").
     rod_radius : rod capsule radius, m (drawing, contact and the axial inertia ``m r^2 / 2``);
         default 1 % of the longest rod.
@@ -236,7 +246,9 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
     check_mj_integrator(integrator)
     if terrain is not None and ground:
         raise ValueError("ground, terrain: give one of them (a level terrain plane is the ground)")
-    t_assets, t_geoms = ([], []) if terrain is None else terrain_xml(terrain)
+    if floor_height is not None and terrain is None:
+        raise ValueError("floor_height: needs terrain (the floor lies under a terrain)")
+    t_assets, t_geoms = ([], []) if terrain is None else terrain_xml(terrain, floor_height)
     contact = ground or terrain is not None
     r = default_rod_radius(s) if rod_radius is None else float(rod_radius)
     if not (math.isfinite(r) and r > 0):
