@@ -133,3 +133,28 @@ def test_rolling_gait_drives_the_navigation_env():
 def test_bad_arguments_are_named(kw, match):
     with pytest.raises(ValueError, match=match):
         NavigateTask(**kw)
+
+
+def test_state_observation_is_in_the_guidance_frame():
+    from tensegrity_gym import dynamics
+    from tensegrity_gym.tasks.navigate import guidance_frame
+    env = gym.make("TensegrityNavigate-v0")
+    obs, _ = env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        obs, *_ = env.step(rng.uniform(-1, 1, env.action_space.shape))
+    task = env.unwrapped.task
+    lay = {name: sl for name, sl, _ in task.observation_layout()}
+    assert obs[lay["goal_direction"]].tolist() == [1.0, 0.0]
+    vel = dynamics.node_velocities(task.model, task.qd)
+    np.testing.assert_allclose(obs[lay["node_velocity"]], guidance_frame(vel, task.goal).reshape(-1), rtol=1e-5,
+                               atol=1e-6)
+    # the frame is a rotation about the vertical: x along the guidance, lengths and z kept
+    v = rng.normal(size=(3, 4, 3))
+    d = rng.normal(size=(3, 2))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    w = guidance_frame(v, d)
+    np.testing.assert_allclose(np.linalg.norm(w, axis=-1), np.linalg.norm(v, axis=-1))
+    np.testing.assert_array_equal(w[..., 2], v[..., 2])
+    np.testing.assert_allclose(guidance_frame(np.array([[[d[0, 0], d[0, 1], 0.0]]]), d[:1])[0, 0], [1, 0, 0],
+                               atol=1e-12)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.checks import check_array
-from ..tasks.navigate import CourseSpec, draw_course, guidance_batch
+from ..tasks.navigate import CourseSpec, draw_course, guidance_batch, guidance_frame
 from .config import NavigateConfig, flat_signature, navigate_config, with_flat
 from .roll import RollTask
 from .shells import TaskEnv, TaskVectorEnv
@@ -81,6 +81,7 @@ class NavigateTask(RollTask):
         self.goal_index = np.zeros(B, int)
         self.path = np.zeros(B)
         self.n_extra = 2 + (0 if self.scan is None else len(self.scan))
+        self._blocks = {name: sl for name, sl, _ in RollTask.observation_layout(self)}
         if self.sensors is None:
             self.observation_size = self._state_size + self.n_extra
 
@@ -154,6 +155,12 @@ class NavigateTask(RollTask):
         obs = super().observe()
         if self.sensors is not None:
             return obs
+        # node positions and velocities in the guidance frame; the goal direction there is (1, 0)
+        B = self.num_envs
+        for block in ("node_position_rel_com", "node_velocity"):
+            sl = self._blocks[block]
+            obs[:, sl] = guidance_frame(obs[:, sl].reshape(B, -1, 3), self.goal).reshape(B, -1)
+        obs[:, self._blocks["goal_direction"]] = (1.0, 0.0)
         extra = [np.where(self.goal_index >= self.spec.n_goals, 0.0, self.path)[:, None],
                  (self.spec.n_goals - self.goal_index)[:, None]]
         if self.scan is not None:
@@ -220,11 +227,13 @@ _DOC = r"""
     ``terrain`` and ``randomize_goal`` are refused (the course is the ground and the goals).
 
     ## Observation
-    State mode: the rolling task's observation, whose ``goal_direction`` is the guidance, plus
-    ``path_distance`` (m, the planner's path length to the current goal) and ``goals_left``; with
-    ``height_scan`` also ``n^2`` heights (m, relative to the ground under the centre of mass,
-    world-aligned axes: a rolling robot has no fixed heading). Robot mode: the rolling task's
-    sensors with the guidance as the goal direction.
+    State mode: the rolling task's observation in the guidance frame (x along the guidance, y to
+    its left, z up: node positions about the centre of mass and node velocities rotated about
+    the vertical, so ``goal_direction`` reads (1, 0); the robot is symmetric under that rotation,
+    so one policy serves every direction), plus ``path_distance`` (m, the planner's path length
+    to the current goal) and ``goals_left``; with ``height_scan`` also ``n^2`` heights (m,
+    relative to the ground under the centre of mass, on a grid of world axes). Robot mode: the
+    rolling task's sensors, with the guidance (world frame) as the goal direction.
 
     ## Rewards, info, episode end
     ``reward_forward``: ``forward_reward_weight`` x the velocity of the centre of mass along the

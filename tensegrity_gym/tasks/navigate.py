@@ -27,7 +27,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from ..core.terrain import Box, Heightfield, Terrain
 
-__all__ = ["CourseSpec", "Course", "draw_course", "guidance", "guidance_batch", "MAX_TRIES"]
+__all__ = ["CourseSpec", "Course", "draw_course", "guidance", "guidance_batch", "guidance_frame", "MAX_TRIES"]
 
 #: courses drawn before a spec is declared unsolvable
 MAX_TRIES = 200
@@ -240,3 +240,14 @@ def guidance_batch(field, origin, cell: float, goal, p, lookahead: int = 3) -> t
         d = np.where(nv[:, None] > 0, v / nv[:, None], np.array([1.0, 0.0]))
     path = np.where(np.isfinite(here), here, np.where(np.isfinite(best), best + cell * lookahead, dist))
     return d, path
+
+
+def guidance_frame(v, direction):
+    """``v`` (B, m, 3) world vectors in the guidance frame of each copy: x along its unit
+    ``direction`` (B, 2), y to its left, z up (a rotation about the vertical; the rolling robot is
+    symmetric under it, so one policy serves every direction)."""
+    c, s = direction[:, 0, None], direction[:, 1, None]
+    out = np.array(v, copy=True)
+    out[..., 0] = c * v[..., 0] + s * v[..., 1]
+    out[..., 1] = -s * v[..., 0] + c * v[..., 1]
+    return out
