@@ -706,7 +706,12 @@ def run_cli(fn, argv: list[str] | None = None, errors=(ValueError, FileNotFoundE
     return 0
 
 
-def command_line(argv: list[str] | None = None, module: str = "agents.train") -> str:
+#: the import name of this package: ``agents`` in a checkout (``python -m agents.train``),
+#: ``tensegrity_gym_agents`` once installed (the name ``agents`` belongs to another distribution)
+PACKAGE = __package__ or "agents"
+
+
+def command_line(argv: list[str] | None = None, module: str = f"{PACKAGE}.train") -> str:
     """The command that reproduces this run: ``python -m <module> <argv>`` (``argv`` default sys.argv[1:])."""
     import shlex
     if argv is not None:

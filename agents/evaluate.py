@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import common
+from . import common
 from tensegrity_gym.checks import check_count
 
 HELD_OUT_SEED = 1_000_000
@@ -452,7 +452,7 @@ def write_gif(env_id: str, env_kwargs: dict, policy, seed: int, out: Path, max_f
 
 # ---------------------------------------------------------------------- main
 def build_parser():
-    p = argparse.ArgumentParser(prog="python -m agents.evaluate", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog=f"python -m {common.PACKAGE}.evaluate", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", help="run directory written by agents.train")
     p.add_argument("--model", default="best", help="best (default), final, or a path to a model zip")
@@ -541,7 +541,7 @@ def evaluate(argv=None) -> dict:
         "eval_wall_time_s": timings,
         "train_command": (run_dir / "command.txt").read_text().strip().splitlines()[-1]
         if (run_dir / "command.txt").exists() else None,
-        "evaluate_command": " ".join(["python", "-m", "agents.evaluate"] + (argv if argv is not None else sys.argv[1:])),
+        "evaluate_command": " ".join(["python", "-m", f"{common.PACKAGE}.evaluate"] + (argv if argv is not None else sys.argv[1:])),
         "versions": common.package_versions(),
     }
     common.write_json(out / "metrics.json", metrics)

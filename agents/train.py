@@ -55,8 +55,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import common
-from agents.progress import progress_callback
+from . import common
+from .progress import progress_callback
 from tensegrity_gym.checks import check_count, check_positive
 from tensegrity_gym.io.atomic import OutputError
 from tensegrity_gym.io.claim import Claim
@@ -288,7 +288,7 @@ def _callbacks():
 
 # ---------------------------------------------------------------------- argument parsing
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog=f"python -m {common.PACKAGE}.train", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--algo", default="ppo", help=f"algorithm: {', '.join(common.algo_names())} (default ppo)")
     p.add_argument("--env", default="TensegrityShape-v0", help="registered Gymnasium env id")
