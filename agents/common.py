@@ -630,8 +630,51 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
 
 
 # ---------------------------------------------------------------------- run metadata
+def cpu_model() -> str | None:
+    """The CPU's model name as ``lscpu`` prints it (``Model name``), else ``/proc/cpuinfo``'s
+    ``model name``, else ``platform.processor()``; None if none of them says. A wall time means
+    little without it: the same recipe runs at different speeds on different CPUs."""
+    import subprocess
+    try:
+        p = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=5,
+                           env={**os.environ, "LC_ALL": "C"})
+        for line in p.stdout.splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "Model name" and value.strip():
+                return value.strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and value.strip():
+                return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or None
+
+
+def cpus_available() -> int:
+    """CPUs this process may run on (its affinity set, e.g. under ``taskset``), else ``os.cpu_count()``."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def machine() -> dict:
+    """Where a wall time was measured: CPU model, CPUs available to the process, torch threads."""
+    out = {"cpu_model": cpu_model(), "cpus_available": cpus_available()}
+    try:
+        import torch
+        out["torch_num_threads"] = torch.get_num_threads()
+    except ImportError:
+        pass
+    return out
+
+
 def package_versions() -> dict:
-    out = {"python": platform.python_version(), "platform": platform.platform()}
+    out = {"python": platform.python_version(), "platform": platform.platform(), **machine()}
     for name in ("numpy", "scipy", "torch", "stable_baselines3", "sb3_contrib", "gymnasium", "tensegrity_gym",
                  "rl_zoo3", "numba"):
         try:

@@ -537,6 +537,9 @@ def evaluate(argv=None) -> dict:
         "env": env_id, "env_kwargs": env_kwargs, "algo": cfg["algo"], "run_dir": str(run_dir),
         "model": str(model_path), "model_num_timesteps": int(model.num_timesteps),
         "training_wall_time_s": state.get("wall_time_s"), "training_status": state.get("status"),
+        # the CPU the training ran on (its wall time depends on it); "CPU not recorded" for runs
+        # older than this field
+        "training_cpu_model": (state.get("machine") or {}).get("cpu_model") or "CPU not recorded",
         "held_out_seeds": [seeds[0], seeds[-1]], "scales": scales, "results": results,
         "eval_wall_time_s": timings,
         "train_command": (run_dir / "command.txt").read_text().strip().splitlines()[-1]

@@ -203,7 +203,8 @@ def run(argv: list[str] | None = None) -> dict:
         row = {"run": str(r), "seed": cfg.get("seed"), "model": m["model"],
                "time_split_s": st.get("time_split_last_segment_s"),
                "model_num_timesteps": m["model_num_timesteps"],
-               "training_wall_time_s": m["training_wall_time_s"], "training_status": m["training_status"]}
+               "training_wall_time_s": m["training_wall_time_s"], "training_status": m["training_status"],
+               "training_cpu_model": m.get("training_cpu_model") or "CPU not recorded"}
         for key, src, _ in METRICS:
             row[key] = res.get(src)
         per_seed.append(row)
@@ -242,11 +243,12 @@ def _table(s: dict) -> str:
         a = agg[k]
         lines.append(f"| {k} ({a['unit']}) | {f(a['iqm'])} | [{f(a['ci95'][0])}, {f(a['ci95'][1])}] | {f(a['min'])} | "
                      f"{f(a['max'])} | {f(a.get('goal'))} | {f(a.get('seeds_reaching_goal'))} |")
-    lines += ["", "| run | seed | steps | training wall s | " + " | ".join(keys) + " |",
-              "|---|---:|---:|---:|" + "---:|" * len(keys)]
+    lines += ["", "| run | seed | steps | training wall s | CPU | " + " | ".join(keys) + " |",
+              "|---|---:|---:|---:|---|" + "---:|" * len(keys)]
     for r in s["per_seed"]:
         lines.append(f"| {Path(r['run']).name} | {f(r['seed'])} | {f(r['model_num_timesteps'])} | "
-                     f"{f(r['training_wall_time_s'])} | " + " | ".join(f(r[k]) for k in keys) + " |")
+                     f"{f(r['training_wall_time_s'])} | {r.get('training_cpu_model') or 'CPU not recorded'} | "
+                     + " | ".join(f(r[k]) for k in keys) + " |")
     lc = s.get("learning_curve_runs")
     if lc is not None and len(lc) < s["n_seeds"]:
         lines += ["", f"Learning curves (`learning_curves.png`): {len(lc)} of {s['n_seeds']} seeds; the other runs "

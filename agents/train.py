@@ -577,6 +577,7 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
     prev_state = _read_state(run_dir) if (resume_dir is not None and not fresh_restart) else {}
     run_state = RunState(state_path, {
         **prev_state, "status": "starting", "pid": os.getpid(), "host": socket.gethostname(),
+        "machine": common.machine(),     # the CPU of this segment: wall times depend on it
         "num_timesteps": int(prev_state.get("num_timesteps", 0)), "target_timesteps": n_timesteps})
     _install_interrupt_handlers()   # a SIGTERM during start-up is recorded (status interrupted), not left "starting"
     run_state.update()
