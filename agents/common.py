@@ -630,6 +630,22 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
 
 
 # ---------------------------------------------------------------------- run metadata
+def passive_openmp_wait() -> bool:
+    """Let idle OpenMP threads sleep instead of spin (``OMP_WAIT_POLICY=PASSIVE``), unless the
+    variable is set already or torch (whose OpenMP runtime reads it when it loads) is imported.
+
+    With more than one torch thread, each of PPO's many small operations ends at an OpenMP
+    barrier; waiting threads spin there by default. On a machine whose cores are shared with other
+    work, a spinning thread takes the core from the thread the barrier waits for: on 2 shared
+    cores (load 4) the learner ran 13x slower per sample with 2 threads than with 2 threads that
+    sleep (``docs/time_to_policy.md``). With one thread (the default of ``--num-threads``) there is
+    no team and nothing changes. Returns True if it set the variable."""
+    if "OMP_WAIT_POLICY" in os.environ or "torch" in sys.modules:
+        return False
+    os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    return True
+
+
 def cpu_model() -> str | None:
     """The CPU's model name as ``lscpu`` prints it (``Model name``), else ``/proc/cpuinfo``'s
     ``model name``, else ``platform.processor()``; None if none of them says. A wall time means
@@ -664,7 +680,8 @@ def cpus_available() -> int:
 
 def machine() -> dict:
     """Where a wall time was measured: CPU model, CPUs available to the process, torch threads."""
-    out = {"cpu_model": cpu_model(), "cpus_available": cpus_available()}
+    out = {"cpu_model": cpu_model(), "cpus_available": cpus_available(),
+           "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")}
     try:
         import torch
         out["torch_num_threads"] = torch.get_num_threads()

@@ -40,6 +40,8 @@ import numpy as np
 from . import common
 from tensegrity_gym.checks import check_count
 
+common.passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
+
 HELD_OUT_SEED = 1_000_000
 
 # non-learning baselines per env id: (label, "module:Class"); constructed as Class(env)

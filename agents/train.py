@@ -61,6 +61,8 @@ from tensegrity_gym.checks import check_count, check_positive
 from tensegrity_gym.io.atomic import OutputError
 from tensegrity_gym.io.claim import Claim
 
+common.passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
+
 EVAL_SEED_OFFSET = 10_000
 
 
