@@ -630,8 +630,68 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
 
 
 # ---------------------------------------------------------------------- run metadata
+def passive_openmp_wait() -> bool:
+    """Let idle OpenMP threads sleep instead of spin (``OMP_WAIT_POLICY=PASSIVE``), unless the
+    variable is set already or torch (whose OpenMP runtime reads it when it loads) is imported.
+
+    With more than one torch thread, each of PPO's many small operations ends at an OpenMP
+    barrier; waiting threads spin there by default. On a machine whose cores are shared with other
+    work, a spinning thread takes the core from the thread the barrier waits for: on 2 shared
+    cores (load 4) the learner ran 13x slower per sample with 2 threads than with 2 threads that
+    sleep (``docs/time_to_policy.md``). With one thread (the default of ``--num-threads``) there is
+    no team and nothing changes. Returns True if it set the variable."""
+    if "OMP_WAIT_POLICY" in os.environ or "torch" in sys.modules:
+        return False
+    os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    return True
+
+
+def cpu_model() -> str | None:
+    """The CPU's model name as ``lscpu`` prints it (``Model name``), else ``/proc/cpuinfo``'s
+    ``model name``, else ``platform.processor()``; None if none of them says. A wall time means
+    little without it: the same recipe runs at different speeds on different CPUs."""
+    import subprocess
+    try:
+        p = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=5,
+                           env={**os.environ, "LC_ALL": "C"})
+        for line in p.stdout.splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "Model name" and value.strip():
+                return value.strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and value.strip():
+                return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or None
+
+
+def cpus_available() -> int:
+    """CPUs this process may run on (its affinity set, e.g. under ``taskset``), else ``os.cpu_count()``."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def machine() -> dict:
+    """Where a wall time was measured: CPU model, CPUs available to the process, torch threads."""
+    out = {"cpu_model": cpu_model(), "cpus_available": cpus_available(),
+           "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")}
+    try:
+        import torch
+        out["torch_num_threads"] = torch.get_num_threads()
+    except ImportError:
+        pass
+    return out
+
+
 def package_versions() -> dict:
-    out = {"python": platform.python_version(), "platform": platform.platform()}
+    out = {"python": platform.python_version(), "platform": platform.platform(), **machine()}
     for name in ("numpy", "scipy", "torch", "stable_baselines3", "sb3_contrib", "gymnasium", "tensegrity_gym",
                  "rl_zoo3", "numba"):
         try:
@@ -706,7 +766,12 @@ def run_cli(fn, argv: list[str] | None = None, errors=(ValueError, FileNotFoundE
     return 0
 
 
-def command_line(argv: list[str] | None = None, module: str = "agents.train") -> str:
+#: the import name of this package: ``agents`` in a checkout (``python -m agents.train``),
+#: ``tensegrity_gym_agents`` once installed (the name ``agents`` belongs to another distribution)
+PACKAGE = __package__ or "agents"
+
+
+def command_line(argv: list[str] | None = None, module: str = f"{PACKAGE}.train") -> str:
     """The command that reproduces this run: ``python -m <module> <argv>`` (``argv`` default sys.argv[1:])."""
     import shlex
     if argv is not None:

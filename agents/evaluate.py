@@ -37,8 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import common
+from . import common
 from tensegrity_gym.checks import check_count
+
+common.passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
 
 HELD_OUT_SEED = 1_000_000
 
@@ -452,7 +454,7 @@ def write_gif(env_id: str, env_kwargs: dict, policy, seed: int, out: Path, max_f
 
 # ---------------------------------------------------------------------- main
 def build_parser():
-    p = argparse.ArgumentParser(prog="python -m agents.evaluate", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog=f"python -m {common.PACKAGE}.evaluate", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", help="run directory written by agents.train")
     p.add_argument("--model", default="best", help="best (default), final, or a path to a model zip")
@@ -537,11 +539,14 @@ def evaluate(argv=None) -> dict:
         "env": env_id, "env_kwargs": env_kwargs, "algo": cfg["algo"], "run_dir": str(run_dir),
         "model": str(model_path), "model_num_timesteps": int(model.num_timesteps),
         "training_wall_time_s": state.get("wall_time_s"), "training_status": state.get("status"),
+        # the CPU the training ran on (its wall time depends on it); "CPU not recorded" for runs
+        # older than this field
+        "training_cpu_model": (state.get("machine") or {}).get("cpu_model") or "CPU not recorded",
         "held_out_seeds": [seeds[0], seeds[-1]], "scales": scales, "results": results,
         "eval_wall_time_s": timings,
         "train_command": (run_dir / "command.txt").read_text().strip().splitlines()[-1]
         if (run_dir / "command.txt").exists() else None,
-        "evaluate_command": " ".join(["python", "-m", "agents.evaluate"] + (argv if argv is not None else sys.argv[1:])),
+        "evaluate_command": " ".join(["python", "-m", f"{common.PACKAGE}.evaluate"] + (argv if argv is not None else sys.argv[1:])),
         "versions": common.package_versions(),
     }
     common.write_json(out / "metrics.json", metrics)

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import common
+from . import common
 
 #: per-seed metrics aggregated over seeds: (summary key, key in agents.evaluate's results, unit)
 METRICS = (("success_rate", "success_rate", "fraction"),
@@ -48,7 +48,7 @@ METRICS = (("success_rate", "success_rate", "fraction"),
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m agents.multiseed", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog=f"python -m {common.PACKAGE}.multiseed", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="+", help="run directories of agents.train, one per training seed")
     p.add_argument("--out", required=True, help="output directory (summary.json/.md, learning_curves.png, seeds/)")
@@ -81,7 +81,7 @@ def _goals(specs: list[str]) -> list[tuple[str, float]]:
 
 
 def _evaluate_seed(run: Path, out: Path, args) -> dict:
-    from agents import evaluate
+    from . import evaluate
     m_path = out / "metrics.json"
     if args.reuse and m_path.exists():
         m = json.loads(m_path.read_text())
@@ -111,7 +111,7 @@ def _curves(run: Path) -> dict | None:
 
 
 def _band(curves: list[dict], xkey: str, ykey: str, n: int = 40):
-    from agents.tune import iqm_interval
+    from .tune import iqm_interval
     from scipy import stats
     cs = [c for c in curves if c is not None and xkey in c and ykey in c and len(c[xkey])]
     if not cs:
@@ -162,7 +162,7 @@ def _plot(path: Path, curves: list[dict], title: str) -> bool:
 def aggregate(per_seed: list[dict], goals: list[tuple[str, float]]) -> dict:
     """IQM, 95 % bootstrap interval, min and max over training seeds of every metric in
     :data:`METRICS` present for all seeds; per goal, how many seeds reach it."""
-    from agents.tune import iqm_interval
+    from .tune import iqm_interval
     agg = {}
     for key, _, unit in METRICS:
         vals = [s[key] for s in per_seed if s.get(key) is not None]
@@ -192,7 +192,7 @@ def run(argv: list[str] | None = None) -> dict:
         raise ValueError(f"runs: two run directories share a name ({names}); each seed needs its own")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from agents.evaluate import HELD_OUT_SEED
+    from .evaluate import HELD_OUT_SEED
     per_seed, curves, env_ids = [], [], set()
     for r in runs:
         m = _evaluate_seed(r, out / "seeds" / r.name, args)
@@ -203,7 +203,8 @@ def run(argv: list[str] | None = None) -> dict:
         row = {"run": str(r), "seed": cfg.get("seed"), "model": m["model"],
                "time_split_s": st.get("time_split_last_segment_s"),
                "model_num_timesteps": m["model_num_timesteps"],
-               "training_wall_time_s": m["training_wall_time_s"], "training_status": m["training_status"]}
+               "training_wall_time_s": m["training_wall_time_s"], "training_status": m["training_status"],
+               "training_cpu_model": m.get("training_cpu_model") or "CPU not recorded"}
         for key, src, _ in METRICS:
             row[key] = res.get(src)
         per_seed.append(row)
@@ -217,7 +218,7 @@ def run(argv: list[str] | None = None) -> dict:
                "learning_curve_runs": [str(r) for r, c in zip(runs, curves) if c is not None],
                "interval": "IQM (25 % trimmed mean) over training seeds, 95 % percentile bootstrap "
                            "(scipy.stats.bootstrap, 2000 resamples, seed 0)",
-               "command": " ".join(["python", "-m", "agents.multiseed"] + (argv if argv is not None else sys.argv[1:])),
+               "command": " ".join(["python", "-m", f"{common.PACKAGE}.multiseed"] + (argv if argv is not None else sys.argv[1:])),
                "versions": common.package_versions()}
     common.write_json(out / "summary.json", summary)
     md = _table(summary)
@@ -242,11 +243,12 @@ def _table(s: dict) -> str:
         a = agg[k]
         lines.append(f"| {k} ({a['unit']}) | {f(a['iqm'])} | [{f(a['ci95'][0])}, {f(a['ci95'][1])}] | {f(a['min'])} | "
                      f"{f(a['max'])} | {f(a.get('goal'))} | {f(a.get('seeds_reaching_goal'))} |")
-    lines += ["", "| run | seed | steps | training wall s | " + " | ".join(keys) + " |",
-              "|---|---:|---:|---:|" + "---:|" * len(keys)]
+    lines += ["", "| run | seed | steps | training wall s | CPU | " + " | ".join(keys) + " |",
+              "|---|---:|---:|---:|---|" + "---:|" * len(keys)]
     for r in s["per_seed"]:
         lines.append(f"| {Path(r['run']).name} | {f(r['seed'])} | {f(r['model_num_timesteps'])} | "
-                     f"{f(r['training_wall_time_s'])} | " + " | ".join(f(r[k]) for k in keys) + " |")
+                     f"{f(r['training_wall_time_s'])} | {r.get('training_cpu_model') or 'CPU not recorded'} | "
+                     + " | ".join(f(r[k]) for k in keys) + " |")
     lc = s.get("learning_curve_runs")
     if lc is not None and len(lc) < s["n_seeds"]:
         lines += ["", f"Learning curves (`learning_curves.png`): {len(lc)} of {s['n_seeds']} seeds; the other runs "

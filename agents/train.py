@@ -55,11 +55,13 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import common
-from agents.progress import progress_callback
+from . import common
+from .progress import progress_callback
 from tensegrity_gym.checks import check_count, check_positive
 from tensegrity_gym.io.atomic import OutputError
 from tensegrity_gym.io.claim import Claim
+
+common.passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
 
 EVAL_SEED_OFFSET = 10_000
 
@@ -288,7 +290,7 @@ def _callbacks():
 
 # ---------------------------------------------------------------------- argument parsing
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog=f"python -m {common.PACKAGE}.train", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--algo", default="ppo", help=f"algorithm: {', '.join(common.algo_names())} (default ppo)")
     p.add_argument("--env", default="TensegrityShape-v0", help="registered Gymnasium env id")
@@ -577,6 +579,7 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
     prev_state = _read_state(run_dir) if (resume_dir is not None and not fresh_restart) else {}
     run_state = RunState(state_path, {
         **prev_state, "status": "starting", "pid": os.getpid(), "host": socket.gethostname(),
+        "machine": common.machine(),     # the CPU of this segment: wall times depend on it
         "num_timesteps": int(prev_state.get("num_timesteps", 0)), "target_timesteps": n_timesteps})
     _install_interrupt_handlers()   # a SIGTERM during start-up is recorded (status interrupted), not left "starting"
     run_state.update()

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import common
+from . import common
 
 SEARCH_KINDS = ("uniform", "loguniform", "randint", "choice", "quniform")
 METRIC_MEANING = {"eval_return": "mean return of the last evaluation",
@@ -192,7 +192,7 @@ def run_trial(config: dict) -> None:
     """One Tune trial: an ``agents.train`` run in ``<experiment>/runs/<trial>/``, resumed from its
     latest model when the trial is restored."""
     from ray import tune
-    from agents import train as train_mod
+    from . import train as train_mod
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     os.environ.setdefault("MPLBACKEND", "Agg")
@@ -228,7 +228,7 @@ def run_trial(config: dict) -> None:
 
 
 def _final_metrics(run_dir: Path, config: dict) -> dict:
-    from agents.train import evaluation_metrics
+    from .train import evaluation_metrics
     out = {"variant": config.get("variant") or run_dir.name.rsplit("_s", 1)[0], "seed": int(config["seed"]),
            "run_dir": str(run_dir), "done_training": True}
     ev = run_dir / "eval" / "evaluations.npz"
@@ -364,7 +364,7 @@ def _plot(path: Path, per: dict) -> None:
 
 # ---------------------------------------------------------------------- driver
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m agents.tune", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog=f"python -m {common.PACKAGE}.tune", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("config", help="sweep config (YAML), e.g. agents/sweeps/smoke.yml")
     p.add_argument("--storage", default="runs_tune", help="folder of experiments (default runs_tune/)")

@@ -137,11 +137,13 @@ def test_train_save_reload_evaluate(tmp_path, env_id, algo):
     cfg = yaml.safe_load((run / "config.yaml").read_text())
     assert cfg["env"] == env_id and cfg["algo"] == algo and cfg["vec_env"] == "batched"
     versions = json.loads((run / "versions.json").read_text())
-    for k in ("python", "numpy", "torch", "stable_baselines3", "gymnasium", "tensegrity_gym"):
+    for k in ("python", "numpy", "torch", "stable_baselines3", "gymnasium", "tensegrity_gym", "cpus_available"):
         assert versions[k], k
+    assert "cpu_model" in versions          # None only where neither lscpu nor /proc/cpuinfo says
     assert "agents.train" in (run / "command.txt").read_text()
     state = json.loads((run / "state.json").read_text())
     assert state["status"] == "finished" and state["num_timesteps"] >= 256
+    assert {"cpu_model", "cpus_available", "torch_num_threads"} <= set(state["machine"])   # where the wall time ran
     assert list((run / "checkpoints").glob("rl_model_*_steps.zip"))
     assert list((run / "monitor").glob("*.monitor.csv"))
     tb = list((run / "tb").rglob("events.out.tfevents*"))

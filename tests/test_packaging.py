@@ -4,8 +4,9 @@ The repository's files (as git lists them) are copied to a temporary folder and 
 ``pip install --no-deps --no-build-isolation`` into a fresh virtual environment that sees the
 test interpreter's site-packages through a ``.pth`` line (so the dependencies are there and the
 install takes seconds). Then, from another temporary directory and without PYTHONPATH:
-``python -m agents.train`` (64 steps), ``python -m agents.evaluate``, the rl_zoo3 hyperparameter
-lookup and the packaged files are checked. Pendulum-v1 is trained there so that no numba kernel
+``python -m tensegrity_gym_agents.train`` (64 steps), ``python -m tensegrity_gym_agents.evaluate``,
+the rl_zoo3 hyperparameter lookup and the packaged files are checked. The repository's ``agents/``
+folder installs as ``tensegrity_gym_agents`` (``agents`` is another distribution's import name). Pendulum-v1 is trained there so that no numba kernel
 has to compile in the fresh install (~70 s on 2 cores); the tensegrity envs are trained by the
 other tests.
 """
@@ -67,33 +68,40 @@ def _run(installed, args, timeout=300):
 @pytest.mark.slow
 def test_installed_package_ships_agents_hyperparams_adapter_and_license(installed):
     py, site, work, env = installed
-    rc, out = _run(installed, ["-c", "import json, tensegrity_gym, agents, tensegrity_gym.sb3 as s, "
-                                     "tensegrity_gym.zoo as z; print(json.dumps([tensegrity_gym.__file__, "
-                                     "agents.__file__, s.__file__, str(z.hyperparams_file('ppo'))]))"])
+    rc, out = _run(installed, ["-c", "import json, tensegrity_gym, tensegrity_gym_agents as a, "
+                                     "tensegrity_gym.sb3 as s, tensegrity_gym.zoo as z; print(json.dumps("
+                                     "[tensegrity_gym.__file__, a.__file__, s.__file__, "
+                                     "str(z.hyperparams_file('ppo'))]))"])
     assert rc == 0, out
     paths = json.loads(out.strip().splitlines()[-1])
     for p in paths:
         assert Path(p).resolve().is_relative_to(site.resolve()), p   # from the install, not the repository
     for name in ("ppo.yml", "sac.yml", "td3.yml", "time_to_policy/ppo.yml"):
-        assert (site / "agents" / "hyperparams" / name).exists()
+        assert (site / "tensegrity_gym_agents" / "hyperparams" / name).exists()
     for name in ("smoke.yml", "sweep1.yml"):
-        assert (site / "agents" / "sweeps" / name).exists()
+        assert (site / "tensegrity_gym_agents" / "sweeps" / name).exists()
+    # the top-level name `agents` is not installed (it would collide with openai-agents)
+    assert not (site / "agents").exists()
+    top = list(site.glob("tensegrity_gym-*.dist-info/top_level.txt"))
+    if top:
+        assert "agents" not in top[0].read_text().split()
     lic = list(site.glob("tensegrity_gym-*.dist-info/**/LICENSE*"))
     assert lic and "MIT License" in lic[0].read_text()
 
 
 @pytest.mark.slow
 def test_installed_train_and_evaluate_from_any_directory(installed):
-    rc, out = _run(installed, ["-m", "agents.train", "--algo", "ppo", "--env", "Pendulum-v1", "--n-timesteps", "64",
+    rc, out = _run(installed, ["-m", "tensegrity_gym_agents.train", "--algo", "ppo", "--env", "Pendulum-v1", "--n-timesteps", "64",
                                "--n-envs", "2", "--eval-freq", "32", "--eval-episodes", "1", "--save-freq", "32",
                                "--no-progress-bar", "--log-dir", "run",
                                "--hyperparams", "n_steps=32", "batch_size=32", "n_epochs=1"])
     assert rc == 0, out[-3000:]
     run = installed[2] / "run"
     cfg = (run / "config.yaml").read_text()
-    assert "agents/hyperparams/ppo.yml:Pendulum-v1" in cfg          # the packaged file was found
+    assert "tensegrity_gym_agents/hyperparams/ppo.yml:Pendulum-v1" in cfg   # the packaged file was found
+    assert "python -m tensegrity_gym_agents.train" in (run / "command.txt").read_text()  # replayable as installed
     assert json.loads((run / "state.json").read_text())["status"] == "finished"
-    rc, out = _run(installed, ["-m", "agents.evaluate", "run", "--model", "final", "--n-episodes", "1",
+    rc, out = _run(installed, ["-m", "tensegrity_gym_agents.evaluate", "run", "--model", "final", "--n-episodes", "1",
                                "--out", "ev"])
     assert rc == 0, out[-3000:]
     assert (installed[2] / "ev" / "metrics.json").exists()
@@ -111,11 +119,31 @@ def test_installed_zoo_reads_the_packaged_hyperparameters(installed):
     rc, out = _run(installed, ["-c", code])
     assert rc == 0, out[-3000:]
     conf = next(l.split(" ", 1)[1] for l in out.splitlines() if l.startswith("CONF"))
-    assert Path(conf).resolve() == (installed[1] / "agents" / "hyperparams" / "ppo.yml").resolve()
+    assert Path(conf).resolve() == (installed[1] / "tensegrity_gym_agents" / "hyperparams" / "ppo.yml").resolve()
     assert "GAMMA 0.99" in out
 
 
 # ---------------------------------------------------------------------- layout (fast)
+def test_pyproject_lists_every_package():
+    """pyproject.toml lists the packages by name (agents/ is mapped to tensegrity_gym_agents, which
+    package discovery cannot do): a new sub-package must be added there, or it would not ship."""
+    tomllib = pytest.importorskip("tomllib")   # Python 3.11+
+    conf = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed = set(conf["packages"])
+    found = {".".join(f.parent.relative_to(ROOT).parts) for f in (ROOT / "tensegrity_gym").rglob("__init__.py")}
+    assert found <= listed, sorted(found - listed)
+    assert conf["package-dir"] == {"tensegrity_gym_agents": "agents"}
+    assert "tensegrity_gym_agents" in listed and not any(p == "agents" or p.startswith("agents.") for p in listed)
+    assert not list((ROOT / "agents").rglob("*/__init__.py"))      # agents/ has no sub-packages to list
+
+
+def test_agents_modules_import_each_other_relatively():
+    """Inside agents/, ``from agents import ...`` would fail once installed as tensegrity_gym_agents."""
+    offenders = [str(f.relative_to(ROOT)) for f in (ROOT / "agents").glob("*.py")
+                 if "from agents" in f.read_text() or "import agents" in f.read_text()]
+    assert not offenders, offenders
+
+
 def test_no_sys_path_edits_in_scripts_agents_or_package():
     offenders = []
     for folder in ("scripts", "agents", "tensegrity_gym"):

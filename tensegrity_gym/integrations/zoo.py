@@ -35,9 +35,12 @@ _INSTALLED = False
 
 
 def hyperparams_dir() -> Path:
-    """The folder of the project's hyperparameter files (``agents/hyperparams`` in the repository
-    and in the installed package)."""
-    import agents
+    """The folder of the project's hyperparameter files: ``agents/hyperparams`` in the repository,
+    ``tensegrity_gym_agents/hyperparams`` in an installed package."""
+    try:
+        import tensegrity_gym_agents as agents   # installed (editable or not)
+    except ImportError:
+        import agents                            # a checkout that is only on sys.path
     return Path(agents.__file__).resolve().parent / "hyperparams"
 
 

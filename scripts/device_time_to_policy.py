@@ -1,0 +1,237 @@
+#!/usr/bin/env python
+"""Time to policy on one device: rsl_rl's PPO (``OnPolicyRunner``) trains the rolling prism
+(``TensegrityRoll-v0``) on the device-resident torch vector env, env and learner on the same
+device (``--device cpu`` or ``cuda``), until the policy's mean forward speed first reaches the
+target (default 0.345 m/s) or the wall-clock budget ends.
+
+    python scripts/device_time_to_policy.py --device cpu --budget-s 600 --out results/device_time_to_policy/cpu.json
+    python scripts/device_time_to_policy.py --device cuda --num-envs 8192 --budget-s 120 --out gpu.json
+
+Every ``--eval-every-s`` seconds of training the policy's mean action (no exploration noise) is
+run for one full episode (20 s) of ``--eval-envs`` envs of a separate torch env on the same
+device, reset with the held-out seeds 1000000, 1000001, ...; its speed is the distance rolled
+toward the goal direction over the episode's duration (m/s), averaged over the envs, as
+``agents.evaluate`` reports it. Training wall time counts rollout and learner only (the
+evaluations are timed apart and reported beside it); the first compile of the env (warm-up
+iteration) is not counted either.
+
+The JSON result names the device (CPU model from ``lscpu``, or the GPU's name), torch version,
+threads, seed, settings, env steps and wall time at the first evaluation at or above the
+target (or null), and every evaluation (training seconds, env steps, speed).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HELD_OUT_SEED = 1_000_000
+
+
+def cpu_model() -> str | None:
+    """``lscpu``'s ``Model name`` (else ``/proc/cpuinfo``'s ``model name``, else ``platform.processor()``)."""
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=5,
+                             env={**os.environ, "LC_ALL": "C"}).stdout
+        for line in out.splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "Model name" and value.strip():
+                return value.strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and value.strip():
+                return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or None
+
+
+def runner_config(args) -> dict:
+    """rsl_rl 5.x ``OnPolicyRunner`` config: PPO with the rolling recipe's discounting (gamma
+    0.995, lambda 0.98) and nets (128x128), an adaptive learning rate, observation normalisation."""
+    from tensegrity_gym.integrations.rsl_rl import train_config
+    cfg = train_config(num_steps_per_env=args.steps_per_env, hidden=(128, 128), learning_rate=args.learning_rate,
+                       seed=args.seed, gamma=0.995, lam=0.98, num_learning_epochs=args.epochs,
+                       num_mini_batches=args.mini_batches, entropy_coef=0.0, desired_kl=0.01, schedule="adaptive")
+    cfg["actor"]["distribution_cfg"]["init_std"] = args.init_std
+    return cfg
+
+
+def evaluate_speed(policy, env, steps: int, dt: float, torch) -> float:
+    """Mean forward speed (m/s) of ``policy`` over one episode of every env of ``env`` (next-step
+    autoreset: an env's final info arrives on the step that ends it)."""
+    from tensordict import TensorDict
+    # no_grad, not inference_mode: the env's state tensors written here are written again
+    # (in place) by the next evaluation's reset, which inference tensors forbid
+    with torch.no_grad():
+        obs, _ = env.reset(seed=HELD_OUT_SEED)
+        n = env.num_envs
+        dist = torch.zeros(n, device=obs.device)
+        length = torch.zeros(n, device=obs.device)
+        active = torch.ones(n, dtype=torch.bool, device=obs.device)
+        for k in range(steps):
+            last = torch.tensor(k == steps - 1, device=obs.device)   # a shortened episode ends here
+            td = TensorDict({"policy": obs, "critic": obs}, batch_size=[n], device=obs.device)
+            obs, _, term, trunc, info = env.step(torch.clamp(policy(td), -1.0, 1.0))
+            length += active
+            ended = active & (term | trunc)
+            dist = torch.where(ended | (active & last), info["distance_rolled"].to(dist.dtype), dist)
+            active &= ~ended
+            if not bool(active.any()):
+                break
+    return float((dist / (length.clamp(min=1) * dt)).mean())
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--device", default="cpu", help="cpu or cuda (cuda:N): env and learner both run there")
+    p.add_argument("--budget-s", type=float, default=600.0, help="training wall-clock budget, s (default 600)")
+    p.add_argument("--max-iterations", type=int, default=None, help="stop after this many PPO iterations too")
+    p.add_argument("--target", type=float, default=0.345, help="mean forward speed to reach, m/s (default 0.345)")
+    p.add_argument("--num-envs", type=int, default=1024, help="training envs (default 1024)")
+    p.add_argument("--steps-per-env", type=int, default=32, help="rollout length per PPO iteration (default 32)")
+    p.add_argument("--epochs", type=int, default=2, help="PPO epochs per iteration (default 2)")
+    p.add_argument("--mini-batches", type=int, default=8, help="minibatches per epoch (default 8)")
+    p.add_argument("--learning-rate", type=float, default=1e-3, help="initial learning rate (adaptive, default 1e-3)")
+    p.add_argument("--init-std", type=float, default=1.0, help="initial action standard deviation (default 1)")
+    p.add_argument("--eval-envs", type=int, default=64, help="envs of each speed evaluation (default 64)")
+    p.add_argument("--eval-episode-steps", type=int, default=None,
+                   help="control steps of each evaluation episode (default: the env's full episode, 20 s; "
+                        "shorter only for quick checks: the target is defined on full episodes)")
+    p.add_argument("--eval-every-s", type=float, default=60.0, help="training seconds between evaluations (default 60)")
+    p.add_argument("--eval-every-iterations", type=int, default=None,
+                   help="evaluate every this many iterations instead (small test runs)")
+    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: the CPUs available)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--label", default=None, help="free text stored in the JSON (e.g. the machine's load)")
+    p.add_argument("--out", required=True, help="JSON result file")
+    args = p.parse_args(argv)
+    # idle OpenMP threads sleep instead of spinning (before torch loads its OpenMP runtime): on
+    # cores shared with other work, spinning threads slow every multi-threaded torch op many times
+    if "torch" not in sys.modules:
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+    import gymnasium as gym
+    import torch
+    from rsl_rl.runners import OnPolicyRunner
+
+    import tensegrity_gym
+    from tensegrity_gym.integrations.rsl_rl import make_rsl_rl_env
+
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    torch.set_num_threads(args.threads or cpus)
+    torch.manual_seed(args.seed)
+    device = torch.device(args.device)
+    env = make_rsl_rl_env("TensegrityRoll-v0", num_envs=args.num_envs, backend="torch", device=args.device,
+                          seed=args.seed)
+    eval_env = gym.make_vec("TensegrityRoll-v0", num_envs=args.eval_envs, vectorization_mode="vector_entry_point",
+                            backend="torch", device=args.device, dtype="float32")
+    dt = float(eval_env.unwrapped.dt)
+    episode_steps = int(args.eval_episode_steps or eval_env.unwrapped.max_episode_steps)
+    cfg = runner_config(args)
+    runner = OnPolicyRunner(env, cfg, log_dir=None, device=args.device)
+    samples_per_iteration = args.num_envs * args.steps_per_env
+
+    def sync():
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+
+    # warm-up: one iteration (first kernel launches / compiles), not counted; then restart the
+    # counters so the timed run starts from the same kind of state as the budget assumes
+    t = time.perf_counter()
+    runner.learn(1, init_at_random_ep_len=True)
+    runner.current_learning_iteration += 1
+    sync()
+    warmup_s = time.perf_counter() - t
+    iterations, train_s, eval_s = 1, 0.0, 0.0
+    evals, reached = [], None
+    next_eval, next_beat = args.eval_every_s, 10.0
+    policy = runner.get_inference_policy(args.device)
+    while True:
+        t = time.perf_counter()
+        runner.learn(1)
+        runner.current_learning_iteration += 1
+        sync()
+        train_s += time.perf_counter() - t
+        iterations += 1
+        if train_s >= next_beat:        # a line every 10 s of training, also in a log
+            print(f"{train_s:7.1f} s training, {iterations * samples_per_iteration:>10} env steps "
+                  f"({iterations * samples_per_iteration / train_s:.0f} env-steps/s)", flush=True)
+            next_beat += 10.0
+        last = train_s >= args.budget_s or (args.max_iterations is not None and iterations >= args.max_iterations)
+        due = (iterations % args.eval_every_iterations == 0) if args.eval_every_iterations else train_s >= next_eval
+        if due or last:
+            t = time.perf_counter()
+            runner.alg.eval_mode()      # frozen observation normalisation (learn() switches back)
+            speed = evaluate_speed(policy, eval_env, episode_steps, dt, torch)
+            sync()
+            eval_s += time.perf_counter() - t
+            evals.append({"training_wall_s": round(train_s, 2), "env_steps": iterations * samples_per_iteration,
+                          "iterations": iterations, "speed_m_s": round(speed, 4)})
+            print(f"{train_s:7.1f} s training, {iterations * samples_per_iteration:>10} env steps: "
+                  f"speed {speed:.3f} m/s (evaluations so far {eval_s:.1f} s)", flush=True)
+            while next_eval <= train_s:
+                next_eval += args.eval_every_s
+            if reached is None and speed >= args.target:
+                reached = evals[-1]
+                break
+        if last:
+            break
+
+    result = {
+        "task": "TensegrityRoll-v0, rsl_rl PPO (OnPolicyRunner), torch device env, env and learner on one device",
+        "device": str(device),
+        "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else cpu_model(),
+        "cpu_model": cpu_model(), "cpus_available": cpus, "torch_num_threads": torch.get_num_threads(),
+        "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
+        "torch": torch.__version__, "tensegrity_gym": getattr(tensegrity_gym, "__version__", None),
+        "rsl_rl": _version("rsl-rl-lib"), "python": platform.python_version(), "platform": platform.platform(),
+        "seed": args.seed, "target_speed_m_s": args.target, "budget_s": args.budget_s,
+        "settings": {"num_envs": args.num_envs, "steps_per_env": args.steps_per_env, "epochs": args.epochs,
+                     "mini_batches": args.mini_batches, "learning_rate": args.learning_rate,
+                     "init_std": args.init_std, "eval_envs": args.eval_envs, "eval_episode_s": episode_steps * dt,
+                     "runner_config": cfg},
+        "reached": reached is not None,
+        "time_to_target_s": reached["training_wall_s"] if reached else None,
+        "env_steps_to_target": reached["env_steps"] if reached else None,
+        "training_wall_s": round(train_s, 2), "env_steps": iterations * samples_per_iteration,
+        "iterations": iterations, "warmup_s": round(warmup_s, 2), "evaluation_wall_s": round(eval_s, 2),
+        "best_speed_m_s": max(e["speed_m_s"] for e in evals) if evals else None,
+        "evaluations": evals, "label": args.label,
+        "command": shlex.join(["python", "scripts/device_time_to_policy.py"] + (argv if argv is not None else
+                                                                                sys.argv[1:])),
+    }
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(("reached" if reached else "did not reach") + f" {args.target} m/s: " +
+          (f"{reached['training_wall_s']} s of training, {reached['env_steps']} env steps" if reached else
+           f"best {result['best_speed_m_s']} m/s in {result['training_wall_s']} s, {result['env_steps']} env steps") +
+          f" on {result['device_name']} -> {out}")
+    env.close()
+    eval_env.close()
+    return 0
+
+
+def _version(dist: str) -> str | None:
+    from importlib import metadata
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,47 @@
+"""scripts/device_time_to_policy.py: a few iterations of rsl_rl's PPO on the torch device env (CPU),
+and the fields of the JSON result."""
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("rsl_rl")
+pytest.importorskip("tensordict")
+
+SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "device_time_to_policy.py"
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("device_time_to_policy", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("target, reached", [(0.345, False), (-1.0, True)])
+def test_tiny_run_writes_the_result(tmp_path, target, reached):
+    out = tmp_path / "r.json"
+    rc = _script().main(["--device", "cpu", "--num-envs", "8", "--steps-per-env", "4", "--max-iterations", "3",
+                         "--eval-every-iterations", "2", "--eval-envs", "2", "--eval-episode-steps", "5",
+                         "--threads", "1", "--target", str(target), "--seed", "3", "--out", str(out)])
+    assert rc == 0
+    r = json.loads(out.read_text())
+    for key in ("device", "device_name", "cpu_model", "torch", "rsl_rl", "seed", "target_speed_m_s", "budget_s",
+                "settings", "reached", "time_to_target_s", "env_steps_to_target", "training_wall_s", "env_steps",
+                "evaluations", "best_speed_m_s", "command"):
+        assert key in r, key
+    assert r["device"] == "cpu" and r["device_name"] == r["cpu_model"] and r["seed"] == 3
+    assert r["reached"] is reached
+    evals = r["evaluations"]
+    assert evals and all({"training_wall_s", "env_steps", "iterations", "speed_m_s"} <= set(e) for e in evals)
+    if reached:      # stops at the first evaluation at or above the target
+        assert len(evals) == 1 and r["time_to_target_s"] == evals[0]["training_wall_s"] > 0
+        assert r["env_steps_to_target"] == evals[0]["env_steps"] == 2 * 8 * 4
+    else:            # ran to --max-iterations: evaluated at iteration 2 and at the end
+        assert r["time_to_target_s"] is None and r["env_steps_to_target"] is None
+        assert [e["iterations"] for e in evals] == [2, 3] and r["env_steps"] == 3 * 8 * 4
+        assert r["best_speed_m_s"] == max(e["speed_m_s"] for e in evals) < 0.345
