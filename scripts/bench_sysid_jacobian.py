@@ -46,7 +46,7 @@ def main(argv=None):
                         float(true["mass"].sum()))
     q0, qd0 = pb.guess()
     theta = np.random.default_rng(3).uniform(-0.1, 0.1, pb.p)
-    sim = pb.simulate(q0, qd0, pb.params(theta), np.arange(pb.W))
+    sim = pb.simulate(q0, qd0, pb.physics(theta), np.arange(pb.W))
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, torch "
           f"{torch.__version__} ({a.threads} threads); load average {os.getloadavg()[0]:.1f}")
     print(f"case: W = {pb.W} windows x K = {pb.K} samples, p = {pb.p} parameters, ns = {pb.ns} state coordinates, "

@@ -394,7 +394,7 @@ def test_sysid_torch_jacobian_equals_finite_differences(one_thread):
             else:
                 x[:, i - p] = sgn * eps
             qp, qdp = pb.apply(q0, qd0, x)
-            out.append(pb.residual(pb.simulate(qp, qdp, pb.params(th), np.arange(W)), np.arange(W)))
+            out.append(pb.residual(pb.simulate(qp, qdp, pb.physics(th), np.arange(W)), np.arange(W)))
         cols.append((out[0] - out[1]) / (2 * eps))
     Jc = np.stack(cols, -1)
     rel = np.linalg.norm(Jt - Jc, axis=(0, 1)) / np.linalg.norm(Jc, axis=(0, 1))

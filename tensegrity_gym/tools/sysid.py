@@ -61,6 +61,14 @@ and supports do not break this). Motion fixes the ratios; pass the weighed total
 (``total_mass``, kg) and the rod masses are held to sum to it (their ratios are fitted).
 Without it such a fit is flagged.
 
+Ground contact: with ``contact`` (a :class:`~tensegrity_gym.physics.contact.GroundContact`) the
+windows are simulated on that ground, and its Coulomb coefficient ``friction``, normal stiffness
+``ground_stiffness`` (N/m) and Hunt-Crossley damping ``ground_damping`` (s/m) can be fitted like
+the other fields (log space, one value each; per-copy contact rows in the same batched
+Jacobian). Friction is seen only while caps slide, stiffness and damping only while caps
+are pressed into the ground (impacts, resting weight): from a record without it they are
+flagged unidentifiable.
+
 Units: SI throughout (s, m, kg, N/m, N s/m). ``jacobian="torch"`` computes the outer residual
 Jacobian by forward-mode autograd through the torch backend's rollout instead
 (:meth:`_Problem.torch_jacobian`, exact to round-off); the default stays the batched forward
@@ -79,9 +87,9 @@ from ..core.builders import load_structure
 from ..dynamics import Model
 from ..integrators import resolve
 from ..io.trajectory import load_csv, load_trajectory
-from .sysid_inputs import StartValueError, _check_record, _parse_fit
+from .sysid_inputs import StartValueError, _check_above_ground, _check_record, _parse_contact, _parse_fit
 from .sysid_problem import _Problem
-from .sysid_result import FITTABLE, SysIdResult, SysIdWarning
+from .sysid_result import CONTACT_FIELDS, FITTABLE, SysIdResult, SysIdWarning
 from .sysid_result import _ALIASES, _UNITS  # noqa: F401  (the command line reads them here)
 
 __all__ = ["identify", "SysIdResult", "SysIdWarning", "StartValueError", "FITTABLE", "load_csv", "load_trajectory"]
@@ -96,9 +104,9 @@ def _model_of(structure_or_model) -> Model:
 
 # ----------------------------------------------------------------------------- main entry
 def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"), mode: str = "per_member", *,
-             rest_length=None, node_mask=None, window: float = 0.2, integrator: str = "rk4", dt=None,
+             rest_length=None, node_mask=None, window: float | None = None, integrator: str | None = None, dt=None,
              stride: int = 1, initial=None, total_mass=None, max_nfev: int = 60, rank_rtol: float = 1e-4,
-             verbose: int = 0, jacobian: str = "fd") -> SysIdResult:
+             verbose: int = 0, jacobian: str = "fd", contact=None) -> SysIdResult:
     """Fit physical parameters so that simulated motion matches a recorded one (see module doc).
 
     Parameters
@@ -109,18 +117,27 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     nodes : (S, n, 3) recorded node positions, m (NaN allowed where ``node_mask`` is False).
     fit : names of the fitted fields: ``"stiffness"`` (per string, N/m), ``"damping"`` (per
         string, N s/m), ``"mass"`` (alias ``"rod_mass"``; per rod, kg), ``"node_damping"``
-        (per node, N s/m). Force-density-actuated strings and anchors are never fitted.
+        (per node, N s/m); with ``contact``: ``"friction"`` (Coulomb coefficient, 1),
+        ``"ground_stiffness"`` (normal, N/m) and ``"ground_damping"`` (Hunt-Crossley, s/m), one
+        value each. Force-density-actuated strings and anchors are never fitted.
     mode : ``"per_member"`` (one value per string / rod / node) or ``"scale"`` (one factor
         per field multiplying the starting values).
     rest_length : (S, m) recorded rest lengths, m, for actuated cables; held constant over each
         sample interval at the interval's first value. Default: the structure's.
     node_mask : tracked nodes: node indices, a bool (n,) array or a bool (S, n) array (dropped
         frames). Default: every node, every sample.
-    window : shooting window length, s. integrator : ``"rk4"`` (default) or
-        ``"semi_implicit_euler"``/``"implicit_euler"``. dt : fit step, s, rounded so that it
-        divides the sample spacing (default: ``0.2 / omega_max`` of the structure or the spacing).
+    window : shooting window length, s (default 0.2 s; 0.05 s with contact, where impacts and
+        stick/slip make the motion strongly nonlinear in the parameters and longer windows end
+        in local minima). integrator : ``"rk4"`` (default without contact),
+        ``"semi_implicit_euler"`` (default with contact: it takes the contact forces, held over a
+        step, exactly) or ``"implicit_euler"``. dt : fit step, s, rounded so that it divides the
+        sample spacing (default: ``0.2 / omega_max`` of the structure, with contact at most half
+        the contact's stable step (:func:`~tensegrity_gym.physics.contact.stable_step`), or the
+        spacing). With contact the fit's step is part of the model: give the step the recording
+        was simulated with (a recorded robot: a step well below the stable one).
     stride : fit every ``stride``-th sample only (the fit step is unchanged).
-    initial : {field: value or per-item array} starting values replacing the structure's.
+    initial : {field: value or per-item array} starting values replacing the structure's (and the
+        contact's: ``{"friction": 0.8, "ground_stiffness": 5e3}``).
     total_mass : the structure's weighed total rod mass, kg. Motion alone cannot tell a robot
         from one with every mass, stiffness and damping scaled by the same factor (weight scales
         with mass too), so fitting ``mass`` together with ``stiffness``/``damping`` needs one
@@ -135,6 +152,11 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
         needs PyTorch and ``integrator`` ``"rk4"`` or ``"semi_implicit_euler"``). The two agree
         to ~1e-6 relative; fd stays the default because it is faster on CPU
         (``docs/sysid.md``). The inner window-state fits use forward differences either way.
+    contact : the ground the motion was recorded on: a GroundContact or a dict of its fields
+        (``friction``, ``stiffness`` N/m, ``damping`` s/m, ``radius`` m, ``height`` m, ...); its
+        values start the fit of the contact fields and hold the others. A tangential stiffness
+        equal to the normal one (the default) follows the fitted ``ground_stiffness``. Every
+        tracked node must lie above ``height`` (caps on, not in, the ground).
 
     Returns a :class:`SysIdResult`. Raises ValueError naming the field for bad input.
     """
@@ -144,7 +166,17 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     check_real(t, "t", "sample times, s")          # before anything else: NumPy would drop the imaginary part
     check_real(nodes, "nodes", "node positions, m")
     names, items, init, base = _parse_fit(model, fit, mode, initial)
+    contact, tie = _parse_contact(names, contact, initial)
+    for g in names:
+        if g in CONTACT_FIELDS:      # one value per ground
+            items[g], init[g] = np.zeros(1, int), np.array([float(getattr(contact, CONTACT_FIELDS[g]))])
     t, rec, mask, rl, h = _check_record(model, t, nodes, rest_length, node_mask)
+    if contact is not None:
+        _check_above_ground(contact, t, rec, mask)
+    if integrator is None:
+        integrator = "rk4" if contact is None else "semi_implicit_euler"
+    if window is None:
+        window = 0.2 if contact is None else 0.05
     if total_mass is not None:
         if "mass" not in names:
             raise ValueError("total_mass: only used when 'mass' is fitted")
@@ -153,6 +185,8 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
         total_mass = float(total_mass)
     if jacobian not in ("fd", "torch"):
         raise ValueError(f"jacobian: expected 'fd' or 'torch', got {jacobian!r}")
+    if jacobian == "torch" and contact is not None:
+        raise ValueError("jacobian: 'torch' has no ground contact; use jacobian='fd'")
     if jacobian == "torch":
         try:
             import torch  # noqa: F401
@@ -163,7 +197,7 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
             raise ValueError(f"jacobian: 'torch' supports integrator 'rk4' or 'semi_implicit_euler', "
                              f"got {resolve(integrator).name!r}; use jacobian='fd'")
     pb = _Problem(model, t, rec, mask, rl, h, names, items, init, base, mode, float(window), integrator, dt, stride,
-                  total_mass)
+                  total_mass, contact, tie)
     if jacobian == "torch":
         pb.jacobian = "torch"
     q0, qd0 = pb.guess()
@@ -191,7 +225,7 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     def jac(theta):
         c = solve(theta)
         if c.get("Jp_key") != c["key"]:
-            sim = pb.simulate(c["q"], c["qd"], pb.params(theta), np.arange(pb.W))
+            sim = pb.simulate(c["q"], c["qd"], pb.physics(theta), np.arange(pb.W))
             Jp, Jx = pb.full_jacobian(theta, c["q"], c["qd"], sim)
             pb.njev += 1
             c.update(Jp=Jp, Jp_key=c["key"])
@@ -284,8 +318,8 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
         warn_list.append(f"the fit did not converge: {message}")
     for w_ in warn_list:
         warnings.warn(w_, SysIdWarning, stacklevel=2)
-    fitted_params = pb.params(theta)
-    sim = pb.simulate(c["q"], c["qd"], fitted_params, np.arange(pb.W))
+    fitted = pb.physics(theta)
+    sim = pb.simulate(c["q"], c["qd"], fitted, np.arange(pb.W))
     err = np.linalg.norm(sim - pb.rec, axis=-1)[pb.mask]
     return SysIdResult(
         fields=tuple(names), mode=mode, items={g: items[g].copy() for g in names}, values=values, initial=init,
@@ -294,5 +328,5 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
         message=str(message), warnings=warn_list, n_windows=pb.W, samples_per_window=pb.K,
         window_s=(pb.K - 1) * pb.h, sample_dt_s=pb.h, dt_s=pb.dt, n_substeps=pb.n_sub, integrator=pb.integrator,
         n_observations=pb.n_obs, n_state_unknowns=pb.W * pb.ns, nfev=pb.nfev, njev=pb.njev,
-        wall_s=time.perf_counter() - t0, params=fitted_params,
+        wall_s=time.perf_counter() - t0, params=fitted[0], contact=pb.fitted_contact(theta),
         _plot={"t": pb.t, "recorded": pb.rec, "fitted": sim, "mask": pb.mask})

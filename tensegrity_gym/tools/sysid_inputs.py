@@ -13,7 +13,8 @@ import numpy as np
 
 from ..core.model import Model
 from ..core.params import default_params
-from .sysid_result import _ALIASES, _UNITS, FITTABLE
+from ..physics.contact import GroundContact
+from .sysid_result import _ALIASES, _UNITS, CONTACT_FIELDS, FITTABLE
 
 
 
@@ -121,10 +122,13 @@ def _parse_fit(model: Model, fit, mode, initial):
         if g not in FITTABLE:
             raise ValueError(f"initial: unknown parameter {k!r}; fittable parameters are {sorted(FITTABLE)}")
         initial[g] = initial.pop(k)
+    initial = {g: v for g, v in initial.items() if g not in CONTACT_FIELDS}    # _parse_contact's
     if initial:
         base = base.replace(**initial)
     items, init = {}, {}
     for g in names:
+        if g in CONTACT_FIELDS:
+            continue
         vals = getattr(base, g)[0]
         if g in ("stiffness", "damping"):
             idx = np.flatnonzero(~np.asarray(model.active))
@@ -140,3 +144,66 @@ def _parse_fit(model: Model, fit, mode, initial):
                                   f"{_UNITS[g]}; it is fitted in log space and needs a positive starting value")
         items[g], init[g] = idx, vals[idx].copy()
     return names, items, init, base
+
+
+def _parse_contact(names, contact, initial):
+    """The ground contact of a fit: ``(contact, tie_tangential)`` with the start values of
+    ``initial`` applied (None without contact). ``contact``: a GroundContact, a dict of its fields
+    or None. ``tie_tangential``: the tangential stiffness equals the normal one at the start (the
+    GroundContact default, and what ``simulate --ground`` runs), so it follows the fitted
+    ``ground_stiffness``. ValueError naming the field for a contact field fitted without a contact
+    or a bad contact; StartValueError for a start value <= 0."""
+    fitted = [g for g in names if g in CONTACT_FIELDS]
+    if contact is None:
+        given = [k for k in (initial or {}) if k in CONTACT_FIELDS]
+        if given:
+            raise ValueError(f"initial: {given[0]!r} is a ground contact parameter; pass contact=GroundContact(...)")
+        if fitted:
+            raise ValueError(f"fit: {fitted[0]!r} is a ground contact parameter; pass contact=GroundContact(...) "
+                             f"(or a dict of its fields) and a recording made on that ground")
+        return None, False
+    if isinstance(contact, dict):
+        known = GroundContact.__dataclass_fields__
+        bad = [k for k in contact if k not in known]
+        if bad:
+            raise ValueError(f"contact: unknown field {bad[0]!r}; GroundContact fields are {sorted(known)}")
+        contact = GroundContact(**contact)
+    elif not isinstance(contact, GroundContact):
+        raise ValueError(f"contact: expected a GroundContact or a dict of its fields, got {type(contact).__name__}")
+    tie = contact.tangential_stiffness == contact.stiffness
+    start = {}
+    for k, v in dict(initial or {}).items():
+        if k not in CONTACT_FIELDS:
+            continue
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            a = np.full(2, np.nan)
+        if a.size != 1 or not np.isfinite(a).all():
+            raise ValueError(f"initial: {k} must be one finite number ({_UNITS[k]}), got {v!r}")
+        start[CONTACT_FIELDS[k]] = float(a.reshape(-1)[0])
+    if tie and "stiffness" in start:
+        start["tangential_stiffness"] = start["stiffness"]
+    try:
+        contact = contact.replace(**start) if start else contact
+    except ValueError as e:
+        raise ValueError(f"initial: {e}") from None
+    for g in fitted:
+        v = getattr(contact, CONTACT_FIELDS[g])
+        if not v > 0:
+            raise StartValueError(g, _UNITS[g], f"{g} of the ground starts at {v!r} {_UNITS[g]}; it is fitted in "
+                                  "log space and needs a positive starting value")
+    return contact, bool(tie)
+
+
+def _check_above_ground(contact, t, nodes, mask):
+    """ValueError naming the sample and the node for a tracked node whose centre lies below the
+    ground plane (a cap sunk deeper than its radius): the recording was not made on this ground
+    (another height, or a structure's own coordinates instead of the recorded ones)."""
+    z = np.where(mask, nodes[..., 2], np.inf)
+    bad = np.argwhere(z < contact.height)
+    if bad.size:
+        s_, i = bad[0]
+        raise ValueError(f"nodes: sample {s_} (t = {t[s_]:.6g} s), node {i} is at z = {nodes[s_, i, 2]:.6g} m, below "
+                         f"the ground (z = {contact.height:g} m): a recording on this ground has every node at least "
+                         f"about a cap radius ({contact.radius:g} m) above it")

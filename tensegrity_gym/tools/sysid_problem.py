@@ -1,5 +1,12 @@
 """The multiple-shooting problem of :func:`tensegrity_gym.tools.sysid.identify`: window states,
-batched finite-difference Jacobians and the variable-projection residual (:class:`_Problem`)."""
+batched finite-difference Jacobians and the variable-projection residual (:class:`_Problem`).
+
+With ground contact every window is simulated by :func:`tensegrity_gym.physics.pipeline.step`
+with per-copy contact rows (:meth:`GroundContact.per_copy`), so a Jacobian's perturbed contact
+parameters run in the same batch as the others. The stick/slip state is not recorded: each window
+starts with none (every cap in contact anchors where it is at the window's start, its tangential
+spring relaxed), an error of at most ``mu F_n / k_t`` in a sticking cap's position (0.1 mm for
+1 N on 1e4 N/m) that sliding caps, whose friction is ``mu F_n`` either way, do not see."""
 from __future__ import annotations
 
 import math
@@ -10,7 +17,10 @@ from .. import dynamics
 from ..dynamics import State
 from ..integrators import resolve, step
 from ..params import Params
+from ..physics import contact as contact_mod
+from ..physics import pipeline
 from ..physics.reduced_coordinates import tangent_basis
+from .sysid_result import CONTACT_FIELDS
 
 _EPS_THETA = 1e-6      # FD step in log space (relative change of a parameter)
 _EPS_POS = 1e-6        # FD step of a position / direction coordinate, m or 1
@@ -23,8 +33,9 @@ class _Problem:
     """The multiple-shooting problem: windows, their state coordinates, batched simulation."""
 
     def __init__(self, model, t, rec, mask, rl, h, names, items, init, base, mode, window, integrator, dt,
-                 stride, total_mass=None):
+                 stride, total_mass=None, contact=None, tie_tangential=False):
         self.model, self.names, self.items, self.init, self.base, self.mode = model, names, items, init, base, mode
+        self.contact, self.tie_tangential = contact, tie_tangential
         self.integrator = resolve(integrator).name
         if self.integrator in ("dop853", "radau"):
             raise ValueError(f"integrator: {integrator!r} is adaptive (copy-by-copy solve_ivp, far too slow for the "
@@ -48,6 +59,8 @@ class _Problem:
         if dt is None:
             om = dynamics.stable_step_estimate(model)["omega_max"]
             dt_max = 0.2 / om if np.isfinite(om) and om > 0 else h
+            if contact is not None:     # the contact's springs are usually stiffer than the strings
+                dt_max = min(dt_max, 0.5 * contact_mod.stable_step(contact, model)["semi_implicit_euler"])
             n_sub = max(1, math.ceil(h / dt_max - 1e-9))
         else:
             if not (np.isfinite(dt) and dt > 0):
@@ -94,6 +107,11 @@ class _Problem:
         self.nfev = self.njev = 0
         self.jacobian = "fd"
         self.inner_ok = True
+        # a window's state has converged when its step is below tol_step FD steps or the cost falls
+        # by less than tol_cost (relative). Contact forces switch inside a window (touch-down,
+        # stick/slip), so its cost has kinks where LM zig-zags with steps of about one FD step and
+        # relative decreases of ~1e-6 for ever: steps below the Jacobian's resolution mean converged.
+        self.tol_step, self.tol_cost = (1e-3, 1e-12) if contact is None else (0.1, 1e-12)
 
     # -- parameters
     def log_factors(self, thetas: np.ndarray) -> dict:
@@ -127,10 +145,42 @@ class _Problem:
         lf = self.log_factors(thetas)
         vals = {}
         for g in self.names:
+            if g in CONTACT_FIELDS:
+                continue
             full = np.repeat(getattr(self.base, g), C, axis=0)
             full[:, self.items[g]] = self.init[g][None] * np.exp(lf[g])
             vals[g] = full
         return self.base.replace(**vals)
+
+    def contact_rows(self, thetas: np.ndarray):
+        """(C, 9) per-copy contact parameters for rows ``thetas`` (C, p), None without contact."""
+        if self.contact is None:
+            return None
+        thetas = np.atleast_2d(thetas)
+        lf = self.log_factors(thetas)
+        prm = self.contact.per_copy(thetas.shape[0])
+        rows = np.arange(thetas.shape[0])
+        for g in self.names:
+            if g in CONTACT_FIELDS:
+                v = self.init[g][0] * np.exp(lf[g][:, 0])
+                contact_mod.set_copy_values(prm, rows, CONTACT_FIELDS[g], v)
+                if g == "ground_stiffness" and self.tie_tangential:
+                    contact_mod.set_copy_values(prm, rows, "tangential_stiffness", v)
+        return prm
+
+    def physics(self, thetas: np.ndarray):
+        """``(Params, contact rows or None)`` with one row per row of ``thetas`` (C, p): what
+        :meth:`simulate` takes."""
+        return self.params(thetas), self.contact_rows(thetas)
+
+    def fitted_contact(self, theta):
+        """The GroundContact with the fitted values of ``theta`` (None without contact)."""
+        if self.contact is None:
+            return None
+        row = self.contact_rows(theta)[0]
+        f = contact_mod.PRM_FIELDS
+        return self.contact.replace(**{k: float(row[f.index(k)])
+                                       for k in ("friction", "stiffness", "damping", "tangential_stiffness")})
 
     def values(self, theta) -> dict:
         lf = self.log_factors(theta[None])
@@ -156,19 +206,27 @@ class _Problem:
         bn /= np.linalg.norm(bn, axis=-1, keepdims=True)
         return dynamics.project(self.model, np.concatenate([r, bn], -1), np.concatenate([rd, bd], -1))
 
-    def simulate(self, q, qd, params, win):
-        """Node positions (C, K, n, 3) of copies starting at ``q``, ``qd`` (C, k, 6); copy c lies in
-        window ``win[c]`` (for the rest lengths). Non-finite results come back as NaN."""
+    def simulate(self, q, qd, phys, win):
+        """Node positions (C, K, n, 3) of copies starting at ``q``, ``qd`` (C, k, 6) with the
+        parameters ``phys`` (:meth:`physics`: one row or C rows); copy c lies in window ``win[c]``
+        (for the rest lengths). Non-finite results come back as NaN."""
+        params, prm = phys
         C = q.shape[0]
         out = np.empty((C, self.K, self.model.n_nodes, 3))
         out[:, 0] = dynamics.node_positions(self.model, q)
         st = State(q=q, qd=qd)
+        cs = None if self.contact is None else contact_mod.init_contact_state(self.model, C)
         with np.errstate(all="ignore"):
             for k in range(1, self.K):
                 rl = None if self.rl is None else self.rl[win, k - 1]
                 try:
-                    st = step(self.model, st, self.dt, self.integrator, n_steps=self.n_sub, params=params,
-                              rest_length=rl)
+                    if cs is None:
+                        st = step(self.model, st, self.dt, self.integrator, n_steps=self.n_sub, params=params,
+                                  rest_length=rl)
+                    else:
+                        st, cs = pipeline.step(self.model, st, self.dt, self.integrator, n_steps=self.n_sub,
+                                               contact=self.contact, cstate=cs, contact_params=prm, params=params,
+                                               rest_length=rl)
                 except (ZeroDivisionError, OverflowError, FloatingPointError):
                     out[:, k:] = np.nan
                     break
@@ -226,7 +284,7 @@ class _Problem:
     def fit_states(self, theta, q0, qd0, max_iter=30, Jx_old=None):
         W, ns = self.W, self.ns
         win = np.arange(W)
-        P1 = self.params(theta)
+        P1 = self.physics(theta)
         lam = np.full(W, 1e-3)
         sim = self.simulate(q0, qd0, P1, win)
         res = self.residual(sim, win)
@@ -253,8 +311,8 @@ class _Problem:
                 res_n = self.residual(sim_n, act)
                 cost_n = np.where(np.isfinite(res_n).all(1), np.einsum("wi,wi->w", res_n, res_n), np.inf)
                 better = cost_n <= cost[act]
-                step_small = np.abs(dx / self.eps_x).max(1) < 1e-3     # below 1/1000 of an FD step
-                rel = (cost[act] - cost_n) <= 1e-12 * cost[act] + 1e-30
+                step_small = np.abs(dx / self.eps_x).max(1) < self.tol_step
+                rel = (cost[act] - cost_n) <= self.tol_cost * cost[act] + 1e-30
                 done = step_small | (better & rel)
                 ai = act[better]
                 q0 = q0.copy(); qd0 = qd0.copy(); sim = sim.copy(); res = res.copy()
@@ -294,7 +352,7 @@ class _Problem:
             thetas[np.arange(p), np.arange(p)] += _EPS_THETA
             X = np.zeros((p + ns, ns))
             X[p + np.arange(ns), np.arange(ns)] = self.eps_x
-            P = self.params(np.tile(thetas, (W, 1)))
+            P = self.physics(np.tile(thetas, (W, 1)))
             qp, qdp = self.apply(np.repeat(q0, p + ns, 0), np.repeat(qd0, p + ns, 0), np.tile(X, (W, 1)))
             win = np.repeat(np.arange(W), p + ns)
             simp = self.simulate(qp, qdp, P, win).reshape((W, p + ns) + sim0.shape[1:])
@@ -310,81 +368,10 @@ class _Problem:
 
 
     def torch_jacobian(self, theta, q0, qd0):
-        """(W, R, p + ns) masked residual Jacobian of every window with respect to the
-        parameters ``theta`` and the window state coordinates (at ``x = 0``), by autograd through
-        the torch backend's float64 rollout (:func:`tensegrity_gym.torch_backend.step`: the same
-        equations as the NumPy/numba path). As the finite differences, all columns of all
-        windows come from ONE batched rollout of W x (n_u + ns) copies, copy ``c`` carrying the
-        tangent of one column (its own per-copy parameters): Jacobian-vector products by the
-        double-backward trick (``u -> (du/dz)^T``, then its derivative along the tangent; copies
-        are independent, so one pair of backward passes gives every column). The columns are
-        exact derivatives instead of differences. (torch's forward-mode AD computes the same
-        numbers, much more slowly per operation on CPU.) They are taken
-        with respect to the log values of the fitted items and chained with :meth:`log_jacobian`
-        (d log value / d theta)."""
-        import torch
-        from .. import torch_backend
-        W, ns, p, K = self.W, self.ns, self.p, self.K
-        T = torch.float64
-        tm = torch_backend.torch_model(self.model, torch.device("cpu"), T)
-        sizes = [len(self.items[g]) for g in self.names]
-        nu = sum(sizes)
-        nc = nu + ns                                  # columns per window
-        C = W * nc
-
-        def t_(x):
-            return torch.as_tensor(np.array(x, dtype=float), dtype=T)
-        LJ = self.log_jacobian(theta)                 # {field: (n_items, p)}
-        lf0 = self.log_factors(theta[None])            # {field: (1, n_items)}
-        fields = ["mass", "stiffness", "damping", "rest_length", "node_damping", "gravity", "anchor_pos"]
-        if "mass" not in self.names:                  # a fitted mass scales f and J (torch_params)
-            fields += ["f", "J"]
-        prm = {f: t_(getattr(self.base, f)) for f in fields}
-        with torch.enable_grad():
-            z = torch.zeros((C, nc), dtype=T, requires_grad=True)
-            o = 0
-            for g, sz in zip(self.names, sizes):      # value = init * exp(log factor + u)
-                val = t_(self.init[g])[None] * torch.exp(t_(lf0[g]) + z[:, o:o + sz])
-                idx = torch.as_tensor(np.asarray(self.items[g], dtype=np.int64))
-                prm[g] = prm[g].expand(C, -1).index_copy(1, idx, val)
-                o += sz
-            x = z[:, nu:]
-            # window states as _Problem.apply (tangent basis at the base state)
-            q0c, qd0c = np.repeat(q0, nc, 0), np.repeat(qd0, nc, 0)
-            T0 = tangent_basis(q0c[..., 3:])
-            t1, t2 = t_(T0[..., 0]), t_(T0[..., 1])
-            q0t, qd0t = t_(q0c), t_(qd0c)
-            rs, bs, rds, bds, o = [], [], [], [], 0
-            for j, E in enumerate(self.E):
-                d, Et = E.shape[1], t_(E.T)
-                rs.append(q0t[:, j, :3] + x[:, o:o + d] @ Et)
-                bn = q0t[:, j, 3:] + x[:, o + d, None] * t1[:, j] + x[:, o + d + 1, None] * t2[:, j]
-                bs.append(bn / torch.sqrt((bn * bn).sum(-1, keepdim=True)))
-                o += d + 2
-                rds.append(qd0t[:, j, :3] + x[:, o:o + d] @ Et)
-                bds.append(qd0t[:, j, 3:] + x[:, o + d, None] * t1[:, j] + x[:, o + d + 1, None] * t2[:, j])
-                o += d + 2
-            q, qd = torch_backend.project(tm, torch.cat([torch.stack(rs, 1), torch.stack(bs, 1)], -1),
-                               torch.cat([torch.stack(rds, 1), torch.stack(bds, 1)], -1))
-            node_prm = torch_backend.torch_params(tm, prm, C)
-            rl = None if self.rl is None else t_(np.repeat(self.rl, nc, 0))     # (C, K, m)
-            out = [torch_backend.node_positions(tm, q, node_prm)]
-            for k in range(1, K):
-                q, qd = torch_backend.step(tm, q, qd, self.dt, self.integrator, self.n_sub, params=prm,
-                                rest_length=None if rl is None else rl[:, k - 1])
-                out.append(torch_backend.node_positions(tm, q, node_prm))
-            out = torch.stack(out, 1)                                    # (C, K, n, 3)
-            u = torch.zeros_like(out, requires_grad=True)
-            (g,) = torch.autograd.grad(out, z, grad_outputs=u, create_graph=True)       # u^T dout/dz, (C, nc)
-            (jv,) = torch.autograd.grad(g, u, grad_outputs=torch.eye(nc, dtype=T).repeat(W, 1))
-        d = jv.detach().numpy().reshape((W, nc) + self.rec.shape[1:])
-        d = (d * self.mask[:, None, ..., None]).reshape(W, nc, -1).transpose(0, 2, 1)   # (W, R, nc)
-        Jth = np.zeros(d.shape[:2] + (p,))
-        o = 0
-        for g, sz in zip(self.names, sizes):         # chain rule: d/d theta = d/d log value . d log value/d theta
-            Jth += d[..., o:o + sz] @ LJ[g]
-            o += sz
-        return np.concatenate([Jth, d[..., nu:]], axis=-1)
+        """(W, R, p + ns) residual Jacobian by autograd through the torch backend
+        (:func:`tensegrity_gym.tools.sysid_torch.torch_jacobian`)."""
+        from .sysid_torch import torch_jacobian
+        return torch_jacobian(self, theta, q0, qd0)
 
 
 def _kabsch(src, dst):

@@ -10,9 +10,14 @@ import numpy as np
 from ..params import Params
 
 #: fittable field -> what its items are (positive quantities, fitted in log space)
-FITTABLE = {"stiffness": "string", "damping": "string", "mass": "rod", "node_damping": "node"}
+FITTABLE = {"stiffness": "string", "damping": "string", "mass": "rod", "node_damping": "node",
+            "friction": "ground", "ground_stiffness": "ground", "ground_damping": "ground"}
 _ALIASES = {"rod_mass": "mass", "bar_mass": "mass"}
-_UNITS = {"stiffness": "N/m", "damping": "N s/m", "mass": "kg", "node_damping": "N s/m"}
+_UNITS = {"stiffness": "N/m", "damping": "N s/m", "mass": "kg", "node_damping": "N s/m",
+          "friction": "1", "ground_stiffness": "N/m", "ground_damping": "s/m"}
+#: the ground contact's fittable fields -> the GroundContact field each one is (one value each:
+#: Coulomb coefficient, normal stiffness N/m, Hunt-Crossley damping s/m)
+CONTACT_FIELDS = {"friction": "friction", "ground_stiffness": "stiffness", "ground_damping": "damping"}
 
 
 class SysIdWarning(UserWarning):
@@ -30,7 +35,10 @@ class SysIdResult:
     ``rms_m``: RMS node error over every observed coordinate after the fit (``rms_initial_m``:
     with the initial values, window states fitted). ``converged``: the optimiser met its
     tolerances and every window's state fit converged. ``ok``: converged and every fitted
-    parameter identifiable. ``params``: the fitted :class:`Params` (one row)."""
+    parameter identifiable. ``params``: the fitted :class:`Params` (one row). ``contact``: the
+    fitted :class:`~tensegrity_gym.physics.contact.GroundContact` of a fit with ground contact
+    (None without); its fitted values are also in ``values`` under ``friction``,
+    ``ground_stiffness`` and ``ground_damping`` (item 0)."""
 
     fields: tuple
     mode: str
@@ -61,6 +69,7 @@ class SysIdResult:
     njev: int
     wall_s: float
     params: Params = field(repr=False, default=None)
+    contact: object = field(repr=False, default=None)
     _plot: dict = field(repr=False, default=None)
 
     @property
@@ -86,6 +95,12 @@ class SysIdResult:
                "n_observations": self.n_observations, "n_state_unknowns": self.n_state_unknowns,
                "nfev": self.nfev, "njev": self.njev, "wall_s": self.wall_s,
                "gradient": "batched forward finite differences (per-copy Params)"}
+        if self.contact is not None:     # the contact the fitted motion ran with (SI units)
+            c = self.contact
+            out["contact"] = {"friction": c.friction, "stiffness": c.stiffness, "damping": c.damping,
+                              "tangential_stiffness": c.tangential_stiffness,
+                              "tangential_damping": c.tangential_damping, "radius": c.radius, "height": c.height,
+                              "exponent": c.exponent}
         if self.mode == "scale":
             out["scale"] = {f: float(v) for f, v in self.scale.items()}
             out["scale_std_errors"] = {f: (None if not np.isfinite(v) else float(v))
