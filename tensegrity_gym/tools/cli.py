@@ -155,7 +155,8 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     yp.add_argument("trajectory", help="TRAJ.npz (t (S,) s, nodes (S, n, 3) m, optional rest_length (S, m)) "
                     "or TRAJ.csv (long format: header t,node,x,y,z; one row per tracked node per sample)")
     yp.add_argument("--fit", nargs="+", default=["stiffness", "damping"],
-                    help="parameters to fit: stiffness damping mass (alias rod_mass) node_damping")
+                    help="parameters to fit: stiffness damping mass (alias rod_mass) node_damping; with --ground "
+                         "also friction ground_stiffness ground_damping")
     grp = yp.add_mutually_exclusive_group()
     grp.add_argument("--per-member", action="store_true", help="one value per string / rod (default)")
     grp.add_argument("--scale", action="store_true", help="one factor per parameter group")
@@ -165,8 +166,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     yp.add_argument("--total-mass", type=_positive(float), default=None,
                     help="weighed total rod mass, kg (needed to fit mass together with stiffness/damping)")
     yp.add_argument("--nodes", type=int, nargs="+", default=None, help="use only these tracked nodes")
-    yp.add_argument("--window", type=_positive(float), default=0.2, help="shooting window, s")
-    yp.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit_euler", "implicit_euler"])
+    yp.add_argument("--window", type=_positive(float), default=None,
+                    help="shooting window, s (default 0.2; 0.05 with --ground)")
+    yp.add_argument("--integrator", default=None, choices=["rk4", "semi_implicit_euler", "implicit_euler"],
+                    help="default rk4; semi_implicit_euler with --ground")
     yp.add_argument("--dt", type=_positive(float), default=None, help="fit step, s (divides the sample spacing)")
     yp.add_argument("--stride", type=_positive(int), default=1, help="fit every K-th sample")
     yp.add_argument("--out", default="fit.json", help="output JSON")
@@ -174,6 +177,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     yp.add_argument("--force", action="store_true", help="overwrite existing outputs")
     yp.add_argument("--steal-lock", action="store_true",
                     help="take over an output's lock left by a run that no longer runs (or runs on another host)")
+    add_terrain_args(yp, terrain_file=False,
+                     ground_help="the recording was made on a level ground at z = 0 (as simulate --ground): the "
+                                 "fit simulates it there; the contact options give its values (the start values "
+                                 "of fitted ones)")
     limits(yp)
     yp.set_defaults(func=cmd_identify)
     dp = sub.add_parser("demo", help="simulate the default prism, write a plot and summary", formatter_class=fmt)

@@ -19,7 +19,7 @@ from ..structure import StructureError
 from .cli_common import (EXIT_DIVERGED, EXIT_OUTPUT, EXIT_STRUCTURE, EXIT_USAGE, CLIError, _claim, _commit, _load,
                          _one_line, _require_memory, _stage)
 from .cli_simulate import _outputs_and_model
-from .cli_terrain import terrain_from_args, terrain_label
+from .cli_terrain import DEFAULT_CAP_RADIUS, terrain_from_args, terrain_label
 from .rendering import RendererUnavailable, view_trajectory
 
 
@@ -177,9 +177,10 @@ def cmd_view(args) -> int:
     return 0
 
 
-def parse_initial(items, model, fittable: dict, aliases: dict) -> dict:
+def parse_initial(items, model, fittable: dict, aliases: dict, contact_fields=()) -> dict:
     """``--initial NAME=VALUE ...`` as ``{name: value}``: VALUE one number for every member, or one
-    per member separated by commas; CLIError naming the item otherwise."""
+    per member separated by commas (one number for the ground's ``contact_fields``); CLIError
+    naming the item otherwise."""
     from ..params import default_params
     out = {}
     for item in items or ():
@@ -194,11 +195,16 @@ def parse_initial(items, model, fittable: dict, aliases: dict) -> dict:
         except ValueError:
             raise CLIError(EXIT_USAGE, f"--initial {item!r}: VALUE must be a number or numbers separated by commas")
         value = np.array(vals[0] if len(vals) == 1 else vals)
+        if g in contact_fields and value.size != 1:
+            raise CLIError(EXIT_USAGE, f"--initial {item!r}: {name} is one number (the ground's)")
         bad = ~(np.isfinite(value) & (value > 0))
         if bad.any():
             i = int(np.flatnonzero(bad.reshape(-1))[0])
             raise CLIError(EXIT_USAGE, f"--initial {name}: value {i} is {float(value.reshape(-1)[i])!r}; starting "
                            "values must be finite and > 0 (they are fitted in log space)")
+        if g in contact_fields:
+            out[g] = float(value)
+            continue
         try:
             default_params(model).replace(**{g: value})
         except ValueError as e:
@@ -214,8 +220,19 @@ def cmd_identify(args) -> int:
         if sysid._ALIASES.get(f, f) not in sysid.FITTABLE:
             raise CLIError(EXIT_USAGE, f"--fit: unknown parameter {f!r}; choose from {sorted(sysid.FITTABLE)} "
                            f"(aliases {sorted(sysid._ALIASES)})")
+    ground = [f for f in args.fit if f in sysid.CONTACT_FIELDS]
+    ground += [i.partition("=")[0] for i in args.initial or () if i.partition("=")[0] in sysid.CONTACT_FIELDS]
+    if ground and not args.ground:
+        raise CLIError(EXIT_USAGE, f"{'--fit' if ground[0] in args.fit else '--initial'} {ground[0]}: a ground contact "
+                       "parameter; add --ground (and give a recording made on the ground)")
+    terrain = terrain_from_args(args)      # contact options without --ground: exit 2
+    contact = None
+    if terrain is not None:               # --ground: a level plane at z = 0, as simulate --ground runs it
+        from ..physics.contact import GroundContact
+        contact = GroundContact(friction=terrain.friction, stiffness=terrain.stiffness, damping=terrain.damping,
+                                radius=DEFAULT_CAP_RADIUS if args.cap_radius is None else args.cap_radius)
     out, tx, s, model = _outputs_and_model(args, args.plot, "--plot")
-    initial = parse_initial(args.initial, model, sysid.FITTABLE, sysid._ALIASES)
+    initial = parse_initial(args.initial, model, sysid.FITTABLE, sysid._ALIASES, sysid.CONTACT_FIELDS)
     try:
         t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes)
     except FileNotFoundError:
@@ -234,7 +251,8 @@ def cmd_identify(args) -> int:
             warnings.simplefilter("ignore", sysid.SysIdWarning)   # reported below from the result
             res = sysid.identify(model, t, nodes, fit=args.fit, mode="scale" if args.scale else "per_member",
                                  rest_length=rl, node_mask=mask, window=args.window, integrator=args.integrator,
-                                 dt=args.dt, stride=args.stride, total_mass=args.total_mass, initial=initial)
+                                 dt=args.dt, stride=args.stride, total_mass=args.total_mass, initial=initial,
+                                 contact=contact)
     except sysid.StartValueError as e:     # a zero start value: the command-line remedy
         raise CLIError(EXIT_STRUCTURE, f"{e.problem}: start it with --initial {e.name}=VALUE "
                        f"({e.unit})") from None

@@ -19,13 +19,15 @@ _OVERRIDES = (("--friction", "friction", "friction"), ("--ground-stiffness", "gr
               ("--ground-damping", "ground_damping", "damping"))
 
 
-def add_terrain_args(p, *, contact: bool = True, ground_help: str | None = None) -> None:
+def add_terrain_args(p, *, contact: bool = True, ground_help: str | None = None, terrain_file: bool = True) -> None:
     """``--terrain`` / ``--ground`` (one or the other) and the contact overrides on parser ``p``;
     ``contact=False`` keeps only ``--friction`` (``export``: MuJoCo's contact takes the friction,
-    its own soft contact replaces the stiffness and damping, and it sizes its capsules itself)."""
+    its own soft contact replaces the stiffness and damping, and it sizes its capsules itself);
+    ``terrain_file=False`` leaves out ``--terrain`` (``identify``: a level ground only)."""
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--terrain", default=None, metavar="FILE.json",
-                   help="a terrain file (docs/terrain.md: a sloped plane, boxes, a heightfield)")
+    if terrain_file:
+        g.add_argument("--terrain", default=None, metavar="FILE.json",
+                       help="a terrain file (docs/terrain.md: a sloped plane, boxes, a heightfield)")
     g.add_argument("--ground", action="store_true",
                    help=ground_help or "a level plane at z = 0 (the same as --terrain with a file holding {})")
     p.add_argument("--friction", type=_non_negative, default=None,
@@ -64,7 +66,8 @@ def terrain_from_args(args) -> Terrain | None:
     if path is None and not ground:
         given = [flag for flag, v in flags if v is not None]
         if given:
-            raise CLIError(EXIT_USAGE, f"{given[0]}: a terrain contact option; add --terrain FILE.json or --ground")
+            where = "--terrain FILE.json or --ground" if hasattr(args, "terrain") else "--ground"
+            raise CLIError(EXIT_USAGE, f"{given[0]}: a terrain contact option; add {where}")
         return None
     if ground:
         terrain = Terrain()

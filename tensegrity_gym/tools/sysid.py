@@ -92,7 +92,8 @@ from .sysid_problem import _Problem
 from .sysid_result import CONTACT_FIELDS, FITTABLE, SysIdResult, SysIdWarning
 from .sysid_result import _ALIASES, _UNITS  # noqa: F401  (the command line reads them here)
 
-__all__ = ["identify", "SysIdResult", "SysIdWarning", "StartValueError", "FITTABLE", "load_csv", "load_trajectory"]
+__all__ = ["identify", "SysIdResult", "SysIdWarning", "StartValueError", "FITTABLE", "CONTACT_FIELDS", "load_csv",
+           "load_trajectory"]
 
 
 # ----------------------------------------------------------------------------- the structure
