@@ -79,7 +79,7 @@ def _compare_rollouts(ref, ten, N, steps, seed, action_seed, obs_atol=1e-12):
 def _torch_equals_fd_jacobian(problem, theta, q0, qd0, W):
     """The sys-ID problem's projected Jacobians (parameters, window states) with
     ``jacobian="torch"`` equal the production forward differences to 1e-5 relative."""
-    sim = problem.simulate(q0, qd0, problem.params(theta), np.arange(W))
+    sim = problem.simulate(q0, qd0, problem.physics(theta), np.arange(W))
     Jf, Xf = problem.full_jacobian(theta, q0, qd0, sim)
     problem.jacobian = "torch"
     Jp, Xp = problem.full_jacobian(theta, q0, qd0, sim)

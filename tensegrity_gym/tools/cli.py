@@ -7,7 +7,9 @@
   largest stable step of the explicit integrators.
 * ``identify STRUCTURE TRAJ.npz|TRAJ.csv --fit stiffness damping mass --per-member|--scale
   --out fit.json [--plot fit.png]`` fits physical parameters to a recorded motion
-  (:mod:`tensegrity_gym.tools.sysid`, docs/sysid.md); exit status 0 when the fit converged and every
+  (:mod:`tensegrity_gym.tools.sysid`, docs/sysid.md); with ``--ground`` (and ``simulate``'s contact
+  options) the motion runs on a level ground and ``--fit friction ground_stiffness ground_damping``
+  fits its contact; exit status 0 when the fit converged and every
   parameter is identifiable, 3 when the result is flagged.
 * ``demo --out DIR`` simulates the default prism released off equilibrium and writes a
   plot and a JSON summary.

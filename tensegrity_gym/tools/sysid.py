@@ -66,8 +66,9 @@ windows are simulated on that ground, and its Coulomb coefficient ``friction``, 
 ``ground_stiffness`` (N/m) and Hunt-Crossley damping ``ground_damping`` (s/m) can be fitted like
 the other fields (log space, one value each; per-copy contact rows in the same batched
 Jacobian). Friction is seen only while caps slide, stiffness and damping only while caps
-are pressed into the ground (impacts, resting weight): from a record without it they are
-flagged unidentifiable.
+are pressed into the ground (impacts, resting weight). The record does not hold the stick/slip
+state (anchors of sticking caps): each window starts from the one the previous window's
+simulation hands on (:meth:`_Problem.carry`), and the fit is repeated three times with it.
 
 Units: SI throughout (s, m, kg, N/m, N s/m). ``jacobian="torch"`` computes the outer residual
 Jacobian by forward-mode autograd through the torch backend's rollout instead
@@ -86,6 +87,7 @@ from ..checks import check_real
 from ..core.builders import load_structure
 from ..dynamics import Model
 from ..integrators import resolve
+from ..physics.contact import PRM_FIELDS
 from ..io.trajectory import load_csv, load_trajectory
 from .sysid_inputs import StartValueError, _check_above_ground, _check_record, _parse_contact, _parse_fit
 from .sysid_problem import _Problem
@@ -245,11 +247,15 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     reg["lam"] = rank_rtol * float(np.linalg.norm(jac(theta0)[:-pb.p], axis=0).max())
     warn_list = []
 
+    # contact forces switch (touch-down, stick/slip): the residual has kinks where LM's steps stall
+    # at ~1e-7 relative, so a contact fit stops at 1e-6 (far below its standard errors)
+    tol = (1e-10, 1e-8) if pb.contact is None else (1e-8, 1e-6)
+
     def run(theta_start):
         try:
             # 'lm' (MINPACK): its QR of the tall Jacobian runs in its own loops, not in threaded BLAS
             # (trf's SVD of the same matrix is much slower on a loaded machine)
-            sol = least_squares(fun, theta_start, jac=jac, method="lm", x_scale=1.0, ftol=1e-10, xtol=1e-8,
+            sol = least_squares(fun, theta_start, jac=jac, method="lm", x_scale=1.0, ftol=tol[0], xtol=tol[1],
                                 gtol=1e-10, max_nfev=max_nfev, verbose=verbose)
             return sol.x, sol.status, sol.message
         except (np.linalg.LinAlgError, ValueError) as e:
@@ -274,7 +280,15 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
             ident[np.abs(u) > 0.01 * np.abs(u).max()] = False
         return Jp, ident
 
-    theta, status, message = run(theta0)
+    theta = theta0
+    for _ in range(3 if pb.contact is not None else 1):
+        if pb.contact is not None:
+            # each window's starting stick/slip state comes from the previous window's simulation at
+            # the current fit (Problem.carry), then the fit is repeated with it: a fixed point
+            c0 = solve(theta)
+            pb.carry(theta, c0["q"], c0["qd"])
+            cache.update(key=None, Jp_key=None, Jx=None)
+        theta, status, message = run(theta)
     Jp, ident = assess(theta)
     if status > 0 and ident.all():
         # every direction is determined: polish without the pull, so it biases nothing
@@ -320,6 +334,11 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     for w_ in warn_list:
         warnings.warn(w_, SysIdWarning, stacklevel=2)
     fitted = pb.physics(theta)
+    fitted_contact = None
+    if contact is not None:            # the contact the fitted motion ran with
+        row, f = fitted[1][0], PRM_FIELDS
+        fitted_contact = contact.replace(**{k: float(row[f.index(k)]) for k in
+                                            ("friction", "stiffness", "damping", "tangential_stiffness")})
     sim = pb.simulate(c["q"], c["qd"], fitted, np.arange(pb.W))
     err = np.linalg.norm(sim - pb.rec, axis=-1)[pb.mask]
     return SysIdResult(
@@ -329,5 +348,5 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
         message=str(message), warnings=warn_list, n_windows=pb.W, samples_per_window=pb.K,
         window_s=(pb.K - 1) * pb.h, sample_dt_s=pb.h, dt_s=pb.dt, n_substeps=pb.n_sub, integrator=pb.integrator,
         n_observations=pb.n_obs, n_state_unknowns=pb.W * pb.ns, nfev=pb.nfev, njev=pb.njev,
-        wall_s=time.perf_counter() - t0, params=fitted[0], contact=pb.fitted_contact(theta),
+        wall_s=time.perf_counter() - t0, params=fitted[0], contact=fitted_contact,
         _plot={"t": pb.t, "recorded": pb.rec, "fitted": sim, "mask": pb.mask})

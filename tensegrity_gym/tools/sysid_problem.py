@@ -1,12 +1,6 @@
 """The multiple-shooting problem of :func:`tensegrity_gym.tools.sysid.identify`: window states,
-batched finite-difference Jacobians and the variable-projection residual (:class:`_Problem`).
-
-With ground contact every window is simulated by :func:`tensegrity_gym.physics.pipeline.step`
-with per-copy contact rows (:meth:`GroundContact.per_copy`), so a Jacobian's perturbed contact
-parameters run in the same batch as the others. The stick/slip state is not recorded: each window
-starts with none (every cap in contact anchors where it is at the window's start, its tangential
-spring relaxed), an error of at most ``mu F_n / k_t`` in a sticking cap's position (0.1 mm for
-1 N on 1e4 N/m) that sliding caps, whose friction is ``mu F_n`` either way, do not see."""
+batched finite-difference Jacobians and the variable-projection residual (:class:`_Problem`);
+with ground contact, the stick/slip state each window starts from (:meth:`_Problem.carry`)."""
 from __future__ import annotations
 
 import math
@@ -36,6 +30,7 @@ class _Problem:
                  stride, total_mass=None, contact=None, tie_tangential=False):
         self.model, self.names, self.items, self.init, self.base, self.mode = model, names, items, init, base, mode
         self.contact, self.tie_tangential = contact, tie_tangential
+        self.carried = None     # contact state at each window's start: offsets xi (W, n_c, 2) m, active (W, n_c)
         self.integrator = resolve(integrator).name
         if self.integrator in ("dop853", "radau"):
             raise ValueError(f"integrator: {integrator!r} is adaptive (copy-by-copy solve_ivp, far too slow for the "
@@ -108,10 +103,9 @@ class _Problem:
         self.jacobian = "fd"
         self.inner_ok = True
         # a window's state has converged when its step is below tol_step FD steps or the cost falls
-        # by less than tol_cost (relative). Contact forces switch inside a window (touch-down,
-        # stick/slip), so its cost has kinks where LM zig-zags with steps of about one FD step and
-        # relative decreases of ~1e-6 for ever: steps below the Jacobian's resolution mean converged.
-        self.tol_step, self.tol_cost = (1e-3, 1e-12) if contact is None else (0.1, 1e-12)
+        # by less than 1e-12 (relative). Contact forces switch inside a window, so its cost has kinks
+        # where LM zig-zags with steps of about one FD step for ever: 0.1 FD step is converged there.
+        self.tol_step = 1e-3 if contact is None else 0.1
 
     # -- parameters
     def log_factors(self, thetas: np.ndarray) -> dict:
@@ -173,15 +167,6 @@ class _Problem:
         :meth:`simulate` takes."""
         return self.params(thetas), self.contact_rows(thetas)
 
-    def fitted_contact(self, theta):
-        """The GroundContact with the fitted values of ``theta`` (None without contact)."""
-        if self.contact is None:
-            return None
-        row = self.contact_rows(theta)[0]
-        f = contact_mod.PRM_FIELDS
-        return self.contact.replace(**{k: float(row[f.index(k)])
-                                       for k in ("friction", "stiffness", "damping", "tangential_stiffness")})
-
     def values(self, theta) -> dict:
         lf = self.log_factors(theta[None])
         return {g: self.init[g] * np.exp(lf[g][0]) for g in self.names}
@@ -206,18 +191,26 @@ class _Problem:
         bn /= np.linalg.norm(bn, axis=-1, keepdims=True)
         return dynamics.project(self.model, np.concatenate([r, bn], -1), np.concatenate([rd, bd], -1))
 
-    def simulate(self, q, qd, phys, win):
+    def simulate(self, q, qd, phys, win, extra=False):
         """Node positions (C, K, n, 3) of copies starting at ``q``, ``qd`` (C, k, 6) with the
         parameters ``phys`` (:meth:`physics`: one row or C rows); copy c lies in window ``win[c]``
-        (for the rest lengths). Non-finite results come back as NaN."""
+        (for the rest lengths and its starting contact state). Non-finite results come back as
+        NaN. ``extra``: also simulate the interval after the last sample and return ``(positions,
+        state, contact state)`` at its end (where the next window starts)."""
         params, prm = phys
         C = q.shape[0]
         out = np.empty((C, self.K, self.model.n_nodes, 3))
         out[:, 0] = dynamics.node_positions(self.model, q)
         st = State(q=q, qd=qd)
-        cs = None if self.contact is None else contact_mod.init_contact_state(self.model, C)
+        cs = None
+        if self.contact is not None:
+            cs = contact_mod.init_contact_state(self.model, C)
+            if self.carried is not None:
+                xi, act = self.carried
+                cs.anchor[...] = out[:, 0, contact_mod.contact_nodes(self.model), :2] - xi[win]
+                cs.active[...] = act[win]
         with np.errstate(all="ignore"):
-            for k in range(1, self.K):
+            for k in range(1, self.K + bool(extra)):
                 rl = None if self.rl is None else self.rl[win, k - 1]
                 try:
                     if cs is None:
@@ -230,8 +223,25 @@ class _Problem:
                 except (ZeroDivisionError, OverflowError, FloatingPointError):
                     out[:, k:] = np.nan
                     break
-                out[:, k] = dynamics.node_positions(self.model, st.q)
-        return out
+                if k < self.K:
+                    out[:, k] = dynamics.node_positions(self.model, st.q)
+        return (out, st, cs) if extra else out
+
+    def carry(self, theta, q, qd):
+        """With contact: every window but the first starts from the stick/slip state the previous
+        window's simulation (states ``q``, ``qd``, parameters ``theta``) reaches one sample interval
+        after its last sample, as the caps' offsets from their anchors. The record does not hold
+        it, and a sticking cap's spring carries up to ``mu F_n`` (~0.1 mm): windows started relaxed
+        let resting caps creep in the model (~80 um), which a wrong friction would absorb."""
+        nc = 2 * self.model.n_bars
+        self.carried = (np.zeros((self.W, nc, 2)), np.zeros((self.W, nc), bool))
+        xi, act = self.carried
+        for w in range(self.W - 1):     # in turn: window w starts from what window w - 1 handed on
+            _, st, cs = self.simulate(q[w:w + 1], qd[w:w + 1], self.physics(theta), np.array([w]), extra=True)
+            p = dynamics.node_positions(self.model, st.q)[0, contact_mod.contact_nodes(self.model), :2]
+            ok = np.isfinite(p).all(-1) & cs.active[0]
+            xi[w + 1] = np.where(ok[:, None], p - cs.anchor[0], 0.0)
+            act[w + 1] = ok
 
     def residual(self, sim, win):
         """(C, K*n*3) masked residuals of simulated node positions of copies in windows ``win``."""
@@ -312,7 +322,7 @@ class _Problem:
                 cost_n = np.where(np.isfinite(res_n).all(1), np.einsum("wi,wi->w", res_n, res_n), np.inf)
                 better = cost_n <= cost[act]
                 step_small = np.abs(dx / self.eps_x).max(1) < self.tol_step
-                rel = (cost[act] - cost_n) <= self.tol_cost * cost[act] + 1e-30
+                rel = (cost[act] - cost_n) <= 1e-12 * cost[act] + 1e-30
                 done = step_small | (better & rel)
                 ai = act[better]
                 q0 = q0.copy(); qd0 = qd0.copy(); sim = sim.copy(); res = res.copy()
