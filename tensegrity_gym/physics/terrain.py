@@ -24,7 +24,10 @@ Contact law (as :mod:`tensegrity_gym.physics.contact`, with the plane's normal n
 feature), Hunt-Crossley normal force ``F_n = max(0, k delta^e - min(k delta^e d_n, c_max) v.n)``,
 and stick-slip Coulomb friction: a tangential spring ``k_t`` with damper ``c_t`` from the
 contact's surface point to its anchor (a 3-D point on the surface, set at touch-down),
-projected on the tangent plane and capped at ``mu F_n`` (the anchor then follows: slip).
+projected on the tangent plane and capped at ``mu F_n`` (the anchor then follows: slip). The
+interior slot's penetration is measured from the deeper touching node, ``min(radius, d_a, d_c) -
+d``, with the reaction ``-F_n`` along that node's normal at the node (a continuous contact energy;
+details in :mod:`tensegrity_gym.backends.numba.terrain`).
 
 Generalized force: a force F at the rod point ``v(eta) = r + eta b`` enters the equations as
 ``[F, eta F]`` (the seed's (5.9), (5.21)); the kernels pass it as the nodal forces

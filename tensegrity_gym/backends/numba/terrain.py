@@ -24,9 +24,18 @@ Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
   material point the anchor holds (the slot's own eta for the node slots; for the interior
   slot the point where it touched or last slipped, so that friction holds the rod's material
   while the contact point moves along the rod), ``active`` / ``slip`` (B, S) bool.
+* the interior slot's penetration is measured from the deeper node when that node touches:
+  ``delta = min(radius, sd_a, sd_c) - sd``. It goes to 0 as the interior minimum merges with a
+  node, so the contact energy is continuous there and the node's own contact is not counted
+  twice. Its normal force fn acts at the interior point along its normal, and ``-fn`` along the
+  node's normal acts at that node (the gradient of ``sd_node`` in delta): the normal springs are
+  the gradient of ``sum U(delta)``. Its Hunt-Crossley damping acts on the rate of that delta
+  (the interior point's normal velocity less the node's), with the same pair of points, so it
+  only dissipates; its friction acts at the interior point, capped at ``mu fn``.
 * ``info`` (B, S, 6) or (0, 0, 6): per slot the rod coordinate eta m of the contact point, the
   signed distance m of that point to the feature, the feature's outward normal there and the
-  energy J of the slot's springs at the given state with the anchors before the update.
+  energy J of the slot's springs at the given state with the anchors before the update (the
+  interior slot's normal spring on the delta above).
 
 Heightfield geometry: the signed distance of a point is its height above the bilinear surface
 times the cosine of the local slope, ``d = (z - h) / sqrt(1 + |grad h|^2)``, and the normal is
@@ -279,11 +288,13 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, 
     (damper ``ct``) from the anchor (a surface point, set at touch-down to ``s = p - sd n``) to
     the rod's material point m that touched there (p itself for a node slot), projected on the
     tangent plane and capped at ``mu fn`` (slip: the anchor follows to ``s + F_t / kt``).
+    The interior slot passes as ``radius`` the level its penetration is measured from and as
+    ``v`` its velocity relative to that level's end (see the kernel).
     Returns (touching, fx, fy, fz, ax, ay, az, slip, energy J of the springs with the anchor
-    before the update)."""
+    before the update, fn N)."""
     delta = radius - sd
     if not (delta > 0.0):
-        return False, 0.0, 0.0, 0.0, ax, ay, az, False, 0.0
+        return False, 0.0, 0.0, 0.0, ax, ay, az, False, 0.0, 0.0
     de = delta if ex == 1.0 else delta ** ex
     fs = kn * de
     cn = fs * dn
@@ -313,7 +324,7 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, 
         fy *= s
         fz *= s
         ax, ay, az = sx + fx / kt, sy + fy / kt, sz + fz / kt
-    return True, fx + fn * nx, fy + fn * ny, fz + fn * nz, ax, ay, az, slip, energy
+    return True, fx + fn * nx, fy + fn * ny, fz + fn * nz, ax, ay, az, slip, energy, fn
 
 
 @njit(cache=True, nogil=True)
@@ -362,6 +373,9 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                     # the signed distance is 1-Lipschitz: a rod whose middle is farther than half
                     # its length plus the cap radius touches nowhere
                     far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
+                # the nodes' distances, normals and normal velocities, for the interior slot's level
+                sd_a, na0, na1, na2, vn_a = math.inf, 0.0, 0.0, 1.0, 0.0
+                sd_c, nc0, nc1, nc2, vn_c = math.inf, 0.0, 0.0, 1.0, 0.0
                 for s in range(3):
                     ci = base + s
                     e = ea if s == 0 else (ec if s == 1 else em)
@@ -379,12 +393,30 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                     vx = qd[c, j, 0] + e * qd[c, j, 3]
                     vy = qd[c, j, 1] + e * qd[c, j, 4]
                     vz = qd[c, j, 2] + e * qd[c, j, 5]
+                    level, end = radius, -1
+                    if s == 0:
+                        sd_a, na0, na1, na2, vn_a = sd, nx, ny, nz, vx * nx + vy * ny + vz * nz
+                    elif s == 1:
+                        sd_c, nc0, nc1, nc2, vn_c = sd, nx, ny, nz, vx * nx + vy * ny + vz * nz
+                    else:
+                        # the interior penetration is measured from the deeper node when that node
+                        # touches: min(radius, sd_a, sd_c) - sd, 0 when the interior minimum merges
+                        # with a node (a continuous potential; no double count of the node's contact)
+                        if sd_a < level:
+                            level, end = sd_a, 0
+                        if sd_c < level:
+                            level, end = sd_c, 1
+                        if end >= 0:
+                            # damping on the rate of that penetration: the normal velocity relative
+                            # to the node's (the tangential part, so friction, is unchanged)
+                            vr = vn_a if end == 0 else vn_c
+                            vx, vy, vz = vx - vr * nx, vy - vr * ny, vz - vr * nz
                     # the anchored material point: where the rod touched (the interior slot's
                     # contact point moves along the rod; friction holds the material, not the point)
                     e0 = eta0[c, ci] if (s == 2 and active[c, ci]) else e
-                    touch, fx, fy, fz, ax, ay, az, sl, en = _slot_force(
+                    touch, fx, fy, fz, ax, ay, az, sl, en, fn = _slot_force(
                         px, py, pz, r0 + e0 * b0, r1 + e0 * b1, r2 + e0 * b2, vx, vy, vz, sd, nx, ny, nz,
-                        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], radius,
+                        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], level,
                         pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
                     anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
                     eta0[c, ci] = e if (sl or not active[c, ci]) else e0
@@ -404,3 +436,14 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                         W[c, nc, 0] += wc * fx
                         W[c, nc, 1] += wc * fy
                         W[c, nc, 2] += wc * fz
+                        if end >= 0:
+                            # the reaction: -fn along the node's normal at that node (the gradient of
+                            # the level sd_node in the penetration min(...) - sd)
+                            if end == 0:
+                                W[c, na, 0] -= fn * na0
+                                W[c, na, 1] -= fn * na1
+                                W[c, na, 2] -= fn * na2
+                            else:
+                                W[c, nc, 0] -= fn * nc0
+                                W[c, nc, 1] -= fn * nc1
+                                W[c, nc, 2] -= fn * nc2

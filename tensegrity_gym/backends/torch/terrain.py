@@ -259,12 +259,27 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
         sd, nx, ny, nz = _closest(P[..., 0], P[..., 1], P[..., 2], g, H)
         sd = torch.where(use, sd, torch.full_like(sd, math.inf))
         n = torch.stack([nx, ny, nz], dim=-1)
+        # the interior slot's level: min(radius, sd_a, sd_c), the deeper touching node (the numba
+        # kernel's first-of-equals order), and the normal velocity relative to that node's
+        vn_all = (V * n).sum(-1)
+        rad_b = radius.expand(B, k)
+        end_a = sd[..., 0] < rad_b
+        lvl = torch.where(end_a, sd[..., 0], rad_b)
+        end_c = sd[..., 1] < lvl
+        lvl = torch.where(end_c, sd[..., 1], lvl)
+        end_a = end_a & ~end_c
+        has_end = end_a | end_c
+        vr = torch.where(end_c, vn_all[..., 1], torch.where(end_a, vn_all[..., 0], torch.zeros_like(lvl)))
+        n_end = torch.where(end_c[..., None], n[..., 1, :], n[..., 0, :])
+        V2 = torch.where(has_end[..., None], V[..., 2, :] - vr[..., None] * n[..., 2, :], V[..., 2, :])
+        V = torch.stack([V[..., 0, :], V[..., 1, :], V2], dim=-2)
+        level = torch.stack([rad_b, rad_b, lvl], dim=-1)
         was = acs[:, :, f]
         slot2 = torch.tensor([False, False, True], device=q.device)
         e0 = torch.where(slot2 & was, e0s[:, :, f], E)
         M = r[:, :, None, :] + e0[..., None] * b[:, :, None, :]
-        rad, kn_, dn_, mu_, kt_, ct_, cmax_ = (x[..., None] for x in (radius, kn, dn, mu, kt, ct, cmax))
-        delta = rad - sd
+        kn_, dn_, mu_, kt_, ct_, cmax_ = (x[..., None] for x in (kn, dn, mu, kt, ct, cmax))
+        delta = level - sd
         touch = delta > 0.0
         dpos = torch.where(touch, delta, torch.zeros_like(delta))
         ex0 = float(ex.reshape(-1)[0])
@@ -292,8 +307,10 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
         Fc = torch.where(touch[..., None], Ft + fn[..., None] * n, torch.zeros_like(Ft))
         wc = (E - ea[..., None]) / span[..., None]
         wa = (ec[..., None] - E) / span[..., None]
-        Wa = Wa + (wa[..., None] * Fc).sum(2)
-        Wc = Wc + (wc[..., None] * Fc).sum(2)
+        # the interior slot's reaction: -fn along the deeper node's normal at that node
+        R = torch.where((touch[..., 2] & has_end)[..., None], -fn[..., 2, None] * n_end, torch.zeros_like(n_end))
+        Wa = Wa + (wa[..., None] * Fc).sum(2) + torch.where(end_a[..., None], R, torch.zeros_like(R))
+        Wc = Wc + (wc[..., None] * Fc).sum(2) + torch.where(end_c[..., None], R, torch.zeros_like(R))
         outs.append((A, e0n, touch, slip))
     anchor = torch.stack([o[0] for o in outs], dim=2).reshape(B, -1, 3)
     eta0 = torch.stack([o[1] for o in outs], dim=2).reshape(B, -1)
