@@ -2,12 +2,15 @@
 """Cost of a physics step with terrain contact against flat ground (numba, the prism robot).
 
     PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000] \
-        [--envs 1 16 128] [--env-steps 200] [--json out.json]
+        [--envs 1 16 128] [--env-steps 200] [--torch] [--json out.json]
 
 Physics table: microseconds per physics step (all copies) for the flat-ground GroundContact (the
 fused compiled loop), a level terrain plane, a 20-degree plane, and a 20-degree plane with two
 boxes (terrain steps: the forces kernel and one integrator step per physics step, all in one
 compiled call below the multi-threaded batch size).
+
+Torch table (``--torch``): the same scenes on the torch backend (CPU, float64; the device envs run
+level ground only, so the physics step is measured).
 
 Env table (``--envs``): env-steps/s of ``TensegrityRoll-v0`` (NumPy vector env, random actions)
 on flat ground and on each terrain kind, and the cost ratio terrain / flat measured in the same
@@ -80,13 +83,38 @@ def env_table(ns, steps: int) -> dict:
     return rates
 
 
+def torch_table(m, scenes: dict, batch, steps: int) -> dict:
+    """microseconds per physics step of the torch backend (CPU, float64): flat ground contact
+    (``torch_backend.contact_step``) against each terrain (``backends.torch.terrain.terrain_step``)."""
+    import torch
+    from tensegrity_gym import torch_backend as TB
+    from tensegrity_gym.backends.torch import terrain as TT
+    rows = {"torch flat GroundContact": [], **{f"torch {k}": [] for k in scenes}}
+    g = C.GroundContact()
+    for B in batch:
+        st = dyn.initial_state(m, B)
+        q, qd = torch.as_tensor(np.array(st.q)), torch.as_tensor(np.array(st.qd))
+        an, ac = TB.init_contact_state(m, B, dtype=torch.float64)
+        rows["torch flat GroundContact"].append(timed(lambda n: TB.contact_step(m, g, q, qd, an, ac, DT, n_steps=n),
+                                                      steps))
+        for name, ter in scenes.items():
+            tc = T.TerrainContact(ter)
+            ts = TT.init_terrain_state(m, tc.n_features, B, dtype=torch.float64)
+            rows[f"torch {name}"].append(timed(lambda n: TT.terrain_step(m, tc.geom, tc.prm, q, qd, *ts, DT, n_steps=n,
+                                                                         hf=tc.hf), steps))
+    for name, vals in rows.items():
+        print(f"{name:<32}" + "".join(f"{v:16.2f}" for v in vals))
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 64])
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--envs", type=int, nargs="*", default=[], help="env table for these numbers of copies")
     ap.add_argument("--env-steps", type=int, default=200)
-    ap.add_argument("--json", type=str, default=None, help="write both tables here")
+    ap.add_argument("--json", type=str, default=None, help="write the tables here")
+    ap.add_argument("--torch", action="store_true", help="also the torch backend's physics table (CPU)")
     a = ap.parse_args()
     m = prism()
     scenes = {"level plane": Terrain(), "20 deg plane": Terrain(plane=Plane(20.0)),
@@ -105,6 +133,7 @@ def main():
             rows[name].append(timed(lambda n: T.step(m, st, DT, tc, ts, n_steps=n), a.steps))
     for name, vals in rows.items():
         print(f"{name:<26}" + "".join(f"{v:16.2f}" for v in vals))
+    torch_rows = torch_table(m, scenes, a.batch, max(a.steps // 10, 20)) if a.torch else {}
     envs = env_table(a.envs, a.env_steps) if a.envs else {}
     if a.json:
         import json
@@ -113,7 +142,7 @@ def main():
         cpu = next((ln.split(":", 1)[1].strip() for ln in subprocess.run(["lscpu"], capture_output=True, text=True)
                     .stdout.splitlines() if ln.startswith("Model name")), platform.processor())
         with open(a.json, "w") as f:
-            json.dump({"cpu": cpu, "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows,
+            json.dump({"cpu": cpu, "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows, "torch_us_per_step": torch_rows,
                        "envs": a.envs, "env_steps_per_s": envs, "command": "python scripts/bench_terrain.py " +
                        " ".join(sys.argv[1:])}, f, indent=1)
 
