@@ -27,7 +27,7 @@ import gymnasium as gym
 
 import tensegrity_gym as tg
 from tensegrity_gym.params import default_params
-from agents.common import write_json
+from tensegrity_gym_agents.common import write_json
 
 ROLL_RANDOM = {"rod_mass": 0.2, "stiffness": 0.2, "damping": 0.2, "friction": 0.2, "ground_stiffness": 0.2,
                "ground_damping": 0.2, "rest_length_offset": 0.005, "max_cable_speed": 0.2,

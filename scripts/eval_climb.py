@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.evaluate import load_trained, run_episodes
-from agents.tune import iqm_interval
+from tensegrity_gym_agents.evaluate import load_trained, run_episodes
+from tensegrity_gym_agents.tune import iqm_interval
 from tensegrity_gym.io.atomic import write_atomic
 from tensegrity_gym.tools.baselines import RollingGait
 

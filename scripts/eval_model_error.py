@@ -25,8 +25,8 @@ import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym.baselines import NNLSShapeController
-from agents import evaluate as ev
-from agents.common import write_json
+from tensegrity_gym_agents import evaluate as ev
+from tensegrity_gym_agents.common import write_json
 
 ENV = "TensegrityShape-v0"
 RANDOM = {"stiffness": 0.2, "rod_mass": 0.2, "rest_length_offset": 0.01}

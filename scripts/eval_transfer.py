@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from agents import common
+from tensegrity_gym_agents import common
 from tensegrity_gym.baselines import RollingGait
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv
 from tensegrity_gym.envs.roll_mujoco import TensegrityRollMuJoCoEnv
@@ -51,7 +51,7 @@ def make_policy(spec: str, algo: str | None, env):
         return RollingGait(env)
     path = Path(spec)
     if path.is_dir():
-        from agents.evaluate import load_trained
+        from tensegrity_gym_agents.evaluate import load_trained
         if not (path / "config.yaml").is_file():
             raise SystemExit(f"--policy: {spec!r} is a folder without config.yaml (not a training run)")
         return load_trained(path, "final")[1]
@@ -60,7 +60,7 @@ def make_policy(spec: str, algo: str | None, env):
     if not algo:
         raise SystemExit("--algo: needed with a model zip (PPO, SAC, TD3, A2C, DDPG)")
     import stable_baselines3 as sb3
-    from agents.evaluate import TrainedPolicy, load_vecnormalize, resolve_model
+    from tensegrity_gym_agents.evaluate import TrainedPolicy, load_vecnormalize, resolve_model
     cls = getattr(sb3, algo, None)
     if cls is None:
         raise SystemExit(f"--algo: unknown SB3 algorithm {algo!r}")

@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from agents import common
-from agents.evaluate import load_trained, run_episodes
+from tensegrity_gym_agents import common
+from tensegrity_gym_agents.evaluate import load_trained, run_episodes
 from tensegrity_gym.tools.baselines import RollingGait
 
 #: (project env, MuJoCo twin) of each mode

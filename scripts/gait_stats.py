@@ -100,14 +100,14 @@ def main(argv=None) -> int:
                    "max_cable_acceleration:None for a policy trained before the motor model)")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
-    from agents.common import parse_kv_list
+    from tensegrity_gym_agents.common import parse_kv_list
     extra = parse_kv_list(args.env_kwargs, ":", "--env-kwargs")
     if args.run == "gait":
         env_kwargs = extra
         env = gym.make(ENV_ID, max_episode_steps=args.steps, **env_kwargs)
         policy = RollingGait(env)
     else:
-        from agents import evaluate
+        from tensegrity_gym_agents import evaluate
         cfg, policy, _, _ = evaluate.load_trained(Path(args.run), args.model)
         if cfg["env"] != ENV_ID:
             raise SystemExit(f"error: {args.run} is a run on {cfg['env']}, not {ENV_ID}")

@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     except FileExistsError:
         p.error(f"--out: {out} exists; the main job writes only into a new folder (nothing is overwritten)")
 
-    from agents import evaluate, train
+    from tensegrity_gym_agents import evaluate, train
 
     t0 = time.time()
     run = out / "run"

@@ -27,7 +27,7 @@ def main(argv=None) -> int:
     p.add_argument("--n-timesteps", type=int, default=BUDGET)
     args = p.parse_args(argv)
 
-    from agents import multiseed, train
+    from tensegrity_gym_agents import multiseed, train
 
     runs = []
     for s in args.seeds:

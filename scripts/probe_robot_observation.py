@@ -29,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the ids)
-from agents import common, evaluate
+from tensegrity_gym_agents import common, evaluate
 
 HELD_OUT = 1_000_000
 ROWS = ("unchanged", "imu_accel_noise_5", "imu_gyro_noise_0.33", "contact_zero", "contact_flip_0.1",

@@ -114,7 +114,7 @@ def main(argv=None) -> int:
     print(f"| rest (SB3 and torch Python overhead, logging) | {L - counted:.2f} | {1e3 * (L - counted) / updates:.2f} "
           f"| {100 * (L - counted) / L:.0f} % |")
     if a.json:
-        from agents.common import machine
+        from tensegrity_gym_agents.common import machine
         row = {"label": os.environ.get("PROFILE_LABEL"), "recipe": a.recipe, "batch_size": bs, "threads": a.threads, "mkldnn": not a.no_mkldnn,
                "rollouts": a.rollouts, "learner_s": round(L, 3), "rollout_s": round(spent["rollout"], 3),
                "learner_us_per_sample": round(per_sample_us, 3),
