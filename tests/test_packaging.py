@@ -213,3 +213,14 @@ def test_script_mjcf_is_the_package_writer_and_takes_our_state():
     ours = dynamics.node_positions(m, st.q)[0]
     for i in range(m.n_nodes):
         np.testing.assert_allclose(d.site(f"node{i}").xpos, ours[i], atol=1e-12)
+
+
+def test_scripts_import_the_agents_package_by_its_installed_name():
+    """``python scripts/x.py`` puts scripts/ (not the checkout) on sys.path: after an install the
+    agents package is importable only as tensegrity_gym_agents, so a script importing 'agents'
+    stops with ModuleNotFoundError."""
+    import re
+    bad = [f"{p.name}:{i}" for p in sorted((ROOT / "scripts").rglob("*.py"))
+           for i, line in enumerate(p.read_text().splitlines(), 1)
+           if re.match(r"\s*(from agents(\.|\s)|import agents\b)", line)]
+    assert not bad, f"scripts import 'agents' (use tensegrity_gym_agents): {bad}"
