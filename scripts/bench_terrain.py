@@ -22,6 +22,7 @@ whole floor, the robot on bumps from the start) and
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -31,6 +32,7 @@ import numpy as np
 from tensegrity_gym import builders, contact as C, dynamics as dyn
 from tensegrity_gym.core.terrain import Box, Plane, Terrain
 from tensegrity_gym.physics import terrain as T
+from tensegrity_gym_agents.common import cpu_model
 
 DT = 1e-3
 
@@ -136,13 +138,8 @@ def main():
     torch_rows = torch_table(m, scenes, a.batch, max(a.steps // 10, 20)) if a.torch else {}
     envs = env_table(a.envs, a.env_steps) if a.envs else {}
     if a.json:
-        import json
-        import platform
-        import subprocess
-        cpu = next((ln.split(":", 1)[1].strip() for ln in subprocess.run(["lscpu"], capture_output=True, text=True)
-                    .stdout.splitlines() if ln.startswith("Model name")), platform.processor())
         with open(a.json, "w") as f:
-            json.dump({"cpu": cpu, "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows, "torch_us_per_step": torch_rows,
+            json.dump({"cpu": cpu_model(), "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows, "torch_us_per_step": torch_rows,
                        "envs": a.envs, "env_steps_per_s": envs, "command": "python scripts/bench_terrain.py " +
                        " ".join(sys.argv[1:])}, f, indent=1)
 

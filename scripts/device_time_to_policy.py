@@ -26,33 +26,13 @@ import json
 import os
 import platform
 import shlex
-import subprocess
 import sys
 import time
 from pathlib import Path
 
+from tensegrity_gym_agents.common import cpu_model, cpus_available, passive_openmp_wait
+
 HELD_OUT_SEED = 1_000_000
-
-
-def cpu_model() -> str | None:
-    """``lscpu``'s ``Model name`` (else ``/proc/cpuinfo``'s ``model name``, else ``platform.processor()``)."""
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=5,
-                             env={**os.environ, "LC_ALL": "C"}).stdout
-        for line in out.splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "Model name" and value.strip():
-                return value.strip()
-    except (OSError, subprocess.SubprocessError):
-        pass
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name" and value.strip():
-                return value.strip()
-    except OSError:
-        pass
-    return platform.processor() or None
 
 
 def runner_config(args) -> dict:
@@ -115,10 +95,7 @@ def main(argv=None) -> int:
     p.add_argument("--label", default=None, help="free text stored in the JSON (e.g. the machine's load)")
     p.add_argument("--out", required=True, help="JSON result file")
     args = p.parse_args(argv)
-    # idle OpenMP threads sleep instead of spinning (before torch loads its OpenMP runtime): on
-    # cores shared with other work, spinning threads slow every multi-threaded torch op many times
-    if "torch" not in sys.modules:
-        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    passive_openmp_wait()          # before torch loads its OpenMP runtime
 
     import gymnasium as gym
     import torch
@@ -127,10 +104,7 @@ def main(argv=None) -> int:
     import tensegrity_gym
     from tensegrity_gym.integrations.rsl_rl import make_rsl_rl_env
 
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cpus = os.cpu_count() or 1
+    cpus = cpus_available()
     torch.set_num_threads(args.threads or cpus)
     torch.manual_seed(args.seed)
     device = torch.device(args.device)
