@@ -6,6 +6,8 @@ twin, with the same terrain or course and the same reset seeds.
         [--courses 20] [--model final] [--env-kwargs '{}']
     python scripts/eval_transfer_terrain.py runs/ppo_rough_s0 gait --terrain '{"generator": "rough"}' \
         --out results/transfer_terrain/rough.json [--episodes 8] [--steps 1000]
+    python scripts/eval_transfer_terrain.py results/climb/seed_0 [...] gait --slopes 0 10 20 26 \
+        --out results/transfer_terrain/climb.json [--episodes 8] [--steps 1000]
 
 Each policy (a run folder of ``agents.train``, loaded by ``agents.evaluate.load_trained``, or
 ``gait``: :class:`tensegrity_gym.tools.baselines.RollingGait`) acts unchanged, with deterministic
@@ -21,12 +23,19 @@ actions, on
   terrain, ``--episodes`` episodes from reset seeds 10000, 10001, ... (a generator draws the same
   terrain for a seed on both), ``--steps`` control steps each (default the registered 1000, 20 s).
   Metric: the mean speed along the goal, m/s (an episode's ``distance_rolled`` over its duration).
+* climbing (``--slopes``: slopes in degrees): ``TensegrityClimb-v0`` and its twin
+  ``TensegrityClimbMuJoCo-v0`` on each slope (``slope_deg``; a run's ``slope_range`` is dropped),
+  ``--episodes`` episodes from reset seeds 10000, 10001, ... (those of ``scripts/eval_climb.py``),
+  ``--steps`` control steps each (default 1000, 20 s). Metric, per slope: the mean uphill speed,
+  m/s (the distance climbed along the slope over the episode's duration); per policy, the mean
+  over the slopes of the ratio twin / project, and the ratio of the speeds averaged over the slopes.
 
 The env arguments are a run's own (its ``config.yaml``: observation, actuation, course settings)
 without the robot it was trained on (``randomize``, ``params``: both simulators run the nominal
-robot) and, with ``--terrain``, with the evaluation's terrain; then ``--env-kwargs``. Prints one
-line per policy and writes JSON (``--out``, atomically) with the per-episode numbers and the ratio
-twin / project of each policy's metric (None where the project's is 0).
+robot) and with the evaluation's scene (``--terrain``'s terrain, or each slope); then
+``--env-kwargs``. Prints one line per policy (and slope) and writes JSON (``--out``, atomically)
+with the per-episode numbers and the ratio twin / project of each metric (None where the
+project's is 0).
 """
 from __future__ import annotations
 
@@ -41,13 +50,17 @@ import numpy as np
 import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym_agents import common
 from tensegrity_gym_agents.evaluate import load_trained, run_episodes
+from tensegrity_gym.envs.climb import MAX_SLOPE_DEG
 from tensegrity_gym.tools.baselines import RollingGait
 
 #: (project env, MuJoCo twin) of each mode
 ENVS = {"navigate": ("TensegrityNavigate-v0", "TensegrityNavigateMuJoCo-v0"),
-        "terrain": ("TensegrityRoll-v0", "TensegrityRollMuJoCo-v0")}
+        "terrain": ("TensegrityRoll-v0", "TensegrityRollMuJoCo-v0"),
+        "climb": ("TensegrityClimb-v0", "TensegrityClimbMuJoCo-v0")}
 #: first reset seed of each mode (held out: training seeds its envs from its seed, evaluations from 1000)
-SEED0 = {"navigate": 20000, "terrain": 10000}
+SEED0 = {"navigate": 20000, "terrain": 10000, "climb": 10000}
+#: the metric of each mode, as the JSON names it
+METRIC = {"navigate": "success_rate", "terrain": "mean_speed_m_s", "climb": "mean_uphill_speed_m_s"}
 #: a run's env arguments that describe the robot it was trained on, not what it senses
 ROBOT_KEYS = ("randomize", "params")
 
@@ -78,13 +91,29 @@ def parse_terrain(value: str | None):
     return value
 
 
-def env_kwargs_for(run_kwargs: dict, terrain, extra: dict) -> dict:
-    """The env arguments of one policy's evaluation (see the module doc)."""
+def env_kwargs_for(run_kwargs: dict, scene: dict, extra: dict) -> dict:
+    """The env arguments of one policy's evaluation on ``scene`` (the evaluation's own env
+    arguments: its terrain, or its slope) (see the module doc)."""
     kw = {k: v for k, v in run_kwargs.items() if k not in ROBOT_KEYS}
-    if terrain is not None:
-        kw["terrain"] = terrain
+    kw.update(scene)
     kw.update(extra)
     return kw
+
+
+def compare(mode: str, envs: tuple[str, str], kw: dict, factory, seeds: list[int], steps: int | None) -> dict:
+    """One policy on the project env and on its twin with arguments ``kw``: both results and the
+    ratio twin / project of the metric (None where the project's is 0)."""
+    project = evaluate(mode, envs[0], kw, factory, seeds, steps)
+    twin = evaluate(mode, envs[1], kw, factory, seeds, steps)
+    ratio = twin["metric"] / project["metric"] if project["metric"] else None
+    return {"project": project, "twin": twin, "ratio_twin_project": ratio}
+
+
+def line(label: str, envs: tuple[str, str], row: dict, unit: str) -> str:
+    """One printed line of a comparison ``row`` (:func:`compare`)."""
+    r = row["ratio_twin_project"]
+    return (f"{label}: {envs[0]} {row['project']['metric']:.4g}, {envs[1]} {row['twin']['metric']:.4g} ({unit}), "
+            f"twin/project {'-' if r is None else f'{r:.3f}'}")
 
 
 def evaluate(mode: str, env_id: str, env_kwargs: dict, factory, seeds: list[int], steps: int | None) -> dict:
@@ -108,14 +137,19 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, required=True, help="JSON output path")
     ap.add_argument("--terrain", default=None,
                     help="evaluate rolling on this terrain (a JSON file or object) instead of navigation")
+    ap.add_argument("--slopes", type=float, nargs="+", default=None,
+                    help="evaluate climbing on these slopes (degrees) instead of navigation")
     ap.add_argument("--courses", type=int, default=20, help="navigation: held-out courses (reset seeds 20000+)")
-    ap.add_argument("--episodes", type=int, default=8, help="terrain: episodes (reset seeds 10000+)")
+    ap.add_argument("--episodes", type=int, default=8, help="terrain, climbing: episodes (reset seeds 10000+)")
     ap.add_argument("--steps", type=int, default=None,
                     help="control steps per episode (default: the registered time limit)")
     ap.add_argument("--model", default="final", help="best, final or a model .zip of each run")
     ap.add_argument("--env-kwargs", default="{}", help="JSON object of extra env arguments (both simulators)")
     a = ap.parse_args(argv)
-    mode = "navigate" if a.terrain is None else "terrain"
+    if a.terrain is not None and a.slopes is not None:
+        print("error: --terrain and --slopes: give one (rolling on a terrain, or climbing)", file=sys.stderr)
+        return 2
+    mode = "terrain" if a.terrain is not None else "climb" if a.slopes is not None else "navigate"
     n = a.courses if mode == "navigate" else a.episodes
     if n < 1 or (a.steps is not None and a.steps < 1):
         print(f"error: --courses / --episodes and --steps must be >= 1 (got {n}, {a.steps})", file=sys.stderr)
@@ -126,23 +160,35 @@ def main(argv=None) -> int:
         raise SystemExit(f"--env-kwargs: not JSON ({e.msg})") from None
     if not isinstance(extra, dict):
         raise SystemExit(f"--env-kwargs: expected a JSON object, got {a.env_kwargs!r}")
+    if mode == "climb" and not all(0.0 <= s <= MAX_SLOPE_DEG for s in a.slopes):
+        print(f"error: --slopes must be in [0, {MAX_SLOPE_DEG:g}] degrees (got {a.slopes})", file=sys.stderr)
+        return 2
     terrain = parse_terrain(a.terrain)
-    project_id, twin_id = ENVS[mode]
+    envs = ENVS[mode]
     seeds = list(range(SEED0[mode], SEED0[mode] + n))
-    unit = "success" if mode == "navigate" else "m/s along the goal"
+    unit = {"navigate": "success", "terrain": "m/s along the goal", "climb": "m/s uphill"}[mode]
     results, t0 = {}, time.time()
     for spec in a.policies:
         factory, run_kwargs = load_policy(spec, a.model)
-        kw = env_kwargs_for(run_kwargs, terrain, extra)
-        project = evaluate(mode, project_id, kw, factory, seeds, a.steps)
-        twin = evaluate(mode, twin_id, kw, factory, seeds, a.steps)
-        ratio = twin["metric"] / project["metric"] if project["metric"] else None
-        results[spec] = {"env_kwargs": kw, "project": project, "twin": twin, "ratio_twin_project": ratio}
-        print(f"{spec}: {project_id} {project['metric']:.4g}, {twin_id} {twin['metric']:.4g} ({unit}), "
-              f"twin/project {'-' if ratio is None else f'{ratio:.3f}'}", flush=True)
+        if mode != "climb":
+            kw = env_kwargs_for(run_kwargs, {} if terrain is None else {"terrain": terrain}, extra)
+            results[spec] = {"env_kwargs": kw, **compare(mode, envs, kw, factory, seeds, a.steps)}
+            print(line(spec, envs, results[spec], unit), flush=True)
+            continue
+        per_slope = {}
+        for slope in a.slopes:    # the slope fixed per evaluation: a run's slope_range would override it
+            kw = env_kwargs_for(run_kwargs, {"slope_deg": slope, "slope_range": None}, extra)
+            per_slope[f"{slope:g}"] = row = {"env_kwargs": kw, **compare(mode, envs, kw, factory, seeds, a.steps)}
+            print(line(f"{spec} at {slope:g} deg", envs, row, unit), flush=True)
+        ratios = [r["ratio_twin_project"] for r in per_slope.values() if r["ratio_twin_project"] is not None]
+        mean = float(np.mean(ratios)) if ratios else None
+        speeds = {side: float(np.mean([r[side]["metric"] for r in per_slope.values()])) for side in ("project", "twin")}
+        results[spec] = {"slopes": per_slope, "mean_ratio_twin_project": mean, "mean_speed_m_s": speeds,
+                         "ratio_of_mean_speeds": speeds["twin"] / speeds["project"] if speeds["project"] else None}
+        print(f"{spec}: mean twin/project over the slopes {'-' if mean is None else f'{mean:.3f}'}", flush=True)
     data = {"command": "python scripts/eval_transfer_terrain.py " + " ".join(sys.argv[1:] if argv is None else argv),
-            "mode": mode, "metric": "success_rate" if mode == "navigate" else "mean_speed_m_s",
-            "project_env": project_id, "twin_env": twin_id, "terrain": a.terrain, "model": a.model,
+            "mode": mode, "metric": METRIC[mode], "project_env": envs[0], "twin_env": envs[1],
+            "terrain": a.terrain, "slopes_deg": a.slopes, "model": a.model,
             "reset_seeds": [seeds[0], seeds[-1]], "steps": a.steps, "results": results,
             "wall_time_s": time.time() - t0}
     a.out.parent.mkdir(parents=True, exist_ok=True)

@@ -6,7 +6,7 @@ Time limits are set here at registration, not inside the envs.
 from __future__ import annotations
 
 ENV_IDS = ("TensegrityShape-v0", "TensegrityRoll-v0", "TensegrityClimb-v0", "TensegrityNavigate-v0",
-           "TensegrityRollMuJoCo-v0", "TensegrityNavigateMuJoCo-v0")
+           "TensegrityRollMuJoCo-v0", "TensegrityNavigateMuJoCo-v0", "TensegrityClimbMuJoCo-v0")
 
 
 #: (id, module:class of the single env, of the vector env or None, max_episode_steps)
@@ -18,9 +18,10 @@ _REGISTRY = (
     ("TensegrityClimb-v0", "climb:TensegrityClimbEnv", "torch_vec:climb_vector_env", 1000),
     # 60 s courses; terrain contact runs on the NumPy/numba envs only
     ("TensegrityNavigate-v0", "navigate:TensegrityNavigateEnv", "navigate:TensegrityNavigateVectorEnv", 3000),
-    # MuJoCo twins of TensegrityRoll-v0 and TensegrityNavigate-v0 (need the mujoco extra)
+    # MuJoCo twins of TensegrityRoll-v0, TensegrityNavigate-v0 and TensegrityClimb-v0 (need the mujoco extra)
     ("TensegrityRollMuJoCo-v0", "roll_mujoco:TensegrityRollMuJoCoEnv", None, 1000),
     ("TensegrityNavigateMuJoCo-v0", "roll_mujoco:TensegrityNavigateMuJoCoEnv", None, 3000),
+    ("TensegrityClimbMuJoCo-v0", "climb_mujoco:TensegrityClimbMuJoCoEnv", None, 1000),
 )
 
 

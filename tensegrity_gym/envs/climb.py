@@ -108,10 +108,19 @@ class ClimbTask(RollTask):
         info["slope_deg"] = self.slope[idx].copy()
         return info
 
+    def slope_gravity(self) -> np.ndarray:
+        """(B, 3) each copy's gravity this episode in its plane frame, m/s^2 (from its slope; what
+        another simulator of this task, such as the MuJoCo twin, sets as its gravity)."""
+        return plane_gravity(self.slope, self._g)
+
+    def climb_info(self, forward_velocity) -> dict:
+        """The info keys of this task beyond the rolling task's, from the velocity along the goal
+        ``forward_velocity`` (B,) m/s: ``slope_deg`` (B,) degrees and ``uphill_velocity`` (B,) m/s."""
+        return {"slope_deg": self.slope.copy(), "uphill_velocity": forward_velocity}     # the goal is uphill (+x)
+
     def step(self, action):
         terms, terminated, infos = super().step(action)
-        infos["slope_deg"] = self.slope.copy()
-        infos["uphill_velocity"] = infos["forward_velocity"]     # the goal is uphill (+x)
+        infos.update(self.climb_info(infos["forward_velocity"]))
         return terms, terminated, infos
 
     def observe(self) -> np.ndarray:

@@ -319,7 +319,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self._sync()
         self.start = self.com()
         t.start[0] = self.start
-        extra = self._reset_task_state()
+        extra = self._reset_task_state(info)
         if t.sensors is not None:   # the reset reading from MuJoCo's state (contacts included)
             t.sensors.reset_reading(t, np.array([0]), [self.np_random], t.goal, t.speed, t.cstate.active)
         self._needs_reset = False
@@ -330,14 +330,14 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         out.update(extra)
         return t.observe()[0], out
 
-    def _reset_task_state(self) -> dict:
+    def _reset_task_state(self, info: dict) -> dict:
         """The task's own state after a reset, from MuJoCo's state (synced into the task); its
-        reset info beyond the rolling task's (here none)."""
+        reset info beyond the rolling task's (here none). ``info``: the task's reset info."""
         return {}
 
-    def _step_task_terms(self) -> tuple[dict, bool, dict]:
-        """After a step, the task's own reward terms (name -> value), termination and info, from
-        MuJoCo's state (synced into the task); here none: the rolling task never terminates."""
+    def _step_task_terms(self, info: dict) -> tuple[dict, bool, dict]:
+        """After a step, the task's own reward terms (name -> value), termination and info, from MuJoCo's
+        state (synced into the task) and this step's rolling ``info``; none: the rolling task never ends."""
         return {}, False, {}
 
     def step(self, action):
@@ -379,7 +379,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
                 "forward_velocity": float(step_info["forward_velocity"][0]), "diverged": bool(diverged),
                 "reward_forward": r_fwd, "reward_ctrl": r_ctrl}
         reward = r_fwd + r_ctrl
-        terms, terminated, extra = self._step_task_terms()
+        terms, terminated, extra = self._step_task_terms(info)
         for name, v in terms.items():
             reward += v
             info[f"reward_{name}"] = v
@@ -430,12 +430,12 @@ class TensegrityNavigateMuJoCoEnv(TensegrityRollMuJoCoEnv):
     task_class = NavigateTask
     config_class = NavigateConfig
 
-    def _reset_task_state(self) -> dict:
+    def _reset_task_state(self, info: dict) -> dict:
         t = self.task
         t.guide([0])     # the guidance from MuJoCo's start state
         return {"goal_position": t.courses[0].goals[0].copy(), "path_distance": float(t.path[0])}
 
-    def _step_task_terms(self) -> tuple[dict, bool, dict]:
+    def _step_task_terms(self, info: dict) -> tuple[dict, bool, dict]:
         terms, success, infos = self.task.track_goals()
         return ({name: float(v[0]) for name, v in terms.items()}, bool(success[0]),
                 {k: v.item(0) for k, v in infos.items()})
