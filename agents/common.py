@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from tensegrity_gym.integrations.sb3 import LinearSchedule
 from tensegrity_gym.io import atomic
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -189,11 +190,43 @@ def read_run_config(path: str | Path) -> dict:
     return cfg
 
 
-def load_model_file(Algo, path: str | Path, **kwargs):
-    """``Algo.load(path, **kwargs)``; ValueError naming the file for a zip SB3 cannot load (a
-    damaged or foreign zip, one without ``data``, a garbage ``policy.pth``)."""
+#: the module names under which models trained from a checkout (``python -m agents.train``) pickled
+#: their ``lin_`` schedules (the class ``_LinearSchedule`` of this module, now
+#: :class:`tensegrity_gym.integrations.sb3.LinearSchedule`): an installed package has no ``agents``
+_CHECKOUT_MODULES = ("agents", "agents.common")
+
+
+class _LegacySchedules:
+    """Stand-in for the module ``agents.common`` of a checkout while a model is unpickled: only
+    the schedule class, under its old name."""
+    _LinearSchedule = LinearSchedule
+
+
+def _load_with_checkout_names(Algo, path, kwargs):
+    """``Algo.load`` with the checkout's module names (:data:`_CHECKOUT_MODULES`) resolving to the
+    schedule class for the duration of the load only (names already importable are left alone)."""
+    added = [name for name in _CHECKOUT_MODULES if name not in sys.modules]
+    for name in added:
+        sys.modules[name] = _LegacySchedules
     try:
         return Algo.load(str(path), **kwargs)
+    finally:
+        for name in added:
+            sys.modules.pop(name, None)
+
+
+def load_model_file(Algo, path: str | Path, **kwargs):
+    """``Algo.load(path, **kwargs)``; ValueError naming the file for a zip SB3 cannot load (a
+    damaged or foreign zip, one without ``data``, a garbage ``policy.pth``). A model trained from a
+    checkout before the schedule class moved into the package names its schedules as
+    ``agents.common._LinearSchedule``; it is loaded with that name mapped to the class."""
+    try:
+        try:
+            return Algo.load(str(path), **kwargs)
+        except ModuleNotFoundError as e:
+            if e.name not in _CHECKOUT_MODULES:
+                raise
+            return _load_with_checkout_names(Algo, path, kwargs)
     except (FileNotFoundError, IsADirectoryError):
         raise
     except Exception as e:  # noqa: BLE001 -- SB3/torch/zipfile raise many kinds; all mean "not a model"
@@ -276,25 +309,12 @@ def _schedule(value, key: str):
                 v0 = float(value[4:])
             except ValueError:
                 raise ValueError(f"{key}: bad linear schedule {value!r} (expected lin_<number>)") from None
-            return _LinearSchedule(v0)
+            return LinearSchedule(v0)
         try:
             return float(value)
         except ValueError:
             raise ValueError(f"{key}: expected a number or lin_<number>, got {value!r}") from None
     return value
-
-
-class _LinearSchedule:
-    """Linear schedule from ``initial`` (start of training) to 0 (end); picklable."""
-
-    def __init__(self, initial: float):
-        self.initial = float(initial)
-
-    def __call__(self, progress_remaining: float) -> float:
-        return progress_remaining * self.initial
-
-    def __repr__(self):
-        return f"lin_{self.initial:g}"
 
 
 UNSUPPORTED_ZOO_KEYS = ("frame_stack", "env_wrapper", "vec_env_wrapper", "callback")
@@ -430,9 +450,9 @@ def check_schedules_and_arch(kwargs: dict) -> None:
     ``policy_kwargs`` ``net_arch`` layer that is not a positive integer (``[0]``: no layer at all)."""
     for key in ("learning_rate", "clip_range", "clip_range_vf"):
         if key not in kwargs or kwargs[key] is None or (callable(kwargs[key]) and not isinstance(kwargs[key],
-                                                                                                _LinearSchedule)):
+                                                                                                LinearSchedule)):
             continue
-        v = kwargs[key].initial if isinstance(kwargs[key], _LinearSchedule) else kwargs[key]
+        v = kwargs[key].initial if isinstance(kwargs[key], LinearSchedule) else kwargs[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
             raise ValueError(f"--hyperparams: {key} must be a positive finite number or lin_<positive number>, "
                              f"got {v!r}")

@@ -108,6 +108,23 @@ def test_installed_train_and_evaluate_from_any_directory(installed):
 
 
 @pytest.mark.slow
+def test_installed_loads_a_model_trained_from_a_checkout(installed):
+    """A committed model trained with ``python -m agents.train`` pickled its ``lin_`` schedule as
+    ``agents.common._LinearSchedule``: the installed package (no ``agents``) loads it all the same,
+    and a model trained now pickles the package's own class."""
+    run = ROOT / "results" / "climb" / "seed_0"
+    if not (run / "model.zip").exists():
+        pytest.skip("no committed climbing model")
+    rc, out = _run(installed, ["-c", "import sys; from stable_baselines3 import PPO; "
+                                     "from tensegrity_gym_agents import common; "
+                                     f"m = common.load_model_file(PPO, {str(run / 'model.zip')!r}); "
+                                     "print(type(m.learning_rate).__module__, m.learning_rate(0.5), "
+                                     "'agents' in sys.modules)"])
+    assert rc == 0, out[-3000:]
+    assert out.split()[-3:] == ["tensegrity_gym.integrations.sb3", "0.00056", "False"], out[-500:]
+
+
+@pytest.mark.slow
 def test_installed_zoo_reads_the_packaged_hyperparameters(installed):
     pytest.importorskip("rl_zoo3")
     code = ("import argparse, rl_zoo3.exp_manager, tensegrity_gym.integrations.zoo\n"

@@ -26,7 +26,22 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["make_sb3_vec_env", "make_sb3_torch_vec_env"]
+__all__ = ["make_sb3_vec_env", "make_sb3_torch_vec_env", "LinearSchedule"]
+
+
+class LinearSchedule:
+    """SB3 schedule (a function of ``progress_remaining``, 1 at the start of training, 0 at the
+    end) falling linearly from ``initial`` to 0: the zoo's ``lin_<x>``. A class of the installed
+    package, so that a model pickled with it loads wherever ``tensegrity_gym`` is installed."""
+
+    def __init__(self, initial: float):
+        self.initial = float(initial)
+
+    def __call__(self, progress_remaining: float) -> float:
+        return progress_remaining * self.initial
+
+    def __repr__(self):
+        return f"lin_{self.initial:g}"
 
 _SB3_CLASS = None
 _SB3_TORCH_CLASS = None
