@@ -434,17 +434,25 @@ def test_held_edge_is_flat():
 
 @pytest.mark.parametrize("kind", ["level", "tilted"])
 def test_planar_heightfield_is_the_plane(kind):
-    """A heightfield of constant height h is the level plane moved up by h, and one sampled
-    from the tilted plane z = tan(10 deg) x (bilinear is exact there) is that plane: the same
-    forces, anchors and contacts to round-off, over random states and 300 steps."""
+    """A heightfield of constant height h is the level plane moved up by h. One sampled from the
+    tilted plane z = tan(a) x, a = 10 deg (bilinear is exact there) measures the vertical gap
+    d / cos a of a point at distance d, with the force along N = (-tan a, 0, 1), |N| = 1 / cos a:
+    it is that plane's contact with radius r cos a, stiffness k / cos^(e+1) a, damping dn / cos a
+    and damping cap cmax / cos^2 a (the same potential, forces, anchors and contacts to round-off,
+    over random states and 300 steps)."""
     rng = np.random.default_rng(3)
     m = prism(lift=0.0)
     cell, n, origin = 0.04, (20, 22), np.array([-0.45, -0.4])
     x = origin[0] + cell * np.arange(n[1])
     h0 = 0.07 if kind == "level" else 0.0
     heights = np.full(n, h0) if kind == "level" else np.tile(math.tan(math.radians(10.0)) * x, (n[0], 1))
-    hf = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights, cell, origin=origin), friction=0.4))
-    pl = T.TerrainContact(Terrain(plane=Plane(0.0 if kind == "level" else 10.0), friction=0.4))
+    hf = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights, cell, origin=origin), friction=0.4),
+                          max_damping=60.0)
+    ca = 1.0 if kind == "level" else math.cos(math.radians(10.0))
+    k, dn, e = hf.prm[0, 0, 1], hf.prm[0, 0, 2], hf.prm[0, 0, 3]
+    pl = T.TerrainContact(Terrain(plane=Plane(0.0 if kind == "level" else 10.0), friction=0.4, stiffness=k / ca ** (e + 1),
+                                  damping=dn / ca), radius=hf.radius * ca, max_damping=60.0 / ca ** 2,
+                          tangential_stiffness=hf.prm[0, 0, 5])
     up = np.array([0.0, 0.0, h0])
     B = 8
     q, qd = random_states(m, B, rng)
@@ -459,7 +467,9 @@ def test_planar_heightfield_is_the_plane(kind):
     np.testing.assert_allclose(W2, W1, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(s2.anchor - up, s1.anchor, atol=1e-12)
     act = s1.active
-    np.testing.assert_allclose(i2[act][:, 1:5], i1[act][:, 1:5], atol=1e-12)
+    np.testing.assert_allclose(i2[act][:, 1] * ca, i1[act][:, 1], atol=1e-12)       # gap cos a = distance
+    np.testing.assert_allclose(i2[act][:, 2:5], i1[act][:, 2:5], atol=1e-12)
+    np.testing.assert_allclose(i2[act][:, 5], i1[act][:, 5], rtol=1e-9, atol=1e-12)
     # a prism dropped on it
     m = prism(lift=0.03, slope_deg=0.0 if kind == "level" else 10.0)
     st = dyn.initial_state(m, 1)
