@@ -497,25 +497,30 @@ def random_hf_scene(B=6, seed=0):
 
 
 def test_numba_heightfield_agrees_with_numpy_oracle():
-    """Contact points, signed distances and normals of the heightfield slots are the oracle's
-    (Terrain.closest) to round-off; the interior point is the segment's deepest up to the
-    coarse scan's resolution; per-copy heights ``hf`` act per copy."""
+    """The heightfield slots' contact measure is the oracle's vertical gap (Heightfield.gap) at
+    their points to round-off, the node slots' normal its normalised gradient; the interior
+    point is the lowest of the rod axis (below every one of 4001 samples) and its normal is
+    perpendicular to the rod (the envelope's gradient, at a kink too); per-copy heights ``hf``
+    act per copy."""
     m, tc, q, qd, ts = random_hf_scene(B=8)
     B, k, F = q.shape[0], m.n_bars, tc.n_features
     W, ts2, slip, info = T.contact_forces(tc, m, q, qd, ts, info=True)
     act = ts2.active.reshape(B, k, F, 3)
     inf = info.reshape(B, k, F, 3, 6)
     assert act[:, :, 1, :2].any() and act[:, :, 1, 2].any() and slip.any() and (ts2.active & ~slip).any()
+    hf = tc.terrain.heightfield
     for c, j, s in zip(*np.nonzero(act[:, :, 1])):
         r, b = q[c, j, :3], q[c, j, 3:]
         eta, sd, nrm = inf[c, j, 1, s, 0], inf[c, j, 1, s, 1], inf[c, j, 1, s, 2:5]
-        d, n = tc.terrain.closest((r + eta * b)[None], per_part=True)
-        assert sd == pytest.approx(d[1, 0], abs=1e-12)
-        np.testing.assert_allclose(nrm, n[1, 0], atol=1e-12)
-        if s == 2:
-            e = np.linspace(m.eta[j, 0], m.eta[j, 1], 2001)
-            dd = tc.terrain.closest(r + e[:, None] * b, per_part=True)[0][1]
-            assert sd <= dd.min() + 1e-3 and sd < min(dd[0], dd[-1])
+        gap, N = hf.gap(r + eta * b)
+        assert sd == pytest.approx(gap, abs=1e-12)
+        if s < 2:
+            np.testing.assert_allclose(nrm, N / np.linalg.norm(N), atol=1e-12)
+        else:
+            e = np.linspace(m.eta[j, 0], m.eta[j, 1], 4001)
+            gg = hf.gap(r + e[:, None] * b)[0]
+            assert sd <= gg.min() + 1e-12 and sd < min(gg[0], gg[-1])
+            assert abs(nrm @ b) < 1e-9 and nrm[2] > 0
     # per-copy heights: copy c with hf[c] is the terrain with those heights
     hfs = tc.hf + np.random.default_rng(1).normal(0, 0.01, (B,) + tc.hf.shape[1:])
     Wp, sp, slp = T.contact_forces(tc, m, q, qd, ts, hf=hfs)
