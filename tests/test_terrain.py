@@ -556,15 +556,16 @@ def undamped_contact(terrain, stiffness=2e3):
                             tangential_damping=0.0, tangential_stiffness=1.0)
 
 
-def undamped_energy(m, terrain, n, stiffness=2e3):
-    """Mechanical energy plus the contact springs' over ``n`` steps with no damping and no
-    friction anywhere, and which slots (a, c, interior) touched."""
+def undamped_energy(m, terrain, n, stiffness=2e3, sub=1):
+    """Mechanical energy plus the contact springs' every DT over ``n`` DT with no damping and no
+    friction anywhere (``sub`` physics steps of DT / sub each DT), and which slots (a, c,
+    interior) touched."""
     tc = undamped_contact(terrain, stiffness)
     st, ts = dyn.initial_state(m, 1), T.init_terrain_state(tc, m, 1)
     E, touched = [], np.zeros(3, bool)
     for _ in range(n):
         E.append(dyn.energy(m, st.q, st.qd)[0] + T.contact_energy(tc, m, st.q, ts)[0])
-        st, ts = T.step(m, st, DT, tc, ts)
+        st, ts = T.step(m, st, DT / sub, tc, ts, n_steps=sub)
         touched |= ts.active.reshape(-1, 3).any(axis=0)
     return np.array(E), touched
 
@@ -595,15 +596,20 @@ def test_energy_never_grows_on_a_heightfield(case):
     assert np.max(E - E[0]) < tol * E[0], np.max(E - E[0]) / E[0]
 
 
-@pytest.mark.xfail(strict=True, reason="the heightfield's contact force is not the gradient of its distance: the "
-                                       "cosine of the slope varies over a bilinear patch and jumps at grid lines, "
-                                       "where the interior minimum often sits: energy grows")
-def test_energy_of_a_rod_tumbling_over_bumps():
-    """A rod tumbling over bumps with both node slots and the interior slot in play: the energy
-    should not grow; it does, by about 9 % (was 10-25 % while the interior slot also counted the
-    node's contact; the rest is the heightfield's distance, not a potential)."""
+@pytest.mark.parametrize("sub", [
+    pytest.param(1, marks=pytest.mark.xfail(
+        strict=True, reason="the step's error, not the law's: at a 1 ms step semi-implicit Euler gains or loses a "
+                            "few % of the energy per impact of this soft contact (2e3 N/m, ~1 cm deep) and the "
+                            "measured energy swings by ~4 % within a contact: max rise 9.8 %; 1.8 % at 0.5 ms")),
+    4])
+def test_energy_of_a_rod_tumbling_over_bumps(sub):
+    """A rod tumbling over bumps for 1.5 s with both node slots and the interior slot in play:
+    the energy does not grow beyond the step's error, which vanishes with the step (the contact
+    is a potential's, test_heightfield_contact_force_is_the_gradient_of_its_energy): at 0.25 ms
+    it stays within 2 % (1.2 %; the vertical-gap-times-cosine law gained 9 %, 10 % and 26 % at 1,
+    0.5 and 0.25 ms)."""
     m = rod([[-0.15, -0.05, 0.12], [0.2, 0.08, 0.16]], vel=[[0.3, 0.0, 0.0], [0.17, 0.35, 0.0]])
-    E, touched = undamped_energy(m, Terrain(plane=None, heightfield=bumpy(0.03)), 1500)
+    E, touched = undamped_energy(m, Terrain(plane=None, heightfield=bumpy(0.03)), 1500, sub=sub)
     assert touched.all()
     assert np.max(E - E[0]) < 2e-2 * E[0], np.max(E - E[0]) / E[0]
 
@@ -666,12 +672,10 @@ def test_rod_on_a_bump_is_held():
     assert abs(dyn.center_of_mass(m, st.q)[0, 0]) < 1e-3 and np.abs(st.qd[..., :3]).max() < 1e-4
 
 
-@pytest.mark.xfail(strict=True, reason="vertical gap times the cosine of the steep patch underestimates the "
-                                       "distance next to a convex kink (true nearest point: the edge): a rod "
-                                       "lying on a plateau beside a steep edge is kicked off")
 def test_rod_on_a_plateau_is_held():
-    """A rod lying across a flat-topped bump with steep sides (slope 2) should rest on it (as
-    across a box ridge)."""
+    """A rod lying across a flat-topped bump with steep sides (slope 2) rests on it (as across a
+    box ridge): the lowest gap along its axis is the plateau's, held under the middle of its part
+    on the plateau, pushed straight up."""
     top, r = 0.1, 0.02
     x = -0.4 + 0.05 * np.arange(17)
     heights = np.tile(np.where(np.abs(x) < 0.06, top, 0.0), (5, 1))    # plateau over |x| <= 0.05
