@@ -340,7 +340,8 @@ class Terrain:
         outward unit normal there (..., 3): the nearest of the parts (``per_part=True``: each
         part's, with a leading axis in :meth:`parts` order). Exact for the plane and the boxes;
         for the heightfield the vertical gap times the cosine of the local slope, with the
-        normal of the bilinear patch under the point (exact on a locally planar patch)."""
+        normal of the bilinear patch under the point (exact on a locally planar patch; the
+        contact measures the vertical gap itself, :meth:`Heightfield.gap`)."""
         p = np.asarray(points, float)
         ds, ns = [], []
         for part in self.parts():

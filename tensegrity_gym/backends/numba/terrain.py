@@ -12,13 +12,13 @@ Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
   "too far to touch" bound; 0: computed from ``hf`` at each call), the rest 0).
 * ``hf`` (H, ny, nx), H = 1 (shared) or B: the heightfield's heights m, ``hf[., j, i]`` at
   ``x = x0 + i cell``, ``y = y0 + j cell``, bilinear in between, the edge values held outside
-  the grid (:meth:`tensegrity_gym.core.terrain.Terrain.closest` is the NumPy oracle). At most
+  the grid (:meth:`tensegrity_gym.core.terrain.Heightfield.gap` is the NumPy oracle). At most
   one heightfield per terrain; without one, a (1, 1, 1) array that nothing reads.
 * ``prm`` (P, F, 8), P = 1 or B: per feature the contact parameters ``radius`` m, ``kn``
   N/m^e, ``dn`` s/m, exponent ``e``, ``mu``, ``kt`` N/m, ``ct`` N s/m, ``cmax`` N s/m.
 * contact slots: three per rod per feature, slot ``(j F + f) 3 + s``: s = 0 the rod's node a,
-  s = 1 node c, s = 2 the interior point of the segment nearest a box or a heightfield (used
-  only when it is strictly deeper than both ends, as when a rod lies across a box edge or a
+  s = 1 node c, s = 2 the interior point of the segment nearest a box or lowest over a
+  heightfield (used only when it is strictly deeper than both ends, as when a rod lies across a box edge or a
   bump; a plane's nearest point is always an end, so its slot 2 never touches). ``anchor``
   (B, S, 3) m (a point on the feature's surface), ``eta0`` (B, S) m the rod coordinate of the
   material point the anchor holds (the slot's own eta for the node slots; for the interior
@@ -27,29 +27,24 @@ Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
 * the interior slot's penetration is measured from the deeper node when that node touches:
   ``delta = min(radius, sd_a, sd_c) - sd``. It goes to 0 as the interior minimum merges with a
   node, so the contact energy is continuous there and the node's own contact is not counted
-  twice. Its normal force fn acts at the interior point along its normal, and ``-fn`` along the
-  node's normal acts at that node (the gradient of ``sd_node`` in delta): the normal springs are
-  the gradient of ``sum U(delta)``. Its Hunt-Crossley damping acts on the rate of that delta
-  (the interior point's normal velocity less the node's), with the same pair of points, so it
-  only dissipates; its friction acts at the interior point, capped at ``mu fn``.
-* ``info`` (B, S, 6) or (0, 0, 6): per slot the rod coordinate eta m of the contact point, the
-  signed distance m of that point to the feature, the feature's outward normal there and the
-  energy J of the slot's springs at the given state with the anchors before the update (the
-  interior slot's normal spring on the delta above).
+  twice. Its normal force ``fn w n`` acts at the interior point, and ``-fn w_node n_node`` at
+  that node (the gradient of ``sd_node`` in delta): the normal springs are the gradient of
+  ``sum U(delta)``. Its Hunt-Crossley damping acts on the rate of that delta (the interior
+  point's ``w v.n`` less the node's), with the same pair of points, so it only dissipates; its
+  friction acts at the interior point, capped at ``mu fn w``.
+* ``info`` (B, S, 6) or (0, 0, 6): per slot the rod coordinate eta m of the contact point, its
+  contact measure m (below), the feature's outward unit normal there and the energy J of the
+  slot's springs at the given state with the anchors before the update (the interior slot's
+  normal spring on the delta above).
 
-Heightfield geometry: the signed distance of a point is its height above the bilinear surface
-times the cosine of the local slope, ``d = (z - h) / sqrt(1 + |grad h|^2)``, and the normal is
-the bilinear patch's, ``(-h_x, -h_y, 1) / sqrt(1 + |grad h|^2)`` (exact over a locally planar
-patch; outside the grid the held edge is flat across the edge, so that gradient component is
-0). Along a rod this distance is not convex (a rod over several bumps), so the interior slot
-first scans :data:`HF_SCAN` + 1 evenly spaced points of the segment (ends included), takes the
-deepest and golden-section refines between its two neighbouring samples; the level set around
-the minimum (see :data:`LEVEL_TOL`) is bounded by bisection towards the nearest samples above
-it on each side. The far early-out of a rod (no slot can touch) uses the vertical gap, whose
-Lipschitz constant along any line is at most ``sqrt(1 + L^2)`` with L bounding the field's
-slope (largest height step between grid neighbours over the cell, per axis): a rod whose
-middle is higher above the surface than ``sqrt(1 + L^2) (radius + half its length)`` touches
-nowhere (``d`` is the gap times a cosine >= 1 / sqrt(1 + L^2)).
+Contact measure ``sd`` and its gradient ``w n`` (n the unit normal): the signed distance (w = 1)
+for a plane or a box; for the heightfield the vertical gap ``z - h`` above the bilinear surface,
+whose gradient is ``(-h_x, -h_y, 1)``, ``w = sqrt(1 + |grad h|^2)``, so that the normal force is
+minus the gradient of the potential (:mod:`tensegrity_gym.backends.numba.heightfield`, where the
+interior slot's point, the exact lowest point of the rod axis, is found). The far early-out of a
+rod (no slot can touch): the signed distance is 1-Lipschitz, the vertical gap
+``sqrt(1 + L^2)``-Lipschitz along a unit rod, L bounding the field's slope (largest height step
+between grid neighbours over the cell, per axis).
 """
 from __future__ import annotations
 
