@@ -685,6 +685,23 @@ def test_rod_on_a_plateau_is_held():
     assert np.all(np.isfinite(st.q)) and com[:, 2].min() > top + r - 2e-3 and abs(com[-1, 0]) < 1e-3
 
 
+def test_rod_across_a_heightfield_step_edge_is_held_at_the_edge():
+    """A rod on a heightfield step (a 10 cm rise over one 5 cm cell), its centre of mass over the
+    top and one cap hanging beyond the edge: it rests on the other cap and the edge (the interior
+    slot at the kink), and does not slide."""
+    top, r = 0.1, 0.02
+    x = -0.4 + 0.05 * np.arange(17)
+    heights = np.tile(np.where(x > -0.01, top, 0.0), (5, 1))           # rises over [-0.05, 0]
+    tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights, 0.05, origin=(-0.4, -0.1))))
+    m = rod([[-0.15, 0.0, top + r], [0.25, 0.0, top + r]])
+    _, com, st, ts = run(m, tc, 1000, every=50)
+    assert np.all(np.isfinite(st.q)) and com[:, 2].min() > top + r - 2e-3, com[:, 2].min()
+    assert ts.active[0].tolist() == [False, True, True] and abs(com[-1, 0] - com[0, 0]) < 1e-3
+    _, _, _, info = T.contact_forces(tc, m, st.q, st.qd, ts, info=True)
+    eta = info[0, 2, 0]
+    assert (st.q[0, 0, 0] + eta * st.q[0, 0, 3]) == pytest.approx(0.0, abs=1e-9)     # at the edge
+
+
 def test_rod_on_the_held_edge_does_not_drift():
     """Beyond the grid the held surface is flat: a rod resting there without friction, next to a
     steep edge patch, feels no sideways push."""
