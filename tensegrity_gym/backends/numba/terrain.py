@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from .heightfield import LEVEL_TOL, hf_flat_under, hf_lipschitz, hf_lowest, hf_patch
