@@ -170,6 +170,14 @@ class Heightfield(SurfaceContact):
         """Bilinear height (m) at (x, y) (arrays of the same shape, m)."""
         return self._interp(np.asarray(x, float), np.asarray(y, float))[0]
 
+    def gap(self, points):
+        """The contact measure of ``points`` (..., 3) m: the vertical gap ``z - h(x, y)`` m and its
+        gradient, the unnormalised outward normal ``(-h_x, -h_y, 1)`` (..., 3) of the bilinear patch
+        under each point (NumPy oracle of the compiled kernels)."""
+        p = np.asarray(points, float)
+        h, gx, gy = self._interp(p[..., 0], p[..., 1])
+        return p[..., 2] - h, np.stack([-gx, -gy, np.ones_like(gx)], axis=-1)
+
     def _interp(self, x, y):
         """Height and its gradient (dh/dx, dh/dy) at (x, y); outside the grid the held edge is
         flat across the edge (that gradient component is 0)."""
@@ -332,7 +340,8 @@ class Terrain:
         outward unit normal there (..., 3): the nearest of the parts (``per_part=True``: each
         part's, with a leading axis in :meth:`parts` order). Exact for the plane and the boxes;
         for the heightfield the vertical gap times the cosine of the local slope, with the
-        normal of the bilinear patch under the point (exact on a locally planar patch)."""
+        normal of the bilinear patch under the point (exact on a locally planar patch; the
+        contact measures the vertical gap itself, :meth:`Heightfield.gap`)."""
         p = np.asarray(points, float)
         ds, ns = [], []
         for part in self.parts():

@@ -9,25 +9,27 @@ Scenes without a terrain never reach this module: the flat-ground fast path
 Geometry: a rod is a capsule, the segment between its two nodes swept by a sphere of radius
 ``radius`` (the cap radius, m). Against each feature (the plane, each box, the heightfield) it
 has three contact slots: its two nodes, where a capsule first touches a plane, and the interior
-point of the segment nearest a box or the heightfield, used when it is deeper than both ends: a
-rod lying across a box edge, a ridge or a bump is held where it touches. For a box it is a
-golden-section search of the signed distance (convex along the segment, as a box is convex);
-for the heightfield, whose distance along a rod is not convex, a coarse scan of the segment
-picks the deepest bracket and the golden section refines it
-(:mod:`tensegrity_gym.backends.numba.terrain`). The heightfield's signed distance is the
-vertical gap times the cosine of the local slope, with the bilinear patch's normal, as
-:meth:`Terrain.closest`. Slot ``(j F + f) 3 + s`` for rod j, feature f, s = 0 node a, 1 node c,
-2 interior; F features in :meth:`Terrain.parts` order.
+point of the segment nearest a box or lowest over the heightfield, used when it is deeper than
+both ends: a rod lying across a box edge, a ridge or a bump is held where it touches. For a box
+it is a golden-section search of the signed distance (convex along the segment, as a box is
+convex); for the heightfield the exact lowest point of the rod axis, found by walking the cells
+it crosses (:mod:`tensegrity_gym.backends.numba.heightfield`). The heightfield's contact measure
+is the vertical gap ``z - h`` above the bilinear surface (:meth:`Heightfield.gap`), in place of
+a signed distance: its gradient is the unnormalised normal ``(-h_x, -h_y, 1)``, so the normal
+force derives from a potential. Slot ``(j F + f) 3 + s`` for rod j, feature f, s = 0 node a,
+1 node c, 2 interior; F features in :meth:`Terrain.parts` order.
 
-Contact law (as :mod:`tensegrity_gym.physics.contact`, with the plane's normal n in place of
-+z): penetration ``delta = radius - d`` (d the signed distance of the contact point to the
-feature), Hunt-Crossley normal force ``F_n = max(0, k delta^e - min(k delta^e d_n, c_max) v.n)``,
-and stick-slip Coulomb friction: a tangential spring ``k_t`` with damper ``c_t`` from the
-contact's surface point to its anchor (a 3-D point on the surface, set at touch-down),
-projected on the tangent plane and capped at ``mu F_n`` (the anchor then follows: slip). The
-interior slot's penetration is measured from the deeper touching node, ``min(radius, d_a, d_c) -
-d``, with the reaction ``-F_n`` along that node's normal at the node (a continuous contact energy;
-details in :mod:`tensegrity_gym.backends.numba.terrain`).
+Contact law (as :mod:`tensegrity_gym.physics.contact`, with the feature's normal n in place of
++z): penetration ``delta = radius - d`` (d the contact measure of the contact point: signed
+distance, or the heightfield's gap), potential ``U = k delta^(e+1) / (e+1)``, Hunt-Crossley
+normal force ``w max(0, k delta^e - min(k delta^e d_n, c_max) w v.n) n`` (w the length of the
+measure's gradient: 1, or ``|(-h_x, -h_y, 1)|``), and stick-slip Coulomb friction: a
+tangential spring ``k_t`` with damper ``c_t`` from the contact's surface point to its anchor (a
+3-D point on the surface, set at touch-down), projected on the tangent plane and capped at
+``mu`` times the normal force (the anchor then follows: slip). The interior slot's penetration
+is measured from the deeper touching node, ``min(radius, d_a, d_c) - d``, with the reaction
+along that node's measure gradient at the node (a continuous contact energy; details in
+:mod:`tensegrity_gym.backends.numba.terrain`).
 
 Generalized force: a force F at the rod point ``v(eta) = r + eta b`` enters the equations as
 ``[F, eta F]`` (the seed's (5.9), (5.21)); the kernels pass it as the nodal forces
@@ -239,8 +241,8 @@ def contact_forces(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState
     """Terrain contact forces at ``q``, ``qd`` (B, k, 6) and the updated stick/slip state.
 
     Returns ``(W, new_state, slip)`` (``W`` (B, n, 3) nodal forces N, ``slip`` (B, S) bool) and,
-    with ``info=True``, a fourth array (B, S, 6): per slot eta (m), signed distance (m), outward
-    normal and spring energy (J). ``prm`` (1 or B, F, 8): per-copy parameters
+    with ``info=True``, a fourth array (B, S, 6): per slot eta (m), contact measure (m: signed
+    distance, the heightfield's vertical gap), outward unit normal and spring energy (J). ``prm`` (1 or B, F, 8): per-copy parameters
     (:meth:`TerrainContact.per_copy`); ``geom`` (1 or B, F, 10): per-copy feature geometry in
     the kernel's layout; ``hf`` (1 or B, ny, nx): per-copy heightfield heights m (defaults: the
     contact's ``prm``, ``geom``, ``hf``). ``inplace=True`` updates ``tstate``'s arrays."""
@@ -328,7 +330,7 @@ def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str,
 def hf_bound(heights: np.ndarray, cell: float) -> float:
     """``sqrt(1 + L^2)``, L bounding the slope of the bilinear heightfield ``heights`` (ny, nx) m on
     a grid of ``cell`` m (largest step along x and along y over the cell): column 6 of its geom row,
-    the bound of the kernel's "too far to touch" test (as the kernel's ``_hf_lipschitz``)."""
+    the bound of the kernel's "too far to touch" test (as the kernel's ``hf_lipschitz``)."""
     h = np.asarray(heights, float)
     mx = float(np.abs(np.diff(h, axis=1)).max(initial=0.0))
     my = float(np.abs(np.diff(h, axis=0)).max(initial=0.0))

@@ -12,13 +12,13 @@ Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
   "too far to touch" bound; 0: computed from ``hf`` at each call), the rest 0).
 * ``hf`` (H, ny, nx), H = 1 (shared) or B: the heightfield's heights m, ``hf[., j, i]`` at
   ``x = x0 + i cell``, ``y = y0 + j cell``, bilinear in between, the edge values held outside
-  the grid (:meth:`tensegrity_gym.core.terrain.Terrain.closest` is the NumPy oracle). At most
+  the grid (:meth:`tensegrity_gym.core.terrain.Heightfield.gap` is the NumPy oracle). At most
   one heightfield per terrain; without one, a (1, 1, 1) array that nothing reads.
 * ``prm`` (P, F, 8), P = 1 or B: per feature the contact parameters ``radius`` m, ``kn``
   N/m^e, ``dn`` s/m, exponent ``e``, ``mu``, ``kt`` N/m, ``ct`` N s/m, ``cmax`` N s/m.
 * contact slots: three per rod per feature, slot ``(j F + f) 3 + s``: s = 0 the rod's node a,
-  s = 1 node c, s = 2 the interior point of the segment nearest a box or a heightfield (used
-  only when it is strictly deeper than both ends, as when a rod lies across a box edge or a
+  s = 1 node c, s = 2 the interior point of the segment nearest a box or lowest over a
+  heightfield (used only when it is strictly deeper than both ends, as when a rod lies across a box edge or a
   bump; a plane's nearest point is always an end, so its slot 2 never touches). ``anchor``
   (B, S, 3) m (a point on the feature's surface), ``eta0`` (B, S) m the rod coordinate of the
   material point the anchor holds (the slot's own eta for the node slots; for the interior
@@ -27,51 +27,40 @@ Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
 * the interior slot's penetration is measured from the deeper node when that node touches:
   ``delta = min(radius, sd_a, sd_c) - sd``. It goes to 0 as the interior minimum merges with a
   node, so the contact energy is continuous there and the node's own contact is not counted
-  twice. Its normal force fn acts at the interior point along its normal, and ``-fn`` along the
-  node's normal acts at that node (the gradient of ``sd_node`` in delta): the normal springs are
-  the gradient of ``sum U(delta)``. Its Hunt-Crossley damping acts on the rate of that delta
-  (the interior point's normal velocity less the node's), with the same pair of points, so it
-  only dissipates; its friction acts at the interior point, capped at ``mu fn``.
-* ``info`` (B, S, 6) or (0, 0, 6): per slot the rod coordinate eta m of the contact point, the
-  signed distance m of that point to the feature, the feature's outward normal there and the
-  energy J of the slot's springs at the given state with the anchors before the update (the
-  interior slot's normal spring on the delta above).
+  twice. Its normal force ``fn w n`` acts at the interior point, and ``-fn w_node n_node`` at
+  that node (the gradient of ``sd_node`` in delta): the normal springs are the gradient of
+  ``sum U(delta)``. Its Hunt-Crossley damping acts on the rate of that delta (the interior
+  point's ``w v.n`` less the node's), with the same pair of points, so it only dissipates; its
+  friction acts at the interior point, capped at ``mu fn w``.
+* ``info`` (B, S, 6) or (0, 0, 6): per slot the rod coordinate eta m of the contact point, its
+  contact measure m (below), the feature's outward unit normal there and the energy J of the
+  slot's springs at the given state with the anchors before the update (the interior slot's
+  normal spring on the delta above).
 
-Heightfield geometry: the signed distance of a point is its height above the bilinear surface
-times the cosine of the local slope, ``d = (z - h) / sqrt(1 + |grad h|^2)``, and the normal is
-the bilinear patch's, ``(-h_x, -h_y, 1) / sqrt(1 + |grad h|^2)`` (exact over a locally planar
-patch; outside the grid the held edge is flat across the edge, so that gradient component is
-0). Along a rod this distance is not convex (a rod over several bumps), so the interior slot
-first scans :data:`HF_SCAN` + 1 evenly spaced points of the segment (ends included), takes the
-deepest and golden-section refines between its two neighbouring samples; the level set around
-the minimum (see :data:`LEVEL_TOL`) is bounded by bisection towards the nearest samples above
-it on each side. The far early-out of a rod (no slot can touch) uses the vertical gap, whose
-Lipschitz constant along any line is at most ``sqrt(1 + L^2)`` with L bounding the field's
-slope (largest height step between grid neighbours over the cell, per axis): a rod whose
-middle is higher above the surface than ``sqrt(1 + L^2) (radius + half its length)`` touches
-nowhere (``d`` is the gap times a cosine >= 1 / sqrt(1 + L^2)).
+Contact measure ``sd`` and its gradient ``w n`` (n the unit normal): the signed distance (w = 1)
+for a plane or a box; for the heightfield the vertical gap ``z - h`` above the bilinear surface,
+whose gradient is ``(-h_x, -h_y, 1)``, ``w = sqrt(1 + |grad h|^2)``, so that the normal force is
+minus the gradient of the potential (:mod:`tensegrity_gym.backends.numba.heightfield`, where the
+interior slot's point, the exact lowest point of the rod axis, is found). The far early-out of a
+rod (no slot can touch): the signed distance is 1-Lipschitz, the vertical gap
+``sqrt(1 + L^2)``-Lipschitz along a unit rod, L bounding the field's slope (largest height step
+between grid neighbours over the cell, per axis).
 """
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
+from .heightfield import LEVEL_TOL, hf_flat_under, hf_lipschitz, hf_lowest, hf_patch
 from .layout import _opts
 
 #: feature kinds (column 0 of ``geom``)
 PLANE = 0.0
 BOX = 1.0
 HFIELD = 2.0
-#: samples of the coarse scan of a rod against a heightfield (intervals; HF_SCAN + 1 points, ends included)
-HF_SCAN = 16
-#: golden-section iterations of the interior search (interval shrinks to 0.618^40 = 4e-9 of the rod)
+#: golden-section iterations of the box interior search (interval shrinks to 0.618^40 = 4e-9 of the rod)
 GOLDEN_ITERS = 40
-#: the interior slot touches only where it is deeper than both ends by this much, m; it sits at the
-#: middle of the part of the rod within this distance of the deepest point (a rod lying flat on a
-#: ridge rests on the middle of the ridge, not on an arbitrary point of it)
-LEVEL_TOL = 1e-7
 _GR = 0.6180339887498949
 
 
@@ -105,137 +94,45 @@ def _box_closest(px, py, pz, g):
     return d, c * n0 - s * n1, s * n0 + c * n1, n2
 
 
-@njit(**_opts)
-def _hf_patch(px, py, g, H):
-    """Bilinear height (m) of the heightfield ``g`` (a geom row), heights ``H`` (ny, nx), at
-    (px, py) m and its gradient (dh/dx, dh/dy); the edge values are held outside the grid (the
-    gradient across a held edge is 0). Same arithmetic as ``Heightfield._interp``."""
-    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
-    u = (px - g[1]) / g[3]
-    v = (py - g[2]) / g[3]
-    out_u = u < 0.0 or u > nx - 1
-    out_v = v < 0.0 or v > ny - 1
-    u = min(max(u, 0.0), nx - 1.0)
-    v = min(max(v, 0.0), ny - 1.0)
-    i = min(int(math.floor(u)), nx - 2)
-    j = min(int(math.floor(v)), ny - 2)
-    fu, fv = u - i, v - j
-    h00, h10, h01, h11 = H[j, i], H[j, i + 1], H[j + 1, i], H[j + 1, i + 1]
-    h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
-    gx = 0.0 if out_u else ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / g[3]
-    gy = 0.0 if out_v else ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / g[3]
-    return h, gx, gy
-
-
-@njit(**_opts)
-def _hf_flat_under(xa, ya, xc, yc, g, H) -> bool:
-    """True if every grid height that the bilinear surface uses under the segment from (xa, ya)
-    to (xc, yc) m (the cells of its bounding box, clamped to the grid) is the same: the surface is
-    level there, so a point inside the segment is never deeper than both ends (as for a plane)."""
-    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
-    i0 = min(max(int(math.floor((min(xa, xc) - g[1]) / g[3])), 0), nx - 2)
-    i1 = min(max(int(math.floor((max(xa, xc) - g[1]) / g[3])) + 1, 1), nx - 1)
-    j0 = min(max(int(math.floor((min(ya, yc) - g[2]) / g[3])), 0), ny - 2)
-    j1 = min(max(int(math.floor((max(ya, yc) - g[2]) / g[3])) + 1, 1), ny - 1)
-    h = H[j0, i0]
-    for j in range(j0, j1 + 1):
-        for i in range(i0, i1 + 1):
-            if H[j, i] != h:
-                return False
-    return True
-
-
-@njit(**_opts)
+@njit(inline="always", **_opts)
 def _hf_closest(px, py, pz, g, H):
-    """Signed distance (m; < 0 below the surface) of (px, py, pz) to the heightfield: the
-    vertical gap times the cosine of the local slope, and the bilinear patch's outward normal."""
-    h, gx, gy = _hf_patch(px, py, g, H)
-    c = 1.0 / math.sqrt(1.0 + gx * gx + gy * gy)
-    return (pz - h) * c, -gx * c, -gy * c, c
-
-
-@njit(**_opts)
-def _hf_lipschitz(g, H):
-    """``sqrt(1 + L^2)``: a bound on the Lipschitz constant (along any line) of the vertical gap
-    ``z - h(x, y)`` of the heightfield, L = |(largest |step| along x, along y)| / cell bounding
-    the slope (a bilinear patch's gradient is affine in the patch coordinates, so its steepest
-    is at a corner, made of one x step and one y step of the grid)."""
-    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
-    mx, my = 0.0, 0.0
-    for j in range(ny):
-        for i in range(nx):
-            if i + 1 < nx:
-                mx = max(mx, abs(H[j, i + 1] - H[j, i]))
-            if j + 1 < ny:
-                my = max(my, abs(H[j + 1, i] - H[j, i]))
-    return math.sqrt(1.0 + (mx * mx + my * my) / (g[3] * g[3]))
+    """The heightfield's contact measure at (px, py, pz): the vertical gap m (< 0 below the
+    surface), the unit normal of the bilinear patch and the length of its unnormalised normal
+    ``|(-h_x, -h_y, 1)|``, the gradient of the gap (module doc of :mod:`.heightfield`)."""
+    h, gx, gy = hf_patch(px, py, g, H)
+    w = math.sqrt(1.0 + gx * gx + gy * gy)
+    return pz - h, -gx / w, -gy / w, 1.0 / w, w
 
 
 @njit(inline="always", **_opts)
 def _closest(px, py, pz, g, H):
-    """Signed distance and outward normal of a point to the feature ``g`` (plane, box or
-    heightfield with heights ``H``)."""
+    """Contact measure of a point against the feature ``g`` (plane, box or heightfield with
+    heights ``H``): (gap m, outward unit normal, w) with the measure's gradient ``w n``: the
+    signed distance (w = 1) for a plane or a box, the vertical gap for a heightfield."""
     if g[0] == PLANE:
-        return g[1] * px + g[2] * py + g[3] * pz - g[4], g[1], g[2], g[3]
+        return g[1] * px + g[2] * py + g[3] * pz - g[4], g[1], g[2], g[3], 1.0
     if g[0] == HFIELD:
         return _hf_closest(px, py, pz, g, H)
-    return _box_closest(px, py, pz, g)
+    d, n0, n1, n2 = _box_closest(px, py, pz, g)
+    return d, n0, n1, n2, 1.0
 
 
 @njit(inline="always", **_opts)
 def _sd_at(e, r0, r1, r2, b0, b1, b2, g, H):
-    """Signed distance of the rod point ``r + e b`` to the box or heightfield ``g``."""
-    return _closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g, H)[0]
-
-
-@njit(inline="always", **_opts)
-def _scan_at(i, ea, ec):
-    """Rod coordinate (m) of sample i of the coarse scan (i = 0 is ``ea``, HF_SCAN is ``ec``)."""
-    return ec if i == HF_SCAN else ea + i * ((ec - ea) / HF_SCAN)
-
-
-@njit(**_opts)
-def _scan_bracket(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
-    """The coarse scan of a heightfield along the rod: the samples on both sides of the deepest
-    sample (the first of equals), the bracket of the golden-section search."""
-    best, fbest = 0, _sd_at(ea, r0, r1, r2, b0, b1, b2, g, H)
-    for i in range(1, HF_SCAN + 1):
-        f = _sd_at(_scan_at(i, ea, ec), r0, r1, r2, b0, b1, b2, g, H)
-        if f < fbest:
-            best, fbest = i, f
-    return _scan_at(max(best - 1, 0), ea, ec), _scan_at(min(best + 1, HF_SCAN), ea, ec)
-
-
-@njit(**_opts)
-def _scan_out(em, level, towards_c, ea, ec, r0, r1, r2, b0, b1, b2, g, H):
-    """The sample of the coarse scan nearest ``em`` on the side of node c (``towards_c``) or
-    node a whose signed distance is above ``level`` (that node's eta if none): the outer end
-    of the bisection for the edge of the level set around ``em``."""
-    for n in range(HF_SCAN + 1):
-        i = n if towards_c else HF_SCAN - n
-        e = _scan_at(i, ea, ec)
-        if (e > em if towards_c else e < em) and _sd_at(e, r0, r1, r2, b0, b1, b2, g, H) > level:
-            return e
-    return ec if towards_c else ea
+    """Signed distance of the rod point ``r + e b`` to the box ``g``."""
+    return _box_closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g)[0]
 
 
 @njit(inline="always", **_opts)
 def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
-    """The interior contact point of a rod segment [ea, ec] against the box or heightfield
-    ``g``. Box: the signed distance is convex along the segment (the box is convex), so a
-    golden-section search over the segment finds its minimum; heightfield: the golden section
-    runs inside the bracket of the coarse scan (:func:`_scan_bracket`). The point returned is
-    the middle of the part within ``LEVEL_TOL`` of the minimum (found by bisection on both
-    sides, from the ends for a box, from the nearest scan samples above the level for a
-    heightfield). Returns (eta, deeper): deeper = the point is deeper than both ends by more
-    than ``LEVEL_TOL``."""
-    hfield = g[0] == HFIELD
+    """The interior contact point of a rod segment [ea, ec] against the box ``g``: the signed
+    distance is convex along the segment (the box is convex), so a golden-section search over
+    the segment finds its minimum; the point returned is the middle of the part within
+    ``LEVEL_TOL`` of the minimum (found by bisection on both sides). Returns (eta, deeper):
+    deeper = the point is deeper than both ends by more than ``LEVEL_TOL``."""
     fa = _sd_at(ea, r0, r1, r2, b0, b1, b2, g, H)
     fc = _sd_at(ec, r0, r1, r2, b0, b1, b2, g, H)
-    if hfield:
-        lo, hi = _scan_bracket(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
-    else:
-        lo, hi = ea, ec
+    lo, hi = ea, ec
     x1 = hi - _GR * (hi - lo)
     x2 = lo + _GR * (hi - lo)
     f1 = _sd_at(x1, r0, r1, r2, b0, b1, b2, g, H)
@@ -256,13 +153,8 @@ def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
     if not (fm < min(fa, fc) - LEVEL_TOL):
         return em, False
     level = fm + LEVEL_TOL
-    if hfield:
-        out_a = _scan_out(em, level, False, ea, ec, r0, r1, r2, b0, b1, b2, g, H)
-        out_c = _scan_out(em, level, True, ea, ec, r0, r1, r2, b0, b1, b2, g, H)
-    else:
-        out_a, out_c = ea, ec
-    left = _level_edge(out_a, em, level, r0, r1, r2, b0, b1, b2, g, H)     # f(out_a) > level >= f(em)
-    right = _level_edge(out_c, em, level, r0, r1, r2, b0, b1, b2, g, H)    # f(out_c) > level >= f(em)
+    left = _level_edge(ea, em, level, r0, r1, r2, b0, b1, b2, g, H)     # f(ea) > level >= f(em)
+    right = _level_edge(ec, em, level, r0, r1, r2, b0, b1, b2, g, H)    # f(ec) > level >= f(em)
     return 0.5 * (left + right), True
 
 
@@ -280,14 +172,17 @@ def _level_edge(out, inside, level, r0, r1, r2, b0, b1, b2, g, H):
 
 
 @njit(inline="always", **_opts)
-def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, was_active,
+def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, w, ax, ay, az, was_active,
                 radius, kn, dn, ex, mu, kt, ct, cmax):
-    """Contact force (N) on the rod point p (its velocity v m/s) at signed distance ``sd`` m from
-    a feature with outward normal n: penetration ``delta = radius - sd``, Hunt-Crossley normal
-    force ``fn = k delta^e - min(k delta^e dn, cmax) v.n >= 0``, and a tangential spring ``kt``
-    (damper ``ct``) from the anchor (a surface point, set at touch-down to ``s = p - sd n``) to
-    the rod's material point m that touched there (p itself for a node slot), projected on the
-    tangent plane and capped at ``mu fn`` (slip: the anchor follows to ``s + F_t / kt``).
+    """Contact force (N) on the rod point p (its velocity v m/s) at the contact measure ``sd`` m
+    (signed distance, a heightfield's vertical gap) from a feature with outward unit normal n,
+    the measure's gradient ``w n`` (w = 1 but for a heightfield): penetration ``delta = radius -
+    sd``, potential ``U = k delta^(e+1) / (e+1)``, Hunt-Crossley normal force ``fn w n`` with
+    ``fn = k delta^e - min(k delta^e dn, cmax) w v.n >= 0`` (its spring part is ``-grad U``, its
+    damping acts on the rate of delta), and a tangential spring ``kt`` (damper ``ct``) from the
+    anchor (a surface point, set at touch-down to ``s = p - (sd / w) n``) to the rod's material
+    point m that touched there (p itself for a node slot), projected on the tangent plane and
+    capped at ``mu fn w`` (slip: the anchor follows to ``s + F_t / kt``).
     The interior slot passes as ``radius`` the level its penetration is measured from and as
     ``v`` its velocity relative to that level's end (see the kernel).
     Returns (touching, fx, fy, fz, ax, ay, az, slip, energy J of the springs with the anchor
@@ -301,10 +196,12 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, 
     if cn > cmax:
         cn = cmax
     vn = vx * nx + vy * ny + vz * nz
-    fn = fs - cn * vn
+    fn = fs - cn * w * vn
     if fn < 0.0:
         fn = 0.0
-    sx, sy, sz = px - sd * nx, py - sd * ny, pz - sd * nz
+    fw = fn * w
+    sw = sd / w
+    sx, sy, sz = px - sw * nx, py - sw * ny, pz - sw * nz
     if not was_active:
         ax, ay, az = sx, sy, sz
         mx, my, mz = px, py, pz
@@ -316,7 +213,7 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, 
     fy = -kt * x1 - ct * (vy - vn * ny)
     fz = -kt * x2 - ct * (vz - vn * nz)
     nrm = math.sqrt(fx * fx + fy * fy + fz * fz)
-    lim = mu * fn
+    lim = mu * fw
     slip = nrm > lim
     if slip:
         s = lim / nrm
@@ -324,7 +221,7 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, ax, ay, az, 
         fy *= s
         fz *= s
         ax, ay, az = sx + fx / kt, sy + fy / kt, sz + fz / kt
-    return True, fx + fn * nx, fy + fn * ny, fz + fn * nz, ax, ay, az, slip, energy, fn
+    return True, fx + fw * nx, fy + fw * ny, fz + fw * nz, ax, ay, az, slip, energy, fn
 
 
 @njit(cache=True, nogil=True)
@@ -364,40 +261,52 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                 base = (j * F + f) * 3
                 mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
                 if g[0] == HFIELD:
-                    # the vertical gap is sqrt(1 + L^2)-Lipschitz and d >= gap / sqrt(1 + L^2)
-                    # (module doc): a rod whose middle is that high touches nowhere
+                    # the vertical gap is sqrt(1 + L^2)-Lipschitz along the unit rod (module doc):
+                    # a rod whose middle's gap exceeds the cap radius by that times half its length
+                    # touches nowhere
                     if not lam_done:      # the row's bound (column 6), else one pass over the heights
-                        lam, lam_done = (g[6] if g[6] >= 1.0 else _hf_lipschitz(g, H)), True
-                    far = mz - _hf_patch(mx, my, g, H)[0] >= lam * (radius + 0.5 * abs(span))
+                        lam, lam_done = (g[6] if g[6] >= 1.0 else hf_lipschitz(g, H)), True
+                    far = mz - hf_patch(mx, my, g, H)[0] - lam * (0.5 * abs(span)) >= radius
                 else:
                     # the signed distance is 1-Lipschitz: a rod whose middle is farther than half
                     # its length plus the cap radius touches nowhere
                     far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
                 # the nodes' distances, normals and normal velocities, for the interior slot's level
-                sd_a, na0, na1, na2, vn_a = math.inf, 0.0, 0.0, 1.0, 0.0
-                sd_c, nc0, nc1, nc2, vn_c = math.inf, 0.0, 0.0, 1.0, 0.0
+                sd_a, na0, na1, na2, w_a, vn_a = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
+                sd_c, nc0, nc1, nc2, w_c, vn_c = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
                 for s in range(3):
                     ci = base + s
                     e = ea if s == 0 else (ec if s == 1 else em)
                     use = not far
+                    kink, kgx, kgy = False, 0.0, 0.0
                     if use and s == 2:
                         if g[0] == PLANE:
                             use = False
-                        elif g[0] == HFIELD and _hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0,
-                                                               r1 + ec * b1, g, H):
-                            use = False     # level ground under the rod: as a plane (the search finds no deeper point)
+                        elif g[0] == HFIELD:
+                            if hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
+                                use = False     # level ground under the rod: as a plane (no point is lower than both ends)
+                            else:
+                                # the lowest point of the axis, with the gradient that its force uses
+                                e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+                                kink = use
                         else:
                             e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
                     px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
-                    sd, nx, ny, nz = _closest(px, py, pz, g, H) if use else (math.inf, 0.0, 0.0, 1.0)
+                    if kink:
+                        w = math.sqrt(1.0 + kgx * kgx + kgy * kgy)
+                        sd, nx, ny, nz = pz - hf_patch(px, py, g, H)[0], -kgx / w, -kgy / w, 1.0 / w
+                    elif use:
+                        sd, nx, ny, nz, w = _closest(px, py, pz, g, H)
+                    else:
+                        sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
                     vx = qd[c, j, 0] + e * qd[c, j, 3]
                     vy = qd[c, j, 1] + e * qd[c, j, 4]
                     vz = qd[c, j, 2] + e * qd[c, j, 5]
                     level, end = radius, -1
                     if s == 0:
-                        sd_a, na0, na1, na2, vn_a = sd, nx, ny, nz, vx * nx + vy * ny + vz * nz
+                        sd_a, na0, na1, na2, w_a, vn_a = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
                     elif s == 1:
-                        sd_c, nc0, nc1, nc2, vn_c = sd, nx, ny, nz, vx * nx + vy * ny + vz * nz
+                        sd_c, nc0, nc1, nc2, w_c, vn_c = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
                     else:
                         # the interior penetration is measured from the deeper node when that node
                         # touches: min(radius, sd_a, sd_c) - sd, 0 when the interior minimum merges
@@ -407,15 +316,15 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                         if sd_c < level:
                             level, end = sd_c, 1
                         if end >= 0:
-                            # damping on the rate of that penetration: the normal velocity relative
-                            # to the node's (the tangential part, so friction, is unchanged)
-                            vr = vn_a if end == 0 else vn_c
+                            # damping on the rate of that penetration, w v.n here less the node's
+                            # w v.n (the tangential part, so friction, is unchanged)
+                            vr = vn_a * (w_a / w) if end == 0 else vn_c * (w_c / w)
                             vx, vy, vz = vx - vr * nx, vy - vr * ny, vz - vr * nz
                     # the anchored material point: where the rod touched (the interior slot's
                     # contact point moves along the rod; friction holds the material, not the point)
                     e0 = eta0[c, ci] if (s == 2 and active[c, ci]) else e
                     touch, fx, fy, fz, ax, ay, az, sl, en, fn = _slot_force(
-                        px, py, pz, r0 + e0 * b0, r1 + e0 * b1, r2 + e0 * b2, vx, vy, vz, sd, nx, ny, nz,
+                        px, py, pz, r0 + e0 * b0, r1 + e0 * b1, r2 + e0 * b2, vx, vy, vz, sd, nx, ny, nz, w,
                         anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], level,
                         pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
                     anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
@@ -437,13 +346,15 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
                         W[c, nc, 1] += wc * fy
                         W[c, nc, 2] += wc * fz
                         if end >= 0:
-                            # the reaction: -fn along the node's normal at that node (the gradient of
-                            # the level sd_node in the penetration min(...) - sd)
+                            # the reaction: -fn w n of the node at that node (the gradient of the
+                            # level sd_node in the penetration min(...) - sd)
                             if end == 0:
-                                W[c, na, 0] -= fn * na0
-                                W[c, na, 1] -= fn * na1
-                                W[c, na, 2] -= fn * na2
+                                fr = fn * w_a
+                                W[c, na, 0] -= fr * na0
+                                W[c, na, 1] -= fr * na1
+                                W[c, na, 2] -= fr * na2
                             else:
-                                W[c, nc, 0] -= fn * nc0
-                                W[c, nc, 1] -= fn * nc1
-                                W[c, nc, 2] -= fn * nc2
+                                fr = fn * w_c
+                                W[c, nc, 0] -= fr * nc0
+                                W[c, nc, 1] -= fr * nc1
+                                W[c, nc, 2] -= fr * nc2

@@ -2,8 +2,8 @@
 heightfield, batched over copies (:func:`terrain_forces`), and steps with it
 (:func:`terrain_step`). The same equations, slots and arithmetic as the numba kernel
 :mod:`tensegrity_gym.backends.numba.terrain` (see there for the array layouts ``geom``
-(G, F, 10), ``prm`` (P, F, 8), ``hf`` (H, ny, nx), the slot order and the heightfield's
-coarse scan); the arrays come from :class:`tensegrity_gym.physics.terrain.TerrainContact`
+(G, F, 10), ``prm`` (P, F, 8), ``hf`` (H, ny, nx) and the slot order; the heightfield's
+measure and search: :mod:`tensegrity_gym.backends.torch.heightfield`); the arrays come from :class:`tensegrity_gym.physics.terrain.TerrainContact`
 (``.geom``, ``.prm``, ``.hf``, ``.per_copy``). SI units.
 """
 from __future__ import annotations
@@ -12,8 +12,9 @@ import math
 
 import numpy as np
 
-from ..numba.terrain import GOLDEN_ITERS, HF_SCAN, HFIELD, LEVEL_TOL, PLANE
+from ..numba.terrain import GOLDEN_ITERS, HFIELD, LEVEL_TOL, PLANE
 from .driver import prepare_steps, step_once
+from .heightfield import _column, hf_lipschitz, hf_lowest, hf_patch
 from .model import TorchModel, _torch, torch_model
 
 __all__ = ["init_terrain_state", "terrain_forces", "terrain_step"]
@@ -60,93 +61,35 @@ def _box(p0, p1, p2, g):
     return d, c * n0 - s * n1, s * n0 + c * n1, n2
 
 
-def _column(g, i, like):
-    """Column i of the geom rows ``g`` (G, 10), shaped to broadcast against the points ``like``."""
-    return g[:, i].reshape(-1, *([1] * (like.ndim - 1)))
-
-
-def _hf_patch(p0, p1, g, H):
-    """Bilinear height (m) and gradient of the heightfield ``g`` (G, 10) with heights ``H``
-    (1 or B, ny, nx) at points (p0, p1) whose leading axis is the copies (the numba ``_hf_patch``)."""
-    torch = _torch()
-    x0, y0, cell = _column(g, 1, p0), _column(g, 2, p0), _column(g, 3, p0)
-    ny, nx = H.shape[1], H.shape[2]
-    u = (p0 - x0) / cell
-    v = (p1 - y0) / cell
-    out_u = (u < 0.0) | (u > nx - 1)
-    out_v = (v < 0.0) | (v > ny - 1)
-    u = u.clamp(0.0, nx - 1.0)
-    v = v.clamp(0.0, ny - 1.0)
-    i = torch.floor(u).clamp(max=nx - 2)
-    j = torch.floor(v).clamp(max=ny - 2)
-    fu, fv = u - i, v - j
-    idx = j.long() * nx + i.long()
-    if H.shape[0] == 1:
-        flat = H[0].reshape(-1)
-
-        def take(o):
-            return flat[idx + o]
-    else:
-        flat = H.reshape(H.shape[0], -1)
-
-        def take(o):
-            return torch.gather(flat, 1, (idx + o).reshape(idx.shape[0], -1)).reshape(idx.shape)
-    h00, h10, h01, h11 = take(0), take(1), take(nx), take(nx + 1)
-    h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
-    zero = torch.zeros_like(h)
-    gx = torch.where(out_u, zero, ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / cell)
-    gy = torch.where(out_v, zero, ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / cell)
-    return h, gx, gy
-
-
-def _hf_lipschitz(g, H):
-    """``sqrt(1 + L^2)`` per copy row (G or B, 1): the numba ``_hf_lipschitz`` (largest height
-    step between grid neighbours along x and along y, over the cell)."""
-    torch = _torch()
-    mx = (H[:, :, 1:] - H[:, :, :-1]).abs().amax(dim=(1, 2))
-    my = (H[:, 1:, :] - H[:, :-1, :]).abs().amax(dim=(1, 2))
-    cell = g[:, 3]
-    return torch.sqrt(1.0 + (mx * mx + my * my) / (cell * cell)).reshape(-1, 1)
-
-
 def _closest(p0, p1, p2, g, H):
-    """Signed distance and outward normal of points to the features ``g`` (G, 10) of one kind
-    (all rows of one feature column share its kind); ``H`` the heightfield's heights."""
+    """Contact measure of points against the features ``g`` (G, 10) of one kind (all rows of one
+    feature column share its kind): (signed distance or a heightfield's vertical gap, outward
+    unit normal, w), the measure's gradient ``w n`` (the numba ``_closest``); ``H`` the heights."""
     torch = _torch()
     kind = float(g[0, 0])
     if kind == PLANE:
         nx, ny, nz, off = (_column(g, i, p0) for i in range(1, 5))
-        return nx * p0 + ny * p1 + nz * p2 - off, nx.expand_as(p0), ny.expand_as(p0), nz.expand_as(p0)
+        return nx * p0 + ny * p1 + nz * p2 - off, nx.expand_as(p0), ny.expand_as(p0), nz.expand_as(p0), \
+            torch.ones_like(p0)
     if kind == HFIELD:
-        h, gx, gy = _hf_patch(p0, p1, g, H)
-        c = 1.0 / torch.sqrt(1.0 + gx * gx + gy * gy)
-        return (p2 - h) * c, -gx * c, -gy * c, c
-    return _box(p0, p1, p2, g)
+        h, gx, gy = hf_patch(p0, p1, g, H)
+        w = torch.sqrt(1.0 + gx * gx + gy * gy)
+        return p2 - h, -gx / w, -gy / w, 1.0 / w, w
+    return _box(p0, p1, p2, g) + (torch.ones_like(p0),)
 
 
 def _interior(ea, ec, r, b, g, H):
-    """The interior contact point of every rod against the box or heightfield ``g``, (eta,
-    deeper) (B, k): the numba ``_interior`` on tensors (a heightfield's coarse scan, golden
-    section, then the middle of the level set)."""
+    """The interior contact point of every rod against the box ``g``, (eta, deeper) (B, k): the
+    numba ``_interior`` on tensors (golden section, then the middle of the level set)."""
     torch = _torch()
 
     def sd(e):
         e3 = e if e.ndim == r.ndim else e[..., None]
-        return _closest(r[..., 0, None] + e3 * b[..., 0, None], r[..., 1, None] + e3 * b[..., 1, None],
-                        r[..., 2, None] + e3 * b[..., 2, None], g, H)[0].reshape(e.shape)
+        return _box(r[..., 0, None] + e3 * b[..., 0, None], r[..., 1, None] + e3 * b[..., 1, None],
+                    r[..., 2, None] + e3 * b[..., 2, None], g)[0].reshape(e.shape)
     ea, ec = ea.expand_as(r[..., 0]), ec.expand_as(r[..., 0])
     fa, fc = sd(ea), sd(ec)
-    hfield = float(g[0, 0]) == HFIELD
-    if hfield:
-        # coarse scan: HF_SCAN + 1 samples (the numba _scan_at), bracket around the deepest
-        n = torch.arange(HF_SCAN + 1, device=r.device)
-        Es = torch.cat([ea[..., None] + n[:-1].to(r.dtype) * ((ec - ea) / HF_SCAN)[..., None], ec[..., None]], -1)
-        fs = sd(Es)
-        best = fs.argmin(dim=-1, keepdim=True)
-        lo = Es.gather(-1, (best - 1).clamp(min=0))[..., 0]
-        hi = Es.gather(-1, (best + 1).clamp(max=HF_SCAN))[..., 0]
-    else:
-        lo, hi = ea, ec
+    lo, hi = ea, ec
     x1 = hi - _GR * (hi - lo)
     x2 = lo + _GR * (hi - lo)
     f1, f2 = sd(x1), sd(x2)
@@ -163,21 +106,13 @@ def _interior(ea, ec, r, b, g, H):
     fm = sd(em)
     deeper = fm < torch.minimum(fa, fc) - LEVEL_TOL
     level = fm + LEVEL_TOL
-    out_a, out_c = ea, ec
-    if hfield:
-        # the nearest samples above the level on each side of em (the numba _scan_out)
-        above = fs > level[..., None]
-        ia = torch.where(above & (Es < em[..., None]), n, -1).amax(dim=-1, keepdim=True)
-        ic = torch.where(above & (Es > em[..., None]), n, HF_SCAN + 1).amin(dim=-1, keepdim=True)
-        out_a = torch.where(ia[..., 0] >= 0, Es.gather(-1, ia.clamp(min=0))[..., 0], ea)
-        out_c = torch.where(ic[..., 0] <= HF_SCAN, Es.gather(-1, ic.clamp(max=HF_SCAN))[..., 0], ec)
-    a, bb = out_a, em
+    a, bb = ea, em
     for _ in range(GOLDEN_ITERS):
         mid = 0.5 * (a + bb)
         up = sd(mid) > level
         a, bb = torch.where(up, mid, a), torch.where(up, bb, mid)
     left = bb
-    a, bb = em, out_c
+    a, bb = em, ec
     for _ in range(GOLDEN_ITERS):
         mid = 0.5 * (a + bb)
         up = sd(mid) > level
@@ -242,13 +177,17 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
         radius, kn, dn, ex, mu, kt, ct, cmax = pr
         em = 0.5 * (ea + ec)
         mid = [r[..., i] + em * b[..., i] for i in range(3)]
-        if float(g[0, 0]) == HFIELD:
+        hfield = float(g[0, 0]) == HFIELD
+        if hfield:
             # the vertical gap's Lipschitz bound (the numba kernel's far early-out)
-            far = mid[2] - _hf_patch(mid[0], mid[1], g, H)[0] >= _hf_lipschitz(g, H) * (radius + 0.5 * span.abs())
+            far = mid[2] - hf_patch(mid[0], mid[1], g, H)[0] - hf_lipschitz(g, H) * (0.5 * span.abs()) >= radius
         else:
             far = _closest(mid[0], mid[1], mid[2], g, H)[0] - 0.5 * span.abs() >= radius
         if float(g[0, 0]) == PLANE:
             ei, deeper = em.expand(B, k), torch.zeros((B, k), dtype=torch.bool, device=q.device)
+        elif hfield:
+            ei, deeper, kgx, kgy = hf_lowest(ea.expand(B, k), ec.expand(B, k), r, b, g, H)
+            ei = torch.where(far, em.expand(B, k), ei)
         else:
             ei, deeper = _interior(ea, ec, r, b, g, H)
             ei = torch.where(far, em.expand(B, k), ei)
@@ -256,9 +195,15 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
         use = torch.stack([~far, ~far, ~far & deeper], dim=-1)
         P = r[:, :, None, :] + E[..., None] * b[:, :, None, :]          # (B, k, 3, 3)
         V = rd[:, :, None, :] + E[..., None] * bd[:, :, None, :]
-        sd, nx, ny, nz = _closest(P[..., 0], P[..., 1], P[..., 2], g, H)
+        sd, nx, ny, nz, w = _closest(P[..., 0], P[..., 1], P[..., 2], g, H)
         sd = torch.where(use, sd, torch.full_like(sd, math.inf))
         n = torch.stack([nx, ny, nz], dim=-1)
+        if hfield:
+            # the interior slot's normal from the gradient of the lowest point (a kink's combination)
+            wk = torch.sqrt(1.0 + kgx * kgx + kgy * kgy)
+            nk = torch.stack([-kgx / wk, -kgy / wk, 1.0 / wk], dim=-1)
+            n = torch.cat([n[..., :2, :], nk[..., None, :]], dim=-2)
+            w = torch.cat([w[..., :2], wk[..., None]], dim=-1)
         # the interior slot's level: min(radius, sd_a, sd_c), the deeper touching node (the numba
         # kernel's first-of-equals order), and the normal velocity relative to that node's
         vn_all = (V * n).sum(-1)
@@ -269,8 +214,10 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
         lvl = torch.where(end_c, sd[..., 1], lvl)
         end_a = end_a & ~end_c
         has_end = end_a | end_c
-        vr = torch.where(end_c, vn_all[..., 1], torch.where(end_a, vn_all[..., 0], torch.zeros_like(lvl)))
+        vr = torch.where(end_c, vn_all[..., 1] * (w[..., 1] / w[..., 2]),
+                         torch.where(end_a, vn_all[..., 0] * (w[..., 0] / w[..., 2]), torch.zeros_like(lvl)))
         n_end = torch.where(end_c[..., None], n[..., 1, :], n[..., 0, :])
+        w_end = torch.where(end_c, w[..., 1], w[..., 0])
         V2 = torch.where(has_end[..., None], V[..., 2, :] - vr[..., None] * n[..., 2, :], V[..., 2, :])
         V = torch.stack([V[..., 0, :], V[..., 1, :], V2], dim=-2)
         level = torch.stack([rad_b, rad_b, lvl], dim=-1)
@@ -287,8 +234,9 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
         fs = kn_ * de
         cn = torch.minimum(fs * dn_, cmax_.expand_as(fs))
         vn = (V * n).sum(-1)
-        fn = (fs - cn * vn).clamp(min=0.0)
-        S = P - sd[..., None] * n
+        fn = (fs - cn * w * vn).clamp(min=0.0)
+        fw = fn * w
+        S = P - (sd / w)[..., None] * n
         new = (~was)[..., None]
         A = torch.where(new, S, an[:, :, f])
         M = torch.where(new, P, M)
@@ -297,18 +245,19 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
         xi = xi - xn * n
         Ft = -kt_[..., None] * xi - ct_[..., None] * (V - vn[..., None] * n)
         nrm = torch.sqrt((Ft * Ft).sum(-1))
-        lim = mu_ * fn
+        lim = mu_ * fw
         slip = touch & (nrm > lim)
         scale = torch.where(slip, lim / torch.where(slip, nrm, torch.ones_like(nrm)), torch.ones_like(nrm))
         Ft = Ft * scale[..., None]
         A = torch.where(slip[..., None], S + Ft / kt_[..., None], A)
         A = torch.where(touch[..., None], A, an[:, :, f])
         e0n = torch.where(slip | ~was, E, e0)
-        Fc = torch.where(touch[..., None], Ft + fn[..., None] * n, torch.zeros_like(Ft))
+        Fc = torch.where(touch[..., None], Ft + fw[..., None] * n, torch.zeros_like(Ft))
         wc = (E - ea[..., None]) / span[..., None]
         wa = (ec[..., None] - E) / span[..., None]
-        # the interior slot's reaction: -fn along the deeper node's normal at that node
-        R = torch.where((touch[..., 2] & has_end)[..., None], -fn[..., 2, None] * n_end, torch.zeros_like(n_end))
+        # the interior slot's reaction: -fn w n of the deeper node at that node
+        R = torch.where((touch[..., 2] & has_end)[..., None], -(fn[..., 2] * w_end)[..., None] * n_end,
+                        torch.zeros_like(n_end))
         Wa = Wa + (wa[..., None] * Fc).sum(2) + torch.where(end_a[..., None], R, torch.zeros_like(R))
         Wc = Wc + (wc[..., None] * Fc).sum(2) + torch.where(end_c[..., None], R, torch.zeros_like(R))
         outs.append((A, e0n, touch, slip))

@@ -1,0 +1,232 @@
+"""Heightfield geometry of the numba terrain contact (:mod:`tensegrity_gym.backends.numba.terrain`):
+the bilinear height and its gradient, the slope bound, the level-ground test and the lowest point
+of a rod's axis above the surface. SI units: m.
+
+Contact measure: the vertical gap ``gap(p) = z - h(x, y)`` of a point above the bilinear surface
+h (continuous, bilinear per cell, the edge values held beyond the grid). Its gradient is the
+unnormalised surface normal ``N = (-h_x, -h_y, 1)``, so a contact potential ``U(radius - gap)``
+gives the force ``U' N`` exactly: a conservative normal force (the surface's kinks at the grid
+lines make it piecewise smooth, not discontinuous).
+
+Lowest point of a rod axis ``p(eta) = r + eta b``, eta in [ea, ec] (:func:`hf_lowest`): the
+grid coordinates are linear in eta, so between consecutive crossings of grid lines (the
+breakpoints, ends included) the point stays in one cell and the gap is a quadratic in eta
+(the bilinear patch's ``fu fv`` term). Its minimum over the segment is at a breakpoint or at the
+stationary point of a convex piece: the pieces are walked in order and the lowest candidate
+kept (the first of equals); no sampling, the minimum is exact. A level run around it
+(consecutive pieces within ``LEVEL_TOL`` of the minimum: a rod lying on a plateau) gives its
+middle, so that such a rod is held under its middle. At a kink (the minimum on a grid line) the
+gradient used is the combination of the two cells' gradients whose normal is perpendicular to
+the rod (``N.b = 0``), the derivative of the minimum over eta (envelope theorem): a rod slides
+over a kink without a push along itself.
+"""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from .layout import _opts
+
+#: the interior slot touches only where it is deeper than both ends by this much, m; it sits at the
+#: middle of the level run of the rod within this distance of the deepest point (a rod lying flat on
+#: a plateau rests on the middle of its part on the plateau, not on an arbitrary point of it)
+LEVEL_TOL = 1e-7
+
+
+@njit(**_opts)
+def hf_at(px, py, rx, ry, g, H):
+    """Bilinear height (m) at (px, py) m of the cell holding the reference point (rx, ry), its
+    gradient (dh/dx, dh/dy) and the cell's twist ``(h11 - h10 - h01 + h00) / cell^2`` (1/m);
+    beyond the grid (at the reference point) the edge values are held: that gradient component
+    and the twist are 0. Same arithmetic as ``Heightfield._interp`` with (rx, ry) = (px, py)."""
+    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    ur = (rx - g[1]) / g[3]
+    vr = (ry - g[2]) / g[3]
+    out_u = ur < 0.0 or ur > nx - 1
+    out_v = vr < 0.0 or vr > ny - 1
+    i = min(int(math.floor(min(max(ur, 0.0), nx - 1.0))), nx - 2)
+    j = min(int(math.floor(min(max(vr, 0.0), ny - 1.0))), ny - 2)
+    u = min(max((px - g[1]) / g[3], 0.0), nx - 1.0)
+    v = min(max((py - g[2]) / g[3], 0.0), ny - 1.0)
+    fu, fv = u - i, v - j
+    h00, h10, h01, h11 = H[j, i], H[j, i + 1], H[j + 1, i], H[j + 1, i + 1]
+    h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
+    gx = 0.0 if out_u else ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / g[3]
+    gy = 0.0 if out_v else ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / g[3]
+    tw = 0.0 if (out_u or out_v) else (h11 - h10 - h01 + h00) / (g[3] * g[3])
+    return h, gx, gy, tw
+
+
+@njit(inline="always", **_opts)
+def hf_patch(px, py, g, H):
+    """Bilinear height (m) of the heightfield ``g`` (a geom row), heights ``H`` (ny, nx), at
+    (px, py) m and its gradient (dh/dx, dh/dy) (the cell under the point)."""
+    h, gx, gy, _ = hf_at(px, py, px, py, g, H)
+    return h, gx, gy
+
+
+@njit(**_opts)
+def hf_flat_under(xa, ya, xc, yc, g, H) -> bool:
+    """True if every grid height that the bilinear surface uses under the segment from (xa, ya)
+    to (xc, yc) m (the cells of its bounding box, clamped to the grid) is the same: the surface is
+    level there, so a point inside the segment is never deeper than both ends (as for a plane)."""
+    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    i0 = min(max(int(math.floor((min(xa, xc) - g[1]) / g[3])), 0), nx - 2)
+    i1 = min(max(int(math.floor((max(xa, xc) - g[1]) / g[3])) + 1, 1), nx - 1)
+    j0 = min(max(int(math.floor((min(ya, yc) - g[2]) / g[3])), 0), ny - 2)
+    j1 = min(max(int(math.floor((max(ya, yc) - g[2]) / g[3])) + 1, 1), ny - 1)
+    h = H[j0, i0]
+    for j in range(j0, j1 + 1):
+        for i in range(i0, i1 + 1):
+            if H[j, i] != h:
+                return False
+    return True
+
+
+@njit(**_opts)
+def hf_lipschitz(g, H):
+    """``sqrt(1 + L^2)``: a bound on the Lipschitz constant (along any unit line) of the vertical
+    gap ``z - h(x, y)``, L = |(largest |step| along x, along y)| / cell bounding the slope (a
+    bilinear patch's gradient is affine in the patch coordinates, so its steepest is at a corner,
+    made of one x step and one y step of the grid)."""
+    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    mx, my = 0.0, 0.0
+    for j in range(ny):
+        for i in range(nx):
+            if i + 1 < nx:
+                mx = max(mx, abs(H[j, i + 1] - H[j, i]))
+            if j + 1 < ny:
+                my = max(my, abs(H[j + 1, i] - H[j, i]))
+    return math.sqrt(1.0 + (mx * mx + my * my) / (g[3] * g[3]))
+
+
+@njit(inline="always", **_opts)
+def hf_lines(a, c, n):
+    """The grid lines 0..n-1 strictly between the grid coordinates a (at ea) and c (at ec), in
+    the order the rod meets them: (first index, step +-1, count)."""
+    if c > a:
+        m0 = max(int(math.floor(a)) + 1, 0)
+        return m0, 1, max(min(int(math.ceil(c)) - 1, n - 1) - m0 + 1, 0)
+    if c < a:
+        m0 = min(int(math.ceil(a)) - 1, n - 1)
+        return m0, -1, max(m0 - max(int(math.floor(c)) + 1, 0) + 1, 0)
+    return 0, 1, 0
+
+
+@njit(inline="always", **_opts)
+def hf_cross(m, origin, cell, r, b, ea, ec):
+    """Rod coordinate (m) where the axis ``r + eta b`` (one horizontal component) meets grid line
+    m (``origin + m cell``), held in [ea, ec] against round-off."""
+    return min(max((origin + m * cell - r) / b, ea), ec)
+
+
+@njit(inline="always", **_opts)
+def _next_break(tx, ty, x_line, nxl, y_line, nyl, ea, ec, r0, r1, b0, b1, g):
+    """The next breakpoint after x crossing tx and y crossing ty (the nearer; x first of equals),
+    ``ec`` after both: (eta, tx, ty)."""
+    mx0, sx, nxc = x_line
+    my0, sy, nyc = y_line
+    ex = hf_cross(mx0 + sx * tx, g[1], g[3], r0, b0, ea, ec) if tx < nxc else math.inf
+    ey = hf_cross(my0 + sy * ty, g[2], g[3], r1, b1, ea, ec) if ty < nyc else math.inf
+    if tx >= nxc and ty >= nyc:
+        return ec, tx + 1, ty
+    if ex <= ey:
+        return ex, tx + 1, ty
+    return ey, tx, ty + 1
+
+
+@njit(**_opts)
+def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
+    """The interior contact point of the rod axis ``r + eta b``, eta in [ea, ec], against the
+    heightfield ``g`` (heights ``H``): the lowest point of the gap (module doc). Returns
+    ``(eta, deeper, gx, gy)``: eta m (the middle of the rod when not deeper), deeper = the gap
+    there is below both ends' by more than ``LEVEL_TOL``, and the gradient of h the slot's
+    normal uses (the two cells' combination at a kink)."""
+    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    em = 0.5 * (ea + ec)
+    x_line = hf_lines((r0 + ea * b0 - g[1]) / g[3], (r0 + ec * b0 - g[1]) / g[3], nx)
+    y_line = hf_lines((r1 + ea * b1 - g[2]) / g[3], (r1 + ec * b1 - g[2]) / g[3], ny)
+    nxl, nyl = x_line[2], y_line[2]
+    last = nxl + nyl + 1            # pieces: between ea, the crossings and ec
+    # pass 1: the lowest candidate (breakpoint 2 k, stationary point of piece k 2 k + 1)
+    lo = ea
+    glo = r2 + ea * b2 - hf_patch(r0 + ea * b0, r1 + ea * b1, g, H)[0]
+    ga = glo
+    fmin, cbest, ebest = glo, 0, ea
+    gx, gy, gxr, gyr = 0.0, 0.0, 0.0, 0.0
+    lvl_l, lvl_r, pend = False, False, False
+    tx, ty = 0, 0
+    for k in range(last):
+        hi, tx, ty = _next_break(tx, ty, x_line, nxl, y_line, nyl, ea, ec, r0, r1, b0, b1, g)
+        if k == last - 1:
+            hi = ec
+        ghi = r2 + hi * b2 - hf_patch(r0 + hi * b0, r1 + hi * b1, g, H)[0]
+        if hi > lo:
+            mid = 0.5 * (lo + hi)
+            mx, my = r0 + mid * b0, r1 + mid * b1
+            hm, gxm, gym, tw = hf_at(mx, my, mx, my, g, H)
+            gmid = r2 + mid * b2 - hm
+            if pend:       # the right-hand cell's gradient at the kink found at lo
+                _, gxr, gyr, _ = hf_at(r0 + lo * b0, r1 + lo * b1, mx, my, g, H)
+                lvl_r = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
+                pend = False
+            curv = -2.0 * tw * b0 * b1                        # d2 gap / d eta2 in this cell
+            if curv > 0.0:
+                s = mid - (b2 - gxm * b0 - gym * b1) / curv
+                if lo < s < hi:
+                    hs, gxs, gys, _ = hf_at(r0 + s * b0, r1 + s * b1, mx, my, g, H)
+                    gs = r2 + s * b2 - hs
+                    if gs < fmin:
+                        fmin, cbest, ebest, gx, gy = gs, 2 * k + 1, s, gxs, gys
+                        lvl_l = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
+                        lvl_r = lvl_l
+            if ghi < fmin:
+                _, gx, gy, _ = hf_at(r0 + hi * b0, r1 + hi * b1, mx, my, g, H)
+                fmin, cbest, ebest = ghi, 2 * k + 2, hi
+                lvl_l = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
+                lvl_r, pend = False, True
+        lo, glo = hi, ghi
+    if not (fmin < min(ga, glo) - LEVEL_TOL):
+        return em, False, 0.0, 0.0
+    e = ebest
+    if cbest % 2 == 0:
+        # a kink: the combination of the two cells' normals perpendicular to the rod
+        dl = b2 - gx * b0 - gy * b1
+        dr = b2 - gxr * b0 - gyr * b1
+        lam = min(max(-dl / (dr - dl), 0.0), 1.0) if dr > dl else 0.5
+        gx, gy = gx + lam * (gxr - gx), gy + lam * (gyr - gy)
+    if lvl_l or lvl_r:
+        left, right = _level_run(cbest, fmin, ea, ec, r0, r1, r2, b0, b1, b2, g, H, x_line, y_line, last)
+        e = 0.5 * (left + right)
+        if left < right:
+            _, gx, gy = hf_patch(r0 + e * b0, r1 + e * b1, g, H)
+    return e, True, gx, gy
+
+
+@njit(**_opts)
+def _level_run(cbest, fmin, ea, ec, r0, r1, r2, b0, b1, b2, g, H, x_line, y_line, last):
+    """Ends (m) of the level run around candidate ``cbest`` of :func:`hf_lowest`: the consecutive
+    pieces whose ends and middle are within ``LEVEL_TOL`` of ``fmin``, those left of it (pieces
+    < cbest // 2) and right of it (pieces >= (cbest + 1) // 2)."""
+    il, ir = cbest // 2, (cbest + 1) // 2
+    left, right = ea, ec
+    lo = ea
+    glo = r2 + ea * b2 - hf_patch(r0 + ea * b0, r1 + ea * b1, g, H)[0]
+    tx, ty = 0, 0
+    for k in range(last):
+        hi, tx, ty = _next_break(tx, ty, x_line, x_line[2], y_line, y_line[2], ea, ec, r0, r1, b0, b1, g)
+        if k == last - 1:
+            hi = ec
+        ghi = r2 + hi * b2 - hf_patch(r0 + hi * b0, r1 + hi * b1, g, H)[0]
+        mid = 0.5 * (lo + hi)
+        gmid = r2 + mid * b2 - hf_patch(r0 + mid * b0, r1 + mid * b1, g, H)[0]
+        level = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
+        if not level:
+            if k < il:
+                left = hi
+            elif k >= ir:
+                right = lo
+                break
+        lo, glo = hi, ghi
+    return left, right
