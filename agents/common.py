@@ -196,6 +196,10 @@ def read_run_config(path: str | Path) -> dict:
 _CHECKOUT_MODULES = ("agents", "agents.common")
 
 
+#: the schedule class under the name models trained from a checkout pickled it by (``agents`` importable)
+_LinearSchedule = LinearSchedule
+
+
 class _LegacySchedules:
     """Stand-in for the module ``agents.common`` of a checkout while a model is unpickled: only
     the schedule class, under its old name."""

@@ -124,6 +124,21 @@ def test_installed_loads_a_model_trained_from_a_checkout(installed):
     assert out.split()[-3:] == ["tensegrity_gym.integrations.sb3", "0.00056", "False"], out[-500:]
 
 
+def test_checkout_loads_a_model_trained_from_a_checkout_with_its_schedule():
+    """From a checkout (``agents`` importable, as ``python -m agents.train --resume`` runs) the old
+    pickled name resolves too: the schedule is restored, not replaced by SB3's default with a
+    warning (a resumed run would then train at the default learning rate)."""
+    run = ROOT / "results" / "climb" / "seed_0"
+    if not (run / "model.zip").exists():
+        pytest.skip("no committed climbing model")
+    code = ("import warnings; warnings.simplefilter('error'); from stable_baselines3 import PPO; "
+            f"from agents import common; m = common.load_model_file(PPO, {str(run / 'model.zip')!r}); "
+            "print(type(m.learning_rate).__name__, m.learning_rate(0.5))")
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert p.stdout.split()[-2:] == ["LinearSchedule", "0.00056"], p.stdout
+
+
 @pytest.mark.slow
 def test_installed_zoo_reads_the_packaged_hyperparameters(installed):
     pytest.importorskip("rl_zoo3")
