@@ -247,7 +247,8 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
             far = mid[2] - _hf_patch(mid[0], mid[1], g, H)[0] >= _hf_lipschitz(g, H) * (radius + 0.5 * span.abs())
         else:
             far = _closest(mid[0], mid[1], mid[2], g, H)[0] - 0.5 * span.abs() >= radius
-        if float(g[0, 0]) == PLANE:
+        if float(g[0, 0]) == PLANE or bool(far.all()):
+            # a plane has no interior slot; a part every rod is far from leaves it unused
             ei, deeper = em.expand(B, k), torch.zeros((B, k), dtype=torch.bool, device=q.device)
         else:
             ei, deeper = _interior(ea, ec, r, b, g, H)
