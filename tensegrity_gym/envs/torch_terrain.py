@@ -1,6 +1,7 @@
-"""The terrain of the device roll env (:class:`~tensegrity_gym.envs.torch_tasks.TorchRollVectorEnv`
-with ``terrain=``): the terrain's rows and its contact state on the device, stepped with the
-torch terrain contact (:func:`tensegrity_gym.backends.torch.terrain.terrain_step`). SI units.
+"""The torch device roll env's terrain: its rows and contact state on the device, stepped there.
+
+:class:`~tensegrity_gym.envs.torch_tasks.TorchRollVectorEnv` with ``terrain=`` steps the torch
+terrain contact (:func:`tensegrity_gym.backends.torch.terrain.terrain_step`). SI units.
 
 The host :class:`~tensegrity_gym.envs.roll.RollTask` keeps doing what is drawn: at a reset it
 draws each reset copy's terrain from that copy's generator, lifts the start clear of it and
