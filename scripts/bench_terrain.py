@@ -9,8 +9,8 @@ fused compiled loop), a level terrain plane, a 20-degree plane, and a 20-degree 
 boxes (terrain steps: the forces kernel and one integrator step per physics step, all in one
 compiled call below the multi-threaded batch size).
 
-Torch table (``--torch``): the same scenes on the torch backend (CPU, float64; the device envs run
-level ground only, so the physics step is measured).
+Torch table (``--torch``): the same scenes on the torch backend (CPU, float64; the physics step
+alone, as for numba).
 
 Env table (``--envs``): env-steps/s of ``TensegrityRoll-v0`` (NumPy vector env, random actions)
 on flat ground and on each terrain kind, and the cost ratio terrain / flat measured in the same
