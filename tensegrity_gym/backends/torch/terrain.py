@@ -130,10 +130,12 @@ def _interior(ea, ec, r, b, g, H):
     section, then the middle of the level set)."""
     torch = _torch()
 
+    r0, r1, r2 = (r[..., i, None] for i in range(3))      # (views taken once, not per evaluation)
+    b0, b1, b2 = (b[..., i, None] for i in range(3))
+
     def sd(e):
         e3 = e if e.ndim == r.ndim else e[..., None]
-        return _closest(r[..., 0, None] + e3 * b[..., 0, None], r[..., 1, None] + e3 * b[..., 1, None],
-                        r[..., 2, None] + e3 * b[..., 2, None], g, H)[0].reshape(e.shape)
+        return _closest(r0 + e3 * b0, r1 + e3 * b1, r2 + e3 * b2, g, H)[0].reshape(e.shape)
     ea, ec = ea.expand_as(r[..., 0]), ec.expand_as(r[..., 0])
     fa, fc = sd(ea), sd(ec)
     hfield = float(g[0, 0]) == HFIELD
@@ -219,14 +221,28 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
     ``hf`` (1 or B, ny, nx) heightfield heights m (needed only with a heightfield): arrays or
     tensors (:class:`tensegrity_gym.physics.terrain.TerrainContact`'s ``geom`` / ``per_copy``
     / ``hf``)."""
-    torch = _torch()
     tm = model if isinstance(model, TorchModel) else torch_model(model, q.device, q.dtype)
-    B, k = q.shape[0], tm.k
+    geom, prm, H, lips = _prepare(geom, prm, hf, q)
+    return _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active)
+
+
+def _prepare(geom, prm, hf, q):
+    """``geom``, ``prm``, the heights as tensors like ``q`` (checked) and the heightfield parts'
+    Lipschitz factors (:func:`_hf_lipschitz`, feature -> (G or B, 1)), computed once for the
+    steps that share them."""
     geom, prm = _as(geom, q, "geom", 10), _as(prm, q, "prm", 8)
     H = _as_hf(hf, geom, q)
     F = geom.shape[1]
     if prm.shape[1] != F:
         raise ValueError(f"prm: expected {F} features as geom, got {prm.shape[1]}")
+    lips = {f: _hf_lipschitz(geom[:, f], H) for f in range(F) if float(geom[0, f, 0]) == HFIELD}
+    return geom, prm, H, lips
+
+
+def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
+    """:func:`terrain_forces` on prepared inputs (:func:`_prepare`)."""
+    torch = _torch()
+    B, k, F = q.shape[0], tm.k, geom.shape[1]
     r, b, rd, bd = q[..., :3], q[..., 3:], qd[..., :3], qd[..., 3:]
     ea, ec = tm.eta_a[..., 0], tm.eta_c[..., 0]                          # (1, k)
     span = ec - ea
@@ -244,7 +260,7 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
         mid = [r[..., i] + em * b[..., i] for i in range(3)]
         if float(g[0, 0]) == HFIELD:
             # the vertical gap's Lipschitz bound (the numba kernel's far early-out)
-            far = mid[2] - _hf_patch(mid[0], mid[1], g, H)[0] >= _hf_lipschitz(g, H) * (radius + 0.5 * span.abs())
+            far = mid[2] - _hf_patch(mid[0], mid[1], g, H)[0] >= lips[f] * (radius + 0.5 * span.abs())
         else:
             far = _closest(mid[0], mid[1], mid[2], g, H)[0] - 0.5 * span.abs() >= radius
         if float(g[0, 0]) == PLANE or bool(far.all()):
@@ -328,8 +344,9 @@ def terrain_step(model, geom, prm, q, qd, anchor, eta0, active, dt: float, integ
     as :func:`terrain_forces` takes them. Returns ``(q, qd, anchor, eta0, active)``."""
     name, dt, tm, p, rl, fd, ext = prepare_steps(model, q, integrator, dt, params, rest_length, force_density,
                                                  external)
+    geom, prm, H, lips = _prepare(geom, prm, hf, q)
     for _ in range(int(n_steps)):
-        W, anchor, eta0, active, _ = terrain_forces(tm, q, qd, geom, prm, anchor, eta0, active, hf)
+        W, anchor, eta0, active, _ = _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active)
         if ext is not None:
             W = W + ext
         q, qd = step_once(tm, q, qd, dt, name, p, rl, fd, W, project)
