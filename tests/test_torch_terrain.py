@@ -118,3 +118,17 @@ def test_partial_reset_redraws_only_those_copies_terrains():
         o1, *_ = ref.step(a)
         o2, *_ = ten.step(torch.as_tensor(a))
         _close_obs(o1, o2)
+
+
+def test_float32_on_terrain_close_to_float64():
+    envs = [gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
+                         dtype=d, terrain={"generator": "slope"}) for d in ("float32", "float64")]
+    outs = [e.reset(seed=1)[0] for e in envs]
+    assert envs[0]._terrain.geom.dtype == torch.float32
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        a = rng.uniform(-1, 1, (2, 9))
+        outs = [e.step(torch.as_tensor(a, dtype=torch.float32))[0] for e in envs]
+    assert outs[0].dtype == torch.float32
+    err = (outs[0].double() - outs[1]).abs().max().item()
+    assert 0 < err < 1e-3, err
