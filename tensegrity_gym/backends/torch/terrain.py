@@ -31,28 +31,50 @@ def init_terrain_state(tm_or_model, n_features: int, batch_size: int, device=Non
             torch.zeros((batch_size, S), dtype=torch.bool, device=tm.device))
 
 
-def _box(p0, p1, p2, g):
-    """Signed distance and outward normal of points (p0, p1, p2) to boxes ``g`` (G, 10) rows
-    broadcast against the points' leading axis (as the numba ``_box_closest``)."""
+class _Part:
+    """One terrain part: its geom rows ``g`` (G, 10) (every row of one feature column has the
+    part's kind), the heightfield heights ``H``; the kind read once (one device read) and the
+    columns shaped once per rank of the points they meet (the searches evaluate the distance
+    ~140 times a step)."""
+
+    def __init__(self, g, H):
+        self.g, self.H, self.kind = g, H, float(g[0, 0])
+        self._cols: dict = {}
+
+    def col(self, i: int, like):
+        """Column i, shaped to broadcast against the points ``like`` (leading axis: the copies)."""
+        key = (i, like.ndim)
+        c = self._cols.get(key)
+        if c is None:
+            c = self._cols[key] = self.g[:, i].reshape(-1, *([1] * (like.ndim - 1)))
+        return c
+
+
+def _box(p0, p1, p2, part, normal: bool = True):
+    """Signed distance and outward normal of points (p0, p1, p2) to the boxes of ``part``, rows
+    broadcast against the points' leading axis (as the numba ``_box_closest``); the distance
+    alone with ``normal=False`` (the same number)."""
     torch = _torch()
-    cx, cy, cz, hx, hy, hz, c, s = (g[:, i].reshape(-1, *([1] * (p0.ndim - 1))) for i in range(1, 9))
+    cx, cy, cz, hx, hy, hz, c, s = (part.col(i, p0) for i in range(1, 9))
     dx, dy, dz = p0 - cx, p1 - cy, p2 - cz
     l0 = c * dx + s * dy
     l1 = (-s) * dx + c * dy
     l2 = dz
     q0, q1, q2 = l0.abs() - hx, l1.abs() - hy, l2.abs() - hz
-    one = torch.ones_like(l0)
-    s0, s1, s2 = (torch.where(x >= 0.0, one, -one) for x in (l0, l1, l2))
     o0, o1, o2 = q0.clamp(min=0.0), q1.clamp(min=0.0), q2.clamp(min=0.0)
     dout = torch.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
     out = dout > 0.0
-    safe = torch.where(out, dout, one)
-    zero = torch.zeros_like(l0)
     # inside: the nearest face, the first of the largest q (numba's sequential comparisons)
     a1 = q1 > q0
     d = torch.where(a1, q1, q0)
     a2 = q2 > d
     d = torch.where(a2, q2, d)
+    if not normal:
+        return torch.where(out, dout, d)
+    one = torch.ones_like(l0)
+    s0, s1, s2 = (torch.where(x >= 0.0, one, -one) for x in (l0, l1, l2))
+    safe = torch.where(out, dout, one)
+    zero = torch.zeros_like(l0)
     n0 = torch.where(out, s0 * o0 / safe, torch.where(a1 | a2, zero, s0))
     n1 = torch.where(out, s1 * o1 / safe, torch.where(a1 & ~a2, s1, zero))
     n2 = torch.where(out, s2 * o2 / safe, torch.where(a2, s2, zero))
@@ -60,16 +82,12 @@ def _box(p0, p1, p2, g):
     return d, c * n0 - s * n1, s * n0 + c * n1, n2
 
 
-def _column(g, i, like):
-    """Column i of the geom rows ``g`` (G, 10), shaped to broadcast against the points ``like``."""
-    return g[:, i].reshape(-1, *([1] * (like.ndim - 1)))
-
-
-def _hf_patch(p0, p1, g, H):
-    """Bilinear height (m) and gradient of the heightfield ``g`` (G, 10) with heights ``H``
-    (1 or B, ny, nx) at points (p0, p1) whose leading axis is the copies (the numba ``_hf_patch``)."""
+def _hf_patch(p0, p1, part):
+    """Bilinear height (m) and gradient of the heightfield ``part`` (heights ``part.H`` (1 or B,
+    ny, nx)) at points (p0, p1) whose leading axis is the copies (the numba ``_hf_patch``)."""
     torch = _torch()
-    x0, y0, cell = _column(g, 1, p0), _column(g, 2, p0), _column(g, 3, p0)
+    H = part.H
+    x0, y0, cell = part.col(1, p0), part.col(2, p0), part.col(3, p0)
     ny, nx = H.shape[1], H.shape[2]
     u = (p0 - x0) / cell
     v = (p1 - y0) / cell
@@ -109,23 +127,24 @@ def _hf_lipschitz(g, H):
     return torch.sqrt(1.0 + (mx * mx + my * my) / (cell * cell)).reshape(-1, 1)
 
 
-def _closest(p0, p1, p2, g, H):
-    """Signed distance and outward normal of points to the features ``g`` (G, 10) of one kind
-    (all rows of one feature column share its kind); ``H`` the heightfield's heights."""
+def _closest(p0, p1, p2, part, normal: bool = True):
+    """Signed distance and outward normal of points to the terrain part ``part`` (:class:`_Part`);
+    the distance alone with ``normal=False`` (the same number)."""
     torch = _torch()
-    kind = float(g[0, 0])
+    kind = part.kind
     if kind == PLANE:
-        nx, ny, nz, off = (_column(g, i, p0) for i in range(1, 5))
-        return nx * p0 + ny * p1 + nz * p2 - off, nx.expand_as(p0), ny.expand_as(p0), nz.expand_as(p0)
+        nx, ny, nz, off = (part.col(i, p0) for i in range(1, 5))
+        d = nx * p0 + ny * p1 + nz * p2 - off
+        return (d, nx.expand_as(p0), ny.expand_as(p0), nz.expand_as(p0)) if normal else d
     if kind == HFIELD:
-        h, gx, gy = _hf_patch(p0, p1, g, H)
+        h, gx, gy = _hf_patch(p0, p1, part)
         c = 1.0 / torch.sqrt(1.0 + gx * gx + gy * gy)
-        return (p2 - h) * c, -gx * c, -gy * c, c
-    return _box(p0, p1, p2, g)
+        return ((p2 - h) * c, -gx * c, -gy * c, c) if normal else (p2 - h) * c
+    return _box(p0, p1, p2, part, normal)
 
 
-def _interior(ea, ec, r, b, g, H):
-    """The interior contact point of every rod against the box or heightfield ``g``, (eta,
+def _interior(ea, ec, r, b, part):
+    """The interior contact point of every rod against the box or heightfield ``part``, (eta,
     deeper) (B, k): the numba ``_interior`` on tensors (a heightfield's coarse scan, golden
     section, then the middle of the level set)."""
     torch = _torch()
@@ -135,10 +154,10 @@ def _interior(ea, ec, r, b, g, H):
 
     def sd(e):
         e3 = e if e.ndim == r.ndim else e[..., None]
-        return _closest(r0 + e3 * b0, r1 + e3 * b1, r2 + e3 * b2, g, H)[0].reshape(e.shape)
+        return _closest(r0 + e3 * b0, r1 + e3 * b1, r2 + e3 * b2, part, normal=False).reshape(e.shape)
     ea, ec = ea.expand_as(r[..., 0]), ec.expand_as(r[..., 0])
     fa, fc = sd(ea), sd(ec)
-    hfield = float(g[0, 0]) == HFIELD
+    hfield = part.kind == HFIELD
     if hfield:
         # coarse scan: HF_SCAN + 1 samples (the numba _scan_at), bracket around the deepest
         n = torch.arange(HF_SCAN + 1, device=r.device)
@@ -253,27 +272,27 @@ def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
     Wc = torch.zeros_like(r)
     outs = []
     for f in range(F):
-        g = geom[:, f]
+        part = _Part(geom[:, f], H)
         pr = [prm[:, f, i].reshape(-1, 1) for i in range(8)]             # (P, 1)
         radius, kn, dn, ex, mu, kt, ct, cmax = pr
         em = 0.5 * (ea + ec)
         mid = [r[..., i] + em * b[..., i] for i in range(3)]
-        if float(g[0, 0]) == HFIELD:
+        if part.kind == HFIELD:
             # the vertical gap's Lipschitz bound (the numba kernel's far early-out)
-            far = mid[2] - _hf_patch(mid[0], mid[1], g, H)[0] >= lips[f] * (radius + 0.5 * span.abs())
+            far = mid[2] - _hf_patch(mid[0], mid[1], part)[0] >= lips[f] * (radius + 0.5 * span.abs())
         else:
-            far = _closest(mid[0], mid[1], mid[2], g, H)[0] - 0.5 * span.abs() >= radius
-        if float(g[0, 0]) == PLANE or bool(far.all()):
+            far = _closest(mid[0], mid[1], mid[2], part, normal=False) - 0.5 * span.abs() >= radius
+        if part.kind == PLANE or bool(far.all()):
             # a plane has no interior slot; a part every rod is far from leaves it unused
             ei, deeper = em.expand(B, k), torch.zeros((B, k), dtype=torch.bool, device=q.device)
         else:
-            ei, deeper = _interior(ea, ec, r, b, g, H)
+            ei, deeper = _interior(ea, ec, r, b, part)
             ei = torch.where(far, em.expand(B, k), ei)
         E = torch.stack([ea.expand(B, k), ec.expand(B, k), ei], dim=-1)  # (B, k, 3)
         use = torch.stack([~far, ~far, ~far & deeper], dim=-1)
         P = r[:, :, None, :] + E[..., None] * b[:, :, None, :]          # (B, k, 3, 3)
         V = rd[:, :, None, :] + E[..., None] * bd[:, :, None, :]
-        sd, nx, ny, nz = _closest(P[..., 0], P[..., 1], P[..., 2], g, H)
+        sd, nx, ny, nz = _closest(P[..., 0], P[..., 1], P[..., 2], part)
         sd = torch.where(use, sd, torch.full_like(sd, math.inf))
         n = torch.stack([nx, ny, nz], dim=-1)
         # the interior slot's level: min(radius, sd_a, sd_c), the deeper touching node (the numba
