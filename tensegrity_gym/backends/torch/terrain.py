@@ -98,6 +98,7 @@ def _hf_patch(p0, p1, part):
     i = torch.floor(u).clamp(max=nx - 2)
     j = torch.floor(v).clamp(max=ny - 2)
     fu, fv = u - i, v - j
+    gu, gv = 1 - fu, 1 - fv
     idx = j.long() * nx + i.long()
     if H.shape[0] == 1:
         flat = H[0].reshape(-1)
@@ -106,14 +107,15 @@ def _hf_patch(p0, p1, part):
             return flat[idx + o]
     else:
         flat = H.reshape(H.shape[0], -1)
+        rows = idx.reshape(idx.shape[0], -1)
 
         def take(o):
-            return torch.gather(flat, 1, (idx + o).reshape(idx.shape[0], -1)).reshape(idx.shape)
+            return torch.gather(flat, 1, rows + o).reshape(idx.shape)
     h00, h10, h01, h11 = take(0), take(1), take(nx), take(nx + 1)
-    h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
+    h = gu * gv * h00 + fu * gv * h10 + gu * fv * h01 + fu * fv * h11
     zero = torch.zeros_like(h)
-    gx = torch.where(out_u, zero, ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / cell)
-    gy = torch.where(out_v, zero, ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / cell)
+    gx = torch.where(out_u, zero, (gv * (h10 - h00) + fv * (h11 - h01)) / cell)
+    gy = torch.where(out_v, zero, (gu * (h01 - h00) + fu * (h11 - h10)) / cell)
     return h, gx, gy
 
 
