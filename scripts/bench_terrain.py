@@ -2,15 +2,16 @@
 """Cost of a physics step with terrain contact against flat ground (numba, the prism robot).
 
     PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000] \
-        [--envs 1 16 128] [--env-steps 200] [--torch] [--json out.json]
+        [--envs 1 16 128] [--env-steps 200] [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
+        [--json out.json]
 
 Physics table: microseconds per physics step (all copies) for the flat-ground GroundContact (the
 fused compiled loop), a level terrain plane, a 20-degree plane, and a 20-degree plane with two
 boxes (terrain steps: the forces kernel and one integrator step per physics step, all in one
 compiled call below the multi-threaded batch size).
 
-Torch table (``--torch``): the same scenes on the torch backend (CPU, float64; the device envs run
-level ground only, so the physics step is measured).
+Torch table (``--torch``): the same scenes on the torch backend (CPU, float64; the physics step
+alone, as for numba).
 
 Env table (``--envs``): env-steps/s of ``TensegrityRoll-v0`` (NumPy vector env, random actions)
 on flat ground and on each terrain kind, and the cost ratio terrain / flat measured in the same
@@ -18,6 +19,11 @@ run on the same machine: a 20-degree slope (a plane), steps (the ``steps`` gener
 rough ground (the ``rough`` generator with no level pad: a 12 m heightfield of 2 cm bumps over the
 whole floor, the robot on bumps from the start) and
 ``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the planner).
+
+Torch env table (``--torch-envs``): the same ``TensegrityRoll-v0`` scenes on the torch device
+vector env (``backend="torch"``, CPU, float64, one torch thread), plus steps whose first edge is
+under the robot (``pad`` 0.05 m, ``tread`` 0.2 m: the boxes next to the rods, their search along
+the rods running); env-steps/s and milliseconds per control step.
 """
 from __future__ import annotations
 
@@ -77,6 +83,36 @@ def env_rate(env_id: str, kwargs: dict, n: int, steps: int) -> float:
     return rate
 
 
+TORCH_ENV_SCENES = {**{k: kw for k, (eid, kw) in ENV_SCENES.items() if eid == "TensegrityRoll-v0"},
+                    "steps under the robot": {"terrain": {"generator": "steps", "pad": 0.05, "tread": 0.2}}}
+
+
+def torch_env_rate(kwargs: dict, n: int, steps: int) -> float:
+    """env-steps/s of the torch device env (CPU, float64) of ``n`` copies over ``steps`` steps."""
+    import gymnasium as gym
+    import torch
+    env = gym.make_vec("TensegrityRoll-v0", num_envs=n, vectorization_mode="vector_entry_point", backend="torch",
+                       device="cpu", dtype="float64", **kwargs)
+    env.reset(seed=0)
+    acts = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (steps + 2, n) + env.single_action_space.shape))
+    for a in acts[:2]:
+        env.step(a)
+    t0 = time.perf_counter()
+    for a in acts[2:]:
+        env.step(a)
+    return n * steps / (time.perf_counter() - t0)
+
+
+def torch_env_table(ns, steps: int) -> dict:
+    import torch
+    torch.set_num_threads(1)
+    rates = {name: [torch_env_rate(kw, n, steps) for n in ns] for name, kw in TORCH_ENV_SCENES.items()}
+    print(f"\n{'torch env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'ms/step':>10}" for n in ns))
+    for name, vals in rates.items():
+        print(f"{name:<30}" + "".join(f"{v:16,.1f}{ns[i] / v * 1e3:10.1f}" for i, v in enumerate(vals)))
+    return rates
+
+
 def env_table(ns, steps: int) -> dict:
     rates = {name: [env_rate(eid, kw, n, steps) for n in ns] for name, (eid, kw) in ENV_SCENES.items()}
     print(f"\n{'env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'cost/flat':>10}" for n in ns))
@@ -117,6 +153,9 @@ def main():
     ap.add_argument("--env-steps", type=int, default=200)
     ap.add_argument("--json", type=str, default=None, help="write the tables here")
     ap.add_argument("--torch", action="store_true", help="also the torch backend's physics table (CPU)")
+    ap.add_argument("--torch-envs", type=int, nargs="*", default=[],
+                    help="torch device env table (CPU, float64) for these numbers of copies")
+    ap.add_argument("--torch-env-steps", type=int, default=10)
     a = ap.parse_args()
     m = prism()
     scenes = {"level plane": Terrain(), "20 deg plane": Terrain(plane=Plane(20.0)),
@@ -137,10 +176,12 @@ def main():
         print(f"{name:<26}" + "".join(f"{v:16.2f}" for v in vals))
     torch_rows = torch_table(m, scenes, a.batch, max(a.steps // 10, 20)) if a.torch else {}
     envs = env_table(a.envs, a.env_steps) if a.envs else {}
+    torch_envs = torch_env_table(a.torch_envs, a.torch_env_steps) if a.torch_envs else {}
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"cpu": cpu_model(), "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows, "torch_us_per_step": torch_rows,
-                       "envs": a.envs, "env_steps_per_s": envs, "command": "python scripts/bench_terrain.py " +
+                       "envs": a.envs, "env_steps_per_s": envs,
+                       "torch_envs": a.torch_envs, "torch_env_steps_per_s": torch_envs, "command": "python scripts/bench_terrain.py " +
                        " ".join(sys.argv[1:])}, f, indent=1)
 
 

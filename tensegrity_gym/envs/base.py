@@ -12,6 +12,7 @@ from .. import integrators, pipeline
 from ..params import default_params
 from ..physics import terrain
 from ..core.param_table import env_fields
+from ..tasks.terrain import rod_end_contacts
 from .domain import Domain, physics_nominal, write_copies
 from ..checks import check_array, check_count, check_flag, check_options
 from .validate import check_positive
@@ -333,8 +334,7 @@ class BatchedTask:
             if self.track_last_velocity:
                 self._qd_prev[diverged] = qd[diverged]
         if tc is not None:      # the rod ends' flags (what the observation reports) from the terrain's slots
-            B, k = q.shape[0], q.shape[1]
-            self.cstate.active[:] = cs.active.reshape(B, k, -1, 3)[..., :2].any(axis=2).reshape(B, 2 * k)
+            self.cstate.active[:] = rod_end_contacts(cs.active, q.shape[1])
         self.elapsed += 1
         return diverged
 

@@ -64,6 +64,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self.device = torch_backend.resolve_device(device)
         self.dtype = torch_backend.resolve_dtype(dtype)
         task = self._make_task(num_envs, kwargs)
+        self._check_task(task, reset_sampling, compile)
         torch_backend.integrator_name(task.integrator)          # ValueError for an implicit method
         self.task = task
         self.num_envs = N = task.num_envs
@@ -101,6 +102,9 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             self._streams = CounterStreams(N, dev)
             self._tdomain = TorchDomain(self) if task.domain.enabled else None
 
+    def _check_task(self, task, reset_sampling: str, compile: bool) -> None:
+        """ValueError naming an env argument the task's configuration rules out (here: none)."""
+
     # ------------------------------------------------------------------ host <-> device
     def _T(self, x):
         torch = torch_backend.torch_module()
@@ -136,6 +140,8 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
                 self._params[f] = rows(self._params.get(f), np.asarray(getattr(prm, f), float))
         put("_rest_offset", None if task.rest_offset is None else np.asarray(task.rest_offset, float))
         put("_contact_prm", getattr(task, "_contact_prm", None))
+        if getattr(task, "terrain_contact", None) is not None:   # every part's contact parameters, per copy
+            put("_terrain_prm", task.terrain_prm)
         act = task.actuation
         put("_max_rate", act.rate_rows)
         put("_max_accel", None if act.accel_rows is None else np.asarray(act.accel_rows, float)[:, None])

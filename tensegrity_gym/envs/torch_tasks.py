@@ -14,6 +14,7 @@ from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
 from ..tasks.xp import namespace
 from .shape import ShapeTask
 from .torch_shell import TorchTaskVectorEnv
+from .torch_terrain import TorchTerrain
 
 __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv"]
 
@@ -28,11 +29,17 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     DEVICE_RESET = True
 
     def _make_task(self, num_envs, kwargs):
-        task = RollTask(num_envs=num_envs, **kwargs)
-        if task.terrain_contact is not None:
-            raise ValueError("terrain: the torch device env runs on level ground only; the NumPy vector env "
-                             "(backend 'numba') runs terrain contact")
-        return task
+        return RollTask(num_envs=num_envs, **kwargs)
+
+    def _check_task(self, task, reset_sampling: str, compile: bool) -> None:
+        if task.terrain_contact is None:
+            return
+        if reset_sampling == "device":
+            raise ValueError("reset_sampling: 'device' is not available with terrain (its terrains are drawn and "
+                             "the start lifted clear of them on the host); use reset_sampling='host'")
+        if isinstance(compile, (bool, np.bool_)) and compile:
+            raise ValueError("compile: not available with terrain (its contact search branches on the terrain's "
+                             "parts); use compile=False")
 
     def _init_state(self):
         torch = torch_backend.torch_module()
@@ -52,6 +59,8 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         self._z_floor = float(task.nodes_nominal[:, 2].min())
         self._start_control = self._T(task.start_control)[None]
         self._goal_default = self._T(task.goal_direction)[None]
+        # terrain=: its rows and contact state on the device (None: the level ground's contact)
+        self._terrain = None if task.terrain_contact is None else TorchTerrain(self)
 
     def _upload_rows(self, it, idx):
         torch = torch_backend.torch_module()
@@ -64,6 +73,8 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         self.speed[it] = self._T(task.speed[idx])
         self.goal[it] = self._T(task.goal[idx])
         self.start[it] = self._T(task.start[idx])
+        if self._terrain is not None:
+            self._terrain.upload_rows(self, it, idx)
 
     def _com(self, q, it=None):
         """(N, 3) centre of mass, m (as ``RollTask._com``); of envs ``it`` when ``q`` holds only them."""
@@ -136,17 +147,21 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         inputs = self._physics_inputs()
         q0, qd0, anchor0, active0 = self.q, self.qd, self.anchor, self.active
         com0 = self._com(q0)
-        kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
-                  params=self._params, contact_prm=self._contact_prm, substep=self._substep)
-        (q, qd, anchor, active), qd_prev = self._advance(
-            lambda n, *s: torch_backend.contact_step(self.tm, task.contact, *s, task.dt, task.integrator, n, **kw),
-            (q0, qd0, anchor0, active0))
-        diverged = torch_backend.diverged(q, qd, task.center0, task.divergence_limit, local=True)   # pipeline.diverged
-        d3 = diverged[:, None, None]
-        self.q = torch.where(d3, q0, q)
-        self.qd = torch.where(d3, qd0, qd)
-        self.anchor = torch.where(d3, anchor0, anchor)
-        self.active = torch.where(diverged[:, None], active0, active)
+        if self._terrain is not None:       # terrain contact; diverged copies restored there
+            self.q, self.qd, qd_prev, diverged = self._terrain.advance(self, q0, qd0, inputs)
+            d3 = diverged[:, None, None]
+        else:
+            kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
+                      params=self._params, contact_prm=self._contact_prm, substep=self._substep)
+            (q, qd, anchor, active), qd_prev = self._advance(
+                lambda n, *s: torch_backend.contact_step(self.tm, task.contact, *s, task.dt, task.integrator, n, **kw),
+                (q0, qd0, anchor0, active0))
+            diverged = torch_backend.diverged(q, qd, task.center0, task.divergence_limit, local=True)   # pipeline.diverged
+            d3 = diverged[:, None, None]
+            self.q = torch.where(d3, q0, q)
+            self.qd = torch.where(d3, qd0, qd)
+            self.anchor = torch.where(d3, anchor0, anchor)
+            self.active = torch.where(diverged[:, None], active0, active)
         self.elapsed = self.elapsed + 1
         if qd_prev is not None:
             self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self.ctrl, self.speed, self.active,

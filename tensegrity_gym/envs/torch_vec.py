@@ -58,6 +58,14 @@ computed on the device by :class:`~tensegrity_gym.envs.torch_sensors.TorchSensor
 Not supported here (``ValueError`` at construction): ``render_mode`` (use the NumPy env to
 render), the implicit integrators (the torch backend has ``semi_implicit_euler`` and ``rk4``).
 
+``terrain=`` / ``terrain_difficulty`` (``TensegrityRoll-v0``, :mod:`tensegrity_gym.tasks.terrain`)
+as the NumPy env takes them: at a host reset ``RollTask`` draws each reset env's terrain from
+its generator, lifts the start clear of it and releases its contact state; those rows go to the
+device and the steps run the torch terrain contact (:mod:`tensegrity_gym.envs.torch_terrain`;
+the curriculum's ``env.task.set_terrain_difficulty(d)`` acts from the next resets). It equals
+the NumPy vector env to round-off in float64 on CPU (``tests/test_torch_terrain.py``). With a
+terrain, ``reset_sampling="device"`` and ``compile=True`` are refused (``ValueError``).
+
 ``compile=True`` wraps the physics step (roll: with contact,
 :func:`tensegrity_gym.torch_backend.contact_substep`; shape:
 :func:`tensegrity_gym.torch_backend.step_once`) in ``torch.compile``: the first steps

@@ -35,8 +35,9 @@ from pathlib import Path
 import numpy as np
 
 from ..core.terrain import Box, Heightfield, Plane, Terrain
+from .xp import namespace
 
-__all__ = ["TerrainGenerator", "generate", "resolve_terrain", "KINDS", "start_lift"]
+__all__ = ["TerrainGenerator", "generate", "resolve_terrain", "KINDS", "start_lift", "rod_end_contacts"]
 
 KINDS = ("slope", "steps", "rough")
 #: length of the step boxes across the goal direction and of the last step, m
@@ -179,3 +180,12 @@ def start_lift(terrain: Terrain, nodes: np.ndarray, radius: float) -> np.ndarray
     ground = terrain.height_at(nodes[..., 0], nodes[..., 1])
     gap = (nodes[..., 2] - radius) - ground
     return np.maximum(-gap.min(axis=-1), 0.0)
+
+
+def rod_end_contacts(slots, n_bars: int):
+    """(B, 2 k) bool contact flags of the rod ends (rod i's ends at 2 i, 2 i + 1), what the
+    observation reports, from the terrain contact's slot flags ``slots`` (B, 3 k F) bool (per
+    rod, per terrain part: end a, end c, interior point; :mod:`tensegrity_gym.physics.terrain`):
+    an end touches when its slot touches any part. NumPy array or torch tensor."""
+    B = slots.shape[0]
+    return namespace(slots).any(slots.reshape(B, n_bars, -1, 3)[..., :2], 2).reshape(B, 2 * n_bars)

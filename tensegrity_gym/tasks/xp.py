@@ -20,6 +20,7 @@ name                               NumPy                                torch
 ``sum_squares(x)``                 :func:`tensegrity_gym.rewards        ``(x * x).sum(-1)``
                                    .sum_squares`
 ``mean_max(d)``                    ``add.reduce / n``, ``max``          ``sum / n``, ``amax``
+``any(x, axis)``                   ``x.any(axis=axis)``                 ``x.any(dim=axis)``
 ``to_float(x, like)``              ``x.astype(like.dtype)``             ``x.to(like.dtype)``
 ``const(values, like)``            a float array of ``like``'s dtype    a tensor on ``like``'s device and dtype
 ``zeros_like``                     ``np.zeros_like``                    ``torch.zeros_like``
@@ -72,6 +73,10 @@ class _NumPyOps:
         return np.add.reduce(d, axis=-1) / d.shape[-1], np.maximum.reduce(d, axis=-1)
 
     @staticmethod
+    def any(x, axis: int):
+        return x.any(axis=axis)
+
+    @staticmethod
     def to_float(x, like):
         return x.astype(like.dtype)
 
@@ -119,6 +124,10 @@ class _TorchOps:
     @staticmethod
     def mean_max(d):
         return d.sum(dim=-1) / d.shape[-1], d.amax(dim=-1)
+
+    @staticmethod
+    def any(x, axis: int):
+        return x.any(dim=axis)
 
     @staticmethod
     def to_float(x, like):

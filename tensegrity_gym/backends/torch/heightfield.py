@@ -12,17 +12,15 @@ from .model import _torch
 __all__ = ["hf_at", "hf_patch", "hf_lipschitz", "hf_lowest"]
 
 
-def _column(g, i, like):
-    """Column i of the geom rows ``g`` (G, 10), shaped to broadcast against the points ``like``."""
-    return g[:, i].reshape(-1, *([1] * (like.ndim - 1)))
-
-
-def hf_at(p0, p1, r0, r1, g, H):
+def hf_at(p0, p1, r0, r1, part):
     """Bilinear height (m) at points (p0, p1) of the cells holding the reference points (r0, r1)
     (leading axis the copies), the gradient (dh/dx, dh/dy) and the twist (1/m), 0 across a held
-    edge: the numba ``hf_at``. ``H`` (1 or B, ny, nx)."""
+    edge: the numba ``hf_at``. ``part`` the heightfield part
+    (:class:`tensegrity_gym.backends.torch.terrain._Part`: geom rows ``g`` (G, 10), heights ``H``
+    (1 or B, ny, nx), its columns shaped by ``col``)."""
     torch = _torch()
-    x0, y0, cell = _column(g, 1, p0), _column(g, 2, p0), _column(g, 3, p0)
+    H = part.H
+    x0, y0, cell = part.col(1, p0), part.col(2, p0), part.col(3, p0)
     ny, nx = H.shape[1], H.shape[2]
     ur = (r0 - x0) / cell
     vr = (r1 - y0) / cell
@@ -33,6 +31,7 @@ def hf_at(p0, p1, r0, r1, g, H):
     u = ((p0 - x0) / cell).clamp(0.0, nx - 1.0)
     v = ((p1 - y0) / cell).clamp(0.0, ny - 1.0)
     fu, fv = u - i, v - j
+    gu, gv = 1 - fu, 1 - fv
     idx = j.long() * nx + i.long()
     if H.shape[0] == 1:
         flat = H[0].reshape(-1)
@@ -41,21 +40,22 @@ def hf_at(p0, p1, r0, r1, g, H):
             return flat[idx + o]
     else:
         flat = H.reshape(H.shape[0], -1)
+        rows = idx.reshape(idx.shape[0], -1)
 
         def take(o):
-            return torch.gather(flat, 1, (idx + o).reshape(idx.shape[0], -1)).reshape(idx.shape)
+            return torch.gather(flat, 1, rows + o).reshape(idx.shape)
     h00, h10, h01, h11 = take(0), take(1), take(nx), take(nx + 1)
-    h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
+    h = gu * gv * h00 + fu * gv * h10 + gu * fv * h01 + fu * fv * h11
     zero = torch.zeros_like(h)
-    gx = torch.where(out_u, zero, ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / cell)
-    gy = torch.where(out_v, zero, ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / cell)
+    gx = torch.where(out_u, zero, (gv * (h10 - h00) + fv * (h11 - h01)) / cell)
+    gy = torch.where(out_v, zero, (gu * (h01 - h00) + fu * (h11 - h10)) / cell)
     tw = torch.where(out_u | out_v, zero, (h11 - h10 - h01 + h00) / (cell * cell))
     return h, gx, gy, tw
 
 
-def hf_patch(p0, p1, g, H):
+def hf_patch(p0, p1, part):
     """Bilinear height (m) and gradient at points (p0, p1), the cell under each point."""
-    h, gx, gy, _ = hf_at(p0, p1, p0, p1, g, H)
+    h, gx, gy, _ = hf_at(p0, p1, p0, p1, part)
     return h, gx, gy
 
 
@@ -87,16 +87,16 @@ def _crossings(a, c, n, origin, cell, r, b, ea, ec):
     return torch.where(t < count[..., None], e, ec[..., None].expand_as(e))
 
 
-def hf_lowest(ea, ec, r, b, g, H):
+def hf_lowest(ea, ec, r, b, part):
     """The lowest point of every rod axis ``r + eta b`` (r, b (B, k, 3)), eta in [ea, ec] (B, k),
-    above the heightfield ``g`` (G, 10) with heights ``H``: the numba ``hf_lowest`` on tensors
+    above the heightfield ``part`` (as :func:`hf_at` takes it): the numba ``hf_lowest`` on tensors
     (every breakpoint, stationary point and level run at once). Returns ``(eta, deeper, gx, gy)``
     (B, k)."""
     torch = _torch()
     r0, r1, r2 = r[..., 0], r[..., 1], r[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    x0, y0, cell = _column(g, 1, r0), _column(g, 2, r0), _column(g, 3, r0)
-    ny, nx = H.shape[1], H.shape[2]
+    x0, y0, cell = part.col(1, r0), part.col(2, r0), part.col(3, r0)
+    ny, nx = part.H.shape[1], part.H.shape[2]
     em = 0.5 * (ea + ec)
     X = _crossings((r0 + ea * b0 - x0) / cell, (r0 + ec * b0 - x0) / cell, nx, x0.expand_as(r0),
                    cell.expand_as(r0), r0, b0, ea, ec)
@@ -108,8 +108,8 @@ def hf_lowest(ea, ec, r, b, g, H):
 
     def gap(e, ref=None):
         px, py = R0 + e * B0, R1 + e * B1
-        h, gx, gy, tw = hf_at(px, py, px, py, g, H) if ref is None else hf_at(px, py, R0 + ref * B0,
-                                                                                R1 + ref * B1, g, H)
+        h, gx, gy, tw = hf_at(px, py, px, py, part) if ref is None else hf_at(px, py, R0 + ref * B0,
+                                                                                R1 + ref * B1, part)
         return R2 + e * B2 - h, gx, gy, tw
     gE = gap(E)[0]
     lo, hi = E[..., :-1], E[..., 1:]
@@ -152,7 +152,7 @@ def hf_lowest(ea, ec, r, b, g, H):
     gx = torch.where(odd, gxs.gather(-1, i), gxl + lam * (gxr - gxl))
     gy = torch.where(odd, gys.gather(-1, i), gyl + lam * (gyr - gyl))
     run = left < right
-    _, gxe, gye = hf_patch(R0 + e * B0, R1 + e * B1, g, H)
+    _, gxe, gye = hf_patch(R0 + e * B0, R1 + e * B1, part)
     gx = torch.where(run, gxe, gx)[..., 0]
     gy = torch.where(run, gye, gy)[..., 0]
     return torch.where(deeper, e[..., 0], em), deeper, gx, gy

@@ -3,7 +3,8 @@ heightfield, batched over copies (:func:`terrain_forces`), and steps with it
 (:func:`terrain_step`). The same equations, slots and arithmetic as the numba kernel
 :mod:`tensegrity_gym.backends.numba.terrain` (see there for the array layouts ``geom``
 (G, F, 10), ``prm`` (P, F, 8), ``hf`` (H, ny, nx) and the slot order; the heightfield's
-measure and search: :mod:`tensegrity_gym.backends.torch.heightfield`); the arrays come from :class:`tensegrity_gym.physics.terrain.TerrainContact`
+measure and search: :mod:`tensegrity_gym.backends.torch.heightfield`); the arrays come from
+:class:`tensegrity_gym.physics.terrain.TerrainContact`
 (``.geom``, ``.prm``, ``.hf``, ``.per_copy``). SI units.
 """
 from __future__ import annotations
@@ -14,7 +15,7 @@ import numpy as np
 
 from ..numba.terrain import GOLDEN_ITERS, HFIELD, LEVEL_TOL, PLANE
 from .driver import prepare_steps, step_once
-from .heightfield import _column, hf_lipschitz, hf_lowest, hf_patch
+from .heightfield import hf_lipschitz, hf_lowest, hf_patch
 from .model import TorchModel, _torch, torch_model
 
 __all__ = ["init_terrain_state", "terrain_forces", "terrain_step"]
@@ -32,28 +33,51 @@ def init_terrain_state(tm_or_model, n_features: int, batch_size: int, device=Non
             torch.zeros((batch_size, S), dtype=torch.bool, device=tm.device))
 
 
-def _box(p0, p1, p2, g):
-    """Signed distance and outward normal of points (p0, p1, p2) to boxes ``g`` (G, 10) rows
-    broadcast against the points' leading axis (as the numba ``_box_closest``)."""
+class _Part:
+    """One terrain part: its geom rows ``g`` (G, 10) (every row of one feature column has the
+    part's kind), the heightfield heights ``H``; the kind read once (one device read) and the
+    columns shaped once per rank of the points they meet (the box search evaluates the distance
+    ~140 times a step; the heightfield's functions in
+    :mod:`tensegrity_gym.backends.torch.heightfield` take the part too)."""
+
+    def __init__(self, g, H):
+        self.g, self.H, self.kind = g, H, float(g[0, 0])
+        self._cols: dict = {}
+
+    def col(self, i: int, like):
+        """Column i, shaped to broadcast against the points ``like`` (leading axis: the copies)."""
+        key = (i, like.ndim)
+        c = self._cols.get(key)
+        if c is None:
+            c = self._cols[key] = self.g[:, i].reshape(-1, *([1] * (like.ndim - 1)))
+        return c
+
+
+def _box(p0, p1, p2, part, normal: bool = True):
+    """Signed distance and outward normal of points (p0, p1, p2) to the boxes of ``part``, rows
+    broadcast against the points' leading axis (as the numba ``_box_closest``); the distance
+    alone with ``normal=False`` (the same number)."""
     torch = _torch()
-    cx, cy, cz, hx, hy, hz, c, s = (g[:, i].reshape(-1, *([1] * (p0.ndim - 1))) for i in range(1, 9))
+    cx, cy, cz, hx, hy, hz, c, s = (part.col(i, p0) for i in range(1, 9))
     dx, dy, dz = p0 - cx, p1 - cy, p2 - cz
     l0 = c * dx + s * dy
     l1 = (-s) * dx + c * dy
     l2 = dz
     q0, q1, q2 = l0.abs() - hx, l1.abs() - hy, l2.abs() - hz
-    one = torch.ones_like(l0)
-    s0, s1, s2 = (torch.where(x >= 0.0, one, -one) for x in (l0, l1, l2))
     o0, o1, o2 = q0.clamp(min=0.0), q1.clamp(min=0.0), q2.clamp(min=0.0)
     dout = torch.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
     out = dout > 0.0
-    safe = torch.where(out, dout, one)
-    zero = torch.zeros_like(l0)
     # inside: the nearest face, the first of the largest q (numba's sequential comparisons)
     a1 = q1 > q0
     d = torch.where(a1, q1, q0)
     a2 = q2 > d
     d = torch.where(a2, q2, d)
+    if not normal:
+        return torch.where(out, dout, d)
+    one = torch.ones_like(l0)
+    s0, s1, s2 = (torch.where(x >= 0.0, one, -one) for x in (l0, l1, l2))
+    safe = torch.where(out, dout, one)
+    zero = torch.zeros_like(l0)
     n0 = torch.where(out, s0 * o0 / safe, torch.where(a1 | a2, zero, s0))
     n1 = torch.where(out, s1 * o1 / safe, torch.where(a1 & ~a2, s1, zero))
     n2 = torch.where(out, s2 * o2 / safe, torch.where(a2, s2, zero))
@@ -61,32 +85,38 @@ def _box(p0, p1, p2, g):
     return d, c * n0 - s * n1, s * n0 + c * n1, n2
 
 
-def _closest(p0, p1, p2, g, H):
-    """Contact measure of points against the features ``g`` (G, 10) of one kind (all rows of one
-    feature column share its kind): (signed distance or a heightfield's vertical gap, outward
-    unit normal, w), the measure's gradient ``w n`` (the numba ``_closest``); ``H`` the heights."""
+def _closest(p0, p1, p2, part, normal: bool = True):
+    """Contact measure of points against the terrain part ``part`` (:class:`_Part`): (signed
+    distance or a heightfield's vertical gap, outward unit normal, w), the measure's gradient
+    ``w n`` (the numba ``_closest``); the measure alone with ``normal=False`` (the same number)."""
     torch = _torch()
-    kind = float(g[0, 0])
+    kind = part.kind
     if kind == PLANE:
-        nx, ny, nz, off = (_column(g, i, p0) for i in range(1, 5))
-        return nx * p0 + ny * p1 + nz * p2 - off, nx.expand_as(p0), ny.expand_as(p0), nz.expand_as(p0), \
-            torch.ones_like(p0)
+        nx, ny, nz, off = (part.col(i, p0) for i in range(1, 5))
+        d = nx * p0 + ny * p1 + nz * p2 - off
+        return (d, nx.expand_as(p0), ny.expand_as(p0), nz.expand_as(p0), torch.ones_like(p0)) if normal else d
     if kind == HFIELD:
-        h, gx, gy = hf_patch(p0, p1, g, H)
+        h, gx, gy = hf_patch(p0, p1, part)
+        if not normal:
+            return p2 - h
         w = torch.sqrt(1.0 + gx * gx + gy * gy)
         return p2 - h, -gx / w, -gy / w, 1.0 / w, w
-    return _box(p0, p1, p2, g) + (torch.ones_like(p0),)
+    if not normal:
+        return _box(p0, p1, p2, part, False)
+    return _box(p0, p1, p2, part) + (torch.ones_like(p0),)
 
 
-def _interior(ea, ec, r, b, g, H):
-    """The interior contact point of every rod against the box ``g``, (eta, deeper) (B, k): the
-    numba ``_interior`` on tensors (golden section, then the middle of the level set)."""
+def _interior(ea, ec, r, b, part):
+    """The interior contact point of every rod against the box ``part``, (eta, deeper) (B, k):
+    the numba ``_interior`` on tensors (golden section, then the middle of the level set)."""
     torch = _torch()
+
+    r0, r1, r2 = (r[..., i, None] for i in range(3))      # (views taken once, not per evaluation)
+    b0, b1, b2 = (b[..., i, None] for i in range(3))
 
     def sd(e):
         e3 = e if e.ndim == r.ndim else e[..., None]
-        return _box(r[..., 0, None] + e3 * b[..., 0, None], r[..., 1, None] + e3 * b[..., 1, None],
-                    r[..., 2, None] + e3 * b[..., 2, None], g)[0].reshape(e.shape)
+        return _box(r0 + e3 * b0, r1 + e3 * b1, r2 + e3 * b2, part, normal=False).reshape(e.shape)
     ea, ec = ea.expand_as(r[..., 0]), ec.expand_as(r[..., 0])
     fa, fc = sd(ea), sd(ec)
     lo, hi = ea, ec
@@ -154,14 +184,28 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
     ``hf`` (1 or B, ny, nx) heightfield heights m (needed only with a heightfield): arrays or
     tensors (:class:`tensegrity_gym.physics.terrain.TerrainContact`'s ``geom`` / ``per_copy``
     / ``hf``)."""
-    torch = _torch()
     tm = model if isinstance(model, TorchModel) else torch_model(model, q.device, q.dtype)
-    B, k = q.shape[0], tm.k
+    geom, prm, H, lips = _prepare(geom, prm, hf, q)
+    return _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active)
+
+
+def _prepare(geom, prm, hf, q):
+    """``geom``, ``prm``, the heights as tensors like ``q`` (checked) and the heightfield parts'
+    slope bounds (:func:`~tensegrity_gym.backends.torch.heightfield.hf_lipschitz`, feature ->
+    (G or B, 1)), computed once for the steps that share them."""
     geom, prm = _as(geom, q, "geom", 10), _as(prm, q, "prm", 8)
     H = _as_hf(hf, geom, q)
     F = geom.shape[1]
     if prm.shape[1] != F:
         raise ValueError(f"prm: expected {F} features as geom, got {prm.shape[1]}")
+    lips = {f: hf_lipschitz(geom[:, f], H) for f in range(F) if float(geom[0, f, 0]) == HFIELD}
+    return geom, prm, H, lips
+
+
+def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
+    """:func:`terrain_forces` on prepared inputs (:func:`_prepare`)."""
+    torch = _torch()
+    B, k, F = q.shape[0], tm.k, geom.shape[1]
     r, b, rd, bd = q[..., :3], q[..., 3:], qd[..., :3], qd[..., 3:]
     ea, ec = tm.eta_a[..., 0], tm.eta_c[..., 0]                          # (1, k)
     span = ec - ea
@@ -172,34 +216,37 @@ def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
     Wc = torch.zeros_like(r)
     outs = []
     for f in range(F):
-        g = geom[:, f]
+        part = _Part(geom[:, f], H)
         pr = [prm[:, f, i].reshape(-1, 1) for i in range(8)]             # (P, 1)
         radius, kn, dn, ex, mu, kt, ct, cmax = pr
         em = 0.5 * (ea + ec)
         mid = [r[..., i] + em * b[..., i] for i in range(3)]
-        hfield = float(g[0, 0]) == HFIELD
+        hfield = part.kind == HFIELD
         if hfield:
             # the vertical gap's Lipschitz bound (the numba kernel's far early-out)
-            far = mid[2] - hf_patch(mid[0], mid[1], g, H)[0] - hf_lipschitz(g, H) * (0.5 * span.abs()) >= radius
+            far = mid[2] - hf_patch(mid[0], mid[1], part)[0] - lips[f] * (0.5 * span.abs()) >= radius
         else:
-            far = _closest(mid[0], mid[1], mid[2], g, H)[0] - 0.5 * span.abs() >= radius
-        if float(g[0, 0]) == PLANE:
+            far = _closest(mid[0], mid[1], mid[2], part, normal=False) - 0.5 * span.abs() >= radius
+        kink = False
+        if part.kind == PLANE or bool(far.all()):
+            # a plane has no interior slot; a part every rod is far from leaves it unused
             ei, deeper = em.expand(B, k), torch.zeros((B, k), dtype=torch.bool, device=q.device)
         elif hfield:
-            ei, deeper, kgx, kgy = hf_lowest(ea.expand(B, k), ec.expand(B, k), r, b, g, H)
-            ei = torch.where(far, em.expand(B, k), ei)
+            ei, deeper, kgx, kgy = hf_lowest(ea.expand(B, k), ec.expand(B, k), r, b, part)
+            ei, kink = torch.where(far, em.expand(B, k), ei), True
         else:
-            ei, deeper = _interior(ea, ec, r, b, g, H)
+            ei, deeper = _interior(ea, ec, r, b, part)
             ei = torch.where(far, em.expand(B, k), ei)
         E = torch.stack([ea.expand(B, k), ec.expand(B, k), ei], dim=-1)  # (B, k, 3)
         use = torch.stack([~far, ~far, ~far & deeper], dim=-1)
         P = r[:, :, None, :] + E[..., None] * b[:, :, None, :]          # (B, k, 3, 3)
         V = rd[:, :, None, :] + E[..., None] * bd[:, :, None, :]
-        sd, nx, ny, nz, w = _closest(P[..., 0], P[..., 1], P[..., 2], g, H)
+        sd, nx, ny, nz, w = _closest(P[..., 0], P[..., 1], P[..., 2], part)
         sd = torch.where(use, sd, torch.full_like(sd, math.inf))
         n = torch.stack([nx, ny, nz], dim=-1)
-        if hfield:
-            # the interior slot's normal from the gradient of the lowest point (a kink's combination)
+        if kink:
+            # the interior slot's normal from the gradient of the lowest point (a kink's combination;
+            # a heightfield every rod is far from has no search, and its unused slot 2 keeps _closest's)
             wk = torch.sqrt(1.0 + kgx * kgx + kgy * kgy)
             nk = torch.stack([-kgx / wk, -kgy / wk, 1.0 / wk], dim=-1)
             n = torch.cat([n[..., :2, :], nk[..., None, :]], dim=-2)
@@ -276,8 +323,9 @@ def terrain_step(model, geom, prm, q, qd, anchor, eta0, active, dt: float, integ
     as :func:`terrain_forces` takes them. Returns ``(q, qd, anchor, eta0, active)``."""
     name, dt, tm, p, rl, fd, ext = prepare_steps(model, q, integrator, dt, params, rest_length, force_density,
                                                  external)
+    geom, prm, H, lips = _prepare(geom, prm, hf, q)
     for _ in range(int(n_steps)):
-        W, anchor, eta0, active, _ = terrain_forces(tm, q, qd, geom, prm, anchor, eta0, active, hf)
+        W, anchor, eta0, active, _ = _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active)
         if ext is not None:
             W = W + ext
         q, qd = step_once(tm, q, qd, dt, name, p, rl, fd, W, project)

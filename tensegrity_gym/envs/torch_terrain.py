@@ -1,0 +1,75 @@
+"""The torch device roll env's terrain: its rows and contact state on the device, stepped there.
+
+:class:`~tensegrity_gym.envs.torch_tasks.TorchRollVectorEnv` with ``terrain=`` steps the torch
+terrain contact (:func:`tensegrity_gym.backends.torch.terrain.terrain_step`). SI units.
+
+The host :class:`~tensegrity_gym.envs.roll.RollTask` keeps doing what is drawn: at a reset it
+draws each reset copy's terrain from that copy's generator, lifts the start clear of it and
+releases its stick/slip state (``RollTask.reset_idx``); this class copies those rows to the
+device (the geometry and heights only where a generator draws them per copy). Each control step
+then runs on the device: ``frame_skip`` terrain contact steps, the divergence restore of the
+terrain's contact state, and the rod ends' contact flags from its slots
+(:func:`tensegrity_gym.tasks.terrain.rod_end_contacts`, the NumPy env's function)."""
+from __future__ import annotations
+
+from .. import torch_backend
+from ..backends.torch.terrain import terrain_step
+from ..tasks.terrain import rod_end_contacts
+
+__all__ = ["TorchTerrain"]
+
+
+class TorchTerrain:
+    """The terrain of ``env``'s task on ``env``'s device: geometry ``geom`` (1 or N, F, 10),
+    heightfield heights ``hf`` (1 or N, ny, nx) m or None, and the contact state ``anchor``
+    (N, S, 3) m, ``eta0`` (N, S) m, ``active`` (N, S) bool (S = 3 k F slots). A fixed terrain
+    keeps one row of geometry and heights; a generator's terrains one per copy. The contact
+    parameters are the env's ``_terrain_prm`` (the task's ``terrain_prm`` rows, uploaded with
+    the other per-copy parameters)."""
+
+    def __init__(self, env):
+        torch = torch_backend.torch_module()
+        task = env.task
+        self.per_copy = task.terrain_generator is not None
+        rows = slice(None) if self.per_copy else slice(0, 1)
+        self.geom = env._T(task.terrain_geom[rows])
+        self.hf = None if task.terrain_hf is None else env._T(task.terrain_hf[rows])
+        ts = task.tstate
+        self.anchor = env._T(ts.anchor)
+        self.eta0 = env._T(ts.eta0)
+        self.active = torch.as_tensor(ts.active, device=env.device)
+
+    def upload_rows(self, env, it, idx) -> None:
+        """Envs ``it`` (device index tensor) take the host task's rows ``idx`` after its reset:
+        their released contact state and, with a generator, their terrain."""
+        torch = torch_backend.torch_module()
+        task = env.task
+        ts = task.tstate
+        self.anchor[it] = env._T(ts.anchor[idx])
+        self.eta0[it] = env._T(ts.eta0[idx])
+        self.active[it] = torch.as_tensor(ts.active[idx], device=env.device)
+        if self.per_copy:
+            self.geom[it] = env._T(task.terrain_geom[idx])
+            if self.hf is not None:
+                self.hf[it] = env._T(task.terrain_hf[idx])
+
+    def advance(self, env, q0, qd0, inputs: dict):
+        """One control step of the physics on the terrain from ``q0``, ``qd0`` (N, k, 6):
+        returns ``(q, qd, qd_prev, diverged)`` with the diverged copies' states (and contact
+        state) restored; ``env.active`` becomes the rod ends' contact flags."""
+        torch = torch_backend.torch_module()
+        task = env.task
+        geom, prm, hf = self.geom, env._terrain_prm, self.hf
+        kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
+                  params=env._params, hf=hf)
+        state0 = (q0, qd0, self.anchor, self.eta0, self.active)
+        (q, qd, anchor, eta0, active), qd_prev = env._advance(
+            lambda n, *s: terrain_step(env.tm, geom, prm, *s, task.dt, task.integrator, n, **kw), state0)
+        diverged = torch_backend.diverged(q, qd, task.center0, task.divergence_limit, local=True)
+        d1, d2 = diverged[:, None], diverged[:, None, None]
+        q, qd = torch.where(d2, q0, q), torch.where(d2, qd0, qd)
+        self.anchor = torch.where(d2, state0[2], anchor)
+        self.eta0 = torch.where(d1, state0[3], eta0)
+        self.active = torch.where(d1, state0[4], active)
+        env.active = rod_end_contacts(self.active, q.shape[1])
+        return q, qd, qd_prev, diverged

@@ -1,0 +1,134 @@
+"""TensegrityRoll-v0's ``terrain=`` on the torch device vector env (tensegrity_gym.envs.torch_terrain).
+
+In float64 on CPU the torch env on a terrain must reproduce the NumPy/numba vector env (same
+seeds, same actions) to round-off, as the level-ground env does (tests/test_torch_env.py): the
+same terrains drawn per copy from the same seeds, the same lift of the start, the same contact
+flags; wrong terrain arguments are refused with the NumPy env's errors; a partial reset redraws
+only the reset copies' terrains and releases only their contact state.
+"""
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+import gymnasium as gym  # noqa: E402
+
+from test_torch_env import _close_obs, _compare_rollouts, _pair  # noqa: E402
+
+ID = "TensegrityRoll-v0"
+STEPS = {"generator": "steps", "step_height": 0.04, "n_steps": 3, "pad": 0.05, "tread": 0.2}
+
+CASES = {
+    "slope_generator": dict(terrain={"generator": "slope", "slope_range": (5.0, 15.0)}, randomize_goal=True),
+    "steps_generator": dict(terrain=STEPS, randomize={"friction": 0.3, "rod_mass": 0.2}),
+    "rough_generator": dict(terrain={"generator": "rough", "size": 2.0, "cell": 0.05, "pad": 0.0,
+                                     "amplitude": 0.03}, terrain_difficulty=0.8),
+    "fixed_boxes_robot_obs": dict(terrain={"plane": {"slope_deg": 3.0},
+                                           "boxes": [{"center": [0.1, 0.0, 0.0], "size": [0.2, 2.0, 0.06]}]},
+                                  observation_mode="robot", history=2),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_terrain_matches_numpy_vector_env(case):
+    """Observations, rewards, dones and infos equal the NumPy vector env's at every step (autoreset
+    twice per copy), and so do the per-copy terrains and the terrain contact state."""
+    N, steps = 2, 24
+    ref, ten = _pair(N, max_episode_steps=10, **CASES[case])
+    resets, _ = _compare_rollouts(ref, ten, N, steps, seed=11, action_seed=3,
+                                  obs_atol=1e-8 if "observation_mode" in CASES[case] else 1e-12)
+    assert resets >= N
+    task, tt = ref.unwrapped.task, ten._terrain
+    rows = slice(None) if tt.per_copy else slice(0, 1)
+    np.testing.assert_array_equal(tt.geom.numpy(), task.terrain_geom[rows])
+    if task.terrain_hf is not None:
+        np.testing.assert_array_equal(tt.hf.numpy(), task.terrain_hf[rows])
+    np.testing.assert_array_equal(tt.active.numpy(), task.tstate.active)
+    np.testing.assert_allclose(tt.anchor.numpy(), task.tstate.anchor, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(ten.active.numpy(), task.cstate.active)
+    assert task.tstate.active.any()          # on the terrain, not above it
+    if tt.per_copy:                          # each copy its own draw
+        assert not np.array_equal(task.terrain_geom[0], task.terrain_geom[1]) or \
+            not np.array_equal(task.terrain_hf[0], task.terrain_hf[1])
+
+
+BAD = [
+    (dict(terrain="ground.txt"), "terrain: expected a terrain JSON file"),
+    (dict(terrain={"generator": "bumpy"}), "unknown kind 'bumpy'"),
+    (dict(terrain={"generator": "steps", "height": 0.1}), "unknown key 'height'"),
+    (dict(terrain={"plane": {"slope_deg": 95}}), "slope_deg"),
+    (dict(terrain=42), "terrain: expected"),
+    (dict(terrain_difficulty=1.5), "terrain_difficulty"),
+]
+
+
+@pytest.mark.parametrize("kw, match", BAD)
+def test_bad_terrain_refused_with_the_numpy_envs_error(kw, match):
+    errors = []
+    for extra in ({}, dict(backend="torch", device="cpu")):
+        with pytest.raises(ValueError, match=match) as e:
+            gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point", **kw, **extra)
+        errors.append(str(e.value))
+    assert errors[0] == errors[1]
+
+
+def test_device_resets_and_compile_refused_on_terrain():
+    mk = dict(num_envs=2, vectorization_mode="vector_entry_point", backend="torch", device="cpu", terrain=STEPS)
+    with pytest.raises(ValueError, match="reset_sampling: 'device' is not available with terrain"):
+        gym.make_vec(ID, reset_sampling="device", **mk)
+    with pytest.raises(ValueError, match="compile: not available with terrain"):
+        gym.make_vec(ID, compile=True, **mk)
+
+
+def test_level_ground_runs_no_terrain_code():
+    _, ten = _pair(2)
+    assert ten._terrain is None and not hasattr(ten, "_terrain_prm")
+
+
+def test_partial_reset_redraws_only_those_copies_terrains():
+    """``reset(options={"env_idx": [1]})`` after a curriculum change: copy 1 gets a new (level)
+    terrain and a released contact state, copies 0 and 2 keep theirs; the NumPy vector env does
+    the same."""
+    N = 3
+    ref, ten = _pair(N, terrain=STEPS)
+    ref.reset(seed=5)
+    ten.reset(seed=5)
+    a = np.zeros((N, ref.single_action_space.shape[0]))
+    for _ in range(3):
+        ref.step(a)
+        ten.step(torch.as_tensor(a))
+    geom0 = ten._terrain.geom.clone()
+    state0 = [x.clone() for x in (ten._terrain.anchor, ten._terrain.eta0, ten._terrain.active)]
+    assert state0[2][1].any()
+    for env in (ref, ten):
+        env.unwrapped.task.set_terrain_difficulty(0.0)
+    o1, _ = ref.reset(options={"env_idx": [1]})
+    o2, _ = ten.reset(options={"env_idx": [1]})
+    _close_obs(o1, o2)
+    geom = ten._terrain.geom
+    keep = [0, 2]
+    assert torch.equal(geom[keep], geom0[keep]) and not torch.equal(geom[1], geom0[1])
+    np.testing.assert_array_equal(geom.numpy(), ref.unwrapped.task.terrain_geom)
+    assert ref.unwrapped.task.terrains[1].height_at(1.0, 0.0) == 0.0       # difficulty 0: level steps
+    for now, before in zip((ten._terrain.anchor, ten._terrain.eta0, ten._terrain.active), state0):
+        assert torch.equal(now[keep], before[keep])
+        assert not now[1].any()
+    assert not ten.active[1].any()
+    for _ in range(3):
+        o1, *_ = ref.step(a)
+        o2, *_ = ten.step(torch.as_tensor(a))
+        _close_obs(o1, o2)
+
+
+def test_float32_on_terrain_close_to_float64():
+    envs = [gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
+                         dtype=d, terrain={"generator": "slope"}) for d in ("float32", "float64")]
+    outs = [e.reset(seed=1)[0] for e in envs]
+    assert envs[0]._terrain.geom.dtype == torch.float32
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        a = rng.uniform(-1, 1, (2, 9))
+        outs = [e.step(torch.as_tensor(a, dtype=torch.float32))[0] for e in envs]
+    assert outs[0].dtype == torch.float32
+    err = (outs[0].double() - outs[1]).abs().max().item()
+    assert 0 < err < 1e-3, err
