@@ -98,7 +98,7 @@ from . import compile as _cm
 from .compile import NCHUNK as _NCHUNK, PARALLEL_MIN_WORK, _compile, _parallel, _READY
 from .entries import (_contact_loop, _contact_loop_simd, _contact_parallel, _run_acc, _run_copies_serial, _run_forces,
                       _run_lean, _run_parallel, _run_project, _run_serial, _run_serial_simd)
-from .layout import _ACC, _CHUNK_SHIFT, _CONS, _ERRORS, _EXT, _FD, _L0DEF, _PONLY, _RK4, _SOA_MIN_BATCH
+from .layout import _CHUNK_SHIFT, _CONS, _ERRORS, _EXT, _FD, _L0DEF, _RK4, _SOA_MIN_BATCH
 from .pack import _CACHE, _array, _flags, _pack, _pack_params, clear_cache
 from .plans import Plan, lean_plan, make_plan, packed
 

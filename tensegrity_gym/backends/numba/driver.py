@@ -2,10 +2,12 @@
 
 The driver runs ``n_steps`` fixed steps (semi-implicit Euler or RK4, optional projection,
 optional ground contact at each step) of the copies ``lo..hi`` in structure-of-arrays scratch
-(k, 6, E). It is inlined into instances in which the compiler knows E: ``_drive_lanes`` (E = 16
-or 8 SIMD lanes, fresh scratch arrays) and ``_drive_one`` (E = 1, in the packed buffer's own
-scratch reached through ``numba.carray`` views, ``_view``); ``_drive_lanes_contact`` /
-``_drive_one_contact`` with ground contact. SI units.
+(k, 6, E). It is compiled once per instance (``_drive``: numba specialises it on the types of its
+arguments, E = 1 a compile-time literal): ``_drive_lanes`` (E = 16 or 8 SIMD lanes, fresh scratch
+arrays) and ``_drive_one`` (E = 1, in the packed buffer's own scratch reached through
+``numba.carray`` views, ``_view``); ``_drive_lanes_contact`` / ``_drive_one_contact`` with ground
+contact. Every entry kernel calls these instances rather than inlining the driver: numba's inlining
+copies the whole driver into each caller, which made most of a cold compile. SI units.
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
-from .layout import (_ACC, _CONS, _EXT, _FD, _L0DEF, _PONLY, _PROJ, _RK4, _ROD, _STR,
+from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
                      _opts, _soa_width_nb)
 
 @njit(inline="always", **_opts)
@@ -130,7 +132,8 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
     may be the same arrays): the one loop driver of the numba backend. E copies at a time in
     structure-of-arrays scratch (k, 6, E), so that every inner loop runs over copies and
     compiles to SIMD code; E = 1 (one copy at a time) for small batches. The equations are
-    inlined (_acc, _rod_acc, _drift_rod, _project), so nothing is called per copy or per step.
+    called once per stage (:func:`_acc`, a compiled function shared with the entry ``_run_acc``)
+    or inlined (_drift_rod, _project).
     ``w``/``ib``: the packed buffer (topology; its physical constants where every copy shares
     them). ``lanes`` (ceil(B/E), len, E): the copies' packed buffers in blocks of E lanes
     (:func:`_lanes`, or (P, len, 1) for E = 1; per-copy parameters, ``lo`` a multiple of E),
@@ -156,9 +159,6 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
     n_stages = 4 if rk4 else 1
     do_proj = (flags & _PROJ) != 0
     any_cons = (flags & _CONS) != 0
-    acc_only = (flags & _ACC) != 0
-    proj_only = (flags & _PONLY) != 0
-    n_loop = 0 if proj_only else n_steps
     h = 0.5 * dt
     c6 = dt / 6.0
     o_l0 = L[2]
@@ -180,17 +180,7 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         _load(q, qd, l0, fd, ext, c0, ne, Q, QD, L0, FD, EX, PC, o_l0, k, m, n, E, flags)
         if contact is not None:
             _contact_load(anchor, active, AN, AC, c0, ne, k, E)
-        if acc_only:                                # accelerations only (the entry `accelerations`)
-            _acc(w, ib, L, k, m, n, Q, QD, A1, N, V, F, L0, FD, EX, E, flags, PC)
-            for e in range(ne):
-                for j in range(k):
-                    for i in range(6):
-                        qo[c0 + e, j, i] = Q[j, i, e]
-                        qdo[c0 + e, j, i] = A1[j, i, e]
-            continue
-        if proj_only:                               # projection only (the entry `project`)
-            _project(w, ib, o_rod, k, Q, QD, E, any_cons)
-        for _ in range(n_loop):
+        for _ in range(n_steps):
             if contact is not None:                 # held over the step, as contact.step does
                 _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)
             Qi = Q
@@ -242,30 +232,30 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         if contact is not None:
             _contact_store(anchor, active, slip, ext, AN, AC, SL, EX, c0, ne, k, n)
 
-# The one driver, inlined into its two instances with E known to the compiler: SIMD blocks
-# (E = 16 or 8) and one copy at a time (E = 1, lane loops dropped). Same source, same operations.
-_drive_inline = njit(inline="always", **_opts)(_drive_py)
+# The one driver, compiled for its two instances: SIMD blocks (E = 16 or 8) and one copy at a time
+# (E passed as the literal 1: its lane loops are dropped). Same source, same operations.
+_drive = njit(**_opts)(_drive_py)
 
 @njit(**_opts)
 def _drive_lanes(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_drive_py in SIMD blocks of E = :func:`_soa_width` copies (fresh scratch arrays)."""
-    _drive_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes,
+    _drive(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes,
                     _soa_width_nb(k), None)
 
 @njit(**_opts)
 def _drive_one(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_drive_lanes one copy at a time (E = 1, a compile-time constant), in the scratch of ``w``."""
-    _drive_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1, None)
+    _drive(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1, None)
 
 @njit(**_opts)
 def _drive_lanes_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
     """_drive_lanes with ground contact (``contact`` the tuple of :func:`_drive_py`), in place on
     q, qd; ``W`` (B, n, 3) receives each copy's forces of its last step."""
-    _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
                     _soa_width_nb(k), contact)
 
 @njit(**_opts)
 def _drive_one_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
     """_drive_one with ground contact (see :func:`_drive_lanes_contact`)."""
-    _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, contact)
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, contact)
 

@@ -1,5 +1,5 @@
-"""The book's equations as scalar numba functions (Skelton & de Oliveira ch. 5), inlined into
-the loop driver (:mod:`.driver`): rod accelerations ((5.37)/(5.40), reduced form
+"""The book's equations as scalar numba functions (Skelton & de Oliveira ch. 5) run by the loop
+driver (:mod:`.driver`; :func:`_acc` compiled on its own and called, the rest inlined): rod accelerations ((5.37)/(5.40), reduced form
 (5.49)-(5.51)), the great-circle drift of semi-implicit Euler, nodes linear in the
 configuration (5.17), tension-only string forces (5.20) and generalized forces (5.21), and the
 projection onto the constraints. Same formulas as the NumPy oracle ``tests/oracle_numpy.py``
@@ -183,7 +183,7 @@ def _forces(w, ib, L, k, m, n, Qi, Vi, N, V, F, L0, FD, EX, E, flags, PC, G, LS,
                     F[p, i, e] = F[p, i, e] + EX[p, i, e]
 
 
-@njit(inline="always", **_opts)
+@njit(**_opts)
 def _acc(w, ib, L, k, m, n, Qi, Vi, A, N, V, F, L0, FD, EX, E, flags, PC):
     """Accelerations A (k, 6, E) of E copies at once (physics.accelerations), in
     structure-of-arrays scratch: Qi, Vi, A (k, 6, E), N, V, F, EX (n, 3, E), L0, FD (m, E).

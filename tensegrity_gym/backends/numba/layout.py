@@ -21,8 +21,6 @@ _PROJ = 32
 _CONS = 64
 _L0DEF = 128   # use the model's rest lengths stored in the buffer
 _NDAMP = 256   # per-node viscous drag (model.node_damping)
-_ACC = 512     # no step: write the accelerations [r'', b''] of (q, qd) into qdo (q into qo)
-_PONLY = 1024  # no step: write the projection of (q, qd) onto the constraints (_project) into qo, qdo
 _CHUNK_SHIFT = 16   # the parallel kernel's chunk count rides in flags >> _CHUNK_SHIFT
 _SINC_SMALL = 1e-4    # rad: below this angle per step sin(x)/x = 1 - x^2/6
 _SOA_MIN_BATCH = 16   # serial calls with at least this many environments use the SIMD (SoA) loop
