@@ -14,18 +14,17 @@ min and max. Writes ``climb.json``, ``climb.csv`` and ``climb.png`` into ``--out
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
-from tensegrity_gym_agents.evaluate import load_trained, run_episodes
-from tensegrity_gym_agents.tune import iqm_interval
+from tensegrity_gym_agents.evaluate import run_episodes
 from tensegrity_gym.io.atomic import write_atomic
 from tensegrity_gym.tools.baselines import RollingGait
+
+from _policy_table import iqm_row, parse_table_args, table_parser, trained_policies
 
 ENV_ID = "TensegrityClimb-v0"
 SEED0 = 10000
@@ -39,22 +38,14 @@ def episode_speeds(policy_factory, slope: float, episodes: int, env_kwargs: dict
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("runs", nargs="*", type=Path, help="run folders of agents.train (one per training seed)")
-    ap.add_argument("--out", type=Path, required=True, help="output folder")
+    ap = table_parser(__doc__, env_kwargs_help="JSON object of extra env arguments (the robot)")
     ap.add_argument("--slopes", type=float, nargs="+", default=[0, 5, 10, 15, 20, 24, 26, 28, 30])
     ap.add_argument("--episodes", type=int, default=8)
-    ap.add_argument("--model", default="final", help="best, final or a model .zip")
-    ap.add_argument("--env-kwargs", default="{}", help="JSON object of extra env arguments (the robot)")
-    ap.add_argument("--no-baseline", action="store_true", help="skip the rolling gait")
-    args = ap.parse_args(argv)
-    env_kwargs = json.loads(args.env_kwargs)
-    args.out.mkdir(parents=True, exist_ok=True)
+    args, env_kwargs = parse_table_args(ap, argv)
     import gymnasium as gym
     body = float(np.max(gym.make(ENV_ID, **env_kwargs).unwrapped.task.structure.bar_lengths))
     rows, per_run = [], {}
-    for run in args.runs:
-        _, policy, model_path, _ = load_trained(run, args.model)
+    for run, policy, model_path in trained_policies(args.runs, args.model):
         per_run[str(run)] = {"model": str(model_path),
                              "speed_m_s": [float(episode_speeds(lambda env: policy, s, args.episodes, env_kwargs).mean())
                                            for s in args.slopes]}
@@ -70,9 +61,8 @@ def main(argv=None) -> int:
         vals = [r["speed_m_s"][j] for r in per_run.values()]
         row = {"slope_deg": s}
         if vals:
-            iqm, lo, hi = iqm_interval(vals)
-            row.update(iqm_m_s=iqm, ci95_m_s=[lo, hi], min_m_s=float(min(vals)), max_m_s=float(max(vals)),
-                       iqm_body_lengths_s=iqm / body, runs_climbing=int(sum(v > 0 for v in vals)))
+            row.update(iqm_row(vals))
+            row.update(iqm_body_lengths_s=row["iqm_m_s"] / body, runs_climbing=int(sum(v > 0 for v in vals)))
         if baseline is not None:
             row["gait_m_s"] = baseline[j]
         table.append(row)

@@ -16,18 +16,18 @@ into ``--out``.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
-from tensegrity_gym_agents.evaluate import load_trained, run_episodes
+from tensegrity_gym_agents.evaluate import run_episodes
 from tensegrity_gym_agents.tune import iqm_interval
 from tensegrity_gym.io.atomic import write_atomic
 from tensegrity_gym.tools.baselines import RollingGait
+
+from _policy_table import parse_table_args, table_parser, trained_policies
 
 ENV_ID = "TensegrityNavigate-v0"
 SEED0 = 20000
@@ -45,19 +45,11 @@ def course_results(policy_factory, courses: int, env_kwargs: dict) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("runs", nargs="*", type=Path, help="run folders of agents.train (one per training seed)")
-    ap.add_argument("--out", type=Path, required=True, help="output folder")
+    ap = table_parser(__doc__)
     ap.add_argument("--courses", type=int, default=100)
-    ap.add_argument("--model", default="final", help="best, final or a model .zip")
-    ap.add_argument("--env-kwargs", default="{}", help="JSON object of extra env arguments")
-    ap.add_argument("--no-baseline", action="store_true", help="skip the rolling gait")
-    args = ap.parse_args(argv)
-    env_kwargs = json.loads(args.env_kwargs)
-    args.out.mkdir(parents=True, exist_ok=True)
+    args, env_kwargs = parse_table_args(ap, argv)
     per_run = {}
-    for run in args.runs:
-        _, policy, model_path, _ = load_trained(run, args.model)
+    for run, policy, model_path in trained_policies(args.runs, args.model):
         r = course_results(lambda env: policy, args.courses, env_kwargs)
         per_run[str(run)] = {"model": str(model_path), **r}
         print(f"{run}: success {r['success_rate']:.0%}, goals {r['mean_goals_reached']:.2f}", flush=True)

@@ -15,18 +15,17 @@ and each amplitude's IQM as a fraction of the flat-ground IQM. Writes ``rough.js
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
-from tensegrity_gym_agents.evaluate import load_trained, run_episodes
-from tensegrity_gym_agents.tune import iqm_interval
+from tensegrity_gym_agents.evaluate import run_episodes
 from tensegrity_gym.io.atomic import write_atomic
 from tensegrity_gym.tools.baselines import RollingGait
+
+from _policy_table import iqm_row, parse_table_args, table_parser, trained_policies
 
 ENV_ID = "TensegrityRoll-v0"
 SEED0 = 30000
@@ -42,22 +41,14 @@ def speeds(policy_factory, amplitude: float, episodes: int, wavelength: float, e
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("runs", nargs="*", type=Path, help="run folders of agents.train (one per training seed)")
-    ap.add_argument("--out", type=Path, required=True, help="output folder")
+    ap = table_parser(__doc__)
     ap.add_argument("--amplitudes", type=float, nargs="+", default=[0.0, 0.01, 0.02, 0.03, 0.04])
     ap.add_argument("--episodes", type=int, default=8)
     ap.add_argument("--wavelength", type=float, default=0.4)
-    ap.add_argument("--model", default="final", help="best, final or a model .zip")
-    ap.add_argument("--env-kwargs", default="{}", help="JSON object of extra env arguments")
-    ap.add_argument("--no-baseline", action="store_true", help="skip the rolling gait")
-    args = ap.parse_args(argv)
-    env_kwargs = json.loads(args.env_kwargs)
-    args.out.mkdir(parents=True, exist_ok=True)
+    args, env_kwargs = parse_table_args(ap, argv)
     amps = args.amplitudes
     per_run = {}
-    for run in args.runs:
-        _, policy, model_path, _ = load_trained(run, args.model)
+    for run, policy, model_path in trained_policies(args.runs, args.model):
         v = [float(speeds(lambda env: policy, a, args.episodes, args.wavelength, env_kwargs).mean()) for a in amps]
         per_run[str(run)] = {"model": str(model_path), "speed_m_s": v}
         print(f"{run}: " + " ".join(f"{a * 100:g}cm:{x:.3f}" for a, x in zip(amps, v)), flush=True)
@@ -71,11 +62,10 @@ def main(argv=None) -> int:
         row = {"amplitude_m": a}
         vals = [r["speed_m_s"][j] for r in per_run.values()]
         if vals:
-            iqm, lo, hi = iqm_interval(vals)
-            flat = iqm if (a == 0 and flat is None) else flat
-            row.update(iqm_m_s=iqm, ci95_m_s=[lo, hi], min_m_s=float(min(vals)), max_m_s=float(max(vals)))
+            row.update(iqm_row(vals))
+            flat = row["iqm_m_s"] if (a == 0 and flat is None) else flat
             if flat:
-                row["fraction_of_flat"] = iqm / flat
+                row["fraction_of_flat"] = row["iqm_m_s"] / flat
         if gait is not None:
             row["gait_m_s"] = gait[j]
         table.append(row)
