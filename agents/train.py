@@ -55,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common
+from . import common, warm_start
 from .progress import progress_callback
 from tensegrity_gym.checks import check_count, check_positive
 from tensegrity_gym.io.atomic import OutputError
@@ -308,6 +308,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hyperparameter file (default agents/hyperparams/<algo>.yml)")
     p.add_argument("--resume", metavar="RUN_DIR", default=None,
                    help="continue the run in RUN_DIR from its latest checkpoint / interrupted model")
+    p.add_argument("--warm-start", metavar="RUN_DIR", default=None,
+                   help="start from that run's final policy and normalisation (same algorithm and network; "
+                        "observation blocks matched by name, new ones start with zero weight: agents/warm_start.py)")
     p.add_argument("--vec-env", default="auto", choices=["auto", "batched", "torch", "dummy", "subproc"],
                    help="torch: the device-resident torch vector env (--env-device, --env-dtype) for training; "
                         "the evaluation env stays the NumPy/numba one")
@@ -495,6 +498,9 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
     torch.set_num_threads(max(1, args.num_threads))
 
     resume_dir = Path(args.resume) if args.resume else None
+    if resume_dir is not None and args.warm_start:
+        raise ValueError("--warm-start: a new run only; --resume continues a run from its own model")
+    warm = None
     fresh_restart = False  # a run directory whose first attempt failed before saving any model
     if resume_dir is not None:
         cfg_path = resume_dir / "config.yaml"
@@ -549,6 +555,7 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
         eval_episodes = args.eval_episodes
         n_eval_envs = args.n_eval_envs or max(1, min(eval_episodes, 10))
         run_dir = Path(args.log_dir) if args.log_dir else Path("runs") / f"{algo}_{env_id}_s{seed}"
+        warm = warm_start.check_source(args.warm_start, algo) if args.warm_start else None
         claims.append(_claim_run_dir(run_dir, args, "--log-dir", resume=False))
         if (run_dir / "config.yaml").exists():
             st = _read_state(run_dir)
@@ -670,6 +677,12 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
             except (AssertionError, TypeError, ValueError, RuntimeError) as e:   # SB3's checks: one line
                 raise ValueError(f"--hyperparams: {Algo.__name__} refused them: {type(e).__name__}: "
                                  f"{' '.join(str(e).split())}") from e
+            if warm is not None:
+                config["warm_start"] = common.to_yaml_safe(warm_start.warm_start(model, env, warm, env_id,
+                                                                                 env_kwargs, seed))
+                common.write_text(run_dir / "config.yaml", yaml.safe_dump(common.to_yaml_safe(config), sort_keys=False))
+                print(f"warm start from {warm['model']} ({config['warm_start']['model_num_timesteps']} steps; "
+                      f"{len(config['warm_start']['new_observations'])} new observations start at zero weight)")
     except BaseException as e:  # failed before the first step: record it; the folder can be started again
         run_state.update(status="crashed" if not isinstance(e, KeyboardInterrupt) else "interrupted",
                          error=f"{type(e).__name__}: {e}", failed_before_first_step=True,
