@@ -1,6 +1,7 @@
-"""The compiled terrain sub-steps (backends/numba/terrain_steps.py) equal the Python loop of
-physics.terrain.advance bit for bit: the same kernels in the same order, per batch size and with
-shared or per-copy physical parameters."""
+"""The compiled terrain sub-steps (backends/numba/terrain_steps.py: the terrain forces inside the
+loop driver's lanes) equal the Python loop of physics.terrain.advance bit for bit: the same
+kernels in the same order, per batch size (one copy at a time, SIMD blocks, chunks on all
+threads) and with shared or per-copy physical parameters and heights."""
 import numpy as np
 import pytest
 
@@ -40,6 +41,36 @@ def test_compiled_terrain_loop_is_the_python_loop(prism, B, per_copy):
             touched |= bool(ts.active.any())
         out.append((qq, qqd, ts.anchor, ts.eta0, ts.active))
     assert touched
+    for a, b in zip(*out):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("B, per_copy_hf", [(1, False), (20, True), (900, False)])
+def test_compiled_heightfield_loop_is_the_python_loop(prism, B, per_copy_hf):
+    """A heightfield (shared heights, or one field per copy with the slope bound computed per
+    copy); 900 copies reach the multi-threaded kernel (``terrain_parallel``)."""
+    from tensegrity_gym.backends.numba.compile import PARALLEL_MIN_WORK
+    from tensegrity_gym.core.terrain import Heightfield
+    m = prism
+    rng = np.random.default_rng(B)
+    h = 0.03 * rng.random((20, 20))
+    tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights=h, cell=0.05, origin=[-0.5, -0.5])))
+    hf = (h[None] * rng.uniform(0.5, 1.5, (B, 1, 1))) if per_copy_hf else None
+    if B == 900:
+        assert B * (m.n_strings + m.n_bars) >= PARALLEL_MIN_WORK
+    st = dyn.initial_state(m, B)
+    q, qd = np.array(st.q), np.array(st.qd)
+    q[..., :3] += rng.normal(0.0, 0.01, q[..., :3].shape)
+    q[..., 2] += 0.02
+    out = []
+    for compiled in (False, True):
+        qq, qqd, ts = q.copy(), qd.copy(), T.init_terrain_state(tc, m, B)
+        W = np.empty((B, m.n_nodes, 3))
+        for _ in range(30):
+            T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=5, hf=hf, forces=W,
+                      compiled=compiled)
+        out.append((qq, qqd, ts.anchor, ts.eta0, ts.active, W))
+    assert out[0][4].any()
     for a, b in zip(*out):
         assert np.array_equal(a, b)
 

@@ -18,6 +18,7 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
+from .terrain import hf_bound_of, lanes_forces
 from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
                      _opts, _soa_width_nb)
 
@@ -128,7 +129,8 @@ def _load(q, qd, l0, fd, ext, c0, ne, Q, QD, L0, FD, EX, PC, o_l0, k, m, n, E, f
                     EX[p, i, e] = ext[src if ne_ > 1 else 0, p, i]
 
 
-def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E, contact):
+def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E, contact,
+              terrain):
     """``n_steps`` fixed steps of copies lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e]) (which
     may be the same arrays): the one loop driver of the numba backend. E copies at a time in
     structure-of-arrays scratch (k, 6, E), so that every inner loop runs over copies and
@@ -147,13 +149,23 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
     of every step the contact forces of the lanes (:func:`_contact_lanes`, from the step's
     start, plus ``cext``) replace the external forces EX for that step (``flags`` carry
     ``_EXT``; ``ext`` is the (B, n, 3) output of the last step's forces); anchors, active and
-    slip flags stay in lane scratch for all ``n_steps`` and are stored with the state."""
+    slip flags stay in lane scratch for all ``n_steps`` and are stored with the state.
+    ``terrain``: None or the tuple of :func:`.terrain.lanes_forces` (terrain contact: its forces
+    replace EX at the start of every step, as the ground contact's; the contact state is the
+    copies' own arrays; ``ext`` receives each copy's forces of its last step)."""
     S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, E, lanes.shape[0] > 0)
     if contact is not None:
         eta, rod_a, rod_c, prm, anchor, active, slip, cext = contact
         AN = np.empty((2 * k, 2, E))
         AC = np.zeros((2 * k, E), np.bool_)
         SL = np.zeros((2 * k, E), np.bool_)
+    if terrain is not None:
+        TQ = np.empty((k, 6))
+        TQD = np.empty((k, 6))
+        TW = np.empty((n, 3))
+        t_geom, t_hf = terrain[3], terrain[5]
+        # shared heights: their slope bound once per call (per-copy ones: per copy, in lanes_forces)
+        t_lam = 1.0 if (t_geom.shape[0] > 1 or t_hf.shape[0] > 1) else hf_bound_of(t_geom[0], t_hf[0])
     Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
     per_copy = lanes.shape[0] > 0
     rk4 = (flags & _RK4) != 0
@@ -184,6 +196,8 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         for _ in range(n_steps):
             if contact is not None:                 # held over the step, as contact.step does
                 _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)
+            if terrain is not None:
+                lanes_forces(Q, QD, EX, TQ, TQD, TW, terrain, t_lam, c0, ne, k, n, E)
             Qi = Q
             Vi = QD
             A = A1
@@ -232,6 +246,11 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
                     qdo[c0 + e, j, i] = QD[j, i, e]
         if contact is not None:
             _contact_store(anchor, active, slip, ext, AN, AC, SL, EX, c0, ne, k, n)
+        if terrain is not None:
+            for e in range(ne):
+                for p in range(n):
+                    for i in range(3):
+                        ext[c0 + e, p, i] = EX[p, i, e]
 
 # The one driver: compiled on its own for the one-copy instances (E passed as the literal 1: its lane
 # loops are dropped), inlined into the SIMD ones (E = 16 or 8). Same source, same operations.
@@ -242,22 +261,34 @@ _drive_inline = njit(inline="always", **_opts)(_drive_py)
 def _drive_lanes(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_drive_py in SIMD blocks of E = :func:`_soa_width` copies (fresh scratch arrays)."""
     _drive_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes,
-                    _soa_width_nb(k), None)
+                    _soa_width_nb(k), None, None)
 
 @njit(**_opts)
 def _drive_one(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_drive_lanes one copy at a time (E = 1, a compile-time constant), in the scratch of ``w``."""
-    _drive(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1, None)
+    _drive(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1, None, None)
 
 @njit(**_opts)
 def _drive_lanes_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
     """_drive_lanes with ground contact (``contact`` the tuple of :func:`_drive_py`), in place on
     q, qd; ``W`` (B, n, 3) receives each copy's forces of its last step."""
     _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
-                    _soa_width_nb(k), contact)
+                    _soa_width_nb(k), contact, None)
 
 @njit(**_opts)
 def _drive_one_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
     """_drive_one with ground contact (see :func:`_drive_lanes_contact`)."""
-    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, contact)
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, contact, None)
+
+@njit(**_opts)
+def _drive_lanes_terrain(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, terrain):
+    """_drive_lanes with terrain contact (``terrain`` the tuple of :func:`.terrain.lanes_forces`),
+    in place on q, qd; ``W`` (B, n, 3) receives each copy's forces of its last step."""
+    _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
+                  _soa_width_nb(k), None, terrain)
+
+@njit(**_opts)
+def _drive_one_terrain(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, terrain):
+    """_drive_one with terrain contact (see :func:`_drive_lanes_terrain`)."""
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, None, terrain)
 
