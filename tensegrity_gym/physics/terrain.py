@@ -283,10 +283,16 @@ def stable_step(tc: TerrainContact, model: Model) -> dict:
     """Stability estimate (s) of semi-implicit Euler with terrain contact: the ground contact's
     estimate (:func:`tensegrity_gym.physics.contact.stable_step`: a contact at a rod end, the
     lightest effective mass m/4, strings and damping included) for each feature's parameters;
-    the smallest limit wins. Returns that feature's dict with ``"feature"`` (its index)."""
+    the smallest limit wins. A heightfield's normal force is ``w k delta^e`` on its vertical gap
+    ``delta``, ``w = sqrt(1 + |grad h|^2)``: along the normal its stiffness is ``k w^(1+e)`` and
+    its damping ``d w``, taken at the field's steepest ``w`` (its slope bound, ``geom`` column
+    6). Returns that feature's dict with ``"feature"`` (its index)."""
     best = None
     for f in range(tc.n_features):
         radius, k, d, e, mu, kt, ct, cmax = tc.prm[0, f]
+        if tc.geom[0, f, 0] == HFIELD:
+            w = max(float(tc.geom[0, f, 6]), 1.0)
+            k, d = k * w ** (1.0 + e), d * w
         est = ground_stable_step(GroundContact(stiffness=k, damping=d, exponent=e, friction=mu,
                                                tangential_stiffness=kt, tangential_damping=ct, radius=radius,
                                                max_damping=cmax), model)

@@ -58,11 +58,19 @@ def _compile(which: str) -> None:
     _READY[which] = True
 
 
-def _parallel(p, B, n_steps, flags, compile_kernel=True):
-    """True if this call should run the multi-threaded kernel (see PARALLEL_MIN_WORK); compiles
-    ``_run_parallel`` then unless ``compile_kernel`` is False (a caller with its own parallel kernel)."""
+#: the work of one terrain contact slot per sub-step, in the units of PARALLEL_MIN_WORK (a string
+#: or a rod): a 20-degree plane's 9 slots cost the prism robot about 1.6 times its whole flat-ground
+#: step, and from 64 copies on a slope (32 on steps) the threaded terrain loop ran 1.3-2.6 times
+#: faster than the serial one on the 2-core benchmark machine (``scripts/bench_terrain.py``)
+TERRAIN_SLOT_WORK = 20
+
+
+def _parallel(p, B, n_steps, flags, compile_kernel=True, extra_cost=0):
+    """True if this call should run the multi-threaded kernel (see PARALLEL_MIN_WORK; ``extra_cost``
+    the work per copy and step beyond the model's, as terrain contact's); compiles ``_run_parallel``
+    then unless ``compile_kernel`` is False (a caller with its own parallel kernel)."""
     try:
-        work = B * int(n_steps) * p.cost * (4 if flags & _RK4 else 1)
+        work = B * int(n_steps) * (p.cost + extra_cost) * (4 if flags & _RK4 else 1)
     except (TypeError, ValueError):
         return False
     if work < PARALLEL_MIN_WORK:

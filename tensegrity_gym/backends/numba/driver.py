@@ -160,9 +160,9 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         AC = np.zeros((2 * k, E), np.bool_)
         SL = np.zeros((2 * k, E), np.bool_)
     if terrain is not None:
-        TQ = np.empty((k, 6))
-        TQD = np.empty((k, 6))
-        TW = np.empty((n, 3))
+        TQ = np.empty((E, k, 6))
+        TQD = np.empty((E, k, 6))
+        TW = np.empty((E, n, 3))
         t_geom, t_hf = terrain[3], terrain[5]
         # shared heights: their slope bound once per call (per-copy ones: per copy, in lanes_forces)
         t_lam = 1.0 if (t_geom.shape[0] > 1 or t_hf.shape[0] > 1) else hf_bound_of(t_geom[0], t_hf[0])

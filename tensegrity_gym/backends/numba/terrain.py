@@ -236,129 +236,147 @@ def hf_bound_of(geom_row, H):
 
 
 @njit(inline="always", **_opts)
-def copy_forces(c, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, H, lam, anchor, eta0, active, slip, info):
-    """The terrain forces of copy ``c`` at ``Q``, ``QD`` (k, 6) into ``Wc`` (n, 3) N: the one
-    implementation of the terrain contact (:func:`terrain_forces_kernel` calls it for each copy,
-    the loop driver for each lane at each step). ``H`` the copy's heights, ``lam`` their slope
-    bound (:func:`hf_bound_of`); the copy's rows of ``geom``, ``prm``, ``anchor``, ``eta0``,
-    ``active``, ``slip`` and ``info`` (when it has rows) as the kernel takes them."""
-    k, n = Q.shape[0], Wc.shape[0]
+def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info):
+    """The terrain forces of copies ``c0 .. c0 + nr - 1`` at ``Q[r]``, ``QD[r]`` (k, 6) into
+    ``Wc[r]`` (n, 3) N, row r = copy - c0: the one implementation of the terrain contact
+    (:func:`terrain_forces_kernel` calls it on the whole batch, the loop driver on each block
+    of lanes at each step). ``lam`` the shared heights' slope bound (:func:`hf_bound_of`; per-copy
+    heights: computed here); ``geom``, ``prm``, ``hf``, ``anchor``, ``eta0``, ``active``,
+    ``slip`` and ``info`` (when it has rows) indexed by copy, as the kernel takes them."""
+    k, n = Q.shape[1], Wc.shape[1]
     F = geom.shape[1]
     has_info = info.shape[0] > 0
-    g_row = c if geom.shape[0] > 1 else 0
-    p_row = c if prm.shape[0] > 1 else 0
-    for p in range(n):
-        Wc[p, 0] = 0.0
-        Wc[p, 1] = 0.0
-        Wc[p, 2] = 0.0
-    for j in range(k):
-        r0, r1, r2 = Q[j, 0], Q[j, 1], Q[j, 2]
-        b0, b1, b2 = Q[j, 3], Q[j, 4], Q[j, 5]
-        ea, ec = eta[j, 0], eta[j, 1]
-        span = ec - ea
-        em = 0.5 * (ea + ec)
-        for f in range(F):
-            g = geom[g_row, f]
-            pr = prm[p_row, f]
-            radius = pr[0]
-            base = (j * F + f) * 3
-            mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
-            if g[0] == HFIELD:
-                # the vertical gap is sqrt(1 + L^2)-Lipschitz along the unit rod (module doc):
-                # a rod whose middle's gap exceeds the cap radius by that times half its length
-                # touches nowhere
-                far = mz - hf_patch(mx, my, g, H)[0] - lam * (0.5 * abs(span)) >= radius
-            else:
-                # the signed distance is 1-Lipschitz: a rod whose middle is farther than half
-                # its length plus the cap radius touches nowhere
-                far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
-            # the nodes' distances, normals and normal velocities, for the interior slot's level
-            sd_a, na0, na1, na2, w_a, vn_a = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
-            sd_c, nc0, nc1, nc2, w_c, vn_c = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
-            for s in range(3):
-                ci = base + s
-                e = ea if s == 0 else (ec if s == 1 else em)
-                use = not far
-                kink, kgx, kgy = False, 0.0, 0.0
-                if use and s == 2:
-                    if g[0] == PLANE:
-                        use = False
-                    elif g[0] == HFIELD:
-                        if hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
-                            use = False     # level ground under the rod: as a plane (no point is lower than both ends)
+    per_hf = geom.shape[0] > 1 or hf.shape[0] > 1
+    for r in range(nr):
+        c = c0 + r
+        g_row = c if geom.shape[0] > 1 else 0
+        p_row = c if prm.shape[0] > 1 else 0
+        H = hf[c if hf.shape[0] > 1 else 0]
+        if per_hf:
+            lam = hf_bound_of(geom[g_row], H)
+        for p in range(n):
+            Wc[r, p, 0] = 0.0
+            Wc[r, p, 1] = 0.0
+            Wc[r, p, 2] = 0.0
+        for j in range(k):
+            r0, r1, r2 = Q[r, j, 0], Q[r, j, 1], Q[r, j, 2]
+            b0, b1, b2 = Q[r, j, 3], Q[r, j, 4], Q[r, j, 5]
+            ea, ec = eta[j, 0], eta[j, 1]
+            span = ec - ea
+            em = 0.5 * (ea + ec)
+            for f in range(F):
+                g = geom[g_row, f]
+                pr = prm[p_row, f]
+                radius = pr[0]
+                base = (j * F + f) * 3
+                mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
+                if g[0] == HFIELD:
+                    # the vertical gap is sqrt(1 + L^2)-Lipschitz along the unit rod (module doc):
+                    # a rod whose middle's gap exceeds the cap radius by that times half its length
+                    # touches nowhere
+                    far = mz - hf_patch(mx, my, g, H)[0] - lam * (0.5 * abs(span)) >= radius
+                else:
+                    # the signed distance is 1-Lipschitz: a rod whose middle is farther than half
+                    # its length plus the cap radius touches nowhere
+                    far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
+                # the nodes' distances, normals and normal velocities, for the interior slot's level
+                sd_a, na0, na1, na2, w_a, vn_a = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
+                sd_c, nc0, nc1, nc2, w_c, vn_c = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
+                for s in range(3):
+                    ci = base + s
+                    e = ea if s == 0 else (ec if s == 1 else em)
+                    if far or (s == 2 and g[0] == PLANE):
+                        # no contact (a plane's nearest point is an end): what _slot_force gives
+                        # for an infinite gap, without computing it; the interior slot keeps the
+                        # anchored point of a contact that ends here
+                        if not (s == 2 and active[c, ci]):
+                            eta0[c, ci] = e
+                        active[c, ci] = False
+                        slip[c, ci] = False
+                        if has_info:
+                            info[c, ci, 0], info[c, ci, 1] = e, math.inf
+                            info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = 0.0, 0.0, 1.0
+                            info[c, ci, 5] = 0.0
+                        continue
+                    use = True
+                    kink, kgx, kgy = False, 0.0, 0.0
+                    if s == 2:
+                        if g[0] == HFIELD:
+                            if hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
+                                use = False     # level ground under the rod: as a plane (no point is lower than both ends)
+                            else:
+                                # the lowest point of the axis, with the gradient that its force uses
+                                e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+                                kink = use
                         else:
-                            # the lowest point of the axis, with the gradient that its force uses
-                            e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
-                            kink = use
+                            e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+                    px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
+                    if kink:
+                        w = math.sqrt(1.0 + kgx * kgx + kgy * kgy)
+                        sd, nx, ny, nz = pz - hf_patch(px, py, g, H)[0], -kgx / w, -kgy / w, 1.0 / w
+                    elif use:
+                        sd, nx, ny, nz, w = _closest(px, py, pz, g, H)
                     else:
-                        e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
-                px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
-                if kink:
-                    w = math.sqrt(1.0 + kgx * kgx + kgy * kgy)
-                    sd, nx, ny, nz = pz - hf_patch(px, py, g, H)[0], -kgx / w, -kgy / w, 1.0 / w
-                elif use:
-                    sd, nx, ny, nz, w = _closest(px, py, pz, g, H)
-                else:
-                    sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
-                vx = QD[j, 0] + e * QD[j, 3]
-                vy = QD[j, 1] + e * QD[j, 4]
-                vz = QD[j, 2] + e * QD[j, 5]
-                level, end = radius, -1
-                if s == 0:
-                    sd_a, na0, na1, na2, w_a, vn_a = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
-                elif s == 1:
-                    sd_c, nc0, nc1, nc2, w_c, vn_c = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
-                else:
-                    # the interior penetration is measured from the deeper node when that node
-                    # touches: min(radius, sd_a, sd_c) - sd, 0 when the interior minimum merges
-                    # with a node (a continuous potential; no double count of the node's contact)
-                    if sd_a < level:
-                        level, end = sd_a, 0
-                    if sd_c < level:
-                        level, end = sd_c, 1
-                    if end >= 0:
-                        # damping on the rate of that penetration, w v.n here less the node's
-                        # w v.n (the tangential part, so friction, is unchanged)
-                        vr = vn_a * (w_a / w) if end == 0 else vn_c * (w_c / w)
-                        vx, vy, vz = vx - vr * nx, vy - vr * ny, vz - vr * nz
-                # the anchored material point: where the rod touched (the interior slot's
-                # contact point moves along the rod; friction holds the material, not the point)
-                e0 = eta0[c, ci] if (s == 2 and active[c, ci]) else e
-                touch, fx, fy, fz, ax, ay, az, sl, en, fn = _slot_force(
-                    px, py, pz, r0 + e0 * b0, r1 + e0 * b1, r2 + e0 * b2, vx, vy, vz, sd, nx, ny, nz, w,
-                    anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], level,
-                    pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
-                anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
-                eta0[c, ci] = e if (sl or not active[c, ci]) else e0
-                active[c, ci] = touch
-                slip[c, ci] = sl
-                if has_info:
-                    info[c, ci, 0], info[c, ci, 1] = e, sd
-                    info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = nx, ny, nz
-                    info[c, ci, 5] = en
-                if touch:
-                    wc = (e - ea) / span
-                    wa = (ec - e) / span
-                    na, nc = rod_a[j], rod_c[j]
-                    Wc[na, 0] += wa * fx
-                    Wc[na, 1] += wa * fy
-                    Wc[na, 2] += wa * fz
-                    Wc[nc, 0] += wc * fx
-                    Wc[nc, 1] += wc * fy
-                    Wc[nc, 2] += wc * fz
-                    if end >= 0:
-                        # the reaction: -fn w n of the node at that node (the gradient of the
-                        # level sd_node in the penetration min(...) - sd)
-                        if end == 0:
-                            fr = fn * w_a
-                            Wc[na, 0] -= fr * na0
-                            Wc[na, 1] -= fr * na1
-                            Wc[na, 2] -= fr * na2
-                        else:
-                            fr = fn * w_c
-                            Wc[nc, 0] -= fr * nc0
-                            Wc[nc, 1] -= fr * nc1
-                            Wc[nc, 2] -= fr * nc2
+                        sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
+                    vx = QD[r, j, 0] + e * QD[r, j, 3]
+                    vy = QD[r, j, 1] + e * QD[r, j, 4]
+                    vz = QD[r, j, 2] + e * QD[r, j, 5]
+                    level, end = radius, -1
+                    if s == 0:
+                        sd_a, na0, na1, na2, w_a, vn_a = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
+                    elif s == 1:
+                        sd_c, nc0, nc1, nc2, w_c, vn_c = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
+                    else:
+                        # the interior penetration is measured from the deeper node when that node
+                        # touches: min(radius, sd_a, sd_c) - sd, 0 when the interior minimum merges
+                        # with a node (a continuous potential; no double count of the node's contact)
+                        if sd_a < level:
+                            level, end = sd_a, 0
+                        if sd_c < level:
+                            level, end = sd_c, 1
+                        if end >= 0:
+                            # damping on the rate of that penetration, w v.n here less the node's
+                            # w v.n (the tangential part, so friction, is unchanged)
+                            vr = vn_a * (w_a / w) if end == 0 else vn_c * (w_c / w)
+                            vx, vy, vz = vx - vr * nx, vy - vr * ny, vz - vr * nz
+                    # the anchored material point: where the rod touched (the interior slot's
+                    # contact point moves along the rod; friction holds the material, not the point)
+                    e0 = eta0[c, ci] if (s == 2 and active[c, ci]) else e
+                    touch, fx, fy, fz, ax, ay, az, sl, en, fn = _slot_force(
+                        px, py, pz, r0 + e0 * b0, r1 + e0 * b1, r2 + e0 * b2, vx, vy, vz, sd, nx, ny, nz, w,
+                        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], level,
+                        pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
+                    anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
+                    eta0[c, ci] = e if (sl or not active[c, ci]) else e0
+                    active[c, ci] = touch
+                    slip[c, ci] = sl
+                    if has_info:
+                        info[c, ci, 0], info[c, ci, 1] = e, sd
+                        info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = nx, ny, nz
+                        info[c, ci, 5] = en
+                    if touch:
+                        wc = (e - ea) / span
+                        wa = (ec - e) / span
+                        na, nc = rod_a[j], rod_c[j]
+                        Wc[r, na, 0] += wa * fx
+                        Wc[r, na, 1] += wa * fy
+                        Wc[r, na, 2] += wa * fz
+                        Wc[r, nc, 0] += wc * fx
+                        Wc[r, nc, 1] += wc * fy
+                        Wc[r, nc, 2] += wc * fz
+                        if end >= 0:
+                            # the reaction: -fn w n of the node at that node (the gradient of the
+                            # level sd_node in the penetration min(...) - sd)
+                            if end == 0:
+                                fr = fn * w_a
+                                Wc[r, na, 0] -= fr * na0
+                                Wc[r, na, 1] -= fr * na1
+                                Wc[r, na, 2] -= fr * na2
+                            else:
+                                fr = fn * w_c
+                                Wc[r, nc, 0] -= fr * nc0
+                                Wc[r, nc, 1] -= fr * nc1
+                                Wc[r, nc, 2] -= fr * nc2
 
 
 @njit(cache=True, nogil=True)
@@ -369,49 +387,38 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
     (B, S) updated in place; ``info`` filled when it has B rows (see the module doc). A force F
     at the rod point ``r + eta b`` goes to the rod's nodes a, c (at eta_a, eta_c) as
     ``(eta_c - eta) / (eta_c - eta_a) F`` and ``(eta - eta_a) / (eta_c - eta_a) F``: the
-    generalized force ``[F, eta F]`` exactly. One copy at a time (:func:`copy_forces`)."""
-    # the heightfield's slope bound: once per call for a shared field, per copy for per-copy ones
-    per_copy_hf = geom.shape[0] > 1 or hf.shape[0] > 1
-    lam = 1.0 if per_copy_hf else hf_bound_of(geom[0], hf[0])
-    for c in range(q.shape[0]):
-        H = hf[c if hf.shape[0] > 1 else 0]
-        if per_copy_hf:
-            lam = hf_bound_of(geom[c if geom.shape[0] > 1 else 0], H)
-        copy_forces(c, q[c], qd[c], W[c], eta, rod_a, rod_c, geom, prm, H, lam, anchor, eta0, active, slip, info)
+    generalized force ``[F, eta F]`` exactly (:func:`rows_forces`)."""
+    lam = 1.0 if (geom.shape[0] > 1 or hf.shape[0] > 1) else hf_bound_of(geom[0], hf[0])
+    rows_forces(0, q.shape[0], q, qd, W, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info)
 
 
 @njit(inline="always", **_opts)
 def lanes_forces(Q, QD, EX, TQ, TQD, TW, terrain, lam, c0, ne, k, n, E):
     """The terrain forces of E lanes of the loop driver (copies c0..c0+ne-1 at Q, QD (k, 6, E) m,
-    m/s) into EX (n, 3, E) N, plus the tuple's external force: each copy through
-    :func:`copy_forces` (its state copied into the scratch TQ, TQD (k, 6), its forces from TW
-    (n, 3)); the contact state of the copies updated in place. Pad lanes (e >= ne, copies of
-    lane 0) take lane 0's forces. ``terrain``: (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
-    active, slip, info, ext) as :func:`terrain_forces_kernel` takes them and ``ext`` (0, 1 or B
-    rows of (n, 3)) N; ``lam`` the shared heights' slope bound (per-copy heights: computed here)."""
+    m/s) into EX (n, 3, E) N, plus the tuple's external force: the lanes' states copied into
+    the scratch TQ, TQD (E, k, 6), their forces (:func:`rows_forces`) into TW (E, n, 3); the
+    contact state of the copies updated in place. Pad lanes (e >= ne, copies of lane 0) take
+    lane 0's forces. ``terrain``: (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip,
+    info, ext) as :func:`terrain_forces_kernel` takes them and ``ext`` (0, 1 or B rows of
+    (n, 3)) N; ``lam`` the shared heights' slope bound."""
     eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, info, ext = terrain
-    per_hf = geom.shape[0] > 1 or hf.shape[0] > 1
     for e in range(ne):
-        c = c0 + e
         for j in range(k):
             for i in range(6):
-                TQ[j, i] = Q[j, i, e]
-                TQD[j, i] = QD[j, i, e]
-        H = hf[c if hf.shape[0] > 1 else 0]
-        if per_hf:
-            lam = hf_bound_of(geom[c if geom.shape[0] > 1 else 0], H)
-        copy_forces(c, TQ, TQD, TW, eta, rod_a, rod_c, geom, prm, H, lam, anchor, eta0, active, slip, info)
+                TQ[e, j, i] = Q[j, i, e]
+                TQD[e, j, i] = QD[j, i, e]
+    rows_forces(c0, ne, TQ, TQD, TW, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info)
+    for e in range(ne):
         if ext.shape[0] > 0:
-            r = c if ext.shape[0] > 1 else 0
+            r = c0 + e if ext.shape[0] > 1 else 0
             for p in range(n):
                 for i in range(3):
-                    EX[p, i, e] = TW[p, i] + ext[r, p, i]
+                    EX[p, i, e] = TW[e, p, i] + ext[r, p, i]
         else:
             for p in range(n):
                 for i in range(3):
-                    EX[p, i, e] = TW[p, i]
+                    EX[p, i, e] = TW[e, p, i]
     for e in range(ne, E):
         for p in range(n):
             for i in range(3):
                 EX[p, i, e] = EX[p, i, 0]
-

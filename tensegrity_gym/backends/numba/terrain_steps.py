@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit, prange
 
 from .api import _control_arrays, _frozen, _raise
-from .compile import NCHUNK as _NCHUNK, _parallel
+from .compile import NCHUNK as _NCHUNK, TERRAIN_SLOT_WORK, _parallel
 from .driver import _drive_lanes_terrain, _drive_one_terrain, _view
 from .entries import _contact_check, _serial_setup
 from .layout import _CHUNK_SHIFT, _SOA_MIN_BATCH, _soa_width_nb
@@ -100,7 +100,8 @@ def terrain_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
     l0, fd, _, flags = _control_arrays(p, flags, rest_length, force_density, forces)
     bufs = p.buf[None] if p.bufs is None else p.bufs
     B = q.shape[0]
-    if B >= 8 and _parallel(p, B, 1, flags, compile_kernel=False):
+    # threads when one sub-step's work, the terrain slots' included, is the parallel kernel's
+    if B >= 8 and _parallel(p, B, 1, flags, compile_kernel=False, extra_cost=TERRAIN_SLOT_WORK * arrays[3].shape[1]):
         kernel, flags = terrain_parallel, flags | (_NCHUNK << _CHUNK_SHIFT)
     else:
         kernel = terrain_loop if B < _SOA_MIN_BATCH else terrain_loop_simd
