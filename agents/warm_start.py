@@ -8,7 +8,10 @@ to roll on level ground (``TensegrityRoll-v0``) starts the climbing task
 blocks are matched by name (``task.observation_layout()`` of both envs); the input weights of a
 block the source never observed start at zero, so the new policy acts as the source policy did
 until training gives that block weight, and its normalisation statistics are measured on 64
-resets of the new env. Optimiser state and replay buffer start empty.
+resets of the new env. Optimiser state and replay buffer start empty. Off-policy algorithms act
+at random for their first ``learning_starts`` steps and learn from those transitions first: set
+it to 0 so that the buffer fills with the started policy's own actions (2000 random steps made
+the icosahedron's rolling policy forget to roll within 25k steps of SAC on its own env).
 
 Refused, with the name of what differs: another algorithm, another action space, a network of
 another shape, a source block the new env does not observe, normalisation in one run and not in

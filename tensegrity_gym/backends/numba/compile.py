@@ -60,8 +60,9 @@ def _compile(which: str) -> None:
 
 #: the work of one terrain contact slot per sub-step, in the units of PARALLEL_MIN_WORK (a string
 #: or a rod): a 20-degree plane's 9 slots cost the prism robot about 1.6 times its whole flat-ground
-#: step, and from 64 copies on a slope (32 on steps) the threaded terrain loop ran 1.3-2.6 times
-#: faster than the serial one on the 2-core benchmark machine (``scripts/bench_terrain.py``)
+#: step; with this weight a slope goes threaded from 53 copies (four steps from 32, two SIMD blocks),
+#: where the threaded terrain loop ran 1.1-2.6 times faster than the serial one on 2 cores
+#: (``scripts/bench_terrain.py``)
 TERRAIN_SLOT_WORK = 20
 
 

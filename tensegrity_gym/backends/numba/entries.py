@@ -24,6 +24,19 @@ from .equations import _acc, _forces, _project
 from .layout import _CHUNK_SHIFT, _CONS, _EXT, _FD, _L0DEF, _lane_width, _layout_nb, _opts, _soa_width_nb
 
 @njit(inline="always", **_opts)
+def _chunks(B, k, flags):
+    """(E, blocks, chunks) of a threaded call on B copies: SIMD blocks of E copies, split into
+    the chunk count carried in the high bits of ``flags`` (at most one chunk per block)."""
+    E = _soa_width_nb(k)
+    nb = (B + E - 1) // E
+    return E, nb, min(nb, max(flags >> _CHUNK_SHIFT, 1))
+
+@njit(inline="always", **_opts)
+def _chunk(c, E, nb, nch, B):
+    """(lo, hi): the copies of chunk c, whole SIMD blocks."""
+    return (c * nb // nch) * E, min(B, ((c + 1) * nb // nch) * E)
+
+@njit(inline="always", **_opts)
 def _serial_setup(bufs, B):
     """(layout, k, m, n, E, lanes) of serial calls on B copies with ``bufs`` (1, len)
     shared or (B, len) one packed buffer per copy; ``lanes`` is for E = 1 only (the buffers
@@ -168,13 +181,11 @@ def _run_parallel(q, qd, qo, qdo, bufs, l0, fd, ext, dt, n_steps, flags, lanes):
     if err:
         return err
     B = q.shape[0]
-    E = _soa_width_nb(k)
-    nb = (B + E - 1) // E                             # SIMD blocks
-    nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))      # number of chunks in the high bits of flags
+    E, nb, nch = _chunks(B, k, flags)
     for c in prange(nch):
         # _drive_lanes only reads the buffers; each chunk has its own scratch: threads share nothing written
-        _drive_lanes(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, (c * nb // nch) * E,
-                 min(B, ((c + 1) * nb // nch) * E), l0, fd, ext, dt, n_steps, flags, lanes)
+        lo, hi = _chunk(c, E, nb, nch, B)
+        _drive_lanes(bufs[0], ibs[0], L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes)
     return 0
 
 
@@ -338,14 +349,12 @@ def _contact_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, et
     if err:
         return err
     B = q.shape[0]
-    E = _soa_width_nb(k)
-    nb = (B + E - 1) // E
-    nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))
+    E, nb, nch = _chunks(B, k, flags)
     contact = (eta, rod_a, rod_c, prm, anchor, active, slip, ext)
     for c in prange(nch):
         # the driver only reads the buffers; each chunk has its own scratch and copies
-        _drive_lanes_contact(bufs[0], ibs[0], L, k, m, n, q, qd, (c * nb // nch) * E, min(B, ((c + 1) * nb // nch) * E),
-                   l0, fd, W, dt, n_steps, flags, lanes, contact)
+        lo, hi = _chunk(c, E, nb, nch, B)
+        _drive_lanes_contact(bufs[0], ibs[0], L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact)
     return 0
 
 @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf

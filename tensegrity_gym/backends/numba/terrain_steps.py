@@ -14,8 +14,8 @@ from numba import njit, prange
 from .api import _control_arrays, _frozen, _raise
 from .compile import NCHUNK as _NCHUNK, TERRAIN_SLOT_WORK, _parallel
 from .driver import _drive_lanes_terrain, _drive_one_terrain, _view
-from .entries import _contact_check, _serial_setup
-from .layout import _CHUNK_SHIFT, _SOA_MIN_BATCH, _soa_width_nb
+from .entries import _chunk, _chunks, _contact_check, _serial_setup
+from .layout import _CHUNK_SHIFT, _SOA_MIN_BATCH, _soa_width
 from .pack import _CACHE, _flags, _pack, _pack_params
 
 _NO_INFO = np.empty((0, 0, 6))
@@ -67,13 +67,11 @@ def terrain_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta
     if err:
         return err
     B = q.shape[0]
-    E = _soa_width_nb(k)
-    nb = (B + E - 1) // E
-    nch = min(nb, max(flags >> _CHUNK_SHIFT, 1))
+    E, nb, nch = _chunks(B, k, flags)
     terrain = (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, np.empty((0, 0, 6)), ext)
     for c in prange(nch):
-        _drive_lanes_terrain(bufs[0], ibs[0], L, k, m, n, q, qd, (c * nb // nch) * E,
-                             min(B, ((c + 1) * nb // nch) * E), l0, fd, W, dt, n_steps, flags, lanes, terrain)
+        lo, hi = _chunk(c, E, nb, nch, B)
+        _drive_lanes_terrain(bufs[0], ibs[0], L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, terrain)
     return 0
 
 
@@ -100,8 +98,9 @@ def terrain_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
     l0, fd, _, flags = _control_arrays(p, flags, rest_length, force_density, forces)
     bufs = p.buf[None] if p.bufs is None else p.bufs
     B = q.shape[0]
-    # threads when one sub-step's work, the terrain slots' included, is the parallel kernel's
-    if B >= 8 and _parallel(p, B, 1, flags, compile_kernel=False, extra_cost=TERRAIN_SLOT_WORK * arrays[3].shape[1]):
+    # threads when one sub-step's work, the terrain slots' included, is the parallel kernel's and
+    # the batch makes two SIMD blocks at least (the chunks are whole blocks)
+    if B >= 2 * _soa_width(model.n_bars) and _parallel(p, B, 1, flags, compile_kernel=False, extra_cost=TERRAIN_SLOT_WORK * arrays[3].shape[1]):
         kernel, flags = terrain_parallel, flags | (_NCHUNK << _CHUNK_SHIFT)
     else:
         kernel = terrain_loop if B < _SOA_MIN_BATCH else terrain_loop_simd
