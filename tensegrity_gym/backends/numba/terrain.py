@@ -235,7 +235,11 @@ def hf_bound_of(geom_row, H):
     return 1.0
 
 
-@njit(inline="always", **_opts)
+# compiled once on its own, called by the kernel below and the loop driver's terrain instances:
+# inlined into each (numba copies an inlined function's IR once per basic block of the caller), it
+# made the first terrain step of a new install compile for 77 s, not 19 s; the call costs one
+# function call per SIMD block and physics step
+@njit(**_opts)
 def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info):
     """The terrain forces of copies ``c0 .. c0 + nr - 1`` at ``Q[r]``, ``QD[r]`` (k, 6) into
     ``Wc[r]`` (n, 3) N, row r = copy - c0: the one implementation of the terrain contact
@@ -379,13 +383,6 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                                 Wc[r, nc, 2] -= fr * nc2
 
 
-# rows_forces compiled once on its own, for the kernel below and the loop driver's terrain
-# instances: inlined into each (numba copies an inlined function's IR once per basic block of the
-# caller), the terrain forces made the first terrain step of a new install compile for 77 s, not
-# 18 s; the call costs one function call per SIMD block and physics step
-_rows_forces = njit(**_opts)(rows_forces.py_func)
-
-
 @njit(cache=True, nogil=True)
 def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, W, info):
     """Terrain contact forces of every copy of ``q``, ``qd`` (B, k, 6) as nodal forces ``W``
@@ -396,7 +393,7 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
     ``(eta_c - eta) / (eta_c - eta_a) F`` and ``(eta - eta_a) / (eta_c - eta_a) F``: the
     generalized force ``[F, eta F]`` exactly (:func:`rows_forces`)."""
     lam = 1.0 if (geom.shape[0] > 1 or hf.shape[0] > 1) else hf_bound_of(geom[0], hf[0])
-    _rows_forces(0, q.shape[0], q, qd, W, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info)
+    rows_forces(0, q.shape[0], q, qd, W, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info)
 
 
 @njit(inline="always", **_opts)
@@ -414,7 +411,7 @@ def lanes_forces(Q, QD, EX, TQ, TQD, TW, terrain, lam, c0, ne, k, n, E):
             for i in range(6):
                 TQ[e, j, i] = Q[j, i, e]
                 TQD[e, j, i] = QD[j, i, e]
-    _rows_forces(c0, ne, TQ, TQD, TW, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info)
+    rows_forces(c0, ne, TQ, TQD, TW, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info)
     for e in range(ne):
         if ext.shape[0] > 0:
             r = c0 + e if ext.shape[0] > 1 else 0
