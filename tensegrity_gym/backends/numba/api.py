@@ -324,27 +324,38 @@ def project(model, q, qd):
 
 
 # ---------------------------------------------------------------------- contact sub-steps
+def loop_setup(model, q, qd, name, rest_length, force_density, external, params, project, forces):
+    """``(p, flags, l0, fd, ext, bufs)`` of a compiled contact or terrain sub-step loop: the packed
+    model (per-copy with ``params``), its flags with ``forces`` (B, n, 3) as the external force of
+    each sub-step, the control arrays, ``external`` read-only (``_NO_EXTERNAL`` when None) and the
+    packed buffers (1 or B, len). None where ``q``, ``qd``, ``forces`` or ``external`` is not an
+    array the loops take as it is (the Python loop then converts it)."""
+    p = (_CACHE.get(id(model)) or _pack(model)) if params is None else _pack_params(model, params)
+    flags = _flags(p, name, project)
+    for x in (q, qd, forces):
+        if not (type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable):
+            return None
+    if external is None:
+        ext = _NO_EXTERNAL
+    elif type(external) is np.ndarray and external.dtype == np.float64 and external.ndim == 3:
+        ext = _frozen(np.ascontiguousarray(external))
+    else:
+        return None
+    l0, fd, _, flags = _control_arrays(p, flags, rest_length, force_density, forces)
+    return p, flags, l0, fd, ext, p.buf[None] if p.bufs is None else p.bufs
+
+
 def contact_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, external, params, project,
                   contact, cstate, contact_params, forces, slip) -> bool:
     """The contact sub-steps of :func:`tensegrity_gym.physics.pipeline.run_steps` in ONE compiled call: :func:`_contact_loop` (this
     thread) or, for a batch with enough work for the parallel kernel (``_parallel``),
     :func:`_contact_parallel` (chunks of the batch on all threads, every sub-step inside). False
     (nothing done) for arrays the kernels do not take as they are: the Python loop converts them."""
-    p = (_CACHE.get(id(model)) or _pack(model)) if params is None else _pack_params(model, params)
-    flags = _flags(p, name, project)
-    for x in (q, qd, forces):
-        if not (type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable):
-            return False
-    if external is None:
-        ext = _NO_EXTERNAL
-    elif type(external) is np.ndarray and external.dtype == np.float64 and external.ndim == 3:
-        ext = _frozen(np.ascontiguousarray(external))
-    else:
+    setup = loop_setup(model, q, qd, name, rest_length, force_density, external, params, project, forces)
+    if setup is None:
         return False
-    l0, fd, _, flags = _controls(p, flags, rest_length, force_density, forces)
-    l0, fd = _array(l0, 2, "rest_length"), _array(fd, 2, "force_density")
+    p, flags, l0, fd, ext, bufs = setup
     prm = _frozen(contact.prm if contact_params is None else contact_params)
-    bufs = p.buf[None] if p.bufs is None else p.bufs
     B = q.shape[0]
     # parallel when ONE sub-step has the parallel kernel's work (not all n_steps together): the
     # threads then meet once per call, but on a 2-core machine waking them between env steps
@@ -375,7 +386,7 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
-_NO_EXTERNAL = _frozen(np.empty((0, 1, 3)))   # no external force added to the contact forces
+_NO_EXTERNAL = _frozen(np.empty((0, 1, 3)))   # no external force added to the contact or terrain forces
 
 
 def _fast_state_ok() -> bool:

@@ -299,6 +299,17 @@ def _contact_check(q, qd, bufs, l0, fd, W, ext, flags):
         err = 5
     return err, ibs, L, k, m, n
 
+@njit(inline="always", cache=True)
+def _simd_check(q, qd, bufs, lanes, l0, fd, W, ext, flags):
+    """:func:`_contact_check` of a SIMD contact or terrain loop, error 9 for a batch under one
+    SIMD block, and the lane blocks the driver reads: ``lanes`` where every copy has its own
+    buffer, none (0 rows) where ``bufs`` is shared."""
+    err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
+    if err == 0 and _serial_setup(bufs, q.shape[0])[4] == 1:
+        err = 9
+    lanes1 = _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2]))
+    return err, ibs, L, k, m, n, lanes1
+
 @njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
 def _contact_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active,
                   slip, prm):
@@ -325,12 +336,9 @@ def _contact_loop_simd(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, e
     """:func:`_contact_loop` for a batch of ``_SOA_MIN_BATCH`` copies or more: the SIMD
     instance with contact, on this thread (per-copy constants read from the lane blocks
     ``lanes``, shared ones from ``bufs[0]``); error 9 for a smaller batch."""
-    err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
+    err, ibs, L, k, m, n, lanes1 = _simd_check(q, qd, bufs, lanes, l0, fd, W, ext, flags)
     if err:
         return err
-    if _serial_setup(bufs, q.shape[0])[4] == 1:
-        return 9
-    lanes1 = _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2]))
     contact = (eta, rod_a, rod_c, prm, anchor, active, slip, ext)
     _drive_lanes_contact(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
                          contact)

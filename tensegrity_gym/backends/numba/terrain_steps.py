@@ -1,6 +1,6 @@
 """Terrain contact sub-steps in ONE compiled call (the numba backend's twin of the Python loop
 of :func:`tensegrity_gym.physics.terrain.step`): per step, the terrain forces of each copy
-from the state at the step's start (:func:`.terrain.copy_forces`), plus an external force,
+from the state at the step's start (:func:`.terrain.rows_forces`), plus an external force,
 held over ONE integrator step. The terrain forces run inside the loop driver, on its lanes
 (:func:`.terrain.lanes_forces`), as the ground contact does: the state stays in the driver's
 scratch for all sub-steps, and a large batch runs in chunks on all threads. The same kernels
@@ -11,15 +11,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .api import _control_arrays, _frozen, _raise
+from .api import _frozen, _raise, loop_setup
 from .compile import NCHUNK as _NCHUNK, TERRAIN_SLOT_WORK, _parallel
-from .driver import _drive_lanes_terrain, _drive_one_terrain, _view
-from .entries import _chunk, _chunks, _contact_check, _serial_setup
+from .driver import _drive_lanes_terrain, _drive_one_terrain
+from .entries import _chunk, _chunks, _contact_check, _serial_setup, _simd_check
 from .layout import _CHUNK_SHIFT, _SOA_MIN_BATCH, _soa_width
-from .pack import _CACHE, _flags, _pack, _pack_params
-
-_NO_INFO = np.empty((0, 0, 6))
-
 
 @njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
 def terrain_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, geom, prm, hf,
@@ -44,12 +40,9 @@ def terrain_loop_simd(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, et
                       anchor, eta0, active, slip):
     """:func:`terrain_loop` for ``_SOA_MIN_BATCH`` copies or more: the SIMD instance, on this
     thread; error 9 for a smaller batch."""
-    err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
+    err, ibs, L, k, m, n, lanes1 = _simd_check(q, qd, bufs, lanes, l0, fd, W, ext, flags)
     if err:
         return err
-    if _serial_setup(bufs, q.shape[0])[4] == 1:
-        return 9
-    lanes1 = _view(lanes, 0, (lanes.shape[0] if bufs.shape[0] > 1 else 0, lanes.shape[1], lanes.shape[2]))
     terrain = (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, np.empty((0, 0, 6)), ext)
     _drive_lanes_terrain(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
                          terrain)
@@ -84,19 +77,10 @@ def terrain_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
     parallel kernel's work in one sub-step, else :func:`terrain_loop` (SIMD from
     ``_SOA_MIN_BATCH`` copies). False (nothing done) for arrays of another type or layout: the
     Python loop converts them."""
-    p = (_CACHE.get(id(model)) or _pack(model)) if params is None else _pack_params(model, params)
-    flags = _flags(p, name, project)
-    for x in (q, qd, forces):
-        if not (type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable):
-            return False
-    if external is None:
-        ext = _NO_EXTERNAL
-    elif type(external) is np.ndarray and external.dtype == np.float64 and external.ndim == 3:
-        ext = _frozen(np.ascontiguousarray(external))
-    else:
+    setup = loop_setup(model, q, qd, name, rest_length, force_density, external, params, project, forces)
+    if setup is None:
         return False
-    l0, fd, _, flags = _control_arrays(p, flags, rest_length, force_density, forces)
-    bufs = p.buf[None] if p.bufs is None else p.bufs
+    p, flags, l0, fd, ext, bufs = setup
     B = q.shape[0]
     # threads when one sub-step's work, the terrain slots' included, is the parallel kernel's and
     # the batch makes two SIMD blocks at least (the chunks are whole blocks)
@@ -113,5 +97,3 @@ def terrain_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
         _raise(err, model, q, qd, rest_length, force_density, forces if external is None else external)
     return True
 
-
-_NO_EXTERNAL = _frozen(np.empty((0, 1, 3)))   # no external force added to the terrain forces
