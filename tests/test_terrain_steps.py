@@ -94,3 +94,56 @@ def test_heightfield_slope_bound_is_the_kernels_own(prism):
     out = [T.contact_forces(tc, prism, q, np.zeros_like(q), T.init_terrain_state(tc, prism, B), geom=g)[0]
            for g in (tc.geom, cleared)]
     assert np.abs(out[0]).sum() > 0 and np.array_equal(out[0], out[1])
+
+
+@pytest.mark.parametrize("B", [1, 20, 900])
+def test_compiled_plane_loop_is_the_python_loop(prism, B):
+    """A terrain that is one plane runs the driver's plane instance (its own forces loop, node
+    slots in lane scratch): per-copy slopes and friction, an external force, one copy, SIMD
+    blocks with pad lanes (20 copies) and the threaded kernel (900): the Python loop's bits."""
+    m = prism
+    tc = T.TerrainContact(Terrain(plane=Plane(15.0, 30.0)))
+    assert tc.plane_only
+    rng = np.random.default_rng(B)
+    st = dyn.initial_state(m, B)
+    q, qd = np.array(st.q), np.array(st.qd)
+    q[..., :3] += rng.normal(0.0, 0.01, q[..., :3].shape)
+    geom = np.repeat(tc.geom, B, axis=0)
+    for c in range(B):
+        geom[c] = T.TerrainContact(Terrain(plane=Plane(rng.uniform(0.0, 30.0), rng.uniform(0, 360)))).geom[0]
+    prm = tc.per_copy(B)
+    prm[:, 0, T.PRM_FIELDS.index("friction")] = rng.uniform(0.1, 1.0, B)
+    ext = rng.normal(0.0, 0.1, (B, m.n_nodes, 3))
+    out = []
+    for compiled in (False, True):
+        qq, qqd, ts = q.copy(), qd.copy(), T.init_terrain_state(tc, m, B)
+        slipped = touched = False
+        for _ in range(30):
+            T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=10, external=ext, prm=prm,
+                      geom=geom, compiled=compiled)
+            touched |= bool(ts.active.any())
+        out.append((qq, qqd, ts.anchor, ts.eta0, ts.active))
+    assert touched
+    for a, b in zip(*out):
+        assert np.array_equal(a, b)
+
+
+def test_plane_rows_that_are_not_one_plane_run_the_general_loop(prism):
+    """A plane's contact given per-copy rows of another kind (a box) is stepped as those rows
+    say: the plane instance refuses them and the general one runs, as the Python loop."""
+    m = prism
+    tc = T.TerrainContact(Terrain(plane=Plane(0.0)))
+    box = T.TerrainContact(Terrain(plane=None, boxes=[Box([0.0, 0.0, -0.5], [2.0, 2.0, 1.0])]))
+    B = 3
+    geom = np.repeat(tc.geom, B, axis=0)
+    geom[1] = box.geom[0]
+    st = dyn.initial_state(m, B)
+    out = []
+    for compiled in (False, True):
+        qq, qqd, ts = np.array(st.q), np.array(st.qd), T.init_terrain_state(tc, m, B)
+        for _ in range(20):
+            T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=10, geom=geom, compiled=compiled)
+        out.append((qq, qqd, ts.anchor, ts.eta0, ts.active))
+    assert out[1][4][1].any()      # copy 1 rests on its box
+    for a, b in zip(*out):
+        assert np.array_equal(a, b)

@@ -29,11 +29,6 @@ def _contact_arrays(cs) -> tuple:
     return (cs.anchor, cs.active) if not hasattr(cs, "eta0") else (cs.anchor, cs.eta0, cs.active)
 
 
-def _terrain_advance(model, q, qd, dt, name, n_steps, *, tc, tstate, **kw) -> None:
-    """:func:`tensegrity_gym.physics.terrain.advance` with the argument order of ``pipeline.advance``."""
-    terrain.advance(tc, model, q, qd, dt, name, tstate, n_steps=n_steps, **kw)
-
-
 def fixed_step(integrator: str) -> str:
     """The resolved name of a fixed-step integrator (envs step a fixed ``dt``); ValueError for an
     unknown name or an adaptive method."""
@@ -309,24 +304,24 @@ class BatchedTask:
         tc = self.terrain_contact
         cs = self.cstate if tc is None else self.tstate
         saved = [q.copy(), qd.copy()] + [a.copy() for a in _contact_arrays(cs)]
+        model, dt, name, n = self.model, self.dt, self.integrator, self.frame_skip
         if tc is None:
             kw = dict(backend=self.backend, params=self.params, contact=self.contact, cstate=cs,
                       contact_params=self._contact_prm, forces=self._W, slip=self._slip,
                       compiled=self._kernels_run, **inputs)
-            run = pipeline.advance
+            run, args = pipeline.advance, (model, q, qd, dt, name)
         else:
-            kw = dict(backend=self.backend, params=self.params, prm=self.terrain_prm, geom=self.terrain_geom,
-                      hf=self.terrain_hf, forces=self._W, slip=self._terrain_slip, compiled=self._kernels_run, tc=tc, tstate=cs,
-                      **inputs)
-            run = _terrain_advance
-        model, dt, name, n = self.model, self.dt, self.integrator, self.frame_skip
+            prm, geom, hf = self._terrain_views()
+            kw = dict(backend=self.backend, params=self.params, prm=prm, geom=geom, hf=hf, forces=self._W,
+                      slip=self._terrain_slip, compiled=self._kernels_run, **inputs)
+            run, args = terrain.advance, (tc, model, q, qd, dt, name, cs)
         with np.errstate(all="ignore"):
             if self.track_last_velocity:
-                run(model, q, qd, dt, name, n_steps=n - 1, **kw)
+                run(*args, n_steps=n - 1, **kw)
                 self._qd_prev = qd.copy()
-                run(model, q, qd, dt, name, n_steps=1, **kw)
+                run(*args, n_steps=1, **kw)
             else:
-                run(model, q, qd, dt, name, n_steps=n, **kw)
+                run(*args, n_steps=n, **kw)
         diverged = pipeline.diverged(q, qd, self.center0, self.divergence_limit, self.travels)
         if diverged.any():
             for now, before in zip([q, qd] + list(_contact_arrays(cs)), saved):
@@ -334,9 +329,21 @@ class BatchedTask:
             if self.track_last_velocity:
                 self._qd_prev[diverged] = qd[diverged]
         if tc is not None:      # the rod ends' flags (what the observation reports) from the terrain's slots
-            self.cstate.active[:] = rod_end_contacts(cs.active, q.shape[1])
+            rod_end_contacts(cs.active, q.shape[1], out=self.cstate.active)
         self.elapsed += 1
         return diverged
+
+    def _terrain_views(self) -> tuple:
+        """Read-only views of ``terrain_prm``, ``terrain_geom``, ``terrain_hf`` (None stays None), as
+        the kernels take them: made once and kept while they view those arrays (a copied or
+        unpickled env makes its own), so that writes to the rows show through."""
+        views = self.__dict__.get("_terrain_ro")
+        hf = self.terrain_hf
+        if (views is None or views[0].base is not self.terrain_prm or views[1].base is not self.terrain_geom
+                or (views[2] is None) != (hf is None) or (hf is not None and views[2].base is not hf)):
+            views = self._terrain_ro = (terrain.read_only(self.terrain_prm), terrain.read_only(self.terrain_geom),
+                                        None if hf is None else terrain.read_only(hf))
+        return views
 
     def _settle_divergence(self, q0, qd0, q, qd) -> np.ndarray:
         """Divergence check (:func:`tensegrity_gym.pipeline.diverged`) and state update of

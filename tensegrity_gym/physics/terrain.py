@@ -37,8 +37,10 @@ Generalized force: a force F at the rod point ``v(eta) = r + eta b`` enters the 
 whose generalized force ``W Psi`` is exactly ``[F, eta F]`` (``tests/test_terrain.py``).
 
 Stepping: per step, the forces of the whole batch from the state at the step's start, held over
-one integrator step as ``external`` nodal forces (as the ground contact's Python loop; the
-ground contact's fused compiled loop has no terrain twin yet).
+one integrator step as ``external`` nodal forces, as the ground contact's. With the numba
+kernels all sub-steps run in one compiled call (:mod:`tensegrity_gym.backends.numba.terrain_steps`);
+a terrain that is one plane (``TerrainContact.plane_only``) runs the loop driver's plane instance,
+the same numbers at about the ground contact's cost.
 """
 from __future__ import annotations
 
@@ -47,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..backends.numba.api import _frozen as read_only   # the kernels take read-only arrays
 from ..backends.numba.terrain import BOX, HFIELD, PLANE, terrain_forces_kernel
 from ..backends.numba.terrain_steps import terrain_steps
 from ..core.checks import check_positive
@@ -80,7 +83,8 @@ class TerrainContact:
 
     Arrays of the kernels (read-only): ``geom`` (1, F, 10) and ``prm`` (1, F, 8) per feature in
     :meth:`Terrain.parts` order, ``hf`` (1, ny, nx) the heightfield's heights m (a (1, 1, 1)
-    zero array without one); layouts in :mod:`tensegrity_gym.backends.numba.terrain`."""
+    zero array without one); layouts in :mod:`tensegrity_gym.backends.numba.terrain`.
+    ``plane_only``: True when the terrain is one plane and nothing else."""
 
     terrain: Terrain
     radius: float = 0.02
@@ -144,6 +148,8 @@ class TerrainContact:
         s(self, "geom", geom)
         s(self, "prm", prm)
         s(self, "hf", hf)
+        # one plane and nothing else: the compiled loop's plane instance
+        s(self, "plane_only", geom.shape[1] == 1 and geom[0, 0, 0] == PLANE)
 
     @property
     def n_features(self) -> int:
@@ -185,6 +191,9 @@ def _rows(arr, default, B, width, name):
     for the contact's own arrays and the caller's), or ``default``; ValueError otherwise."""
     if arr is None:
         return default
+    if (type(arr) is np.ndarray and arr.dtype == np.float64 and arr.ndim == 3 and not arr.flags.writeable
+            and arr.flags.c_contiguous and arr.shape[0] in (1, B) and arr.shape[1:] == default.shape[1:]):
+        return arr      # already as the kernel takes it (an env's read-only view of its rows): no new view
     a = np.ascontiguousarray(arr, dtype=np.float64)
     if a.ndim != 3 or a.shape[0] not in (1, B) or a.shape[1:] != default.shape[1:]:
         raise ValueError(f"{name}: expected shape (1, {default.shape[1]}, {width}) or ({B}, {default.shape[1]}, "
@@ -314,8 +323,9 @@ def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str,
     sub-step runs inside one compiled call (:mod:`tensegrity_gym.backends.numba.terrain_steps`),
     the same kernels in the same order as the Python loop here (bit-identical)."""
     B = q.shape[0]
-    prm, geom = tc.prm if prm is None else _frozen(prm), _frozen(_geom_rows(geom, hf, tc, B))
-    hf = tc.hf if hf is None else _frozen(hf)
+    prm = tc.prm if prm is None else read_only(prm)
+    geom = _geom_rows(None, hf, tc, B) if geom is None else read_only(geom)
+    hf = tc.hf if hf is None else read_only(hf)
     W = np.empty((B, model.n_nodes, 3)) if forces is None else forces
     sl = np.empty((B, n_slots(tc, model)), bool) if slip is None else slip
     if compiled is None:
@@ -323,7 +333,7 @@ def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str,
     arrays = (geom, prm, hf, tstate.anchor, tstate.eta0, tstate.active, sl)
     if compiled and terrain_steps(model, q, qd, dt, integrator, n_steps, inputs.get("rest_length"),
                                   inputs.get("force_density"), external, inputs.get("params"),
-                                  inputs.get("project", True), arrays, W):
+                                  inputs.get("project", True), arrays, W, tc.plane_only):
         return
     for _ in range(int(n_steps)):
         forces_inplace(tc, model, q, qd, tstate, W, sl, prm, geom, hf)
@@ -341,14 +351,6 @@ def hf_bound(heights: np.ndarray, cell: float) -> float:
     mx = float(np.abs(np.diff(h, axis=1)).max(initial=0.0))
     my = float(np.abs(np.diff(h, axis=0)).max(initial=0.0))
     return math.sqrt(1.0 + (mx * mx + my * my) / (cell * cell))
-
-
-def _frozen(a: np.ndarray) -> np.ndarray:
-    """``a`` as a read-only view (the kernels are compiled for the contact's read-only arrays)."""
-    if a.flags.writeable:
-        a = a.view()
-        a.setflags(write=False)
-    return a
 
 
 def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: TerrainState,

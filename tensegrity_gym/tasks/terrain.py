@@ -182,10 +182,17 @@ def start_lift(terrain: Terrain, nodes: np.ndarray, radius: float) -> np.ndarray
     return np.maximum(-gap.min(axis=-1), 0.0)
 
 
-def rod_end_contacts(slots, n_bars: int):
+def rod_end_contacts(slots, n_bars: int, out=None):
     """(B, 2 k) bool contact flags of the rod ends (rod i's ends at 2 i, 2 i + 1), what the
     observation reports, from the terrain contact's slot flags ``slots`` (B, 3 k F) bool (per
     rod, per terrain part: end a, end c, interior point; :mod:`tensegrity_gym.physics.terrain`):
-    an end touches when its slot touches any part. NumPy array or torch tensor."""
+    an end touches when its slot touches any part. NumPy array or torch tensor; ``out`` (NumPy,
+    C-contiguous (B, 2 k) bool) receives the flags in place and is returned."""
     B = slots.shape[0]
-    return namespace(slots).any(slots.reshape(B, n_bars, -1, 3)[..., :2], 2).reshape(B, 2 * n_bars)
+    if out is None:
+        return namespace(slots).any(slots.reshape(B, n_bars, -1, 3)[..., :2], 2).reshape(B, 2 * n_bars)
+    if slots.shape[1] == 3 * n_bars:    # one terrain part
+        out.reshape(B, n_bars, 2)[...] = slots.reshape(B, n_bars, 3)[:, :, :2]
+    else:
+        np.logical_or.reduce(slots.reshape(B, n_bars, -1, 3)[..., :2], axis=2, out=out.reshape(B, n_bars, 2))
+    return out

@@ -59,9 +59,10 @@ def _compile(which: str) -> None:
 
 
 #: the work of one terrain contact slot per sub-step, in the units of PARALLEL_MIN_WORK (a string
-#: or a rod): a 20-degree plane's 9 slots cost the prism robot about 1.6 times its whole flat-ground
-#: step; with this weight a slope goes threaded from 53 copies (four steps from 32, two SIMD blocks),
-#: where the threaded terrain loop ran 1.1-2.6 times faster than the serial one on 2 cores
+#: or a rod), for a terrain with boxes or a heightfield (the general terrain instance, whose slots
+#: cost the prism robot more than its whole flat-ground step; a terrain that is one plane counts
+#: none, as the ground contact): with this weight the prism on such a terrain goes threaded from 53
+#: copies, where the threaded terrain loop ran faster than the serial one on 2 cores
 #: (``scripts/bench_terrain.py``)
 TERRAIN_SLOT_WORK = 20
 

@@ -4,7 +4,9 @@ The driver runs ``n_steps`` fixed steps (semi-implicit Euler or RK4, optional pr
 optional ground contact at each step) of the copies ``lo..hi`` in structure-of-arrays scratch
 (k, 6, E). Its instances: ``_drive_one`` (E = 1, in the packed buffer's own scratch reached
 through ``numba.carray`` views, ``_view``) and ``_drive_lanes`` (E = 16 or 8 SIMD lanes, fresh
-scratch arrays); ``_drive_one_contact`` / ``_drive_lanes_contact`` with ground contact. The
+scratch arrays); ``_drive_one_contact`` / ``_drive_lanes_contact`` with ground contact,
+``_drive_one_terrain`` / ``_drive_lanes_terrain`` with terrain contact, and
+``_drive_one_plane`` / ``_drive_lanes_plane`` on a terrain that is one plane. The
 one-copy instances call ``_drive``, the driver compiled once per argument types (E the literal 1),
 so that the kernels of a single env share it: numba's inlining copies the whole driver's IR into
 each caller, once per basic block, which made most of a single env's cold compile. The SIMD
@@ -18,7 +20,7 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
-from .terrain import hf_bound_of, lanes_forces
+from .terrain import hf_bound_of, lanes_forces, plane_forces, plane_load, plane_store
 from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
                      _opts, _soa_width_nb)
 
@@ -130,7 +132,7 @@ def _load(q, qd, l0, fd, ext, c0, ne, Q, QD, L0, FD, EX, PC, o_l0, k, m, n, E, f
 
 
 def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E, contact,
-              terrain):
+              terrain, plane):
     """``n_steps`` fixed steps of copies lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e]) (which
     may be the same arrays): the one loop driver of the numba backend. E copies at a time in
     structure-of-arrays scratch (k, 6, E), so that every inner loop runs over copies and
@@ -152,7 +154,9 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
     slip flags stay in lane scratch for all ``n_steps`` and are stored with the state.
     ``terrain``: None or the tuple of :func:`.terrain.lanes_forces` (terrain contact: its forces
     replace EX at the start of every step, as the ground contact's; the contact state is the
-    copies' own arrays; ``ext`` receives each copy's forces of its last step)."""
+    copies' own arrays; ``ext`` receives each copy's forces of its last step). ``plane``: None or
+    the tuple of :func:`.terrain.plane_forces` (a terrain that is one plane, as ``terrain`` but
+    for that one kind: the instance then carries no code for the other kinds)."""
     S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, E, lanes.shape[0] > 0)
     if contact is not None:
         eta, rod_a, rod_c, prm, anchor, active, slip, cext = contact
@@ -163,9 +167,16 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         TQ = np.empty((E, k, 6))
         TQD = np.empty((E, k, 6))
         TW = np.empty((E, n, 3))
-        t_geom, t_hf = terrain[3], terrain[5]
+        # unpacked once: unpacking the tuple inside the step loop costs a reference count per array and step
+        (t_eta, t_rod_a, t_rod_c, t_geom, t_prm, t_hf, t_anchor, t_eta0, t_active, t_slip, t_info,
+         t_ext) = terrain
         # shared heights: their slope bound once per call (per-copy ones: per copy, in lanes_forces)
         t_lam = 1.0 if (t_geom.shape[0] > 1 or t_hf.shape[0] > 1) else hf_bound_of(t_geom[0], t_hf[0])
+    if plane is not None:
+        p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_anchor, p_eta0, p_active, p_slip, p_ext = plane
+        PAN = np.empty((2 * k, 3, E))
+        PAC = np.zeros((2 * k, E), np.bool_)
+        PSL = np.zeros((2 * k, E), np.bool_)
     Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
     per_copy = lanes.shape[0] > 0
     rk4 = (flags & _RK4) != 0
@@ -193,11 +204,16 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         _load(q, qd, l0, fd, ext, c0, ne, Q, QD, L0, FD, EX, PC, o_l0, k, m, n, E, flags)
         if contact is not None:
             _contact_load(anchor, active, AN, AC, c0, ne, k, E)
+        if plane is not None:
+            plane_load(p_anchor, p_eta0, p_active, PAN, PAC, p_eta, c0, ne, k, E)
         for _ in range(n_steps):
             if contact is not None:                 # held over the step, as contact.step does
                 _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)
             if terrain is not None:
-                lanes_forces(Q, QD, EX, TQ, TQD, TW, terrain, t_lam, c0, ne, k, n, E)
+                lanes_forces(Q, QD, EX, TQ, TQD, TW, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, t_hf, t_anchor, t_eta0,
+                             t_active, t_slip, t_info, t_ext, t_lam, c0, ne, k, n, E)
+            if plane is not None:
+                plane_forces(Q, QD, EX, PAN, PAC, PSL, p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_ext, c0, ne, k, n, E)
             Qi = Q
             Vi = QD
             A = A1
@@ -246,7 +262,9 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
                     qdo[c0 + e, j, i] = QD[j, i, e]
         if contact is not None:
             _contact_store(anchor, active, slip, ext, AN, AC, SL, EX, c0, ne, k, n)
-        if terrain is not None:
+        if plane is not None:
+            plane_store(p_anchor, p_eta0, p_active, p_slip, PAN, PAC, PSL, p_eta, c0, ne, k)
+        if terrain is not None or plane is not None:
             for e in range(ne):
                 for p in range(n):
                     for i in range(3):
@@ -261,34 +279,45 @@ _drive_inline = njit(inline="always", **_opts)(_drive_py)
 def _drive_lanes(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_drive_py in SIMD blocks of E = :func:`_soa_width` copies (fresh scratch arrays)."""
     _drive_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes,
-                    _soa_width_nb(k), None, None)
+                    _soa_width_nb(k), None, None, None)
 
 @njit(**_opts)
 def _drive_one(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_drive_lanes one copy at a time (E = 1, a compile-time constant), in the scratch of ``w``."""
-    _drive(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1, None, None)
+    _drive(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1, None, None, None)
 
 @njit(**_opts)
 def _drive_lanes_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
     """_drive_lanes with ground contact (``contact`` the tuple of :func:`_drive_py`), in place on
     q, qd; ``W`` (B, n, 3) receives each copy's forces of its last step."""
     _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
-                    _soa_width_nb(k), contact, None)
+                    _soa_width_nb(k), contact, None, None)
 
 @njit(**_opts)
 def _drive_one_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
     """_drive_one with ground contact (see :func:`_drive_lanes_contact`)."""
-    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, contact, None)
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, contact, None, None)
 
 @njit(**_opts)
 def _drive_lanes_terrain(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, terrain):
     """_drive_lanes with terrain contact (``terrain`` the tuple of :func:`.terrain.lanes_forces`),
     in place on q, qd; ``W`` (B, n, 3) receives each copy's forces of its last step."""
     _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
-                  _soa_width_nb(k), None, terrain)
+                  _soa_width_nb(k), None, terrain, None)
 
 @njit(**_opts)
 def _drive_one_terrain(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, terrain):
     """_drive_one with terrain contact (see :func:`_drive_lanes_terrain`)."""
-    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, None, terrain)
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, None, terrain, None)
 
+
+@njit(**_opts)
+def _drive_lanes_plane(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, plane):
+    """_drive_lanes on a terrain that is one plane (``plane`` the tuple of :func:`.terrain.plane_forces`)."""
+    _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
+                  _soa_width_nb(k), None, None, plane)
+
+@njit(**_opts)
+def _drive_one_plane(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, plane):
+    """_drive_one on a terrain that is one plane (see :func:`_drive_lanes_plane`)."""
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, None, None, plane)
