@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from .heightfield import LEVEL_TOL, hf_flat_under, hf_lipschitz, hf_lowest, hf_patch
@@ -250,6 +251,10 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
     k, n = Q.shape[1], Wc.shape[1]
     F = geom.shape[1]
     has_info = info.shape[0] > 0
+    # the feature's rows copied here (not sliced: a slice is a new array view, whose reference
+    # counting cost about as much as a plane's contact itself)
+    g = np.empty(geom.shape[2])
+    pr = np.empty(prm.shape[2])
     per_hf = geom.shape[0] > 1 or hf.shape[0] > 1
     for r in range(nr):
         c = c0 + r
@@ -269,8 +274,10 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
             span = ec - ea
             em = 0.5 * (ea + ec)
             for f in range(F):
-                g = geom[g_row, f]
-                pr = prm[p_row, f]
+                for i in range(g.shape[0]):
+                    g[i] = geom[g_row, f, i]
+                for i in range(pr.shape[0]):
+                    pr[i] = prm[p_row, f, i]
                 radius = pr[0]
                 base = (j * F + f) * 3
                 mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
