@@ -19,6 +19,16 @@ from .entries import _chunk, _chunks, _contact_check, _serial_setup, _simd_check
 from .layout import _CHUNK_SHIFT, _SOA_MIN_BATCH, _soa_width
 from .terrain import plane_only
 
+@njit(inline="always", cache=True)
+def _terrain_tuples(err, plane, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, ext):
+    """(error code, the general driver's terrain tuple, the plane instance's tuple) of an entry
+    call: error 10 where ``plane`` is given and a row of ``geom`` is not one plane."""
+    if err == 0 and plane is not None and not plane_only(geom):
+        err = 10
+    return (err, (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, np.empty((0, 0, 6)), ext),
+            (eta, rod_a, rod_c, geom, prm, anchor, eta0, active, slip, ext))
+
+
 @njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
 def terrain_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, geom, prm, hf,
                  anchor, eta0, active, slip, plane):
@@ -30,17 +40,15 @@ def terrain_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, ro
     (the plane instance, :func:`.terrain.plane_forces`: error 10 unless every row of ``geom`` is
     one plane). Returns the kernel's error code (0: done)."""
     err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
-    if err == 0 and plane is not None and not plane_only(geom):
-        err = 10
+    err, terrain, planes = _terrain_tuples(err, plane, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip,
+                                           ext)
     if err:
         return err
     lanes1 = _serial_setup(bufs, q.shape[0])[5]
     if plane is None:
-        terrain = (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, np.empty((0, 0, 6)), ext)
         _drive_one_terrain(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
                            terrain)
     else:
-        planes = (eta, rod_a, rod_c, geom, prm, anchor, eta0, active, slip, ext)
         _drive_one_plane(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
                          planes)
     return 0
@@ -52,16 +60,14 @@ def terrain_loop_simd(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, et
     """:func:`terrain_loop` for ``_SOA_MIN_BATCH`` copies or more: the SIMD instance, on this
     thread; error 9 for a smaller batch."""
     err, ibs, L, k, m, n, lanes1 = _simd_check(q, qd, bufs, lanes, l0, fd, W, ext, flags)
-    if err == 0 and plane is not None and not plane_only(geom):
-        err = 10
+    err, terrain, planes = _terrain_tuples(err, plane, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip,
+                                           ext)
     if err:
         return err
     if plane is None:
-        terrain = (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, np.empty((0, 0, 6)), ext)
         _drive_lanes_terrain(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
                              terrain)
     else:
-        planes = (eta, rod_a, rod_c, geom, prm, anchor, eta0, active, slip, ext)
         _drive_lanes_plane(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
                            planes)
     return 0
@@ -75,20 +81,18 @@ def terrain_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta
     copies, whose contact state is their own rows, so the threads meet once per call. Same
     arguments and bits as :func:`terrain_loop`."""
     err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
-    if err == 0 and plane is not None and not plane_only(geom):
-        err = 10
+    err, terrain, planes = _terrain_tuples(err, plane, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip,
+                                           ext)
     if err:
         return err
     B = q.shape[0]
     E, nb, nch = _chunks(B, k, flags)
     if plane is None:
-        terrain = (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, np.empty((0, 0, 6)), ext)
         for c in prange(nch):
             lo, hi = _chunk(c, E, nb, nch, B)
             _drive_lanes_terrain(bufs[0], ibs[0], L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
                                  terrain)
     else:
-        planes = (eta, rod_a, rod_c, geom, prm, anchor, eta0, active, slip, ext)
         for c in prange(nch):
             lo, hi = _chunk(c, E, nb, nch, B)
             _drive_lanes_plane(bufs[0], ibs[0], L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
