@@ -394,6 +394,31 @@ def test_torch_equals_numba():
     np.testing.assert_array_equal(ac2.numpy(), ts1.active)
 
 
+def test_torch_plane_equals_numba():
+    """A terrain that is one plane (torch: its own slots, no interior search; numba: the loop
+    driver's plane instance): per-copy slopes and friction, a prism dropped on them, 300 steps."""
+    torch = pytest.importorskip("torch")
+    from tensegrity_gym.backends.torch import terrain as TT
+    B = 4
+    tc = T.TerrainContact(Terrain(plane=Plane(0.0)))
+    geom = np.concatenate([T.TerrainContact(Terrain(plane=Plane(a, u))).geom
+                           for a, u in zip([0.0, 12.0, 25.0, 35.0], [0.0, 90.0, 200.0, 310.0])])
+    prm = tc.per_copy(B)
+    prm[:, 0, 4] = [0.9, 0.5, 0.2, 1.0]                         # slides on 25 degrees with 0.2
+    m = prism(lift=0.08)
+    st = dyn.initial_state(m, B)
+    ts = T.init_terrain_state(tc, m, B)
+    s1, ts1 = T.step(m, st, DT, tc, ts, n_steps=300, prm=prm, geom=geom)
+    t = lambda x: torch.as_tensor(x)
+    q2, qd2, a2, e2, ac2 = TT.terrain_step(m, geom, prm, t(st.q), t(st.qd), t(ts.anchor), t(ts.eta0),
+                                           t(ts.active), DT, n_steps=300)
+    assert ts1.active[:3].any(axis=1).all()     # copies 0-2 on their planes (copy 3 tumbles down 35 degrees)
+    np.testing.assert_array_equal(ac2.numpy(), ts1.active)
+    assert np.abs(q2.numpy() - s1.q).max() < 1e-9 and np.abs(qd2.numpy() - s1.qd).max() < 1e-7
+    np.testing.assert_allclose(a2.numpy(), ts1.anchor, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(e2.numpy(), ts1.eta0)
+
+
 # ---------------------------------------------------------------------- heightfield
 def bumpy(amp=0.02, cell=0.05, n=(13, 15), origin=(-0.35, -0.3), seed=None, **kw):
     """A heightfield of smooth bumps (or, with ``seed``, random heights of amplitude ``amp`` m)."""

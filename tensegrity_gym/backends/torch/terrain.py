@@ -202,6 +202,66 @@ def _prepare(geom, prm, hf, q):
     return geom, prm, H, lips
 
 
+def _slot_law(P, V, M, sd, n, w, level, was, an, pr):
+    """The contact law of slots (..., s) at points P (..., s, 3) m moving at V m/s, the anchored
+    material points M, contact measure ``sd`` m, outward unit normal n, gradient length w, the
+    level the penetration is measured from, ``was`` active at the last step, anchors ``an``
+    (..., s, 3) m, ``pr`` the part's 8 parameter columns (P, 1) (the numba ``_slot_force``):
+    returns the anchors, touching and slip flags, the force (..., s, 3) N and the normal force
+    magnitude ``fn`` N."""
+    torch = _torch()
+    radius, kn, dn, ex, mu, kt, ct, cmax = pr
+    kn_, dn_, mu_, kt_, ct_, cmax_ = (x[..., None] for x in (kn, dn, mu, kt, ct, cmax))
+    delta = level - sd
+    touch = delta > 0.0
+    dpos = torch.where(touch, delta, torch.zeros_like(delta))
+    ex0 = float(ex.reshape(-1)[0])
+    de = dpos if ex0 == 1.0 else dpos ** ex[..., None]
+    fs = kn_ * de
+    cn = torch.minimum(fs * dn_, cmax_.expand_as(fs))
+    vn = (V * n).sum(-1)
+    fn = (fs - cn * w * vn).clamp(min=0.0)
+    fw = fn * w
+    S = P - (sd / w)[..., None] * n
+    new = (~was)[..., None]
+    A = torch.where(new, S, an)
+    M = torch.where(new, P, M)
+    xi = M - A
+    xn = (xi * n).sum(-1, keepdim=True)
+    xi = xi - xn * n
+    Ft = -kt_[..., None] * xi - ct_[..., None] * (V - vn[..., None] * n)
+    nrm = torch.sqrt((Ft * Ft).sum(-1))
+    lim = mu_ * fw
+    slip = touch & (nrm > lim)
+    scale = torch.where(slip, lim / torch.where(slip, nrm, torch.ones_like(nrm)), torch.ones_like(nrm))
+    Ft = Ft * scale[..., None]
+    A = torch.where(slip[..., None], S + Ft / kt_[..., None], A)
+    A = torch.where(touch[..., None], A, an)
+    Fc = torch.where(touch[..., None], Ft + fw[..., None] * n, torch.zeros_like(Ft))
+    return A, touch, slip, Fc, fn
+
+
+def _plane_slots(r, b, rd, bd, ea, ec, em, part, pr, an, e0s, acs):
+    """The slots of every rod against the plane ``part`` (:func:`_forces` on a plane, with fewer
+    operations: a plane's nearest point of a rod is an end, so its interior slot never touches and
+    is released as the general path releases it, the anchored point kept if it was active).
+    Returns the rods' (anchors (B, k, 3, 3), eta0 (B, k, 3), active, slip (B, k, 3), forces at
+    the node slots (B, k, 2, 3) N)."""
+    torch = _torch()
+    B, k = r.shape[0], r.shape[1]
+    E = torch.stack([ea, ec], dim=-1).expand(B, k, 2)
+    P = r[:, :, None, :] + E[..., None] * b[:, :, None, :]                # (B, k, 2, 3)
+    V = rd[:, :, None, :] + E[..., None] * bd[:, :, None, :]
+    sd, nx, ny, nz, w = _closest(P[..., 0], P[..., 1], P[..., 2], part)
+    n = torch.stack([nx, ny, nz], dim=-1)
+    was = acs[..., :2]
+    A, touch, slip, Fc, _ = _slot_law(P, V, P, sd, n, w, pr[0][..., None], was, an[:, :, :2], pr)
+    no = torch.zeros_like(touch[..., :1])
+    e0_2 = torch.where(acs[..., 2], e0s[..., 2], em.expand(B, k))
+    return (torch.cat([A, an[:, :, 2:]], dim=2), torch.cat([E, e0_2[..., None]], dim=-1),
+            torch.cat([touch, no], dim=-1), torch.cat([slip, no], dim=-1), Fc)
+
+
 def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
     """:func:`terrain_forces` on prepared inputs (:func:`_prepare`)."""
     torch = _torch()
@@ -218,8 +278,13 @@ def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
     for f in range(F):
         part = _Part(geom[:, f], H)
         pr = [prm[:, f, i].reshape(-1, 1) for i in range(8)]             # (P, 1)
-        radius, kn, dn, ex, mu, kt, ct, cmax = pr
+        radius = pr[0]
         em = 0.5 * (ea + ec)
+        if part.kind == PLANE:
+            outs.append(_plane_slots(r, b, rd, bd, ea, ec, em, part, pr, an[:, :, f], e0s[:, :, f], acs[:, :, f]))
+            Wa = Wa + outs[-1][4][:, :, 0]
+            Wc = Wc + outs[-1][4][:, :, 1]
+            continue
         mid = [r[..., i] + em * b[..., i] for i in range(3)]
         hfield = part.kind == HFIELD
         if hfield:
@@ -272,34 +337,8 @@ def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
         slot2 = torch.tensor([False, False, True], device=q.device)
         e0 = torch.where(slot2 & was, e0s[:, :, f], E)
         M = r[:, :, None, :] + e0[..., None] * b[:, :, None, :]
-        kn_, dn_, mu_, kt_, ct_, cmax_ = (x[..., None] for x in (kn, dn, mu, kt, ct, cmax))
-        delta = level - sd
-        touch = delta > 0.0
-        dpos = torch.where(touch, delta, torch.zeros_like(delta))
-        ex0 = float(ex.reshape(-1)[0])
-        de = dpos if ex0 == 1.0 else dpos ** ex[..., None]
-        fs = kn_ * de
-        cn = torch.minimum(fs * dn_, cmax_.expand_as(fs))
-        vn = (V * n).sum(-1)
-        fn = (fs - cn * w * vn).clamp(min=0.0)
-        fw = fn * w
-        S = P - (sd / w)[..., None] * n
-        new = (~was)[..., None]
-        A = torch.where(new, S, an[:, :, f])
-        M = torch.where(new, P, M)
-        xi = M - A
-        xn = (xi * n).sum(-1, keepdim=True)
-        xi = xi - xn * n
-        Ft = -kt_[..., None] * xi - ct_[..., None] * (V - vn[..., None] * n)
-        nrm = torch.sqrt((Ft * Ft).sum(-1))
-        lim = mu_ * fw
-        slip = touch & (nrm > lim)
-        scale = torch.where(slip, lim / torch.where(slip, nrm, torch.ones_like(nrm)), torch.ones_like(nrm))
-        Ft = Ft * scale[..., None]
-        A = torch.where(slip[..., None], S + Ft / kt_[..., None], A)
-        A = torch.where(touch[..., None], A, an[:, :, f])
+        A, touch, slip, Fc, fn = _slot_law(P, V, M, sd, n, w, level, was, an[:, :, f], pr)
         e0n = torch.where(slip | ~was, E, e0)
-        Fc = torch.where(touch[..., None], Ft + fw[..., None] * n, torch.zeros_like(Ft))
         wc = (E - ea[..., None]) / span[..., None]
         wa = (ec[..., None] - E) / span[..., None]
         # the interior slot's reaction: -fn w n of the deeper node at that node
@@ -307,7 +346,7 @@ def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
                         torch.zeros_like(n_end))
         Wa = Wa + (wa[..., None] * Fc).sum(2) + torch.where(end_a[..., None], R, torch.zeros_like(R))
         Wc = Wc + (wc[..., None] * Fc).sum(2) + torch.where(end_c[..., None], R, torch.zeros_like(R))
-        outs.append((A, e0n, touch, slip))
+        outs.append((A, e0n, touch, slip, Fc))
     anchor = torch.stack([o[0] for o in outs], dim=2).reshape(B, -1, 3)
     eta0 = torch.stack([o[1] for o in outs], dim=2).reshape(B, -1)
     active = torch.stack([o[2] for o in outs], dim=2).reshape(B, -1)
