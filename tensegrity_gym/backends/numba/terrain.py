@@ -274,29 +274,40 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
             span = ec - ea
             em = 0.5 * (ea + ec)
             for f in range(F):
-                for i in range(g.shape[0]):
-                    g[i] = geom[g_row, f, i]
-                for i in range(pr.shape[0]):
-                    pr[i] = prm[p_row, f, i]
-                radius = pr[0]
+                kind = geom[g_row, f, 0]
+                radius = prm[p_row, f, 0]
                 base = (j * F + f) * 3
                 mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
-                if g[0] == HFIELD:
-                    # the vertical gap is sqrt(1 + L^2)-Lipschitz along the unit rod (module doc):
-                    # a rod whose middle's gap exceeds the cap radius by that times half its length
-                    # touches nowhere
-                    far = mz - hf_patch(mx, my, g, H)[0] - lam * (0.5 * abs(span)) >= radius
-                else:
-                    # the signed distance is 1-Lipschitz: a rod whose middle is farther than half
-                    # its length plus the cap radius touches nowhere
-                    far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
+                # the signed distance is 1-Lipschitz: a rod whose middle is farther than half its
+                # length plus the cap radius touches nowhere. A box's distance is at least the
+                # largest of the middle's distances beyond its three slabs: far by that bound, the
+                # box is far by the distance itself (the same decision, without the distance)
+                far = False
+                if kind == BOX:
+                    dx, dy = mx - geom[g_row, f, 1], my - geom[g_row, f, 2]
+                    cs, sn = geom[g_row, f, 7], geom[g_row, f, 8]
+                    lb = max(abs(cs * dx + sn * dy) - geom[g_row, f, 4], abs(-sn * dx + cs * dy) - geom[g_row, f, 5],
+                             abs(mz - geom[g_row, f, 3]) - geom[g_row, f, 6])
+                    far = lb - 0.5 * abs(span) >= radius
+                if not far:
+                    for i in range(g.shape[0]):
+                        g[i] = geom[g_row, f, i]
+                    for i in range(pr.shape[0]):
+                        pr[i] = prm[p_row, f, i]
+                    if kind == HFIELD:
+                        # the vertical gap is sqrt(1 + L^2)-Lipschitz along the unit rod (module
+                        # doc): a rod whose middle's gap exceeds the cap radius by that times half
+                        # its length touches nowhere
+                        far = mz - hf_patch(mx, my, g, H)[0] - lam * (0.5 * abs(span)) >= radius
+                    else:
+                        far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
                 # the nodes' distances, normals and normal velocities, for the interior slot's level
                 sd_a, na0, na1, na2, w_a, vn_a = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
                 sd_c, nc0, nc1, nc2, w_c, vn_c = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
                 for s in range(3):
                     ci = base + s
                     e = ea if s == 0 else (ec if s == 1 else em)
-                    if far or (s == 2 and g[0] == PLANE):
+                    if far or (s == 2 and kind == PLANE):
                         # no contact (a plane's nearest point is an end): what _slot_force gives
                         # for an infinite gap, without computing it; the interior slot keeps the
                         # anchored point of a contact that ends here
@@ -308,6 +319,31 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                             info[c, ci, 0], info[c, ci, 1] = e, math.inf
                             info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = 0.0, 0.0, 1.0
                             info[c, ci, 5] = 0.0
+                        continue
+                    if kind == PLANE:
+                        # a plane's node slot: the force law at the node (a plane's nearest point
+                        # of a rod is an end) and its force to that node whole (the weights below
+                        # are 1 and 0 there): the same numbers with less of the general path
+                        px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
+                        sd = g[1] * px + g[2] * py + g[3] * pz - g[4]
+                        touch, fx, fy, fz, ax, ay, az, sl, en, fn = _slot_force(
+                            px, py, pz, px, py, pz, QD[r, j, 0] + e * QD[r, j, 3], QD[r, j, 1] + e * QD[r, j, 4],
+                            QD[r, j, 2] + e * QD[r, j, 5], sd, g[1], g[2], g[3], 1.0, anchor[c, ci, 0],
+                            anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], radius, pr[1], pr[2], pr[3], pr[4],
+                            pr[5], pr[6], pr[7])
+                        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
+                        eta0[c, ci] = e
+                        active[c, ci] = touch
+                        slip[c, ci] = sl
+                        if has_info:
+                            info[c, ci, 0], info[c, ci, 1] = e, sd
+                            info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = g[1], g[2], g[3]
+                            info[c, ci, 5] = en
+                        if touch:
+                            node = rod_a[j] if s == 0 else rod_c[j]
+                            Wc[r, node, 0] += fx
+                            Wc[r, node, 1] += fy
+                            Wc[r, node, 2] += fz
                         continue
                     use = True
                     kink, kgx, kgy = False, 0.0, 0.0
