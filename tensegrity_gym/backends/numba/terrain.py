@@ -255,12 +255,15 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
     # counting cost about as much as a plane's contact itself)
     g = np.empty(geom.shape[2])
     pr = np.empty(prm.shape[2])
-    per_hf = geom.shape[0] > 1 or hf.shape[0] > 1
+    # per-copy rows with a heightfield: its slope bound per copy (a (., 1, 1) hf is no heightfield)
+    per_hf = (geom.shape[0] > 1 or hf.shape[0] > 1) and hf.shape[1] * hf.shape[2] > 1
+    H = hf[0]       # shared heights: one view for all copies (a view per copy costs its reference count)
     for r in range(nr):
         c = c0 + r
         g_row = c if geom.shape[0] > 1 else 0
         p_row = c if prm.shape[0] > 1 else 0
-        H = hf[c if hf.shape[0] > 1 else 0]
+        if hf.shape[0] > 1:
+            H = hf[c]
         if per_hf:
             lam = hf_bound_of(geom[g_row], H)
         for p in range(n):
