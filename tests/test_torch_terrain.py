@@ -72,12 +72,47 @@ def test_bad_terrain_refused_with_the_numpy_envs_error(kw, match):
     assert errors[0] == errors[1]
 
 
-def test_device_resets_and_compile_refused_on_terrain():
+def test_device_resets_with_a_generator_and_compile_refused_on_terrain():
     mk = dict(num_envs=2, vectorization_mode="vector_entry_point", backend="torch", device="cpu", terrain=STEPS)
-    with pytest.raises(ValueError, match="reset_sampling: 'device' is not available with terrain"):
+    with pytest.raises(ValueError, match="reset_sampling: 'device' is not available with a terrain generator"):
         gym.make_vec(ID, reset_sampling="device", **mk)
     with pytest.raises(ValueError, match="compile: not available with terrain"):
         gym.make_vec(ID, compile=True, **mk)
+
+
+FIXED = {"plane": {"slope_deg": 6.0, "uphill_deg": 30.0},
+         "boxes": [{"center": [0.05, 0.0, 0.0], "size": [0.2, 2.0, 0.08]}]}
+
+
+def test_device_resets_on_a_fixed_terrain():
+    """``reset_sampling="device"`` on a fixed terrain: every start clear of the terrain (the node
+    caps above its top surface, the lowest touching where the start was lifted), the contact
+    state let go, a randomised friction written to every part of the terrain, the same seed the
+    same rollout."""
+    from tensegrity_gym import dynamics
+    mk = dict(num_envs=6, vectorization_mode="vector_entry_point", backend="torch", device="cpu", dtype="float64",
+              terrain=FIXED, reset_sampling="device", reset_noise_scale=0.05, randomize={"friction": 0.5})
+    obs = []
+    for _ in range(2):
+        env = gym.make_vec(ID, **mk)
+        o, _ = env.reset(seed=7)
+        ten = env.unwrapped if hasattr(env, "unwrapped") else env
+        task = ten.task
+        terrain = task.terrains[0]
+        q = ten.q.numpy()
+        nodes = dynamics.node_positions(task.model, q)
+        gap = nodes[..., 2] - task.contact.radius - terrain.height_at(nodes[..., 0], nodes[..., 1])
+        assert (gap.min(axis=1) > -1e-9).all()
+        assert (np.abs(gap.min(axis=1)) < 1e-9).any()        # the lifted copies touch with their lowest cap
+        assert not ten._terrain.active.any() and not ten._terrain.anchor.any()
+        fr = ten._terrain_prm[:, :, 4].numpy()
+        assert np.ptp(fr[:, 0]) > 0 and np.array_equal(fr[:, 0], fr[:, 1])     # per copy, every part alike
+        rng = np.random.default_rng(0)
+        for _ in range(10):
+            o, r, te, tr, info = env.step(torch.as_tensor(rng.uniform(-1, 1, (6,) + env.single_action_space.shape)))
+        assert torch.isfinite(o).all()
+        obs.append(o.numpy())
+    assert np.array_equal(obs[0], obs[1])
 
 
 def test_level_ground_runs_no_terrain_code():

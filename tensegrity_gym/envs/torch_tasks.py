@@ -34,9 +34,10 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     def _check_task(self, task, reset_sampling: str, compile: bool) -> None:
         if task.terrain_contact is None:
             return
-        if reset_sampling == "device":
-            raise ValueError("reset_sampling: 'device' is not available with terrain (its terrains are drawn and "
-                             "the start lifted clear of them on the host); use reset_sampling='host'")
+        if reset_sampling == "device" and task.terrain_generator is not None:
+            raise ValueError("reset_sampling: 'device' is not available with a terrain generator (its terrains are "
+                             "drawn on the host); use a fixed terrain (a file, a dict or a Terrain) or "
+                             "reset_sampling='host'")
         if isinstance(compile, (bool, np.bool_)) and compile:
             raise ValueError("compile: not available with terrain (its contact search branches on the terrain's "
                              "parts); use compile=False")
@@ -113,6 +114,10 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         q, qd = torch_backend.project(self.tm, q, qd)
         zmin = torch_backend.node_positions(self.tm, q, self._node_prm)[..., 2].amin(dim=1)
         q[..., 2] += torch.clamp(self._z_floor - zmin, min=0.0)[:, None]
+        if self._terrain is not None:       # a fixed terrain: clear of it, its contact let go
+            nodes = torch_backend.node_positions(self.tm, q, self._node_prm)
+            q[..., 2] += self._terrain.start_lift(nodes, task.contact.radius)[:, None]
+            self._terrain.release(it)
         ctrl = self._start_control.expand(r, -1)
         self.q[it], self.qd[it] = q, qd
         self.anchor[it] = 0.0

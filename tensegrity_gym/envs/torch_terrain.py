@@ -6,14 +6,16 @@ terrain contact (:func:`tensegrity_gym.backends.torch.terrain.terrain_step`). SI
 The host :class:`~tensegrity_gym.envs.roll.RollTask` keeps doing what is drawn: at a reset it
 draws each reset copy's terrain from that copy's generator, lifts the start clear of it and
 releases its stick/slip state (``RollTask.reset_idx``); this class copies those rows to the
-device (the geometry and heights only where a generator draws them per copy). Each control step
+device (the geometry and heights only where a generator draws them per copy). On a fixed
+terrain, resets drawn on the device (``reset_sampling="device"``) lift the start and release
+the contact state here (:meth:`TorchTerrain.start_lift`, :meth:`TorchTerrain.release`). Each control step
 then runs on the device: ``frame_skip`` terrain contact steps, the divergence restore of the
 terrain's contact state, and the rod ends' contact flags from its slots
 (:func:`tensegrity_gym.tasks.terrain.rod_end_contacts`, the NumPy env's function)."""
 from __future__ import annotations
 
 from .. import torch_backend
-from ..backends.torch.terrain import terrain_step
+from ..backends.torch.terrain import terrain_step, top_height
 from ..tasks.terrain import rod_end_contacts
 
 __all__ = ["TorchTerrain"]
@@ -52,6 +54,23 @@ class TorchTerrain:
             self.geom[it] = env._T(task.terrain_geom[idx])
             if self.hf is not None:
                 self.hf[it] = env._T(task.terrain_hf[idx])
+
+    def release(self, it) -> None:
+        """Envs ``it`` (device index tensor) let go of the terrain: no slot active, anchors and
+        anchored points zero (a device reset, as the host task's reset)."""
+        self.anchor[it] = 0.0
+        self.eta0[it] = 0.0
+        self.active[it] = False
+
+    def start_lift(self, nodes, radius: float):
+        """(r,) height (m) to raise each of r copies' ``nodes`` (r, n, 3) m by so that every node's
+        cap of ``radius`` m clears the terrain's top surface under it (0 where it already does):
+        the host's :func:`tensegrity_gym.tasks.terrain.start_lift` on the device, for a fixed
+        terrain (one row of geometry and heights)."""
+        torch = torch_backend.torch_module()
+        ground = top_height(self.geom, self.hf, nodes[..., 0], nodes[..., 1])
+        gap = (nodes[..., 2] - radius) - ground
+        return torch.clamp(-gap.amin(dim=1), min=0.0)
 
     def advance(self, env, q0, qd0, inputs: dict):
         """One control step of the physics on the terrain from ``q0``, ``qd0`` (N, k, 6):

@@ -13,12 +13,12 @@ import math
 
 import numpy as np
 
-from ..numba.terrain import GOLDEN_ITERS, HFIELD, LEVEL_TOL, PLANE
+from ..numba.terrain import BOX, GOLDEN_ITERS, HFIELD, LEVEL_TOL, PLANE
 from .driver import prepare_steps, step_once
 from .heightfield import hf_lipschitz, hf_lowest, hf_patch
 from .model import TorchModel, _torch, torch_model
 
-__all__ = ["init_terrain_state", "terrain_forces", "terrain_step"]
+__all__ = ["init_terrain_state", "terrain_forces", "terrain_step", "top_height"]
 
 _GR = 0.6180339887498949
 
@@ -369,3 +369,25 @@ def terrain_step(model, geom, prm, q, qd, anchor, eta0, active, dt: float, integ
             W = W + ext
         q, qd = step_once(tm, q, qd, dt, name, p, rl, fd, W, project)
     return q, qd, anchor, eta0, active
+
+
+def top_height(geom, H, x, y):
+    """Height (m) of the terrain's top surface at (x, y) m (tensors (r, ...), leading axis the
+    copies): the highest of the plane, the tops of the boxes over (x, y) and the heightfield's
+    bilinear height; -inf where none is (:meth:`tensegrity_gym.core.terrain.Terrain.height_at` on
+    the kernels' rows). ``geom`` (1 or r, F, 10), ``H`` (1 or r, ny, nx) m or None."""
+    torch = _torch()
+    h = torch.full_like(x, -math.inf)
+    for f in range(geom.shape[1]):
+        part = _Part(geom[:, f], H)
+        if part.kind == PLANE:          # the solid n.p <= offset
+            n0, n1, n2, off = (part.col(i, x) for i in range(1, 5))
+            h = torch.maximum(h, (off - (n0 * x + n1 * y)) / n2)
+        elif part.kind == BOX:
+            cx, cy, cz, hx, hy, hz, c, s = (part.col(i, x) for i in range(1, 9))
+            dx, dy = x - cx, y - cy
+            inside = ((c * dx + s * dy).abs() <= hx) & (((-s) * dx + c * dy).abs() <= hy)
+            h = torch.where(inside, torch.maximum(h, cz + hz), h)
+        else:
+            h = torch.maximum(h, hf_patch(x, y, part)[0])
+    return h
