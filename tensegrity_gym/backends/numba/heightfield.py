@@ -34,7 +34,7 @@ from .layout import _opts
 LEVEL_TOL = 1e-7
 
 
-@njit(**_opts)
+@njit(inline="always", **_opts)
 def hf_at(px, py, rx, ry, g, H):
     """Bilinear height (m) at (px, py) m of the cell holding the reference point (rx, ry), its
     gradient (dh/dx, dh/dy) and the cell's twist ``(h11 - h10 - h01 + h00) / cell^2`` (1/m);
