@@ -324,71 +324,57 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                             info[c, ci, 5] = 0.0
                         continue
                     if kind == PLANE:
-                        # a plane's node slot: the force law at the node (a plane's nearest point
-                        # of a rod is an end) and its force to that node whole (the weights below
-                        # are 1 and 0 there): the same numbers with less of the general path
+                        # a plane's node slot (its nearest point of a rod is an end): the geometry
+                        # directly, as _closest computes it
                         px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
-                        sd = g[1] * px + g[2] * py + g[3] * pz - g[4]
-                        touch, fx, fy, fz, ax, ay, az, sl, en, fn = _slot_force(
-                            px, py, pz, px, py, pz, QD[r, j, 0] + e * QD[r, j, 3], QD[r, j, 1] + e * QD[r, j, 4],
-                            QD[r, j, 2] + e * QD[r, j, 5], sd, g[1], g[2], g[3], 1.0, anchor[c, ci, 0],
-                            anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], radius, pr[1], pr[2], pr[3], pr[4],
-                            pr[5], pr[6], pr[7])
-                        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
-                        eta0[c, ci] = e
-                        active[c, ci] = touch
-                        slip[c, ci] = sl
-                        if has_info:
-                            info[c, ci, 0], info[c, ci, 1] = e, sd
-                            info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = g[1], g[2], g[3]
-                            info[c, ci, 5] = en
-                        if touch:
-                            node = rod_a[j] if s == 0 else rod_c[j]
-                            Wc[r, node, 0] += fx
-                            Wc[r, node, 1] += fy
-                            Wc[r, node, 2] += fz
-                        continue
-                    use = True
-                    kink, kgx, kgy = False, 0.0, 0.0
-                    if s == 2:
-                        if g[0] == HFIELD:
-                            if hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
-                                use = False     # level ground under the rod: as a plane (no point is lower than both ends)
+                        sd, nx, ny, nz, w = g[1] * px + g[2] * py + g[3] * pz - g[4], g[1], g[2], g[3], 1.0
+                        vx = QD[r, j, 0] + e * QD[r, j, 3]
+                        vy = QD[r, j, 1] + e * QD[r, j, 4]
+                        vz = QD[r, j, 2] + e * QD[r, j, 5]
+                        level, end = radius, -1
+                    else:
+                        use = True
+                        kink, kgx, kgy = False, 0.0, 0.0
+                        if s == 2:
+                            if g[0] == HFIELD:
+                                if hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
+                                    use = False     # level ground under the rod: as a plane (no point is lower than both ends)
+                                else:
+                                    # the lowest point of the axis, with the gradient that its force uses
+                                    e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+                                    kink = use
                             else:
-                                # the lowest point of the axis, with the gradient that its force uses
-                                e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
-                                kink = use
+                                e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+                        px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
+                        if kink:
+                            w = math.sqrt(1.0 + kgx * kgx + kgy * kgy)
+                            sd, nx, ny, nz = pz - hf_patch(px, py, g, H)[0], -kgx / w, -kgy / w, 1.0 / w
+                        elif use:
+                            sd, nx, ny, nz, w = _closest(px, py, pz, g, H)
                         else:
-                            e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
-                    px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
-                    if kink:
-                        w = math.sqrt(1.0 + kgx * kgx + kgy * kgy)
-                        sd, nx, ny, nz = pz - hf_patch(px, py, g, H)[0], -kgx / w, -kgy / w, 1.0 / w
-                    elif use:
-                        sd, nx, ny, nz, w = _closest(px, py, pz, g, H)
-                    else:
-                        sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
-                    vx = QD[r, j, 0] + e * QD[r, j, 3]
-                    vy = QD[r, j, 1] + e * QD[r, j, 4]
-                    vz = QD[r, j, 2] + e * QD[r, j, 5]
-                    level, end = radius, -1
-                    if s == 0:
-                        sd_a, na0, na1, na2, w_a, vn_a = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
-                    elif s == 1:
-                        sd_c, nc0, nc1, nc2, w_c, vn_c = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
-                    else:
-                        # the interior penetration is measured from the deeper node when that node
-                        # touches: min(radius, sd_a, sd_c) - sd, 0 when the interior minimum merges
-                        # with a node (a continuous potential; no double count of the node's contact)
-                        if sd_a < level:
-                            level, end = sd_a, 0
-                        if sd_c < level:
-                            level, end = sd_c, 1
-                        if end >= 0:
-                            # damping on the rate of that penetration, w v.n here less the node's
-                            # w v.n (the tangential part, so friction, is unchanged)
-                            vr = vn_a * (w_a / w) if end == 0 else vn_c * (w_c / w)
-                            vx, vy, vz = vx - vr * nx, vy - vr * ny, vz - vr * nz
+                            sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
+                        vx = QD[r, j, 0] + e * QD[r, j, 3]
+                        vy = QD[r, j, 1] + e * QD[r, j, 4]
+                        vz = QD[r, j, 2] + e * QD[r, j, 5]
+                        level, end = radius, -1
+                        if s == 0:
+                            sd_a, na0, na1, na2, w_a, vn_a = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
+                        elif s == 1:
+                            sd_c, nc0, nc1, nc2, w_c, vn_c = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
+                        else:
+                            # the interior penetration is measured from the deeper node when that
+                            # node touches: min(radius, sd_a, sd_c) - sd, 0 when the interior minimum
+                            # merges with a node (a continuous potential; no double count of the
+                            # node's contact)
+                            if sd_a < level:
+                                level, end = sd_a, 0
+                            if sd_c < level:
+                                level, end = sd_c, 1
+                            if end >= 0:
+                                # damping on the rate of that penetration, w v.n here less the
+                                # node's w v.n (the tangential part, so friction, is unchanged)
+                                vr = vn_a * (w_a / w) if end == 0 else vn_c * (w_c / w)
+                                vx, vy, vz = vx - vr * nx, vy - vr * ny, vz - vr * nz
                     # the anchored material point: where the rod touched (the interior slot's
                     # contact point moves along the rod; friction holds the material, not the point)
                     e0 = eta0[c, ci] if (s == 2 and active[c, ci]) else e
@@ -404,7 +390,13 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         info[c, ci, 0], info[c, ci, 1] = e, sd
                         info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = nx, ny, nz
                         info[c, ci, 5] = en
-                    if touch:
+                    if touch and s < 2:
+                        # a node slot's force goes to its node whole (the weights below are 1 and 0)
+                        node = rod_a[j] if s == 0 else rod_c[j]
+                        Wc[r, node, 0] += fx
+                        Wc[r, node, 1] += fy
+                        Wc[r, node, 2] += fz
+                    elif touch:
                         wc = (e - ea) / span
                         wa = (ec - e) / span
                         na, nc = rod_a[j], rod_c[j]
