@@ -559,6 +559,42 @@ def test_numba_heightfield_agrees_with_numpy_oracle():
     assert not np.array_equal(Wp, W)
 
 
+def test_heightfield_search_below_the_cut_is_the_full_search():
+    """The interior search passes over the cells where the axis cannot reach below ``cut`` (its
+    lower end above the cell's highest grid height by ``cut``): its point is the full search's
+    whenever the full minimum is below the cut less the level tolerance (where the slot can
+    touch), and the steps' forces and contact states (which search below the slot's level) are
+    those of the full search (``info=True``), with interior contacts in play."""
+    from tensegrity_gym.backends.numba.heightfield import LEVEL_TOL, hf_lowest
+    rng = np.random.default_rng(4)
+    hf = bumpy(0.03, seed=3)
+    tc = T.TerrainContact(Terrain(plane=None, heightfield=hf))
+    g, H = tc.geom[0, 0], tc.hf[0]
+    n_same = n_cut = 0
+    for _ in range(3000):
+        th, ph = rng.uniform(-0.4, 0.4), rng.uniform(-math.pi, math.pi)
+        b = np.array([math.cos(th) * math.cos(ph), math.cos(th) * math.sin(ph), math.sin(th)])
+        r = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.35, 0.35), rng.uniform(-0.03, 0.08)])
+        full = hf_lowest(-0.2, 0.2, *r, *b, g, H, math.inf)
+        full_gap = float(hf.gap(r + full[0] * b)[0])
+        for cut in (0.0, 0.02, 0.05):
+            part = hf_lowest(-0.2, 0.2, *r, *b, g, H, cut)
+            if full[1] and full_gap < cut - LEVEL_TOL:
+                assert part == full, (r, b, cut, part, full)
+                n_same += 1
+            elif part != full:
+                n_cut += 1
+    assert n_same > 300 and n_cut > 300, (n_same, n_cut)
+    for seed in range(4):
+        m, tc, q, qd, ts = random_hf_scene(B=200, seed=seed)
+        W, ts1, sl1 = T.contact_forces(tc, m, q, qd, ts)
+        Wi, ts2, sl2, _ = T.contact_forces(tc, m, q, qd, ts, info=True)
+        assert ts1.active.reshape(200, m.n_bars, -1, 3)[..., 1, 2].sum() > 10
+        assert np.array_equal(W, Wi) and np.array_equal(sl1, sl2)
+        for a, b_ in zip((ts1.anchor, ts1.eta0, ts1.active), (ts2.anchor, ts2.eta0, ts2.active)):
+            assert np.array_equal(a, b_)
+
+
 def test_heightfield_bad_hf_is_named():
     m, tc, q, qd, ts = random_hf_scene(B=3)
     with pytest.raises(ValueError, match=r"hf: expected shape \(1, 13, 15\) or \(3, 13, 15\).*got \(3, 14, 15\)"):

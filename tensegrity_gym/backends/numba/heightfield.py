@@ -19,6 +19,9 @@ middle, so that such a rod is held under its middle. At a kink (the minimum on a
 gradient used is the combination of the two cells' gradients whose normal is perpendicular to
 the rod (``N.b = 0``), the derivative of the minimum over eta (envelope theorem): a rod slides
 over a kink without a push along itself.
+The contact asks only for a minimum that can touch (below the slot's level, :func:`hf_lowest`'s
+``cut``): a piece whose lower end is higher than its cell's highest grid height by the cut is
+passed over, its gap not evaluated.
 """
 from __future__ import annotations
 
@@ -136,20 +139,34 @@ def _next_break(tx, ty, x_line, nxl, y_line, nyl, ea, ec, r0, r1, b0, b1, g):
     return ey, tx, ty + 1
 
 
+@njit(inline="always", **_opts)
+def hf_cell_top(px, py, g, H):
+    """The highest of the four grid heights (m) of the cell holding (px, py) m (clamped to the
+    grid, as :func:`hf_at` picks it): the bilinear patch there is nowhere higher."""
+    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    i = min(int(math.floor(min(max((px - g[1]) / g[3], 0.0), nx - 1.0))), nx - 2)
+    j = min(int(math.floor(min(max((py - g[2]) / g[3], 0.0), ny - 1.0))), ny - 2)
+    return max(max(H[j, i], H[j, i + 1]), max(H[j + 1, i], H[j + 1, i + 1]))
+
+
 @njit(**_opts)
-def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
+def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut):
     """The interior contact point of the rod axis ``r + eta b``, eta in [ea, ec], against the
-    heightfield ``g`` (heights ``H``): the lowest point of the gap (module doc). Returns
-    ``(eta, deeper, gx, gy)``: eta m (the middle of the rod when not deeper), deeper = the gap
-    there is below both ends' by more than ``LEVEL_TOL``, and the gradient of h the slot's
-    normal uses (the two cells' combination at a kink)."""
+    heightfield ``g`` (heights ``H``): the lowest point of the gap (module doc), searched for
+    below ``cut`` m: a piece whose every gap is at least ``cut`` (its lower end's height above the
+    cell's highest grid height) is passed over, so the point returned is the lowest when its gap
+    is below ``cut`` less ``LEVEL_TOL`` (``cut = inf``: always). Returns ``(eta, deeper, gx, gy)``:
+    eta m (the middle of the rod when not deeper), deeper = the gap there is below both ends' by
+    more than ``LEVEL_TOL``, and the gradient of h the slot's normal uses (the two cells'
+    combination at a kink)."""
     ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
     em = 0.5 * (ea + ec)
     x_line = hf_lines((r0 + ea * b0 - g[1]) / g[3], (r0 + ec * b0 - g[1]) / g[3], nx)
     y_line = hf_lines((r1 + ea * b1 - g[2]) / g[3], (r1 + ec * b1 - g[2]) / g[3], ny)
     nxl, nyl = x_line[2], y_line[2]
     last = nxl + nyl + 1            # pieces: between ea, the crossings and ec
-    # pass 1: the lowest candidate (breakpoint 2 k, stationary point of piece k 2 k + 1)
+    # pass 1: the lowest candidate (breakpoint 2 k, stationary point of piece k 2 k + 1); a piece
+    # passed over leaves the gap at its end unknown (inf: above every candidate that can win)
     lo = ea
     glo = r2 + ea * b2 - hf_patch(r0 + ea * b0, r1 + ea * b1, g, H)[0]
     ga = glo
@@ -161,32 +178,41 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
         hi, tx, ty = _next_break(tx, ty, x_line, nxl, y_line, nyl, ea, ec, r0, r1, b0, b1, g)
         if k == last - 1:
             hi = ec
-        ghi = r2 + hi * b2 - hf_patch(r0 + hi * b0, r1 + hi * b1, g, H)[0]
-        if hi > lo:
-            mid = 0.5 * (lo + hi)
-            mx, my = r0 + mid * b0, r1 + mid * b1
-            hm, gxm, gym, tw = hf_at(mx, my, mx, my, g, H)
-            gmid = r2 + mid * b2 - hm
-            if pend:       # the right-hand cell's gradient at the kink found at lo
+        if not (hi > lo):
+            continue            # an empty piece (two grid lines met at once): the gap at hi is glo's
+        mid = 0.5 * (lo + hi)
+        mx, my = r0 + mid * b0, r1 + mid * b1
+        if cut < math.inf and r2 + (lo if b2 >= 0.0 else hi) * b2 - hf_cell_top(mx, my, g, H) >= cut:
+            if pend:           # the right-hand cell's gradient at the kink found at lo
                 _, gxr, gyr, _ = hf_at(r0 + lo * b0, r1 + lo * b1, mx, my, g, H)
-                lvl_r = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
-                pend = False
-            curv = -2.0 * tw * b0 * b1                        # d2 gap / d eta2 in this cell
-            if curv > 0.0:
-                s = mid - (b2 - gxm * b0 - gym * b1) / curv
-                if lo < s < hi:
-                    hs, gxs, gys, _ = hf_at(r0 + s * b0, r1 + s * b1, mx, my, g, H)
-                    gs = r2 + s * b2 - hs
-                    if gs < fmin:
-                        fmin, cbest, ebest, gx, gy = gs, 2 * k + 1, s, gxs, gys
-                        lvl_l = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
-                        lvl_r = lvl_l
-            if ghi < fmin:
-                _, gx, gy, _ = hf_at(r0 + hi * b0, r1 + hi * b1, mx, my, g, H)
-                fmin, cbest, ebest = ghi, 2 * k + 2, hi
-                lvl_l = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
-                lvl_r, pend = False, True
+                lvl_r, pend = False, False
+            lo, glo = hi, math.inf
+            continue
+        ghi = r2 + hi * b2 - hf_patch(r0 + hi * b0, r1 + hi * b1, g, H)[0]
+        hm, gxm, gym, tw = hf_at(mx, my, mx, my, g, H)
+        gmid = r2 + mid * b2 - hm
+        if pend:       # the right-hand cell's gradient at the kink found at lo
+            _, gxr, gyr, _ = hf_at(r0 + lo * b0, r1 + lo * b1, mx, my, g, H)
+            lvl_r = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
+            pend = False
+        curv = -2.0 * tw * b0 * b1                        # d2 gap / d eta2 in this cell
+        if curv > 0.0:
+            s = mid - (b2 - gxm * b0 - gym * b1) / curv
+            if lo < s < hi:
+                hs, gxs, gys, _ = hf_at(r0 + s * b0, r1 + s * b1, mx, my, g, H)
+                gs = r2 + s * b2 - hs
+                if gs < fmin:
+                    fmin, cbest, ebest, gx, gy = gs, 2 * k + 1, s, gxs, gys
+                    lvl_l = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
+                    lvl_r = lvl_l
+        if ghi < fmin:
+            _, gx, gy, _ = hf_at(r0 + hi * b0, r1 + hi * b1, mx, my, g, H)
+            fmin, cbest, ebest = ghi, 2 * k + 2, hi
+            lvl_l = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
+            lvl_r, pend = False, True
         lo, glo = hi, ghi
+    if glo == math.inf:         # the last piece passed over: the gap at ec
+        glo = r2 + ec * b2 - hf_patch(r0 + ec * b0, r1 + ec * b1, g, H)[0]
     if not (fmin < min(ga, glo) - LEVEL_TOL):
         return em, False, 0.0, 0.0
     e = ebest

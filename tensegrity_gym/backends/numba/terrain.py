@@ -23,7 +23,9 @@ Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
   (B, S, 3) m (a point on the feature's surface), ``eta0`` (B, S) m the rod coordinate of the
   material point the anchor holds (the slot's own eta for the node slots; for the interior
   slot the point where it touched or last slipped, so that friction holds the rod's material
-  while the contact point moves along the rod), ``active`` / ``slip`` (B, S) bool.
+  while the contact point moves along the rod; a slot that neither touches nor touched at the
+  step before holds its own eta, the rod's middle for the interior slot), ``active`` /
+  ``slip`` (B, S) bool.
 * the interior slot's penetration is measured from the deeper node when that node touches:
   ``delta = min(radius, sd_a, sd_c) - sd``. It goes to 0 as the interior minimum merges with a
   node, so the contact energy is continuous there and the node's own contact is not counted
@@ -340,8 +342,12 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                                 if hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
                                     use = False     # level ground under the rod: as a plane (no point is lower than both ends)
                                 else:
-                                    # the lowest point of the axis, with the gradient that its force uses
-                                    e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+                                    # the lowest point of the axis, with the gradient that its force uses,
+                                    # searched for only where it can touch: below min(radius, sd_a, sd_c)
+                                    # (the slot's level, at or above its gap when it touches), with a margin
+                                    # beyond the level-run tolerance; the whole axis when info is asked for
+                                    cut = min(radius, min(sd_a, sd_c)) + 2.0 * LEVEL_TOL if not has_info else math.inf
+                                    e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut)
                                     kink = use
                             else:
                                 e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
@@ -383,7 +389,12 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], level,
                         pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
                     anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
-                    eta0[c, ci] = e if (sl or not active[c, ci]) else e0
+                    if touch or active[c, ci]:
+                        eta0[c, ci] = e if (sl or not active[c, ci]) else e0
+                    else:
+                        # a slot that neither touches nor touched holds its own eta, the rod's
+                        # middle for the interior slot (where its search stopped does not matter)
+                        eta0[c, ci] = e if s < 2 else em
                     active[c, ci] = touch
                     slip[c, ci] = sl
                     if has_info:

@@ -339,6 +339,8 @@ def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
         M = r[:, :, None, :] + e0[..., None] * b[:, :, None, :]
         A, touch, slip, Fc, fn = _slot_law(P, V, M, sd, n, w, level, was, an[:, :, f], pr)
         e0n = torch.where(slip | ~was, E, e0)
+        # a slot that neither touches nor touched holds its own eta, the rod's middle for the interior slot
+        e0n = torch.where(slot2 & ~touch & ~was, em[..., None], e0n)
         wc = (E - ea[..., None]) / span[..., None]
         wa = (ec[..., None] - E) / span[..., None]
         # the interior slot's reaction: -fn w n of the deeper node at that node
