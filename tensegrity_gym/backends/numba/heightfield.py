@@ -139,16 +139,6 @@ def _next_break(tx, ty, x_line, nxl, y_line, nyl, ea, ec, r0, r1, b0, b1, g):
     return ey, tx, ty + 1
 
 
-@njit(inline="always", **_opts)
-def hf_cell_top(px, py, g, H):
-    """The highest of the four grid heights (m) of the cell holding (px, py) m (clamped to the
-    grid, as :func:`hf_at` picks it): the bilinear patch there is nowhere higher."""
-    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
-    i = min(int(math.floor(min(max((px - g[1]) / g[3], 0.0), nx - 1.0))), nx - 2)
-    j = min(int(math.floor(min(max((py - g[2]) / g[3], 0.0), ny - 1.0))), ny - 2)
-    return max(max(H[j, i], H[j, i + 1]), max(H[j + 1, i], H[j + 1, i + 1]))
-
-
 @njit(**_opts)
 def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut):
     """The interior contact point of the rod axis ``r + eta b``, eta in [ea, ec], against the
@@ -161,10 +151,20 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut):
     combination at a kink)."""
     ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
     em = 0.5 * (ea + ec)
-    x_line = hf_lines((r0 + ea * b0 - g[1]) / g[3], (r0 + ec * b0 - g[1]) / g[3], nx)
-    y_line = hf_lines((r1 + ea * b1 - g[2]) / g[3], (r1 + ec * b1 - g[2]) / g[3], ny)
-    nxl, nyl = x_line[2], y_line[2]
+    ua, uc = (r0 + ea * b0 - g[1]) / g[3], (r0 + ec * b0 - g[1]) / g[3]
+    va, vc = (r1 + ea * b1 - g[2]) / g[3], (r1 + ec * b1 - g[2]) / g[3]
+    x_line, y_line = hf_lines(ua, uc, nx), hf_lines(va, vc, ny)
+    mx0, sx, nxl = x_line
+    my0, sy, nyl = y_line
     last = nxl + nyl + 1            # pieces: between ea, the crossings and ec
+    # the walk: the next x and y crossings (ex, ey), how many of each passed (tx, ty) and the
+    # cell of the piece (ci, cj: the cell the rod starts in, along its direction, -1 or n - 1
+    # beyond the grid's first or last line; one further at each crossing; clamped to the grid)
+    ex = hf_cross(mx0, g[1], g[3], r0, b0, ea, ec) if nxl > 0 else math.inf
+    ey = hf_cross(my0, g[2], g[3], r1, b1, ea, ec) if nyl > 0 else math.inf
+    tx, ty = 0, 0
+    ci = min(max(int(math.floor(ua)) if sx > 0 else int(math.ceil(ua)) - 1, -1), nx - 1)
+    cj = min(max(int(math.floor(va)) if sy > 0 else int(math.ceil(va)) - 1, -1), ny - 1)
     # pass 1: the lowest candidate (breakpoint 2 k, stationary point of piece k 2 k + 1); a piece
     # passed over leaves the gap at its end unknown (inf: above every candidate that can win)
     lo = ea
@@ -173,16 +173,25 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut):
     fmin, cbest, ebest = glo, 0, ea
     gx, gy, gxr, gyr = 0.0, 0.0, 0.0, 0.0
     lvl_l, lvl_r, pend = False, False, False
-    tx, ty = 0, 0
     for k in range(last):
-        hi, tx, ty = _next_break(tx, ty, x_line, nxl, y_line, nyl, ea, ec, r0, r1, b0, b1, g)
+        i = min(max(ci, 0), nx - 2)
+        j = min(max(cj, 0), ny - 2)
+        if tx < nxl and (ty >= nyl or ex <= ey):
+            hi, tx, ci = ex, tx + 1, ci + sx
+            ex = hf_cross(mx0 + sx * tx, g[1], g[3], r0, b0, ea, ec) if tx < nxl else math.inf
+        elif ty < nyl:
+            hi, ty, cj = ey, ty + 1, cj + sy
+            ey = hf_cross(my0 + sy * ty, g[2], g[3], r1, b1, ea, ec) if ty < nyl else math.inf
+        else:
+            hi = ec
         if k == last - 1:
             hi = ec
         if not (hi > lo):
             continue            # an empty piece (two grid lines met at once): the gap at hi is glo's
         mid = 0.5 * (lo + hi)
         mx, my = r0 + mid * b0, r1 + mid * b1
-        if cut < math.inf and r2 + (lo if b2 >= 0.0 else hi) * b2 - hf_cell_top(mx, my, g, H) >= cut:
+        if r2 + (lo if b2 >= 0.0 else hi) * b2 - max(max(H[j, i], H[j, i + 1]), max(H[j + 1, i], H[j + 1, i + 1])) >= cut:
+            # the piece's lower end is above its cell's highest grid height by the cut
             if pend:           # the right-hand cell's gradient at the kink found at lo
                 _, gxr, gyr, _ = hf_at(r0 + lo * b0, r1 + lo * b1, mx, my, g, H)
                 lvl_r, pend = False, False

@@ -355,6 +355,22 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         if kink:
                             w = math.sqrt(1.0 + kgx * kgx + kgy * kgy)
                             sd, nx, ny, nz = pz - hf_patch(px, py, g, H)[0], -kgx / w, -kgy / w, 1.0 / w
+                        elif s < 2 and g[0] == HFIELD:
+                            # an end's gap first (_hf_closest's arithmetic): an end clear of the
+                            # heightfield needs no normal; what _slot_force gives for no contact
+                            h, hgx, hgy = hf_patch(px, py, g, H)
+                            sd = pz - h
+                            if not (radius - sd > 0.0) and not has_info:
+                                if s == 0:
+                                    sd_a = sd
+                                else:
+                                    sd_c = sd
+                                eta0[c, ci] = e
+                                active[c, ci] = False
+                                slip[c, ci] = False
+                                continue
+                            w = math.sqrt(1.0 + hgx * hgx + hgy * hgy)
+                            nx, ny, nz = -hgx / w, -hgy / w, 1.0 / w
                         elif use:
                             sd, nx, ny, nz, w = _closest(px, py, pz, g, H)
                         else:
