@@ -16,8 +16,7 @@ _REGISTRY = (
     ("TensegrityShape-v0", "shape:TensegrityShapeEnv", "torch_vec:shape_vector_env", 200),
     ("TensegrityRoll-v0", "roll:TensegrityRollEnv", "torch_vec:roll_vector_env", 1000),
     ("TensegrityClimb-v0", "climb:TensegrityClimbEnv", "torch_vec:climb_vector_env", 1000),
-    # 60 s courses; terrain contact runs on the NumPy/numba envs only
-    ("TensegrityNavigate-v0", "navigate:TensegrityNavigateEnv", "navigate:TensegrityNavigateVectorEnv", 3000),
+    ("TensegrityNavigate-v0", "navigate:TensegrityNavigateEnv", "torch_vec:navigate_vector_env", 3000),   # 60 s
     # MuJoCo twins of TensegrityRoll-v0, TensegrityNavigate-v0 and TensegrityClimb-v0 (need the mujoco extra)
     ("TensegrityRollMuJoCo-v0", "roll_mujoco:TensegrityRollMuJoCoEnv", None, 1000),
     ("TensegrityNavigateMuJoCo-v0", "roll_mujoco:TensegrityNavigateMuJoCoEnv", None, 3000),

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.checks import check_array
-from ..tasks.navigate import CourseSpec, draw_course, guidance_batch, guidance_frame
+from ..tasks.navigate import CourseSpec, draw_course, guidance_batch, height_scan, navigate_observation, track_goals
 from .config import NavigateConfig, flat_signature, navigate_config, with_flat
 from .roll import RollTask
 from .shells import TaskEnv, TaskVectorEnv
@@ -109,8 +109,8 @@ class NavigateTask(RollTask):
         goal from their current state (the MuJoCo twin calls it on its start state)."""
         g, goal = self._current(idx)
         c = self.courses[0]
-        self.goal[idx], self.path[idx] = guidance_batch(self._fields[idx, g], c.origin, c.cell, goal,
-                                                        self._com(self.q[idx])[:, :2], self.spec.lookahead)
+        self.goal[idx], self.path[idx] = guidance_batch(self._fields[idx], c.origin, c.cell, goal,
+                                                        self._com(self.q[idx])[:, :2], self.spec.lookahead, g)
 
     # ------------------------------------------------------------------ task API
     def reset_idx(self, idx, rngs, options=None) -> dict:
@@ -136,17 +136,9 @@ class NavigateTask(RollTask):
         guidance toward the next goal, and their reward term ``{"goal": (B,)}``, success flags
         (B,) (all goals reached) and info (``goals_reached``, ``goal_reached``, ``success``,
         ``distance_to_goal`` m, ``path_distance`` m)."""
-        B = self.num_envs
-        xy = self._com(self.q)[:, :2]
-        idx = np.arange(B)
-        _, goal = self._current(idx)
-        open_ = self.goal_index < self.spec.n_goals
-        reached = open_ & (np.hypot(*(goal - xy).T) <= self.spec.goal_radius)
-        self.goal_index += reached
-        _, goal = self._current(idx)
-        dist = np.where(self.goal_index < self.spec.n_goals, np.hypot(*(goal - xy).T), 0.0)
-        success = self.goal_index >= self.spec.n_goals
-        self.guide(idx)
+        self.goal_index, reached, success, dist = track_goals(self._goals, self.goal_index, self._com(self.q)[:, :2],
+                                                              self.spec.goal_radius)
+        self.guide(np.arange(self.num_envs))
         infos = dict(goals_reached=self.goal_index.copy(), goal_reached=reached, success=success,
                      distance_to_goal=dist, path_distance=np.where(success, 0.0, self.path))
         return {"goal": self.goal_bonus * reached}, success, infos
@@ -156,27 +148,12 @@ class NavigateTask(RollTask):
         if self.sensors is not None:
             return obs
         # node positions and velocities in the guidance frame; the goal direction there is (1, 0)
-        B = self.num_envs
-        for block in ("node_position_rel_com", "node_velocity"):
-            sl = self._blocks[block]
-            obs[:, sl] = guidance_frame(obs[:, sl].reshape(B, -1, 3), self.goal).reshape(B, -1)
-        obs[:, self._blocks["goal_direction"]] = (1.0, 0.0)
-        extra = [np.where(self.goal_index >= self.spec.n_goals, 0.0, self.path)[:, None],
-                 (self.spec.n_goals - self.goal_index)[:, None]]
+        scan = None
         if self.scan is not None:
-            extra.append(self._height_scan())
-        return np.concatenate([obs] + [e.astype(np.float32) for e in extra], axis=1)
-
-    def _height_scan(self) -> np.ndarray:
-        """(B, n^2) terrain heights (m) at the scan's points around each robot's centre, relative
-        to the terrain under the centre, clipped to +-1 m."""
-        com = self._com(self.q)
-        out = np.empty((self.num_envs, len(self.scan)))
-        for i in range(self.num_envs):
-            p = com[i, :2] + self.scan
-            t = self.terrains[i]
-            out[i] = t.height_at(p[:, 0], p[:, 1]) - t.height_at(com[i, 0], com[i, 1])
-        return np.clip(out, -1.0, 1.0)
+            terrains = self.terrains
+            scan = height_scan(lambda x, y: np.stack([t.height_at(x[i], y[i]) for i, t in enumerate(terrains)]),
+                               self._com(self.q), self.scan)
+        return navigate_observation(obs, self._blocks, self.goal, self.path, self.goal_index, self.spec.n_goals, scan)
 
     def observation_layout(self) -> list[tuple[str, slice, str]]:
         out = super().observation_layout()

@@ -28,7 +28,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     the NumPy vector env's ``autoreset_mode`` (``"next_step"`` default, ``"same_step"``: then
     ``info["final_obs"]`` is an (N, obs_size) tensor, valid where ``info["_final_obs"]``, and
     ``info["final_info"]`` a vector info dict of tensors; ``"disabled"``). Subclasses set ``ENV_ID`` and implement ``_make_task``, ``_init_state``,
-    ``_upload_rows``, ``_act`` and ``_observe``.
+    ``_upload_rows``, ``_act`` and ``_observe`` (and ``_terminated`` for a task that ends episodes).
 
     Arguments: those of the id's env plus ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``; ValueError when it does not exist),
     ``dtype`` (``"float64"`` default or ``"float32"``; anything else is a ValueError) and
@@ -104,6 +104,11 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def _check_task(self, task, reset_sampling: str, compile: bool) -> None:
         """ValueError naming an env argument the task's configuration rules out (here: none)."""
+
+    def _terminated(self, infos: dict):
+        """(N,) bool: the envs whose episode the task ended in this step (here: none; the time
+        limit and divergence truncate)."""
+        return torch_backend.torch_module().zeros_like(infos["diverged"])
 
     # ------------------------------------------------------------------ host <-> device
     def _T(self, x):
@@ -293,7 +298,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         for v in terms.values():                      # rewards.combine: the terms in order
             reward = v if reward is None else reward + v
         diverged = infos["diverged"]
-        terminated = torch.zeros_like(diverged)      # neither task terminates
+        terminated = self._terminated(infos)
         truncated = diverged.clone()
         if self.max_episode_steps is not None:
             truncated = truncated | (self.elapsed >= self.max_episode_steps)

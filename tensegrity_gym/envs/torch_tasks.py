@@ -1,14 +1,18 @@
-"""The two device-resident task envs on :class:`~tensegrity_gym.envs.torch_shell.TorchTaskVectorEnv`:
-the rolling robot (``TensegrityRoll-v0``) and shape tracking (``TensegrityShape-v0``) with
-``backend="torch"`` (see :mod:`tensegrity_gym.envs.torch_vec` for what runs where)."""
+"""The device-resident task envs on :class:`~tensegrity_gym.envs.torch_shell.TorchTaskVectorEnv`:
+the rolling robot (``TensegrityRoll-v0``), climbing (``TensegrityClimb-v0``), navigation
+(``TensegrityNavigate-v0``) and shape tracking (``TensegrityShape-v0``) with ``backend="torch"``
+(see :mod:`tensegrity_gym.envs.torch_vec` for what runs where)."""
 from __future__ import annotations
 
 import gymnasium as gym
 import numpy as np
 
 from .. import torch_backend
+from ..backends.torch.terrain import top_height
 from .climb import ClimbTask
+from .navigate import NavigateTask
 from .roll import RollTask
+from ..tasks.navigate import guidance_batch, height_scan, navigate_observation, track_goals
 from ..tasks.roll import center_of_mass, perturbed_start, roll_state_observation, roll_step_terms
 from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
 from ..tasks.xp import namespace
@@ -16,7 +20,7 @@ from .shape import ShapeTask
 from .torch_shell import TorchTaskVectorEnv
 from .torch_terrain import TorchTerrain
 
-__all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv"]
+__all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "TorchClimbVectorEnv", "TorchNavigateVectorEnv"]
 
 # gymnasium.vector.VectorEnv is listed as a direct base of each env class: libraries that pick their
 # wrapper from the class's __bases__ (skrl's wrap_env) then recognise a Gymnasium vector env
@@ -279,3 +283,78 @@ class TorchClimbVectorEnv(TorchRollVectorEnv):
         infos["slope_deg"] = self.slope.clone()
         infos["uphill_velocity"] = infos["forward_velocity"]
         return terms, infos
+
+
+class TorchNavigateVectorEnv(TorchRollVectorEnv):
+    """``TensegrityNavigate-v0`` on N copies stepped on a torch device: :class:`TorchRollVectorEnv`
+    on :class:`~tensegrity_gym.envs.navigate.NavigateTask`. Each reset env's course (goals,
+    walls, rough patches and the planner's path-distance fields) is drawn and planned on the host
+    (``reset_sampling="host"`` only) and its rows copied to the device: the fields (N, n_goals,
+    ny, nx) m, about 120 kB per env on the default course. Each step then runs on the device: the
+    terrain contact, the rolling task's terms along the planner's guidance, the goals reached
+    and the guidance toward the next (:func:`~tensegrity_gym.tasks.navigate.track_goals`,
+    :func:`~tensegrity_gym.tasks.navigate.guidance_batch`), the ``goal`` reward term, the end of
+    the episode when every goal is reached, and the observation in the guidance frame with the
+    optional height scan (:func:`~tensegrity_gym.tasks.navigate.navigate_observation`): the
+    NumPy env's functions, on tensors."""
+
+    ENV_ID = "TensegrityNavigate-v0"
+    DEVICE_RESET = False
+    _NO_DEVICE_RESET = "its courses are drawn and planned per reset on the host"
+
+    def _make_task(self, num_envs, kwargs):
+        return NavigateTask(num_envs=num_envs, **kwargs)
+
+    def _init_state(self):
+        super()._init_state()
+        torch = torch_backend.torch_module()
+        task = self.task
+        self.fields = self._T(np.nan_to_num(task._fields, nan=np.inf))   # rows drawn at reset
+        self.goals = self._T(np.nan_to_num(task._goals))
+        self.goal_index = torch.as_tensor(task.goal_index, dtype=torch.int64, device=self.device)
+        self.path = self._T(task.path)
+        self._origin = self._T(task.courses[0].origin)
+        self._scan = None if task.scan is None else self._T(task.scan)
+
+    def _upload_rows(self, it, idx):
+        torch = torch_backend.torch_module()
+        super()._upload_rows(it, idx)
+        task = self.task
+        self.fields[it] = self._T(task._fields[idx])
+        self.goals[it] = self._T(task._goals[idx])
+        self.goal_index[it] = torch.as_tensor(task.goal_index[idx], dtype=torch.int64, device=self.device)
+        self.path[it] = self._T(task.path[idx])
+
+    def _guide(self):
+        """``goal`` (the planner's unit guidance) and ``path`` (m) of every env toward its current goal."""
+        torch = torch_backend.torch_module()
+        task = self.task
+        rows = torch.arange(self.num_envs, device=self.device)
+        g = torch.clamp(self.goal_index, max=task.spec.n_goals - 1)
+        self.goal, self.path = guidance_batch(self.fields, self._origin, task.courses[0].cell, self.goals[rows, g],
+                                              self._com(self.q)[:, :2], task.spec.lookahead, g)
+
+    def _act(self, action):
+        terms, infos = super()._act(action)
+        task = self.task
+        self.goal_index, reached, success, dist = track_goals(self.goals, self.goal_index, self._com(self.q)[:, :2],
+                                                              task.spec.goal_radius)
+        self._guide()
+        terms["goal"] = task.goal_bonus * reached.to(self.dtype)
+        infos.update(goals_reached=self.goal_index.clone(), goal_reached=reached, success=success,
+                     distance_to_goal=dist, path_distance=namespace(dist).where(success, 0.0, self.path))
+        return terms, infos
+
+    def _terminated(self, infos: dict):
+        return infos["success"].clone()
+
+    def _observe(self):
+        obs = super()._observe()
+        if self._sens is not None:
+            return obs
+        task = self.task
+        scan = None
+        if self._scan is not None:
+            tt = self._terrain
+            scan = height_scan(lambda x, y: top_height(tt.geom, tt.hf, x, y), self._com(self.q), self._scan)
+        return navigate_observation(obs, task._blocks, self.goal, self.path, self.goal_index, task.spec.n_goals, scan)

@@ -89,15 +89,16 @@ normalisation wrappers that accept its tensors;
 from __future__ import annotations
 
 from .climb import TensegrityClimbVectorEnv
+from .navigate import TensegrityNavigateVectorEnv
 from .roll import TensegrityRollVectorEnv
 from .shape import TensegrityShapeVectorEnv
 from .torch_shell import TorchTaskVectorEnv
-from .torch_tasks import TorchClimbVectorEnv, TorchRollVectorEnv, TorchShapeVectorEnv
+from .torch_tasks import TorchClimbVectorEnv, TorchNavigateVectorEnv, TorchRollVectorEnv, TorchShapeVectorEnv
 
 _TorchTaskVectorEnv = TorchTaskVectorEnv   # the shell's former name (class paths in saved objects)
 
-__all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "TorchClimbVectorEnv", "roll_vector_env", "shape_vector_env",
-           "climb_vector_env"]
+__all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "TorchClimbVectorEnv", "TorchNavigateVectorEnv",
+           "roll_vector_env", "shape_vector_env", "climb_vector_env", "navigate_vector_env"]
 
 
 def _no_torch_kwargs(kwargs):
@@ -106,30 +107,34 @@ def _no_torch_kwargs(kwargs):
             raise ValueError(f"{name}: only with backend='torch' (got backend={kwargs.get('backend', 'auto')!r})")
 
 
+def _vector_env(torch_env, numpy_env, num_envs: int, kwargs: dict):
+    """``torch_env`` when ``backend="torch"``, else ``numpy_env`` with the arguments passed
+    through untouched (the default path is unchanged)."""
+    if kwargs.get("backend") == "torch":
+        return torch_env(num_envs=num_envs, **kwargs)
+    _no_torch_kwargs(kwargs)
+    return numpy_env(num_envs=num_envs, **kwargs)
+
+
 def roll_vector_env(num_envs: int = 1, **kwargs):
     """``vector_entry_point`` of ``TensegrityRoll-v0``: :class:`TorchRollVectorEnv` when
-    ``backend="torch"``, else :class:`~tensegrity_gym.envs.roll.TensegrityRollVectorEnv` with
-    the arguments passed through untouched (the default path is unchanged)."""
-    if kwargs.get("backend") == "torch":
-        return TorchRollVectorEnv(num_envs=num_envs, **kwargs)
-    _no_torch_kwargs(kwargs)
-    return TensegrityRollVectorEnv(num_envs=num_envs, **kwargs)
+    ``backend="torch"``, else :class:`~tensegrity_gym.envs.roll.TensegrityRollVectorEnv`."""
+    return _vector_env(TorchRollVectorEnv, TensegrityRollVectorEnv, num_envs, kwargs)
 
 
 def shape_vector_env(num_envs: int = 1, **kwargs):
     """``vector_entry_point`` of ``TensegrityShape-v0``: :class:`TorchShapeVectorEnv` when
-    ``backend="torch"``, else :class:`~tensegrity_gym.envs.shape.TensegrityShapeVectorEnv`
-    (arguments passed through untouched)."""
-    if kwargs.get("backend") == "torch":
-        return TorchShapeVectorEnv(num_envs=num_envs, **kwargs)
-    _no_torch_kwargs(kwargs)
-    return TensegrityShapeVectorEnv(num_envs=num_envs, **kwargs)
+    ``backend="torch"``, else :class:`~tensegrity_gym.envs.shape.TensegrityShapeVectorEnv`."""
+    return _vector_env(TorchShapeVectorEnv, TensegrityShapeVectorEnv, num_envs, kwargs)
 
 
 def climb_vector_env(num_envs: int = 1, **kwargs):
     """``vector_entry_point`` of ``TensegrityClimb-v0``: :class:`TorchClimbVectorEnv` when
     ``backend="torch"``, else :class:`~tensegrity_gym.envs.climb.TensegrityClimbVectorEnv`."""
-    if kwargs.get("backend") == "torch":
-        return TorchClimbVectorEnv(num_envs=num_envs, **kwargs)
-    _no_torch_kwargs(kwargs)
-    return TensegrityClimbVectorEnv(num_envs=num_envs, **kwargs)
+    return _vector_env(TorchClimbVectorEnv, TensegrityClimbVectorEnv, num_envs, kwargs)
+
+
+def navigate_vector_env(num_envs: int = 1, **kwargs):
+    """``vector_entry_point`` of ``TensegrityNavigate-v0``: :class:`TorchNavigateVectorEnv` when
+    ``backend="torch"``, else :class:`~tensegrity_gym.envs.navigate.TensegrityNavigateVectorEnv`."""
+    return _vector_env(TorchNavigateVectorEnv, TensegrityNavigateVectorEnv, num_envs, kwargs)

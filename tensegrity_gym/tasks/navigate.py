@@ -1,5 +1,7 @@
 """The navigation task (``TensegrityNavigate-v0``): courses and their planner, as pure NumPy
-functions of a seeded generator. SI units: m.
+functions of a seeded generator, and the task's per-step part (guidance, goal tracking,
+observation), written once for NumPy arrays and torch tensors (:mod:`tensegrity_gym.tasks.xp`).
+SI units: m.
 
 A course is a sequence of goal points among obstacles on level ground: ``n_goals`` goals, each
 ``U(goal_distance)`` m from the one before (the first from the start at the origin) in a random
@@ -26,8 +28,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from ..core.terrain import Box, Heightfield, Terrain
+from .xp import NUMPY, namespace
 
-__all__ = ["CourseSpec", "Course", "draw_course", "guidance", "guidance_batch", "guidance_frame", "MAX_TRIES"]
+__all__ = ["CourseSpec", "Course", "draw_course", "guidance", "guidance_batch", "guidance_frame", "track_goals",
+           "navigate_observation", "height_scan", "MAX_TRIES"]
 
 #: courses drawn before a spec is declared unsolvable
 MAX_TRIES = 200
@@ -213,32 +217,41 @@ def guidance(course: Course, goal: int, p, lookahead: int = 3) -> tuple[np.ndarr
     return d[0], float(path[0])
 
 
-def guidance_batch(field, origin, cell: float, goal, p, lookahead: int = 3) -> tuple[np.ndarray, np.ndarray]:
+def guidance_batch(field, origin, cell: float, goal, p, lookahead: int = 3, layer=None) -> tuple:
     """Guidance of B positions ``p`` (B, 2) m toward their goals ``goal`` (B, 2) m along the path
-    distances ``field`` (B, ny, nx) m of their courses (grid ``origin`` (2,) m, ``cell`` m): the
-    unit direction (B, 2) to the cell within ``lookahead`` cells with the shortest remaining path
-    (straight at the goal within that reach, or where no cell in reach is nearer), and the path
-    distance (B,) m from the cell under ``p`` (the straight distance where the grid has none)."""
-    field, p, goal = np.asarray(field, float), np.asarray(p, float), np.asarray(goal, float)
-    B, n = field.shape[0], field.shape[1]
-    rows = np.arange(B)
-    i = np.clip(np.rint((p[:, 0] - origin[0]) / cell), 0, n - 1).astype(int)
-    j = np.clip(np.rint((p[:, 1] - origin[1]) / cell), 0, n - 1).astype(int)
-    off = np.arange(-lookahead, lookahead + 1)
-    jj = np.clip(j[:, None] + off, 0, n - 1)
-    ii = np.clip(i[:, None] + off, 0, n - 1)
-    win = field[rows[:, None, None], jj[:, :, None], ii[:, None, :]].reshape(B, -1)
-    k = np.argmin(win, axis=1)
+    distances ``field`` (B, n, n) m of their courses (square grid ``origin`` (2,) m, ``cell`` m;
+    or (B, L, n, n) with ``layer`` (B,) int the one of each copy): the unit direction (B, 2) to
+    the cell within ``lookahead`` cells with the shortest remaining path (straight at the goal
+    within that reach, or where no cell in reach is nearer), and the path distance (B,) m from
+    the cell under ``p`` (the straight distance where the grid has none). NumPy arrays, or torch
+    tensors (``origin`` one too) on one device."""
+    xp = namespace(p)
+    if xp is NUMPY:
+        field, p, goal = np.asarray(field, float), np.asarray(p, float), np.asarray(goal, float)
+    B, n = field.shape[0], field.shape[-1]
+    rows = xp.arange(B, p)
+    i = xp.to_index(xp.clip(xp.rint((p[:, 0] - origin[0]) / cell), 0, n - 1))
+    j = xp.to_index(xp.clip(xp.rint((p[:, 1] - origin[1]) / cell), 0, n - 1))
+    size = 2 * lookahead + 1
+    off = xp.arange(size, p) - lookahead
+    jj = xp.clip(j[:, None] + off, 0, n - 1)
+    ii = xp.clip(i[:, None] + off, 0, n - 1)
+    if layer is None:
+        win = field[rows[:, None, None], jj[:, :, None], ii[:, None, :]].reshape(B, -1)
+        here = field[rows, j, i]
+    else:                       # indexed in place: no copy of the copies' layers
+        win = field[rows[:, None, None], layer[:, None, None], jj[:, :, None], ii[:, None, :]].reshape(B, -1)
+        here = field[rows, layer, j, i]
+    k = xp.argmin(win, 1)
     best = win[rows, k]
-    here = field[rows, j, i]
-    dist = np.hypot(*(goal - p).T)
-    cell_xy = origin + cell * np.stack([ii[rows, k % off.size], jj[rows, k // off.size]], axis=-1)
+    dist = xp.hypot(goal[:, 0] - p[:, 0], goal[:, 1] - p[:, 1])
+    cell_xy = origin + cell * xp.to_float(xp.stack([ii[rows, k % size], jj[rows, k // size]], -1), p)
     step = (best < here) & (dist > lookahead * cell)
-    v = np.where(step[:, None], cell_xy, goal) - p
-    nv = np.hypot(*v.T)
+    v = xp.where(step[:, None], cell_xy, goal) - p
+    nv = xp.hypot(v[:, 0], v[:, 1])
     with np.errstate(invalid="ignore", divide="ignore"):
-        d = np.where(nv[:, None] > 0, v / nv[:, None], np.array([1.0, 0.0]))
-    path = np.where(np.isfinite(here), here, np.where(np.isfinite(best), best + cell * lookahead, dist))
+        d = xp.where(nv[:, None] > 0, v / nv[:, None], xp.const([1.0, 0.0], p))
+    path = xp.where(xp.isfinite(here), here, xp.where(xp.isfinite(best), best + cell * lookahead, dist))
     return d, path
 
 
@@ -246,8 +259,52 @@ def guidance_frame(v, direction):
     """``v`` (B, m, 3) world vectors in the guidance frame of each copy: x along its unit
     ``direction`` (B, 2), y to its left, z up (a rotation about the vertical; the rolling robot is
     symmetric under it, so one policy serves every direction)."""
+    xp = namespace(v)
     c, s = direction[:, 0, None], direction[:, 1, None]
-    out = np.array(v, copy=True)
-    out[..., 0] = c * v[..., 0] + s * v[..., 1]
-    out[..., 1] = -s * v[..., 0] + c * v[..., 1]
-    return out
+    return xp.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1)
+
+
+def track_goals(goals, goal_index, xy, goal_radius: float):
+    """Goal bookkeeping after a step: ``goals`` (B, n_goals, 2) m, ``goal_index`` (B,) int the
+    current goal of each copy (n_goals: all reached), ``xy`` (B, 2) m the centres of mass. A copy
+    whose centre is within ``goal_radius`` m of its current goal has reached it. Returns
+    ``(goal_index after, reached (B,) bool, success (B,) bool (all reached), distance (B,) m to
+    the goal now current (0 after the last))``."""
+    xp = namespace(xy)
+    n_goals = goals.shape[1]
+    rows = xp.arange(goals.shape[0], xy)
+
+    def current(gi):
+        g = goals[rows, xp.minimum(gi, n_goals - 1)]
+        return xp.hypot(g[:, 0] - xy[:, 0], g[:, 1] - xy[:, 1])
+    reached = (goal_index < n_goals) & (current(goal_index) <= goal_radius)
+    goal_index = goal_index + reached
+    open_ = goal_index < n_goals
+    return goal_index, reached, ~open_, xp.where(open_, current(goal_index), 0.0)
+
+
+def navigate_observation(obs, blocks: dict, direction, path, goal_index, n_goals: int, scan=None):
+    """The navigation observation from the rolling task's state observation ``obs`` (B, size)
+    (its ``blocks``: name -> slice): node positions and velocities in the guidance frame of the
+    unit ``direction`` (B, 2) (:func:`guidance_frame`), the goal direction there (1, 0), then the
+    path distance to the current goal (B,) m (0 after the last), the goals left and the height
+    scan (B, n^2) m when given, in ``obs``'s dtype."""
+    xp = namespace(obs)
+    B = obs.shape[0]
+    for block in ("node_position_rel_com", "node_velocity"):
+        sl = blocks[block]
+        obs[:, sl] = guidance_frame(obs[:, sl].reshape(B, -1, 3), direction).reshape(B, -1)
+    obs[:, blocks["goal_direction"]] = xp.const([1.0, 0.0], obs)
+    extra = [xp.where(goal_index >= n_goals, 0.0, path)[:, None], (n_goals - goal_index)[:, None]]
+    if scan is not None:
+        extra.append(scan)
+    return xp.concat([obs] + [xp.to_float(e, obs) for e in extra], axis=1)
+
+
+def height_scan(height_at, com, offsets):
+    """(B, n^2) terrain heights (m) at the scan's points ``com[:, :2] + offsets`` ((n^2, 2) m)
+    around each copy's centre of mass ``com`` (B, 3) m, relative to the height under the centre,
+    clipped to +-1 m; ``height_at(x, y)`` ((B, m) m each) gives each copy's terrain heights."""
+    xp = namespace(com)
+    x, y = com[:, 0, None] + offsets[:, 0], com[:, 1, None] + offsets[:, 1]
+    return xp.clip(height_at(x, y) - height_at(com[:, 0, None], com[:, 1, None]), -1.0, 1.0)

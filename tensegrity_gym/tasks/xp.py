@@ -24,6 +24,14 @@ name                               NumPy                                torch
 ``to_float(x, like)``              ``x.astype(like.dtype)``             ``x.to(like.dtype)``
 ``const(values, like)``            a float array of ``like``'s dtype    a tensor on ``like``'s device and dtype
 ``zeros_like``                     ``np.zeros_like``                    ``torch.zeros_like``
+``hypot``, ``isfinite``, ``rint``  ``np.hypot`` ...                     ``torch.hypot`` ..., ``torch.round``
+                                                                        (both round half to even)
+``minimum(a, b)``                  ``np.minimum``                       ``torch.minimum`` (scalars as tensors)
+``clip(x, lo, hi)``                ``np.minimum(np.maximum(x, lo),      ``x.clamp(lo, hi)`` (scalar bounds)
+                                   hi)`` (``np.clip``'s values)
+``argmin(x, axis)``                ``x.argmin(axis=axis)``              ``x.argmin(dim=axis)`` (both: the first)
+``arange(n, like)``                ``np.arange(n)``                     ``torch.arange(n)`` on ``like``'s device
+``to_index(x)``                    ``x.astype(int)``                    ``x.long()``
 =================================  ===================================  ======================================
 
 Reductions and products run along the last axis unless an ``axis`` is named. torch is imported
@@ -84,6 +92,27 @@ class _NumPyOps:
     def const(values, like):
         return np.asarray(values, dtype=like.dtype)
 
+    hypot = staticmethod(np.hypot)
+    isfinite = staticmethod(np.isfinite)
+    rint = staticmethod(np.rint)
+    minimum = staticmethod(np.minimum)
+
+    @staticmethod
+    def clip(x, lo, hi):
+        return np.minimum(np.maximum(x, lo), hi)
+
+    @staticmethod
+    def argmin(x, axis: int):
+        return x.argmin(axis=axis)
+
+    @staticmethod
+    def arange(n: int, like):
+        return np.arange(n)
+
+    @staticmethod
+    def to_index(x):
+        return x.astype(int)
+
 
 class _TorchOps:
     """The namespace of torch tensors (see the module doc)."""
@@ -135,6 +164,36 @@ class _TorchOps:
 
     def const(self, values, like):
         return self.torch.as_tensor(np.asarray(values, dtype=float), dtype=like.dtype, device=like.device)
+
+    def hypot(self, a, b):
+        return self.torch.hypot(a, b)
+
+    def isfinite(self, x):
+        return self.torch.isfinite(x)
+
+    def rint(self, x):
+        return self.torch.round(x)
+
+    def minimum(self, a, b):
+        t = self.torch
+        if not isinstance(b, t.Tensor):
+            b = t.as_tensor(b, dtype=a.dtype, device=a.device)
+        return t.minimum(a, b)
+
+    @staticmethod
+    def clip(x, lo, hi):
+        return x.clamp(lo, hi)
+
+    @staticmethod
+    def argmin(x, axis: int):
+        return x.argmin(dim=axis)
+
+    def arange(self, n: int, like):
+        return self.torch.arange(n, device=like.device)
+
+    @staticmethod
+    def to_index(x):
+        return x.long()
 
 
 NUMPY = _NumPyOps()
