@@ -109,8 +109,9 @@ class NavigateTask(RollTask):
         goal from their current state (the MuJoCo twin calls it on its start state)."""
         g, goal = self._current(idx)
         c = self.courses[0]
-        self.goal[idx], self.path[idx] = guidance_batch(self._fields[idx], c.origin, c.cell, goal,
-                                                        self._com(self.q[idx])[:, :2], self.spec.lookahead, g)
+        self.goal[idx], self.path[idx] = guidance_batch(self._fields, c.origin, c.cell, goal,
+                                                        self._com(self.q[idx])[:, :2], self.spec.lookahead, g,
+                                                        np.asarray(idx, dtype=int))
 
     # ------------------------------------------------------------------ task API
     def reset_idx(self, idx, rngs, options=None) -> dict:

@@ -1,4 +1,5 @@
-"""Device-resident vector envs of ``TensegrityRoll-v0`` and ``TensegrityShape-v0`` on the torch backend (SI units).
+"""Device-resident vector envs of ``TensegrityRoll-v0``, ``TensegrityClimb-v0``, ``TensegrityNavigate-v0`` and
+``TensegrityShape-v0`` on the torch backend (SI units).
 
 ``gymnasium.make_vec("TensegrityRoll-v0", num_envs=N, vectorization_mode="vector_entry_point",
 backend="torch", device="cuda", dtype="float32")`` returns a :class:`TorchRollVectorEnv`: a
@@ -57,6 +58,12 @@ computed on the device by :class:`~tensegrity_gym.envs.torch_sensors.TorchSensor
 ``sensor_noise`` comes from per-env counter-based streams on the device keyed by ``reset(seed=...)`` (that module's doc).
 Not supported here (``ValueError`` at construction): ``render_mode`` (use the NumPy env to
 render), the implicit integrators (the torch backend has ``semi_implicit_euler`` and ``rk4``).
+
+``TensegrityNavigate-v0`` (:class:`~tensegrity_gym.envs.torch_tasks.TorchNavigateVectorEnv`): each
+reset env's course drawn and planned on the host, its goals and path-distance fields copied to
+the device; the goals reached, the planner's guidance, the ``goal`` term, success (which ends
+the episode) and the observation on the device (:mod:`tensegrity_gym.tasks.navigate`, the NumPy
+env's functions on tensors).
 
 ``terrain=`` / ``terrain_difficulty`` (``TensegrityRoll-v0``, :mod:`tensegrity_gym.tasks.terrain`)
 as the NumPy env takes them: at a host reset ``RollTask`` draws each reset env's terrain from

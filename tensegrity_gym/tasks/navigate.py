@@ -217,18 +217,19 @@ def guidance(course: Course, goal: int, p, lookahead: int = 3) -> tuple[np.ndarr
     return d[0], float(path[0])
 
 
-def guidance_batch(field, origin, cell: float, goal, p, lookahead: int = 3, layer=None) -> tuple:
+def guidance_batch(field, origin, cell: float, goal, p, lookahead: int = 3, layer=None, copies=None) -> tuple:
     """Guidance of B positions ``p`` (B, 2) m toward their goals ``goal`` (B, 2) m along the path
     distances ``field`` (B, n, n) m of their courses (square grid ``origin`` (2,) m, ``cell`` m;
-    or (B, L, n, n) with ``layer`` (B,) int the one of each copy): the unit direction (B, 2) to
-    the cell within ``lookahead`` cells with the shortest remaining path (straight at the goal
+    or (C, L, n, n) with ``layer`` (B,) int the layer of each position and ``copies`` (B,) int its
+    course, all C by default: indexed in place, no copy of the fields): the unit direction (B, 2)
+    to the cell within ``lookahead`` cells with the shortest remaining path (straight at the goal
     within that reach, or where no cell in reach is nearer), and the path distance (B,) m from
     the cell under ``p`` (the straight distance where the grid has none). NumPy arrays, or torch
     tensors (``origin`` one too) on one device."""
     xp = namespace(p)
     if xp is NUMPY:
         field, p, goal = np.asarray(field, float), np.asarray(p, float), np.asarray(goal, float)
-    B, n = field.shape[0], field.shape[-1]
+    B, n = p.shape[0], field.shape[-1]
     rows = xp.arange(B, p)
     i = xp.to_index(xp.clip(xp.rint((p[:, 0] - origin[0]) / cell), 0, n - 1))
     j = xp.to_index(xp.clip(xp.rint((p[:, 1] - origin[1]) / cell), 0, n - 1))
@@ -239,9 +240,10 @@ def guidance_batch(field, origin, cell: float, goal, p, lookahead: int = 3, laye
     if layer is None:
         win = field[rows[:, None, None], jj[:, :, None], ii[:, None, :]].reshape(B, -1)
         here = field[rows, j, i]
-    else:                       # indexed in place: no copy of the copies' layers
-        win = field[rows[:, None, None], layer[:, None, None], jj[:, :, None], ii[:, None, :]].reshape(B, -1)
-        here = field[rows, layer, j, i]
+    else:
+        c = rows if copies is None else copies
+        win = field[c[:, None, None], layer[:, None, None], jj[:, :, None], ii[:, None, :]].reshape(B, -1)
+        here = field[c, layer, j, i]
     k = xp.argmin(win, 1)
     best = win[rows, k]
     dist = xp.hypot(goal[:, 0] - p[:, 0], goal[:, 1] - p[:, 1])
