@@ -826,5 +826,20 @@ def interrupted_exit_code() -> int:
     return 143 if signal.SIGTERM in _SIGNALS_RECEIVED else 130
 
 
+def _exit(code: int) -> None:
+    """Exit with ``code``. After a SIGTERM, directly (streams flushed): a KeyboardInterrupt that
+    the handler raised inside ``eval()`` of a string (namedtuple and dataclass creation in a
+    module imported during start-up) leaves CPython's "unhandled KeyboardInterrupt" flag set
+    although :func:`main` handled it, and the interpreter then exits by SIGINT (status -2), not
+    with 143."""
+    import os
+    import signal
+    if signal.SIGTERM in _SIGNALS_RECEIVED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    _exit(main())
