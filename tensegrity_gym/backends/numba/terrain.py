@@ -306,6 +306,22 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         far = mz - hf_patch(mx, my, g, H)[0] - lam * (0.5 * abs(span)) >= radius
                     else:
                         far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
+                if far and not has_info:
+                    # no slot touches: what _slot_force gives for an infinite gap, each slot
+                    # released (the interior slot keeps the anchored point of a contact that
+                    # ends here), with no write where the slot is released already
+                    for s in range(3):
+                        ci = base + s
+                        e = ea if s == 0 else (ec if s == 1 else em)
+                        if active[c, ci]:
+                            if s < 2:
+                                eta0[c, ci] = e
+                            active[c, ci] = False
+                        elif eta0[c, ci] != e:
+                            eta0[c, ci] = e
+                        if slip[c, ci]:
+                            slip[c, ci] = False
+                    continue
                 # the nodes' distances, normals and normal velocities, for the interior slot's level
                 sd_a, na0, na1, na2, w_a, vn_a = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
                 sd_c, nc0, nc1, nc2, w_c, vn_c = math.inf, 0.0, 0.0, 1.0, 1.0, 0.0
