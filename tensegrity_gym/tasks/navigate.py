@@ -231,12 +231,11 @@ def guidance_batch(field, origin, cell: float, goal, p, lookahead: int = 3, laye
         field, p, goal = np.asarray(field, float), np.asarray(p, float), np.asarray(goal, float)
     B, n = p.shape[0], field.shape[-1]
     rows = xp.arange(B, p)
-    i = xp.to_index(xp.clip(xp.rint((p[:, 0] - origin[0]) / cell), 0, n - 1))
-    j = xp.to_index(xp.clip(xp.rint((p[:, 1] - origin[1]) / cell), 0, n - 1))
+    ij = xp.to_index(xp.clip(xp.rint((p - origin) / cell), 0, n - 1))          # (B, 2) the cell under p
+    i, j = ij[:, 0], ij[:, 1]
     size = 2 * lookahead + 1
-    off = xp.arange(size, p) - lookahead
-    jj = xp.clip(j[:, None] + off, 0, n - 1)
-    ii = xp.clip(i[:, None] + off, 0, n - 1)
+    reach = xp.clip(ij[:, :, None] + (xp.arange(size, p) - lookahead), 0, n - 1)   # (B, 2, size)
+    ii, jj = reach[:, 0], reach[:, 1]
     if layer is None:
         win = field[rows[:, None, None], jj[:, :, None], ii[:, None, :]].reshape(B, -1)
         here = field[rows, j, i]
@@ -257,13 +256,19 @@ def guidance_batch(field, origin, cell: float, goal, p, lookahead: int = 3, laye
     return d, path
 
 
-def guidance_frame(v, direction):
+def guidance_frame(v, direction, out=None):
     """``v`` (B, m, 3) world vectors in the guidance frame of each copy: x along its unit
     ``direction`` (B, 2), y to its left, z up (a rotation about the vertical; the rolling robot is
-    symmetric under it, so one policy serves every direction)."""
-    xp = namespace(v)
+    symmetric under it, so one policy serves every direction). ``out``: an array (B, m, 3) that
+    takes the result (``v`` itself: rotated in place), else a new one."""
     c, s = direction[:, 0, None], direction[:, 1, None]
-    return xp.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1], v[..., 2]], -1)
+    x, y = c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1]
+    if out is None:
+        return namespace(v).stack([x, y, v[..., 2]], -1)
+    if out is not v:
+        out[..., 2] = v[..., 2]
+    out[..., 0], out[..., 1] = x, y
+    return out
 
 
 def track_goals(goals, goal_index, xy, goal_radius: float):
@@ -294,8 +299,8 @@ def navigate_observation(obs, blocks: dict, direction, path, goal_index, n_goals
     xp = namespace(obs)
     B = obs.shape[0]
     for block in ("node_position_rel_com", "node_velocity"):
-        sl = blocks[block]
-        obs[:, sl] = guidance_frame(obs[:, sl].reshape(B, -1, 3), direction).reshape(B, -1)
+        v = obs[:, blocks[block]].reshape(B, -1, 3)     # a view of obs
+        guidance_frame(v, direction, out=v)
     obs[:, blocks["goal_direction"]] = xp.const([1.0, 0.0], obs)
     extra = [xp.where(goal_index >= n_goals, 0.0, path)[:, None], (n_goals - goal_index)[:, None]]
     if scan is not None:
