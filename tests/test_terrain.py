@@ -575,10 +575,11 @@ def test_heightfield_search_below_the_cut_is_the_full_search():
         th, ph = rng.uniform(-0.4, 0.4), rng.uniform(-math.pi, math.pi)
         b = np.array([math.cos(th) * math.cos(ph), math.cos(th) * math.sin(ph), math.sin(th)])
         r = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.35, 0.35), rng.uniform(-0.03, 0.08)])
-        full = hf_lowest(-0.2, 0.2, *r, *b, g, H, math.inf)
+        ends = [float(hf.gap(r + e * b)[0]) for e in (-0.2, 0.2)]
+        full = hf_lowest(-0.2, 0.2, *r, *b, g, H, math.inf, *ends)
         full_gap = float(hf.gap(r + full[0] * b)[0])
         for cut in (0.0, 0.02, 0.05):
-            part = hf_lowest(-0.2, 0.2, *r, *b, g, H, cut)
+            part = hf_lowest(-0.2, 0.2, *r, *b, g, H, cut, *ends)
             if full[1] and full_gap < cut - LEVEL_TOL:
                 assert part == full, (r, b, cut, part, full)
                 n_same += 1

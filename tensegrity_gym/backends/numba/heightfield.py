@@ -140,7 +140,7 @@ def _next_break(tx, ty, x_line, nxl, y_line, nyl, ea, ec, r0, r1, b0, b1, g):
 
 
 @njit(**_opts)
-def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut):
+def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, ga, gc):
     """The interior contact point of the rod axis ``r + eta b``, eta in [ea, ec], against the
     heightfield ``g`` (heights ``H``): the lowest point of the gap (module doc), searched for
     below ``cut`` m: a piece whose every gap is at least ``cut`` (its lower end's height above the
@@ -148,7 +148,9 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut):
     is below ``cut`` less ``LEVEL_TOL`` (``cut = inf``: always). Returns ``(eta, deeper, gx, gy)``:
     eta m (the middle of the rod when not deeper), deeper = the gap there is below both ends' by
     more than ``LEVEL_TOL``, and the gradient of h the slot's normal uses (the two cells'
-    combination at a kink)."""
+    combination at a kink). ``ga``, ``gc``: the gaps (m) at the ends, ``r2 + e b2 - h`` with h the
+    bilinear height (:func:`hf_patch`) at ``(r0 + e b0, r1 + e b1)``, e = ea, ec (the node slots'
+    own, passed in rather than computed twice)."""
     ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
     em = 0.5 * (ea + ec)
     ua, uc = (r0 + ea * b0 - g[1]) / g[3], (r0 + ec * b0 - g[1]) / g[3]
@@ -168,8 +170,7 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut):
     # pass 1: the lowest candidate (breakpoint 2 k, stationary point of piece k 2 k + 1); a piece
     # passed over leaves the gap at its end unknown (inf: above every candidate that can win)
     lo = ea
-    glo = r2 + ea * b2 - hf_patch(r0 + ea * b0, r1 + ea * b1, g, H)[0]
-    ga = glo
+    glo = ga
     fmin, cbest, ebest = glo, 0, ea
     gx, gy, gxr, gyr = 0.0, 0.0, 0.0, 0.0
     lvl_l, lvl_r, pend = False, False, False
@@ -220,9 +221,7 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut):
             lvl_l = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
             lvl_r, pend = False, True
         lo, glo = hi, ghi
-    if glo == math.inf:         # the last piece passed over: the gap at ec
-        glo = r2 + ec * b2 - hf_patch(r0 + ec * b0, r1 + ec * b1, g, H)[0]
-    if not (fmin < min(ga, glo) - LEVEL_TOL):
+    if not (fmin < min(ga, gc) - LEVEL_TOL):
         return em, False, 0.0, 0.0
     e = ebest
     if cbest % 2 == 0:

@@ -363,7 +363,7 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                                     # (the slot's level, at or above its gap when it touches), with a margin
                                     # beyond the level-run tolerance; the whole axis when info is asked for
                                     cut = min(radius, min(sd_a, sd_c)) + 2.0 * LEVEL_TOL if not has_info else math.inf
-                                    e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut)
+                                    e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, sd_a, sd_c)
                                     kink = use
                             else:
                                 e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
