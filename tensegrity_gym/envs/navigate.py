@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.checks import check_array
-from ..tasks.navigate import CourseSpec, draw_course, guidance_batch, height_scan, navigate_observation, track_goals
+from ..tasks.navigate import (CourseSpec, current_goal, draw_course, guidance_batch, height_scan,
+                              navigate_observation, track_goals)
 from .config import NavigateConfig, flat_signature, navigate_config, with_flat
 from .roll import RollTask
 from .shells import TaskEnv, TaskVectorEnv
@@ -99,19 +100,14 @@ class NavigateTask(RollTask):
         self._fields[i], self._goals[i] = course.field, course.goals
         return course.terrain
 
-    def _current(self, idx):
-        """(goal index clipped to the last goal, its position (r, 2) m) of copies ``idx``."""
-        g = np.minimum(self.goal_index[idx], self.spec.n_goals - 1)
-        return g, self._goals[idx, g]
-
     def guide(self, idx) -> None:
         """Guidance (``goal``) and path distance (``path``, m) of copies ``idx`` toward their current
         goal from their current state (the MuJoCo twin calls it on its start state)."""
-        g, goal = self._current(idx)
+        idx = np.asarray(idx, dtype=int)
+        g, goal = current_goal(self._goals, self.goal_index[idx], idx)
         c = self.courses[0]
         self.goal[idx], self.path[idx] = guidance_batch(self._fields, c.origin, c.cell, goal,
-                                                        self._com(self.q[idx])[:, :2], self.spec.lookahead, g,
-                                                        np.asarray(idx, dtype=int))
+                                                        self._com(self.q[idx])[:, :2], self.spec.lookahead, g, idx)
 
     # ------------------------------------------------------------------ task API
     def reset_idx(self, idx, rngs, options=None) -> dict:

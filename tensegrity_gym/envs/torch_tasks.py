@@ -12,7 +12,7 @@ from ..backends.torch.terrain import top_height
 from .climb import ClimbTask
 from .navigate import NavigateTask
 from .roll import RollTask
-from ..tasks.navigate import guidance_batch, height_scan, navigate_observation, track_goals
+from ..tasks.navigate import current_goal, guidance_batch, height_scan, navigate_observation, track_goals
 from ..tasks.roll import center_of_mass, perturbed_start, roll_state_observation, roll_step_terms
 from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
 from ..tasks.xp import namespace
@@ -329,9 +329,8 @@ class TorchNavigateVectorEnv(TorchRollVectorEnv):
         """``goal`` (the planner's unit guidance) and ``path`` (m) of every env toward its current goal."""
         torch = torch_backend.torch_module()
         task = self.task
-        rows = torch.arange(self.num_envs, device=self.device)
-        g = torch.clamp(self.goal_index, max=task.spec.n_goals - 1)
-        self.goal, self.path = guidance_batch(self.fields, self._origin, task.courses[0].cell, self.goals[rows, g],
+        g, goal = current_goal(self.goals, self.goal_index, torch.arange(self.num_envs, device=self.device))
+        self.goal, self.path = guidance_batch(self.fields, self._origin, task.courses[0].cell, goal,
                                               self._com(self.q)[:, :2], task.spec.lookahead, g)
 
     def _act(self, action):

@@ -30,7 +30,8 @@ from scipy.sparse.csgraph import dijkstra
 from ..core.terrain import Box, Heightfield, Terrain
 from .xp import NUMPY, namespace
 
-__all__ = ["CourseSpec", "Course", "draw_course", "guidance", "guidance_batch", "guidance_frame", "track_goals",
+__all__ = ["CourseSpec", "Course", "draw_course", "guidance", "guidance_batch", "guidance_frame", "current_goal",
+           "track_goals",
            "navigate_observation", "height_scan", "MAX_TRIES"]
 
 #: courses drawn before a spec is declared unsolvable
@@ -271,6 +272,14 @@ def guidance_frame(v, direction, out=None):
     return out
 
 
+def current_goal(goals, goal_index, rows):
+    """The current goal of copies ``rows`` (r,) int: ``(layer (r,) int, position (r, 2) m)``, the
+    layer ``goal_index`` (r,) clipped to the last goal of ``goals`` (B, n_goals, 2) m (after
+    the last goal: the last one's)."""
+    g = namespace(goals).minimum(goal_index, goals.shape[1] - 1)
+    return g, goals[rows, g]
+
+
 def track_goals(goals, goal_index, xy, goal_radius: float):
     """Goal bookkeeping after a step: ``goals`` (B, n_goals, 2) m, ``goal_index`` (B,) int the
     current goal of each copy (n_goals: all reached), ``xy`` (B, 2) m the centres of mass. A copy
@@ -282,7 +291,7 @@ def track_goals(goals, goal_index, xy, goal_radius: float):
     rows = xp.arange(goals.shape[0], xy)
 
     def current(gi):
-        g = goals[rows, xp.minimum(gi, n_goals - 1)]
+        g = current_goal(goals, gi, rows)[1]
         return xp.hypot(g[:, 0] - xy[:, 0], g[:, 1] - xy[:, 1])
     reached = (goal_index < n_goals) & (current(goal_index) <= goal_radius)
     goal_index = goal_index + reached

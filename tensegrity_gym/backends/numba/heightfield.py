@@ -125,18 +125,38 @@ def hf_cross(m, origin, cell, r, b, ea, ec):
 
 
 @njit(inline="always", **_opts)
-def _next_break(tx, ty, x_line, nxl, y_line, nyl, ea, ec, r0, r1, b0, b1, g):
-    """The next breakpoint after x crossing tx and y crossing ty (the nearer; x first of equals),
-    ``ec`` after both: (eta, tx, ty)."""
-    mx0, sx, nxc = x_line
-    my0, sy, nyc = y_line
-    ex = hf_cross(mx0 + sx * tx, g[1], g[3], r0, b0, ea, ec) if tx < nxc else math.inf
-    ey = hf_cross(my0 + sy * ty, g[2], g[3], r1, b1, ea, ec) if ty < nyc else math.inf
-    if tx >= nxc and ty >= nyc:
-        return ec, tx + 1, ty
-    if ex <= ey:
-        return ex, tx + 1, ty
-    return ey, tx, ty + 1
+def _walk_start(ua, uc, va, vc, nx, ny, ea, ec, r0, r1, b0, b1, g):
+    """The walk of a rod axis over the grid from grid coordinates (ua, va) at ea to (uc, vc) at
+    ec: the grid lines it crosses (:func:`hf_lines` of x and y) and the walk's state before the
+    first piece, ``(tx, ty, ex, ey, ci, cj)``: the x and y crossings passed, the next ones (inf
+    after the last), and the cell of the piece (ci, cj: the cell the rod starts in, along its
+    direction, -1 or n - 1 beyond the grid's first or last line; clamped to the grid when read)."""
+    x_line, y_line = hf_lines(ua, uc, nx), hf_lines(va, vc, ny)
+    mx0, sx, nxl = x_line
+    my0, sy, nyl = y_line
+    ex = hf_cross(mx0, g[1], g[3], r0, b0, ea, ec) if nxl > 0 else math.inf
+    ey = hf_cross(my0, g[2], g[3], r1, b1, ea, ec) if nyl > 0 else math.inf
+    ci = min(max(int(math.floor(ua)) if sx > 0 else int(math.ceil(ua)) - 1, -1), nx - 1)
+    cj = min(max(int(math.floor(va)) if sy > 0 else int(math.ceil(va)) - 1, -1), ny - 1)
+    return x_line, y_line, (0, 0, ex, ey, ci, cj)
+
+
+@njit(inline="always", **_opts)
+def _walk_next(state, x_line, y_line, ea, ec, r0, r1, b0, b1, g):
+    """The walk's next breakpoint (the nearer crossing, x first of equals; ``ec`` after both)
+    and its state there (:func:`_walk_start`): one further crossing, computed once."""
+    tx, ty, ex, ey, ci, cj = state
+    mx0, sx, nxl = x_line
+    my0, sy, nyl = y_line
+    if tx < nxl and (ty >= nyl or ex <= ey):
+        hi, tx, ci = ex, tx + 1, ci + sx
+        ex = hf_cross(mx0 + sx * tx, g[1], g[3], r0, b0, ea, ec) if tx < nxl else math.inf
+    elif ty < nyl:
+        hi, ty, cj = ey, ty + 1, cj + sy
+        ey = hf_cross(my0 + sy * ty, g[2], g[3], r1, b1, ea, ec) if ty < nyl else math.inf
+    else:
+        hi = ec
+    return hi, (tx, ty, ex, ey, ci, cj)
 
 
 @njit(**_opts)
@@ -155,18 +175,8 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, ga, gc):
     em = 0.5 * (ea + ec)
     ua, uc = (r0 + ea * b0 - g[1]) / g[3], (r0 + ec * b0 - g[1]) / g[3]
     va, vc = (r1 + ea * b1 - g[2]) / g[3], (r1 + ec * b1 - g[2]) / g[3]
-    x_line, y_line = hf_lines(ua, uc, nx), hf_lines(va, vc, ny)
-    mx0, sx, nxl = x_line
-    my0, sy, nyl = y_line
-    last = nxl + nyl + 1            # pieces: between ea, the crossings and ec
-    # the walk: the next x and y crossings (ex, ey), how many of each passed (tx, ty) and the
-    # cell of the piece (ci, cj: the cell the rod starts in, along its direction, -1 or n - 1
-    # beyond the grid's first or last line; one further at each crossing; clamped to the grid)
-    ex = hf_cross(mx0, g[1], g[3], r0, b0, ea, ec) if nxl > 0 else math.inf
-    ey = hf_cross(my0, g[2], g[3], r1, b1, ea, ec) if nyl > 0 else math.inf
-    tx, ty = 0, 0
-    ci = min(max(int(math.floor(ua)) if sx > 0 else int(math.ceil(ua)) - 1, -1), nx - 1)
-    cj = min(max(int(math.floor(va)) if sy > 0 else int(math.ceil(va)) - 1, -1), ny - 1)
+    x_line, y_line, start = _walk_start(ua, uc, va, vc, nx, ny, ea, ec, r0, r1, b0, b1, g)
+    last = x_line[2] + y_line[2] + 1            # pieces: between ea, the crossings and ec
     # pass 1: the lowest candidate (breakpoint 2 k, stationary point of piece k 2 k + 1); a piece
     # passed over leaves the gap at its end unknown (inf: above every candidate that can win)
     lo = ea
@@ -174,35 +184,28 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, ga, gc):
     fmin, cbest, ebest = glo, 0, ea
     gx, gy, gxr, gyr = 0.0, 0.0, 0.0, 0.0
     lvl_l, lvl_r, pend = False, False, False
+    walk = start
     for k in range(last):
-        i = min(max(ci, 0), nx - 2)
-        j = min(max(cj, 0), ny - 2)
-        if tx < nxl and (ty >= nyl or ex <= ey):
-            hi, tx, ci = ex, tx + 1, ci + sx
-            ex = hf_cross(mx0 + sx * tx, g[1], g[3], r0, b0, ea, ec) if tx < nxl else math.inf
-        elif ty < nyl:
-            hi, ty, cj = ey, ty + 1, cj + sy
-            ey = hf_cross(my0 + sy * ty, g[2], g[3], r1, b1, ea, ec) if ty < nyl else math.inf
-        else:
-            hi = ec
+        i = min(max(walk[4], 0), nx - 2)          # the piece's cell
+        j = min(max(walk[5], 0), ny - 2)
+        hi, walk = _walk_next(walk, x_line, y_line, ea, ec, r0, r1, b0, b1, g)
         if k == last - 1:
             hi = ec
         if not (hi > lo):
             continue            # an empty piece (two grid lines met at once): the gap at hi is glo's
         mid = 0.5 * (lo + hi)
         mx, my = r0 + mid * b0, r1 + mid * b1
+        if pend:           # the right-hand cell's gradient at the kink found at lo
+            _, gxr, gyr, _ = hf_at(r0 + lo * b0, r1 + lo * b1, mx, my, g, H)
         if r2 + (lo if b2 >= 0.0 else hi) * b2 - max(max(H[j, i], H[j, i + 1]), max(H[j + 1, i], H[j + 1, i + 1])) >= cut:
             # the piece's lower end is above its cell's highest grid height by the cut
-            if pend:           # the right-hand cell's gradient at the kink found at lo
-                _, gxr, gyr, _ = hf_at(r0 + lo * b0, r1 + lo * b1, mx, my, g, H)
-                lvl_r, pend = False, False
-            lo, glo = hi, math.inf
+            lvl_r = lvl_r and not pend
+            lo, glo, pend = hi, math.inf, False
             continue
         ghi = r2 + hi * b2 - hf_patch(r0 + hi * b0, r1 + hi * b1, g, H)[0]
         hm, gxm, gym, tw = hf_at(mx, my, mx, my, g, H)
         gmid = r2 + mid * b2 - hm
-        if pend:       # the right-hand cell's gradient at the kink found at lo
-            _, gxr, gyr, _ = hf_at(r0 + lo * b0, r1 + lo * b1, mx, my, g, H)
+        if pend:
             lvl_r = max(glo, max(gmid, ghi)) <= fmin + LEVEL_TOL
             pend = False
         curv = -2.0 * tw * b0 * b1                        # d2 gap / d eta2 in this cell
@@ -231,7 +234,7 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, ga, gc):
         lam = min(max(-dl / (dr - dl), 0.0), 1.0) if dr > dl else 0.5
         gx, gy = gx + lam * (gxr - gx), gy + lam * (gyr - gy)
     if lvl_l or lvl_r:
-        left, right = _level_run(cbest, fmin, ea, ec, r0, r1, r2, b0, b1, b2, g, H, x_line, y_line, last)
+        left, right = _level_run(cbest, fmin, ea, ec, r0, r1, r2, b0, b1, b2, g, H, x_line, y_line, start, last, ga)
         e = 0.5 * (left + right)
         if left < right:
             _, gx, gy = hf_patch(r0 + e * b0, r1 + e * b1, g, H)
@@ -239,17 +242,17 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, ga, gc):
 
 
 @njit(**_opts)
-def _level_run(cbest, fmin, ea, ec, r0, r1, r2, b0, b1, b2, g, H, x_line, y_line, last):
+def _level_run(cbest, fmin, ea, ec, r0, r1, r2, b0, b1, b2, g, H, x_line, y_line, walk, last, ga):
     """Ends (m) of the level run around candidate ``cbest`` of :func:`hf_lowest`: the consecutive
     pieces whose ends and middle are within ``LEVEL_TOL`` of ``fmin``, those left of it (pieces
-    < cbest // 2) and right of it (pieces >= (cbest + 1) // 2)."""
+    < cbest // 2) and right of it (pieces >= (cbest + 1) // 2). ``walk``: the walk's start
+    (:func:`_walk_start`), ``ga`` the gap at ea."""
     il, ir = cbest // 2, (cbest + 1) // 2
     left, right = ea, ec
     lo = ea
-    glo = r2 + ea * b2 - hf_patch(r0 + ea * b0, r1 + ea * b1, g, H)[0]
-    tx, ty = 0, 0
+    glo = ga
     for k in range(last):
-        hi, tx, ty = _next_break(tx, ty, x_line, x_line[2], y_line, y_line[2], ea, ec, r0, r1, b0, b1, g)
+        hi, walk = _walk_next(walk, x_line, y_line, ea, ec, r0, r1, b0, b1, g)
         if k == last - 1:
             hi = ec
         ghi = r2 + hi * b2 - hf_patch(r0 + hi * b0, r1 + hi * b1, g, H)[0]

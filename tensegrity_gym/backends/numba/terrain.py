@@ -98,13 +98,21 @@ def _box_closest(px, py, pz, g):
 
 
 @njit(inline="always", **_opts)
+def _hf_normal(gx, gy):
+    """The unit normal of a surface of height gradient (gx, gy) and the length of its
+    unnormalised normal ``|(-gx, -gy, 1)|``, the gradient of the vertical gap."""
+    w = math.sqrt(1.0 + gx * gx + gy * gy)
+    return -gx / w, -gy / w, 1.0 / w, w
+
+
+@njit(inline="always", **_opts)
 def _hf_closest(px, py, pz, g, H):
     """The heightfield's contact measure at (px, py, pz): the vertical gap m (< 0 below the
     surface), the unit normal of the bilinear patch and the length of its unnormalised normal
     ``|(-h_x, -h_y, 1)|``, the gradient of the gap (module doc of :mod:`.heightfield`)."""
     h, gx, gy = hf_patch(px, py, g, H)
-    w = math.sqrt(1.0 + gx * gx + gy * gy)
-    return pz - h, -gx / w, -gy / w, 1.0 / w, w
+    nx, ny, nz, w = _hf_normal(gx, gy)
+    return pz - h, nx, ny, nz, w
 
 
 @njit(inline="always", **_opts)
@@ -369,8 +377,8 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                                 e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
                         px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
                         if kink:
-                            w = math.sqrt(1.0 + kgx * kgx + kgy * kgy)
-                            sd, nx, ny, nz = pz - hf_patch(px, py, g, H)[0], -kgx / w, -kgy / w, 1.0 / w
+                            sd = pz - hf_patch(px, py, g, H)[0]
+                            nx, ny, nz, w = _hf_normal(kgx, kgy)
                         elif s < 2 and g[0] == HFIELD:
                             # an end's gap first (_hf_closest's arithmetic): an end clear of the
                             # heightfield needs no normal; what _slot_force gives for no contact
@@ -385,8 +393,7 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                                 active[c, ci] = False
                                 slip[c, ci] = False
                                 continue
-                            w = math.sqrt(1.0 + hgx * hgx + hgy * hgy)
-                            nx, ny, nz = -hgx / w, -hgy / w, 1.0 / w
+                            nx, ny, nz, w = _hf_normal(hgx, hgy)
                         elif use:
                             sd, nx, ny, nz, w = _closest(px, py, pz, g, H)
                         else:
