@@ -13,7 +13,7 @@ _SCRIPT = textwrap.dedent("""
     import time
     import numba
     from tensegrity_gym.backends.numba import watch
-    watch.HEARTBEAT_S, watch.IDLE_S = 0.05, 0.5
+    watch.HEARTBEAT_S, watch.IDLE_S, watch.POLL_S = 0.05, 0.5, 0.01
     watch.install()
 
     def slow(x):
@@ -24,7 +24,7 @@ _SCRIPT = textwrap.dedent("""
     slow.__module__ = MODULE
     f = numba.njit(slow)
     t0 = time.time()
-    f(10)                       # compiles (no cache): at least one heartbeat at 0.05 s
+    f(10)                       # compiles (no cache, ~0.2 s): a heartbeat at 0.05 s (the watcher looks every 0.01 s)
     f(11)                       # same signature: no compile
     time.sleep(1.0)             # the watcher's idle time passes: the done line
 """)

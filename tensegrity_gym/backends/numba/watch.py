@@ -21,10 +21,11 @@ import time
 
 from numba.core import event
 
-__all__ = ["install", "HEARTBEAT_S", "IDLE_S"]
+__all__ = ["install", "HEARTBEAT_S", "IDLE_S", "POLL_S"]
 
 HEARTBEAT_S = 10.0   #: seconds between two heartbeat lines while compiling
 IDLE_S = 1.5         #: seconds without a compile that end a compile session
+POLL_S = 0.25        #: seconds between two looks of the reporting thread
 
 
 def _say(message: str) -> None:
@@ -87,7 +88,7 @@ class _Watch(event.Listener):
 
     def _run(self) -> None:
         while True:
-            time.sleep(0.25)
+            time.sleep(POLL_S)
             with self.lock:
                 if self.session_t0 is None:
                     continue
