@@ -3,7 +3,7 @@
 
     PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000] \
         [--envs 1 16 128] [--env-steps 200] [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
-        [--json out.json]
+        [--torch-compile] [--json out.json]
 
 Physics table: microseconds per physics step (all copies) for the flat-ground GroundContact (the
 fused compiled loop), a level terrain plane, a 20-degree plane, and a 20-degree plane with two
@@ -23,7 +23,10 @@ whole floor, the robot on bumps from the start) and
 Torch env table (``--torch-envs``): the same ``TensegrityRoll-v0`` scenes on the torch device
 vector env (``backend="torch"``, CPU, float64, one torch thread), plus steps whose first edge is
 under the robot (``pad`` 0.05 m, ``tread`` 0.2 m: the boxes next to the rods, their search along
-the rods running); env-steps/s and milliseconds per control step.
+the rods running); env-steps/s and milliseconds per control step. With ``--torch-compile`` the
+same with ``compile=True`` (``torch.compile`` of the terrain's physics step), its ratio to the
+eager env and its warm-up (the compile, seconds; inductor's cache on disk makes a second run's
+shorter).
 """
 from __future__ import annotations
 
@@ -87,30 +90,41 @@ TORCH_ENV_SCENES = {**{k: kw for k, (eid, kw) in ENV_SCENES.items() if eid == "T
                     "steps under the robot": {"terrain": {"generator": "steps", "pad": 0.05, "tread": 0.2}}}
 
 
-def torch_env_rate(kwargs: dict, n: int, steps: int) -> float:
-    """env-steps/s of the torch device env (CPU, float64) of ``n`` copies over ``steps`` steps."""
+def torch_env_rate(kwargs: dict, n: int, steps: int, compile: bool = False) -> tuple:
+    """``(env-steps/s, warm-up s)`` of the torch device env (CPU, float64) of ``n`` copies over
+    ``steps`` steps after two warm-up steps (with ``compile``: the compile)."""
     import gymnasium as gym
     import torch
     env = gym.make_vec("TensegrityRoll-v0", num_envs=n, vectorization_mode="vector_entry_point", backend="torch",
-                       device="cpu", dtype="float64", **kwargs)
+                       device="cpu", dtype="float64", compile=compile, **kwargs)
     env.reset(seed=0)
     acts = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (steps + 2, n) + env.single_action_space.shape))
+    t0 = time.perf_counter()
     for a in acts[:2]:
         env.step(a)
-    t0 = time.perf_counter()
+    t1 = time.perf_counter()
     for a in acts[2:]:
         env.step(a)
-    return n * steps / (time.perf_counter() - t0)
+    return n * steps / (time.perf_counter() - t1), t1 - t0
 
 
-def torch_env_table(ns, steps: int) -> dict:
+def torch_env_table(ns, steps: int, compile: bool = False) -> dict:
+    """env-steps/s per scene and N (eager; with ``compile`` also ``compile=True`` and its warm-up)."""
     import torch
     torch.set_num_threads(1)
-    rates = {name: [torch_env_rate(kw, n, steps) for n in ns] for name, kw in TORCH_ENV_SCENES.items()}
+    rates = {name: [torch_env_rate(kw, n, steps)[0] for n in ns] for name, kw in TORCH_ENV_SCENES.items()}
     print(f"\n{'torch env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'ms/step':>10}" for n in ns))
     for name, vals in rates.items():
         print(f"{name:<30}" + "".join(f"{v:16,.1f}{ns[i] / v * 1e3:10.1f}" for i, v in enumerate(vals)))
-    return rates
+    if not compile:
+        return rates
+    comp = {name: [torch_env_rate(kw, n, steps, True) for n in ns] for name, kw in TORCH_ENV_SCENES.items()}
+    print(f"\n{'torch env, compile=True':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'/eager':>8}{'warm s':>8}"
+                                                        for n in ns))
+    for name, vals in comp.items():
+        print(f"{name:<30}" + "".join(f"{v:16,.1f}{v / rates[name][i]:8.1f}{w:8.1f}" for i, (v, w) in enumerate(vals)))
+    return {"eager": rates, "compiled": {k: [v[0] for v in vals] for k, vals in comp.items()},
+            "compile_warmup_s": {k: [v[1] for v in vals] for k, vals in comp.items()}}
 
 
 def env_table(ns, steps: int) -> dict:
@@ -156,6 +170,8 @@ def main():
     ap.add_argument("--torch-envs", type=int, nargs="*", default=[],
                     help="torch device env table (CPU, float64) for these numbers of copies")
     ap.add_argument("--torch-env-steps", type=int, default=10)
+    ap.add_argument("--torch-compile", action="store_true",
+                    help="the torch env table also with compile=True (after its compile, timed apart)")
     a = ap.parse_args()
     m = prism()
     scenes = {"level plane": Terrain(), "20 deg plane": Terrain(plane=Plane(20.0)),
@@ -176,7 +192,7 @@ def main():
         print(f"{name:<26}" + "".join(f"{v:16.2f}" for v in vals))
     torch_rows = torch_table(m, scenes, a.batch, max(a.steps // 10, 20)) if a.torch else {}
     envs = env_table(a.envs, a.env_steps) if a.envs else {}
-    torch_envs = torch_env_table(a.torch_envs, a.torch_env_steps) if a.torch_envs else {}
+    torch_envs = torch_env_table(a.torch_envs, a.torch_env_steps, a.torch_compile) if a.torch_envs else {}
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"cpu": cpu_model(), "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows, "torch_us_per_step": torch_rows,

@@ -92,8 +92,8 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         if not isinstance(compile, (bool, np.bool_)):
             raise ValueError(f"compile: expected True or False, got {compile!r}")
         # compile: the one physics step each task repeats (with contact: contact forces + integrator step)
-        one = torch_backend.contact_substep if getattr(task, "contact", None) is not None else torch_backend.step_once
-        self._substep = torch.compile(one, dynamic=False) if compile else None
+        one, options = self._physics_substep()
+        self._substep = torch.compile(one, dynamic=False, options=options) if compile else None
         # per-copy parameters (domain): uploaded whole here, by reset rows when randomised
         self._upload_domain(None)
         self.reset_sampling = reset_sampling
@@ -101,6 +101,14 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         if reset_sampling == "device":     # envs/torch_reset.py: per-env counter-based streams on the device
             self._streams = CounterStreams(N, dev)
             self._tdomain = TorchDomain(self) if task.domain.enabled else None
+
+    def _physics_substep(self):
+        """``(the one physics step the task repeats, inductor options or None)``: what
+        ``compile=True`` wraps and how. With ground contact
+        :func:`~tensegrity_gym.torch_backend.contact_substep`, without
+        :func:`~tensegrity_gym.torch_backend.step_once`; default options."""
+        return (torch_backend.contact_substep if getattr(self.task, "contact", None) is not None
+                else torch_backend.step_once), None
 
     def _check_task(self, task, reset_sampling: str, compile: bool) -> None:
         """ValueError naming an env argument the task's configuration rules out (here: none)."""

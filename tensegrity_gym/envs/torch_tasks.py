@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from .. import torch_backend
-from ..backends.torch.terrain import top_height
+from ..backends.torch.terrain import compile_options, terrain_substep, top_height
 from .climb import ClimbTask
 from .navigate import NavigateTask
 from .roll import RollTask
@@ -42,9 +42,13 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
             raise ValueError("reset_sampling: 'device' is not available with a terrain generator (its terrains are "
                              "drawn on the host); use a fixed terrain (a file, a dict or a Terrain) or "
                              "reset_sampling='host'")
-        if isinstance(compile, (bool, np.bool_)) and compile:
-            raise ValueError("compile: not available with terrain (its contact search branches on the terrain's "
-                             "parts); use compile=False")
+
+    def _physics_substep(self):
+        """With a terrain, :func:`~tensegrity_gym.backends.torch.terrain.terrain_substep` and its
+        :func:`~tensegrity_gym.backends.torch.terrain.compile_options`."""
+        if self._terrain is None:
+            return super()._physics_substep()
+        return terrain_substep, compile_options(self._terrain.layout)
 
     def _init_state(self):
         torch = torch_backend.torch_module()
@@ -355,5 +359,6 @@ class TorchNavigateVectorEnv(TorchRollVectorEnv):
         scan = None
         if self._scan is not None:
             tt = self._terrain
-            scan = height_scan(lambda x, y: top_height(tt.geom, tt.hf, x, y), self._com(self.q), self._scan)
+            scan = height_scan(lambda x, y: top_height(tt.geom, tt.hf, x, y, tt.layout.kinds), self._com(self.q),
+                               self._scan)
         return navigate_observation(obs, task._blocks, self.goal, self.path, self.goal_index, task.spec.n_goals, scan)

@@ -15,7 +15,7 @@ terrain's contact state, and the rod ends' contact flags from its slots
 from __future__ import annotations
 
 from .. import torch_backend
-from ..backends.torch.terrain import terrain_step, top_height
+from ..backends.torch.terrain import terrain_layout, terrain_step, top_height
 from ..tasks.terrain import rod_end_contacts
 
 __all__ = ["TorchTerrain"]
@@ -27,7 +27,9 @@ class TorchTerrain:
     (N, S, 3) m, ``eta0`` (N, S) m, ``active`` (N, S) bool (S = 3 k F slots). A fixed terrain
     keeps one row of geometry and heights; a generator's terrains one per copy. The contact
     parameters are the env's ``_terrain_prm`` (the task's ``terrain_prm`` rows, uploaded with
-    the other per-copy parameters)."""
+    the other per-copy parameters). ``layout``: what the steps branch on
+    (:func:`~tensegrity_gym.backends.torch.terrain.terrain_layout` of the host's rows, the same
+    for every terrain a generator draws)."""
 
     def __init__(self, env):
         torch = torch_backend.torch_module()
@@ -40,6 +42,7 @@ class TorchTerrain:
         self.anchor = env._T(ts.anchor)
         self.eta0 = env._T(ts.eta0)
         self.active = torch.as_tensor(ts.active, device=env.device)
+        self.layout = terrain_layout(task.terrain_geom, task.terrain_prm, task.model)
 
     def upload_rows(self, env, it, idx) -> None:
         """Envs ``it`` (device index tensor) take the host task's rows ``idx`` after its reset:
@@ -54,6 +57,7 @@ class TorchTerrain:
             self.geom[it] = env._T(task.terrain_geom[idx])
             if self.hf is not None:
                 self.hf[it] = env._T(task.terrain_hf[idx])
+            self.layout = terrain_layout(task.terrain_geom, task.terrain_prm, task.model)
 
     def release(self, it) -> None:
         """Envs ``it`` (device index tensor) let go of the terrain: no slot active, anchors and
@@ -68,7 +72,7 @@ class TorchTerrain:
         the host's :func:`tensegrity_gym.tasks.terrain.start_lift` on the device, for a fixed
         terrain (one row of geometry and heights)."""
         torch = torch_backend.torch_module()
-        ground = top_height(self.geom, self.hf, nodes[..., 0], nodes[..., 1])
+        ground = top_height(self.geom, self.hf, nodes[..., 0], nodes[..., 1], self.layout.kinds)
         gap = (nodes[..., 2] - radius) - ground
         return torch.clamp(-gap.amin(dim=1), min=0.0)
 
@@ -80,7 +84,7 @@ class TorchTerrain:
         task = env.task
         geom, prm, hf = self.geom, env._terrain_prm, self.hf
         kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
-                  params=env._params, hf=hf)
+                  params=env._params, hf=hf, layout=self.layout, substep=env._substep)
         state0 = (q0, qd0, self.anchor, self.eta0, self.active)
         (q, qd, anchor, eta0, active), qd_prev = env._advance(
             lambda n, *s: terrain_step(env.tm, geom, prm, *s, task.dt, task.integrator, n, **kw), state0)

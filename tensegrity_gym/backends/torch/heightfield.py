@@ -69,9 +69,11 @@ def hf_lipschitz(g, H):
     return torch.sqrt(1.0 + (mx * mx + my * my) / (cell * cell)).reshape(-1, 1)
 
 
-def _crossings(a, c, n, origin, cell, r, b, ea, ec):
+def _crossings(a, c, n, origin, cell, r, b, ea, ec, most: int):
     """Rod coordinates (B, k, M) of the crossings of grid lines 0..n-1 strictly between the grid
-    coordinates a and c (the numba ``hf_lines`` and ``hf_cross``), ``ec`` past each rod's count."""
+    coordinates a and c (the numba ``hf_lines`` and ``hf_cross``), ``ec`` past each rod's count:
+    M the most any rod has (one device read) or, under ``torch.compile``, ``most`` (the
+    layout's bound: no rod has more)."""
     torch = _torch()
     up, down = c > a, c < a
     m0 = torch.where(up, (torch.floor(a) + 1).clamp(min=0), (torch.ceil(a) - 1).clamp(max=n - 1))
@@ -79,7 +81,7 @@ def _crossings(a, c, n, origin, cell, r, b, ea, ec):
                         m0 - (torch.floor(c) + 1).clamp(min=0) + 1).clamp(min=0)
     count = torch.where(up | down, count, torch.zeros_like(count))
     step = torch.where(up, torch.ones_like(a), -torch.ones_like(a))
-    M = int(count.max()) if count.numel() else 0
+    M = most if torch.compiler.is_compiling() else (int(count.max()) if count.numel() else 0)
     t = torch.arange(M, dtype=a.dtype, device=a.device)
     m = m0[..., None] + step[..., None] * t
     e = torch.minimum(torch.maximum((origin[..., None] + m * cell[..., None] - r[..., None]) / b[..., None],
@@ -89,9 +91,9 @@ def _crossings(a, c, n, origin, cell, r, b, ea, ec):
 
 def hf_lowest(ea, ec, r, b, part):
     """The lowest point of every rod axis ``r + eta b`` (r, b (B, k, 3)), eta in [ea, ec] (B, k),
-    above the heightfield ``part`` (as :func:`hf_at` takes it): the numba ``hf_lowest`` on tensors
-    (every breakpoint, stationary point and level run at once). Returns ``(eta, deeper, gx, gy)``
-    (B, k)."""
+    above the heightfield ``part`` (as :func:`hf_at` takes it, with its ``crossings`` bound): the
+    numba ``hf_lowest`` on tensors (every breakpoint, stationary point and level run at once).
+    Returns ``(eta, deeper, gx, gy)`` (B, k)."""
     torch = _torch()
     r0, r1, r2 = r[..., 0], r[..., 1], r[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
@@ -99,9 +101,9 @@ def hf_lowest(ea, ec, r, b, part):
     ny, nx = part.H.shape[1], part.H.shape[2]
     em = 0.5 * (ea + ec)
     X = _crossings((r0 + ea * b0 - x0) / cell, (r0 + ec * b0 - x0) / cell, nx, x0.expand_as(r0),
-                   cell.expand_as(r0), r0, b0, ea, ec)
+                   cell.expand_as(r0), r0, b0, ea, ec, part.crossings[0])
     Y = _crossings((r1 + ea * b1 - y0) / cell, (r1 + ec * b1 - y0) / cell, ny, y0.expand_as(r0),
-                   cell.expand_as(r0), r1, b1, ea, ec)
+                   cell.expand_as(r0), r1, b1, ea, ec, part.crossings[1])
     E = torch.cat([ea[..., None], torch.sort(torch.cat([X, Y], -1), -1).values, ec[..., None]], -1)
     R0, R1, R2 = r0[..., None], r1[..., None], r2[..., None]
     B0, B1, B2 = b0[..., None], b1[..., None], b2[..., None]

@@ -6,10 +6,20 @@ heightfield, batched over copies (:func:`terrain_forces`), and steps with it
 measure and search: :mod:`tensegrity_gym.backends.torch.heightfield`); the arrays come from
 :class:`tensegrity_gym.physics.terrain.TerrainContact`
 (``.geom``, ``.prm``, ``.hf``, ``.per_copy``). SI units.
+
+What the steps branch on (each feature's kind, the contact exponent, the most grid lines a rod
+crosses) is read from the host once, as a :class:`TerrainLayout`. Under ``torch.compile``
+(``terrain_step(..., substep=torch.compile(terrain_substep, options=compile_options(layout)))``) the
+steps read nothing back from the device: a part every rod is far from is searched all the same
+(its unused slots are released as a skipped search releases them), and the heightfield search
+lists the layout's bound of grid crossings per rod (the extra entries are the rod's far end, as
+for a rod with fewer crossings than another); eager steps skip the far parts and list the
+crossings the rods have. Both give the same forces and contact state.
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -18,9 +28,61 @@ from .driver import prepare_steps, step_once
 from .heightfield import hf_lipschitz, hf_lowest, hf_patch
 from .model import TorchModel, _torch, torch_model
 
-__all__ = ["init_terrain_state", "terrain_forces", "terrain_step", "top_height"]
+__all__ = ["TerrainLayout", "terrain_layout", "init_terrain_state", "terrain_forces", "terrain_step", "terrain_substep",
+           "compile_options", "top_height"]
 
 _GR = 0.6180339887498949
+
+
+
+class TerrainLayout(NamedTuple):
+    """What a terrain's contact steps branch on, read from the host once (:func:`terrain_layout`)."""
+
+    #: each feature column's kind (``PLANE``, ``BOX``, ``HFIELD`` of :mod:`tensegrity_gym.backends.numba.terrain`)
+    kinds: tuple
+    #: every part's contact exponent is 1 (the penetration taken as it is, not raised to a power)
+    unit_exponent: bool
+    #: (ny, nx) of the heightfield's grid, (1, 1) without one
+    hf_shape: tuple
+    #: per feature, the most grid lines a rod crosses along x and along y ((0, 0) off a heightfield)
+    crossings: tuple
+
+
+def _host(x):
+    torch = _torch()
+    return np.asarray(x.detach().cpu()) if isinstance(x, torch.Tensor) else np.asarray(x, dtype=float)
+
+
+def terrain_layout(geom, prm, model) -> TerrainLayout:
+    """The :class:`TerrainLayout` of ``geom`` (1 or B, F, 10) and ``prm`` (1 or B, F, 8) (arrays
+    or tensors; one read from the device) for the rods of ``model`` (a
+    :class:`~tensegrity_gym.core.model.Model` or :class:`TorchModel`). Every row of a feature
+    column must have that column's kind (as :class:`~tensegrity_gym.physics.terrain.TerrainContact`
+    and the terrain generators make them). A rod of length L (m) crosses at most
+    ``ceil(L / cell) + 1`` grid lines of a cell-wide grid along an axis, and never more than the
+    grid has."""
+    g, p = _host(geom), _host(prm)
+    m = model.model if isinstance(model, TorchModel) else model
+    length = float(np.abs(m.eta[:, 1] - m.eta[:, 0]).max())
+    kinds = tuple(float(v) for v in g[0, :, 0])
+    hf_shape, crossings = (1, 1), []
+    for f, kind in enumerate(kinds):
+        if kind != HFIELD:
+            crossings.append((0, 0))
+            continue
+        hf_shape = (int(g[0, f, 4]), int(g[0, f, 5]))
+        lines = math.ceil(length / float(g[:, f, 3].min())) + 1
+        crossings.append((min(hf_shape[1], lines), min(hf_shape[0], lines)))
+    return TerrainLayout(kinds, bool((p[..., 3] == 1.0).all()), hf_shape, tuple(crossings))
+
+
+def compile_options(layout: TerrainLayout):
+    """Inductor options for ``torch.compile(terrain_substep, options=...)`` on a terrain of this
+    layout, or None (the defaults). With boxes: inductor inlines an expression into its users
+    until it passes 30 operations, and the box search's ~90 chained distance evaluations then
+    compile and run slowly; keeping a buffer past 16 operations ran a step of 64 copies on 3
+    boxes 3.8x faster on a 2-core CPU (``scripts/bench_gpu.py --env --env-compile``)."""
+    return {"realize_opcount_threshold": 16} if BOX in layout.kinds else None
 
 
 def init_terrain_state(tm_or_model, n_features: int, batch_size: int, device=None, dtype=None):
@@ -34,31 +96,36 @@ def init_terrain_state(tm_or_model, n_features: int, batch_size: int, device=Non
 
 
 class _Part:
-    """One terrain part: its geom rows ``g`` (G, 10) (every row of one feature column has the
-    part's kind), the heightfield heights ``H``; the kind read once (one device read) and the
-    columns shaped once per rank of the points they meet (the box search evaluates the distance
-    ~140 times a step; the heightfield's functions in
-    :mod:`tensegrity_gym.backends.torch.heightfield` take the part too)."""
+    """Terrain parts of one kind: their geom rows ``g`` (G, f, 10) (f feature columns, every row
+    of one column of the part's kind), the heightfield heights ``H``, the ``kind`` and grid
+    ``crossings`` (of the :class:`TerrainLayout`); the columns shaped once per rank of the
+    points they meet (the box search evaluates the distance ~90 times a step; the heightfield's
+    functions in :mod:`tensegrity_gym.backends.torch.heightfield` take the part too). With f > 1
+    (boxes searched together) the points have the axes (copies, rods, features, ...)."""
 
-    def __init__(self, g, H):
-        self.g, self.H, self.kind = g, H, float(g[0, 0])
+    def __init__(self, g, H, kind: float, crossings=(0, 0)):
+        self.g, self.H, self.kind, self.crossings = g, H, kind, crossings
         self._cols: dict = {}
 
     def col(self, i: int, like):
-        """Column i, shaped to broadcast against the points ``like`` (leading axis: the copies)."""
+        """Column i, shaped to broadcast against the points ``like`` (leading axis: the copies;
+        with f > 1 features, the third their features)."""
         key = (i, like.ndim)
         c = self._cols.get(key)
         if c is None:
-            c = self._cols[key] = self.g[:, i].reshape(-1, *([1] * (like.ndim - 1)))
+            f = self.g.shape[1]
+            shape = (-1,) + (1,) * (like.ndim - 1) if f == 1 else (-1, 1, f) + (1,) * (like.ndim - 3)
+            c = self._cols[key] = self.g[:, :, i].reshape(shape)
         return c
 
 
-def _box(p0, p1, p2, part, normal: bool = True):
-    """Signed distance and outward normal of points (p0, p1, p2) to the boxes of ``part``, rows
-    broadcast against the points' leading axis (as the numba ``_box_closest``); the distance
-    alone with ``normal=False`` (the same number)."""
+def _box(p0, p1, p2, cols, normal: bool = True):
+    """Signed distance and outward normal of points (p0, p1, p2) to the boxes of the geom columns
+    1-8 ``cols`` (centre, half sizes, yaw cosine and sine; rows broadcast against the points'
+    leading axis) (as the numba ``_box_closest``); the distance alone with ``normal=False`` (the
+    same number)."""
     torch = _torch()
-    cx, cy, cz, hx, hy, hz, c, s = (part.col(i, p0) for i in range(1, 9))
+    cx, cy, cz, hx, hy, hz, c, s = cols
     dx, dy, dz = p0 - cx, p1 - cy, p2 - cz
     l0 = c * dx + s * dy
     l1 = (-s) * dx + c * dy
@@ -101,23 +168,23 @@ def _closest(p0, p1, p2, part, normal: bool = True):
             return p2 - h
         w = torch.sqrt(1.0 + gx * gx + gy * gy)
         return p2 - h, -gx / w, -gy / w, 1.0 / w, w
+    cols = tuple(part.col(i, p0) for i in range(1, 9))
     if not normal:
-        return _box(p0, p1, p2, part, False)
-    return _box(p0, p1, p2, part) + (torch.ones_like(p0),)
+        return _box(p0, p1, p2, cols, False)
+    return _box(p0, p1, p2, cols) + (torch.ones_like(p0),)
 
 
 def _interior(ea, ec, r, b, part):
-    """The interior contact point of every rod against the box ``part``, (eta, deeper) (B, k):
-    the numba ``_interior`` on tensors (golden section, then the middle of the level set)."""
+    """The interior contact point of every rod against the boxes ``part``, (eta, deeper) (B, k,
+    f): the numba ``_interior`` on tensors (golden section, then the middle of the level set, its
+    two ends bisected together). ``ea``, ``ec`` (B, k, f), ``r``, ``b`` (B, k, 1, 3)."""
     torch = _torch()
 
-    r0, r1, r2 = (r[..., i, None] for i in range(3))      # (views taken once, not per evaluation)
-    b0, b1, b2 = (b[..., i, None] for i in range(3))
+    rb = [r[..., i] for i in range(3)] + [b[..., i] for i in range(3)]     # (B, k, 1), taken once
 
     def sd(e):
-        e3 = e if e.ndim == r.ndim else e[..., None]
-        return _box(r0 + e3 * b0, r1 + e3 * b1, r2 + e3 * b2, part, normal=False).reshape(e.shape)
-    ea, ec = ea.expand_as(r[..., 0]), ec.expand_as(r[..., 0])
+        x = rb if e.ndim == 3 else [v[..., None] for v in rb]
+        return _closest(x[0] + e * x[3], x[1] + e * x[4], x[2] + e * x[5], part, normal=False)
     fa, fc = sd(ea), sd(ec)
     lo, hi = ea, ec
     x1 = hi - _GR * (hi - lo)
@@ -135,19 +202,15 @@ def _interior(ea, ec, r, b, part):
     em = 0.5 * (lo + hi)
     fm = sd(em)
     deeper = fm < torch.minimum(fa, fc) - LEVEL_TOL
-    level = fm + LEVEL_TOL
-    a, bb = ea, em
+    level = (fm + LEVEL_TOL)[..., None]
+    # the level set's ends: [ea, em] where the distance falls to the level, [em, ec] where it rises
+    a, bb = torch.stack([ea, em], dim=-1), torch.stack([em, ec], dim=-1)
+    rising = torch.tensor([False, True], device=ea.device)
     for _ in range(GOLDEN_ITERS):
         mid = 0.5 * (a + bb)
-        up = sd(mid) > level
-        a, bb = torch.where(up, mid, a), torch.where(up, bb, mid)
-    left = bb
-    a, bb = em, ec
-    for _ in range(GOLDEN_ITERS):
-        mid = 0.5 * (a + bb)
-        up = sd(mid) > level
-        a, bb = torch.where(up, a, mid), torch.where(up, mid, bb)
-    return torch.where(deeper, 0.5 * (left + a), em), deeper
+        right = (sd(mid) > level) ^ rising
+        a, bb = torch.where(right, mid, a), torch.where(right, bb, mid)
+    return torch.where(deeper, 0.5 * (bb[..., 0] + a[..., 1]), em), deeper
 
 
 def _as(x, q, name, width):
@@ -159,54 +222,60 @@ def _as(x, q, name, width):
     return t
 
 
-def _as_hf(hf, geom, q):
+def _as_hf(hf, layout, q):
     """The heights ``hf`` (1 or B, ny, nx) m as a tensor like ``q``; required (and shaped as the
-    geom rows' ny, nx) when ``geom`` has a heightfield, a (1, 1, 1) zero tensor otherwise."""
+    layout's grid) when the terrain has a heightfield, a (1, 1, 1) zero tensor otherwise."""
     torch = _torch()
-    rows = [f for f in range(geom.shape[1]) if float(geom[0, f, 0]) == HFIELD]
+    has = HFIELD in layout.kinds
     if hf is None:
-        if rows:
+        if has:
             raise ValueError("hf: geom has a heightfield feature; pass its heights hf (1 or B, ny, nx) m "
                              "(TerrainContact.hf)")
         return torch.zeros((1, 1, 1), dtype=q.dtype, device=q.device)
     t = hf if isinstance(hf, torch.Tensor) else torch.as_tensor(np.array(hf, dtype=float))
     t = t.to(device=q.device, dtype=q.dtype)
-    shape = (int(geom[0, rows[0], 4]), int(geom[0, rows[0], 5])) if rows else (1, 1)
+    shape = layout.hf_shape
     if t.ndim != 3 or t.shape[0] not in (1, q.shape[0]) or tuple(t.shape[1:]) != shape:
         raise ValueError(f"hf: expected shape (1, {shape[0]}, {shape[1]}) or ({q.shape[0]}, {shape[0]}, {shape[1]}), "
                          f"got {tuple(t.shape)}")
     return t
 
 
-def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None):
+def terrain_forces(model, q, qd, geom, prm, anchor, eta0, active, hf=None, layout=None):
     """Terrain contact forces as the numba kernel's: returns ``(W (B, n, 3) N, anchor, eta0,
     active, slip)``, the state as new tensors. ``geom`` (1 or B, F, 10), ``prm`` (1 or B, F, 8),
     ``hf`` (1 or B, ny, nx) heightfield heights m (needed only with a heightfield): arrays or
     tensors (:class:`tensegrity_gym.physics.terrain.TerrainContact`'s ``geom`` / ``per_copy``
-    / ``hf``)."""
+    / ``hf``); ``layout`` their :func:`terrain_layout` (None: read from them here)."""
     tm = model if isinstance(model, TorchModel) else torch_model(model, q.device, q.dtype)
-    geom, prm, H, lips = _prepare(geom, prm, hf, q)
-    return _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active)
+    geom, prm, H, lips, layout = _prepare(geom, prm, hf, q, tm, layout)
+    return _forces(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0, active)
 
 
-def _prepare(geom, prm, hf, q):
-    """``geom``, ``prm``, the heights as tensors like ``q`` (checked) and the heightfield parts'
-    slope bounds (:func:`~tensegrity_gym.backends.torch.heightfield.hf_lipschitz`, feature ->
-    (G or B, 1)), computed once for the steps that share them."""
+def _prepare(geom, prm, hf, q, tm, layout=None):
+    """``geom``, ``prm``, the heights as tensors like ``q`` (checked), the heightfield parts'
+    slope bounds (:func:`~tensegrity_gym.backends.torch.heightfield.hf_lipschitz` per feature,
+    (G or B, 1), None off a heightfield), computed once for the steps that share them, and the
+    :class:`TerrainLayout` (read from ``geom`` and ``prm`` when None)."""
     geom, prm = _as(geom, q, "geom", 10), _as(prm, q, "prm", 8)
-    H = _as_hf(hf, geom, q)
+    if layout is None:
+        layout = terrain_layout(geom, prm, tm)
     F = geom.shape[1]
     if prm.shape[1] != F:
         raise ValueError(f"prm: expected {F} features as geom, got {prm.shape[1]}")
-    lips = {f: hf_lipschitz(geom[:, f], H) for f in range(F) if float(geom[0, f, 0]) == HFIELD}
-    return geom, prm, H, lips
+    if len(layout.kinds) != F:
+        raise ValueError(f"layout: expected {F} features as geom, got {len(layout.kinds)}")
+    H = _as_hf(hf, layout, q)
+    lips = tuple(hf_lipschitz(geom[:, f], H) if kind == HFIELD else None for f, kind in enumerate(layout.kinds))
+    return geom, prm, H, lips, layout
 
 
-def _slot_law(P, V, M, sd, n, w, level, was, an, pr):
+def _slot_law(P, V, M, sd, n, w, level, was, an, pr, unit_exponent: bool):
     """The contact law of slots (..., s) at points P (..., s, 3) m moving at V m/s, the anchored
     material points M, contact measure ``sd`` m, outward unit normal n, gradient length w, the
     level the penetration is measured from, ``was`` active at the last step, anchors ``an``
-    (..., s, 3) m, ``pr`` the part's 8 parameter columns (P, 1) (the numba ``_slot_force``):
+    (..., s, 3) m, ``pr`` the part's 8 parameter columns (P, 1), ``unit_exponent`` the
+    layout's (the numba ``_slot_force``):
     returns the anchors, touching and slip flags, the force (..., s, 3) N and the normal force
     magnitude ``fn`` N."""
     torch = _torch()
@@ -215,8 +284,7 @@ def _slot_law(P, V, M, sd, n, w, level, was, an, pr):
     delta = level - sd
     touch = delta > 0.0
     dpos = torch.where(touch, delta, torch.zeros_like(delta))
-    ex0 = float(ex.reshape(-1)[0])
-    de = dpos if ex0 == 1.0 else dpos ** ex[..., None]
+    de = dpos if unit_exponent else dpos ** ex[..., None]
     fs = kn_ * de
     cn = torch.minimum(fs * dn_, cmax_.expand_as(fs))
     vn = (V * n).sum(-1)
@@ -241,7 +309,7 @@ def _slot_law(P, V, M, sd, n, w, level, was, an, pr):
     return A, touch, slip, Fc, fn
 
 
-def _plane_slots(r, b, rd, bd, ea, ec, em, part, pr, an, e0s, acs):
+def _plane_slots(r, b, rd, bd, ea, ec, em, part, pr, an, e0s, acs, unit_exponent: bool):
     """The slots of every rod against the plane ``part`` (:func:`_forces` on a plane, with fewer
     operations: a plane's nearest point of a rod is an end, so its interior slot never touches and
     is released as the general path releases it, the anchored point kept if it was active).
@@ -255,57 +323,81 @@ def _plane_slots(r, b, rd, bd, ea, ec, em, part, pr, an, e0s, acs):
     sd, nx, ny, nz, w = _closest(P[..., 0], P[..., 1], P[..., 2], part)
     n = torch.stack([nx, ny, nz], dim=-1)
     was = acs[..., :2]
-    A, touch, slip, Fc, _ = _slot_law(P, V, P, sd, n, w, pr[0][..., None], was, an[:, :, :2], pr)
+    A, touch, slip, Fc, _ = _slot_law(P, V, P, sd, n, w, pr[0][..., None], was, an[:, :, :2], pr, unit_exponent)
     no = torch.zeros_like(touch[..., :1])
     e0_2 = torch.where(acs[..., 2], e0s[..., 2], em.expand(B, k))
     return (torch.cat([A, an[:, :, 2:]], dim=2), torch.cat([E, e0_2[..., None]], dim=-1),
             torch.cat([touch, no], dim=-1), torch.cat([slip, no], dim=-1), Fc)
 
 
-def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
+def _groups(kinds):
+    """``(kind, f0, f1)``: the features f0..f1-1 handled together, consecutive boxes in one group
+    (searched at once), every plane and heightfield alone."""
+    out = []
+    for f, kind in enumerate(kinds):
+        if out and kind == BOX and out[-1][0] == BOX:
+            out[-1] = (BOX, out[-1][1], f + 1)
+        else:
+            out.append((kind, f, f + 1))
+    return out
+
+
+def _forces(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0, active):
     """:func:`terrain_forces` on prepared inputs (:func:`_prepare`)."""
     torch = _torch()
+    compiling = torch.compiler.is_compiling()
     B, k, F = q.shape[0], tm.k, geom.shape[1]
     r, b, rd, bd = q[..., :3], q[..., 3:], qd[..., :3], qd[..., 3:]
     ea, ec = tm.eta_a[..., 0], tm.eta_c[..., 0]                          # (1, k)
-    span = ec - ea
+    em = 0.5 * (ea + ec)
     an = anchor.reshape(B, k, F, 3, 3)
     e0s = eta0.reshape(B, k, F, 3)
     acs = active.reshape(B, k, F, 3)
     Wa = torch.zeros_like(r)
     Wc = torch.zeros_like(r)
     outs = []
-    for f in range(F):
-        part = _Part(geom[:, f], H)
-        pr = [prm[:, f, i].reshape(-1, 1) for i in range(8)]             # (P, 1)
-        radius = pr[0]
-        em = 0.5 * (ea + ec)
-        if part.kind == PLANE:
-            outs.append(_plane_slots(r, b, rd, bd, ea, ec, em, part, pr, an[:, :, f], e0s[:, :, f], acs[:, :, f]))
-            Wa = Wa + outs[-1][4][:, :, 0]
-            Wc = Wc + outs[-1][4][:, :, 1]
+    # the rods with a features axis: (B, k, 1, 3), their ends and middles (1, k, 1) m
+    R, Bv, Rd, Bd = (x[:, :, None, :] for x in (r, b, rd, bd))
+    ea3, ec3, em3 = ea[..., None], ec[..., None], em[..., None]
+    span3 = ec3 - ea3
+    slot2 = torch.tensor([False, False, True], device=q.device)
+    for kind, f0, f1 in _groups(layout.kinds):
+        nf = f1 - f0
+        part = _Part(geom[:, f0:f1], H, kind, layout.crossings[f0])
+        if kind == PLANE:
+            pr = [prm[:, f0, i].reshape(-1, 1) for i in range(8)]            # (P, 1)
+            out = _plane_slots(r, b, rd, bd, ea, ec, em, part, pr, an[:, :, f0], e0s[:, :, f0], acs[:, :, f0],
+                               layout.unit_exponent)
+            outs.append(tuple(x[:, :, None] for x in out[:4]))
+            Wa = Wa + out[4][:, :, 0]
+            Wc = Wc + out[4][:, :, 1]
             continue
-        mid = [r[..., i] + em * b[..., i] for i in range(3)]
-        hfield = part.kind == HFIELD
+        pr = [prm[:, f0:f1, i].reshape(-1, 1, nf) for i in range(8)]         # (P, 1, f)
+        radius = pr[0]
+        mid = [R[..., i] + em3 * Bv[..., i] for i in range(3)]                 # (B, k, 1)
+        hfield = kind == HFIELD
         if hfield:
             # the vertical gap's Lipschitz bound (the numba kernel's far early-out)
-            far = mid[2] - hf_patch(mid[0], mid[1], part)[0] - lips[f] * (0.5 * span.abs()) >= radius
+            far = (mid[2] - hf_patch(mid[0], mid[1], part)[0] - lips[f0].reshape(-1, 1, 1) * (0.5 * span3.abs())
+                   >= radius)
         else:
-            far = _closest(mid[0], mid[1], mid[2], part, normal=False) - 0.5 * span.abs() >= radius
+            far = _closest(mid[0], mid[1], mid[2], part, normal=False) - 0.5 * span3.abs() >= radius
+        shape = far.shape                                                      # (B, k, f)
+        eas, ecs, ems = ea3.expand(shape), ec3.expand(shape), em3.expand(shape)
         kink = False
-        if part.kind == PLANE or bool(far.all()):
-            # a plane has no interior slot; a part every rod is far from leaves it unused
-            ei, deeper = em.expand(B, k), torch.zeros((B, k), dtype=torch.bool, device=q.device)
+        if not compiling and bool(far.all()):
+            # parts every rod is far from leave the interior slot unused (eager: one device read)
+            ei, deeper = ems, torch.zeros(shape, dtype=torch.bool, device=q.device)
         elif hfield:
-            ei, deeper, kgx, kgy = hf_lowest(ea.expand(B, k), ec.expand(B, k), r, b, part)
-            ei, kink = torch.where(far, em.expand(B, k), ei), True
+            ei, deeper, kgx, kgy = hf_lowest(eas, ecs, R, Bv, part)
+            ei, kink = torch.where(far, ems, ei), True
         else:
-            ei, deeper = _interior(ea, ec, r, b, part)
-            ei = torch.where(far, em.expand(B, k), ei)
-        E = torch.stack([ea.expand(B, k), ec.expand(B, k), ei], dim=-1)  # (B, k, 3)
+            ei, deeper = _interior(eas, ecs, R, Bv, part)
+            ei = torch.where(far, ems, ei)
+        E = torch.stack([eas, ecs, ei], dim=-1)                                # (B, k, f, 3)
         use = torch.stack([~far, ~far, ~far & deeper], dim=-1)
-        P = r[:, :, None, :] + E[..., None] * b[:, :, None, :]          # (B, k, 3, 3)
-        V = rd[:, :, None, :] + E[..., None] * bd[:, :, None, :]
+        P = R[..., None, :] + E[..., None] * Bv[..., None, :]                  # (B, k, f, 3, 3)
+        V = Rd[..., None, :] + E[..., None] * Bd[..., None, :]
         sd, nx, ny, nz, w = _closest(P[..., 0], P[..., 1], P[..., 2], part)
         sd = torch.where(use, sd, torch.full_like(sd, math.inf))
         n = torch.stack([nx, ny, nz], dim=-1)
@@ -319,7 +411,7 @@ def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
         # the interior slot's level: min(radius, sd_a, sd_c), the deeper touching node (the numba
         # kernel's first-of-equals order), and the normal velocity relative to that node's
         vn_all = (V * n).sum(-1)
-        rad_b = radius.expand(B, k)
+        rad_b = radius.expand(shape)
         end_a = sd[..., 0] < rad_b
         lvl = torch.where(end_a, sd[..., 0], rad_b)
         end_c = sd[..., 1] < lvl
@@ -333,55 +425,74 @@ def _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active):
         V2 = torch.where(has_end[..., None], V[..., 2, :] - vr[..., None] * n[..., 2, :], V[..., 2, :])
         V = torch.stack([V[..., 0, :], V[..., 1, :], V2], dim=-2)
         level = torch.stack([rad_b, rad_b, lvl], dim=-1)
-        was = acs[:, :, f]
-        slot2 = torch.tensor([False, False, True], device=q.device)
-        e0 = torch.where(slot2 & was, e0s[:, :, f], E)
-        M = r[:, :, None, :] + e0[..., None] * b[:, :, None, :]
-        A, touch, slip, Fc, fn = _slot_law(P, V, M, sd, n, w, level, was, an[:, :, f], pr)
+        was = acs[:, :, f0:f1]
+        e0 = torch.where(slot2 & was, e0s[:, :, f0:f1], E)
+        M = R[..., None, :] + e0[..., None] * Bv[..., None, :]
+        A, touch, slip, Fc, fn = _slot_law(P, V, M, sd, n, w, level, was, an[:, :, f0:f1], pr, layout.unit_exponent)
         e0n = torch.where(slip | ~was, E, e0)
         # a slot that neither touches nor touched holds its own eta, the rod's middle for the interior slot
-        e0n = torch.where(slot2 & ~touch & ~was, em[..., None], e0n)
-        wc = (E - ea[..., None]) / span[..., None]
-        wa = (ec[..., None] - E) / span[..., None]
+        e0n = torch.where(slot2 & ~touch & ~was, em3[..., None], e0n)
+        wc = (E - ea3[..., None]) / span3[..., None]
+        wa = (ec3[..., None] - E) / span3[..., None]
         # the interior slot's reaction: -fn w n of the deeper node at that node
-        R = torch.where((touch[..., 2] & has_end)[..., None], -(fn[..., 2] * w_end)[..., None] * n_end,
-                        torch.zeros_like(n_end))
-        Wa = Wa + (wa[..., None] * Fc).sum(2) + torch.where(end_a[..., None], R, torch.zeros_like(R))
-        Wc = Wc + (wc[..., None] * Fc).sum(2) + torch.where(end_c[..., None], R, torch.zeros_like(R))
-        outs.append((A, e0n, touch, slip, Fc))
-    anchor = torch.stack([o[0] for o in outs], dim=2).reshape(B, -1, 3)
-    eta0 = torch.stack([o[1] for o in outs], dim=2).reshape(B, -1)
-    active = torch.stack([o[2] for o in outs], dim=2).reshape(B, -1)
-    slip = torch.stack([o[3] for o in outs], dim=2).reshape(B, -1)
+        Rn = torch.where((touch[..., 2] & has_end)[..., None], -(fn[..., 2] * w_end)[..., None] * n_end,
+                         torch.zeros_like(n_end))
+        Sa, Sc = (wa[..., None] * Fc).sum(3), (wc[..., None] * Fc).sum(3)     # (B, k, f, 3)
+        Ra = torch.where(end_a[..., None], Rn, torch.zeros_like(Rn))
+        Rc = torch.where(end_c[..., None], Rn, torch.zeros_like(Rn))
+        for j in range(nf):                     # the features' loads in order (the numba kernel's sums)
+            Wa = Wa + Sa[:, :, j] + Ra[:, :, j]
+            Wc = Wc + Sc[:, :, j] + Rc[:, :, j]
+        outs.append((A, e0n, touch, slip))
+    anchor = torch.cat([o[0] for o in outs], dim=2).reshape(B, -1, 3)
+    eta0 = torch.cat([o[1] for o in outs], dim=2).reshape(B, -1)
+    active = torch.cat([o[2] for o in outs], dim=2).reshape(B, -1)
+    slip = torch.cat([o[3] for o in outs], dim=2).reshape(B, -1)
     return tm.gather_nodes(Wa, Wc), anchor, eta0, active, slip
 
 
 def terrain_step(model, geom, prm, q, qd, anchor, eta0, active, dt: float, integrator: str = "semi_implicit_euler",
                  n_steps: int = 1, rest_length=None, force_density=None, params=None, project: bool = True,
-                 external=None, hf=None):
+                 external=None, hf=None, layout=None, substep=None):
     """``n_steps`` physics steps with terrain contact: per step the forces from the state at its
-    start (plus ``external``), held over one integrator step; ``hf`` the heightfield's heights
-    as :func:`terrain_forces` takes them. Returns ``(q, qd, anchor, eta0, active)``."""
+    start (plus ``external``), held over one integrator step (:func:`terrain_substep`); ``hf``
+    the heightfield's heights and ``layout`` as :func:`terrain_forces` takes them; ``substep``
+    a replacement for :func:`terrain_substep` with its signature (e.g.
+    ``torch.compile(terrain_substep)``). Returns ``(q, qd, anchor, eta0, active)``."""
     name, dt, tm, p, rl, fd, ext = prepare_steps(model, q, integrator, dt, params, rest_length, force_density,
                                                  external)
-    geom, prm, H, lips = _prepare(geom, prm, hf, q)
+    geom, prm, H, lips, layout = _prepare(geom, prm, hf, q, tm, layout)
+    one = terrain_substep if substep is None else substep
     for _ in range(int(n_steps)):
-        W, anchor, eta0, active, _ = _forces(tm, q, qd, geom, prm, H, lips, anchor, eta0, active)
-        if ext is not None:
-            W = W + ext
-        q, qd = step_once(tm, q, qd, dt, name, p, rl, fd, W, project)
+        q, qd, anchor, eta0, active = one(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0, active, dt, name, p,
+                                          rl, fd, ext, project)
     return q, qd, anchor, eta0, active
 
 
-def top_height(geom, H, x, y):
+def terrain_substep(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0, active, dt, name, p, rl, fd, ext, project_):
+    """One physics step with terrain contact on prepared inputs (:func:`_prepare`'s terrain,
+    :func:`~tensegrity_gym.backends.torch.driver.prepare_steps`' model, parameters and controls):
+    the forces from the state at the step's start (plus ``ext``), then one integrator step.
+    Returns ``(q, qd, anchor, eta0, active)``."""
+    W, anchor, eta0, active, _ = _forces(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0, active)
+    if ext is not None:
+        W = W + ext
+    q, qd = step_once(tm, q, qd, dt, name, p, rl, fd, W, project_)
+    return q, qd, anchor, eta0, active
+
+
+def top_height(geom, H, x, y, kinds=None):
     """Height (m) of the terrain's top surface at (x, y) m (tensors (r, ...), leading axis the
     copies): the highest of the plane, the tops of the boxes over (x, y) and the heightfield's
     bilinear height; -inf where none is (:meth:`tensegrity_gym.core.terrain.Terrain.height_at` on
-    the kernels' rows). ``geom`` (1 or r, F, 10), ``H`` (1 or r, ny, nx) m or None."""
+    the kernels' rows). ``geom`` (1 or r, F, 10), ``H`` (1 or r, ny, nx) m or None, ``kinds``
+    each feature's kind (a :class:`TerrainLayout`'s; None: read from ``geom``)."""
     torch = _torch()
     h = torch.full_like(x, -math.inf)
-    for f in range(geom.shape[1]):
-        part = _Part(geom[:, f], H)
+    if kinds is None:
+        kinds = tuple(float(v) for v in _host(geom[0, :, 0]))
+    for f, kind in enumerate(kinds):
+        part = _Part(geom[:, f:f + 1], H, kind)
         if part.kind == PLANE:          # the solid n.p <= offset
             n0, n1, n2, off = (part.col(i, x) for i in range(1, 5))
             h = torch.maximum(h, (off - (n0 * x + n1 * y)) / n2)
