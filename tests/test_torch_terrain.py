@@ -72,10 +72,34 @@ def test_bad_terrain_refused_with_the_numpy_envs_error(kw, match):
     assert errors[0] == errors[1]
 
 
-def test_device_resets_with_a_generator_refused():
-    mk = dict(num_envs=2, vectorization_mode="vector_entry_point", backend="torch", device="cpu", terrain=STEPS)
-    with pytest.raises(ValueError, match="reset_sampling: 'device' is not available with a terrain generator"):
-        gym.make_vec(ID, reset_sampling="device", **mk)
+def test_device_resets_draw_a_generators_terrains_per_copy():
+    """``reset_sampling="device"`` with a generator: each copy its own terrain, a partial reset
+    redraws only the reset copies' terrains, every start clear of its copy's terrain and the
+    difficulty applied (the draws equal the host's fed the same uniforms: tests/test_torch_reset.py)."""
+    from tensegrity_gym import dynamics
+    mk = dict(num_envs=4, vectorization_mode="vector_entry_point", backend="torch", device="cpu", dtype="float64",
+              terrain=STEPS, reset_sampling="device", randomize_goal=True, terrain_difficulty=0.5)
+    env = gym.make_vec(ID, **mk)
+    env.reset(seed=3)
+    tt, task = env._terrain, env.task
+    g0 = tt.geom.clone()
+    assert all(not torch.equal(g0[0], g0[i]) for i in range(1, 4))
+    tops = g0[:, 1:, 3] + g0[:, 1:, 6]                      # box centre z + half height: the step tops, m
+    assert float(tops.max()) <= 0.5 * 0.04 * 3 + 1e-12      # difficulty 0.5 of 3 steps of at most 4 cm
+    env.reset(options={"env_idx": [1, 3]})
+    changed = [not torch.equal(g0[i], tt.geom[i]) for i in range(4)]
+    assert changed == [False, True, False, True]
+    nodes = dynamics.node_positions(task.model, env.q.numpy())
+    for i in range(4):   # clear of the copy's own terrain (its rows' top surface under its nodes)
+        gap = nodes[i, :, 2] - task.contact.radius - _top(tt.geom[i:i + 1], nodes[i])
+        assert gap.min() > -1e-9, (i, gap.min())
+    assert not tt.active.any()
+
+
+def _top(geom, nodes):
+    from tensegrity_gym.backends.torch.terrain import top_height
+    x, y = (torch.as_tensor(nodes[None, :, j]) for j in (0, 1))
+    return top_height(geom, None, x, y)[0].numpy()
 
 
 def _every_kind():

@@ -15,6 +15,7 @@ from .roll import RollTask
 from ..tasks.navigate import current_goal, guidance_batch, height_scan, navigate_observation, track_goals
 from ..tasks.roll import center_of_mass, perturbed_start, roll_state_observation, roll_step_terms
 from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
+from ..tasks.terrain import terrain_draws
 from ..tasks.xp import namespace
 from .shape import ShapeTask
 from .torch_shell import TorchTaskVectorEnv
@@ -34,14 +35,6 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
 
     def _make_task(self, num_envs, kwargs):
         return RollTask(num_envs=num_envs, **kwargs)
-
-    def _check_task(self, task, reset_sampling: str, compile: bool) -> None:
-        if task.terrain_contact is None:
-            return
-        if reset_sampling == "device" and task.terrain_generator is not None:
-            raise ValueError("reset_sampling: 'device' is not available with a terrain generator (its terrains are "
-                             "drawn on the host); use a fixed terrain (a file, a dict or a Terrain) or "
-                             "reset_sampling='host'")
 
     def _physics_substep(self):
         """With a terrain, :func:`~tensegrity_gym.backends.torch.terrain.terrain_substep` and its
@@ -94,16 +87,21 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
 
     def _reset_draws(self) -> int:
         """Uniforms a device reset of one env reads for the task: the initial-state noise (4 x k x 3:
-        rod centres, axes, their rates), then the goal angle with ``randomize_goal``."""
+        rod centres, axes, their rates), then the goal angle with ``randomize_goal``, then a
+        terrain generator's draws."""
         task = self.task
-        return (12 * task.model.n_bars if task.reset_noise_scale > 0 else 0) + (1 if task.randomize_goal else 0)
+        gen = task.terrain_generator
+        return ((12 * task.model.n_bars if task.reset_noise_scale > 0 else 0) + (1 if task.randomize_goal else 0)
+                + (0 if gen is None else terrain_draws(gen)))
 
     def _device_reset_rows(self, it, u) -> dict:
         """``RollTask.reset_idx`` on the device for envs ``it`` from their uniforms ``u`` (r, n)
         float64: the resting robot plus U(-s, s) noise on the rod centres (m) and velocities (m/s)
         and, divided by the rod length, on the axes and their rates, projected (unit axes), lifted
         so that no node is below the resting robot's lowest; no contact anchors; the start
-        control; the goal (angle U(0, 2 pi) with ``randomize_goal``)."""
+        control; the goal (angle U(0, 2 pi) with ``randomize_goal``); on a terrain, a generator's
+        new terrain (:meth:`TorchTerrain.draw`), the start lifted clear of it and its contact
+        state released."""
         torch = torch_backend.torch_module()
         task = self.task
         r, k, s = it.shape[0], task.model.n_bars, task.reset_noise_scale
@@ -117,14 +115,17 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         if task.randomize_goal:
             th = 0.0 + (2.0 * np.pi - 0.0) * u[:, used]     # U(0, 2 pi) as NumPy's
             goal = torch.stack([torch.cos(th), torch.sin(th)], dim=1).to(self.dtype)
+            used += 1
         else:
             goal = self._goal_default.expand(r, -1)
         q, qd = torch_backend.project(self.tm, q, qd)
         zmin = torch_backend.node_positions(self.tm, q, self._node_prm)[..., 2].amin(dim=1)
         q[..., 2] += torch.clamp(self._z_floor - zmin, min=0.0)[:, None]
-        if self._terrain is not None:       # a fixed terrain: clear of it, its contact let go
+        if self._terrain is not None:       # a generator's new terrain; clear of it, its contact let go
+            if task.terrain_generator is not None:
+                self._terrain.draw(self, it, u[:, used:], goal)
             nodes = torch_backend.node_positions(self.tm, q, self._node_prm)
-            q[..., 2] += self._terrain.start_lift(nodes, task.contact.radius)[:, None]
+            q[..., 2] += self._terrain.start_lift(nodes, task.contact.radius, it)[:, None]
             self._terrain.release(it)
         ctrl = self._start_control.expand(r, -1)
         self.q[it], self.qd[it] = q, qd

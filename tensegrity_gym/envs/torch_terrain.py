@@ -6,17 +6,23 @@ terrain contact (:func:`tensegrity_gym.backends.torch.terrain.terrain_step`). SI
 The host :class:`~tensegrity_gym.envs.roll.RollTask` keeps doing what is drawn: at a reset it
 draws each reset copy's terrain from that copy's generator, lifts the start clear of it and
 releases its stick/slip state (``RollTask.reset_idx``); this class copies those rows to the
-device (the geometry and heights only where a generator draws them per copy). On a fixed
-terrain, resets drawn on the device (``reset_sampling="device"``) lift the start and release
-the contact state here (:meth:`TorchTerrain.start_lift`, :meth:`TorchTerrain.release`). Each control step
+device (the geometry and heights only where a generator draws them per copy). Resets drawn on
+the device (``reset_sampling="device"``) draw a generator's terrains there
+(:meth:`TorchTerrain.draw`: :func:`tensegrity_gym.tasks.terrain.drawn_values`, the host's
+draw, on the device's uniforms), lift the start and release the contact state here
+(:meth:`TorchTerrain.start_lift`, :meth:`TorchTerrain.release`); the host task's ``terrains``
+then keep the host's last draws. Each control step
 then runs on the device: ``frame_skip`` terrain contact steps, the divergence restore of the
 terrain's contact state, and the rod ends' contact flags from its slots
 (:func:`tensegrity_gym.tasks.terrain.rod_end_contacts`, the NumPy env's function)."""
 from __future__ import annotations
 
+import math
+
 from .. import torch_backend
+from ..backends.torch.heightfield import hf_lipschitz
 from ..backends.torch.terrain import terrain_layout, terrain_step, top_height
-from ..tasks.terrain import rod_end_contacts
+from ..tasks.terrain import STEP_SPAN, drawn_values, rod_end_contacts, step_extents
 
 __all__ = ["TorchTerrain"]
 
@@ -66,13 +72,47 @@ class TorchTerrain:
         self.eta0[it] = 0.0
         self.active[it] = False
 
-    def start_lift(self, nodes, radius: float):
+    def draw(self, env, it, u, goal) -> None:
+        """Envs ``it`` (device index tensor) take new terrains of the task's generator drawn from
+        their uniforms ``u`` (r, :func:`~tensegrity_gym.tasks.terrain.terrain_draws`) float64,
+        rising along their unit goal directions ``goal`` (r, 2), at the task's
+        ``terrain_difficulty``: the host's :func:`~tensegrity_gym.tasks.terrain.terrain_from`
+        written into the kernels' rows (a slope's plane normal; the steps' box centres, half
+        sizes and yaw; rough ground's heights and slope bound, column 6)."""
+        torch = torch_backend.torch_module()
+        task = env.task
+        gen = task.terrain_generator
+        vals = drawn_values(gen, u, task.terrain_difficulty)
+        g = self.geom[it].to(u.dtype)
+        gx, gy = goal[:, 0].to(u.dtype), goal[:, 1].to(u.dtype)
+        yaw = torch.atan2(gy, gx)
+        if gen.kind == "slope":                     # Plane.normal
+            a = vals * (math.pi / 180.0)
+            g[:, 0, 1:4] = torch.stack([-torch.sin(a) * torch.cos(yaw), -torch.sin(a) * torch.sin(yaw),
+                                        torch.cos(a)], dim=1)
+        elif gen.kind == "steps":                   # the plane, then one box per step (terrain_from's)
+            for i, (along, depth) in enumerate(step_extents(gen)):
+                top = vals[:, i]
+                height = top + 1.0
+                g[:, 1 + i, 1:9] = torch.stack([along * gx, along * gy, top - height / 2,
+                                                torch.full_like(top, depth / 2), torch.full_like(top, STEP_SPAN / 2),
+                                                height / 2, torch.cos(yaw), torch.sin(yaw)], dim=1)
+        else:
+            H = vals.to(self.hf.dtype)
+            self.hf[it] = H
+            g[:, 0, 6] = hf_lipschitz(g[:, 0], vals)[:, 0]
+        self.geom[it] = g.to(self.geom.dtype)
+
+    def start_lift(self, nodes, radius: float, it=None):
         """(r,) height (m) to raise each of r copies' ``nodes`` (r, n, 3) m by so that every node's
         cap of ``radius`` m clears the terrain's top surface under it (0 where it already does):
-        the host's :func:`tensegrity_gym.tasks.terrain.start_lift` on the device, for a fixed
-        terrain (one row of geometry and heights)."""
+        the host's :func:`tensegrity_gym.tasks.terrain.start_lift` on the device, on a fixed
+        terrain or, with a generator, on the terrains of envs ``it``."""
         torch = torch_backend.torch_module()
-        ground = top_height(self.geom, self.hf, nodes[..., 0], nodes[..., 1], self.layout.kinds)
+        geom, hf = self.geom, self.hf
+        if self.per_copy:
+            geom, hf = geom[it], None if hf is None else hf[it]
+        ground = top_height(geom, hf, nodes[..., 0], nodes[..., 1], self.layout.kinds)
         gap = (nodes[..., 2] - radius) - ground
         return torch.clamp(-gap.amin(dim=1), min=0.0)
 

@@ -37,7 +37,8 @@ import numpy as np
 from ..core.terrain import Box, Heightfield, Plane, Terrain
 from .xp import namespace
 
-__all__ = ["TerrainGenerator", "generate", "resolve_terrain", "KINDS", "start_lift", "rod_end_contacts"]
+__all__ = ["TerrainGenerator", "generate", "terrain_from", "terrain_draws", "drawn_values", "step_extents",
+           "rough_grid", "resolve_terrain", "KINDS", "start_lift", "rod_end_contacts"]
 
 KINDS = ("slope", "steps", "rough")
 #: length of the step boxes across the goal direction and of the last step, m
@@ -138,40 +139,84 @@ def _with_surface(gen: TerrainGenerator, surface: dict) -> TerrainGenerator:
 
 
 def generate(gen: TerrainGenerator, rng: np.random.Generator, goal=(1.0, 0.0), difficulty: float = 1.0) -> Terrain:
-    """One terrain drawn from ``gen`` with ``rng`` (its draws in a fixed order), rising along the
-    unit ``goal`` (x, y) direction, scaled by ``difficulty`` in [0, 1]."""
-    surf = {k: getattr(gen, k) for k in ("friction", "stiffness", "damping") if getattr(gen, k) is not None}
+    """One terrain drawn from ``gen`` with ``rng`` (its :func:`terrain_draws` uniforms in order),
+    rising along the unit ``goal`` (x, y) direction, scaled by ``difficulty`` in [0, 1]."""
+    return terrain_from(gen, rng.random(terrain_draws(gen)), goal, difficulty)
+
+
+def terrain_draws(gen: TerrainGenerator) -> int:
+    """How many uniforms in [0, 1) one terrain of ``gen`` reads: a slope its angle, steps their
+    heights, rough ground its waves' directions, then their phases."""
+    return {"slope": 1, "steps": gen.n_steps, "rough": 2 * gen.waves}[gen.kind]
+
+
+def drawn_values(gen: TerrainGenerator, u, difficulty: float = 1.0):
+    """What a drawn terrain of ``gen`` varies in, for r terrains from their uniforms ``u`` (r,
+    :func:`terrain_draws`) in [0, 1) (NumPy or torch, the result alike): a slope's angle (r,)
+    deg, the steps' tops (r, n_steps) m, rough ground's heights (r, n, n) m on
+    :func:`rough_grid`. Each U(lo, hi) is ``lo + (hi - lo) u`` (as NumPy's ``Generator.uniform``)."""
+    xp = namespace(u)
     d = float(difficulty)
-    gx, gy = float(goal[0]), float(goal[1])
-    heading = math.degrees(math.atan2(gy, gx))
     if gen.kind == "slope":
-        a = d * rng.uniform(*gen.slope_range)
-        return Terrain(plane=Plane(slope_deg=a, uphill_deg=heading), **surf)
+        lo, hi = gen.slope_range
+        return d * (lo + (hi - lo) * u[:, 0])
     if gen.kind == "steps":
-        h = d * rng.uniform(0.5, 1.0, gen.n_steps) * gen.step_height
-        top = np.cumsum(h)
-        boxes = []
-        for i in range(gen.n_steps):
-            start = gen.pad + i * gen.tread       # the step's front edge, m along the goal direction
-            depth = STEP_SPAN if i == gen.n_steps - 1 else gen.tread
-            # each box rises from z = -1 m to the step's top (a solid block under the tread)
-            height = top[i] + 1.0
-            along = start + depth / 2
-            boxes.append(Box(center=[along * gx, along * gy, top[i] - height / 2], size=[depth, STEP_SPAN, height],
-                             yaw_deg=heading))
-        return Terrain(plane=Plane(), boxes=tuple(boxes), **surf)
+        return xp.cumsum(d * (0.5 + (1.0 - 0.5) * u) * gen.step_height, axis=1)
+    X, Y, fade = (xp.const(a, u) for a in rough_grid(gen)[1:])
+    w = gen.waves
+    ang, phase = 0.0 + (2 * np.pi - 0.0) * u[:, :w], 0.0 + (2 * np.pi - 0.0) * u[:, w:]
+    k = 2 * np.pi / gen.wavelength
+    ca, sa = xp.cos(ang)[:, :, None, None], xp.sin(ang)[:, :, None, None]
+    z = 0
+    for i in range(w):
+        z = z + xp.cos(k * (ca[:, i] * X + sa[:, i] * Y) + phase[:, i, None, None])
+    lo = xp.amin(z, axis=(1, 2))[:, None, None]
+    span = xp.amax(z, axis=(1, 2))[:, None, None] - lo
+    z = (z - lo) / xp.maximum(span, 1e-12)
+    return d * gen.amplitude * z * fade
+
+
+def rough_grid(gen: TerrainGenerator):
+    """``(x, X, Y, fade)`` of rough ground: the grid's axis (n,) m (centred on the start, ``cell``
+    apart), its points' coordinates (n, n) m and the bumps' fade (n, n) (0 inside the pad, 1 a
+    wavelength beyond it)."""
     n = int(round(gen.size / gen.cell)) + 1
     x = (np.arange(n) - (n - 1) / 2) * gen.cell
     X, Y = np.meshgrid(x, x)
-    ang = rng.uniform(0.0, 2 * np.pi, gen.waves)
-    phase = rng.uniform(0.0, 2 * np.pi, gen.waves)
-    k = 2 * np.pi / gen.wavelength
-    z = sum(np.cos(k * (np.cos(a) * X + np.sin(a) * Y) + p) for a, p in zip(ang, phase))
-    z = (z - z.min()) / max(float(np.ptp(z)), 1e-12)
-    r = np.hypot(X, Y)
-    fade = np.clip((r - gen.pad) / max(gen.wavelength, 1e-9), 0.0, 1.0)
-    heights = d * gen.amplitude * z * fade
-    return Terrain(plane=None, heightfield=Heightfield(heights=heights, cell=gen.cell, origin=[x[0], x[0]]), **surf)
+    fade = np.clip((np.hypot(X, Y) - gen.pad) / max(gen.wavelength, 1e-9), 0.0, 1.0)
+    return x, X, Y, fade
+
+
+def step_extents(gen: TerrainGenerator):
+    """``(along, depth)`` per step of a ``steps`` terrain: its box's centre along the goal
+    direction and its depth, m (the last step ``STEP_SPAN`` deep)."""
+    out = []
+    for i in range(gen.n_steps):
+        start = gen.pad + i * gen.tread       # the step's front edge, m along the goal direction
+        depth = STEP_SPAN if i == gen.n_steps - 1 else gen.tread
+        out.append((start + depth / 2, depth))
+    return out
+
+
+def terrain_from(gen: TerrainGenerator, u, goal=(1.0, 0.0), difficulty: float = 1.0) -> Terrain:
+    """The terrain of ``gen`` drawn from its uniforms ``u`` (:func:`terrain_draws`,) in [0, 1),
+    rising along the unit ``goal`` (x, y) direction, scaled by ``difficulty`` in [0, 1]."""
+    surf = {k: getattr(gen, k) for k in ("friction", "stiffness", "damping") if getattr(gen, k) is not None}
+    vals = drawn_values(gen, np.asarray(u, dtype=float)[None], difficulty)[0]
+    gx, gy = float(goal[0]), float(goal[1])
+    heading = math.degrees(math.atan2(gy, gx))
+    if gen.kind == "slope":
+        return Terrain(plane=Plane(slope_deg=float(vals), uphill_deg=heading), **surf)
+    if gen.kind == "steps":
+        boxes = []
+        for top, (along, depth) in zip(vals, step_extents(gen)):
+            # each box rises from z = -1 m to the step's top (a solid block under the tread)
+            height = top + 1.0
+            boxes.append(Box(center=[along * gx, along * gy, top - height / 2], size=[depth, STEP_SPAN, height],
+                             yaw_deg=heading))
+        return Terrain(plane=Plane(), boxes=tuple(boxes), **surf)
+    x = rough_grid(gen)[0]
+    return Terrain(plane=None, heightfield=Heightfield(heights=vals, cell=gen.cell, origin=[x[0], x[0]]), **surf)
 
 
 def start_lift(terrain: Terrain, nodes: np.ndarray, radius: float) -> np.ndarray:

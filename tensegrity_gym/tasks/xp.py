@@ -32,6 +32,9 @@ name                               NumPy                                torch
 ``argmin(x, axis)``                ``x.argmin(axis=axis)``              ``x.argmin(dim=axis)`` (both: the first)
 ``arange(n, like)``                ``np.arange(n)``                     ``torch.arange(n)`` on ``like``'s device
 ``to_index(x)``                    ``x.astype(int)``                    ``x.long()``
+``cumsum(x, axis)``                ``np.cumsum``                        ``torch.cumsum``
+``amin``, ``amax(x, axis)``        ``x.min``, ``x.max``                 ``x.amin``, ``x.amax`` (axis: int or tuple)
+``maximum(a, b)``                  ``np.maximum``                       ``torch.maximum`` (scalars as tensors)
 =================================  ===================================  ======================================
 
 Reductions and products run along the last axis unless an ``axis`` is named. torch is imported
@@ -112,6 +115,20 @@ class _NumPyOps:
     @staticmethod
     def to_index(x):
         return x.astype(int)
+
+    @staticmethod
+    def cumsum(x, axis: int):
+        return np.cumsum(x, axis=axis)
+
+    @staticmethod
+    def amin(x, axis):
+        return x.min(axis=axis)
+
+    @staticmethod
+    def amax(x, axis):
+        return x.max(axis=axis)
+
+    maximum = staticmethod(np.maximum)
 
 
 class _TorchOps:
@@ -194,6 +211,23 @@ class _TorchOps:
     @staticmethod
     def to_index(x):
         return x.long()
+
+    def cumsum(self, x, axis: int):
+        return self.torch.cumsum(x, dim=axis)
+
+    @staticmethod
+    def amin(x, axis):
+        return x.amin(dim=axis)
+
+    @staticmethod
+    def amax(x, axis):
+        return x.amax(dim=axis)
+
+    def maximum(self, a, b):
+        t = self.torch
+        if not isinstance(b, t.Tensor):
+            b = t.as_tensor(b, dtype=a.dtype, device=a.device)
+        return t.maximum(a, b)
 
 
 NUMPY = _NumPyOps()
