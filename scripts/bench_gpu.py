@@ -31,7 +31,8 @@ as physics env-steps/s (x ``frame_skip`` = 20).
 with a time limit of ``--env-reset-episode`` steps (so every env resets on every 11th step by
 default, as when a whole batch reaches its time limit together), for the NumPy/numba env and the
 torch env in float32 with ``reset_sampling="host"`` (drawn per env on the host, rows copied) and
-``"device"`` (drawn and applied on the device, :mod:`tensegrity_gym.envs.torch_reset`).
+``"device"`` (drawn and applied on the device, :mod:`tensegrity_gym.envs.torch_reset`);
+``--env-terrain JSON`` does it on a terrain (e.g. a generator's, drawn at every reset).
 
 ``--compile`` also times the prism step wrapped in ``torch.compile`` (inductor) at the
 largest B. ``--agreement`` runs the 1 s RK4 (dt = 1e-4) agreement of torch float64 and float32
@@ -261,14 +262,17 @@ def bench_env(B, dev, dtype, min_time, compile_=False):
     return out
 
 
-def bench_env_resets(B, dev, dtype, sampling, min_time, episode):
+def bench_env_resets(B, dev, dtype, sampling, min_time, episode, terrain=None):
     """TensegrityRoll-v0's vector env with resets: the NumPy/numba env (``dtype`` None) or the torch
     env on ``dev`` with ``reset_sampling=sampling``. Times ``reset()`` of all B envs (s per call,
     after a first seeded reset) and control steps with a time limit of ``episode`` steps (every
-    env resets on every ``episode + 1``-th step; the steps are timed in whole cycles)."""
+    env resets on every ``episode + 1``-th step; the steps are timed in whole cycles); ``terrain``
+    the env's ``terrain`` argument (None: level ground)."""
     import gymnasium as gym
     import tensegrity_gym  # noqa: F401  (registers the ids)
     kw = {} if dtype is None else {"backend": "torch", "device": str(dev), "dtype": dtype, "reset_sampling": sampling}
+    if terrain is not None:
+        kw["terrain"] = terrain
     env = gym.make_vec("TensegrityRoll-v0", num_envs=B, vectorization_mode="vector_entry_point",
                        max_episode_steps=episode, **kw)
     sdev = dev if dtype is not None else torch.device("cpu")
@@ -432,6 +436,9 @@ def main(argv=None):
                     help="time resets of the TensegrityRoll-v0 vector envs: NumPy/numba, torch with reset_sampling "
                          "'host' and 'device' (float32), at B in --env-batch")
     ap.add_argument("--env-reset-episode", type=int, default=10, help="time limit (control steps) of --env-reset")
+    ap.add_argument("--env-terrain", default=None,
+                    help="--env-reset on this terrain: the env's terrain argument as JSON, e.g. "
+                         "'{\"generator\": \"rough\"}' (a terrain drawn per reset)")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     ap.add_argument("--label", default=None, help="machine label written into the output")
     ap.add_argument("--out", default=None, help="write JSON here")
@@ -448,7 +455,7 @@ def main(argv=None):
     info = {"label": args.label, "device": str(dev), "cpu_count": os.cpu_count(), "torch": torch.__version__,
             "torch_threads": torch.get_num_threads(), "numba_threads": _kernels.numba.get_num_threads()
             if hasattr(_kernels, "numba") else None, "platform": platform.platform(), "dt_s": DT,
-            "integrator": "semi_implicit_euler",
+            "integrator": "semi_implicit_euler", "env_terrain": args.env_terrain,
             "gpu": torch.cuda.get_device_name(dev) if dev.type == "cuda" else None}
     print(json.dumps(info), flush=True)
     sc = scenes()
@@ -530,7 +537,8 @@ def main(argv=None):
             for label, dtype, sampling in (("numpy/numba f64", None, None),
                                            (f"torch {dev.type} f32, host resets", "float32", "host"),
                                            (f"torch {dev.type} f32, device resets", "float32", "device")):
-                r = bench_env_resets(B, dev, dtype, sampling, args.min_time, args.env_reset_episode)
+                r = bench_env_resets(B, dev, dtype, sampling, args.min_time, args.env_reset_episode,
+                                     json.loads(args.env_terrain) if args.env_terrain else None)
                 base = r["control_steps_per_s_with_resets"] if base is None else base
                 rrows.append({"B": B, "env": label, **r, "ratio_vs_numpy": r["control_steps_per_s_with_resets"] / base})
                 print(f"env resets B={B:6d} {label:32s} reset all {r['reset_all_s'] * 1e3:9.1f} ms "

@@ -70,8 +70,12 @@ as the NumPy env takes them: at a host reset ``RollTask`` draws each reset env's
 its generator, lifts the start clear of it and releases its contact state; those rows go to the
 device and the steps run the torch terrain contact (:mod:`tensegrity_gym.envs.torch_terrain`;
 the curriculum's ``env.task.set_terrain_difficulty(d)`` acts from the next resets). It equals
-the NumPy vector env to round-off in float64 on CPU (``tests/test_torch_terrain.py``). With a
-terrain, ``reset_sampling="device"`` and ``compile=True`` are refused (``ValueError``).
+the NumPy vector env to round-off in float64 on CPU (``tests/test_torch_terrain.py``). With
+``reset_sampling="device"`` a generator's terrains are drawn on the device from each env's
+stream (:func:`tensegrity_gym.tasks.terrain.drawn_values`, the host's draw; the host task's
+``terrains`` list is then not updated). ``compile=True`` compiles the terrain's physics step
+(:func:`tensegrity_gym.backends.torch.terrain.terrain_substep`; 5-60 s on a 2-core CPU, longest
+with boxes).
 
 ``compile=True`` wraps the physics step (roll: with contact,
 :func:`tensegrity_gym.torch_backend.contact_substep`; shape:
