@@ -136,6 +136,38 @@ def test_device_reset_is_the_host_reset_fed_the_same_numbers(case):
     assert float((dev.q - dev._q_nominal).abs().max()) > 1e-4
 
 
+@pytest.mark.parametrize("kw", [dict(slope_range=(5.0, 28.0), randomize={"rod_mass": 0.2, "friction": 0.3}),
+                                dict(slope_range=(10.0, 20.0), observation_mode="robot", history=2),
+                                dict(slope_deg=12.0)])
+def test_climb_device_reset_is_the_host_reset_fed_the_same_numbers(kw):
+    """TensegrityClimb-v0: the slope is the reset's first draw (then the rolling task's, then the
+    domain's); per-copy gravity, gravity direction, slope, observations and infos as the host's."""
+    cid, N, seed = "TensegrityClimb-v0", 3, 5
+    dev = gym.make_vec(cid, num_envs=N, reset_sampling="device", max_episode_steps=None, **kw, **MK)
+    host = gym.make_vec(cid, num_envs=N, max_episode_steps=None, **kw, **MK)
+    n_task = dev._reset_draws()
+    n_dom = dev._tdomain.size if dev._tdomain is not None else 0
+    seeds = [seed + i for i in range(N)]
+    rng = np.random.default_rng(1)
+    for reset_no in range(2):
+        _feed(host, seeds, reset_no, n_task, n_dom)
+        o_d, i_d = dev.reset(seed=seed) if reset_no == 0 else dev.reset()
+        o_h, i_h = host.reset()
+        _same(o_d, o_h, 1e-12, "obs")
+        _same(i_d, i_h, 1e-12, "info")
+        _same_env(dev, host)
+        for name in ("slope", "gdir"):
+            _same(getattr(dev, name), getattr(host, name), 1e-12, name)
+        for _ in range(5):
+            a = torch.as_tensor(rng.uniform(-1, 1, (N, dev.single_action_space.shape[0])))
+            o_d, r_d, _, _, i_d = dev.step(a)
+            o_h, r_h, _, _, i_h = host.step(a)
+            _same(o_d, o_h, 1e-10, "obs after steps")
+            _same(i_d["slope_deg"], i_h["slope_deg"], 1e-12, "slope_deg")
+    if "slope_range" in kw:     # each copy its own slope
+        assert len(set(dev.slope.tolist())) == N
+
+
 def test_streams_equal_their_definition_and_look_uniform():
     seeds = [0, 1, 2 ** 63 - 1, 2 ** 63, 2 ** 64 - 1, 12345678901234567890]
     cs = CounterStreams(len(seeds), torch.device("cpu"))

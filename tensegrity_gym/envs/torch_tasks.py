@@ -12,6 +12,7 @@ from ..backends.torch.terrain import compile_options, terrain_substep, top_heigh
 from .climb import ClimbTask
 from .navigate import NavigateTask
 from .roll import RollTask
+from ..tasks.climb import gravity_direction, plane_gravity
 from ..tasks.navigate import current_goal, guidance_batch, height_scan, navigate_observation, track_goals
 from ..tasks.roll import center_of_mass, perturbed_start, roll_state_observation, roll_step_terms
 from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
@@ -258,11 +259,32 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
 class TorchClimbVectorEnv(TorchRollVectorEnv):
     """``TensegrityClimb-v0`` on N copies stepped on a torch device: :class:`TorchRollVectorEnv`
     on :class:`~tensegrity_gym.envs.climb.ClimbTask` (the slope as tilted gravity in the plane
-    frame; slopes drawn per reset on the host, ``reset_sampling="host"`` only)."""
+    frame, drawn per reset; with ``reset_sampling="device"`` on the device, the first draw of
+    the reset as on the host)."""
 
     ENV_ID = "TensegrityClimb-v0"
-    DEVICE_RESET = False
-    _NO_DEVICE_RESET = "its slopes are drawn per reset on the host"
+
+    def _reset_draws(self) -> int:
+        """The slope (with a ``slope_range``), then the rolling task's draws."""
+        return int(self.task._draws_slope) + super()._reset_draws()
+
+    def _device_reset_rows(self, it, u) -> dict:
+        """``ClimbTask.reset_idx`` on the device: each reset env's slope U(lo, hi) degrees from
+        its first uniform, its gravity in the plane frame (:func:`~tensegrity_gym.tasks.climb.plane_gravity`)
+        and gravity direction (held in float32 as the host's), then the rolling task's rows."""
+        task = self.task
+        if task._draws_slope:
+            torch = torch_backend.torch_module()
+            lo, hi = task.slope_range
+            a = lo + (hi - lo) * u[:, 0]             # U(lo, hi) as NumPy's
+            g = plane_gravity(a, task._g)
+            self._params["gravity"][it] = g.to(self.dtype)
+            self.slope[it] = a.to(self.slope.dtype)
+            self.gdir[it] = gravity_direction(g).to(torch.float32).to(self.gdir.dtype)
+            u = u[:, 1:]
+        info = super()._device_reset_rows(it, u)
+        info["slope_deg"] = self.slope[it].clone()
+        return info
 
     def _make_task(self, num_envs, kwargs):
         return ClimbTask(num_envs=num_envs, **kwargs)

@@ -23,13 +23,15 @@ the same keyword arguments (robot, actuation, contact, rewards, limits, ``params
   the reset rows are then copied to the device once (state, control, goal, start, and the
   per-copy parameters when randomised).
 
-With ``reset_sampling="device"`` (``TensegrityRoll-v0``) the reset runs on the device too: the
+With ``reset_sampling="device"`` (``TensegrityRoll-v0``, its terrains included, and
+``TensegrityClimb-v0``, the slope its first draw) the reset runs on the device too: the
 same draws (noise, goal, randomised parameters; same distributions, same order) from per-env
 counter-based streams keyed by the same seeding rule, applied to the device tensors with no host
 loop and no copy (:mod:`tensegrity_gym.envs.torch_reset`: what the numbers depend on, and the
 test that a host reset fed them gives the same state). An autoreset then reads nothing from the
 host but the 3 flags of every step. ``TensegrityShape-v0`` refuses it (its targets are Newton
-equilibria with rejection, solved on the host).
+equilibria with rejection, solved on the host), and so does ``TensegrityNavigate-v0`` (its
+courses are planned on the host).
 
 The step loop runs on the device: the cable motor / control update
 (:func:`tensegrity_gym.torch_backend.motor` / :func:`~tensegrity_gym.torch_backend.advance`),
