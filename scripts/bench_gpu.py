@@ -32,7 +32,8 @@ with a time limit of ``--env-reset-episode`` steps (so every env resets on every
 default, as when a whole batch reaches its time limit together), for the NumPy/numba env and the
 torch env in float32 with ``reset_sampling="host"`` (drawn per env on the host, rows copied) and
 ``"device"`` (drawn and applied on the device, :mod:`tensegrity_gym.envs.torch_reset`);
-``--env-terrain JSON`` does it on a terrain (e.g. a generator's, drawn at every reset).
+``--env-terrain JSON`` runs ``--env`` and ``--env-reset`` on a terrain (e.g. a generator's,
+drawn at every reset).
 
 ``--compile`` also times the prism step wrapped in ``torch.compile`` (inductor) at the
 largest B. ``--agreement`` runs the 1 s RK4 (dt = 1e-4) agreement of torch float64 and float32
@@ -216,12 +217,15 @@ def probe_largest_batch(model, contact, dtype, dev, start, limit):
     return best, mem
 
 
-def bench_env(B, dev, dtype, min_time, compile_=False):
+def bench_env(B, dev, dtype, min_time, compile_=False, terrain=None):
     """Control steps x B per second of TensegrityRoll-v0's vector env: NumPy/numba (``dtype``
-    None) or the torch env on ``dev`` in ``dtype``; the time limit is off (no resets timed)."""
+    None) or the torch env on ``dev`` in ``dtype``; the time limit is off (no resets timed);
+    ``terrain`` the env's ``terrain`` argument (None: level ground)."""
     import gymnasium as gym
     import tensegrity_gym  # noqa: F401  (registers the ids)
     kw = {} if dtype is None else {"backend": "torch", "device": str(dev), "dtype": dtype, "compile": compile_}
+    if terrain is not None:
+        kw["terrain"] = terrain
     env = gym.make_vec("TensegrityRoll-v0", num_envs=B, vectorization_mode="vector_entry_point",
                        max_episode_steps=None, **kw)
     env.reset(seed=0)
@@ -437,7 +441,7 @@ def main(argv=None):
                          "'host' and 'device' (float32), at B in --env-batch")
     ap.add_argument("--env-reset-episode", type=int, default=10, help="time limit (control steps) of --env-reset")
     ap.add_argument("--env-terrain", default=None,
-                    help="--env-reset on this terrain: the env's terrain argument as JSON, e.g. "
+                    help="--env and --env-reset on this terrain: the env's terrain argument as JSON, e.g. "
                          "'{\"generator\": \"rough\"}' (a terrain drawn per reset)")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     ap.add_argument("--label", default=None, help="machine label written into the output")
@@ -518,7 +522,8 @@ def main(argv=None):
                              (f"torch {dev.type} f64 compiled", "float64", True)]
             base = None
             for label, dtype, comp in variants:
-                r = bench_env(B, dev, dtype, args.min_time, comp)
+                r = bench_env(B, dev, dtype, args.min_time, comp,
+                              json.loads(args.env_terrain) if args.env_terrain else None)
                 base = r["control_steps_per_s"] if base is None else base
                 envrows.append({"B": B, "env": label, **r, "ratio_vs_numpy": r["control_steps_per_s"] / base})
                 print(f"env B={B:6d} {label:28s} {r['control_steps_per_s']:10,.0f} control steps x B/s "
