@@ -9,8 +9,8 @@ measure and search: :mod:`tensegrity_gym.backends.torch.heightfield`); the array
 
 What the steps branch on (each feature's kind, the contact exponent, the most grid lines a rod
 crosses) is read from the host once, as a :class:`TerrainLayout`. Under ``torch.compile``
-(``terrain_step(..., substep=torch.compile(terrain_substep, options=compile_options(layout)))``) the
-steps read nothing back from the device: a part every rod is far from is searched all the same
+(``terrain_step(..., layout=layout, substep=torch.compile(terrain_substep,
+options=compile_options(layout)))``) the steps read nothing back from the device: a part every rod is far from is searched all the same
 (its unused slots are released as a skipped search releases them), and the heightfield search
 lists the layout's bound of grid crossings per rod (the extra entries are the rod's far end, as
 for a rod with fewer crossings than another); eager steps skip the far parts and list the
@@ -34,7 +34,6 @@ __all__ = ["TerrainLayout", "terrain_layout", "init_terrain_state", "terrain_for
 _GR = 0.6180339887498949
 
 
-
 class TerrainLayout(NamedTuple):
     """What a terrain's contact steps branch on, read from the host once (:func:`terrain_layout`)."""
 
@@ -49,6 +48,7 @@ class TerrainLayout(NamedTuple):
 
 
 def _host(x):
+    """``x`` (an array or a tensor) as a NumPy array on the host."""
     torch = _torch()
     return np.asarray(x.detach().cpu()) if isinstance(x, torch.Tensor) else np.asarray(x, dtype=float)
 
@@ -59,8 +59,9 @@ def terrain_layout(geom, prm, model) -> TerrainLayout:
     :class:`~tensegrity_gym.core.model.Model` or :class:`TorchModel`). Every row of a feature
     column must have that column's kind (as :class:`~tensegrity_gym.physics.terrain.TerrainContact`
     and the terrain generators make them). A rod of length L (m) crosses at most
-    ``ceil(L / cell) + 1`` grid lines of a cell-wide grid along an axis, and never more than the
-    grid has."""
+    ``ceil(L / cell)`` grid lines of a cell-wide grid along an axis; the bound is that plus one
+    (an axis up to ``cell / L`` longer than unit, as an unprojected step may drift) and never
+    more than the grid has."""
     g, p = _host(geom), _host(prm)
     m = model.model if isinstance(model, TorchModel) else model
     length = float(np.abs(m.eta[:, 1] - m.eta[:, 0]).max())
@@ -80,8 +81,8 @@ def compile_options(layout: TerrainLayout):
     """Inductor options for ``torch.compile(terrain_substep, options=...)`` on a terrain of this
     layout, or None (the defaults). With boxes: inductor inlines an expression into its users
     until it passes 30 operations, and the box search's ~90 chained distance evaluations then
-    compile and run slowly; keeping a buffer past 16 operations ran a step of 64 copies on 3
-    boxes 3.8x faster on a 2-core CPU (``scripts/bench_gpu.py --env --env-compile``)."""
+    compile for minutes and run several times slower than with a buffer kept past 16
+    operations (docs/terrain.md)."""
     return {"realize_opcount_threshold": 16} if BOX in layout.kinds else None
 
 
