@@ -230,3 +230,19 @@ def test_float32_on_terrain_close_to_float64():
     assert outs[0].dtype == torch.float32
     err = (outs[0].double() - outs[1]).abs().max().item()
     assert 0 < err < 1e-3, err
+
+
+def test_device_drawn_rough_ground_is_the_same_drawn_in_chunks(monkeypatch):
+    """A device reset draws rough ground DRAW_CHUNK grid points at a time: chunks of two envs give
+    the heights, rows and starts of one draw of all five."""
+    import tensegrity_gym.envs.torch_terrain as TT
+    mk = dict(num_envs=5, vectorization_mode="vector_entry_point", backend="torch", device="cpu", dtype="float64",
+              terrain={"generator": "rough", "size": 2.0}, reset_sampling="device")
+    out = []
+    for chunk in (TT.DRAW_CHUNK, 41 * 41 * 2):      # a 2 m grid of 5 cm cells: 41 x 41 points
+        monkeypatch.setattr(TT, "DRAW_CHUNK", chunk)
+        env = gym.make_vec(ID, **mk)
+        env.reset(seed=3)
+        out.append((env._terrain.hf.clone(), env._terrain.geom.clone(), env.q.clone()))
+    assert all(torch.equal(a, b) for a, b in zip(*out))
+    assert not torch.equal(out[0][0][0], out[0][0][1])

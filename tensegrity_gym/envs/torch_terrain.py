@@ -24,7 +24,10 @@ from ..backends.torch.heightfield import hf_lipschitz
 from ..backends.torch.terrain import terrain_layout, terrain_step, top_height
 from ..tasks.terrain import STEP_SPAN, drawn_values, rod_end_contacts, step_extents
 
-__all__ = ["TorchTerrain"]
+__all__ = ["TorchTerrain", "DRAW_CHUNK"]
+
+#: grid points of rough ground drawn at once at a device reset (bounds the draw's temporaries)
+DRAW_CHUNK = 1 << 24
 
 
 class TorchTerrain:
@@ -78,7 +81,15 @@ class TorchTerrain:
         rising along their unit goal directions ``goal`` (r, 2), at the task's
         ``terrain_difficulty``: the host's :func:`~tensegrity_gym.tasks.terrain.terrain_from`
         written into the kernels' rows (a slope's plane normal; the steps' box centres, half
-        sizes and yaw; rough ground's heights and slope bound, column 6)."""
+        sizes and yaw; rough ground's heights and slope bound, column 6). Rough ground is drawn
+        ``DRAW_CHUNK`` grid points at a time (its float64 temporaries: 16M points, 128 MB each)."""
+        hf = self.hf
+        chunk = len(it) if hf is None else max(1, DRAW_CHUNK // (hf.shape[1] * hf.shape[2]))
+        for i in range(0, len(it), chunk):
+            self._draw_rows(env, it[i:i + chunk], u[i:i + chunk], goal[i:i + chunk])
+
+    def _draw_rows(self, env, it, u, goal) -> None:
+        """:meth:`draw` for the envs ``it``."""
         torch = torch_backend.torch_module()
         task = env.task
         gen = task.terrain_generator
