@@ -38,7 +38,7 @@ from ..core.terrain import Box, Heightfield, Plane, Terrain
 from .xp import namespace
 
 __all__ = ["TerrainGenerator", "generate", "terrain_from", "terrain_draws", "drawn_values", "step_extents",
-           "rough_grid", "resolve_terrain", "KINDS", "start_lift", "rod_end_contacts"]
+           "rough_axis", "rough_grid", "resolve_terrain", "KINDS", "start_lift", "rod_end_contacts"]
 
 KINDS = ("slope", "steps", "rough")
 #: length of the step boxes across the goal direction and of the last step, m
@@ -176,12 +176,17 @@ def drawn_values(gen: TerrainGenerator, u, difficulty: float = 1.0):
     return d * gen.amplitude * z * fade
 
 
-def rough_grid(gen: TerrainGenerator):
-    """``(x, X, Y, fade)`` of rough ground: the grid's axis (n,) m (centred on the start, ``cell``
-    apart), its points' coordinates (n, n) m and the bumps' fade (n, n) (0 inside the pad, 1 a
-    wavelength beyond it)."""
+def rough_axis(gen: TerrainGenerator) -> np.ndarray:
+    """The axis (n,) m of rough ground's square grid: centred on the start, ``cell`` apart."""
     n = int(round(gen.size / gen.cell)) + 1
-    x = (np.arange(n) - (n - 1) / 2) * gen.cell
+    return (np.arange(n) - (n - 1) / 2) * gen.cell
+
+
+def rough_grid(gen: TerrainGenerator):
+    """``(x, X, Y, fade)`` of rough ground: the grid's axis (n,) m (:func:`rough_axis`), its
+    points' coordinates (n, n) m and the bumps' fade (n, n) (0 inside the pad, 1 a wavelength
+    beyond it)."""
+    x = rough_axis(gen)
     X, Y = np.meshgrid(x, x)
     fade = np.clip((np.hypot(X, Y) - gen.pad) / max(gen.wavelength, 1e-9), 0.0, 1.0)
     return x, X, Y, fade
@@ -215,7 +220,7 @@ def terrain_from(gen: TerrainGenerator, u, goal=(1.0, 0.0), difficulty: float = 
             boxes.append(Box(center=[along * gx, along * gy, top - height / 2], size=[depth, STEP_SPAN, height],
                              yaw_deg=heading))
         return Terrain(plane=Plane(), boxes=tuple(boxes), **surf)
-    x = rough_grid(gen)[0]
+    x = rough_axis(gen)
     return Terrain(plane=None, heightfield=Heightfield(heights=vals, cell=gen.cell, origin=[x[0], x[0]]), **surf)
 
 
