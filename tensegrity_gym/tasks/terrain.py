@@ -10,6 +10,10 @@ A task's ``terrain`` argument is one of
   generator's fields): a new terrain per episode and copy, drawn by :func:`generate` from the
   copy's ``np_random``, scaled by the ``difficulty`` in [0, 1] (the curriculum's knob).
 
+A draw reads :func:`terrain_draws` uniforms in [0, 1) and is written once, over the array
+namespace: :func:`drawn_values` (NumPy here, from the copy's ``np_random``; torch at a device
+reset, from the env's streams, :mod:`tensegrity_gym.envs.torch_terrain`).
+
 Every generated terrain keeps a level pad of radius ``pad`` m around the start (the origin), so
 the robot starts as on flat ground, and has the same parts and grid shape for a given generator
 (copies of a vector env differ only in numbers). The kinds:
@@ -204,7 +208,7 @@ def step_extents(gen: TerrainGenerator):
 
 
 def terrain_from(gen: TerrainGenerator, u, goal=(1.0, 0.0), difficulty: float = 1.0) -> Terrain:
-    """The terrain of ``gen`` drawn from its uniforms ``u`` (:func:`terrain_draws`,) in [0, 1),
+    """The terrain of ``gen`` drawn from its uniforms ``u`` (:func:`terrain_draws` of them) in [0, 1),
     rising along the unit ``goal`` (x, y) direction, scaled by ``difficulty`` in [0, 1]."""
     surf = {k: getattr(gen, k) for k in ("friction", "stiffness", "damping") if getattr(gen, k) is not None}
     vals = drawn_values(gen, np.asarray(u, dtype=float)[None], difficulty)[0]
