@@ -20,7 +20,7 @@ rough ground (the ``rough`` generator with no level pad: a 12 m heightfield of 2
 whole floor, the robot on bumps from the start) and
 ``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the planner).
 
-Torch env table (``--torch-envs``): the same ``TensegrityRoll-v0`` scenes on the torch device
+Torch env table (``--torch-envs``): the same scenes on the torch device
 vector env (``backend="torch"``, CPU, float64, one torch thread), plus steps whose first edge is
 under the robot (``pad`` 0.05 m, ``tread`` 0.2 m: the boxes next to the rods, their search along
 the rods running); env-steps/s and milliseconds per control step. With ``--torch-compile`` the
@@ -86,16 +86,17 @@ def env_rate(env_id: str, kwargs: dict, n: int, steps: int) -> float:
     return rate
 
 
-TORCH_ENV_SCENES = {**{k: kw for k, (eid, kw) in ENV_SCENES.items() if eid == "TensegrityRoll-v0"},
-                    "steps under the robot": {"terrain": {"generator": "steps", "pad": 0.05, "tread": 0.2}}}
+TORCH_ENV_SCENES = {**ENV_SCENES,
+                    "steps under the robot": ("TensegrityRoll-v0",
+                                              {"terrain": {"generator": "steps", "pad": 0.05, "tread": 0.2}})}
 
 
-def torch_env_rate(kwargs: dict, n: int, steps: int, compile: bool = False) -> tuple:
+def torch_env_rate(env_id: str, kwargs: dict, n: int, steps: int, compile: bool = False) -> tuple:
     """``(env-steps/s, warm-up s)`` of the torch device env (CPU, float64) of ``n`` copies over
     ``steps`` steps after two warm-up steps (with ``compile``: the compile)."""
     import gymnasium as gym
     import torch
-    env = gym.make_vec("TensegrityRoll-v0", num_envs=n, vectorization_mode="vector_entry_point", backend="torch",
+    env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", backend="torch",
                        device="cpu", dtype="float64", compile=compile, **kwargs)
     env.reset(seed=0)
     acts = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (steps + 2, n) + env.single_action_space.shape))
@@ -112,13 +113,13 @@ def torch_env_table(ns, steps: int, compile: bool = False) -> dict:
     """env-steps/s per scene and N (eager; with ``compile`` also ``compile=True`` and its warm-up)."""
     import torch
     torch.set_num_threads(1)
-    rates = {name: [torch_env_rate(kw, n, steps)[0] for n in ns] for name, kw in TORCH_ENV_SCENES.items()}
+    rates = {name: [torch_env_rate(eid, kw, n, steps)[0] for n in ns] for name, (eid, kw) in TORCH_ENV_SCENES.items()}
     print(f"\n{'torch env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'ms/step':>10}" for n in ns))
     for name, vals in rates.items():
         print(f"{name:<30}" + "".join(f"{v:16,.1f}{ns[i] / v * 1e3:10.1f}" for i, v in enumerate(vals)))
     if not compile:
         return rates
-    comp = {name: [torch_env_rate(kw, n, steps, True) for n in ns] for name, kw in TORCH_ENV_SCENES.items()}
+    comp = {name: [torch_env_rate(eid, kw, n, steps, True) for n in ns] for name, (eid, kw) in TORCH_ENV_SCENES.items()}
     print(f"\n{'torch env, compile=True':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'/eager':>8}{'warm s':>8}"
                                                         for n in ns))
     for name, vals in comp.items():
