@@ -392,6 +392,11 @@ def test_torch_equals_numba():
     assert ts1.active.any()
     assert np.abs(q2.numpy() - s1.q).max() < 1e-9 and np.abs(qd2.numpy() - s1.qd).max() < 1e-7
     np.testing.assert_array_equal(ac2.numpy(), ts1.active)
+    # per-copy rows whose feature column changes its kind are refused by name (the layout is per column)
+    mixed = np.repeat(tc.geom, B, axis=0)
+    mixed[4, 1, 0] = mixed[0, 0, 0]
+    with pytest.raises(ValueError, match=r"geom\[4, 1, 0\]: every row of a feature column must have the column's kind"):
+        TT.terrain_forces(m, t(q), t(qd), mixed, prm, t(ts.anchor), t(ts.eta0), t(ts.active))
 
 
 def test_torch_plane_equals_numba():

@@ -246,3 +246,21 @@ def test_device_drawn_rough_ground_is_the_same_drawn_in_chunks(monkeypatch):
         out.append((env._terrain.hf.clone(), env._terrain.geom.clone(), env.q.clone()))
     assert all(torch.equal(a, b) for a, b in zip(*out))
     assert not torch.equal(out[0][0][0], out[0][0][1])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+@pytest.mark.parametrize("compile", [False, True])
+def test_terrain_device_resets_and_steps_on_cuda_equal_cpu(compile):
+    """On a GPU: device resets drawing the steps generator's terrains and the steps on them (eager
+    or compiled) equal the CPU env's to round-off."""
+    kw = dict(num_envs=6, vectorization_mode="vector_entry_point", backend="torch", dtype="float64",
+              reset_sampling="device", randomize_goal=True, terrain=STEPS, compile=compile)
+    envs = [gym.make_vec(ID, device=d, **kw) for d in ("cpu", "cuda")]
+    outs = [e.reset(seed=4)[0] for e in envs]
+    assert float((envs[0]._terrain.geom - envs[1]._terrain.geom.cpu()).abs().max()) < 1e-12
+    assert float((outs[0] - outs[1].cpu()).abs().max()) < 1e-12
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        a = rng.uniform(-1, 1, (6, envs[0].single_action_space.shape[0]))
+        outs = [e.step(torch.as_tensor(a, device=e.device))[0] for e in envs]
+    assert float((outs[0] - outs[1].cpu()).abs().max()) < 1e-8

@@ -63,6 +63,10 @@ def terrain_layout(geom, prm, model) -> TerrainLayout:
     (an axis up to ``cell / L`` longer than unit, as an unprojected step may drift) and never
     more than the grid has."""
     g, p = _host(geom), _host(prm)
+    rows, cols = np.nonzero(g[:, :, 0] != g[:1, :, 0])
+    if rows.size:
+        raise ValueError(f"geom[{rows[0]}, {cols[0]}, 0]: every row of a feature column must have the column's "
+                         f"kind (row 0: {g[0, cols[0], 0]:g}), got {g[rows[0], cols[0], 0]:g}")
     m = model.model if isinstance(model, TorchModel) else model
     length = float(np.abs(m.eta[:, 1] - m.eta[:, 0]).max())
     kinds = tuple(float(v) for v in g[0, :, 0])
