@@ -101,37 +101,50 @@ def _same_env(dev, host, tol=1e-12):
           {k: v for k, v in (host._params or {}).items() if not isinstance(v, bool)}, tol, "params")
 
 
-@pytest.mark.parametrize("case", sorted(CASES))
-def test_device_reset_is_the_host_reset_fed_the_same_numbers(case):
-    """Two resets (seeded, then an explicit one) and 10 control steps after each: the device env
-    equals the host env fed the device streams' uniforms (state, obs, infos with params, rewards)."""
-    kw = CASES[case]
-    N, seed = 3, 7
-    dev = gym.make_vec(ID, num_envs=N, reset_sampling="device", max_episode_steps=None, **kw, **MK)
-    host = gym.make_vec(ID, num_envs=N, max_episode_steps=None, **kw, **MK)
+def _fed_resets(env_id, kw, seed, steps, tol_steps=1e-10, attrs=(), info_keys=(), N=3, action_seed=0):
+    """Two resets (seeded, then an explicit one) and ``steps`` control steps after each: the
+    device env equals the host env fed the device streams' uniforms (state, obs, infos, rewards,
+    the env attributes ``attrs``, the step infos ``info_keys``). Returns the device env and its
+    two reset infos."""
+    dev = gym.make_vec(env_id, num_envs=N, reset_sampling="device", max_episode_steps=None, **kw, **MK)
+    host = gym.make_vec(env_id, num_envs=N, max_episode_steps=None, **kw, **MK)
     n_task = dev._reset_draws()
     n_dom = dev._tdomain.size if dev._tdomain is not None else 0
     assert (n_dom > 0) == bool(kw.get("randomize"))
     seeds = [seed + i for i in range(N)]
-    rng = np.random.default_rng(0)
-    # rough ground: the device's heights (torch's cos) differ from the host's in the last bit, and
-    # the heightfield search's level test (1e-7 m) then picks another of equally low points
-    # (with the host's heights copied in, the steps are bit-identical)
-    tol_steps = 1e-6 if case == "rough_generator" else 1e-10
+    rng = np.random.default_rng(action_seed)
+    infos = []
     for reset_no in range(2):
         _feed(host, seeds, reset_no, n_task, n_dom)
         o_d, i_d = dev.reset(seed=seed) if reset_no == 0 else dev.reset()
         o_h, i_h = host.reset()
         _same(o_d, o_h, 1e-12, "obs")
         _same(i_d, i_h, 1e-12, "info")
-        assert ("params" in i_d) == bool(kw.get("randomize") or kw.get("params"))
+        infos.append(i_d)
         _same_env(dev, host)
-        for _ in range(10):
+        for name in attrs:
+            _same(getattr(dev, name), getattr(host, name), 1e-12, name)
+        for _ in range(steps):
             a = torch.as_tensor(rng.uniform(-1, 1, (N, dev.single_action_space.shape[0])))
-            o_d, r_d, _, _, i_d = dev.step(a)
-            o_h, r_h, _, _, i_h = host.step(a)
+            o_d, r_d, _, _, s_d = dev.step(a)
+            o_h, r_h, _, _, s_h = host.step(a)
             _same(o_d, o_h, tol_steps, "obs after steps")
             _same(r_d, r_h, tol_steps, "reward")
+            for k in info_keys:
+                _same(s_d[k], s_h[k], tol_steps, k)
+    return dev, infos
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_device_reset_is_the_host_reset_fed_the_same_numbers(case):
+    """TensegrityRoll-v0, 10 control steps after each reset (:func:`_fed_resets`)."""
+    kw = CASES[case]
+    # rough ground: the device's heights (torch's cos) differ from the host's in the last bit, and
+    # the heightfield search's level test (1e-7 m) then picks another of equally low points
+    # (with the host's heights copied in, the steps are bit-identical)
+    dev, infos = _fed_resets(ID, kw, 7, 10, 1e-6 if case == "rough_generator" else 1e-10)
+    for i_d in infos:
+        assert ("params" in i_d) == bool(kw.get("randomize") or kw.get("params"))
     # the draws moved the robots: a test of robots left at rest would prove little
     assert float((dev.q - dev._q_nominal).abs().max()) > 1e-4
 
@@ -142,30 +155,10 @@ def test_device_reset_is_the_host_reset_fed_the_same_numbers(case):
 def test_climb_device_reset_is_the_host_reset_fed_the_same_numbers(kw):
     """TensegrityClimb-v0: the slope is the reset's first draw (then the rolling task's, then the
     domain's); per-copy gravity, gravity direction, slope, observations and infos as the host's."""
-    cid, N, seed = "TensegrityClimb-v0", 3, 5
-    dev = gym.make_vec(cid, num_envs=N, reset_sampling="device", max_episode_steps=None, **kw, **MK)
-    host = gym.make_vec(cid, num_envs=N, max_episode_steps=None, **kw, **MK)
-    n_task = dev._reset_draws()
-    n_dom = dev._tdomain.size if dev._tdomain is not None else 0
-    seeds = [seed + i for i in range(N)]
-    rng = np.random.default_rng(1)
-    for reset_no in range(2):
-        _feed(host, seeds, reset_no, n_task, n_dom)
-        o_d, i_d = dev.reset(seed=seed) if reset_no == 0 else dev.reset()
-        o_h, i_h = host.reset()
-        _same(o_d, o_h, 1e-12, "obs")
-        _same(i_d, i_h, 1e-12, "info")
-        _same_env(dev, host)
-        for name in ("slope", "gdir"):
-            _same(getattr(dev, name), getattr(host, name), 1e-12, name)
-        for _ in range(5):
-            a = torch.as_tensor(rng.uniform(-1, 1, (N, dev.single_action_space.shape[0])))
-            o_d, r_d, _, _, i_d = dev.step(a)
-            o_h, r_h, _, _, i_h = host.step(a)
-            _same(o_d, o_h, 1e-10, "obs after steps")
-            _same(i_d["slope_deg"], i_h["slope_deg"], 1e-12, "slope_deg")
+    dev, _ = _fed_resets("TensegrityClimb-v0", kw, 5, 5, attrs=("slope", "gdir"), info_keys=("slope_deg",),
+                         action_seed=1)
     if "slope_range" in kw:     # each copy its own slope
-        assert len(set(dev.slope.tolist())) == N
+        assert len(set(dev.slope.tolist())) == dev.num_envs
 
 
 def test_streams_equal_their_definition_and_look_uniform():
