@@ -453,6 +453,7 @@ def main(argv=None):
         return 0
     if args.quick:
         args.batch, args.min_time = [1024, 4096], 0.3
+    terrain = json.loads(args.env_terrain) if args.env_terrain else None
     dev = torch_backend.resolve_device(args.device)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -522,8 +523,7 @@ def main(argv=None):
                              (f"torch {dev.type} f64 compiled", "float64", True)]
             base = None
             for label, dtype, comp in variants:
-                r = bench_env(B, dev, dtype, args.min_time, comp,
-                              json.loads(args.env_terrain) if args.env_terrain else None)
+                r = bench_env(B, dev, dtype, args.min_time, comp, terrain)
                 base = r["control_steps_per_s"] if base is None else base
                 envrows.append({"B": B, "env": label, **r, "ratio_vs_numpy": r["control_steps_per_s"] / base})
                 print(f"env B={B:6d} {label:28s} {r['control_steps_per_s']:10,.0f} control steps x B/s "
@@ -542,8 +542,7 @@ def main(argv=None):
             for label, dtype, sampling in (("numpy/numba f64", None, None),
                                            (f"torch {dev.type} f32, host resets", "float32", "host"),
                                            (f"torch {dev.type} f32, device resets", "float32", "device")):
-                r = bench_env_resets(B, dev, dtype, sampling, args.min_time, args.env_reset_episode,
-                                     json.loads(args.env_terrain) if args.env_terrain else None)
+                r = bench_env_resets(B, dev, dtype, sampling, args.min_time, args.env_reset_episode, terrain)
                 base = r["control_steps_per_s_with_resets"] if base is None else base
                 rrows.append({"B": B, "env": label, **r, "ratio_vs_numpy": r["control_steps_per_s_with_resets"] / base})
                 print(f"env resets B={B:6d} {label:32s} reset all {r['reset_all_s'] * 1e3:9.1f} ms "

@@ -64,7 +64,6 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self.device = torch_backend.resolve_device(device)
         self.dtype = torch_backend.resolve_dtype(dtype)
         task = self._make_task(num_envs, kwargs)
-        self._check_task(task, reset_sampling, compile)
         torch_backend.integrator_name(task.integrator)          # ValueError for an implicit method
         self.task = task
         self.num_envs = N = task.num_envs
@@ -109,9 +108,6 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         :func:`~tensegrity_gym.torch_backend.step_once`; default options."""
         return (torch_backend.contact_substep if getattr(self.task, "contact", None) is not None
                 else torch_backend.step_once), None
-
-    def _check_task(self, task, reset_sampling: str, compile: bool) -> None:
-        """ValueError naming an env argument the task's configuration rules out (here: none)."""
 
     def _terminated(self, infos: dict):
         """(N,) bool: the envs whose episode the task ended in this step (here: none; the time

@@ -66,7 +66,6 @@ class TorchTerrain:
             self.geom[it] = env._T(task.terrain_geom[idx])
             if self.hf is not None:
                 self.hf[it] = env._T(task.terrain_hf[idx])
-            self.layout = terrain_layout(task.terrain_geom, task.terrain_prm, task.model)
 
     def release(self, it) -> None:
         """Envs ``it`` (device index tensor) let go of the terrain: no slot active, anchors and

@@ -262,9 +262,10 @@ def _prepare(geom, prm, hf, q, tm, layout=None):
     slope bounds (:func:`~tensegrity_gym.backends.torch.heightfield.hf_lipschitz` per feature,
     (G or B, 1), None off a heightfield), computed once for the steps that share them, and the
     :class:`TerrainLayout` (read from ``geom`` and ``prm`` when None)."""
+    geom_in, prm_in = geom, prm
     geom, prm = _as(geom, q, "geom", 10), _as(prm, q, "prm", 8)
-    if layout is None:
-        layout = terrain_layout(geom, prm, tm)
+    if layout is None:      # from the inputs: arrays read where they are, not copied back from the device
+        layout = terrain_layout(geom_in, prm_in, tm)
     F = geom.shape[1]
     if prm.shape[1] != F:
         raise ValueError(f"prm: expected {F} features as geom, got {prm.shape[1]}")
