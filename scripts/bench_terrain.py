@@ -3,7 +3,8 @@
 
     PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000] \
         [--envs 1 16 128] [--env-steps 200] [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
-        [--torch-compile] [--json out.json]
+        [--torch-compile] [--torch-device cuda] [--torch-dtype float32] [--torch-scenes flat ...] \
+        [--json out.json]
 
 Physics table: microseconds per physics step (all copies) for the flat-ground GroundContact (the
 fused compiled loop), a level terrain plane, a 20-degree plane, and a 20-degree plane with two
@@ -21,7 +22,8 @@ whole floor, the robot on bumps from the start) and
 ``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the planner).
 
 Torch env table (``--torch-envs``): the same scenes on the torch device
-vector env (``backend="torch"``, CPU, float64, one torch thread), plus steps whose first edge is
+vector env (``backend="torch"``; CPU, float64, one torch thread unless ``--torch-device`` /
+``--torch-dtype`` say otherwise), plus steps whose first edge is
 under the robot (``pad`` 0.05 m, ``tread`` 0.2 m: the boxes next to the rods, their search along
 the rods running); env-steps/s and milliseconds per control step. With ``--torch-compile`` the
 same with ``compile=True`` (``torch.compile`` of the terrain's physics step), its ratio to the
@@ -91,35 +93,51 @@ TORCH_ENV_SCENES = {**ENV_SCENES,
                                               {"terrain": {"generator": "steps", "pad": 0.05, "tread": 0.2}})}
 
 
-def torch_env_rate(env_id: str, kwargs: dict, n: int, steps: int, compile: bool = False) -> tuple:
-    """``(env-steps/s, warm-up s)`` of the torch device env (CPU, float64) of ``n`` copies over
-    ``steps`` steps after two warm-up steps (with ``compile``: the compile)."""
+def torch_env_rate(env_id: str, kwargs: dict, n: int, steps: int, compile: bool = False, device: str = "cpu",
+                   dtype: str = "float64") -> tuple:
+    """``(env-steps/s, warm-up s)`` of the torch device env of ``n`` copies on ``device`` in
+    ``dtype`` over ``steps`` steps after two warm-up steps (with ``compile``: the compile)."""
     import gymnasium as gym
     import torch
     env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", backend="torch",
-                       device="cpu", dtype="float64", compile=compile, **kwargs)
+                       device=device, dtype=dtype, compile=compile, **kwargs)
     env.reset(seed=0)
-    acts = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (steps + 2, n) + env.single_action_space.shape))
+    acts = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (steps + 2, n) + env.single_action_space.shape),
+                           dtype=getattr(torch, dtype), device=device)
+
+    def sync():
+        if torch.device(device).type == "cuda":
+            torch.cuda.synchronize(device)
     t0 = time.perf_counter()
     for a in acts[:2]:
         env.step(a)
+    sync()
     t1 = time.perf_counter()
     for a in acts[2:]:
         env.step(a)
-    return n * steps / (time.perf_counter() - t1), t1 - t0
+    sync()
+    rate = n * steps / (time.perf_counter() - t1)
+    env.close()
+    return rate, t1 - t0
 
 
-def torch_env_table(ns, steps: int, compile: bool = False) -> dict:
-    """env-steps/s per scene and N (eager; with ``compile`` also ``compile=True`` and its warm-up)."""
+def torch_env_table(ns, steps: int, compile: bool = False, device: str = "cpu", dtype: str = "float64",
+                    scenes=None) -> dict:
+    """env-steps/s per scene and N (eager; with ``compile`` also ``compile=True`` and its warm-up)
+    on ``device`` in ``dtype``; ``scenes`` a subset of ``TORCH_ENV_SCENES``'s names (default all)."""
     import torch
-    torch.set_num_threads(1)
-    rates = {name: [torch_env_rate(eid, kw, n, steps)[0] for n in ns] for name, (eid, kw) in TORCH_ENV_SCENES.items()}
+    if torch.device(device).type == "cpu":
+        torch.set_num_threads(1)
+    chosen = {k: TORCH_ENV_SCENES[k] for k in (scenes or TORCH_ENV_SCENES)}
+    rates = {name: [torch_env_rate(eid, kw, n, steps, False, device, dtype)[0] for n in ns]
+             for name, (eid, kw) in chosen.items()}
     print(f"\n{'torch env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'ms/step':>10}" for n in ns))
     for name, vals in rates.items():
         print(f"{name:<30}" + "".join(f"{v:16,.1f}{ns[i] / v * 1e3:10.1f}" for i, v in enumerate(vals)))
     if not compile:
         return rates
-    comp = {name: [torch_env_rate(eid, kw, n, steps, True) for n in ns] for name, (eid, kw) in TORCH_ENV_SCENES.items()}
+    comp = {name: [torch_env_rate(eid, kw, n, steps, True, device, dtype) for n in ns]
+            for name, (eid, kw) in chosen.items()}
     print(f"\n{'torch env, compile=True':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'/eager':>8}{'warm s':>8}"
                                                         for n in ns))
     for name, vals in comp.items():
@@ -162,14 +180,19 @@ def torch_table(m, scenes: dict, batch, steps: int) -> dict:
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--batch", type=int, nargs="+", default=[1, 64])
+    ap.add_argument("--batch", type=int, nargs="*", default=[1, 64], help="physics table B (none: no physics table)")
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--envs", type=int, nargs="*", default=[], help="env table for these numbers of copies")
     ap.add_argument("--env-steps", type=int, default=200)
     ap.add_argument("--json", type=str, default=None, help="write the tables here")
     ap.add_argument("--torch", action="store_true", help="also the torch backend's physics table (CPU)")
     ap.add_argument("--torch-envs", type=int, nargs="*", default=[],
-                    help="torch device env table (CPU, float64) for these numbers of copies")
+                    help="torch device env table for these numbers of copies (on --torch-device)")
+    ap.add_argument("--torch-device", default="cpu", help="device of the torch env table (default cpu; cuda)")
+    ap.add_argument("--torch-dtype", default="float64", choices=["float32", "float64"],
+                    help="dtype of the torch env table (default float64)")
+    ap.add_argument("--torch-scenes", nargs="+", default=None, choices=list(TORCH_ENV_SCENES),
+                    help="only these scenes in the torch env table (default all)")
     ap.add_argument("--torch-env-steps", type=int, default=10)
     ap.add_argument("--torch-compile", action="store_true",
                     help="the torch env table also with compile=True (after its compile, timed apart)")
@@ -178,7 +201,8 @@ def main():
     scenes = {"level plane": Terrain(), "20 deg plane": Terrain(plane=Plane(20.0)),
               "20 deg plane + 2 boxes": Terrain(plane=Plane(20.0), boxes=[Box([0.3, 0, 0.05], [0.2, 1, 0.1]),
                                                                           Box([-0.3, 0.2, 0.1], [0.2, 0.2, 0.2], 30.0)])}
-    print(f"{'scene':<26}" + "".join(f"{'B=' + str(B) + ' us/step':>16}" for B in a.batch))
+    if a.batch:
+        print(f"{'scene':<26}" + "".join(f"{'B=' + str(B) + ' us/step':>16}" for B in a.batch))
     rows = {"flat GroundContact": [], **{k: [] for k in scenes}}
     for B in a.batch:
         st = dyn.initial_state(m, B)
@@ -189,17 +213,26 @@ def main():
             tc = T.TerrainContact(ter)
             ts = T.init_terrain_state(tc, m, B)
             rows[name].append(timed(lambda n: T.step(m, st, DT, tc, ts, n_steps=n), a.steps))
-    for name, vals in rows.items():
+    for name, vals in rows.items() if a.batch else ():
         print(f"{name:<26}" + "".join(f"{v:16.2f}" for v in vals))
     torch_rows = torch_table(m, scenes, a.batch, max(a.steps // 10, 20)) if a.torch else {}
     envs = env_table(a.envs, a.env_steps) if a.envs else {}
-    torch_envs = torch_env_table(a.torch_envs, a.torch_env_steps, a.torch_compile) if a.torch_envs else {}
+    torch_envs = (torch_env_table(a.torch_envs, a.torch_env_steps, a.torch_compile, a.torch_device, a.torch_dtype,
+                                   a.torch_scenes) if a.torch_envs else {})
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"cpu": cpu_model(), "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows, "torch_us_per_step": torch_rows,
                        "envs": a.envs, "env_steps_per_s": envs,
-                       "torch_envs": a.torch_envs, "torch_env_steps_per_s": torch_envs, "command": "python scripts/bench_terrain.py " +
+                       "torch_envs": a.torch_envs, "torch_env_steps_per_s": torch_envs,
+                       "torch_device": a.torch_device, "torch_device_name": _device_name(a.torch_device),
+                       "torch_dtype": a.torch_dtype, "command": "python scripts/bench_terrain.py " +
                        " ".join(sys.argv[1:])}, f, indent=1)
+
+
+def _device_name(device: str) -> str:
+    import torch
+    d = torch.device(device)
+    return torch.cuda.get_device_name(d) if d.type == "cuda" else cpu_model()
 
 
 if __name__ == "__main__":

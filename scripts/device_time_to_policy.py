@@ -90,6 +90,12 @@ def main(argv=None) -> int:
     p.add_argument("--eval-every-s", type=float, default=60.0, help="training seconds between evaluations (default 60)")
     p.add_argument("--eval-every-iterations", type=int, default=None,
                    help="evaluate every this many iterations instead (small test runs)")
+    p.add_argument("--compile", action="store_true",
+                   help="compile=True on the training and evaluation envs (torch.compile of the physics step; "
+                        "the training env's compile falls in the uncounted warm-up iteration)")
+    p.add_argument("--reset-sampling", default="host", choices=["host", "device"],
+                   help="the training env's reset sampling (default host; the evaluation env always resets on "
+                        "the host from the held-out seeds)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: the CPUs available)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--label", default=None, help="free text stored in the JSON (e.g. the machine's load)")
@@ -109,9 +115,9 @@ def main(argv=None) -> int:
     torch.manual_seed(args.seed)
     device = torch.device(args.device)
     env = make_rsl_rl_env("TensegrityRoll-v0", num_envs=args.num_envs, backend="torch", device=args.device,
-                          seed=args.seed)
+                          seed=args.seed, compile=args.compile, reset_sampling=args.reset_sampling)
     eval_env = gym.make_vec("TensegrityRoll-v0", num_envs=args.eval_envs, vectorization_mode="vector_entry_point",
-                            backend="torch", device=args.device, dtype="float32")
+                            backend="torch", device=args.device, dtype="float32", compile=args.compile)
     dt = float(eval_env.unwrapped.dt)
     episode_steps = int(args.eval_episode_steps or eval_env.unwrapped.max_episode_steps)
     cfg = runner_config(args)
@@ -175,7 +181,8 @@ def main(argv=None) -> int:
         "seed": args.seed, "target_speed_m_s": args.target, "budget_s": args.budget_s,
         "settings": {"num_envs": args.num_envs, "steps_per_env": args.steps_per_env, "epochs": args.epochs,
                      "mini_batches": args.mini_batches, "learning_rate": args.learning_rate,
-                     "init_std": args.init_std, "eval_envs": args.eval_envs, "eval_episode_s": episode_steps * dt,
+                     "init_std": args.init_std, "compile": args.compile, "reset_sampling": args.reset_sampling,
+                     "eval_envs": args.eval_envs, "eval_episode_s": episode_steps * dt,
                      "runner_config": cfg},
         "reached": reached is not None,
         "time_to_target_s": reached["training_wall_s"] if reached else None,

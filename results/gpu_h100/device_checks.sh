@@ -1,0 +1,49 @@
+#!/bin/bash
+# Checks on the lent GPU machine, run from the repository root: device_checks.sh PART...
+# (wheels of the packages the image lacks in .whl/: gymnasium, farama-notifications,
+# stable-baselines3, rsl-rl-lib, tensordict and their needs). PARTs, each under its own time limit:
+#   ttp_a, ttp_b, ttp_a1: time to policy, rsl_rl PPO on the compiled torch device env, env and
+#       learner on the GPU (a: 8192 envs x 16 steps, 4 epochs x 4 minibatches; a1: the same, seed 1;
+#       b: 4096 envs x 32 steps, 2 epochs x 8 minibatches);
+#   pytest: the CUDA tests (torch backend, envs, device resets, terrain);
+#   terrain: the torch terrain envs' throughput against flat ground, eager and compiled (float32).
+# Everything lands in $OUT (set by the device tool; defaults to ./runs/device here).
+set -u
+OUT=${OUT:-runs/device}; mkdir -p "$OUT"
+PY=${PY:-python3}; DEV=${DEV:-cuda}; BUDGET=${BUDGET:-70}; SCALE=${SCALE:-1}
+export PYTHONUNBUFFERED=1 TENSEGRITY_GYM_QUIET=1
+if [ -d .whl ]; then
+  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
+  mkdir -p /tmp/pp && ln -sfn "$PWD/agents" /tmp/pp/tensegrity_gym_agents
+  export PYTHONPATH=/tmp/site:$PWD:/tmp/pp
+fi
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$OUT/versions.txt" 2>&1
+$PY -c "import torch, numba, numpy, gymnasium, rsl_rl, tensordict, tensegrity_gym, tensegrity_gym_agents.common as c; \
+print('torch', torch.__version__, 'numba', numba.__version__, 'numpy', numpy.__version__, 'gymnasium', \
+gymnasium.__version__, 'tensordict', tensordict.__version__, 'cpu', c.cpu_model(), 'cpus', c.cpus_available())" \
+  >> "$OUT/versions.txt" 2>&1 || { cat "$OUT/versions.txt"; exit 1; }
+cat "$OUT/versions.txt"
+T="$PY scripts/device_time_to_policy.py --device $DEV --compile --reset-sampling device --budget-s $BUDGET \
+   --eval-every-s 10 --eval-envs 64 --label lent_device_machine"
+ttp() {  # name envs steps epochs minibatches seed
+  timeout 160 $T --num-envs $(($2 / SCALE)) --steps-per-env $3 --epochs $4 --mini-batches $5 --seed $6 \
+    --out "$OUT/ttp_$1.json" > "$OUT/ttp_$1.log" 2>&1
+  grep -E "training,|reach" "$OUT/ttp_$1.log" | tail -n 12
+}
+for part in "$@"; do
+  echo "== $part"
+  case $part in
+    ttp_a) ttp 8192x16_s0 8192 16 4 4 0 ;;
+    ttp_a1) ttp 8192x16_s1 8192 16 4 4 1 ;;
+    ttp_b) ttp 4096x32_s0 4096 32 2 8 0 ;;
+    pytest) timeout 100 $PY -m pytest -q -p no:cacheprovider tests/test_torch_backend.py tests/test_torch_env.py \
+              tests/test_torch_reset.py tests/test_torch_terrain.py -k cuda > "$OUT/pytest_cuda.log" 2>&1
+            tail -n 3 "$OUT/pytest_cuda.log" ;;
+    terrain) timeout 170 $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 20 \
+               --torch-compile --torch-device $DEV --torch-dtype float32 --torch-scenes flat "slope 20 deg" \
+               "rough 2 cm (heightfield)" "steps (4 boxes)" --json "$OUT/bench_terrain_torch_env.json" \
+               > "$OUT/bench_terrain.log" 2>&1
+             tail -n 12 "$OUT/bench_terrain.log" ;;
+    *) echo "unknown part $part"; exit 2 ;;
+  esac
+done
