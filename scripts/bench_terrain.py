@@ -129,19 +129,22 @@ def torch_env_table(ns, steps: int, compile: bool = False, device: str = "cpu", 
     if torch.device(device).type == "cpu":
         torch.set_num_threads(1)
     chosen = {k: TORCH_ENV_SCENES[k] for k in (scenes or TORCH_ENV_SCENES)}
-    rates = {name: [torch_env_rate(eid, kw, n, steps, False, device, dtype)[0] for n in ns]
-             for name, (eid, kw) in chosen.items()}
-    print(f"\n{'torch env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'ms/step':>10}" for n in ns))
-    for name, vals in rates.items():
-        print(f"{name:<30}" + "".join(f"{v:16,.1f}{ns[i] / v * 1e3:10.1f}" for i, v in enumerate(vals)))
+    # each row printed as soon as it is measured (a run cut short keeps its rows in the log)
+    print(f"\n{'torch env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'ms/step':>10}" for n in ns),
+          flush=True)
+    rates = {}
+    for name, (eid, kw) in chosen.items():
+        rates[name] = vals = [torch_env_rate(eid, kw, n, steps, False, device, dtype)[0] for n in ns]
+        print(f"{name:<30}" + "".join(f"{v:16,.1f}{ns[i] / v * 1e3:10.1f}" for i, v in enumerate(vals)), flush=True)
     if not compile:
         return rates
-    comp = {name: [torch_env_rate(eid, kw, n, steps, True, device, dtype) for n in ns]
-            for name, (eid, kw) in chosen.items()}
     print(f"\n{'torch env, compile=True':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'/eager':>8}{'warm s':>8}"
-                                                        for n in ns))
-    for name, vals in comp.items():
-        print(f"{name:<30}" + "".join(f"{v:16,.1f}{v / rates[name][i]:8.1f}{w:8.1f}" for i, (v, w) in enumerate(vals)))
+                                                         for n in ns), flush=True)
+    comp = {}
+    for name, (eid, kw) in chosen.items():
+        comp[name] = vals = [torch_env_rate(eid, kw, n, steps, True, device, dtype) for n in ns]
+        print(f"{name:<30}" + "".join(f"{v:16,.1f}{v / rates[name][i]:8.1f}{w:8.1f}" for i, (v, w) in enumerate(vals)),
+              flush=True)
     return {"eager": rates, "compiled": {k: [v[0] for v in vals] for k, vals in comp.items()},
             "compile_warmup_s": {k: [v[1] for v in vals] for k, vals in comp.items()}}
 

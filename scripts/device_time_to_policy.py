@@ -17,7 +17,10 @@ iteration) is not counted either.
 
 The JSON result names the device (CPU model from ``lscpu``, or the GPU's name), torch version,
 threads, seed, settings, env steps and wall time at the first evaluation at or above the
-target (or null), and every evaluation (training seconds, env steps, speed).
+target (or null), and every evaluation (training seconds, env steps, speed). It is written after
+every evaluation, so that a run cut short (a time limit, Ctrl-C) keeps what it measured;
+``stopped`` says why the run ended: ``target reached``, ``budget``, ``interrupted``, or
+``running`` in a file left by a killed run.
 """
 from __future__ import annotations
 
@@ -28,8 +31,8 @@ import platform
 import shlex
 import sys
 import time
-from pathlib import Path
 
+from tensegrity_gym.io.atomic import check_writable, write_atomic
 from tensegrity_gym_agents.common import cpu_model, cpus_available, passive_openmp_wait
 
 HELD_OUT_SEED = 1_000_000
@@ -101,6 +104,8 @@ def main(argv=None) -> int:
     p.add_argument("--label", default=None, help="free text stored in the JSON (e.g. the machine's load)")
     p.add_argument("--out", required=True, help="JSON result file")
     args = p.parse_args(argv)
+    out = check_writable(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
     passive_openmp_wait()          # before torch loads its OpenMP runtime
 
     import gymnasium as gym
@@ -135,75 +140,90 @@ def main(argv=None) -> int:
     runner.current_learning_iteration += 1
     sync()
     warmup_s = time.perf_counter() - t
+
+    def result(stopped: str) -> dict:
+        """The JSON result so far; ``stopped`` says why the run ended (or ``"running"``)."""
+        return {
+            "task": "TensegrityRoll-v0, rsl_rl PPO (OnPolicyRunner), torch device env, env and learner on one device",
+            "device": str(device),
+            "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else cpu_model(),
+            "cpu_model": cpu_model(), "cpus_available": cpus, "torch_num_threads": torch.get_num_threads(),
+            "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
+            "torch": torch.__version__, "tensegrity_gym": getattr(tensegrity_gym, "__version__", None),
+            "rsl_rl": _version("rsl-rl-lib"), "python": platform.python_version(), "platform": platform.platform(),
+            "seed": args.seed, "target_speed_m_s": args.target, "budget_s": args.budget_s,
+            "settings": {"num_envs": args.num_envs, "steps_per_env": args.steps_per_env, "epochs": args.epochs,
+                         "mini_batches": args.mini_batches, "learning_rate": args.learning_rate,
+                         "init_std": args.init_std, "compile": args.compile, "reset_sampling": args.reset_sampling,
+                         "eval_envs": args.eval_envs, "eval_episode_s": episode_steps * dt,
+                         "runner_config": cfg},
+            "reached": reached is not None,
+            "time_to_target_s": reached["training_wall_s"] if reached else None,
+            "env_steps_to_target": reached["env_steps"] if reached else None,
+            "training_wall_s": round(train_s, 2), "env_steps": iterations * samples_per_iteration,
+            "iterations": iterations, "warmup_s": round(warmup_s, 2), "evaluation_wall_s": round(eval_s, 2),
+            "best_speed_m_s": max(e["speed_m_s"] for e in evals) if evals else None,
+            "evaluations": evals, "label": args.label, "stopped": stopped,
+            "command": shlex.join(["python", "scripts/device_time_to_policy.py"] + (argv if argv is not None else
+                                                                                    sys.argv[1:])),
+        }
+
     iterations, train_s, eval_s = 1, 0.0, 0.0
     evals, reached = [], None
     next_eval, next_beat = args.eval_every_s, 10.0
     policy = runner.get_inference_policy(args.device)
-    while True:
-        t = time.perf_counter()
-        runner.learn(1)
-        runner.current_learning_iteration += 1
-        sync()
-        train_s += time.perf_counter() - t
-        iterations += 1
-        if train_s >= next_beat:        # a line every 10 s of training, also in a log
-            print(f"{train_s:7.1f} s training, {iterations * samples_per_iteration:>10} env steps "
-                  f"({iterations * samples_per_iteration / train_s:.0f} env-steps/s)", flush=True)
-            next_beat += 10.0
-        last = train_s >= args.budget_s or (args.max_iterations is not None and iterations >= args.max_iterations)
-        due = (iterations % args.eval_every_iterations == 0) if args.eval_every_iterations else train_s >= next_eval
-        if due or last:
+    stopped = "target reached"
+    try:
+        while True:
             t = time.perf_counter()
-            runner.alg.eval_mode()      # frozen observation normalisation (learn() switches back)
-            speed = evaluate_speed(policy, eval_env, episode_steps, dt, torch)
+            runner.learn(1)
+            runner.current_learning_iteration += 1
             sync()
-            eval_s += time.perf_counter() - t
-            evals.append({"training_wall_s": round(train_s, 2), "env_steps": iterations * samples_per_iteration,
-                          "iterations": iterations, "speed_m_s": round(speed, 4)})
-            print(f"{train_s:7.1f} s training, {iterations * samples_per_iteration:>10} env steps: "
-                  f"speed {speed:.3f} m/s (evaluations so far {eval_s:.1f} s)", flush=True)
-            while next_eval <= train_s:
-                next_eval += args.eval_every_s
-            if reached is None and speed >= args.target:
-                reached = evals[-1]
+            train_s += time.perf_counter() - t
+            iterations += 1
+            if train_s >= next_beat:        # a line every 10 s of training, also in a log
+                print(f"{train_s:7.1f} s training, {iterations * samples_per_iteration:>10} env steps "
+                      f"({iterations * samples_per_iteration / train_s:.0f} env-steps/s)", flush=True)
+                next_beat += 10.0
+            last = train_s >= args.budget_s or (args.max_iterations is not None and iterations >= args.max_iterations)
+            due = (iterations % args.eval_every_iterations == 0) if args.eval_every_iterations else train_s >= next_eval
+            if due or last:
+                t = time.perf_counter()
+                runner.alg.eval_mode()      # frozen observation normalisation (learn() switches back)
+                speed = evaluate_speed(policy, eval_env, episode_steps, dt, torch)
+                sync()
+                eval_s += time.perf_counter() - t
+                evals.append({"training_wall_s": round(train_s, 2), "env_steps": iterations * samples_per_iteration,
+                              "iterations": iterations, "speed_m_s": round(speed, 4)})
+                print(f"{train_s:7.1f} s training, {iterations * samples_per_iteration:>10} env steps: "
+                      f"speed {speed:.3f} m/s (evaluations so far {eval_s:.1f} s)", flush=True)
+                while next_eval <= train_s:
+                    next_eval += args.eval_every_s
+                if reached is None and speed >= args.target:
+                    reached = evals[-1]
+                _write_json(out, result("running"))        # kept if the run is cut short
+                if reached is not None:
+                    break
+            if last:
                 break
-        if last:
-            break
-
-    result = {
-        "task": "TensegrityRoll-v0, rsl_rl PPO (OnPolicyRunner), torch device env, env and learner on one device",
-        "device": str(device),
-        "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else cpu_model(),
-        "cpu_model": cpu_model(), "cpus_available": cpus, "torch_num_threads": torch.get_num_threads(),
-        "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
-        "torch": torch.__version__, "tensegrity_gym": getattr(tensegrity_gym, "__version__", None),
-        "rsl_rl": _version("rsl-rl-lib"), "python": platform.python_version(), "platform": platform.platform(),
-        "seed": args.seed, "target_speed_m_s": args.target, "budget_s": args.budget_s,
-        "settings": {"num_envs": args.num_envs, "steps_per_env": args.steps_per_env, "epochs": args.epochs,
-                     "mini_batches": args.mini_batches, "learning_rate": args.learning_rate,
-                     "init_std": args.init_std, "compile": args.compile, "reset_sampling": args.reset_sampling,
-                     "eval_envs": args.eval_envs, "eval_episode_s": episode_steps * dt,
-                     "runner_config": cfg},
-        "reached": reached is not None,
-        "time_to_target_s": reached["training_wall_s"] if reached else None,
-        "env_steps_to_target": reached["env_steps"] if reached else None,
-        "training_wall_s": round(train_s, 2), "env_steps": iterations * samples_per_iteration,
-        "iterations": iterations, "warmup_s": round(warmup_s, 2), "evaluation_wall_s": round(eval_s, 2),
-        "best_speed_m_s": max(e["speed_m_s"] for e in evals) if evals else None,
-        "evaluations": evals, "label": args.label,
-        "command": shlex.join(["python", "scripts/device_time_to_policy.py"] + (argv if argv is not None else
-                                                                                sys.argv[1:])),
-    }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    except KeyboardInterrupt:
+        stopped = "interrupted"
+    if stopped != "interrupted" and reached is None:
+        stopped = "budget"
+    final = result(stopped)
+    _write_json(out, final)
     print(("reached" if reached else "did not reach") + f" {args.target} m/s: " +
           (f"{reached['training_wall_s']} s of training, {reached['env_steps']} env steps" if reached else
-           f"best {result['best_speed_m_s']} m/s in {result['training_wall_s']} s, {result['env_steps']} env steps") +
-          f" on {result['device_name']} -> {out}")
+           f"best {final['best_speed_m_s']} m/s in {final['training_wall_s']} s, {final['env_steps']} env steps") +
+          f" on {final['device_name']} -> {out}")
     env.close()
     eval_env.close()
     return 0
+
+
+def _write_json(path, data: dict) -> None:
+    text = json.dumps(data, indent=2) + "\n"
+    write_atomic(path, lambda f: f.write(text.encode()))
 
 
 def _version(dist: str) -> str | None:

@@ -35,7 +35,7 @@ def test_tiny_run_writes_the_result(tmp_path, target, reached):
                 "evaluations", "best_speed_m_s", "command"):
         assert key in r, key
     assert r["device"] == "cpu" and r["device_name"] == r["cpu_model"] and r["seed"] == 3
-    assert r["reached"] is reached
+    assert r["reached"] is reached and r["stopped"] == ("target reached" if reached else "budget")
     evals = r["evaluations"]
     assert evals and all({"training_wall_s", "env_steps", "iterations", "speed_m_s"} <= set(e) for e in evals)
     if reached:      # stops at the first evaluation at or above the target
@@ -45,3 +45,22 @@ def test_tiny_run_writes_the_result(tmp_path, target, reached):
         assert r["time_to_target_s"] is None and r["env_steps_to_target"] is None
         assert [e["iterations"] for e in evals] == [2, 3] and r["env_steps"] == 3 * 8 * 4
         assert r["best_speed_m_s"] == max(e["speed_m_s"] for e in evals) < 0.345
+
+
+def test_an_interrupted_run_keeps_its_evaluations(tmp_path):
+    """Ctrl-C during the second evaluation: the JSON holds the first and says it was interrupted."""
+    mod = _script()
+    calls = []
+
+    def speed(*a):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return 0.1
+    mod.evaluate_speed = speed
+    out = tmp_path / "r.json"
+    rc = mod.main(["--device", "cpu", "--num-envs", "4", "--steps-per-env", "4", "--max-iterations", "5",
+                   "--eval-every-iterations", "2", "--eval-envs", "2", "--threads", "1", "--out", str(out)])
+    r = json.loads(out.read_text())
+    assert rc == 0 and r["stopped"] == "interrupted" and not r["reached"]
+    assert [e["speed_m_s"] for e in r["evaluations"]] == [0.1] and r["evaluations"][0]["iterations"] == 2

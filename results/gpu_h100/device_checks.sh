@@ -36,10 +36,10 @@ for part in "$@"; do
     ttp_a) ttp 8192x16_s0 8192 16 4 4 0 ;;
     ttp_a1) ttp 8192x16_s1 8192 16 4 4 1 ;;
     ttp_b) ttp 4096x32_s0 4096 32 2 8 0 ;;
-    pytest) timeout 100 $PY -m pytest -q -p no:cacheprovider tests/test_torch_backend.py tests/test_torch_env.py \
+    pytest) timeout 170 $PY -m pytest -q -p no:cacheprovider tests/test_torch_backend.py tests/test_torch_env.py \
               tests/test_torch_reset.py tests/test_torch_terrain.py -k cuda > "$OUT/pytest_cuda.log" 2>&1
             tail -n 3 "$OUT/pytest_cuda.log" ;;
-    terrain) timeout 170 $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 20 \
+    terrain) timeout 150 $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 20 \
                --torch-compile --torch-device $DEV --torch-dtype float32 --torch-scenes flat "slope 20 deg" \
                "rough 2 cm (heightfield)" "steps (4 boxes)" --json "$OUT/bench_terrain_torch_env.json" \
                > "$OUT/bench_terrain.log" 2>&1

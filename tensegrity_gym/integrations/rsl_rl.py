@@ -49,6 +49,12 @@ def _torch():
     return torch
 
 
+def _resolved_device(device):
+    """``device`` as torch's tensors report it: ``"cuda"`` is the current CUDA device
+    (``cuda:0``), ``"cpu:0"`` is ``cpu`` (an empty tensor allocates nothing)."""
+    return _torch().empty(0, device=device).device
+
+
 def _build_class():
     """The adapter class, built once on first use (rsl_rl's ``VecEnv`` as its base)."""
     from rsl_rl.env import VecEnv
@@ -69,8 +75,8 @@ def _build_class():
             self.env = env
             self._base = env.unwrapped                                           # the env under any wrappers
             self._on_torch = isinstance(self._base, TorchTaskVectorEnv)          # the device-resident env
-            self.device = torch.device(str(self._base.device) if self._on_torch else (device or "cpu"))
-            if self._on_torch and device is not None and torch.device(device) != self.device:
+            self.device = _resolved_device(str(self._base.device) if self._on_torch else (device or "cpu"))
+            if self._on_torch and device is not None and _resolved_device(device) != self.device:
                 raise ValueError(f"device: the torch env runs on {self.device}; got device={device!r}")
             self.num_envs = env.num_envs
             self.num_actions = int(env.single_action_space.shape[0])
