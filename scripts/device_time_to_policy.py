@@ -40,11 +40,13 @@ HELD_OUT_SEED = 1_000_000
 
 def runner_config(args) -> dict:
     """rsl_rl 5.x ``OnPolicyRunner`` config: PPO with the rolling recipe's discounting (gamma
-    0.995, lambda 0.98) and nets (128x128), an adaptive learning rate, observation normalisation."""
+    0.995, lambda 0.98) and nets (128x128), the learning rate adaptive (to a KL of 0.01) or fixed,
+    observation normalisation."""
     from tensegrity_gym.integrations.rsl_rl import train_config
     cfg = train_config(num_steps_per_env=args.steps_per_env, hidden=(128, 128), learning_rate=args.learning_rate,
                        seed=args.seed, gamma=0.995, lam=0.98, num_learning_epochs=args.epochs,
-                       num_mini_batches=args.mini_batches, entropy_coef=0.0, desired_kl=0.01, schedule="adaptive")
+                       num_mini_batches=args.mini_batches, entropy_coef=args.entropy_coef, desired_kl=0.01,
+                       schedule=args.schedule)
     cfg["actor"]["distribution_cfg"]["init_std"] = args.init_std
     return cfg
 
@@ -84,7 +86,11 @@ def main(argv=None) -> int:
     p.add_argument("--steps-per-env", type=int, default=32, help="rollout length per PPO iteration (default 32)")
     p.add_argument("--epochs", type=int, default=2, help="PPO epochs per iteration (default 2)")
     p.add_argument("--mini-batches", type=int, default=8, help="minibatches per epoch (default 8)")
-    p.add_argument("--learning-rate", type=float, default=1e-3, help="initial learning rate (adaptive, default 1e-3)")
+    p.add_argument("--learning-rate", type=float, default=1e-3,
+                   help="learning rate, the start of an adaptive one (default 1e-3)")
+    p.add_argument("--schedule", default="adaptive", choices=["adaptive", "fixed"],
+                   help="learning rate: adapted to a KL of 0.01 per update (default) or fixed")
+    p.add_argument("--entropy-coef", type=float, default=0.0, help="entropy bonus coefficient (default 0)")
     p.add_argument("--init-std", type=float, default=1.0, help="initial action standard deviation (default 1)")
     p.add_argument("--eval-envs", type=int, default=64, help="envs of each speed evaluation (default 64)")
     p.add_argument("--eval-episode-steps", type=int, default=None,
@@ -99,6 +105,10 @@ def main(argv=None) -> int:
     p.add_argument("--reset-sampling", default="host", choices=["host", "device"],
                    help="the training env's reset sampling (default host; the evaluation env always resets on "
                         "the host from the held-out seeds)")
+    p.add_argument("--env-backend", default="torch", choices=["torch", "numpy"],
+                   help="the training env: the torch device env (default), or the NumPy/numba vector env with "
+                        "tensors on --device (a CPU search of learner settings: the same task, counted in "
+                        "iterations and env steps)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: the CPUs available)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--label", default=None, help="free text stored in the JSON (e.g. the machine's load)")
@@ -119,8 +129,12 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads or cpus)
     torch.manual_seed(args.seed)
     device = torch.device(args.device)
-    env = make_rsl_rl_env("TensegrityRoll-v0", num_envs=args.num_envs, backend="torch", device=args.device,
-                          seed=args.seed, compile=args.compile, reset_sampling=args.reset_sampling)
+    if args.env_backend == "torch":
+        env = make_rsl_rl_env("TensegrityRoll-v0", num_envs=args.num_envs, backend="torch", device=args.device,
+                              seed=args.seed, compile=args.compile, reset_sampling=args.reset_sampling)
+    else:
+        env = make_rsl_rl_env("TensegrityRoll-v0", num_envs=args.num_envs, backend="numpy", device=args.device,
+                              seed=args.seed)
     eval_env = gym.make_vec("TensegrityRoll-v0", num_envs=args.eval_envs, vectorization_mode="vector_entry_point",
                             backend="torch", device=args.device, dtype="float32", compile=args.compile)
     dt = float(eval_env.unwrapped.dt)
@@ -154,7 +168,9 @@ def main(argv=None) -> int:
             "seed": args.seed, "target_speed_m_s": args.target, "budget_s": args.budget_s,
             "settings": {"num_envs": args.num_envs, "steps_per_env": args.steps_per_env, "epochs": args.epochs,
                          "mini_batches": args.mini_batches, "learning_rate": args.learning_rate,
-                         "init_std": args.init_std, "compile": args.compile, "reset_sampling": args.reset_sampling,
+                         "schedule": args.schedule, "entropy_coef": args.entropy_coef,
+                         "init_std": args.init_std, "env_backend": args.env_backend,
+                         "compile": args.compile, "reset_sampling": args.reset_sampling,
                          "eval_envs": args.eval_envs, "eval_episode_s": episode_steps * dt,
                          "runner_config": cfg},
             "reached": reached is not None,
