@@ -5,7 +5,13 @@ device (``--device cpu`` or ``cuda``), until the policy's mean forward speed fir
 target (default 0.345 m/s) or the wall-clock budget ends.
 
     python scripts/device_time_to_policy.py --device cpu --budget-s 600 --out results/device_time_to_policy/cpu.json
-    python scripts/device_time_to_policy.py --device cuda --num-envs 8192 --budget-s 120 --out gpu.json
+    python scripts/device_time_to_policy.py --device cuda --compile --reset-sampling device --num-envs 8192 \
+        --budget-s 120 --out gpu.json
+    python scripts/device_time_to_policy.py --table results/device_time_to_policy/cpu_search/*.json
+
+``--env-backend numpy`` trains on the NumPy/numba vector env instead (tensors on ``--device``):
+on a CPU it runs faster than the torch env, for searching learner settings in iterations and env
+steps (the same task). ``--table`` prints a markdown table of result files.
 
 Every ``--eval-every-s`` seconds of training the policy's mean action (no exploration noise) is
 run for one full episode (20 s) of ``--eval-envs`` envs of a separate torch env on the same
@@ -31,6 +37,7 @@ import platform
 import shlex
 import sys
 import time
+from pathlib import Path
 
 from tensegrity_gym.io.atomic import check_writable, write_atomic
 from tensegrity_gym_agents.common import cpu_model, cpus_available, passive_openmp_wait
@@ -112,8 +119,17 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: the CPUs available)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--label", default=None, help="free text stored in the JSON (e.g. the machine's load)")
-    p.add_argument("--out", required=True, help="JSON result file")
+    p.add_argument("--out", help="JSON result file (required unless --table)")
+    p.add_argument("--table", nargs="+", metavar="JSON", help="print a markdown table of these results and exit")
     args = p.parse_args(argv)
+    if args.table:
+        try:
+            print(results_table(args.table))
+        except ValueError as e:
+            p.error(str(e))
+        return 0
+    if not args.out:
+        p.error("--out is required (or --table)")
     out = check_writable(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     passive_openmp_wait()          # before torch loads its OpenMP runtime
@@ -235,6 +251,31 @@ def main(argv=None) -> int:
     env.close()
     eval_env.close()
     return 0
+
+
+def results_table(paths, at=(80, 160, 240)) -> str:
+    """A markdown table of result files: settings, seed, iterations, env steps, the speeds at the
+    evaluations of iterations ``at`` (where evaluated), the best speed, whether it reached the
+    target and why the run stopped."""
+    head = ("| run | device | envs x steps | epochs x minibatches | std | lr schedule | entropy | seed | iterations "
+            "| env steps | " + " | ".join(f"speed at it. {k} (m/s)" for k in at)
+            + " | best (m/s) | reached | stopped |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for path in paths:
+        try:
+            r = json.loads(Path(path).read_text())
+            st = r["settings"]
+            speed = {e["iterations"]: e["speed_m_s"] for e in r["evaluations"]}
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise ValueError(f"--table {path!r}: not a result file of this script ({type(e).__name__}: {e})") from None
+        cells = [os.path.basename(path), f"{r['device_name']} ({st.get('env_backend', 'torch')} env)",
+                 f"{st['num_envs']} x {st['steps_per_env']}", f"{st['epochs']} x {st['mini_batches']}",
+                 f"{st['init_std']}", st.get("schedule", "adaptive"), f"{st.get('entropy_coef', 0.0)}", f"{r['seed']}",
+                 f"{r['iterations']}", f"{r['env_steps'] / 1e6:.2f}M"]
+        cells += [f"{speed[k]:.3f}" if k in speed else "-" for k in at]
+        cells += [f"{r['best_speed_m_s']:.3f}", "yes" if r["reached"] else "no", r.get("stopped", "-")]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def _write_json(path, data: dict) -> None:

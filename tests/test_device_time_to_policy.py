@@ -23,7 +23,7 @@ def _script():
 
 
 @pytest.mark.parametrize("target, reached", [(0.345, False), (-1.0, True)])
-def test_tiny_run_writes_the_result(tmp_path, target, reached):
+def test_tiny_run_writes_the_result(tmp_path, capsys, target, reached):
     out = tmp_path / "r.json"
     rc = _script().main(["--device", "cpu", "--num-envs", "8", "--steps-per-env", "4", "--max-iterations", "3",
                          "--eval-every-iterations", "2", "--eval-envs", "2", "--eval-episode-steps", "5",
@@ -36,6 +36,10 @@ def test_tiny_run_writes_the_result(tmp_path, target, reached):
         assert key in r, key
     assert r["device"] == "cpu" and r["device_name"] == r["cpu_model"] and r["seed"] == 3
     assert r["reached"] is reached and r["stopped"] == ("target reached" if reached else "budget")
+    assert _script().main(["--table", str(out)]) == 0
+    row = capsys.readouterr().out.strip().splitlines()[-1]
+    end = "| yes | target reached |" if reached else "| no | budget |"
+    assert row.startswith("| r.json | ") and row.endswith(end)
     evals = r["evaluations"]
     assert evals and all({"training_wall_s", "env_steps", "iterations", "speed_m_s"} <= set(e) for e in evals)
     if reached:      # stops at the first evaluation at or above the target

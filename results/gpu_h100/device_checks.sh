@@ -5,6 +5,9 @@
 #   ttp_a, ttp_b, ttp_a1: time to policy, rsl_rl PPO on the compiled torch device env, env and
 #       learner on the GPU (a: 8192 envs x 16 steps, 4 epochs x 4 minibatches; a1: the same, seed 1;
 #       b: 4096 envs x 32 steps, 2 epochs x 8 minibatches);
+#   ttp_c: 1024 envs x 32 steps, 2 epochs x 8 minibatches, entropy bonus 0.005 (the setting that left
+#       the 0.03 m/s plateau in every CPU run, results/device_time_to_policy/README.md);
+#   profile: where a control step of the torch env goes (scripts/profile_torch_env.py);
 #   pytest: the CUDA tests (torch backend, envs, device resets, terrain);
 #   terrain: the torch terrain envs' throughput against flat ground, eager and compiled (float32).
 # Everything lands in $OUT (set by the device tool; defaults to ./runs/device here).
@@ -25,10 +28,11 @@ gymnasium.__version__, 'tensordict', tensordict.__version__, 'cpu', c.cpu_model(
 cat "$OUT/versions.txt"
 T="$PY scripts/device_time_to_policy.py --device $DEV --compile --reset-sampling device --budget-s $BUDGET \
    --eval-every-s 10 --eval-envs 64 --label lent_device_machine"
-ttp() {  # name envs steps epochs minibatches seed
-  timeout 160 $T --num-envs $(($2 / SCALE)) --steps-per-env $3 --epochs $4 --mini-batches $5 --seed $6 \
-    --out "$OUT/ttp_$1.json" > "$OUT/ttp_$1.log" 2>&1
-  grep -E "training,|reach" "$OUT/ttp_$1.log" | tail -n 12
+ttp() {  # name envs steps epochs minibatches seed [more arguments]
+  name=$1 envs=$2 steps=$3 epochs=$4 mb=$5 seed=$6; shift 6
+  timeout 160 $T --num-envs $((envs / SCALE)) --steps-per-env $steps --epochs $epochs --mini-batches $mb \
+    --seed $seed --out "$OUT/ttp_$name.json" "$@" > "$OUT/ttp_$name.log" 2>&1
+  grep -E "training,|reach" "$OUT/ttp_$name.log" | tail -n 12
 }
 for part in "$@"; do
   echo "== $part"
@@ -36,6 +40,9 @@ for part in "$@"; do
     ttp_a) ttp 8192x16_s0 8192 16 4 4 0 ;;
     ttp_a1) ttp 8192x16_s1 8192 16 4 4 1 ;;
     ttp_b) ttp 4096x32_s0 4096 32 2 8 0 ;;
+    ttp_c) ttp 1024x32_ent005_s0 1024 32 2 8 0 --entropy-coef 0.005 ;;
+    profile) timeout 200 $PY scripts/profile_torch_env.py --device $DEV --num-envs 64 $((8192 / SCALE)) --compile \
+               --json "$OUT/profile_torch_env.json" > "$OUT/profile.log" 2>&1; tail -n 6 "$OUT/profile.log" ;;
     pytest) timeout 170 $PY -m pytest -q -p no:cacheprovider tests/test_torch_backend.py tests/test_torch_env.py \
               tests/test_torch_reset.py tests/test_torch_terrain.py -k cuda > "$OUT/pytest_cuda.log" 2>&1
             tail -n 3 "$OUT/pytest_cuda.log" ;;
