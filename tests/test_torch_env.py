@@ -236,6 +236,15 @@ def test_compiled_step_equals_eager(env_id):
     assert float((outs[0] - outs[1]).abs().max()) < 1e-10
 
 
+def test_a_device_spelled_with_its_index_is_the_device_its_tensors_report():
+    """device="cpu:0" (like "cuda" for cuda:0) is the device the env's tensors report: the env
+    takes the actions it hands out on that device."""
+    env = gym.make_vec(ID, num_envs=2, vectorization_mode="vector_entry_point", backend="torch", device="cpu:0")
+    obs, _ = env.reset(seed=0)
+    assert env.device == obs.device == torch.device("cpu")
+    env.step(torch.zeros(2, env.single_action_space.shape[0], dtype=obs.dtype))
+
+
 def test_bad_input_named():
     mk = dict(num_envs=2, vectorization_mode="vector_entry_point", backend="torch")
     if not torch.cuda.is_available():

@@ -39,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from ..torch_backend import resolve_device
+
 __all__ = ["RslRlVecEnv", "make_rsl_rl_env", "train_config"]
 
 _CLASS = None
@@ -47,12 +49,6 @@ _CLASS = None
 def _torch():
     import torch
     return torch
-
-
-def _resolved_device(device):
-    """``device`` as torch's tensors report it: ``"cuda"`` is the current CUDA device
-    (``cuda:0``), ``"cpu:0"`` is ``cpu`` (an empty tensor allocates nothing)."""
-    return _torch().empty(0, device=device).device
 
 
 def _build_class():
@@ -75,8 +71,9 @@ def _build_class():
             self.env = env
             self._base = env.unwrapped                                           # the env under any wrappers
             self._on_torch = isinstance(self._base, TorchTaskVectorEnv)          # the device-resident env
-            self.device = _resolved_device(str(self._base.device) if self._on_torch else (device or "cpu"))
-            if self._on_torch and device is not None and _resolved_device(device) != self.device:
+            # devices compared as their tensors report them ("cuda" is cuda:0, "cpu:0" is cpu)
+            self.device = resolve_device(self._base.device if self._on_torch else (device or "cpu"))
+            if self._on_torch and device is not None and resolve_device(device) != self.device:
                 raise ValueError(f"device: the torch env runs on {self.device}; got device={device!r}")
             self.num_envs = env.num_envs
             self.num_actions = int(env.single_action_space.shape[0])

@@ -34,8 +34,9 @@ _torch = torch_module
 
 def resolve_device(device=None):
     """A ``torch.device`` from None (CPU), a string or a device; ValueError if CUDA (or another
-    accelerator) is requested where none exists. A bare ``"cuda"`` resolves to the current CUDA
-    device with its index (``cuda:0``), the device its tensors report."""
+    accelerator) is requested where none exists. The device is spelled as its tensors report it:
+    a bare ``"cuda"`` resolves to the current CUDA device with its index (``cuda:0``), ``"cpu:0"``
+    to ``cpu``."""
     torch = _torch()
     if device is None:
         return torch.device("cpu")
@@ -57,6 +58,8 @@ def resolve_device(device=None):
             raise ValueError(f"device: {str(dev)!r} requested but MPS is not available")
     elif dev.type != "cpu":
         raise ValueError(f"device: {str(dev)!r} is not supported; use 'cpu' or 'cuda'")
+    else:
+        dev = torch.device("cpu")   # 'cpu:0' -> 'cpu': CPU tensors report no index
     return dev
 
 
