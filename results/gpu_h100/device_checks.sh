@@ -10,7 +10,8 @@
 #   profile: where a control step of the torch env goes (scripts/profile_torch_env.py);
 #   pytest: the CUDA tests (torch backend, envs, device resets, terrain);
 #   terrain: the torch terrain envs' throughput against flat ground, eager and compiled (float32).
-# Everything lands in $OUT (set by the device tool; defaults to ./runs/device here).
+# Everything lands in $OUT (set by the device tool; defaults to ./runs/device here). In a 15-minute
+# lease, `profile ttp_c` then `terrain pytest` fit in two calls; each part prints its rows as it goes.
 set -u
 OUT=${OUT:-runs/device}; mkdir -p "$OUT"
 PY=${PY:-python3}; DEV=${DEV:-cuda}; BUDGET=${BUDGET:-70}; SCALE=${SCALE:-1}
@@ -46,7 +47,7 @@ for part in "$@"; do
     pytest) timeout 170 $PY -m pytest -q -p no:cacheprovider tests/test_torch_backend.py tests/test_torch_env.py \
               tests/test_torch_reset.py tests/test_torch_terrain.py -k cuda > "$OUT/pytest_cuda.log" 2>&1
             tail -n 3 "$OUT/pytest_cuda.log" ;;
-    terrain) timeout 150 $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 20 \
+    terrain) timeout 240 $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 10 \
                --torch-compile --torch-device $DEV --torch-dtype float32 --torch-scenes flat "slope 20 deg" \
                "rough 2 cm (heightfield)" "steps (4 boxes)" --json "$OUT/bench_terrain_torch_env.json" \
                > "$OUT/bench_terrain.log" 2>&1
