@@ -4,6 +4,7 @@ rotation vectors. Not part of the installed package.
 
 * :func:`timeit` -- best wall time (s) of one call, calls batched to about ``target`` s;
 * :func:`timed` -- wall time of one run (best of 3 when the run is short);
+* :func:`sync` -- wait for the work queued on a torch device (CUDA), before a host clock is read;
 * :func:`quat_z_to` -- the quaternion of a rod body; :func:`mjcf` -- the MJCF of a structure
   (:func:`tensegrity_gym.io.mjcf.to_mjcf`);
 * :func:`mj_set_state`, :func:`mujoco_rollout_time` -- our state into MjData, and the
@@ -18,7 +19,7 @@ import numpy as np
 
 from tensegrity_gym.io.mjcf import to_mjcf
 
-__all__ = ["timeit", "timed", "quat_z_to", "mjcf", "mj_set_state", "mujoco_rollout_time", "rotation_vectors"]
+__all__ = ["timeit", "timed", "sync", "quat_z_to", "mjcf", "mj_set_state", "mujoco_rollout_time", "rotation_vectors"]
 
 
 # ---------------------------------------------------------------------------- timing
@@ -64,6 +65,15 @@ def timed(fn, wall_min=0.2):
 
 
 # ---------------------------------------------------------------------------- MuJoCo
+def sync(device) -> None:
+    """Wait for the work queued on the torch ``device`` (a CUDA device; a CPU runs its work as it
+    is called), so that a host clock read after it times that work."""
+    import torch
+    d = torch.device(device)
+    if d.type == "cuda":
+        torch.cuda.synchronize(d)
+
+
 def quat_z_to(z):
     """Unit quaternion (w, x, y, z) rotating the z axis onto the unit vector ``z``."""
     zz = np.array([0.0, 0.0, 1.0])

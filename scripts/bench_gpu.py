@@ -100,19 +100,14 @@ def released(model, B, scale=0.01, seed=0):
     return np.ascontiguousarray(q), np.ascontiguousarray(qd)
 
 
-def sync(dev):
-    if dev.type == "cuda":
-        torch.cuda.synchronize()
-
-
 def time_loop(fn, n_steps, min_time, dev):
     """Seconds per step: one warm-up call, then calls of ``n_steps`` steps until ``min_time`` s."""
     fn(n_steps)
-    sync(dev)
+    _bench.sync(dev)
     calls, t0 = 0, time.perf_counter()
     while True:
         fn(n_steps)
-        sync(dev)
+        _bench.sync(dev)
         calls += 1
         el = time.perf_counter() - t0
         if el >= min_time:

@@ -45,6 +45,8 @@ from tensegrity_gym.core.terrain import Box, Plane, Terrain
 from tensegrity_gym.physics import terrain as T
 from tensegrity_gym_agents.common import cpu_model
 
+from _bench import sync  # noqa: E402  (shared helpers, a sibling module)
+
 DT = 1e-3
 
 
@@ -104,18 +106,14 @@ def torch_env_rate(env_id: str, kwargs: dict, n: int, steps: int, compile: bool 
     env.reset(seed=0)
     acts = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (steps + 2, n) + env.single_action_space.shape),
                            dtype=getattr(torch, dtype), device=device)
-
-    def sync():
-        if torch.device(device).type == "cuda":
-            torch.cuda.synchronize(device)
     t0 = time.perf_counter()
     for a in acts[:2]:
         env.step(a)
-    sync()
+    sync(device)
     t1 = time.perf_counter()
     for a in acts[2:]:
         env.step(a)
-    sync()
+    sync(device)
     rate = n * steps / (time.perf_counter() - t1)
     env.close()
     return rate, t1 - t0

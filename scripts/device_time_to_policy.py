@@ -42,6 +42,8 @@ from pathlib import Path
 from tensegrity_gym.io.atomic import check_writable, write_atomic
 from tensegrity_gym_agents.common import cpu_model, cpus_available, passive_openmp_wait
 
+from _bench import sync  # noqa: E402  (shared helpers, a sibling module)
+
 HELD_OUT_SEED = 1_000_000
 
 
@@ -159,16 +161,12 @@ def main(argv=None) -> int:
     runner = OnPolicyRunner(env, cfg, log_dir=None, device=args.device)
     samples_per_iteration = args.num_envs * args.steps_per_env
 
-    def sync():
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-
     # warm-up: one iteration (first kernel launches / compiles), not counted; then restart the
     # counters so the timed run starts from the same kind of state as the budget assumes
     t = time.perf_counter()
     runner.learn(1, init_at_random_ep_len=True)
     runner.current_learning_iteration += 1
-    sync()
+    sync(device)
     warmup_s = time.perf_counter() - t
 
     def result(stopped: str) -> dict:
@@ -210,7 +208,7 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             runner.learn(1)
             runner.current_learning_iteration += 1
-            sync()
+            sync(device)
             train_s += time.perf_counter() - t
             iterations += 1
             if train_s >= next_beat:        # a line every 10 s of training, also in a log
@@ -223,7 +221,7 @@ def main(argv=None) -> int:
                 t = time.perf_counter()
                 runner.alg.eval_mode()      # frozen observation normalisation (learn() switches back)
                 speed = evaluate_speed(policy, eval_env, episode_steps, dt, torch)
-                sync()
+                sync(device)
                 eval_s += time.perf_counter() - t
                 evals.append({"training_wall_s": round(train_s, 2), "env_steps": iterations * samples_per_iteration,
                               "iterations": iterations, "speed_m_s": round(speed, 4)})

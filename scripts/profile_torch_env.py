@@ -31,6 +31,8 @@ import torch
 import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym_agents.common import cpu_model
 
+from _bench import sync  # noqa: E402  (shared helpers, a sibling module)
+
 
 def make_env(env_id: str, n: int, device: str, compile_: bool, dtype: str):
     kw = dict(num_envs=n, vectorization_mode="vector_entry_point", backend="torch", device=device, dtype=dtype,
@@ -45,28 +47,24 @@ def profile_steps(env, steps: int, warmup: int, seed: int = 0) -> dict:
     """The rows of the module doc for ``env`` (reset with ``seed``)."""
     dev = env.device if isinstance(env.device, torch.device) else torch.device(env.device)
     cuda = dev.type == "cuda"
-
-    def sync():
-        if cuda:
-            torch.cuda.synchronize(dev)
     env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     shape = (warmup + 2 * steps, env.num_envs) + env.single_action_space.shape
     acts = torch.as_tensor(rng.uniform(-1, 1, shape), dtype=env.dtype, device=dev)
     for a in acts[:warmup]:
         env.step(a)
-    sync()
+    sync(dev)
     t0 = time.perf_counter()
     for a in acts[warmup:warmup + steps]:
         env.step(a)
-    sync()
+    sync(dev)
     ms = (time.perf_counter() - t0) / steps * 1e3
     from torch.profiler import ProfilerActivity, profile
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
     with profile(activities=activities) as prof:
         for a in acts[warmup + steps:]:
             env.step(a)
-        sync()
+        sync(dev)
     names, kernels, device_us = Counter(), 0, 0.0
     for e in prof.events():
         if cuda and e.device_type == torch.autograd.DeviceType.CUDA:

@@ -15,6 +15,12 @@ pytest.importorskip("tensordict")
 SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "device_time_to_policy.py"
 
 
+@pytest.fixture(autouse=True)
+def _scripts_on_path(monkeypatch):
+    """scripts/ importable, as it is when the script runs (it imports its sibling ``_bench``)."""
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))
+
+
 def _script():
     spec = importlib.util.spec_from_file_location("device_time_to_policy", SCRIPT)
     mod = importlib.util.module_from_spec(spec)

@@ -13,7 +13,8 @@ pytest.importorskip("torch")
 SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "profile_torch_env.py"
 
 
-def test_profile_rows(tmp_path, capsys):
+def test_profile_rows(tmp_path, capsys, monkeypatch):
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))     # as when the script runs: it imports _bench
     spec = importlib.util.spec_from_file_location("profile_torch_env", SCRIPT)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
