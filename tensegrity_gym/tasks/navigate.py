@@ -31,8 +31,7 @@ from ..core.terrain import Box, Heightfield, Terrain
 from .xp import NUMPY, namespace
 
 __all__ = ["CourseSpec", "Course", "draw_course", "guidance", "guidance_batch", "guidance_frame", "current_goal",
-           "track_goals",
-           "navigate_observation", "height_scan", "MAX_TRIES"]
+           "track_goals", "navigate_observation", "height_scan", "MAX_TRIES"]
 
 #: courses drawn before a spec is declared unsolvable
 MAX_TRIES = 200

@@ -157,6 +157,14 @@ def _box(p0, p1, p2, cols, normal: bool = True):
     return d, c * n0 - s * n1, s * n0 + c * n1, n2
 
 
+def _hf_normal(gx, gy):
+    """The unit normal of a surface of height gradient (gx, gy) and the length of its
+    unnormalised normal ``|(-gx, -gy, 1)|``, the gradient of the vertical gap (the numba
+    ``_hf_normal``)."""
+    w = _torch().sqrt(1.0 + gx * gx + gy * gy)
+    return -gx / w, -gy / w, 1.0 / w, w
+
+
 def _closest(p0, p1, p2, part, normal: bool = True):
     """Contact measure of points against the terrain part ``part`` (:class:`_Part`): (signed
     distance or a heightfield's vertical gap, outward unit normal, w), the measure's gradient
@@ -171,8 +179,7 @@ def _closest(p0, p1, p2, part, normal: bool = True):
         h, gx, gy = hf_patch(p0, p1, part)
         if not normal:
             return p2 - h
-        w = torch.sqrt(1.0 + gx * gx + gy * gy)
-        return p2 - h, -gx / w, -gy / w, 1.0 / w, w
+        return (p2 - h,) + _hf_normal(gx, gy)
     cols = tuple(part.col(i, p0) for i in range(1, 9))
     if not normal:
         return _box(p0, p1, p2, cols, False)
@@ -410,8 +417,8 @@ def _forces(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0, active):
         if kink:
             # the interior slot's normal from the gradient of the lowest point (a kink's combination;
             # a heightfield every rod is far from has no search, and its unused slot 2 keeps _closest's)
-            wk = torch.sqrt(1.0 + kgx * kgx + kgy * kgy)
-            nk = torch.stack([-kgx / wk, -kgy / wk, 1.0 / wk], dim=-1)
+            kx, ky, kz, wk = _hf_normal(kgx, kgy)
+            nk = torch.stack([kx, ky, kz], dim=-1)
             n = torch.cat([n[..., :2, :], nk[..., None, :]], dim=-2)
             w = torch.cat([w[..., :2], wk[..., None]], dim=-1)
         # the interior slot's level: min(radius, sd_a, sd_c), the deeper touching node (the numba
