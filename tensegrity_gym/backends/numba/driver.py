@@ -20,7 +20,7 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
-from .terrain import hf_bound_of, lanes_forces, plane_forces, plane_load, plane_store
+from .terrain import add_ext, hf_bound_of, lanes_forces, plane_first, plane_forces, plane_load, plane_store
 from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
                      _opts, _soa_width_nb)
 
@@ -154,9 +154,12 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
     slip flags stay in lane scratch for all ``n_steps`` and are stored with the state.
     ``terrain``: None or the tuple of :func:`.terrain.lanes_forces` (terrain contact: its forces
     replace EX at the start of every step, as the ground contact's; the contact state is the
-    copies' own arrays; ``ext`` receives each copy's forces of its last step). ``plane``: None or
-    the tuple of :func:`.terrain.plane_forces` (a terrain that is one plane, as ``terrain`` but
-    for that one kind: the instance then carries no code for the other kinds)."""
+    copies' own arrays; ``ext`` receives each copy's forces of its last step; a feature 0 that
+    is a plane in every copy, the ground under steps or walls, runs in the lanes
+    (:func:`.terrain.plane_forces`, its node slots' state in lane scratch as the plane
+    instance's) and the other features after it). ``plane``: None or the tuple of
+    :func:`.terrain.plane_forces` (a terrain that is one plane, as ``terrain`` but for that one
+    kind: the instance then carries no code for the other kinds)."""
     S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, E, lanes.shape[0] > 0)
     if contact is not None:
         eta, rod_a, rod_c, prm, anchor, active, slip, cext = contact
@@ -164,20 +167,31 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         AC = np.zeros((2 * k, E), np.bool_)
         SL = np.zeros((2 * k, E), np.bool_)
     if terrain is not None:
-        TQ = np.empty((E, k, 6))
-        TQD = np.empty((E, k, 6))
-        TW = np.empty((E, n, 3))
         # unpacked once: unpacking the tuple inside the step loop costs a reference count per array and step
         (t_eta, t_rod_a, t_rod_c, t_geom, t_prm, t_hf, t_anchor, t_eta0, t_active, t_slip, t_info,
          t_ext) = terrain
+        t_g = np.empty(t_geom.shape[2])       # rows_forces' scratch for a feature's rows
+        t_pr = np.empty(t_prm.shape[2])
+        t_clr = np.empty((E, t_geom.shape[1]))     # the boxes' clearance over one call's sub-steps
+        t_ref = np.empty((E, k, 2, 3))
         # shared heights: their slope bound once per call (per-copy ones: per copy, in lanes_forces)
         t_lam = 1.0 if (t_geom.shape[0] > 1 or t_hf.shape[0] > 1) else hf_bound_of(t_geom[0], t_hf[0])
+        # a ground plane first: its node slots in the lanes, the other features after it
+        t_f0 = 1 if plane_first(t_geom) else 0
+        t_F = t_geom.shape[1]
+        PAN = np.empty((2 * k, 3, E))
+        PAC = np.zeros((2 * k, E), np.bool_)
+        PSL = np.zeros((2 * k, E), np.bool_)
     if plane is not None:
         p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_anchor, p_eta0, p_active, p_slip, p_ext = plane
         PAN = np.empty((2 * k, 3, E))
         PAC = np.zeros((2 * k, E), np.bool_)
         PSL = np.zeros((2 * k, E), np.bool_)
     Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
+    if terrain is not None:
+        # the terrain forces read the lanes (k, 6, E) and write EX (n, 3, E) through views indexed
+        # by copy first, as rows_forces indexes a batch
+        QT, QDT, EXT = Q.transpose((2, 0, 1)), QD.transpose((2, 0, 1)), EX.transpose((2, 0, 1))
     per_copy = lanes.shape[0] > 0
     rk4 = (flags & _RK4) != 0
     n_stages = 4 if rk4 else 1
@@ -205,15 +219,21 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         if contact is not None:
             _contact_load(anchor, active, AN, AC, c0, ne, k, E)
         if plane is not None:
-            plane_load(p_anchor, p_eta0, p_active, PAN, PAC, p_eta, c0, ne, k, E)
-        for _ in range(n_steps):
+            plane_load(p_anchor, p_eta0, p_active, PAN, PAC, p_eta, c0, ne, k, 1, E)
+        if terrain is not None and t_f0 > 0:
+            plane_load(t_anchor, t_eta0, t_active, PAN, PAC, t_eta, c0, ne, k, t_F, E)
+        for step in range(n_steps):
             if contact is not None:                 # held over the step, as contact.step does
                 _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)
             if terrain is not None:
-                lanes_forces(Q, QD, EX, TQ, TQD, TW, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, t_hf, t_anchor, t_eta0,
-                             t_active, t_slip, t_info, t_ext, t_lam, c0, ne, k, n, E)
+                if t_f0 > 0:
+                    plane_forces(Q, QD, EX, PAN, PAC, PSL, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, c0, ne, k, n, E)
+                lanes_forces(QT, QDT, EXT, EX, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, t_hf, t_anchor, t_eta0,
+                             t_active, t_slip, t_info, t_ext, t_lam, t_g, t_pr, t_clr, t_ref, step == 0, c0, ne, k, n,
+                             E, t_f0)
             if plane is not None:
-                plane_forces(Q, QD, EX, PAN, PAC, PSL, p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_ext, c0, ne, k, n, E)
+                plane_forces(Q, QD, EX, PAN, PAC, PSL, p_eta, p_rod_a, p_rod_c, p_geom, p_prm, c0, ne, k, n, E)
+                add_ext(EX, p_ext, c0, ne, n, E)
             Qi = Q
             Vi = QD
             A = A1
@@ -263,7 +283,9 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         if contact is not None:
             _contact_store(anchor, active, slip, ext, AN, AC, SL, EX, c0, ne, k, n)
         if plane is not None:
-            plane_store(p_anchor, p_eta0, p_active, p_slip, PAN, PAC, PSL, p_eta, c0, ne, k)
+            plane_store(p_anchor, p_eta0, p_active, p_slip, PAN, PAC, PSL, p_eta, c0, ne, k, 1)
+        if terrain is not None and t_f0 > 0:
+            plane_store(t_anchor, t_eta0, t_active, t_slip, PAN, PAC, PSL, t_eta, c0, ne, k, t_F)
         if terrain is not None or plane is not None:
             for e in range(ne):
                 for p in range(n):

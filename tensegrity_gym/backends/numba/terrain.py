@@ -251,20 +251,30 @@ def hf_bound_of(geom_row, H):
 # made the first terrain step of a new install compile for 77 s, not 19 s; the call costs one
 # function call per SIMD block and physics step
 @njit(**_opts)
-def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info):
+def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0, g,
+                pr, clr, ref, fresh):
     """The terrain forces of copies ``c0 .. c0 + nr - 1`` at ``Q[r]``, ``QD[r]`` (k, 6) into
     ``Wc[r]`` (n, 3) N, row r = copy - c0: the one implementation of the terrain contact
     (:func:`terrain_forces_kernel` calls it on the whole batch, the loop driver on each block
     of lanes at each step). ``lam`` the shared heights' slope bound (:func:`hf_bound_of`; per-copy
     heights: computed here); ``geom``, ``prm``, ``hf``, ``anchor``, ``eta0``, ``active``,
-    ``slip`` and ``info`` (when it has rows) indexed by copy, as the kernel takes them."""
+    ``slip`` and ``info`` (when it has rows) indexed by copy, as the kernel takes them.
+    ``f0``: the first feature (0: all, ``Wc`` zeroed first; 1: the loop driver has put feature
+    0's forces, a plane's, in ``Wc`` (:func:`plane_forces`), and the others are added to them in
+    the order of the features, as with ``f0`` = 0). ``g`` (10,), ``pr`` (8,): scratch for a
+    feature's rows (copied there, not sliced: a slice is a new array view, whose reference
+    counting cost about as much as a plane's contact itself).
+    ``clr`` (nr, F), ``ref`` (nr, k, 2, 3): the boxes' clearance over the loop driver's sub-steps
+    of one call (0 rows: not kept). At the first sub-step (``fresh``) ``ref`` takes the rods' end
+    points m and ``clr[r, f]`` the least, over the rods, of the box's far-test slack m (the slab
+    bound of the rod's middle less half the rod's length and the cap radius; <= 0 where a rod is
+    not far). At a later sub-step a box whose clearance exceeds the largest move of a rod end
+    from ``ref`` (1-norm, which bounds the move of every rod point) is still out of reach (the
+    signed distance is 1-Lipschitz) and its slots, released at the first sub-step, are still
+    released: the box is passed over, the same numbers for less work."""
     k, n = Q.shape[1], Wc.shape[1]
     F = geom.shape[1]
     has_info = info.shape[0] > 0
-    # the feature's rows copied here (not sliced: a slice is a new array view, whose reference
-    # counting cost about as much as a plane's contact itself)
-    g = np.empty(geom.shape[2])
-    pr = np.empty(prm.shape[2])
     # per-copy rows with a heightfield: its slope bound per copy (a (., 1, 1) hf is no heightfield)
     per_hf = (geom.shape[0] > 1 or hf.shape[0] > 1) and hf.shape[1] * hf.shape[2] > 1
     H = hf[0]       # shared heights: one view for all copies (a view per copy costs its reference count)
@@ -276,18 +286,37 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
             H = hf[c]
         if per_hf:
             lam = hf_bound_of(geom[g_row], H)
-        for p in range(n):
-            Wc[r, p, 0] = 0.0
-            Wc[r, p, 1] = 0.0
-            Wc[r, p, 2] = 0.0
+        if f0 == 0:
+            for p in range(n):
+                Wc[r, p, 0] = 0.0
+                Wc[r, p, 1] = 0.0
+                Wc[r, p, 2] = 0.0
+        # the boxes' clearance: set at the call's first sub-step; after it, the rod ends' largest move since
+        moved = math.inf
+        if clr.shape[0] > 0:
+            moved = 0.0
+            for j in range(k):
+                for s in range(2):
+                    e = eta[j, s]
+                    p0, p1, p2 = Q[r, j, 0] + e * Q[r, j, 3], Q[r, j, 1] + e * Q[r, j, 4], Q[r, j, 2] + e * Q[r, j, 5]
+                    if fresh:
+                        ref[r, j, s, 0], ref[r, j, s, 1], ref[r, j, s, 2] = p0, p1, p2
+                    else:
+                        moved = max(moved, abs(p0 - ref[r, j, s, 0]) + abs(p1 - ref[r, j, s, 1])
+                                    + abs(p2 - ref[r, j, s, 2]))
+            if fresh:
+                for f in range(f0, F):
+                    clr[r, f] = math.inf
         for j in range(k):
             r0, r1, r2 = Q[r, j, 0], Q[r, j, 1], Q[r, j, 2]
             b0, b1, b2 = Q[r, j, 3], Q[r, j, 4], Q[r, j, 5]
             ea, ec = eta[j, 0], eta[j, 1]
             span = ec - ea
             em = 0.5 * (ea + ec)
-            for f in range(F):
+            for f in range(f0, F):
                 kind = geom[g_row, f, 0]
+                if kind == BOX and not fresh and clr.shape[0] > 0 and moved + 1e-12 < clr[r, f]:
+                    continue        # out of reach since the call's first sub-step, whose release stands
                 radius = prm[p_row, f, 0]
                 base = (j * F + f) * 3
                 mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
@@ -302,6 +331,8 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                     lb = max(abs(cs * dx + sn * dy) - geom[g_row, f, 4], abs(-sn * dx + cs * dy) - geom[g_row, f, 5],
                              abs(mz - geom[g_row, f, 3]) - geom[g_row, f, 6])
                     far = lb - 0.5 * abs(span) >= radius
+                    if fresh and clr.shape[0] > 0:
+                        clr[r, f] = min(clr[r, f], lb - 0.5 * abs(span) - radius)
                 if not far:
                     for i in range(g.shape[0]):
                         g[i] = geom[g_row, f, i]
@@ -481,7 +512,8 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
     ``(eta_c - eta) / (eta_c - eta_a) F`` and ``(eta - eta_a) / (eta_c - eta_a) F``: the
     generalized force ``[F, eta F]`` exactly (:func:`rows_forces`)."""
     lam = 1.0 if (geom.shape[0] > 1 or hf.shape[0] > 1) else hf_bound_of(geom[0], hf[0])
-    rows_forces(0, q.shape[0], q, qd, W, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info)
+    rows_forces(0, q.shape[0], q, qd, W, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, 0,
+                np.empty(geom.shape[2]), np.empty(prm.shape[2]), np.empty((0, 0)), np.empty((0, 0, 2, 3)), False)
 
 
 @njit(inline="always", **_opts)
@@ -496,56 +528,83 @@ def plane_only(geom):
 
 
 @njit(inline="always", **_opts)
-def plane_load(anchor, eta0, active, AN, AC, eta, c0, ne, k, E):
+def plane_first(geom):
+    """True when feature 0 of every copy's terrain ``geom`` (G, F, 10) is a plane."""
+    if geom.shape[1] == 0:
+        return False
+    for c in range(geom.shape[0]):
+        if geom[c, 0, 0] != PLANE:
+            return False
+    return True
+
+
+@njit(inline="always", **_opts)
+def plane_load(anchor, eta0, active, AN, AC, eta, c0, ne, k, F, E):
     """Lanes 0..E-1 of the plane scratch take the node slots' anchors AN (2 k, 3, E) m and
-    active flags AC (2 k, E) of copies c0..c0+ne-1 (pad lanes repeat copy c0; node slot 2 j + s
-    is the contact slot 3 j + s); the interior slots of those copies, which never touch a plane,
-    are released as :func:`rows_forces` releases them (the anchored point kept if it was
-    active), once per call: every step would do the same."""
+    active flags AC (2 k, E) of feature 0, a plane, of copies c0..c0+ne-1 (pad lanes repeat
+    copy c0; node slot 2 j + s is the contact slot 3 j F + s of F features); the interior
+    slots of that feature, which never touch a plane, are released as :func:`rows_forces`
+    releases them (the anchored point kept if it was active), once per call: every step would
+    do the same."""
     for e in range(E):
         src = c0 + e if e < ne else c0
         for j in range(k):
             for s in range(2):
-                AN[2 * j + s, 0, e] = anchor[src, 3 * j + s, 0]
-                AN[2 * j + s, 1, e] = anchor[src, 3 * j + s, 1]
-                AN[2 * j + s, 2, e] = anchor[src, 3 * j + s, 2]
-                AC[2 * j + s, e] = active[src, 3 * j + s]
+                AN[2 * j + s, 0, e] = anchor[src, 3 * j * F + s, 0]
+                AN[2 * j + s, 1, e] = anchor[src, 3 * j * F + s, 1]
+                AN[2 * j + s, 2, e] = anchor[src, 3 * j * F + s, 2]
+                AC[2 * j + s, e] = active[src, 3 * j * F + s]
     for e in range(ne):
         for j in range(k):
-            ci = 3 * j + 2
+            ci = 3 * j * F + 2
             if not active[c0 + e, ci]:
                 eta0[c0 + e, ci] = 0.5 * (eta[j, 0] + eta[j, 1])
             active[c0 + e, ci] = False
 
 
 @njit(inline="always", **_opts)
-def plane_store(anchor, eta0, active, slip, AN, AC, SL, eta, c0, ne, k):
-    """Copies c0..c0+ne-1 take their lanes' node slots (anchors, active and slip flags; their
-    anchored point is the node's own, ``eta0`` its eta) and no slip at the interior slots."""
+def plane_store(anchor, eta0, active, slip, AN, AC, SL, eta, c0, ne, k, F):
+    """Copies c0..c0+ne-1 take their lanes' node slots of feature 0 (anchors, active and slip
+    flags; their anchored point is the node's own, ``eta0`` its eta; F features) and no slip at
+    its interior slots."""
     for e in range(ne):
         for j in range(k):
             for s in range(2):
-                ci = 3 * j + s
+                ci = 3 * j * F + s
                 anchor[c0 + e, ci, 0] = AN[2 * j + s, 0, e]
                 anchor[c0 + e, ci, 1] = AN[2 * j + s, 1, e]
                 anchor[c0 + e, ci, 2] = AN[2 * j + s, 2, e]
                 active[c0 + e, ci] = AC[2 * j + s, e]
                 slip[c0 + e, ci] = SL[2 * j + s, e]
                 eta0[c0 + e, ci] = eta[j, s]
-            slip[c0 + e, 3 * j + 2] = False
+            slip[c0 + e, 3 * j * F + 2] = False
 
 
 @njit(inline="always", **_opts)
-def plane_forces(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, geom, prm, ext, c0, ne, k, n, E):
+def add_ext(EX, ext, c0, ne, n, E):
+    """Lanes 0..E-1 of EX (n, 3, E) N gain the external force ``ext`` (0, 1 or B rows of
+    (n, 3)) N of their copies (pad lanes: copy c0's)."""
+    if ext.shape[0] > 0:
+        for e in range(E):
+            r = (c0 + e if e < ne else c0) if ext.shape[0] > 1 else 0
+            for p in range(n):
+                for i in range(3):
+                    EX[p, i, e] += ext[r, p, i]
+
+
+@njit(inline="always", **_opts)
+def plane_forces(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, geom, prm, c0, ne, k, n, E):
     """:func:`rows_forces` of E lanes of the loop driver (copies c0..c0+ne-1, pad lanes repeat
-    c0) on a terrain that is one plane (:func:`plane_only`), read in the lanes (Q, QD (k, 6, E)
-    m, m/s), into EX (n, 3, E) N plus ``ext`` (0, 1 or B rows of (n, 3)) N; the node slots'
-    state in the lane scratch of :func:`plane_load`. The same force law (:func:`_slot_force`)
-    on the same numbers in the same order, so the same bits, without what a plane never needs
-    (the transposed copy of the state, the far test, the interior slot: a plane's nearest point
-    of a rod is an end, and a node slot's force goes to its own node whole). The loop driver's
-    plane instances call it: their step loop carries no code for boxes or heights (a branch to
-    it, never taken, made the step of a plane 1.5 times slower at one copy)."""
+    c0) for feature 0 of the terrain, a plane (:func:`plane_first`), read in the lanes (Q, QD
+    (k, 6, E) m, m/s), into EX (n, 3, E) N; the node slots' state in the lane scratch of
+    :func:`plane_load`. The same force law (:func:`_slot_force`) on the same numbers in the
+    same order, so the same bits, without what a plane never needs (the transposed copy of the
+    state, the far test, the interior slot: a plane's nearest point of a rod is an end, and a
+    node slot's force goes to its own node whole). The loop driver's plane instances call it
+    (their step loop carries no code for boxes or heights: a branch to it, never taken, made
+    the step of a plane 1.5 times slower at one copy), and its general terrain instance for a
+    terrain whose feature 0 is a plane (the ground under steps and walls), before
+    :func:`lanes_forces` adds the other features."""
     for e in range(E):
         c = c0 + e if e < ne else c0
         gr = c if geom.shape[0] > 1 else 0
@@ -572,40 +631,29 @@ def plane_forces(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, geom, prm, ext, c0, n
                     EX[node, 0, e] += fx
                     EX[node, 1, e] += fy
                     EX[node, 2, e] += fz
-        if ext.shape[0] > 0:
-            r = c if ext.shape[0] > 1 else 0
-            for p in range(n):
-                for i in range(3):
-                    EX[p, i, e] += ext[r, p, i]
 
 
 @njit(inline="always", **_opts)
-def lanes_forces(Q, QD, EX, TQ, TQD, TW, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, info, ext,
-                 lam, c0, ne, k, n, E):
-    """The terrain forces of E lanes of the loop driver (copies c0..c0+ne-1 at Q, QD (k, 6, E) m,
-    m/s) into EX (n, 3, E) N, plus the external force ``ext``: the lanes' states copied into
-    the scratch TQ, TQD (E, k, 6), their forces (:func:`rows_forces`) into TW (E, n, 3); the
-    contact state of the copies updated in place. Pad lanes (e >= ne, copies of lane 0) take
-    lane 0's forces. ``eta`` .. ``info`` as :func:`terrain_forces_kernel` takes them, ``ext``
-    (0, 1 or B rows of (n, 3)) N; ``lam`` the shared heights' slope bound."""
-    for e in range(ne):
-        for j in range(k):
-            for i in range(6):
-                TQ[e, j, i] = Q[j, i, e]
-                TQD[e, j, i] = QD[j, i, e]
-    rows_forces(c0, ne, TQ, TQD, TW, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info)
-    for e in range(ne):
-        if ext.shape[0] > 0:
+def lanes_forces(QT, QDT, EXT, EX, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, info, ext, lam, g,
+                 pr, clr, ref, fresh, c0, ne, k, n, E, f0):
+    """The terrain forces of E lanes of the loop driver (copies c0..c0+ne-1) into EX (n, 3, E) N,
+    plus the external force ``ext``: :func:`rows_forces` on the lanes' state Q, QD (k, 6, E) m,
+    m/s read through their transposed views ``QT``, ``QDT`` (E, k, 6) and the forces written
+    through ``EXT`` (E, n, 3), EX's (views made once per call: no copy of the state per step);
+    the contact state of the copies updated in place. Pad lanes (e >= ne, copies of lane 0)
+    take lane 0's forces. ``eta`` .. ``info`` as :func:`terrain_forces_kernel` takes them,
+    ``ext`` (0, 1 or B rows of (n, 3)) N; ``lam`` the shared heights' slope bound; ``g``,
+    ``pr`` rows_forces' scratch, ``clr``, ``ref``, ``fresh`` its boxes' clearance. ``f0`` = 1: EX holds feature 0's forces already
+    (:func:`plane_forces`), the other features' are added to them."""
+    rows_forces(c0, ne, QT, QDT, EXT, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0,
+                g, pr, clr, ref, fresh)
+    if ext.shape[0] > 0:
+        for e in range(ne):
             r = c0 + e if ext.shape[0] > 1 else 0
             for p in range(n):
                 for i in range(3):
-                    EX[p, i, e] = TW[e, p, i] + ext[r, p, i]
-        else:
-            for p in range(n):
-                for i in range(3):
-                    EX[p, i, e] = TW[e, p, i]
+                    EX[p, i, e] += ext[r, p, i]
     for e in range(ne, E):
         for p in range(n):
             for i in range(3):
                 EX[p, i, e] = EX[p, i, 0]
-
