@@ -643,8 +643,9 @@ def lanes_forces(QT, QDT, EXT, EX, eta, rod_a, rod_c, geom, prm, hf, anchor, eta
     the contact state of the copies updated in place. Pad lanes (e >= ne, copies of lane 0)
     take lane 0's forces. ``eta`` .. ``info`` as :func:`terrain_forces_kernel` takes them,
     ``ext`` (0, 1 or B rows of (n, 3)) N; ``lam`` the shared heights' slope bound; ``g``,
-    ``pr`` rows_forces' scratch, ``clr``, ``ref``, ``fresh`` its boxes' clearance. ``f0`` = 1: EX holds feature 0's forces already
-    (:func:`plane_forces`), the other features' are added to them."""
+    ``pr`` rows_forces' scratch, ``clr``, ``ref``, ``fresh`` its boxes' clearance. ``f0`` = 1: EX
+    holds feature 0's forces already (:func:`plane_forces`), the other features' are added to
+    them."""
     rows_forces(c0, ne, QT, QDT, EXT, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0,
                 g, pr, clr, ref, fresh)
     if ext.shape[0] > 0:
