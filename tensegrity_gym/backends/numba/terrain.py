@@ -517,17 +517,6 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
 
 
 @njit(inline="always", **_opts)
-def plane_only(geom):
-    """True when every copy's terrain ``geom`` (G, F, 10) is one plane and nothing else."""
-    if geom.shape[1] != 1:
-        return False
-    for c in range(geom.shape[0]):
-        if geom[c, 0, 0] != PLANE:
-            return False
-    return True
-
-
-@njit(inline="always", **_opts)
 def plane_first(geom):
     """True when feature 0 of every copy's terrain ``geom`` (G, F, 10) is a plane."""
     if geom.shape[1] == 0:
@@ -536,6 +525,12 @@ def plane_first(geom):
         if geom[c, 0, 0] != PLANE:
             return False
     return True
+
+
+@njit(inline="always", **_opts)
+def plane_only(geom):
+    """True when every copy's terrain ``geom`` (G, F, 10) is one plane and nothing else."""
+    return geom.shape[1] == 1 and plane_first(geom)
 
 
 @njit(inline="always", **_opts)
