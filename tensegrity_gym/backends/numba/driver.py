@@ -179,11 +179,10 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         # a ground plane first: its node slots in the lanes, the other features after it
         t_f0 = 1 if plane_first(t_geom) else 0
         t_F = t_geom.shape[1]
-        PAN = np.empty((2 * k, 3, E))
-        PAC = np.zeros((2 * k, E), np.bool_)
-        PSL = np.zeros((2 * k, E), np.bool_)
     if plane is not None:
         p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_anchor, p_eta0, p_active, p_slip, p_ext = plane
+    if terrain is not None or plane is not None:
+        # a plane's node slots in lane scratch (the plane instance's, or the ground plane listed first)
         PAN = np.empty((2 * k, 3, E))
         PAC = np.zeros((2 * k, E), np.bool_)
         PSL = np.zeros((2 * k, E), np.bool_)

@@ -330,9 +330,10 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                     cs, sn = geom[g_row, f, 7], geom[g_row, f, 8]
                     lb = max(abs(cs * dx + sn * dy) - geom[g_row, f, 4], abs(-sn * dx + cs * dy) - geom[g_row, f, 5],
                              abs(mz - geom[g_row, f, 3]) - geom[g_row, f, 6])
-                    far = lb - 0.5 * abs(span) >= radius
+                    clear = lb - 0.5 * abs(span)
+                    far = clear >= radius
                     if fresh and clr.shape[0] > 0:
-                        clr[r, f] = min(clr[r, f], lb - 0.5 * abs(span) - radius)
+                        clr[r, f] = min(clr[r, f], clear - radius)
                 if not far:
                     for i in range(g.shape[0]):
                         g[i] = geom[g_row, f, i]
@@ -643,12 +644,7 @@ def lanes_forces(QT, QDT, EXT, EX, eta, rod_a, rod_c, geom, prm, hf, anchor, eta
     them."""
     rows_forces(c0, ne, QT, QDT, EXT, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0,
                 g, pr, clr, ref, fresh)
-    if ext.shape[0] > 0:
-        for e in range(ne):
-            r = c0 + e if ext.shape[0] > 1 else 0
-            for p in range(n):
-                for i in range(3):
-                    EX[p, i, e] += ext[r, p, i]
+    add_ext(EX, ext, c0, ne, n, E)
     for e in range(ne, E):
         for p in range(n):
             for i in range(3):
