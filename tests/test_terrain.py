@@ -601,6 +601,49 @@ def test_heightfield_search_below_the_cut_is_the_full_search():
             assert np.array_equal(a, b_)
 
 
+def test_monotone_rod_has_no_interior_point():
+    """A rod whose axis rises faster than the heightfield can (``hf_monotone``: ``|b_z| >= L
+    |b_xy|``, L the slope bound) has its lowest point at an end: the full search over its axis
+    finds no interior point deeper than both ends, so the kernel may skip it. Rods around the
+    bound, on a smooth and a rough field; below the bound interior points occur."""
+    from tensegrity_gym.backends.numba.heightfield import hf_lipschitz, hf_lowest, hf_monotone
+    rng = np.random.default_rng(5)
+    for hf in (bumpy(0.02), bumpy(0.03, seed=3)):
+        tc = T.TerrainContact(Terrain(plane=None, heightfield=hf))
+        g, H = tc.geom[0, 0], tc.hf[0]
+        lam = hf_lipschitz(g, H)
+        slope = math.sqrt(lam * lam - 1.0)
+        n_mono = n_deeper = 0
+        for _ in range(3000):
+            f = rng.uniform(0.3, 1.3) if rng.uniform() < 0.7 else 1.0 + rng.uniform(0.0, 1e-6)
+            th, ph = math.atan(f * slope) * rng.choice([-1.0, 1.0]), rng.uniform(-math.pi, math.pi)
+            b = np.array([math.cos(th) * math.cos(ph), math.cos(th) * math.sin(ph), math.sin(th)])
+            r = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.35, 0.35), rng.uniform(-0.03, 0.08)])
+            ends = [float(hf.gap(r + e * b)[0]) for e in (-0.2, 0.2)]
+            full = hf_lowest(-0.2, 0.2, *r, *b, g, H, math.inf, *ends)
+            if hf_monotone(*b, lam):
+                assert not full[1], (r, b, f)
+                n_mono += 1
+            n_deeper += full[1]
+        assert n_mono > 800 and n_deeper > 20, (n_mono, n_deeper)
+    # the bound is tight: over a ridge of slope s (L = s) a rod along x across it at elevation
+    # atan(f s) touches the ridge's top, deeper than both ends, for f < 1, and only for f < 1
+    s_ = 0.4
+    x = -0.35 + 0.05 * np.arange(15)
+    hf = Heightfield(np.tile(0.1 - s_ * np.abs(x - 0.0), (13, 1)), 0.05, origin=(-0.35, -0.3))
+    tc = T.TerrainContact(Terrain(plane=None, heightfield=hf))
+    g, H = tc.geom[0, 0], tc.hf[0]
+    lam = hf_lipschitz(g, H)
+    assert math.sqrt(lam * lam - 1.0) == pytest.approx(s_, rel=1e-12)
+    for f, deeper in ((0.5, True), (0.99, True), (0.999, True), (1.0 + 1e-6, False), (1.5, False)):
+        th = math.atan(f * s_)
+        b = np.array([math.cos(th), 0.0, math.sin(th)])
+        r = np.array([0.0, 0.01, 0.12])
+        ends = [float(hf.gap(r + e * b)[0]) for e in (-0.2, 0.2)]
+        assert hf_lowest(-0.2, 0.2, *r, *b, g, H, math.inf, *ends)[1] == deeper, f
+        assert hf_monotone(*b, lam) == (not deeper), f
+
+
 def test_heightfield_bad_hf_is_named():
     m, tc, q, qd, ts = random_hf_scene(B=3)
     with pytest.raises(ValueError, match=r"hf: expected shape \(1, 13, 15\) or \(3, 13, 15\).*got \(3, 14, 15\)"):

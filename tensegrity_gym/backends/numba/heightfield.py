@@ -105,6 +105,17 @@ def hf_lipschitz(g, H):
 
 
 @njit(inline="always", **_opts)
+def hf_monotone(b0, b1, b2, lam) -> bool:
+    """True if the vertical gap is monotone along the rod axis of direction ``b``: the axis rises
+    (or falls) at least as fast as the surface can, ``|b_z| >= L |b_xy|`` with ``lam`` =
+    ``sqrt(1 + L^2)`` (:func:`hf_lipschitz`; the bilinear gradient's x part is bounded by the
+    largest x step over the cell, its y part by the largest y step, so ``|grad h| <= L``), with a
+    margin of 1e-9 of L^2 for round-off. Such a rod's lowest point is an end: no interior point is
+    deeper than both, and :func:`hf_lowest` need not walk it."""
+    return b2 * b2 >= (lam * lam - 1.0) * (1.0 + 1e-9) * (b0 * b0 + b1 * b1)
+
+
+@njit(inline="always", **_opts)
 def hf_lines(a, c, n):
     """The grid lines 0..n-1 strictly between the grid coordinates a (at ea) and c (at ec), in
     the order the rod meets them: (first index, step +-1, count)."""

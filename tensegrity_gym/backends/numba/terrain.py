@@ -55,7 +55,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .heightfield import LEVEL_TOL, hf_flat_under, hf_lipschitz, hf_lowest, hf_patch
+from .heightfield import LEVEL_TOL, hf_flat_under, hf_lipschitz, hf_lowest, hf_monotone, hf_patch
 from .layout import _opts
 
 #: feature kinds (column 0 of ``geom``)
@@ -395,7 +395,9 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         kink, kgx, kgy = False, 0.0, 0.0
                         if s == 2:
                             if g[0] == HFIELD:
-                                if hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
+                                if hf_monotone(b0, b1, b2, lam):
+                                    use = False     # the gap is monotone along the rod: lowest at an end
+                                elif hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
                                     use = False     # level ground under the rod: as a plane (no point is lower than both ends)
                                 else:
                                     # the lowest point of the axis, with the gradient that its force uses,
