@@ -307,17 +307,20 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
             if fresh:
                 for f in range(f0, F):
                     clr[r, f] = math.inf
-        for j in range(k):
-            r0, r1, r2 = Q[r, j, 0], Q[r, j, 1], Q[r, j, 2]
-            b0, b1, b2 = Q[r, j, 3], Q[r, j, 4], Q[r, j, 5]
-            ea, ec = eta[j, 0], eta[j, 1]
-            span = ec - ea
-            em = 0.5 * (ea + ec)
-            for f in range(f0, F):
-                kind = geom[g_row, f, 0]
+        # features outer, rods inner: a node's forces come from its own rod's slots only (class 1),
+        # added feature by feature as with the rods outer; a feature's rows copied once per copy
+        for f in range(f0, F):
+            kind = geom[g_row, f, 0]
+            radius = prm[p_row, f, 0]
+            loaded = False
+            for j in range(k):
                 if kind == BOX and not fresh and clr.shape[0] > 0 and moved + 1e-12 < clr[r, f]:
-                    continue        # out of reach since the call's first sub-step, whose release stands
-                radius = prm[p_row, f, 0]
+                    break           # out of reach since the call's first sub-step, whose release stands
+                r0, r1, r2 = Q[r, j, 0], Q[r, j, 1], Q[r, j, 2]
+                b0, b1, b2 = Q[r, j, 3], Q[r, j, 4], Q[r, j, 5]
+                ea, ec = eta[j, 0], eta[j, 1]
+                span = ec - ea
+                em = 0.5 * (ea + ec)
                 base = (j * F + f) * 3
                 mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
                 # the signed distance is 1-Lipschitz: a rod whose middle is farther than half its
@@ -334,16 +337,25 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                     far = clear >= radius
                     if fresh and clr.shape[0] > 0:
                         clr[r, f] = min(clr[r, f], clear - radius)
+                # a heightfield's end gaps (m) and gradients, for the far test and the node slots
+                ha, gxa, gya, hc, gxc, gyc = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
                 if not far:
-                    for i in range(g.shape[0]):
-                        g[i] = geom[g_row, f, i]
-                    for i in range(pr.shape[0]):
-                        pr[i] = prm[p_row, f, i]
+                    if not loaded:
+                        for i in range(g.shape[0]):
+                            g[i] = geom[g_row, f, i]
+                        for i in range(pr.shape[0]):
+                            pr[i] = prm[p_row, f, i]
+                        loaded = True
                     if kind == HFIELD:
                         # the vertical gap is sqrt(1 + L^2)-Lipschitz along the unit rod (module
-                        # doc): a rod whose middle's gap exceeds the cap radius by that times half
-                        # its length touches nowhere
-                        far = mz - hf_patch(mx, my, g, H)[0] - lam * (0.5 * abs(span)) >= radius
+                        # doc), so at least (gap_a + gap_c - sqrt(1 + L^2) |span|) / 2 anywhere on
+                        # it, and at least the lower end's where it is monotone: a rod whose bound
+                        # reaches the cap radius touches nowhere
+                        ha, gxa, gya = hf_patch(r0 + ea * b0, r1 + ea * b1, g, H)
+                        hc, gxc, gyc = hf_patch(r0 + ec * b0, r1 + ec * b1, g, H)
+                        ga, gc = r2 + ea * b2 - ha, r2 + ec * b2 - hc
+                        mono = hf_monotone(b0, b1, b2, lam)
+                        far = (min(ga, gc) if mono else 0.5 * (ga + gc - lam * abs(span))) >= radius
                     else:
                         far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
                 if far and not has_info:
@@ -395,7 +407,7 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         kink, kgx, kgy = False, 0.0, 0.0
                         if s == 2:
                             if g[0] == HFIELD:
-                                if hf_monotone(b0, b1, b2, lam):
+                                if mono:
                                     use = False     # the gap is monotone along the rod: lowest at an end
                                 elif hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
                                     use = False     # level ground under the rod: as a plane (no point is lower than both ends)
@@ -416,7 +428,7 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         elif s < 2 and g[0] == HFIELD:
                             # an end's gap first (_hf_closest's arithmetic): an end clear of the
                             # heightfield needs no normal; what _slot_force gives for no contact
-                            h, hgx, hgy = hf_patch(px, py, g, H)
+                            h, hgx, hgy = (ha, gxa, gya) if s == 0 else (hc, gxc, gyc)
                             sd = pz - h
                             if not (radius - sd > 0.0) and not has_info:
                                 if s == 0:
