@@ -21,7 +21,8 @@ the rod (``N.b = 0``), the derivative of the minimum over eta (envelope theorem)
 over a kink without a push along itself.
 The contact asks only for a minimum that can touch (below the slot's level, :func:`hf_lowest`'s
 ``cut``): a piece whose lower end is higher than its cell's highest grid height by the cut is
-passed over, its gap not evaluated.
+passed over, its gap not evaluated. A rod that rises faster than the surface can
+(:func:`hf_monotone`) is not walked at all: its gap is monotone, lowest at an end.
 """
 from __future__ import annotations
 

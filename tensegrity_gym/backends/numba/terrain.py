@@ -46,7 +46,10 @@ minus the gradient of the potential (:mod:`tensegrity_gym.backends.numba.heightf
 interior slot's point, the exact lowest point of the rod axis, is found). The far early-out of a
 rod (no slot can touch): the signed distance is 1-Lipschitz, the vertical gap
 ``sqrt(1 + L^2)``-Lipschitz along a unit rod, L bounding the field's slope (largest height step
-between grid neighbours over the cell, per axis).
+between grid neighbours over the cell, per axis); a heightfield's is decided from the rod's end
+gaps (which its node slots then use): the lower end's where the gap is monotone along the rod
+(``|b_z| >= L |b_xy|``, :func:`.heightfield.hf_monotone`, whose interior slot then needs no
+search), else ``(gap_a + gap_c - sqrt(1 + L^2) |span|) / 2``.
 """
 from __future__ import annotations
 
