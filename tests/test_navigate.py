@@ -25,6 +25,65 @@ def test_course_is_reproducible_and_keeps_its_clearances():
         assert box.size[2] == spec.obstacle_height
 
 
+def test_course_parts_equal_their_full_grid_forms():
+    """The planner's graph (the full grid's canonical CSR, filtered), the walls' blocked cells and
+    the rough patches (computed on the square each can reach) equal their straightforward forms
+    over the whole grid: a coo graph of the free cells' edges, every cell's distance to every wall,
+    every patch's heights everywhere."""
+    import math
+
+    from scipy.sparse import coo_matrix
+
+    from tensegrity_gym.tasks import navigate as nav
+    spec = CourseSpec()
+    xs, ys = nav._grid(spec)
+    X, Y = np.meshgrid(xs, ys)
+    rng = np.random.default_rng(3)
+    for trial in range(4):
+        blocked = rng.uniform(size=X.shape) < 0.2 * trial
+        ny, nx = blocked.shape
+        idx = np.arange(ny * nx).reshape(ny, nx)
+        rows, cols, w = [], [], []
+        for dj, di in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            a = idx[max(0, -dj):ny - max(0, dj), max(0, -di):nx - max(0, di)]
+            b = idx[max(0, dj):max(0, dj) + a.shape[0], max(0, di):max(0, di) + a.shape[1]]
+            ok = ~blocked.reshape(-1)[a] & ~blocked.reshape(-1)[b]
+            rows.append(a[ok])
+            cols.append(b[ok])
+            w.append(np.full(ok.sum(), spec.cell * math.hypot(dj, di)))
+        r, c, ww = np.concatenate(rows), np.concatenate(cols), np.concatenate(w)
+        ref = coo_matrix((np.concatenate([ww, ww]), (np.concatenate([r, c]), np.concatenate([c, r]))),
+                         shape=(ny * nx, ny * nx)).tocsr()
+        ref.sort_indices()
+        G = nav._graph(blocked, spec.cell)
+        assert G.has_sorted_indices
+        for x, y in ((G.indptr, ref.indptr), (G.indices, ref.indices), (G.data, ref.data)):
+            assert np.array_equal(x, y)
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        boxes = nav._place_walls(spec, rng, np.zeros((1, 2)))
+        full = np.zeros(X.shape, bool)
+        for bx in boxes:
+            cs, sn = math.cos(math.radians(bx.yaw_deg)), math.sin(math.radians(bx.yaw_deg))
+            dx, dy = X - bx.center[0], Y - bx.center[1]
+            u = np.abs(cs * dx + sn * dy) - bx.size[0] / 2
+            v = np.abs(-sn * dx + cs * dy) - bx.size[1] / 2
+            full |= np.hypot(np.maximum(u, 0.0), np.maximum(v, 0.0)) <= spec.inflate
+        assert full.any() and np.array_equal(nav._blocked(spec, boxes, X, Y), full)
+        state = rng.bit_generator.state
+        h, centres = nav._rough(spec, rng, X, Y)
+        rng.bit_generator.state = state
+        k, ref = 2 * np.pi / spec.rough_wavelength, np.zeros(X.shape)
+        for _ in range(spec.n_rough):
+            cx, cy = rng.uniform(-spec.arena, spec.arena, 2)
+            rad = rng.uniform(*spec.rough_radius)
+            ang, ph = rng.uniform(0.0, 2 * np.pi, 4), rng.uniform(0.0, 2 * np.pi, 4)
+            z = (sum(np.cos(k * (np.cos(a) * X + np.sin(a) * Y) + p) for a, p in zip(ang, ph)) + 4.0) / 8.0
+            fade = np.clip((rad - np.hypot(X - cx, Y - cy)) / (0.25 * rad), 0.0, 1.0)
+            ref = np.maximum(ref, spec.rough_amplitude * z * fade)
+        assert (h > 0).any() and np.array_equal(h, ref)
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_guidance_leads_around_the_walls_to_every_goal(seed):
     spec = CourseSpec()

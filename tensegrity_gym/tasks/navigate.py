@@ -20,11 +20,12 @@ until every goal is reachable along that grid from the start and from the goal b
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from ..core.terrain import Box, Heightfield, Terrain
@@ -84,28 +85,52 @@ def _blocked(spec: CourseSpec, boxes, X, Y) -> np.ndarray:
     blocked = np.zeros(X.shape, bool)
     for b in boxes:
         c, s = math.cos(math.radians(b.yaw_deg)), math.sin(math.radians(b.yaw_deg))
-        dx, dy = X - b.center[0], Y - b.center[1]
+        # the cells within reach: no farther than the footprint's half diagonal and the inflation
+        # (a cell outside this square is farther, and stays as it is)
+        reach = 0.5 * math.hypot(b.size[0], b.size[1]) + spec.inflate + spec.cell
+        jj = np.nonzero(np.abs(Y[:, 0] - b.center[1]) <= reach)[0]
+        ii = np.nonzero(np.abs(X[0] - b.center[0]) <= reach)[0]
+        if not (jj.size and ii.size):
+            continue
+        sub = (slice(jj[0], jj[-1] + 1), slice(ii[0], ii[-1] + 1))
+        dx, dy = X[sub] - b.center[0], Y[sub] - b.center[1]
         u, v = np.abs(c * dx + s * dy) - b.size[0] / 2, np.abs(-s * dx + c * dy) - b.size[1] / 2
         dist = np.hypot(np.maximum(u, 0.0), np.maximum(v, 0.0))
-        blocked |= dist <= spec.inflate
+        blocked[sub] |= dist <= spec.inflate
     return blocked
 
 
-def _graph(blocked: np.ndarray, cell: float):
-    """The 8-connected grid graph of the free cells (edge lengths m)."""
-    ny, nx = blocked.shape
+@functools.lru_cache(maxsize=8)
+def _full_graph(ny: int, nx: int, cell: float):
+    """The 8-connected graph of a (ny, nx) grid of ``cell`` m with every cell free, as canonical
+    CSR arrays (row of each edge, column indices sorted within each row, edge lengths m; read-only)."""
     idx = np.arange(ny * nx).reshape(ny, nx)
     rows, cols, w = [], [], []
     for dj, di in ((0, 1), (1, 0), (1, 1), (1, -1)):
-        a = idx[max(0, -dj):ny - max(0, dj), max(0, -di):nx - max(0, di)]
-        b = idx[max(0, dj):max(0, dj) + a.shape[0], max(0, di):max(0, di) + a.shape[1]]
-        ok = ~blocked.reshape(-1)[a] & ~blocked.reshape(-1)[b]
-        rows.append(a[ok])
-        cols.append(b[ok])
-        w.append(np.full(ok.sum(), cell * math.hypot(dj, di)))
+        a = idx[max(0, -dj):ny - max(0, dj), max(0, -di):nx - max(0, di)].reshape(-1)
+        b = idx[max(0, dj):max(0, dj) + ny - abs(dj), max(0, di):max(0, di) + nx - abs(di)].reshape(-1)
+        rows += [a, b]
+        cols += [b, a]
+        w += [np.full(a.size, cell * math.hypot(dj, di))] * 2
     r, c, ww = np.concatenate(rows), np.concatenate(cols), np.concatenate(w)
-    n = ny * nx
-    return coo_matrix((np.concatenate([ww, ww]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(n, n)).tocsr()
+    order = np.lexsort((c, r))
+    out = r[order], c[order].astype(np.int32), ww[order]
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+def _graph(blocked: np.ndarray, cell: float):
+    """The 8-connected grid graph of the free cells (edge lengths m): the full grid's edges
+    (:func:`_full_graph`) between two free cells, in canonical CSR form (column indices sorted
+    within each row)."""
+    ny, nx = blocked.shape
+    r, c, w = _full_graph(ny, nx, float(cell))
+    free = ~blocked.reshape(-1)
+    ok = free[r] & free[c]
+    indptr = np.zeros(ny * nx + 1, np.int32)
+    np.cumsum(np.bincount(r[ok], minlength=ny * nx), out=indptr[1:])
+    return csr_matrix((w[ok], c[ok], indptr), shape=(ny * nx, ny * nx))
 
 
 def _cell_of(p, x0: float, cell: float, n: int) -> tuple[int, int]:
@@ -124,11 +149,17 @@ def _rough(spec: CourseSpec, rng, X, Y):
         rad = rng.uniform(*spec.rough_radius)
         ang = rng.uniform(0.0, 2 * np.pi, 4)
         ph = rng.uniform(0.0, 2 * np.pi, 4)
-        z = sum(np.cos(k * (np.cos(a) * X + np.sin(a) * Y) + p) for a, p in zip(ang, ph))
-        z = (z + 4.0) / 8.0                                     # in [0, 1]
-        r = np.hypot(X - cx, Y - cy)
-        fade = np.clip((rad - r) / (0.25 * rad), 0.0, 1.0)     # a soft rim
-        h = np.maximum(h, spec.rough_amplitude * z * fade)
+        # the patch's square: outside it the fade is 0 and the heights stay as they are
+        jj = np.nonzero(np.abs(Y[:, 0] - cy) <= rad)[0]
+        ii = np.nonzero(np.abs(X[0] - cx) <= rad)[0]
+        if jj.size and ii.size:
+            sub = (slice(jj[0], jj[-1] + 1), slice(ii[0], ii[-1] + 1))
+            Xs, Ys = X[sub], Y[sub]
+            z = sum(np.cos(k * (np.cos(a) * Xs + np.sin(a) * Ys) + p) for a, p in zip(ang, ph))
+            z = (z + 4.0) / 8.0                                     # in [0, 1]
+            r = np.hypot(Xs - cx, Ys - cy)
+            fade = np.clip((rad - r) / (0.25 * rad), 0.0, 1.0)     # a soft rim
+            h[sub] = np.maximum(h[sub], spec.rough_amplitude * z * fade)
         centres.append((cx, cy, rad))
     return h, centres
 
@@ -189,15 +220,9 @@ def draw_course(spec: CourseSpec, rng: np.random.Generator, surface: dict | None
         if any(blocked[_cell_of(p, x0, spec.cell, n)] for p in keep):
             continue
         G = _graph(blocked, spec.cell)
-        field = np.empty((spec.n_goals, n, n))
-        ok = True
-        for g in range(spec.n_goals):
-            d = dijkstra(G, indices=np.ravel_multi_index(_cell_of(goals[g], x0, spec.cell, n), (n, n)))
-            field[g] = d.reshape(n, n)
-            if not np.isfinite(field[g][_cell_of(keep[g], x0, spec.cell, n)]):
-                ok = False
-                break
-        if not ok:
+        sources = [np.ravel_multi_index(_cell_of(goals[g], x0, spec.cell, n), (n, n)) for g in range(spec.n_goals)]
+        field = dijkstra(G, indices=sources).reshape(spec.n_goals, n, n)
+        if not all(np.isfinite(field[g][_cell_of(keep[g], x0, spec.cell, n)]) for g in range(spec.n_goals)):
             continue
         hf = Heightfield(heights=rough, cell=spec.cell, origin=[x0, x0]) if spec.n_rough else None
         terrain = Terrain(plane=None if hf is not None else Terrain().plane, boxes=tuple(boxes), heightfield=hf,

@@ -340,8 +340,10 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                     far = clear >= radius
                     if fresh and clr.shape[0] > 0:
                         clr[r, f] = min(clr[r, f], clear - radius)
-                # a heightfield's end gaps (m) and gradients, for the far test and the node slots
+                # a heightfield's end gaps (m) and gradients, for the far test and the node slots,
+                # and whether its gap is monotone along the rod
                 ha, gxa, gya, hc, gxc, gyc = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+                mono = False
                 if not far:
                     if not loaded:
                         for i in range(g.shape[0]):
