@@ -35,12 +35,12 @@ def test_course_parts_equal_their_full_grid_forms():
     from scipy.sparse import coo_matrix
 
     from tensegrity_gym.tasks import navigate as nav
-    spec = CourseSpec()
-    xs, ys = nav._grid(spec)
-    X, Y = np.meshgrid(xs, ys)
     rng = np.random.default_rng(3)
-    for trial in range(4):
-        blocked = rng.uniform(size=X.shape) < 0.2 * trial
+    for trial in range(6):
+        spec = CourseSpec() if trial < 4 else CourseSpec(arena=2.0, cell=0.07 + 0.01 * trial)
+        xs, ys = nav._grid(spec)
+        X, Y = np.meshgrid(xs, ys)
+        blocked = rng.uniform(size=X.shape) < 0.2 * (trial % 4)
         ny, nx = blocked.shape
         idx = np.arange(ny * nx).reshape(ny, nx)
         rows, cols, w = [], [], []
@@ -59,7 +59,10 @@ def test_course_parts_equal_their_full_grid_forms():
         assert G.has_sorted_indices
         for x, y in ((G.indptr, ref.indptr), (G.indices, ref.indices), (G.data, ref.data)):
             assert np.array_equal(x, y)
-    for seed in range(5):
+    for seed in range(6):
+        spec = CourseSpec() if seed < 4 else CourseSpec(arena=2.0, cell=0.07, inflate=0.2, rough_radius=(0.2, 0.9))
+        xs, ys = nav._grid(spec)
+        X, Y = np.meshgrid(xs, ys)
         rng = np.random.default_rng(seed)
         boxes = nav._place_walls(spec, rng, np.zeros((1, 2)))
         full = np.zeros(X.shape, bool)
