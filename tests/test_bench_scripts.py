@@ -23,3 +23,14 @@ def test_profile_learner_runs(tmp_path):
     rows = [line for line in r.stdout.splitlines() if line.startswith("| ")]
     assert any("**learner**" in line for line in rows) and any(line.startswith("| backward") for line in rows)
     assert "80 minibatch updates" in r.stdout
+
+
+def test_bench_navigate_reset_runs(tmp_path):
+    out = tmp_path / "r.json"
+    cmd = [sys.executable, str(ROOT / "scripts" / "bench_navigate_reset.py"), "--courses", "2", "--envs", "2",
+           "--steps", "2", "--repeats", "1", "--json", str(out)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "| draw and plan a course |" in r.stdout and out.exists()
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert r.returncode == 2 and "exists" in r.stderr           # a result is not overwritten
