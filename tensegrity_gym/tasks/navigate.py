@@ -80,6 +80,16 @@ def _grid(spec: CourseSpec):
     return x, x
 
 
+def _square(X, Y, cx: float, cy: float, reach: float):
+    """The slices (rows, columns) of the grid points (X, Y) (meshgrid, m) within ``reach`` m of
+    (cx, cy) along each axis, None when there are none."""
+    jj = np.nonzero(np.abs(Y[:, 0] - cy) <= reach)[0]
+    ii = np.nonzero(np.abs(X[0] - cx) <= reach)[0]
+    if not (jj.size and ii.size):
+        return None
+    return slice(jj[0], jj[-1] + 1), slice(ii[0], ii[-1] + 1)
+
+
 def _blocked(spec: CourseSpec, boxes, X, Y) -> np.ndarray:
     """(ny, nx) bool: cells within ``inflate`` m of an obstacle (distance to its footprint)."""
     blocked = np.zeros(X.shape, bool)
@@ -87,12 +97,9 @@ def _blocked(spec: CourseSpec, boxes, X, Y) -> np.ndarray:
         c, s = math.cos(math.radians(b.yaw_deg)), math.sin(math.radians(b.yaw_deg))
         # the cells within reach: no farther than the footprint's half diagonal and the inflation
         # (a cell outside this square is farther, and stays as it is)
-        reach = 0.5 * math.hypot(b.size[0], b.size[1]) + spec.inflate + spec.cell
-        jj = np.nonzero(np.abs(Y[:, 0] - b.center[1]) <= reach)[0]
-        ii = np.nonzero(np.abs(X[0] - b.center[0]) <= reach)[0]
-        if not (jj.size and ii.size):
+        sub = _square(X, Y, b.center[0], b.center[1], 0.5 * math.hypot(b.size[0], b.size[1]) + spec.inflate + spec.cell)
+        if sub is None:
             continue
-        sub = (slice(jj[0], jj[-1] + 1), slice(ii[0], ii[-1] + 1))
         dx, dy = X[sub] - b.center[0], Y[sub] - b.center[1]
         u, v = np.abs(c * dx + s * dy) - b.size[0] / 2, np.abs(-s * dx + c * dy) - b.size[1] / 2
         dist = np.hypot(np.maximum(u, 0.0), np.maximum(v, 0.0))
@@ -150,10 +157,8 @@ def _rough(spec: CourseSpec, rng, X, Y):
         ang = rng.uniform(0.0, 2 * np.pi, 4)
         ph = rng.uniform(0.0, 2 * np.pi, 4)
         # the patch's square: outside it the fade is 0 and the heights stay as they are
-        jj = np.nonzero(np.abs(Y[:, 0] - cy) <= rad)[0]
-        ii = np.nonzero(np.abs(X[0] - cx) <= rad)[0]
-        if jj.size and ii.size:
-            sub = (slice(jj[0], jj[-1] + 1), slice(ii[0], ii[-1] + 1))
+        sub = _square(X, Y, cx, cy, rad)
+        if sub is not None:
             Xs, Ys = X[sub], Y[sub]
             z = sum(np.cos(k * (np.cos(a) * Xs + np.sin(a) * Ys) + p) for a, p in zip(ang, ph))
             z = (z + 4.0) / 8.0                                     # in [0, 1]

@@ -20,7 +20,7 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
-from .terrain import add_ext, hf_bound_of, lanes_forces, plane_first, plane_forces, plane_load, plane_store
+from .terrain import add_ext, has_box, hf_bound_of, lanes_forces, plane_first, plane_forces, plane_load, plane_store
 from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
                      _opts, _soa_width_nb)
 
@@ -172,8 +172,10 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
          t_ext) = terrain
         t_g = np.empty(t_geom.shape[2])       # rows_forces' scratch for a feature's rows
         t_pr = np.empty(t_prm.shape[2])
-        t_clr = np.empty((E, t_geom.shape[1]))     # the boxes' clearance over one call's sub-steps
-        t_ref = np.empty((E, k, 2, 3))
+        # the boxes' clearance over one call's sub-steps (no rows, not kept, on a terrain without boxes)
+        t_rows = E if has_box(t_geom) else 0
+        t_clr = np.empty((t_rows, t_geom.shape[1]))
+        t_ref = np.empty((t_rows, k, 2, 3))
         # shared heights: their slope bound once per call (per-copy ones: per copy, in lanes_forces)
         t_lam = 1.0 if (t_geom.shape[0] > 1 or t_hf.shape[0] > 1) else hf_bound_of(t_geom[0], t_hf[0])
         # a ground plane first: its node slots in the lanes, the other features after it

@@ -314,11 +314,11 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
         # added feature by feature as with the rods outer; a feature's rows copied once per copy
         for f in range(f0, F):
             kind = geom[g_row, f, 0]
+            if kind == BOX and not fresh and clr.shape[0] > 0 and moved + 1e-12 < clr[r, f]:
+                continue            # out of reach since the call's first sub-step, whose release stands
             radius = prm[p_row, f, 0]
             loaded = False
             for j in range(k):
-                if kind == BOX and not fresh and clr.shape[0] > 0 and moved + 1e-12 < clr[r, f]:
-                    break           # out of reach since the call's first sub-step, whose release stands
                 r0, r1, r2 = Q[r, j, 0], Q[r, j, 1], Q[r, j, 2]
                 b0, b1, b2 = Q[r, j, 3], Q[r, j, 4], Q[r, j, 5]
                 ea, ec = eta[j, 0], eta[j, 1]
@@ -545,6 +545,16 @@ def plane_first(geom):
         if geom[c, 0, 0] != PLANE:
             return False
     return True
+
+
+@njit(inline="always", **_opts)
+def has_box(geom):
+    """True when some copy's terrain ``geom`` (G, F, 10) has a box."""
+    for c in range(geom.shape[0]):
+        for f in range(geom.shape[1]):
+            if geom[c, f, 0] == BOX:
+                return True
+    return False
 
 
 @njit(inline="always", **_opts)
