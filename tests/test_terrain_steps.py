@@ -45,6 +45,15 @@ def test_compiled_terrain_loop_is_the_python_loop(prism, B, per_copy):
         assert np.array_equal(a, b)
 
 
+def _peak_under_rod(m, q, h, cell):
+    """A heightfield grid origin m that puts grid point (10, 10) of the heights ``h`` under the
+    middle of rod 0 of copy 0, raised (in place) to 3 mm inside the contact radius (0.02 m) there:
+    a peak that the rod's interior touches, deeper than its ends."""
+    mid = q[0, 0, :3] + float(np.mean(m.eta[0])) * q[0, 0, 3:]
+    h[10, 10] = mid[2] - 0.017
+    return [mid[0] - 10 * cell, mid[1] - 10 * cell]
+
+
 @pytest.mark.parametrize("B, per_copy_hf", [(1, False), (20, True), (900, False)])
 def test_compiled_heightfield_loop_is_the_python_loop(prism, B, per_copy_hf):
     """A heightfield (shared heights, or one field per copy with the slope bound computed per
@@ -54,23 +63,68 @@ def test_compiled_heightfield_loop_is_the_python_loop(prism, B, per_copy_hf):
     m = prism
     rng = np.random.default_rng(B)
     h = 0.03 * rng.random((20, 20))
-    tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights=h, cell=0.05, origin=[-0.5, -0.5])))
-    hf = (h[None] * rng.uniform(0.5, 1.5, (B, 1, 1))) if per_copy_hf else None
-    if B == 900:
-        assert B * (m.n_strings + m.n_bars) >= PARALLEL_MIN_WORK
     st = dyn.initial_state(m, B)
     q, qd = np.array(st.q), np.array(st.qd)
     q[..., :3] += rng.normal(0.0, 0.01, q[..., :3].shape)
     q[..., 2] += 0.02
+    origin = _peak_under_rod(m, q, h, 0.05)
+    tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights=h, cell=0.05, origin=origin)))
+    hf = None
+    if per_copy_hf:
+        hf = h[None] * rng.uniform(0.5, 1.5, (B, 1, 1))
+        hf[:, 10, 10] = h[10, 10]
+    if B == 900:
+        assert B * (m.n_strings + m.n_bars) >= PARALLEL_MIN_WORK
     out = []
     for compiled in (False, True):
         qq, qqd, ts = q.copy(), qd.copy(), T.init_terrain_state(tc, m, B)
         W = np.empty((B, m.n_nodes, 3))
+        nodes = interior = False
         for _ in range(30):
             T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=5, hf=hf, forces=W,
                       compiled=compiled)
+            act = ts.active.reshape(B, -1, 3)
+            nodes |= bool(act[..., :2].any())
+            interior |= bool(act[..., 2].any())
         out.append((qq, qqd, ts.anchor, ts.eta0, ts.active, W))
-    assert out[0][4].any()
+    assert nodes and interior       # nodes and an interior point of a rod (over the peak) touched
+    for a, b in zip(*out):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("B", [1, 20])
+@pytest.mark.parametrize("plane", [False, True])
+def test_compiled_heightfield_after_other_features_is_the_python_loop(prism, B, plane):
+    """A heightfield listed after a box (and a plane), as a navigation course's ground after its
+    walls: the compiled loop adds the heightfield's forces after the other features', in the
+    Python loop's order."""
+    from tensegrity_gym.core.terrain import Heightfield
+    m = prism
+    rng = np.random.default_rng(7)
+    h = 0.03 * rng.random((20, 20))
+    if plane:
+        h[:] = -0.05          # the heightfield under the plane, which the nodes then touch, but for the plateau
+    st = dyn.initial_state(m, B)
+    q, qd = np.array(st.q), np.array(st.qd)
+    q[..., :3] += rng.normal(0.0, 0.01, q[..., :3].shape)
+    q[..., 2] += 0.03
+    qd[..., 0] += 0.3
+    origin = _peak_under_rod(m, q, h, 0.05)
+    tc = T.TerrainContact(Terrain(plane=Plane(0.0) if plane else None,
+                                  boxes=[Box([0.12, 0.0, 0.0], [0.1, 1.0, 0.05])],
+                                  heightfield=Heightfield(heights=h, cell=0.05, origin=origin)))
+    out = []
+    for compiled in (False, True):
+        qq, qqd, ts = q.copy(), qd.copy(), T.init_terrain_state(tc, m, B)
+        W = np.empty((B, m.n_nodes, 3))
+        seen, interior = np.zeros(tc.geom.shape[1], bool), False
+        for _ in range(30):
+            T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=5, forces=W, compiled=compiled)
+            act = ts.active.reshape(B, m.n_bars, -1, 3)
+            seen |= act.any(axis=(0, 1, 3))
+            interior |= bool(act[:, :, -1, 2].any())
+        out.append((qq, qqd, ts.anchor, ts.eta0, ts.active, W))
+    assert seen.all() and interior      # every feature touched, the heightfield at a rod's interior too
     for a, b in zip(*out):
         assert np.array_equal(a, b)
 

@@ -20,7 +20,8 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
-from .terrain import add_ext, has_box, hf_bound_of, lanes_forces, plane_first, plane_forces, plane_load, plane_store
+from .terrain import (add_ext, has_box, hf_bound_of, hf_lam_load, hf_last, lanes_forces, plane_first, plane_forces,
+                      plane_load, plane_store, slots_load, slots_store)
 from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
                      _opts, _soa_width_nb)
 
@@ -181,6 +182,12 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         # a ground plane first: its node slots in the lanes, the other features after it
         t_f0 = 1 if plane_first(t_geom) else 0
         t_F = t_geom.shape[1]
+        # a heightfield last (the ground of rough terrain and courses): its node slots in the lanes too
+        t_f1 = t_F - 1 if (hf_last(t_geom) and t_info.shape[0] == 0) else t_F
+        HAN = np.empty((2 * k, 3, E))
+        HAC = np.zeros((2 * k, E), np.bool_)
+        HSL = np.zeros((2 * k, E), np.bool_)
+        LAM = np.empty(E)
     if plane is not None:
         p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_anchor, p_eta0, p_active, p_slip, p_ext = plane
     if terrain is not None or plane is not None:
@@ -223,6 +230,9 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
             plane_load(p_anchor, p_eta0, p_active, PAN, PAC, p_eta, c0, ne, k, 1, E)
         if terrain is not None and t_f0 > 0:
             plane_load(t_anchor, t_eta0, t_active, PAN, PAC, t_eta, c0, ne, k, t_F, E)
+        if terrain is not None and t_f1 < t_F:
+            slots_load(t_anchor, t_active, HAN, HAC, c0, ne, k, t_F, t_f1, E)
+            hf_lam_load(LAM, t_geom, t_hf, t_lam, c0, ne)
         for step in range(n_steps):
             if contact is not None:                 # held over the step, as contact.step does
                 _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)
@@ -230,8 +240,8 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
                 if t_f0 > 0:
                     plane_forces(Q, QD, EX, PAN, PAC, PSL, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, c0, ne, k, n, E)
                 lanes_forces(QT, QDT, EXT, EX, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, t_hf, t_anchor, t_eta0,
-                             t_active, t_slip, t_info, t_ext, t_lam, t_g, t_pr, t_clr, t_ref, step == 0, c0, ne, k, n,
-                             E, t_f0)
+                             t_active, t_slip, t_info, t_ext, t_lam, t_g, t_pr, (t_clr, t_ref, step == 0), c0, ne, k,
+                             n, E, (t_f0, t_f1), (HAN, HAC, HSL, LAM))
             if plane is not None:
                 plane_forces(Q, QD, EX, PAN, PAC, PSL, p_eta, p_rod_a, p_rod_c, p_geom, p_prm, c0, ne, k, n, E)
                 add_ext(EX, p_ext, c0, ne, n, E)
@@ -287,6 +297,8 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
             plane_store(p_anchor, p_eta0, p_active, p_slip, PAN, PAC, PSL, p_eta, c0, ne, k, 1)
         if terrain is not None and t_f0 > 0:
             plane_store(t_anchor, t_eta0, t_active, t_slip, PAN, PAC, PSL, t_eta, c0, ne, k, t_F)
+        if terrain is not None and t_f1 < t_F:
+            slots_store(t_anchor, t_eta0, t_active, t_slip, HAN, HAC, HSL, t_eta, c0, ne, k, t_F, t_f1)
         if terrain is not None or plane is not None:
             for e in range(ne):
                 for p in range(n):

@@ -239,6 +239,99 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, w, ax, ay, a
 
 
 @njit(inline="always", **_opts)
+def _hf_interior_point(ea, ec, em, r0, r1, r2, b0, b1, b2, g, H, mono, cut, sd_a, sd_c):
+    """The interior slot's point of a rod [ea, ec] over the heightfield ``g`` (heights ``H``):
+    (eta m, gap m, unit normal, w) of the lowest point of the axis where it is lower than both
+    ends (:func:`.heightfield.hf_lowest`, searched for below ``cut`` m, given the end gaps
+    ``sd_a``, ``sd_c`` m), with the gradient its force uses; an infinite gap where there is none:
+    a gap monotone along the rod (``mono``, :func:`.heightfield.hf_monotone`: lowest at an end)
+    or level ground under the rod (as a plane, no point is lower than both ends), at the rod's
+    middle ``em``."""
+    if mono or hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
+        return em, math.inf, 0.0, 0.0, 1.0, 1.0
+    e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, sd_a, sd_c)
+    if not use:
+        return e, math.inf, 0.0, 0.0, 1.0, 1.0
+    px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
+    nx, ny, nz, w = _hf_normal(kgx, kgy)
+    return e, pz - hf_patch(px, py, g, H)[0], nx, ny, nz, w
+
+
+@njit(inline="always", **_opts)
+def _interior_force(c, ci, r, j, e, sd, nx, ny, nz, w, rod, QD, Wc, ends, radius, pr, anchor, eta0, active, slip,
+                    info, rod_a, rod_c):
+    """The interior slot ``ci`` of rod j of copy c (row r of ``QD`` (., k, 6) m/s and ``Wc``
+    (., n, 3) N) at its point eta = ``e`` m (gap ``sd`` m, unit normal n, gradient length w; an
+    infinite gap: no point): its force (:func:`_slot_force`, contact parameters ``pr``) on the
+    rod's nodes, its contact state and ``info`` (when it has rows) updated. ``rod`` the tuple
+    (r0, r1, r2, b0, b1, b2, ea, ec, em) of the rod's state and its nodes' and middle's eta m.
+    The penetration is measured from the deeper node when that node touches, ``min(radius,
+    sd_a, sd_c) - sd``: 0 when the interior minimum merges with a node (a continuous potential;
+    no double count of the node's contact); ``ends`` the tuple (sd_a, na0, na1, na2, w_a, vn_a,
+    sd_c, nc0, nc1, nc2, w_c, vn_c) of the nodes' gaps m, unit normals, gradient lengths and
+    normal velocities m/s (a call with more than 30 arguments would not inline)."""
+    r0, r1, r2, b0, b1, b2, ea, ec, em = rod
+    sd_a, na0, na1, na2, w_a, vn_a, sd_c, nc0, nc1, nc2, w_c, vn_c = ends
+    px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
+    vx = QD[r, j, 0] + e * QD[r, j, 3]
+    vy = QD[r, j, 1] + e * QD[r, j, 4]
+    vz = QD[r, j, 2] + e * QD[r, j, 5]
+    level, end = radius, -1
+    if sd_a < level:
+        level, end = sd_a, 0
+    if sd_c < level:
+        level, end = sd_c, 1
+    if end >= 0:
+        # damping on the rate of that penetration, w v.n here less the node's w v.n (the
+        # tangential part, so friction, is unchanged)
+        vr = vn_a * (w_a / w) if end == 0 else vn_c * (w_c / w)
+        vx, vy, vz = vx - vr * nx, vy - vr * ny, vz - vr * nz
+    # the anchored material point: where the rod touched (the contact point moves along the rod;
+    # friction holds the material, not the point)
+    e0 = eta0[c, ci] if active[c, ci] else e
+    touch, fx, fy, fz, ax, ay, az, sl, en, fn = _slot_force(
+        px, py, pz, r0 + e0 * b0, r1 + e0 * b1, r2 + e0 * b2, vx, vy, vz, sd, nx, ny, nz, w,
+        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], level,
+        pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
+    anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
+    if touch or active[c, ci]:
+        eta0[c, ci] = e if (sl or not active[c, ci]) else e0
+    else:
+        # neither touches nor touched: the rod's middle (where a search stopped does not matter)
+        eta0[c, ci] = em
+    active[c, ci] = touch
+    slip[c, ci] = sl
+    if info.shape[0] > 0:
+        info[c, ci, 0], info[c, ci, 1] = e, sd
+        info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = nx, ny, nz
+        info[c, ci, 5] = en
+    if touch:
+        span = ec - ea
+        wc = (e - ea) / span
+        wa = (ec - e) / span
+        na, nc = rod_a[j], rod_c[j]
+        Wc[r, na, 0] += wa * fx
+        Wc[r, na, 1] += wa * fy
+        Wc[r, na, 2] += wa * fz
+        Wc[r, nc, 0] += wc * fx
+        Wc[r, nc, 1] += wc * fy
+        Wc[r, nc, 2] += wc * fz
+        if end >= 0:
+            # the reaction: -fn w n of the node at that node (the gradient of the level sd_node
+            # in the penetration min(...) - sd)
+            if end == 0:
+                fr = fn * w_a
+                Wc[r, na, 0] -= fr * na0
+                Wc[r, na, 1] -= fr * na1
+                Wc[r, na, 2] -= fr * na2
+            else:
+                fr = fn * w_c
+                Wc[r, nc, 0] -= fr * nc0
+                Wc[r, nc, 1] -= fr * nc1
+                Wc[r, nc, 2] -= fr * nc2
+
+
+@njit(inline="always", **_opts)
 def hf_bound_of(geom_row, H):
     """``sqrt(1 + L^2)`` of the heightfield among the features ``geom_row`` (F, 10) with heights
     ``H`` (its column 6, else one pass over the heights: :func:`hf_lipschitz`); 1 without one."""
@@ -254,8 +347,8 @@ def hf_bound_of(geom_row, H):
 # made the first terrain step of a new install compile for 77 s, not 19 s; the call costs one
 # function call per SIMD block and physics step
 @njit(**_opts)
-def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0, g,
-                pr, clr, ref, fresh):
+def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0, f1,
+                g, pr, clr, ref, fresh):
     """The terrain forces of copies ``c0 .. c0 + nr - 1`` at ``Q[r]``, ``QD[r]`` (k, 6) into
     ``Wc[r]`` (n, 3) N, row r = copy - c0: the one implementation of the terrain contact
     (:func:`terrain_forces_kernel` calls it on the whole batch, the loop driver on each block
@@ -264,7 +357,9 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
     ``slip`` and ``info`` (when it has rows) indexed by copy, as the kernel takes them.
     ``f0``: the first feature (0: all, ``Wc`` zeroed first; 1: the loop driver has put feature
     0's forces, a plane's, in ``Wc`` (:func:`plane_forces`), and the others are added to them in
-    the order of the features, as with ``f0`` = 0). ``g`` (10,), ``pr`` (8,): scratch for a
+    the order of the features, as with ``f0`` = 0); ``f1``: the feature after the last (F: all;
+    F - 1: the loop driver adds a last heightfield's forces after these, :func:`hf_lanes_forces`).
+    ``g`` (10,), ``pr`` (8,): scratch for a
     feature's rows (copied there, not sliced: a slice is a new array view, whose reference
     counting cost about as much as a plane's contact itself).
     ``clr`` (nr, F), ``ref`` (nr, k, 2, 3): the boxes' clearance over the loop driver's sub-steps
@@ -308,11 +403,11 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         moved = max(moved, abs(p0 - ref[r, j, s, 0]) + abs(p1 - ref[r, j, s, 1])
                                     + abs(p2 - ref[r, j, s, 2]))
             if fresh:
-                for f in range(f0, F):
+                for f in range(f0, f1):
                     clr[r, f] = math.inf
         # features outer, rods inner: a node's forces come from its own rod's slots only (class 1),
         # added feature by feature as with the rods outer; a feature's rows copied once per copy
-        for f in range(f0, F):
+        for f in range(f0, f1):
             kind = geom[g_row, f, 0]
             if kind == BOX and not fresh and clr.shape[0] > 0 and moved + 1e-12 < clr[r, f]:
                 continue            # out of reach since the call's first sub-step, whose release stands
@@ -398,128 +493,72 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                             info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = 0.0, 0.0, 1.0
                             info[c, ci, 5] = 0.0
                         continue
+                    if s == 2:
+                        # the interior point nearest the feature, where it can be deeper than both ends
+                        if kind == HFIELD:
+                            # searched for only where it can touch: below min(radius, sd_a, sd_c) (the
+                            # slot's level, at or above its gap when it touches), with a margin beyond
+                            # the level-run tolerance; the whole axis when info is asked for
+                            cut = min(radius, min(sd_a, sd_c)) + 2.0 * LEVEL_TOL if not has_info else math.inf
+                            e, sd, nx, ny, nz, w = _hf_interior_point(ea, ec, em, r0, r1, r2, b0, b1, b2, g, H, mono,
+                                                                      cut, sd_a, sd_c)
+                        else:
+                            e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+                            sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
+                            if use:
+                                sd, nx, ny, nz, w = _closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g, H)
+                        _interior_force(c, ci, r, j, e, sd, nx, ny, nz, w, (r0, r1, r2, b0, b1, b2, ea, ec, em), QD,
+                                        Wc, (sd_a, na0, na1, na2, w_a, vn_a, sd_c, nc0, nc1, nc2, w_c, vn_c), radius,
+                                        pr, anchor, eta0, active, slip, info, rod_a, rod_c)
+                        continue
+                    px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
                     if kind == PLANE:
                         # a plane's node slot (its nearest point of a rod is an end): the geometry
                         # directly, as _closest computes it
-                        px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
                         sd, nx, ny, nz, w = g[1] * px + g[2] * py + g[3] * pz - g[4], g[1], g[2], g[3], 1.0
-                        vx = QD[r, j, 0] + e * QD[r, j, 3]
-                        vy = QD[r, j, 1] + e * QD[r, j, 4]
-                        vz = QD[r, j, 2] + e * QD[r, j, 5]
-                        level, end = radius, -1
-                    else:
-                        use = True
-                        kink, kgx, kgy = False, 0.0, 0.0
-                        if s == 2:
-                            if g[0] == HFIELD:
-                                if mono:
-                                    use = False     # the gap is monotone along the rod: lowest at an end
-                                elif hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
-                                    use = False     # level ground under the rod: as a plane (no point is lower than both ends)
-                                else:
-                                    # the lowest point of the axis, with the gradient that its force uses,
-                                    # searched for only where it can touch: below min(radius, sd_a, sd_c)
-                                    # (the slot's level, at or above its gap when it touches), with a margin
-                                    # beyond the level-run tolerance; the whole axis when info is asked for
-                                    cut = min(radius, min(sd_a, sd_c)) + 2.0 * LEVEL_TOL if not has_info else math.inf
-                                    e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, sd_a, sd_c)
-                                    kink = use
+                    elif kind == HFIELD:
+                        # an end's gap first (_hf_closest's arithmetic): an end clear of the
+                        # heightfield needs no normal; what _slot_force gives for no contact
+                        h, hgx, hgy = (ha, gxa, gya) if s == 0 else (hc, gxc, gyc)
+                        sd = pz - h
+                        if not (radius - sd > 0.0) and not has_info:
+                            if s == 0:
+                                sd_a = sd
                             else:
-                                e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
-                        px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
-                        if kink:
-                            sd = pz - hf_patch(px, py, g, H)[0]
-                            nx, ny, nz, w = _hf_normal(kgx, kgy)
-                        elif s < 2 and g[0] == HFIELD:
-                            # an end's gap first (_hf_closest's arithmetic): an end clear of the
-                            # heightfield needs no normal; what _slot_force gives for no contact
-                            h, hgx, hgy = (ha, gxa, gya) if s == 0 else (hc, gxc, gyc)
-                            sd = pz - h
-                            if not (radius - sd > 0.0) and not has_info:
-                                if s == 0:
-                                    sd_a = sd
-                                else:
-                                    sd_c = sd
-                                eta0[c, ci] = e
-                                active[c, ci] = False
-                                slip[c, ci] = False
-                                continue
-                            nx, ny, nz, w = _hf_normal(hgx, hgy)
-                        elif use:
-                            sd, nx, ny, nz, w = _closest(px, py, pz, g, H)
-                        else:
-                            sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
-                        vx = QD[r, j, 0] + e * QD[r, j, 3]
-                        vy = QD[r, j, 1] + e * QD[r, j, 4]
-                        vz = QD[r, j, 2] + e * QD[r, j, 5]
-                        level, end = radius, -1
-                        if s == 0:
-                            sd_a, na0, na1, na2, w_a, vn_a = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
-                        elif s == 1:
-                            sd_c, nc0, nc1, nc2, w_c, vn_c = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
-                        else:
-                            # the interior penetration is measured from the deeper node when that
-                            # node touches: min(radius, sd_a, sd_c) - sd, 0 when the interior minimum
-                            # merges with a node (a continuous potential; no double count of the
-                            # node's contact)
-                            if sd_a < level:
-                                level, end = sd_a, 0
-                            if sd_c < level:
-                                level, end = sd_c, 1
-                            if end >= 0:
-                                # damping on the rate of that penetration, w v.n here less the
-                                # node's w v.n (the tangential part, so friction, is unchanged)
-                                vr = vn_a * (w_a / w) if end == 0 else vn_c * (w_c / w)
-                                vx, vy, vz = vx - vr * nx, vy - vr * ny, vz - vr * nz
-                    # the anchored material point: where the rod touched (the interior slot's
-                    # contact point moves along the rod; friction holds the material, not the point)
-                    e0 = eta0[c, ci] if (s == 2 and active[c, ci]) else e
+                                sd_c = sd
+                            eta0[c, ci] = e
+                            active[c, ci] = False
+                            slip[c, ci] = False
+                            continue
+                        nx, ny, nz, w = _hf_normal(hgx, hgy)
+                    else:
+                        sd, nx, ny, nz, w = _closest(px, py, pz, g, H)
+                    vx = QD[r, j, 0] + e * QD[r, j, 3]
+                    vy = QD[r, j, 1] + e * QD[r, j, 4]
+                    vz = QD[r, j, 2] + e * QD[r, j, 5]
+                    if s == 0:
+                        sd_a, na0, na1, na2, w_a, vn_a = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
+                    else:
+                        sd_c, nc0, nc1, nc2, w_c, vn_c = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
+                    # a node slot's anchored material point is the node itself
                     touch, fx, fy, fz, ax, ay, az, sl, en, fn = _slot_force(
-                        px, py, pz, r0 + e0 * b0, r1 + e0 * b1, r2 + e0 * b2, vx, vy, vz, sd, nx, ny, nz, w,
-                        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], level,
+                        px, py, pz, px, py, pz, vx, vy, vz, sd, nx, ny, nz, w,
+                        anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2], active[c, ci], radius,
                         pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
                     anchor[c, ci, 0], anchor[c, ci, 1], anchor[c, ci, 2] = ax, ay, az
-                    if touch or active[c, ci]:
-                        eta0[c, ci] = e if (sl or not active[c, ci]) else e0
-                    else:
-                        # a slot that neither touches nor touched holds its own eta, the rod's
-                        # middle for the interior slot (where its search stopped does not matter)
-                        eta0[c, ci] = e if s < 2 else em
+                    eta0[c, ci] = e
                     active[c, ci] = touch
                     slip[c, ci] = sl
                     if has_info:
                         info[c, ci, 0], info[c, ci, 1] = e, sd
                         info[c, ci, 2], info[c, ci, 3], info[c, ci, 4] = nx, ny, nz
                         info[c, ci, 5] = en
-                    if touch and s < 2:
-                        # a node slot's force goes to its node whole (the weights below are 1 and 0)
+                    if touch:
+                        # a node slot's force goes to its node whole
                         node = rod_a[j] if s == 0 else rod_c[j]
                         Wc[r, node, 0] += fx
                         Wc[r, node, 1] += fy
                         Wc[r, node, 2] += fz
-                    elif touch:
-                        wc = (e - ea) / span
-                        wa = (ec - e) / span
-                        na, nc = rod_a[j], rod_c[j]
-                        Wc[r, na, 0] += wa * fx
-                        Wc[r, na, 1] += wa * fy
-                        Wc[r, na, 2] += wa * fz
-                        Wc[r, nc, 0] += wc * fx
-                        Wc[r, nc, 1] += wc * fy
-                        Wc[r, nc, 2] += wc * fz
-                        if end >= 0:
-                            # the reaction: -fn w n of the node at that node (the gradient of the
-                            # level sd_node in the penetration min(...) - sd)
-                            if end == 0:
-                                fr = fn * w_a
-                                Wc[r, na, 0] -= fr * na0
-                                Wc[r, na, 1] -= fr * na1
-                                Wc[r, na, 2] -= fr * na2
-                            else:
-                                fr = fn * w_c
-                                Wc[r, nc, 0] -= fr * nc0
-                                Wc[r, nc, 1] -= fr * nc1
-                                Wc[r, nc, 2] -= fr * nc2
 
 
 @njit(cache=True, nogil=True)
@@ -533,7 +572,7 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
     generalized force ``[F, eta F]`` exactly (:func:`rows_forces`)."""
     lam = 1.0 if (geom.shape[0] > 1 or hf.shape[0] > 1) else hf_bound_of(geom[0], hf[0])
     rows_forces(0, q.shape[0], q, qd, W, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, 0,
-                np.empty(geom.shape[2]), np.empty(prm.shape[2]), np.empty((0, 0)), np.empty((0, 0, 2, 3)), False)
+                geom.shape[1], np.empty(geom.shape[2]), np.empty(prm.shape[2]), np.empty((0, 0)), np.empty((0, 0, 2, 3)), False)
 
 
 @njit(inline="always", **_opts)
@@ -564,21 +603,44 @@ def plane_only(geom):
 
 
 @njit(inline="always", **_opts)
-def plane_load(anchor, eta0, active, AN, AC, eta, c0, ne, k, F, E):
-    """Lanes 0..E-1 of the plane scratch take the node slots' anchors AN (2 k, 3, E) m and
-    active flags AC (2 k, E) of feature 0, a plane, of copies c0..c0+ne-1 (pad lanes repeat
-    copy c0; node slot 2 j + s is the contact slot 3 j F + s of F features); the interior
-    slots of that feature, which never touch a plane, are released as :func:`rows_forces`
-    releases them (the anchored point kept if it was active), once per call: every step would
-    do the same."""
+def slots_load(anchor, active, AN, AC, c0, ne, k, F, f, E):
+    """Lanes 0..E-1 of a lane scratch take the node slots' anchors AN (2 k, 3, E) m and active
+    flags AC (2 k, E) of feature f of copies c0..c0+ne-1 (pad lanes repeat copy c0; node slot
+    2 j + s is the contact slot 3 (j F + f) + s of F features)."""
     for e in range(E):
         src = c0 + e if e < ne else c0
         for j in range(k):
             for s in range(2):
-                AN[2 * j + s, 0, e] = anchor[src, 3 * j * F + s, 0]
-                AN[2 * j + s, 1, e] = anchor[src, 3 * j * F + s, 1]
-                AN[2 * j + s, 2, e] = anchor[src, 3 * j * F + s, 2]
-                AC[2 * j + s, e] = active[src, 3 * j * F + s]
+                ci = 3 * (j * F + f) + s
+                AN[2 * j + s, 0, e] = anchor[src, ci, 0]
+                AN[2 * j + s, 1, e] = anchor[src, ci, 1]
+                AN[2 * j + s, 2, e] = anchor[src, ci, 2]
+                AC[2 * j + s, e] = active[src, ci]
+
+
+@njit(inline="always", **_opts)
+def slots_store(anchor, eta0, active, slip, AN, AC, SL, eta, c0, ne, k, F, f):
+    """Copies c0..c0+ne-1 take their lanes' node slots of feature f (anchors, active and slip
+    flags; their anchored point is the node's own, ``eta0`` its eta; F features)."""
+    for e in range(ne):
+        for j in range(k):
+            for s in range(2):
+                ci = 3 * (j * F + f) + s
+                anchor[c0 + e, ci, 0] = AN[2 * j + s, 0, e]
+                anchor[c0 + e, ci, 1] = AN[2 * j + s, 1, e]
+                anchor[c0 + e, ci, 2] = AN[2 * j + s, 2, e]
+                active[c0 + e, ci] = AC[2 * j + s, e]
+                slip[c0 + e, ci] = SL[2 * j + s, e]
+                eta0[c0 + e, ci] = eta[j, s]
+
+
+@njit(inline="always", **_opts)
+def plane_load(anchor, eta0, active, AN, AC, eta, c0, ne, k, F, E):
+    """Lanes 0..E-1 of the plane scratch take the node slots of feature 0, a plane, of copies
+    c0..c0+ne-1 (:func:`slots_load`); the interior slots of that feature, which never touch a
+    plane, are released as :func:`rows_forces` releases them (the anchored point kept if it
+    was active), once per call: every step would do the same."""
+    slots_load(anchor, active, AN, AC, c0, ne, k, F, 0, E)
     for e in range(ne):
         for j in range(k):
             ci = 3 * j * F + 2
@@ -589,19 +651,11 @@ def plane_load(anchor, eta0, active, AN, AC, eta, c0, ne, k, F, E):
 
 @njit(inline="always", **_opts)
 def plane_store(anchor, eta0, active, slip, AN, AC, SL, eta, c0, ne, k, F):
-    """Copies c0..c0+ne-1 take their lanes' node slots of feature 0 (anchors, active and slip
-    flags; their anchored point is the node's own, ``eta0`` its eta; F features) and no slip at
-    its interior slots."""
+    """Copies c0..c0+ne-1 take their lanes' node slots of feature 0 (:func:`slots_store`) and no
+    slip at its interior slots."""
+    slots_store(anchor, eta0, active, slip, AN, AC, SL, eta, c0, ne, k, F, 0)
     for e in range(ne):
         for j in range(k):
-            for s in range(2):
-                ci = 3 * j * F + s
-                anchor[c0 + e, ci, 0] = AN[2 * j + s, 0, e]
-                anchor[c0 + e, ci, 1] = AN[2 * j + s, 1, e]
-                anchor[c0 + e, ci, 2] = AN[2 * j + s, 2, e]
-                active[c0 + e, ci] = AC[2 * j + s, e]
-                slip[c0 + e, ci] = SL[2 * j + s, e]
-                eta0[c0 + e, ci] = eta[j, s]
             slip[c0 + e, 3 * j * F + 2] = False
 
 
@@ -659,8 +713,149 @@ def plane_forces(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, geom, prm, c0, ne, k,
 
 
 @njit(inline="always", **_opts)
+def hf_last(geom):
+    """True when the last feature of every copy's terrain ``geom`` (G, F, 10) is a heightfield."""
+    if geom.shape[1] == 0:
+        return False
+    for c in range(geom.shape[0]):
+        if geom[c, geom.shape[1] - 1, 0] != HFIELD:
+            return False
+    return True
+
+
+@njit(inline="always", **_opts)
+def hf_lam_load(LAM, geom, hf, lam, c0, ne):
+    """``LAM[e]`` the slope bound ``sqrt(1 + L^2)`` of the heightfield of copy c0 + e, e < ne:
+    the shared heights' ``lam``, per-copy heights' their own (:func:`hf_bound_of`, as
+    :func:`rows_forces` computes it)."""
+    per_hf = (geom.shape[0] > 1 or hf.shape[0] > 1) and hf.shape[1] * hf.shape[2] > 1
+    for e in range(ne):
+        c = c0 + e
+        LAM[e] = hf_bound_of(geom[c if geom.shape[0] > 1 else 0], hf[c if hf.shape[0] > 1 else 0]) if per_hf else lam
+
+
+# compiled on its own (a rod whose gap is not monotone along it is rare): inlined, its search
+# would be compiled into every terrain instance of the loop driver
+@njit(**_opts)
+def hf_interior_slot(c, ci, r, j, Q, QD, Wc, ea, ec, em, ends, g, H, pr, anchor, eta0, active, slip, info, rod_a,
+                     rod_c):
+    """The interior slot ``ci`` of rod j of copy c (row r of ``Q``, ``QD`` (., k, 6), ``Wc``
+    (., n, 3)) over the heightfield ``g`` (heights ``H``, contact parameters ``pr``) for a rod
+    whose gap is not monotone along it, given its ends' data ``ends`` (:func:`_interior_force`);
+    as :func:`rows_forces` computes it, ``info`` having no rows."""
+    r0, r1, r2, b0, b1, b2 = Q[r, j, 0], Q[r, j, 1], Q[r, j, 2], Q[r, j, 3], Q[r, j, 4], Q[r, j, 5]
+    sd_a, sd_c = ends[0], ends[6]
+    cut = min(pr[0], min(sd_a, sd_c)) + 2.0 * LEVEL_TOL
+    e, sd, nx, ny, nz, w = _hf_interior_point(ea, ec, em, r0, r1, r2, b0, b1, b2, g, H, False, cut, sd_a, sd_c)
+    _interior_force(c, ci, r, j, e, sd, nx, ny, nz, w, (r0, r1, r2, b0, b1, b2, ea, ec, em), QD, Wc, ends, pr[0], pr,
+                    anchor, eta0, active, slip, info, rod_a, rod_c)
+
+
+@njit(inline="always", **_opts)
+def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip,
+                    info, g, pr, c0, ne, k, n, zero):
+    """:func:`rows_forces` of the last feature, a heightfield (:func:`hf_last`), of the loop
+    driver's lanes e < ne (copies c0 + e; ``QT``, ``QDT`` (E, k, 6) m, m/s and ``EXT`` (E, n, 3)
+    N the lanes' transposed views), added to EXT (``zero``: set, no other feature's forces in
+    it). The node slots' state in lane scratch (AN, AC, SL of :func:`slots_load`), ``LAM`` the
+    lanes' slope bounds (:func:`hf_lam_load`); the interior slot, which a rod needs only where
+    its gap is not monotone along it, in the copies' state (:func:`hf_interior_slot`). The same
+    arithmetic in the same order as :func:`rows_forces`, so the same bits, without its per-copy
+    bookkeeping of the node slots and its loop over features."""
+    F = geom.shape[1]
+    f = F - 1
+    H = hf[0]
+    for e in range(ne):
+        c = c0 + e
+        gr = c if geom.shape[0] > 1 else 0
+        pc = c if prm.shape[0] > 1 else 0
+        if hf.shape[0] > 1:
+            H = hf[c]
+        for i in range(g.shape[0]):
+            g[i] = geom[gr, f, i]
+        for i in range(pr.shape[0]):
+            pr[i] = prm[pc, f, i]
+        radius = pr[0]
+        lam = LAM[e]
+        if zero:
+            for p in range(n):
+                EXT[e, p, 0] = 0.0
+                EXT[e, p, 1] = 0.0
+                EXT[e, p, 2] = 0.0
+        for j in range(k):
+            r0, r1, r2 = QT[e, j, 0], QT[e, j, 1], QT[e, j, 2]
+            b0, b1, b2 = QT[e, j, 3], QT[e, j, 4], QT[e, j, 5]
+            ea, ec = eta[j, 0], eta[j, 1]
+            span = ec - ea
+            em = 0.5 * (ea + ec)
+            ci = 3 * (j * F + f) + 2
+            # the end gaps, the far test and monotony as rows_forces decides them
+            xa, ya, za = r0 + ea * b0, r1 + ea * b1, r2 + ea * b2
+            xc, yc, zc = r0 + ec * b0, r1 + ec * b1, r2 + ec * b2
+            ha, gxa, gya = hf_patch(xa, ya, g, H)
+            hc, gxc, gyc = hf_patch(xc, yc, g, H)
+            ga, gc = za - ha, zc - hc
+            mono = hf_monotone(b0, b1, b2, lam)
+            if (min(ga, gc) if mono else 0.5 * (ga + gc - lam * abs(span))) >= radius:
+                for s in range(2):
+                    AC[2 * j + s, e] = False
+                    SL[2 * j + s, e] = False
+                if active[c, ci]:
+                    active[c, ci] = False
+                elif eta0[c, ci] != em:
+                    eta0[c, ci] = em
+                if slip[c, ci]:
+                    slip[c, ci] = False
+                continue
+            sd_a, na0, na1, na2, w_a, vn_a = ga, 0.0, 0.0, 1.0, 1.0, 0.0
+            sd_c, nc0, nc1, nc2, w_c, vn_c = gc, 0.0, 0.0, 1.0, 1.0, 0.0
+            for s in range(2):
+                a = 2 * j + s
+                sd = ga if s == 0 else gc
+                if not (radius - sd > 0.0):
+                    AC[a, e] = False
+                    SL[a, e] = False
+                    continue
+                if s == 0:
+                    h, px, py, pz = ea, xa, ya, za
+                    nx, ny, nz, w = _hf_normal(gxa, gya)
+                else:
+                    h, px, py, pz = ec, xc, yc, zc
+                    nx, ny, nz, w = _hf_normal(gxc, gyc)
+                vx = QDT[e, j, 0] + h * QDT[e, j, 3]
+                vy = QDT[e, j, 1] + h * QDT[e, j, 4]
+                vz = QDT[e, j, 2] + h * QDT[e, j, 5]
+                if s == 0:
+                    na0, na1, na2, w_a, vn_a = nx, ny, nz, w, vx * nx + vy * ny + vz * nz
+                else:
+                    nc0, nc1, nc2, w_c, vn_c = nx, ny, nz, w, vx * nx + vy * ny + vz * nz
+                touch, fx, fy, fz, AN[a, 0, e], AN[a, 1, e], AN[a, 2, e], SL[a, e], en, fn = _slot_force(
+                    px, py, pz, px, py, pz, vx, vy, vz, sd, nx, ny, nz, w,
+                    AN[a, 0, e], AN[a, 1, e], AN[a, 2, e], AC[a, e], radius,
+                    pr[1], pr[2], pr[3], pr[4], pr[5], pr[6], pr[7])
+                AC[a, e] = touch
+                if touch:
+                    node = rod_a[j] if s == 0 else rod_c[j]
+                    EXT[e, node, 0] += fx
+                    EXT[e, node, 1] += fy
+                    EXT[e, node, 2] += fz
+            if mono:
+                # lowest at an end: no interior contact (released as rows_forces releases it)
+                if active[c, ci]:
+                    active[c, ci] = False
+                elif eta0[c, ci] != em:
+                    eta0[c, ci] = em
+                if slip[c, ci]:
+                    slip[c, ci] = False
+            else:
+                hf_interior_slot(c, ci, e, j, QT, QDT, EXT, ea, ec, em,
+                                 (sd_a, na0, na1, na2, w_a, vn_a, sd_c, nc0, nc1, nc2, w_c, vn_c), g, H, pr, anchor,
+                                 eta0, active, slip, info, rod_a, rod_c)
+
+
+@njit(inline="always", **_opts)
 def lanes_forces(QT, QDT, EXT, EX, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, info, ext, lam, g,
-                 pr, clr, ref, fresh, c0, ne, k, n, E, f0):
+                 pr, boxes, c0, ne, k, n, E, feats, hfs):
     """The terrain forces of E lanes of the loop driver (copies c0..c0+ne-1) into EX (n, 3, E) N,
     plus the external force ``ext``: :func:`rows_forces` on the lanes' state Q, QD (k, 6, E) m,
     m/s read through their transposed views ``QT``, ``QDT`` (E, k, 6) and the forces written
@@ -668,11 +863,21 @@ def lanes_forces(QT, QDT, EXT, EX, eta, rod_a, rod_c, geom, prm, hf, anchor, eta
     the contact state of the copies updated in place. Pad lanes (e >= ne, copies of lane 0)
     take lane 0's forces. ``eta`` .. ``info`` as :func:`terrain_forces_kernel` takes them,
     ``ext`` (0, 1 or B rows of (n, 3)) N; ``lam`` the shared heights' slope bound; ``g``,
-    ``pr`` rows_forces' scratch, ``clr``, ``ref``, ``fresh`` its boxes' clearance. ``f0`` = 1: EX
-    holds feature 0's forces already (:func:`plane_forces`), the other features' are added to
-    them."""
-    rows_forces(c0, ne, QT, QDT, EXT, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0,
-                g, pr, clr, ref, fresh)
+    ``pr`` rows_forces' scratch, ``boxes`` the tuple (clr, ref, fresh) of its boxes' clearance.
+    ``feats`` = (f0, f1): features f0 .. f1 - 1 in rows_forces (f0 = 1: EX holds feature 0's
+    forces already, :func:`plane_forces`, the other features' are added to them); f1 = F - 1:
+    the last feature, a heightfield, after them in :func:`hf_lanes_forces`, ``hfs`` the tuple
+    (AN, AC, SL, LAM) of its node slots' lane scratch and slope bounds (tuples: a call with more
+    than 30 arguments would not inline)."""
+    clr, ref, fresh = boxes
+    f0, f1 = feats
+    AN, AC, SL, LAM = hfs
+    if f1 > f0:
+        rows_forces(c0, ne, QT, QDT, EXT, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0,
+                    f1, g, pr, clr, ref, fresh)
+    if f1 < geom.shape[1]:
+        hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip,
+                        info, g, pr, c0, ne, k, n, f1 == 0)
     add_ext(EX, ext, c0, ne, n, E)
     for e in range(ne, E):
         for p in range(n):
