@@ -227,3 +227,33 @@ def test_box_reached_within_one_call_is_the_python_loop(prism, B):
     assert np.all(np.abs(out[0][1][..., 0].mean(axis=1)) < 1.0)
     for a, b in zip(*out):
         assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("B", [1, 20])
+def test_compiled_heightfield_rod_lying_flat_is_the_python_loop(B):
+    """A lone rod rising 1 cm per m over 0.1 mm bumps: its gap is monotone along it (the field's
+    slope bound is about 0.003) and both its caps touch, so the compiled loop must look up its
+    upper end too (the gap rises only 4 mm along the rod)."""
+    from tensegrity_gym.core.terrain import Heightfield
+    from tensegrity_gym.structure import Structure
+    m = dyn.compile_model(Structure(np.array([[0.0, 0.0, 0.012], [0.4, 0.0, 0.016]]), [[0, 1]], np.zeros((0, 2), int),
+                                    bar_mass=0.2, gravity=(0.0, 0.0, -9.81)))
+    rng = np.random.default_rng(11)
+    h = 1e-4 * rng.random((30, 30))
+    tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights=h, cell=0.05, origin=[-0.75, -0.75])))
+    st = dyn.initial_state(m, B)
+    q, qd = np.array(st.q), np.array(st.qd)
+    q[..., :2] += rng.normal(0.0, 0.01, q[..., :2].shape)
+    qd[..., 0] += 0.1
+    out = []
+    for compiled in (False, True):
+        qq, qqd, ts = q.copy(), qd.copy(), T.init_terrain_state(tc, m, B)
+        W = np.empty((B, m.n_nodes, 3))
+        both = False
+        for _ in range(30):
+            T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=5, forces=W, compiled=compiled)
+            both |= bool((ts.active[:, 0] & ts.active[:, 1]).any())
+        out.append((qq, qqd, ts.anchor, ts.eta0, ts.active, W))
+    assert both
+    for a, b in zip(*out):
+        assert np.array_equal(a, b)

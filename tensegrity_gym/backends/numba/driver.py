@@ -187,7 +187,7 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         HAN = np.empty((2 * k, 3, E))
         HAC = np.zeros((2 * k, E), np.bool_)
         HSL = np.zeros((2 * k, E), np.bool_)
-        LAM = np.empty(E)
+        LAM = np.empty((2, E))
     if plane is not None:
         p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_anchor, p_eta0, p_active, p_slip, p_ext = plane
     if terrain is not None or plane is not None:

@@ -725,13 +725,15 @@ def hf_last(geom):
 
 @njit(inline="always", **_opts)
 def hf_lam_load(LAM, geom, hf, lam, c0, ne):
-    """``LAM[e]`` the slope bound ``sqrt(1 + L^2)`` of the heightfield of copy c0 + e, e < ne:
-    the shared heights' ``lam``, per-copy heights' their own (:func:`hf_bound_of`, as
-    :func:`rows_forces` computes it)."""
+    """``LAM[0, e]`` the slope bound ``sqrt(1 + L^2)`` of the heightfield of copy c0 + e, e < ne
+    (the shared heights' ``lam``, per-copy heights' their own: :func:`hf_bound_of`, as
+    :func:`rows_forces` computes it), ``LAM[1, e]`` the slope bound L."""
     per_hf = (geom.shape[0] > 1 or hf.shape[0] > 1) and hf.shape[1] * hf.shape[2] > 1
     for e in range(ne):
         c = c0 + e
-        LAM[e] = hf_bound_of(geom[c if geom.shape[0] > 1 else 0], hf[c if hf.shape[0] > 1 else 0]) if per_hf else lam
+        LAM[0, e] = hf_bound_of(geom[c if geom.shape[0] > 1 else 0], hf[c if hf.shape[0] > 1 else 0]) if per_hf \
+            else lam
+        LAM[1, e] = math.sqrt(max(LAM[0, e] * LAM[0, e] - 1.0, 0.0))
 
 
 # compiled on its own (a rod whose gap is not monotone along it is rare): inlined, its search
@@ -757,11 +759,13 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
     """:func:`rows_forces` of the last feature, a heightfield (:func:`hf_last`), of the loop
     driver's lanes e < ne (copies c0 + e; ``QT``, ``QDT`` (E, k, 6) m, m/s and ``EXT`` (E, n, 3)
     N the lanes' transposed views), added to EXT (``zero``: set, no other feature's forces in
-    it). The node slots' state in lane scratch (AN, AC, SL of :func:`slots_load`), ``LAM`` the
-    lanes' slope bounds (:func:`hf_lam_load`); the interior slot, which a rod needs only where
-    its gap is not monotone along it, in the copies' state (:func:`hf_interior_slot`). The same
-    arithmetic in the same order as :func:`rows_forces`, so the same bits, without its per-copy
-    bookkeeping of the node slots and its loop over features."""
+    it). The node slots' state in lane scratch (AN, AC, SL of :func:`slots_load`), ``LAM`` (2, E)
+    the lanes' slope bounds (:func:`hf_lam_load`); the interior slot, which a rod needs only
+    where its gap is not monotone along it, in the copies' state (:func:`hf_interior_slot`). The
+    same arithmetic in the same order as :func:`rows_forces`, so the same bits, without its
+    per-copy bookkeeping of the node slots, its loop over features and, where the gap is
+    monotone along a rod, the upper end's height lookup when the rise of the gap along the rod
+    keeps that end clear."""
     F = geom.shape[1]
     f = F - 1
     H = hf[0]
@@ -776,7 +780,7 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
         for i in range(pr.shape[0]):
             pr[i] = prm[pc, f, i]
         radius = pr[0]
-        lam = LAM[e]
+        lam = LAM[0, e]
         if zero:
             for p in range(n):
                 EXT[e, p, 0] = 0.0
@@ -792,10 +796,32 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
             # the end gaps, the far test and monotony as rows_forces decides them
             xa, ya, za = r0 + ea * b0, r1 + ea * b1, r2 + ea * b2
             xc, yc, zc = r0 + ec * b0, r1 + ec * b1, r2 + ec * b2
-            ha, gxa, gya = hf_patch(xa, ya, g, H)
-            hc, gxc, gyc = hf_patch(xc, yc, g, H)
-            ga, gc = za - ha, zc - hc
             mono = hf_monotone(b0, b1, b2, lam)
+            gxa, gya, gxc, gyc = 0.0, 0.0, 0.0, 0.0
+            if mono:
+                # the lower end's gap, and the upper end's only where it can be under the cap
+                # radius: the gap rises along the rod by at least |span| (|b_z| - L |b_xy|) >= 0
+                # (|b_xy| <= |b_x| + |b_y|), with a margin far above round-off; an end clear by
+                # that bound has an infinite gap here (no contact: the same decisions, bits and
+                # state as with its own gap, which is at least the cap radius)
+                rise = abs(span) * (abs(b2) - LAM[1, e] * (abs(b0) + abs(b1)))
+                tol = 1e-9 * (1.0 + abs(r0) + abs(r1) + abs(r2) + abs(span))
+                if za <= zc:
+                    ha, gxa, gya = hf_patch(xa, ya, g, H)
+                    ga, gc = za - ha, math.inf
+                    if ga + rise - tol * (1.0 + abs(ha)) < radius:
+                        hc, gxc, gyc = hf_patch(xc, yc, g, H)
+                        gc = zc - hc
+                else:
+                    hc, gxc, gyc = hf_patch(xc, yc, g, H)
+                    ga, gc = math.inf, zc - hc
+                    if gc + rise - tol * (1.0 + abs(hc)) < radius:
+                        ha, gxa, gya = hf_patch(xa, ya, g, H)
+                        ga = za - ha
+            else:
+                ha, gxa, gya = hf_patch(xa, ya, g, H)
+                hc, gxc, gyc = hf_patch(xc, yc, g, H)
+                ga, gc = za - ha, zc - hc
             if (min(ga, gc) if mono else 0.5 * (ga + gc - lam * abs(span))) >= radius:
                 for s in range(2):
                     AC[2 * j + s, e] = False
