@@ -822,17 +822,9 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
                 ha, gxa, gya = hf_patch(xa, ya, g, H)
                 hc, gxc, gyc = hf_patch(xc, yc, g, H)
                 ga, gc = za - ha, zc - hc
-            if (min(ga, gc) if mono else 0.5 * (ga + gc - lam * abs(span))) >= radius:
-                for s in range(2):
-                    AC[2 * j + s, e] = False
-                    SL[2 * j + s, e] = False
-                if active[c, ci]:
-                    active[c, ci] = False
-                elif eta0[c, ci] != em:
-                    eta0[c, ci] = em
-                if slip[c, ci]:
-                    slip[c, ci] = False
-                continue
+            far = (min(ga, gc) if mono else 0.5 * (ga + gc - lam * abs(span))) >= radius
+            if far:
+                ga, gc = math.inf, math.inf     # no slot touches: the node slots released below
             sd_a, na0, na1, na2, w_a, vn_a = ga, 0.0, 0.0, 1.0, 1.0, 0.0
             sd_c, nc0, nc1, nc2, w_c, vn_c = gc, 0.0, 0.0, 1.0, 1.0, 0.0
             for s in range(2):
@@ -865,8 +857,9 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
                     EXT[e, node, 0] += fx
                     EXT[e, node, 1] += fy
                     EXT[e, node, 2] += fz
-            if mono:
-                # lowest at an end: no interior contact (released as rows_forces releases it)
+            if far or mono:
+                # no interior contact (a monotone gap is lowest at an end), released as rows_forces
+                # releases it (written here once: an inlined function of these arrays measured slower)
                 if active[c, ci]:
                     active[c, ci] = False
                 elif eta0[c, ci] != em:
