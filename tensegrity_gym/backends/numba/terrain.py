@@ -257,7 +257,10 @@ def _hf_interior_point(ea, ec, em, r0, r1, r2, b0, b1, b2, g, H, mono, cut, sd_a
     return e, pz - hf_patch(px, py, g, H)[0], nx, ny, nz, w
 
 
-@njit(inline="always", **_opts)
+# compiled on its own and called: inlined, with the contact arrays among its arguments, it made
+# the boxes' kernel slower (steps at N = 16: 92-94 -> 97-102 us per env step); the call costs
+# little beside the interior search before it
+@njit(**_opts)
 def _interior_force(c, ci, r, j, e, sd, nx, ny, nz, w, rod, QD, Wc, ends, radius, pr, anchor, eta0, active, slip,
                     info, rod_a, rod_c):
     """The interior slot ``ci`` of rod j of copy c (row r of ``QD`` (., k, 6) m/s and ``Wc``
