@@ -158,7 +158,9 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
     copies' own arrays; ``ext`` receives each copy's forces of its last step; a feature 0 that
     is a plane in every copy, the ground under steps or walls, runs in the lanes
     (:func:`.terrain.plane_forces`, its node slots' state in lane scratch as the plane
-    instance's) and the other features after it). ``plane``: None or the tuple of
+    instance's) and the other features after it; a last feature that is a heightfield in every
+    copy, rough ground or a course's ground, runs in the lanes after the others
+    (:func:`.terrain.hf_lanes_forces`, its node slots' state in lane scratch too)). ``plane``: None or the tuple of
     :func:`.terrain.plane_forces` (a terrain that is one plane, as ``terrain`` but for that one
     kind: the instance then carries no code for the other kinds)."""
     S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, E, lanes.shape[0] > 0)
