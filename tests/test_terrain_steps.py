@@ -103,7 +103,7 @@ def test_compiled_heightfield_after_other_features_is_the_python_loop(prism, B, 
     rng = np.random.default_rng(7)
     h = 0.03 * rng.random((20, 20))
     if plane:
-        h[:] = -0.05          # the heightfield under the plane, which the nodes then touch, but for the plateau
+        h[:] = -0.05          # the heightfield under the plane, which the nodes then touch, but for the peak
     st = dyn.initial_state(m, B)
     q, qd = np.array(st.q), np.array(st.qd)
     q[..., :3] += rng.normal(0.0, 0.01, q[..., :3].shape)

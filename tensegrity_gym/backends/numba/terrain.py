@@ -238,25 +238,6 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, w, ax, ay, a
     return True, fx + fw * nx, fy + fw * ny, fz + fw * nz, ax, ay, az, slip, energy, fn
 
 
-@njit(inline="always", **_opts)
-def _hf_interior_point(ea, ec, em, r0, r1, r2, b0, b1, b2, g, H, mono, cut, sd_a, sd_c):
-    """The interior slot's point of a rod [ea, ec] over the heightfield ``g`` (heights ``H``):
-    (eta m, gap m, unit normal, w) of the lowest point of the axis where it is lower than both
-    ends (:func:`.heightfield.hf_lowest`, searched for below ``cut`` m, given the end gaps
-    ``sd_a``, ``sd_c`` m), with the gradient its force uses; an infinite gap where there is none:
-    a gap monotone along the rod (``mono``, :func:`.heightfield.hf_monotone`: lowest at an end)
-    or level ground under the rod (as a plane, no point is lower than both ends), at the rod's
-    middle ``em``."""
-    if mono or hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H):
-        return em, math.inf, 0.0, 0.0, 1.0, 1.0
-    e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, sd_a, sd_c)
-    if not use:
-        return e, math.inf, 0.0, 0.0, 1.0, 1.0
-    px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
-    nx, ny, nz, w = _hf_normal(kgx, kgy)
-    return e, pz - hf_patch(px, py, g, H)[0], nx, ny, nz, w
-
-
 # compiled on its own and called: inlined, with the contact arrays among its arguments, it made
 # the boxes' kernel slower (steps at N = 16: 92-94 -> 97-102 us per env step); the call costs
 # little beside the interior search before it
@@ -364,9 +345,8 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
     0's forces, a plane's, in ``Wc`` (:func:`plane_forces`), and the others are added to them in
     the order of the features, as with ``f0`` = 0); ``f1``: the feature after the last (F: all;
     F - 1: the loop driver adds a last heightfield's forces after these, :func:`hf_lanes_forces`).
-    ``g`` (10,), ``pr`` (8,): scratch for a
-    feature's rows (copied there, not sliced: a slice is a new array view, whose reference
-    counting cost about as much as a plane's contact itself).
+    ``g`` (10,), ``pr`` (8,): scratch for a feature's rows, copied there once per copy and
+    feature.
     ``clr`` (nr, F), ``ref`` (nr, k, 2, 3): the boxes' clearance over the loop driver's sub-steps
     of one call (0 rows: not kept). At the first sub-step (``fresh``) ``ref`` takes the rods' end
     points m and ``clr[r, f]`` the least, over the rods, of the box's far-test slack m (the slab
@@ -380,7 +360,7 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
     has_info = info.shape[0] > 0
     # per-copy rows with a heightfield: its slope bound per copy (a (., 1, 1) hf is no heightfield)
     per_hf = (geom.shape[0] > 1 or hf.shape[0] > 1) and hf.shape[1] * hf.shape[2] > 1
-    H = hf[0]       # shared heights: one view for all copies (a view per copy costs its reference count)
+    H = hf[0]       # shared heights: one view for all copies
     for r in range(nr):
         c = c0 + r
         g_row = c if geom.shape[0] > 1 else 0
@@ -500,21 +480,17 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         continue
                     if s == 2:
                         # the interior point nearest the feature, where it can be deeper than both ends
+                        ends = (sd_a, na0, na1, na2, w_a, vn_a, sd_c, nc0, nc1, nc2, w_c, vn_c)
                         if kind == HFIELD:
-                            # searched for only where it can touch: below min(radius, sd_a, sd_c) (the
-                            # slot's level, at or above its gap when it touches), with a margin beyond
-                            # the level-run tolerance; the whole axis when info is asked for
-                            cut = min(radius, min(sd_a, sd_c)) + 2.0 * LEVEL_TOL if not has_info else math.inf
-                            e, sd, nx, ny, nz, w = _hf_interior_point(ea, ec, em, r0, r1, r2, b0, b1, b2, g, H, mono,
-                                                                      cut, sd_a, sd_c)
+                            hf_interior_slot(c, ci, r, j, Q, QD, Wc, ea, ec, em, ends, g, H, pr, mono, has_info,
+                                             anchor, eta0, active, slip, info, rod_a, rod_c)
                         else:
                             e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
                             sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
                             if use:
                                 sd, nx, ny, nz, w = _closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g, H)
-                        _interior_force(c, ci, r, j, e, sd, nx, ny, nz, w, (r0, r1, r2, b0, b1, b2, ea, ec, em), QD,
-                                        Wc, (sd_a, na0, na1, na2, w_a, vn_a, sd_c, nc0, nc1, nc2, w_c, vn_c), radius,
-                                        pr, anchor, eta0, active, slip, info, rod_a, rod_c)
+                            _interior_force(c, ci, r, j, e, sd, nx, ny, nz, w, (r0, r1, r2, b0, b1, b2, ea, ec, em),
+                                            QD, Wc, ends, radius, pr, anchor, eta0, active, slip, info, rod_a, rod_c)
                         continue
                     px, py, pz = r0 + e * b0, r1 + e * b1, r2 + e * b2
                     if kind == PLANE:
@@ -577,7 +553,8 @@ def terrain_forces_kernel(q, qd, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0,
     generalized force ``[F, eta F]`` exactly (:func:`rows_forces`)."""
     lam = 1.0 if (geom.shape[0] > 1 or hf.shape[0] > 1) else hf_bound_of(geom[0], hf[0])
     rows_forces(0, q.shape[0], q, qd, W, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, 0,
-                geom.shape[1], np.empty(geom.shape[2]), np.empty(prm.shape[2]), np.empty((0, 0)), np.empty((0, 0, 2, 3)), False)
+                geom.shape[1], np.empty(geom.shape[2]), np.empty(prm.shape[2]), np.empty((0, 0)),
+                np.empty((0, 0, 2, 3)), False)
 
 
 @njit(inline="always", **_opts)
@@ -744,16 +721,27 @@ def hf_lam_load(LAM, geom, hf, lam, c0, ne):
 # compiled on its own (a rod whose gap is not monotone along it is rare): inlined, its search
 # would be compiled into every terrain instance of the loop driver
 @njit(**_opts)
-def hf_interior_slot(c, ci, r, j, Q, QD, Wc, ea, ec, em, ends, g, H, pr, anchor, eta0, active, slip, info, rod_a,
-                     rod_c):
+def hf_interior_slot(c, ci, r, j, Q, QD, Wc, ea, ec, em, ends, g, H, pr, mono, whole, anchor, eta0, active, slip,
+                     info, rod_a, rod_c):
     """The interior slot ``ci`` of rod j of copy c (row r of ``Q``, ``QD`` (., k, 6), ``Wc``
-    (., n, 3)) over the heightfield ``g`` (heights ``H``, contact parameters ``pr``) for a rod
-    whose gap is not monotone along it, given its ends' data ``ends`` (:func:`_interior_force`);
-    as :func:`rows_forces` computes it, ``info`` having no rows."""
+    (., n, 3)) over the heightfield ``g`` (heights ``H``, contact parameters ``pr``), given its
+    ends' data ``ends`` (:func:`_interior_force`): at the lowest point of the axis where it is
+    lower than both ends (:func:`.heightfield.hf_lowest`, with the gradient its force uses),
+    searched for only where it can touch, below the slot's level ``min(radius, sd_a, sd_c)``
+    (at or above its gap when it touches) with a margin beyond the level-run tolerance, or along
+    the whole axis (``whole``: info asked for); none (an infinite gap at the rod's middle ``em``)
+    where the gap is monotone along the rod (``mono``, :func:`.heightfield.hf_monotone`: lowest
+    at an end) or the ground under the rod is level (as a plane, no point is lower than both
+    ends). :func:`rows_forces` and :func:`hf_lanes_forces` call it."""
     r0, r1, r2, b0, b1, b2 = Q[r, j, 0], Q[r, j, 1], Q[r, j, 2], Q[r, j, 3], Q[r, j, 4], Q[r, j, 5]
     sd_a, sd_c = ends[0], ends[6]
-    cut = min(pr[0], min(sd_a, sd_c)) + 2.0 * LEVEL_TOL
-    e, sd, nx, ny, nz, w = _hf_interior_point(ea, ec, em, r0, r1, r2, b0, b1, b2, g, H, False, cut, sd_a, sd_c)
+    e, sd, nx, ny, nz, w = em, math.inf, 0.0, 0.0, 1.0, 1.0
+    if not (mono or hf_flat_under(r0 + ea * b0, r1 + ea * b1, r0 + ec * b0, r1 + ec * b1, g, H)):
+        cut = math.inf if whole else min(pr[0], min(sd_a, sd_c)) + 2.0 * LEVEL_TOL
+        e, use, kgx, kgy = hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, sd_a, sd_c)
+        if use:
+            nx, ny, nz, w = _hf_normal(kgx, kgy)
+            sd = r2 + e * b2 - hf_patch(r0 + e * b0, r1 + e * b1, g, H)[0]
     _interior_force(c, ci, r, j, e, sd, nx, ny, nz, w, (r0, r1, r2, b0, b1, b2, ea, ec, em), QD, Wc, ends, pr[0], pr,
                     anchor, eta0, active, slip, info, rod_a, rod_c)
 
@@ -878,8 +866,8 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
                     slip[c, ci] = False
             else:
                 hf_interior_slot(c, ci, e, j, QT, QDT, EXT, ea, ec, em,
-                                 (sd_a, na0, na1, na2, w_a, vn_a, sd_c, nc0, nc1, nc2, w_c, vn_c), g, H, pr, anchor,
-                                 eta0, active, slip, info, rod_a, rod_c)
+                                 (sd_a, na0, na1, na2, w_a, vn_a, sd_c, nc0, nc1, nc2, w_c, vn_c), g, H, pr, False,
+                                 False, anchor, eta0, active, slip, info, rod_a, rod_c)
 
 
 @njit(inline="always", **_opts)
