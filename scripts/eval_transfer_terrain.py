@@ -7,7 +7,8 @@ twin, with the same terrain or course and the same reset seeds.
     python scripts/eval_transfer_terrain.py runs/ppo_rough_s0 gait --terrain '{"generator": "rough"}' \
         --out results/transfer_terrain/rough.json [--episodes 8] [--steps 1000]
     python scripts/eval_transfer_terrain.py results/climb/seed_0 [...] gait --slopes 0 10 20 26 \
-        --out results/transfer_terrain/climb.json [--episodes 8] [--steps 1000]
+        --out results/transfer_terrain/climb.json [--episodes 8] [--steps 1000] \
+        [--twin-kwargs '{"contact_dampratio": 2.0}']
 
 Each policy (a run folder of ``agents.train``, loaded by ``agents.evaluate.load_trained``, or
 ``gait``: :class:`tensegrity_gym.tools.baselines.RollingGait`) acts unchanged, with deterministic
@@ -33,7 +34,9 @@ actions, on
 The env arguments are a run's own (its ``config.yaml``: observation, actuation, course settings)
 without the robot it was trained on (``randomize``, ``params``: both simulators run the nominal
 robot) and with the evaluation's scene (``--terrain``'s terrain, or each slope); then
-``--env-kwargs``. Prints one line per policy (and slope) and writes JSON (``--out``, atomically)
+``--env-kwargs``; the twin's also ``--twin-kwargs`` (the twin's own settings, which the project
+env does not take: ``contact_dampratio``, ``spin_damping``, ``mj_integrator``), to measure the
+transfer's sensitivity to them. Prints one line per policy (and slope) and writes JSON (``--out``, atomically)
 with the per-episode numbers and the ratio twin / project of each metric (None where the
 project's is 0).
 """
@@ -45,6 +48,7 @@ import sys
 import time
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
@@ -91,6 +95,17 @@ def parse_terrain(value: str | None):
     return value
 
 
+def json_object(option: str, text: str) -> dict:
+    """The JSON object ``text`` of ``option``; SystemExit naming the option otherwise."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"{option}: not JSON ({e.msg})") from None
+    if not isinstance(value, dict):
+        raise SystemExit(f"{option}: expected a JSON object, got {text!r}")
+    return value
+
+
 def env_kwargs_for(run_kwargs: dict, scene: dict, extra: dict) -> dict:
     """The env arguments of one policy's evaluation on ``scene`` (the evaluation's own env
     arguments: its terrain, or its slope) (see the module doc)."""
@@ -100,11 +115,24 @@ def env_kwargs_for(run_kwargs: dict, scene: dict, extra: dict) -> dict:
     return kw
 
 
-def compare(mode: str, envs: tuple[str, str], kw: dict, factory, seeds: list[int], steps: int | None) -> dict:
-    """One policy on the project env and on its twin with arguments ``kw``: both results and the
-    ratio twin / project of the metric (None where the project's is 0)."""
+def check_arguments(envs: tuple[str, str], kw: dict, twin_kw: dict) -> None:
+    """Each env made once with the evaluation's arguments (the twin's plus ``twin_kw``) and
+    closed: an argument either refuses (its error names it) ends the script with that message
+    before any episode runs."""
+    for env_id, k in ((envs[0], kw), (envs[1], dict(kw, **twin_kw))):
+        try:
+            gym.make(env_id, **k).close()
+        except (TypeError, ValueError) as e:
+            raise SystemExit(f"error: {env_id}: {e}") from None
+
+
+def compare(mode: str, envs: tuple[str, str], kw: dict, factory, seeds: list[int], steps: int | None,
+            twin_kw: dict | None = None) -> dict:
+    """One policy on the project env and on its twin with arguments ``kw`` (the twin's plus
+    ``twin_kw``): both results and the ratio twin / project of the metric (None where the
+    project's is 0)."""
     project = evaluate(mode, envs[0], kw, factory, seeds, steps)
-    twin = evaluate(mode, envs[1], kw, factory, seeds, steps)
+    twin = evaluate(mode, envs[1], dict(kw, **(twin_kw or {})), factory, seeds, steps)
     ratio = twin["metric"] / project["metric"] if project["metric"] else None
     return {"project": project, "twin": twin, "ratio_twin_project": ratio}
 
@@ -145,6 +173,8 @@ def main(argv=None) -> int:
                     help="control steps per episode (default: the registered time limit)")
     ap.add_argument("--model", default="final", help="best, final or a model .zip of each run")
     ap.add_argument("--env-kwargs", default="{}", help="JSON object of extra env arguments (both simulators)")
+    ap.add_argument("--twin-kwargs", default="{}",
+                    help="JSON object of extra arguments of the twin only (e.g. contact_dampratio, spin_damping)")
     a = ap.parse_args(argv)
     if a.terrain is not None and a.slopes is not None:
         print("error: --terrain and --slopes: give one (rolling on a terrain, or climbing)", file=sys.stderr)
@@ -154,12 +184,8 @@ def main(argv=None) -> int:
     if n < 1 or (a.steps is not None and a.steps < 1):
         print(f"error: --courses / --episodes and --steps must be >= 1 (got {n}, {a.steps})", file=sys.stderr)
         return 2
-    try:
-        extra = json.loads(a.env_kwargs)
-    except json.JSONDecodeError as e:
-        raise SystemExit(f"--env-kwargs: not JSON ({e.msg})") from None
-    if not isinstance(extra, dict):
-        raise SystemExit(f"--env-kwargs: expected a JSON object, got {a.env_kwargs!r}")
+    extra = json_object("--env-kwargs", a.env_kwargs)
+    twin_kw = json_object("--twin-kwargs", a.twin_kwargs)
     if mode == "climb" and not all(0.0 <= s <= MAX_SLOPE_DEG for s in a.slopes):
         print(f"error: --slopes must be in [0, {MAX_SLOPE_DEG:g}] degrees (got {a.slopes})", file=sys.stderr)
         return 2
@@ -172,13 +198,16 @@ def main(argv=None) -> int:
         factory, run_kwargs = load_policy(spec, a.model)
         if mode != "climb":
             kw = env_kwargs_for(run_kwargs, {} if terrain is None else {"terrain": terrain}, extra)
-            results[spec] = {"env_kwargs": kw, **compare(mode, envs, kw, factory, seeds, a.steps)}
+            check_arguments(envs, kw, twin_kw)
+            results[spec] = {"env_kwargs": kw, **compare(mode, envs, kw, factory, seeds, a.steps, twin_kw)}
             print(line(spec, envs, results[spec], unit), flush=True)
             continue
         per_slope = {}
         for slope in a.slopes:    # the slope fixed per evaluation: a run's slope_range would override it
             kw = env_kwargs_for(run_kwargs, {"slope_deg": slope, "slope_range": None}, extra)
-            per_slope[f"{slope:g}"] = row = {"env_kwargs": kw, **compare(mode, envs, kw, factory, seeds, a.steps)}
+            check_arguments(envs, kw, twin_kw)
+            per_slope[f"{slope:g}"] = row = {"env_kwargs": kw,
+                                             **compare(mode, envs, kw, factory, seeds, a.steps, twin_kw)}
             print(line(f"{spec} at {slope:g} deg", envs, row, unit), flush=True)
         ratios = [r["ratio_twin_project"] for r in per_slope.values() if r["ratio_twin_project"] is not None]
         mean = float(np.mean(ratios)) if ratios else None
@@ -188,7 +217,7 @@ def main(argv=None) -> int:
         print(f"{spec}: mean twin/project over the slopes {'-' if mean is None else f'{mean:.3f}'}", flush=True)
     data = {"command": "python scripts/eval_transfer_terrain.py " + " ".join(sys.argv[1:] if argv is None else argv),
             "mode": mode, "metric": METRIC[mode], "project_env": envs[0], "twin_env": envs[1],
-            "terrain": a.terrain, "slopes_deg": a.slopes, "model": a.model,
+            "terrain": a.terrain, "slopes_deg": a.slopes, "model": a.model, "twin_kwargs": twin_kw,
             "reset_seeds": [seeds[0], seeds[-1]], "steps": a.steps, "results": results,
             "wall_time_s": time.time() - t0}
     a.out.parent.mkdir(parents=True, exist_ok=True)

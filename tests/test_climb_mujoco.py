@@ -151,3 +151,21 @@ def test_eval_transfer_terrain_climb_mode(tmp_path, capsys):
     assert "TensegrityClimbMuJoCo-v0" in capsys.readouterr().out
     assert main(["gait", "--slopes", "0", "--terrain", "{}", "--out", str(out)]) == 2
     assert main(["gait", "--slopes", "75", "--out", str(out)]) == 2
+
+
+def test_eval_transfer_terrain_twin_kwargs_reach_the_twin_only(tmp_path):
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer_terrain.py"
+    main = runpy.run_path(str(script), run_name="eval_transfer_terrain")["main"]
+    args = ["gait", "--slopes", "20", "--episodes", "1", "--steps", "25"]
+    assert main(args + ["--out", str(tmp_path / "a.json")]) == 0
+    assert main(args + ["--twin-kwargs", '{"spin_damping": 0.0}', "--out", str(tmp_path / "b.json")]) == 0
+    a, b = (json.loads((tmp_path / f).read_text()) for f in ("a.json", "b.json"))
+    assert (a["twin_kwargs"], b["twin_kwargs"]) == ({}, {"spin_damping": 0.0})
+    ra, rb = a["results"]["gait"]["slopes"]["20"], b["results"]["gait"]["slopes"]["20"]
+    assert ra["project"]["speed_m_s"] == rb["project"]["speed_m_s"]      # the project env never sees them
+    assert ra["twin"]["speed_m_s"] != rb["twin"]["speed_m_s"]            # the twin's rods spin freely
+    with pytest.raises(SystemExit, match="TensegrityClimbMuJoCo-v0: contact_dampratio: must be positive"):
+        main(args + ["--twin-kwargs", '{"contact_dampratio": -1}', "--out", str(tmp_path / "c.json")])
+    with pytest.raises(SystemExit, match="--twin-kwargs: expected a JSON object"):
+        main(args + ["--twin-kwargs", "[1]", "--out", str(tmp_path / "c.json")])
+    assert not (tmp_path / "c.json").exists()
