@@ -101,6 +101,20 @@ def test_hyperparam_files_parse_and_name_registered_envs(name):
         assert env_id in data or algo == "td3", f"{path} has no entry for {env_id}"
 
 
+@pytest.mark.parametrize("path", sorted((ROOT / "agents" / "hyperparams").glob("*/*.yml")), ids=lambda p: p.parent.name + "/" + p.name)
+def test_task_hyperparam_files_resolve_and_make_their_envs(path):
+    """The recipes of the committed task results (climb/, navigate/, time_to_policy/): each entry
+    resolves for the algorithm its file name starts with, and its env_kwargs (robot, slopes,
+    randomised parameters) make the env (every argument accepted by name)."""
+    algo = path.stem.split("_")[0]
+    data = common.load_hyperparams_file(path)
+    assert data, f"{path} is empty"
+    for env_id, hp in data.items():
+        r = common.resolve_hyperparams(algo, hp)
+        assert r["n_timesteps"] > 0 and r["n_envs"] >= 1
+        gym.make(env_id, **(hp.get("env_kwargs") or {})).close()
+
+
 def test_time_to_policy_entries_are_the_ones_the_results_trained():
     """agents/hyperparams/time_to_policy/ppo.yml (for --conf-file; parsed and resolved by the test
     above): the only file there, and its entries are those of results/ppo_shape_1min/ and
