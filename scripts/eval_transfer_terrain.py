@@ -36,9 +36,9 @@ without the robot it was trained on (``randomize``, ``params``: both simulators 
 robot) and with the evaluation's scene (``--terrain``'s terrain, or each slope); then
 ``--env-kwargs``; the twin's also ``--twin-kwargs`` (the twin's own settings, which the project
 env does not take: ``contact_dampratio``, ``spin_damping``, ``mj_integrator``), to measure the
-transfer's sensitivity to them. Prints one line per policy (and slope) and writes JSON (``--out``, atomically)
-with the per-episode numbers and the ratio twin / project of each metric (None where the
-project's is 0).
+transfer's sensitivity to them. Prints one line per policy (and slope) and writes JSON
+(``--out``, atomically) with the per-episode numbers and the ratio twin / project of each metric
+(None where the project's is 0).
 """
 from __future__ import annotations
 

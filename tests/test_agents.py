@@ -101,7 +101,8 @@ def test_hyperparam_files_parse_and_name_registered_envs(name):
         assert env_id in data or algo == "td3", f"{path} has no entry for {env_id}"
 
 
-@pytest.mark.parametrize("path", sorted((ROOT / "agents" / "hyperparams").glob("*/*.yml")), ids=lambda p: p.parent.name + "/" + p.name)
+@pytest.mark.parametrize("path", sorted((ROOT / "agents" / "hyperparams").glob("*/*.yml")),
+                         ids=lambda p: p.parent.name + "/" + p.name)
 def test_task_hyperparam_files_resolve_and_make_their_envs(path):
     """The recipes of the committed task results (climb/, navigate/, time_to_policy/): each entry
     resolves for the algorithm its file name starts with, and its env_kwargs (robot, slopes,
