@@ -138,10 +138,17 @@ def compare(mode: str, envs: tuple[str, str], kw: dict, factory, seeds: list[int
 
 
 def line(label: str, envs: tuple[str, str], row: dict, unit: str) -> str:
-    """One printed line of a comparison ``row`` (:func:`compare`)."""
+    """One printed line of a comparison ``row`` (:func:`compare`); it names the episodes that
+    diverged (their metric counts the motion up to the divergence)."""
     r = row["ratio_twin_project"]
-    return (f"{label}: {envs[0]} {row['project']['metric']:.4g}, {envs[1]} {row['twin']['metric']:.4g} ({unit}), "
+    text = (f"{label}: {envs[0]} {row['project']['metric']:.4g}, {envs[1]} {row['twin']['metric']:.4g} ({unit}), "
             f"twin/project {'-' if r is None else f'{r:.3f}'}")
+    bad = {env: sum(row[side]["diverged"]) for env, side in zip(envs, ("project", "twin"))
+           if any(row[side]["diverged"])}
+    if bad:
+        n = len(row["project"]["diverged"])
+        text += "; DIVERGED: " + ", ".join(f"{env} {k} of {n} episodes" for env, k in bad.items())
+    return text
 
 
 def evaluate(mode: str, env_id: str, env_kwargs: dict, factory, seeds: list[int], steps: int | None) -> dict:

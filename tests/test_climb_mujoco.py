@@ -169,3 +169,18 @@ def test_eval_transfer_terrain_twin_kwargs_reach_the_twin_only(tmp_path):
     with pytest.raises(SystemExit, match="--twin-kwargs: expected a JSON object"):
         main(args + ["--twin-kwargs", "[1]", "--out", str(tmp_path / "c.json")])
     assert not (tmp_path / "c.json").exists()
+
+
+def test_eval_transfer_terrain_names_diverged_episodes(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)     # MuJoCo writes its warning log into the working directory
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer_terrain.py"
+    main = runpy.run_path(str(script), run_name="eval_transfer_terrain")["main"]
+    # explicit RK4 at the registered 1 ms step: MuJoCo's own instability, which the twin flags
+    args = ["gait", "--slopes", "20", "--episodes", "2", "--steps", "5", "--out", str(tmp_path / "d.json")]
+    assert main(args + ["--twin-kwargs", '{"mj_integrator": "RK4"}']) == 0
+    out = capsys.readouterr().out
+    assert "DIVERGED: TensegrityClimbMuJoCo-v0 2 of 2 episodes" in out
+    row = json.loads((tmp_path / "d.json").read_text())["results"]["gait"]["slopes"]["20"]
+    assert row["twin"]["diverged"] == [True] * 2 and row["project"]["diverged"] == [False] * 2
+    assert main(args) == 0
+    assert "DIVERGED" not in capsys.readouterr().out
