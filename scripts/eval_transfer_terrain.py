@@ -116,9 +116,10 @@ def env_kwargs_for(run_kwargs: dict, scene: dict, extra: dict) -> dict:
 
 
 def check_arguments(envs: tuple[str, str], kw: dict, twin_kw: dict) -> None:
-    """Each env made once with the evaluation's arguments (the twin's plus ``twin_kw``) and
-    closed: an argument either refuses (its error names it) ends the script with that message
-    before any episode runs."""
+    """Each env made once with a policy's arguments on the first scene (the twin's plus
+    ``twin_kw``) and closed: an argument either refuses (its error names it) ends the script
+    with that message before the policy's episodes run (the scenes differ in the slope only,
+    checked in range before)."""
     for env_id, k in ((envs[0], kw), (envs[1], dict(kw, **twin_kw))):
         try:
             gym.make(env_id, **k).close()
@@ -201,18 +202,21 @@ def main(argv=None) -> int:
     seeds = list(range(SEED0[mode], SEED0[mode] + n))
     unit = {"navigate": "success", "terrain": "m/s along the goal", "climb": "m/s uphill"}[mode]
     results, t0 = {}, time.time()
+    # the evaluation's scenes: one terrain (or flat ground, or the courses), or each slope, fixed
+    # per evaluation (a run's slope_range would override it)
+    scenes = ([{"slope_deg": s, "slope_range": None} for s in a.slopes] if mode == "climb"
+              else [{} if terrain is None else {"terrain": terrain}])
     for spec in a.policies:
         factory, run_kwargs = load_policy(spec, a.model)
+        check_arguments(envs, env_kwargs_for(run_kwargs, scenes[0], extra), twin_kw)
         if mode != "climb":
-            kw = env_kwargs_for(run_kwargs, {} if terrain is None else {"terrain": terrain}, extra)
-            check_arguments(envs, kw, twin_kw)
+            kw = env_kwargs_for(run_kwargs, scenes[0], extra)
             results[spec] = {"env_kwargs": kw, **compare(mode, envs, kw, factory, seeds, a.steps, twin_kw)}
             print(line(spec, envs, results[spec], unit), flush=True)
             continue
         per_slope = {}
-        for slope in a.slopes:    # the slope fixed per evaluation: a run's slope_range would override it
-            kw = env_kwargs_for(run_kwargs, {"slope_deg": slope, "slope_range": None}, extra)
-            check_arguments(envs, kw, twin_kw)
+        for slope, scene in zip(a.slopes, scenes):
+            kw = env_kwargs_for(run_kwargs, scene, extra)
             per_slope[f"{slope:g}"] = row = {"env_kwargs": kw,
                                              **compare(mode, envs, kw, factory, seeds, a.steps, twin_kw)}
             print(line(f"{spec} at {slope:g} deg", envs, row, unit), flush=True)

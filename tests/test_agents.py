@@ -82,21 +82,29 @@ def test_resolve_hyperparams_schedules_and_unsupported_keys():
 
 
 # ---------------------------------------------------------------------- hyperparameter files
+def _check_entries(path, algo: str) -> dict:
+    """The entries of the hyperparameter file ``path``, each checked: a registered env id, the
+    entry resolves for ``algo`` (strings parse safely) and its model arguments are the
+    algorithm's."""
+    import inspect
+    data = common.load_hyperparams_file(path)
+    assert data, f"{path} is empty"
+    Algo = common.get_algo(algo)
+    params = inspect.signature(Algo.__init__).parameters
+    for env_id, hp in data.items():
+        assert env_id in gym.envs.registry, f"{path}: {env_id} is not a registered env id"
+        r = common.resolve_hyperparams(algo, hp)
+        assert r["n_timesteps"] > 0 and r["n_envs"] >= 1
+        for k in r["model_kwargs"]:
+            assert k in params, f"{path}:{env_id}: {k!r} is not a {Algo.__name__} argument"
+    return data
+
+
 @pytest.mark.parametrize("name", ["ppo.yml", "sac.yml", "td3.yml", "time_to_policy/ppo.yml"])
 def test_hyperparam_files_parse_and_name_registered_envs(name):
     path = ROOT / "agents" / "hyperparams" / name
     algo = path.stem
-    data = common.load_hyperparams_file(path)
-    assert data, f"{path} is empty"
-    for env_id, hp in data.items():
-        assert env_id in gym.envs.registry, f"{path}: {env_id} is not a registered env id"
-        r = common.resolve_hyperparams(algo, hp)  # every entry resolves (strings parse safely)
-        assert r["n_timesteps"] > 0 and r["n_envs"] >= 1
-        Algo = common.get_algo(algo)
-        import inspect
-        params = inspect.signature(Algo.__init__).parameters
-        for k in r["model_kwargs"]:
-            assert k in params, f"{path}:{env_id}: {k!r} is not a {Algo.__name__} argument"
+    data = _check_entries(path, algo)
     for env_id in ENV_IDS:
         assert env_id in data or algo == "td3", f"{path} has no entry for {env_id}"
 
@@ -105,14 +113,10 @@ def test_hyperparam_files_parse_and_name_registered_envs(name):
                          ids=lambda p: p.parent.name + "/" + p.name)
 def test_task_hyperparam_files_resolve_and_make_their_envs(path):
     """The recipes of the committed task results (climb/, navigate/, time_to_policy/): each entry
-    resolves for the algorithm its file name starts with, and its env_kwargs (robot, slopes,
-    randomised parameters) make the env (every argument accepted by name)."""
-    algo = path.stem.split("_")[0]
-    data = common.load_hyperparams_file(path)
-    assert data, f"{path} is empty"
-    for env_id, hp in data.items():
-        r = common.resolve_hyperparams(algo, hp)
-        assert r["n_timesteps"] > 0 and r["n_envs"] >= 1
+    checked as the top-level files' are, for the algorithm its file name starts with, and its
+    env_kwargs (robot, slopes, randomised parameters) make the env (every argument accepted by
+    name)."""
+    for env_id, hp in _check_entries(path, path.stem.split("_")[0]).items():
         gym.make(env_id, **(hp.get("env_kwargs") or {})).close()
 
 
