@@ -2,7 +2,7 @@
 """Cost of a physics step with terrain contact against flat ground (numba, the prism robot).
 
     PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000] \
-        [--envs 1 16 128] [--env-steps 200] [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
+        [--envs 1 16 128] [--env-steps 200] [--episode] [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
         [--torch-compile] [--torch-device cuda] [--torch-dtype float32] [--torch-scenes flat ...] \
         [--json out.json]
 
@@ -16,7 +16,9 @@ alone, as for numba).
 
 Env table (``--envs``): env-steps/s of ``TensegrityRoll-v0`` (NumPy vector env, random actions)
 on flat ground and on each terrain kind, and the cost ratio terrain / flat measured in the same
-run on the same machine: a 20-degree slope (a plane), steps (the ``steps`` generator: 4 boxes),
+run on the same machine, over ``--env-steps`` steps after a reset (the physics only) or, with
+``--episode``, over one whole episode of each scene's registered time limit, so that every copy
+resets once within the timed steps (what training pays: a drawn terrain is made at each reset): a 20-degree slope (a plane), steps (the ``steps`` generator: 4 boxes),
 rough ground (the ``rough`` generator with no level pad: a 12 m heightfield of 2 cm bumps over the
 whole floor, the robot on bumps from the start) and
 ``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the planner).
@@ -147,9 +149,15 @@ def torch_env_table(ns, steps: int, compile: bool = False, device: str = "cpu", 
             "compile_warmup_s": {k: [v[1] for v in vals] for k, vals in comp.items()}}
 
 
-def env_table(ns, steps: int) -> dict:
-    rates = {name: [env_rate(eid, kw, n, steps) for n in ns] for name, (eid, kw) in ENV_SCENES.items()}
-    print(f"\n{'env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'cost/flat':>10}" for n in ns))
+def env_table(ns, steps: int, episode: bool = False) -> dict:
+    """env-steps/s per scene and N over ``steps`` steps, or (``episode``) over each scene's
+    registered episode length, its time limit: every copy resets once within the timed steps."""
+    import gymnasium as gym
+    rates = {name: [env_rate(eid, kw, n, gym.spec(eid).max_episode_steps if episode else steps) for n in ns]
+             for name, (eid, kw) in ENV_SCENES.items()}
+    what = "one episode each, resets included" if episode else f"{steps} steps after a reset"
+    print(f"\n{'env scene (' + what + ')':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'cost/flat':>10}"
+                                                           for n in ns))
     for name, vals in rates.items():
         print(f"{name:<30}" + "".join(f"{v:16,.0f}{rates['flat'][i] / v:10.2f}" for i, v in enumerate(vals)))
     return rates
@@ -185,6 +193,8 @@ def main():
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--envs", type=int, nargs="*", default=[], help="env table for these numbers of copies")
     ap.add_argument("--env-steps", type=int, default=200)
+    ap.add_argument("--episode", action="store_true",
+                    help="time one whole episode per scene (every copy resets once) instead of --env-steps steps")
     ap.add_argument("--json", type=str, default=None, help="write the tables here")
     ap.add_argument("--torch", action="store_true", help="also the torch backend's physics table (CPU)")
     ap.add_argument("--torch-envs", type=int, nargs="*", default=[],
@@ -217,13 +227,13 @@ def main():
     for name, vals in rows.items() if a.batch else ():
         print(f"{name:<26}" + "".join(f"{v:16.2f}" for v in vals))
     torch_rows = torch_table(m, scenes, a.batch, max(a.steps // 10, 20)) if a.torch else {}
-    envs = env_table(a.envs, a.env_steps) if a.envs else {}
+    envs = env_table(a.envs, a.env_steps, a.episode) if a.envs else {}
     torch_envs = (torch_env_table(a.torch_envs, a.torch_env_steps, a.torch_compile, a.torch_device, a.torch_dtype,
                                    a.torch_scenes) if a.torch_envs else {})
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"cpu": cpu_model(), "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows, "torch_us_per_step": torch_rows,
-                       "envs": a.envs, "env_steps_per_s": envs,
+                       "envs": a.envs, "env_steps_per_s": envs, "env_steps": a.env_steps, "episode": a.episode,
                        "torch_envs": a.torch_envs, "torch_env_steps_per_s": torch_envs,
                        "torch_device": a.torch_device, "torch_device_name": _device_name(a.torch_device),
                        "torch_dtype": a.torch_dtype, "command": "python scripts/bench_terrain.py " +

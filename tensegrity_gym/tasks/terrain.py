@@ -32,6 +32,7 @@ the robot starts as on flat ground, and has the same parts and grid shape for a 
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -166,14 +167,22 @@ def drawn_values(gen: TerrainGenerator, u, difficulty: float = 1.0):
         return d * (lo + (hi - lo) * u[:, 0])
     if gen.kind == "steps":
         return xp.cumsum(d * (0.5 + (1.0 - 0.5) * u) * gen.step_height, axis=1)
-    X, Y, fade = (xp.const(a, u) for a in rough_grid(gen)[1:])
+    x, fade = (xp.const(a, u) for a in rough_grid(gen))
     w = gen.waves
     ang, phase = 0.0 + (2 * np.pi - 0.0) * u[:, :w], 0.0 + (2 * np.pi - 0.0) * u[:, w:]
     k = 2 * np.pi / gen.wavelength
-    ca, sa = xp.cos(ang)[:, :, None, None], xp.sin(ang)[:, :, None, None]
-    z = 0
-    for i in range(w):
-        z = z + xp.cos(k * (ca[:, i] * X + sa[:, i] * Y) + phase[:, i, None, None])
+    # each wave cos(k (cos a X + sin a Y) + phase) on the square grid X[j, i] = x[i], Y[j, i] = x[j],
+    # by the angle sum: cos(A_i + B_j) = cos A_i cos B_j - sin A_i sin B_j with A = k cos a x and
+    # B = k sin a x + phase, so that a wave costs 4 n trigonometric calls, not n^2
+    A = k * (xp.cos(ang)[:, :, None] * x)                          # (r, waves, n)
+    B = k * (xp.sin(ang)[:, :, None] * x) + phase[:, :, None]
+    cA, sA, cB, sB = xp.cos(A), xp.sin(A), xp.cos(B), xp.sin(B)
+    z = cB[:, 0, :, None] * cA[:, 0, None, :]
+    z -= sB[:, 0, :, None] * sA[:, 0, None, :]
+    for i in range(1, w):
+        t = cB[:, i, :, None] * cA[:, i, None, :]
+        t -= sB[:, i, :, None] * sA[:, i, None, :]
+        z += t
     lo = xp.amin(z, axis=(1, 2))[:, None, None]
     span = xp.amax(z, axis=(1, 2))[:, None, None] - lo
     z = (z - lo) / xp.maximum(span, 1e-12)
@@ -186,14 +195,17 @@ def rough_axis(gen: TerrainGenerator) -> np.ndarray:
     return (np.arange(n) - (n - 1) / 2) * gen.cell
 
 
+@functools.lru_cache(maxsize=16)
 def rough_grid(gen: TerrainGenerator):
-    """``(x, X, Y, fade)`` of rough ground: the grid's axis (n,) m (:func:`rough_axis`), its
-    points' coordinates (n, n) m and the bumps' fade (n, n) (0 inside the pad, 1 a wavelength
-    beyond it)."""
+    """``(x, fade)`` of rough ground: the axis (n,) m of its square grid (:func:`rough_axis`; the
+    point ``[j, i]`` at ``(x[i], x[j])``) and the bumps' fade (n, n) (0 inside the pad, 1 a
+    wavelength beyond it). Read-only, computed once per generator."""
     x = rough_axis(gen)
     X, Y = np.meshgrid(x, x)
     fade = np.clip((np.hypot(X, Y) - gen.pad) / max(gen.wavelength, 1e-9), 0.0, 1.0)
-    return x, X, Y, fade
+    x.setflags(write=False)
+    fade.setflags(write=False)
+    return x, fade
 
 
 def step_extents(gen: TerrainGenerator):

@@ -180,7 +180,10 @@ class _TorchOps:
         return x.to(like.dtype)
 
     def const(self, values, like):
-        return self.torch.as_tensor(np.asarray(values, dtype=float), dtype=like.dtype, device=like.device)
+        a = np.asarray(values, dtype=float)
+        if not a.flags.writeable:       # a cached read-only array: torch would share it
+            a = a.copy()
+        return self.torch.as_tensor(a, dtype=like.dtype, device=like.device)
 
     def hypot(self, a, b):
         return self.torch.hypot(a, b)
