@@ -9,7 +9,7 @@ import tensegrity_gym  # noqa: F401
 from tensegrity_gym.core.terrain import Box, Plane, Terrain
 from tensegrity_gym.envs.roll import RollTask, TensegrityRollVectorEnv
 from tensegrity_gym.physics import terrain as T
-from tensegrity_gym.tasks.terrain import TerrainGenerator, generate
+from tensegrity_gym.tasks.terrain import TerrainGenerator, drawn_values, generate, rough_axis, terrain_draws
 
 STEPS = {"generator": "steps", "step_height": 0.04, "n_steps": 3}
 
@@ -99,6 +99,26 @@ def test_difficulty_scales_the_generated_terrain(kind):
     task = RollTask(terrain={"generator": kind})
     task.set_terrain_difficulty(0.25)
     assert task.terrain_difficulty == 0.25
+
+
+@pytest.mark.parametrize("pad", [0.0, 0.4])
+def test_rough_heights_are_the_sum_of_their_waves(pad):
+    """The drawn heights (each wave by the angle sum) equal their definition on the grid point
+    (x_i, y_j): the waves cos(k (cos a x + sin a y) + phase) summed, scaled to [0, amplitude],
+    faded inside the pad."""
+    gen = TerrainGenerator(kind="rough", size=1.5, cell=0.05, pad=pad, waves=5, amplitude=0.03)
+    u = np.random.default_rng(3).random((2, terrain_draws(gen)))
+    h = drawn_values(gen, u)
+    x = rough_axis(gen)
+    X, Y = np.meshgrid(x, x)
+    k = 2 * np.pi / gen.wavelength
+    for r in range(2):
+        ang, phase = 2 * np.pi * u[r, :gen.waves], 2 * np.pi * u[r, gen.waves:]
+        z = sum(np.cos(k * (np.cos(a) * X + np.sin(a) * Y) + p) for a, p in zip(ang, phase))
+        z = (z - z.min()) / (z.max() - z.min())
+        fade = np.clip((np.hypot(X, Y) - pad) / gen.wavelength, 0.0, 1.0)
+        np.testing.assert_allclose(h[r], gen.amplitude * z * fade, rtol=0, atol=1e-15)
+    assert not np.allclose(h[0], h[0].T, atol=1e-4)        # not symmetric: x and y in their places
 
 
 def test_terrain_rises_along_the_goal_direction():
