@@ -18,10 +18,11 @@ Env table (``--envs``): env-steps/s of ``TensegrityRoll-v0`` (NumPy vector env, 
 on flat ground and on each terrain kind, and the cost ratio terrain / flat measured in the same
 run on the same machine, over ``--env-steps`` steps after a reset (the physics only) or, with
 ``--episode``, over one whole episode of each scene's registered time limit, so that every copy
-resets once within the timed steps (what training pays: a drawn terrain is made at each reset): a 20-degree slope (a plane), steps (the ``steps`` generator: 4 boxes),
-rough ground (the ``rough`` generator with no level pad: a 12 m heightfield of 2 cm bumps over the
-whole floor, the robot on bumps from the start) and
-``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the planner).
+resets once within the timed steps (what training pays: a drawn terrain is made at each reset).
+Scenes: a 20-degree slope (a plane), steps (the ``steps`` generator: 4 boxes), rough ground (the
+``rough`` generator with no level pad: a 12 m heightfield of 2 cm bumps over the whole floor, the
+robot on bumps from the start) and ``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the
+planner).
 
 Torch env table (``--torch-envs``): the same scenes on the torch device
 vector env (``backend="torch"``; CPU, float64, one torch thread unless ``--torch-device`` /
