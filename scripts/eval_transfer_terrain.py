@@ -128,12 +128,12 @@ def check_arguments(envs: tuple[str, str], kw: dict, twin_kw: dict) -> None:
 
 
 def compare(mode: str, envs: tuple[str, str], kw: dict, factory, seeds: list[int], steps: int | None,
-            twin_kw: dict | None = None) -> dict:
+            twin_kw: dict) -> dict:
     """One policy on the project env and on its twin with arguments ``kw`` (the twin's plus
     ``twin_kw``): both results and the ratio twin / project of the metric (None where the
     project's is 0)."""
     project = evaluate(mode, envs[0], kw, factory, seeds, steps)
-    twin = evaluate(mode, envs[1], dict(kw, **(twin_kw or {})), factory, seeds, steps)
+    twin = evaluate(mode, envs[1], dict(kw, **twin_kw), factory, seeds, steps)
     ratio = twin["metric"] / project["metric"] if project["metric"] else None
     return {"project": project, "twin": twin, "ratio_twin_project": ratio}
 
