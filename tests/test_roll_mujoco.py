@@ -145,6 +145,25 @@ def test_unsupported_arguments_raise(kwargs):
         TensegrityRollMuJoCoEnv(**kwargs)
 
 
+def test_rk4_twin_holds_its_spin_damping_within_the_explicit_bound():
+    # MuJoCo's RK4 integrates joint damping explicitly: the default 1 N m s on the rods' axial
+    # inertia diverged at the first step; with RK4 the default is half the bound, more is refused
+    twin = TensegrityRollMuJoCoEnv(mj_integrator="RK4", randomize=TWIN_RANDOM)
+    axial = float(twin.model.body_inertia[twin._body, 2].min())
+    assert twin.spin_damping == pytest.approx(0.5 * 2.785 * axial / twin.task.dt)
+    assert twin.spin_damping == twin.rk4_spin_damping_max() < 1.0
+    rng = np.random.default_rng(0)
+    for seed in range(3):
+        twin.reset(seed=seed)
+        for _ in range(300):
+            *_, info = twin.step(rng.uniform(-1, 1, 9))
+            assert not info["diverged"]
+    with pytest.raises(ValueError, match=r"spin_damping: 1.0 N m s .*mj_integrator='RK4'"):
+        TensegrityRollMuJoCoEnv(mj_integrator="RK4", spin_damping=1.0)
+    assert TensegrityRollMuJoCoEnv(mj_integrator="RK4", spin_damping=0.0).spin_damping == 0.0
+    assert TensegrityRollMuJoCoEnv().spin_damping == 1.0
+
+
 TWIN_RANDOM = {"rod_mass": 0.2, "stiffness": 0.2, "damping": 0.2, "rest_length_offset": 0.005, "friction": 0.2,
                "ground_stiffness": 0.2, "ground_damping": 0.2, "gravity": 0.05, "max_cable_speed": 0.2,
                "max_cable_acceleration": 0.2}

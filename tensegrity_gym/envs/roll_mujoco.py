@@ -58,6 +58,11 @@ Modelling differences from the project's physics (``docs/contact.md``, ``EQUATIO
   damps each rod's spin about its own axis (``spin_damping``, default 1 N m s, on the free
   joint's axial rotation, integrated implicitly): spin rates at rest stay near 2e-3 rad/s and
   the rods behave as ours (no axial rotation). ``spin_damping=0`` gives MuJoCo's free spin.
+  MuJoCo's ``RK4`` integrates joint damping explicitly, stable only for ``spin_damping * dt / I``
+  up to about 2.785 (I the rods' axial inertia, 4e-5 kg m^2 on the default prism): with
+  ``mj_integrator="RK4"`` the default is half that bound (0.056 N m s on the default prism at
+  1 ms; its spin at rest is larger than with 1 N m s), a larger value is refused, and the
+  settling's drag on the spin is held to the same value.
 * **Start pose.** MuJoCo's contact rests at another depth than ours (caps 0.007 mm into the
   ground against our 0.1-0.24 mm), so the robot is
   settled again on MuJoCo's ground at construction (SETTLE_TIME s with viscous drag on the
@@ -131,6 +136,9 @@ __all__ = ["TensegrityRollMuJoCoEnv", "TensegrityNavigateMuJoCoEnv", "ENV_ID", "
 ENV_ID = "TensegrityRollMuJoCo-v0"
 NAVIGATE_ENV_ID = "TensegrityNavigateMuJoCo-v0"
 _UNSUPPORTED = ("start_rest_length_offset",)
+#: classical RK4's stability bound on the negative real axis: a damping rate c / I integrates
+#: stably for dt c / I up to this
+RK4_DAMPING_BOUND = 2.785
 
 
 class TensegrityRollMuJoCoEnv(gym.Env):
@@ -139,8 +147,9 @@ class TensegrityRollMuJoCoEnv(gym.Env):
     Arguments: those of ``TensegrityRoll-v0`` (passed to its :class:`RollTask`; rest-length mode
     only; ``params`` / ``randomize`` as the module doc maps them onto the MjModel; ``terrain`` as the
     module doc's "Terrain"), plus ``mj_integrator`` ("implicitfast"), ``contact_dampratio`` (1.0, the damping ratio
-    of MuJoCo's contact ``solref``), ``spin_damping`` (1.0 N m s, damping of each rod's spin
-    about its own axis, see the module doc), ``render_mode`` (None or "rgb_array"), ``width``, ``height``.
+    of MuJoCo's contact ``solref``), ``spin_damping`` (None: 1.0 N m s, with ``RK4`` the largest it
+    integrates stably (:meth:`rk4_spin_damping_max`); damping of each rod's spin about its own
+    axis, see the module doc), ``render_mode`` (None or "rgb_array"), ``width``, ``height``.
     ``env.unwrapped.task`` is the :class:`RollTask` (so :class:`tensegrity_gym.baselines.RollingGait`
     and ``observation_layout()`` work as on ``TensegrityRoll-v0``); ``env.unwrapped.model`` /
     ``data`` are the MuJoCo ``MjModel`` / ``MjData``.
@@ -153,7 +162,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
 
     def __init__(self, render_mode: str | None = None, width: int = 480, height: int = 480,
                  mj_integrator: str = "implicitfast", contact_dampratio: float = 1.0,
-                 spin_damping: float = 1.0, **kwargs):
+                 spin_damping: float | None = None, **kwargs):
         try:
             import mujoco
         except ImportError:
@@ -172,7 +181,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         if kwargs.get("action_mode", "rest_length") != "rest_length":
             raise ValueError(f"action_mode: {env_id} supports 'rest_length' only, got {kwargs['action_mode']!r}")
         check_mj_integrator(mj_integrator, "mj_integrator")
-        self.spin_damping = check_positive(spin_damping, "spin_damping", "N m s", allow_zero=True)
+        if spin_damping is not None:
+            check_positive(spin_damping, "spin_damping", "N m s", allow_zero=True)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode: unknown {render_mode!r}; choose 'rgb_array' or None")
         self.contact_dampratio = check_positive(contact_dampratio, "contact_dampratio")
@@ -190,6 +200,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         k = s.n_bars
         self._body = np.array([m.body(f"rod{j}").id for j in range(k)])
         self._dof = m.jnt_dofadr[m.body_jntadr[self._body]]
+        self.spin_damping = self._spin_damping(spin_damping, mj_integrator)
         self._settle()
         if task.terrains is not None:
             self.model = m = self._compile(self._terrain_xml(task.terrains[0]))
@@ -227,6 +238,28 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         return to_mjcf(t.structure.replace(nodes=t.nodes_nominal), terrain=terrain, floor_height=floor_height(terrain),
                        **self._mjcf)
 
+    def rk4_spin_damping_max(self) -> float:
+        """The largest ``spin_damping`` (N m s) the twin takes with MuJoCo's ``RK4``: half of the
+        explicit bound ``RK4_DAMPING_BOUND * I / dt`` (I the smallest axial inertia of the rods,
+        kg m^2; the half leaves room for randomised rod masses)."""
+        axial = float(self.model.body_inertia[self._body, 2].min())
+        return 0.5 * RK4_DAMPING_BOUND * axial / self.task.dt
+
+    def _spin_damping(self, value, integrator: str) -> float:
+        """``spin_damping`` (N m s) for ``integrator``: ``value`` (checked against RK4's bound), or
+        the default (None: 1.0, with RK4 :meth:`rk4_spin_damping_max`)."""
+        if integrator != "RK4":
+            return 1.0 if value is None else float(value)
+        top = self.rk4_spin_damping_max()
+        if value is None:
+            return top
+        if value > top:
+            raise ValueError(f"spin_damping: {value!r} N m s is beyond what mj_integrator='RK4' integrates "
+                             f"stably at dt = {self.task.dt} s (RK4 integrates joint damping explicitly; at most "
+                             f"{top:.4g} N m s for the rods' axial inertia); pass spin_damping <= {top:.4g} or use "
+                             f"mj_integrator 'implicitfast', 'implicit' or 'Euler'")
+        return float(value)
+
     def _settle(self) -> None:
         """Let the robot settle on MuJoCo's ground (SETTLE_TIME s with viscous drag on the rods,
         as RollTask settles it on its own ground) and make that the task's nominal start pose, so
@@ -235,6 +268,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         mj.mj_resetData(m, d)
         d.qpos[:] = initial_qpos_qvel(t.structure.replace(nodes=t.nodes_nominal))[0]
         m.dof_damping[:] = 4.0 * float(t.structure.bar_mass.max())   # N s/m (N m s on the rotations)
+        if m.opt.integrator == mj.mjtIntegrator.mjINT_RK4:      # explicit damping: the spin's held stable
+            m.dof_damping[self._dof + 5] = min(m.dof_damping[0], self.spin_damping)
         for _ in range(int(round(SETTLE_TIME / t.dt))):
             mj.mj_step(m, d)
         m.dof_damping[:] = 0.0
