@@ -270,7 +270,11 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self._renderers: dict[int, Any] = {}
 
     def _vector_info(self, infos: dict, mask: np.ndarray, out: dict | None = None) -> dict:
+        """``infos`` as Gymnasium's vector info: per key an (N, ...) array holding the values of
+        the envs in ``mask`` (zero elsewhere) and its ``"_" + key`` mask; into ``out`` (adding
+        ``mask``'s envs) when given."""
         out = {} if out is None else out
+        whole = bool(mask.all())     # every env (most steps): a copy, not a masked write into zeros
         for k, v in infos.items():
             if isinstance(v, dict):          # e.g. info["params"]: a nested vector dict
                 out[k] = self._vector_info(v, mask, out.get(k))
@@ -280,6 +284,9 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             if k in out:
                 out[k][mask] = v[mask] if v.shape[:1] == (self.num_envs,) else v
                 out["_" + k] |= mask
+            elif whole and v.shape[:1] == (self.num_envs,):
+                out[k] = v.copy()
+                out["_" + k] = mask.copy()
             else:
                 arr = np.zeros((self.num_envs,) + v.shape[1:], dtype=v.dtype)
                 arr[mask] = v[mask] if v.shape[:1] == (self.num_envs,) else v
