@@ -292,7 +292,8 @@ def cmd_simulate(args) -> int:
     print(f"{s.name}: {n_steps} steps of {args.dt:g} s with {args.integrator} in {wall:.3g} s wall "
           f"({n_steps / wall:,.0f} steps/s); {S} records -> {out}")
     if tc is not None:
-        print(f"terrain contact ({terrain_label(args)}, {tc.n_features} part{'' if tc.n_features == 1 else 's'}, cap radius {tc.radius:g} m): "
+        parts = f"{tc.n_features} part{'' if tc.n_features == 1 else 's'}"
+        print(f"terrain contact ({terrain_label(args)}, {parts}, cap radius {tc.radius:g} m): "
               f"the structure was lifted {lift:.4g} m to rest on it")
     print(f"max relative energy change {drift:.3e}; final rod-length drift "
           f"{float(dynamics.rod_length_drift(model, qf[-1:])[0]):.3e}")
