@@ -133,9 +133,14 @@ def test_bad_arguments_are_named(kw, match):
         gym.make("TensegrityClimbMuJoCo-v0", **kw)
 
 
-def test_eval_transfer_terrain_climb_mode(tmp_path, capsys):
+def _transfer_main():
+    """``main`` of scripts/eval_transfer_terrain.py."""
     script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer_terrain.py"
-    main = runpy.run_path(str(script), run_name="eval_transfer_terrain")["main"]
+    return runpy.run_path(str(script), run_name="eval_transfer_terrain")["main"]
+
+
+def test_eval_transfer_terrain_climb_mode(tmp_path, capsys):
+    main = _transfer_main()
     out = tmp_path / "climb.json"
     assert main(["gait", "--slopes", "0", "10", "--episodes", "2", "--steps", "25", "--out", str(out)]) == 0
     d = json.loads(out.read_text())
@@ -155,8 +160,7 @@ def test_eval_transfer_terrain_climb_mode(tmp_path, capsys):
 
 
 def test_eval_transfer_terrain_twin_kwargs_reach_the_twin_only(tmp_path):
-    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer_terrain.py"
-    main = runpy.run_path(str(script), run_name="eval_transfer_terrain")["main"]
+    main = _transfer_main()
     args = ["gait", "--slopes", "20", "--episodes", "1", "--steps", "25"]
     assert main(args + ["--out", str(tmp_path / "a.json")]) == 0
     assert main(args + ["--twin-kwargs", '{"spin_damping": 0.0}', "--out", str(tmp_path / "b.json")]) == 0
@@ -174,8 +178,7 @@ def test_eval_transfer_terrain_twin_kwargs_reach_the_twin_only(tmp_path):
 
 def test_eval_transfer_terrain_names_diverged_episodes(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)     # MuJoCo writes its warning log into the working directory
-    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer_terrain.py"
-    main = runpy.run_path(str(script), run_name="eval_transfer_terrain")["main"]
+    main = _transfer_main()
     # RK4's spin damping let past its explicit bound: MuJoCo's own instability, which the twin flags
     monkeypatch.setattr(roll_mujoco, "RK4_DAMPING_BOUND", 100.0)
     args = ["gait", "--slopes", "20", "--episodes", "2", "--steps", "5", "--out", str(tmp_path / "d.json")]

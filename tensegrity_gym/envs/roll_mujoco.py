@@ -267,9 +267,10 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         mj, m, d, t = self._mj, self.model, self.data, self.task
         mj.mj_resetData(m, d)
         d.qpos[:] = initial_qpos_qvel(t.structure.replace(nodes=t.nodes_nominal))[0]
-        m.dof_damping[:] = 4.0 * float(t.structure.bar_mass.max())   # N s/m (N m s on the rotations)
+        drag = 4.0 * float(t.structure.bar_mass.max())
+        m.dof_damping[:] = drag   # N s/m (N m s on the rotations)
         if m.opt.integrator == mj.mjtIntegrator.mjINT_RK4:      # explicit damping: the spin's held stable
-            m.dof_damping[self._dof + 5] = min(m.dof_damping[0], self.spin_damping)
+            m.dof_damping[self._dof + 5] = min(drag, self.spin_damping)
         for _ in range(int(round(SETTLE_TIME / t.dt))):
             mj.mj_step(m, d)
         m.dof_damping[:] = 0.0
