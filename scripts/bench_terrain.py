@@ -3,8 +3,8 @@
 
     PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000] \
         [--envs 1 16 128] [--env-steps 200] [--episode] [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
-        [--torch-compile] [--torch-device cuda] [--torch-dtype float32] [--torch-scenes flat ...] \
-        [--json out.json]
+        [--torch-compile] [--torch-cuda-graph] [--torch-no-eager] [--torch-device cuda] [--torch-dtype float32] \
+        [--torch-scenes flat ...] [--json out.json]
 
 Physics table: microseconds per physics step (all copies) for the flat-ground GroundContact (the
 fused compiled loop), a level terrain plane, a 20-degree plane, and a 20-degree plane with two
@@ -28,10 +28,12 @@ Torch env table (``--torch-envs``): the same scenes on the torch device
 vector env (``backend="torch"``; CPU, float64, one torch thread unless ``--torch-device`` /
 ``--torch-dtype`` say otherwise), plus steps whose first edge is
 under the robot (``pad`` 0.05 m, ``tread`` 0.2 m: the boxes next to the rods, their search along
-the rods running); env-steps/s and milliseconds per control step. With ``--torch-compile`` the
-same with ``compile=True`` (``torch.compile`` of the terrain's physics step), its ratio to the
-eager env and its warm-up (the compile, seconds; inductor's cache on disk makes a second run's
-shorter).
+the rods running); env-steps/s, milliseconds per control step, the cost against flat ground
+(flat's rate over the scene's, in the same table) and the warm-up of two steps (s). With
+``--torch-compile`` the same with ``compile=True`` (``torch.compile`` of the terrain's physics
+step; the warm-up is its compile, shorter in a second run from inductor's cache on disk), with
+``--torch-cuda-graph`` with ``compile=True, cuda_graph=True`` (the physics of a control step
+replayed as one CUDA graph); ``--torch-no-eager`` leaves the eager table out.
 """
 from __future__ import annotations
 
@@ -99,13 +101,15 @@ TORCH_ENV_SCENES = {**ENV_SCENES,
 
 
 def torch_env_rate(env_id: str, kwargs: dict, n: int, steps: int, compile: bool = False, device: str = "cpu",
-                   dtype: str = "float64") -> tuple:
+                   dtype: str = "float64", cuda_graph: bool = False) -> tuple:
     """``(env-steps/s, warm-up s)`` of the torch device env of ``n`` copies on ``device`` in
-    ``dtype`` over ``steps`` steps after two warm-up steps (with ``compile``: the compile)."""
+    ``dtype`` over ``steps`` steps after two warm-up steps (with ``compile``: the compile; with
+    ``cuda_graph``: the captures)."""
     import gymnasium as gym
     import torch
+    extra = {"cuda_graph": True} if cuda_graph else {}
     env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", backend="torch",
-                       device=device, dtype=dtype, compile=compile, **kwargs)
+                       device=device, dtype=dtype, compile=compile, **extra, **kwargs)
     env.reset(seed=0)
     acts = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (steps + 2, n) + env.single_action_space.shape),
                            dtype=getattr(torch, dtype), device=device)
@@ -123,31 +127,39 @@ def torch_env_rate(env_id: str, kwargs: dict, n: int, steps: int, compile: bool 
 
 
 def torch_env_table(ns, steps: int, compile: bool = False, device: str = "cpu", dtype: str = "float64",
-                    scenes=None) -> dict:
-    """env-steps/s per scene and N (eager; with ``compile`` also ``compile=True`` and its warm-up)
-    on ``device`` in ``dtype``; ``scenes`` a subset of ``TORCH_ENV_SCENES``'s names (default all)."""
+                    scenes=None, eager: bool = True, cuda_graph: bool = False) -> dict:
+    """env-steps/s per scene and N on ``device`` in ``dtype``: eager (unless not ``eager``), with
+    ``compile`` also ``compile=True`` and its warm-up, with ``cuda_graph`` also ``compile=True,
+    cuda_graph=True``; each table with the scene's cost against flat ground's (``cost/flat``:
+    flat's rate over the scene's, when flat is measured); ``scenes`` a subset of
+    ``TORCH_ENV_SCENES``'s names (default all). Returns the eager rates alone when that is all
+    that ran, else ``{mode: rates, mode + "_warmup_s": ...}`` (``compile_warmup_s`` for
+    ``compiled``)."""
     import torch
     if torch.device(device).type == "cpu":
         torch.set_num_threads(1)
     chosen = {k: TORCH_ENV_SCENES[k] for k in (scenes or TORCH_ENV_SCENES)}
-    # each row printed as soon as it is measured (a run cut short keeps its rows in the log)
-    print(f"\n{'torch env scene':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'ms/step':>10}" for n in ns),
-          flush=True)
-    rates = {}
-    for name, (eid, kw) in chosen.items():
-        rates[name] = vals = [torch_env_rate(eid, kw, n, steps, False, device, dtype)[0] for n in ns]
-        print(f"{name:<30}" + "".join(f"{v:16,.1f}{ns[i] / v * 1e3:10.1f}" for i, v in enumerate(vals)), flush=True)
-    if not compile:
-        return rates
-    print(f"\n{'torch env, compile=True':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'/eager':>8}{'warm s':>8}"
-                                                         for n in ns), flush=True)
-    comp = {}
-    for name, (eid, kw) in chosen.items():
-        comp[name] = vals = [torch_env_rate(eid, kw, n, steps, True, device, dtype) for n in ns]
-        print(f"{name:<30}" + "".join(f"{v:16,.1f}{v / rates[name][i]:8.1f}{w:8.1f}" for i, (v, w) in enumerate(vals)),
-              flush=True)
-    return {"eager": rates, "compiled": {k: [v[0] for v in vals] for k, vals in comp.items()},
-            "compile_warmup_s": {k: [v[1] for v in vals] for k, vals in comp.items()}}
+    modes = ([("eager", {})] if eager else []) + ([("compiled", {"compile": True})] if compile else []) + (
+        [("cuda_graph", {"compile": True, "cuda_graph": True})] if cuda_graph else [])
+    out = {}
+    for mode, kw_mode in modes:
+        # each row printed as soon as it is measured (a run cut short keeps its rows in the log)
+        title = {"eager": "torch env scene", "compiled": "torch env, compile=True",
+                 "cuda_graph": "torch env, cuda_graph=True"}[mode]
+        print(f"\n{title:<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'ms/step':>10}{'cost/flat':>10}"
+                                        f"{'warm s':>8}" for n in ns), flush=True)
+        rates, warm = {}, {}
+        for name, (eid, kw) in chosen.items():
+            vals = [torch_env_rate(eid, kw, n, steps, device=device, dtype=dtype, **kw_mode) for n in ns]
+            rates[name], warm[name] = [v[0] for v in vals], [v[1] for v in vals]
+            flat = rates.get("flat")
+            print(f"{name:<30}" + "".join(
+                f"{v:16,.1f}{ns[i] / v * 1e3:10.1f}" + (f"{flat[i] / v:10.2f}" if flat else f"{'-':>10}")
+                + f"{w:8.1f}" for i, (v, w) in enumerate(vals)), flush=True)
+        out[mode] = rates
+        if mode != "eager":
+            out["compile_warmup_s" if mode == "compiled" else mode + "_warmup_s"] = warm
+    return out["eager"] if list(out) == ["eager"] else out
 
 
 def env_table(ns, steps: int, episode: bool = False) -> dict:
@@ -208,6 +220,9 @@ def main():
     ap.add_argument("--torch-env-steps", type=int, default=10)
     ap.add_argument("--torch-compile", action="store_true",
                     help="the torch env table also with compile=True (after its compile, timed apart)")
+    ap.add_argument("--torch-cuda-graph", action="store_true",
+                    help="the torch env table also with compile=True, cuda_graph=True (a CUDA device)")
+    ap.add_argument("--torch-no-eager", action="store_true", help="leave out the torch env's eager table")
     a = ap.parse_args()
     m = prism()
     scenes = {"level plane": Terrain(), "20 deg plane": Terrain(plane=Plane(20.0)),
@@ -230,7 +245,7 @@ def main():
     torch_rows = torch_table(m, scenes, a.batch, max(a.steps // 10, 20)) if a.torch else {}
     envs = env_table(a.envs, a.env_steps, a.episode) if a.envs else {}
     torch_envs = (torch_env_table(a.torch_envs, a.torch_env_steps, a.torch_compile, a.torch_device, a.torch_dtype,
-                                   a.torch_scenes) if a.torch_envs else {})
+                                   a.torch_scenes, not a.torch_no_eager, a.torch_cuda_graph) if a.torch_envs else {})
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"cpu": cpu_model(), "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows, "torch_us_per_step": torch_rows,

@@ -5,8 +5,8 @@ device (``--device cpu`` or ``cuda``), until the policy's mean forward speed fir
 target (default 0.345 m/s) or the wall-clock budget ends.
 
     python scripts/device_time_to_policy.py --device cpu --budget-s 600 --out results/device_time_to_policy/cpu.json
-    python scripts/device_time_to_policy.py --device cuda --compile --reset-sampling device --num-envs 8192 \
-        --budget-s 120 --out gpu.json
+    python scripts/device_time_to_policy.py --device cuda --compile --cuda-graph --reset-sampling device \
+        --num-envs 1024 --entropy-coef 0.005 --budget-s 120 --out gpu.json
     python scripts/device_time_to_policy.py --table results/device_time_to_policy/cpu_search/*.json
 
 ``--env-backend numpy`` trains on the NumPy/numba vector env instead (tensors on ``--device``):
@@ -111,6 +111,9 @@ def main(argv=None) -> int:
     p.add_argument("--compile", action="store_true",
                    help="compile=True on the training and evaluation envs (torch.compile of the physics step; "
                         "the training env's compile falls in the uncounted warm-up iteration)")
+    p.add_argument("--cuda-graph", action="store_true",
+                   help="cuda_graph=True on the training and evaluation envs (needs --compile and a CUDA device: "
+                        "each control step's physics replayed as one CUDA graph)")
     p.add_argument("--reset-sampling", default="host", choices=["host", "device"],
                    help="the training env's reset sampling (default host; the evaluation env always resets on "
                         "the host from the held-out seeds)")
@@ -132,6 +135,10 @@ def main(argv=None) -> int:
         return 0
     if not args.out:
         p.error("--out is required (or --table)")
+    if args.cuda_graph and not args.compile:
+        p.error("--cuda-graph needs --compile")
+    if args.cuda_graph and args.env_backend != "torch":
+        p.error("--cuda-graph needs --env-backend torch")
     out = check_writable(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     passive_openmp_wait()          # before torch loads its OpenMP runtime
@@ -147,14 +154,15 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads or cpus)
     torch.manual_seed(args.seed)
     device = torch.device(args.device)
+    graph = {"cuda_graph": True} if args.cuda_graph else {}
     if args.env_backend == "torch":
         env = make_rsl_rl_env("TensegrityRoll-v0", num_envs=args.num_envs, backend="torch", device=args.device,
-                              seed=args.seed, compile=args.compile, reset_sampling=args.reset_sampling)
+                              seed=args.seed, compile=args.compile, reset_sampling=args.reset_sampling, **graph)
     else:
         env = make_rsl_rl_env("TensegrityRoll-v0", num_envs=args.num_envs, backend="numpy", device=args.device,
                               seed=args.seed)
     eval_env = gym.make_vec("TensegrityRoll-v0", num_envs=args.eval_envs, vectorization_mode="vector_entry_point",
-                            backend="torch", device=args.device, dtype="float32", compile=args.compile)
+                            backend="torch", device=args.device, dtype="float32", compile=args.compile, **graph)
     dt = float(eval_env.unwrapped.dt)
     episode_steps = int(args.eval_episode_steps or eval_env.unwrapped.max_episode_steps)
     cfg = runner_config(args)
@@ -184,7 +192,8 @@ def main(argv=None) -> int:
                          "mini_batches": args.mini_batches, "learning_rate": args.learning_rate,
                          "schedule": args.schedule, "entropy_coef": args.entropy_coef,
                          "init_std": args.init_std, "env_backend": args.env_backend,
-                         "compile": args.compile, "reset_sampling": args.reset_sampling,
+                         "compile": args.compile, "cuda_graph": args.cuda_graph,
+                         "reset_sampling": args.reset_sampling,
                          "eval_envs": args.eval_envs, "eval_episode_s": episode_steps * dt,
                          "runner_config": cfg},
             "reached": reached is not None,

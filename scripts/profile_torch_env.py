@@ -4,7 +4,7 @@ operations it dispatches from the host, and on CUDA the kernels it launches, the
 time and the host waits. A step whose kernels keep the device busy for far less than the step's
 wall time is bound by launches and host work, not by the device.
 
-    python scripts/profile_torch_env.py --device cuda --num-envs 8192 [--compile] [--env TensegrityRoll-v0] \
+    python scripts/profile_torch_env.py --device cuda --num-envs 8192 [--compile] [--cuda-graph] [--env TensegrityRoll-v0] \
         [--steps 20] [--json out.json]
 
 Rows (per control step, after ``--warmup`` steps that compile and warm up, random actions in
@@ -34,9 +34,9 @@ from tensegrity_gym_agents.common import cpu_model
 from _bench import sync  # noqa: E402  (shared helpers, a sibling module)
 
 
-def make_env(env_id: str, n: int, device: str, compile_: bool, dtype: str):
+def make_env(env_id: str, n: int, device: str, compile_: bool, dtype: str, cuda_graph: bool = False):
     kw = dict(num_envs=n, vectorization_mode="vector_entry_point", backend="torch", device=device, dtype=dtype,
-              compile=compile_, autoreset_mode="same_step")
+              compile=compile_, autoreset_mode="same_step", **({"cuda_graph": True} if cuda_graph else {}))
     try:
         return gym.make_vec(env_id, reset_sampling="device", **kw)
     except (TypeError, ValueError):          # an env whose resets are drawn on the host only
@@ -91,6 +91,9 @@ def main(argv=None) -> int:
     p.add_argument("--num-envs", type=int, nargs="+", default=[64, 8192])
     p.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     p.add_argument("--compile", action="store_true", help="also with compile=True (after its compile)")
+    p.add_argument("--no-eager", action="store_true", help="leave out the eager env (with --compile / --cuda-graph)")
+    p.add_argument("--cuda-graph", action="store_true",
+                   help="also with compile=True, cuda_graph=True (a CUDA device; the physics as one graph)")
     p.add_argument("--steps", type=int, default=20, help="control steps timed, and as many profiled")
     p.add_argument("--warmup", type=int, default=5, help="control steps before the timing (the compile)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
@@ -104,14 +107,19 @@ def main(argv=None) -> int:
     cols = ["ms_per_step", "host_ops", "compiled_calls", "host_reads"] + (
         ["kernels", "device_ms", "host_waits"] if dev.type == "cuda" else [])
     print(f"{args.env} on {machine} ({args.device}, {args.dtype}, torch {torch.__version__}); per control step:")
-    print(f"{'N':>8} {'compiled':>9}" + "".join(f"{c:>15}" for c in cols), flush=True)
+    print(f"{'N':>8} {'compiled':>9} {'graph':>6}" + "".join(f"{c:>15}" for c in cols), flush=True)
+    variants = ([] if args.no_eager else [(False, False)]) + ([(True, False)] if args.compile else []) + (
+        [(True, True)] if args.cuda_graph else [])
+    if not variants:
+        p.error("--no-eager leaves nothing to profile: add --compile or --cuda-graph")
     for n in args.num_envs:
-        for comp in ([False, True] if args.compile else [False]):
-            env = make_env(args.env, n, args.device, comp, args.dtype)
-            row = {"num_envs": n, "compiled": comp, **profile_steps(env, args.steps, args.warmup)}
+        for comp, graph in variants:
+            env = make_env(args.env, n, args.device, comp, args.dtype, graph)
+            row = {"num_envs": n, "compiled": comp, "cuda_graph": graph,
+                   **profile_steps(env, args.steps, args.warmup)}
             env.close()
             rows.append(row)
-            print(f"{n:>8} {str(comp):>9}" + "".join(f"{row[c]:>15.2f}" for c in cols), flush=True)
+            print(f"{n:>8} {str(comp):>9} {str(graph):>6}" + "".join(f"{row[c]:>15.2f}" for c in cols), flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"env": args.env, "device": args.device, "device_name": machine, "dtype": args.dtype,

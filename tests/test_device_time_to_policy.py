@@ -74,3 +74,12 @@ def test_an_interrupted_run_keeps_its_evaluations(tmp_path):
     r = json.loads(out.read_text())
     assert rc == 0 and r["stopped"] == "interrupted" and not r["reached"]
     assert [e["speed_m_s"] for e in r["evaluations"]] == [0.1] and r["evaluations"][0]["iterations"] == 2
+
+
+@pytest.mark.parametrize("extra, message", [(["--cuda-graph"], "--cuda-graph needs --compile"),
+                                            (["--cuda-graph", "--compile", "--env-backend", "numpy"],
+                                             "--cuda-graph needs --env-backend torch")])
+def test_cuda_graph_needs_the_compiled_torch_env(tmp_path, capsys, extra, message):
+    with pytest.raises(SystemExit) as e:
+        _script().main(["--device", "cpu", "--out", str(tmp_path / "r.json")] + extra)
+    assert e.value.code == 2 and message in capsys.readouterr().err

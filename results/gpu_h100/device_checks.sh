@@ -9,9 +9,15 @@
 #       the 0.03 m/s plateau in every CPU run, results/device_time_to_policy/README.md);
 #   profile: where a control step of the torch env goes (scripts/profile_torch_env.py);
 #   pytest: the CUDA tests (torch backend, envs, device resets, terrain);
-#   terrain: the torch terrain envs' throughput against flat ground, eager and compiled (float32).
+#   terrain: the torch terrain envs' throughput against flat ground, eager and compiled (float32);
+#   With cuda_graph=True (each control step's physics replayed as one CUDA graph):
+#   gprofile: a control step compiled against compiled + graphed (1024 and 8192 envs);
+#   ttp_g: time to policy, 4096 envs x 32 steps, 2 epochs x 8 minibatches, entropy bonus 0.005, graphed;
+#   ttp_g1: the same with 1024 envs;
+#   gpytest: the graph tests (tests/test_torch_graphs.py) on CUDA;
+#   gterrain: the terrain envs' throughput against flat ground, compiled and graphed (float32).
 # Everything lands in $OUT (set by the device tool; defaults to ./runs/device here). In a 15-minute
-# lease, `profile ttp_c` then `terrain pytest` fit in two calls; each part prints its rows as it goes.
+# lease, `gprofile ttp_g gpytest gterrain` fit in one call; each part prints its rows as it goes.
 set -u
 OUT=${OUT:-runs/device}; mkdir -p "$OUT"
 PY=${PY:-python3}; DEV=${DEV:-cuda}; BUDGET=${BUDGET:-70}; SCALE=${SCALE:-1}
@@ -31,7 +37,7 @@ T="$PY scripts/device_time_to_policy.py --device $DEV --compile --reset-sampling
    --eval-every-s 10 --eval-envs 64 --label lent_device_machine"
 ttp() {  # name envs steps epochs minibatches seed [more arguments]
   name=$1 envs=$2 steps=$3 epochs=$4 mb=$5 seed=$6; shift 6
-  timeout 160 $T --num-envs $((envs / SCALE)) --steps-per-env $steps --epochs $epochs --mini-batches $mb \
+  timeout ${TTP_TIMEOUT:-160} $T --num-envs $((envs / SCALE)) --steps-per-env $steps --epochs $epochs --mini-batches $mb \
     --seed $seed --out "$OUT/ttp_$name.json" "$@" > "$OUT/ttp_$name.log" 2>&1
   grep -E "training,|reach" "$OUT/ttp_$name.log" | tail -n 12
 }
@@ -42,6 +48,18 @@ for part in "$@"; do
     ttp_a1) ttp 8192x16_s1 8192 16 4 4 1 ;;
     ttp_b) ttp 4096x32_s0 4096 32 2 8 0 ;;
     ttp_c) ttp 1024x32_ent005_s0 1024 32 2 8 0 --entropy-coef 0.005 ;;
+    ttp_g) ttp 4096x32_ent005_graph_s0 4096 32 2 8 0 --entropy-coef 0.005 --cuda-graph ;;
+    ttp_g1) ttp 1024x32_ent005_graph_s0 1024 32 2 8 0 --entropy-coef 0.005 --cuda-graph ;;
+    gprofile) timeout 120 $PY scripts/profile_torch_env.py --device $DEV --num-envs $((1024 / SCALE)) $((8192 / SCALE)) \
+                --compile --cuda-graph --no-eager --json "$OUT/profile_graph.json" > "$OUT/profile_graph.log" 2>&1
+              tail -n 6 "$OUT/profile_graph.log" ;;
+    gpytest) timeout 100 $PY -m pytest -q -p no:cacheprovider tests/test_torch_graphs.py > "$OUT/pytest_graph.log" 2>&1
+             tail -n 3 "$OUT/pytest_graph.log" ;;
+    gterrain) timeout 150 $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 10 \
+                --torch-no-eager --torch-compile --torch-cuda-graph --torch-device $DEV --torch-dtype float32 \
+                --torch-scenes flat "slope 20 deg" "rough 2 cm (heightfield)" "steps (4 boxes)" \
+                --json "$OUT/bench_terrain_graph.json" > "$OUT/bench_terrain_graph.log" 2>&1
+              tail -n 12 "$OUT/bench_terrain_graph.log" ;;
     profile) timeout 200 $PY scripts/profile_torch_env.py --device $DEV --num-envs 64 $((8192 / SCALE)) --compile \
                --json "$OUT/profile_torch_env.json" > "$OUT/profile.log" 2>&1; tail -n 6 "$OUT/profile.log" ;;
     pytest) timeout 170 $PY -m pytest -q -p no:cacheprovider tests/test_torch_backend.py tests/test_torch_env.py \

@@ -12,6 +12,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 
 from .. import torch_backend
+from ..backends.torch.graphs import CapturedCall
 from ..checks import check_action_tensor
 from ..core.param_table import PARAMS
 from .vector_rules import check_reset_called
@@ -37,7 +38,11 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     first steps then compile for tens of seconds; measured in ``docs/bench_gpu.md``) and
     ``reset_sampling`` (``"host"`` default: resets drawn from the per-env NumPy generators, the
     NumPy env's numbers; ``"device"``: drawn and applied on the device from per-env counter-based
-    streams, :mod:`tensegrity_gym.envs.torch_reset`; tasks with ``DEVICE_RESET``).
+    streams, :mod:`tensegrity_gym.envs.torch_reset`; tasks with ``DEVICE_RESET``) and
+    ``cuda_graph`` (default False; True on a CUDA device with ``compile=True``: each control
+    step's physics, ``frame_skip`` compiled sub-steps, is captured once as a CUDA graph and
+    replayed, :class:`~tensegrity_gym.backends.torch.graphs.CapturedCall`: the same kernels on
+    the same numbers, launched as one graph instead of hundreds of launches).
     """
 
     #: the task can reset on the device (``reset_sampling="device"``): it implements
@@ -49,7 +54,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, max_episode_steps="registered", device=None, dtype=None,
                  backend: str = "torch", render_mode: str | None = None, compile: bool = False,
-                 reset_sampling: str = "host", autoreset_mode="next_step", **kwargs):
+                 reset_sampling: str = "host", autoreset_mode="next_step", cuda_graph: bool = False, **kwargs):
         torch = torch_backend.torch_module()
         if reset_sampling not in RESET_SAMPLING:
             raise ValueError(f"reset_sampling: expected one of {RESET_SAMPLING}, got {reset_sampling!r}")
@@ -93,6 +98,14 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         # compile: the one physics step each task repeats (with contact: contact forces + integrator step)
         one, options = self._physics_substep()
         self._substep = torch.compile(one, dynamic=False, options=options) if compile else None
+        if not isinstance(cuda_graph, (bool, np.bool_)):
+            raise ValueError(f"cuda_graph: expected True or False, got {cuda_graph!r}")
+        if cuda_graph and self.device.type != "cuda":
+            raise ValueError(f"cuda_graph: needs a CUDA device, got device={str(self.device)!r}")
+        if cuda_graph and not compile:
+            raise ValueError("cuda_graph: needs compile=True (the eager physics launches thousands of kernels per "
+                             "control step and reads back from the device on terrain)")
+        self._graphs = {} if cuda_graph else None     # physics function -> its CapturedCall
         # per-copy parameters (domain): uploaded whole here, by reset rows when randomised
         self._upload_domain(None)
         self.reset_sampling = reset_sampling
@@ -108,6 +121,16 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         :func:`~tensegrity_gym.torch_backend.step_once`; default options."""
         return (torch_backend.contact_substep if getattr(self.task, "contact", None) is not None
                 else torch_backend.step_once), None
+
+    def _physics_call(self, fn):
+        """``fn`` (a physics loop of :mod:`tensegrity_gym.torch_backend`), or with ``cuda_graph=True``
+        its :class:`~tensegrity_gym.backends.torch.graphs.CapturedCall` (one per function)."""
+        if self._graphs is None:
+            return fn
+        call = self._graphs.get(fn)
+        if call is None:
+            call = self._graphs[fn] = CapturedCall(fn)
+        return call
 
     def _terminated(self, infos: dict):
         """(N,) bool: the envs whose episode the task ended in this step (here: none; the time
@@ -344,4 +367,5 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         return None
 
     def close_extras(self, **kwargs):
-        pass
+        if self._graphs:
+            self._graphs.clear()      # the graphs' buffers and memory pools

@@ -168,8 +168,9 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         else:
             kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                       params=self._params, contact_prm=self._contact_prm, substep=self._substep)
+            run = self._physics_call(torch_backend.contact_step)
             (q, qd, anchor, active), qd_prev = self._advance(
-                lambda n, *s: torch_backend.contact_step(self.tm, task.contact, *s, task.dt, task.integrator, n, **kw),
+                lambda n, *s: run(self.tm, task.contact, *s, task.dt, task.integrator, n, **kw),
                 (q0, qd0, anchor0, active0))
             diverged = torch_backend.diverged(q, qd, task.center0, task.divergence_limit, local=True)   # pipeline.diverged
             d3 = diverged[:, None, None]
@@ -234,7 +235,8 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         q0, qd0 = self.q, self.qd
         kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                   params=self._params, substep=self._substep)
-        (q, qd), qd_prev = self._advance(lambda n, *s: torch_backend.step(self.tm, *s, task.dt, task.integrator, n, **kw),
+        run = self._physics_call(torch_backend.step)
+        (q, qd), qd_prev = self._advance(lambda n, *s: run(self.tm, *s, task.dt, task.integrator, n, **kw),
                                          (q0, qd0))
         diverged = torch_backend.diverged(q, qd, self._center0, task.divergence_limit)   # pipeline.diverged
         d3 = diverged[:, None, None]

@@ -136,8 +136,9 @@ class TorchTerrain:
         kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                   params=env._params, hf=hf, layout=self.layout, substep=env._substep)
         state0 = (q0, qd0, self.anchor, self.eta0, self.active)
+        run = env._physics_call(terrain_step)
         (q, qd, anchor, eta0, active), qd_prev = env._advance(
-            lambda n, *s: terrain_step(env.tm, geom, prm, *s, task.dt, task.integrator, n, **kw), state0)
+            lambda n, *s: run(env.tm, geom, prm, *s, task.dt, task.integrator, n, **kw), state0)
         diverged = torch_backend.diverged(q, qd, task.center0, task.divergence_limit, local=True)
         d1, d2 = diverged[:, None], diverged[:, None, None]
         q, qd = torch.where(d2, q0, q), torch.where(d2, qd0, qd)

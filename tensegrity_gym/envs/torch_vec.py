@@ -84,7 +84,11 @@ with boxes).
 :func:`tensegrity_gym.torch_backend.step_once`) in ``torch.compile``: the first steps
 compile (10-35 s on a 2-core CPU, 7-17 s on an H100), then a control step ran 2-8x faster than
 eager on CPU, and 4.5-6.1x on an H100 at N = 65,536 (roll: 74-123M physics env-steps/s), in
-``scripts/bench_gpu.py --env --env-compile`` (``docs/bench_gpu.md``). Reset sampling on the host
+``scripts/bench_gpu.py --env --env-compile`` (``docs/bench_gpu.md``). With ``compile=True`` on a
+CUDA device, ``cuda_graph=True`` captures a control step's physics (``frame_skip`` compiled
+sub-steps, hundreds of kernels) once as a CUDA graph and replays it at each step
+(:mod:`tensegrity_gym.backends.torch.graphs`): the same kernels on the same numbers, one launch
+instead of hundreds, for the small batches where launches, not the device, set the pace. Reset sampling on the host
 costs a Python loop over the reset envs (14-35 us per env on a 2-core CPU, the same as the
 NumPy env's reset), paid when envs finish; ``reset_sampling="device"`` took 1.7-1.9 us per env
 on the same CPU at B = 1,024-16,384 (``scripts/bench_gpu.py --env-reset``, ``docs/bench_gpu.md``).
@@ -115,7 +119,7 @@ __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "TorchClimbVectorEnv", "
 
 
 def _no_torch_kwargs(kwargs):
-    for name in ("device", "dtype", "compile", "reset_sampling"):
+    for name in ("device", "dtype", "compile", "reset_sampling", "cuda_graph"):
         if name in kwargs:
             raise ValueError(f"{name}: only with backend='torch' (got backend={kwargs.get('backend', 'auto')!r})")
 
