@@ -13,7 +13,7 @@
 #   With cuda_graph=True (each control step's physics replayed as one CUDA graph):
 #   gprofile: a control step compiled against compiled + graphed (1024 and 8192 envs);
 #   ttp_g: time to policy, 4096 envs x 32 steps, 2 epochs x 8 minibatches, entropy bonus 0.005, graphed;
-#   ttp_g1: the same with 1024 envs;
+#   ttp_g1, ttp_g8: the same with 1024 and 8192 envs;
 #   gpytest: the graph tests (tests/test_torch_graphs.py) on CUDA;
 #   gterrain: the terrain envs' throughput against flat ground, compiled and graphed (float32).
 # Everything lands in $OUT (set by the device tool; defaults to ./runs/device here). In a 15-minute
@@ -50,10 +50,11 @@ for part in "$@"; do
     ttp_c) ttp 1024x32_ent005_s0 1024 32 2 8 0 --entropy-coef 0.005 ;;
     ttp_g) ttp 4096x32_ent005_graph_s0 4096 32 2 8 0 --entropy-coef 0.005 --cuda-graph ;;
     ttp_g1) ttp 1024x32_ent005_graph_s0 1024 32 2 8 0 --entropy-coef 0.005 --cuda-graph ;;
+    ttp_g8) ttp 8192x32_ent005_graph_s0 8192 32 2 8 0 --entropy-coef 0.005 --cuda-graph ;;
     gprofile) timeout 120 $PY scripts/profile_torch_env.py --device $DEV --num-envs $((1024 / SCALE)) $((8192 / SCALE)) \
                 --compile --cuda-graph --no-eager --json "$OUT/profile_graph.json" > "$OUT/profile_graph.log" 2>&1
               tail -n 6 "$OUT/profile_graph.log" ;;
-    gpytest) timeout 100 $PY -m pytest -q -p no:cacheprovider tests/test_torch_graphs.py > "$OUT/pytest_graph.log" 2>&1
+    gpytest) timeout ${PYTEST_TIMEOUT:-100} $PY -m pytest -q -p no:cacheprovider tests/test_torch_graphs.py ${PYTEST_K:-} > "$OUT/pytest_graph.log" 2>&1
              tail -n 3 "$OUT/pytest_graph.log" ;;
     gterrain) timeout 150 $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 10 \
                 --torch-no-eager --torch-compile --torch-cuda-graph --torch-device $DEV --torch-dtype float32 \
