@@ -41,8 +41,9 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     streams, :mod:`tensegrity_gym.envs.torch_reset`; tasks with ``DEVICE_RESET``) and
     ``cuda_graph`` (default False; True on a CUDA device with ``compile=True``: each control
     step's physics, ``frame_skip`` compiled sub-steps, is captured once as a CUDA graph and
-    replayed, :class:`~tensegrity_gym.backends.torch.graphs.CapturedCall`: the same kernels on
-    the same numbers, launched as one graph instead of hundreds of launches).
+    replayed, :class:`~tensegrity_gym.backends.torch.graphs.CapturedCall`: one graph launch
+    instead of hundreds of kernel launches; the graph holds its own compile of the physics,
+    whose float32 results can differ from ``compile=True``'s alone in the last bits).
     """
 
     #: the task can reset on the device (``reset_sampling="device"``): it implements
