@@ -23,7 +23,9 @@ iteration) is not counted either.
 
 The JSON result names the device (CPU model from ``lscpu``, or the GPU's name), torch version,
 threads, seed, settings, env steps and wall time at the first evaluation at or above the
-target (or null), and every evaluation (training seconds, env steps, speed). It is written after
+target (or null), the training time split into rollouts and updates (``collection_wall_s``,
+``update_wall_s``: rsl_rl's own timers, summed; the iterations before the first timed one left
+out), and every evaluation (training seconds, env steps, speed). It is written after
 every evaluation, so that a run cut short (a time limit, Ctrl-C) keeps what it measured;
 ``stopped`` says why the run ended: ``target reached``, ``budget``, ``interrupted``, or
 ``running`` in a file left by a killed run.
@@ -168,6 +170,15 @@ def main(argv=None) -> int:
     cfg = runner_config(args)
     runner = OnPolicyRunner(env, cfg, log_dir=None, device=args.device)
     samples_per_iteration = args.num_envs * args.steps_per_env
+    # rsl_rl times each iteration's rollout (collection) and update for its logger: summed here
+    split = {"collection": 0.0, "update": 0.0}
+    log = runner.logger.log
+
+    def log_times(*a, **kw):
+        split["collection"] += kw["collect_time"]
+        split["update"] += kw["learn_time"]
+        return log(*a, **kw)
+    runner.logger.log = log_times
 
     # warm-up: one iteration (first kernel launches / compiles), not counted; then restart the
     # counters so the timed run starts from the same kind of state as the budget assumes
@@ -176,6 +187,7 @@ def main(argv=None) -> int:
     runner.current_learning_iteration += 1
     sync(device)
     warmup_s = time.perf_counter() - t
+    split.update(collection=0.0, update=0.0)      # the timed iterations only
 
     def result(stopped: str) -> dict:
         """The JSON result so far; ``stopped`` says why the run ended (or ``"running"``)."""
@@ -201,6 +213,7 @@ def main(argv=None) -> int:
             "env_steps_to_target": reached["env_steps"] if reached else None,
             "training_wall_s": round(train_s, 2), "env_steps": iterations * samples_per_iteration,
             "iterations": iterations, "warmup_s": round(warmup_s, 2), "evaluation_wall_s": round(eval_s, 2),
+            "collection_wall_s": round(split["collection"], 2), "update_wall_s": round(split["update"], 2),
             "best_speed_m_s": max(e["speed_m_s"] for e in evals) if evals else None,
             "evaluations": evals, "label": args.label, "stopped": stopped,
             "command": shlex.join(["python", "scripts/device_time_to_policy.py"] + (argv if argv is not None else
@@ -222,7 +235,8 @@ def main(argv=None) -> int:
             iterations += 1
             if train_s >= next_beat:        # a line every 10 s of training, also in a log
                 print(f"{train_s:7.1f} s training, {iterations * samples_per_iteration:>10} env steps "
-                      f"({iterations * samples_per_iteration / train_s:.0f} env-steps/s)", flush=True)
+                      f"({iterations * samples_per_iteration / train_s:.0f} env-steps/s; rollouts "
+                      f"{split['collection']:.1f} s, updates {split['update']:.1f} s)", flush=True)
                 next_beat += 10.0
             last = train_s >= args.budget_s or (args.max_iterations is not None and iterations >= args.max_iterations)
             due = (iterations % args.eval_every_iterations == 0) if args.eval_every_iterations else train_s >= next_eval

@@ -42,6 +42,9 @@ def test_tiny_run_writes_the_result(tmp_path, capsys, target, reached):
         assert key in r, key
     assert r["device"] == "cpu" and r["device_name"] == r["cpu_model"] and r["seed"] == 3
     assert r["reached"] is reached and r["stopped"] == ("target reached" if reached else "budget")
+    # rollouts and updates of the timed iterations: within the training time, both spent
+    assert 0 < r["collection_wall_s"] and 0 < r["update_wall_s"]
+    assert r["collection_wall_s"] + r["update_wall_s"] <= r["training_wall_s"] + 0.02
     assert _script().main(["--table", str(out)]) == 0
     row = capsys.readouterr().out.strip().splitlines()[-1]
     end = "| yes | target reached |" if reached else "| no | budget |"
