@@ -16,8 +16,10 @@
 #   ttp_g1, ttp_g8: the same with 1024 and 8192 envs;
 #   gpytest: the graph tests (tests/test_torch_graphs.py) on CUDA;
 #   gterrain: the terrain envs' throughput against flat ground, compiled and graphed (float32).
-# Everything lands in $OUT (set by the device tool; defaults to ./runs/device here). In a 15-minute
-# lease, `gprofile ttp_g gpytest gterrain` fit in one call; each part prints its rows as it goes.
+# Everything lands in $OUT (set by the device tool; defaults to ./runs/device here); each part
+# prints its rows as it goes. On an H200 (2026-11-28) `gprofile ttp_g gpytest gterrain` took 467 s
+# in one call, and gterrain's 150 s ended while steps compiled: next, `PYTEST_K="-k cuda" gpytest
+# ttp_g8 gterrain` with TERRAIN_TIMEOUT=300 (gpytest -k cuda about 60 s, ttp_g8 about 130 s).
 set -u
 OUT=${OUT:-runs/device}; mkdir -p "$OUT"
 PY=${PY:-python3}; DEV=${DEV:-cuda}; BUDGET=${BUDGET:-70}; SCALE=${SCALE:-1}
@@ -56,7 +58,7 @@ for part in "$@"; do
               tail -n 6 "$OUT/profile_graph.log" ;;
     gpytest) timeout ${PYTEST_TIMEOUT:-100} $PY -m pytest -q -p no:cacheprovider tests/test_torch_graphs.py ${PYTEST_K:-} > "$OUT/pytest_graph.log" 2>&1
              tail -n 3 "$OUT/pytest_graph.log" ;;
-    gterrain) timeout 150 $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 10 \
+    gterrain) timeout ${TERRAIN_TIMEOUT:-150} $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 10 \
                 --torch-no-eager --torch-compile --torch-cuda-graph --torch-device $DEV --torch-dtype float32 \
                 --torch-scenes flat "slope 20 deg" "rough 2 cm (heightfield)" "steps (4 boxes)" \
                 --json "$OUT/bench_terrain_graph.json" > "$OUT/bench_terrain_graph.log" 2>&1
