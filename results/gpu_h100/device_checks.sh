@@ -17,7 +17,7 @@
 #   gpytest: the graph tests (tests/test_torch_graphs.py) on CUDA;
 #   gterrain: the terrain envs' throughput against flat ground, compiled and graphed (float32).
 # Everything lands in $OUT (set by the device tool; defaults to ./runs/device here); each part
-# prints its rows as it goes. On an H200 (2026-11-28) `gprofile ttp_g gpytest gterrain` took 467 s
+# prints its rows as it goes. On an H200, `gprofile ttp_g gpytest gterrain` took 467 s
 # in one call, and gterrain's 150 s ended while steps compiled: next, `PYTEST_K="-k cuda" gpytest
 # ttp_g8 gterrain` with TERRAIN_TIMEOUT=300 (gpytest -k cuda about 60 s, ttp_g8 about 130 s).
 set -u
