@@ -4,8 +4,11 @@ operations it dispatches from the host, and on CUDA the kernels it launches, the
 time and the host waits. A step whose kernels keep the device busy for far less than the step's
 wall time is bound by launches and host work, not by the device.
 
-    python scripts/profile_torch_env.py --device cuda --num-envs 8192 [--compile] [--cuda-graph] [--env TensegrityRoll-v0] \
-        [--steps 20] [--json out.json]
+    python scripts/profile_torch_env.py --device cuda --num-envs 8192 [--compile] [--cuda-graph] [--no-eager] \
+        [--env TensegrityRoll-v0] [--steps 20] [--json out.json]
+
+Variants: eager (unless ``--no-eager``), ``compile=True`` (``--compile``), ``compile=True,
+cuda_graph=True`` (``--cuda-graph``: the physics of a control step replayed as one CUDA graph).
 
 Rows (per control step, after ``--warmup`` steps that compile and warm up, random actions in
 [-1, 1], same-step autoreset, device resets where the env takes them):

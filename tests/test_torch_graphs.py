@@ -117,8 +117,11 @@ def test_flat_and_shape_physics_loops_read_nothing_back_from_the_device(integrat
     shape.close()
 
 
-@pytest.mark.parametrize("terrain", [{"generator": "rough", "size": 2.0, "cell": 0.05, "pad": 0.0}, {"generator": "steps"}, {"plane": {"slope_deg": 10.0},
-                                                       "boxes": [{"center": [1.0, 0.0, 0.05], "size": [0.4, 0.4, 0.1]}]}])
+@pytest.mark.parametrize("terrain", [
+    {"generator": "rough", "size": 2.0, "cell": 0.05, "pad": 0.0},
+    {"generator": "steps"},
+    {"plane": {"slope_deg": 10.0}, "boxes": [{"center": [1.0, 0.0, 0.05], "size": [0.4, 0.4, 0.1]}]},
+])
 def test_terrain_physics_loop_compiled_reads_nothing_back(monkeypatch, terrain):
     """Under torch.compile the terrain loop takes no host read (the eager loop's heightfield
     bound and far-part skip do, which the check sees; cuda_graph therefore needs compile=True):

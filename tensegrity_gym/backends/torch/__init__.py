@@ -6,7 +6,8 @@ contact of :mod:`tensegrity_gym.physics.contact`, the cable motor of
 leading axis B. Modules, named as the numba backend's: ``model`` (device, dtype, the model and
 parameters as tensors), ``equations``, ``driver`` (steps, ``step_state`` / ``simulate``),
 ``contact``, ``actuation``, ``divergence``, and ``graphs`` (CUDA graphs of the physics loops).
-torch is imported lazily: the core install never needs it (``pip install tensegrity_gym[torch]``). SI units throughout (m, kg, s, N).
+torch is imported lazily: the core install never needs it (``pip install tensegrity_gym[torch]``).
+SI units throughout (m, kg, s, N).
 
 Entry points
 ------------

@@ -101,9 +101,9 @@ class CapturedCall:
 
 
 def _flatten(x, tensors: list, leaves: list, key: list, torch):
-    """The layout of ``x`` (its containers, with ``None`` where a tensor goes), the tensors
-    appended to ``tensors``, other leaves to ``leaves`` and the layout's hashable description
-    to ``key``."""
+    """The layout of ``x`` (its containers, with ``_TENSOR`` where a tensor goes and ``_Leaf``
+    around any other value); the tensors are appended to ``tensors``, the other values to
+    ``leaves`` and the layout's hashable description to ``key``."""
     if isinstance(x, torch.Tensor):
         tensors.append(x)
         key.append(("T", tuple(x.shape), x.dtype, x.device))
