@@ -91,6 +91,16 @@ def test_captured_call_accepts_inference_tensors_then_plain_ones():
     env.close()
 
 
+def test_a_failed_capture_names_the_function_and_the_way_out():
+    def refusing_capture(fn, args, kwargs, warmup):
+        raise RuntimeError("operation not permitted when stream is capturing")
+    call = CapturedCall(torch_backend.step_once, capture=refusing_capture)
+    with pytest.raises(RuntimeError, match=r"cuda_graph: capturing step_once failed \(RuntimeError: operation not "
+                                           r"permitted.*cuda_graph=False"):
+        call(torch.zeros(2, 3))
+    assert call.captures == 0
+
+
 def host_reads(fn) -> set:
     """The aten operations of :data:`SYNC_OPS` that ``fn()`` dispatches."""
     from torch.profiler import ProfilerActivity, profile

@@ -59,7 +59,8 @@ class CapturedCall:
     returns clones of the outputs (a tensor, or tuples/lists of tensors), so a result stays
     valid after later calls. ``fn`` must be pure (its outputs depend on its inputs only; it
     writes nothing else) and must not read device values on the host (``.item()``,
-    ``bool(tensor)``, outputs sized by data: :data:`SYNC_OPS`); the capture raises on those.
+    ``bool(tensor)``, outputs sized by data: :data:`SYNC_OPS`); a capture that fails raises a
+    RuntimeError naming the function and the cause.
     The capture runs without autograd (no gradients flow through a replay) and outside
     inference mode, so calls under ``torch.inference_mode()`` and ``torch.no_grad()`` share it.
 
@@ -91,7 +92,13 @@ class CapturedCall:
             with torch.inference_mode(False), torch.no_grad():
                 static = [t.detach().clone() for t in tensors]
                 s_args, s_kwargs = _build(layout, iter(static))
-                replay, outputs = self._capture(self.fn, s_args, s_kwargs, self.warmup)
+                try:
+                    replay, outputs = self._capture(self.fn, s_args, s_kwargs, self.warmup)
+                except RuntimeError as e:     # e.g. a host read or a host-to-device copy under capture
+                    name = getattr(self.fn, "__qualname__", repr(self.fn))
+                    raise RuntimeError(f"cuda_graph: capturing {name} failed ({type(e).__name__}: {e}); the "
+                                       "function must be pure and read nothing back from the device; run "
+                                       "without the graph (cuda_graph=False)") from e
             entry = self._entries[key] = _Entry(leaves, static, replay, outputs)
         else:
             for s, t in zip(entry.static, tensors):
