@@ -107,9 +107,8 @@ def torch_env_rate(env_id: str, kwargs: dict, n: int, steps: int, compile: bool 
     ``cuda_graph``: the captures)."""
     import gymnasium as gym
     import torch
-    extra = {"cuda_graph": True} if cuda_graph else {}
     env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", backend="torch",
-                       device=device, dtype=dtype, compile=compile, **extra, **kwargs)
+                       device=device, dtype=dtype, compile=compile, cuda_graph=cuda_graph, **kwargs)
     env.reset(seed=0)
     acts = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (steps + 2, n) + env.single_action_space.shape),
                            dtype=getattr(torch, dtype), device=device)

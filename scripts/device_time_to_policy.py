@@ -156,15 +156,16 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads or cpus)
     torch.manual_seed(args.seed)
     device = torch.device(args.device)
-    graph = {"cuda_graph": True} if args.cuda_graph else {}
     if args.env_backend == "torch":
         env = make_rsl_rl_env("TensegrityRoll-v0", num_envs=args.num_envs, backend="torch", device=args.device,
-                              seed=args.seed, compile=args.compile, reset_sampling=args.reset_sampling, **graph)
+                              seed=args.seed, compile=args.compile, reset_sampling=args.reset_sampling,
+                              cuda_graph=args.cuda_graph)
     else:
         env = make_rsl_rl_env("TensegrityRoll-v0", num_envs=args.num_envs, backend="numpy", device=args.device,
                               seed=args.seed)
     eval_env = gym.make_vec("TensegrityRoll-v0", num_envs=args.eval_envs, vectorization_mode="vector_entry_point",
-                            backend="torch", device=args.device, dtype="float32", compile=args.compile, **graph)
+                            backend="torch", device=args.device, dtype="float32", compile=args.compile,
+                            cuda_graph=args.cuda_graph)
     dt = float(eval_env.unwrapped.dt)
     episode_steps = int(args.eval_episode_steps or eval_env.unwrapped.max_episode_steps)
     cfg = runner_config(args)

@@ -39,7 +39,7 @@ from _bench import sync  # noqa: E402  (shared helpers, a sibling module)
 
 def make_env(env_id: str, n: int, device: str, compile_: bool, dtype: str, cuda_graph: bool = False):
     kw = dict(num_envs=n, vectorization_mode="vector_entry_point", backend="torch", device=device, dtype=dtype,
-              compile=compile_, autoreset_mode="same_step", **({"cuda_graph": True} if cuda_graph else {}))
+              compile=compile_, autoreset_mode="same_step", cuda_graph=cuda_graph)
     try:
         return gym.make_vec(env_id, reset_sampling="device", **kw)
     except (TypeError, ValueError):          # an env whose resets are drawn on the host only
