@@ -752,8 +752,8 @@ def hf_interior_slot(c, ci, r, j, Q, QD, Wc, ea, ec, em, ends, g, H, pr, mono, w
 # views live within the call): the counts of its array arguments made the call about 8 % of the
 # rough-ground kernel's time
 @njit(_nrt=False, **_opts)
-def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip,
-                    info, g, pr, c0, ne, k, n, zero):
+def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, ENDS, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active,
+                    slip, info, g, pr, c0, ne, k, n, zero):
     """:func:`rows_forces` of the last feature, a heightfield (:func:`hf_last`), of the loop
     driver's lanes e < ne (copies c0 + e; ``QT``, ``QDT`` (E, k, 6) m, m/s and ``EXT`` (E, n, 3)
     N the lanes' transposed views), added to EXT (``zero``: set, no other feature's forces in
@@ -763,21 +763,24 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
     same arithmetic in the same order as :func:`rows_forces`, so the same bits, without its
     per-copy bookkeeping of the node slots, its loop over features and, where the gap is
     monotone along a rod, the upper end's height lookup when the rise of the gap along the rod
-    keeps that end clear."""
+    keeps that end clear.
+    Three passes over the lanes' rods: the first looks up every rod's end gaps and gradients and
+    decides far and monotony (into the scratch ``ENDS`` (E, k, 8): ga, gc m, the gradients at a
+    and c, 1 where the rod is far or its gap monotone, one spare), the second runs the node
+    slots from them, the third the interior slots. The rods of a pass are independent, so the
+    processor overlaps their chains of dependent operations (a lookup's, a force law's), which a
+    single pass, one long chain per rod, leaves waiting. A node receives its slot's force, then
+    its rod's interior slot's, as in one pass: the same bits."""
     F = geom.shape[1]
     f = F - 1
     H = hf[0]
-    for e in range(ne):
+    for e in range(ne):                 # pass 1: the end gaps, far and monotony
         c = c0 + e
-        gr = c if geom.shape[0] > 1 else 0
-        pc = c if prm.shape[0] > 1 else 0
         if hf.shape[0] > 1:
             H = hf[c]
         for i in range(g.shape[0]):
-            g[i] = geom[gr, f, i]
-        for i in range(pr.shape[0]):
-            pr[i] = prm[pc, f, i]
-        radius = pr[0]
+            g[i] = geom[c if geom.shape[0] > 1 else 0, f, i]
+        radius = prm[c if prm.shape[0] > 1 else 0, f, 0]
         lam = LAM[0, e]
         if zero:
             for p in range(n):
@@ -789,8 +792,6 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
             b0, b1, b2 = QT[e, j, 3], QT[e, j, 4], QT[e, j, 5]
             ea, ec = eta[j, 0], eta[j, 1]
             span = ec - ea
-            em = 0.5 * (ea + ec)
-            ci = 3 * (j * F + f) + 2
             # the end gaps, the far test and monotony as rows_forces decides them
             xa, ya, za = r0 + ea * b0, r1 + ea * b1, r2 + ea * b2
             xc, yc, zc = r0 + ec * b0, r1 + ec * b1, r2 + ec * b2
@@ -823,28 +824,30 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
             far = (min(ga, gc) if mono else 0.5 * (ga + gc - lam * abs(span))) >= radius
             if far:
                 ga, gc = math.inf, math.inf     # no slot touches: the node slots released below
-            sd_a, na0, na1, na2, w_a, vn_a = ga, 0.0, 0.0, 1.0, 1.0, 0.0
-            sd_c, nc0, nc1, nc2, w_c, vn_c = gc, 0.0, 0.0, 1.0, 1.0, 0.0
+            ENDS[e, j, 0], ENDS[e, j, 1], ENDS[e, j, 2], ENDS[e, j, 3] = ga, gc, gxa, gya
+            ENDS[e, j, 4], ENDS[e, j, 5] = gxc, gyc
+            ENDS[e, j, 6] = 1.0 if (far or mono) else 0.0
+    for e in range(ne):                 # pass 2: the node slots
+        pc = c0 + e if prm.shape[0] > 1 else 0
+        for i in range(pr.shape[0]):
+            pr[i] = prm[pc, f, i]
+        radius = pr[0]
+        for j in range(k):
             for s in range(2):
                 a = 2 * j + s
-                sd = ga if s == 0 else gc
+                sd = ENDS[e, j, s]
                 if not (radius - sd > 0.0):
                     AC[a, e] = False
                     SL[a, e] = False
                     continue
-                if s == 0:
-                    h, px, py, pz = ea, xa, ya, za
-                    nx, ny, nz, w = _hf_normal(gxa, gya)
-                else:
-                    h, px, py, pz = ec, xc, yc, zc
-                    nx, ny, nz, w = _hf_normal(gxc, gyc)
+                h = eta[j, s]
+                px = QT[e, j, 0] + h * QT[e, j, 3]
+                py = QT[e, j, 1] + h * QT[e, j, 4]
+                pz = QT[e, j, 2] + h * QT[e, j, 5]
+                nx, ny, nz, w = _hf_normal(ENDS[e, j, 2 + 2 * s], ENDS[e, j, 3 + 2 * s])
                 vx = QDT[e, j, 0] + h * QDT[e, j, 3]
                 vy = QDT[e, j, 1] + h * QDT[e, j, 4]
                 vz = QDT[e, j, 2] + h * QDT[e, j, 5]
-                if s == 0:
-                    na0, na1, na2, w_a, vn_a = nx, ny, nz, w, vx * nx + vy * ny + vz * nz
-                else:
-                    nc0, nc1, nc2, w_c, vn_c = nx, ny, nz, w, vx * nx + vy * ny + vz * nz
                 touch, fx, fy, fz, AN[a, 0, e], AN[a, 1, e], AN[a, 2, e], SL[a, e], en, fn = _slot_force(
                     px, py, pz, px, py, pz, vx, vy, vz, sd, nx, ny, nz, w,
                     AN[a, 0, e], AN[a, 1, e], AN[a, 2, e], AC[a, e], radius,
@@ -855,7 +858,13 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
                     EXT[e, node, 0] += fx
                     EXT[e, node, 1] += fy
                     EXT[e, node, 2] += fz
-            if far or mono:
+    for e in range(ne):                 # pass 3: the interior slots
+        c = c0 + e
+        for j in range(k):
+            ea, ec = eta[j, 0], eta[j, 1]
+            em = 0.5 * (ea + ec)
+            ci = 3 * (j * F + f) + 2
+            if ENDS[e, j, 6] != 0.0:
                 # no interior contact (a monotone gap is lowest at an end), released as rows_forces
                 # releases it (written here once: an inlined function of these arrays measured slower)
                 if active[c, ci]:
@@ -864,10 +873,31 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
                     eta0[c, ci] = em
                 if slip[c, ci]:
                     slip[c, ci] = False
-            else:
-                hf_interior_slot(c, ci, e, j, QT, QDT, EXT, ea, ec, em,
-                                 (sd_a, na0, na1, na2, w_a, vn_a, sd_c, nc0, nc1, nc2, w_c, vn_c), g, H, pr, False,
-                                 False, anchor, eta0, active, slip, info, rod_a, rod_c)
+                continue
+            if hf.shape[0] > 1:
+                H = hf[c]
+            for i in range(g.shape[0]):
+                g[i] = geom[c if geom.shape[0] > 1 else 0, f, i]
+            for i in range(pr.shape[0]):
+                pr[i] = prm[c if prm.shape[0] > 1 else 0, f, i]
+            ends = (_hf_end(QDT, e, j, ENDS[e, j, 0], ENDS[e, j, 2], ENDS[e, j, 3], ea, pr[0])
+                    + _hf_end(QDT, e, j, ENDS[e, j, 1], ENDS[e, j, 4], ENDS[e, j, 5], ec, pr[0]))
+            hf_interior_slot(c, ci, e, j, QT, QDT, EXT, ea, ec, em, ends, g, H, pr, False, False, anchor, eta0, active,
+                             slip, info, rod_a, rod_c)
+
+
+@njit(inline="always", **_opts)
+def _hf_end(QDT, e, j, sd, gx, gy, h, radius):
+    """``(sd, n0, n1, n2, w, vn)`` of the node slot at rod point h of rod j of lane e for the
+    interior slot's level (:func:`_interior_force`'s ``ends``): its gap m and, where it touches,
+    the normal, its length w and the normal velocity m/s (those of no contact where not)."""
+    if not (radius - sd > 0.0):
+        return sd, 0.0, 0.0, 1.0, 1.0, 0.0
+    nx, ny, nz, w = _hf_normal(gx, gy)
+    vx = QDT[e, j, 0] + h * QDT[e, j, 3]
+    vy = QDT[e, j, 1] + h * QDT[e, j, 4]
+    vz = QDT[e, j, 2] + h * QDT[e, j, 5]
+    return sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
 
 
 @njit(inline="always", **_opts)
@@ -884,17 +914,17 @@ def lanes_forces(QT, QDT, EXT, EX, eta, rod_a, rod_c, geom, prm, hf, anchor, eta
     ``feats`` = (f0, f1): features f0 .. f1 - 1 in rows_forces (f0 = 1: EX holds feature 0's
     forces already, :func:`plane_forces`, the other features' are added to them); f1 = F - 1:
     the last feature, a heightfield, after them in :func:`hf_lanes_forces`, ``hfs`` the tuple
-    (AN, AC, SL, LAM) of its node slots' lane scratch and slope bounds (tuples: a call with more
-    than 30 arguments would not inline)."""
+    (AN, AC, SL, LAM, ENDS) of its node slots' lane scratch, slope bounds and rod-end scratch
+    (tuples: a call with more than 30 arguments would not inline)."""
     clr, ref, fresh = boxes
     f0, f1 = feats
-    AN, AC, SL, LAM = hfs
+    AN, AC, SL, LAM, ENDS = hfs
     if f1 > f0:
         rows_forces(c0, ne, QT, QDT, EXT, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0,
                     f1, g, pr, clr, ref, fresh)
     if f1 < geom.shape[1]:
-        hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip,
-                        info, g, pr, c0, ne, k, n, f1 == 0)
+        hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, ENDS, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active,
+                        slip, info, g, pr, c0, ne, k, n, f1 == 0)
     add_ext(EX, ext, c0, ne, n, E)
     for e in range(ne, E):
         for p in range(n):
