@@ -121,6 +121,22 @@ def test_rough_heights_are_the_sum_of_their_waves(pad):
     assert not np.allclose(h[0], h[0].T, atol=1e-4)        # not symmetric: x and y in their places
 
 
+def test_the_two_array_namespaces_offer_the_same_operations():
+    """A task written once against ``xp`` runs on both: the NumPy and torch namespaces have the
+    same public names, and the in-place product the rough heights use writes the same values."""
+    torch = pytest.importorskip("torch")
+    from tensegrity_gym.tasks.xp import NUMPY, torch_namespace
+    tx = torch_namespace()
+    public = lambda ns: {n for n in dir(ns) if not n.startswith("_")} - {"name", "torch"}   # noqa: E731
+    assert public(NUMPY) == public(tx)
+    a, b = np.arange(3.0)[:, None], np.arange(4.0)[None, :] + 0.5
+    out_np, out_t = np.empty((3, 4)), torch.empty((3, 4), dtype=torch.float64)
+    assert NUMPY.multiply(a, b, out_np) is out_np
+    tx.multiply(torch.as_tensor(a), torch.as_tensor(b), out_t)
+    np.testing.assert_array_equal(out_t.numpy(), a * b)
+    np.testing.assert_array_equal(out_np, a * b)
+
+
 def test_terrain_rises_along_the_goal_direction():
     t = generate(TerrainGenerator(kind="steps"), np.random.default_rng(0), goal=(0.0, 1.0))
     assert t.height_at(0.0, 2.0) > 0.05 and t.height_at(2.0, 0.0) == 0.0

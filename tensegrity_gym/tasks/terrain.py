@@ -177,16 +177,24 @@ def drawn_values(gen: TerrainGenerator, u, difficulty: float = 1.0):
     A = k * (xp.cos(ang)[:, :, None] * x)                          # (r, waves, n)
     B = k * (xp.sin(ang)[:, :, None] * x) + phase[:, :, None]
     cA, sA, cB, sB = xp.cos(A), xp.sin(A), xp.cos(B), xp.sin(B)
+    # in place, into two (r, n, n) scratch arrays: each wave's terms are products of grid-sized
+    # arrays, whose allocation took as long as the arithmetic
     z = cB[:, 0, :, None] * cA[:, 0, None, :]
-    z -= sB[:, 0, :, None] * sA[:, 0, None, :]
+    s = sB[:, 0, :, None] * sA[:, 0, None, :]
+    z -= s
+    t = xp.zeros_like(z)
     for i in range(1, w):
-        t = cB[:, i, :, None] * cA[:, i, None, :]
-        t -= sB[:, i, :, None] * sA[:, i, None, :]
+        xp.multiply(cB[:, i, :, None], cA[:, i, None, :], t)
+        xp.multiply(sB[:, i, :, None], sA[:, i, None, :], s)
+        t -= s
         z += t
     lo = xp.amin(z, axis=(1, 2))[:, None, None]
     span = xp.amax(z, axis=(1, 2))[:, None, None] - lo
-    z = (z - lo) / xp.maximum(span, 1e-12)
-    return d * gen.amplitude * z * fade
+    z -= lo
+    z /= xp.maximum(span, 1e-12)
+    z *= d * gen.amplitude
+    z *= fade
+    return z
 
 
 def rough_axis(gen: TerrainGenerator) -> np.ndarray:

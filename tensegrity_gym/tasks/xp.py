@@ -35,6 +35,7 @@ name                               NumPy                                torch
 ``cumsum(x, axis)``                ``np.cumsum``                        ``torch.cumsum``
 ``amin``, ``amax(x, axis)``        ``x.min``, ``x.max``                 ``x.amin``, ``x.amax`` (axis: int or tuple)
 ``maximum(a, b)``                  ``np.maximum``                       ``torch.maximum`` (scalars as tensors)
+``multiply(a, b, out)``            ``np.multiply(a, b, out=out)``       ``torch.mul(a, b, out=out)``
 =================================  ===================================  ======================================
 
 Reductions and products run along the last axis unless an ``axis`` is named. torch is imported
@@ -129,6 +130,10 @@ class _NumPyOps:
         return x.max(axis=axis)
 
     maximum = staticmethod(np.maximum)
+
+    @staticmethod
+    def multiply(a, b, out):
+        return np.multiply(a, b, out=out)
 
 
 class _TorchOps:
@@ -231,6 +236,9 @@ class _TorchOps:
         if not isinstance(b, t.Tensor):
             b = t.as_tensor(b, dtype=a.dtype, device=a.device)
         return t.maximum(a, b)
+
+    def multiply(self, a, b, out):
+        return self.torch.mul(a, b, out=out)
 
 
 NUMPY = _NumPyOps()
