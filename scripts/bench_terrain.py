@@ -2,7 +2,7 @@
 """Cost of a physics step with terrain contact against flat ground (numba, the prism robot).
 
     PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000] \
-        [--envs 1 16 128] [--env-steps 200] [--episode] [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
+        [--envs 1 16 128] [--env-steps 200] [--episode] [--repeats 1] [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
         [--torch-compile] [--torch-cuda-graph] [--torch-no-eager] [--torch-device cuda] [--torch-dtype float32] \
         [--torch-scenes flat ...] [--json out.json]
 
@@ -18,7 +18,9 @@ Env table (``--envs``): env-steps/s of ``TensegrityRoll-v0`` (NumPy vector env, 
 on flat ground and on each terrain kind, and the cost ratio terrain / flat measured in the same
 run on the same machine, over ``--env-steps`` steps after a reset (the physics only) or, with
 ``--episode``, over one whole episode of each scene's registered time limit, so that every copy
-resets once within the timed steps (what training pays: a drawn terrain is made at each reset).
+resets once within the timed steps (what training pays: a drawn terrain is made at each reset);
+``--repeats R`` times every scene in each of R rounds and gives the median rate per scene (one
+episode at 16 copies takes about 0.1 s: single runs scatter by about 10 %).
 Scenes: a 20-degree slope (a plane), steps (the ``steps`` generator: 4 boxes), rough ground (the
 ``rough`` generator with no level pad: a 12 m heightfield of 2 cm bumps over the whole floor, the
 robot on bumps from the start) and ``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the
@@ -161,18 +163,33 @@ def torch_env_table(ns, steps: int, compile: bool = False, device: str = "cpu", 
     return out["eager"] if list(out) == ["eager"] else out
 
 
-def env_table(ns, steps: int, episode: bool = False) -> dict:
+def env_table(ns, steps: int, episode: bool = False, repeats: int = 1) -> tuple:
     """env-steps/s per scene and N over ``steps`` steps, or (``episode``) over each scene's
-    registered episode length, its time limit: every copy resets once within the timed steps."""
+    registered episode length, its time limit: every copy resets once within the timed steps.
+    ``repeats`` rounds, each timing every scene once in turn (so that a slower spell of a shared
+    machine falls on all scenes of a round); the table gives each scene's median rate, the cost
+    against flat ground as the ratio of the medians and, with more than one round, the range of
+    the rounds' own ratios. Returns (median rates, every round's rates)."""
     import gymnasium as gym
-    rates = {name: [env_rate(eid, kw, n, gym.spec(eid).max_episode_steps if episode else steps) for n in ns]
-             for name, (eid, kw) in ENV_SCENES.items()}
+    rounds = [{name: [env_rate(eid, kw, n, gym.spec(eid).max_episode_steps if episode else steps) for n in ns]
+               for name, (eid, kw) in ENV_SCENES.items()} for _ in range(repeats)]
+    med = {name: [float(np.median([r[name][i] for r in rounds])) for i in range(len(ns))] for name in ENV_SCENES}
     what = "one episode each, resets included" if episode else f"{steps} steps after a reset"
-    print(f"\n{'env scene (' + what + ')':<30}" + "".join(f"{'N=' + str(n) + ' steps/s':>16}{'cost/flat':>10}"
-                                                           for n in ns))
-    for name, vals in rates.items():
-        print(f"{name:<30}" + "".join(f"{v:16,.0f}{rates['flat'][i] / v:10.2f}" for i, v in enumerate(vals)))
-    return rates
+    if repeats > 1:
+        what += f"; median of {repeats} rounds"
+    span = repeats > 1
+    print(f"\n{'env scene (' + what + ')':<30}" + "".join(
+        f"{'N=' + str(n) + ' steps/s':>16}{'cost/flat':>10}" + (f"{'rounds':>12}" if span else "") for n in ns))
+    for name, vals in med.items():
+        cells = []
+        for i, v in enumerate(vals):
+            cell = f"{v:16,.0f}{med['flat'][i] / v:10.2f}"
+            if span:
+                ratios = [r["flat"][i] / r[name][i] for r in rounds]
+                cell += f"{min(ratios):7.2f}-{max(ratios):4.2f}"
+            cells.append(cell)
+        print(f"{name:<30}" + "".join(cells))
+    return med, rounds
 
 
 def torch_table(m, scenes: dict, batch, steps: int) -> dict:
@@ -207,6 +224,8 @@ def main():
     ap.add_argument("--env-steps", type=int, default=200)
     ap.add_argument("--episode", action="store_true",
                     help="time one whole episode per scene (every copy resets once) instead of --env-steps steps")
+    ap.add_argument("--repeats", type=int, default=1,
+                    help="rounds of the env table (every scene once per round); the median rate per scene")
     ap.add_argument("--json", type=str, default=None, help="write the tables here")
     ap.add_argument("--torch", action="store_true", help="also the torch backend's physics table (CPU)")
     ap.add_argument("--torch-envs", type=int, nargs="*", default=[],
@@ -223,6 +242,8 @@ def main():
                     help="the torch env table also with compile=True, cuda_graph=True (a CUDA device)")
     ap.add_argument("--torch-no-eager", action="store_true", help="leave out the torch env's eager table")
     a = ap.parse_args()
+    if a.repeats < 1:
+        ap.error(f"--repeats must be at least 1, got {a.repeats}")
     m = prism()
     scenes = {"level plane": Terrain(), "20 deg plane": Terrain(plane=Plane(20.0)),
               "20 deg plane + 2 boxes": Terrain(plane=Plane(20.0), boxes=[Box([0.3, 0, 0.05], [0.2, 1, 0.1]),
@@ -242,13 +263,14 @@ def main():
     for name, vals in rows.items() if a.batch else ():
         print(f"{name:<26}" + "".join(f"{v:16.2f}" for v in vals))
     torch_rows = torch_table(m, scenes, a.batch, max(a.steps // 10, 20)) if a.torch else {}
-    envs = env_table(a.envs, a.env_steps, a.episode) if a.envs else {}
+    envs, env_rounds = env_table(a.envs, a.env_steps, a.episode, a.repeats) if a.envs else ({}, [])
     torch_envs = (torch_env_table(a.torch_envs, a.torch_env_steps, a.torch_compile, a.torch_device, a.torch_dtype,
                                    a.torch_scenes, not a.torch_no_eager, a.torch_cuda_graph) if a.torch_envs else {})
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"cpu": cpu_model(), "load_before": os.getloadavg(), "batch": a.batch, "physics_us_per_step": rows, "torch_us_per_step": torch_rows,
-                       "envs": a.envs, "env_steps_per_s": envs, "env_steps": a.env_steps, "episode": a.episode,
+                       "envs": a.envs, "env_steps_per_s": envs, "env_rounds": env_rounds, "repeats": a.repeats,
+                       "env_steps": a.env_steps, "episode": a.episode,
                        "torch_envs": a.torch_envs, "torch_env_steps_per_s": torch_envs,
                        "torch_device": a.torch_device, "torch_device_name": _device_name(a.torch_device),
                        "torch_dtype": a.torch_dtype, "command": "python scripts/bench_terrain.py " +

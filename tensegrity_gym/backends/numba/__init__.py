@@ -8,10 +8,13 @@ buffers), ``compile`` (threading layer, compile-once management), ``api`` (the P
 points ``step``, ``step_inplace``, ``accelerations``, ``string_forces``, ``project``,
 ``contact_steps``), ``plans`` (``Plan``, ``make_plan``, ``lean_plan``, ``packed``: a fixed-step
 call prepared once and repeated), ``actuation`` (compiled control updates) and ``divergence``.
-numba's on-disk cache does not notice edits of kernels inlined into kernels of another module:
-after editing one run ``find tensegrity_gym -name '*.nbi' -o -name '*.nbc' | xargs rm -f``.
-``watch`` prints progress on stderr while numba compiles this package's functions.
+numba's on-disk cache notices an edit of a kernel's own module only, not of the kernels it
+inlines or calls from others: ``cache_guard`` drops the package's caches when any of its
+compiled sources changed, at this import, before any kernel is loaded. ``watch`` prints
+progress on stderr while numba compiles this package's functions.
 """
+from .cache_guard import drop_stale_caches as _drop_stale_caches
 from .watch import install as _install_watch
 
+_drop_stale_caches()
 _install_watch()
