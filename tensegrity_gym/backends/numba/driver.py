@@ -189,8 +189,7 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         HAN = np.empty((2 * k, 3, E))
         HAC = np.zeros((2 * k, E), np.bool_)
         HSL = np.zeros((2 * k, E), np.bool_)
-        LAM = np.empty((2, E))
-        HEND = np.empty((E, k, 8))
+        LAM = np.empty((2 + 8 * k, E))
     if plane is not None:
         p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_anchor, p_eta0, p_active, p_slip, p_ext = plane
     if terrain is not None or plane is not None:
@@ -244,7 +243,7 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
                     plane_forces(Q, QD, EX, PAN, PAC, PSL, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, c0, ne, k, n, E)
                 lanes_forces(QT, QDT, EXT, EX, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, t_hf, t_anchor, t_eta0,
                              t_active, t_slip, t_info, t_ext, t_lam, t_g, t_pr, (t_clr, t_ref, step == 0), c0, ne, k,
-                             n, E, (t_f0, t_f1), (HAN, HAC, HSL, LAM, HEND))
+                             n, E, (t_f0, t_f1), (HAN, HAC, HSL, LAM))
             if plane is not None:
                 plane_forces(Q, QD, EX, PAN, PAC, PSL, p_eta, p_rod_a, p_rod_c, p_geom, p_prm, c0, ne, k, n, E)
                 add_ext(EX, p_ext, c0, ne, n, E)

@@ -752,24 +752,25 @@ def hf_interior_slot(c, ci, r, j, Q, QD, Wc, ea, ec, em, ends, g, H, pr, mono, w
 # views live within the call): the counts of its array arguments made the call about 8 % of the
 # rough-ground kernel's time
 @njit(_nrt=False, **_opts)
-def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, ENDS, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active,
+def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active,
                     slip, info, g, pr, c0, ne, k, n, zero):
     """:func:`rows_forces` of the last feature, a heightfield (:func:`hf_last`), of the loop
     driver's lanes e < ne (copies c0 + e; ``QT``, ``QDT`` (E, k, 6) m, m/s and ``EXT`` (E, n, 3)
     N the lanes' transposed views), added to EXT (``zero``: set, no other feature's forces in
-    it). The node slots' state in lane scratch (AN, AC, SL of :func:`slots_load`), ``LAM`` (2, E)
-    the lanes' slope bounds (:func:`hf_lam_load`); the interior slot, which a rod needs only
-    where its gap is not monotone along it, in the copies' state (:func:`hf_interior_slot`). The
+    it). The node slots' state in lane scratch (AN, AC, SL of :func:`slots_load`), ``LAM``
+    (2 + 8 k, E) the lanes' slope bounds in rows 0 and 1 (:func:`hf_lam_load`); the interior
+    slot, which a rod needs only where its gap is not monotone along it, in the copies' state
+    (:func:`hf_interior_slot`). The
     same arithmetic in the same order as :func:`rows_forces`, so the same bits, without its
     per-copy bookkeeping of the node slots, its loop over features and, where the gap is
     monotone along a rod, the upper end's height lookup when the rise of the gap along the rod
     keeps that end clear.
     Three passes over the lanes' rods: the first looks up every rod's end gaps and gradients and
-    decides far and monotony (into the scratch ``ENDS`` (E, k, 8): ga, gc m, the gradients at a
-    and c, 1 where the rod is far or its gap monotone, one spare), the second runs the node
-    slots from them, the third the interior slots. The rods of a pass are independent, so the
-    processor overlaps their chains of dependent operations (a lookup's, a force law's), which a
-    single pass, one long chain per rod, leaves waiting. A node receives its slot's force, then
+    decides far and monotony (into rows ``2 + 8 j ..`` of ``LAM``, (2 + 8 k, E): ga, gc m, the
+    gradients at a and c, 1 where the rod is far or its gap monotone, one spare), the second runs
+    the node slots from them, the third the interior slots. The rods of a pass are independent,
+    so the processor overlaps their chains of dependent operations (a lookup's, a force law's),
+    which a single pass, one long chain per rod, leaves waiting. A node receives its slot's force, then
     its rod's interior slot's, as in one pass: the same bits."""
     F = geom.shape[1]
     f = F - 1
@@ -824,9 +825,10 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, ENDS, eta, rod_a, rod_c, geom
             far = (min(ga, gc) if mono else 0.5 * (ga + gc - lam * abs(span))) >= radius
             if far:
                 ga, gc = math.inf, math.inf     # no slot touches: the node slots released below
-            ENDS[e, j, 0], ENDS[e, j, 1], ENDS[e, j, 2], ENDS[e, j, 3] = ga, gc, gxa, gya
-            ENDS[e, j, 4], ENDS[e, j, 5] = gxc, gyc
-            ENDS[e, j, 6] = 1.0 if (far or mono) else 0.0
+            o = 2 + 8 * j                       # the rod's rows of the end scratch
+            LAM[o, e], LAM[o + 1, e], LAM[o + 2, e], LAM[o + 3, e] = ga, gc, gxa, gya
+            LAM[o + 4, e], LAM[o + 5, e] = gxc, gyc
+            LAM[o + 6, e] = 1.0 if (far or mono) else 0.0
     for e in range(ne):                 # pass 2: the node slots
         pc = c0 + e if prm.shape[0] > 1 else 0
         for i in range(pr.shape[0]):
@@ -835,7 +837,7 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, ENDS, eta, rod_a, rod_c, geom
         for j in range(k):
             for s in range(2):
                 a = 2 * j + s
-                sd = ENDS[e, j, s]
+                sd = LAM[2 + 8 * j + s, e]
                 if not (radius - sd > 0.0):
                     AC[a, e] = False
                     SL[a, e] = False
@@ -844,7 +846,8 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, ENDS, eta, rod_a, rod_c, geom
                 px = QT[e, j, 0] + h * QT[e, j, 3]
                 py = QT[e, j, 1] + h * QT[e, j, 4]
                 pz = QT[e, j, 2] + h * QT[e, j, 5]
-                nx, ny, nz, w = _hf_normal(ENDS[e, j, 2 + 2 * s], ENDS[e, j, 3 + 2 * s])
+                o = 2 + 8 * j + 2 * s
+                nx, ny, nz, w = _hf_normal(LAM[o + 2, e], LAM[o + 3, e])
                 vx = QDT[e, j, 0] + h * QDT[e, j, 3]
                 vy = QDT[e, j, 1] + h * QDT[e, j, 4]
                 vz = QDT[e, j, 2] + h * QDT[e, j, 5]
@@ -864,7 +867,8 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, ENDS, eta, rod_a, rod_c, geom
             ea, ec = eta[j, 0], eta[j, 1]
             em = 0.5 * (ea + ec)
             ci = 3 * (j * F + f) + 2
-            if ENDS[e, j, 6] != 0.0:
+            o = 2 + 8 * j
+            if LAM[o + 6, e] != 0.0:
                 # no interior contact (a monotone gap is lowest at an end), released as rows_forces
                 # releases it (written here once: an inlined function of these arrays measured slower)
                 if active[c, ci]:
@@ -880,8 +884,8 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, ENDS, eta, rod_a, rod_c, geom
                 g[i] = geom[c if geom.shape[0] > 1 else 0, f, i]
             for i in range(pr.shape[0]):
                 pr[i] = prm[c if prm.shape[0] > 1 else 0, f, i]
-            ends = (_hf_end(QDT, e, j, ENDS[e, j, 0], ENDS[e, j, 2], ENDS[e, j, 3], ea, pr[0])
-                    + _hf_end(QDT, e, j, ENDS[e, j, 1], ENDS[e, j, 4], ENDS[e, j, 5], ec, pr[0]))
+            ends = (_hf_end(QDT, e, j, LAM[o, e], LAM[o + 2, e], LAM[o + 3, e], ea, pr[0])
+                    + _hf_end(QDT, e, j, LAM[o + 1, e], LAM[o + 4, e], LAM[o + 5, e], ec, pr[0]))
             hf_interior_slot(c, ci, e, j, QT, QDT, EXT, ea, ec, em, ends, g, H, pr, False, False, anchor, eta0, active,
                              slip, info, rod_a, rod_c)
 
@@ -914,16 +918,17 @@ def lanes_forces(QT, QDT, EXT, EX, eta, rod_a, rod_c, geom, prm, hf, anchor, eta
     ``feats`` = (f0, f1): features f0 .. f1 - 1 in rows_forces (f0 = 1: EX holds feature 0's
     forces already, :func:`plane_forces`, the other features' are added to them); f1 = F - 1:
     the last feature, a heightfield, after them in :func:`hf_lanes_forces`, ``hfs`` the tuple
-    (AN, AC, SL, LAM, ENDS) of its node slots' lane scratch, slope bounds and rod-end scratch
-    (tuples: a call with more than 30 arguments would not inline)."""
+    (AN, AC, SL, LAM) of its node slots' lane scratch and slope bounds with the rods' end scratch
+    (tuples: a call with more than 30 arguments would not inline; a fifth array in this tuple made
+    the one-copy driver loaded from numba's cache a quarter slower)."""
     clr, ref, fresh = boxes
     f0, f1 = feats
-    AN, AC, SL, LAM, ENDS = hfs
+    AN, AC, SL, LAM = hfs
     if f1 > f0:
         rows_forces(c0, ne, QT, QDT, EXT, eta, rod_a, rod_c, geom, prm, hf, lam, anchor, eta0, active, slip, info, f0,
                     f1, g, pr, clr, ref, fresh)
     if f1 < geom.shape[1]:
-        hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, ENDS, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active,
+        hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active,
                         slip, info, g, pr, c0, ne, k, n, f1 == 0)
     add_ext(EX, ext, c0, ne, n, E)
     for e in range(ne, E):
