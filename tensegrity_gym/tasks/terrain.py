@@ -177,8 +177,8 @@ def drawn_values(gen: TerrainGenerator, u, difficulty: float = 1.0):
     A = k * (xp.cos(ang)[:, :, None] * x)                          # (r, waves, n)
     B = k * (xp.sin(ang)[:, :, None] * x) + phase[:, :, None]
     cA, sA, cB, sB = xp.cos(A), xp.sin(A), xp.cos(B), xp.sin(B)
-    # in place, into two (r, n, n) scratch arrays: each wave's terms are products of grid-sized
-    # arrays, whose allocation took as long as the arithmetic
+    # each wave's two products written into two (r, n, n) scratch arrays, the sum and its scaling
+    # in place: no new grid-sized array per operation (the same numbers, in the same order)
     z = cB[:, 0, :, None] * cA[:, 0, None, :]
     s = sB[:, 0, :, None] * sA[:, 0, None, :]
     z -= s
