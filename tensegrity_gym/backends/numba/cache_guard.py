@@ -50,7 +50,8 @@ def _cache_dir(py_file: Path) -> Path | None:
     def probe():        # the locators read a function's first line number only
         pass
 
-    for cls in caching.CacheImpl._locator_classes:
+    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)   # its name varies
+    for cls in getattr(impl, "_locator_classes", ()):
         try:
             loc = cls.from_function(probe, str(py_file))
         except Exception:       # noqa: BLE001 - a locator of another numba version: try the next
