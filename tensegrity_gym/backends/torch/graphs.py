@@ -120,10 +120,7 @@ def _flatten(x, tensors: list, leaves: list, key: list, torch):
         return {k: _flatten(v, tensors, leaves, key, torch) for k, v in x.items()}
     if type(x) in (tuple, list) or (isinstance(x, tuple) and hasattr(x, "_fields")):
         key.append((type(x), len(x)))
-        items = [_flatten(v, tensors, leaves, key, torch) for v in x]
-        if isinstance(x, list):
-            return items
-        return type(x)(*items) if hasattr(x, "_fields") else tuple(items)
+        return _like(x, [_flatten(v, tensors, leaves, key, torch) for v in x])
     leaves.append(x)
     try:
         hash(x)
@@ -151,18 +148,19 @@ def _build(layout, static):
         return layout.value
     if isinstance(layout, dict):
         return {k: _build(v, static) for k, v in layout.items()}
-    if isinstance(layout, list):
-        return [_build(v, static) for v in layout]
-    items = [_build(v, static) for v in layout]
-    return type(layout)(*items) if hasattr(layout, "_fields") else tuple(items)
+    return _like(layout, [_build(v, static) for v in layout])
 
 
 def _clone(out, torch):
     if isinstance(out, torch.Tensor):
         return out.clone()
     if isinstance(out, (tuple, list)):
-        items = [_clone(v, torch) for v in out]
-        if isinstance(out, list):
-            return items
-        return type(out)(*items) if hasattr(out, "_fields") else tuple(items)
+        return _like(out, [_clone(v, torch) for v in out])
     return out
+
+
+def _like(x, items: list):
+    """``items`` in a container of ``x``'s kind: a list, the same named tuple, or a tuple."""
+    if isinstance(x, list):
+        return items
+    return type(x)(*items) if hasattr(x, "_fields") else tuple(items)
