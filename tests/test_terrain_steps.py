@@ -150,11 +150,13 @@ def test_heightfield_slope_bound_is_the_kernels_own(prism):
     assert np.abs(out[0]).sum() > 0 and np.array_equal(out[0], out[1])
 
 
-@pytest.mark.parametrize("B", [1, 20, 900])
-def test_compiled_plane_loop_is_the_python_loop(prism, B):
+@pytest.mark.parametrize("B, power", [(1, False), (20, False), (900, False), (20, True)])
+def test_compiled_plane_loop_is_the_python_loop(prism, B, power):
     """A terrain that is one plane runs the driver's plane instance (its own forces loop, node
     slots in lane scratch): per-copy slopes and friction, an external force, one copy, SIMD
-    blocks with pad lanes (20 copies) and the threaded kernel (900): the Python loop's bits."""
+    blocks with pad lanes (20 copies) and the threaded kernel (900): the Python loop's bits.
+    ``power``: a force exponent of 1.5 in every other copy (the law's power in the loop, which
+    then runs without SIMD code)."""
     m = prism
     tc = T.TerrainContact(Terrain(plane=Plane(15.0, 30.0)))
     assert tc.plane_only
@@ -167,11 +169,13 @@ def test_compiled_plane_loop_is_the_python_loop(prism, B):
         geom[c] = T.TerrainContact(Terrain(plane=Plane(rng.uniform(0.0, 30.0), rng.uniform(0, 360)))).geom[0]
     prm = tc.per_copy(B)
     prm[:, 0, T.PRM_FIELDS.index("friction")] = rng.uniform(0.1, 1.0, B)
+    if power:
+        prm[::2, 0, T.PRM_FIELDS.index("exponent")] = 1.5
     ext = rng.normal(0.0, 0.1, (B, m.n_nodes, 3))
     out = []
     for compiled in (False, True):
         qq, qqd, ts = q.copy(), qd.copy(), T.init_terrain_state(tc, m, B)
-        slipped = touched = False
+        touched = False
         for _ in range(30):
             T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=10, external=ext, prm=prm,
                       geom=geom, compiled=compiled)

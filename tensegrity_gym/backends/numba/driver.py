@@ -197,6 +197,7 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         PAN = np.empty((2 * k, 3, E))
         PAC = np.zeros((2 * k, E), np.bool_)
         PSL = np.zeros((2 * k, E), np.bool_)
+        PP = np.empty((12, E))
     Q, QD, A1, A2, A3, A4, QS, QD2, QD3, QD4 = S[0], S[1], S[2], S[3], S[4], S[5], S[6], S[7], S[8], S[9]
     if terrain is not None:
         # the terrain forces read the lanes (k, 6, E) and write EX (n, 3, E) through views indexed
@@ -229,9 +230,9 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         if contact is not None:
             _contact_load(anchor, active, AN, AC, c0, ne, k, E)
         if plane is not None:
-            plane_load(p_anchor, p_eta0, p_active, PAN, PAC, p_eta, c0, ne, k, 1, E)
+            plane_load(p_anchor, p_eta0, p_active, PAN, PAC, PP, p_eta, p_geom, p_prm, c0, ne, k, 1, E)
         if terrain is not None and t_f0 > 0:
-            plane_load(t_anchor, t_eta0, t_active, PAN, PAC, t_eta, c0, ne, k, t_F, E)
+            plane_load(t_anchor, t_eta0, t_active, PAN, PAC, PP, t_eta, t_geom, t_prm, c0, ne, k, t_F, E)
         if terrain is not None and t_f1 < t_F:
             slots_load(t_anchor, t_active, HAN, HAC, c0, ne, k, t_F, t_f1, E)
             hf_lam_load(LAM, t_geom, t_hf, t_lam, c0, ne)
@@ -240,12 +241,12 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
                 _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)
             if terrain is not None:
                 if t_f0 > 0:
-                    plane_forces(Q, QD, EX, PAN, PAC, PSL, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, c0, ne, k, n, E)
+                    plane_forces(Q, QD, EX, PAN, PAC, PSL, PP, t_eta, t_rod_a, t_rod_c, k, n, E)
                 lanes_forces(QT, QDT, EXT, EX, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, t_hf, t_anchor, t_eta0,
                              t_active, t_slip, t_info, t_ext, t_lam, t_g, t_pr, (t_clr, t_ref, step == 0), c0, ne, k,
                              n, E, (t_f0, t_f1), (HAN, HAC, HSL, LAM))
             if plane is not None:
-                plane_forces(Q, QD, EX, PAN, PAC, PSL, p_eta, p_rod_a, p_rod_c, p_geom, p_prm, c0, ne, k, n, E)
+                plane_forces(Q, QD, EX, PAN, PAC, PSL, PP, p_eta, p_rod_a, p_rod_c, k, n, E)
                 add_ext(EX, p_ext, c0, ne, n, E)
             Qi = Q
             Vi = QD

@@ -7,7 +7,10 @@ traffic that, at B = 1, is larger than the physics of a small structure.
 """
 from __future__ import annotations
 
-from numba import njit
+import numba
+from llvmlite import ir as _ir
+from numba import njit, types
+from numba.core import cgutils
 
 
 
@@ -83,6 +86,33 @@ def _soa_width(k):
 _opts = dict(cache=True, fastmath=False, error_model="numpy")
 _layout_nb = njit(**_opts)(_layout)
 _soa_width_nb = njit(inline="always", **_opts)(_soa_width)
+
+
+_TILE_LANES = 16   # the widest SIMD block, _soa_width's largest E
+
+
+@numba.extending.intrinsic
+def _stack_tile(typingctx, rows):
+    """Pointer to ``rows * _TILE_LANES`` float64 (``rows`` a compile-time constant) on the stack
+    of the compiled function (allocated once, at its entry): scratch that the compiler knows
+    overlaps no array argument, so that a loop over lanes that writes it and reads those
+    arrays needs no run-time overlap checks and compiles to SIMD code (numba arrays carry no
+    no-alias information; with checks for many arrays LLVM leaves such a loop scalar). Use it
+    through :func:`_lane_tile`."""
+    if not isinstance(rows, types.IntegerLiteral):
+        return None
+    n = rows.literal_value * _TILE_LANES
+
+    def codegen(context, builder, sig, args):
+        return cgutils.alloca_once(builder, _ir.DoubleType(), size=_ir.Constant(_ir.IntType(64), n))
+    return types.CPointer(types.float64)(rows), codegen
+
+
+@njit(inline="always", **_opts)
+def _lane_tile(rows, E):
+    """A (rows, E) float64 scratch on the stack (:func:`_stack_tile`; E <= 16 lanes, ``rows`` a
+    literal), its values undefined until written."""
+    return numba.carray(_stack_tile(rows), (rows, E))
 
 
 @njit(inline="always", **_opts)

@@ -59,7 +59,7 @@ import numpy as np
 from numba import njit
 
 from .heightfield import LEVEL_TOL, hf_flat_under, hf_lipschitz, hf_lowest, hf_monotone, hf_patch
-from .layout import _opts
+from .layout import _lane_tile, _opts
 
 #: feature kinds (column 0 of ``geom``)
 PLANE = 0.0
@@ -617,12 +617,22 @@ def slots_store(anchor, eta0, active, slip, AN, AC, SL, eta, c0, ne, k, F, f):
 
 
 @njit(inline="always", **_opts)
-def plane_load(anchor, eta0, active, AN, AC, eta, c0, ne, k, F, E):
+def plane_load(anchor, eta0, active, AN, AC, PP, eta, geom, prm, c0, ne, k, F, E):
     """Lanes 0..E-1 of the plane scratch take the node slots of feature 0, a plane, of copies
-    c0..c0+ne-1 (:func:`slots_load`); the interior slots of that feature, which never touch a
-    plane, are released as :func:`rows_forces` releases them (the anchored point kept if it
-    was active), once per call: every step would do the same."""
+    c0..c0+ne-1 (:func:`slots_load`), and PP (12, E) the plane's row (normal, offset: rows 0..3)
+    and contact parameters (radius .. cmax: rows 4..11) of each lane, constant over a call; the
+    interior slots of that feature, which never touch a plane, are released as
+    :func:`rows_forces` releases them (the anchored point kept if it was active), once per
+    call: every step would do the same."""
     slots_load(anchor, active, AN, AC, c0, ne, k, F, 0, E)
+    for e in range(E):
+        c = c0 + e if e < ne else c0
+        gr = c if geom.shape[0] > 1 else 0
+        pc = c if prm.shape[0] > 1 else 0
+        for i in range(4):
+            PP[i, e] = geom[gr, 0, 1 + i]
+        for i in range(8):
+            PP[4 + i, e] = prm[pc, 0, i]
     for e in range(ne):
         for j in range(k):
             ci = 3 * j * F + 2
@@ -654,44 +664,68 @@ def add_ext(EX, ext, c0, ne, n, E):
 
 
 @njit(inline="always", **_opts)
-def plane_forces(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, geom, prm, c0, ne, k, n, E):
-    """:func:`rows_forces` of E lanes of the loop driver (copies c0..c0+ne-1, pad lanes repeat
-    c0) for feature 0 of the terrain, a plane (:func:`plane_first`), read in the lanes (Q, QD
-    (k, 6, E) m, m/s), into EX (n, 3, E) N; the node slots' state in the lane scratch of
+def plane_forces(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, n, E):
+    """:func:`rows_forces` of E lanes of the loop driver for feature 0 of the terrain, a plane
+    (:func:`plane_first`), read in the lanes (Q, QD (k, 6, E) m, m/s), into EX (n, 3, E) N; the
+    node slots' state and each lane's plane and contact parameters PP in the lane scratch of
     :func:`plane_load`. The same force law (:func:`_slot_force`) on the same numbers in the
     same order, so the same bits, without what a plane never needs (the transposed copy of the
     state, the far test, the interior slot: a plane's nearest point of a rod is an end, and a
-    node slot's force goes to its own node whole). The loop driver's plane instances call it
-    (their step loop carries no code for boxes or heights: a branch to it, never taken, made
-    the step of a plane 1.5 times slower at one copy), and its general terrain instance for a
-    terrain whose feature 0 is a plane (the ground under steps and walls), before
-    :func:`lanes_forces` adds the other features."""
+    node slot's force goes to its own node whole). The lanes are the innermost loop, so that the
+    law compiles to SIMD code over them (a slot clear of the plane adds the law's zero force,
+    which leaves EX's bits as they are: EX starts at +0 and a sum is never -0); with a force
+    exponent other than 1 in some lane the same loop runs with the exponent read per lane.
+    The loop driver's plane instances call it (their step loop carries no code for boxes or
+    heights: a branch to it, never taken, made the step of a plane 1.5 times slower at one
+    copy), and its general terrain instance for a terrain whose feature 0 is a plane (the
+    ground under steps and walls), before :func:`lanes_forces` adds the other features."""
+    for p in range(n):
+        for i in range(3):
+            for e in range(E):
+                EX[p, i, e] = 0.0
+    linear = True
     for e in range(E):
-        c = c0 + e if e < ne else c0
-        gr = c if geom.shape[0] > 1 else 0
-        pc = c if prm.shape[0] > 1 else 0
-        g1, g2, g3, g4 = geom[gr, 0, 1], geom[gr, 0, 2], geom[gr, 0, 3], geom[gr, 0, 4]
-        radius, kn, dn, ex = prm[pc, 0, 0], prm[pc, 0, 1], prm[pc, 0, 2], prm[pc, 0, 3]
-        mu, kt, ct, cmax = prm[pc, 0, 4], prm[pc, 0, 5], prm[pc, 0, 6], prm[pc, 0, 7]
-        for p in range(n):
-            EX[p, 0, e] = 0.0
-            EX[p, 1, e] = 0.0
-            EX[p, 2, e] = 0.0
-        for j in range(k):
-            for s in range(2):
-                ci = 2 * j + s
-                h = eta[j, s]
+        if PP[7, e] != 1.0:
+            linear = False
+    if linear:
+        _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, True)
+    else:
+        _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, False)
+
+
+@njit(inline="always", **_opts)
+def _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, linear):
+    """The node slots' forces of :func:`plane_forces`, lanes innermost: the law of each slot
+    over the lanes into a stack tile T (:func:`.layout._lane_tile`: written there, the loop
+    compiles to SIMD code), then its anchors, flags and forces from T into the lane scratch.
+    ``linear``: every lane's force exponent is 1 (the law's power then compiles away, and with
+    it the one call that keeps the loop scalar)."""
+    T = _lane_tile(8, E)
+    for j in range(k):
+        for s in range(2):
+            ci = 2 * j + s
+            h = eta[j, s]
+            node = rod_a[j] if s == 0 else rod_c[j]
+            for e in range(E):
                 px, py, pz = Q[j, 0, e] + h * Q[j, 3, e], Q[j, 1, e] + h * Q[j, 4, e], Q[j, 2, e] + h * Q[j, 5, e]
                 vx, vy, vz = QD[j, 0, e] + h * QD[j, 3, e], QD[j, 1, e] + h * QD[j, 4, e], QD[j, 2, e] + h * QD[j, 5, e]
-                touch, fx, fy, fz, AN[ci, 0, e], AN[ci, 1, e], AN[ci, 2, e], SL[ci, e], en, fn = _slot_force(
+                g1, g2, g3, g4 = PP[0, e], PP[1, e], PP[2, e], PP[3, e]
+                touch, T[0, e], T[1, e], T[2, e], T[3, e], T[4, e], T[5, e], slip, en, fn = _slot_force(
                     px, py, pz, px, py, pz, vx, vy, vz, g1 * px + g2 * py + g3 * pz - g4, g1, g2, g3, 1.0,
-                    AN[ci, 0, e], AN[ci, 1, e], AN[ci, 2, e], AC[ci, e], radius, kn, dn, ex, mu, kt, ct, cmax)
-                AC[ci, e] = touch
-                if touch:
-                    node = rod_a[j] if s == 0 else rod_c[j]
-                    EX[node, 0, e] += fx
-                    EX[node, 1, e] += fy
-                    EX[node, 2, e] += fz
+                    AN[ci, 0, e], AN[ci, 1, e], AN[ci, 2, e], AC[ci, e], PP[4, e], PP[5, e], PP[6, e],
+                    1.0 if linear else PP[7, e], PP[8, e], PP[9, e], PP[10, e], PP[11, e])
+                T[6, e] = 1.0 if touch else 0.0
+                T[7, e] = 1.0 if slip else 0.0
+            for e in range(E):
+                AN[ci, 0, e] = T[3, e]
+                AN[ci, 1, e] = T[4, e]
+                AN[ci, 2, e] = T[5, e]
+                AC[ci, e] = T[6, e] != 0.0
+                SL[ci, e] = T[7, e] != 0.0
+            for e in range(E):
+                EX[node, 0, e] += T[0, e]
+                EX[node, 1, e] += T[1, e]
+                EX[node, 2, e] += T[2, e]
 
 
 @njit(inline="always", **_opts)
