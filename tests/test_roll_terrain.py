@@ -9,7 +9,8 @@ import tensegrity_gym  # noqa: F401
 from tensegrity_gym.core.terrain import Box, Plane, Terrain
 from tensegrity_gym.envs.roll import RollTask, TensegrityRollVectorEnv
 from tensegrity_gym.physics import terrain as T
-from tensegrity_gym.tasks.terrain import TerrainGenerator, drawn_values, generate, rough_axis, terrain_draws
+from tensegrity_gym.tasks.terrain import (TerrainGenerator, drawn_values, generate, rod_end_contacts, rough_axis,
+                                          terrain_draws)
 
 STEPS = {"generator": "steps", "step_height": 0.04, "n_steps": 3}
 
@@ -182,3 +183,17 @@ def test_randomized_friction_reaches_every_terrain_part():
     task.reset(np.arange(2), [np.random.default_rng(i) for i in range(2)])
     mu = task.terrain_prm[..., T.PRM_FIELDS.index("friction")]
     assert np.all(mu == mu[:, :1]) and mu[0, 0] != mu[1, 0]
+
+
+@pytest.mark.parametrize("B, n_bars, parts", [(1, 3, 1), (16, 6, 1), (5, 3, 2), (4, 6, 3)])
+def test_rod_end_contacts_are_the_end_slots_of_any_part(B, n_bars, parts):
+    """The rod ends' flags (what the observation reports) from the terrain's slot flags, per rod
+    and part (end a, end c, interior): an end touches where its slot of some part does; in
+    place into ``out`` and as a new array alike."""
+    from tensegrity_gym.tasks.terrain import rod_end_contacts
+    slots = np.random.default_rng(B).random((B, 3 * n_bars * parts)) < 0.4
+    want = slots.reshape(B, n_bars, parts, 3)[..., :2].any(axis=2).reshape(B, 2 * n_bars)
+    out = np.zeros((B, 2 * n_bars), bool)
+    assert rod_end_contacts(slots, n_bars, out=out) is out
+    assert np.array_equal(out, want)
+    assert np.array_equal(rod_end_contacts(slots, n_bars), want)

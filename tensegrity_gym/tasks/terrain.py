@@ -256,6 +256,14 @@ def start_lift(terrain: Terrain, nodes: np.ndarray, radius: float) -> np.ndarray
     return np.maximum(-gap.min(axis=-1), 0.0)
 
 
+@functools.lru_cache(maxsize=8)
+def _end_slots(n_bars: int) -> np.ndarray:
+    """The columns (2 k,) of the rod ends' slots in one terrain part's slot flags (3 k,)."""
+    idx = (3 * np.arange(n_bars)[:, None] + np.arange(2)).reshape(-1)
+    idx.setflags(write=False)
+    return idx
+
+
 def rod_end_contacts(slots, n_bars: int, out=None):
     """(B, 2 k) bool contact flags of the rod ends (rod i's ends at 2 i, 2 i + 1), what the
     observation reports, from the terrain contact's slot flags ``slots`` (B, 3 k F) bool (per
@@ -265,8 +273,9 @@ def rod_end_contacts(slots, n_bars: int, out=None):
     B = slots.shape[0]
     if out is None:
         return namespace(slots).any(slots.reshape(B, n_bars, -1, 3)[..., :2], 2).reshape(B, 2 * n_bars)
-    if slots.shape[1] == 3 * n_bars:    # one terrain part
-        out.reshape(B, n_bars, 2)[...] = slots.reshape(B, n_bars, 3)[:, :, :2]
+    if slots.shape[1] == 3 * n_bars:    # one terrain part: its end slots, one gather into out
+        # (mode "clip": the indices are in range; the default mode copies through a buffer)
+        slots.take(_end_slots(n_bars), axis=1, out=out, mode="clip")
     else:
         np.logical_or.reduce(slots.reshape(B, n_bars, -1, 3)[..., :2], axis=2, out=out.reshape(B, n_bars, 2))
     return out
