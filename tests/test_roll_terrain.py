@@ -190,7 +190,6 @@ def test_rod_end_contacts_are_the_end_slots_of_any_part(B, n_bars, parts):
     """The rod ends' flags (what the observation reports) from the terrain's slot flags, per rod
     and part (end a, end c, interior): an end touches where its slot of some part does; in
     place into ``out`` and as a new array alike."""
-    from tensegrity_gym.tasks.terrain import rod_end_contacts
     slots = np.random.default_rng(B).random((B, 3 * n_bars * parts)) < 0.4
     want = slots.reshape(B, n_bars, parts, 3)[..., :2].any(axis=2).reshape(B, 2 * n_bars)
     out = np.zeros((B, 2 * n_bars), bool)

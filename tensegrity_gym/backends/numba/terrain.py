@@ -794,8 +794,8 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
     it). The node slots' state in lane scratch (AN, AC, SL of :func:`slots_load`), ``LAM``
     (2 + 8 k, E) the lanes' slope bounds in rows 0 and 1 (:func:`hf_lam_load`); the interior
     slot, which a rod needs only where its gap is not monotone along it, in the copies' state
-    (:func:`hf_interior_slot`). The
-    same arithmetic in the same order as :func:`rows_forces`, so the same bits, without its
+    (:func:`hf_interior_slot`). The same arithmetic in the same order as :func:`rows_forces`,
+    so the same bits, without its
     per-copy bookkeeping of the node slots, its loop over features and, where the gap is
     monotone along a rod, the upper end's height lookup when the rise of the gap along the rod
     keeps that end clear.
