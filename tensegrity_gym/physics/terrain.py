@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..backends.numba.api import _frozen as read_only   # the kernels take read-only arrays
+from ..backends.numba.heightfield import hf_lipschitz
 from ..backends.numba.terrain import BOX, HFIELD, PLANE, terrain_forces_kernel
 from ..backends.numba.terrain_steps import terrain_steps
 from ..core.checks import check_positive
@@ -135,7 +136,7 @@ class TerrainContact:
                 row[3] = part.cell
                 row[4:6] = part.heights.shape
                 row[6] = hf_bound(part.heights, part.cell)
-                hf = np.ascontiguousarray(part.heights, dtype=np.float64)[None].copy()
+                hf = part.heights[None]             # read-only, as the Heightfield's own
             geom.append(row)
             mu, k, d = self.terrain.surface(part)
             kt = k if self.tangential_stiffness is None else self.tangential_stiffness
@@ -346,11 +347,12 @@ def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str,
 def hf_bound(heights: np.ndarray, cell: float) -> float:
     """``sqrt(1 + L^2)``, L bounding the slope of the bilinear heightfield ``heights`` (ny, nx) m on
     a grid of ``cell`` m (largest step along x and along y over the cell): column 6 of its geom row,
-    the bound of the kernel's "too far to touch" test (as the kernel's ``hf_lipschitz``)."""
-    h = np.asarray(heights, float)
-    mx = float(np.abs(np.diff(h, axis=1)).max(initial=0.0))
-    my = float(np.abs(np.diff(h, axis=0)).max(initial=0.0))
-    return math.sqrt(1.0 + (mx * mx + my * my) / (cell * cell))
+    the bound of the kernel's "too far to touch" test (the kernel's own ``hf_lipschitz``, one
+    pass over the heights)."""
+    h = np.ascontiguousarray(heights, dtype=np.float64)
+    row = np.zeros(10)
+    row[0], row[3], row[4], row[5] = HFIELD, cell, h.shape[0], h.shape[1]
+    return float(hf_lipschitz(row, h))
 
 
 def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: TerrainState,
