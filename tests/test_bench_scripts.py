@@ -34,3 +34,14 @@ def test_bench_navigate_reset_runs(tmp_path):
     assert "| draw and plan a course |" in r.stdout and out.exists()
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert r.returncode == 2 and "exists" in r.stderr           # a result is not overwritten
+
+
+def test_bench_rough_reset_runs(tmp_path):
+    out = tmp_path / "r.json"
+    cmd = [sys.executable, str(ROOT / "scripts" / "bench_rough_reset.py"), "--repeats", "1", "--json", str(out)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "| heights (drawn_values) |" in r.stdout and "| contact arrays (TerrainContact) |" in r.stdout
+    assert out.exists()
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert r.returncode == 2 and "exists" in r.stderr           # a result is not overwritten
