@@ -50,7 +50,10 @@ def main(argv=None) -> int:
     if a.json and os.path.exists(a.json):
         ap.error(f"--json {a.json}: exists; give a new file")
     cfg = {"generator": "rough", "amplitude": a.amplitude, "pad": 0.0}
-    gen = TerrainGenerator.from_dict(cfg)
+    try:
+        gen = TerrainGenerator.from_dict(cfg)
+    except ValueError as e:
+        ap.error(f"--amplitude: {e}")
     rng = np.random.default_rng(0)
     u = rng.random((1, terrain_draws(gen)))
     terrain = generate(gen, rng)
