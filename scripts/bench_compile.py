@@ -9,8 +9,8 @@ Each measurement runs in its own process with ``NUMBA_CACHE_DIR`` set to a new e
 nothing is loaded from the cache of this checkout; the time includes importing the package. The
 kernels are those numba compiled at the top level (the time of each includes the functions it
 compiled inside it); ``--own N`` also prints the N functions that took longest to compile by
-themselves (without the functions they compiled inside them). Run it on an otherwise idle machine: the compile is CPU-bound and a loaded
-core stretches it.
+themselves (without the functions they compiled inside them). Run it on an otherwise idle
+machine: the compile is CPU-bound and a loaded core stretches it.
 """
 from __future__ import annotations
 
