@@ -139,6 +139,9 @@ def test_heightfield_slope_bound_is_the_kernels_own(prism):
     tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights=h, cell=0.05, origin=[-0.75, -0.75])))
     k = int(np.flatnonzero(tc.geom[0, :, 0] == 2.0)[0])
     assert tc.geom[0, k, 6] == hf_bound(h, 0.05) > 1.0
+    # the bound's definition: the largest grid step along x and along y over the cell
+    mx, my = np.abs(np.diff(h, axis=1)).max(), np.abs(np.diff(h, axis=0)).max()
+    assert hf_bound(h, 0.05) == pytest.approx(np.sqrt(1.0 + (mx * mx + my * my) / 0.05 ** 2), rel=1e-15)
     cleared = tc.geom.copy()
     cleared[0, k, 6] = 0.0
     B = 4
