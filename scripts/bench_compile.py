@@ -91,8 +91,8 @@ def main(argv=None) -> int:
         print(f"\n| env | the {args.own} longest compiles of their own (s) |\n|---|---|")
         for env_id, runs in out["runs"].items():
             for r in runs:
-                top = sorted(r["own_s"].items(), key=lambda kv: -kv[1])[:args.own]
-                print(f"| {env_id} | " + ", ".join(f"{k} {v:.1f}" for k, v in top) + " |")
+                longest = sorted(r["own_s"].items(), key=lambda kv: -kv[1])[:args.own]
+                print(f"| {env_id} | " + ", ".join(f"{k} {v:.1f}" for k, v in longest) + " |")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)
