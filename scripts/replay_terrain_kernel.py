@@ -11,7 +11,8 @@ with ``--threads`` the threaded kernel and the one-thread kernel on the same cal
 ``--save`` keeps the recorded calls and ``--load`` replays them, so that versions of the kernel
 are timed on the very same calls (a version's own run records slightly different ones).
 
-Scenes: those of ``scripts/bench_terrain.py`` (``slope``, ``steps``, ``rough``; ``navigate`` is
+Scenes: those of ``scripts/bench_terrain.py`` (``slope``, ``steps``, ``rough``, ``steps-under``: the
+steps under the robot, where the boxes' search along the rods runs; ``navigate`` is
 ``TensegrityNavigate-v0``). The env's resets (their settling steps) are not recorded. The first
 replay includes nothing to compile (the env run compiled the kernels); the minimum and median
 over ``--replays`` are printed: the environment's env-steps/s are ``bench_terrain.py``'s.
@@ -31,6 +32,7 @@ from tensegrity_gym.backends.numba import terrain_steps as TS
 
 SCENES = {"slope": ("TensegrityRoll-v0", {"terrain": {"plane": {"slope_deg": 20.0}}}),
           "steps": ("TensegrityRoll-v0", {"terrain": {"generator": "steps"}}),
+          "steps-under": ("TensegrityRoll-v0", {"terrain": {"generator": "steps", "pad": 0.05, "tread": 0.2}}),
           "rough": ("TensegrityRoll-v0", {"terrain": {"generator": "rough", "amplitude": 0.02, "pad": 0.0}}),
           "navigate": ("TensegrityNavigate-v0", {})}
 KERNELS = ("terrain_loop", "terrain_loop_simd", "terrain_parallel")

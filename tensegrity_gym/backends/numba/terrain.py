@@ -137,7 +137,10 @@ def _sd_at(e, r0, r1, r2, b0, b1, b2, g, H):
     return _box_closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g)[0]
 
 
-@njit(inline="always", **_opts)
+# compiled on its own and called once per rod near a box (without reference counting, as
+# rows_forces): inlined, its nine copies of the box distance (seven in the golden-section search,
+# one in each bisection) made half of rows_forces' cold compile
+@njit(_nrt=False, **_opts)
 def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
     """The interior contact point of a rod segment [ea, ec] against the box ``g``: the signed
     distance is convex along the segment (the box is convex), so a golden-section search over
