@@ -170,22 +170,18 @@ def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
     if not (fm < min(fa, fc) - LEVEL_TOL):
         return em, False
     level = fm + LEVEL_TOL
-    left = _level_edge(ea, em, level, r0, r1, r2, b0, b1, b2, g, H)     # f(ea) > level >= f(em)
-    right = _level_edge(ec, em, level, r0, r1, r2, b0, b1, b2, g, H)    # f(ec) > level >= f(em)
-    return 0.5 * (left + right), True
-
-
-@njit(inline="always", **_opts)
-def _level_edge(out, inside, level, r0, r1, r2, b0, b1, b2, g, H):
-    """Bisection for where the signed distance crosses ``level`` between ``out`` (above it) and
-    ``inside`` (at or below it): the point of the bracket's ``inside`` end after GOLDEN_ITERS halvings."""
+    # the level's crossings on both sides, f(ea) > level >= f(em) and f(ec) > level >= f(em): two
+    # bisections of GOLDEN_ITERS halvings each, in one loop, so that their independent chains of
+    # distances overlap (the same halvings, so the same points, as one after the other)
+    a_out, a_in, c_out, c_in = ea, em, ec, em
     for _ in range(GOLDEN_ITERS):
-        mid = 0.5 * (out + inside)
-        if _sd_at(mid, r0, r1, r2, b0, b1, b2, g, H) > level:
-            out = mid
-        else:
-            inside = mid
-    return inside
+        ma = 0.5 * (a_out + a_in)
+        mc = 0.5 * (c_out + c_in)
+        above_a = _sd_at(ma, r0, r1, r2, b0, b1, b2, g, H) > level
+        above_c = _sd_at(mc, r0, r1, r2, b0, b1, b2, g, H) > level
+        a_out, a_in = (ma, a_in) if above_a else (a_out, ma)
+        c_out, c_in = (mc, c_in) if above_c else (c_out, mc)
+    return 0.5 * (a_in + c_in), True
 
 
 @njit(inline="always", **_opts)
