@@ -644,6 +644,55 @@ def test_monotone_rod_has_no_interior_point():
         assert hf_monotone(*b, lam) == (not deeper), f
 
 
+def test_box_bound_passes_over_only_rods_without_an_interior_contact():
+    """The box interior slot's lower bound (``_box_dip_bound``, from the ends' distances and
+    normals) is below the box's signed distance all along the rod (4001 samples), and where it
+    lets the kernel pass over the search the full search finds no point that touches (deeper
+    than both ends and below the cap radius); rods around yawed boxes, many passed over and
+    many with an interior contact. With the bound the kernel's forces and contact state equal
+    those of the full search at every rod (``info=True`` searches every rod near a box)."""
+    from tensegrity_gym.backends.numba.heightfield import LEVEL_TOL
+    from tensegrity_gym.backends.numba.terrain import _BOUND_SLACK, _box_closest, _box_dip_bound, _interior
+    rng = np.random.default_rng(11)
+    radius, H = 0.02, np.zeros((1, 1))
+    ea, ec = -0.2, 0.2
+    n_skip = n_touch = 0
+    for _ in range(3000):
+        box = Box(rng.uniform(-0.1, 0.1, 3), rng.uniform(0.05, 0.4, 3), yaw_deg=rng.uniform(-180.0, 180.0))
+        g = T.TerrainContact(Terrain(plane=None, boxes=[box])).geom[0, 0]
+        b = rng.normal(size=3)
+        b /= np.linalg.norm(b)
+        r = np.asarray(box.center) + rng.uniform(-0.35, 0.35, 3)
+        sd = np.array([_box_closest(*(r + e * b), g)[0] for e in np.linspace(ea, ec, 4001)])
+        (fa, *na), (fc, *nc) = (_box_closest(*(r + e * b), g) for e in (ea, ec))
+        bound = _box_dip_bound(fa, float(np.dot(na, b)), fc, float(np.dot(nc, b)), ec - ea)
+        assert bound <= sd.min() + 1e-12, (r, b, box)
+        e, deeper = _interior(ea, ec, *r, *b, g, H)
+        touch = deeper and _box_closest(*(r + e * b), g)[0] < min(radius, fa, fc)
+        if bound > min(radius, min(fa, fc) - LEVEL_TOL) + _BOUND_SLACK:
+            assert not touch, (r, b, box)
+            n_skip += 1
+        n_touch += touch
+    assert n_skip > 1000 and n_touch > 100, (n_skip, n_touch)
+    m = prism(lift=0.0)
+    tc = T.TerrainContact(Terrain(plane=Plane(0.0), boxes=[Box([0.25, 0.0, 0.03], [0.4, 1.0, 0.06], yaw_deg=20.0),
+                                                           Box([-0.2, 0.1, 0.05], [0.2, 0.2, 0.1])],
+                                  friction=0.4, damping=5.0), max_damping=40.0)
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        q, qd = random_states(m, 200, rng)
+        q[..., 0] = rng.uniform(-0.3, 0.4, q.shape[:2])
+        q[..., 2] = rng.uniform(0.0, 0.15, q.shape[:2])
+        q[..., 3:] /= np.linalg.norm(q[..., 3:], axis=-1, keepdims=True)
+        ts = random_tstate(tc, m, 200, rng)
+        W, ts1, sl1 = T.contact_forces(tc, m, q, qd, ts)
+        Wi, ts2, sl2, _ = T.contact_forces(tc, m, q, qd, ts, info=True)
+        assert ts1.active.reshape(200, m.n_bars, -1, 3)[..., 1:, 2].sum() > 10
+        assert np.array_equal(W, Wi) and np.array_equal(sl1, sl2)
+        for a, b_ in zip((ts1.anchor, ts1.eta0, ts1.active), (ts2.anchor, ts2.eta0, ts2.active)):
+            assert np.array_equal(a, b_)
+
+
 def test_heightfield_bad_hf_is_named():
     m, tc, q, qd, ts = random_hf_scene(B=3)
     with pytest.raises(ValueError, match=r"hf: expected shape \(1, 13, 15\) or \(3, 13, 15\).*got \(3, 14, 15\)"):

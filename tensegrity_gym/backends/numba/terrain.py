@@ -184,6 +184,29 @@ def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
     return 0.5 * (a_in + c_in), True
 
 
+#: slack m of the box interior slot's lower bound (:func:`_box_dip_bound`): above the rounding of
+#: the distances and the bound (about 1e-15 of the coordinates), far below ``LEVEL_TOL``
+_BOUND_SLACK = 1e-9
+
+
+@njit(inline="always", **_opts)
+def _box_dip_bound(fa, sa, fc, sc, span):
+    """A lower bound m of a box's signed distance along a rod segment from its ends' distances
+    ``fa``, ``fc`` m and the distance's slopes along the rod there, ``sa = n_a . b`` and ``sc =
+    n_c . b`` (n the ends' normals, b the rod's direction per unit eta), ``span = eta_c - eta_a >
+    0`` m: the distance is convex (the box is convex) and an end's normal is a subgradient of it
+    (outside the box its gradient, inside the normal of a nearest face, whose plane's signed
+    distance is below the box's everywhere), so the distance lies above both ends' tangent lines,
+    and the least of their upper envelope over the segment is a lower bound (an end's distance
+    where its slope leads away from the box: the minimum is at that end)."""
+    if sa >= 0.0:
+        return fa
+    if sc <= 0.0:
+        return fc
+    u = min(max((fa - fc + sc * span) / (sc - sa), 0.0), span)
+    return max(fa + sa * u, fc + sc * (u - span))
+
+
 @njit(inline="always", **_opts)
 def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, w, ax, ay, az, was_active,
                 radius, kn, dn, ex, mu, kt, ct, cmax):
@@ -484,7 +507,16 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                             hf_interior_slot(c, ci, r, j, Q, QD, Wc, ea, ec, em, ends, g, H, pr, mono, has_info,
                                              anchor, eta0, active, slip, info, rod_a, rod_c)
                         else:
-                            e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+                            # the search only where the bound lets the interior point touch: deeper
+                            # than both ends by LEVEL_TOL and below the level min(radius, sd_a, sd_c)
+                            # (elsewhere its point is not used: the slot is released as after the
+                            # search, the same numbers; info reports the searched point)
+                            e, use = em, False
+                            if has_info or not span > 0.0 or not (
+                                    _box_dip_bound(sd_a, na0 * b0 + na1 * b1 + na2 * b2,
+                                                   sd_c, nc0 * b0 + nc1 * b1 + nc2 * b2, span)
+                                    > min(radius, min(sd_a, sd_c) - LEVEL_TOL) + _BOUND_SLACK):
+                                e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
                             sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
                             if use:
                                 sd, nx, ny, nz, w = _closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g, H)
