@@ -21,16 +21,15 @@ run on the same machine, over ``--env-steps`` steps after a reset (the physics o
 resets once within the timed steps (what training pays: a drawn terrain is made at each reset);
 ``--repeats R`` times every scene in each of R rounds and gives the median rate per scene (one
 episode at 16 copies takes about 0.1 s: single runs scatter by about 10 %).
-Scenes: a 20-degree slope (a plane), steps (the ``steps`` generator: 4 boxes), rough ground (the
-``rough`` generator with no level pad: a 12 m heightfield of 2 cm bumps over the whole floor, the
-robot on bumps from the start) and ``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the
-planner).
+Scenes: a 20-degree slope (a plane), steps (the ``steps`` generator: 4 boxes; the robot starts
+on its level pad), steps whose first edge is under the robot (``pad`` 0.05 m, ``tread`` 0.2 m:
+the boxes next to the rods from the start), rough ground (the ``rough`` generator with no level
+pad: a 12 m heightfield of 2 cm bumps over the whole floor, the robot on bumps from the start)
+and ``TensegrityNavigate-v0`` (5 walls, 2 rough patches, the planner).
 
 Torch env table (``--torch-envs``): the same scenes on the torch device
 vector env (``backend="torch"``; CPU, float64, one torch thread unless ``--torch-device`` /
-``--torch-dtype`` say otherwise), plus steps whose first edge is
-under the robot (``pad`` 0.05 m, ``tread`` 0.2 m: the boxes next to the rods, their search along
-the rods running); env-steps/s, milliseconds per control step, the cost against flat ground
+``--torch-dtype`` say otherwise); env-steps/s, milliseconds per control step, the cost against flat ground
 (flat's rate over the scene's, in the same table) and the warm-up of two steps (s). With
 ``--torch-compile`` the same with ``compile=True`` (``torch.compile`` of the terrain's physics
 step; the warm-up is its compile, shorter in a second run from inductor's cache on disk), with
@@ -75,6 +74,8 @@ def timed(fn, steps):
 ENV_SCENES = {"flat": ("TensegrityRoll-v0", {}),
               "slope 20 deg": ("TensegrityRoll-v0", {"terrain": {"plane": {"slope_deg": 20.0}}}),
               "steps (4 boxes)": ("TensegrityRoll-v0", {"terrain": {"generator": "steps"}}),
+              "steps under the robot": ("TensegrityRoll-v0",
+                                        {"terrain": {"generator": "steps", "pad": 0.05, "tread": 0.2}}),
               "rough 2 cm (heightfield)": ("TensegrityRoll-v0", {"terrain": {"generator": "rough", "amplitude": 0.02,
                                                                                  "pad": 0.0}}),
               "navigate (5 walls, 2 patches)": ("TensegrityNavigate-v0", {})}
@@ -97,9 +98,6 @@ def env_rate(env_id: str, kwargs: dict, n: int, steps: int) -> float:
     return rate
 
 
-TORCH_ENV_SCENES = {**ENV_SCENES,
-                    "steps under the robot": ("TensegrityRoll-v0",
-                                              {"terrain": {"generator": "steps", "pad": 0.05, "tread": 0.2}})}
 
 
 def torch_env_rate(env_id: str, kwargs: dict, n: int, steps: int, compile: bool = False, device: str = "cpu",
@@ -133,13 +131,13 @@ def torch_env_table(ns, steps: int, compile: bool = False, device: str = "cpu", 
     ``compile`` also ``compile=True`` and its warm-up, with ``cuda_graph`` also ``compile=True,
     cuda_graph=True``; each table with the scene's cost against flat ground's (``cost/flat``:
     flat's rate over the scene's, when flat is measured); ``scenes`` a subset of
-    ``TORCH_ENV_SCENES``'s names (default all). Returns the eager rates alone when that is all
+    ``ENV_SCENES``'s names (default all). Returns the eager rates alone when that is all
     that ran, else ``{mode: rates, mode + "_warmup_s": ...}`` (``compile_warmup_s`` for
     ``compiled``)."""
     import torch
     if torch.device(device).type == "cpu":
         torch.set_num_threads(1)
-    chosen = {k: TORCH_ENV_SCENES[k] for k in (scenes or TORCH_ENV_SCENES)}
+    chosen = {k: ENV_SCENES[k] for k in (scenes or ENV_SCENES)}
     modes = ([("eager", {})] if eager else []) + ([("compiled", {"compile": True})] if compile else []) + (
         [("cuda_graph", {"compile": True, "cuda_graph": True})] if cuda_graph else [])
     out = {}
@@ -233,7 +231,7 @@ def main():
     ap.add_argument("--torch-device", default="cpu", help="device of the torch env table (default cpu; cuda)")
     ap.add_argument("--torch-dtype", default="float64", choices=["float32", "float64"],
                     help="dtype of the torch env table (default float64)")
-    ap.add_argument("--torch-scenes", nargs="+", default=None, choices=list(TORCH_ENV_SCENES),
+    ap.add_argument("--torch-scenes", nargs="+", default=None, choices=list(ENV_SCENES),
                     help="only these scenes in the torch env table (default all)")
     ap.add_argument("--torch-env-steps", type=int, default=10)
     ap.add_argument("--torch-compile", action="store_true",

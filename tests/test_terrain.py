@@ -646,17 +646,18 @@ def test_monotone_rod_has_no_interior_point():
 
 def test_box_bound_passes_over_only_rods_without_an_interior_contact():
     """The box interior slot's lower bound (``_box_dip_bound``, from the ends' distances and
-    normals) is below the box's signed distance all along the rod (4001 samples), and where it
-    lets the kernel pass over the search the full search finds no point that touches (deeper
-    than both ends and below the cap radius); rods around yawed boxes, many passed over and
-    many with an interior contact. With the bound the kernel's forces and contact state equal
-    those of the full search at every rod (``info=True`` searches every rod near a box)."""
+    normals and up to two cutting-plane steps) is below the box's signed distance all along the
+    rod (4001 samples), and where it lets the kernel pass over the search the full search finds
+    no point that touches (deeper than both ends and below the cap radius); rods around yawed
+    boxes, many passed over and many with an interior contact. With the bound the kernel's
+    forces and contact state equal those of the full search at every rod (``info=True``
+    searches every rod near a box)."""
     from tensegrity_gym.backends.numba.heightfield import LEVEL_TOL
     from tensegrity_gym.backends.numba.terrain import _BOUND_SLACK, _box_closest, _box_dip_bound, _interior
     rng = np.random.default_rng(11)
     radius, H = 0.02, np.zeros((1, 1))
     ea, ec = -0.2, 0.2
-    n_skip = n_touch = 0
+    n_skip = n_cut = n_touch = 0
     for _ in range(3000):
         box = Box(rng.uniform(-0.1, 0.1, 3), rng.uniform(0.05, 0.4, 3), yaw_deg=rng.uniform(-180.0, 180.0))
         g = T.TerrainContact(Terrain(plane=None, boxes=[box])).geom[0, 0]
@@ -665,15 +666,19 @@ def test_box_bound_passes_over_only_rods_without_an_interior_contact():
         r = np.asarray(box.center) + rng.uniform(-0.35, 0.35, 3)
         sd = np.array([_box_closest(*(r + e * b), g)[0] for e in np.linspace(ea, ec, 4001)])
         (fa, *na), (fc, *nc) = (_box_closest(*(r + e * b), g) for e in (ea, ec))
-        bound = _box_dip_bound(fa, float(np.dot(na, b)), fc, float(np.dot(nc, b)), ec - ea)
+        level = min(radius, min(fa, fc) - LEVEL_TOL) + _BOUND_SLACK
+        bound = _box_dip_bound(fa, float(np.dot(na, b)), fc, float(np.dot(nc, b)), ea, ec - ea, *r, *b, g, level)
+        if bound == -math.inf:                      # a point at or below the level was found
+            assert sd.min() <= level + 1e-12, (r, b, box)
         assert bound <= sd.min() + 1e-12, (r, b, box)
         e, deeper = _interior(ea, ec, *r, *b, g, H)
         touch = deeper and _box_closest(*(r + e * b), g)[0] < min(radius, fa, fc)
-        if bound > min(radius, min(fa, fc) - LEVEL_TOL) + _BOUND_SLACK:
+        if bound > level:
             assert not touch, (r, b, box)
             n_skip += 1
+            n_cut += not (np.dot(na, b) >= 0.0 or np.dot(nc, b) <= 0.0)
         n_touch += touch
-    assert n_skip > 1000 and n_touch > 100, (n_skip, n_touch)
+    assert n_skip > 1000 and n_cut > 50 and n_touch > 100, (n_skip, n_cut, n_touch)
     m = prism(lift=0.0)
     tc = T.TerrainContact(Terrain(plane=Plane(0.0), boxes=[Box([0.25, 0.0, 0.03], [0.4, 1.0, 0.06], yaw_deg=20.0),
                                                            Box([-0.2, 0.1, 0.05], [0.2, 0.2, 0.1])],

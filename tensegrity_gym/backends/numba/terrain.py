@@ -187,24 +187,44 @@ def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
 #: slack m of the box interior slot's lower bound (:func:`_box_dip_bound`): above the rounding of
 #: the distances and the bound (about 1e-15 of the coordinates), far below ``LEVEL_TOL``
 _BOUND_SLACK = 1e-9
+#: cutting-plane steps of that bound (each one box distance)
+BOUND_CUTS = 2
 
 
 @njit(inline="always", **_opts)
-def _box_dip_bound(fa, sa, fc, sc, span):
-    """A lower bound m of a box's signed distance along a rod segment from its ends' distances
-    ``fa``, ``fc`` m and the distance's slopes along the rod there, ``sa = n_a . b`` and ``sc =
-    n_c . b`` (n the ends' normals, b the rod's direction per unit eta), ``span = eta_c - eta_a >
-    0`` m: the distance is convex (the box is convex) and an end's normal is a subgradient of it
-    (outside the box its gradient, inside the normal of a nearest face, whose plane's signed
-    distance is below the box's everywhere), so the distance lies above both ends' tangent lines,
-    and the least of their upper envelope over the segment is a lower bound (an end's distance
-    where its slope leads away from the box: the minimum is at that end)."""
+def _box_dip_bound(fa, sa, fc, sc, ea, span, r0, r1, r2, b0, b1, b2, g, level):
+    """A lower bound m of the box ``g``'s signed distance along the rod segment ``r + eta b``,
+    eta in [ea, ea + span] (span > 0), from its ends' distances ``fa``, ``fc`` m and slopes
+    along the rod ``sa = n_a . b``, ``sc = n_c . b`` (n the ends' normals), or -inf once a point
+    of the segment at or below ``level`` m is found (no bound above it). The distance is convex
+    (the box is convex) and a point's normal is a subgradient of it (outside the box its
+    gradient; inside the normal of a nearest face, whose plane's signed distance is below the
+    box's everywhere), so it lies above every tangent line: where an end's slope leads away from
+    the box the minimum is at that end; else it lies between a point of negative and one of
+    positive slope, above the upper envelope of their two lines, whose least value is the bound.
+    While the bound is not above ``level``, up to :data:`BOUND_CUTS` times the distance at that
+    least point replaces the bracket's end on its side (a cutting-plane step)."""
     if sa >= 0.0:
         return fa
     if sc <= 0.0:
         return fc
-    u = min(max((fa - fc + sc * span) / (sc - sa), 0.0), span)
-    return max(fa + sa * u, fc + sc * (u - span))
+    ul, fl, sl, ur, fr, sr = 0.0, fa, sa, span, fc, sc
+    bound = -math.inf
+    for it in range(BOUND_CUTS + 1):
+        u = min(max((fl - fr + sr * ur - sl * ul) / (sr - sl), ul), ur)
+        bound = max(fl + sl * (u - ul), fr + sr * (u - ur))
+        if bound > level or it == BOUND_CUTS:
+            break
+        e = ea + u
+        fm, n0, n1, n2 = _box_closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g)
+        if fm <= level:
+            return -math.inf
+        sm = n0 * b0 + n1 * b1 + n2 * b2
+        if sm >= 0.0:
+            ur, fr, sr = u, fm, sm
+        else:
+            ul, fl, sl = u, fm, sm
+    return bound
 
 
 @njit(inline="always", **_opts)
@@ -508,15 +528,20 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                                              anchor, eta0, active, slip, info, rod_a, rod_c)
                         else:
                             # the search only where the bound lets the interior point touch: deeper
-                            # than both ends by LEVEL_TOL and below the level min(radius, sd_a, sd_c)
-                            # (elsewhere its point is not used: the slot is released as after the
-                            # search, the same numbers; info reports the searched point)
-                            e, use = em, False
-                            if has_info or not span > 0.0 or not (
-                                    _box_dip_bound(sd_a, na0 * b0 + na1 * b1 + na2 * b2,
-                                                   sd_c, nc0 * b0 + nc1 * b1 + nc2 * b2, span)
-                                    > min(radius, min(sd_a, sd_c) - LEVEL_TOL) + _BOUND_SLACK):
-                                e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
+                            # than both ends by LEVEL_TOL and below min(radius, sd_a, sd_c); elsewhere
+                            # the slot is released as after the search (the same numbers; info
+                            # reports the searched point)
+                            level = min(radius, min(sd_a, sd_c) - LEVEL_TOL) + _BOUND_SLACK
+                            if (not has_info and span > 0.0
+                                    and _box_dip_bound(sd_a, na0 * b0 + na1 * b1 + na2 * b2,
+                                                       sd_c, nc0 * b0 + nc1 * b1 + nc2 * b2,
+                                                       ea, span, r0, r1, r2, b0, b1, b2, g, level) > level):
+                                if not active[c, ci]:
+                                    eta0[c, ci] = em
+                                active[c, ci] = False
+                                slip[c, ci] = False
+                                continue
+                            e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
                             sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
                             if use:
                                 sd, nx, ny, nz, w = _closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, g, H)
