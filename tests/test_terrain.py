@@ -653,7 +653,7 @@ def test_box_bound_passes_over_only_rods_without_an_interior_contact():
     forces and contact state equal those of the full search at every rod (``info=True``
     searches every rod near a box)."""
     from tensegrity_gym.backends.numba.heightfield import LEVEL_TOL
-    from tensegrity_gym.backends.numba.terrain import _BOUND_SLACK, _box_closest, _box_dip_bound, _interior
+    from tensegrity_gym.backends.numba.terrain import BOUND_SLACK, _box_closest, _box_dip_bound, _interior
     rng = np.random.default_rng(11)
     radius, H = 0.02, np.zeros((1, 1))
     ea, ec = -0.2, 0.2
@@ -666,7 +666,7 @@ def test_box_bound_passes_over_only_rods_without_an_interior_contact():
         r = np.asarray(box.center) + rng.uniform(-0.35, 0.35, 3)
         sd = np.array([_box_closest(*(r + e * b), g)[0] for e in np.linspace(ea, ec, 4001)])
         (fa, *na), (fc, *nc) = (_box_closest(*(r + e * b), g) for e in (ea, ec))
-        level = min(radius, min(fa, fc) - LEVEL_TOL) + _BOUND_SLACK
+        level = min(radius, min(fa, fc) - LEVEL_TOL) + BOUND_SLACK
         bound = _box_dip_bound(fa, float(np.dot(na, b)), fc, float(np.dot(nc, b)), ea, ec - ea, *r, *b, g, level)
         if bound == -math.inf:                      # a point at or below the level was found
             assert sd.min() <= level + 1e-12, (r, b, box)

@@ -186,7 +186,7 @@ def _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H):
 
 #: slack m of the box interior slot's lower bound (:func:`_box_dip_bound`): above the rounding of
 #: the distances and the bound (about 1e-15 of the coordinates), far below ``LEVEL_TOL``
-_BOUND_SLACK = 1e-9
+BOUND_SLACK = 1e-9
 #: cutting-plane steps of that bound (each one box distance)
 BOUND_CUTS = 2
 
@@ -531,7 +531,7 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                             # than both ends by LEVEL_TOL and below min(radius, sd_a, sd_c); elsewhere
                             # the slot is released as after the search (the same numbers; info
                             # reports the searched point)
-                            level = min(radius, min(sd_a, sd_c) - LEVEL_TOL) + _BOUND_SLACK
+                            level = min(radius, min(sd_a, sd_c) - LEVEL_TOL) + BOUND_SLACK
                             if (not has_info and span > 0.0
                                     and _box_dip_bound(sd_a, na0 * b0 + na1 * b1 + na2 * b2,
                                                        sd_c, nc0 * b0 + nc1 * b1 + nc2 * b2,

@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..numba.terrain import BOX, GOLDEN_ITERS, HFIELD, LEVEL_TOL, PLANE
+from ..numba.terrain import BOUND_CUTS, BOUND_SLACK, BOX, GOLDEN_ITERS, HFIELD, LEVEL_TOL, PLANE
 from .driver import prepare_steps, step_once
 from .heightfield import hf_lipschitz, hf_lowest, hf_patch
 from .model import TorchModel, _torch, torch_model
@@ -283,6 +283,40 @@ def _prepare(geom, prm, hf, q, tm, layout=None):
     return geom, prm, H, lips, layout
 
 
+def _passed_over(ea, ec, r, b, part, radius):
+    """Where no interior point of a rod can touch the boxes ``part`` (B, k, f): the numba
+    ``_box_dip_bound`` on tensors (the ends' tangent lines of the convex distance and
+    ``BOUND_CUTS`` cutting-plane steps give a lower bound of the distance along the rod, above
+    ``min(radius, sd_a - LEVEL_TOL, sd_c - LEVEL_TOL)``: the search would find no point that
+    touches). ``ea``, ``ec`` (B, k, f), ``r``, ``b`` (B, k, 1, 3), ``radius`` (P, 1, f) m."""
+    torch = _torch()
+    r0, r1, r2, b0, b1, b2 = (x[..., i] for x in (r, b) for i in range(3))
+
+    def at(e):                                   # distance and slope along the rod at eta e
+        d, n0, n1, n2, _ = _closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, part)
+        return d, n0 * b0 + n1 * b1 + n2 * b2
+    fa, sa = at(ea)
+    fc, sc = at(ec)
+    level = torch.minimum(radius, torch.minimum(fa, fc) - LEVEL_TOL) + BOUND_SLACK
+    at_end = (sa >= 0.0) | (sc <= 0.0)
+    ul, fl, sl, ur, fr, sr = torch.zeros_like(fa), fa, sa, ec - ea, fc, sc
+    best = torch.full_like(fa, -math.inf)
+    found = torch.zeros_like(at_end)
+    for it in range(BOUND_CUTS + 1):
+        den = torch.where(at_end, torch.ones_like(sr), sr - sl)
+        u = torch.minimum(torch.maximum((fl - fr + sr * ur - sl * ul) / den, ul), ur)
+        best = torch.maximum(best, torch.maximum(fl + sl * (u - ul), fr + sr * (u - ur)))
+        if it == BOUND_CUTS:
+            break
+        fm, sm = at(ea + u)
+        found = found | (fm <= level)
+        right = sm >= 0.0
+        ur, fr, sr = torch.where(right, u, ur), torch.where(right, fm, fr), torch.where(right, sm, sr)
+        ul, fl, sl = torch.where(right, ul, u), torch.where(right, fl, fm), torch.where(right, sl, sm)
+    bound = torch.where(sa >= 0.0, fa, torch.where(sc <= 0.0, fc, best))
+    return (bound > level) & (at_end | ~found)
+
+
 def _slot_law(P, V, M, sd, n, w, level, was, an, pr, unit_exponent: bool):
     """The contact law of slots (..., s) at points P (..., s, 3) m moving at V m/s, the anchored
     material points M, contact measure ``sd`` m, outward unit normal n, gradient length w, the
@@ -400,6 +434,10 @@ def _forces(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0, active):
         kink = False
         if not compiling and bool(far.all()):
             # parts every rod is far from leave the interior slot unused (eager: one device read)
+            ei, deeper = ems, torch.zeros(shape, dtype=torch.bool, device=q.device)
+        elif not compiling and not hfield and bool((far | _passed_over(eas, ecs, R, Bv, part, radius)).all()):
+            # boxes no rod's interior point can touch: the search would leave the slot released
+            # (its point, not used, is the rod's middle here; eager: one more device read)
             ei, deeper = ems, torch.zeros(shape, dtype=torch.bool, device=q.device)
         elif hfield:
             ei, deeper, kgx, kgy = hf_lowest(eas, ecs, R, Bv, part)
