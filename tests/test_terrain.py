@@ -698,6 +698,37 @@ def test_box_bound_passes_over_only_rods_without_an_interior_contact():
             assert np.array_equal(a, b_)
 
 
+def test_torch_box_bound_is_the_numba_bound():
+    """The torch eager step's box bound (``_passed_over``, which lets it skip the search) passes
+    over the same rods as the numba kernel's ``_box_dip_bound``: 2000 random rods, each at its
+    own yawed box (per-copy geometry rows)."""
+    torch = pytest.importorskip("torch")
+    from tensegrity_gym.backends.numba.heightfield import LEVEL_TOL
+    from tensegrity_gym.backends.numba.terrain import BOUND_SLACK, _box_closest, _box_dip_bound
+    from tensegrity_gym.backends.torch.terrain import BOX, _Part, _passed_over
+    rng = np.random.default_rng(13)
+    n, radius, ea, ec = 2000, 0.02, -0.2, 0.2
+    geom = np.stack([T.TerrainContact(Terrain(plane=None, boxes=[Box(
+        rng.uniform(-0.1, 0.1, 3), rng.uniform(0.05, 0.4, 3), yaw_deg=rng.uniform(-180.0, 180.0))])).geom[0]
+        for _ in range(n)])                                                  # (n, 1, 10)
+    b = rng.normal(size=(n, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    r = geom[:, 0, 1:4] + rng.uniform(-0.35, 0.35, (n, 3))
+    want = np.empty(n, bool)
+    for i in range(n):
+        g = geom[i, 0]
+        (fa, *na), (fc, *nc) = (_box_closest(*(r[i] + e * b[i]), g) for e in (ea, ec))
+        level = min(radius, min(fa, fc) - LEVEL_TOL) + BOUND_SLACK
+        want[i] = _box_dip_bound(fa, float(np.dot(na, b[i])), fc, float(np.dot(nc, b[i])), ea, ec - ea,
+                                 *r[i], *b[i], g, level) > level
+    t = torch.as_tensor
+    e_a, e_c = t(np.full((n, 1, 1), ea)), t(np.full((n, 1, 1), ec))
+    got = _passed_over(e_a, e_c, t(r)[:, None, None, :], t(b)[:, None, None, :], _Part(t(geom), None, BOX),
+                       t(np.full((1, 1, 1), radius)))
+    assert want.sum() > 1000 and (~want).sum() > 100, want.sum()
+    np.testing.assert_array_equal(got.numpy()[:, 0, 0], want)
+
+
 def test_heightfield_bad_hf_is_named():
     m, tc, q, qd, ts = random_hf_scene(B=3)
     with pytest.raises(ValueError, match=r"hf: expected shape \(1, 13, 15\) or \(3, 13, 15\).*got \(3, 14, 15\)"):
