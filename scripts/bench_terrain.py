@@ -98,8 +98,6 @@ def env_rate(env_id: str, kwargs: dict, n: int, steps: int) -> float:
     return rate
 
 
-
-
 def torch_env_rate(env_id: str, kwargs: dict, n: int, steps: int, compile: bool = False, device: str = "cpu",
                    dtype: str = "float64", cuda_graph: bool = False) -> tuple:
     """``(env-steps/s, warm-up s)`` of the torch device env of ``n`` copies on ``device`` in
