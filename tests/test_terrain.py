@@ -644,6 +644,29 @@ def test_monotone_rod_has_no_interior_point():
         assert hf_monotone(*b, lam) == (not deeper), f
 
 
+def random_rods_at_boxes(rng, n):
+    """n random unit rods (middles ``r`` (n, 3) m, directions ``b`` (n, 3)), each around its own
+    random yawed box, the boxes' geom rows (n, 10)."""
+    geom = np.empty((n, 10))
+    for i in range(n):
+        box = Box(rng.uniform(-0.1, 0.1, 3), rng.uniform(0.05, 0.4, 3), yaw_deg=rng.uniform(-180.0, 180.0))
+        geom[i] = T.TerrainContact(Terrain(plane=None, boxes=[box])).geom[0, 0]
+    b = rng.normal(size=(n, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    return geom, geom[:, 1:4] + rng.uniform(-0.35, 0.35, (n, 3)), b
+
+
+def numba_box_bound(g, r, b, radius, ea, ec):
+    """The numba kernel's box bound of the rod ``r + eta b``, eta in [ea, ec], at the box ``g``:
+    (the ends' distances m and slopes along the rod, the level m, the bound m)."""
+    from tensegrity_gym.backends.numba.heightfield import LEVEL_TOL
+    from tensegrity_gym.backends.numba.terrain import BOUND_SLACK, _box_closest, _box_dip_bound
+    (fa, *na), (fc, *nc) = (_box_closest(*(r + e * b), g) for e in (ea, ec))
+    sa, sc = float(np.dot(na, b)), float(np.dot(nc, b))
+    level = min(radius, min(fa, fc) - LEVEL_TOL) + BOUND_SLACK
+    return fa, sa, fc, sc, level, _box_dip_bound(fa, sa, fc, sc, ea, ec - ea, *r, *b, g, level)
+
+
 def test_box_bound_passes_over_only_rods_without_an_interior_contact():
     """The box interior slot's lower bound (``_box_dip_bound``, from the ends' distances and
     normals and up to two cutting-plane steps) is below the box's signed distance all along the
@@ -652,31 +675,23 @@ def test_box_bound_passes_over_only_rods_without_an_interior_contact():
     boxes, many passed over and many with an interior contact. With the bound the kernel's
     forces and contact state equal those of the full search at every rod (``info=True``
     searches every rod near a box)."""
-    from tensegrity_gym.backends.numba.heightfield import LEVEL_TOL
-    from tensegrity_gym.backends.numba.terrain import BOUND_SLACK, _box_closest, _box_dip_bound, _interior
+    from tensegrity_gym.backends.numba.terrain import _box_closest, _interior
     rng = np.random.default_rng(11)
     radius, H = 0.02, np.zeros((1, 1))
     ea, ec = -0.2, 0.2
     n_skip = n_cut = n_touch = 0
-    for _ in range(3000):
-        box = Box(rng.uniform(-0.1, 0.1, 3), rng.uniform(0.05, 0.4, 3), yaw_deg=rng.uniform(-180.0, 180.0))
-        g = T.TerrainContact(Terrain(plane=None, boxes=[box])).geom[0, 0]
-        b = rng.normal(size=3)
-        b /= np.linalg.norm(b)
-        r = np.asarray(box.center) + rng.uniform(-0.35, 0.35, 3)
+    for g, r, b in zip(*random_rods_at_boxes(rng, 3000)):
         sd = np.array([_box_closest(*(r + e * b), g)[0] for e in np.linspace(ea, ec, 4001)])
-        (fa, *na), (fc, *nc) = (_box_closest(*(r + e * b), g) for e in (ea, ec))
-        level = min(radius, min(fa, fc) - LEVEL_TOL) + BOUND_SLACK
-        bound = _box_dip_bound(fa, float(np.dot(na, b)), fc, float(np.dot(nc, b)), ea, ec - ea, *r, *b, g, level)
+        fa, sa, fc, sc, level, bound = numba_box_bound(g, r, b, radius, ea, ec)
         if bound == -math.inf:                      # a point at or below the level was found
-            assert sd.min() <= level + 1e-12, (r, b, box)
-        assert bound <= sd.min() + 1e-12, (r, b, box)
+            assert sd.min() <= level + 1e-12, (r, b, g)
+        assert bound <= sd.min() + 1e-12, (r, b, g)
         e, deeper = _interior(ea, ec, *r, *b, g, H)
         touch = deeper and _box_closest(*(r + e * b), g)[0] < min(radius, fa, fc)
         if bound > level:
-            assert not touch, (r, b, box)
+            assert not touch, (r, b, g)
             n_skip += 1
-            n_cut += not (np.dot(na, b) >= 0.0 or np.dot(nc, b) <= 0.0)
+            n_cut += not (sa >= 0.0 or sc <= 0.0)
         n_touch += touch
     assert n_skip > 1000 and n_cut > 50 and n_touch > 100, (n_skip, n_cut, n_touch)
     m = prism(lift=0.0)
@@ -703,27 +718,15 @@ def test_torch_box_bound_is_the_numba_bound():
     over the same rods as the numba kernel's ``_box_dip_bound``: 2000 random rods, each at its
     own yawed box (per-copy geometry rows)."""
     torch = pytest.importorskip("torch")
-    from tensegrity_gym.backends.numba.heightfield import LEVEL_TOL
-    from tensegrity_gym.backends.numba.terrain import BOUND_SLACK, _box_closest, _box_dip_bound
     from tensegrity_gym.backends.torch.terrain import BOX, _Part, _passed_over
     rng = np.random.default_rng(13)
     n, radius, ea, ec = 2000, 0.02, -0.2, 0.2
-    geom = np.stack([T.TerrainContact(Terrain(plane=None, boxes=[Box(
-        rng.uniform(-0.1, 0.1, 3), rng.uniform(0.05, 0.4, 3), yaw_deg=rng.uniform(-180.0, 180.0))])).geom[0]
-        for _ in range(n)])                                                  # (n, 1, 10)
-    b = rng.normal(size=(n, 3))
-    b /= np.linalg.norm(b, axis=1, keepdims=True)
-    r = geom[:, 0, 1:4] + rng.uniform(-0.35, 0.35, (n, 3))
-    want = np.empty(n, bool)
-    for i in range(n):
-        g = geom[i, 0]
-        (fa, *na), (fc, *nc) = (_box_closest(*(r[i] + e * b[i]), g) for e in (ea, ec))
-        level = min(radius, min(fa, fc) - LEVEL_TOL) + BOUND_SLACK
-        want[i] = _box_dip_bound(fa, float(np.dot(na, b[i])), fc, float(np.dot(nc, b[i])), ea, ec - ea,
-                                 *r[i], *b[i], g, level) > level
+    geom, r, b = random_rods_at_boxes(rng, n)
+    want = np.array([bound > level for *_, level, bound in (numba_box_bound(g, r_, b_, radius, ea, ec)
+                                                            for g, r_, b_ in zip(geom, r, b))])
     t = torch.as_tensor
     e_a, e_c = t(np.full((n, 1, 1), ea)), t(np.full((n, 1, 1), ec))
-    got = _passed_over(e_a, e_c, t(r)[:, None, None, :], t(b)[:, None, None, :], _Part(t(geom), None, BOX),
+    got = _passed_over(e_a, e_c, t(r)[:, None, None, :], t(b)[:, None, None, :], _Part(t(geom[:, None]), None, BOX),
                        t(np.full((1, 1, 1), radius)))
     assert want.sum() > 1000 and (~want).sum() > 100, want.sum()
     np.testing.assert_array_equal(got.numpy()[:, 0, 0], want)

@@ -228,6 +228,17 @@ def _box_dip_bound(fa, sa, fc, sc, ea, span, r0, r1, r2, b0, b1, b2, g, level):
 
 
 @njit(inline="always", **_opts)
+def _box_passed_over(fa, na0, na1, na2, fc, nc0, nc1, nc2, ea, span, r0, r1, r2, b0, b1, b2, g, radius):
+    """Whether no interior point of the rod can touch the box ``g``: by :func:`_box_dip_bound`
+    (the ends' distances m and unit normals), no point of it is deeper than both ends by
+    ``LEVEL_TOL`` and below ``min(radius, fa, fc)``, so the box search would release the
+    interior slot."""
+    level = min(radius, min(fa, fc) - LEVEL_TOL) + BOUND_SLACK
+    return span > 0.0 and _box_dip_bound(fa, na0 * b0 + na1 * b1 + na2 * b2, fc, nc0 * b0 + nc1 * b1 + nc2 * b2,
+                                         ea, span, r0, r1, r2, b0, b1, b2, g, level) > level
+
+
+@njit(inline="always", **_opts)
 def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, w, ax, ay, az, was_active,
                 radius, kn, dn, ex, mu, kt, ct, cmax):
     """Contact force (N) on the rod point p (its velocity v m/s) at the contact measure ``sd`` m
@@ -507,10 +518,13 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                 for s in range(3):
                     ci = base + s
                     e = ea if s == 0 else (ec if s == 1 else em)
-                    if far or (s == 2 and kind == PLANE):
-                        # no contact (a plane's nearest point is an end): what _slot_force gives
-                        # for an infinite gap, without computing it; the interior slot keeps the
-                        # anchored point of a contact that ends here
+                    if far or (s == 2 and (kind == PLANE or (kind == BOX and not has_info and _box_passed_over(
+                            sd_a, na0, na1, na2, sd_c, nc0, nc1, nc2, ea, span, r0, r1, r2, b0, b1, b2, g, radius)))):
+                        # no contact (a plane's nearest point is an end; a box's bound leaves no
+                        # interior point that touches, so its search is passed over: the same
+                        # numbers, info=True searches): what _slot_force gives for an infinite gap,
+                        # without computing it; the interior slot keeps the anchored point of a
+                        # contact that ends here
                         if not (s == 2 and active[c, ci]):
                             eta0[c, ci] = e
                         active[c, ci] = False
@@ -527,20 +541,6 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                             hf_interior_slot(c, ci, r, j, Q, QD, Wc, ea, ec, em, ends, g, H, pr, mono, has_info,
                                              anchor, eta0, active, slip, info, rod_a, rod_c)
                         else:
-                            # the search only where the bound lets the interior point touch: deeper
-                            # than both ends by LEVEL_TOL and below min(radius, sd_a, sd_c); elsewhere
-                            # the slot is released as after the search (the same numbers; info
-                            # reports the searched point)
-                            level = min(radius, min(sd_a, sd_c) - LEVEL_TOL) + BOUND_SLACK
-                            if (not has_info and span > 0.0
-                                    and _box_dip_bound(sd_a, na0 * b0 + na1 * b1 + na2 * b2,
-                                                       sd_c, nc0 * b0 + nc1 * b1 + nc2 * b2,
-                                                       ea, span, r0, r1, r2, b0, b1, b2, g, level) > level):
-                                if not active[c, ci]:
-                                    eta0[c, ci] = em
-                                active[c, ci] = False
-                                slip[c, ci] = False
-                                continue
                             e, use = _interior(ea, ec, r0, r1, r2, b0, b1, b2, g, H)
                             sd, nx, ny, nz, w = math.inf, 0.0, 0.0, 1.0, 1.0
                             if use:
