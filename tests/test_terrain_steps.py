@@ -57,7 +57,8 @@ def _peak_under_rod(m, q, h, cell):
 @pytest.mark.parametrize("B, per_copy_hf", [(1, False), (20, True), (900, False)])
 def test_compiled_heightfield_loop_is_the_python_loop(prism, B, per_copy_hf):
     """A heightfield (shared heights, or one field per copy with the slope bound computed per
-    copy); 900 copies reach the multi-threaded kernel (``terrain_parallel``)."""
+    copy, and per-copy contact parameters: the cap radius and friction, which the SIMD blocks
+    read per lane); 900 copies reach the multi-threaded kernel (``terrain_parallel``)."""
     from tensegrity_gym.backends.numba.compile import PARALLEL_MIN_WORK
     from tensegrity_gym.core.terrain import Heightfield
     m = prism
@@ -69,10 +70,13 @@ def test_compiled_heightfield_loop_is_the_python_loop(prism, B, per_copy_hf):
     q[..., 2] += 0.02
     origin = _peak_under_rod(m, q, h, 0.05)
     tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights=h, cell=0.05, origin=origin)))
-    hf = None
+    hf = prm = None
     if per_copy_hf:
         hf = h[None] * rng.uniform(0.5, 1.5, (B, 1, 1))
         hf[:, 10, 10] = h[10, 10]
+        prm = tc.per_copy(B)
+        prm[:, 0, T.PRM_FIELDS.index("radius")] *= rng.uniform(0.8, 1.2, B)
+        prm[:, 0, T.PRM_FIELDS.index("friction")] = rng.uniform(0.1, 1.0, B)
     if B == 900:
         assert B * (m.n_strings + m.n_bars) >= PARALLEL_MIN_WORK
     out = []
@@ -81,7 +85,7 @@ def test_compiled_heightfield_loop_is_the_python_loop(prism, B, per_copy_hf):
         W = np.empty((B, m.n_nodes, 3))
         nodes = interior = False
         for _ in range(30):
-            T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=5, hf=hf, forces=W,
+            T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=5, hf=hf, prm=prm, forces=W,
                       compiled=compiled)
             act = ts.active.reshape(B, -1, 3)
             nodes |= bool(act[..., :2].any())

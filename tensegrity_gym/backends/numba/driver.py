@@ -20,8 +20,8 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
-from .terrain import (add_ext, has_box, hf_bound_of, hf_lam_load, hf_last, lanes_forces, plane_first, plane_forces,
-                      plane_load, plane_store, slots_load, slots_store)
+from .terrain import (HF_LANE_ROWS, add_ext, has_box, hf_bound_of, hf_lam_load, hf_last, lanes_forces, plane_first,
+                      plane_forces, plane_load, plane_store, slots_load, slots_store)
 from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
                      _opts, _soa_width_nb)
 
@@ -189,7 +189,7 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         HAN = np.empty((2 * k, 3, E))
         HAC = np.zeros((2 * k, E), np.bool_)
         HSL = np.zeros((2 * k, E), np.bool_)
-        LAM = np.empty((2 + 8 * k, E))
+        LAM = np.empty((HF_LANE_ROWS + 8 * k, E))
     if plane is not None:
         p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_anchor, p_eta0, p_active, p_slip, p_ext = plane
     if terrain is not None or plane is not None:
@@ -235,7 +235,7 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
             plane_load(t_anchor, t_eta0, t_active, PAN, PAC, PP, t_eta, t_geom, t_prm, c0, ne, k, t_F, E)
         if terrain is not None and t_f1 < t_F:
             slots_load(t_anchor, t_active, HAN, HAC, c0, ne, k, t_F, t_f1, E)
-            hf_lam_load(LAM, t_geom, t_hf, t_lam, c0, ne)
+            hf_lam_load(LAM, t_geom, t_prm, t_hf, t_lam, c0, ne)
         for step in range(n_steps):
             if contact is not None:                 # held over the step, as contact.step does
                 _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)

@@ -39,26 +39,46 @@ LEVEL_TOL = 1e-7
 
 
 @njit(inline="always", **_opts)
+def hf_cell(rx, ry, x0, y0, cell, nxm, nym):
+    """The grid cell of a reference point (rx, ry) m in a grid of origin (x0, y0) m, cell size
+    ``cell`` m and last column and row indices ``nxm`` = nx - 1, ``nym`` = ny - 1 (floats): its
+    column i and row j (integral floats, at most nx - 2 and ny - 2), the point's grid coordinates
+    u, v clamped to the grid and 1.0 where it is beyond the grid along x, along y (else 0.0)."""
+    ur = (rx - x0) / cell
+    vr = (ry - y0) / cell
+    out_u = 1.0 if (ur < 0.0 or ur > nxm) else 0.0
+    out_v = 1.0 if (vr < 0.0 or vr > nym) else 0.0
+    u = min(max(ur, 0.0), nxm)
+    v = min(max(vr, 0.0), nym)
+    return min(math.floor(u), nxm - 1.0), min(math.floor(v), nym - 1.0), u, v, out_u, out_v
+
+
+@njit(inline="always", **_opts)
+def hf_blend(fu, fv, out_u, out_v, h00, h10, h01, h11, cell):
+    """Bilinear height m at the fractions (fu, fv) of a cell with corner heights h00 (i, j), h10
+    (i + 1, j), h01 (i, j + 1), h11, and its gradient (dh/dx, dh/dy), 0 along an axis where the
+    reference point is beyond the grid (``out_u``, ``out_v`` of :func:`hf_cell`)."""
+    h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
+    gx = 0.0 if out_u != 0.0 else ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / cell
+    gy = 0.0 if out_v != 0.0 else ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / cell
+    return h, gx, gy
+
+
+@njit(inline="always", **_opts)
 def hf_at(px, py, rx, ry, g, H):
     """Bilinear height (m) at (px, py) m of the cell holding the reference point (rx, ry), its
     gradient (dh/dx, dh/dy) and the cell's twist ``(h11 - h10 - h01 + h00) / cell^2`` (1/m);
     beyond the grid (at the reference point) the edge values are held: that gradient component
     and the twist are 0. Same arithmetic as ``Heightfield._interp`` with (rx, ry) = (px, py)."""
-    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
-    ur = (rx - g[1]) / g[3]
-    vr = (ry - g[2]) / g[3]
-    out_u = ur < 0.0 or ur > nx - 1
-    out_v = vr < 0.0 or vr > ny - 1
-    i = min(int(math.floor(min(max(ur, 0.0), nx - 1.0))), nx - 2)
-    j = min(int(math.floor(min(max(vr, 0.0), ny - 1.0))), ny - 2)
-    u = min(max((px - g[1]) / g[3], 0.0), nx - 1.0)
-    v = min(max((py - g[2]) / g[3], 0.0), ny - 1.0)
-    fu, fv = u - i, v - j
+    nxm = min(int(g[5]), H.shape[1]) - 1.0
+    nym = min(int(g[4]), H.shape[0]) - 1.0
+    fi, fj, _, _, out_u, out_v = hf_cell(rx, ry, g[1], g[2], g[3], nxm, nym)
+    u = min(max((px - g[1]) / g[3], 0.0), nxm)
+    v = min(max((py - g[2]) / g[3], 0.0), nym)
+    i, j = int(fi), int(fj)
     h00, h10, h01, h11 = H[j, i], H[j, i + 1], H[j + 1, i], H[j + 1, i + 1]
-    h = (1 - fu) * (1 - fv) * h00 + fu * (1 - fv) * h10 + (1 - fu) * fv * h01 + fu * fv * h11
-    gx = 0.0 if out_u else ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / g[3]
-    gy = 0.0 if out_v else ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / g[3]
-    tw = 0.0 if (out_u or out_v) else (h11 - h10 - h01 + h00) / (g[3] * g[3])
+    h, gx, gy = hf_blend(u - fi, v - fj, out_u, out_v, h00, h10, h01, h11, g[3])
+    tw = 0.0 if (out_u != 0.0 or out_v != 0.0) else (h11 - h10 - h01 + h00) / (g[3] * g[3])
     return h, gx, gy, tw
 
 

@@ -58,8 +58,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .heightfield import LEVEL_TOL, hf_flat_under, hf_lipschitz, hf_lowest, hf_monotone, hf_patch
-from .layout import _lane_tile, _opts
+from .heightfield import (LEVEL_TOL, hf_blend, hf_cell, hf_flat_under, hf_lipschitz, hf_lowest, hf_monotone,
+                          hf_patch)
+from .layout import _TILE_LANES, _lane_tile, _opts, _stack_tile
 
 #: feature kinds (column 0 of ``geom``)
 PLANE = 0.0
@@ -795,17 +796,29 @@ def hf_last(geom):
     return True
 
 
+#: rows of the heightfield's lane scratch ``LAM`` before its rods' rows (:func:`hf_lam_load`)
+HF_LANE_ROWS = 8
+
+
 @njit(inline="always", **_opts)
-def hf_lam_load(LAM, geom, hf, lam, c0, ne):
-    """``LAM[0, e]`` the slope bound ``sqrt(1 + L^2)`` of the heightfield of copy c0 + e, e < ne
-    (the shared heights' ``lam``, per-copy heights' their own: :func:`hf_bound_of`, as
-    :func:`rows_forces` computes it), ``LAM[1, e]`` the slope bound L."""
+def hf_lam_load(LAM, geom, prm, hf, lam, c0, ne):
+    """Rows 0 .. :data:`HF_LANE_ROWS` - 1 of lanes e < ne (copies c0 + e) of ``LAM``: the slope
+    bound ``sqrt(1 + L^2)`` of the copy's heightfield (the shared heights' ``lam``, per-copy
+    heights' their own: :func:`hf_bound_of`, as :func:`rows_forces` computes it), the slope bound
+    L, the grid's origin x0, y0 m and cell m, its last column and row indices ``nx - 1``, ``ny - 1``
+    and the contact's cap radius m (the heightfield is the last feature)."""
     per_hf = (geom.shape[0] > 1 or hf.shape[0] > 1) and hf.shape[1] * hf.shape[2] > 1
+    f = geom.shape[1] - 1
     for e in range(ne):
         c = c0 + e
-        LAM[0, e] = hf_bound_of(geom[c if geom.shape[0] > 1 else 0], hf[c if hf.shape[0] > 1 else 0]) if per_hf \
-            else lam
+        gc = geom[c if geom.shape[0] > 1 else 0]
+        H = hf[c if hf.shape[0] > 1 else 0]
+        LAM[0, e] = hf_bound_of(gc, H) if per_hf else lam
         LAM[1, e] = math.sqrt(max(LAM[0, e] * LAM[0, e] - 1.0, 0.0))
+        LAM[2, e], LAM[3, e], LAM[4, e] = gc[f, 1], gc[f, 2], gc[f, 3]
+        LAM[5, e] = min(int(gc[f, 5]), H.shape[1]) - 1.0
+        LAM[6, e] = min(int(gc[f, 4]), H.shape[0]) - 1.0
+        LAM[7, e] = prm[c if prm.shape[0] > 1 else 0, f, 0]
 
 
 # compiled on its own (a rod whose gap is not monotone along it is rare): inlined, its search
@@ -848,77 +861,93 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
     driver's lanes e < ne (copies c0 + e; ``QT``, ``QDT`` (E, k, 6) m, m/s and ``EXT`` (E, n, 3)
     N the lanes' transposed views), added to EXT (``zero``: set, no other feature's forces in
     it). The node slots' state in lane scratch (AN, AC, SL of :func:`slots_load`), ``LAM``
-    (2 + 8 k, E) the lanes' slope bounds in rows 0 and 1 (:func:`hf_lam_load`); the interior
-    slot, which a rod needs only where its gap is not monotone along it, in the copies' state
-    (:func:`hf_interior_slot`). The same arithmetic in the same order as :func:`rows_forces`,
-    so the same bits, without its
+    (HF_LANE_ROWS + 8 k, E) the lanes' grid and contact parameters in its first
+    :data:`HF_LANE_ROWS` rows (:func:`hf_lam_load`); the interior slot, which a rod needs only
+    where its gap is not monotone along it, in the copies' state (:func:`hf_interior_slot`). The
+    same arithmetic in the same order as :func:`rows_forces`, so the same bits, without its
     per-copy bookkeeping of the node slots, its loop over features and, where the gap is
-    monotone along a rod, the upper end's height lookup when the rise of the gap along the rod
-    keeps that end clear.
-    Three passes over the lanes' rods: the first looks up every rod's end gaps and gradients and
-    decides far and monotony (into rows ``2 + 8 j ..`` of ``LAM``, (2 + 8 k, E): ga, gc m, the
-    gradients at a and c, 1 where the rod is far or its gap monotone, one spare), the second runs
-    the node slots from them, the third the interior slots. The rods of a pass are independent,
-    so the processor overlaps their chains of dependent operations (a lookup's, a force law's),
+    monotone along a rod, the upper end's contact when the rise of the gap along the rod keeps
+    that end clear.
+    Three passes over the lanes' rods: the first finds every rod's end gaps and gradients and
+    decides far and monotony (into rows ``HF_LANE_ROWS + 8 j ..`` of ``LAM``: ga, gc m, the
+    gradients at a and c, 1 where the rod is far or its gap monotone, one spare), the lanes
+    innermost, so that all but its height lookups compile to SIMD code; the second runs the node
+    slots from them, the third the interior slots. The rods of the second and third pass are
+    independent, so the processor overlaps their chains of dependent operations (a force law's),
     which a single pass, one long chain per rod, leaves waiting. A node receives its slot's force, then
     its rod's interior slot's, as in one pass: the same bits."""
     F = geom.shape[1]
     f = F - 1
     H = hf[0]
-    for e in range(ne):                 # pass 1: the end gaps, far and monotony
-        c = c0 + e
-        if hf.shape[0] > 1:
-            H = hf[c]
-        for i in range(g.shape[0]):
-            g[i] = geom[c if geom.shape[0] > 1 else 0, f, i]
-        radius = prm[c if prm.shape[0] > 1 else 0, f, 0]
-        lam = LAM[0, e]
-        if zero:
+    if zero:
+        for e in range(ne):
             for p in range(n):
                 EXT[e, p, 0] = 0.0
                 EXT[e, p, 1] = 0.0
                 EXT[e, p, 2] = 0.0
-        for j in range(k):
-            r0, r1, r2 = QT[e, j, 0], QT[e, j, 1], QT[e, j, 2]
-            b0, b1, b2 = QT[e, j, 3], QT[e, j, 4], QT[e, j, 5]
-            ea, ec = eta[j, 0], eta[j, 1]
-            span = ec - ea
-            # the end gaps, the far test and monotony as rows_forces decides them
-            xa, ya, za = r0 + ea * b0, r1 + ea * b1, r2 + ea * b2
-            xc, yc, zc = r0 + ec * b0, r1 + ec * b1, r2 + ec * b2
+    # pass 1 runs rod by rod with the lanes innermost, through a stack tile T (row r of lane e at
+    # T[r W + e]: scratch that overlaps no argument, so that its loops compile to SIMD code): the
+    # rod's state (rows 0-5), both ends' cells (6-11: end a, 12-17: end c; hf_cell's i, j, the
+    # fractions in the cell and the beyond-the-grid flags), their corner heights (18-25, looked
+    # up in a scalar loop: numba does not vectorise a lookup with computed indices), then the gaps
+    W = _TILE_LANES
+    T = _stack_tile(26)
+    for j in range(k):                  # pass 1: the end gaps, far and monotony
+        ea, ec = eta[j, 0], eta[j, 1]
+        span = ec - ea
+        for e in range(ne):
+            for i in range(6):
+                T[i * W + e] = QT[e, j, i]
+        for e in range(ne):
+            r0, r1, b0, b1 = T[e], T[W + e], T[3 * W + e], T[4 * W + e]
+            x0, y0, cell, nxm, nym = LAM[2, e], LAM[3, e], LAM[4, e], LAM[5, e], LAM[6, e]
+            for s in range(2):
+                t, h = (6 + 6 * s) * W + e, ea if s == 0 else ec
+                fi, fj, u, v, T[t + 4 * W], T[t + 5 * W] = hf_cell(r0 + h * b0, r1 + h * b1, x0, y0, cell, nxm,
+                                                                   nym)
+                T[t], T[t + W], T[t + 2 * W], T[t + 3 * W] = fi, fj, u - fi, v - fj
+        H = hf[0]
+        for e in range(ne):
+            if hf.shape[0] > 1:
+                H = hf[c0 + e]
+            for s in range(2):
+                t, q = (6 + 6 * s) * W + e, (18 + 4 * s) * W + e
+                i, jj = int(T[t]), int(T[t + W])
+                T[q], T[q + W], T[q + 2 * W], T[q + 3 * W] = H[jj, i], H[jj, i + 1], H[jj + 1, i], H[jj + 1, i + 1]
+        for e in range(ne):
+            r0, r1, r2, b0, b1, b2 = T[e], T[W + e], T[2 * W + e], T[3 * W + e], T[4 * W + e], T[5 * W + e]
+            lam, radius, cell = LAM[0, e], LAM[7, e], LAM[4, e]
+            t, q = 6 * W + e, 18 * W + e
+            ha, gxa, gya = hf_blend(T[t + 2 * W], T[t + 3 * W], T[t + 4 * W], T[t + 5 * W], T[q], T[q + W],
+                                    T[q + 2 * W], T[q + 3 * W], cell)
+            t, q = 12 * W + e, 22 * W + e
+            hc, gxc, gyc = hf_blend(T[t + 2 * W], T[t + 3 * W], T[t + 4 * W], T[t + 5 * W], T[q], T[q + W],
+                                    T[q + 2 * W], T[q + 3 * W], cell)
+            za, zc = r2 + ea * b2, r2 + ec * b2
+            ga, gc = za - ha, zc - hc
             mono = hf_monotone(b0, b1, b2, lam)
-            gxa, gya, gxc, gyc = 0.0, 0.0, 0.0, 0.0
             if mono:
                 # the lower end's gap, and the upper end's only where it can be under the cap
                 # radius: the gap rises along the rod by at least |span| (|b_z| - L |b_xy|) >= 0
                 # (|b_xy| <= |b_x| + |b_y|), with a margin far above round-off; an end clear by
-                # that bound has an infinite gap here (no contact: the same decisions, bits and
-                # state as with its own gap, which is at least the cap radius)
+                # that bound has an infinite gap here and a zero gradient (no contact: the same
+                # decisions, bits and state as with its own gap, which is at least the cap radius)
                 rise = abs(span) * (abs(b2) - LAM[1, e] * (abs(b0) + abs(b1)))
                 tol = 1e-9 * (1.0 + abs(r0) + abs(r1) + abs(r2) + abs(span))
                 if za <= zc:
-                    ha, gxa, gya = hf_patch(xa, ya, g, H)
-                    ga, gc = za - ha, math.inf
-                    if ga + rise - tol * (1.0 + abs(ha)) < radius:
-                        hc, gxc, gyc = hf_patch(xc, yc, g, H)
-                        gc = zc - hc
-                else:
-                    hc, gxc, gyc = hf_patch(xc, yc, g, H)
-                    ga, gc = math.inf, zc - hc
-                    if gc + rise - tol * (1.0 + abs(hc)) < radius:
-                        ha, gxa, gya = hf_patch(xa, ya, g, H)
-                        ga = za - ha
-            else:
-                ha, gxa, gya = hf_patch(xa, ya, g, H)
-                hc, gxc, gyc = hf_patch(xc, yc, g, H)
-                ga, gc = za - ha, zc - hc
+                    if not (ga + rise - tol * (1.0 + abs(ha)) < radius):
+                        gc, gxc, gyc = math.inf, 0.0, 0.0
+                elif not (gc + rise - tol * (1.0 + abs(hc)) < radius):
+                    ga, gxa, gya = math.inf, 0.0, 0.0
             far = (min(ga, gc) if mono else 0.5 * (ga + gc - lam * abs(span))) >= radius
             if far:
                 ga, gc = math.inf, math.inf     # no slot touches: the node slots released below
-            o = 2 + 8 * j                       # the rod's rows of the end scratch
-            LAM[o, e], LAM[o + 1, e], LAM[o + 2, e], LAM[o + 3, e] = ga, gc, gxa, gya
-            LAM[o + 4, e], LAM[o + 5, e] = gxc, gyc
-            LAM[o + 6, e] = 1.0 if (far or mono) else 0.0
+            T[e], T[W + e], T[2 * W + e], T[3 * W + e], T[4 * W + e], T[5 * W + e] = ga, gc, gxa, gya, gxc, gyc
+            T[6 * W + e] = 1.0 if (far or mono) else 0.0
+        o = HF_LANE_ROWS + 8 * j        # the rod's rows of the end scratch
+        for e in range(ne):
+            for i in range(7):
+                LAM[o + i, e] = T[i * W + e]
     for e in range(ne):                 # pass 2: the node slots
         pc = c0 + e if prm.shape[0] > 1 else 0
         for i in range(pr.shape[0]):
@@ -927,7 +956,7 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
         for j in range(k):
             for s in range(2):
                 a = 2 * j + s
-                sd = LAM[2 + 8 * j + s, e]
+                sd = LAM[HF_LANE_ROWS + 8 * j + s, e]
                 if not (radius - sd > 0.0):
                     AC[a, e] = False
                     SL[a, e] = False
@@ -936,7 +965,7 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
                 px = QT[e, j, 0] + h * QT[e, j, 3]
                 py = QT[e, j, 1] + h * QT[e, j, 4]
                 pz = QT[e, j, 2] + h * QT[e, j, 5]
-                o = 2 + 8 * j + 2 * s
+                o = HF_LANE_ROWS + 8 * j + 2 * s
                 nx, ny, nz, w = _hf_normal(LAM[o + 2, e], LAM[o + 3, e])
                 vx = QDT[e, j, 0] + h * QDT[e, j, 3]
                 vy = QDT[e, j, 1] + h * QDT[e, j, 4]
@@ -957,7 +986,7 @@ def hf_lanes_forces(QT, QDT, EXT, AN, AC, SL, LAM, eta, rod_a, rod_c, geom, prm,
             ea, ec = eta[j, 0], eta[j, 1]
             em = 0.5 * (ea + ec)
             ci = 3 * (j * F + f) + 2
-            o = 2 + 8 * j
+            o = HF_LANE_ROWS + 8 * j
             if LAM[o + 6, e] != 0.0:
                 # no interior contact (a monotone gap is lowest at an end), released as rows_forces
                 # releases it (written here once: an inlined function of these arrays measured slower)
