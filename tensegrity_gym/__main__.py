@@ -1,4 +1,3 @@
-import sys
-from .tools.cli import main
+from .tools.cli import entry
 
-sys.exit(main())
+entry()

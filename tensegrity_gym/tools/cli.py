@@ -82,7 +82,7 @@ from .cli_common import (DEFAULT_MAX_STEPS, EXIT_DIVERGED, EXIT_INTERRUPTED, EXI
 from .cli_simulate import cmd_demo, cmd_simulate, load_schedule
 from .cli_terrain import add_terrain_args
 
-__all__ = ["main", "build_parser", "CLIError", "structure_summary", "load_schedule", "cmd_simulate", "cmd_info",
+__all__ = ["main", "entry", "build_parser", "CLIError", "structure_summary", "load_schedule", "cmd_simulate", "cmd_info",
            "cmd_demo", "cmd_export", "cmd_view", "cmd_identify"]
 
 
@@ -321,3 +321,19 @@ def main(argv=None) -> int:
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
+
+
+def entry() -> None:
+    """The process entry (``python -m tensegrity_gym``, the ``tensegrity-gym`` script): exits with
+    :func:`main`'s code. After a SIGTERM it exits without the interpreter's finalisation: the
+    command has cleaned up and reported already, and a compile the signal cut short can leave
+    llvmlite objects whose teardown aborts the process (a double free, exit status -6, not 143)."""
+    code = main()
+    if TERMINATED.is_set():
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(code)
+    sys.exit(code)
