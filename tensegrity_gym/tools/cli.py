@@ -82,8 +82,8 @@ from .cli_common import (DEFAULT_MAX_STEPS, EXIT_DIVERGED, EXIT_INTERRUPTED, EXI
 from .cli_simulate import cmd_demo, cmd_simulate, load_schedule
 from .cli_terrain import add_terrain_args
 
-__all__ = ["main", "entry", "build_parser", "CLIError", "structure_summary", "load_schedule", "cmd_simulate", "cmd_info",
-           "cmd_demo", "cmd_export", "cmd_view", "cmd_identify"]
+__all__ = ["main", "entry", "build_parser", "CLIError", "structure_summary", "load_schedule", "cmd_simulate",
+           "cmd_info", "cmd_demo", "cmd_export", "cmd_view", "cmd_identify"]
 
 
 # --------------------------------------------------------------------------- parser and main
@@ -319,10 +319,6 @@ def main(argv=None) -> int:
             signal.signal(signal.SIGTERM, old)
 
 
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
-
-
 def entry() -> None:
     """The process entry (``python -m tensegrity_gym``, the ``tensegrity-gym`` script): exits with
     :func:`main`'s code. After a SIGTERM it exits without the interpreter's finalisation: the
@@ -337,3 +333,7 @@ def entry() -> None:
                 pass
         os._exit(code)
     sys.exit(code)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    entry()
