@@ -674,14 +674,20 @@ def test_box_bound_passes_over_only_rods_without_an_interior_contact():
     no point that touches (deeper than both ends and below the cap radius); rods around yawed
     boxes, many passed over and many with an interior contact. With the bound the kernel's
     forces and contact state equal those of the full search at every rod (``info=True``
-    searches every rod near a box)."""
-    from tensegrity_gym.backends.numba.terrain import _box_closest, _interior
+    searches every rod near a box). The far test's bound (``_box_face_bound``: over the faces,
+    the ends' lesser distance beyond the face's plane) is below the distance all along the rod,
+    and equal to it at an end where the end's nearest box point is on a face."""
+    from tensegrity_gym.backends.numba.terrain import _box_closest, _box_face_bound, _interior
     rng = np.random.default_rng(11)
     radius, H = 0.02, np.zeros((1, 1))
     ea, ec = -0.2, 0.2
-    n_skip = n_cut = n_touch = 0
+    n_skip = n_cut = n_touch = n_far = n_face = 0
     for g, r, b in zip(*random_rods_at_boxes(rng, 3000)):
         sd = np.array([_box_closest(*(r + e * b), g)[0] for e in np.linspace(ea, ec, 4001)])
+        face = _box_face_bound(*(r + ea * b), *(r + ec * b), g)
+        assert face <= sd.min() + 1e-12, (r, b, g)
+        n_far += face >= radius
+        n_face += face == min(sd[0], sd[-1])
         fa, sa, fc, sc, level, bound = numba_box_bound(g, r, b, radius, ea, ec)
         if bound == -math.inf:                      # a point at or below the level was found
             assert sd.min() <= level + 1e-12, (r, b, g)
@@ -693,7 +699,8 @@ def test_box_bound_passes_over_only_rods_without_an_interior_contact():
             n_skip += 1
             n_cut += not (sa >= 0.0 or sc <= 0.0)
         n_touch += touch
-    assert n_skip > 1000 and n_cut > 50 and n_touch > 100, (n_skip, n_cut, n_touch)
+    assert n_skip > 1000 and n_cut > 50 and n_touch > 100 and n_far > 300 and n_face > 300, (
+        n_skip, n_cut, n_touch, n_far, n_face)
     m = prism(lift=0.0)
     tc = T.TerrainContact(Terrain(plane=Plane(0.0), boxes=[Box([0.25, 0.0, 0.03], [0.4, 1.0, 0.06], yaw_deg=20.0),
                                                            Box([-0.2, 0.1, 0.05], [0.2, 0.2, 0.1])],

@@ -229,6 +229,23 @@ def _box_dip_bound(fa, sa, fc, sc, ea, span, r0, r1, r2, b0, b1, b2, g, level):
 
 
 @njit(inline="always", **_opts)
+def _box_face_bound(xa, ya, za, xc, yc, zc, g):
+    """A lower bound m of the box ``g``'s signed distance along the segment from (xa, ya, za) to
+    (xc, yc, zc) m: the largest, over the box's six faces, of the ends' lesser signed distance to
+    the face's plane (outward positive). The box lies behind each face's plane and the distance
+    to a plane is linear along the segment, so no point of it is nearer the box."""
+    c, s = g[7], g[8]
+    dxa, dya, dxc, dyc = xa - g[1], ya - g[2], xc - g[1], yc - g[2]
+    la0, lc0 = c * dxa + s * dya, c * dxc + s * dyc
+    la1, lc1 = -s * dxa + c * dya, -s * dxc + c * dyc
+    la2, lc2 = za - g[3], zc - g[3]
+    b0 = max(min(la0, lc0), -max(la0, lc0)) - g[4]
+    b1 = max(min(la1, lc1), -max(la1, lc1)) - g[5]
+    b2 = max(min(la2, lc2), -max(la2, lc2)) - g[6]
+    return max(b0, b1, b2)
+
+
+@njit(inline="always", **_opts)
 def _box_passed_over(fa, na0, na1, na2, fc, nc0, nc1, nc2, ea, span, r0, r1, r2, b0, b1, b2, g, radius):
     """Whether no interior point of the rod can touch the box ``g``: by :func:`_box_dip_bound`
     (the ends' distances m and unit normals), no point of it is deeper than both ends by
@@ -403,9 +420,9 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
     feature.
     ``clr`` (nr, F), ``ref`` (nr, k, 2, 3): the boxes' clearance over the loop driver's sub-steps
     of one call (0 rows: not kept). At the first sub-step (``fresh``) ``ref`` takes the rods' end
-    points m and ``clr[r, f]`` the least, over the rods, of the box's far-test slack m (the slab
-    bound of the rod's middle less half the rod's length and the cap radius; <= 0 where a rod is
-    not far). At a later sub-step a box whose clearance exceeds the largest move of a rod end
+    points m and ``clr[r, f]`` the least, over the rods, of the box's far-test slack m (the lower
+    bound :func:`_box_face_bound` of the box's distance along the rod less the cap radius and
+    :data:`BOUND_SLACK`; < 0 where a rod is not far). At a later sub-step a box whose clearance exceeds the largest move of a rod end
     from ``ref`` (1-norm, which bounds the move of every rod point) is still out of reach (the
     signed distance is 1-Lipschitz) and its slots, released at the first sub-step, are still
     released: the box is passed over, the same numbers for less work."""
@@ -460,20 +477,20 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                 em = 0.5 * (ea + ec)
                 base = (j * F + f) * 3
                 mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
-                # the signed distance is 1-Lipschitz: a rod whose middle is farther than half its
-                # length plus the cap radius touches nowhere. A box's distance is at least the
-                # largest of the middle's distances beyond its three slabs: far by that bound, the
-                # box is far by the distance itself (the same decision, without the distance)
+                # a rod whose every point is at least the cap radius from the feature touches
+                # nowhere. The box is the intersection of the half-spaces behind its six faces, so
+                # a point's distance to it is at least its distance beyond any face; that distance
+                # is linear along the rod, least at an end: the rod is at least the largest, over
+                # the faces, of its ends' lesser distance beyond the face from the box (``_box_face_bound``).
+                # Far by that bound (with BOUND_SLACK for the round-off of the interior search),
+                # the slots are released, as the distances would release them
                 far = False
                 if kind == BOX:
-                    dx, dy = mx - geom[g_row, f, 1], my - geom[g_row, f, 2]
-                    cs, sn = geom[g_row, f, 7], geom[g_row, f, 8]
-                    lb = max(abs(cs * dx + sn * dy) - geom[g_row, f, 4], abs(-sn * dx + cs * dy) - geom[g_row, f, 5],
-                             abs(mz - geom[g_row, f, 3]) - geom[g_row, f, 6])
-                    clear = lb - 0.5 * abs(span)
-                    far = clear >= radius
+                    clear = _box_face_bound(r0 + ea * b0, r1 + ea * b1, r2 + ea * b2, r0 + ec * b0, r1 + ec * b1,
+                                            r2 + ec * b2, geom[g_row, f])
+                    far = clear >= radius + BOUND_SLACK
                     if fresh and clr.shape[0] > 0:
-                        clr[r, f] = min(clr[r, f], clear - radius)
+                        clr[r, f] = min(clr[r, f], clear - radius - BOUND_SLACK)
                 # a heightfield's end gaps (m) and gradients, for the far test and the node slots,
                 # and whether its gap is monotone along the rod
                 ha, gxa, gya, hc, gxc, gyc = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
