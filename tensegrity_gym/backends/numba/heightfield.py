@@ -39,6 +39,13 @@ LEVEL_TOL = 1e-7
 
 
 @njit(inline="always", **_opts)
+def hf_grid(g, H):
+    """The rows ny and columns nx of the heightfield ``g`` (a geom row) with heights ``H``: the
+    geom's grid shape, bounded by ``H``'s, so that no grid index leaves the array."""
+    return min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+
+
+@njit(inline="always", **_opts)
 def hf_cell(rx, ry, x0, y0, cell, nxm, nym):
     """The grid cell of a reference point (rx, ry) m in a grid of origin (x0, y0) m, cell size
     ``cell`` m and last column and row indices ``nxm`` = nx - 1, ``nym`` = ny - 1 (floats): its
@@ -70,8 +77,8 @@ def hf_at(px, py, rx, ry, g, H):
     gradient (dh/dx, dh/dy) and the cell's twist ``(h11 - h10 - h01 + h00) / cell^2`` (1/m);
     beyond the grid (at the reference point) the edge values are held: that gradient component
     and the twist are 0. Same arithmetic as ``Heightfield._interp`` with (rx, ry) = (px, py)."""
-    nxm = min(int(g[5]), H.shape[1]) - 1.0
-    nym = min(int(g[4]), H.shape[0]) - 1.0
+    ny, nx = hf_grid(g, H)
+    nxm, nym = nx - 1.0, ny - 1.0
     fi, fj, _, _, out_u, out_v = hf_cell(rx, ry, g[1], g[2], g[3], nxm, nym)
     u = min(max((px - g[1]) / g[3], 0.0), nxm)
     v = min(max((py - g[2]) / g[3], 0.0), nym)
@@ -95,7 +102,7 @@ def hf_flat_under(xa, ya, xc, yc, g, H) -> bool:
     """True if every grid height that the bilinear surface uses under the segment from (xa, ya)
     to (xc, yc) m (the cells of its bounding box, clamped to the grid) is the same: the surface is
     level there, so a point inside the segment is never deeper than both ends (as for a plane)."""
-    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    ny, nx = hf_grid(g, H)
     i0 = min(max(int(math.floor((min(xa, xc) - g[1]) / g[3])), 0), nx - 2)
     i1 = min(max(int(math.floor((max(xa, xc) - g[1]) / g[3])) + 1, 1), nx - 1)
     j0 = min(max(int(math.floor((min(ya, yc) - g[2]) / g[3])), 0), ny - 2)
@@ -114,7 +121,7 @@ def hf_lipschitz(g, H):
     gap ``z - h(x, y)``, L = |(largest |step| along x, along y)| / cell bounding the slope (a
     bilinear patch's gradient is affine in the patch coordinates, so its steepest is at a corner,
     made of one x step and one y step of the grid)."""
-    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    ny, nx = hf_grid(g, H)
     mx, my = 0.0, 0.0
     for j in range(ny):
         for i in range(nx):
@@ -203,7 +210,7 @@ def hf_lowest(ea, ec, r0, r1, r2, b0, b1, b2, g, H, cut, ga, gc):
     combination at a kink). ``ga``, ``gc``: the gaps (m) at the ends, ``r2 + e b2 - h`` with h the
     bilinear height (:func:`hf_patch`) at ``(r0 + e b0, r1 + e b1)``, e = ea, ec (the node slots'
     own, passed in rather than computed twice)."""
-    ny, nx = min(int(g[4]), H.shape[0]), min(int(g[5]), H.shape[1])
+    ny, nx = hf_grid(g, H)
     em = 0.5 * (ea + ec)
     ua, uc = (r0 + ea * b0 - g[1]) / g[3], (r0 + ec * b0 - g[1]) / g[3]
     va, vc = (r1 + ea * b1 - g[2]) / g[3], (r1 + ec * b1 - g[2]) / g[3]

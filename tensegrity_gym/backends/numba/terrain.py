@@ -58,8 +58,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .heightfield import (LEVEL_TOL, hf_blend, hf_cell, hf_flat_under, hf_lipschitz, hf_lowest, hf_monotone,
-                          hf_patch)
+from .heightfield import (LEVEL_TOL, hf_blend, hf_cell, hf_flat_under, hf_grid, hf_lipschitz, hf_lowest,
+                          hf_monotone, hf_patch)
 from .layout import _TILE_LANES, _lane_tile, _opts, _stack_tile
 
 #: feature kinds (column 0 of ``geom``)
@@ -425,7 +425,8 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
     :data:`BOUND_SLACK`; < 0 where a rod is not far). At a later sub-step a box whose clearance exceeds the largest move of a rod end
     from ``ref`` (1-norm, which bounds the move of every rod point) is still out of reach (the
     signed distance is 1-Lipschitz) and its slots, released at the first sub-step, are still
-    released: the box is passed over, the same numbers for less work."""
+    released: the box is passed over, the same numbers for less work. A box computed at a later
+    sub-step is computed at every sub-step after it in the call (its clearance set to -inf)."""
     k, n = Q.shape[1], Wc.shape[1]
     F = geom.shape[1]
     has_info = info.shape[0] > 0
@@ -465,8 +466,12 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
         # added feature by feature as with the rods outer; a feature's rows copied once per copy
         for f in range(f0, f1):
             kind = geom[g_row, f, 0]
-            if kind == BOX and not fresh and clr.shape[0] > 0 and moved + 1e-12 < clr[r, f]:
-                continue            # out of reach since the call's first sub-step, whose release stands
+            if kind == BOX and not fresh and clr.shape[0] > 0:
+                if moved + 1e-12 < clr[r, f]:
+                    continue        # out of reach since the call's first sub-step, whose release stands
+                # computed at a sub-step after the first: at every one after it in the call (a slot
+                # it touches with stays in the computation, to be released by it)
+                clr[r, f] = -math.inf
             radius = prm[p_row, f, 0]
             loaded = False
             for j in range(k):
@@ -833,8 +838,8 @@ def hf_lam_load(LAM, geom, prm, hf, lam, c0, ne):
         LAM[0, e] = hf_bound_of(gc, H) if per_hf else lam
         LAM[1, e] = math.sqrt(max(LAM[0, e] * LAM[0, e] - 1.0, 0.0))
         LAM[2, e], LAM[3, e], LAM[4, e] = gc[f, 1], gc[f, 2], gc[f, 3]
-        LAM[5, e] = min(int(gc[f, 5]), H.shape[1]) - 1.0
-        LAM[6, e] = min(int(gc[f, 4]), H.shape[0]) - 1.0
+        ny, nx = hf_grid(gc[f], H)
+        LAM[5, e], LAM[6, e] = nx - 1.0, ny - 1.0
         LAM[7, e] = prm[c if prm.shape[0] > 1 else 0, f, 0]
 
 
