@@ -35,7 +35,8 @@ Arrays (built by :mod:`tensegrity_gym.physics.terrain`):
   point's ``w v.n`` less the node's), with the same pair of points, so it only dissipates; its
   friction acts at the interior point, capped at ``mu fn w``.
 * ``info`` (B, S, 6) or (0, 0, 6): per slot the rod coordinate eta m of the contact point, its
-  contact measure m (below), the feature's outward unit normal there and the energy J of the
+  contact measure m (below; infinite, with the normal (0, 0, 1), where the far test finds the
+  rod out of the feature's reach), the feature's outward unit normal there and the energy J of the
   slot's springs at the given state with the anchors before the update (the interior slot's
   normal spring on the delta above).
 
