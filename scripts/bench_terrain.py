@@ -2,7 +2,8 @@
 """Cost of a physics step with terrain contact against flat ground (numba, the prism robot).
 
     PYTHONPATH=. TENSEGRITY_GYM_QUIET=1 python scripts/bench_terrain.py [--batch 1 64] [--steps 2000] \
-        [--envs 1 16 128] [--env-steps 200] [--episode] [--repeats 1] [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
+        [--envs 1 16 128] [--env-steps 200] [--episode] [--repeats 1] [--scenes "steps under the robot" ...] \
+        [--torch] [--torch-envs 4 16] [--torch-env-steps 10] \
         [--torch-compile] [--torch-cuda-graph] [--torch-no-eager] [--torch-device cuda] [--torch-dtype float32] \
         [--torch-scenes flat ...] [--json out.json]
 
@@ -20,7 +21,8 @@ run on the same machine, over ``--env-steps`` steps after a reset (the physics o
 ``--episode``, over one whole episode of each scene's registered time limit, so that every copy
 resets once within the timed steps (what training pays: a drawn terrain is made at each reset);
 ``--repeats R`` times every scene in each of R rounds and gives the median rate per scene (one
-episode at 16 copies takes about 0.1 s: single runs scatter by about 10 %).
+episode at 16 copies takes about 0.1 s: single runs scatter by about 10 %); ``--scenes`` times
+only the scenes named (flat ground always, for the ratio).
 Scenes: a 20-degree slope (a plane), steps (the ``steps`` generator: 4 boxes; the robot starts
 on its level pad), steps whose first edge is under the robot (``pad`` 0.05 m, ``tread`` 0.2 m:
 the boxes next to the rods from the start), rough ground (the ``rough`` generator with no level
@@ -159,17 +161,19 @@ def torch_env_table(ns, steps: int, compile: bool = False, device: str = "cpu", 
     return out["eager"] if list(out) == ["eager"] else out
 
 
-def env_table(ns, steps: int, episode: bool = False, repeats: int = 1) -> tuple:
+def env_table(ns, steps: int, episode: bool = False, repeats: int = 1, scenes=None) -> tuple:
     """env-steps/s per scene and N over ``steps`` steps, or (``episode``) over each scene's
     registered episode length, its time limit: every copy resets once within the timed steps.
     ``repeats`` rounds, each timing every scene once in turn (so that a slower spell of a shared
     machine falls on all scenes of a round); the table gives each scene's median rate, the cost
     against flat ground as the ratio of the medians and, with more than one round, the range of
-    the rounds' own ratios. Returns (median rates, every round's rates)."""
+    the rounds' own ratios. ``scenes``: only these of ``ENV_SCENES`` besides flat ground (default
+    all). Returns (median rates, every round's rates)."""
     import gymnasium as gym
+    chosen = {k: ENV_SCENES[k] for k in ENV_SCENES if scenes is None or k == "flat" or k in scenes}
     rounds = [{name: [env_rate(eid, kw, n, gym.spec(eid).max_episode_steps if episode else steps) for n in ns]
-               for name, (eid, kw) in ENV_SCENES.items()} for _ in range(repeats)]
-    med = {name: [float(np.median([r[name][i] for r in rounds])) for i in range(len(ns))] for name in ENV_SCENES}
+               for name, (eid, kw) in chosen.items()} for _ in range(repeats)]
+    med = {name: [float(np.median([r[name][i] for r in rounds])) for i in range(len(ns))] for name in chosen}
     what = "one episode each, resets included" if episode else f"{steps} steps after a reset"
     if repeats > 1:
         what += f"; median of {repeats} rounds"
@@ -222,6 +226,8 @@ def main():
                     help="time one whole episode per scene (every copy resets once) instead of --env-steps steps")
     ap.add_argument("--repeats", type=int, default=1,
                     help="rounds of the env table (every scene once per round); the median rate per scene")
+    ap.add_argument("--scenes", nargs="+", default=None, choices=list(ENV_SCENES),
+                    help="only these scenes in the env table, besides flat ground (default all)")
     ap.add_argument("--json", type=str, default=None, help="write the tables here")
     ap.add_argument("--torch", action="store_true", help="also the torch backend's physics table (CPU)")
     ap.add_argument("--torch-envs", type=int, nargs="*", default=[],
@@ -259,7 +265,7 @@ def main():
     for name, vals in rows.items() if a.batch else ():
         print(f"{name:<26}" + "".join(f"{v:16.2f}" for v in vals))
     torch_rows = torch_table(m, scenes, a.batch, max(a.steps // 10, 20)) if a.torch else {}
-    envs, env_rounds = env_table(a.envs, a.env_steps, a.episode, a.repeats) if a.envs else ({}, [])
+    envs, env_rounds = env_table(a.envs, a.env_steps, a.episode, a.repeats, a.scenes) if a.envs else ({}, [])
     torch_envs = (torch_env_table(a.torch_envs, a.torch_env_steps, a.torch_compile, a.torch_device, a.torch_dtype,
                                    a.torch_scenes, not a.torch_no_eager, a.torch_cuda_graph) if a.torch_envs else {})
     if a.json:
