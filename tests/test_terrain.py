@@ -975,3 +975,42 @@ def test_torch_heightfield_equals_numba():
     assert ts1.active.reshape(2, 3, 2, 3)[:, :, 1].any()
     assert np.abs(q2.numpy() - s1.q).max() < 1e-9 and np.abs(qd2.numpy() - s1.qd).max() < 1e-7
     np.testing.assert_array_equal(ac2.numpy(), ts1.active)
+
+
+def test_box_clearance_pass_over_ends_once_a_later_sub_step_computes_the_box():
+    """The loop driver's box clearance (``rows_forces`` with ``clr``, ``ref``): a box out of every
+    rod's reach at a call's first sub-step is passed over at a later one only while the rods
+    have not moved by its clearance, and once a later sub-step computes it, every sub-step after
+    it in the call does. Sub-steps: far (first), a rod end pressed into the box (computed: its
+    slot touches), back at the first sub-step's state (no move since the first: the box must be
+    computed, releasing that slot, as the kernel without the clearance releases it)."""
+    from tensegrity_gym.backends.numba.terrain import rows_forces
+    m = prism(lift=0.0)
+    q0 = np.ascontiguousarray(dyn.initial_state(m, 1).q)
+    ends = q0[0, :, None, :3] + m.eta[:, :, None] * q0[0, :, None, 3:]          # (k, 2, 3)
+    low = ends[..., 2].min()
+    tc = T.TerrainContact(Terrain(plane=None, boxes=[Box([0.0, 0.0, low - 0.05 - 0.5], [2.0, 2.0, 1.0])]))  # top 5 cm under
+    radius = float(tc.prm[0, 0, 0])
+    assert 0.05 > radius                                       # far at the first sub-step
+    q1 = q0.copy()
+    q1[..., 2] -= 0.05 + 0.002                                 # the lowest end 2 mm into the box
+    qd = np.zeros_like(q0)
+    ts = T.init_terrain_state(tc, m, 1)
+    k, F = m.n_bars, tc.geom.shape[1]
+    clr, ref = np.empty((1, F)), np.empty((1, k, 2, 3))
+    g, pr = np.empty(tc.geom.shape[2]), np.empty(tc.prm.shape[2])
+    W = np.zeros((1, m.n_nodes, 3))
+    slip = np.zeros_like(ts.active)
+    info = np.empty((0, 0, 6))
+    for q, fresh in ((q0, True), (q1, False), (q0, False)):
+        rows_forces(0, 1, q, qd, W, m.eta, m.rod_a, m.rod_c, tc.geom, tc.prm, tc.hf, 1.0, ts.anchor, ts.eta0,
+                    ts.active, slip, info, 0, F, g, pr, clr, ref, fresh)
+        if q is q1:
+            assert ts.active.any() and np.abs(W).sum() > 0.0
+    assert not ts.active.any() and not W.any()
+    full = T.init_terrain_state(tc, m, 1)
+    T.contact_forces(tc, m, q1, qd, full, inplace=True)
+    Wf, full, _ = T.contact_forces(tc, m, q0, qd, full)
+    assert np.array_equal(W, Wf)
+    for a, b in zip((ts.anchor, ts.eta0, ts.active), (full.anchor, full.eta0, full.active)):
+        assert np.array_equal(a, b)
