@@ -989,7 +989,8 @@ def test_box_clearance_pass_over_ends_once_a_later_sub_step_computes_the_box():
     q0 = np.ascontiguousarray(dyn.initial_state(m, 1).q)
     ends = q0[0, :, None, :3] + m.eta[:, :, None] * q0[0, :, None, 3:]          # (k, 2, 3)
     low = ends[..., 2].min()
-    tc = T.TerrainContact(Terrain(plane=None, boxes=[Box([0.0, 0.0, low - 0.05 - 0.5], [2.0, 2.0, 1.0])]))  # top 5 cm under
+    top = low - 0.05                                           # the box's top 5 cm under the lowest rod end
+    tc = T.TerrainContact(Terrain(plane=None, boxes=[Box([0.0, 0.0, top - 0.5], [2.0, 2.0, 1.0])]))
     radius = float(tc.prm[0, 0, 0])
     assert 0.05 > radius                                       # far at the first sub-step
     q1 = q0.copy()

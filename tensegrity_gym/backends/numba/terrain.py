@@ -423,11 +423,12 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
     of one call (0 rows: not kept). At the first sub-step (``fresh``) ``ref`` takes the rods' end
     points m and ``clr[r, f]`` the least, over the rods, of the box's far-test slack m (the lower
     bound :func:`_box_face_bound` of the box's distance along the rod less the cap radius and
-    :data:`BOUND_SLACK`; < 0 where a rod is not far). At a later sub-step a box whose clearance exceeds the largest move of a rod end
-    from ``ref`` (1-norm, which bounds the move of every rod point) is still out of reach (the
-    signed distance is 1-Lipschitz) and its slots, released at the first sub-step, are still
-    released: the box is passed over, the same numbers for less work. A box computed at a later
-    sub-step is computed at every sub-step after it in the call (its clearance set to -inf)."""
+    :data:`BOUND_SLACK`; < 0 where a rod is not far). At a later sub-step a box whose clearance
+    exceeds the largest move of a rod end from ``ref`` (1-norm, which bounds the move of every rod
+    point) is still out of reach (the signed distance is 1-Lipschitz) and its slots, released at
+    the first sub-step, are still released: the box is passed over, the same numbers for less
+    work. A box computed at a later sub-step is computed at every sub-step after it in the call
+    (its clearance set to -inf)."""
     k, n = Q.shape[1], Wc.shape[1]
     F = geom.shape[1]
     has_info = info.shape[0] > 0
@@ -485,11 +486,11 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                 mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
                 # a rod whose every point is at least the cap radius from the feature touches
                 # nowhere. The box is the intersection of the half-spaces behind its six faces, so
-                # a point's distance to it is at least its distance beyond any face; that distance
-                # is linear along the rod, least at an end: the rod is at least the largest, over
-                # the faces, of its ends' lesser distance beyond the face from the box (``_box_face_bound``).
-                # Far by that bound (with BOUND_SLACK for the round-off of the interior search),
-                # the slots are released, as the distances would release them
+                # a point's distance to it is at least its distance beyond any face, which is
+                # linear along the rod, least at an end: every point of the rod is at least the
+                # largest, over the faces, of its ends' lesser distance beyond the face from the
+                # box (_box_face_bound). Far by that bound (with BOUND_SLACK for the round-off of
+                # the interior search), the slots are released, as the distances would release them
                 far = False
                 if kind == BOX:
                     clear = _box_face_bound(r0 + ea * b0, r1 + ea * b1, r2 + ea * b2, r0 + ec * b0, r1 + ec * b1,
