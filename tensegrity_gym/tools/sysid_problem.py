@@ -104,8 +104,11 @@ class _Problem:
         self.inner_ok = True
         # a window's state has converged when its step is below tol_step FD steps or the cost falls
         # by less than 1e-12 (relative). Contact forces switch inside a window, so its cost has kinks
-        # where LM zig-zags with steps of about one FD step for ever: 0.1 FD step is converged there.
+        # where LM zig-zags with steps of about one FD step for ever: 0.1 FD step is converged there;
+        # through the kinks it can also fall by just over 1e-12 a step for many steps (how many, the
+        # machine's floating-point rounding decides), so a contact window has up to 100 iterations
         self.tol_step = 1e-3 if contact is None else 0.1
+        self.max_iter = 30 if contact is None else 100
 
     # -- parameters
     def log_factors(self, thetas: np.ndarray) -> dict:
@@ -291,8 +294,9 @@ class _Problem:
         return dynamics.project(model, q, qd)
 
     # -- inner problem: every window's state for given parameters (batched Levenberg-Marquardt)
-    def fit_states(self, theta, q0, qd0, max_iter=30, Jx_old=None):
+    def fit_states(self, theta, q0, qd0, max_iter=None, Jx_old=None):
         W, ns = self.W, self.ns
+        max_iter = self.max_iter if max_iter is None else max_iter
         win = np.arange(W)
         P1 = self.physics(theta)
         lam = np.full(W, 1e-3)
