@@ -105,8 +105,9 @@ class _Problem:
         # a window's state has converged when its step is below tol_step FD steps or the cost falls
         # by less than 1e-12 (relative). Contact forces switch inside a window, so its cost has kinks
         # where LM zig-zags with steps of about one FD step for ever: 0.1 FD step is converged there;
-        # through the kinks it can also fall by just over 1e-12 a step for many steps (how many, the
-        # machine's floating-point rounding decides), so a contact window has up to 100 iterations
+        # through the kinks a window can need more than 30 iterations to converge (a noise-free
+        # record of a landing prism did on one machine and not on another: the floating-point
+        # rounding decides), so a contact window has up to 100
         self.tol_step = 1e-3 if contact is None else 0.1
         self.max_iter = 30 if contact is None else 100
 
