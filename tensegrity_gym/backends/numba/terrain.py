@@ -483,7 +483,6 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                 span = ec - ea
                 em = 0.5 * (ea + ec)
                 base = (j * F + f) * 3
-                mx, my, mz = r0 + em * b0, r1 + em * b1, r2 + em * b2
                 # a rod whose every point is at least the cap radius from the feature touches
                 # nowhere. The box is the intersection of the half-spaces behind its six faces, so
                 # a point's distance to it is at least its distance beyond any face, which is
@@ -520,7 +519,7 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         mono = hf_monotone(b0, b1, b2, lam)
                         far = (min(ga, gc) if mono else 0.5 * (ga + gc - lam * abs(span))) >= radius
                     else:
-                        far = _closest(mx, my, mz, g, H)[0] - 0.5 * abs(span) >= radius
+                        far = _closest(r0 + em * b0, r1 + em * b1, r2 + em * b2, g, H)[0] - 0.5 * abs(span) >= radius
                 if far and not has_info:
                     # no slot touches: what _slot_force gives for an infinite gap, each slot
                     # released (the interior slot keeps the anchored point of a contact that
