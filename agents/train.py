@@ -589,10 +589,10 @@ def _train(argv, extra_callbacks, report, claims: list) -> Path:
         "machine": common.machine(),     # the CPU of this segment: wall times depend on it
         "num_timesteps": int(prev_state.get("num_timesteps", 0)), "target_timesteps": n_timesteps})
     _install_interrupt_handlers()   # a SIGTERM during start-up is recorded (status interrupted), not left "starting"
-    run_state.update()
     t0 = time.time()
     env = eval_env = model = None
     try:
+        run_state.update()          # inside: a SIGTERM just after "starting" is written is recorded below
         info_keys, reward_keys = common.probe_info_keys(env_id, env_kwargs)
         segment = len(glob.glob(str(run_dir / "monitor" / "train_*.monitor.csv")))
         env, vec_used = common.make_vec(env_id, n_envs, seed, env_kwargs, vec_mode,
