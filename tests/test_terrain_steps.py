@@ -268,3 +268,44 @@ def test_compiled_heightfield_rod_lying_flat_is_the_python_loop(B):
     assert both
     for a, b in zip(*out):
         assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("B", [20, 900])
+def test_compiled_boxes_in_the_lanes_are_the_python_loop(prism, B):
+    """Boxes after a ground plane run in the driver's lanes (node slots over SIMD lanes, interior
+    slots one lane at a time): per-copy boxes (a small yawed block under the middle of rod 0, 3 mm
+    inside the cap radius, so that the rod's interior touches it deeper than both ends, and a step
+    that some copies' lower nodes rest on), per-copy cap radius, friction and, in every third copy, a
+    force exponent of 1.5, with SIMD blocks and pad lanes (20 copies) and the threaded kernel (900):
+    the Python loop's bits, interior and node slots touching."""
+    m = prism
+    rng = np.random.default_rng(B)
+    st = dyn.initial_state(m, B)
+    q, qd = np.array(st.q), np.array(st.qd)
+    q[..., :3] += rng.normal(0.0, 0.003, q[..., :3].shape)
+    rows = []
+    for c in range(B):
+        mid = q[c, 0, :3] + float(np.mean(m.eta[0])) * q[c, 0, 3:]
+        block = Box([mid[0], mid[1], mid[2] - 0.017 - 0.03], [0.04, 0.04, 0.06], rng.uniform(0.0, 90.0))
+        step = Box([rng.uniform(-0.3, 0.3), 0.0, -0.03 + 0.032 * (c % 2)], [0.3, 1.0, 0.06], rng.uniform(0.0, 30.0))
+        rows.append(T.TerrainContact(Terrain(plane=Plane(0.0), boxes=[block, step])).geom[0])
+    tc = T.TerrainContact(Terrain(plane=Plane(0.0), boxes=[Box([0, 0, -1], [0.1, 0.1, 0.1]),
+                                                           Box([0, 0, -2], [0.1, 0.1, 0.1])]))
+    geom = np.stack(rows)
+    prm = tc.per_copy(B)
+    prm[:, 1:, T.PRM_FIELDS.index("friction")] = rng.uniform(0.2, 1.0, (B, 2))
+    prm[:, 1:, T.PRM_FIELDS.index("radius")] = rng.uniform(0.018, 0.022, (B, 1))
+    prm[::3, 1:, T.PRM_FIELDS.index("exponent")] = 1.5
+    out, interior, node = [], False, False
+    for compiled in (False, True):
+        qq, qqd, ts = q.copy(), qd.copy(), T.init_terrain_state(tc, m, B)
+        for _ in range(20):
+            T.advance(tc, m, qq, qqd, 1e-3, "semi_implicit_euler", ts, n_steps=8, prm=prm, geom=geom,
+                      compiled=compiled)
+            act = ts.active.reshape(B, m.n_bars, 3, 3)      # (copy, rod, feature, slot)
+            interior |= bool(act[:, 0, 1, 2].any())
+            node |= bool(act[:, :, 2, :2].any())
+        out.append((qq, qqd, ts.anchor, ts.eta0, ts.active, ts.slip))
+    assert interior and node
+    for a, b in zip(*out):
+        assert np.array_equal(a, b)

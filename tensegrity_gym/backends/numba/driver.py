@@ -20,7 +20,8 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
-from .terrain import (HF_LANE_ROWS, add_ext, has_box, hf_bound_of, hf_lam_load, hf_last, lanes_forces, plane_first,
+from .terrain import (BOX_END_ROWS, BOX_LANE_ROWS, HF_LANE_ROWS, add_ext, box_load, box_store, boxes_between, has_box,
+                      hf_bound_of, hf_lam_load, hf_last, lanes_forces, plane_first,
                       plane_forces, plane_load, plane_store, slots_load, slots_store)
 from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
                      _opts, _soa_width_nb)
@@ -190,6 +191,15 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         HAC = np.zeros((2 * k, E), np.bool_)
         HSL = np.zeros((2 * k, E), np.bool_)
         LAM = np.empty((HF_LANE_ROWS + 8 * k, E))
+        # the features between them boxes in every copy (steps, walls, obstacles): their node slots in
+        # the lanes too, SIMD blocks only (one copy at a time, rows_forces)
+        t_bx = E > 1 and t_info.shape[0] == 0 and boxes_between(t_geom, t_f0, t_f1)
+        t_nb = t_f1 - t_f0 if t_bx else 0
+        BAN = np.empty((t_nb, 2 * k, 3, E))
+        BAC = np.zeros((t_nb, 2 * k, E), np.bool_)
+        BSL = np.zeros((t_nb, 2 * k, E), np.bool_)
+        BP = np.empty((t_nb, BOX_LANE_ROWS, E))
+        BT = np.empty((k, BOX_END_ROWS, E))
     if plane is not None:
         p_eta, p_rod_a, p_rod_c, p_geom, p_prm, p_anchor, p_eta0, p_active, p_slip, p_ext = plane
     if terrain is not None or plane is not None:
@@ -236,6 +246,8 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         if terrain is not None and t_f1 < t_F:
             slots_load(t_anchor, t_active, HAN, HAC, c0, ne, k, t_F, t_f1, E)
             hf_lam_load(LAM, t_geom, t_prm, t_hf, t_lam, c0, ne)
+        if terrain is not None and t_bx:
+            box_load(t_anchor, t_active, BAN, BAC, BP, t_geom, t_prm, c0, ne, k, t_f0, E)
         for step in range(n_steps):
             if contact is not None:                 # held over the step, as contact.step does
                 _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)
@@ -244,7 +256,7 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
                     plane_forces(Q, QD, EX, PAN, PAC, PSL, PP, t_eta, t_rod_a, t_rod_c, k, n, E)
                 lanes_forces(QT, QDT, EXT, EX, t_eta, t_rod_a, t_rod_c, t_geom, t_prm, t_hf, t_anchor, t_eta0,
                              t_active, t_slip, t_info, t_ext, t_lam, t_g, t_pr, (t_clr, t_ref, step == 0), c0, ne, k,
-                             n, E, (t_f0, t_f1), (HAN, HAC, HSL, LAM))
+                             n, E, (t_f0, t_f1), (HAN, HAC, HSL, LAM), (t_bx, Q, QD, BAN, BAC, BSL, BP, BT))
             if plane is not None:
                 plane_forces(Q, QD, EX, PAN, PAC, PSL, PP, p_eta, p_rod_a, p_rod_c, k, n, E)
                 add_ext(EX, p_ext, c0, ne, n, E)
@@ -302,6 +314,8 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
             plane_store(t_anchor, t_eta0, t_active, t_slip, PAN, PAC, PSL, t_eta, c0, ne, k, t_F)
         if terrain is not None and t_f1 < t_F:
             slots_store(t_anchor, t_eta0, t_active, t_slip, HAN, HAC, HSL, t_eta, c0, ne, k, t_F, t_f1)
+        if terrain is not None and t_bx:
+            box_store(t_anchor, t_eta0, t_active, t_slip, BAN, BAC, BSL, t_eta, c0, ne, k, t_F, t_f0)
         if terrain is not None or plane is not None:
             for e in range(ne):
                 for p in range(n):
