@@ -284,25 +284,28 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, w, ax, ay, a
     ``v`` its velocity relative to that level's end (see the kernel).
     Returns (touching, fx, fy, fz, ax, ay, az, slip, energy J of the springs with the anchor
     before the update, fn N)."""
+    # written with selects only (every value computed, those of a slot that does not touch then
+    # replaced by the no-contact ones), so that a loop of it over SIMD lanes compiles to SIMD code
+    # (an early return made LLVM's cost model keep such a loop scalar); the numbers of a touching
+    # slot are those of the law as written out with branches
     delta = radius - sd
-    if not (delta > 0.0):
-        return False, 0.0, 0.0, 0.0, ax, ay, az, False, 0.0, 0.0
-    de = delta if ex == 1.0 else delta ** ex
+    touch = delta > 0.0
+    de = delta if ex == 1.0 else max(delta, 0.0) ** ex
     fs = kn * de
     cn = fs * dn
-    if cn > cmax:
-        cn = cmax
+    cn = cmax if cn > cmax else cn
     vn = vx * nx + vy * ny + vz * nz
     fn = fs - cn * w * vn
-    if fn < 0.0:
-        fn = 0.0
+    fn = 0.0 if fn < 0.0 else fn
     fw = fn * w
     sw = sd / w
     sx, sy, sz = px - sw * nx, py - sw * ny, pz - sw * nz
-    if not was_active:
-        ax, ay, az = sx, sy, sz
-        mx, my, mz = px, py, pz
-    x0, x1, x2 = mx - ax, my - ay, mz - az
+    bx = ax if was_active else sx
+    by = ay if was_active else sy
+    bz = az if was_active else sz
+    x0 = (mx if was_active else px) - bx
+    x1 = (my if was_active else py) - by
+    x2 = (mz if was_active else pz) - bz
     xn = x0 * nx + x1 * ny + x2 * nz
     x0, x1, x2 = x0 - xn * nx, x1 - xn * ny, x2 - xn * nz
     energy = fs * delta / (ex + 1.0) + 0.5 * kt * (x0 * x0 + x1 * x1 + x2 * x2)
@@ -312,13 +315,16 @@ def _slot_force(px, py, pz, mx, my, mz, vx, vy, vz, sd, nx, ny, nz, w, ax, ay, a
     nrm = math.sqrt(fx * fx + fy * fy + fz * fz)
     lim = mu * fw
     slip = nrm > lim
-    if slip:
-        s = lim / nrm
-        fx *= s
-        fy *= s
-        fz *= s
-        ax, ay, az = sx + fx / kt, sy + fy / kt, sz + fz / kt
-    return True, fx + fw * nx, fy + fw * ny, fz + fw * nz, ax, ay, az, slip, energy, fn
+    sc = lim / nrm
+    fx = fx * sc if slip else fx
+    fy = fy * sc if slip else fy
+    fz = fz * sc if slip else fz
+    bx = sx + fx / kt if slip else bx
+    by = sy + fy / kt if slip else by
+    bz = sz + fz / kt if slip else bz
+    return (touch, fx + fw * nx if touch else 0.0, fy + fw * ny if touch else 0.0, fz + fw * nz if touch else 0.0,
+            bx if touch else ax, by if touch else ay, bz if touch else az, slip and touch, energy if touch else 0.0,
+            fn if touch else 0.0)
 
 
 # compiled on its own and called: inlined, with the contact arrays among its arguments, it made
@@ -620,6 +626,12 @@ def rows_forces(c0, nr, Q, QD, Wc, eta, rod_a, rod_c, geom, prm, hf, lam, anchor
                         sd_a, na0, na1, na2, w_a, vn_a = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
                     else:
                         sd_c, nc0, nc1, nc2, w_c, vn_c = sd, nx, ny, nz, w, vx * nx + vy * ny + vz * nz
+                    if not (radius - sd > 0.0) and not has_info:
+                        # clear of the feature: what _slot_force gives for no contact, without computing it
+                        eta0[c, ci] = e
+                        active[c, ci] = False
+                        slip[c, ci] = False
+                        continue
                     # a node slot's anchored material point is the node itself
                     touch, fx, fy, fz, ax, ay, az, sl, en, fn = _slot_force(
                         px, py, pz, px, py, pz, vx, vy, vz, sd, nx, ny, nz, w,
