@@ -305,7 +305,7 @@ def test_compiled_boxes_in_the_lanes_are_the_python_loop(prism, B):
             act = ts.active.reshape(B, m.n_bars, 3, 3)      # (copy, rod, feature, slot)
             interior |= bool(act[:, 0, 1, 2].any())
             node |= bool(act[:, :, 2, :2].any())
-        out.append((qq, qqd, ts.anchor, ts.eta0, ts.active, ts.slip))
+        out.append((qq, qqd, ts.anchor, ts.eta0, ts.active))
     assert interior and node
     for a, b in zip(*out):
         assert np.array_equal(a, b)
