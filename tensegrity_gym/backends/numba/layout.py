@@ -97,8 +97,8 @@ def _stack_tile(typingctx, rows):
     of the compiled function (allocated once, at its entry): scratch that the compiler knows
     overlaps no array argument, so that a loop over lanes that writes it and reads those
     arrays needs no run-time overlap checks and compiles to SIMD code (numba arrays carry no
-    no-alias information; with checks for many arrays LLVM leaves such a loop scalar). Use it
-    through :func:`_lane_tile`."""
+    no-alias information; with checks for many arrays LLVM leaves such a loop scalar). Row r
+    of lane e of a tile is element ``r * _TILE_LANES + e``."""
     if not isinstance(rows, types.IntegerLiteral):
         return None
     n = rows.literal_value * _TILE_LANES
@@ -106,13 +106,6 @@ def _stack_tile(typingctx, rows):
     def codegen(context, builder, sig, args):
         return cgutils.alloca_once(builder, _ir.DoubleType(), size=_ir.Constant(_ir.IntType(64), n))
     return types.CPointer(types.float64)(rows), codegen
-
-
-@njit(inline="always", **_opts)
-def _lane_tile(rows, E):
-    """A (rows, E) float64 scratch on the stack (:func:`_stack_tile`; E <= 16 lanes, ``rows`` a
-    literal), its values undefined until written."""
-    return numba.carray(_stack_tile(rows), (rows, E))
 
 
 @njit(inline="always", **_opts)

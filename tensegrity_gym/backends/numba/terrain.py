@@ -61,7 +61,7 @@ from numba import njit
 
 from .heightfield import (LEVEL_TOL, hf_blend, hf_cell, hf_flat_under, hf_grid, hf_lipschitz, hf_lowest,
                           hf_monotone, hf_patch)
-from .layout import _TILE_LANES, _lane_tile, _opts, _stack_tile
+from .layout import _TILE_LANES, _opts, _stack_tile
 
 #: feature kinds (column 0 of ``geom``)
 PLANE = 0.0
@@ -775,6 +775,32 @@ def add_ext(EX, ext, c0, ne, n, E):
 
 
 @njit(inline="always", **_opts)
+def _lane_point(Q, j, h, e):
+    """The point at rod coordinate ``h`` m of rod j in lane e of Q (k, 6, E) m (of QD: its
+    velocity, m/s)."""
+    return Q[j, 0, e] + h * Q[j, 3, e], Q[j, 1, e] + h * Q[j, 4, e], Q[j, 2, e] + h * Q[j, 5, e]
+
+
+@njit(inline="always", **_opts)
+def _tile_slot_store(T, AN, AC, SL, EX, a, node, E):
+    """A node slot's law over E lanes, rows 0-7 of the stack tile T (row r of lane e at
+    ``T[r W + e]``, W = ``_TILE_LANES``: the force N, the anchor m, the touching and slipping
+    flags), into the lane scratch at slot a (AN (., 3, E) m, AC, SL (., E)), its force added to
+    EX[node] (n, 3, E) N."""
+    W = _TILE_LANES
+    for e in range(E):
+        AN[a, 0, e] = T[3 * W + e]
+        AN[a, 1, e] = T[4 * W + e]
+        AN[a, 2, e] = T[5 * W + e]
+        AC[a, e] = T[6 * W + e] != 0.0
+        SL[a, e] = T[7 * W + e] != 0.0
+    for e in range(E):
+        EX[node, 0, e] += T[e]
+        EX[node, 1, e] += T[W + e]
+        EX[node, 2, e] += T[2 * W + e]
+
+
+@njit(inline="always", **_opts)
 def plane_forces(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, n, E):
     """:func:`rows_forces` of E lanes of the loop driver for feature 0 of the terrain, a plane
     (:func:`plane_first`), read in the lanes (Q, QD (k, 6, E) m, m/s), into EX (n, 3, E) N; the
@@ -798,45 +824,48 @@ def plane_forces(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, n, E):
     for e in range(E):
         if PP[7, e] != 1.0:
             linear = False
-    if linear:
-        _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, True)
+    if E == 1:
+        _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, False, True)
+    elif linear:
+        _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, True, False)
     else:
-        _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, False)
+        _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, False, False)
 
 
 @njit(inline="always", **_opts)
-def _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, linear):
+def _plane_slots(Q, QD, EX, AN, AC, SL, PP, eta, rod_a, rod_c, k, E, linear, skip):
     """The node slots' forces of :func:`plane_forces`, lanes innermost: the law of each slot
-    over the lanes into a stack tile T (:func:`.layout._lane_tile`: written there, the loop
+    over the lanes into a stack tile T (:func:`.layout._stack_tile`: written there, the loop
     compiles to SIMD code), then its anchors, flags and forces from T into the lane scratch.
     ``linear``: every lane's force exponent is 1 (the law's power then compiles away, and with
-    it the one call that keeps the loop scalar)."""
-    T = _lane_tile(8, E)
+    it the one call that keeps the loop scalar). ``skip`` (one lane, scalar code): a slot clear
+    of the plane takes the law's no-contact values without computing the law (its sqrt and
+    divisions), as :func:`rows_forces` does; the same numbers."""
+    T = _stack_tile(8)      # row r of lane e at T[r W + e]
+    W = _TILE_LANES
     for j in range(k):
         for s in range(2):
             ci = 2 * j + s
             h = eta[j, s]
             node = rod_a[j] if s == 0 else rod_c[j]
             for e in range(E):
-                px, py, pz = Q[j, 0, e] + h * Q[j, 3, e], Q[j, 1, e] + h * Q[j, 4, e], Q[j, 2, e] + h * Q[j, 5, e]
-                vx, vy, vz = QD[j, 0, e] + h * QD[j, 3, e], QD[j, 1, e] + h * QD[j, 4, e], QD[j, 2, e] + h * QD[j, 5, e]
+                px, py, pz = _lane_point(Q, j, h, e)
+                vx, vy, vz = _lane_point(QD, j, h, e)
                 g1, g2, g3, g4 = PP[0, e], PP[1, e], PP[2, e], PP[3, e]
-                touch, T[0, e], T[1, e], T[2, e], T[3, e], T[4, e], T[5, e], slip, en, fn = _slot_force(
-                    px, py, pz, px, py, pz, vx, vy, vz, g1 * px + g2 * py + g3 * pz - g4, g1, g2, g3, 1.0,
+                sd = g1 * px + g2 * py + g3 * pz - g4
+                if skip and not (PP[4, e] - sd > 0.0):
+                    for i in range(8):
+                        T[i * W + e] = 0.0
+                    T[3 * W + e], T[4 * W + e], T[5 * W + e] = AN[ci, 0, e], AN[ci, 1, e], AN[ci, 2, e]
+                    continue
+                (touch, T[e], T[W + e], T[2 * W + e], T[3 * W + e], T[4 * W + e], T[5 * W + e], slip, en,
+                 fn) = _slot_force(
+                    px, py, pz, px, py, pz, vx, vy, vz, sd, g1, g2, g3, 1.0,
                     AN[ci, 0, e], AN[ci, 1, e], AN[ci, 2, e], AC[ci, e], PP[4, e], PP[5, e], PP[6, e],
                     1.0 if linear else PP[7, e], PP[8, e], PP[9, e], PP[10, e], PP[11, e])
-                T[6, e] = 1.0 if touch else 0.0
-                T[7, e] = 1.0 if slip else 0.0
-            for e in range(E):
-                AN[ci, 0, e] = T[3, e]
-                AN[ci, 1, e] = T[4, e]
-                AN[ci, 2, e] = T[5, e]
-                AC[ci, e] = T[6, e] != 0.0
-                SL[ci, e] = T[7, e] != 0.0
-            for e in range(E):
-                EX[node, 0, e] += T[0, e]
-                EX[node, 1, e] += T[1, e]
-                EX[node, 2, e] += T[2, e]
+                T[6 * W + e] = 1.0 if touch else 0.0
+                T[7 * W + e] = 1.0 if slip else 0.0
+            _tile_slot_store(T, AN, AC, SL, EX, ci, node, E)
 
 
 @njit(inline="always", **_opts)
@@ -914,8 +943,8 @@ def _box_slots(Q, QD, EX, BAN, BAC, BSL, BP, BT, clr, eta, rod_a, rod_c, b, f, k
             h = eta[j, s]
             node = rod_a[j] if s == 0 else rod_c[j]
             for e in range(E):
-                px, py, pz = Q[j, 0, e] + h * Q[j, 3, e], Q[j, 1, e] + h * Q[j, 4, e], Q[j, 2, e] + h * Q[j, 5, e]
-                vx, vy, vz = QD[j, 0, e] + h * QD[j, 3, e], QD[j, 1, e] + h * QD[j, 4, e], QD[j, 2, e] + h * QD[j, 5, e]
+                px, py, pz = _lane_point(Q, j, h, e)
+                vx, vy, vz = _lane_point(QD, j, h, e)
                 sd, nx, ny, nz = _box_closest_at(px, py, pz, BP[b, 0, e], BP[b, 1, e], BP[b, 2, e], BP[b, 3, e],
                                                  BP[b, 4, e], BP[b, 5, e], BP[b, 6, e], BP[b, 7, e])
                 (touch, T[e], T[W + e], T[2 * W + e], T[3 * W + e], T[4 * W + e], T[5 * W + e], slip, en,
@@ -928,16 +957,7 @@ def _box_slots(Q, QD, EX, BAN, BAC, BSL, BP, BT, clr, eta, rod_a, rod_c, b, f, k
                 T[7 * W + e] = 1.0 if slip else 0.0
                 T[8 * W + e], T[9 * W + e], T[10 * W + e], T[11 * W + e] = sd, nx, ny, nz
                 T[12 * W + e] = vx * nx + vy * ny + vz * nz
-            for e in range(E):
-                BAN[b, a, 0, e] = T[3 * W + e]
-                BAN[b, a, 1, e] = T[4 * W + e]
-                BAN[b, a, 2, e] = T[5 * W + e]
-                BAC[b, a, e] = T[6 * W + e] != 0.0
-                BSL[b, a, e] = T[7 * W + e] != 0.0
-            for e in range(E):
-                EX[node, 0, e] += T[e]
-                EX[node, 1, e] += T[W + e]
-                EX[node, 2, e] += T[2 * W + e]
+            _tile_slot_store(T, BAN[b], BAC[b], BSL[b], EX, a, node, E)
             for i in range(5):
                 for e in range(E):
                     BT[j, 1 + 5 * s + i, e] = T[(8 + i) * W + e]
