@@ -385,7 +385,7 @@ def check_model_kwargs(algo: str, kwargs: dict) -> None:
     to NaN (gamma = 2). Counts given as integral floats (``buffer_size=1e6``) become ints in
     ``kwargs``."""
     import inspect
-    from tensegrity_gym.checks import check_count
+    from tensegrity_gym.core.checks import check_count
     cls = get_algo(algo)
     params = inspect.signature(cls.__init__).parameters
     names = [p for p in params if p not in ("self", "policy", "env")]
@@ -406,7 +406,7 @@ def check_model_kwargs(algo: str, kwargs: dict) -> None:
 def check_hp_count(value, key: str, minimum: int) -> int:
     """A count hyperparameter (``n_timesteps``, ``n_envs``) as an int: an integer or an integral
     number (``1e5``, ``"1e5"`` from a YAML file); ValueError naming ``--hyperparams`` and the key."""
-    from tensegrity_gym.checks import check_count
+    from tensegrity_gym.core.checks import check_count
     if isinstance(value, str):
         try:
             value = float(value)
@@ -581,7 +581,7 @@ def env_argument_names(env_id: str) -> list[str]:
 def check_seed(seed: int, flag: str = "--seed", top: int = 2**32 - 1) -> int:
     """``seed`` if it is an integer in 0..``top``; ValueError naming ``flag`` otherwise (NumPy's
     and Gymnasium's own messages do not say which argument)."""
-    from tensegrity_gym.checks import is_integer
+    from tensegrity_gym.core.checks import is_integer
     if not is_integer(seed) or not 0 <= seed <= top:
         raise ValueError(f"{flag}: must be an integer in 0..{top}, got {seed!r}")
     return int(seed)
@@ -624,14 +624,14 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
     if vec_env == "batched":
         if not has_vector_entry_point(env_id):
             raise ValueError(f"--vec-env batched: {env_id} has no vector_entry_point")
-        from tensegrity_gym.sb3 import make_sb3_vec_env
+        from tensegrity_gym.integrations.sb3 import make_sb3_vec_env
         venv = make_sb3_vec_env(gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
                                              **env_kwargs))
         venv.seed(seed)
     elif vec_env == "torch":
         if not has_vector_entry_point(env_id):
             raise ValueError(f"--vec-env torch: {env_id} has no vector_entry_point")
-        from tensegrity_gym.sb3 import make_sb3_torch_vec_env
+        from tensegrity_gym.integrations.sb3 import make_sb3_torch_vec_env
         venv = make_sb3_torch_vec_env(gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
                                                    backend="torch", device=env_device, dtype=env_dtype,
                                                    reset_sampling=env_reset_sampling,

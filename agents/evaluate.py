@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from . import common
-from tensegrity_gym.checks import check_count
+from tensegrity_gym.core.checks import check_count
 
 common.passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
 

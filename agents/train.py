@@ -57,7 +57,7 @@ import numpy as np
 
 from . import common, warm_start
 from .progress import progress_callback
-from tensegrity_gym.checks import check_count, check_positive
+from tensegrity_gym.core.checks import check_count, check_positive
 from tensegrity_gym.io.atomic import OutputError
 from tensegrity_gym.io.claim import Claim
 

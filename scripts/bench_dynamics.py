@@ -49,7 +49,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from tensegrity_gym import builders, dynamics, integrators, physics  # noqa: E402
+from tensegrity_gym.core import builders  # noqa: E402
+from tensegrity_gym import physics  # noqa: E402
+from tensegrity_gym.core.model import initial_state, State, compile_model  # noqa: E402
+from tensegrity_gym.physics.evaluate import project  # noqa: E402
+from tensegrity_gym.physics.integrate import step  # noqa: E402
+from tensegrity_gym.physics.rollout import simulate  # noqa: E402
+from tensegrity_gym.core.errors import StabilityWarning  # noqa: E402
+from tensegrity_gym.physics.geometry import node_positions, energy, string_state, rod_length_drift  # noqa: E402
 from tensegrity_gym.backends.numba import api as numba_api  # noqa: E402
 from _bench import mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers, a sibling module)
 
@@ -67,9 +74,9 @@ def perturbed_state(model, B, scale, seed=0):
     """B copies of the structure with a small random velocity (m/s scale), projected so that
     rods keep their length."""
     rng = np.random.default_rng(seed)
-    st = dynamics.initial_state(model, B)
-    q, qd = dynamics.project(model, st.q, st.qd + scale * rng.normal(size=st.qd.shape))
-    return dynamics.State(np.ascontiguousarray(q), np.ascontiguousarray(qd), 0.0)
+    st = initial_state(model, B)
+    q, qd = project(model, st.q, st.qd + scale * rng.normal(size=st.qd.shape))
+    return State(np.ascontiguousarray(q), np.ascontiguousarray(qd), 0.0)
 
 
 # ---------------------------------------------------------------------------- MuJoCo
@@ -151,7 +158,7 @@ def single_env_api(model, integ, target, repeats):
     st = perturbed_state(model, 1, 0.05)
     q, qd = st.q.copy(), st.qd.copy()
     holder = [st, st]
-    own = dynamics.State(st.q.copy(), st.qd.copy(), st.t)
+    own = State(st.q.copy(), st.qd.copy(), st.t)
 
     def public():
         holder[0] = physics.step(model, holder[0], DT, integ)
@@ -177,13 +184,13 @@ def single_env_api(model, integ, target, repeats):
 def dop853_cost(model, sim_time):
     st = perturbed_state(model, 1, 0.05)
     t0 = time.perf_counter()
-    integrators.step(model, st, sim_time, "dop853", rtol=1e-10, atol=1e-10)
+    step(model, st, sim_time, "dop853", rtol=1e-10, atol=1e-10)
     return (time.perf_counter() - t0) / sim_time
 
 
 # ---------------------------------------------------------------------------- accuracy
 def accuracy_checks(quick):
-    model = dynamics.compile_model(builders.prism(3))
+    model = compile_model(builders.prism(3))
     st = perturbed_state(model, 1, 0.05, seed=1)
     T_acc = 0.2 if quick else 2.0
     T_en = 1.0 if quick else 10.0
@@ -191,29 +198,29 @@ def accuracy_checks(quick):
     n_rec = 20
     steps = int(round(T_acc / dt))
     every = steps // n_rec
-    t_r, q_r, _ = integrators.simulate(model, st, dt, steps, "rk4", record_every=every)
-    t_d, q_d, _ = integrators.simulate(model, st, dt, steps, "dop853", record_every=every, rtol=1e-12, atol=1e-12)
-    N_r = np.stack([dynamics.node_positions(model, q) for q in q_r])
-    N_d = np.stack([dynamics.node_positions(model, q) for q in q_d])
+    t_r, q_r, _ = simulate(model, st, dt, steps, "rk4", record_every=every)
+    t_d, q_d, _ = simulate(model, st, dt, steps, "dop853", record_every=every, rtol=1e-12, atol=1e-12)
+    N_r = np.stack([node_positions(model, q) for q in q_r])
+    N_d = np.stack([node_positions(model, q) for q in q_d])
     pos_err = float(np.abs(N_r - N_d).max())
     # energy drift over T_en, and the slack margin along the run
     steps_e = int(round(T_en / dt))
     every_e = steps_e // 200
-    t_e, q_e, qd_e = integrators.simulate(model, st, dt, steps_e, "rk4", record_every=every_e)
-    E = np.array([dynamics.energy(model, q, qd)[0] for q, qd in zip(q_e, qd_e)])
+    t_e, q_e, qd_e = simulate(model, st, dt, steps_e, "rk4", record_every=every_e)
+    E = np.array([energy(model, q, qd)[0] for q, qd in zip(q_e, qd_e)])
     drift = float(np.abs(E - E[0]).max() / abs(E[0]))
-    margin = min(float(np.min(dynamics.string_state(model, q)[1] - model.rest_length)) for q in q_e)
+    margin = min(float(np.min(string_state(model, q)[1] - model.rest_length)) for q in q_e)
     return dict(rk4_dt=dt, duration_s=T_acc, rk4_vs_dop853_max_node_error_m=pos_err,
                 energy_duration_s=T_en, energy_relative_drift=drift, energy_J=float(E[0]),
                 min_string_stretch_m=margin, all_strings_taut=margin > 0,
-                rod_length_drift=float(max(dynamics.rod_length_drift(model, q).max() for q in q_e)))
+                rod_length_drift=float(max(rod_length_drift(model, q).max() for q in q_e)))
 
 
 def mujoco_same_scene(mujoco, quick):
     """MuJoCo's prism: accelerations at the prestressed equilibrium, and node distance to our
     trajectory after a short run with RK4 at dt = 1e-4 in both."""
-    model = dynamics.compile_model(builders.prism(3))
-    st0 = dynamics.initial_state(model)
+    model = compile_model(builders.prism(3))
+    st0 = initial_state(model)
     mm = mujoco.MjModel.from_xml_string(mjcf(model, "RK4", dt=1e-4))
     d = mujoco.MjData(mm)
     mj_set_state(mujoco, mm, d, model, st0.q[0], st0.qd[0])
@@ -224,9 +231,9 @@ def mujoco_same_scene(mujoco, quick):
     n = int(round(T / 1e-4))
     mujoco.mj_step(mm, d, nstep=n)
     mujoco.mj_kinematics(mm, d)
-    ours = integrators.step(model, st, 1e-4, "rk4", n_steps=n)
-    diff = float(np.abs(mj_nodes(mm, d, model) - dynamics.node_positions(model, ours.q)[0]).max())
-    moved = float(np.abs(dynamics.node_positions(model, ours.q) - dynamics.node_positions(model, st.q)).max())
+    ours = step(model, st, 1e-4, "rk4", n_steps=n)
+    diff = float(np.abs(mj_nodes(mm, d, model) - node_positions(model, ours.q)[0]).max())
+    moved = float(np.abs(node_positions(model, ours.q) - node_positions(model, st.q)).max())
     return dict(mujoco_max_qacc_at_equilibrium=qacc_eq, duration_s=T, max_node_difference_m=diff,
                 max_node_displacement_m=moved)
 
@@ -246,7 +253,7 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=None, help="also write the numbers as JSON here")
     ap.add_argument("--no-mujoco", action="store_true")
     args = ap.parse_args(argv)
-    warnings.simplefilter("ignore", category=integrators.__dict__.get("StabilityWarning", UserWarning))
+    warnings.simplefilter("ignore", category=StabilityWarning)
     quick = args.quick
     target, repeats = (0.02, 2) if quick else (0.15, 3)
     Bs = (1, 64) if quick else (1, 64, 1024, 4096)
@@ -282,7 +289,7 @@ def main(argv=None):
               f"max node difference {same['max_node_difference_m']:.2e} m "
               f"(nodes moved up to {same['max_node_displacement_m']:.2e} m)")
 
-    models = {name: dynamics.compile_model(s) for name, s in scenes(quick).items()}
+    models = {name: compile_model(s) for name, s in scenes(quick).items()}
     t0 = time.perf_counter()        # compile (or load from numba's disk cache) every kernel before timing
     for integ in ("semi_implicit_euler", "rk4"):
         for B in (1, 4096):

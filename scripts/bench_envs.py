@@ -69,10 +69,12 @@ import gymnasium as gym  # noqa: E402
 from gymnasium import spaces  # noqa: E402
 
 import tensegrity_gym  # noqa: E402,F401  (registers the env ids)
-from tensegrity_gym import _kernels, builders, integrators  # noqa: E402
-from tensegrity_gym import dynamics  # noqa: E402
+from tensegrity_gym.core import builders  # noqa: E402
+from tensegrity_gym.backends.numba.api import step_inplace  # noqa: E402
+from tensegrity_gym.core.model import compile_model, State  # noqa: E402
+from tensegrity_gym.core.errors import StabilityWarning  # noqa: E402
 from _bench import mjcf  # noqa: E402  (MJCF of the free prism, shared with bench_dynamics)
-from tensegrity_gym.sb3 import make_sb3_vec_env  # noqa: E402
+from tensegrity_gym.integrations.sb3 import make_sb3_vec_env  # noqa: E402
 
 ENV_IDS = {"shape": "TensegrityShape-v0", "roll": "TensegrityRoll-v0"}
 METHODS = {
@@ -231,7 +233,7 @@ def mujoco_factory(env_id: str):
     dt, fs = task.dt, task.frame_skip
     mes = probe.spec.max_episode_steps or 1000
     probe.close()
-    model = dynamics.compile_model(builders.prism(3))
+    model = compile_model(builders.prism(3))
     xml = mjcf(model, "Euler", dt=dt)
     fn = functools.partial(_make_mujoco, xml, model.rest_length.copy(), dt, fs, mes)
     desc = (f"free 3-bar prism (builders.prism(3): {model.n_bars} rods, {model.n_strings} strings), MJCF from "
@@ -357,21 +359,23 @@ def run_cell(method: str, env_id: str, n: int, args, ctx: dict) -> dict:
 
 # ---------------------------------------------------------------------------- step() vs physics
 class _Recorder:
-    """Spies on the physics entry points (``integrators.step``, ``_kernels.step``,
-    ``_kernels.step_inplace``: integrator calls; ``contact.forces_inplace``: force evaluation)
+    """Spies on the physics entry points (``physics.integrate.step``, ``backends.numba.api.step``,
+    ``api.step_inplace``, ``physics.pipeline.run_steps``: integrator calls;
+    ``physics.contact.forces_inplace``: force evaluation)
     while the env runs ONE control step, recording each outermost call. Arrays and contact
     states passed to them are recorded by identity, with a snapshot taken the first time each
     is seen (before any recorded call changed it), so a replay can recreate the same buffers,
     shared between calls exactly as the env shares them. The patches live only in this process
     and are removed on exit."""
 
-    SPIED = (("integrators", "step", "integrator"), ("_kernels", "step", "integrator"),
-             ("_kernels", "step_inplace", "integrator"), ("contact", "forces_inplace", "force"),
-             ("pipeline", "advance", "integrator"))    # the env pipeline's in-place steps (contact inside)
+    SPIED = (("integrate", "step", "integrator"), ("api", "step", "integrator"),
+             ("api", "step_inplace", "integrator"), ("contact", "forces_inplace", "force"),
+             ("pipeline", "run_steps", "integrator"))    # the env pipeline's in-place steps (contact inside)
 
     def __init__(self):
-        from tensegrity_gym import contact, pipeline
-        self.modules = {"integrators": integrators, "_kernels": _kernels, "contact": contact, "pipeline": pipeline}
+        from tensegrity_gym.backends.numba import api
+        from tensegrity_gym.physics import contact, integrate, pipeline
+        self.modules = {"integrate": integrate, "api": api, "contact": contact, "pipeline": pipeline}
         self.calls: list = []
         self.buffers: dict = {}          # id -> (original object kept alive, snapshot)
         self._depth = 0
@@ -395,8 +399,8 @@ class _Recorder:
             if id(x) not in self.buffers:
                 self.buffers[id(x)] = (x, copy.deepcopy(x))
             return ("buf", id(x))
-        if isinstance(x, dynamics.State):     # integrators.step never modifies its input state
-            return ("val", dynamics.State(np.array(x.q, copy=True), np.array(x.qd, copy=True), x.t))
+        if isinstance(x, State):     # physics.integrate.step never modifies its input state
+            return ("val", State(np.array(x.q, copy=True), np.array(x.qd, copy=True), x.t))
         return ("val", x)                # models, parameter objects, scalars, strings, None
 
     def _wrap(self, orig, label, kind):
@@ -443,12 +447,12 @@ def physics_callables(env) -> tuple[dict, str]:
     its task runs it, found by recording the calls the env makes during one ``step`` (see
     :class:`_Recorder`; the env is then put back to its pre-step state):
 
-    ``integrator``   only the recorded integrator call(s) (``integrators.step`` /
-                     ``_kernels.step_inplace`` / ``pipeline.advance``, whose contact steps
+    ``integrator``   only the recorded integrator call(s) (``integrate.step`` /
+                     ``api.step_inplace`` / ``pipeline.run_steps``, whose contact steps
                      are inside it), same arguments, same input states;
     ``with_forces``  all recorded calls in order, force evaluations (``contact.forces_inplace``)
                      included;
-    ``kernel_floor`` one compiled-kernel call ``_kernels.step_inplace(..., n_steps=frame_skip)``
+    ``kernel_floor`` one compiled-kernel call ``backends.numba.api.step_inplace(..., n_steps=frame_skip)``
                      of the same model and controls without external forces.
     """
     task = env.unwrapped.task
@@ -477,7 +481,7 @@ def physics_callables(env) -> tuple[dict, str]:
     def floor():
         np.copyto(qf, q0)
         np.copyto(qdf, qd0)
-        _kernels.step_inplace(model, qf, qdf, dt, name, n_steps=fs, **kin)
+        step_inplace(model, qf, qdf, dt, name, n_steps=fs, **kin)
     out["kernel_floor"] = floor
     return out, desc
 
@@ -676,7 +680,7 @@ def main(argv=None):
     if args.max_procs is None:
         args.max_procs = 4 if args.quick else 16
     out = args.out if args.out is not None else (None if args.quick else str(ROOT / "results" / "bench_envs"))
-    warnings.simplefilter("ignore", category=getattr(integrators, "StabilityWarning", UserWarning))
+    warnings.simplefilter("ignore", category=StabilityWarning)
 
     t_all = time.perf_counter()
     info = machine_info(args)

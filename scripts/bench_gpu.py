@@ -8,7 +8,7 @@ Euler, dt = 1 ms, for
 * ``roll_prism``: the TensegrityRoll-v0 robot (``envs.roll.robot_prism`` on the ground,
   ``place_on_ground``, gravity, string damping) with ground contact and friction, per step
   contact forces then one integrator step (torch: :func:`torch_backend.contact_step`; numba:
-  ``contact.forces_inplace`` + ``_kernels.step_inplace``, the env's own path);
+  ``contact.forces_inplace`` + ``backends.numba.api.step_inplace``, the env's own path);
 * ``icosahedron``: the 6-bar icosahedron (``builders.icosahedron()``);
 * ``tower30``: a 30-stage prism tower (``builders.tower(30)``: 90 rods).
 
@@ -59,14 +59,22 @@ import sys
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 import torch
 
 import _bench  # noqa: E402  (shared helpers, a sibling module)
-from tensegrity_gym import _kernels, builders, dynamics, integrators
-from tensegrity_gym.contact import GroundContact, init_contact_state
-from tensegrity_gym.contact import forces_inplace as contact_forces_inplace
-from tensegrity_gym import torch_backend
+from tensegrity_gym.core import builders
+from tensegrity_gym.core.model import initial_state, compile_model, State
+from tensegrity_gym.physics.evaluate import project
+from tensegrity_gym.physics.integrate import step
+from tensegrity_gym.physics.geometry import node_positions
+from tensegrity_gym.backends.numba.api import step_inplace
+from tensegrity_gym.physics.contact import GroundContact, init_contact_state
+from tensegrity_gym.physics.contact import forces_inplace as contact_forces_inplace
+from tensegrity_gym.backends.torch.model import resolve_device, torch_model, torch_params, resolve_dtype
+from tensegrity_gym.backends.torch import contact as torch_contact
+from tensegrity_gym.backends.torch.driver import step_once
 from tensegrity_gym.envs import roll
 from tensegrity_gym.io.atomic import write_atomic  # noqa: E402
 
@@ -84,19 +92,19 @@ def roll_scene():
     axis = s.nodes[3:].mean(0) - s.nodes[:3].mean(0)
     contact = GroundContact(radius=0.02, max_damping=float(s.bar_mass.min()) / 4.0 / DT)
     nodes, _ = roll.place_on_ground(s.nodes, com, contact.radius, exclude_axis=axis)
-    return dynamics.compile_model(s.replace(nodes=nodes)), contact
+    return compile_model(s.replace(nodes=nodes)), contact
 
 
 def scenes():
-    return {"prism": (dynamics.compile_model(builders.prism(3)), None), "roll_prism": roll_scene(),
-            "icosahedron": (dynamics.compile_model(builders.icosahedron()), None),
-            "tower30": (dynamics.compile_model(builders.tower(30)), None)}
+    return {"prism": (compile_model(builders.prism(3)), None), "roll_prism": roll_scene(),
+            "icosahedron": (compile_model(builders.icosahedron()), None),
+            "tower30": (compile_model(builders.tower(30)), None)}
 
 
 def released(model, B, scale=0.01, seed=0):
     rng = np.random.default_rng(seed)
-    st = dynamics.initial_state(model, B)
-    q, qd = dynamics.project(model, st.q, st.qd + scale * rng.normal(size=st.qd.shape))
+    st = initial_state(model, B)
+    q, qd = project(model, st.q, st.qd + scale * rng.normal(size=st.qd.shape))
     return np.ascontiguousarray(q), np.ascontiguousarray(qd)
 
 
@@ -129,9 +137,9 @@ def bench_torch(model, contact, q0, qd0, dtype, dev, n_steps, min_time, compiled
     if dev.type == "cuda":
         torch.cuda.reset_peak_memory_stats()
     if contact is None:
-        tm = torch_backend.torch_model(model, dev, dtype)
-        prm = torch_backend.torch_params(tm, None, B)
-        one = (lambda a, b: torch_backend.step_once(tm, a, b, DT, "semi_implicit_euler", prm, None, None, None, True))
+        tm = torch_model(model, dev, dtype)
+        prm = torch_params(tm, None, B)
+        one = (lambda a, b: step_once(tm, a, b, DT, "semi_implicit_euler", prm, None, None, None, True))
         if compiled:
             one = torch.compile(one, dynamic=False)
 
@@ -142,13 +150,13 @@ def bench_torch(model, contact, q0, qd0, dtype, dev, n_steps, min_time, compiled
                     a, b = one(a, b)
                 state[0], state[1] = a, b
     else:
-        anchor, active = torch_backend.init_contact_state(model, B, dev, dtype)
+        anchor, active = torch_contact.init_contact_state(model, B, dev, dtype)
         cs = [anchor, active]
-        sub = torch.compile(torch_backend.contact_substep, dynamic=False) if compiled else None
+        sub = torch.compile(torch_contact.contact_substep, dynamic=False) if compiled else None
 
         def fn(n):
             with torch.no_grad():
-                state[0], state[1], cs[0], cs[1] = torch_backend.contact_step(model, contact, state[0], state[1], cs[0], cs[1],
+                state[0], state[1], cs[0], cs[1] = torch_contact.contact_step(model, contact, state[0], state[1], cs[0], cs[1],
                                                                    DT, n_steps=n, substep=sub)
     t0 = time.perf_counter()
     sec = time_loop(fn, n_steps, min_time, dev)
@@ -161,10 +169,10 @@ def bench_numba(model, contact, q0, qd0, n_steps, min_time):
     B = q0.shape[0]
     q, qd = q0.copy(), qd0.copy()
     if contact is None:
-        st = [dynamics.State(q, qd)]
+        st = [State(q, qd)]
 
         def fn(n):
-            st[0] = integrators.step(model, st[0], DT, "semi_implicit_euler", n_steps=n, backend="numba")
+            st[0] = step(model, st[0], DT, "semi_implicit_euler", n_steps=n, backend="numba")
     else:
         cs = init_contact_state(model, B)
         W = np.zeros((B, model.n_nodes, 3))
@@ -173,7 +181,7 @@ def bench_numba(model, contact, q0, qd0, n_steps, min_time):
         def fn(n):
             for _ in range(n):
                 contact_forces_inplace(contact, model, q, qd, cs, W, slip)
-                _kernels.step_inplace(model, q, qd, DT, "semi_implicit_euler", external=W)
+                step_inplace(model, q, qd, DT, "semi_implicit_euler", external=W)
     sec = time_loop(fn, n_steps, min_time, torch.device("cpu"))
     return {"steps_per_s": B / sec}
 
@@ -229,7 +237,7 @@ def bench_env(B, dev, dtype, min_time, compile_=False, terrain=None):
     if dtype is None:
         acts = [rng.uniform(-1, 1, (B, na)) for _ in range(4)]
     else:
-        acts = [torch.as_tensor(rng.uniform(-1, 1, (B, na)), device=dev).to(torch_backend.resolve_dtype(dtype)) for _ in range(4)]
+        acts = [torch.as_tensor(rng.uniform(-1, 1, (B, na)), device=dev).to(resolve_dtype(dtype)) for _ in range(4)]
     t0 = time.perf_counter()
 
     def fn(n):
@@ -250,7 +258,7 @@ def bench_env(B, dev, dtype, min_time, compile_=False, terrain=None):
                              max_episode_steps=None, **{**kw, "dtype": dt_, "compile": c})
             e.reset(seed=1)
             for i in range(5):
-                o = e.step(acts[i % 4].to(torch_backend.resolve_dtype(dt_)))[0]
+                o = e.step(acts[i % 4].to(resolve_dtype(dt_)))[0]
             obs[name] = o.double()
         for a, b in (("compiled", "eager"), ("eager", "eager_f64"), ("compiled", "eager_f64")):
             d = (obs[a] - obs[b]).abs().amax(dim=1)   # per env, largest observation entry difference
@@ -279,7 +287,7 @@ def bench_env_resets(B, dev, dtype, sampling, min_time, episode, terrain=None):
     reset_s = time_loop(lambda n: [env.reset() for _ in range(n)], 1, min_time, sdev)
     na = env.single_action_space.shape[0]
     a = np.random.default_rng(0).uniform(-1, 1, (B, na))
-    act = a if dtype is None else torch.as_tensor(a, device=dev).to(torch_backend.resolve_dtype(dtype))
+    act = a if dtype is None else torch.as_tensor(a, device=dev).to(resolve_dtype(dtype))
     env.reset(seed=1)
     cycle = episode + 1          # episode steps, then the autoreset step
 
@@ -296,18 +304,18 @@ def agreement(dev):
     out = {}
     for name, s in (("prism", builders.prism(3, prestress=100)), ("icosahedron", builders.icosahedron()),
                     ("constrained_prism", builders.constrained_prism())):
-        model = dynamics.compile_model(s)
+        model = compile_model(s)
         q, qd = released(model, 2, scale=0.2, seed=1)
-        st = dynamics.State(q, qd)
-        ref = integrators.step(model, st, 1e-4, "rk4", n_steps=10000, backend="numba")
-        Nref = dynamics.node_positions(model, ref.q)
+        st = State(q, qd)
+        ref = step(model, st, 1e-4, "rk4", n_steps=10000, backend="numba")
+        Nref = node_positions(model, ref.q)
         row = {}
         for label, dtype in (("float64", "float64"), ("float32", "float32")):
             t0 = time.perf_counter()
-            out_ = integrators.step(model, st, 1e-4, "rk4", n_steps=10000, backend="torch", device=dev, dtype=dtype)
-            row[label + "_node_error_m"] = float(np.abs(dynamics.node_positions(model, out_.q) - Nref).max())
+            out_ = step(model, st, 1e-4, "rk4", n_steps=10000, backend="torch", device=dev, dtype=dtype)
+            row[label + "_node_error_m"] = float(np.abs(node_positions(model, out_.q) - Nref).max())
             row[label + "_wall_s"] = time.perf_counter() - t0
-        row["moved_m"] = float(np.abs(Nref - dynamics.node_positions(model, q)).max())
+        row["moved_m"] = float(np.abs(Nref - node_positions(model, q)).max())
         out[name] = row
         print(f"agreement {name:18s} 1 s RK4 dt=1e-4: float64 {row['float64_node_error_m']:.2e} m, "
               f"float32 {row['float32_node_error_m']:.2e} m (nodes moved up to {row['moved_m']:.3f} m)", flush=True)
@@ -449,12 +457,12 @@ def main(argv=None):
     if args.quick:
         args.batch, args.min_time = [1024, 4096], 0.3
     terrain = json.loads(args.env_terrain) if args.env_terrain else None
-    dev = torch_backend.resolve_device(args.device)
+    dev = resolve_device(args.device)
     if args.threads:
         torch.set_num_threads(args.threads)
     info = {"label": args.label, "device": str(dev), "cpu_count": os.cpu_count(), "torch": torch.__version__,
-            "torch_threads": torch.get_num_threads(), "numba_threads": _kernels.numba.get_num_threads()
-            if hasattr(_kernels, "numba") else None, "platform": platform.platform(), "dt_s": DT,
+            "torch_threads": torch.get_num_threads(), "numba_threads": numba.get_num_threads(),
+            "platform": platform.platform(), "dt_s": DT,
             "integrator": "semi_implicit_euler", "env_terrain": args.env_terrain,
             "gpu": torch.cuda.get_device_name(dev) if dev.type == "cuda" else None}
     print(json.dumps(info), flush=True)

@@ -26,7 +26,7 @@ import numpy as np
 import gymnasium as gym
 
 import tensegrity_gym as tg
-from tensegrity_gym.params import default_params
+from tensegrity_gym.core.params import default_params
 from tensegrity_gym_agents.common import write_json
 
 ROLL_RANDOM = {"rod_mass": 0.2, "stiffness": 0.2, "damping": 0.2, "friction": 0.2, "ground_stiffness": 0.2,

@@ -17,19 +17,21 @@ import time
 import numpy as np
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics
-from tensegrity_gym.rendering import MujocoRenderer, Renderer, RendererUnavailable
+from tensegrity_gym.core.model import initial_state
+from tensegrity_gym.physics.geometry import node_positions
+from tensegrity_gym.physics.evaluate import force_densities
+from tensegrity_gym.tools.rendering import MujocoRenderer, Renderer, RendererUnavailable
 
 
 def trajectory(name: str, frames: int):
     s = tg.load_structure(name)
     m = tg.compile_model(s)
     rng = np.random.default_rng(0)
-    st = dynamics.initial_state(m, nodes=s.nodes + 0.01 * rng.standard_normal(s.nodes.shape))
+    st = initial_state(m, nodes=s.nodes + 0.01 * rng.standard_normal(s.nodes.shape))
     _, q, qd = tg.simulate(m, st, 1e-3, 10 * frames, "rk4", record_every=10)
     q, qd = q[1:, 0], qd[1:, 0]
-    nodes = dynamics.node_positions(m, q)
-    gamma, _, L = dynamics.force_densities(m, q, qd)
+    nodes = node_positions(m, q)
+    gamma, _, L = force_densities(m, q, qd)
     return s, nodes, gamma * L
 
 

@@ -33,8 +33,11 @@ import warnings
 
 import numpy as np
 
-from tensegrity_gym import builders, dynamics, integrators
-from tensegrity_gym.cli import structure_summary
+from tensegrity_gym.core import builders
+from tensegrity_gym.core.model import initial_state, compile_model
+from tensegrity_gym.physics.integrate import step
+from tensegrity_gym.physics.stability import stable_step_estimate
+from tensegrity_gym.tools.cli import structure_summary
 from tensegrity_gym.io.atomic import write_atomic  # noqa: E402
 
 DT = 1e-3
@@ -44,16 +47,16 @@ def _per_step_us(model, backend: str, budget_s: float = 0.3) -> float:
     """Best-of-3 CPU microseconds (``time.process_time``: immune to other processes on a shared
     machine; the B = 1 step is single-threaded) per step of ``integrators.step``, ~``budget_s``
     per repeat."""
-    st = dynamics.initial_state(model)
-    integrators.step(model, st, DT, "semi_implicit_euler", n_steps=2, backend=backend)   # compile / warm
+    st = initial_state(model)
+    step(model, st, DT, "semi_implicit_euler", n_steps=2, backend=backend)   # compile / warm
     t0 = time.process_time()
-    integrators.step(model, st, DT, "semi_implicit_euler", n_steps=20, backend=backend)
+    step(model, st, DT, "semi_implicit_euler", n_steps=20, backend=backend)
     one = max((time.process_time() - t0) / 20, 1e-7)
     n = int(min(max(budget_s / one, 5), 200000))
     best = float("inf")
     for _ in range(3):
         t0 = time.process_time()
-        integrators.step(model, st, DT, "semi_implicit_euler", n_steps=n, backend=backend)
+        step(model, st, DT, "semi_implicit_euler", n_steps=n, backend=backend)
         best = min(best, (time.process_time() - t0) / n)
     return best * 1e6
 
@@ -86,8 +89,8 @@ def scaling_table(stages) -> list[str]:
         t0 = time.process_time()
         structure_summary(s)
         summ = time.process_time() - t0
-        model = dynamics.compile_model(s)
-        method = dynamics.stable_step_estimate(model)["method"]
+        model = compile_model(s)
+        method = stable_step_estimate(model)["method"]
         us_nb = _per_step_us(model, "numba")
         k = s.n_bars
         rows.append(f"| {name} | {k} | {s.n_strings} | {s.n_nodes} | {cli_wall:.2f} | {cli_cpu:.2f} | {summ:.3f} "
@@ -106,11 +109,11 @@ def estimate_table() -> list[str]:
             "|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(rows), flush=True)
     for name, s in scenes:
-        m = dynamics.compile_model(s)
+        m = compile_model(s)
         t0 = time.process_time()
-        d = dynamics.stable_step_estimate(m, method="dense")
+        d = stable_step_estimate(m, method="dense")
         t1 = time.process_time()
-        sp = dynamics.stable_step_estimate(m, method="sparse")
+        sp = stable_step_estimate(m, method="sparse")
         t2 = time.process_time()
         rows.append(f"| {name} | {s.n_bars} | {d['omega_max']:.4f} / {sp['omega_max']:.4f} | "
                     f"{1e3 * d['semi_implicit_euler']:.4f} / {1e3 * sp['semi_implicit_euler']:.4f} | "

@@ -23,7 +23,8 @@ import numpy as np
 import gymnasium as gym  # noqa: E402
 
 import tensegrity_gym  # noqa: E402,F401  (registers the envs)
-from tensegrity_gym import dynamics, integrators  # noqa: E402
+from tensegrity_gym.core.model import State  # noqa: E402
+from tensegrity_gym.physics.integrate import step  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -42,14 +43,14 @@ def main(argv=None) -> int:
             for r in range(args.rounds):
                 u.reset(seed=r)
                 inputs = t.actuation.physics_inputs(t.ctrl)
-                st = dynamics.State(t.q.copy(), t.qd.copy(), 0.0)
+                st = State(t.q.copy(), t.qd.copy(), 0.0)
                 t0 = time.perf_counter()
                 for a in A:
                     u.step(a)
                 best_step = min(best_step, (time.perf_counter() - t0) / len(A))
                 t0 = time.perf_counter()
                 for _ in range(len(A)):
-                    integrators.step(t.model, st, t.dt, t.integrator, n_steps=t.frame_skip, **inputs)
+                    step(t.model, st, t.dt, t.integrator, n_steps=t.frame_skip, **inputs)
                 best_phys = min(best_phys, (time.perf_counter() - t0) / len(A))
             print(f"| {mode} | {rep} | {best_step * 1e6:.1f} | {best_phys * 1e6:.1f} | {best_step / best_phys:.2f} |")
         env.close()

@@ -28,8 +28,11 @@ def main(argv=None):
     a = ap.parse_args(argv)
     import torch
     import tensegrity_gym as tg
-    from tensegrity_gym import dynamics, sysid
-    from tensegrity_gym.params import default_params
+    from tensegrity_gym.tools import sysid
+    from tensegrity_gym.core.model import State
+    from tensegrity_gym.physics.geometry import node_positions
+    from tensegrity_gym.physics.evaluate import project
+    from tensegrity_gym.core.params import default_params
     torch.set_num_threads(a.threads)
     s = tg.constrained_prism(damping=2.0)
     model = tg.compile_model(s)
@@ -37,9 +40,9 @@ def main(argv=None):
     true = {f: getattr(model, f) * rng.uniform(0.8, 1.2, getattr(model, f).shape)
             for f in ("stiffness", "damping", "mass")}
     st = tg.initial_state(model, nodes=s.nodes + 0.03 * np.random.default_rng(0).standard_normal(s.nodes.shape))
-    st = dynamics.State(*dynamics.project(model, st.q, st.qd))
+    st = State(*project(model, st.q, st.qd))
     t, q, _ = tg.simulate(model, st, 5e-4, 1240, "rk4", params=default_params(model).replace(**true))
-    nodes = dynamics.node_positions(model, q[:, 0])
+    nodes = node_positions(model, q[:, 0])
     names, items, init, base = sysid._parse_fit(model, ("stiffness", "damping", "mass"), "per_member", None)
     t_, rec, mask, rl, h = sysid._check_record(model, t, nodes, None, None)
     pb = sysid._Problem(model, t_, rec, mask, rl, h, names, items, init, base, "per_member", 0.15, "rk4", None, 4,

@@ -48,7 +48,9 @@ import time
 
 import numpy as np
 
-from tensegrity_gym import builders, contact as C, dynamics as dyn
+from tensegrity_gym.core import builders
+from tensegrity_gym.core.model import compile_model, initial_state
+from tensegrity_gym.physics import contact as physics_contact, pipeline
 from tensegrity_gym.core.terrain import Box, Plane, Terrain
 from tensegrity_gym.physics import terrain as T
 from tensegrity_gym_agents.common import cpu_model
@@ -63,7 +65,7 @@ def prism():
                        gravity=(0.0, 0.0, -9.81))
     nodes = s.nodes.copy()
     nodes[:, 2] += 0.02
-    return dyn.compile_model(s.replace(nodes=nodes))
+    return compile_model(s.replace(nodes=nodes))
 
 
 def timed(fn, steps):
@@ -196,15 +198,15 @@ def torch_table(m, scenes: dict, batch, steps: int) -> dict:
     """microseconds per physics step of the torch backend (CPU, float64): flat ground contact
     (``torch_backend.contact_step``) against each terrain (``backends.torch.terrain.terrain_step``)."""
     import torch
-    from tensegrity_gym import torch_backend as TB
+    from tensegrity_gym.backends.torch import contact as torch_contact
     from tensegrity_gym.backends.torch import terrain as TT
     rows = {"torch flat GroundContact": [], **{f"torch {k}": [] for k in scenes}}
-    g = C.GroundContact()
+    g = physics_contact.GroundContact()
     for B in batch:
-        st = dyn.initial_state(m, B)
+        st = initial_state(m, B)
         q, qd = torch.as_tensor(np.array(st.q)), torch.as_tensor(np.array(st.qd))
-        an, ac = TB.init_contact_state(m, B, dtype=torch.float64)
-        rows["torch flat GroundContact"].append(timed(lambda n: TB.contact_step(m, g, q, qd, an, ac, DT, n_steps=n),
+        an, ac = torch_contact.init_contact_state(m, B, dtype=torch.float64)
+        rows["torch flat GroundContact"].append(timed(lambda n: torch_contact.contact_step(m, g, q, qd, an, ac, DT, n_steps=n),
                                                       steps))
         for name, ter in scenes.items():
             tc = T.TerrainContact(ter)
@@ -254,10 +256,10 @@ def main():
         print(f"{'scene':<26}" + "".join(f"{'B=' + str(B) + ' us/step':>16}" for B in a.batch))
     rows = {"flat GroundContact": [], **{k: [] for k in scenes}}
     for B in a.batch:
-        st = dyn.initial_state(m, B)
-        g = C.GroundContact()
-        cs = C.init_contact_state(m, B)
-        rows["flat GroundContact"].append(timed(lambda n: C.step(m, g, st, cs, DT, n_steps=n), a.steps))
+        st = initial_state(m, B)
+        g = physics_contact.GroundContact()
+        cs = physics_contact.init_contact_state(m, B)
+        rows["flat GroundContact"].append(timed(lambda n: pipeline.contact_step(m, g, st, cs, DT, n_steps=n), a.steps))
         for name, ter in scenes.items():
             tc = T.TerrainContact(ter)
             ts = T.init_terrain_state(tc, m, B)

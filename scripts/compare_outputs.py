@@ -38,12 +38,13 @@ def _rollout(env, rng, steps: int = 100):
 
 def _released(model, B: int, seed: int):
     """B copies of the model's initial state released by a seeded velocity perturbation (projected)."""
-    from tensegrity_gym import dynamics as dyn
+    from tensegrity_gym.physics.evaluate import project
+    from tensegrity_gym.core.model import State
     import tensegrity_gym as tg
     st = tg.initial_state(model, B)
     rng = np.random.default_rng(seed)
-    q, qd = dyn.project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
-    return dyn.State(q=q, qd=qd), rng
+    q, qd = project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
+    return State(q=q, qd=qd), rng
 
 
 def dump(path: str) -> None:
@@ -59,7 +60,7 @@ def dump(path: str) -> None:
             out[f"{name}/{integ}/{backend}/qd"] = r.qd
     # the kernels' batch paths: one copy at a time (B < 16), SIMD blocks (B = 19, 40, pad lanes),
     # the parallel kernel (B = 600), each with shared and per-copy Params
-    from tensegrity_gym.params import default_params
+    from tensegrity_gym.core.params import default_params
     for name in ("prism3", "constrained_prism", "icosahedron", "tower3"):
         model = tg.compile_model(tg.build(name))
         for B in (1, 3, 19, 40, 600):

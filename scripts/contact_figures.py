@@ -32,8 +32,12 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from tensegrity_gym import builders, contact as C, dynamics  # noqa: E402
-from tensegrity_gym.structure import Structure  # noqa: E402
+from tensegrity_gym.core import builders  # noqa: E402
+from tensegrity_gym.core.model import compile_model, initial_state  # noqa: E402
+from tensegrity_gym.physics.contact import init_contact_state, GroundContact, stable_step, contact_energy  # noqa: E402
+from tensegrity_gym.physics.pipeline import contact_step  # noqa: E402
+from tensegrity_gym.physics.geometry import node_positions, center_of_mass, energy, linear_momentum  # noqa: E402
+from tensegrity_gym.core.structure import Structure  # noqa: E402
 
 G = 9.81
 OUT = ROOT / "results" / "contact"
@@ -42,7 +46,7 @@ OUT = ROOT / "results" / "contact"
 def flat_rod(v0=0.0, gravity=(0.0, 0.0, -G), length=0.4, mass=0.2, radius=0.02):
     s = Structure([[0, 0, radius], [length, 0, radius]], [[0, 1]], np.zeros((0, 2), int), bar_mass=mass,
                   gravity=gravity, velocities=[[v0, 0, 0], [v0, 0, 0]])
-    return dynamics.compile_model(s)
+    return compile_model(s)
 
 
 def prism(drop=0.0):
@@ -50,17 +54,17 @@ def prism(drop=0.0):
                        gravity=(0.0, 0.0, -G))
     nodes = s.nodes.copy()
     nodes[:, 2] += 0.02 + drop
-    return dynamics.compile_model(s.replace(nodes=nodes))
+    return compile_model(s.replace(nodes=nodes))
 
 
 def simulate(model, contact, T, dt=1e-3, record=None):
-    st = dynamics.initial_state(model, 1)
-    cs = C.init_contact_state(model, 1)
+    st = initial_state(model, 1)
+    cs = init_contact_state(model, 1)
     rec = []
     for i in range(int(round(T / dt))):
         if record is not None:
             rec.append(record(st, cs))
-        st, cs = C.step(model, contact, st, cs, dt)
+        st, cs = contact_step(model, contact, st, cs, dt)
     if record is not None:
         rec.append(record(st, cs))
     return st, cs, rec
@@ -68,14 +72,14 @@ def simulate(model, contact, T, dt=1e-3, record=None):
 
 def sliding(res):
     mu = 0.5
-    c = C.GroundContact(friction=mu)
+    c = GroundContact(friction=mu)
     fig, ax = plt.subplots(figsize=(5, 3.4))
     out = []
     for v0 in (0.5, 1.0, 2.0):
         m = flat_rod(v0)
         T = v0 / (mu * G) + 0.3
-        _, _, rec = simulate(m, c, T, record=lambda st, cs: (st.t, dynamics.center_of_mass(m, st.q)[0, 0],
-                                                             dynamics.linear_momentum(m, st.qd)[0, 0] / 0.2))
+        _, _, rec = simulate(m, c, T, record=lambda st, cs: (st.t, center_of_mass(m, st.q)[0, 0],
+                                                             linear_momentum(m, st.qd)[0, 0] / 0.2))
         t, x, v = (np.array(a) for a in zip(*rec))
         sel = (v < 0.8 * v0) & (v > 0.2 * v0)
         a = -np.polyfit(t[sel], v[sel], 1)[0]
@@ -98,15 +102,15 @@ def sliding(res):
 
 def slope(res):
     mu = 0.5
-    c = C.GroundContact(friction=mu)
+    c = GroundContact(friction=mu)
     crit = math.atan(mu)
     fig, ax = plt.subplots(figsize=(5, 3.4))
     out = []
     for dtheta in (+5.0, +1.0, -1.0, -5.0):
         th = crit + math.radians(dtheta)
         m = flat_rod(0.0, gravity=(G * math.sin(th), 0.0, -G * math.cos(th)))
-        _, _, rec = simulate(m, c, 1.0, record=lambda st, cs: (st.t, dynamics.center_of_mass(m, st.q)[0, 0],
-                                                               dynamics.linear_momentum(m, st.qd)[0, 0] / 0.2))
+        _, _, rec = simulate(m, c, 1.0, record=lambda st, cs: (st.t, center_of_mass(m, st.q)[0, 0],
+                                                               linear_momentum(m, st.qd)[0, 0] / 0.2))
         t, x, v = (np.array(a) for a in zip(*rec))
         a_th = max(G * (math.sin(th) - mu * math.cos(th)), 0.0)
         sel = t > 0.2
@@ -127,18 +131,18 @@ def slope(res):
 
 def creep(res):
     m = prism()
-    c = C.GroundContact()
+    c = GroundContact()
     st, cs, _ = simulate(m, c, 1.0)
-    n0 = dynamics.node_positions(m, st.q)[0]
+    n0 = node_positions(m, st.q)[0]
     t0 = st.t
     rec = []
     st2 = st
     cs2 = cs
     for i in range(10000):
         if i % 10 == 0:
-            rec.append((st2.t - t0, dynamics.node_positions(m, st2.q)[0]))
-        st2, cs2 = C.step(m, c, st2, cs2, 1e-3)
-    rec.append((st2.t - t0, dynamics.node_positions(m, st2.q)[0]))
+            rec.append((st2.t - t0, node_positions(m, st2.q)[0]))
+        st2, cs2 = contact_step(m, c, st2, cs2, 1e-3)
+    rec.append((st2.t - t0, node_positions(m, st2.q)[0]))
     t = np.array([r[0] for r in rec])
     N = np.array([r[1] for r in rec])
     disp = np.linalg.norm(N[:, :, :2] - n0[None, :, :2], axis=-1)   # (T, n)
@@ -154,8 +158,8 @@ def creep(res):
     fig.tight_layout()
     fig.savefig(OUT / "creep.png", dpi=120)
     plt.close(fig)
-    com0 = dynamics.center_of_mass(m, st.q)[0]
-    com1 = dynamics.center_of_mass(m, st2.q)[0]
+    com0 = center_of_mass(m, st.q)[0]
+    com1 = center_of_mass(m, st2.q)[0]
     res["creep"] = {"duration_s": 10.0, "max_cap_horizontal_displacement_m": float(disp[:, :3].max()),
                     "max_node_displacement_m": float(np.linalg.norm(N - n0[None], axis=-1).max()),
                     "com_horizontal_drift_m": float(np.linalg.norm(com1[:2] - com0[:2])),
@@ -168,11 +172,11 @@ def drop(res):
     out = {}
     for dt in (1e-3, 2.5e-4):
         m = prism(drop=0.05)
-        c = C.GroundContact()
+        c = GroundContact()
 
         def rec(st, cs):
-            return (st.t, c.radius - dynamics.node_positions(m, st.q)[0, :, 2].min(),
-                    dynamics.energy(m, st.q, st.qd)[0] + C.contact_energy(c, m, st.q, cs)[0])
+            return (st.t, c.radius - node_positions(m, st.q)[0, :, 2].min(),
+                    energy(m, st.q, st.qd)[0] + contact_energy(c, m, st.q, cs)[0])
         _, _, r = simulate(m, c, 1.0, dt=dt, record=rec)
         t, pen, E = (np.array(a) for a in zip(*r))
         excess = E - np.minimum.accumulate(E)
@@ -197,8 +201,8 @@ def drop(res):
 
 def stable_dt(res):
     m = prism(drop=0.01)
-    c = C.GroundContact()
-    est = C.stable_step(c, m)
+    c = GroundContact()
+    est = stable_step(c, m)
     sweep = {}
     for dt in (1e-3, 2e-3, 3e-3, 3.5e-3, 4e-3, 5e-3):
         with np.errstate(all="ignore"):
@@ -206,7 +210,7 @@ def stable_dt(res):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 st, cs, _ = simulate(m, c, 2.0, dt=dt)
-        N = dynamics.node_positions(m, st.q)[0]
+        N = node_positions(m, st.q)[0]
         ok = bool(np.all(np.isfinite(N)) and np.abs(N).max() < 2.0 and N[:, 2].min() > 0.0)
         sweep[f"{dt:g}"] = ok
     res["stable_step"] = {"estimate": est, "resting_prism_2s_stable": sweep,
@@ -215,7 +219,7 @@ def stable_dt(res):
 
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
-    res = {"contact_defaults": {k: getattr(C.GroundContact(), k) for k in
+    res = {"contact_defaults": {k: getattr(GroundContact(), k) for k in
                                 ("stiffness", "damping", "exponent", "friction", "tangential_stiffness",
                                  "tangential_damping", "radius")},
            "dt_s": 1e-3, "integrator": "semi_implicit_euler"}

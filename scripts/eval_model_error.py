@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym.baselines import NNLSShapeController
+from tensegrity_gym.tools.baselines import NNLSShapeController
 from tensegrity_gym_agents import evaluate as ev
 from tensegrity_gym_agents.common import write_json
 

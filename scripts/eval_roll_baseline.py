@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 import gymnasium as gym  # noqa: E402
 
 import tensegrity_gym  # noqa: E402,F401
-from tensegrity_gym.baselines import RollingGait  # noqa: E402
+from tensegrity_gym.tools.baselines import RollingGait  # noqa: E402
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym.baselines import NNLSShapeController
+from tensegrity_gym.tools.baselines import NNLSShapeController
 from tensegrity_gym.envs.shape import TensegrityShapeVectorEnv
 
 
@@ -54,7 +54,7 @@ def settle_time(n: int = 20, noise: float = 0.02, threshold: float = 1e-3, secon
     """Damping check: start ``n`` envs at the nominal equilibrium disturbed by +-``noise`` (m, m/s on
     each reduced coordinate), hold the nominal controls (zero actions) and report the time after
     which every node stays within ``threshold`` m of the equilibrium."""
-    from tensegrity_gym import dynamics
+    from tensegrity_gym.physics.geometry import node_positions
     env = TensegrityShapeVectorEnv(num_envs=n, max_episode_steps=None, reset_noise_scale=noise, **env_kwargs)
     env.reset(seed=0)
     task = env.task
@@ -62,7 +62,7 @@ def settle_time(n: int = 20, noise: float = 0.02, threshold: float = 1e-3, secon
     last_out = np.zeros(n)
     for i in range(steps):
         env.step(np.zeros((n, task.action_size)))
-        dev = np.abs(dynamics.node_positions(task.model, task.q) - task.nodes_nominal).max(axis=(1, 2))
+        dev = np.abs(node_positions(task.model, task.q) - task.nodes_nominal).max(axis=(1, 2))
         last_out[dev > threshold] = (i + 1) * task.control_dt
     return {"noise_m": noise, "threshold_m": threshold, "n": n, "settle_time_s_median": float(np.median(last_out)),
             "settle_time_s_max": float(last_out.max()), "env_kwargs": {k: str(v) for k, v in env_kwargs.items()}}

@@ -34,7 +34,7 @@ import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym_agents import common
-from tensegrity_gym.baselines import RollingGait
+from tensegrity_gym.tools.baselines import RollingGait
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv
 from tensegrity_gym.envs.roll_mujoco import TensegrityRollMuJoCoEnv
 

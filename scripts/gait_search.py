@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from _bench import rotation_vectors
-from tensegrity_gym import dynamics  # noqa: E402
-from tensegrity_gym.baselines import RollingGait, wave_targets  # noqa: E402
+from tensegrity_gym.physics.geometry import center_of_mass, node_positions  # noqa: E402
+from tensegrity_gym.tools.baselines import RollingGait, wave_targets  # noqa: E402
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv  # noqa: E402
 
 
@@ -45,12 +45,12 @@ def run(P: dict, T: float = 10.0, seed: int = 0):
     step = act.max_rate * task.control_dt
 
     def centred_nodes():
-        N = dynamics.node_positions(task.model, task.q)
+        N = node_positions(task.model, task.q)
         return N - N.mean(axis=1, keepdims=True)
 
     prev = centred_nodes()
     rot = np.zeros((B, 3))
-    start = dynamics.center_of_mass(task.model, task.q)
+    start = center_of_mass(task.model, task.q)
     for k in range(int(round(T / task.control_dt))):
         t = np.full(B, k * task.control_dt)
         tgt = wave_targets(t, act.nominal, act.low, act.high, P["amplitude"], P["phase"], P["period"],
@@ -60,7 +60,7 @@ def run(P: dict, T: float = 10.0, seed: int = 0):
         rot += rotation_vectors(prev, cur)
         prev = cur
     env.close()
-    return dynamics.center_of_mass(task.model, task.q) - start, rot / (2 * np.pi)
+    return center_of_mass(task.model, task.q) - start, rot / (2 * np.pi)
 
 
 def sample(rng: np.random.Generator, B: int) -> dict:

@@ -38,8 +38,8 @@ import numpy as np
 import gymnasium as gym  # noqa: E402
 
 import tensegrity_gym  # noqa: E402,F401
-from tensegrity_gym import dynamics  # noqa: E402
-from tensegrity_gym.baselines import RollingGait  # noqa: E402
+from tensegrity_gym.physics.geometry import node_positions  # noqa: E402
+from tensegrity_gym.tools.baselines import RollingGait  # noqa: E402
 from _bench import rotation_vectors  # noqa: E402,F401  (shared with gait_search)
 
 ENV_ID = "TensegrityRoll-v0"
@@ -53,7 +53,7 @@ def episode_stats(env, policy, seed: int, steps: int) -> dict:
     axis /= np.linalg.norm(axis)                    # forward roll turns positively about it
 
     def nodes():
-        N = dynamics.node_positions(task.model, task.q)[0]
+        N = node_positions(task.model, task.q)[0]
         return N - N.mean(axis=0)
 
     prev = nodes()

@@ -27,7 +27,7 @@ import gymnasium as gym
 import torch
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym.sb3 import make_sb3_vec_env
+from tensegrity_gym.integrations.sb3 import make_sb3_vec_env
 
 #: (label, [(file name part, function name)], cumulative?): builtins by their own time, Python
 #: functions with what they call (none of these calls another row's function)

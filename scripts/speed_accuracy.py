@@ -41,7 +41,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 import tensegrity_gym as tg  # noqa: E402
-from tensegrity_gym import dynamics, integrators as I  # noqa: E402
+from tensegrity_gym.core.model import initial_state, State, compile_model  # noqa: E402
+from tensegrity_gym.physics.evaluate import project  # noqa: E402
+from tensegrity_gym.physics.integrate import step  # noqa: E402
+from tensegrity_gym.physics.rollout import simulate  # noqa: E402
+from tensegrity_gym.core.errors import StabilityWarning, SimulationDiverged  # noqa: E402
+from tensegrity_gym.physics.geometry import node_positions, energy, rod_length_drift  # noqa: E402
+from tensegrity_gym.physics.stability import stability_limit  # noqa: E402
 from _bench import timed as _timed  # noqa: E402  (shared helpers, a sibling module)
 from tensegrity_gym.io.mjcf import to_mjcf  # noqa: E402
 
@@ -52,10 +58,10 @@ FIXED = ("semi_implicit_euler", "rk4", "implicit_euler")
 def _perturbed(model, scale, seed):
     """The structure's initial state with random rod velocities (m/s, 1/s) of std ``scale``,
     projected onto the constraints (so b . b' = 0 and constrained nodes move on their set)."""
-    st = dynamics.initial_state(model)
+    st = initial_state(model)
     rng = np.random.default_rng(seed)
-    q, qd = dynamics.project(model, st.q, scale * rng.normal(size=st.qd.shape))
-    return dynamics.State(q=q, qd=qd, t=0.0)
+    q, qd = project(model, st.q, scale * rng.normal(size=st.qd.shape))
+    return State(q=q, qd=qd, t=0.0)
 
 
 def _contact_available():
@@ -68,19 +74,19 @@ def rolling_scene(T):
     springs), launched at 1 m/s along x with an 8 rad/s spin about y, so that it slides, tips
     and rolls. Contact is a discrete-time model (stick anchors updated once per
     step): the reference is semi-implicit Euler at dt = 5e-6 s, not DOP853."""
-    from tensegrity_gym import contact
+    from tensegrity_gym.physics.contact import GroundContact
     from tensegrity_gym.envs.roll import robot_prism
     s = robot_prism()
-    m = dynamics.compile_model(s)
+    m = compile_model(s)
     nodes = s.nodes.copy()
     nodes[:, 2] += 0.02 - nodes[:, 2].min()             # caps (radius 2 cm) touching the ground
-    st = dynamics.initial_state(m, nodes=nodes)
+    st = initial_state(m, nodes=nodes)
     c = st.q[0, :, :3].mean(axis=0)
     w = np.array([0.0, 8.0, 0.0])                       # rad/s spin about y, about the prism's centre
     vel = np.array([1.0, 0.0, 0.0]) + np.cross(w, nodes - c)
-    st = dynamics.initial_state(m, nodes=nodes, velocities=vel)
-    q, qd = dynamics.project(m, st.q, st.qd)
-    return dict(model=m, state=dynamics.State(q, qd, 0.0), T=T, contact=contact.GroundContact(),
+    st = initial_state(m, nodes=nodes, velocities=vel)
+    q, qd = project(m, st.q, st.qd)
+    return dict(model=m, state=State(q, qd, 0.0), T=T, contact=GroundContact(),
                 description="TensegrityRoll-v0 robot prism (0.2 kg rods, 1e3 N/m strings, 2 N s/m "
                             "damping, gravity) on the ground (contact 1e4 N/m, mu = 1), launched at 1 m/s "
                             "with an 8 rad/s spin; reference: semi-implicit Euler at dt = 5e-6 s (contact "
@@ -89,19 +95,20 @@ def rolling_scene(T):
 
 def _contact_run(sc, dt, integrator, backend, n_rec):
     """Records (S+1 of them) of (q, qd, contact energy) stepping with contact.step."""
-    from tensegrity_gym import contact
+    from tensegrity_gym.physics.contact import init_contact_state, contact_energy
+    from tensegrity_gym.physics.pipeline import contact_step
     m, st, T, c = sc["model"], sc["state"], sc["T"], sc["contact"]
     n = int(round(T / dt))
     every = n // n_rec
-    cs = contact.init_contact_state(m)
-    qs, qds, ec = [st.q], [st.qd], [contact.contact_energy(c, m, st.q, cs)[0]]
+    cs = init_contact_state(m)
+    qs, qds, ec = [st.q], [st.qd], [contact_energy(c, m, st.q, cs)[0]]
     for _ in range(n_rec):
-        st, cs = contact.step(m, c, st, cs, dt, integrator, n_steps=every, backend=backend)
+        st, cs = contact_step(m, c, st, cs, dt, integrator, n_steps=every, backend=backend)
         if not (np.all(np.isfinite(st.q)) and np.all(np.isfinite(st.qd))):
-            raise I.SimulationDiverged(f"{integrator}: non-finite state with contact by t = {st.t:.4g} s")
+            raise SimulationDiverged(f"{integrator}: non-finite state with contact by t = {st.t:.4g} s")
         qs.append(st.q)
         qds.append(st.qd)
-        ec.append(contact.contact_energy(c, m, st.q, cs)[0])
+        ec.append(contact_energy(c, m, st.q, cs)[0])
     return np.array(qs), np.array(qds), np.array(ec)
 
 
@@ -111,7 +118,7 @@ def contact_self_convergence(sc, dts=(1e-3, 2.5e-4, 6.25e-5, 3.125e-5, 1.5625e-5
     end = {}
     for dt in dts + (5e-6,):
         q, _, _ = _contact_run(sc, dt, "semi_implicit_euler", "auto", 1)
-        end[dt] = dynamics.node_positions(m, q[-1])[0]
+        end[dt] = node_positions(m, q[-1])[0]
     return [(dt, float(np.linalg.norm(end[dt] - end[5e-6], axis=1).max())) for dt in dts]
 
 
@@ -119,22 +126,22 @@ def scenes(quick: bool):
     """name -> dict(model, state, T (s), n_rec, dts {integrator: [dt]}, description)."""
     T = 0.25 if quick else 0.5
     out = {}
-    m = dynamics.compile_model(tg.prism())
+    m = compile_model(tg.prism())
     out["free_prism"] = dict(
         model=m, state=_perturbed(m, 0.3, 0), T=T,
         description="3-prism, 1 kg rods, 1e3 N/m strings, 100 N prestress, no gravity, random "
                     "velocities 0.3 m/s", )
-    m = dynamics.compile_model(tg.constrained_prism(damping=5.0))
+    m = compile_model(tg.constrained_prism(damping=5.0))
     out["anchored_prism"] = dict(
         model=m, state=_perturbed(m, 0.3, 1), T=T,
         description="seed Example 5.8 prism (node 0 pinned, node 1 on a line, node 2 on a plane), "
                     "gravity, string damping 5 N s/m, random velocities 0.3 m/s")
-    m = dynamics.compile_model(tg.icosahedron())
+    m = compile_model(tg.icosahedron())
     out["icosahedron"] = dict(
         model=m, state=_perturbed(m, 0.3, 2), T=T,
         description="6-bar icosahedron, 1 kg rods, 1e3 N/m strings, 50 N prestress, no gravity, "
                     "random velocities 0.3 m/s")
-    m = dynamics.compile_model(tg.prism(stiffness=1e5, bar_mass=0.1))
+    m = compile_model(tg.prism(stiffness=1e5, bar_mass=0.1))
     out["stiff_prism"] = dict(
         model=m, state=_perturbed(m, 0.1, 3), T=T / 5,
         description="3-prism, 0.1 kg rods, 1e5 N/m strings (real cables), 100 N prestress, no "
@@ -170,21 +177,21 @@ def reference(sc):
         q, qd, ec = _contact_run(sc, 5e-6, "semi_implicit_euler", "auto", S)
         t = np.linspace(0.0, T, S + 1)
     else:
-        t, q, qd = I.simulate(m, st, T / S, S, "dop853", rtol=1e-12, atol=1e-12)
+        t, q, qd = simulate(m, st, T / S, S, "dop853", rtol=1e-12, atol=1e-12)
         ec = np.zeros(len(q))
-    nodes = np.stack([dynamics.node_positions(m, qi)[0] for qi in q])
-    E = np.array([dynamics.energy(m, qi, qdi)[0] for qi, qdi in zip(q, qd)]) + ec
+    nodes = np.stack([node_positions(m, qi)[0] for qi in q])
+    E = np.array([energy(m, qi, qdi)[0] for qi, qdi in zip(q, qd)]) + ec
     return t, nodes, E
 
 
 def errors(sc, ref, q, qd, ec=None):
     m = sc["model"]
     _, nref, Eref = ref
-    nodes = np.stack([dynamics.node_positions(m, qi)[0] for qi in q])
-    E = np.array([dynamics.energy(m, qi, qdi)[0] for qi, qdi in zip(q, qd)]) + (0.0 if ec is None else ec)
+    nodes = np.stack([node_positions(m, qi)[0] for qi in q])
+    E = np.array([energy(m, qi, qdi)[0] for qi, qdi in zip(q, qd)]) + (0.0 if ec is None else ec)
     pos = float(np.max(np.linalg.norm(nodes - nref, axis=-1)))
     en = float(np.max(np.abs(E - Eref)) / abs(Eref[0]))
-    rod = float(max(dynamics.rod_length_drift(m, qi)[0] for qi in q))
+    rod = float(max(rod_length_drift(m, qi)[0] for qi in q))
     return pos, en, rod
 
 
@@ -198,23 +205,23 @@ def run_one(sc, ref, integrator, dt, backend):
     m.__dict__.pop("_stability_checked", None)   # forget earlier checks: every row records its own warning
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("ignore", RuntimeWarning)
-        warnings.simplefilter("always", I.StabilityWarning)
+        warnings.simplefilter("always", StabilityWarning)
         try:
             if "contact" in sc:
                 _contact_run(dict(sc, T=2 * dt * S), dt, integrator, backend, S)   # warm-up, not timed
                 (q, qd, ec), wall = _timed(lambda: _contact_run(sc, dt, integrator, backend, S))
             else:
-                I.step(m, st, dt, integrator, backend=backend, n_steps=2)            # warm-up, not timed
-                (_, q, qd), wall = _timed(lambda: I.simulate(m, st, dt, n, integrator, record_every=every,
-                                                             backend=backend))
+                step(m, st, dt, integrator, backend=backend, n_steps=2)            # warm-up, not timed
+                (_, q, qd), wall = _timed(lambda: simulate(m, st, dt, n, integrator, record_every=every,
+                                                           backend=backend))
                 ec = None
             pos, en, rod = errors(sc, ref, q, qd, ec)
             if not np.isfinite(pos) or pos > 1e3 or en > 1.0:   # finite but energy off by > 100 %
                 row["status"] = "unstable"
-        except (I.SimulationDiverged, ZeroDivisionError, FloatingPointError):
+        except (SimulationDiverged, ZeroDivisionError, FloatingPointError):
             wall, pos, en, rod = np.nan, np.inf, np.inf, np.inf
             row["status"] = "diverged"
-        row["warned"] = any(issubclass(w.category, I.StabilityWarning) for w in caught)
+        row["warned"] = any(issubclass(w.category, StabilityWarning) for w in caught)
     row.update(pos_err=pos, energy_err=en, rod_drift=rod, wall_per_sim_s=wall / T,
                us_per_step=wall / n * 1e6)
     return row
@@ -222,7 +229,7 @@ def run_one(sc, ref, integrator, dt, backend):
 
 def warm_up(model, state):
     """Compile (or load from numba's cache) the kernels before anything is timed."""
-    I.step(model, state, 1e-4, "semi_implicit_euler", backend="numba")
+    step(model, state, 1e-4, "semi_implicit_euler", backend="numba")
 
 
 # ----------------------------------------------------------------------------- MuJoCo
@@ -284,11 +291,11 @@ def _time_steps(model, state, integrator, backend, n=200, repeat=5):
     """Best-of-``repeat`` wall time of one step (us), stepping ``n`` steps in one call."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        I.step(model, state, 1e-3, integrator, backend=backend, n_steps=2)
+        step(model, state, 1e-3, integrator, backend=backend, n_steps=2)
         best = np.inf
         for _ in range(repeat):
             t0 = time.perf_counter()
-            I.step(model, state, 1e-3, integrator, backend=backend, n_steps=n)
+            step(model, state, 1e-3, integrator, backend=backend, n_steps=n)
             best = min(best, time.perf_counter() - t0)
     return best / n * 1e6
 
@@ -309,8 +316,8 @@ def feature_costs(backends, quick):
             for integ in ("semi_implicit_euler", "rk4"):
                 timers = {}
                 for name, s in variants.items():
-                    m = dynamics.compile_model(s)
-                    timers[name] = (lambda m=m, st=dynamics.initial_state(m, batch_size=B):
+                    m = compile_model(s)
+                    timers[name] = (lambda m=m, st=initial_state(m, batch_size=B):
                                     _time_steps(m, st, integ, backend, n=n, repeat=1))
                 if _contact_available():
                     timers["+gravity +contact (contact.step)"] = (
@@ -328,21 +335,22 @@ def feature_costs(backends, quick):
 
 def _time_contact_steps(B, integrator, backend, n=200, repeat=5):
     """One step of the gravity prism standing on the ground with ``contact.step`` (us)."""
-    from tensegrity_gym import contact
+    from tensegrity_gym.physics.contact import GroundContact, init_contact_state
+    from tensegrity_gym.physics.pipeline import contact_step
     s = tg.prism(gravity=(0.0, 0.0, -9.81))
-    m = dynamics.compile_model(s)
+    m = compile_model(s)
     nodes = s.nodes.copy()
     nodes[:, 2] += 0.02 - nodes[:, 2].min() - 1e-4       # caps 0.1 mm into the ground: contacts active
-    st = dynamics.initial_state(m, batch_size=B, nodes=nodes)
-    c = contact.GroundContact()
-    cs = contact.init_contact_state(m, B)
+    st = initial_state(m, batch_size=B, nodes=nodes)
+    c = GroundContact()
+    cs = init_contact_state(m, B)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        contact.step(m, c, st, cs, 1e-3, integrator, n_steps=2, backend=backend)
+        contact_step(m, c, st, cs, 1e-3, integrator, n_steps=2, backend=backend)
         best = np.inf
         for _ in range(repeat):
             t0 = time.perf_counter()
-            contact.step(m, c, st, cs, 1e-3, integrator, n_steps=n, backend=backend)
+            contact_step(m, c, st, cs, 1e-3, integrator, n_steps=n, backend=backend)
             best = min(best, time.perf_counter() - t0)
     return best / n * 1e6
 
@@ -435,9 +443,9 @@ def write_markdown(path, rows, feats, scs, implicit_summary, cmd, elapsed):
     lines += ["## Scenes", ""]
     for n, sc in scs.items():
         lines.append(f"- **{n}** (T = {sc['T']:g} s): {sc['description']}; estimated explicit limits "
-                     f"dt < {I.stability_limit(sc['model'])['semi_implicit_euler']:.3g} s (semi-implicit "
-                     f"Euler), {I.stability_limit(sc['model'])['rk4']:.3g} s (RK4), "
-                     f"omega_max = {I.stability_limit(sc['model'])['omega_max']:.4g} rad/s.")
+                     f"dt < {stability_limit(sc['model'])['semi_implicit_euler']:.3g} s (semi-implicit "
+                     f"Euler), {stability_limit(sc['model'])['rk4']:.3g} s (RK4), "
+                     f"omega_max = {stability_limit(sc['model'])['omega_max']:.4g} rad/s.")
     if not _contact_available():
         lines += ["- **rolling_prism with contact: TODO** - `tensegrity_gym/contact.py` did not exist "
                   "when this was generated; no row is reported for it (no fake numbers). Rerun the "

@@ -32,7 +32,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 import tensegrity_gym as tg  # noqa: E402
-from tensegrity_gym import Structure, dynamics, integrators as I  # noqa: E402
+from tensegrity_gym import Structure  # noqa: E402
+from tensegrity_gym.core.model import compile_model, initial_state, State  # noqa: E402
+from tensegrity_gym.physics.integrate import step  # noqa: E402
+from tensegrity_gym.physics import evaluate  # noqa: E402
+from tensegrity_gym.physics.geometry import energy, node_positions, string_state, rod_length_drift, center_of_mass  # noqa: E402
+from tensegrity_gym.core.errors import StabilityWarning, SimulationDiverged  # noqa: E402
+from tensegrity_gym.physics.stability import stability_limit, stable_step_estimate  # noqa: E402
+from tensegrity_gym.physics.rollout import simulate  # noqa: E402
 
 FIXED = ("semi_implicit_euler", "rk4", "implicit_euler")
 STIFFNESS = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7]
@@ -41,8 +48,8 @@ MASSES = [1e-3, 1e-2, 1e-1, 1.0, 1e1, 1e2]
 
 def _backend():
     """The numba kernels (the one backend since the NumPy path became the test oracle)."""
-    m = dynamics.compile_model(tg.prism())
-    I.step(m, dynamics.initial_state(m), 1e-3, "semi_implicit_euler", backend="numba")   # compile once, up front
+    m = compile_model(tg.prism())
+    step(m, initial_state(m), 1e-3, "semi_implicit_euler", backend="numba")   # compile once, up front
     return "auto"
 
 
@@ -50,31 +57,31 @@ def grid_scene(k, mass, seed=0):
     """3-prism with strings of stiffness ``k`` (N/m), rods of ``mass`` (kg), prestress set to a
     1 % strain of the vertical strings, random rod velocities of 0.05 m/s (projected)."""
     s = tg.prism(stiffness=k, bar_mass=mass, prestress=0.01 * k * 1.0)
-    m = dynamics.compile_model(s)
-    st = dynamics.initial_state(m)
+    m = compile_model(s)
+    st = initial_state(m)
     rng = np.random.default_rng(seed)
-    q, qd = dynamics.project(m, st.q, 0.05 * rng.normal(size=st.qd.shape))
-    return m, dynamics.State(q, qd, 0.0)
+    q, qd = evaluate.project(m, st.q, 0.05 * rng.normal(size=st.qd.shape))
+    return m, State(q, qd, 0.0)
 
 
 def grid_cell(k, mass, integrator, dt=1e-3, T=0.5, backend="auto"):
     """Run one cell; returns dict(warned, outcome in {"stable", "diverged", "energy xN"}, dE)."""
     m, st = grid_scene(k, mass)
-    E0 = dynamics.energy(m, st.q, st.qd)[0]
+    E0 = energy(m, st.q, st.qd)[0]
     n = int(round(T / dt))
     with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", I.StabilityWarning)
+        warnings.simplefilter("always", StabilityWarning)
         warnings.simplefilter("ignore", RuntimeWarning)
         try:
-            _, q, qd = I.simulate(m, st, dt, n, integrator, record_every=max(1, n // 50), backend=backend)
-            E = np.array([dynamics.energy(m, a, b)[0] for a, b in zip(q, qd)])
+            _, q, qd = simulate(m, st, dt, n, integrator, record_every=max(1, n // 50), backend=backend)
+            E = np.array([energy(m, a, b)[0] for a, b in zip(q, qd)])
             dE = float(np.max(np.abs(E - E0)) / E0)
             grow = float(np.max(E) / E0)
             outcome = "stable" if (np.all(np.isfinite(E)) and grow < 1.5) else f"energy x{grow:.3g}"
-        except I.SimulationDiverged:
+        except SimulationDiverged:
             outcome, dE = "diverged", np.inf
-    warned = any(issubclass(w.category, I.StabilityWarning) for w in caught)
-    return dict(warned=warned, outcome=outcome, dE=dE, limit=I.stability_limit(m)[integrator]
+    warned = any(issubclass(w.category, StabilityWarning) for w in caught)
+    return dict(warned=warned, outcome=outcome, dE=dE, limit=stability_limit(m)[integrator]
                 if integrator in ("semi_implicit_euler", "rk4") else np.inf)
 
 
@@ -129,23 +136,23 @@ def analytic_free_rods(model, st, t):
     r = r0 + v0 * t
     b = b0 * np.cos(w * t) + np.where(w > 0, bd0 / safe, 0.0) * np.sin(w * t)
     q = np.concatenate([r, b], axis=1)[None]
-    return dynamics.node_positions(model, q)[0]
+    return node_positions(model, q)[0]
 
 
 def ballistic_errors(dt=1e-3, T=1.0, backend="auto"):
-    m = dynamics.compile_model(slack_prism())
-    st = dynamics.initial_state(m)
+    m = compile_model(slack_prism())
+    st = initial_state(m)
     rng = np.random.default_rng(4)
-    q, qd = dynamics.project(m, st.q, rng.normal(size=st.qd.shape))
-    st = dynamics.State(q, qd, 0.0)
+    q, qd = evaluate.project(m, st.q, rng.normal(size=st.qd.shape))
+    st = State(q, qd, 0.0)
     out = {}
     n = int(round(T / dt))
     exact = analytic_free_rods(m, st, T)
     for integ in FIXED + ("dop853",):
         kw = dict(rtol=1e-12, atol=1e-12) if integ == "dop853" else {}
-        end = I.step(m, st, dt, integ, n_steps=n, backend=backend, **kw)
-        N = dynamics.node_positions(m, end.q)[0]
-        com_err = float(np.max(np.abs(dynamics.center_of_mass(m, end.q)[0] - dynamics.center_of_mass(m, st.q)[0]
+        end = step(m, st, dt, integ, n_steps=n, backend=backend, **kw)
+        N = node_positions(m, end.q)[0]
+        com_err = float(np.max(np.abs(center_of_mass(m, end.q)[0] - center_of_mass(m, st.q)[0]
                                       - T * np.mean(st.qd[0, :, :3], axis=0))))
         out[integ] = (float(np.max(np.linalg.norm(N - exact, axis=1))), com_err)
     return out
@@ -165,23 +172,23 @@ def zero_length_runs(backend="auto"):
     {(l0, integrator): (min length reached, energy error)}."""
     res = {}
     for l0 in (0.0, 0.05):
-        m = dynamics.compile_model(crossing_structure(l0))
+        m = compile_model(crossing_structure(l0))
         nodes = m.structure.nodes.copy()
         nodes[[0, 1], 0] = 0.0
         nodes[[2, 3], 0] = 0.0          # node 0 and node 2 coincide: the string has length 0
         vel = np.zeros_like(nodes)
         vel[[0, 1], 0] = -0.3
         vel[[2, 3], 0] = 0.3
-        st = dynamics.initial_state(m, nodes=nodes, velocities=vel)
-        E0 = dynamics.energy(m, st.q, st.qd)[0]
+        st = initial_state(m, nodes=nodes, velocities=vel)
+        E0 = energy(m, st.q, st.qd)[0]
         for integ in FIXED + ("dop853",):
             with warnings.catch_warnings(), np.errstate(divide="raise", over="raise", invalid="raise"):
                 warnings.simplefilter("error")
-                warnings.simplefilter("ignore", I.StabilityWarning)
-                _, q, qd = I.simulate(m, st, 1e-3, 2000, integ, record_every=1 if integ != "dop853" else 1,
-                                      backend=backend)
-                _, L, _ = dynamics.string_state(m, q.reshape(-1, 2, 6))
-                E = dynamics.energy(m, q.reshape(-1, 2, 6), qd.reshape(-1, 2, 6))
+                warnings.simplefilter("ignore", StabilityWarning)
+                _, q, qd = simulate(m, st, 1e-3, 2000, integ, record_every=1 if integ != "dop853" else 1,
+                                    backend=backend)
+                _, L, _ = string_state(m, q.reshape(-1, 2, 6))
+                E = energy(m, q.reshape(-1, 2, 6), qd.reshape(-1, 2, 6))
             res[(l0, integ)] = (float(L.min()), float(np.max(np.abs(E - E0)) / E0))
     return res
 
@@ -189,12 +196,12 @@ def zero_length_runs(backend="auto"):
 # ----------------------------------------------------------------------------- long run
 def long_run(n_steps, integrator, project, backend, chunks=10, dt=1e-3):
     """Perturbed free prism; returns per chunk (t_end, max |E - E0|/E0, max rod drift)."""
-    m = dynamics.compile_model(tg.prism())
-    st = dynamics.initial_state(m)
+    m = compile_model(tg.prism())
+    st = initial_state(m)
     rng = np.random.default_rng(0)
-    q, qd = dynamics.project(m, st.q, 0.3 * rng.normal(size=st.qd.shape))
-    st = dynamics.State(q, qd, 0.0)
-    E0 = dynamics.energy(m, st.q, st.qd)[0]
+    q, qd = evaluate.project(m, st.q, 0.3 * rng.normal(size=st.qd.shape))
+    st = State(q, qd, 0.0)
+    E0 = energy(m, st.q, st.qd)[0]
     per = n_steps // chunks
     rec = max(1, per // 200)
     out = []
@@ -202,12 +209,12 @@ def long_run(n_steps, integrator, project, backend, chunks=10, dt=1e-3):
     for _ in range(chunks):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            _, qs, qds = I.simulate(m, st, dt, per, integrator, record_every=rec, project=project, backend=backend)
+            _, qs, qds = simulate(m, st, dt, per, integrator, record_every=rec, project=project, backend=backend)
         qs2, qds2 = qs.reshape(-1, 3, 6), qds.reshape(-1, 3, 6)
-        E = dynamics.energy(m, qs2, qds2)
+        E = energy(m, qs2, qds2)
         out.append((st.t + per * dt, float(np.max(np.abs(E - E0)) / E0),
-                    float(np.max(dynamics.rod_length_drift(m, qs2)))))
-        st = dynamics.State(qs[-1], qds[-1], st.t + per * dt)
+                    float(np.max(rod_length_drift(m, qs2)))))
+        st = State(qs[-1], qds[-1], st.t + per * dt)
     return out, time.perf_counter() - t0
 
 
@@ -241,7 +248,7 @@ def main(argv=None):
         md += [txt, ""]
     print("failures (unstable without warning, or implicit unstable):", fails or "none")
     md += [f"Failures (unstable without a warning, or implicit Euler unstable): {fails or 'none'}.", ""]
-    lim = {k: I.stability_limit(grid_scene(k, 0.1)[0]) for k in (1e5, 1e6)}
+    lim = {k: stability_limit(grid_scene(k, 0.1)[0]) for k in (1e5, 1e6)}
     md += ["Explicit stability limits of the 0.1 kg prism (`dynamics.stable_step_estimate`): "
            + "; ".join(f"k = {k:g} N/m: omega_max = {v['omega_max']:.4g} rad/s, semi-implicit Euler "
                        f"dt < {v['semi_implicit_euler'] * 1e3:.3g} ms, RK4 dt < {v['rk4'] * 1e3:.3g} ms"
@@ -258,23 +265,23 @@ def main(argv=None):
            "| damping (N s/m) | integrator | undamped estimate (s) | limit used (s) | 0.9x | 2x |",
            "|---|---|---|---|---|---|"]
     for c in (5.0, 50.0, 500.0):
-        m = dynamics.compile_model(tg.prism(damping=c))
-        raw, lim = dynamics.stable_step_estimate(m, damping=False), I.stability_limit(m)
-        st0 = dynamics.initial_state(m)
-        q0, qd0 = dynamics.project(m, st0.q, 0.01 * np.random.default_rng(0).normal(size=st0.qd.shape))
-        st0 = dynamics.State(q0, qd0, 0.0)
-        E0 = dynamics.energy(m, q0, qd0)[0]
+        m = compile_model(tg.prism(damping=c))
+        raw, lim = stable_step_estimate(m, damping=False), stability_limit(m)
+        st0 = initial_state(m)
+        q0, qd0 = evaluate.project(m, st0.q, 0.01 * np.random.default_rng(0).normal(size=st0.qd.shape))
+        st0 = State(q0, qd0, 0.0)
+        E0 = energy(m, q0, qd0)[0]
         for integ in ("semi_implicit_euler", "rk4"):
             res = []
             for f in (0.9, 2.0):
                 with warnings.catch_warnings(), np.errstate(all="ignore"):
                     warnings.simplefilter("ignore")
                     try:
-                        _, q, qd = I.simulate(m, st0, f * lim[integ], 2000, integ, record_every=200,
-                                              backend=backend)
-                        E = dynamics.energy(m, q.reshape(-1, 3, 6), qd.reshape(-1, 3, 6))
+                        _, q, qd = simulate(m, st0, f * lim[integ], 2000, integ, record_every=200,
+                                            backend=backend)
+                        E = energy(m, q.reshape(-1, 3, 6), qd.reshape(-1, 3, 6))
                         res.append("stable" if np.all(np.isfinite(E)) and E.max() <= 1.5 * E0 else "unstable")
-                    except I.SimulationDiverged:
+                    except SimulationDiverged:
                         res.append("diverged")
             line = (f"| {c:g} | {integ} | {raw[integ]:.3g} | {lim[integ]:.3g} | {res[0]} | {res[1]} |")
             print("  " + line)
@@ -359,19 +366,19 @@ def main(argv=None):
               if ("rk4", True) in runs else "slowly."), ""]
 
     print("== divergence message")
-    m = dynamics.compile_model(tg.prism(stiffness=1e6, bar_mass=0.1))
-    st = dynamics.initial_state(m)
-    st = dynamics.State(st.q, dynamics.project(m, st.q, 0.1 * np.ones_like(st.qd))[1], 0.0)
+    m = compile_model(tg.prism(stiffness=1e6, bar_mass=0.1))
+    st = initial_state(m)
+    st = State(st.q, evaluate.project(m, st.q, 0.1 * np.ones_like(st.qd))[1], 0.0)
     msgs = []
     for integ in ("semi_implicit_euler", "rk4"):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                I.simulate(m, st, 1e-3, 2000, integ, record_every=10, backend=backend)
+                simulate(m, st, 1e-3, 2000, integ, record_every=10, backend=backend)
                 msg = "(no divergence)"
-            except I.SimulationDiverged as e:
+            except SimulationDiverged as e:
                 msg = str(e)
-        warn = [str(w.message) for w in caught if issubclass(w.category, I.StabilityWarning)]
+        warn = [str(w.message) for w in caught if issubclass(w.category, StabilityWarning)]
         print(f"  warning: {warn[0] if warn else '(none)'}\n  error:   {msg}")
         msgs += [f"- `{integ}`, 1e6 N/m strings, 0.1 kg rods, dt = 1 ms:", f"  - warning: `{warn[0] if warn else '(none)'}`",
                  f"  - error: `{msg}`"]

@@ -46,9 +46,11 @@ from pathlib import Path
 import numpy as np
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics
-from tensegrity_gym.params import default_params
-from tensegrity_gym.sysid import SysIdWarning, identify
+from tensegrity_gym.core.model import State
+from tensegrity_gym.physics.geometry import node_positions
+from tensegrity_gym.physics.evaluate import project
+from tensegrity_gym.core.params import default_params
+from tensegrity_gym.tools.sysid import SysIdWarning, identify
 from tensegrity_gym.io.atomic import write_atomic  # noqa: E402
 
 FIELDS = ("stiffness", "damping", "mass")
@@ -85,23 +87,23 @@ def record(T, seed=0, actuated=True):
     rng = np.random.default_rng(seed)
     true = {f: getattr(model, f) * rng.uniform(0.8, 1.2, getattr(model, f).shape) for f in FIELDS}
     st = tg.initial_state(model, nodes=s.nodes + 0.03 * rng.standard_normal(s.nodes.shape))
-    st = dynamics.State(*dynamics.project(model, st.q, st.qd))
+    st = State(*project(model, st.q, st.qd))
     P = default_params(model).replace(**true)
     S = int(round(T / SAMPLE_DT)) + 1
     t = np.arange(S) * SAMPLE_DT
     if not actuated:
         t, q, _ = tg.simulate(model, st, SAMPLE_DT, S - 1, "dop853", params=P, rtol=1e-10, atol=1e-12)
-        return model, true, t, dynamics.node_positions(model, q[:, 0]), None
+        return model, true, t, node_positions(model, q[:, 0]), None
     rl = excitation(model, t, seed)
     nodes = np.empty((S, model.n_nodes, 3))
-    nodes[0] = dynamics.node_positions(model, st.q)[0]
+    nodes[0] = node_positions(model, st.q)[0]
     nh, i = int(round(HOLD / SAMPLE_DT)), 0
     while i < S - 1:
         j = min(i + nh, S - 1)
         _, q, qd = tg.simulate(model, st, SAMPLE_DT, j - i, "dop853", params=P, rest_length=rl[i],
                                rtol=1e-10, atol=1e-12)
-        nodes[i + 1:j + 1] = dynamics.node_positions(model, q[1:, 0])
-        st = dynamics.State(q[-1], qd[-1], 0.0)
+        nodes[i + 1:j + 1] = node_positions(model, q[1:, 0])
+        st = State(q[-1], qd[-1], 0.0)
         i = j
     return model, true, t, nodes, rl
 

@@ -29,8 +29,11 @@ import time
 import numpy as np
 import torch
 
-from tensegrity_gym import builders, dynamics, integrators
-from tensegrity_gym import torch_backend
+from tensegrity_gym.core import builders
+from tensegrity_gym.core.model import compile_model, initial_state
+from tensegrity_gym.physics import integrate, geometry
+from tensegrity_gym.backends.torch.model import resolve_device, torch_model, torch_params
+from tensegrity_gym.backends.torch import driver, equations
 
 DT = 2e-3
 DURATION = 1.0
@@ -43,9 +46,9 @@ def main(argv=None):
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--seed", type=int, default=0, help="seed of the hidden rest-length change")
     args = ap.parse_args(argv)
-    dev = torch_backend.resolve_device(args.device)
-    model = dynamics.compile_model(builders.prism(3, damping=5.0))
-    st = dynamics.initial_state(model, 1)
+    dev = resolve_device(args.device)
+    model = compile_model(builders.prism(3, damping=5.0))
+    st = initial_state(model, 1)
     n = int(round(DURATION / DT))
     rng = np.random.default_rng(args.seed)
     l0 = model.rest_length
@@ -53,14 +56,14 @@ def main(argv=None):
     hidden = l0 * (1.0 + change)
 
     def shape_error_numpy(rest):
-        out = integrators.step(model, st, DT, "semi_implicit_euler", n_steps=n, rest_length=rest)
-        N = dynamics.node_positions(model, out.q)[0]
+        out = integrate.step(model, st, DT, "semi_implicit_euler", n_steps=n, rest_length=rest)
+        N = geometry.node_positions(model, out.q)[0]
         return float(np.sqrt(np.mean(np.sum((N - target) ** 2, axis=-1))))
 
-    ref = integrators.step(model, st, DT, "semi_implicit_euler", n_steps=n, rest_length=hidden)
-    target = dynamics.node_positions(model, ref.q)[0]
-    tm = torch_backend.torch_model(model, dev, torch.float64)
-    prm = torch_backend.torch_params(tm, None, 1)
+    ref = integrate.step(model, st, DT, "semi_implicit_euler", n_steps=n, rest_length=hidden)
+    target = geometry.node_positions(model, ref.q)[0]
+    tm = torch_model(model, dev, torch.float64)
+    prm = torch_params(tm, None, 1)
     q0 = torch.as_tensor(st.q, device=dev)
     qd0 = torch.as_tensor(st.qd, device=dev)
     tgt = torch.as_tensor(target, device=dev)
@@ -72,8 +75,8 @@ def main(argv=None):
     t0 = time.perf_counter()
     for it in range(args.iters):
         opt.zero_grad()
-        q, qd = torch_backend.step(model, q0, qd0, DT, "semi_implicit_euler", n, rest_length=rest)
-        N = torch_backend.node_positions(tm, q, prm)[0]
+        q, qd = driver.step(model, q0, qd0, DT, "semi_implicit_euler", n, rest_length=rest)
+        N = equations.node_positions(tm, q, prm)[0]
         loss = ((N - tgt) ** 2).sum(-1).mean()
         loss.backward()
         opt.step()

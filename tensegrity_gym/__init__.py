@@ -9,10 +9,13 @@ and baselines: :mod:`~tensegrity_gym.tools`; Stable-Baselines3 and rl_zoo3:
 ``--gym-packages``).
 All quantities in SI units.
 """
-from .structure import Structure, StructureError, load_json, save_json, from_dict
-from .builders import prism, pinned_rod, constrained_prism, icosahedron, tower, build, load_structure
-from .dynamics import Model, State, compile_model, initial_state
-from .integrators import step, simulate, INTEGRATORS, SimulationDiverged
+from .core.structure import Structure, StructureError, load_json, save_json, from_dict
+from .core.builders import prism, pinned_rod, constrained_prism, icosahedron, tower, build, load_structure
+from .core.model import Model, State, compile_model, initial_state
+from .physics.integrate import step
+from .physics.rollout import simulate
+from .core.integrators import INTEGRATORS
+from .core.errors import SimulationDiverged
 
 __version__ = "0.1.0"
 

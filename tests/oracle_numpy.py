@@ -30,10 +30,12 @@ import contextlib
 
 import numpy as np
 
-from tensegrity_gym import dynamics as dyn, integrators
-from tensegrity_gym.contact import ContactState
-from tensegrity_gym.dynamics import State
-from tensegrity_gym.params import check_params
+from tensegrity_gym.physics.geometry import string_state, node_velocities
+from tensegrity_gym.core.integrators import resolve
+from tensegrity_gym.physics.integrate import rk4_update
+from tensegrity_gym.physics.contact import ContactState
+from tensegrity_gym.core.model import State
+from tensegrity_gym.core.params import check_params
 from tensegrity_gym.physics.integrate import _as_batch
 
 
@@ -46,7 +48,7 @@ def force_densities(model, q: np.ndarray, qd: np.ndarray, rest_length=None, forc
     damping, rest lengths, ... replace the model's (default None: the model's)."""
     p = model if params is None else params
     l0 = p.rest_length if rest_length is None else rest_length
-    S, L, Ld = dyn.string_state(model, q, qd if p.has_damping else None, params)
+    S, L, Ld = string_state(model, q, qd if p.has_damping else None, params)
     taut = L > l0
     safeL = np.where(taut, L, 1.0)
     tension = p.stiffness * (L - l0)
@@ -74,7 +76,7 @@ def add_loads(model, F, qd, external=None, params=None):
     if p.has_gravity:
         F = F + p.W0
     if p.has_node_damping:
-        F = F - p.node_damping[..., None] * dyn.node_velocities(model, qd)
+        F = F - p.node_damping[..., None] * node_velocities(model, qd)
     if external is not None:
         F = F + external
     return F
@@ -228,7 +230,7 @@ def step(model, state, dt, integrator="semi_implicit_euler", *, rest_length=None
     inputs as :func:`tensegrity_gym.integrators.step` takes them (``external`` an array held
     over the step or a callable ``external(q, qd, t)`` evaluated at every stage). Returns a new
     State; ``t`` summed step by step."""
-    name = integrators.resolve(integrator).name
+    name = resolve(integrator).name
     if name not in ("semi_implicit_euler", "rk4"):
         raise ValueError(f"the oracle steps semi_implicit_euler and rk4, not {name!r}")
     B, m = state.batch_size, model.n_strings
@@ -250,7 +252,7 @@ def step(model, state, dt, integrator="semi_implicit_euler", *, rest_length=None
             else:
                 q = q + dt * qd
         else:   # the RK4 combination of stages (four lines of arithmetic) is the package's
-            q, qd = integrators.rk4_update(acc, q, qd, t, dt)
+            q, qd = rk4_update(acc, q, qd, t, dt)
         if project:
             q, qd = _project(model, q, qd)
         t = t + dt
@@ -359,16 +361,14 @@ def reference_paths():
     ``checks.check_action``); a shape task made inside the block tracks its nodes with the NumPy
     observation and takes no fused step (``compiled.node_sources`` says none applies)."""
     import pytest
-    from tensegrity_gym import pipeline
     from tensegrity_gym.physics import pipeline as physics_pipeline
-    from tensegrity_gym.actuation import Actuation
+    from tensegrity_gym.physics.actuation import Actuation
     from tensegrity_gym.core import checks as core_checks
     from tensegrity_gym.envs import compiled
     from tensegrity_gym.envs.roll_obs import RollObservation
     with pytest.MonkeyPatch.context() as m:
         m.setattr(Actuation, "update_rate", _ref_update_rate)
         m.setattr(Actuation, "update_motor", _ref_update_motor)
-        m.setattr(pipeline, "diverged", diverged)
         m.setattr(physics_pipeline, "diverged", diverged)
         m.setattr(RollObservation, "observe", _ref_roll_observe)
         m.setattr(core_checks, "_clip_in_place", lambda a, clip, tol: False)   # the NumPy action check

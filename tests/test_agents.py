@@ -373,7 +373,7 @@ def test_adapter_per_sub_env_methods_on_separate_envs():
     """get_attr / set_attr / env_method / env_is_wrapped act on the selected sub-envs only."""
     from gymnasium.wrappers import TimeLimit
     from stable_baselines3.common.vec_env import DummyVecEnv
-    from tensegrity_gym.sb3 import make_sb3_vec_env
+    from tensegrity_gym.integrations.sb3 import make_sb3_vec_env
     from tensegrity_gym.envs.common import make_sb3_vec_env as legacy
     assert legacy is make_sb3_vec_env  # the old import path still works
     venv = make_sb3_vec_env(gym.vector.SyncVectorEnv([lambda: gym.make("Pendulum-v1") for _ in range(3)]))
@@ -403,7 +403,7 @@ def test_adapter_per_sub_env_methods_on_separate_envs():
 def test_adapter_per_sub_env_methods_on_the_batched_env():
     if not _env_ok("TensegrityShape-v0"):
         pytest.skip("shape env not importable yet")
-    from tensegrity_gym.sb3 import make_sb3_vec_env
+    from tensegrity_gym.integrations.sb3 import make_sb3_vec_env
     venv = make_sb3_vec_env(gym.make_vec("TensegrityShape-v0", num_envs=3, vectorization_mode="vector_entry_point",
                                          render_mode="rgb_array", width=32, height=32))
     venv.seed(0)

@@ -7,7 +7,7 @@ import pytest
 
 import tensegrity_gym as tg
 from tensegrity_gym import Structure, StructureError
-from tensegrity_gym.builders import BUILDERS, build, rest_lengths_for_force_densities, self_stress
+from tensegrity_gym.core.builders import BUILDERS, build, rest_lengths_for_force_densities, self_stress
 
 
 def rod_residuals(s: Structure, gravity=False):
@@ -159,9 +159,9 @@ def test_build_every_name(name):
     assert s.name == name
     assert s.n_bars >= 1
     # and each is valid input for the dynamics
-    from tensegrity_gym import dynamics as dyn
-    model = dyn.compile_model(s)
-    st = dyn.initial_state(model)
+    from tensegrity_gym.core.model import compile_model, initial_state
+    model = compile_model(s)
+    st = initial_state(model)
     assert np.all(np.isfinite(tg.integrators.accelerations(model, st.q, st.qd)))
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tensegrity_gym import from_dict
-from tensegrity_gym.cli import main
+from tensegrity_gym.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -13,7 +13,7 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 
 import tensegrity_gym  # noqa: E402,F401
-from tensegrity_gym.baselines import RollingGait  # noqa: E402
+from tensegrity_gym.tools.baselines import RollingGait  # noqa: E402
 from tensegrity_gym.envs.climb import TensegrityClimbEnv  # noqa: E402
 from tensegrity_gym.envs.climb_mujoco import TensegrityClimbMuJoCoEnv  # noqa: E402
 from tensegrity_gym.envs import roll_mujoco  # noqa: E402

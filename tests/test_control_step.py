@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym import dynamics as dyn
-from tensegrity_gym import builders, pipeline
-from tensegrity_gym.actuation import Actuation
+from tensegrity_gym.core.model import State, compile_model, initial_state
+from tensegrity_gym.core import builders
+from tensegrity_gym.physics.pipeline import control_step, step
+from tensegrity_gym.physics.actuation import Actuation
 
 RANDOM_ROLL = {"stiffness": 0.2, "rod_mass": 0.2, "rest_length_offset": 0.01, "friction": 0.3,
                "max_cable_speed": 0.2}
@@ -27,11 +28,11 @@ def _env_and_control_step(env, task, action, **kw):
     """``(state before, ControlStep)``: control_step from the task's state with its actuation,
     robots and ``kw`` (contact), then ``env.step(action)``; the two agree bit for bit in the
     rod state and the controls."""
-    state = dyn.State(task.q.copy(), task.qd.copy(), 0.0)
+    state = State(task.q.copy(), task.qd.copy(), 0.0)
     speed = None if task.speed is None or task.speed.shape[1] == 0 else task.speed.copy()
-    out = pipeline.control_step(task.model, state, task.actuation, task.ctrl.copy(), action, task.dt,
-                                task.integrator, n_steps=task.frame_skip, speed=speed, rest_offset=task.rest_offset,
-                                params=task.params, **kw)
+    out = control_step(task.model, state, task.actuation, task.ctrl.copy(), action, task.dt,
+                       task.integrator, n_steps=task.frame_skip, speed=speed, rest_offset=task.rest_offset,
+                       params=task.params, **kw)
     env.step(action)
     assert np.array_equal(out.state.q, task.q) and np.array_equal(out.state.qd, task.qd)
     assert np.array_equal(out.controls, task.ctrl)
@@ -78,7 +79,7 @@ def test_shape_env_step_is_control_step(mode):
 
 
 def _prism_actuation(max_accel=None):
-    model = dyn.compile_model(builders.prism(3))
+    model = compile_model(builders.prism(3))
     act = Actuation("rest_length", [0, 1, 2], 0.5 * model.rest_length[:3], 1.1 * model.rest_length[:3], 0.2, 0.02,
                     model.rest_length, model.rest_length[:3], max_accel=max_accel)
     return model, act
@@ -88,13 +89,13 @@ def test_control_step_motor_matches_actuation_then_step():
     """With a motor: Actuation.update_motor, then pipeline.step with its physics inputs."""
     model, act = _prism_actuation(max_accel=2.0)
     B = 3
-    state = dyn.initial_state(model, B)
+    state = initial_state(model, B)
     ctrl = np.tile(act.nominal, (B, 1))
     speed = np.zeros((B, 3))
     action = np.array([[1.0, -0.5, 0.2], [0.0, 1.0, -1.0], [-1.0, -1.0, 0.5]])
-    out = pipeline.control_step(model, state, act, ctrl, action, 1e-3, "rk4", n_steps=10, speed=speed)
+    out = control_step(model, state, act, ctrl, action, 1e-3, "rk4", n_steps=10, speed=speed)
     new, v, inputs = act.update_motor(ctrl, speed, action)
-    ref = pipeline.step(model, state, 1e-3, "rk4", n_steps=10, **inputs)
+    ref = step(model, state, 1e-3, "rk4", n_steps=10, **inputs)
     assert np.array_equal(out.controls, new) and np.array_equal(out.speed, v)
     assert np.array_equal(out.state.q, ref.q) and np.array_equal(out.state.qd, ref.qd)
     assert out.state.t == pytest.approx(0.01)
@@ -102,25 +103,25 @@ def test_control_step_motor_matches_actuation_then_step():
 
 def test_control_step_bad_input():
     model, act = _prism_actuation(max_accel=2.0)
-    state = dyn.initial_state(model, 2)
+    state = initial_state(model, 2)
     ctrl = np.tile(act.nominal, (2, 1))
     speed = np.zeros((2, 3))
     ok = np.zeros((2, 3))
     bad = ok.copy()
     bad[1, 2] = 1.5
     with pytest.raises(ValueError, match=r"action: entry \(1, 2\) is 1\.5, outside the action space \[-1, 1\]"):
-        pipeline.control_step(model, state, act, ctrl, bad, 1e-3, speed=speed)
+        control_step(model, state, act, ctrl, bad, 1e-3, speed=speed)
     bad[1, 2] = np.nan
     with pytest.raises(ValueError, match=r"action: entry \(1, 2\) is (np.float64\()?nan\)?; actions must be finite"):
-        pipeline.control_step(model, state, act, ctrl, bad, 1e-3, speed=speed)
+        control_step(model, state, act, ctrl, bad, 1e-3, speed=speed)
     with pytest.raises(ValueError, match=r"controls: expected shape \(2, 3\), got \(3,\)"):
-        pipeline.control_step(model, state, act, ctrl[0], ok, 1e-3, speed=speed)
+        control_step(model, state, act, ctrl[0], ok, 1e-3, speed=speed)
     with pytest.raises(ValueError, match="speed: the motor model needs the cable speeds"):
-        pipeline.control_step(model, state, act, ctrl, ok, 1e-3)
+        control_step(model, state, act, ctrl, ok, 1e-3)
     with pytest.raises(ValueError, match=r"rest_offset: expected shape \(1, 9\), got \(3, 9\)"):
-        pipeline.control_step(model, state, act, ctrl, ok, 1e-3, speed=speed, rest_offset=np.zeros((3, 9)))
+        control_step(model, state, act, ctrl, ok, 1e-3, speed=speed, rest_offset=np.zeros((3, 9)))
     with pytest.raises(ValueError, match="dt"):
-        pipeline.control_step(model, state, act, ctrl, ok, -1.0, speed=speed)
+        control_step(model, state, act, ctrl, ok, -1.0, speed=speed)
 
 
 from hypothesis import given, settings, strategies as hst  # noqa: E402
@@ -133,10 +134,10 @@ from hypothesis.extra import numpy as hnp  # noqa: E402
 def test_control_step_fuzz_action(action):
     """Any action array: a finite step within the bounds, or a ValueError naming ``action``."""
     model, act = _prism_actuation(max_accel=2.0)
-    state = dyn.initial_state(model, 2)
+    state = initial_state(model, 2)
     ctrl = np.tile(act.nominal, (2, 1))
     try:
-        out = pipeline.control_step(model, state, act, ctrl, action, 1e-3, speed=np.zeros((2, 3)))
+        out = control_step(model, state, act, ctrl, action, 1e-3, speed=np.zeros((2, 3)))
     except ValueError as e:
         assert str(e).startswith("action: ")
         return

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from tensegrity_gym import rewards
-from tensegrity_gym import pipeline
+from tensegrity_gym.physics.pipeline import diverged
 from tensegrity_gym.envs import compiled
 from tensegrity_gym.envs.common import check_action
 from tensegrity_gym.envs.shape import TensegrityShapeEnv, TensegrityShapeVectorEnv
@@ -284,7 +284,7 @@ def test_actuation_update_matches_the_numpy_oracle(mode, per_copy):
     """Actuation.update_rate / update_motor (the compiled update, the package's only one) against
     the NumPy reference, bit for bit, with per-copy limits; any float array layout is accepted
     (float32, strided); a wrong shape is a ValueError naming the array."""
-    from tensegrity_gym.actuation import Actuation
+    from tensegrity_gym.physics.actuation import Actuation
     rng = np.random.default_rng(7)
     B, m = 12, 9
     act_idx = np.array([0, 2, 3, 7])
@@ -341,13 +341,13 @@ def test_diverged_matches_the_numpy_oracle(local):
     q[3, 1, 0] += 4.0                    # one rod far off: beyond the limit either way
     q[4, :, 2] += 5.0                    # the whole copy lifted: off the centre and off the height
     q[5, :, 0] += 50.0                   # the whole copy travelled: only the absolute check flags it
-    got = pipeline.diverged(q, qd, center, limit, local)
+    got = diverged(q, qd, center, limit, local)
     want = oracle.diverged(q, qd, center, limit, local)
     assert same(got, want) and got[[1, 2, 3, 4]].all() and got[5] == (not local) and not got[6:].any()
-    assert same(pipeline.diverged(q.astype(np.float32), qd.tolist(), list(center), limit, local),
+    assert same(diverged(q.astype(np.float32), qd.tolist(), list(center), limit, local),
                 oracle.diverged(q.astype(np.float32), qd, center, limit, local))
     wide = np.zeros((B, k, 12))
     wide[..., ::2] = q
-    assert same(pipeline.diverged(wide[..., ::2], qd, center, limit, local), want)
+    assert same(diverged(wide[..., ::2], qd, center, limit, local), want)
     with pytest.raises(ValueError, match="shape"):
-        pipeline.diverged(q, qd[:, :2], center, limit, local)
+        diverged(q, qd[:, :2], center, limit, local)

@@ -22,9 +22,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import tensegrity_gym as tg
-from tensegrity_gym import cli
+from tensegrity_gym.tools import cli
 from tensegrity_gym.io import atomic
-from tensegrity_gym.cli import main
+from tensegrity_gym.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = json.loads(json.dumps(tg.prism(3).to_dict()))

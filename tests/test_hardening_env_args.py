@@ -16,7 +16,7 @@ from hypothesis import given, settings, strategies as st
 from hypothesis.extra import numpy as hnp
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym.integrators import StabilityWarning
+from tensegrity_gym.core.errors import StabilityWarning
 
 SHAPE, ROLL = "TensegrityShape-v0", "TensegrityRoll-v0"
 

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 import tensegrity_gym as tg
 from tensegrity_gym import Structure, StructureError, from_dict, load_json
-from tensegrity_gym.structure import SCHEMA_PATH, schema, validate_dict
+from tensegrity_gym.core.structure import SCHEMA_PATH, schema, validate_dict
 
 BASE = json.loads(json.dumps(tg.prism(3).to_dict()))          # a valid file's contents
 PINNED = json.loads(json.dumps(tg.pinned_rod().to_dict()))    # with gravity, constraint, anchors
@@ -268,9 +268,9 @@ def _assert_clear_or_finite(d):
     for arr in (s.nodes, s.bar_mass, s.stiffness, s.rest_length, s.damping, s.velocities):
         assert np.all(np.isfinite(arr))
     # a structure that loads gives finite accelerations
-    from tensegrity_gym import dynamics as dyn
-    m = dyn.compile_model(s)
-    st0 = dyn.initial_state(m)
+    from tensegrity_gym.core.model import compile_model, initial_state
+    m = compile_model(s)
+    st0 = initial_state(m)
     assert np.all(np.isfinite(tg.integrators.accelerations(m, st0.q, st0.qd)))
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from hypothesis import HealthCheck, event, given, settings, strategies as st
 
 import tensegrity_gym as tg
-from tensegrity_gym.cli import main
+from tensegrity_gym.tools.cli import main
 from tensegrity_gym.envs.domain import SPECS
 
 SHAPE, ROLL = "TensegrityShape-v0", "TensegrityRoll-v0"

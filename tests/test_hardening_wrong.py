@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
-from tensegrity_gym.cli import main
+from tensegrity_gym.core.model import compile_model, initial_state, State
+from tensegrity_gym.tools.cli import main
 
 SHAPE, ROLL = "TensegrityShape-v0", "TensegrityRoll-v0"
 
@@ -64,20 +64,20 @@ def test_autoreset_mode_requests_named():
 # ---------------------------------------------------------------- core step
 @pytest.mark.parametrize("scale", [0.0, 2.0])
 def test_core_step_refuses_rod_axis_not_unit(scale):
-    m = dyn.compile_model(tg.load_structure("prism3"))
-    st = dyn.initial_state(m)
+    m = compile_model(tg.load_structure("prism3"))
+    st = initial_state(m)
     q = st.q.copy()
     q[0, 1, 3:] *= scale    # 0: NaN before; 2: rods twice as long
     with pytest.raises(ValueError, match=r"state.q: rod axis b of rod 1 .*has length .*must be a unit vector"):
-        tg.step(m, dyn.State(q, st.qd, 0.0), 1e-3)
+        tg.step(m, State(q, st.qd, 0.0), 1e-3)
     out = tg.step(m, st, 1e-3)     # a valid state steps as before
     assert np.all(np.isfinite(out.q))
 
 
 # ---------------------------------------------------------------- system identification inputs
 def test_identify_refuses_complex_inputs():
-    from tensegrity_gym.sysid import identify
-    m = dyn.compile_model(tg.load_structure("prism3"))
+    from tensegrity_gym.tools.sysid import identify
+    m = compile_model(tg.load_structure("prism3"))
     t = np.arange(10) * 0.01
     nodes = np.repeat(m.structure.nodes[None], 10, axis=0)
     with pytest.raises(ValueError, match=r"t: complex numbers are not accepted"):
@@ -87,7 +87,7 @@ def test_identify_refuses_complex_inputs():
 
 
 def test_csv_node_index_inf_and_bom(tmp_path):
-    from tensegrity_gym.sysid import load_csv
+    from tensegrity_gym.tools.sysid import load_csv
     p = tmp_path / "a.csv"
     p.write_text("t,node,x,y,z\n0,inf,0,0,0\n")
     with pytest.raises(ValueError, match=r"line 2: node 'inf' is not a node index 0..5"):
@@ -110,7 +110,7 @@ def test_cli_identify_csv_inf_node_one_line(tmp_path, capsys):
 
 # ---------------------------------------------------------------- MJCF names
 def test_mjcf_control_characters_in_the_name_give_parsable_xml(tmp_path, capsys):
-    from tensegrity_gym.mjcf import to_mjcf
+    from tensegrity_gym.io.mjcf import to_mjcf
     s = tg.load_structure("prism3").replace(name="robot\x01\x1b[31m\x00\ttab")
     root = ET.fromstring(to_mjcf(s))
     assert root.get("model") == "robot\\x01\\x1b[31m\\x00\ttab"
@@ -153,7 +153,7 @@ def test_info_on_dev_zero_and_a_fifo_ends_with_one_line(tmp_path, capsys):
 
 
 def test_bounded_read_stops_at_the_cap(tmp_path):
-    from tensegrity_gym.checks import read_bounded
+    from tensegrity_gym.core.checks import read_bounded
     p = tmp_path / "big.json"
     p.write_bytes(b" " * 5000)
     with pytest.raises(ValueError, match=r"larger than .* MiB a structure file may have"):
@@ -165,7 +165,7 @@ def test_structure_file_over_the_cap_is_refused_before_parsing(tmp_path, capsys)
     """A structure file over MAX_FILE_BYTES (a 250 MB file took minutes and 4 GB to parse) is refused
     after reading at most the cap, with the cap named."""
     import time
-    from tensegrity_gym.structure import MAX_FILE_BYTES
+    from tensegrity_gym.core.structure import MAX_FILE_BYTES
     p = tmp_path / "huge.json"
     with open(p, "wb") as fh:
         fh.write(b'{"nodes": [' + b"[0, 0, 0], " * ((MAX_FILE_BYTES // 11) + 10) + b"[0, 0, 0]]}")

@@ -5,14 +5,23 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import Structure, dynamics as dyn, implicit, integrators as I
+from tensegrity_gym import Structure
+from tensegrity_gym.physics import implicit
+from tensegrity_gym.core.model import initial_state, State, compile_model
+from tensegrity_gym.physics.evaluate import project
+from tensegrity_gym.core.integrators import INTEGRATORS
+from tensegrity_gym.physics.integrate import step
+from tensegrity_gym.physics.geometry import node_positions, energy, linear_momentum, constraint_violation
+from tensegrity_gym.physics.stability import stability_limit
+from tensegrity_gym.physics.rollout import simulate
+from tensegrity_gym.core.errors import StabilityWarning, SimulationDiverged
 
 
 def _kicked(model, scale, seed=0, B=1):
-    st = dyn.initial_state(model, batch_size=B)
+    st = initial_state(model, batch_size=B)
     rng = np.random.default_rng(seed)
-    q, qd = dyn.project(model, st.q, scale * rng.normal(size=st.qd.shape))
-    return dyn.State(q=q, qd=qd, t=0.0)
+    q, qd = project(model, st.q, scale * rng.normal(size=st.qd.shape))
+    return State(q=q, qd=qd, t=0.0)
 
 
 def _oscillator(k=400.0, m=1.0):
@@ -23,13 +32,13 @@ def _oscillator(k=400.0, m=1.0):
 
 
 def test_registered_and_dispatched():
-    assert "implicit_euler" in I.INTEGRATORS
-    info = I.INTEGRATORS["implicit_euler"]
+    assert "implicit_euler" in INTEGRATORS
+    info = INTEGRATORS["implicit_euler"]
     assert info.order == 1 and not info.adaptive
-    m = dyn.compile_model(tg.prism())
+    m = compile_model(tg.prism())
     st = _kicked(m, 0.1)
     # backend "auto" must not send the implicit method to the compiled explicit kernels
-    a = I.step(m, st, 1e-3, "implicit_euler", n_steps=3)
+    a = step(m, st, 1e-3, "implicit_euler", n_steps=3)
     b = implicit.step(m, st, 1e-3, n_steps=3)
     np.testing.assert_array_equal(a.q, b.q)
     assert a.t == pytest.approx(3e-3)
@@ -37,8 +46,8 @@ def test_registered_and_dispatched():
 
 def test_jacobian_of_linear_oscillator():
     k, mass = 400.0, 2.0
-    m = dyn.compile_model(_oscillator(k, mass))
-    st = dyn.initial_state(m)
+    m = compile_model(_oscillator(k, mass))
+    st = initial_state(m)
     a, K, D = implicit.jacobians(m, st.q, st.qd)
     # row/column 0 is r_x: d(r_x'')/d(r_x) = -2 k / m
     assert K[0, 0, 0] == pytest.approx(-2 * k / mass, rel=1e-6)
@@ -49,15 +58,15 @@ def test_jacobian_of_linear_oscillator():
 def test_energy_decay_matches_backward_euler_theory():
     """Backward Euler multiplies a linear mode's energy by 1/(1 + (omega dt)^2) per step."""
     k, mass, dt, n = 400.0, 1.0, 2e-3, 50
-    m = dyn.compile_model(_oscillator(k, mass))
+    m = compile_model(_oscillator(k, mass))
     nodes = m.structure.nodes.copy()
     nodes[:2, 0] += 0.01                              # sideways offset of the rod
-    st = dyn.initial_state(m, nodes=nodes)
-    E_eq = dyn.energy(m, dyn.initial_state(m).q, dyn.initial_state(m).qd)[0]
-    E0 = dyn.energy(m, st.q, st.qd)[0] - E_eq
+    st = initial_state(m, nodes=nodes)
+    E_eq = energy(m, initial_state(m).q, initial_state(m).qd)[0]
+    E0 = energy(m, st.q, st.qd)[0] - E_eq
     implicit.STATS.update(steps=0, newton_iterations=0)
-    end = I.step(m, st, dt, "implicit_euler", n_steps=n)
-    E = dyn.energy(m, end.q, end.qd)[0] - E_eq
+    end = step(m, st, dt, "implicit_euler", n_steps=n)
+    E = energy(m, end.q, end.qd)[0] - E_eq
     omega = np.sqrt(2 * k / mass)
     assert E / E0 == pytest.approx((1 + (omega * dt) ** 2) ** -n, rel=1e-5)
     assert implicit.STATS["newton_iterations"] == 0     # linear: the first Newton iterate is exact
@@ -65,42 +74,42 @@ def test_energy_decay_matches_backward_euler_theory():
 
 def test_first_order_convergence():
     s = tg.prism(stiffness=100.0, prestress=5.0)
-    m = dyn.compile_model(s)
+    m = compile_model(s)
     st = _kicked(m, 0.2, seed=1)
     T = 0.2
-    ref = dyn.node_positions(m, I.step(m, st, T, "dop853", rtol=1e-12, atol=1e-12).q)
+    ref = node_positions(m, step(m, st, T, "dop853", rtol=1e-12, atol=1e-12).q)
     errs = []
     for dt in (4e-4, 2e-4, 1e-4):
-        end = I.step(m, st, dt, "implicit_euler", n_steps=int(round(T / dt)))
-        errs.append(np.abs(dyn.node_positions(m, end.q) - ref).max())
+        end = step(m, st, dt, "implicit_euler", n_steps=int(round(T / dt)))
+        errs.append(np.abs(node_positions(m, end.q) - ref).max())
     r1, r2 = errs[0] / errs[1], errs[1] / errs[2]
     assert 1.7 < r1 < 2.3 and 1.7 < r2 < 2.3, errs
 
 
 @pytest.mark.parametrize("k", [1e5, 1e6])
 def test_stable_at_1ms_with_stiff_cables_where_explicit_diverges(k):
-    m = dyn.compile_model(tg.prism(stiffness=k, bar_mass=0.1))
+    m = compile_model(tg.prism(stiffness=k, bar_mass=0.1))
     st = _kicked(m, 0.1, seed=2)
-    lim = I.stability_limit(m)
+    lim = stability_limit(m)
     assert lim["semi_implicit_euler"] < 1e-3 and lim["rk4"] < 1e-3   # the explicit ones cannot take 1 ms
-    E0 = dyn.energy(m, st.q, st.qd)[0]
+    E0 = energy(m, st.q, st.qd)[0]
     with warnings.catch_warnings():
         warnings.simplefilter("error")                     # no StabilityWarning, no numpy warning
-        t, q, qd = I.simulate(m, st, 1e-3, 300, "implicit_euler", record_every=30)
-    E = dyn.energy(m, q[:, 0], qd[:, 0])
+        t, q, qd = simulate(m, st, 1e-3, 300, "implicit_euler", record_every=30)
+    E = energy(m, q[:, 0], qd[:, 0])
     assert np.all(np.isfinite(q))
     assert np.all(np.diff(E) <= 1e-9 * E0)               # backward Euler only loses energy here
-    assert np.abs(dyn.node_positions(m, q[-1]) - dyn.node_positions(m, st.q)).max() < 0.05
+    assert np.abs(node_positions(m, q[-1]) - node_positions(m, st.q)).max() < 0.05
     for integ in ("semi_implicit_euler", "rk4"):
         # warned, then either non-finite (SimulationDiverged) or energy blown up by orders of
         # magnitude (tension-only strings can saturate the instability: rods fly apart)
-        with pytest.warns(I.StabilityWarning, match="stability limit"):
+        with pytest.warns(StabilityWarning, match="stability limit"):
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 try:
-                    _, q, qd = I.simulate(m, st, 1e-3, 300, integ, record_every=10)
-                    blown_up = dyn.energy(m, q[-1], qd[-1])[0] > 100 * E0
-                except I.SimulationDiverged:
+                    _, q, qd = simulate(m, st, 1e-3, 300, integ, record_every=10)
+                    blown_up = energy(m, q[-1], qd[-1])[0] > 100 * E0
+                except SimulationDiverged:
                     blown_up = True
         assert blown_up, integ
 
@@ -108,65 +117,65 @@ def test_stable_at_1ms_with_stiff_cables_where_explicit_diverges(k):
 def test_newton_handles_slack_taut_switching():
     """1e7 N/m strings on 1 g rods kicked at 1 m/s: strings snap slack/taut every step. The
     Newton iterations keep the energy from growing (the linearly implicit step does not)."""
-    m = dyn.compile_model(tg.prism(stiffness=1e7, bar_mass=1e-3))
+    m = compile_model(tg.prism(stiffness=1e7, bar_mass=1e-3))
     st = _kicked(m, 1.0, seed=1)
-    E0 = dyn.energy(m, st.q, st.qd)[0]
+    E0 = energy(m, st.q, st.qd)[0]
     implicit.STATS.update(steps=0, newton_iterations=0)
     s = st
     Es = []
     for _ in range(10):
-        s = I.step(m, s, 1e-3, "implicit_euler")
-        Es.append(dyn.energy(m, s.q, s.qd)[0])
+        s = step(m, s, 1e-3, "implicit_euler")
+        Es.append(energy(m, s.q, s.qd)[0])
     assert implicit.STATS["newton_iterations"] > 0
     assert max(Es) <= E0 * (1 + 1e-6)
     lin = implicit.step(m, st, 1e-3, max_newton=0, n_steps=10)
-    assert dyn.energy(m, lin.q, lin.qd)[0] > 10 * E0        # why the Newton iterations are there
+    assert energy(m, lin.q, lin.qd)[0] > 10 * E0        # why the Newton iterations are there
 
 
 def test_batch_equals_single_runs():
-    m = dyn.compile_model(tg.prism(damping=2.0))
+    m = compile_model(tg.prism(damping=2.0))
     st = _kicked(m, 0.2, seed=3, B=3)
     rng = np.random.default_rng(0)
     l0 = m.rest_length * (1 + 0.05 * rng.uniform(-1, 1, size=(3, m.n_strings)))
     fd = rng.uniform(0, 5, size=(3, m.n_strings))
-    batch = I.step(m, st, 2e-3, "implicit_euler", rest_length=l0, force_density=fd, n_steps=5)
+    batch = step(m, st, 2e-3, "implicit_euler", rest_length=l0, force_density=fd, n_steps=5)
     for i in range(3):
-        one = I.step(m, dyn.State(st.q[i:i + 1], st.qd[i:i + 1], 0.0), 2e-3, "implicit_euler",
-                     rest_length=l0[i], force_density=fd[i], n_steps=5)
+        one = step(m, State(st.q[i:i + 1], st.qd[i:i + 1], 0.0), 2e-3, "implicit_euler",
+                   rest_length=l0[i], force_density=fd[i], n_steps=5)
         np.testing.assert_allclose(batch.q[i], one.q[0], atol=1e-12)
         np.testing.assert_allclose(batch.qd[i], one.qd[0], atol=1e-10)
 
 
 def test_constrained_damped_gravity_prism():
-    m = dyn.compile_model(tg.constrained_prism(damping=5.0))
+    m = compile_model(tg.constrained_prism(damping=5.0))
     st = _kicked(m, 0.2, seed=4)
     T, dt = 0.2, 2.5e-4
-    ref = I.step(m, st, T, "dop853", rtol=1e-11, atol=1e-11)
-    end = I.step(m, st, dt, "implicit_euler", n_steps=int(round(T / dt)))
-    assert dyn.constraint_violation(m, end.q, end.qd)[0] < 1e-12
-    err = np.abs(dyn.node_positions(m, end.q) - dyn.node_positions(m, ref.q)).max()
+    ref = step(m, st, T, "dop853", rtol=1e-11, atol=1e-11)
+    end = step(m, st, dt, "implicit_euler", n_steps=int(round(T / dt)))
+    assert constraint_violation(m, end.q, end.qd)[0] < 1e-12
+    err = np.abs(node_positions(m, end.q) - node_positions(m, ref.q)).max()
     assert err < 5e-3
     # damping: energy decreases faster than without it
-    E0 = dyn.energy(m, st.q, st.qd)[0]
-    assert dyn.energy(m, end.q, end.qd)[0] < E0
+    E0 = energy(m, st.q, st.qd)[0]
+    assert energy(m, end.q, end.qd)[0] < E0
 
 
 def test_constant_external_force_moves_momentum_exactly():
-    m = dyn.compile_model(tg.prism())
+    m = compile_model(tg.prism())
     st = _kicked(m, 0.1, seed=5)
     F = np.zeros((1, m.n_nodes, 3))
     F[0, :, 0] = 2.0                                   # 2 N on every node along x
-    p0 = dyn.linear_momentum(m, st.qd)[0]
+    p0 = linear_momentum(m, st.qd)[0]
     T, dt = 0.05, 1e-3
-    end = I.step(m, st, dt, "implicit_euler", external=F, n_steps=50)
-    p = dyn.linear_momentum(m, end.qd)[0]
+    end = step(m, st, dt, "implicit_euler", external=F, n_steps=50)
+    p = linear_momentum(m, end.qd)[0]
     np.testing.assert_allclose(p - p0, [2.0 * m.n_nodes * T, 0, 0], atol=1e-10)
     # a callable external is evaluated at the start of each step: same result for a constant force
-    end2 = I.step(m, st, dt, "implicit_euler", external=lambda q, qd, t: F, n_steps=50)
+    end2 = step(m, st, dt, "implicit_euler", external=lambda q, qd, t: F, n_steps=50)
     np.testing.assert_allclose(end2.q, end.q, atol=1e-14)
 
 
 def test_bad_method_name():
-    m = dyn.compile_model(tg.prism())
+    m = compile_model(tg.prism())
     with pytest.raises(ValueError, match="implicit method"):
-        implicit.step(m, dyn.initial_state(m), 1e-3, "implicit_trapezoid")
+        implicit.step(m, initial_state(m), 1e-3, "implicit_trapezoid")

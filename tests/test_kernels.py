@@ -13,7 +13,12 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import builders, dynamics as dyn, integrators
+from tensegrity_gym.core import builders
+from tensegrity_gym.core.model import initial_state, State, compile_model
+from tensegrity_gym.physics import evaluate
+from tensegrity_gym.physics.integrate import step
+from tensegrity_gym.physics.stability import stability_limit
+from tensegrity_gym.physics.geometry import string_state, node_velocities
 
 import oracle_numpy as oracle
 
@@ -34,10 +39,10 @@ def _rel_err(a, b):
 def _perturbed(model, B, seed, scale=0.2):
     """B copies with random node-velocity perturbations (consistent with the rods and constraints)."""
     rng = np.random.default_rng(seed)
-    st = dyn.initial_state(model, B)
+    st = initial_state(model, B)
     qd = st.qd + scale * rng.normal(size=st.qd.shape)
-    q, qd = dyn.project(model, st.q, qd)
-    return dyn.State(q=np.ascontiguousarray(q), qd=np.ascontiguousarray(qd), t=0.25)
+    q, qd = evaluate.project(model, st.q, qd)
+    return State(q=np.ascontiguousarray(q), qd=np.ascontiguousarray(qd), t=0.25)
 
 
 def _scene(name, B, seed=0):
@@ -46,28 +51,28 @@ def _scene(name, B, seed=0):
     if name == "prism_slack":
         # free prism, no prestress kept: rest lengths per copy up to 8% longer than the strings, so
         # several strings are slack at the start and go taut/slack along the run
-        model = dyn.compile_model(builders.prism(3))
+        model = compile_model(builders.prism(3))
         st = _perturbed(model, B, seed, scale=1.0)
         l0 = model.rest_length * (1.0 + rng.uniform(-0.05, 0.08, size=(B, model.n_strings)))
         return model, st, dict(rest_length=l0)
     if name == "prism_damped_gravity":
-        model = dyn.compile_model(builders.prism(3, damping=3.0, gravity=(0.0, 0.0, -9.81)))
+        model = compile_model(builders.prism(3, damping=3.0, gravity=(0.0, 0.0, -9.81)))
         st = _perturbed(model, B, seed)
         ext = rng.normal(scale=2.0, size=(B, model.n_nodes, 3))
         return model, st, dict(external=ext)
     if name == "constrained_prism":
-        model = dyn.compile_model(builders.constrained_prism(damping=0.5))
+        model = compile_model(builders.constrained_prism(damping=0.5))
         st = _perturbed(model, B, seed)
         fd = rng.normal(scale=60.0, size=(B, model.n_strings))     # some gamma + u < 0: clipped
         return model, st, dict(force_density=fd)
     if name == "pinned_rod":
-        model = dyn.compile_model(builders.pinned_rod())
+        model = compile_model(builders.pinned_rod())
         st = _perturbed(model, B, seed)
         l0 = model.rest_length * (1.0 + rng.uniform(-0.03, 0.03, size=(B, model.n_strings)))
         ext = rng.normal(size=(model.n_nodes, 3))                  # (n, 3): same for every copy
         return model, st, dict(rest_length=l0, external=ext)
     if name == "icosahedron_active":
-        model = dyn.compile_model(builders.icosahedron(), active_strings=[0, 5, 11])
+        model = compile_model(builders.icosahedron(), active_strings=[0, 5, 11])
         st = _perturbed(model, B, seed)
         fd = np.zeros((B, model.n_strings))
         fd[:, [0, 5, 11]] = rng.uniform(0.0, 80.0, size=(B, 3))      # actuation through active strings
@@ -94,7 +99,7 @@ def test_numba_matches_numpy(scene, integrator, project, B):
     np.testing.assert_array_equal(st.q, q0)       # the input state is not modified
     np.testing.assert_array_equal(st.qd, qd0)
     # the dispatcher of integrators.step takes the same kernel
-    via = integrators.step(model, st, DT, integrator, project=project, n_steps=N_STEPS, backend="numba", **ctl)
+    via = step(model, st, DT, integrator, project=project, n_steps=N_STEPS, backend="numba", **ctl)
     np.testing.assert_array_equal(via.q, out.q)
 
 
@@ -108,7 +113,7 @@ def test_simd_batch_loop_matches_numpy(scene, integrator):
     ref = oracle.step(model, st, DT, integrator, n_steps=100, **ctl)
     out = K.step(model, st, DT, integrator, n_steps=100, **ctl)
     assert _rel_err(ref, out) < RTOL
-    one = K.step(model, dyn.State(st.q[7:8], st.qd[7:8], st.t), DT, integrator, n_steps=100,
+    one = K.step(model, State(st.q[7:8], st.qd[7:8], st.t), DT, integrator, n_steps=100,
                  **{k: (v[7:8] if np.ndim(v) >= 2 and np.shape(v)[0] == B else v) for k, v in ctl.items()})
     np.testing.assert_array_equal(one.q[0], out.q[7])     # same bits as the one-environment loop
 
@@ -120,12 +125,12 @@ def test_branches_are_exercised():
     s = st
     for _ in range(30):
         s = oracle.step(model, s, DT, "semi_implicit_euler", n_steps=10, **ctl)
-        _, L, _ = dyn.string_state(model, s.q)
+        _, L, _ = string_state(model, s.q)
         slack_seen += int(np.sum(L <= ctl["rest_length"]))
         taut_seen += int(np.sum(L > ctl["rest_length"]))
     assert slack_seen > 0 and taut_seen > 0
     model, st, ctl = _scene("constrained_prism", 5)
-    gamma, _, _ = dyn.force_densities(model, st.q, st.qd)
+    gamma, _, _ = evaluate.force_densities(model, st.q, st.qd)
     assert np.any(gamma + ctl["force_density"] < 0) and np.any(gamma + ctl["force_density"] > 0)
     assert model.has_damping and model.has_gravity and model.constrained.all()
 
@@ -149,7 +154,7 @@ def test_parallel_batch_matches_numpy(monkeypatch, min_work):
     B = 37
     model, st, ctl = _scene("prism_damped_gravity", B, seed=3)
     assert K._parallel(K._CACHE.get(id(model)) or KP._pack(model), B, 50, 0)
-    integrators.stability_limit(model)   # cached now: its Jacobian's acceleration calls are not counted below
+    stability_limit(model)   # cached now: its Jacobian's acceleration calls are not counted below
     calls = []
     real = K._run_parallel
     monkeypatch.setattr(K, "_run_parallel", lambda *a: calls.append(1) or real(*a))
@@ -176,13 +181,13 @@ def test_step_inplace_equals_step(integrator):
     np.testing.assert_array_equal(q, out.q)
     np.testing.assert_array_equal(qd, out.qd)
     # and without controls (the lean single-env path), one step at a time
-    model = dyn.compile_model(builders.prism(3))
+    model = compile_model(builders.prism(3))
     st = _perturbed(model, 1, 7)
     ref = oracle.step(model, st, DT, integrator, n_steps=25)
     q, qd = st.q.copy(), st.qd.copy()
     for _ in range(25):
         K.step_inplace(model, q, qd, DT, integrator)
-    assert _rel_err(ref, dyn.State(q, qd)) < RTOL
+    assert _rel_err(ref, State(q, qd)) < RTOL
 
 
 def test_odd_inputs_are_converted():
@@ -191,7 +196,7 @@ def test_odd_inputs_are_converted():
     ref = K.step(model, st, DT, "rk4", n_steps=20, **ctl)
     big = np.zeros((8,) + st.q.shape[1:])
     big[::2] = st.q
-    strided = dyn.State(q=big[::2], qd=st.qd, t=st.t)
+    strided = State(q=big[::2], qd=st.qd, t=st.t)
     ro_l0 = ctl["rest_length"].copy()
     ro_l0.setflags(write=False)
     out = K.step(model, strided, DT, "rk4", n_steps=20, rest_length=ro_l0, external=ctl["external"])
@@ -201,7 +206,7 @@ def test_odd_inputs_are_converted():
     ext32 = ctl["external"].astype(np.float32).astype(np.float64)
     ref32 = K.step(model, st, DT, "rk4", n_steps=20, rest_length=ctl["rest_length"], external=ext32)
     np.testing.assert_array_equal(out32.q, ref32.q)
-    one = dyn.State(q=st.q[:1], qd=st.qd[:1], t=0.0)
+    one = State(q=st.q[:1], qd=st.qd[:1], t=0.0)
     a = K.step(model, one, DT, "semi_implicit_euler", rest_length=ctl["rest_length"][0], n_steps=5)
     b = K.step(model, one, DT, "semi_implicit_euler", rest_length=ctl["rest_length"][:1], n_steps=5)
     np.testing.assert_array_equal(a.q, b.q)
@@ -219,7 +224,7 @@ def test_bad_shapes_raise_clear_errors():
     with pytest.raises(ValueError, match="external"):
         K.step(model, st, DT, "rk4", external=np.ones((2, n + 1, 3)))
     with pytest.raises(ValueError, match="q"):
-        K.step(model, dyn.State(st.q[:, :2], st.qd[:, :2]), DT, "rk4")
+        K.step(model, State(st.q[:, :2], st.qd[:, :2]), DT, "rk4")
     with pytest.raises(ValueError, match="integrator"):
         K.step(model, st, DT, "dop853")
     with pytest.raises(TypeError, match="callable"):
@@ -231,8 +236,8 @@ def test_bad_shapes_raise_clear_errors():
 
 def test_model_cache_follows_model_lifetime():
     import gc
-    model = dyn.compile_model(tg.build("prism3"))
-    K.step(model, dyn.initial_state(model), DT, "semi_implicit_euler")
+    model = compile_model(tg.build("prism3"))
+    K.step(model, initial_state(model), DT, "semi_implicit_euler")
     key = id(model)
     assert key in K._CACHE
     del model
@@ -245,13 +250,13 @@ def test_great_circle_drift_matches_numpy(B):
     """Semi-implicit Euler with projection moves b along great circles: numba agrees with NumPy
     for copies at rest (rotation angle per step below the sin(x)/x series threshold) and copies
     spinning fast (0.05-0.1 rad per step), in the one-environment and the SIMD loops."""
-    model = dyn.compile_model(builders.prism(3))
-    st = dyn.initial_state(model, B)
+    model = compile_model(builders.prism(3))
+    st = initial_state(model, B)
     s = model.structure
     omega = np.random.default_rng(3).normal(size=(B, 3)) * 40.0
     omega[0] = 0.0                                        # copy 0: the prestressed prism at rest
     vel = np.cross(omega[:, None, :], (s.nodes - s.nodes.mean(axis=0))[None])
-    st = dyn.initial_state(model, nodes=np.broadcast_to(s.nodes, (B,) + s.nodes.shape), velocities=vel)
+    st = initial_state(model, nodes=np.broadcast_to(s.nodes, (B,) + s.nodes.shape), velocities=vel)
     ref = oracle.step(model, st, 2e-3, "semi_implicit_euler", n_steps=200)
     out = K.step(model, st, 2e-3, "semi_implicit_euler", n_steps=200)
     step_angle = np.linalg.norm(st.qd[..., 3:], axis=-1).max() * 2e-3
@@ -273,7 +278,7 @@ def test_node_damping_matches_numpy(B, integrator, monkeypatch):
     force on top; the drag changes the result (the comparison is not vacuous)."""
     s = builders.constrained_prism(damping=0.5)
     c = np.linspace(0.5, 4.0, s.n_nodes)
-    model = dyn.compile_model(s, node_damping=c)
+    model = compile_model(s, node_damping=c)
     st = _perturbed(model, B, 9)
     rng = np.random.default_rng(2)
     ctl = dict(rest_length=model.rest_length * rng.uniform(0.97, 1.02, (B, model.n_strings)),
@@ -283,7 +288,7 @@ def test_node_damping_matches_numpy(B, integrator, monkeypatch):
     assert _rel_err(ref, out) < RTOL, _rel_err(ref, out)
     lean = K.step(model, st, DT, integrator, n_steps=100)               # no controls: the lean entry point
     assert _rel_err(oracle.step(model, st, DT, integrator, n_steps=100), lean) < RTOL
-    no_drag = K.step(dyn.compile_model(s), st, DT, integrator, n_steps=100, **ctl)
+    no_drag = K.step(compile_model(s), st, DT, integrator, n_steps=100, **ctl)
     assert _rel_err(out, no_drag) > 1e-6
     monkeypatch.setattr(KC, "PARALLEL_MIN_WORK", 0)
     if B >= 8:
@@ -306,7 +311,7 @@ def test_accelerations_entry_matches_numpy(scene, B):
 
 def test_accelerations_entry_parallel_params_and_shapes(monkeypatch):
     """The parallel kernel, per-copy Params, an unbatched (k, 6) state and bad shapes."""
-    from tensegrity_gym.params import default_params
+    from tensegrity_gym.core.params import default_params
     model, st, ctrl = _scene("constrained_prism", 24)
     ref = oracle.accelerations(model, st.q, st.qd, **ctrl)
     monkeypatch.setattr(KC, "PARALLEL_MIN_WORK", 1)
@@ -335,7 +340,7 @@ def test_string_forces_entry_matches_numpy(scene, B):
     ``dynamics.force_densities`` / ``nodal_forces`` return to observations, rendering and statics)
     equals the NumPy oracle to round-off: slack strings, damping, gravity, node drag, anchors,
     force-density controls (some clipped at 0), external forces, per-copy parameters."""
-    from tensegrity_gym.params import default_params
+    from tensegrity_gym.core.params import default_params
     model, st, ctrl = _scene(scene, B)
     fd_kw = {k: v for k, v in ctrl.items() if k != "external"}
     g_ref, S_ref, L_ref = oracle.force_densities(model, st.q, st.qd, **fd_kw)
@@ -346,9 +351,9 @@ def test_string_forces_entry_matches_numpy(scene, B):
     assert np.abs(L - L_ref).max() <= RTOL * np.abs(L_ref).max()
     assert np.abs(F - F_ref).max() <= RTOL * np.abs(F_ref).max()
     assert (gamma == 0).any() == (g_ref == 0).any() and np.array_equal(gamma > 0, g_ref > 0)
-    g2, S2, L2 = dyn.force_densities(model, st.q, st.qd, **fd_kw)      # the package's entry: the kernel
+    g2, S2, L2 = evaluate.force_densities(model, st.q, st.qd, **fd_kw)      # the package's entry: the kernel
     assert np.array_equal(g2, gamma) and np.array_equal(L2, L) and np.abs(S2 - S_ref).max() < 1e-14
-    F2, g3 = dyn.nodal_forces(model, st.q, st.qd, **ctrl)
+    F2, g3 = evaluate.nodal_forces(model, st.q, st.qd, **ctrl)
     assert np.array_equal(F2, F) and np.array_equal(g3, gamma)
     rng = np.random.default_rng(9)
     prm = default_params(model, B).replace(stiffness=model.stiffness * rng.uniform(0.7, 1.3, (B, model.n_strings)),
@@ -401,14 +406,14 @@ def test_callable_external_runs_on_the_kernels(scene, integrator, monkeypatch):
     ctl = {k: v for k, v in ctl.items() if k != "external"}
 
     def f(q, qd, t):
-        return E * np.sin(5.0 * t) - 0.5 * dyn.node_velocities(model, qd)
+        return E * np.sin(5.0 * t) - 0.5 * node_velocities(model, qd)
 
-    ref_const = integrators.step(model, st, DT, integrator, n_steps=60, external=E, **ctl)
+    ref_const = step(model, st, DT, integrator, n_steps=60, external=E, **ctl)
     ref = oracle.step(model, st, DT, integrator, n_steps=60, external=f, **ctl)
-    const = integrators.step(model, st, DT, integrator, n_steps=60, external=lambda q, qd, t: E, **ctl)
+    const = step(model, st, DT, integrator, n_steps=60, external=lambda q, qd, t: E, **ctl)
     np.testing.assert_array_equal(const.q, ref_const.q)
     np.testing.assert_array_equal(const.qd, ref_const.qd)
-    out = integrators.step(model, st, DT, integrator, n_steps=60, external=f, **ctl)
+    out = step(model, st, DT, integrator, n_steps=60, external=f, **ctl)
     assert _rel_err(ref, out) < RTOL
     assert out.t == pytest.approx(st.t + 60 * DT)
     assert _rel_err(out, const) > 1e-6                  # the time- and state-dependence mattered

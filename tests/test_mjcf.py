@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics
-from tensegrity_gym.mjcf import export, to_mjcf
+from tensegrity_gym.physics.evaluate import force_densities
+from tensegrity_gym.physics.geometry import node_positions
+from tensegrity_gym.io.mjcf import export, to_mjcf
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -23,7 +24,7 @@ def _ours(s):
     m = tg.compile_model(s)
     n = int(round(T / DT))
     _, q, qd = tg.simulate(m, tg.initial_state(m), DT, n, "rk4", record_every=n // REC)
-    return np.array([dynamics.node_positions(m, qq)[0] for qq in q]), m, q, qd
+    return np.array([node_positions(m, qq)[0] for qq in q]), m, q, qd
 
 
 def _mujoco(s, **kw):
@@ -86,7 +87,7 @@ def test_mujoco_rk4_matches_ours(name):
     assert err < TOL, f"{name}: max node difference {err:.3g} m over {T} s"
     if np.any(s.damping > 0):
         # MuJoCo's tendon damping acts also when slack; agreement needs taut strings throughout
-        gamma, _, L = dynamics.force_densities(m, q.reshape(-1, *q.shape[2:]), qd.reshape(-1, *qd.shape[2:]))
+        gamma, _, L = force_densities(m, q.reshape(-1, *q.shape[2:]), qd.reshape(-1, *qd.shape[2:]))
         assert np.all(L > m.rest_length) and np.all(gamma > 0)
 
 
@@ -149,7 +150,7 @@ def test_bad_arguments(kw, msg):
 
 
 def test_cli_export(tmp_path, capsys):
-    from tensegrity_gym.cli import main
+    from tensegrity_gym.tools.cli import main
     out = tmp_path / "model.xml"
     assert main(["export", "constrained_prism", "--format", "mjcf", "--out", str(out), "--ground"]) == 0
     M = mujoco.MjModel.from_xml_path(str(out))
@@ -168,7 +169,7 @@ def test_cli_export(tmp_path, capsys):
     js = tmp_path / "p.json"
     assert main(["export", "prism3", "--format", "json", "--out", str(js)]) == 0
     assert tg.load_json(js).n_strings == 9
-    from tensegrity_gym.tnsgrt import to_tnsgrt_dict
+    from tensegrity_gym.io.tnsgrt import to_tnsgrt_dict
     import json
     s = tg.prism(3)
     tn = {"nodes": s.nodes.T.tolist(), "members": np.hstack([s.strings.T, s.bars.T]).tolist(),

@@ -198,7 +198,7 @@ def test_bad_arguments_are_named(kw, match):
 
 
 def test_state_observation_is_in_the_guidance_frame():
-    from tensegrity_gym import dynamics
+    from tensegrity_gym.physics.geometry import node_velocities
     from tensegrity_gym.tasks.navigate import guidance_frame
     env = gym.make("TensegrityNavigate-v0")
     obs, _ = env.reset(seed=4)
@@ -208,7 +208,7 @@ def test_state_observation_is_in_the_guidance_frame():
     task = env.unwrapped.task
     lay = {name: sl for name, sl, _ in task.observation_layout()}
     assert obs[lay["goal_direction"]].tolist() == [1.0, 0.0]
-    vel = dynamics.node_velocities(task.model, task.qd)
+    vel = node_velocities(task.model, task.qd)
     np.testing.assert_allclose(obs[lay["node_velocity"]], guidance_frame(vel, task.goal).reshape(-1), rtol=1e-5,
                                atol=1e-6)
     # the frame is a rotation about the vertical: x along the guidance, lengths and z kept

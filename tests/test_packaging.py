@@ -201,7 +201,8 @@ def test_benchmark_helpers_are_not_in_the_package():
 
 def test_shared_script_helpers():
     import numpy as np
-    from tensegrity_gym import builders, dynamics
+    from tensegrity_gym.core import builders
+    from tensegrity_gym.core.model import compile_model
     _bench = _script_helpers()
     rng = np.random.default_rng(0)
     for z in list(rng.normal(size=(5, 3))) + [np.array([0, 0, 1.0]), np.array([0, 0, -1.0])]:
@@ -215,7 +216,7 @@ def test_shared_script_helpers():
     assert 0 < t < 1e-3
     out, wall = _bench.timed(lambda: 3, wall_min=0.0)
     assert out == 3 and wall >= 0
-    m = dynamics.compile_model(builders.prism(3))
+    m = compile_model(builders.prism(3))
     xml = _bench.mjcf(m)
     assert xml.count("<freejoint") == m.n_bars and xml.count("<spatial") == m.n_strings
     # a rigid rotation of a node set is recovered
@@ -232,17 +233,19 @@ def test_script_mjcf_is_the_package_writer_and_takes_our_state():
     sites land on our node positions."""
     mujoco = pytest.importorskip("mujoco")
     import numpy as np
-    from tensegrity_gym import builders, dynamics
+    from tensegrity_gym.core import builders
+    from tensegrity_gym.core.model import compile_model, initial_state
+    from tensegrity_gym.physics.geometry import node_positions
     from tensegrity_gym.io.mjcf import to_mjcf
     _bench = _script_helpers()
-    m = dynamics.compile_model(builders.prism(3))
+    m = compile_model(builders.prism(3))
     assert _bench.mjcf(m, "RK4", dt=1e-4) == to_mjcf(m.structure, timestep=1e-4, integrator="RK4")
     mm = mujoco.MjModel.from_xml_string(_bench.mjcf(m))
     d = mujoco.MjData(mm)
-    st = dynamics.initial_state(m, nodes=m.structure.nodes + 0.01 * np.random.default_rng(1).standard_normal(
+    st = initial_state(m, nodes=m.structure.nodes + 0.01 * np.random.default_rng(1).standard_normal(
         m.structure.nodes.shape))
     _bench.mj_set_state(mujoco, mm, d, m, st.q[0], st.qd[0])
-    ours = dynamics.node_positions(m, st.q)[0]
+    ours = node_positions(m, st.q)[0]
     for i in range(m.n_nodes):
         np.testing.assert_allclose(d.site(f"node{i}").xpos, ours[i], atol=1e-12)
 

@@ -13,7 +13,10 @@ import numpy as np
 import pytest
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym import actuation, contact, params, torch_backend
+from tensegrity_gym.physics import actuation
+from tensegrity_gym.core import params
+from tensegrity_gym.backends.torch.model import PARAM_FIELDS
+from tensegrity_gym.physics.contact import PRM_FIELDS, GroundContact
 from tensegrity_gym.core import param_table as pt
 from tensegrity_gym.envs import base, domain, roll, twin_params
 
@@ -26,9 +29,9 @@ def test_views_equal_the_tables_they_replace():
         "stiffness": ("string", "N/m", "nonnegative"), "damping": ("string", "N s/m", "nonnegative"),
         "rest_length": ("string", "m", "nonnegative"), "node_damping": ("node", "N s/m", "nonnegative"),
         "gravity": ("component", "m/s^2", "finite"), "anchor_pos": ("anchor", "m", "finite")}
-    assert torch_backend.PARAM_FIELDS == tuple(params.PARAM_FIELDS)
-    assert contact.PRM_FIELDS == ("height", "radius", "stiffness", "damping", "exponent", "friction",
-                                  "tangential_stiffness", "tangential_damping", "max_damping")
+    assert PARAM_FIELDS == tuple(params.PARAM_FIELDS)
+    assert PRM_FIELDS == ("height", "radius", "stiffness", "damping", "exponent", "friction",
+                          "tangential_stiffness", "tangential_damping", "max_damping")
     assert {k: (s.per, s.unit, s.absolute) for k, s in domain.SPECS.items()} == {
         "rod_mass": ("rod", "kg", False), "stiffness": ("string", "N/m", False),
         "damping": ("string", "N s/m", False), "node_damping": ("node", "N s/m", False),
@@ -55,12 +58,12 @@ def test_every_row_reaches_its_container():
     assert len(names) == len(set(names))
     param_fields = [f.name for f in dataclasses.fields(params.Params)]
     set_limits = inspect.signature(actuation.Actuation.set_copy_limits).parameters
-    ground = {f.name for f in dataclasses.fields(contact.GroundContact)}
+    ground = {f.name for f in dataclasses.fields(GroundContact)}
     for r in pt.PARAMS:
         if r.group == "physics":
             assert r.field in param_fields, r
         elif r.group == "contact":
-            assert r.field in contact.PRM_FIELDS and r.field in ground, r
+            assert r.field in PRM_FIELDS and r.field in ground, r
             assert r.argument is None or r.argument in roll.RollTask.__signature__.parameters, r
         else:
             assert r.field in set_limits, r
@@ -103,11 +106,11 @@ def test_an_added_row_shows_up_in_every_view(radius_row):
     assert "cap_radius" in pt.domain_specs() and pt.domain_specs()["cap_radius"].per == "copy"
     assert pt.env_fields("contact")["cap_radius"] == "radius"
     assert "cap_radius" in pt.twin_refusals() and "cap_radius" not in pt.twin_params()
-    assert pt.contact_columns() == contact.PRM_FIELDS            # the container itself is unchanged
+    assert pt.contact_columns() == PRM_FIELDS            # the container itself is unchanged
 
 
 def test_an_added_row_is_randomised_and_written_per_copy(radius_row):
-    col = contact.PRM_FIELDS.index("radius")
+    col = PRM_FIELDS.index("radius")
     env = gym.make_vec("TensegrityRoll-v0", num_envs=3, vectorization_mode="vector_entry_point",
                        randomize={"cap_radius": 0.2}, frame_skip=2)
     _, info = env.reset(seed=0)
@@ -126,7 +129,7 @@ def test_an_added_row_is_randomised_and_written_per_copy(radius_row):
 
 @pytest.mark.skipif(not importlib.util.find_spec("torch"), reason="needs torch")
 def test_an_added_row_reaches_the_torch_device_reset(radius_row):
-    col = contact.PRM_FIELDS.index("radius")
+    col = PRM_FIELDS.index("radius")
     env = gym.make_vec("TensegrityRoll-v0", num_envs=3, vectorization_mode="vector_entry_point", backend="torch",
                        device="cpu", dtype="float64", reset_sampling="device", randomize={"cap_radius": 0.2},
                        frame_skip=2)

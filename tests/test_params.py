@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
-from tensegrity_gym.params import Params, default_params
+from tensegrity_gym.physics.evaluate import project
+from tensegrity_gym.core.model import State
+from tensegrity_gym.physics.geometry import energy, linear_momentum
+from tensegrity_gym.core.params import Params, default_params
 
 B = 4
 
@@ -47,8 +49,8 @@ def _copy_model(model, params, b, node_damping):
 def _moving_state(model, rng, n=B):
     st = tg.initial_state(model, n)
     qd = st.qd + 0.05 * rng.standard_normal(st.qd.shape)
-    q, qd = dyn.project(model, st.q, qd)
-    return dyn.State(q=q, qd=qd)
+    q, qd = project(model, st.q, qd)
+    return State(q=q, qd=qd)
 
 
 CASES = [("semi_implicit_euler", "numba", 1e-3, 200), ("rk4", "numba", 1e-3, 200), ("implicit_euler", "auto", 1e-3, 10),
@@ -67,7 +69,7 @@ def test_copy_equals_model_compiled_with_its_values(name, structure, drag, integ
     out = tg.step(model, st, dt, integrator, n_steps=n, backend=backend, params=params)
     for b in range(B):
         mb = _copy_model(model, params, b, params.node_damping[b])
-        one = tg.step(mb, dyn.State(q=st.q[b:b + 1], qd=st.qd[b:b + 1]), dt, integrator, n_steps=n,
+        one = tg.step(mb, State(q=st.q[b:b + 1], qd=st.qd[b:b + 1]), dt, integrator, n_steps=n,
                       backend=backend)
         scale = max(1.0, float(np.abs(one.q).max()))
         assert np.abs(out.q[b] - one.q[0]).max() <= 1e-12 * scale, (b, np.abs(out.q[b] - one.q[0]).max())
@@ -98,7 +100,7 @@ def test_parallel_per_copy_kernel_matches_serial():
     big = tg.step(model, st, 1e-3, "rk4", n_steps=200, params=params)      # above PARALLEL_MIN_WORK
     assert n * 200 * (model.n_strings + model.n_bars) * 4 >= _compile.PARALLEL_MIN_WORK
     for b in (0, 17, 63):
-        one = tg.step(model, dyn.State(q=st.q[b:b + 1], qd=st.qd[b:b + 1]), 1e-3, "rk4", n_steps=200,
+        one = tg.step(model, State(q=st.q[b:b + 1], qd=st.qd[b:b + 1]), 1e-3, "rk4", n_steps=200,
                       params=params.take([b]))
         assert np.array_equal(big.q[b], one.q[0])
 
@@ -114,12 +116,12 @@ def test_step_inplace_per_copy_and_diagnostics():
     ref = tg.step(model, st, 1e-3, "rk4", n_steps=10, params=params)
     assert np.array_equal(q, ref.q)
     # diagnostics read the copy's values: energy of copy b equals its own model's
-    E = dyn.energy(model, ref.q, ref.qd, params=params)
+    E = energy(model, ref.q, ref.qd, params=params)
     for b in range(B):
         mb = _copy_model(model, params, b, None)
-        np.testing.assert_allclose(E[b], dyn.energy(mb, ref.q[b:b + 1], ref.qd[b:b + 1])[0], rtol=1e-13)
-        np.testing.assert_allclose(dyn.linear_momentum(model, ref.qd, params=params)[b],
-                                   dyn.linear_momentum(mb, ref.qd[b:b + 1])[0], rtol=1e-13, atol=1e-15)
+        np.testing.assert_allclose(E[b], energy(mb, ref.q[b:b + 1], ref.qd[b:b + 1])[0], rtol=1e-13)
+        np.testing.assert_allclose(linear_momentum(model, ref.qd, params=params)[b],
+                                   linear_momentum(mb, ref.qd[b:b + 1])[0], rtol=1e-13, atol=1e-15)
 
 
 def test_energy_conserved_per_copy_without_damping():
@@ -128,9 +130,9 @@ def test_energy_conserved_per_copy_without_damping():
     params = default_params(model, 3).replace(mass=rng.uniform(0.5, 2.0, (3, 3)),
                                               stiffness=rng.uniform(500, 2000, (3, model.n_strings)))
     st = _moving_state(model, rng, 3)
-    E0 = dyn.energy(model, st.q, st.qd, params=params)
+    E0 = energy(model, st.q, st.qd, params=params)
     out = tg.step(model, st, 1e-4, "rk4", n_steps=2000, params=params)
-    E1 = dyn.energy(model, out.q, out.qd, params=params)
+    E1 = energy(model, out.q, out.qd, params=params)
     assert np.all(np.abs(E1 - E0) <= 1e-9 * np.abs(E0))
     assert np.ptp(E0) > 0   # the copies differ
 
@@ -187,7 +189,7 @@ def test_repeated_calls_keep_each_copys_anchors(integrator, n_copies):
     for _ in range(3):
         out = tg.step(model, out, 1e-3, integrator, n_steps=5, params=params)
     for b in (0, 1, n_copies - 1):
-        one = tg.step(_copy_model(model, params, b, None), dyn.State(q=st.q[b:b + 1], qd=st.qd[b:b + 1]), 1e-3,
+        one = tg.step(_copy_model(model, params, b, None), State(q=st.q[b:b + 1], qd=st.qd[b:b + 1]), 1e-3,
                       integrator, n_steps=15)
         assert np.abs(out.q[b] - one.q[0]).max() <= 1e-12 * max(1.0, float(np.abs(one.q).max())), b
         assert np.abs(out.qd[b] - one.qd[0]).max() <= 1e-12 * max(1.0, float(np.abs(one.qd).max())), b

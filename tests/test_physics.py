@@ -15,9 +15,16 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
-from tensegrity_gym import integrators as integ
-from tensegrity_gym.structure import StructureError
+from tensegrity_gym.core.model import compile_model, initial_state, State
+from tensegrity_gym.physics.geometry import (node_velocities, node_positions, configuration_matrix, energy,
+                                             center_of_mass, linear_momentum, angular_momentum, constraint_violation,
+                                             rod_length_drift)
+from tensegrity_gym.physics.evaluate import nodal_forces
+from tensegrity_gym.physics.stability import stable_step_estimate
+from tensegrity_gym.physics.rollout import simulate
+from tensegrity_gym.physics.integrate import step
+from tensegrity_gym.core.errors import SimulationDiverged
+from tensegrity_gym.core.structure import StructureError
 
 import oracle_numpy as oracle
 from reference import NodeReference, rigid_perturbation
@@ -107,11 +114,11 @@ def case_data(name):
     t = np.linspace(0.0, T, N_REC)
     ref = NodeReference(s)
     X_ref, V_ref = ref.simulate(nodes0, vel0, t)
-    model = dyn.compile_model(s)
-    st = dyn.initial_state(model, nodes=nodes0, velocities=vel0)
-    ts, q, qd = integ.simulate(model, st, T / (N_REC - 1), N_REC - 1, "dop853", rtol=1e-12, atol=1e-12)
-    X = np.stack([dyn.node_positions(model, qq)[0] for qq in q])
-    V = np.stack([dyn.node_velocities(model, qq)[0] for qq in qd])
+    model = compile_model(s)
+    st = initial_state(model, nodes=nodes0, velocities=vel0)
+    ts, q, qd = simulate(model, st, T / (N_REC - 1), N_REC - 1, "dop853", rtol=1e-12, atol=1e-12)
+    X = np.stack([node_positions(model, qq)[0] for qq in q])
+    V = np.stack([node_velocities(model, qq)[0] for qq in qd])
     return dict(s=s, ref=ref, model=model, state=st, nodes0=nodes0, vel0=vel0, t=ts, q=q, qd=qd,
                 X=X, V=V, X_ref=X_ref, V_ref=V_ref, tol=tol)
 
@@ -122,15 +129,15 @@ def slack_counts(s, X):
 
 
 def energies(model, q, qd):
-    return np.array([dyn.energy(model, a, b)[0] for a, b in zip(q, qd)])
+    return np.array([energy(model, a, b)[0] for a, b in zip(q, qd)])
 
 
 def smooth_case(damping=0.0, seed=3):
     """A prestressed prism slightly off equilibrium: every string stays taut (smooth RHS)."""
     s = tg.prism(3, damping=damping)
     nodes0, vel0 = rigid_perturbation(s, np.random.default_rng(seed), pos=0.01, rot=0.02, vel=0.1, omega=0.5)
-    model = dyn.compile_model(s)
-    return s, model, dyn.initial_state(model, nodes=nodes0, velocities=vel0)
+    model = compile_model(s)
+    return s, model, initial_state(model, nodes=nodes0, velocities=vel0)
 
 
 # ---------------------------------------------------------------------- agreement with the reference
@@ -200,15 +207,15 @@ def test_node_accelerations_agree_with_reference(name):
     """At random states (large perturbations: many strings slack) the node accelerations
     r'' + eta b'' equal the reference's KKT accelerations."""
     s = STRUCTURES_FOR_ACC[name]()
-    model = dyn.compile_model(s)
+    model = compile_model(s)
     ref = NodeReference(s)
     rng = np.random.default_rng(11)
     n_slack = 0
     for _ in range(4):
         nodes, vel = rigid_perturbation(s, rng, pos=0.05, rot=0.2, vel=1.0, omega=3.0)
-        st = dyn.initial_state(model, nodes=nodes, velocities=vel)
+        st = initial_state(model, nodes=nodes, velocities=vel)
         a = tg.integrators.accelerations(model, st.q, st.qd)
-        acc = dyn.node_velocities(model, a)[0]          # linear map: node accelerations
+        acc = node_velocities(model, a)[0]          # linear map: node accelerations
         acc_ref = ref.node_accelerations(nodes, vel)
         scale = np.abs(acc_ref).max()
         assert np.abs(acc - acc_ref).max() < 1e-10 * scale + 1e-12, \
@@ -223,17 +230,17 @@ def test_controls_and_batch_agree_with_reference(name):
     """Rest lengths, controller force densities (which enter linearly, clipped so that no
     string pushes) and external nodal forces, for a batch of B different states at once."""
     s = STRUCTURES_FOR_ACC[name]()
-    model = dyn.compile_model(s)
+    model = compile_model(s)
     rng = np.random.default_rng(7)
     B, m, n = 3, s.n_strings, s.n_nodes
     states = [rigid_perturbation(s, rng, pos=0.03, rot=0.1, vel=0.5, omega=2.0) for _ in range(B)]
     nodes = np.stack([x for x, _ in states])
     vels = np.stack([v for _, v in states])
-    st = dyn.initial_state(model, nodes=nodes, velocities=vels)
+    st = initial_state(model, nodes=nodes, velocities=vels)
     rest = s.rest_length * rng.uniform(0.9, 1.05, (B, m))
     u = rng.uniform(-20.0, 20.0, (B, m))
     ext = rng.normal(0.0, 5.0, (B, n, 3))
-    acc = dyn.node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd, rest_length=rest,
+    acc = node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd, rest_length=rest,
                                                        force_density=u, external=ext))
     for i in range(B):
         ref = NodeReference(s, rest_length=rest[i], force_density=u[i], external=ext[i])
@@ -241,10 +248,10 @@ def test_controls_and_batch_agree_with_reference(name):
         scale = np.abs(acc_ref).max()
         assert np.abs(acc[i] - acc_ref).max() < 1e-10 * scale, (name, i, np.abs(acc[i] - acc_ref).max())
     # force densities enter linearly where no clipping happens (all taut, u > 0 small)
-    F0, g0 = dyn.nodal_forces(model, st.q, st.qd, rest_length=0.5 * s.rest_length)
+    F0, g0 = nodal_forces(model, st.q, st.qd, rest_length=0.5 * s.rest_length)
     du = np.abs(rng.normal(0.0, 1.0, m))
-    F1, g1 = dyn.nodal_forces(model, st.q, st.qd, rest_length=0.5 * s.rest_length, force_density=du)
-    F2, g2 = dyn.nodal_forces(model, st.q, st.qd, rest_length=0.5 * s.rest_length, force_density=2 * du)
+    F1, g1 = nodal_forces(model, st.q, st.qd, rest_length=0.5 * s.rest_length, force_density=du)
+    F2, g2 = nodal_forces(model, st.q, st.qd, rest_length=0.5 * s.rest_length, force_density=2 * du)
     np.testing.assert_allclose(g1 - g0, np.broadcast_to(du, g0.shape), atol=1e-9)
     np.testing.assert_allclose(F2 - F0, 2 * (F1 - F0), atol=1e-9)
 
@@ -255,7 +262,7 @@ def test_energy_matches_node_formula():
     for name in ("damped_prism_gravity", "lumped_prism", "constrained_prism"):
         d = case_data(name)
         for i in (0, N_REC // 2, N_REC - 1):
-            e_gym = dyn.energy(d["model"], d["q"][i], d["qd"][i])[0]
+            e_gym = energy(d["model"], d["q"][i], d["qd"][i])[0]
             e_ref = d["ref"].energy(d["X"][i], d["V"][i])
             assert abs(e_gym - e_ref) < 1e-11 * max(1.0, abs(e_ref)), (name, e_gym, e_ref)
 
@@ -271,20 +278,20 @@ def test_energy_conserved_with_slack_strings_dop853():
 def test_energy_conserved_rk4_and_symplectic_euler():
     # smooth case, RK4, small dt: essentially exact
     s, model, st = smooth_case()
-    ts, q, qd = integ.simulate(model, st, 2e-4, 1000, "rk4", record_every=50)
+    ts, q, qd = simulate(model, st, 2e-4, 1000, "rk4", record_every=50)
     E = energies(model, q, qd)
     drift_smooth = np.abs(E - E[0]).max() / abs(E[0])
     assert drift_smooth < 1e-10, f"rk4 dt=2e-4: relative energy drift {drift_smooth:.3g}"
     # slack strings: the string force has a kink at each slack transition, where RK4 loses
     # order (observed ~2.7), but the energy error stays small
     d = case_data("free_prism_slack")
-    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 1500, "rk4", record_every=30)
+    ts, q, qd = simulate(d["model"], d["state"], 2e-4, 1500, "rk4", record_every=30)
     E = energies(d["model"], q, qd)
     drift = np.abs(E - E[0]).max() / abs(E[0])
-    assert slack_counts(d["s"], np.stack([dyn.node_positions(d["model"], a)[0] for a in q])).max() >= 2
+    assert slack_counts(d["s"], np.stack([node_positions(d["model"], a)[0] for a in q])).max() >= 2
     assert drift < 1e-5, f"rk4 dt=2e-4 with slack strings: relative energy drift {drift:.3g}"
     # symplectic Euler: bounded oscillating energy error, no secular growth
-    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 3000, "semi_implicit_euler", record_every=25)
+    ts, q, qd = simulate(d["model"], d["state"], 2e-4, 3000, "semi_implicit_euler", record_every=25)
     E = energies(d["model"], q, qd)
     err = np.abs(E - E[0]) / abs(E[0])
     half = err.size // 2
@@ -300,12 +307,12 @@ def test_energy_only_decreases_with_damping():
     assert E[-1] < E[0] - 1e-3, "damping dissipated nothing"
     # strong damping with slack strings (the clipped damper), sampled every step
     s = tg.prism(3, prestress=30.0, damping=20.0)
-    model = dyn.compile_model(s)
+    model = compile_model(s)
     nodes0, vel0 = rigid_perturbation(s, np.random.default_rng(5), pos=0.03, rot=0.1, vel=0.5, omega=2.0)
-    st = dyn.initial_state(model, nodes=nodes0, velocities=vel0)
-    ts, q, qd = integ.simulate(model, st, 5e-4, 600, "rk4")
+    st = initial_state(model, nodes=nodes0, velocities=vel0)
+    ts, q, qd = simulate(model, st, 5e-4, 600, "rk4")
     E = energies(model, q, qd)
-    assert slack_counts(s, np.stack([dyn.node_positions(model, a)[0] for a in q])).max() >= 1
+    assert slack_counts(s, np.stack([node_positions(model, a)[0] for a in q])).max() >= 1
     assert np.diff(E).max() < 1e-9 * np.abs(E).max(), f"energy increased by {np.diff(E).max():.3g} J"
     assert E[-1] < 0.5 * E[0]
 
@@ -321,9 +328,9 @@ def test_momentum_conserved_free_structure():
         P, L = [], []
         for i in range(N_REC):
             q, qd = d["q"][i], d["qd"][i]
-            com = dyn.center_of_mass(model, q)
-            p_gym = dyn.linear_momentum(model, qd)[0]
-            l_gym = dyn.angular_momentum(model, q, qd, about=com)[0]
+            com = center_of_mass(model, q)
+            p_gym = linear_momentum(model, qd)[0]
+            l_gym = angular_momentum(model, q, qd, about=com)[0]
             p_ref, l_ref = ref.momenta(d["X"][i], d["V"][i])
             np.testing.assert_allclose(p_gym, p_ref, atol=1e-12)
             np.testing.assert_allclose(l_gym, l_ref, atol=1e-12)
@@ -339,16 +346,16 @@ def test_momentum_conserved_free_structure():
     model = d["model"]
 
     def momenta(q, qd):
-        P = np.array([dyn.linear_momentum(model, b)[0] for b in qd])
-        L = np.array([dyn.angular_momentum(model, a, b, about=dyn.center_of_mass(model, a))[0]
+        P = np.array([linear_momentum(model, b)[0] for b in qd])
+        L = np.array([angular_momentum(model, a, b, about=center_of_mass(model, a))[0]
                       for a, b in zip(q, qd)])
         return np.abs(P - P[0]).max(), np.abs(L - L[0]).max()
 
-    ts, q, qd = integ.simulate(model, d["state"], 1e-3, 300, "rk4", record_every=30)
+    ts, q, qd = simulate(model, d["state"], 1e-3, 300, "rk4", record_every=30)
     dP, dL = momenta(q, qd)
     assert dP < 1e-13 and dL < 1e-7, ("rk4", dP, dL)
-    ts, q, qd = integ.simulate(model, d["state"], 1e-3, 300, "semi_implicit_euler", record_every=30,
-                               project=False)
+    ts, q, qd = simulate(model, d["state"], 1e-3, 300, "semi_implicit_euler", record_every=30,
+                         project=False)
     dP, dL = momenta(q, qd)
     assert dP < 1e-13 and dL < 1e-13, ("semi_implicit_euler", dP, dL)
 
@@ -360,10 +367,10 @@ def test_rod_length_drift_projection():
     out = {}
     for name in ("rk4", "semi_implicit_euler"):
         for proj in (True, False):
-            ts, q, qd = integ.simulate(model, st, 1e-3, 500, name, project=proj, record_every=50)
-            drift = max(dyn.rod_length_drift(model, a)[0] for a in q)
-            viol = max(dyn.constraint_violation(model, a, b)[0] for a, b in zip(q, qd))
-            X = dyn.node_positions(model, q[-1])[0]
+            ts, q, qd = simulate(model, st, 1e-3, 500, name, project=proj, record_every=50)
+            drift = max(rod_length_drift(model, a)[0] for a in q)
+            viol = max(constraint_violation(model, a, b)[0] for a, b in zip(q, qd))
+            X = node_positions(model, q[-1])[0]
             node_drift = np.abs(np.linalg.norm(X[d["s"].bars[:, 1]] - X[d["s"].bars[:, 0]], axis=1)
                                 - d["s"].bar_lengths).max()
             out[name, proj] = (drift, viol, node_drift)
@@ -382,19 +389,19 @@ def test_constrained_examples_keep_constraints():
         d = case_data(name)
         s, model = d["s"], d["model"]
         # adaptive, no projection: drift set by the tolerance
-        viol = max(dyn.constraint_violation(model, a, b)[0] for a, b in zip(d["q"], d["qd"]))
+        viol = max(constraint_violation(model, a, b)[0] for a, b in zip(d["q"], d["qd"]))
         assert viol < 1e-9, f"{name}: dop853 constraint violation {viol:.3g}"
         # fixed step with projection: exact
-        ts, q, qd = integ.simulate(model, d["state"], 1e-3, 500, "rk4", record_every=50)
-        viol = max(dyn.constraint_violation(model, a, b)[0] for a, b in zip(q, qd))
+        ts, q, qd = simulate(model, d["state"], 1e-3, 500, "rk4", record_every=50)
+        viol = max(constraint_violation(model, a, b)[0] for a, b in zip(q, qd))
         assert viol < 1e-13, f"{name}: rk4+projection constraint violation {viol:.3g}"
-        for X in (dyn.node_positions(model, a)[0] for a in q):
+        for X in (node_positions(model, a)[0] for a in q):
             for node, D in s.node_constraints.items():
                 assert np.abs(D @ X[node] - D @ s.nodes[node]).max() < 1e-13
             assert np.abs(np.linalg.norm(X[s.bars[:, 1]] - X[s.bars[:, 0]], axis=1) - s.bar_lengths).max() < 1e-13
             np.testing.assert_array_equal(X[s.anchors], s.nodes[s.anchors])
         # and it really moves along its constraints
-        assert np.abs(dyn.node_positions(model, q[-1])[0] - dyn.node_positions(model, q[0])[0]).max() > 0.01
+        assert np.abs(node_positions(model, q[-1])[0] - node_positions(model, q[0])[0]).max() > 0.01
 
 
 # ---------------------------------------------------------------------- convergence order
@@ -406,12 +413,12 @@ def test_constrained_examples_keep_constraints():
 def test_convergence_order(integrator, dts, order, project):
     s, model, st = smooth_case(damping=2.0)
     T = 0.2
-    ref = integ.step(model, st, T, "dop853", rtol=1e-13, atol=1e-13)
-    N_ref = dyn.node_positions(model, ref.q)
+    ref = step(model, st, T, "dop853", rtol=1e-13, atol=1e-13)
+    N_ref = node_positions(model, ref.q)
     errs = []
     for dt in dts:
-        out = integ.step(model, st, dt, integrator, n_steps=int(round(T / dt)), project=project)
-        errs.append(np.abs(dyn.node_positions(model, out.q) - N_ref).max())
+        out = step(model, st, dt, integrator, n_steps=int(round(T / dt)), project=project)
+        errs.append(np.abs(node_positions(model, out.q) - N_ref).max())
     errs = np.array(errs)
     observed = np.log2(errs[:-1] / errs[1:])
     assert errs[-1] > 1e-10, "error too close to the reference's own error to measure an order"
@@ -423,12 +430,12 @@ def test_adaptive_methods_converge_with_tolerance(integrator):
     """The adaptive methods approach the independent reference as their tolerance shrinks."""
     s, model, st = smooth_case(damping=2.0)
     T = 0.2
-    X_ref, _ = NodeReference(s).simulate(dyn.node_positions(model, st.q)[0], dyn.node_velocities(model, st.qd)[0],
+    X_ref, _ = NodeReference(s).simulate(node_positions(model, st.q)[0], node_velocities(model, st.qd)[0],
                                          [0.0, T])
     errs = []
     for rtol in (1e-5, 1e-8):
-        out = integ.step(model, st, T, integrator, rtol=rtol, atol=1e-2 * rtol)
-        errs.append(np.abs(dyn.node_positions(model, out.q)[0] - X_ref[-1]).max())
+        out = step(model, st, T, integrator, rtol=rtol, atol=1e-2 * rtol)
+        errs.append(np.abs(node_positions(model, out.q)[0] - X_ref[-1]).max())
     assert errs[1] < 1e-9 and errs[1] < errs[0], f"{integrator}: errors {errs} m at rtol 1e-5, 1e-8"
 
 
@@ -436,16 +443,16 @@ def test_adaptive_methods_converge_with_tolerance(integrator):
 @pytest.mark.parametrize("p", [3, 4, 6])
 def test_prestressed_prism_has_zero_acceleration(p):
     s = tg.prism(p)
-    model = dyn.compile_model(s)
-    st = dyn.initial_state(model)
-    acc = dyn.node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd))[0]
+    model = compile_model(s)
+    st = initial_state(model)
+    acc = node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd))[0]
     scale = s.initial_tensions().max() / s.bar_mass.min()     # m/s^2
     assert np.abs(acc).max() < 1e-9 * scale, f"prism{p}: |a| = {np.abs(acc).max():.3g} m/s^2"
     np.testing.assert_allclose(twist_angles(s.nodes, p), np.pi / 2 - np.pi / p, atol=1e-12)
     # a wrong rest length breaks the equilibrium: the check can fail
     rl = s.rest_length.copy()
     rl[-1] *= 0.99
-    acc2 = dyn.node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd, rest_length=rl))[0]
+    acc2 = node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd, rest_length=rl))[0]
     assert np.abs(acc2).max() > 1e-3 * scale
 
 
@@ -458,18 +465,18 @@ def test_damped_prism_settles_at_equilibrium_twist(p):
     stretch any string to first order, so viscous string damping leaves it undamped at
     linear order; the drag damps every mode.)"""
     s = tg.prism(p, damping=10.0)
-    model = dyn.compile_model(s)
+    model = compile_model(s)
     nodes0, _ = rigid_perturbation(s, np.random.default_rng(p), pos=0.03, rot=0.1, vel=0.0, omega=0.0)
     target = np.pi / 2 - np.pi / p
     dev0 = np.abs(twist_angles(nodes0, p) - target).max()
     assert dev0 > 0.03
-    st = dyn.initial_state(model, nodes=nodes0, velocities=np.zeros_like(nodes0))
+    st = initial_state(model, nodes=nodes0, velocities=np.zeros_like(nodes0))
 
     def drag(q, qd, t):
-        return -3.0 * dyn.node_velocities(model, qd)
+        return -3.0 * node_velocities(model, qd)
 
-    out = integ.step(model, st, 1e-2, "rk4", n_steps=700, external=drag)
-    X = dyn.node_positions(model, out.q)[0]
+    out = step(model, st, 1e-2, "rk4", n_steps=700, external=drag)
+    X = node_positions(model, out.q)[0]
     dev = np.abs(twist_angles(X, p) - target).max()
     assert dev < 1e-6, f"prism{p}: twist {twist_angles(X, p)} rad, expected {target}"
     # and it is the prestressed equilibrium again: string lengths back to the initial ones
@@ -479,15 +486,15 @@ def test_damped_prism_settles_at_equilibrium_twist(p):
 
 def test_string_damping_alone_dissipates_and_oscillates_about_equilibrium_twist():
     s = tg.prism(3, damping=10.0)
-    model = dyn.compile_model(s)
+    model = compile_model(s)
     nodes0, _ = rigid_perturbation(s, np.random.default_rng(3), pos=0.03, rot=0.1, vel=0.0, omega=0.0)
-    st = dyn.initial_state(model, nodes=nodes0, velocities=np.zeros_like(nodes0))
-    eq = dyn.initial_state(model)
-    E_eq = dyn.energy(model, eq.q, eq.qd)[0]
-    ts, q, qd = integ.simulate(model, st, 4e-3, 750, "rk4", record_every=3)
+    st = initial_state(model, nodes=nodes0, velocities=np.zeros_like(nodes0))
+    eq = initial_state(model)
+    E_eq = energy(model, eq.q, eq.qd)[0]
+    ts, q, qd = simulate(model, st, 4e-3, 750, "rk4", record_every=3)
     E = energies(model, q, qd) - E_eq
     assert np.diff(E).max() < 1e-9 and E[-1] < 0.01 * E[0]
-    tw = np.array([twist_angles(dyn.node_positions(model, a)[0], 3).mean() for a in q[len(q) // 2:]])
+    tw = np.array([twist_angles(node_positions(model, a)[0], 3).mean() for a in q[len(q) // 2:]])
     assert abs(tw.mean() - np.pi / 6) < 2e-3 and np.abs(tw - np.pi / 6).max() < 0.03
 
 
@@ -506,10 +513,10 @@ def test_prism_at_wrong_twist_with_prestress_is_rejected():
                                      lambda: tg.tower(2)])
 def test_configuration_matrix(factory):
     s = factory()
-    model = dyn.compile_model(s)
+    model = compile_model(s)
     nodes0, vel0 = rigid_perturbation(s, np.random.default_rng(0), pos=0.02, rot=0.1)
-    st = dyn.initial_state(model, batch_size=1, nodes=nodes0, velocities=vel0)
-    Q, Psi, Y = dyn.configuration_matrix(model, st.q)
+    st = initial_state(model, batch_size=1, nodes=nodes0, velocities=vel0)
+    Q, Psi, Y = configuration_matrix(model, st.q)
     k, n = s.n_bars, s.n_nodes
     assert Q.shape == (1, 3, 2 * k) and Psi.shape == (n, 2 * k) and Y.shape == (3, n)
     N = Q[0] @ Psi.T + Y
@@ -535,22 +542,22 @@ def test_configuration_matrix(factory):
 @pytest.mark.parametrize("factory", [tg.prism, tg.constrained_prism])
 def test_stable_step_estimate(factory):
     s = factory()
-    model = dyn.compile_model(s)
-    est = dyn.stable_step_estimate(model)
+    model = compile_model(s)
+    est = stable_step_estimate(model)
     assert np.isfinite(est["omega_max"]) and est["omega_max"] > 0
     nodes0, vel0 = rigid_perturbation(s, np.random.default_rng(0), pos=0.002, rot=0.005, vel=0.01, omega=0.05)
-    st = dyn.initial_state(model, nodes=nodes0, velocities=vel0)
-    E0 = dyn.energy(model, st.q, st.qd)[0]
+    st = initial_state(model, nodes=nodes0, velocities=vel0)
+    E0 = energy(model, st.q, st.qd)[0]
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
-        ts, q, qd = integ.simulate(model, st, 0.5 * est["semi_implicit_euler"], 400, "semi_implicit_euler")
+        ts, q, qd = simulate(model, st, 0.5 * est["semi_implicit_euler"], 400, "semi_implicit_euler")
         E = energies(model, q, qd)
         assert np.abs(E - E0).max() < 1e-2 * abs(E0), "unstable at half the estimated step"
         try:
-            ts, q, qd = integ.simulate(model, st, 1.5 * est["semi_implicit_euler"], 400, "semi_implicit_euler")
+            ts, q, qd = simulate(model, st, 1.5 * est["semi_implicit_euler"], 400, "semi_implicit_euler")
             E = energies(model, q, qd)
             blew_up = not np.all(np.isfinite(E)) or np.nanmax(np.abs(E - E0)) > 1e3 * abs(E0)
-        except integ.SimulationDiverged:
+        except SimulationDiverged:
             blew_up = True
     assert blew_up, "semi-implicit Euler at 1.5x the estimated stable step did not blow up"
 
@@ -559,20 +566,20 @@ def test_stable_step_estimate(factory):
 def test_semi_implicit_euler_spinning_prism_no_secular_drift():
     s = tg.prism(3)
     vel = np.cross([1.0, 2.0, 4.0], s.nodes - s.nodes.mean(axis=0))
-    model = dyn.compile_model(s)
-    st = dyn.initial_state(model, velocities=vel)
-    ts, q, qd = integ.simulate(model, st, 1e-3, 2000, "semi_implicit_euler", record_every=500)
+    model = compile_model(s)
+    st = initial_state(model, velocities=vel)
+    ts, q, qd = simulate(model, st, 1e-3, 2000, "semi_implicit_euler", record_every=500)
     E = energies(model, q, qd)
-    L = np.array([np.linalg.norm(dyn.angular_momentum(model, a, b, about=dyn.center_of_mass(model, a))[0])
+    L = np.array([np.linalg.norm(angular_momentum(model, a, b, about=center_of_mass(model, a))[0])
                   for a, b in zip(q, qd)])
     assert np.abs(E / E[0] - 1).max() < 5e-4, f"energy drift {E / E[0] - 1}"
     assert np.abs(L / L[0] - 1).max() < 1e-4, f"angular momentum drift {L / L[0] - 1}"
     # the string kicks and the great-circle drift of b both keep b x b' and r x r': the angular
     # momentum about the centre of mass is kept to round-off (the old normalised Euler update
     # lost 0.68 %/s here)
-    Lv = np.stack([dyn.angular_momentum(model, a, b, about=dyn.center_of_mass(model, a))[0] for a, b in zip(q, qd)])
+    Lv = np.stack([angular_momentum(model, a, b, about=center_of_mass(model, a))[0] for a, b in zip(q, qd)])
     assert np.abs(Lv - Lv[0]).max() < 1e-12 * np.linalg.norm(Lv[0]), np.abs(Lv - Lv[0]).max()
-    assert max(dyn.constraint_violation(model, a, b)[0] for a, b in zip(q, qd)) < 1e-13
+    assert max(constraint_violation(model, a, b)[0] for a, b in zip(q, qd)) < 1e-13
 
 
 def test_semi_implicit_euler_rotates_free_rod_exactly():
@@ -580,11 +587,11 @@ def test_semi_implicit_euler_rotates_free_rod_exactly():
     turns b by exactly |b'| dt per step (great circle), also for large angles per step."""
     s = tg.Structure([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], [[0, 1]], np.zeros((0, 2), int), bar_mass=1.0,
                      name="free_rod")
-    model = dyn.compile_model(s)
+    model = compile_model(s)
     w, dt, n = 3.0, 0.1, 7                            # 0.3 rad per step
     vel = np.array([[0.0, -0.5 * w, 0.0], [0.0, 0.5 * w, 0.0]])
-    st = dyn.initial_state(model, velocities=vel)
-    out = integ.step(model, st, dt, "semi_implicit_euler", n_steps=n)
+    st = initial_state(model, velocities=vel)
+    out = step(model, st, dt, "semi_implicit_euler", n_steps=n)
     ang = w * dt * n
     np.testing.assert_allclose(out.q[0, 0, 3:], [np.cos(ang), np.sin(ang), 0.0], atol=1e-14)
     np.testing.assert_allclose(out.qd[0, 0, 3:], [-w * np.sin(ang), w * np.cos(ang), 0.0], atol=1e-13)
@@ -593,27 +600,27 @@ def test_semi_implicit_euler_rotates_free_rod_exactly():
 
 def test_stable_step_estimate_accounts_for_damping():
     s = tg.prism(3, damping=50.0)
-    model = dyn.compile_model(s)
-    est = dyn.stable_step_estimate(model)
+    model = compile_model(s)
+    est = stable_step_estimate(model)
     nodes0, vel0 = rigid_perturbation(s, np.random.default_rng(0), pos=0.002, rot=0.005, vel=0.01, omega=0.05)
-    st = dyn.initial_state(model, nodes=nodes0, velocities=vel0)
-    E0 = dyn.energy(model, st.q, st.qd)[0]
+    st = initial_state(model, nodes=nodes0, velocities=vel0)
+    E0 = energy(model, st.q, st.qd)[0]
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
         for name in ("semi_implicit_euler", "rk4"):
             try:
-                ts, q, qd = integ.simulate(model, st, 0.5 * est[name], 200, name)
+                ts, q, qd = simulate(model, st, 0.5 * est[name], 200, name)
                 E = energies(model, q, qd)
                 ok = np.all(np.isfinite(E)) and E.max() <= E0 * (1 + 1e-6)
-            except integ.SimulationDiverged:
+            except SimulationDiverged:
                 ok = False
             assert ok, f"{name} diverges at half the estimated stable step {est[name]:.3g} s"
             # and the estimate is not merely conservative: 1.5x it gains energy (unstable)
-            ts, q, qd = integ.simulate(model, st, 1.5 * est[name], 400, name)
+            ts, q, qd = simulate(model, st, 1.5 * est[name], 400, name)
             E = energies(model, q, qd)
             assert not (np.all(np.isfinite(E)) and E.max() <= E0 * (1 + 1e-3)), \
                 f"{name} still stable at 1.5x the estimated step {est[name]:.3g} s"
-    undamped = dyn.stable_step_estimate(model, damping=False)
+    undamped = stable_step_estimate(model, damping=False)
     assert est["lambda_max"] > 5 * est["omega_max"] and undamped["lambda_max"] == pytest.approx(undamped["omega_max"], rel=1e-12)
     for name in ("semi_implicit_euler", "rk4"):
         assert est[name] < 0.2 * undamped[name], (est, undamped)
@@ -640,28 +647,28 @@ def test_node_damping_in_model_equals_external_drag(name):
     oracle's RK4 with the callable drag)."""
     backend = "numba"
     s, c, nodes0, vel0 = _drag_scene(name)
-    plain = dyn.compile_model(s)
-    damped = dyn.compile_model(s, node_damping=c)
+    plain = compile_model(s)
+    damped = compile_model(s, node_damping=c)
     assert damped.has_node_damping and not plain.has_node_damping
     B = 3
-    st = dyn.initial_state(plain, B, nodes=nodes0, velocities=vel0)
-    st = dyn.State(st.q, st.qd * np.array([1.0, 0.5, -1.0])[:, None, None], 0.0)   # different copies
+    st = initial_state(plain, B, nodes=nodes0, velocities=vel0)
+    st = State(st.q, st.qd * np.array([1.0, 0.5, -1.0])[:, None, None], 0.0)   # different copies
     dt, n = 1e-3, 40
 
     def drag(q, qd, t=0.0):
-        return -c[:, None] * dyn.node_velocities(plain, qd)
+        return -c[:, None] * node_velocities(plain, qd)
 
     old = st
     for _ in range(n):
-        old = integ.step(plain, old, dt, "semi_implicit_euler", external=drag(old.q, old.qd), backend=backend)
-    new = integ.step(damped, st, dt, "semi_implicit_euler", n_steps=n, backend=backend)
+        old = step(plain, old, dt, "semi_implicit_euler", external=drag(old.q, old.qd), backend=backend)
+    new = step(damped, st, dt, "semi_implicit_euler", n_steps=n, backend=backend)
     scale = np.abs(old.qd).max()
     assert np.abs(new.q - old.q).max() < 1e-13 and np.abs(new.qd - old.qd).max() < 1e-12 * scale, \
         (np.abs(new.q - old.q).max(), np.abs(new.qd - old.qd).max())
-    undamped = integ.step(plain, st, dt, "semi_implicit_euler", n_steps=n, backend=backend)
+    undamped = step(plain, st, dt, "semi_implicit_euler", n_steps=n, backend=backend)
     assert np.abs(undamped.qd - new.qd).max() > 1e-3 * scale        # the drag really acts
     ref = oracle.step(plain, st, dt, "rk4", n_steps=n, external=drag)   # callable: every stage
-    out = integ.step(damped, st, dt, "rk4", n_steps=n, backend=backend)
+    out = step(damped, st, dt, "rk4", n_steps=n, backend=backend)
     assert np.abs(out.q - ref.q).max() < 1e-13 and np.abs(out.qd - ref.qd).max() < 1e-12 * scale
     # the accelerations themselves, and node drag combined with an external force
     ext = np.random.default_rng(0).normal(size=(B, s.n_nodes, 3))
@@ -682,9 +689,9 @@ def test_node_damping_energy_decreases_monotonically(integrator):
                         name="pendulum")
     for s in (free, pend):
         for c in (2.0, 0.0):
-            model = dyn.compile_model(s, node_damping=c)
-            st = dyn.initial_state(model)
-            ts, q, qd = integ.simulate(model, st, 1e-3, 3000, integrator, record_every=10)
+            model = compile_model(s, node_damping=c)
+            st = initial_state(model)
+            ts, q, qd = simulate(model, st, 1e-3, 3000, integrator, record_every=10)
             E = energies(model, q, qd)
             if c > 0:
                 assert np.diff(E).max() < 0, f"{s.name}: energy rose by {np.diff(E).max():.3g} J with node drag"
@@ -696,12 +703,12 @@ def test_node_damping_energy_decreases_monotonically(integrator):
 def test_node_damping_rejects_bad_values():
     s = tg.prism(3)
     with pytest.raises(ValueError, match="node_damping"):
-        dyn.compile_model(s, node_damping=-1.0)
+        compile_model(s, node_damping=-1.0)
     with pytest.raises(ValueError, match="node_damping"):
-        dyn.compile_model(s, node_damping=np.ones(s.n_nodes + 1))
+        compile_model(s, node_damping=np.ones(s.n_nodes + 1))
     with pytest.raises(ValueError, match="node_damping.*nan"):
-        dyn.compile_model(s, node_damping=np.full(s.n_nodes, np.nan))
-    m = dyn.compile_model(s, node_damping=0.0)
+        compile_model(s, node_damping=np.full(s.n_nodes, np.nan))
+    m = compile_model(s, node_damping=0.0)
     assert not m.has_node_damping and m.node_velocity_free
 
 
@@ -720,22 +727,22 @@ def print_figures():
     d = case_data("free_prism_slack")
     print(f"energy drift, dop853 rtol 1e-12, slack prism 0.3 s: {_rel_drift(energies(d['model'], d['q'], d['qd'])):.2e}")
     s, model, st = smooth_case()
-    ts, q, qd = integ.simulate(model, st, 2e-4, 1000, "rk4", record_every=50)
+    ts, q, qd = simulate(model, st, 2e-4, 1000, "rk4", record_every=50)
     print(f"energy drift, rk4 dt 2e-4, taut prism 0.2 s: {_rel_drift(energies(model, q, qd)):.2e}")
-    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 1500, "rk4", record_every=30)
+    ts, q, qd = simulate(d["model"], d["state"], 2e-4, 1500, "rk4", record_every=30)
     print(f"energy drift, rk4 dt 2e-4, slack prism 0.3 s: {_rel_drift(energies(d['model'], q, qd)):.2e}")
-    ts, q, qd = integ.simulate(d["model"], d["state"], 2e-4, 3000, "semi_implicit_euler", record_every=25)
+    ts, q, qd = simulate(d["model"], d["state"], 2e-4, 3000, "semi_implicit_euler", record_every=25)
     print(f"energy error, semi-implicit Euler dt 2e-4, slack prism 0.6 s: {_rel_drift(energies(d['model'], q, qd)):.2e}")
     for name in ("rk4", "semi_implicit_euler"):
         for proj in (True, False):
-            ts, q, qd = integ.simulate(d["model"], d["state"], 1e-3, 500, name, project=proj, record_every=50)
-            drift = max(dyn.rod_length_drift(d["model"], a)[0] for a in q)
+            ts, q, qd = simulate(d["model"], d["state"], 1e-3, 500, name, project=proj, record_every=50)
+            drift = max(rod_length_drift(d["model"], a)[0] for a in q)
             print(f"rod-length drift, {name} dt 1e-3, 0.5 s, project={proj}: {drift:.2e}")
     s, model, st = smooth_case(damping=2.0)
-    ref = dyn.node_positions(model, integ.step(model, st, 0.2, "dop853", rtol=1e-13, atol=1e-13).q)
+    ref = node_positions(model, step(model, st, 0.2, "dop853", rtol=1e-13, atol=1e-13).q)
     for integrator, dts in (("semi_implicit_euler", (2e-3, 1e-3, 5e-4)), ("rk4", (4e-3, 2e-3, 1e-3))):
-        errs = np.array([np.abs(dyn.node_positions(model, integ.step(model, st, dt, integrator,
-                                                                     n_steps=int(round(0.2 / dt))).q) - ref).max()
+        errs = np.array([np.abs(node_positions(model, step(model, st, dt, integrator,
+                                                           n_steps=int(round(0.2 / dt))).q) - ref).max()
                          for dt in dts])
         print(f"order {integrator}: errors {errs} m at dt {dts} s, observed orders {np.log2(errs[:-1] / errs[1:])}")
 
@@ -752,27 +759,27 @@ def test_public_step_inplace_equals_step(integrator, inputs):
     (bit for bit, every integrator, with controls, per-copy parameters or a callable external
     force), returns the same time, and leaves the input of step untouched."""
     from tensegrity_gym import physics
-    model = dyn.compile_model(tg.prism(3, damping=2.0, gravity=GRAVITY))
+    model = compile_model(tg.prism(3, damping=2.0, gravity=GRAVITY))
     B, rng = 3, np.random.default_rng(11)
-    st0 = dyn.initial_state(model, B)
-    st0 = dyn.State(st0.q + rng.normal(0, 0.01, st0.q.shape), rng.normal(0, 0.1, st0.q.shape), 0.25)
+    st0 = initial_state(model, B)
+    st0 = State(st0.q + rng.normal(0, 0.01, st0.q.shape), rng.normal(0, 0.1, st0.q.shape), 0.25)
     kw = {}
     if inputs == "controls":
         kw = dict(rest_length=model.rest_length * (1.0 + 0.02 * rng.uniform(-1, 1, (B, model.n_strings))),
                   external=rng.normal(0, 0.5, (B, model.n_nodes, 3)))
     elif inputs == "params":
-        from tensegrity_gym.params import default_params
+        from tensegrity_gym.core.params import default_params
         kw = dict(params=default_params(model, B).replace(mass=model.mass * rng.uniform(0.9, 1.1, (B, 3))))
     elif inputs == "callable":
-        kw = dict(external=lambda q, qd, t: -0.3 * dyn.node_velocities(model, qd))
+        kw = dict(external=lambda q, qd, t: -0.3 * node_velocities(model, qd))
     q0, qd0 = st0.q.copy(), st0.qd.copy()
     out = physics.step(model, st0, 1e-3, integrator, n_steps=7, **kw)
     np.testing.assert_array_equal(st0.q, q0)
-    st = dyn.State(q0.copy(), qd0.copy(), st0.t)
+    st = State(q0.copy(), qd0.copy(), st0.t)
     t = physics.step_inplace(model, st, 1e-3, integrator, n_steps=7, **kw)
     assert t == out.t and st.t == 0.25
     if inputs == "none":        # again: the call that reuses the first call's checks
-        t2 = physics.step_inplace(model, dyn.State(st.q, st.qd, t), 1e-3, integrator, n_steps=7)
+        t2 = physics.step_inplace(model, State(st.q, st.qd, t), 1e-3, integrator, n_steps=7)
         out = physics.step(model, out, 1e-3, integrator, n_steps=7)
         assert t2 == out.t
         np.testing.assert_array_equal(st.q, out.q)
@@ -785,52 +792,25 @@ def test_public_step_inplace_refuses_arrays_it_cannot_write_and_bad_input():
     """ValueError naming the field for a state it cannot write in place (float32, read-only,
     strided), a non-finite state, a bad dt or n_steps; the arrays are left as they were."""
     from tensegrity_gym import physics
-    model = dyn.compile_model(tg.prism(3))
-    st = dyn.initial_state(model, 2)
-    physics.step_inplace(model, dyn.State(st.q.copy(), st.qd.copy(), 0.0), 1e-3)   # later calls reuse its checks
+    model = compile_model(tg.prism(3))
+    st = initial_state(model, 2)
+    physics.step_inplace(model, State(st.q.copy(), st.qd.copy(), 0.0), 1e-3)   # later calls reuse its checks
     with pytest.raises(ValueError, match="state.q and state.qd must be writable C-contiguous float64"):
-        physics.step_inplace(model, dyn.State(st.q.astype(np.float32), st.qd, 0.0), 1e-3)
+        physics.step_inplace(model, State(st.q.astype(np.float32), st.qd, 0.0), 1e-3)
     ro = st.q.copy()
     ro.flags.writeable = False
     with pytest.raises(ValueError, match="writable"):
-        physics.step_inplace(model, dyn.State(ro, st.qd.copy(), 0.0), 1e-3)
+        physics.step_inplace(model, State(ro, st.qd.copy(), 0.0), 1e-3)
     wide = np.zeros((2, 3, 12))
     with pytest.raises(ValueError, match="C-contiguous"):
-        physics.step_inplace(model, dyn.State(wide[..., ::2], st.qd.copy(), 0.0), 1e-3)
+        physics.step_inplace(model, State(wide[..., ::2], st.qd.copy(), 0.0), 1e-3)
     bad = st.q.copy()
     bad[1, 2, 4] = np.nan
     with pytest.raises(ValueError, match=r"state.q"):
-        physics.step_inplace(model, dyn.State(bad, st.qd.copy(), 0.0), 1e-3)
+        physics.step_inplace(model, State(bad, st.qd.copy(), 0.0), 1e-3)
     q, qd = st.q.copy(), st.qd.copy()
     for dt, n in ((0.0, 1), (float("nan"), 1), (1e-3, 0), (1e-3, 1.5)):
         with pytest.raises(ValueError, match="dt|n_steps"):
-            physics.step_inplace(model, dyn.State(q, qd, 0.0), dt, n_steps=n)
+            physics.step_inplace(model, State(q, qd, 0.0), dt, n_steps=n)
     np.testing.assert_array_equal(q, st.q)
     np.testing.assert_array_equal(qd, st.qd)
-
-
-def test_old_module_paths_re_export_the_layered_modules():
-    """Every module path of the flat package still imports and gives the same objects as the
-    layered one (a module that moved whole is the same module object; renamed functions keep
-    their old names as aliases), and every name of their ``__all__`` resolves."""
-    import importlib
-
-    import tensegrity_gym.core.sizing
-    import tensegrity_gym.physics.pipeline
-    from tensegrity_gym import physics
-    from tensegrity_gym.backends.torch import actuation as torch_actuation
-    for old in ("dynamics", "integrators", "pipeline", "params", "contact", "actuation", "checks", "statics",
-                "structure", "builders", "torch_backend", "implicit", "jacobian", "sizing", "_kernels",
-                "_compile_notice"):
-        mod = importlib.import_module(f"tensegrity_gym.{old}")
-        for name in getattr(mod, "__all__", ()):
-            assert getattr(mod, name) is not None, (old, name)
-    from tensegrity_gym import (actuation, contact, dynamics, integrators, params, pipeline, sizing, structure,
-                                torch_backend)
-    assert sizing is tensegrity_gym.core.sizing and params.default_params is tg.core.params.default_params
-    assert structure.Structure is tg.Structure and actuation.Actuation.advance is actuation.Actuation.update_rate
-    assert pipeline.advance is physics.run_steps is tensegrity_gym.physics.pipeline.run_steps
-    assert pipeline.control_step is physics.control_step and integrators.step is physics.step
-    assert integrators.simulate is physics.simulate and dynamics.node_positions is physics.geometry.node_positions
-    assert contact.step is physics.pipeline.contact_step
-    assert torch_backend.advance is torch_actuation.update_rate and torch_backend.motor is torch_actuation.update_motor

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import rendering
+from tensegrity_gym.tools import rendering
 from tensegrity_gym.tools.rendering import mujoco_renderer
-from tensegrity_gym.rendering import MujocoRenderer, Renderer, RendererUnavailable, make_renderer
+from tensegrity_gym.tools.rendering import MujocoRenderer, Renderer, RendererUnavailable, make_renderer
 
 
 def _mujoco_renderer(*a, **kw):
@@ -115,7 +115,7 @@ def test_write_video_and_cli(tmp_path):
     pytest.importorskip("imageio")
     r = _mujoco_renderer(32, 32)
     r.close()
-    from tensegrity_gym.rendering import write_video
+    from tensegrity_gym.tools.rendering import write_video
     nodes = np.stack([S.nodes + 0.01 * i for i in range(6)])
     n = write_video(tmp_path / "v.gif", S, nodes, np.full((6, 9), 50.0), np.arange(6) * 0.1, fps=10,
                     width=96, height=96)
@@ -123,7 +123,7 @@ def test_write_video_and_cli(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["v.gif"]
     with pytest.raises(ValueError, match="mp4"):
         write_video(tmp_path / "v.txt", S, nodes)
-    from tensegrity_gym.cli import main
+    from tensegrity_gym.tools.cli import main
     assert main(["simulate", "prism3", "--duration", "0.1", "--out", str(tmp_path / "t.npz"),
                  "--video", str(tmp_path / "v.mp4")]) == 0
     imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
@@ -136,7 +136,7 @@ def test_browser_viewer_slider_and_play():
     pytest.importorskip("viser")
     import time
     import urllib.request
-    from tensegrity_gym.rendering import BrowserViewer
+    from tensegrity_gym.tools.rendering import BrowserViewer
     nodes = np.stack([S.nodes + 0.01 * i for i in range(20)])
     T = np.linspace(0, 50, 20)[:, None] * np.ones(9)
     v = BrowserViewer(S, nodes, T, np.arange(20) * 0.05, port=0)
@@ -158,7 +158,7 @@ def test_browser_viewer_slider_and_play():
 def test_window_viewer_widgets_headless():
     import matplotlib
     matplotlib.use("Agg")
-    from tensegrity_gym.rendering import WindowViewer
+    from tensegrity_gym.tools.rendering import WindowViewer
     nodes = np.stack([S.nodes + 0.01 * i for i in range(5)])
     v = WindowViewer(S, nodes, np.full((5, 9), 20.0), np.arange(5) * 0.1, width=96, height=96)
     first = v.img.get_array().copy()
@@ -171,7 +171,7 @@ def test_window_viewer_widgets_headless():
 
 
 def test_cli_view(tmp_path, monkeypatch, capsys):
-    from tensegrity_gym import cli
+    from tensegrity_gym.tools import cli
     from tensegrity_gym.tools import cli_commands
     seen = {}
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym.baselines import RollingGait
+from tensegrity_gym.tools.baselines import RollingGait
 from tensegrity_gym.envs.roll import TensegrityRollEnv, TensegrityRollVectorEnv
 from vector_check import step_vector_beside_singles
 
@@ -162,7 +162,8 @@ def test_travelling_far_is_not_divergence():
         obs, r, term, trunc, info = env.step(np.zeros(env.action_space.shape))
         assert not info["diverged"] and not trunc
     assert info["com_position"][0] > 1000.0 and np.all(np.isfinite(obs))
-    from tensegrity_gym import pipeline
+    from tensegrity_gym.backends.numba.divergence import state_ok_local
+    from tensegrity_gym.physics.pipeline import diverged
     import oracle_numpy as oracle
 
     def reference(q, qd):      # the NumPy reference of pipeline.diverged
@@ -176,11 +177,11 @@ def test_travelling_far_is_not_divergence():
     lifted[0, :, 2] += 2.0 * limit
     assert reference(lifted, task.qd).all()
     z = task.center0[2]
-    assert pipeline.state_ok_local(task.q, task.qd, z, limit)
-    assert not pipeline.state_ok_local(torn, task.qd, z, limit)
-    assert not pipeline.state_ok_local(lifted, task.qd, z, limit)
-    assert pipeline.diverged(torn, task.qd, task.center0, limit, local=True).all()
-    assert not pipeline.diverged(task.q, task.qd, task.center0, limit, local=True).any()
+    assert state_ok_local(task.q, task.qd, z, limit)
+    assert not state_ok_local(torn, task.qd, z, limit)
+    assert not state_ok_local(lifted, task.qd, z, limit)
+    assert diverged(torn, task.qd, task.center0, limit, local=True).all()
+    assert not diverged(task.q, task.qd, task.center0, limit, local=True).any()
 
 
 def test_gait_rolls_the_prism_forward_more_than_a_body_length():
@@ -293,7 +294,7 @@ def test_python_contact_loop_matches_the_fast_path(monkeypatch):
 
 
 def test_step_above_the_contact_stability_limit_warns():
-    from tensegrity_gym.integrators import StabilityWarning
+    from tensegrity_gym.core.errors import StabilityWarning
     with pytest.warns(StabilityWarning, match="stability limit"):
         TensegrityRollEnv(dt=2.8e-3, frame_skip=7, allow_unstable_dt=True)
 

@@ -8,7 +8,7 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 
 import tensegrity_gym  # noqa: E402,F401
-from tensegrity_gym.baselines import RollingGait  # noqa: E402
+from tensegrity_gym.tools.baselines import RollingGait  # noqa: E402
 from tensegrity_gym.envs.roll import TensegrityRollEnv  # noqa: E402
 from tensegrity_gym.envs.roll_mujoco import TensegrityRollMuJoCoEnv  # noqa: E402
 from twin_check import assert_same_interface  # noqa: E402

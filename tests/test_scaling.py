@@ -9,11 +9,14 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
-from tensegrity_gym import jacobian as jac
-from tensegrity_gym import sizing
+from tensegrity_gym.physics.evaluate import force_densities, nodal_forces
+from tensegrity_gym.core.model import initial_state, compile_model
+from tensegrity_gym.physics.geometry import connectivity
+from tensegrity_gym.physics.stability import stable_step_estimate
+from tensegrity_gym.physics import jacobian as jac
+from tensegrity_gym.core import sizing
 from tensegrity_gym.physics import stability
-from tensegrity_gym.builders import tower
+from tensegrity_gym.core.builders import tower
 
 import oracle_numpy as oracle
 from reference import rigid_perturbation
@@ -29,7 +32,7 @@ def _dense_connectivity(model):
 
 def _dense_nodal_forces(model, q, qd, rest_length=None, force_density=None, external=None, params=None):
     """The pre-issue-12 formula W - N C_S^T Gamma C_S with the dense C (oracle)."""
-    gamma, S, _ = dyn.force_densities(model, q, qd, rest_length, force_density, params)
+    gamma, S, _ = force_densities(model, q, qd, rest_length, force_density, params)
     F = -np.einsum("mn,bmi->bni", _dense_connectivity(model), gamma[..., None] * S)
     return oracle.add_loads(model, F, qd, external, params), gamma
 
@@ -40,12 +43,12 @@ def _scenes():
                            rest_length=0.4, damping=2.0, gravity=(0, 0, -9.81),
                            name="anchored_rod")
     return [
-        ("prism3", dyn.compile_model(tg.prism(3)), 1, None),                        # add.at branch
-        ("prism3 B=64 active", dyn.compile_model(tg.prism(3, damping=3.0), active_strings=[0, 4]), 64,
+        ("prism3", compile_model(tg.prism(3)), 1, None),                        # add.at branch
+        ("prism3 B=64 active", compile_model(tg.prism(3, damping=3.0), active_strings=[0, 4]), 64,
          np.random.default_rng(9).uniform(0, 20, (64, 9))),
-        ("constrained_prism", dyn.compile_model(tg.constrained_prism(damping=0.5), node_damping=1.5), 7, None),
-        ("anchored_rod", dyn.compile_model(hanging), 40, None),
-        ("tower10 gravity", dyn.compile_model(tower(10, damping=1.0, gravity=(0, 0, -9.81))), 5, None),
+        ("constrained_prism", compile_model(tg.constrained_prism(damping=0.5), node_damping=1.5), 7, None),
+        ("anchored_rod", compile_model(hanging), 40, None),
+        ("tower10 gravity", compile_model(tower(10, damping=1.0, gravity=(0, 0, -9.81))), 5, None),
     ]
 
 
@@ -55,15 +58,15 @@ def test_nodal_forces_equal_dense_connectivity_formula(name, model, B, fd):
     s = model.structure
     nodes = s.nodes + 0.05 * rng.standard_normal((B,) + s.nodes.shape)
     vel = rng.standard_normal((B,) + s.nodes.shape)
-    st = dyn.initial_state(model, B, nodes=nodes, velocities=vel)
+    st = initial_state(model, B, nodes=nodes, velocities=vel)
     rl = model.rest_length * rng.uniform(0.9, 1.1, (B, model.n_strings))
     ext = rng.standard_normal((B, s.n_nodes, 3))
-    from tensegrity_gym.params import default_params
+    from tensegrity_gym.core.params import default_params
     params = default_params(model, B).replace(
         stiffness=model.stiffness * rng.uniform(0.8, 1.2, (B, model.n_strings)),
         gravity=np.array([0.0, 0.0, -9.81]) * rng.uniform(0.5, 1.5, (B, 1)))
     for kw in ({}, {"rest_length": rl, "force_density": fd, "external": ext}, {"params": params}):
-        F, gamma = dyn.nodal_forces(model, st.q, st.qd, **kw)
+        F, gamma = nodal_forces(model, st.q, st.qd, **kw)
         F0, gamma0 = _dense_nodal_forces(model, st.q, st.qd, **kw)
         np.testing.assert_array_equal(gamma, gamma0)
         scale = np.abs(F0).max()
@@ -72,8 +75,8 @@ def test_nodal_forces_equal_dense_connectivity_formula(name, model, B, fd):
 
 
 def test_connectivity_is_the_sparse_C_S():
-    model = dyn.compile_model(tower(4))
-    C = dyn.connectivity(model)
+    model = compile_model(tower(4))
+    C = connectivity(model)
     assert C.shape == (model.n_strings, model.n_nodes) and C.nnz == 2 * model.n_strings
     np.testing.assert_array_equal(C.toarray(), _dense_connectivity(model))
 
@@ -81,7 +84,7 @@ def test_connectivity_is_the_sparse_C_S():
 def test_model_has_no_dense_string_by_node_array():
     """tower300 (900 rods, 4494 strings, 1800 nodes): every array of the model is linear in size."""
     s = tower(300)
-    model = dyn.compile_model(s)
+    model = compile_model(s)
     k, n, m = s.n_bars, s.n_nodes, s.n_strings
     assert not hasattr(model, "C")
     for f in dataclasses.fields(model):
@@ -94,7 +97,7 @@ def test_model_has_no_dense_string_by_node_array():
 def test_info_tower300_allocates_no_dense_matrix(monkeypatch):
     """The whole `info` summary of tower300 (compile, accelerations, stable-step estimate) peaks
     far below one dense m x n float array (65 MB) or one dense 6k x 6k Jacobian (233 MB)."""
-    from tensegrity_gym.cli import structure_summary
+    from tensegrity_gym.tools.cli import structure_summary
     monkeypatch.setattr(sizing, "FD_CHUNK_BYTES", 8 * 2 ** 20)
     s = tower(300)
     structure_summary(tower(12))          # imports and first-call allocations outside the measurement
@@ -110,7 +113,7 @@ def test_info_tower300_allocates_no_dense_matrix(monkeypatch):
 
 
 def test_distance2_colouring_is_valid():
-    model = dyn.compile_model(tower(30))
+    model = compile_model(tower(30))
     A = jac.rod_coupling(model)
     colour = jac.distance2_colouring(A)
     A2 = (A @ A).tocoo()
@@ -129,12 +132,12 @@ def test_grouped_fd_rejects_an_invalid_grouping():
 def test_sparse_jacobian_equals_dense(scene):
     if scene == "constrained_prism":
         s = tg.constrained_prism(damping=0.5)
-        model = dyn.compile_model(s, node_damping=0.3)
+        model = compile_model(s, node_damping=0.3)
     else:
         s = tower(4, damping=2.0)
-        model = dyn.compile_model(s)
+        model = compile_model(s)
     nodes, vel = rigid_perturbation(s, np.random.default_rng(2), pos=0.01, rot=0.05, vel=0.2, omega=1.0)
-    st = dyn.initial_state(model, nodes=nodes, velocities=vel)
+    st = initial_state(model, nodes=nodes, velocities=vel)
     Ks, Ds = jac.acceleration_jacobians_sparse(model, st.q, st.qd)
     _, K, D = jac.acceleration_jacobians(model, st.q, st.qd, central=True, rel_step=1e-6)
     for sp, dense in ((Ks, K[0]), (Ds, D[0])):
@@ -146,12 +149,12 @@ def test_sparse_jacobian_equals_dense(scene):
 
 
 def test_dense_stability_path_kept_for_small_structures():
-    m = dyn.compile_model(tg.prism(3))
-    est = dyn.stable_step_estimate(m)
+    m = compile_model(tg.prism(3))
+    est = stable_step_estimate(m)
     assert est["method"] == "dense"
-    assert dyn.stable_step_estimate(dyn.compile_model(tower(7)))["method"] == "sparse"     # 21 rods
+    assert stable_step_estimate(compile_model(tower(7)))["method"] == "sparse"     # 21 rods
     with pytest.raises(ValueError, match="method"):
-        dyn.stable_step_estimate(m, method="lanczos")
+        stable_step_estimate(m, method="lanczos")
 
 
 @pytest.mark.parametrize("scene", ["tower8", "tower8_damped", "tower8_moving", "icosahedron_drag"])
@@ -161,18 +164,18 @@ def test_sparse_stability_estimate_is_conservative(scene):
     factor below (2.5 semi-implicit Euler, 1.12 RK4: the docstring of physics.stability._stable_step_sparse)."""
     st = None
     if scene == "tower8":
-        m = dyn.compile_model(tower(8))
+        m = compile_model(tower(8))
     elif scene == "tower8_damped":
-        m = dyn.compile_model(tower(8, damping=5.0))
+        m = compile_model(tower(8, damping=5.0))
     elif scene == "tower8_moving":
         s = tower(8)
-        m = dyn.compile_model(s)
+        m = compile_model(s)
         nodes, vel = rigid_perturbation(s, np.random.default_rng(5), pos=0.01, rot=0.02, vel=0.3, omega=2.0)
-        st = dyn.initial_state(m, nodes=nodes, velocities=vel)
+        st = initial_state(m, nodes=nodes, velocities=vel)
     else:
-        m = dyn.compile_model(tg.icosahedron(damping=1.0), node_damping=2.0)
-    d = dyn.stable_step_estimate(m, st, method="dense")
-    sp = dyn.stable_step_estimate(m, st, method="sparse")
+        m = compile_model(tg.icosahedron(damping=1.0), node_damping=2.0)
+    d = stable_step_estimate(m, st, method="dense")
+    sp = stable_step_estimate(m, st, method="sparse")
     assert sp["method"] == "sparse" and d["method"] == "dense"
     assert sp["omega_max"] == pytest.approx(d["omega_max"], rel=1e-4)
     assert sp["lambda_max"] == pytest.approx(d["lambda_max"], rel=1e-4)
@@ -188,14 +191,14 @@ def test_sparse_estimate_fallback_bound_is_rigorous(monkeypatch):
     """Arnoldi not converging: the Collatz-Wielandt bound is above every |eigenvalue|, and the
     steps from it stay below the dense ones."""
     from scipy.sparse.linalg import ArpackNoConvergence
-    m = dyn.compile_model(tower(8, damping=1.0))
-    d = dyn.stable_step_estimate(m, method="dense")
+    m = compile_model(tower(8, damping=1.0))
+    d = stable_step_estimate(m, method="dense")
 
     def fail(A, nev):
         raise ArpackNoConvergence("no convergence (test)", np.array([]), np.array([]))
 
     monkeypatch.setattr(stability, "_top_eigenvalues", fail)
-    sp = dyn.stable_step_estimate(m, method="sparse")
+    sp = stable_step_estimate(m, method="sparse")
     assert sp["lambda_max"] >= d["lambda_max"] and sp["omega_max"] >= d["omega_max"]
     assert sp["lambda_max"] < 3 * d["lambda_max"]
     for name in ("semi_implicit_euler", "rk4"):
@@ -214,12 +217,12 @@ def test_memory_estimate_is_linear_and_refusal_names_the_size(monkeypatch):
     assert "GiB" in str(e.value) and "tower30" in str(e.value)
     monkeypatch.setattr(sizing, "available_memory", lambda: 10 ** 6)
     with pytest.raises(MemoryError, match="too large"):
-        dyn.compile_model(s)
+        compile_model(s)
     assert sizing.check_size(s, available=2 ** 40) > 0
 
 
 def test_cli_refuses_a_structure_too_large_at_once(monkeypatch, capsys):
-    from tensegrity_gym import cli
+    from tensegrity_gym.tools import cli
     monkeypatch.setattr(sizing, "available_memory", lambda: 10 ** 6)
     assert cli.main(["info", "tower30"]) != 0
     err = capsys.readouterr().err
@@ -229,9 +232,9 @@ def test_cli_refuses_a_structure_too_large_at_once(monkeypatch, capsys):
 def test_grouped_fd_in_chunks_equals_one_batch(monkeypatch):
     """Memory-bounded chunks (here 2 states per call) give the same sparse Jacobian as one batch."""
     s = tower(5, damping=1.0)
-    model = dyn.compile_model(s)
+    model = compile_model(s)
     nodes, vel = rigid_perturbation(s, np.random.default_rng(7), pos=0.01, rot=0.02, vel=0.1, omega=0.5)
-    st = dyn.initial_state(model, nodes=nodes, velocities=vel)
+    st = initial_state(model, nodes=nodes, velocities=vel)
     K1, D1 = jac.acceleration_jacobians_sparse(model, st.q, st.qd)
     monkeypatch.setattr(sizing, "FD_CHUNK_BYTES", 1)
     K2, D2 = jac.acceleration_jacobians_sparse(model, st.q, st.qd)
@@ -246,6 +249,6 @@ def test_nodal_forces_of_a_copy_do_not_depend_on_the_batch_size():
     st = tg.initial_state(model, 40)
     q = st.q + 1e-3 * rng.standard_normal(st.q.shape)
     qd = 0.1 * rng.standard_normal(st.q.shape)
-    F, _ = dyn.nodal_forces(model, q, qd)
+    F, _ = nodal_forces(model, q, qd)
     for b in (0, 7, 39):
-        assert np.array_equal(F[b], dyn.nodal_forces(model, q[b:b + 1], qd[b:b + 1])[0][0])
+        assert np.array_equal(F[b], nodal_forces(model, q[b:b + 1], qd[b:b + 1])[0][0])

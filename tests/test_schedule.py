@@ -10,19 +10,21 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
-from tensegrity_gym import integrators as integ
-from tensegrity_gym.cli import main
-from tensegrity_gym.integrators import Schedule
+from tensegrity_gym.core.model import compile_model, initial_state, State
+from tensegrity_gym.physics.rollout import simulate
+from tensegrity_gym.physics.integrate import step
+from tensegrity_gym.core.errors import SimulationDiverged
+from tensegrity_gym.tools.cli import main
+from tensegrity_gym.physics.rollout import Schedule
 
 DT = 1e-3
 
 
 def _prism(B=2):
-    model = dyn.compile_model(tg.prism(3))
-    st = dyn.initial_state(model, B)
+    model = compile_model(tg.prism(3))
+    st = initial_state(model, B)
     qd = st.qd + 0.01 * np.random.default_rng(0).standard_normal(st.qd.shape)
-    return model, dyn.State(st.q, qd, 0.0)
+    return model, State(st.q, qd, 0.0)
 
 
 def _commands(model, per_copy=False, B=2):
@@ -40,7 +42,7 @@ def _manual(model, st, tc, v, n, integrator, every, name="rest_length"):
     qs, qds = [st.q], [st.qd]
     for s in range(n - n % every):
         i = np.searchsorted(tc, s * DT + 1e-12, side="right") - 1
-        st = integ.step(model, st, DT, integrator, **{name: v[i]})
+        st = step(model, st, DT, integrator, **{name: v[i]})
         if (s + 1) % every == 0:
             qs.append(st.q)
             qds.append(st.qd)
@@ -55,7 +57,7 @@ def test_fixed_step_equals_step_by_step(integrator, every, per_copy):
     interval and inside a time step: 0.0105 s takes effect at the step from 0.011 s)."""
     model, st = _prism()
     tc, v = _commands(model, per_copy)
-    t, q, qd = integ.simulate(model, st, DT, 50, integrator, record_every=every, rest_length=Schedule(tc, v))
+    t, q, qd = simulate(model, st, DT, 50, integrator, record_every=every, rest_length=Schedule(tc, v))
     Q, QD = _manual(model, st, tc, v, 50, integrator, every)
     assert q.shape == Q.shape and np.array_equal(q, Q) and np.array_equal(qd, QD)
     np.testing.assert_allclose(t, DT * every * np.arange(len(Q)), rtol=0, atol=1e-15)
@@ -66,12 +68,12 @@ def test_force_density_schedule_and_constant_rest_length():
     tc = np.array([0.0, 0.01, 0.03])
     fd = np.array([np.zeros(9), np.full(9, 5.0), np.full(9, 2.0)])
     rl = 0.99 * model.rest_length
-    _, q, _ = integ.simulate(model, st, DT, 40, "rk4", record_every=4, rest_length=rl,
-                             force_density=Schedule(tc, fd, "force_density"))
+    _, q, _ = simulate(model, st, DT, 40, "rk4", record_every=4, rest_length=rl,
+                       force_density=Schedule(tc, fd, "force_density"))
     ref = st
     for s in range(40):
         i = np.searchsorted(tc, s * DT + 1e-12, side="right") - 1
-        ref = integ.step(model, ref, DT, "rk4", rest_length=rl, force_density=fd[i])
+        ref = step(model, ref, DT, "rk4", rest_length=rl, force_density=fd[i])
     assert np.array_equal(q[-1], ref.q)
 
 
@@ -79,10 +81,10 @@ def test_adaptive_restarts_where_commands_change():
     """dop853: the same as integrating each run of constant commands on its own."""
     model, st = _prism(B=1)
     tc, v = _commands(model)
-    t, q, _ = integ.simulate(model, st, DT, 40, "dop853", record_every=10, rest_length=Schedule(tc, v))
+    t, q, _ = simulate(model, st, DT, 40, "dop853", record_every=10, rest_length=Schedule(tc, v))
     ref = st
     for a, b, i in ((0, 11, 0), (11, 20, 1), (20, 34, 2), (34, 40, 3)):   # steps from 11, 20, 34 ms on
-        ref = integ.step(model, ref, (b - a) * DT, "dop853", rest_length=v[i])
+        ref = step(model, ref, (b - a) * DT, "dop853", rest_length=v[i])
     np.testing.assert_allclose(q[-1], ref.q, rtol=0, atol=1e-9)
     assert t.shape == (5,)
 
@@ -90,8 +92,8 @@ def test_adaptive_restarts_where_commands_change():
 def test_constant_schedule_equals_constant_input():
     model, st = _prism()
     L = 0.97 * model.rest_length
-    _, q1, qd1 = integ.simulate(model, st, DT, 30, "rk4", record_every=3, rest_length=Schedule([0.0], [L]))
-    _, q2, qd2 = integ.simulate(model, st, DT, 30, "rk4", record_every=3, rest_length=L)
+    _, q1, qd1 = simulate(model, st, DT, 30, "rk4", record_every=3, rest_length=Schedule([0.0], [L]))
+    _, q2, qd2 = simulate(model, st, DT, 30, "rk4", record_every=3, rest_length=L)
     assert np.array_equal(q1, q2) and np.array_equal(qd1, qd2)
 
 
@@ -112,11 +114,11 @@ def test_schedule_bad_input(t, v, name, pattern):
 def test_schedule_errors_at_run_time():
     model, st = _prism()
     with pytest.raises(ValueError, match=r"first command is at t = 0.01 s, after the run's start at t = 0 s"):
-        integ.simulate(model, st, DT, 20, rest_length=Schedule([0.01], [model.rest_length]))
+        simulate(model, st, DT, 20, rest_length=Schedule([0.01], [model.rest_length]))
     with pytest.raises(ValueError, match=r"shape \(C, 9\) or \(C, 2, 9\)"):
-        integ.simulate(model, st, DT, 20, rest_length=Schedule([0.0], np.ones((1, 3, 9))))
+        simulate(model, st, DT, 20, rest_length=Schedule([0.0], np.ones((1, 3, 9))))
     with pytest.raises(ValueError, match="force_density: got a Schedule of rest_length"):
-        integ.simulate(model, st, DT, 20, force_density=Schedule([0.0], [model.rest_length]))
+        simulate(model, st, DT, 20, force_density=Schedule([0.0], [model.rest_length]))
 
 
 # ------------------------------------------------------------------ command line
@@ -179,7 +181,7 @@ def test_cli_simulate_command_file_errors(tmp_path, capsys):
 from hypothesis import given, settings, strategies as hst  # noqa: E402
 from hypothesis.extra import numpy as hnp  # noqa: E402
 
-_MODEL = dyn.compile_model(tg.prism(3))
+_MODEL = compile_model(tg.prism(3))
 _floats = hst.floats(allow_nan=True, allow_infinity=True, width=64)
 
 
@@ -194,10 +196,10 @@ def test_schedule_fuzz_valid_or_value_error(t, v, name):
         sched = Schedule(t, v, name)
     except ValueError:
         return
-    state = dyn.initial_state(_MODEL, 1)
+    state = initial_state(_MODEL, 1)
     try:
-        _, q, qd = integ.simulate(_MODEL, state, DT, 5, "semi_implicit_euler", **{name: sched})
-    except (ValueError, integ.SimulationDiverged):
+        _, q, qd = simulate(_MODEL, state, DT, 5, "semi_implicit_euler", **{name: sched})
+    except (ValueError, SimulationDiverged):
         return
     assert np.isfinite(q).all() and np.isfinite(qd).all()
 
@@ -214,6 +216,6 @@ def test_schedule_fuzz_equals_step_by_step(times, scale, every, n):
     tc = np.unique(tc)
     v = _MODEL.rest_length[None] * scale[:tc.size, None]
     model, st = _prism(B=1)
-    _, q, qd = integ.simulate(model, st, DT, n, "rk4", record_every=every, rest_length=Schedule(tc, v))
+    _, q, qd = simulate(model, st, DT, n, "rk4", record_every=every, rest_length=Schedule(tc, v))
     Q, QD = _manual(model, st, tc, v, n, "rk4", every)
     assert np.array_equal(q, Q) and np.array_equal(qd, QD)

@@ -5,7 +5,7 @@ import gymnasium as gym
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
+from tensegrity_gym.physics.geometry import string_state
 from tensegrity_gym.envs.sensors import RobotSensors, rod_frames
 
 G = np.array([0.0, 0.0, -9.81])
@@ -83,7 +83,7 @@ def test_roll_env_robot_observation_noise_and_history():
     lay = dict((n, s) for n, s, _ in task.observation_layout())
     acc = obs[lay["imu_accel"]].reshape(k, 3)
     np.testing.assert_allclose(np.linalg.norm(acc, axis=1), 9.81, rtol=1e-6)      # at rest: -g
-    np.testing.assert_allclose(obs[lay["cable_length"]], dyn.string_state(task.model, task.q)[1][0], rtol=1e-6)
+    np.testing.assert_allclose(obs[lay["cable_length"]], string_state(task.model, task.q)[1][0], rtol=1e-6)
     prev = obs
     obs, *_ = env.step(np.ones(na))
     assert np.array_equal(obs[F:2 * F], prev[:F]) and np.array_equal(obs[2 * F:], prev[F:2 * F])
@@ -175,7 +175,7 @@ def test_shape_env_robot_observation_layout_and_readings(action_mode, unit):
     prev = obs
     obs, *_ = env.step(np.full(na, 0.5))
     assert np.array_equal(obs[F:], prev[:F])                                          # newest first
-    np.testing.assert_allclose(obs[lay["cable_length"][0]], dyn.string_state(task.model, task.q)[1][0], rtol=1e-6)
+    np.testing.assert_allclose(obs[lay["cable_length"][0]], string_state(task.model, task.q)[1][0], rtol=1e-6)
     np.testing.assert_allclose(obs[lay["control"][0]], task.ctrl[0], rtol=1e-6)
     np.testing.assert_allclose(obs[lay["target_position"][0]], task.target[0].ravel(), rtol=1e-6)
     assert env.observation_space.contains(obs)
@@ -269,7 +269,7 @@ def test_rolling_gait_refuses_the_robot_observation_by_name():
     """The gait reads node velocities of the state observation: in robot mode it is refused
     with a ValueError (agents.evaluate then skips the baseline with a note), not a KeyError."""
     import gymnasium as gym
-    from tensegrity_gym.baselines import RollingGait
+    from tensegrity_gym.tools.baselines import RollingGait
     env = gym.make("TensegrityRoll-v0", observation_mode="robot")
     with pytest.raises(ValueError, match="observation_mode='robot'"):
         RollingGait(env)

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 import tensegrity_gym  # noqa: F401
-from tensegrity_gym import dynamics as dyn
-from tensegrity_gym.baselines import NNLSShapeController
+from tensegrity_gym.core.model import compile_model, State, initial_state
+from tensegrity_gym.physics.geometry import node_positions, node_velocities
+from tensegrity_gym.tools.baselines import NNLSShapeController
 from tensegrity_gym.envs.shape import TensegrityShapeEnv, TensegrityShapeVectorEnv
 
 MODES = ("rest_length", "force_density")
@@ -48,7 +49,7 @@ def test_spaces_and_observation_layout():
     assert obs.dtype == np.float32 and env.observation_space.contains(obs)
     assert {"tracking_error", "max_node_error", "is_success"} <= set(info)
     L = {name: sl for name, sl, _ in task.observation_layout()}
-    N = dyn.node_positions(task.model, task.q)[0, task.tracked]
+    N = node_positions(task.model, task.q)[0, task.tracked]
     assert np.allclose(obs[L["node_position"]], N.ravel(), atol=1e-6)
     assert np.allclose(obs[L["target_position"]], task.target[0].ravel(), atol=1e-6)
     assert np.allclose(obs[L["target_error"]], (task.target[0] - N).ravel(), atol=1e-6)
@@ -150,7 +151,7 @@ def test_target_sampled_at_reset_is_an_equilibrium(mode):
         task = env.task
         nodes = task.nodes_nominal.copy()
         nodes[task.tracked] = task.target[0]
-        q = dyn.initial_state(task.model, nodes=nodes).q
+        q = initial_state(task.model, nodes=nodes).q
         inp = task.actuation.physics_inputs(task.target_control[:1])
         acc = tensegrity_gym.integrators.accelerations(task.model, q, np.zeros_like(q), inp.get("rest_length"), inp.get("force_density"))
         assert np.abs(acc).max() < 1e-7
@@ -291,11 +292,11 @@ def test_node_drag_is_in_the_model_one_integrator_call_per_step(mode, monkeypatc
     env.step(a)
     q0, qd0 = task.q.copy(), task.qd.copy()
     inputs = task.actuation.advance(task.ctrl, a[None].astype(np.float64))[1]
-    plain = dyn.compile_model(task.structure, task.actuated if mode == "force_density" else None)
-    st = dyn.State(q0, qd0, 0.0)
+    plain = compile_model(task.structure, task.actuated if mode == "force_density" else None)
+    st = State(q0, qd0, 0.0)
     for _ in range(task.frame_skip):                 # the old formulation: drag as an external force
         st = integrators.step(plain, st, task.dt, task.integrator, backend=task.backend,
-                              external=-3.0 * dyn.node_velocities(plain, st.qd), **inputs)
+                              external=-3.0 * node_velocities(plain, st.qd), **inputs)
     calls = []
     real = integrators.step
     monkeypatch.setattr(integrators, "step", lambda *x, **k: calls.append(k.get("n_steps")) or real(*x, **k))

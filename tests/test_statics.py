@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics as dyn
-from tensegrity_gym import statics
+from tensegrity_gym.core.model import compile_model, initial_state
+from tensegrity_gym.physics.evaluate import project, force_densities
+from tensegrity_gym.physics import statics
 
 
 @pytest.fixture(scope="module")
@@ -18,8 +19,8 @@ def eq(prism):
 
 
 def test_equilibrium_has_zero_accelerations_and_is_stable(prism, eq):
-    model = dyn.compile_model(prism)
-    st = dyn.initial_state(model, 1, nodes=eq.nodes)
+    model = compile_model(prism)
+    st = initial_state(model, 1, nodes=eq.nodes)
     acc = tg.integrators.accelerations(model, st.q, np.zeros_like(st.qd))
     assert np.abs(acc).max() < 1e-8                       # m/s^2, from ~10 m/s^2 of gravity
     assert eq.residual < 1e-9
@@ -51,12 +52,12 @@ def test_relaxation_from_far_reaches_the_same_equilibrium(prism, eq):
 
 
 def test_residual_is_linear_in_force_densities(prism, eq):
-    model = dyn.compile_model(prism)
+    model = compile_model(prism)
     rng = np.random.default_rng(0)
     q = eq.q[None] + 0.01 * rng.standard_normal((1, 3, 6))
-    q, _ = dyn.project(model, q, np.zeros_like(q))
+    q, _ = project(model, q, np.zeros_like(q))
     A, w = statics.equilibrium_matrix(model, q)
-    gamma, _, _ = dyn.force_densities(model, q, np.zeros_like(q))
+    gamma, _, _ = force_densities(model, q, np.zeros_like(q))
     R = statics.generalized_residual(model, q)
     assert np.abs(A[0] @ gamma[0] + w[0] - R[0]).max() < 1e-10 * np.abs(R).max()
     # at the equilibrium the equilibrium force densities solve A g = -w exactly
@@ -75,7 +76,7 @@ def test_force_density_equilibrium_matches_rest_length_equilibrium(prism, eq):
 
 
 def test_stiffness_is_symmetric_at_equilibrium(prism, eq):
-    model = dyn.compile_model(prism)
+    model = compile_model(prism)
     K = statics.stiffness_matrix(model, eq.q[None])[0]
     assert np.abs(K - K.T).max() < 1e-4 * np.abs(K).max()
 
@@ -105,7 +106,7 @@ def test_bad_inputs_name_the_problem(prism):
 
 
 def test_batched_solve_matches_single(prism):
-    model = dyn.compile_model(prism)
+    model = compile_model(prism)
     rng = np.random.default_rng(1)
     rl = prism.rest_length * (1 + rng.uniform(-0.05, 0.05, (3, prism.n_strings)))
     q0 = np.repeat(statics.equilibrium(model).q[None], 3, 0)

@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics
-from tensegrity_gym.params import default_params
-from tensegrity_gym.sysid import SysIdWarning, identify, load_csv
+from tensegrity_gym.core.model import State
+from tensegrity_gym.physics.geometry import node_positions
+from tensegrity_gym.physics.evaluate import project
+from tensegrity_gym.core.params import default_params
+from tensegrity_gym.tools.sysid import SysIdWarning, identify, load_csv
 
 GEN_DT = 5e-4     # record spacing of the reference runs (dop853, tolerance 1e-10): 2 kHz
 
@@ -20,10 +22,10 @@ def _record(structure, true, T=0.62, seed=0, amp=0.03, integrator="dop853"):
     model = tg.compile_model(structure)
     rng = np.random.default_rng(seed)
     st = tg.initial_state(model, nodes=structure.nodes + amp * rng.standard_normal(structure.nodes.shape))
-    st = dynamics.State(*dynamics.project(model, st.q, st.qd))
+    st = State(*project(model, st.q, st.qd))
     P = default_params(model).replace(**true) if true else None
     t, q, _ = tg.simulate(model, st, GEN_DT, int(round(T / GEN_DT)), integrator, params=P)
-    return model, t, dynamics.node_positions(model, q[:, 0])
+    return model, t, node_positions(model, q[:, 0])
 
 
 def _perturbed(model, rng, fields=("stiffness", "damping", "mass")):
@@ -178,7 +180,7 @@ def test_bad_arguments_are_refused(kw, match):
 
 
 def test_cli_identify_npz_csv_and_errors(tmp_path, capsys):
-    from tensegrity_gym.cli import main
+    from tensegrity_gym.tools.cli import main
     s = tg.prism(3, damping=2.0)
     model = tg.compile_model(s)
     true = {"stiffness": model.stiffness * 1.1}
@@ -236,10 +238,10 @@ def test_actuated_rest_lengths_are_followed():
     rl = model.rest_length * (1 - 0.02 * np.sin(2 * np.pi * 3 * t[:, None] + phase))
     st = tg.initial_state(model)
     nodes = np.empty((S, model.n_nodes, 3))
-    nodes[0] = dynamics.node_positions(model, st.q)[0]
+    nodes[0] = node_positions(model, st.q)[0]
     for k in range(1, S):      # finer RK4 steps, each sample interval at the interval's first rest lengths
         st = tg.step(model, st, h / 10, "rk4", n_steps=10, rest_length=rl[k - 1], params=P)
-        nodes[k] = dynamics.node_positions(model, st.q)[0]
+        nodes[k] = node_positions(model, st.q)[0]
     assert np.ptp(nodes, axis=0).max() > 0.005
     r = identify(model, t, nodes, fit=("stiffness",), rest_length=rl, window=0.2)
     assert r.ok and np.abs(r.values["stiffness"] / true["stiffness"] - 1).max() < 1e-3

@@ -9,11 +9,13 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics
-from tensegrity_gym.cli import main
+from tensegrity_gym.core.model import State
+from tensegrity_gym.physics.evaluate import project
+from tensegrity_gym.physics.geometry import node_positions
+from tensegrity_gym.tools.cli import main
 from tensegrity_gym.physics import contact as C
 from tensegrity_gym.physics import pipeline
-from tensegrity_gym.sysid import SysIdWarning, identify
+from tensegrity_gym.tools.sysid import SysIdWarning, identify
 
 TRUE = {"friction": 0.6, "stiffness": 5e3, "damping": 5.0}          # 1, N/m, s/m
 START = {"friction": 0.84, "stiffness": 3.25e3, "damping": 7.5}     # +40 %, -35 %, +50 %
@@ -41,12 +43,12 @@ def record():
     s = _robot()
     model = tg.compile_model(s)
     st = tg.initial_state(model)
-    st = dynamics.State(*dynamics.project(model, st.q, st.qd))
+    st = State(*project(model, st.q, st.qd))
     gc, cs = C.GroundContact(radius=0.02, **TRUE), C.init_contact_state(model, 1)
-    out = [dynamics.node_positions(model, st.q)[0]]
+    out = [node_positions(model, st.q)[0]]
     for _ in range(int(round(T / (DT * EVERY)))):
         st, cs = pipeline.step(model, st, DT, "semi_implicit_euler", n_steps=EVERY, contact=gc, cstate=cs)
-        out.append(dynamics.node_positions(model, st.q)[0])
+        out.append(node_positions(model, st.q)[0])
     nodes = np.array(out)
     return s, model, np.arange(len(out)) * DT * EVERY, nodes
 

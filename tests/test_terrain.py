@@ -7,10 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from tensegrity_gym import builders, contact as C, dynamics as dyn
+from tensegrity_gym.core import builders
+from tensegrity_gym.core.model import compile_model, initial_state, State
+from tensegrity_gym.physics.pipeline import contact_step
+from tensegrity_gym.physics.contact import GroundContact, init_contact_state, stable_step
+from tensegrity_gym.physics import geometry
 from tensegrity_gym.core.terrain import SCHEMA_PATH, Box, Heightfield, Plane, Terrain
 from tensegrity_gym.physics import terrain as T
-from tensegrity_gym.structure import Structure
+from tensegrity_gym.core.structure import Structure
 
 G = 9.81
 DT = 1e-3
@@ -21,7 +25,7 @@ def rod(nodes, mass=0.2, vel=None):
     """A lone rod between two nodes under gravity."""
     s = Structure(np.asarray(nodes, float), [[0, 1]], np.zeros((0, 2), int), bar_mass=mass,
                   gravity=(0.0, 0.0, -G), velocities=vel)
-    return dyn.compile_model(s)
+    return compile_model(s)
 
 
 def rod_on_slope(slope_deg, length=0.4, radius=0.02):
@@ -45,16 +49,16 @@ def prism(lift=0.02, slope_deg=0.0, damping=2.0):
                        damping=damping, gravity=(0.0, 0.0, -G))
     nodes = s.nodes.copy()
     nodes[:, 2] += lift
-    return dyn.compile_model(s.replace(nodes=rotated(nodes, slope_deg)))
+    return compile_model(s.replace(nodes=rotated(nodes, slope_deg)))
 
 
 def run(model, tc, n, state=None, ts=None, every=1):
-    st = dyn.initial_state(model, 1) if state is None else state
+    st = initial_state(model, 1) if state is None else state
     ts = T.init_terrain_state(tc, model, 1) if ts is None else ts
     com, t = [], []
     for i in range(0, n, every):
         st, ts = T.step(model, st, DT, tc, ts, n_steps=every)
-        com.append(dyn.center_of_mass(model, st.q)[0])
+        com.append(geometry.center_of_mass(model, st.q)[0])
         t.append(st.t)
     return np.array(t), np.array(com), st, ts
 
@@ -122,10 +126,10 @@ def test_level_plane_is_the_ground_contact():
     """A level terrain plane runs the ground contact's equations: the prism settles to the same
     state, bit for bit."""
     m = prism(lift=0.03)
-    st = dyn.initial_state(m, 1)
+    st = initial_state(m, 1)
     tc = T.TerrainContact(Terrain())
     s1, ts = T.step(m, st, DT, tc, T.init_terrain_state(tc, m, 1), n_steps=800)
-    s2, cs = C.step(m, C.GroundContact(), st, C.init_contact_state(m, 1), DT, n_steps=800)
+    s2, cs = contact_step(m, GroundContact(), st, init_contact_state(m, 1), DT, n_steps=800)
     assert np.array_equal(s1.q, s2.q) and np.array_equal(s1.qd, s2.qd)
     assert ts.active.sum() == cs.active.sum() == 3
 
@@ -136,7 +140,7 @@ def test_force_at_eta_is_the_generalized_force():
     m = rod([[-0.25, 0.01, 0.115], [0.15, -0.01, 0.118]])
     tc = T.TerrainContact(Terrain(plane=None, boxes=[Box([0, 0, 0.05], [0.1, 1.0, 0.1])]))
     ts = T.init_terrain_state(tc, m, 1)
-    W, ts, _, info = T.contact_forces(tc, m, dyn.initial_state(m, 1).q, np.zeros((1, 1, 6)), ts, info=True)
+    W, ts, _, info = T.contact_forces(tc, m, initial_state(m, 1).q, np.zeros((1, 1, 6)), ts, info=True)
     assert ts.active[0].tolist() == [False, False, True]
     eta = info[0, 2, 0]
     assert m.eta[0, 0] < eta < m.eta[0, 1]
@@ -185,15 +189,15 @@ def test_rod_across_a_ridge_is_held(x0):
     m = rod([[x0 - 0.2, 0.0, top + r], [x0 + 0.2, 0.0, top + r]])
     tc = T.TerrainContact(Terrain(boxes=[Box([0, 0, top / 2], [0.1, 1.0, top])]))
     zmin = np.inf
-    st, ts = dyn.initial_state(m, 1), T.init_terrain_state(tc, m, 1)
+    st, ts = initial_state(m, 1), T.init_terrain_state(tc, m, 1)
     for _ in range(20):
         st, ts = T.step(m, st, DT, tc, ts, n_steps=50)
-        zmin = min(zmin, dyn.center_of_mass(m, st.q)[0, 2])
+        zmin = min(zmin, geometry.center_of_mass(m, st.q)[0, 2])
     assert np.all(np.isfinite(st.q))
     assert zmin > top + r - 2e-3, zmin
     # friction holds the rod's material, not the contact point (which moves along the rod as it rocks)
-    assert abs(dyn.center_of_mass(m, st.q)[0, 0] - x0) < 1e-3
-    nodes = dyn.node_positions(m, st.q)[0]
+    assert abs(geometry.center_of_mass(m, st.q)[0, 0] - x0) < 1e-3
+    nodes = geometry.node_positions(m, st.q)[0]
     assert nodes[:, 2].min() > r            # neither cap came down to the ground
 
 
@@ -214,10 +218,10 @@ def test_energy_never_grows():
     rises by more than the integrator's O(dt) error."""
     m = prism(lift=0.05, slope_deg=10.0)
     tc = T.TerrainContact(Terrain(plane=Plane(10.0), boxes=[Box([0.1, 0.0, 0.0], [0.2, 0.4, 0.1])], friction=0.5))
-    st, ts = dyn.initial_state(m, 1), T.init_terrain_state(tc, m, 1)
+    st, ts = initial_state(m, 1), T.init_terrain_state(tc, m, 1)
     E = []
     for _ in range(600):
-        E.append(dyn.energy(m, st.q, st.qd)[0] + T.contact_energy(tc, m, st.q, ts)[0])
+        E.append(geometry.energy(m, st.q, st.qd)[0] + T.contact_energy(tc, m, st.q, ts)[0])
         st, ts = T.step(m, st, DT, tc, ts)
     E = np.array(E)
     assert ts.active.reshape(3, 2, 3)[:, 1].any()          # the box was touched
@@ -300,10 +304,10 @@ def test_energy_of_a_rod_tumbling_across_a_box_edge():
     error (a contact force held over a 1 ms step)."""
     m = rigid_rod([[-0.15, -0.02, 0.14], [0.25, 0.03, 0.17]], [[0.4, 0.0, 0.0], [0.2, 0.2, 0.0]])
     tc = undamped_contact(Terrain(plane=None, boxes=[EDGE_BOX]))
-    st, ts = dyn.initial_state(m, 1), T.init_terrain_state(tc, m, 1)
+    st, ts = initial_state(m, 1), T.init_terrain_state(tc, m, 1)
     E, together = [], 0
     for _ in range(1500):
-        E.append(dyn.energy(m, st.q, st.qd)[0] + T.contact_energy(tc, m, st.q, ts)[0])
+        E.append(geometry.energy(m, st.q, st.qd)[0] + T.contact_energy(tc, m, st.q, ts)[0])
         st, ts = T.step(m, st, DT, tc, ts)
         together += ts.active[0, 2] and (ts.active[0, 0] or ts.active[0, 1])
     E = np.array(E)
@@ -318,7 +322,7 @@ def random_scene(B=6, seed=0):
     tc = T.TerrainContact(Terrain(plane=Plane(8.0, 30.0), boxes=[Box([0.05, 0, 0.0], [0.2, 0.3, 0.1], 20.0),
                                                                 Box([-0.1, 0.1, 0.2], [0.1, 0.1, 0.1], -40.0)],
                                   friction=0.4, damping=5.0), max_damping=40.0)
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     q = st.q + rng.normal(0, 0.03, st.q.shape)
     q[..., 3:] /= np.linalg.norm(q[..., 3:], axis=-1, keepdims=True)
     qd = rng.normal(0, 0.5, st.q.shape)
@@ -358,7 +362,7 @@ def test_stable_step_estimate():
     m = prism()
     est = T.stable_step(T.TerrainContact(Terrain(boxes=[Box([0, 0, 0], [1, 1, 1], stiffness=4e4)])), m)
     assert est["feature"] == 1 and est["omega_contact"] == pytest.approx(math.sqrt(4e4 / 0.05))
-    assert est["semi_implicit_euler"] < C.stable_step(C.GroundContact(), m)["semi_implicit_euler"]
+    assert est["semi_implicit_euler"] < stable_step(GroundContact(), m)["semi_implicit_euler"]
 
 
 def test_torch_equals_numba():
@@ -384,7 +388,7 @@ def test_torch_equals_numba():
     np.testing.assert_allclose(e2.numpy(), s1.eta0, rtol=1e-9, atol=1e-9)
     # 200 steps of a prism dropped on the slope and the boxes
     m = prism(lift=0.08)
-    st = dyn.initial_state(m, 3)
+    st = initial_state(m, 3)
     ts = T.init_terrain_state(tc, m, 3)
     s1, ts1 = T.step(m, st, DT, tc, ts, n_steps=200, prm=prm[:3])
     q2, qd2, a2, e2, ac2 = TT.terrain_step(m, tc.geom, prm[:3], t(st.q), t(st.qd), t(ts.anchor), t(ts.eta0),
@@ -411,7 +415,7 @@ def test_torch_plane_equals_numba():
     prm = tc.per_copy(B)
     prm[:, 0, 4] = [0.9, 0.5, 0.2, 1.0]                         # slides on 25 degrees with 0.2
     m = prism(lift=0.08)
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     ts = T.init_terrain_state(tc, m, B)
     s1, ts1 = T.step(m, st, DT, tc, ts, n_steps=300, prm=prm, geom=geom)
     t = lambda x: torch.as_tensor(x)
@@ -438,7 +442,7 @@ def bumpy(amp=0.02, cell=0.05, n=(13, 15), origin=(-0.35, -0.3), seed=None, **kw
 
 
 def random_states(m, B, rng, sigma=0.03, lift=0.0):
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     q = st.q + rng.normal(0, sigma, st.q.shape)
     q[..., 2] += lift
     q[..., 3:] /= np.linalg.norm(q[..., 3:], axis=-1, keepdims=True)
@@ -502,8 +506,8 @@ def test_planar_heightfield_is_the_plane(kind):
     np.testing.assert_allclose(i2[act][:, 5], i1[act][:, 5], rtol=1e-9, atol=1e-12)
     # a prism dropped on it
     m = prism(lift=0.03, slope_deg=0.0 if kind == "level" else 10.0)
-    st = dyn.initial_state(m, 1)
-    st_hf = dyn.State(q=st.q + np.r_[up, 0, 0, 0], qd=st.qd, t=st.t)
+    st = initial_state(m, 1)
+    st_hf = State(q=st.q + np.r_[up, 0, 0, 0], qd=st.qd, t=st.t)
     a, ta = T.step(m, st, DT, pl, T.init_terrain_state(pl, m, 1), n_steps=300)
     b, tb = T.step(m, st_hf, DT, hf, T.init_terrain_state(hf, m, 1), n_steps=300)
     assert ta.active.sum() == 3 and np.array_equal(ta.active, tb.active)
@@ -744,7 +748,7 @@ def test_heightfield_bad_hf_is_named():
     with pytest.raises(ValueError, match=r"hf: expected shape \(1, 13, 15\) or \(3, 13, 15\).*got \(3, 14, 15\)"):
         T.contact_forces(tc, m, q, qd, ts, hf=np.zeros((3, 14, 15)))
     with pytest.raises(ValueError, match=r"hf: expected shape .* got \(2, 13, 15\)"):
-        T.step(m, dyn.State(q=q, qd=qd, t=0.0), DT, tc, ts, hf=np.zeros((2, 13, 15)))
+        T.step(m, State(q=q, qd=qd, t=0.0), DT, tc, ts, hf=np.zeros((2, 13, 15)))
     with pytest.raises(ValueError, match=r"hf\[1, 2, 3\]: must be finite \(m\), got nan"):
         bad = np.zeros((3, 13, 15))
         bad[1, 2, 3] = np.nan
@@ -766,10 +770,10 @@ def undamped_energy(m, terrain, n, stiffness=2e3, sub=1):
     friction anywhere (``sub`` physics steps of DT / sub each DT), and which slots (a, c,
     interior) touched."""
     tc = undamped_contact(terrain, stiffness)
-    st, ts = dyn.initial_state(m, 1), T.init_terrain_state(tc, m, 1)
+    st, ts = initial_state(m, 1), T.init_terrain_state(tc, m, 1)
     E, touched = [], np.zeros(3, bool)
     for _ in range(n):
-        E.append(dyn.energy(m, st.q, st.qd)[0] + T.contact_energy(tc, m, st.q, ts)[0])
+        E.append(geometry.energy(m, st.q, st.qd)[0] + T.contact_energy(tc, m, st.q, ts)[0])
         st, ts = T.step(m, st, DT / sub, tc, ts, n_steps=sub)
         touched |= ts.active.reshape(-1, 3).any(axis=0)
     return np.array(E), touched
@@ -867,14 +871,14 @@ def test_rod_on_a_bump_is_held():
     tc = T.TerrainContact(Terrain(plane=None, heightfield=smooth_ridge()))
     m = rod([[-0.2, 0.0, top + r], [0.2, 0.0, top + r]])
     zmin = np.inf
-    st, ts = dyn.initial_state(m, 1), T.init_terrain_state(tc, m, 1)
+    st, ts = initial_state(m, 1), T.init_terrain_state(tc, m, 1)
     for _ in range(20):
         st, ts = T.step(m, st, DT, tc, ts, n_steps=50)
-        zmin = min(zmin, dyn.center_of_mass(m, st.q)[0, 2])
+        zmin = min(zmin, geometry.center_of_mass(m, st.q)[0, 2])
     assert np.all(np.isfinite(st.q)) and ts.active[0].tolist() == [False, False, True]
     assert zmin > top + r - 2e-3, zmin
     # no drift: the centre of mass stays over the ridge top and at rest (the rod may rock slowly)
-    assert abs(dyn.center_of_mass(m, st.q)[0, 0]) < 1e-3 and np.abs(st.qd[..., :3]).max() < 1e-4
+    assert abs(geometry.center_of_mass(m, st.q)[0, 0]) < 1e-3 and np.abs(st.qd[..., :3]).max() < 1e-4
 
 
 def test_rod_on_a_plateau_is_held():
@@ -967,7 +971,7 @@ def test_torch_heightfield_equals_numba():
     with pytest.raises(ValueError, match="hf: geom has a heightfield feature"):
         TT.terrain_forces(m, t(q), t(qd), tc.geom, prm, t(ts.anchor), t(ts.eta0), t(ts.active))
     m = prism(lift=0.06)
-    st = dyn.initial_state(m, 2)
+    st = initial_state(m, 2)
     ts = T.init_terrain_state(tc, m, 2)
     s1, ts1 = T.step(m, st, DT, tc, ts, n_steps=300, hf=hfs[:2])
     q2, qd2, a2, e2, ac2 = TT.terrain_step(m, tc.geom, tc.prm, t(st.q), t(st.qd), t(ts.anchor), t(ts.eta0),
@@ -986,7 +990,7 @@ def test_box_clearance_pass_over_ends_once_a_later_sub_step_computes_the_box():
     computed, releasing that slot, as the kernel without the clearance releases it)."""
     from tensegrity_gym.backends.numba.terrain import rows_forces
     m = prism(lift=0.0)
-    q0 = np.ascontiguousarray(dyn.initial_state(m, 1).q)
+    q0 = np.ascontiguousarray(initial_state(m, 1).q)
     ends = q0[0, :, None, :3] + m.eta[:, :, None] * q0[0, :, None, 3:]          # (k, 2, 3)
     low = ends[..., 2].min()
     top = low - 0.05                                           # the box's top 5 cm under the lowest rod end

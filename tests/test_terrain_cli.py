@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics
-from tensegrity_gym.cli import main
+from tensegrity_gym.core.model import compile_model, initial_state
+from tensegrity_gym.physics.geometry import node_positions
+from tensegrity_gym.tools.cli import main
 from tensegrity_gym.core.placement import place_on_terrain, terrain_lift
 from tensegrity_gym.core.terrain import Terrain
-from tensegrity_gym.integrators import simulate
+from tensegrity_gym.physics.rollout import simulate
 from tensegrity_gym.physics import terrain as T
 
 RAMP = {"friction": 0.8, "plane": {"slope_deg": 10.0, "uphill_deg": 0.0}}
@@ -71,9 +72,9 @@ def test_default_simulate_is_the_plain_run(tmp_path):
     s, path = _prism_file(tmp_path)
     code, d = _sim([path, "--duration", "0.05", "--dt", "1e-3", "--integrator", "semi_implicit_euler"], tmp_path)
     assert code == 0
-    model = dynamics.compile_model(s)
-    _, q, _ = simulate(model, dynamics.initial_state(model), 1e-3, 50, "semi_implicit_euler")
-    assert np.array_equal(d["nodes"], dynamics.node_positions(model, q[:, 0]))
+    model = compile_model(s)
+    _, q, _ = simulate(model, initial_state(model), 1e-3, 50, "semi_implicit_euler")
+    assert np.array_equal(d["nodes"], node_positions(model, q[:, 0]))
     assert d["nodes"][-1, :, 2].min() < -1e-3          # it falls through z = 0: there is no ground
 
 
@@ -86,13 +87,13 @@ def test_ground_is_the_terrain_physics_on_a_lifted_structure(tmp_path, capsys):
     assert "lifted 0.02 m" in out and "--ground" in out
     # the same run through the public physics API
     lifted, lift = place_on_terrain(s, Terrain(), 0.02)
-    model = dynamics.compile_model(lifted)
+    model = compile_model(lifted)
     tc = T.TerrainContact(Terrain(), radius=0.02)
-    st, ts = dynamics.initial_state(model), T.init_terrain_state(tc, model)
-    nodes = [dynamics.node_positions(model, st.q)[0]]
+    st, ts = initial_state(model), T.init_terrain_state(tc, model)
+    nodes = [node_positions(model, st.q)[0]]
     for _ in range(30):
         st, ts = T.step(model, st, 1e-3, tc, ts, "semi_implicit_euler", n_steps=10)
-        nodes.append(dynamics.node_positions(model, st.q)[0])
+        nodes.append(node_positions(model, st.q)[0])
     assert np.array_equal(d["nodes"], np.array(nodes))
     np.testing.assert_allclose(d["t"], 0.01 * np.arange(31), atol=1e-12)
     # it rests on the ground: the caps sink at most a few mm (k = 1e4 N/m), never through
@@ -211,7 +212,7 @@ def _mixed_terrain(tmp_path):
 
 def test_mjcf_terrain_geoms_and_heights(tmp_path):
     mj = _mj()
-    from tensegrity_gym.mjcf import to_mjcf
+    from tensegrity_gym.io.mjcf import to_mjcf
     ter = Terrain.from_file(_mixed_terrain(tmp_path))
     s = tg.prism(3)
     s = s.replace(nodes=s.nodes + [40.0, 40.0, 30.0])     # out of the rays' way
@@ -251,7 +252,7 @@ def test_mjcf_terrain_geoms_and_heights(tmp_path):
 
 def test_mjcf_flat_heightfield_and_plane_only(tmp_path):
     mj = _mj()
-    from tensegrity_gym.mjcf import to_mjcf
+    from tensegrity_gym.io.mjcf import to_mjcf
     s = tg.prism(3).replace(nodes=tg.prism(3).nodes + [30.0, 0.0, 0.0])
     ter = Terrain.from_dict({"plane": None, "heightfield": {"heights": [[0.25, 0.25], [0.25, 0.25]], "cell": 1.0}})
     M = mj.MjModel.from_xml_string(to_mjcf(s, terrain=ter))

@@ -5,7 +5,7 @@ import pytest
 
 import tensegrity_gym as tg
 from tensegrity_gym.core.terrain import Terrain
-from tensegrity_gym.rendering import MujocoRenderer, Renderer, RendererUnavailable
+from tensegrity_gym.tools.rendering import MujocoRenderer, Renderer, RendererUnavailable
 
 S = tg.prism(3)
 x = np.linspace(0.0, 3.0, 12)
@@ -59,7 +59,7 @@ def test_mujoco_draws_the_terrain():
 
 def test_video_and_viewers_take_the_terrain(tmp_path, monkeypatch):
     imageio = pytest.importorskip("imageio")
-    from tensegrity_gym.rendering import render_video
+    from tensegrity_gym.tools.rendering import render_video
     nodes = np.stack([S.nodes + [0, 0, 0.01 * i] for i in range(4)])
     seen = []
     orig = Renderer.render
@@ -78,7 +78,7 @@ def test_video_and_viewers_take_the_terrain(tmp_path, monkeypatch):
 def test_window_viewer_draws_the_terrain():
     import matplotlib
     matplotlib.use("Agg")
-    from tensegrity_gym.rendering import WindowViewer
+    from tensegrity_gym.tools.rendering import WindowViewer
     nodes = np.stack([S.nodes] * 3)
     flat = WindowViewer(S, nodes, width=96, height=96, ground_z=0.0).img.get_array()
     v = WindowViewer(S, nodes, width=96, height=96, terrain=TERRAIN)
@@ -87,7 +87,7 @@ def test_window_viewer_draws_the_terrain():
 
 def test_browser_viewer_adds_the_terrain():
     pytest.importorskip("viser")
-    from tensegrity_gym.rendering import BrowserViewer
+    from tensegrity_gym.tools.rendering import BrowserViewer
     v = BrowserViewer(S, np.stack([S.nodes] * 2), port=0, terrain=TERRAIN)
     try:
         names = set(v.server.scene._handle_from_node_name)
@@ -97,7 +97,7 @@ def test_browser_viewer_adds_the_terrain():
 
 
 def test_cli_view_and_simulate_video_pass_the_terrain(tmp_path, monkeypatch, capsys):
-    from tensegrity_gym import cli
+    from tensegrity_gym.tools import cli
     from tensegrity_gym.tools import cli_commands
     seen = {}
     monkeypatch.setattr(cli_commands, "view_trajectory", lambda *a, **kw: seen.update(kw))

@@ -5,7 +5,8 @@ threads) and with shared or per-copy physical parameters and heights."""
 import numpy as np
 import pytest
 
-from tensegrity_gym import builders, dynamics as dyn
+from tensegrity_gym.core import builders
+from tensegrity_gym.core.model import compile_model, initial_state, default_params
 from tensegrity_gym.core.terrain import Box, Plane, Terrain
 from tensegrity_gym.physics import terrain as T
 
@@ -16,7 +17,7 @@ def prism():
                        gravity=(0.0, 0.0, -9.81))
     nodes = s.nodes.copy()
     nodes[:, 2] += 0.02
-    return dyn.compile_model(s.replace(nodes=nodes))
+    return compile_model(s.replace(nodes=nodes))
 
 
 @pytest.mark.parametrize("B", [1, 3, 20])
@@ -26,10 +27,10 @@ def test_compiled_terrain_loop_is_the_python_loop(prism, B, per_copy):
     tc = T.TerrainContact(Terrain(plane=Plane(10.0), boxes=[Box([0.1, 0, 0.0], [0.2, 1, 0.06]),
                                                            Box([-0.2, 0.1, 0.02], [0.2, 0.2, 0.1], 30.0)]))
     rng = np.random.default_rng(B)
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     q, qd = np.array(st.q), np.array(st.qd)
     q[..., :3] += rng.normal(0.0, 0.01, q[..., :3].shape)
-    params = dyn.default_params(m, B) if per_copy else None
+    params = default_params(m, B) if per_copy else None
     ext = rng.normal(0.0, 0.1, (B, m.n_nodes, 3))
     out = []
     for compiled in (False, True):
@@ -64,7 +65,7 @@ def test_compiled_heightfield_loop_is_the_python_loop(prism, B, per_copy_hf):
     m = prism
     rng = np.random.default_rng(B)
     h = 0.03 * rng.random((20, 20))
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     q, qd = np.array(st.q), np.array(st.qd)
     q[..., :3] += rng.normal(0.0, 0.01, q[..., :3].shape)
     q[..., 2] += 0.02
@@ -108,7 +109,7 @@ def test_compiled_heightfield_after_other_features_is_the_python_loop(prism, B, 
     h = 0.03 * rng.random((20, 20))
     if plane:
         h[:] = -0.05          # the heightfield under the plane, which the nodes then touch, but for the peak
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     q, qd = np.array(st.q), np.array(st.qd)
     q[..., :3] += rng.normal(0.0, 0.01, q[..., :3].shape)
     q[..., 2] += 0.03
@@ -149,7 +150,7 @@ def test_heightfield_slope_bound_is_the_kernels_own(prism):
     cleared = tc.geom.copy()
     cleared[0, k, 6] = 0.0
     B = 4
-    st = dyn.initial_state(prism, B)
+    st = initial_state(prism, B)
     q = np.array(st.q)
     q[..., 2] += rng.uniform(-0.01, 0.05, (B, 1))
     out = [T.contact_forces(tc, prism, q, np.zeros_like(q), T.init_terrain_state(tc, prism, B), geom=g)[0]
@@ -168,7 +169,7 @@ def test_compiled_plane_loop_is_the_python_loop(prism, B, power):
     tc = T.TerrainContact(Terrain(plane=Plane(15.0, 30.0)))
     assert tc.plane_only
     rng = np.random.default_rng(B)
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     q, qd = np.array(st.q), np.array(st.qd)
     q[..., :3] += rng.normal(0.0, 0.01, q[..., :3].shape)
     geom = np.repeat(tc.geom, B, axis=0)
@@ -202,7 +203,7 @@ def test_plane_rows_that_are_not_one_plane_run_the_general_loop(prism):
     B = 3
     geom = np.repeat(tc.geom, B, axis=0)
     geom[1] = box.geom[0]
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     out = []
     for compiled in (False, True):
         qq, qqd, ts = np.array(st.q), np.array(st.qd), T.init_terrain_state(tc, m, B)
@@ -225,7 +226,7 @@ def test_box_reached_within_one_call_is_the_python_loop(prism, B):
              Box([0.0, 0.6, 0.2], [1.0, 0.04, 0.4])]
     tc = T.TerrainContact(Terrain(plane=Plane(0.0), boxes=walls))
     rng = np.random.default_rng(B)
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     q, qd = np.array(st.q), np.array(st.qd)
     q[..., 2] += 0.005
     qd[..., 0] = rng.choice([-3.0, 3.0], (B, 1))         # toward the wall at +x or the yawed one at -x
@@ -246,13 +247,13 @@ def test_compiled_heightfield_rod_lying_flat_is_the_python_loop(B):
     slope bound is about 0.003) and both its caps touch, so the compiled loop must look up its
     upper end too (the gap rises only 4 mm along the rod)."""
     from tensegrity_gym.core.terrain import Heightfield
-    from tensegrity_gym.structure import Structure
-    m = dyn.compile_model(Structure(np.array([[0.0, 0.0, 0.012], [0.4, 0.0, 0.016]]), [[0, 1]], np.zeros((0, 2), int),
-                                    bar_mass=0.2, gravity=(0.0, 0.0, -9.81)))
+    from tensegrity_gym.core.structure import Structure
+    m = compile_model(Structure(np.array([[0.0, 0.0, 0.012], [0.4, 0.0, 0.016]]), [[0, 1]], np.zeros((0, 2), int),
+                                bar_mass=0.2, gravity=(0.0, 0.0, -9.81)))
     rng = np.random.default_rng(11)
     h = 1e-4 * rng.random((30, 30))
     tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights=h, cell=0.05, origin=[-0.75, -0.75])))
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     q, qd = np.array(st.q), np.array(st.qd)
     q[..., :2] += rng.normal(0.0, 0.01, q[..., :2].shape)
     qd[..., 0] += 0.1
@@ -280,7 +281,7 @@ def test_compiled_boxes_in_the_lanes_are_the_python_loop(prism, B):
     the Python loop's bits, interior and node slots touching."""
     m = prism
     rng = np.random.default_rng(B)
-    st = dyn.initial_state(m, B)
+    st = initial_state(m, B)
     q, qd = np.array(st.q), np.array(st.qd)
     q[..., :3] += rng.normal(0.0, 0.003, q[..., :3].shape)
     rows = []

@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics
-from tensegrity_gym.structure import StructureError
-from tensegrity_gym.tnsgrt import from_tnsgrt, to_tnsgrt_dict
+from tensegrity_gym.core.structure import StructureError
+from tensegrity_gym.io.tnsgrt import from_tnsgrt, to_tnsgrt_dict
 
 
 def _prism_fixture(with_stiffness=True):

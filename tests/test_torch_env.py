@@ -308,7 +308,7 @@ def test_cuda_matches_cpu():
 def test_sb3_adapter_matches_numpy_adapter():
     """The torch adapter gives SB3 the NumPy adapter's arrays (float64 env, float32 obs)."""
     pytest.importorskip("stable_baselines3")
-    from tensegrity_gym.sb3 import make_sb3_torch_vec_env, make_sb3_vec_env
+    from tensegrity_gym.integrations.sb3 import make_sb3_torch_vec_env, make_sb3_vec_env
     ref, ten = _pair(3, max_episode_steps=5)
     a_ref, a_ten = make_sb3_vec_env(ref), make_sb3_torch_vec_env(ten, info_keys=("reward_forward", "com_position"))
     assert a_ten.observation_space.dtype == np.float32
@@ -348,7 +348,7 @@ def one_thread():
 def test_ppo_trains_on_the_torch_env(one_thread):
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
-    from tensegrity_gym.sb3 import make_sb3_torch_vec_env
+    from tensegrity_gym.integrations.sb3 import make_sb3_torch_vec_env
     env = gym.make_vec(ID, num_envs=4, vectorization_mode="vector_entry_point", backend="torch", device="cpu",
                        dtype="float32", max_episode_steps=40)
     venv = make_sb3_torch_vec_env(env)
@@ -367,22 +367,24 @@ def _pinned_record(true, T=0.13, h=4e-3, seed=0):
     """(model, t, nodes): the damped pinned rod released off equilibrium, recorded every ``h``
     s by rk4 at the same step as the fits below (no model error: the fit must recover ``true``)."""
     import tensegrity_gym as tg
-    from tensegrity_gym import dynamics as dyn
-    from tensegrity_gym.params import default_params
+    from tensegrity_gym.core.model import State
+    from tensegrity_gym.physics.geometry import node_positions
+    from tensegrity_gym.physics.evaluate import project
+    from tensegrity_gym.core.params import default_params
     s = tg.pinned_rod(damping=3.0)
     model = tg.compile_model(s)
     st = tg.initial_state(model, nodes=s.nodes + 0.03 * np.random.default_rng(seed).standard_normal(s.nodes.shape))
-    st = dyn.State(*dyn.project(model, st.q, st.qd))
+    st = State(*project(model, st.q, st.qd))
     P = default_params(model).replace(**true)
     t, q, _ = tg.simulate(model, st, h, int(round(T / h)), "rk4", params=P)
-    return model, t, dyn.node_positions(model, q[:, 0])
+    return model, t, node_positions(model, q[:, 0])
 
 
 def test_sysid_torch_jacobian_equals_finite_differences(one_thread):
     """The autograd residual Jacobian (parameters and window states) equals central finite
     differences of the NumPy/numba rollout to 1e-6 relative, and the production forward
     differences to ~1e-6."""
-    from tensegrity_gym import sysid
+    from tensegrity_gym.tools import sysid
     model, t, nodes = _pinned_record({"stiffness": np.array([900.0, 1100.0, 1000.0])})
     names, items, init, base = sysid._parse_fit(model, ("stiffness", "damping"), "per_member", None)
     t_, rec, mask, rl, h = sysid._check_record(model, t, nodes, None, None)
@@ -422,7 +424,7 @@ def test_sysid_torch_jacobian_equals_finite_differences(one_thread):
 
 
 def test_sysid_fit_with_torch_jacobian_recovers_parameters(one_thread):
-    from tensegrity_gym.sysid import identify
+    from tensegrity_gym.tools.sysid import identify
     true = {"stiffness": np.array([900.0, 1100.0, 1000.0]), "damping": np.array([2.5, 3.5, 3.0])}
     model, t, nodes = _pinned_record(true)
     r = identify(model, t, nodes, fit=("stiffness", "damping"), window=0.06, dt=4e-3, jacobian="torch")

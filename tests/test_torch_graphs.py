@@ -10,7 +10,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from tensegrity_gym import torch_backend  # noqa: E402
+from tensegrity_gym.backends.torch.contact import contact_step, contact_substep  # noqa: E402
+from tensegrity_gym.backends.torch.driver import step_once, step  # noqa: E402
 from tensegrity_gym.backends.torch.graphs import SYNC_OPS, CapturedCall  # noqa: E402
 from tensegrity_gym.backends.torch.terrain import terrain_step  # noqa: E402
 
@@ -49,8 +50,8 @@ def test_captured_call_equals_the_function_and_copies_each_calls_inputs():
     env = roll_env()
     env.reset(seed=3)
     args, kw = physics_args(env)
-    call = CapturedCall(torch_backend.contact_step, capture=rerun_capture)
-    ref = torch_backend.contact_step(*args, 20, **kw)
+    call = CapturedCall(contact_step, capture=rerun_capture)
+    ref = contact_step(*args, 20, **kw)
     got = call(*args, 20, **kw)
     assert call.captures == 1
     for a, b in zip(ref, got):
@@ -58,7 +59,7 @@ def test_captured_call_equals_the_function_and_copies_each_calls_inputs():
     # new values, same layout: the same capture, the new inputs copied in
     q2 = args[2] + 1e-3
     args2 = args[:2] + (q2,) + args[3:]
-    ref2 = torch_backend.contact_step(*args2, 20, **kw)
+    ref2 = contact_step(*args2, 20, **kw)
     got2 = call(*args2, 20, **kw)
     assert call.captures == 1
     for a, b in zip(ref2, got2):
@@ -79,13 +80,13 @@ def test_captured_call_accepts_inference_tensors_then_plain_ones():
     env = roll_env()
     env.reset(seed=0)
     args, kw = physics_args(env)
-    call = CapturedCall(torch_backend.contact_step, capture=rerun_capture)
+    call = CapturedCall(contact_step, capture=rerun_capture)
     with torch.inference_mode():
         inf_args = tuple(a.clone() if isinstance(a, torch.Tensor) else a for a in args)
         call(*inf_args, 3, **kw)
     with torch.no_grad():
         got = call(*args, 3, **kw)
-        ref = torch_backend.contact_step(*args, 3, **kw)
+        ref = contact_step(*args, 3, **kw)
     for a, b in zip(ref, got):
         assert torch.equal(a, b)
     env.close()
@@ -94,7 +95,7 @@ def test_captured_call_accepts_inference_tensors_then_plain_ones():
 def test_a_failed_capture_names_the_function_and_the_way_out():
     def refusing_capture(fn, args, kwargs, warmup):
         raise RuntimeError("operation not permitted when stream is capturing")
-    call = CapturedCall(torch_backend.step_once, capture=refusing_capture)
+    call = CapturedCall(step_once, capture=refusing_capture)
     with pytest.raises(RuntimeError, match=r"cuda_graph: capturing step_once failed \(RuntimeError: operation not "
                                            r"permitted.*cuda_graph=False"):
         call(torch.zeros(2, 3))
@@ -115,14 +116,14 @@ def test_flat_and_shape_physics_loops_read_nothing_back_from_the_device(integrat
     env.reset(seed=1)
     args, kw = physics_args(env)
     args = args[:-1] + (integrator,)
-    assert host_reads(lambda: torch_backend.contact_step(*args, 4, **kw)) == set()
+    assert host_reads(lambda: contact_step(*args, 4, **kw)) == set()
     shape = gym.make_vec("TensegrityShape-v0", num_envs=3, vectorization_mode="vector_entry_point", backend="torch")
     shape.reset(seed=0)
     u = shape.unwrapped
     inputs = u._physics_inputs()
-    assert host_reads(lambda: torch_backend.step(u.tm, u.q, u.qd, u.task.dt, u.task.integrator, 4,
-                                                 rest_length=inputs.get("rest_length"),
-                                                 force_density=inputs.get("force_density"), params=u._params)) == set()
+    assert host_reads(lambda: step(u.tm, u.q, u.qd, u.task.dt, u.task.integrator, 4,
+                                   rest_length=inputs.get("rest_length"),
+                                   force_density=inputs.get("force_density"), params=u._params)) == set()
     env.close()
     shape.close()
 
@@ -182,14 +183,14 @@ def test_captured_call_replays_the_compiled_physics_cuda():
             return tuple(own(x) for x in v)
         return v.detach().clone() if isinstance(v, torch.Tensor) else v
     args, kw = own(args), own(kw)
-    sub = torch.compile(torch_backend.contact_substep, dynamic=False)
+    sub = torch.compile(contact_substep, dynamic=False)
     with torch.no_grad():
-        ref = torch_backend.contact_step(*args, 20, substep=sub, **kw)
-        again = torch_backend.contact_step(*args, 20, substep=sub, **kw)
-        call = CapturedCall(torch_backend.contact_step)
+        ref = contact_step(*args, 20, substep=sub, **kw)
+        again = contact_step(*args, 20, substep=sub, **kw)
+        call = CapturedCall(contact_step)
         got = call(*args, 20, substep=sub, **kw)
         args2 = args[:2] + (args[2] + 1e-3,) + args[3:]
-        ref2 = torch_backend.contact_step(*args2, 20, substep=sub, **kw)
+        ref2 = contact_step(*args2, 20, substep=sub, **kw)
         got2 = call(*args2, 20, substep=sub, **kw)
     exact = all(torch.equal(a, b) for a, b in zip(ref, again))
     for a, b in zip(ref + ref2, got + got2):

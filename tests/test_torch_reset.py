@@ -14,7 +14,7 @@ torch = pytest.importorskip("torch")
 import gymnasium as gym  # noqa: E402
 
 import tensegrity_gym  # noqa: E402,F401  (registers the envs)
-from tensegrity_gym import torch_backend as tb  # noqa: E402
+from tensegrity_gym.backends.torch.equations import node_positions  # noqa: E402
 from tensegrity_gym.envs.torch_reset import CounterStreams, reference_uniforms  # noqa: E402
 
 ID = "TensegrityRoll-v0"
@@ -245,7 +245,7 @@ def test_device_reset_draws_within_the_spreads():
     assert stats.kstest(((th.numpy() + 2 * np.pi) % (2 * np.pi)) / (2 * np.pi), "uniform").pvalue > 1e-4
     b = env.q[..., 3:]
     assert float(((b * b).sum(-1) - 1).abs().max()) < 1e-12                       # unit axes
-    z = tb.node_positions(env.tm, env.q, env._node_prm)[..., 2]
+    z = node_positions(env.tm, env.q, env._node_prm)[..., 2]
     assert float(z.amin(dim=1).min()) >= task.nodes_nominal[:, 2].min() - 1e-12   # lifted, none below
 
 
@@ -264,7 +264,7 @@ def test_reset_sampling_bad_input_named():
 
 
 def test_sb3_adapter_with_device_resets():
-    from tensegrity_gym.sb3 import make_sb3_torch_vec_env
+    from tensegrity_gym.integrations.sb3 import make_sb3_torch_vec_env
     venv = make_sb3_torch_vec_env(gym.make_vec(ID, num_envs=3, reset_sampling="device", max_episode_steps=2, **MK))
     venv.seed(4)
     obs = venv.reset()

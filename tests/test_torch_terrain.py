@@ -76,7 +76,7 @@ def test_device_resets_draw_a_generators_terrains_per_copy():
     """``reset_sampling="device"`` with a generator: each copy its own terrain, a partial reset
     redraws only the reset copies' terrains, every start clear of its copy's terrain and the
     difficulty applied (the draws equal the host's fed the same uniforms: tests/test_torch_reset.py)."""
-    from tensegrity_gym import dynamics
+    from tensegrity_gym.physics.geometry import node_positions
     mk = dict(num_envs=4, vectorization_mode="vector_entry_point", backend="torch", device="cpu", dtype="float64",
               terrain=STEPS, reset_sampling="device", randomize_goal=True, terrain_difficulty=0.5)
     env = gym.make_vec(ID, **mk)
@@ -89,7 +89,7 @@ def test_device_resets_draw_a_generators_terrains_per_copy():
     env.reset(options={"env_idx": [1, 3]})
     changed = [not torch.equal(g0[i], tt.geom[i]) for i in range(4)]
     assert changed == [False, True, False, True]
-    nodes = dynamics.node_positions(task.model, env.q.numpy())
+    nodes = node_positions(task.model, env.q.numpy())
     for i in range(4):   # clear of the copy's own terrain (its rows' top surface under its nodes)
         gap = nodes[i, :, 2] - task.contact.radius - _top(tt.geom[i:i + 1], nodes[i])
         assert gap.min() > -1e-9, (i, gap.min())
@@ -152,7 +152,7 @@ def test_device_resets_on_a_fixed_terrain():
     caps above its top surface, the lowest touching where the start was lifted), the contact
     state let go, a randomised friction written to every part of the terrain, the same seed the
     same rollout."""
-    from tensegrity_gym import dynamics
+    from tensegrity_gym.physics.geometry import node_positions
     mk = dict(num_envs=6, vectorization_mode="vector_entry_point", backend="torch", device="cpu", dtype="float64",
               terrain=FIXED, reset_sampling="device", reset_noise_scale=0.05, randomize={"friction": 0.5})
     obs = []
@@ -163,7 +163,7 @@ def test_device_resets_on_a_fixed_terrain():
         task = ten.task
         terrain = task.terrains[0]
         q = ten.q.numpy()
-        nodes = dynamics.node_positions(task.model, q)
+        nodes = node_positions(task.model, q)
         gap = nodes[..., 2] - task.contact.radius - terrain.height_at(nodes[..., 0], nodes[..., 1])
         assert (gap.min(axis=1) > -1e-9).all()
         assert (np.abs(gap.min(axis=1)) < 1e-9).any()        # the lifted copies touch with their lowest cap

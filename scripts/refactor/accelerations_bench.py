@@ -13,15 +13,16 @@ import time
 import numpy as np
 
 import tensegrity_gym as tg
-from tensegrity_gym import dynamics, integrators
-from tensegrity_gym.jacobian import acceleration_jacobians
+from tensegrity_gym.core.model import initial_state, State
+from tensegrity_gym.physics.evaluate import project, accelerations
+from tensegrity_gym.physics.jacobian import acceleration_jacobians
 
 
 def _state(model, B, seed=0):
     rng = np.random.default_rng(seed)
-    st = dynamics.initial_state(model, B)
-    q, qd = dynamics.project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
-    return dynamics.State(q=q, qd=qd)
+    st = initial_state(model, B)
+    q, qd = project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
+    return State(q=q, qd=qd)
 
 
 def _time(fn, repeats=5):
@@ -51,7 +52,7 @@ def main():
         for B in (1, 16):
             st = _state(model, B)
             cases = {
-                "accelerations": lambda be: integrators.accelerations(model, st.q, st.qd, backend=be),
+                "accelerations": lambda be: accelerations(model, st.q, st.qd, backend=be),
                 "jacobian (dense FD)": lambda be: acceleration_jacobians(model, st.q, st.qd, backend=be)[1],
                 "implicit_euler x 10 steps": lambda be: tg.step(model, st, 1e-3, "implicit_euler", n_steps=10,
                                                                 backend=be).q,

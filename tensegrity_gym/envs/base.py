@@ -7,14 +7,15 @@ from typing import Sequence
 
 import numpy as np
 
-from .. import dynamics
-from .. import integrators, pipeline
-from ..params import default_params
+from ..core.model import Model, initial_state, State
+from ..core.integrators import resolve, INTEGRATORS, numba_backend
+from ..physics import pipeline
+from ..core.params import default_params
 from ..physics import terrain
 from ..core.param_table import env_fields
 from ..tasks.terrain import rod_end_contacts
 from .domain import Domain, physics_nominal, write_copies
-from ..checks import check_array, check_count, check_flag, check_options
+from ..core.checks import check_array, check_count, check_flag, check_options
 from .validate import check_positive
 
 __all__ = ["BatchedTask", "fixed_step"]
@@ -32,10 +33,10 @@ def _contact_arrays(cs) -> tuple:
 def fixed_step(integrator: str) -> str:
     """The resolved name of a fixed-step integrator (envs step a fixed ``dt``); ValueError for an
     unknown name or an adaptive method."""
-    name = integrators.resolve(integrator).name
-    if integrators.INTEGRATORS[name].adaptive:
+    name = resolve(integrator).name
+    if INTEGRATORS[name].adaptive:
         raise ValueError(f"integrator: {integrator!r} is adaptive; envs need a fixed-step method "
-                         f"({[k for k, v in integrators.INTEGRATORS.items() if not v.adaptive]})")
+                         f"({[k for k, v in INTEGRATORS.items() if not v.adaptive]})")
     return name
 
 
@@ -74,11 +75,11 @@ class BatchedTask:
     #: True when the env shell renders (set by the shells): a task may then record what it draws
     record_path: bool = False
 
-    def _init_physics(self, model: dynamics.Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
+    def _init_physics(self, model: Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
                       backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
         self.num_envs = check_count(num_envs, "num_envs", 1, "copies")
         self.model = model
-        info = integrators.INTEGRATORS.get(integrator)   # the task passes the name it resolved (fixed_step)
+        info = INTEGRATORS.get(integrator)   # the task passes the name it resolved (fixed_step)
         self.integrator = integrator if info is not None and not info.adaptive else fixed_step(integrator)
         self.dt = check_positive(dt, "dt", "s")
         self.frame_skip = check_count(frame_skip, "frame_skip", 1, "physics steps per action")
@@ -87,7 +88,7 @@ class BatchedTask:
                              "gymnasium.make_vec(id, num_envs=N, vectorization_mode='vector_entry_point', "
                              "backend='torch', device=...) (docs/bench_gpu.md); this NumPy/numba task takes "
                              "backend 'auto' or 'numba'")
-        integrators.numba_backend(backend)   # "auto"/"numba"; ValueError naming "backend" otherwise
+        numba_backend(backend)   # "auto"/"numba"; ValueError naming "backend" otherwise
         self.backend = backend
         self._kernels_run = pipeline.compiled_physics(self.integrator, backend)   # the numba kernels step it
         self.clip_actions = check_flag(clip_actions, "clip_actions")
@@ -97,7 +98,7 @@ class BatchedTask:
         self.divergence_limit = (100.0 * max(size, 1e-3) if divergence_limit is None
                                  else check_positive(divergence_limit, "divergence_limit", "m"))
         B = self.num_envs
-        st = dynamics.initial_state(model, B)
+        st = initial_state(model, B)
         self.q = st.q.copy()
         self.qd = st.qd.copy()
         self.elapsed = np.zeros(B, dtype=np.int64)
@@ -279,7 +280,7 @@ class BatchedTask:
             # the frame_skip steps as two calls (n - 1, then 1; the same per-step arithmetic) to keep
             # the velocities before the last physics step (what IMUs read)
             with np.errstate(all="ignore"):
-                st = dynamics.State(q0, qd0, 0.0)
+                st = State(q0, qd0, 0.0)
                 if n > 1:
                     st = pipeline.step(model, st, dt, name, n_steps=n - 1, **kw)
                 qd_prev = np.array(st.qd, dtype=float)
@@ -290,10 +291,10 @@ class BatchedTask:
             return diverged
         if self._kernels_run:
             # the compiled kernel raises no floating-point warnings: no np.errstate
-            st = pipeline.step(model, dynamics.State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
+            st = pipeline.step(model, State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
         else:
             with np.errstate(all="ignore"):
-                st = pipeline.step(model, dynamics.State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
+                st = pipeline.step(model, State(q0, qd0, 0.0), dt, name, n_steps=n, **kw)
         return self._settle_divergence(q0, qd0, st.q, st.qd)
 
     def _simulate_contact(self, inputs: dict) -> np.ndarray:
@@ -309,7 +310,7 @@ class BatchedTask:
             kw = dict(backend=self.backend, params=self.params, contact=self.contact, cstate=cs,
                       contact_params=self._contact_prm, forces=self._W, slip=self._slip,
                       compiled=self._kernels_run, **inputs)
-            run, args = pipeline.advance, (model, q, qd, dt, name)
+            run, args = pipeline.run_steps, (model, q, qd, dt, name)
         else:
             prm, geom, hf = self._terrain_views()
             kw = dict(backend=self.backend, params=self.params, prm=prm, geom=geom, hf=hf, forces=self._W,

@@ -52,10 +52,10 @@ env returns Gymnasium's vector info dict (arrays plus ``"_<key>"`` masks).
 from __future__ import annotations
 
 from .validate import ACTION_MODES, ACTION_TOL, check_action, check_positive, check_stable_dt, resolve_actuated
-from ..actuation import Actuation
+from ..physics.actuation import Actuation
 from .base import BatchedTask
 from .shells import TaskEnv, TaskVectorEnv, registered_max_episode_steps
-from ..sb3 import make_sb3_vec_env
+from ..integrations.sb3 import make_sb3_vec_env
 
 __all__ = ["ACTION_MODES", "check_action", "check_positive", "Actuation", "BatchedTask", "TaskEnv",
            "TaskVectorEnv", "make_sb3_vec_env", "resolve_actuated", "registered_max_episode_steps",

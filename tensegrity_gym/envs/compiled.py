@@ -27,7 +27,9 @@ import numba
 import numpy as np
 from numba import njit
 
-from .. import pipeline
+from ..backends.numba.actuation import apply_controls
+from ..backends.numba.entries import run_plan, run_plan_simd
+from ..backends.numba.divergence import state_ok
 
 __all__ = ["shape_observe", "mean_max", "roll_observe", "shape_step", "shape_step_simd", "SHAPE_STEP_SIG",
            "node_sources"]
@@ -52,8 +54,8 @@ def node_sources(model, nodes: np.ndarray):
 
 
 # the pipeline's compiled entry points, called from shape_step (numba binds globals at compile time)
-_apply_controls, _run_plan, _run_plan_simd, _state_ok = (pipeline.apply_controls, pipeline.run_plan,
-                                                         pipeline.run_plan_simd, pipeline.state_ok)
+_apply_controls, _run_plan, _run_plan_simd, _state_ok = (apply_controls, run_plan,
+                                                         run_plan_simd, state_ok)
 
 
 @njit(cache=True, nogil=True)

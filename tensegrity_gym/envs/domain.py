@@ -38,7 +38,7 @@ import numpy as np
 
 from ..core.param_table import DomainSpec, domain_specs, env_params
 from ..tasks.randomization import draw_count, draw_range, values_from_draws
-from ..params import default_params
+from ..core.params import default_params
 
 __all__ = ["SPECS", "Domain", "physics_nominal", "container_nominal", "write_copies"]
 

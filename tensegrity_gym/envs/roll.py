@@ -11,11 +11,13 @@ import warnings
 
 import numpy as np
 
-from .. import contact
-from .. import dynamics
-from .. import integrators
-from ..actuation import Actuation
-from ..checks import check_array, check_flag
+from ..physics.contact import init_contact_state, GroundContact, stable_step, set_copy_values, PRM_FIELDS
+from ..core.model import compile_model
+from ..physics.evaluate import force_densities, project
+from ..physics import geometry
+from ..core.errors import StabilityWarning
+from ..physics.actuation import Actuation
+from ..core.checks import check_array, check_flag
 from ..core.param_table import contact_arguments, env_fields
 from .base import BatchedTask, fixed_step
 from .config import RollConfig, flat_signature, roll_config, with_flat
@@ -92,7 +94,7 @@ class RollTask(RollObservation, BatchedTask):
         if ground_max_damping is None:   # keep c dt / m_eff <= 1 in fast impacts (m_eff = m/4 of the lightest rod)
             ground_max_damping = float(s.bar_mass.min()) / 4.0 / dt
         try:
-            self.contact = contact.GroundContact(stiffness=ground_stiffness, damping=ground_damping, friction=friction,
+            self.contact = GroundContact(stiffness=ground_stiffness, damping=ground_damping, friction=friction,
                                             tangential_stiffness=tangential_stiffness,
                                             tangential_damping=tangential_damping, radius=cap_radius,
                                             max_damping=ground_max_damping)
@@ -119,20 +121,20 @@ class RollTask(RollObservation, BatchedTask):
         # place on the ground and let it settle (elastic model, all strings at their rest lengths)
         s, self.stability_margin = put_on_ground(s, self.contact.radius, axis)
         self.structure = s
-        elastic = dynamics.compile_model(s)
+        elastic = compile_model(s)
         if integ in ("semi_implicit_euler", "rk4"):   # before settling on it
-            check_stable_dt(elastic, contact.stable_step(self.contact, elastic)["semi_implicit_euler"], dt, integ,
+            check_stable_dt(elastic, stable_step(self.contact, elastic)["semi_implicit_euler"], dt, integ,
                             allow_unstable_dt, "this robot's strings and ground contact")
         # built-in scenes: settle once per process and parameter set
         key = (structure, string_damping, self.contact, integ, float(dt)) if isinstance(structure, str) else None
         self.q_nominal, self.qd_nominal = settle(elastic, self.contact, integ, dt, key)
-        self.nodes_nominal = dynamics.node_positions(elastic, self.q_nominal)[0]
-        gamma0, _, _ = dynamics.force_densities(elastic, self.q_nominal, self.qd_nominal)
+        self.nodes_nominal = geometry.node_positions(elastic, self.q_nominal)[0]
+        gamma0, _, _ = force_densities(elastic, self.q_nominal, self.qd_nominal)
         self.gamma_nominal = gamma0[0]
         if np.any(self.gamma_nominal[act] <= 0):
             bad = act[self.gamma_nominal[act] <= 0][0]
             raise ValueError(f"actuated string {bad} is slack in the resting robot; actuate taut strings")
-        model = dynamics.compile_model(self._scene_structure(s), act if action_mode == "force_density" else None)
+        model = compile_model(self._scene_structure(s), act if action_mode == "force_density" else None)
         self._init_physics(model, num_envs, integ, dt, frame_skip, backend, divergence_limit, clip_actions)
         self.body_length = float(np.max(s.bar_lengths))
         self.actuation = Actuation.for_task(action_mode, act, s.rest_length, (lo, hi), self.max_cable_speed,
@@ -150,13 +152,13 @@ class RollTask(RollObservation, BatchedTask):
         # robot observation (envs/sensors.py; None in state mode); the IMUs read the last physics step
         self.sensors = RobotSensors.attach(self, observation_mode, sensor_noise, history, ("goal_direction", 2, "1"),
                                            n_speed=self.n_speed, n_contacts=2 * k)
-        self.cstate = contact.init_contact_state(model, B)
+        self.cstate = init_contact_state(model, B)
         self.ctrl = np.tile(self.actuation.nominal, (B, 1))
         self.speed = np.zeros((B, self.n_speed))
         self.goal = np.tile(self.goal_direction, (B, 1))
         self.q = np.tile(self.q_nominal, (B, 1, 1))
         self.qd = np.zeros_like(self.q)
-        self.start = dynamics.center_of_mass(model, self.q)
+        self.start = geometry.center_of_mass(model, self.q)
         self.paths: dict[int, list] = {}
         self._init_observation(model)
         self._W = np.zeros((B, n, 3))
@@ -168,14 +170,14 @@ class RollTask(RollObservation, BatchedTask):
         extra.update(container_nominal("actuation", self.actuation))
         self._init_domain(params, randomize, action_delay, start_rest_length_offset, extra)
         check_domain_rest_lengths(self)
-        check_domain_stable_dt(self, allow_unstable_dt, lambda m, c: contact.stable_step(c, m)["semi_implicit_euler"])
+        check_domain_stable_dt(self, allow_unstable_dt, lambda m, c: stable_step(c, m)["semi_implicit_euler"])
         self.travels = True      # divergence: measured from each copy's own centre (it rolls away)
-        limit = contact.stable_step(self.contact, model)["semi_implicit_euler"]
+        limit = stable_step(self.contact, model)["semi_implicit_euler"]
         if self.integrator in ("semi_implicit_euler", "rk4"):
             check_stable_dt(model, limit, self.dt, self.integrator, allow_unstable_dt,
                             "this robot's strings and ground contact")
         if self.integrator in ("semi_implicit_euler", "rk4") and self.dt > limit:
-            warnings.warn(integrators.StabilityWarning(
+            warnings.warn(StabilityWarning(
                 f"{ENV_ID}: dt = {self.dt:.4g} s is above the estimated stability limit {limit:.4g} s of "
                 "semi-implicit Euler with this robot's strings and ground contact"), stacklevel=3)
 
@@ -259,9 +261,9 @@ class RollTask(RollObservation, BatchedTask):
         if self._contact_prm is None:
             self._contact_prm = self.contact.per_copy(self.num_envs)
         for fld, values in columns.items():
-            contact.set_copy_values(self._contact_prm, rows, fld, values)
+            set_copy_values(self._contact_prm, rows, fld, values)
             if self.terrain_contact is not None and fld in terrain.PRM_FIELDS:   # every part of the terrain
-                col = self._contact_prm[:, contact.PRM_FIELDS.index(fld)]
+                col = self._contact_prm[:, PRM_FIELDS.index(fld)]
                 self.terrain_prm[rows, :, terrain.PRM_FIELDS.index(fld)] = col[rows, None]
 
     def write_actuation(self, rows, fields: dict) -> None:
@@ -291,14 +293,14 @@ class RollTask(RollObservation, BatchedTask):
                 th = rng.uniform(0.0, 2.0 * np.pi)
                 goal[j] = (math.cos(th), math.sin(th))
         q, qd = perturbed_start(self.q_nominal, self.model.length[:, None], x)
-        q, qd = dynamics.project(self.model, q, qd)
+        q, qd = project(self.model, q, qd)
         # no node below the ground plus cap: lift the copy if the noise pushed one in
-        zmin = dynamics.node_positions(self.model, q)[..., 2].min(axis=1)
+        zmin = geometry.node_positions(self.model, q)[..., 2].min(axis=1)
         lift = np.maximum(self.nodes_nominal[:, 2].min() - zmin, 0.0)
         q[..., 2] += lift[:, None]
         if self.terrain_contact is not None:     # on a terrain: its own draws, then clear of it
             self._reset_terrain(idx, rngs, goal)
-            nodes = dynamics.node_positions(self.model, q)
+            nodes = geometry.node_positions(self.model, q)
             for j, i in enumerate(idx):
                 q[j, :, 2] += start_lift(self.terrains[i], nodes[j:j + 1], self.contact.radius)[0]
         self.q[idx], self.qd[idx] = q, qd
@@ -308,7 +310,7 @@ class RollTask(RollObservation, BatchedTask):
         self.speed[idx] = 0.0
         self.goal[idx] = goal
         self.elapsed[idx] = 0
-        com = dynamics.center_of_mass(self.model, q, None if self.params is None else self.params.take(
+        com = geometry.center_of_mass(self.model, q, None if self.params is None else self.params.take(
             idx if self.params.batch_size > 1 else np.zeros(len(idx), int)))
         self.start[idx] = com
         if self.sensors is not None:
@@ -339,14 +341,14 @@ class RollTask(RollObservation, BatchedTask):
     def render_data(self, i: int) -> dict:
         q, qd = self.q[i:i + 1], self.qd[i:i + 1]
         inputs = self.actuation.physics_inputs(self.ctrl[i:i + 1])
-        gamma, _, L = dynamics.force_densities(self.model, q, qd, inputs.get("rest_length"), inputs.get("force_density"))
-        com = dynamics.center_of_mass(self.model, q)[0]
+        gamma, _, L = force_densities(self.model, q, qd, inputs.get("rest_length"), inputs.get("force_density"))
+        com = geometry.center_of_mass(self.model, q)[0]
         path = np.array(self.paths.get(i, [com]))
         goal = com + 0.5 * np.array([self.goal[i, 0], self.goal[i, 1], 0.0])
         goal[2] = self.contact.height
         dist = float((com - self.start[i])[:2] @ self.goal[i])
         extra = {} if self.terrains is None else {"terrain": self.terrains[i]}
-        return {"nodes": dynamics.node_positions(self.model, q)[0], "rods": self.structure.bars,
+        return {"nodes": geometry.node_positions(self.model, q)[0], "rods": self.structure.bars,
                 "strings": self.structure.strings, "tensions": (gamma * L)[0], "ground_z": self.contact.height,
                 "path": path, "goal": goal,
                 "caption": f"t = {self.elapsed[i] * self.control_dt:.2f} s, rolled {dist:.2f} m", **extra}

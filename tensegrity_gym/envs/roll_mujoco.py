@@ -118,10 +118,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .. import dynamics
-from ..mjcf import check_mj_integrator, initial_qpos_qvel, to_mjcf
+from ..physics.geometry import node_positions, node_velocities
+from ..io.mjcf import check_mj_integrator, initial_qpos_qvel, to_mjcf
 from ..tasks.roll import roll_step_terms
-from ..checks import check_frame_size
+from ..core.checks import check_frame_size
 from .pickling import picklable_state, restore_state
 from .twin_divergence import clear_mujoco_warnings, twin_diverged
 from .common import check_action, check_positive
@@ -281,7 +281,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         if not np.all(np.isfinite(q)):
             raise ValueError(f"{self.env_id}: settling on MuJoCo's ground diverged at dt = {t.dt} s; reduce dt")
         t.q_nominal = q.copy()
-        t.nodes_nominal = dynamics.node_positions(t.model, q)[0]
+        t.nodes_nominal = node_positions(t.model, q)[0]
 
     @property
     def dt(self) -> float:
@@ -347,8 +347,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         if t.domain.enabled:   # this episode's robot into the MjModel (envs/twin_params.py)
             self._rest_offset, self.contact_timeconst = self._params.apply(
                 mj, m, d, {name: x[0] for name, x in t.domain.values.items()})
-        N = dynamics.node_positions(t.model, t.q)[0]
-        V = dynamics.node_velocities(t.model, t.qd)[0]
+        N = node_positions(t.model, t.q)[0]
+        V = node_velocities(t.model, t.qd)[0]
         mj.mj_resetData(m, d)
         d.qpos[:], d.qvel[:] = initial_qpos_qvel(t.structure.replace(nodes=N, velocities=V))
         m.tendon_lengthspring[self._act, 1] = t.ctrl[0] + self._rest_offset[self._act]
@@ -430,7 +430,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             gym.logger.warn("render() called without a render_mode; construct the env with render_mode='rgb_array'")
             return None
         if self._renderer is None:
-            from ..rendering import make_renderer
+            from ..tools.rendering import make_renderer
             self._renderer = make_renderer(self._size[1], self._size[0], title=self.env_id)
         return self._renderer.render(**self.task.render_data(0))
 

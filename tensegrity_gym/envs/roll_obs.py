@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import dynamics
+from ..core.model import Model
+from ..physics import geometry
 from ..tasks.roll import center_of_mass
 from . import compiled
 
@@ -17,7 +18,7 @@ class RollObservation:
     """``observe``, ``observation_layout`` and the centre of mass of the roll task; the task sets
     ``q``, ``qd``, ``ctrl``, ``speed``, ``goal``, ``cstate``, ``sensors`` and the sizes."""
 
-    def _init_observation(self, model: dynamics.Model) -> None:
+    def _init_observation(self, model: Model) -> None:
         """node -> (rod, signed distance from the rod's reference point) maps, the rods' mass fractions."""
         n, k = model.n_nodes, model.n_bars
         self._node_rod_i64 = np.empty(n, np.int64)
@@ -33,7 +34,7 @@ class RollObservation:
         """(B, 3) centre of mass, m (= dynamics.center_of_mass, one matrix product)."""
         if self._com_at_r:
             return center_of_mass(q, self._mass_frac)
-        return dynamics.center_of_mass(self.model, q, self.params)
+        return geometry.center_of_mass(self.model, q, self.params)
 
     def observe(self) -> np.ndarray:
         B = self.num_envs

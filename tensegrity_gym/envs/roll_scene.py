@@ -8,9 +8,11 @@ import numpy as np
 from ..core.builders import (GRAVITY, ICO_LENGTH, ICO_PRESTRESS, PRISM_HEIGHT, PRISM_PRESTRESS,  # noqa: F401
                              PRISM_RADIUS, ROD_MASS, STRING_DAMPING, STRING_STIFFNESS, robot_icosahedron,
                              robot_prism)
-from .. import contact
-from .. import dynamics
-from ..structure import Structure
+from ..physics.contact import GroundContact, init_contact_state
+from ..physics.pipeline import contact_step
+from ..core.model import initial_state
+from ..physics.geometry import node_velocities
+from ..core.structure import Structure
 from .validate import load_env_structure
 
 __all__ = ["robot_prism", "robot_icosahedron", "place_on_ground", "put_on_ground", "settle", "load_robot",
@@ -112,19 +114,19 @@ def put_on_ground(s: Structure, radius: float, axis=None) -> tuple[Structure, fl
     return s.replace(nodes=nodes), margin
 
 
-def settle(model, ground: contact.GroundContact, integrator: str, dt: float, key=None) -> tuple[np.ndarray, np.ndarray]:
+def settle(model, ground: GroundContact, integrator: str, dt: float, key=None) -> tuple[np.ndarray, np.ndarray]:
     """Rest state ``(q, qd = 0)`` (1, k, 6) of the placed robot ``model`` under gravity on the
     ``ground`` (a :class:`~tensegrity_gym.contact.GroundContact`): SETTLE_TIME s from the placed shape (``contact.step``), with extra viscous drag on
     the nodes (only here) so that it comes to rest. ``key``: remember the result for the process
     (built-in scenes: one settling per parameter set)."""
     if key is not None and key in _SETTLED:
         return tuple(x.copy() for x in _SETTLED[key])
-    st = dynamics.initial_state(model, 1)
-    cs = contact.init_contact_state(model, 1)
+    st = initial_state(model, 1)
+    cs = init_contact_state(model, 1)
     drag = 4.0 * float(model.mass.max())  # N s/m per node
     for _ in range(int(round(SETTLE_TIME / dt))):
-        ext = -drag * dynamics.node_velocities(model, st.qd)
-        st, cs = contact.step(model, ground, st, cs, dt, integrator, external=ext)
+        ext = -drag * node_velocities(model, st.qd)
+        st, cs = contact_step(model, ground, st, cs, dt, integrator, external=ext)
     if not np.all(np.isfinite(st.q)):
         name = model.structure.name
         raise ValueError(f"structure {name!r}: settling on the ground diverged at dt = {dt} s; reduce dt")

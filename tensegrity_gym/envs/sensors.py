@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import dynamics
+from ..physics.geometry import string_state
 from ..tasks.sensors import add_noise, reading, rod_frames
 from .limits import check_noise_sigma
 
@@ -112,7 +112,7 @@ class RobotSensors:
         per copy)."""
         model = self.model
         r = q.shape[0]
-        _, L, _ = dynamics.string_state(model, q)
+        _, L, _ = string_state(model, q)
         g = np.asarray(gravity, float).reshape(-1, 3)
         out = reading([name for name, _, _ in self.blocks], L, q, qd, qd_prev, dt, model.com_eta[None, :, None], g,
                       ctrl, speed, contact, np.asarray(command, float).reshape(r, self.command[1]))

@@ -8,10 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import dynamics
-from .. import integrators, statics
-from ..actuation import Actuation
-from ..checks import check_flag
+from ..core.model import compile_model
+from ..physics.evaluate import project, force_densities
+from ..physics.geometry import node_velocities, node_positions
+from ..physics import statics
+from ..physics.stability import stability_limit
+from ..physics.actuation import Actuation
+from ..core.checks import check_flag
 from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
 from ..tasks.xp import NUMPY
 from . import compiled
@@ -84,10 +87,10 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         self.max_speed = check_positive(max_speed, "max_speed", "m/s")
 
         # the elastic model (targets) and the nominal equilibrium (start shape)
-        self.elastic_model = dynamics.compile_model(s)
+        self.elastic_model = compile_model(s)
         integ = fixed_step(integrator)     # the integrator's name, decoded once
         # before the equilibrium solve, whose relaxation would fail with a misleading message
-        check_stable_dt(self.elastic_model, integrators.stability_limit(self.elastic_model).get(integ, float("inf")),
+        check_stable_dt(self.elastic_model, stability_limit(self.elastic_model).get(integ, float("inf")),
                         check_positive(dt, "dt", "s"), integ, allow_unstable_dt, "this structure")
         try:
             eq = statics.equilibrium(self.elastic_model, relax_steps=20000)
@@ -101,13 +104,13 @@ class ShapeTask(FusedShapeStep, BatchedTask):
             raise ValueError(f"actuated string {bad} is slack at the nominal equilibrium; actuate taut strings")
         # node drag is part of the model (dynamics.compile_model(node_damping=...)): one fused
         # integrator call per control step, no drag code at all when node_damping == 0
-        model = dynamics.compile_model(s, act if action_mode == "force_density" else None,
+        model = compile_model(s, act if action_mode == "force_density" else None,
                                   node_damping=self.node_damping if self.node_damping > 0 else None)
         self.height = s.height if s.height > 0 else float(np.ptp(eq.nodes, axis=0).max())
         self.success_tolerance = (0.01 * self.height if success_tolerance is None
                                   else check_positive(success_tolerance, "success_tolerance", "m"))
         self._init_physics(model, num_envs, integ, dt, frame_skip, backend, divergence_limit, clip_actions)
-        check_stable_dt(model, integrators.stability_limit(model).get(self.integrator, float("inf")), self.dt,
+        check_stable_dt(model, stability_limit(model).get(self.integrator, float("inf")), self.dt,
                         self.integrator, allow_unstable_dt, "this structure with its node drag")
 
         # actuation
@@ -143,7 +146,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
             self._obs_rod = None
         self._init_domain(params, randomize, action_delay, start_rest_length_offset)
         check_domain_rest_lengths(self)
-        check_domain_stable_dt(self, allow_unstable_dt, lambda m, c: integrators.stability_limit(m)[self.integrator])
+        check_domain_stable_dt(self, allow_unstable_dt, lambda m, c: stability_limit(m)[self.integrator])
 
     # ------------------------------------------------------------------ targets
     def _sample_rest_lengths(self, rng: np.random.Generator) -> np.ndarray:
@@ -206,7 +209,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
                 dx[j] = rngs[j].uniform(-s, s, nx)
             for j in range(r):
                 dv[j] = rngs[j].uniform(-s, s, nx)
-        q, qd = dynamics.project(self.model, *self.rc.perturb(q0, dx, dv))
+        q, qd = project(self.model, *self.rc.perturb(q0, dx, dv))
         self.q[idx], self.qd[idx] = q, qd
         self.ctrl[idx] = self.start_control
         self._last_action[idx] = 0.0
@@ -221,7 +224,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
     def _errors(self, idx=None):
         q = self.q if idx is None else self.q[idx]
         tgt = self.target if idx is None else self.target[idx]
-        return NUMPY.mean_max(node_errors(dynamics.node_positions(self.model, q)[:, self.tracked], tgt))
+        return NUMPY.mean_max(node_errors(node_positions(self.model, q)[:, self.tracked], tgt))
 
     def simulate_controls(self):
         """One control step of physics for the batch at the current controls: ONE batched
@@ -269,7 +272,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
             self._obs_of = (self.q, self.qd, self.ctrl, self.target)
             self._N = None
         else:
-            self._N = dynamics.node_positions(self.model, self.q)[:, self.tracked]
+            self._N = node_positions(self.model, self.q)[:, self.tracked]
             self._N_of = self.q
             d = node_errors(self._N, self.target)
         err, emax = np.empty(d.shape[0]), np.empty(d.shape[0])
@@ -292,17 +295,17 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         if fast is not None:
             return fast[0]
         cached = self._N is not None and self._N_of is self.q
-        N = self._N if cached else dynamics.node_positions(self.model, self.q)[:, self.tracked]
+        N = self._N if cached else node_positions(self.model, self.q)[:, self.tracked]
         self._N = None
-        V = dynamics.node_velocities(self.model, self.qd)[:, self.tracked]
+        V = node_velocities(self.model, self.qd)[:, self.tracked]
         return shape_state_observation(N, V, self.ctrl, self.target).astype(np.float32)
 
     def render_data(self, i: int) -> dict:
         q, qd = self.q[i:i + 1], self.qd[i:i + 1]
         inputs = self.actuation.physics_inputs(self.ctrl[i:i + 1])
-        gamma, _, L = dynamics.force_densities(self.model, q, qd, inputs.get("rest_length"), inputs.get("force_density"))
+        gamma, _, L = force_densities(self.model, q, qd, inputs.get("rest_length"), inputs.get("force_density"))
         _, emax = self._errors(np.array([i]))
-        return {"nodes": dynamics.node_positions(self.model, q)[0], "rods": self.structure.bars,
+        return {"nodes": node_positions(self.model, q)[0], "rods": self.structure.bars,
                 "strings": self.structure.strings, "tensions": (gamma * L)[0], "targets": self.target[i],
                 "caption": f"t = {self.elapsed[i] * self.control_dt:.2f} s, max error {emax[0] * 1e3:.1f} mm"}
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import pipeline
+from ..physics.pipeline import compiled_plan
 from ..rewards import sum_squares
 from ..tasks.shape import GAUSS_SCALE, shape_step_terms
 from ..tasks.xp import NUMPY
@@ -30,8 +30,8 @@ class FusedShapeStep:
         act = self.actuation
         plan = None
         if self._obs_rod is not None and self._kernels_run:
-            plan = pipeline.compiled_plan(self.model, self.integrator, self.dt, self.frame_skip, self.num_envs,
-                                          act.mode, self.backend)
+            plan = compiled_plan(self.model, self.integrator, self.dt, self.frame_skip, self.num_envs,
+                                 act.mode, self.backend)
         if plan is not None:
             tol = self.success_tolerance
             scale = GAUSS_SCALE     # tasks.shape.proximity's gaussian, value 0.1 at the margin

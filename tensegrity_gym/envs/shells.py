@@ -9,7 +9,7 @@ import gymnasium as gym
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from ..checks import check_count, check_frame_size
+from ..core.checks import check_count, check_frame_size
 from ..rewards import combine
 from .pickling import picklable_state
 from .vector_rules import VectorApi, check_reset_called, check_seed_value, reset_mask_option
@@ -131,7 +131,7 @@ class TaskEnv(gym.Env):
         return frame
 
     def _frame(self, i: int) -> np.ndarray:
-        from ..rendering import make_renderer
+        from ..tools.rendering import make_renderer
         if self._renderer is None:
             self._renderer = make_renderer(self._width, self._height, title=self._title)
         return self._renderer.render(**self.task.render_data(i))
@@ -382,7 +382,7 @@ class TaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; use render_mode='rgb_array'")
             return None
-        from ..rendering import make_renderer
+        from ..tools.rendering import make_renderer
         frames = []
         for i in range(self.num_envs):
             if i not in self._renderers:

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import torch_backend
+from ..backends.torch.model import torch_module, mass_moments
 from ..core.param_table import contact_columns
 from ..physics.terrain import PRM_FIELDS as TERRAIN_PRM_FIELDS
 from ..tasks.randomization import draw_count, draw_range, values_from_draws
@@ -108,7 +108,7 @@ class CounterStreams:
     same seeds)."""
 
     def __init__(self, num_envs: int, device, use: str = "reset"):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         self.num_envs = int(num_envs)
         self.device = device
         self.salt = SALTS[use]
@@ -120,7 +120,7 @@ class CounterStreams:
         """Key the envs selected by ``mask`` (N,) bool from ``seed`` (the vector envs' rule: an
         int s keys env i with s + i, a list keys each env (None: keep), None keeps every key;
         envs still unkeyed afterwards get random keys). Rekeyed envs start again at reset 0."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         N = self.num_envs
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
             _check_seed(seed, 0)
@@ -152,7 +152,7 @@ class CounterStreams:
     def uniform_at(keys, resets, steps, n: int):
         """(r, n) float64 uniforms of envs with ``keys`` at reset count ``resets`` and, when not
         None, step ``steps`` ((r,) int64 tensors; :func:`reference_uniforms`); stateless."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         st = _mix(keys + (resets + 1) * _signed(_EPISODE))
         if steps is not None:
             st = _mix(st + (steps + 1) * _signed(_STEP))
@@ -170,7 +170,7 @@ class TorchDomain:
     (N, ...) float64 tensor, each env's current values (what ``info["params"]`` reports)."""
 
     def __init__(self, env):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         dom = env.task.domain
         self.env = env
         dev = env.device
@@ -225,7 +225,7 @@ class TorchDomain:
 
     @staticmethod
     def zero_where(mask, v):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         return torch.where(mask, torch.zeros_like(v), v)
 
     def write_physics(self, it, fields: dict, offsets: dict) -> None:
@@ -236,7 +236,7 @@ class TorchDomain:
                 continue
             prm[fld][it] = v.to(env.dtype)
             if fld == "mass":
-                f, J = torch_backend.mass_moments(env.tm, v.to(env.dtype))
+                f, J = mass_moments(env.tm, v.to(env.dtype))
                 prm["f"][it], prm["J"][it] = f, J
                 env._mass_frac[it] = (v / v.sum(dim=1, keepdim=True)).to(env.dtype)
         if "rest_length" in offsets:

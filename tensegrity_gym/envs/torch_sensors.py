@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import torch_backend
+from ..backends.torch.model import torch_module
+from ..backends.torch.equations import string_state
 from ..tasks.sensors import add_noise, reading, rod_frames
 from .torch_reset import CounterStreams
 
@@ -40,7 +41,7 @@ class TorchSensors:
     :class:`~tensegrity_gym.envs.torch_shell.TorchTaskVectorEnv` (device, dtype, model)."""
 
     def __init__(self, sens, env):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         self.sens = sens
         self.env = env
         self.blocks = [name for name, _, _ in sens.blocks]
@@ -76,7 +77,7 @@ class TorchSensors:
         the copies' own (:meth:`gravity`); ``rows``: the envs these are (an index tensor; None:
         all), whose noise streams are read at their current episode and step (``env.elapsed``)."""
         env = self.env
-        _, L, _ = torch_backend.string_state(env.tm, q, qd, env._node_prm, False)
+        _, L, _ = string_state(env.tm, q, qd, env._node_prm, False)
         out = reading(self.blocks, L, q, qd, qd_prev, env.task.dt, self.com_eta,
                       self.gravity() if gravity is None else gravity, ctrl, speed, contact,
                       command.reshape(q.shape[0], self.sens.command[1]))
@@ -93,7 +94,7 @@ class TorchSensors:
                 draws.append(u[:, j:j + n])
                 j += n
             else:          # Box-Muller: N(0, 1) from two uniforms (1 - u in (0, 1]: no log of 0)
-                torch = torch_backend.torch_module()
+                torch = torch_module()
                 z = torch.sqrt(-2.0 * torch.log1p(-u[:, j:j + n])) * torch.cos((2.0 * np.pi) * u[:, j + n:j + 2 * n])
                 draws.append(s * z.to(out.dtype))
                 j += 2 * n
@@ -114,7 +115,7 @@ class TorchSensors:
     def record(self, *args) -> None:
         """Push :meth:`frame` ``(*args)`` of all envs into the history (newest first); call it
         after the env counted the step (``env.elapsed``: its noise is that step's)."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         self.readings = torch.cat([self.frame(*args)[:, None], self.readings[:, :-1]], dim=1)
 
     def gravity(self):

@@ -11,9 +11,12 @@ import gymnasium as gym
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from .. import torch_backend
+from ..backends.torch.model import torch_module, resolve_device, resolve_dtype, torch_model, torch_params
+from ..backends.torch.driver import integrator_name, step_once
+from ..backends.torch.actuation import physics_inputs
+from ..backends.torch.contact import contact_substep
 from ..backends.torch.graphs import CapturedCall
-from ..checks import check_action_tensor
+from ..core.checks import check_action_tensor
 from ..core.param_table import PARAMS
 from .vector_rules import check_reset_called
 from .shells import VectorSeeding, episode_limit, reseed
@@ -56,7 +59,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def __init__(self, num_envs: int = 1, max_episode_steps="registered", device=None, dtype=None,
                  backend: str = "torch", render_mode: str | None = None, compile: bool = False,
                  reset_sampling: str = "host", autoreset_mode="next_step", cuda_graph: bool = False, **kwargs):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         if reset_sampling not in RESET_SAMPLING:
             raise ValueError(f"reset_sampling: expected one of {RESET_SAMPLING}, got {reset_sampling!r}")
         if reset_sampling == "device" and not self.DEVICE_RESET:
@@ -67,10 +70,10 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         if render_mode is not None:
             raise ValueError(f"render_mode: {render_mode!r} is not supported by backend='torch' (render the "
                              f"NumPy env: gymnasium.make({self.ENV_ID!r}, render_mode='rgb_array'))")
-        self.device = torch_backend.resolve_device(device)
-        self.dtype = torch_backend.resolve_dtype(dtype)
+        self.device = resolve_device(device)
+        self.dtype = resolve_dtype(dtype)
         task = self._make_task(num_envs, kwargs)
-        torch_backend.integrator_name(task.integrator)          # ValueError for an implicit method
+        integrator_name(task.integrator)          # ValueError for an implicit method
         self.task = task
         self.num_envs = N = task.num_envs
         self.max_episode_steps = episode_limit(max_episode_steps, self.ENV_ID)
@@ -86,8 +89,8 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self._rngs: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(N)]
 
         dev, dt = self.device, self.dtype
-        self.tm = torch_backend.torch_model(task.model, dev, dt)
-        self._node_prm = torch_backend.torch_params(self.tm, None)          # model defaults (anchor positions)
+        self.tm = torch_model(task.model, dev, dt)
+        self._node_prm = torch_params(self.tm, None)          # model defaults (anchor positions)
         self._init_state()
         sens = getattr(task, "sensors", None)      # observation_mode="robot": the readings on the device
         self._sens = None if sens is None else TorchSensors(sens, self)
@@ -120,8 +123,8 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         ``compile=True`` wraps and how. With ground contact
         :func:`~tensegrity_gym.torch_backend.contact_substep`, without
         :func:`~tensegrity_gym.torch_backend.step_once`; default options."""
-        return (torch_backend.contact_substep if getattr(self.task, "contact", None) is not None
-                else torch_backend.step_once), None
+        return (contact_substep if getattr(self.task, "contact", None) is not None
+                else step_once), None
 
     def _physics_call(self, fn):
         """``fn`` (a physics loop of :mod:`tensegrity_gym.torch_backend`), or with ``cuda_graph=True``
@@ -136,11 +139,11 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def _terminated(self, infos: dict):
         """(N,) bool: the envs whose episode the task ended in this step (here: none; the time
         limit and divergence truncate)."""
-        return torch_backend.torch_module().zeros_like(infos["diverged"])
+        return torch_module().zeros_like(infos["diverged"])
 
     # ------------------------------------------------------------------ host <-> device
     def _T(self, x):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         return torch.as_tensor(np.array(x, dtype=float), dtype=self.dtype, device=self.device)
 
     def _upload_domain(self, idx) -> None:
@@ -149,7 +152,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         task = self.task
         if idx is not None and not task.draws_physics:
             return
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         idx_t = None if idx is None else torch.as_tensor(idx, dtype=torch.int64, device=self.device)
 
         def rows(cur, host):      # the whole array, or rows idx written into the device tensor
@@ -185,7 +188,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def _reset_envs(self, mask, options) -> dict:
         """Reset the envs where ``mask`` (N,) bool (a device tensor) is true: drawn on the host
         (one upload of their rows) or on the device (``reset_sampling``); infos as (N,) tensors."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = self.task
         if self._streams is not None:
             task.check_reset_options(options)
@@ -225,7 +228,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def _full_info(self, info: dict, it) -> dict:
         """(r, ...) infos of envs ``it`` (host arrays or device tensors) -> (N, ...) device
         tensors (zeros elsewhere)."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         out = {}
         for k, v in info.items():
             if isinstance(v, dict):
@@ -243,7 +246,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def _vector_info(self, infos: dict, mask, out: dict | None = None) -> dict:
         """Gymnasium's vector info dict (tensors): values where ``mask``, zeros elsewhere, ``"_key"`` masks."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         out = {} if out is None else out
         for k, v in infos.items():
             if isinstance(v, dict):
@@ -261,7 +264,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def _delayed(self, action):
         """``action_delay`` (``BatchedTask.act``): the action given that many steps earlier."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         if not self._queue.shape[1]:
             return action
         out = self._queue[:, 0]
@@ -282,7 +285,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def _physics_inputs(self):
         """``rest_length`` / ``force_density`` (N, m) of the current controls, the cables'
         rest-length offsets added (``BatchedTask.with_offset``)."""
-        inputs = torch_backend.physics_inputs(self.task.actuation, self.ctrl)
+        inputs = physics_inputs(self.task.actuation, self.ctrl)
         if self._rest_offset is not None and inputs.get("rest_length") is not None:
             inputs["rest_length"] = inputs["rest_length"] + self._rest_offset
         return inputs
@@ -295,7 +298,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     # ------------------------------------------------------------------ VectorEnv API
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         super().reset(seed=None)
         mask, options = self._reset_mask(options)
         if self._streams is not None:
@@ -311,7 +314,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def step(self, actions):
         check_reset_called(self)
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         a, any_reset = self._check_actions(actions)
         mode = self.autoreset_mode
         if any_reset and mode is gym.vector.AutoresetMode.DISABLED:

@@ -7,7 +7,12 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from .. import torch_backend
+from ..backends.torch.model import torch_module
+from ..backends.torch.equations import project, node_positions, node_velocities
+from ..backends.torch.actuation import update_rate, update_motor
+from ..backends.torch.driver import step
+from ..backends.torch import divergence
+from ..backends.torch.contact import contact_step
 from ..backends.torch.terrain import compile_options, terrain_substep, top_height
 from .climb import ClimbTask
 from .navigate import NavigateTask
@@ -45,7 +50,7 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         return terrain_substep, compile_options(self._terrain.layout)
 
     def _init_state(self):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task, dev = self.task, self.device
         self._com_eta = self._T(task.model.com_eta)[None, :, None]
         self.q = self._T(task.q)
@@ -66,7 +71,7 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         self._terrain = None if task.terrain_contact is None else TorchTerrain(self)
 
     def _upload_rows(self, it, idx):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = self.task
         self.q[it] = self._T(task.q[idx])
         self.qd[it] = self._T(task.qd[idx])
@@ -103,7 +108,7 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         control; the goal (angle U(0, 2 pi) with ``randomize_goal``); on a terrain, a generator's
         new terrain (:meth:`TorchTerrain.draw`), the start lifted clear of it and its contact
         state released."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = self.task
         r, k, s = it.shape[0], task.model.n_bars, task.reset_noise_scale
         used = 0
@@ -119,13 +124,13 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
             used += 1
         else:
             goal = self._goal_default.expand(r, -1)
-        q, qd = torch_backend.project(self.tm, q, qd)
-        zmin = torch_backend.node_positions(self.tm, q, self._node_prm)[..., 2].amin(dim=1)
+        q, qd = project(self.tm, q, qd)
+        zmin = node_positions(self.tm, q, self._node_prm)[..., 2].amin(dim=1)
         q[..., 2] += torch.clamp(self._z_floor - zmin, min=0.0)[:, None]
         if self._terrain is not None:       # a generator's new terrain; clear of it, its contact let go
             if task.terrain_generator is not None:
                 self._terrain.draw(self, it, u[:, used:], goal)
-            nodes = torch_backend.node_positions(self.tm, q, self._node_prm)
+            nodes = node_positions(self.tm, q, self._node_prm)
             q[..., 2] += self._terrain.start_lift(nodes, task.contact.radius, it)[:, None]
             self._terrain.release(it)
         ctrl = self._start_control.expand(r, -1)
@@ -146,19 +151,19 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         if self._sens is not None:
             return self._sens.observation()
         q, qd = self.q, self.qd
-        return roll_state_observation(torch_backend.node_positions(self.tm, q, self._node_prm), torch_backend.node_velocities(self.tm, qd),
+        return roll_state_observation(node_positions(self.tm, q, self._node_prm), node_velocities(self.tm, qd),
                                       self._com(q), self.ctrl, self.active, self.goal, self.speed)
 
     def _act(self, action):
         """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = self.task
         action = self._delayed(action)
         act = task.actuation
         if task.motor:
-            self.ctrl, self.speed = torch_backend.motor(act, self.ctrl, self.speed, action, self._max_rate, self._max_accel)
+            self.ctrl, self.speed = update_motor(act, self.ctrl, self.speed, action, self._max_rate, self._max_accel)
         else:
-            self.ctrl = torch_backend.advance(act, self.ctrl, action, self._max_rate)
+            self.ctrl = update_rate(act, self.ctrl, action, self._max_rate)
         inputs = self._physics_inputs()
         q0, qd0, anchor0, active0 = self.q, self.qd, self.anchor, self.active
         com0 = self._com(q0)
@@ -168,11 +173,11 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         else:
             kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                       params=self._params, contact_prm=self._contact_prm, substep=self._substep)
-            run = self._physics_call(torch_backend.contact_step)
+            run = self._physics_call(contact_step)
             (q, qd, anchor, active), qd_prev = self._advance(
                 lambda n, *s: run(self.tm, task.contact, *s, task.dt, task.integrator, n, **kw),
                 (q0, qd0, anchor0, active0))
-            diverged = torch_backend.diverged(q, qd, task.center0, task.divergence_limit, local=True)   # pipeline.diverged
+            diverged = divergence.diverged(q, qd, task.center0, task.divergence_limit, local=True)   # pipeline.diverged
             d3 = diverged[:, None, None]
             self.q = torch.where(d3, q0, q)
             self.qd = torch.where(d3, qd0, qd)
@@ -208,7 +213,7 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
 
     def _init_state(self):
         task = self.task
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         self.q = self._T(task.q)
         self.qd = self._T(task.qd)
         self.ctrl = self._T(task.ctrl)
@@ -224,21 +229,21 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         self.target[it] = self._T(task.target[idx])
 
     def _tracked_nodes(self, q):
-        return torch_backend.node_positions(self.tm, q, self._node_prm).index_select(1, self._tracked)
+        return node_positions(self.tm, q, self._node_prm).index_select(1, self._tracked)
 
     def _act(self, action):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = self.task
         action = self._delayed(action)
-        self.ctrl = torch_backend.advance(task.actuation, self.ctrl, action, self._max_rate)
+        self.ctrl = update_rate(task.actuation, self.ctrl, action, self._max_rate)
         inputs = self._physics_inputs()
         q0, qd0 = self.q, self.qd
         kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
                   params=self._params, substep=self._substep)
-        run = self._physics_call(torch_backend.step)
+        run = self._physics_call(step)
         (q, qd), qd_prev = self._advance(lambda n, *s: run(self.tm, *s, task.dt, task.integrator, n, **kw),
                                          (q0, qd0))
-        diverged = torch_backend.diverged(q, qd, self._center0, task.divergence_limit)   # pipeline.diverged
+        diverged = divergence.diverged(q, qd, self._center0, task.divergence_limit)   # pipeline.diverged
         d3 = diverged[:, None, None]
         self.q = torch.where(d3, q0, q)
         self.qd = torch.where(d3, qd0, qd)
@@ -254,7 +259,7 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     def _observe(self):
         if self._sens is not None:
             return self._sens.observation()
-        V = torch_backend.node_velocities(self.tm, self.qd).index_select(1, self._tracked)
+        V = node_velocities(self.tm, self.qd).index_select(1, self._tracked)
         return shape_state_observation(self._tracked_nodes(self.q), V, self.ctrl, self.target)
 
 
@@ -276,7 +281,7 @@ class TorchClimbVectorEnv(TorchRollVectorEnv):
         and gravity direction (held in float32 as the host's), then the rolling task's rows."""
         task = self.task
         if task._draws_slope:
-            torch = torch_backend.torch_module()
+            torch = torch_module()
             lo, hi = task.slope_range
             a = lo + (hi - lo) * u[:, 0]             # U(lo, hi) as NumPy's
             g = plane_gravity(a, task._g)
@@ -336,7 +341,7 @@ class TorchNavigateVectorEnv(TorchRollVectorEnv):
 
     def _init_state(self):
         super()._init_state()
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = self.task
         self.fields = self._T(np.nan_to_num(task._fields, nan=np.inf))   # rows drawn at reset
         self.goals = self._T(np.nan_to_num(task._goals))
@@ -346,7 +351,7 @@ class TorchNavigateVectorEnv(TorchRollVectorEnv):
         self._scan = None if task.scan is None else self._T(task.scan)
 
     def _upload_rows(self, it, idx):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         super()._upload_rows(it, idx)
         task = self.task
         self.fields[it] = self._T(task._fields[idx])
@@ -356,7 +361,7 @@ class TorchNavigateVectorEnv(TorchRollVectorEnv):
 
     def _guide(self):
         """``goal`` (the planner's unit guidance) and ``path`` (m) of every env toward its current goal."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = self.task
         g, goal = current_goal(self.goals, self.goal_index, torch.arange(self.num_envs, device=self.device))
         self.goal, self.path = guidance_batch(self.fields, self._origin, task.courses[0].cell, goal,

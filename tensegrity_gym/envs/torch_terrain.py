@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import math
 
-from .. import torch_backend
+from ..backends.torch.model import torch_module
+from ..backends.torch import divergence
 from ..backends.torch.heightfield import hf_lipschitz
 from ..backends.torch.terrain import terrain_layout, terrain_step, top_height
 from ..tasks.terrain import STEP_SPAN, drawn_values, rod_end_contacts, step_extents
@@ -41,7 +42,7 @@ class TorchTerrain:
     for every terrain a generator draws)."""
 
     def __init__(self, env):
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = env.task
         self.per_copy = task.terrain_generator is not None
         rows = slice(None) if self.per_copy else slice(0, 1)
@@ -56,7 +57,7 @@ class TorchTerrain:
     def upload_rows(self, env, it, idx) -> None:
         """Envs ``it`` (device index tensor) take the host task's rows ``idx`` after its reset:
         their released contact state and, with a generator, their terrain."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = env.task
         ts = task.tstate
         self.anchor[it] = env._T(ts.anchor[idx])
@@ -89,7 +90,7 @@ class TorchTerrain:
 
     def _draw_rows(self, env, it, u, goal) -> None:
         """:meth:`draw` for the envs ``it``."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = env.task
         gen = task.terrain_generator
         vals = drawn_values(gen, u, task.terrain_difficulty)
@@ -118,7 +119,7 @@ class TorchTerrain:
         cap of ``radius`` m clears the terrain's top surface under it (0 where it already does):
         the host's :func:`tensegrity_gym.tasks.terrain.start_lift` on the device, on a fixed
         terrain or, with a generator, on the terrains of envs ``it``."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         geom, hf = self.geom, self.hf
         if self.per_copy:
             geom, hf = geom[it], None if hf is None else hf[it]
@@ -130,7 +131,7 @@ class TorchTerrain:
         """One control step of the physics on the terrain from ``q0``, ``qd0`` (N, k, 6):
         returns ``(q, qd, qd_prev, diverged)`` with the diverged copies' states (and contact
         state) restored; ``env.active`` becomes the rod ends' contact flags."""
-        torch = torch_backend.torch_module()
+        torch = torch_module()
         task = env.task
         geom, prm, hf = self.geom, env._terrain_prm, self.hf
         kw = dict(rest_length=inputs.get("rest_length"), force_density=inputs.get("force_density"),
@@ -139,7 +140,7 @@ class TorchTerrain:
         run = env._physics_call(terrain_step)
         (q, qd, anchor, eta0, active), qd_prev = env._advance(
             lambda n, *s: run(env.tm, geom, prm, *s, task.dt, task.integrator, n, **kw), state0)
-        diverged = torch_backend.diverged(q, qd, task.center0, task.divergence_limit, local=True)
+        diverged = divergence.diverged(q, qd, task.center0, task.divergence_limit, local=True)
         d1, d2 = diverged[:, None], diverged[:, None, None]
         q, qd = torch.where(d2, q0, q), torch.where(d2, qd0, qd)
         self.anchor = torch.where(d2, state0[2], anchor)

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import dynamics
+from ..core.model import Model
 from ..core.builders import load_structure
-from ..actuation import ACTION_MODES
-from ..checks import ACTION_TOL, check_action, check_positive
+from ..physics.actuation import ACTION_MODES
+from ..core.checks import ACTION_TOL, check_action, check_positive
 
 __all__ = ["ACTION_MODES", "ACTION_TOL", "check_positive", "check_action", "check_stable_dt", "resolve_actuated",
            "check_rest_length_bounds", "load_env_structure"]
@@ -29,7 +29,7 @@ def check_rest_length_bounds(bounds) -> tuple[float, float]:
     return lo, hi
 
 
-def check_stable_dt(model: dynamics.Model, limit: float, dt: float, integrator: str, allow: bool, what: str) -> None:
+def check_stable_dt(model: Model, limit: float, dt: float, integrator: str, allow: bool, what: str) -> None:
     """ValueError if ``dt`` (s) is above the estimated stability ``limit`` (s) of ``integrator``,
     unless ``allow``; the message names the strings' stiffness and damping that set the limit."""
     if dt <= limit or allow:

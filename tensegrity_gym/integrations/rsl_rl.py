@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..torch_backend import resolve_device
+from ..backends.torch.model import resolve_device
 
 __all__ = ["RslRlVecEnv", "make_rsl_rl_env", "train_config"]
 

@@ -71,10 +71,10 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .atomic import write_atomic
-from ..checks import xml_text
+from ..core.checks import xml_text
 from ..core.rod_mass import mass_moments
 from ..core.terrain import Terrain
-from ..structure import Structure
+from ..core.structure import Structure
 
 __all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel", "default_rod_radius", "terrain_xml"]
 

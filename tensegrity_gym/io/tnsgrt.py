@@ -51,7 +51,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..structure import Structure, StructureError
+from ..core.structure import Structure, StructureError
 
 __all__ = ["from_tnsgrt", "to_tnsgrt_dict"]
 

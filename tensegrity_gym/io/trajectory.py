@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks import check_trajectory_arrays, load_npz, read_bounded
+from ..core.checks import check_trajectory_arrays, load_npz, read_bounded
 
 __all__ = ["load_csv", "load_trajectory", "save_simulate_output", "load_simulate_output", "MAX_CSV_BYTES"]
 

@@ -13,8 +13,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import nnls
 
-from .. import dynamics
-from .. import statics
+from ..physics.geometry import string_state
+from ..core.model import initial_state
+from ..physics import statics
 
 __all__ = ["NNLSShapeController", "nnls_force_densities", "RollingGait", "wave_targets"]
 
@@ -113,7 +114,7 @@ class NNLSShapeController:
         return N
 
     def _passive_gamma(self, q: np.ndarray) -> np.ndarray:
-        _, L, _ = dynamics.string_state(self.model, q)
+        _, L, _ = string_state(self.model, q)
         s = self.structure
         k, l0 = s.stiffness[self.passive], s.rest_length[self.passive]
         Lp = L[:, self.passive]
@@ -136,7 +137,7 @@ class NNLSShapeController:
     def feedforward(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """NNLS force densities (B, na) N/m of the actuated strings at the target (B, nt, 3) and
         the matching rest lengths (B, na) m."""
-        qt = dynamics.initial_state(self.model, nodes=self._full_nodes(target)).q
+        qt = initial_state(self.model, nodes=self._full_nodes(target)).q
         g = self._solve(qt)
         _, L = self._passive_gamma(qt)
         k = self.structure.stiffness[self.act]
@@ -156,7 +157,7 @@ class NNLSShapeController:
         target = O[:, self._sl["target_position"]].reshape(B, nt, 3)
         g_t, l0_t = self.feedforward(target)
         if self.feedback:
-            qc = dynamics.initial_state(self.model, nodes=self._full_nodes(pos)).q
+            qc = initial_state(self.model, nodes=self._full_nodes(pos)).q
             F = np.zeros((B, self.model.n_nodes, 3))
             F[:, self.tracked] = self.kp * (target - pos) - self.kd * vel
             rc = statics.ReducedCoordinates(self.model)

@@ -71,10 +71,11 @@ import sys
 import warnings
 
 from .. import __version__
-from ..builders import BUILDERS
-from ..integrators import INTEGRATORS, SimulationDiverged
-from ..sizing import StructureTooLarge
-from ..structure import StructureError
+from ..core.builders import BUILDERS
+from ..core.integrators import INTEGRATORS
+from ..core.errors import SimulationDiverged
+from ..core.sizing import StructureTooLarge
+from ..core.structure import StructureError
 from .cli_commands import cmd_export, cmd_identify, cmd_info, cmd_view, structure_summary
 from .cli_common import (DEFAULT_MAX_STEPS, EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_STRUCTURE,
                          EXIT_TERMINATED, EXIT_TOO_LARGE, EXIT_USAGE, CLIError, _default_max_memory_gib,

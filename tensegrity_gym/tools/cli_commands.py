@@ -8,14 +8,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import dynamics
+from ..physics.stability import DENSE_STABILITY_MAX_RODS, stable_step_estimate
+from ..core.model import compile_model, initial_state
+from ..physics.evaluate import accelerations
 from ..core.placement import place_on_terrain
 from ..core.terrain import Terrain
 from ..io.mjcf import default_rod_radius, to_mjcf
 from ..io.tnsgrt import from_tnsgrt
 from ..io.trajectory import load_simulate_output
-from ..sizing import stability_bytes
-from ..structure import StructureError
+from ..core.sizing import stability_bytes
+from ..core.structure import StructureError
 from .cli_common import (EXIT_DIVERGED, EXIT_OUTPUT, EXIT_STRUCTURE, EXIT_USAGE, CLIError, _claim, _commit, _load,
                          _one_line, _require_memory, _stage)
 from .cli_simulate import _outputs_and_model
@@ -27,7 +29,7 @@ def _stable_step_bytes(k: int, m: int = 0) -> float:
     """Memory of dynamics.stable_step_estimate: up to DENSE_STABILITY_MAX_RODS rods finite-difference
     Jacobians on 24 k states and the eigenvalues of the (12 k x 12 k) first-order matrix (about six
     such matrices); above, the sparse path (linear in k and the m strings: sizing.stability_bytes)."""
-    if k > dynamics.DENSE_STABILITY_MAX_RODS:
+    if k > DENSE_STABILITY_MAX_RODS:
         return float(stability_bytes(k, m))
     return 8.0 * (6 * (12 * k) ** 2 + 24 * k * (6 * k) * 12)
 
@@ -35,13 +37,13 @@ def _stable_step_bytes(k: int, m: int = 0) -> float:
 def structure_summary(s, stable_step: bool = True) -> dict:
     """Summary numbers of a structure (SI units) as printed by ``info``; ``stable_step=False``
     skips the eigenvalue estimate (``None`` entries)."""
-    model = dynamics.compile_model(s)
+    model = compile_model(s)
     L = s.string_lengths
     tension = s.initial_tensions()
     slack = np.flatnonzero(L <= s.rest_length)
-    st0 = dynamics.initial_state(model)
-    acc = dynamics.accelerations(model, st0.q, st0.qd)
-    est = dynamics.stable_step_estimate(model) if stable_step else \
+    st0 = initial_state(model)
+    acc = accelerations(model, st0.q, st0.qd)
+    est = stable_step_estimate(model) if stable_step else \
         {"omega_max": None, "semi_implicit_euler": None, "rk4": None}
     span = lambda x: [float(np.min(x)), float(np.max(x))] if len(x) else None
     return {
@@ -63,7 +65,7 @@ def structure_summary(s, stable_step: bool = True) -> dict:
 def cmd_info(args) -> int:
     s = _load(args.structure, args)
     if not args.no_stable_step:
-        how = ("sparse Jacobians and Arnoldi" if s.n_bars > dynamics.DENSE_STABILITY_MAX_RODS else
+        how = ("sparse Jacobians and Arnoldi" if s.n_bars > DENSE_STABILITY_MAX_RODS else
                f"eigenvalues of a {12 * s.n_bars} x {12 * s.n_bars} matrix")
         _require_memory(_stable_step_bytes(s.n_bars, s.n_strings), args,
                         f"the stable-step estimate of {s.n_bars} rods ({how}; --no-stable-step skips it)")
@@ -181,7 +183,7 @@ def parse_initial(items, model, fittable: dict, aliases: dict, contact_fields=()
     """``--initial NAME=VALUE ...`` as ``{name: value}``: VALUE one number for every member, or one
     per member separated by commas (one number for the ground's ``contact_fields``); CLIError
     naming the item otherwise."""
-    from ..params import default_params
+    from ..core.params import default_params
     out = {}
     for item in items or ():
         name, eq, text = item.partition("=")

@@ -10,11 +10,11 @@ import threading
 import numpy as np
 
 from ..core.builders import load_structure
-from ..builders import BUILDERS
+from ..core.builders import BUILDERS
 from ..io.atomic import OutputError
 from ..io.claim import Transaction
-from ..sizing import memory_estimate
-from ..structure import StructureError
+from ..core.sizing import memory_estimate
+from ..core.structure import StructureError
 
 
 PROGRESS_MIN_STEPS = 20000

@@ -8,16 +8,20 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import dynamics
-from ..builders import prism
-from ..checks import load_npz
+from ..core.model import compile_model, initial_state, State
+from ..physics.geometry import energy, node_positions, rod_length_drift
+from ..physics.evaluate import force_densities
+from ..core.builders import prism
+from ..core.checks import load_npz
 from ..core.errors import StabilityWarning
 from ..core.placement import place_on_terrain
-from ..integrators import EvaluationBudgetExceeded, Schedule, SimulationDiverged, resolve, simulate
+from ..core.errors import EvaluationBudgetExceeded, SimulationDiverged
+from ..physics.rollout import Schedule, simulate
+from ..core.integrators import resolve
 from ..io.claim import Transaction
 from ..io.trajectory import save_simulate_output
 from ..physics import terrain as terrain_physics
-from ..structure import StructureError
+from ..core.structure import StructureError
 from .rendering import RendererUnavailable, render_video
 from .cli_common import (ADAPTIVE_EVALUATIONS_PER_STEP, CHUNK_STEPS, ENERGY_BLOWUP, EXIT_DIVERGED, EXIT_OUTPUT,
                          EXIT_STRUCTURE, EXIT_TOO_LARGE, EXIT_USAGE, PROGRESS_MIN_STEPS, CLIError, _claim, _commit, _load, _n_steps, _one_line,
@@ -71,11 +75,11 @@ def _run(model, state, args, n_steps: int, progress: bool):
                         break
                     done += 1
                     qs[done], qds[done] = q[1], qd[1]
-                    st = dynamics.State(q[-1], qd[-1], ts[done])
+                    st = State(q[-1], qd[-1], ts[done])
                 break
             qs[done + 1:done + r + 1], qds[done + 1:done + r + 1] = q[1:], qd[1:]
             done += r
-            st = dynamics.State(q[-1], qd[-1], ts[done])
+            st = State(q[-1], qd[-1], ts[done])
             if bar is not None:
                 bar.update(r * every)
     finally:
@@ -111,7 +115,7 @@ def _terrain_setup(args, terrain, s):
         raise CLIError(EXIT_STRUCTURE, f"{terrain_label(args)}: {_one_line(e)}") from None
     except StructureError as e:
         raise CLIError(EXIT_STRUCTURE, f"{terrain_label(args)}: the structure lifted onto the terrain: {e}") from None
-    model = dynamics.compile_model(s)
+    model = compile_model(s)
     if s.gravity is None or not np.any(s.gravity):
         warnings.warn(f"structure {s.name!r} has no gravity: it does not fall onto the terrain (give \"gravity\" "
                       "in a structure file)", stacklevel=2)
@@ -187,7 +191,7 @@ def _outputs_and_model(args, second, flag: str):
     out = Path(args.out)
     tx = _claim(args, [(out, "--out")] + ([(Path(second), flag)] if second else []))
     s = _load(args.structure, args)
-    return out, tx, s, dynamics.compile_model(s)
+    return out, tx, s, compile_model(s)
 
 
 def load_schedule(path, name: str, n_strings: int) -> Schedule:
@@ -242,7 +246,7 @@ def cmd_simulate(args) -> int:
             raise CLIError(EXIT_STRUCTURE, f"{flag}: file {path!r} not found") from None
         except (ValueError, OSError, KeyError) as e:
             raise CLIError(EXIT_STRUCTURE, f"{flag} {path!r}: {_one_line(e)}") from None
-    state = dynamics.initial_state(model)
+    state = initial_state(model)
     n_steps = _n_steps(args.duration, args.dt, args)
     _require_memory(_trajectory_bytes(model, n_steps // args.record_every + 1), args,
                     f"recording {n_steps // args.record_every + 1} states of {s.n_nodes} nodes")
@@ -250,9 +254,9 @@ def cmd_simulate(args) -> int:
     t0 = time.perf_counter()
     if args.backend == "torch":   # optional torch backend (tensegrity_gym.torch_backend) on --device
         try:
-            from .. import torch_backend     # optional: needs torch
-            t, q, qd = torch_backend.simulate(model, state, args.dt, n_steps, args.integrator, device=args.device,
-                                              record_every=args.record_every, project=not args.no_project)
+            from ..backends.torch import driver     # optional: needs torch
+            t, q, qd = driver.simulate(model, state, args.dt, n_steps, args.integrator, device=args.device,
+                                       record_every=args.record_every, project=not args.no_project)
         except (ImportError, ValueError) as exc:
             raise CLIError(EXIT_USAGE, f"--backend torch: {exc}") from None
         diverged = None if (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))) else \
@@ -264,8 +268,8 @@ def cmd_simulate(args) -> int:
     wall = time.perf_counter() - t0
     S = len(t)
     qf, qdf = q.reshape((S,) + q.shape[2:]), qd.reshape((S,) + qd.shape[2:])
-    nodes = dynamics.node_positions(model, qf) if S else np.zeros((0, s.n_nodes, 3))
-    E = dynamics.energy(model, qf, qdf) if S else np.zeros(0)
+    nodes = node_positions(model, qf) if S else np.zeros((0, s.n_nodes, 3))
+    E = energy(model, qf, qdf) if S else np.zeros(0)
     if diverged is None and S > 1:
         scale = max(abs(float(E[0])), s.total_mass * 9.81 * max(float(np.ptp(s.nodes, axis=0).max()), 1e-3))
         grown = np.flatnonzero(~(E - E[0] <= ENERGY_BLOWUP * scale))
@@ -296,7 +300,7 @@ def cmd_simulate(args) -> int:
         print(f"terrain contact ({terrain_label(args)}, {parts}, cap radius {tc.radius:g} m): "
               f"the structure was lifted {lift:.4g} m to rest on it")
     print(f"max relative energy change {drift:.3e}; final rod-length drift "
-          f"{float(dynamics.rod_length_drift(model, qf[-1:])[0]):.3e}")
+          f"{float(rod_length_drift(model, qf[-1:])[0]):.3e}")
     _print_video(args, frames)
     return 0
 
@@ -316,9 +320,9 @@ def cmd_demo(args) -> int:
         s = prism(3, damping=args.damping)
     except StructureError as e:
         raise CLIError(EXIT_USAGE, f"--damping {args.damping}: {e}") from None
-    model = dynamics.compile_model(s)
+    model = compile_model(s)
     rng = np.random.default_rng(args.seed)
-    st = dynamics.initial_state(model, nodes=s.nodes + args.perturbation * rng.standard_normal(s.nodes.shape))
+    st = initial_state(model, nodes=s.nodes + args.perturbation * rng.standard_normal(s.nodes.shape))
     dt, T = 1e-3, args.duration
     n = _n_steps(T, dt, args)
     _require_memory(_trajectory_bytes(model, n // 10 + 1), args, f"recording {n // 10 + 1} states")
@@ -326,8 +330,8 @@ def cmd_demo(args) -> int:
     t, q, qd = simulate(model, st, dt, n, args.integrator, record_every=10)
     wall = time.perf_counter() - t0
     q1, qd1 = q[:, 0], qd[:, 0]
-    E = dynamics.energy(model, q1, qd1)
-    nodes = dynamics.node_positions(model, q1)
+    E = energy(model, q1, qd1)
+    nodes = node_positions(model, q1)
     top = nodes[:, 3:6]
     bot = nodes[:, 0:3]
     ang = lambda P: np.arctan2(P[..., 1] - P[..., 1].mean(-1, keepdims=True),
@@ -353,7 +357,7 @@ def cmd_demo(args) -> int:
                "wall_s": wall, "steps_per_s": n / wall, "initial_energy_J": float(E[0]),
                "final_energy_J": float(E[-1]), "final_twist_deg": float(twist[-1]),
                "expected_twist_deg": 90 - 180 / 3,
-               "final_rod_length_drift": float(dynamics.rod_length_drift(model, q1[-1:])[0])}
+               "final_rod_length_drift": float(rod_length_drift(model, q1[-1:])[0])}
     _stage(tx, summary_path, lambda f: f.write(json.dumps(summary, indent=1).encode()))
     frames = _stage_video(tx, args, s, model, t, q1, qd1)
     _commit(tx)
@@ -370,11 +374,11 @@ def _stage_video(tx: Transaction, args, s, model, t, q, qd, terrain=None) -> int
     if not getattr(args, "video", None):
         return 0
     q, qd = q.reshape((len(t),) + q.shape[-2:]), qd.reshape((len(t),) + qd.shape[-2:])
-    gamma, _, L = dynamics.force_densities(model, q, qd)
+    gamma, _, L = force_densities(model, q, qd)
     frames = []
     try:
         tx.stage_file(args.video, lambda tmp: frames.append(
-            render_video(tmp, s, dynamics.node_positions(model, q), gamma * L, t,
+            render_video(tmp, s, node_positions(model, q), gamma * L, t,
                          **({} if terrain is None else {"terrain": terrain}))))
     except (RendererUnavailable, ValueError, OSError) as e:
         raise CLIError(EXIT_OUTPUT, f"--video {args.video}: {e}; no output file was changed") from None

@@ -82,11 +82,11 @@ import warnings
 
 import numpy as np
 
-from .. import dynamics
-from ..checks import check_real
+from ..core.model import compile_model
+from ..core.checks import check_real
 from ..core.builders import load_structure
-from ..dynamics import Model
-from ..integrators import resolve
+from ..core.model import Model
+from ..core.integrators import resolve
 from ..physics.contact import PRM_FIELDS
 from ..io.trajectory import load_csv, load_trajectory
 from .sysid_inputs import StartValueError, _check_above_ground, _check_record, _parse_contact, _parse_fit
@@ -102,7 +102,7 @@ __all__ = ["identify", "SysIdResult", "SysIdWarning", "StartValueError", "FITTAB
 def _model_of(structure_or_model) -> Model:
     if isinstance(structure_or_model, Model):
         return structure_or_model
-    return dynamics.compile_model(load_structure(structure_or_model))
+    return compile_model(load_structure(structure_or_model))
 
 
 # ----------------------------------------------------------------------------- main entry

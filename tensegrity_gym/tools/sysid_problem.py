@@ -7,10 +7,14 @@ import math
 
 import numpy as np
 
-from .. import dynamics
-from ..dynamics import State
-from ..integrators import resolve, step
-from ..params import Params
+from ..physics.evaluate import project
+from ..physics.geometry import node_positions
+from ..core.model import initial_state
+from ..physics.stability import stable_step_estimate
+from ..core.model import State
+from ..core.integrators import resolve
+from ..physics.integrate import step
+from ..core.params import Params
 from ..physics import contact as contact_mod
 from ..physics import pipeline
 from ..physics.reduced_coordinates import tangent_basis
@@ -52,7 +56,7 @@ class _Problem:
             raise ValueError(f"window: {window} s ({K} samples) is longer than the record ({S} samples, "
                              f"{t[-1] - t[0]:.6g} s)")
         if dt is None:
-            om = dynamics.stable_step_estimate(model)["omega_max"]
+            om = stable_step_estimate(model)["omega_max"]
             dt_max = 0.2 / om if np.isfinite(om) and om > 0 else h
             if contact is not None:     # the contact's springs are usually stiffer than the strings
                 dt_max = min(dt_max, 0.5 * contact_mod.stable_step(contact, model)["semi_implicit_euler"])
@@ -193,7 +197,7 @@ class _Problem:
             bd[:, j] += x[:, o + d, None] * t1[:, j] + x[:, o + d + 1, None] * t2[:, j]
             o += d + 2
         bn /= np.linalg.norm(bn, axis=-1, keepdims=True)
-        return dynamics.project(self.model, np.concatenate([r, bn], -1), np.concatenate([rd, bd], -1))
+        return project(self.model, np.concatenate([r, bn], -1), np.concatenate([rd, bd], -1))
 
     def simulate(self, q, qd, phys, win, extra=False):
         """Node positions (C, K, n, 3) of copies starting at ``q``, ``qd`` (C, k, 6) with the
@@ -204,7 +208,7 @@ class _Problem:
         params, prm = phys
         C = q.shape[0]
         out = np.empty((C, self.K, self.model.n_nodes, 3))
-        out[:, 0] = dynamics.node_positions(self.model, q)
+        out[:, 0] = node_positions(self.model, q)
         st = State(q=q, qd=qd)
         cs = None
         if self.contact is not None:
@@ -228,7 +232,7 @@ class _Problem:
                     out[:, k:] = np.nan
                     break
                 if k < self.K:
-                    out[:, k] = dynamics.node_positions(self.model, st.q)
+                    out[:, k] = node_positions(self.model, st.q)
         return (out, st, cs) if extra else out
 
     def carry(self, theta, q, qd):
@@ -242,7 +246,7 @@ class _Problem:
         xi, act = self.carried
         for w in range(self.W - 1):     # in turn: window w starts from what window w - 1 handed on
             _, st, cs = self.simulate(q[w:w + 1], qd[w:w + 1], self.physics(theta), np.array([w]), extra=True)
-            p = dynamics.node_positions(self.model, st.q)[0, contact_mod.contact_nodes(self.model), :2]
+            p = node_positions(self.model, st.q)[0, contact_mod.contact_nodes(self.model), :2]
             ok = np.isfinite(p).all(-1) & cs.active[0]
             xi[w + 1] = np.where(ok[:, None], p - cs.anchor[0], 0.0)
             act[w + 1] = ok
@@ -285,14 +289,14 @@ class _Problem:
                     vel[w, miss] = (((ref[miss] - cr1) @ R1.T + c1) - pos[w, miss]) / self.h
             else:
                 pos[w, miss] = ref[miss]
-        st = dynamics.initial_state(model, W, nodes=pos, velocities=vel)
+        st = initial_state(model, W, nodes=pos, velocities=vel)
         q, qd = st.q.copy(), st.qd.copy()
         free = ~np.asarray(model.constrained)
         sig = model.sigma[None, free, None]
         a, c = model.rod_a[free], model.rod_c[free]
         q[:, free, :3] = pos[:, a] + sig * (pos[:, c] - pos[:, a])
         qd[:, free, :3] = vel[:, a] + sig * (vel[:, c] - vel[:, a])
-        return dynamics.project(model, q, qd)
+        return project(model, q, qd)
 
     # -- inner problem: every window's state for given parameters (batched Levenberg-Marquardt)
     def fit_states(self, theta, q0, qd0, max_iter=None, Jx_old=None):

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..params import Params
+from ..core.params import Params
 
 #: fittable field -> what its items are (positive quantities, fitted in log space)
 FITTABLE = {"stiffness": "string", "damping": "string", "mass": "rod", "node_damping": "node",

@@ -22,10 +22,12 @@ def torch_jacobian(pb, theta, q0, qd0):
     with respect to the log values of the fitted items and chained with :meth:`_Problem.log_jacobian`
     (d log value / d theta)."""
     import torch
-    from .. import torch_backend
+    from ..backends.torch.model import torch_model, torch_params
+    from ..backends.torch.equations import project, node_positions
+    from ..backends.torch.driver import step
     W, ns, p, K = pb.W, pb.ns, pb.p, pb.K
     T = torch.float64
-    tm = torch_backend.torch_model(pb.model, torch.device("cpu"), T)
+    tm = torch_model(pb.model, torch.device("cpu"), T)
     sizes = [len(pb.items[g]) for g in pb.names]
     nu = sum(sizes)
     nc = nu + ns                                  # columns per window
@@ -63,15 +65,15 @@ def torch_jacobian(pb, theta, q0, qd0):
             rds.append(qd0t[:, j, :3] + x[:, o:o + d] @ Et)
             bds.append(qd0t[:, j, 3:] + x[:, o + d, None] * t1[:, j] + x[:, o + d + 1, None] * t2[:, j])
             o += d + 2
-        q, qd = torch_backend.project(tm, torch.cat([torch.stack(rs, 1), torch.stack(bs, 1)], -1),
+        q, qd = project(tm, torch.cat([torch.stack(rs, 1), torch.stack(bs, 1)], -1),
                            torch.cat([torch.stack(rds, 1), torch.stack(bds, 1)], -1))
-        node_prm = torch_backend.torch_params(tm, prm, C)
+        node_prm = torch_params(tm, prm, C)
         rl = None if pb.rl is None else t_(np.repeat(pb.rl, nc, 0))     # (C, K, m)
-        out = [torch_backend.node_positions(tm, q, node_prm)]
+        out = [node_positions(tm, q, node_prm)]
         for k in range(1, K):
-            q, qd = torch_backend.step(tm, q, qd, pb.dt, pb.integrator, pb.n_sub, params=prm,
+            q, qd = step(tm, q, qd, pb.dt, pb.integrator, pb.n_sub, params=prm,
                             rest_length=None if rl is None else rl[:, k - 1])
-            out.append(torch_backend.node_positions(tm, q, node_prm))
+            out.append(node_positions(tm, q, node_prm))
         out = torch.stack(out, 1)                                    # (C, K, n, 3)
         u = torch.zeros_like(out, requires_grad=True)
         (g,) = torch.autograd.grad(out, z, grad_outputs=u, create_graph=True)       # u^T dout/dz, (C, nc)

@@ -3,7 +3,7 @@ with the first threshold (parallel when all n_steps sub-steps together reach PAR
 8 or 2 chunks), alternating 0.3 s windows; microseconds per vector step, min and median of 6.
 Run at 92f9097 (the first threshold): output in threshold_bench.txt."""
 import time, numpy as np
-from tensegrity_gym import _kernels
+from tensegrity_gym.backends.numba import compile as _kernels
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv
 orig = _kernels._parallel
 modes = {"serial": lambda *a, **k: False, "auto": orig}

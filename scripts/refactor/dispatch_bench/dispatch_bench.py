@@ -4,23 +4,26 @@ integrator and steps per call, plus `integrators.accelerations` of one state. Ru
 first on PYTHONPATH and NUMBA_NUM_THREADS=1."""
 import sys, timeit, numpy as np
 import tensegrity_gym as tg
-from tensegrity_gym import builders, dynamics, integrators
+from tensegrity_gym.core import builders
+from tensegrity_gym.core.model import compile_model, initial_state, State
+from tensegrity_gym.physics.evaluate import project, accelerations
+from tensegrity_gym.physics.integrate import step
 print(tg.__file__, file=sys.stderr)
 rows = []
 for name, s in {"prism3": builders.prism(3), "icosahedron": builders.icosahedron(),
                 "constrained_prism": builders.constrained_prism(damping=0.5)}.items():
-    model = dynamics.compile_model(s)
+    model = compile_model(s)
     rng = np.random.default_rng(0)
-    st = dynamics.initial_state(model, 1)
-    q, qd = dynamics.project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
-    st = dynamics.State(q=np.ascontiguousarray(q), qd=np.ascontiguousarray(qd), t=0.0)
+    st = initial_state(model, 1)
+    q, qd = project(model, st.q, st.qd + 0.01 * rng.normal(size=st.qd.shape))
+    st = State(q=np.ascontiguousarray(q), qd=np.ascontiguousarray(qd), t=0.0)
     for integ in ("semi_implicit_euler", "rk4"):
         for ns in (1, 20):
-            f = lambda: integrators.step(model, st, 1e-4, integ, n_steps=ns)
+            f = lambda: step(model, st, 1e-4, integ, n_steps=ns)
             f()
             t = min(timeit.repeat(f, number=5000, repeat=7)) / 5000
             rows.append(("%s %s n=%d" % (name, integ, ns), t * 1e6))
-    f = lambda: integrators.accelerations(model, st.q, st.qd)
+    f = lambda: accelerations(model, st.q, st.qd)
     f()
     t = min(timeit.repeat(f, number=5000, repeat=7)) / 5000
     rows.append(("%s accelerations" % name, t * 1e6))
