@@ -610,9 +610,9 @@ def make_vec(env_id: str, n_envs: int, seed: int, env_kwargs: dict, vec_env: str
     """A monitored SB3 VecEnv of ``n_envs`` copies of ``env_id``, env i seeded with ``seed + i``.
 
     ``vec_env``: ``"batched"`` (the env's ``vector_entry_point``: one batched physics call per step,
-    through :func:`tensegrity_gym.sb3.make_sb3_vec_env`), ``"torch"`` (the device-resident torch
+    through :func:`tensegrity_gym.integrations.sb3.make_sb3_vec_env`), ``"torch"`` (the device-resident torch
     vector env on ``env_device`` in ``env_dtype`` with ``reset_sampling=env_reset_sampling``, through
-    :func:`tensegrity_gym.sb3.make_sb3_torch_vec_env`, which copies ``info_keys`` to the host),
+    :func:`tensegrity_gym.integrations.sb3.make_sb3_torch_vec_env`, which copies ``info_keys`` to the host),
     ``"dummy"``, ``"subproc"``, or ``"auto"`` (batched when available, else dummy).
     """
     import gymnasium as gym

@@ -46,8 +46,8 @@ HELD_OUT_SEED = 1_000_000
 
 # non-learning baselines per env id: (label, "module:Class"); constructed as Class(env)
 BASELINES = {
-    "TensegrityShape-v0": [("nnls", "tensegrity_gym.baselines:NNLSShapeController")],
-    "TensegrityRoll-v0": [("gait", "tensegrity_gym.baselines:RollingGait")],
+    "TensegrityShape-v0": [("nnls", "tensegrity_gym.tools.baselines:NNLSShapeController")],
+    "TensegrityRoll-v0": [("gait", "tensegrity_gym.tools.baselines:RollingGait")],
 }
 
 

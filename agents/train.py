@@ -17,7 +17,7 @@ Values are parsed as JSON / Python literals (never ``eval``).
 
 Environments: when the env id has a ``vector_entry_point`` (the tensegrity envs do), the
 ``n_envs`` copies are ONE batched vector env (one physics call per step) wrapped for SB3 by
-:func:`tensegrity_gym.sb3.make_sb3_vec_env`; otherwise SB3's ``make_vec_env``
+:func:`tensegrity_gym.integrations.sb3.make_sb3_vec_env`; otherwise SB3's ``make_vec_env``
 (``--vec-env dummy|subproc`` forces one). Env i of the training env is seeded ``seed + i``;
 the evaluation env used during training is seeded ``seed + 10_000 + i`` (the final evaluation
 in :mod:`agents.evaluate` uses other, held-out seeds).

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Throughput of the torch backend (tensegrity_gym.torch_backend) beside the numba backend, same run.
+"""Throughput of the torch backend (tensegrity_gym.backends.torch) beside the numba backend, same run.
 
 An env-step is one physics step of one env (as in ``scripts/bench_dynamics.py``): semi-implicit
 Euler, dt = 1 ms, for
@@ -7,13 +7,13 @@ Euler, dt = 1 ms, for
 * ``prism``: the free 3-bar prism (``builders.prism(3)``), released with small random velocities;
 * ``roll_prism``: the TensegrityRoll-v0 robot (``envs.roll.robot_prism`` on the ground,
   ``place_on_ground``, gravity, string damping) with ground contact and friction, per step
-  contact forces then one integrator step (torch: :func:`torch_backend.contact_step`; numba:
+  contact forces then one integrator step (torch: :func:`backends.torch.contact.contact_step`; numba:
   ``contact.forces_inplace`` + ``backends.numba.api.step_inplace``, the env's own path);
 * ``icosahedron``: the 6-bar icosahedron (``builders.icosahedron()``);
 * ``tower30``: a 30-stage prism tower (``builders.tower(30)``: 90 rods).
 
 For each scene and batch size B: torch float32 and float64 on ``--device`` (default: cuda if
-available, else cpu) and numba float64 on all CPU cores (``integrators.step(backend="numba")``
+available, else cpu) and numba float64 on all CPU cores (``physics.step(backend="numba")``
 on the same B copies), env-steps/s, the ratio torch / numba, and memory: the process's peak
 resident set (CPU) or ``torch.cuda.max_memory_allocated`` (CUDA). A B whose torch run raises
 out-of-memory is reported as such (the largest B that fits is the last one that ran).

@@ -4,7 +4,7 @@ env throughput with randomisation on vs off within 10 %).
 
     NUMBA_NUM_THREADS=2 python scripts/bench_params.py [--rounds 15] [--out results/bench_params.json]
 
-Physics rows: ``integrators.step`` of the free 3-prism (semi-implicit Euler, dt = 1 ms, 20 steps
+Physics rows: ``physics.step`` of the free 3-prism (semi-implicit Euler, dt = 1 ms, 20 steps
 per call) at B = 1, 64 and 4096 with ``params=None``, with one shared row
 (``default_params(model)``) and with B rows holding the same values (``default_params(model, B)``:
 the per-copy kernel). Env rows: env-steps/s of a single env and of a vector env (N = 256) of

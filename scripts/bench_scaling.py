@@ -5,8 +5,8 @@ For each prism tower (``builders.tower(q)``: 3 q rods, 6 q nodes, ~15 q strings)
 
 * ``info``: wall time of ``python -m tensegrity_gym info towerQ`` as a fresh process (imports
   included; the issue's target: under 2 s for tower300) and of the in-process summary
-  (:func:`tensegrity_gym.cli.structure_summary`: compile, accelerations, stable-step estimate);
-* us per step of ``integrators.step`` (semi-implicit Euler, dt = 1 ms, B = 1, ``n_steps`` steps
+  (:func:`tensegrity_gym.tools.cli.structure_summary`: compile, accelerations, stable-step estimate);
+* us per step of ``physics.step`` (semi-implicit Euler, dt = 1 ms, B = 1, ``n_steps`` steps
   in one call so per-call overhead is amortised), the numba kernels (the NumPy formulation is the test oracle, not a backend), best of 3;
 * the per-step cost per rod (ns/rod), which stays flat when the cost is linear in the size;
 * the stable-step estimate's method (dense <= 20 rods, sparse above) and its seconds.
@@ -45,7 +45,7 @@ DT = 1e-3
 
 def _per_step_us(model, backend: str, budget_s: float = 0.3) -> float:
     """Best-of-3 CPU microseconds (``time.process_time``: immune to other processes on a shared
-    machine; the B = 1 step is single-threaded) per step of ``integrators.step``, ~``budget_s``
+    machine; the B = 1 step is single-threaded) per step of ``physics.step``, ~``budget_s``
     per repeat."""
     st = initial_state(model)
     step(model, st, DT, "semi_implicit_euler", n_steps=2, backend=backend)   # compile / warm
@@ -142,7 +142,7 @@ def main(argv=None) -> int:
     print("\n".join(head))
     rows = scaling_table(args.stages)
     est_head = ["", "## Stability estimate: dense against sparse", "",
-                "`dynamics.stable_step_estimate` solves the dense eigenproblem of the whole structure only up to "
+                "`physics.stability.stable_step_estimate` solves the dense eigenproblem of the whole structure only up to "
                 "20 rods (exact, unchanged). Above, `method=\"sparse\"`: the finite-difference Jacobians K = da/dq, "
                 "D = da/dq' are built as sparse matrices with column grouping (a rod's accelerations depend only on "
                 "the rods it shares a string with; a distance-2 colouring of the rods, ~9 colours for a tower "
@@ -158,7 +158,7 @@ def main(argv=None) -> int:
                 "Collatz-Wielandt bound of the spectral radius is used (1.3x omega_max on the towers).", "",
                 "Memory: `compile_model` (and the CLI, including `simulate`'s recorded trajectory) first estimates "
                 "the memory of compile + one step + the stability estimate from the counts "
-                "(`tensegrity_gym.sizing`, linear) and refuses at once with `StructureTooLarge` naming the rods, "
+                "(`tensegrity_gym.core.sizing`, linear) and refuses at once with `StructureTooLarge` naming the rods, "
                 "nodes, strings, the estimate and the available memory.", ""]
     print("\n".join(est_head))
     est = estimate_table()

@@ -4,7 +4,7 @@
     NUMBA_NUM_THREADS=1 python scripts/bench_step_overhead.py [--rounds 40] [--repeats 3]
 
 Per action mode: ``env.unwrapped.step(a)`` for 300 random actions in [-0.1, 0.1], and the bare
-physics of a control step, ``integrators.step(model, state, dt, integrator, n_steps=frame_skip,
+physics of a control step, ``physics.step(model, state, dt, integrator, n_steps=frame_skip,
 **inputs)`` 300 times, interleaved in each round; the best round of each, in microseconds, and
 their ratio, printed per repeat. Run it on an otherwise idle machine: a loaded core shifts one of
 the two numbers more than the other. (The roll env's figure, which counts the contact forces as

@@ -1,4 +1,4 @@
-"""Residual Jacobian of the sys-ID fit (tensegrity_gym.sysid): batched forward differences
+"""Residual Jacobian of the sys-ID fit (tensegrity_gym.tools.sysid): batched forward differences
 (``jacobian="fd"``, numba) against autograd through the torch backend (``jacobian="torch"``),
 time per Jacobian and their agreement, on the recovery case of ``scripts/sysid_results.py``
 (constrained prism, 9 stiffnesses + 9 dampings + 3 rod masses with the total mass given,

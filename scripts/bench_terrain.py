@@ -196,7 +196,7 @@ def env_table(ns, steps: int, episode: bool = False, repeats: int = 1, scenes=No
 
 def torch_table(m, scenes: dict, batch, steps: int) -> dict:
     """microseconds per physics step of the torch backend (CPU, float64): flat ground contact
-    (``torch_backend.contact_step``) against each terrain (``backends.torch.terrain.terrain_step``)."""
+    (``backends.torch.contact.contact_step``) against each terrain (``backends.torch.terrain.terrain_step``)."""
     import torch
     from tensegrity_gym.backends.torch import contact as torch_contact
     from tensegrity_gym.backends.torch import terrain as TT

@@ -1,4 +1,4 @@
-"""Ground-contact validation figures and numbers (tensegrity_gym.contact), SI units.
+"""Ground-contact validation figures and numbers (tensegrity_gym.physics.contact), SI units.
 
 Writes PNG figures and ``results/contact/contact.json`` (the numbers quoted in docs/contact.md):
 

@@ -9,7 +9,7 @@ Each policy runs one episode on each of ``--courses`` courses, drawn from reset 
 20001, ... (never used in training: training seeds its envs with ``seed + i`` for i < n_envs and
 its evaluations from 1000; the course is drawn from the reset seed): 3 goal points among 5 walls
 and 2 rough patches, 60 s (the registered time limit), deterministic actions. Success: all goals
-reached. The baseline is :class:`tensegrity_gym.baselines.RollingGait` steered by the same
+reached. The baseline is :class:`tensegrity_gym.tools.baselines.RollingGait` steered by the same
 planner guidance the policies observe. Across runs: IQM of the success rate with a 95 % bootstrap
 interval (``agents.tune.iqm_interval``), min and max. Writes ``navigate.json`` and ``navigate.csv``
 into ``--out``.

@@ -1,4 +1,4 @@
-"""Evaluate the rolling gait (tensegrity_gym.baselines.RollingGait) on TensegrityRoll-v0.
+"""Evaluate the rolling gait (tensegrity_gym.tools.baselines.RollingGait) on TensegrityRoll-v0.
 
 Runs the gait for 100 s of simulated time (5000 control steps at 50 Hz) on flat ground for
 several reset seeds (one batched vector env, no time limit) and reports the speed of the

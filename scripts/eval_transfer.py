@@ -1,7 +1,7 @@
 """Sim-to-sim transfer table of a rolling policy.
 
 Evaluates one policy object with the SB3 interface ``predict(obs, state, episode_start)`` --
-the rolling gait (:class:`tensegrity_gym.baselines.RollingGait`, ``--policy gait``), a training
+the rolling gait (:class:`tensegrity_gym.tools.baselines.RollingGait`, ``--policy gait``), a training
 run folder of ``agents.train`` (``--policy results/sac_roll_motor``: model + VecNormalize
 statistics) or a Stable-Baselines3 model zip (``--policy PATH.zip --algo SAC``) -- unchanged, on
 

@@ -6,7 +6,7 @@
     python scripts/gait_search.py --steer-grid     # RollingGait's steering constants (~40 s)
 
 Every pattern runs in one env of one batched vector env (the same physics as the env): the
-rest-length targets of ``tensegrity_gym.baselines.wave_targets`` (RollingGait's wave) with
+rest-length targets of ``tensegrity_gym.tools.baselines.wave_targets`` (RollingGait's wave) with
 per-env parameters, the cable-speed action that tracks them, and, per control step, the
 best-fit rigid rotation of the nodes (``scripts/_bench.rotation_vectors``, Kabsch)
 accumulated as a rotation vector. Prints the patterns that progressed most along +x and those

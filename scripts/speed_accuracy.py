@@ -3,7 +3,7 @@
 
 For each scene (free prism, anchored prism with gravity and damping, icosahedron, stiff
 prism with 1e5 N/m strings on 0.1 kg rods; the rolling prism with contact when
-``tensegrity_gym.contact`` exists), each fixed-step integrator and a sweep of time steps,
+``tensegrity_gym.physics.contact`` exists), each fixed-step integrator and a sweep of time steps,
 it measures against a DOP853 reference at rtol = atol = 1e-12:
 
 * ``pos_err``: largest node position error over the record times (m),
@@ -94,7 +94,7 @@ def rolling_scene(T):
 
 
 def _contact_run(sc, dt, integrator, backend, n_rec):
-    """Records (S+1 of them) of (q, qd, contact energy) stepping with contact.step."""
+    """Records (S+1 of them) of (q, qd, contact energy) stepping with contact_step."""
     from tensegrity_gym.physics.contact import init_contact_state, contact_energy
     from tensegrity_gym.physics.pipeline import contact_step
     m, st, T, c = sc["model"], sc["state"], sc["T"], sc["contact"]
@@ -320,7 +320,7 @@ def feature_costs(backends, quick):
                     timers[name] = (lambda m=m, st=initial_state(m, batch_size=B):
                                     _time_steps(m, st, integ, backend, n=n, repeat=1))
                 if _contact_available():
-                    timers["+gravity +contact (contact.step)"] = (
+                    timers["+gravity +contact (contact_step)"] = (
                         lambda: _time_contact_steps(B, integ, backend, n=n, repeat=1))
                 # interleaved rounds, best per variant: a shared machine's load drifts in time
                 best = {k: np.inf for k in timers}
@@ -334,7 +334,7 @@ def feature_costs(backends, quick):
 
 
 def _time_contact_steps(B, integrator, backend, n=200, repeat=5):
-    """One step of the gravity prism standing on the ground with ``contact.step`` (us)."""
+    """One step of the gravity prism standing on the ground with ``contact_step`` (us)."""
     from tensegrity_gym.physics.contact import GroundContact, init_contact_state
     from tensegrity_gym.physics.pipeline import contact_step
     s = tg.prism(gravity=(0.0, 0.0, -9.81))
@@ -433,7 +433,7 @@ def write_markdown(path, rows, feats, scs, implicit_summary, cmd, elapsed):
              "Outputs: `results/speed_accuracy.csv` (every row below), `results/speed_accuracy.png` "
              "(Pareto plot), `results/feature_costs.csv`.", "",
              "![speed-accuracy](../results/speed_accuracy.png)", "",
-             "Errors are against `dop853` at rtol = atol = 1e-12 (`integrators.simulate`), sampled at "
+             "Errors are against `dop853` at rtol = atol = 1e-12 (`physics.simulate`), sampled at "
              "the record times: `pos_err` = largest node position error (m); `energy_err` = "
              "largest |E(t) - E_ref(t)| / |E_ref(0)| (E includes the prestress energy); "
              "`rod_drift` = largest | |b| - 1 | (rods are projected after every step, so this is "
@@ -447,7 +447,7 @@ def write_markdown(path, rows, feats, scs, implicit_summary, cmd, elapsed):
                      f"Euler), {stability_limit(sc['model'])['rk4']:.3g} s (RK4), "
                      f"omega_max = {stability_limit(sc['model'])['omega_max']:.4g} rad/s.")
     if not _contact_available():
-        lines += ["- **rolling_prism with contact: TODO** - `tensegrity_gym/contact.py` did not exist "
+        lines += ["- **rolling_prism with contact: TODO** - `tensegrity_gym/physics/contact.py` did not exist "
                   "when this was generated; no row is reported for it (no fake numbers). Rerun the "
                   "script once it exists."]
     lines += ["", "## Recommendation", ""]
@@ -460,7 +460,7 @@ def write_markdown(path, rows, feats, scs, implicit_summary, cmd, elapsed):
     if "rolling_prism" in scs:
         lines += ["## Note on the rolling prism (contact)", "",
                   "Its errors stop falling at about 1e-3 m for dt <= 5e-4 s whatever the integrator. "
-                  "Self-convergence of semi-implicit Euler with `contact.step` on this scene (largest "
+                  "Self-convergence of semi-implicit Euler with `contact_step` on this scene (largest "
                   "node distance at T to the dt = 5e-6 s run):", "",
                   "| dt (s) | node distance to dt = 5e-6 s (m) |", "|---|---|"]
         for dt, d in contact_self_convergence(scs["rolling_prism"]):
@@ -494,11 +494,11 @@ def write_markdown(path, rows, feats, scs, implicit_summary, cmd, elapsed):
                      f"{f['us_per_step']:.3g} | {f['ratio_to_bare']:.2f} |")
     if not _contact_available():
         lines.append("")
-        lines.append("Contact: **TODO** (`tensegrity_gym/contact.py` absent when generated).")
+        lines.append("Contact: **TODO** (`tensegrity_gym/physics/contact.py` absent when generated).")
     else:
         lines += ["", "`+gravity +contact`: the same prism with gravity standing on the ground "
                   "(`contact.GroundContact()` defaults, all three bottom caps in contact), stepped by "
-                  "`contact.step` (contact forces once per step, then one `integrators.step`); its ratio "
+                  "`contact_step` (contact forces once per step, then one `physics.step`); its ratio "
                   "is to the bare prism. Contact is a Python loop per step around the kernels, hence "
                   "its fixed cost of tens of microseconds with numba."]
     Path(path).write_text("\n".join(lines) + "\n")

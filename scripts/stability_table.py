@@ -249,7 +249,7 @@ def main(argv=None):
     print("failures (unstable without warning, or implicit unstable):", fails or "none")
     md += [f"Failures (unstable without a warning, or implicit Euler unstable): {fails or 'none'}.", ""]
     lim = {k: stability_limit(grid_scene(k, 0.1)[0]) for k in (1e5, 1e6)}
-    md += ["Explicit stability limits of the 0.1 kg prism (`dynamics.stable_step_estimate`): "
+    md += ["Explicit stability limits of the 0.1 kg prism (`physics.stability.stable_step_estimate`): "
            + "; ".join(f"k = {k:g} N/m: omega_max = {v['omega_max']:.4g} rad/s, semi-implicit Euler "
                        f"dt < {v['semi_implicit_euler'] * 1e3:.3g} ms, RK4 dt < {v['rk4'] * 1e3:.3g} ms"
                        for k, v in lim.items())
@@ -257,8 +257,8 @@ def main(argv=None):
 
     print("== damped strings: the explicit limits with string damping")
     md += ["### Damped strings", "",
-           "String damping lowers the explicit limits. `dynamics.stable_step_estimate` (and "
-           "`integrators.stability_limit`, what the warning uses) places the eigenvalues of the "
+           "String damping lowers the explicit limits. `physics.stability.stable_step_estimate` (and "
+           "`physics.stability.stability_limit`, what the warning uses) places the eigenvalues of the "
            "linearised damped system in each method's stability region (`damping=False` gives the "
            "undamped estimate of the table). "
            "Default prism, 0.01 m/s kick, 2000 steps at 0.9x and 2x the limit:", "",
@@ -351,7 +351,7 @@ def main(argv=None):
     if sie_bounded:
         sie_txt = (f"The energy error of semi-implicit Euler stays bounded: the per-tenth maxima lie between "
                    f"{min(sie):.2e} and {max(sie):.2e} over the whole run, with no trend{rate_txt}. Each rod "
-                   "direction moves along its great circle at every step (`_kernels._drift_rod`), "
+                   "direction moves along its great circle at every step (`backends.numba.equations._drift_rod`), "
                    "the exact torque-free motion of |b| = 1, so the projection only removes round-off; "
                    "before that change (plain `b += dt b'` then projection) the same run crept up linearly "
                    "to 2.8e-3 after 1000 s. ")

@@ -5,10 +5,10 @@ Scene: the 3-bar prism (``builders.prism(3)``, string damping 5 N s/m, no gravit
 from its prestressed equilibrium. A hidden set of rest lengths (the vertical strings
 shortened, the top ones lengthened by a few percent) gives the *target shape*: the node
 positions after 1 s of semi-implicit Euler (dt = 2 ms), computed with the NumPy reference path
-(:func:`tensegrity_gym.integrators.step`, the numba kernels). Starting from the nominal rest
+(:func:`tensegrity_gym.physics.integrate.step`, the numba kernels). Starting from the nominal rest
 lengths, Adam adjusts the rest lengths of all 9 strings (held over the rollout) to minimise the
 mean squared node distance to the target after the same 1 s, with the gradient computed by
-autograd through all 500 steps of :func:`tensegrity_gym.torch_backend.step` (float64, CPU or
+autograd through all 500 steps of :func:`tensegrity_gym.backends.torch.driver.step` (float64, CPU or
 ``--device cuda``). Every string stays taut on the way, so the loss is smooth (see the
 ``torch_backend`` module doc for what the gradient is at a slack switch).
 

@@ -1,8 +1,10 @@
 """tensegrity_gym: fast, physically exact Gymnasium environments for class-1 tensegrity structures.
 
-Physics (NumPy/numba only, no gymnasium): :mod:`~tensegrity_gym.structure`,
-:mod:`~tensegrity_gym.builders`, :mod:`~tensegrity_gym.dynamics`, :mod:`~tensegrity_gym.integrators`.
-Environments (registered on import): ``TensegrityShape-v0``, ``TensegrityRoll-v0``.
+Data and rules (structures, models, parameters): :mod:`~tensegrity_gym.core`; the backend-neutral
+physics (steps, rollouts, geometry, contact, statics): :mod:`~tensegrity_gym.physics`; the numba
+and torch implementations: :mod:`~tensegrity_gym.backends`; what a robot is asked to do:
+:mod:`~tensegrity_gym.tasks` (none of these imports gymnasium).
+Gymnasium environments (registered on import; their ids: ``tensegrity_gym.envs.ENV_IDS``): :mod:`~tensegrity_gym.envs`.
 File input and output: :mod:`~tensegrity_gym.io`; command line, system identification, rendering
 and baselines: :mod:`~tensegrity_gym.tools`; Stable-Baselines3 and rl_zoo3:
 :mod:`~tensegrity_gym.integrations` (for rl_zoo3 name ``tensegrity_gym.integrations.zoo`` in

@@ -3,7 +3,7 @@
 Issue 12 ("each equation written once per backend; the NumPy path becomes a test oracle under
 tests/"): the package computes every step, projection, rod acceleration and contact force with
 the numba kernels (:mod:`tensegrity_gym.backends.numba`, :mod:`tensegrity_gym.physics.pipeline`; torch in
-:mod:`tensegrity_gym.torch_backend`). This module keeps the vectorised NumPy formulation they
+:mod:`tensegrity_gym.backends.torch`). This module keeps the vectorised NumPy formulation they
 were written from, so the tests can check the kernels against a second, independent transcription
 of the same equations (the node-coordinate model in ``tests/reference.py`` checks the
 formulation itself):
@@ -43,8 +43,8 @@ from tensegrity_gym.physics.integrate import _as_batch
 def force_densities(model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
                     params=None):
     """NumPy string force densities gamma (B, m), N/m (tension / length, >= 0), the string vectors
-    S (B, m, 3) and lengths L (B, m) (:func:`tensegrity_gym.dynamics.force_densities`).
-    ``params``: a :class:`~tensegrity_gym.params.Params` (P = 1 or B copies) whose stiffness,
+    S (B, m, 3) and lengths L (B, m) (:func:`tensegrity_gym.physics.evaluate.force_densities`).
+    ``params``: a :class:`~tensegrity_gym.core.params.Params` (P = 1 or B copies) whose stiffness,
     damping, rest lengths, ... replace the model's (default None: the model's)."""
     p = model if params is None else params
     l0 = p.rest_length if rest_length is None else rest_length
@@ -136,7 +136,7 @@ def rod_accelerations(model, q, qd, F, params=None):
 def accelerations(model, q: np.ndarray, qd: np.ndarray, rest_length=None, force_density=None,
                   external=None, params=None) -> np.ndarray:
     """NumPy ``[r'', b'']`` (B, k, 6), m/s^2 and 1/s^2: :func:`rod_accelerations` of the nodal forces
-    of :func:`nodal_forces`; arguments as :func:`tensegrity_gym.dynamics.accelerations`."""
+    of :func:`nodal_forces`; arguments as :func:`tensegrity_gym.physics.evaluate.accelerations`."""
     F, _ = nodal_forces(model, q, qd, rest_length, force_density, external, params)
     return rod_accelerations(model, q, qd, F, params)
 
@@ -227,7 +227,7 @@ def contact_forces(c, model, q, qd, anchor, active, prm=None):
 def step(model, state, dt, integrator="semi_implicit_euler", *, rest_length=None, force_density=None,
          external=None, project=True, n_steps=1, params=None):
     """``n_steps`` fixed steps of ``dt`` s (``integrator`` "semi_implicit_euler" or "rk4"),
-    inputs as :func:`tensegrity_gym.integrators.step` takes them (``external`` an array held
+    inputs as :func:`tensegrity_gym.physics.integrate.step` takes them (``external`` an array held
     over the step or a callable ``external(q, qd, t)`` evaluated at every stage). Returns a new
     State; ``t`` summed step by step."""
     name = resolve(integrator).name
@@ -261,7 +261,7 @@ def step(model, state, dt, integrator="semi_implicit_euler", *, rest_length=None
 
 def contact_step(model, contact, state, cstate, dt, integrator="semi_implicit_euler", n_steps=1, external=None,
                  contact_params=None, **inputs):
-    """``n_steps`` steps with ground contact, as :func:`tensegrity_gym.pipeline.step` with
+    """``n_steps`` steps with ground contact, as :func:`tensegrity_gym.physics.pipeline.step` with
     ``contact``: per step the contact forces of the whole batch from the state at the step's
     start (anchors updated), then one :func:`step` with those forces (plus ``external``) held.
     Returns ``(State, ContactState)``, new objects."""
@@ -278,7 +278,7 @@ def contact_step(model, contact, state, cstate, dt, integrator="semi_implicit_eu
 # ---------------------------------------------------------------------- bookkeeping of the control step
 # (compiled once in the package: backends.numba.actuation.apply_controls / apply_motor, backends.numba.divergence.bad_copies, envs.compiled.roll_observe)
 def actuation_apply(act, ctrl, action):
-    """New control (B, na) of :class:`tensegrity_gym.actuation.Actuation` without a motor model:
+    """New control (B, na) of :class:`tensegrity_gym.physics.actuation.Actuation` without a motor model:
     ``clip(ctrl + action * max_rate * control_dt, low, high)``."""
     return np.clip(ctrl + action * act._rate, act.low, act.high)
 
@@ -295,7 +295,7 @@ def actuation_apply_motor(act, ctrl, speed, action):
 
 
 def diverged(q, qd, center, limit, local=False):
-    """(B,) bool of :func:`tensegrity_gym.pipeline.diverged`: a non-finite entry, or a reference
+    """(B,) bool of :func:`tensegrity_gym.physics.pipeline.diverged`: a non-finite entry, or a reference
     point farther than ``limit`` (per coordinate) from ``center`` (with ``local``: from its copy's
     mean reference point, that mean's height checked against ``center[2]``)."""
     with np.errstate(all="ignore"):

@@ -1,7 +1,7 @@
 """Independent reference simulation of a class-1 tensegrity in node coordinates.
 
-This module shares no code with :mod:`tensegrity_gym.dynamics`: it reads only the
-data of a :class:`tensegrity_gym.structure.Structure` (nodes, bars, strings, masses,
+This module shares no code with :mod:`tensegrity_gym.physics`: it reads only the
+data of a :class:`tensegrity_gym.core.structure.Structure` (nodes, bars, strings, masses,
 mass points, stiffness, rest lengths, damping, gravity, node constraints) and
 formulates the mechanics from scratch, in SI units (m, kg, s, N).
 

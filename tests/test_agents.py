@@ -368,7 +368,7 @@ def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path):
     assert list(tmp_path.rglob("vecnormalize.pkl"))
 
 
-# ---------------------------------------------------------------------- the SB3 adapter (tensegrity_gym.sb3)
+# ---------------------------------------------------------------------- the SB3 adapter (tensegrity_gym.integrations.sb3)
 def test_adapter_per_sub_env_methods_on_separate_envs():
     """get_attr / set_attr / env_method / env_is_wrapped act on the selected sub-envs only."""
     from gymnasium.wrappers import TimeLimit

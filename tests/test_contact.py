@@ -1,4 +1,4 @@
-"""Ground contact (tensegrity_gym.contact): friction with a stick phase, slopes, penetration,
+"""Ground contact (tensegrity_gym.physics.contact): friction with a stick phase, slopes, penetration,
 energy, and the NumPy / numba kernels agreeing. SI units. The figures and the 10 s creep
 measurement are in scripts/contact_figures.py (docs/contact.md)."""
 import math

@@ -1,4 +1,4 @@
-"""The compiled per-step helpers (tensegrity_gym/pipeline.py, tensegrity_gym/envs/compiled.py) and the small-array fast paths
+"""The compiled per-step helpers (tensegrity_gym/physics/pipeline.py, tensegrity_gym/envs/compiled.py) and the small-array fast paths
 give bit-identical results to the NumPy reference paths, and bad input still raises the same
 errors."""
 import numpy as np
@@ -49,7 +49,7 @@ def test_shape_env_fast_path_is_bit_identical(mode):
 @pytest.mark.parametrize("divergence_limit", [None, 0.3])
 def test_shape_fused_step_is_bit_identical(mode, num_envs, divergence_limit):
     """ShapeTask's fused step (one compiled call: control update, physics kernel, divergence
-    check, observation, errors; compiled.shape_step) against the unfused path (integrators.step
+    check, observation, errors; compiled.shape_step) against the unfused path (physics.step
     and the separate compiled helpers): same observations, rewards, infos and state, bit for
     bit, including steps where a copy diverges (a 0.3 m limit: some copies leave it)."""
     kw = dict(action_mode=mode, divergence_limit=divergence_limit)

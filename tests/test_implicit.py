@@ -1,4 +1,4 @@
-"""Tests of the stiff-capable integrator ``implicit_euler`` (tensegrity_gym/implicit.py)."""
+"""Tests of the stiff-capable integrator ``implicit_euler`` (tensegrity_gym/physics/implicit.py)."""
 import warnings
 
 import numpy as np

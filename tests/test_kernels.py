@@ -98,7 +98,7 @@ def test_numba_matches_numpy(scene, integrator, project, B):
     assert out.t == ref.t
     np.testing.assert_array_equal(st.q, q0)       # the input state is not modified
     np.testing.assert_array_equal(st.qd, qd0)
-    # the dispatcher of integrators.step takes the same kernel
+    # the dispatcher of physics.step takes the same kernel
     via = step(model, st, DT, integrator, project=project, n_steps=N_STEPS, backend="numba", **ctl)
     np.testing.assert_array_equal(via.q, out.q)
 
@@ -300,7 +300,7 @@ def test_node_damping_matches_numpy(B, integrator, monkeypatch):
 @pytest.mark.parametrize("B", [1, 5, 40])
 def test_accelerations_entry_matches_numpy(scene, B):
     """``backends.numba.api.accelerations`` (the loop driver's force and rod equations, no step) equals
-    ``dynamics.accelerations`` to round-off: one copy at a time (B < 16) and SIMD blocks (B = 40)."""
+    ``physics.accelerations`` to round-off: one copy at a time (B < 16) and SIMD blocks (B = 40)."""
     model, st, ctrl = _scene(scene, B)
     a_ref = oracle.accelerations(model, st.q, st.qd, **ctrl)
     a = K.accelerations(model, st.q, st.qd, **ctrl)
@@ -337,7 +337,7 @@ def test_accelerations_entry_parallel_params_and_shapes(monkeypatch):
 @pytest.mark.parametrize("B", [1, 5])
 def test_string_forces_entry_matches_numpy(scene, B):
     """``backends.numba.api.string_forces`` (the loop driver's own string and nodal force equations, which
-    ``dynamics.force_densities`` / ``nodal_forces`` return to observations, rendering and statics)
+    ``physics.evaluate.force_densities`` / ``nodal_forces`` return to observations, rendering and statics)
     equals the NumPy oracle to round-off: slack strings, damping, gravity, node drag, anchors,
     force-density controls (some clipped at 0), external forces, per-copy parameters."""
     from tensegrity_gym.core.params import default_params
@@ -371,7 +371,7 @@ def test_string_forces_entry_matches_numpy(scene, B):
 @pytest.mark.parametrize("B", [1, 5, 40])
 def test_project_entry_matches_numpy(scene, B, monkeypatch):
     """``backends.numba.api.project`` (the loop driver's ``_project``, no step) equals
-    ``dynamics.project`` to round-off on states off the constraint manifold (|b| != 1,
+    ``physics.project`` to round-off on states off the constraint manifold (|b| != 1,
     b . b' != 0, constrained points off their line/plane), serial, SIMD and parallel; a (k, 6)
     state keeps its shape; the input arrays are not modified."""
     model, st, _ = _scene(scene, B)

@@ -156,7 +156,7 @@ def test_cli_export(tmp_path, capsys):
     M = mujoco.MjModel.from_xml_path(str(out))
     assert M.ntendon == 9 and M.ngeom == 4
     # no silent overwrite; --force overwrites
-    assert main(["export", "prism3", "--out", str(out)]) == 4      # exit codes: tensegrity_gym.cli
+    assert main(["export", "prism3", "--out", str(out)]) == 4      # exit codes: tensegrity_gym.tools.cli
     assert "exists" in capsys.readouterr().err
     assert main(["export", "prism3", "--out", str(out), "--force"]) == 0
     assert mujoco.MjModel.from_xml_path(str(out)).nbody == 4

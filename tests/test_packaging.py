@@ -69,7 +69,7 @@ def _run(installed, args, timeout=300):
 def test_installed_package_ships_agents_hyperparams_adapter_and_license(installed):
     py, site, work, env = installed
     rc, out = _run(installed, ["-c", "import json, tensegrity_gym, tensegrity_gym_agents as a, "
-                                     "tensegrity_gym.sb3 as s, tensegrity_gym.zoo as z; print(json.dumps("
+                                     "tensegrity_gym.integrations.sb3 as s, tensegrity_gym.integrations.zoo as z; print(json.dumps("
                                      "[tensegrity_gym.__file__, a.__file__, s.__file__, "
                                      "str(z.hyperparams_file('ppo'))]))"])
     assert rc == 0, out

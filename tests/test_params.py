@@ -1,4 +1,4 @@
-"""Per-copy physical parameters (tensegrity_gym.params): copy b of a batch stepped with
+"""Per-copy physical parameters (tensegrity_gym.core.params): copy b of a batch stepped with
 ``params`` equals a one-copy model compiled from a structure that carries copy b's values,
 for every integrator, free and constrained rods, gravity, damping, node drag and anchors."""
 import numpy as np
@@ -112,7 +112,7 @@ def test_step_inplace_per_copy_and_diagnostics():
     params = _random_params(model, rng)
     st = _moving_state(model, rng)
     q, qd = st.q.copy(), st.qd.copy()
-    _kernels.step_inplace(model, q, qd, 1e-3, "rk4", n_steps=10, params=params)
+    backends.numba.api.step_inplace(model, q, qd, 1e-3, "rk4", n_steps=10, params=params)
     ref = tg.step(model, st, 1e-3, "rk4", n_steps=10, params=params)
     assert np.array_equal(q, ref.q)
     # diagnostics read the copy's values: energy of copy b equals its own model's

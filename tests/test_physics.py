@@ -258,7 +258,7 @@ def test_controls_and_batch_agree_with_reference(name):
 
 # ---------------------------------------------------------------------- energy
 def test_energy_matches_node_formula():
-    """dynamics.energy equals kinetic (consistent mass) + string + gravity energy in node form."""
+    """physics.geometry.energy equals kinetic (consistent mass) + string + gravity energy in node form."""
     for name in ("damped_prism_gravity", "lumped_prism", "constrained_prism"):
         d = case_data(name)
         for i in (0, N_REC // 2, N_REC - 1):

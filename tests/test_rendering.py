@@ -185,7 +185,7 @@ def test_cli_view(tmp_path, monkeypatch, capsys):
     assert seen["nodes"].shape == (11, 6, 3) and seen["tensions"].shape == (11, 9) and seen["mode"] == "browser"
     np.testing.assert_allclose(seen["tensions"][0], tg.prism(3).initial_tensions())
     assert cli.main(["view", str(out)]) == 0 and seen["tensions"] is None
-    assert cli.main(["view", str(out), "--structure", "icosahedron"]) == 3     # exit codes: tensegrity_gym.cli
+    assert cli.main(["view", str(out), "--structure", "icosahedron"]) == 3     # exit codes: tensegrity_gym.tools.cli
     assert cli.main(["view", str(tmp_path / "missing.npz")]) == 3
     err = capsys.readouterr().err
     assert "does not match" in err and "not a simulate output" in err and "Traceback" not in err

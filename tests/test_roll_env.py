@@ -266,7 +266,7 @@ def test_sb3_adapter_on_the_batched_vector_env():
 
 
 def test_python_contact_loop_matches_the_fast_path(monkeypatch):
-    """The generic path (a Python loop of contact forces and one integrators.step per physics
+    """The generic path (a Python loop of contact forces and one physics.step per physics
     step, NumPy bookkeeping) and the default compiled path give the same trajectory to
     round-off. (The NumPy oracle of the contact step: tests/test_contact.py.)"""
     from tensegrity_gym.physics import pipeline   # where the compiled contact call is looked up
@@ -283,7 +283,7 @@ def test_python_contact_loop_matches_the_fast_path(monkeypatch):
     monkeypatch.setattr(pipeline, "_contact_compiled", lambda *a: False)   # the Python contact loop
     with oracle.reference_paths():                             # NumPy bookkeeping
         slow = TensegrityRollEnv()
-        slow.task._kernels_run = False                         # integrators.step per physics step
+        slow.task._kernels_run = False                         # physics.step per physics step
         slow.reset(seed=3)
         for act in acts:
             slow.step(act)

@@ -1,5 +1,5 @@
-"""Command schedules: integrators.Schedule (inputs held piecewise constant over time) in
-integrators.simulate and `simulate --rest-length / --force-density` on the command line, and the
+"""Command schedules: physics.rollout.Schedule (inputs held piecewise constant over time) in
+physics.simulate and `simulate --rest-length / --force-density` on the command line, and the
 round trip simulate (replayed cable commands) -> identify."""
 from __future__ import annotations
 

@@ -153,7 +153,7 @@ def test_target_sampled_at_reset_is_an_equilibrium(mode):
         nodes[task.tracked] = task.target[0]
         q = initial_state(task.model, nodes=nodes).q
         inp = task.actuation.physics_inputs(task.target_control[:1])
-        acc = tensegrity_gym.integrators.accelerations(task.model, q, np.zeros_like(q), inp.get("rest_length"), inp.get("force_density"))
+        acc = tensegrity_gym.physics.evaluate.accelerations(task.model, q, np.zeros_like(q), inp.get("rest_length"), inp.get("force_density"))
         assert np.abs(acc).max() < 1e-7
         # and it differs from the start shape (the task is not trivial)
         assert np.abs(task.target[0] - task.nodes_nominal[task.tracked]).max() > 0.01
@@ -295,23 +295,23 @@ def test_node_drag_is_in_the_model_one_integrator_call_per_step(mode, monkeypatc
     plain = compile_model(task.structure, task.actuated if mode == "force_density" else None)
     st = State(q0, qd0, 0.0)
     for _ in range(task.frame_skip):                 # the old formulation: drag as an external force
-        st = integrators.step(plain, st, task.dt, task.integrator, backend=task.backend,
+        st = physics.step(plain, st, task.dt, task.integrator, backend=task.backend,
                               external=-3.0 * node_velocities(plain, st.qd), **inputs)
     calls = []
-    real = integrators.step
+    real = physics.step
     monkeypatch.setattr(integrators, "step", lambda *x, **k: calls.append(k.get("n_steps")) or real(*x, **k))
     fused = []
     ctrl0 = task.ctrl.copy()
     assert task._fused
     # the fused fast path (envs/compiled.shape_step): ONE compiled call per control step that
-    # runs the physics kernel for frame_skip steps (its n_steps argument), no integrators.step call
+    # runs the physics kernel for frame_skip steps (its n_steps argument), no physics.step call
     disp = task._fused[0]
     task._fused = (lambda *x: fused.append(int(x[7])) or disp(*x),) + task._fused[1:]
     env.step(a)
     assert (calls, fused) == ([], [task.frame_skip])
     assert np.abs(task.q - st.q).max() < 1e-12 and np.abs(task.qd - st.qd).max() < 1e-10
     assert np.abs(task.qd - qd0).max() > 1e-4                     # it moves
-    # the reference path (no fused step): ONE integrators.step call of frame_skip steps, same state
+    # the reference path (no fused step): ONE physics.step call of frame_skip steps, same state
     q1, qd1 = task.q.copy(), task.qd.copy()
     task.q, task.qd, task.ctrl = q0.copy(), qd0.copy(), ctrl0
     calls.clear()

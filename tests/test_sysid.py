@@ -1,4 +1,4 @@
-"""System identification (tensegrity_gym.sysid): known parameters are recovered from a trajectory
+"""System identification (tensegrity_gym.tools.sysid): known parameters are recovered from a trajectory
 made by a different integrator at a finer step, with all or half of the nodes tracked; bad
 input is refused with a message naming it; unidentifiable parameters are flagged."""
 import json

@@ -106,7 +106,7 @@ def test_bad_input_names_the_field(mutate, msg):
 
 def _import_tnsgrt():
     if not hasattr(np, "float_"):
-        np.float_ = np.float64            # NumPy-2 shim for tnsgrt 0.6 (documented in tensegrity_gym.tnsgrt)
+        np.float_ = np.float64            # NumPy-2 shim for tnsgrt 0.6 (documented in tensegrity_gym.io.tnsgrt)
     pytest.importorskip("tnsgrt.prism", exc_type=ImportError)
     from tnsgrt.prism import Prism
     return Prism

@@ -1,4 +1,4 @@
-"""Factories that return validated :class:`~tensegrity_gym.structure.Structure` objects.
+"""Factories that return validated :class:`~tensegrity_gym.core.structure.Structure` objects.
 
 All lengths in m, masses in kg, stiffness in N/m, tensions in N, gravity in m/s^2.
 

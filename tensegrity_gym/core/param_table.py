@@ -9,7 +9,7 @@ view (where it is used)                function
 =====================================  ===========================================================
 ``params.PARAM_FIELDS``                :func:`params_fields`: ``Params`` field -> (axis word,
                                        unit, valid range)
-``torch_backend.PARAM_FIELDS``         :func:`physics_fields`: the ``Params`` fields in order
+``backends.torch.model.PARAM_FIELDS``  :func:`physics_fields`: the ``Params`` fields in order
 ``contact.PRM_FIELDS``                 :func:`contact_columns`: the columns of the (P, 9)
                                        contact parameter array
 ``envs.domain.SPECS``                  :func:`domain_specs`: the names ``params=`` /
@@ -25,9 +25,9 @@ Columns of a row:
 
 * ``name``: the env-facing name (``params={name: ...}``, ``randomize={name: ...}``,
   ``info["params"]``); for a value the envs do not set, the container field's name.
-* ``group``: the per-copy container: ``"physics"`` (:class:`tensegrity_gym.params.Params`),
-  ``"contact"`` (the rows of :meth:`tensegrity_gym.contact.GroundContact.per_copy`) or
-  ``"actuation"`` (the limits of :class:`tensegrity_gym.actuation.Actuation`).
+* ``group``: the per-copy container: ``"physics"`` (:class:`tensegrity_gym.core.params.Params`),
+  ``"contact"`` (the rows of :meth:`tensegrity_gym.physics.contact.GroundContact.per_copy`) or
+  ``"actuation"`` (the limits of :class:`tensegrity_gym.physics.actuation.Actuation`).
 * ``field``: the field in that container (a ``Params`` field, a contact column, an
   ``Actuation`` limit).
 * ``axis``: what one value is per copy: ``"rod"``, ``"string"``, ``"node"``, ``"anchor"``

@@ -20,7 +20,7 @@ from .validate import check_positive
 
 __all__ = ["BatchedTask", "fixed_step"]
 
-#: robot parameters (envs/domain.py) that are Params fields of the physics (tensegrity_gym.params):
+#: robot parameters (envs/domain.py) that are Params fields of the physics (tensegrity_gym.core.params):
 #: a view of the parameter table (tensegrity_gym.core.param_table)
 _PHYSICS_FIELDS = env_fields("physics")
 
@@ -52,13 +52,13 @@ class BatchedTask:
     * ``step(action (B, na) validated) -> (terms: dict of (B,), terminated (B,) bool, infos)``
       which must call :meth:`simulate` exactly once;
     * ``observe() -> (B, obs_size) float32``;
-    * ``render_data(i) -> dict`` of keyword arguments for :meth:`tensegrity_gym.rendering.Renderer.render`
+    * ``render_data(i) -> dict`` of keyword arguments for :meth:`tensegrity_gym.tools.rendering.Renderer.render`
       (``nodes``, ``rods``, ``strings``, ``tensions``, ``targets``, ``ground_z``, ``path``, ``goal``, ``caption``).
     """
 
     action_size: int
     observation_size: int
-    #: ground contact (tensegrity_gym.contact.GroundContact) of the task, or None: no contact code runs
+    #: ground contact (tensegrity_gym.physics.contact.GroundContact) of the task, or None: no contact code runs
     contact = None
     #: terrain contact (tensegrity_gym.physics.terrain.TerrainContact) in place of the level ground, or
     #: None; with it ``tstate`` (its stick/slip state), ``terrain_geom`` / ``terrain_prm`` /
@@ -102,7 +102,7 @@ class BatchedTask:
         self.q = st.q.copy()
         self.qd = st.qd.copy()
         self.elapsed = np.zeros(B, dtype=np.int64)
-        self.params = None        # tensegrity_gym.params.Params of the copies; None: the model's own values
+        self.params = None        # tensegrity_gym.core.params.Params of the copies; None: the model's own values
         self.rest_offset = None   # (P, m) true minus commanded rest lengths, m (rest_length_offset)
         self.action_delay = 0
 
@@ -254,16 +254,16 @@ class BatchedTask:
 
     def simulate(self, action: np.ndarray | None = None, **inputs) -> np.ndarray:
         """Advance all B copies by one control step (``frame_skip`` steps of ``dt``) through the
-        pipeline (:mod:`tensegrity_gym.pipeline`), as :func:`tensegrity_gym.pipeline.control_step`
+        pipeline (:mod:`tensegrity_gym.physics.pipeline`), as :func:`tensegrity_gym.physics.pipeline.control_step`
         does: with ``action`` (B, na) validated, the task's ``actuation`` updates ``ctrl`` (and
         the motor's ``speed``) and gives the physics inputs (``Actuation.update``, the robots'
         rest-length offsets added); without it, ``inputs`` ``rest_length`` / ``force_density``
-        as :func:`tensegrity_gym.integrators.step` takes them (the offsets added here). Without
+        as :func:`tensegrity_gym.physics.integrate.step` takes them (the offsets added here). Without
         ``contact``: ONE ``pipeline.step`` of ``frame_skip`` steps for the whole batch. With the
         task's ``contact``: ``pipeline.advance`` in place, contact forces and one integrator step
         per physics step (``contact_params`` per copy, the stick/slip state in ``cstate``).
 
-        Returns ``diverged`` (B,) bool (:func:`tensegrity_gym.pipeline.diverged`, once per control
+        Returns ``diverged`` (B,) bool (:func:`tensegrity_gym.physics.pipeline.diverged`, once per control
         step; ``travels``: measured from each copy's own centre); diverged copies get their
         pre-step state back (see the module doc). Increments ``elapsed``.
         """
@@ -347,7 +347,7 @@ class BatchedTask:
         return views
 
     def _settle_divergence(self, q0, qd0, q, qd) -> np.ndarray:
-        """Divergence check (:func:`tensegrity_gym.pipeline.diverged`) and state update of
+        """Divergence check (:func:`tensegrity_gym.physics.pipeline.diverged`) and state update of
         :meth:`simulate`: diverged copies take ``q0``, ``qd0`` back. Increments ``elapsed``."""
         diverged = pipeline.diverged(q, qd, self.center0, self.divergence_limit, self.travels)
         if diverged.any():

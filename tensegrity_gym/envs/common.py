@@ -20,23 +20,23 @@ keeps working)
 :mod:`~tensegrity_gym.envs.validate`
     ``check_action`` (shape, NaN/inf naming the index, clip to [-1, 1] or raise with
     ``clip=False``), ``check_positive``, ``check_stable_dt``, ``resolve_actuated``.
-:mod:`~tensegrity_gym.actuation` (a physics-layer module, re-exported here)
+:mod:`~tensegrity_gym.physics.actuation` (a physics-layer module, re-exported here)
     ``Actuation``: rest-length or force-density controls of a set of strings, batched, with
     rate limits and the cable motor; ``update`` gives the new controls, the motor's speeds and
-    the ``rest_length=`` / ``force_density=`` inputs (B, m) of :func:`tensegrity_gym.pipeline.step`.
+    the ``rest_length=`` / ``force_density=`` inputs (B, m) of :func:`tensegrity_gym.physics.pipeline.step`.
 :mod:`~tensegrity_gym.envs.base`
     ``BatchedTask``: owns ``model``, ``integrator``, ``dt``, ``frame_skip``, ``backend``, the
     batched ``q``, ``qd`` (B, k, 6), ``elapsed`` (B,) and the robot parameters. Subclasses
     implement ``reset_idx``, ``step``, ``observe``, ``render_data``; :meth:`BatchedTask.simulate`
-    runs one control step of physics for the whole batch through :mod:`tensegrity_gym.pipeline`
+    runs one control step of physics for the whole batch through :mod:`tensegrity_gym.physics.pipeline`
     (contact inside it when the task has ``contact``) and handles divergence.
 :mod:`~tensegrity_gym.envs.shells`
     ``TaskEnv``, ``TaskVectorEnv``: the shells described above; ``make_sb3_vec_env`` lives in
-    :mod:`tensegrity_gym.sb3`.
+    :mod:`tensegrity_gym.integrations.sb3`.
 
 Divergence
 ----------
-After each control step (:func:`tensegrity_gym.pipeline.diverged`, the one check), a copy whose
+After each control step (:func:`tensegrity_gym.physics.pipeline.diverged`, the one check), a copy whose
 state is non-finite or has a rod farther than ``divergence_limit`` m from the structure's
 initial centre (a task that ``travels``: from its own centre) is *diverged*: its state is put
 back to the last finite one (so observations stay finite; a NaN is never passed on), the env

@@ -12,9 +12,9 @@ so no reassociation or fused multiply-adds): results are bit-identical, which
 sequential (fewer than 8 terms); longer ones are left to NumPy by the callers.
 
 :func:`shape_step` fuses one control step of the shape task: the control update
-(:func:`tensegrity_gym.pipeline.apply_controls`), the physics (:func:`tensegrity_gym.pipeline.run_plan`:
-the serial kernel ``integrators.step`` runs, from compiled code, so no ``State`` wrappers), the
-divergence check (:func:`tensegrity_gym.pipeline.state_ok`), the observation, the errors and
+(:func:`tensegrity_gym.backends.numba.actuation.apply_controls`), the physics (:func:`tensegrity_gym.backends.numba.entries.run_plan`:
+the serial kernel ``physics.step`` runs, from compiled code, so no ``State`` wrappers), the
+divergence check (:func:`tensegrity_gym.backends.numba.divergence.state_ok`), the observation, the errors and
 the tracking term in ONE compiled call per ``step()``. Everything physical is a call into the
 pipeline; nothing here knows the kernels' flags or buffer layout.
 
@@ -37,7 +37,7 @@ __all__ = ["shape_observe", "mean_max", "roll_observe", "shape_step", "shape_ste
 
 def node_sources(model, nodes: np.ndarray):
     """``(rod, eta)`` of the compiled observations: node ``nodes[t]`` sits at ``r + eta[t] b`` of
-    rod ``rod[t]`` (int64, float64 (t,)), exactly as ``dynamics.node_positions`` writes it (rod_c
+    rod ``rod[t]`` (int64, float64 (t,)), exactly as ``physics.geometry.node_positions`` writes it (rod_c
     after rod_a, so the last rod wins); ``(None, None)`` (the NumPy path) when a node is an
     anchor or on no rod."""
     if np.isin(nodes, model.anchor_idx).any():
@@ -62,7 +62,7 @@ _apply_controls, _run_plan, _run_plan_simd, _state_ok = (apply_controls, run_pla
 def shape_observe(q, qd, rod, eta, ctrl, target, obs, dist):
     """Observation of the shape task (see ``ShapeTask.observe``) into ``obs`` (B, 12 nt + na)
     float32 and the node errors |target - N| into ``dist`` (B, nt) float64. Tracked node
-    ``t`` sits at ``r + eta[t] b`` of rod ``rod[t]`` (as ``dynamics.node_positions``)."""
+    ``t`` sits at ``r + eta[t] b`` of rod ``rod[t]`` (as ``physics.geometry.node_positions``)."""
     B = q.shape[0]
     nt = rod.size
     na = ctrl.shape[1]
@@ -153,7 +153,7 @@ def _shape_step_py(q, qd, ctrl, action, target, plan, offset, fcon, icon, qo, qd
                    elapsed, simd):
     """One control step of the shape task in ONE compiled call (``ShapeTask.step``'s fast
     path): the control update (``pipeline.apply_controls``), the physics of a
-    :class:`tensegrity_gym.pipeline.Plan` (``buf``, ``dt``, ``n_steps``, ``flags``:
+    :class:`tensegrity_gym.backends.numba.plans.Plan` (``buf``, ``dt``, ``n_steps``, ``flags``:
     ``pipeline.run_plan``), the divergence check (``pipeline.state_ok``), the observation and
     node errors (:func:`shape_observe`) and the error statistics (:func:`mean_max`; ``stats``
     (4, B): mean error, max error, the proximity term's exponent ``-0.5 t^2`` of

@@ -102,7 +102,7 @@ class RollActuationConfig(CableConfig):
 
 @dataclass(frozen=True)
 class ContactConfig:
-    """Ground contact (:class:`tensegrity_gym.contact.GroundContact`; the names its rows carry in
+    """Ground contact (:class:`tensegrity_gym.physics.contact.GroundContact`; the names its rows carry in
     :mod:`tensegrity_gym.core.param_table`)."""
 
     friction: float = GroundContact.friction

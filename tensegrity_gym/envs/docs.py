@@ -15,7 +15,7 @@ ROLL_DOC = r"""
     along the goal direction (+x by default). Dynamics: the exact configuration-matrix equations
     of Skelton & de Oliveira ch. 5 (rigid rods, tension-only damped strings), with ground
     contact at the rods' end caps (compliant Hunt-Crossley normal force, Coulomb friction with a
-    stick phase; :mod:`tensegrity_gym.contact`, ``docs/contact.md``). Semi-implicit Euler at
+    stick phase; :mod:`tensegrity_gym.physics.contact`, ``docs/contact.md``). Semi-implicit Euler at
     ``dt`` = 1 ms, ``frame_skip`` = 20 (50 Hz control); contact forces are computed once per
     physics step for the whole batch and held over it.
 
@@ -35,7 +35,7 @@ ROLL_DOC = r"""
     (it sags by 1.8 mm (prism) and 8 mm (icosahedron) when it settles on the ground) while the highest string frequency (~250 rad/s) and the contact frequency
     (~450 rad/s for k = 1e4 N/m on a rod end of effective mass m/4) allow explicit steps of a few
     ms: the estimated limit of semi-implicit Euler with contact and damping is 2.6 ms
-    (:func:`tensegrity_gym.contact.stable_step`; measured: stable at 2 ms, unstable at 3 ms), so
+    (:func:`tensegrity_gym.physics.contact.stable_step`; measured: stable at 2 ms, unstable at 3 ms), so
     the default 1 ms has a margin of 2-2.5x.
     Caps of 2 cm radius with friction 1 model rubber feet. The prism lies on a side face (the
     face of its convex hull with the largest stability margin, not top or bottom) with its axis
@@ -172,7 +172,7 @@ ROLL_DOC = r"""
     ``goal_direction`` is the direction a generated slope or staircase rises along.
 
     ## Baseline
-    :class:`tensegrity_gym.baselines.RollingGait` (no learning): a periodic contraction wave of
+    :class:`tensegrity_gym.tools.baselines.RollingGait` (no learning): a periodic contraction wave of
     rest lengths around the prism's axis (period 1.71 s, open loop in time) that rolls the prism
     face over face, steered by one fed-back scalar (the top/bottom rest-length bias, from the
     heading of the observed centre-of-mass velocity). ``python scripts/eval_roll_baseline.py``
@@ -224,7 +224,7 @@ SHAPE_DOC = r"""
     ``string_damping`` = 5 N s/m on every elastic string (``None`` keeps the structure's own)
     and ``node_damping`` = 2 N s/m of viscous drag on every rod node (string damping alone
     cannot damp the prism's infinitesimal mechanism, whose motion does not stretch the strings
-    to first order). The drag is part of the physics model (``dynamics.compile_model(...,
+    to first order). The drag is part of the physics model (``core.model.compile_model(...,
     node_damping=c)``: force ``-c v`` on every rod node, evaluated wherever the integrator
     evaluates forces), so a control step is one integrator call of ``frame_skip`` steps.
     In force-density mode the actuated strings are ideal force actuators with no elastic or

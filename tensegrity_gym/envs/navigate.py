@@ -217,7 +217,7 @@ _DOC = r"""
     terminates on success and is truncated at the registered 3000 control steps (60 s).
 
     ## Baseline
-    :class:`tensegrity_gym.baselines.RollingGait` steered by the guidance (it reads the goal
+    :class:`tensegrity_gym.tools.baselines.RollingGait` steered by the guidance (it reads the goal
     direction from the observation): ``python scripts/eval_navigate.py --baseline``.
 """
 

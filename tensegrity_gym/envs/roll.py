@@ -2,7 +2,7 @@
 
 One batched task (:class:`RollTask`) on B copies; :class:`TensegrityRollEnv` is it with B = 1
 and :class:`TensegrityRollVectorEnv` with B = ``num_envs`` (see
-:mod:`tensegrity_gym.envs.common`). Ground contact: :mod:`tensegrity_gym.contact`. SI units.
+:mod:`tensegrity_gym.envs.common`). Ground contact: :mod:`tensegrity_gym.physics.contact`. SI units.
 """
 from __future__ import annotations
 
@@ -362,7 +362,7 @@ TensegrityRollVectorEnv = TaskVectorEnv.for_task(RollTask, ENV_ID, _DOC + r"""
     ## Vector env
     ``gymnasium.make_vec("TensegrityRoll-v0", num_envs=N, vectorization_mode="vector_entry_point")``
     or ``TensegrityRollVectorEnv(num_envs=N, **kwargs)``: the same task on N copies, stepped with
-    one batched contact update and one batched ``integrators.step`` call per physics step.
+    one batched contact update and one batched ``physics.step`` call per physics step.
     Next-step autoreset; ``reset(seed=s)`` seeds env i with s + i (equal to N single envs with
     those seeds); ``max_episode_steps`` truncates every env (``make_vec`` passes the registered
     1000). See :class:`tensegrity_gym.envs.common.TaskVectorEnv`.

@@ -10,7 +10,7 @@ this project's physics runs on it unchanged. SI units (m, kg, s, N).
 What is shared (not copied): the env builds a one-copy :class:`~tensegrity_gym.envs.roll.RollTask`
 with the same keyword arguments and takes from it the robot placed on the ground and settled
 (the settled node positions become the MuJoCo model's pose), its nominal rest lengths, its
-:class:`~tensegrity_gym.actuation.Actuation` (the cable motor model: speed
+:class:`~tensegrity_gym.physics.actuation.Actuation` (the cable motor model: speed
 command, acceleration limit, rest-length bounds, end stops), its reset (the same reset noise
 and goal drawn from ``np_random`` in the same order), its observation (``RollTask.observe``,
 fed with the MuJoCo state converted to rod coordinates ``[r, b]``, ``[r', b']``) and, with
@@ -18,7 +18,7 @@ fed with the MuJoCo state converted to rod coordinates ``[r, b]``, ``[r', b']``)
 lengths from the rod state, IMUs from the change of MuJoCo's rod velocities over the last
 physics step, contact switches from MuJoCo's contacts).
 
-The MuJoCo model is :func:`tensegrity_gym.mjcf.to_mjcf` of the settled robot with ``ground=True``:
+The MuJoCo model is :func:`tensegrity_gym.io.mjcf.to_mjcf` of the settled robot with ``ground=True``:
 rods are free bodies with capsules of radius ``cap_radius`` (the capsule's lowest point on a
 plane is always at an end, so the capsule-plane contact is the end caps' contact), strings are
 spatial tendons with the dead band ``springlength="0 l0"`` (no spring force while slack). The
@@ -110,7 +110,7 @@ state or a MuJoCo bad-acceleration warning truncates the episode with ``info["di
 Registered as ``TensegrityRollMuJoCo-v0`` with ``max_episode_steps`` = 1000 (20 s), as
 ``TensegrityRoll-v0``. ``render_mode="rgb_array"`` draws MuJoCo's state with the project's
 renderer (as ``TensegrityRoll-v0`` does; ``mujoco.Renderer`` would need ``MUJOCO_GL`` set before
-``mujoco`` is imported, which :mod:`tensegrity_gym.rendering` does not need).
+``mujoco`` is imported, which :mod:`tensegrity_gym.tools.rendering` does not need).
 """
 from __future__ import annotations
 
@@ -150,7 +150,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
     of MuJoCo's contact ``solref``), ``spin_damping`` (None: 1.0 N m s, with ``RK4`` the largest it
     integrates stably (:meth:`rk4_spin_damping_max`); damping of each rod's spin about its own
     axis, see the module doc), ``render_mode`` (None or "rgb_array"), ``width``, ``height``.
-    ``env.unwrapped.task`` is the :class:`RollTask` (so :class:`tensegrity_gym.baselines.RollingGait`
+    ``env.unwrapped.task`` is the :class:`RollTask` (so :class:`tensegrity_gym.tools.baselines.RollingGait`
     and ``observation_layout()`` work as on ``TensegrityRoll-v0``); ``env.unwrapped.model`` /
     ``data`` are the MuJoCo ``MjModel`` / ``MjData``.
     """
@@ -424,7 +424,7 @@ class TensegrityRollMuJoCoEnv(gym.Env):
 
     def render(self):
         """RGB frame (H, W, 3) uint8 of MuJoCo's current state, drawn by the project's renderer
-        (:func:`tensegrity_gym.rendering.make_renderer`, as ``TensegrityRoll-v0``: rods, strings
+        (:func:`tensegrity_gym.tools.rendering.make_renderer`, as ``TensegrityRoll-v0``: rods, strings
         coloured by the project's tension model at this state, path of the centre of mass, goal)."""
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; construct the env with render_mode='rgb_array'")

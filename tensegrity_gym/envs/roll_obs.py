@@ -31,7 +31,7 @@ class RollObservation:
         self._mass_frac = model.mass / model.mass.sum()
 
     def _com(self, q) -> np.ndarray:
-        """(B, 3) centre of mass, m (= dynamics.center_of_mass, one matrix product)."""
+        """(B, 3) centre of mass, m (= physics.geometry.center_of_mass, one matrix product)."""
         if self._com_at_r:
             return center_of_mass(q, self._mass_frac)
         return geometry.center_of_mass(self.model, q, self.params)

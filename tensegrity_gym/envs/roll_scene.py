@@ -116,8 +116,9 @@ def put_on_ground(s: Structure, radius: float, axis=None) -> tuple[Structure, fl
 
 def settle(model, ground: GroundContact, integrator: str, dt: float, key=None) -> tuple[np.ndarray, np.ndarray]:
     """Rest state ``(q, qd = 0)`` (1, k, 6) of the placed robot ``model`` under gravity on the
-    ``ground`` (a :class:`~tensegrity_gym.contact.GroundContact`): SETTLE_TIME s from the placed shape (``contact.step``), with extra viscous drag on
-    the nodes (only here) so that it comes to rest. ``key``: remember the result for the process
+    ``ground`` (a :class:`~tensegrity_gym.physics.contact.GroundContact`): SETTLE_TIME s from the
+    placed shape (``physics.pipeline.contact_step``), with extra viscous drag on the nodes (only
+    here) so that it comes to rest. ``key``: remember the result for the process
     (built-in scenes: one settling per parameter set)."""
     if key is not None and key in _SETTLED:
         return tuple(x.copy() for x in _SETTLED[key])

@@ -102,7 +102,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         if np.any(eq.force_density[act] <= 0):
             bad = act[eq.force_density[act] <= 0][0]
             raise ValueError(f"actuated string {bad} is slack at the nominal equilibrium; actuate taut strings")
-        # node drag is part of the model (dynamics.compile_model(node_damping=...)): one fused
+        # node drag is part of the model (core.model.compile_model(node_damping=...)): one fused
         # integrator call per control step, no drag code at all when node_damping == 0
         model = compile_model(s, act if action_mode == "force_density" else None,
                                   node_damping=self.node_damping if self.node_damping > 0 else None)
@@ -160,7 +160,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
 
         Rest lengths of the actuated strings are drawn uniformly within ``target_range`` of the
         structure's (and within the rest-length bounds); the stable equilibrium reached from the
-        nominal shape (Newton from it, :func:`tensegrity_gym.statics.solve_equilibria`) is the
+        nominal shape (Newton from it, :func:`tensegrity_gym.physics.statics.solve_equilibria`) is the
         target. A draw is rejected and redrawn (same generator) unless the equilibrium is found,
         stable, has every actuated string taut and (force-density mode) needs force densities
         within the bounds. (Under *constant* force densities the target is an exact equilibrium
@@ -228,7 +228,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
 
     def simulate_controls(self):
         """One control step of physics for the batch at the current controls: ONE batched
-        ``integrators.step`` call of ``frame_skip`` steps (the node drag is in the model)."""
+        ``physics.step`` call of ``frame_skip`` steps (the node drag is in the model)."""
         return self.simulate(**self.actuation.physics_inputs(self.ctrl))
 
     def _compiled_observe(self):

@@ -1,6 +1,6 @@
 """The fused step of TensegrityShape-v0 (a mixin of :class:`~tensegrity_gym.envs.shape.ShapeTask`):
 one compiled call per control step (:func:`tensegrity_gym.envs.compiled.shape_step`) that runs
-the control update, the pipeline's physics (an opaque :func:`tensegrity_gym.pipeline.compiled_plan`),
+the control update, the pipeline's physics (an opaque :func:`tensegrity_gym.physics.pipeline.compiled_plan`),
 the divergence check, the observation, the errors and the tracking term; bit-identical to
 ``ShapeTask.step``'s reference path (``tests/test_fast_paths.py``). SI units."""
 from __future__ import annotations
@@ -22,7 +22,7 @@ class FusedShapeStep:
 
     def _fused_setup(self):
         """Constants of the fused compiled step (:func:`tensegrity_gym.envs.compiled.shape_step`
-        running a :func:`tensegrity_gym.pipeline.compiled_plan`), or False when it does not apply:
+        running a :func:`tensegrity_gym.physics.pipeline.compiled_plan`), or False when it does not apply:
         an implicit integrator, an anchored tracked node, or a batch large
         enough for the parallel kernel (then the pipeline runs it). Decided once per task, at its
         first step."""

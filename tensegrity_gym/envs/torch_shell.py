@@ -121,13 +121,13 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     def _physics_substep(self):
         """``(the one physics step the task repeats, inductor options or None)``: what
         ``compile=True`` wraps and how. With ground contact
-        :func:`~tensegrity_gym.torch_backend.contact_substep`, without
-        :func:`~tensegrity_gym.torch_backend.step_once`; default options."""
+        :func:`~tensegrity_gym.backends.torch.contact.contact_substep`, without
+        :func:`~tensegrity_gym.backends.torch.driver.step_once`; default options."""
         return (contact_substep if getattr(self.task, "contact", None) is not None
                 else step_once), None
 
     def _physics_call(self, fn):
-        """``fn`` (a physics loop of :mod:`tensegrity_gym.torch_backend`), or with ``cuda_graph=True``
+        """``fn`` (a physics loop of :mod:`tensegrity_gym.backends.torch`), or with ``cuda_graph=True``
         its :class:`~tensegrity_gym.backends.torch.graphs.CapturedCall` (one per function)."""
         if self._graphs is None:
             return fn
@@ -292,7 +292,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
 
     def _check_actions(self, actions):
         """``(actions clipped to the box, any env to autoreset)`` after ONE small device -> host
-        read (:func:`tensegrity_gym.checks.check_action_tensor`)."""
+        read (:func:`tensegrity_gym.core.checks.check_action_tensor`)."""
         return check_action_tensor(actions, (self.num_envs, self.task.action_size), self.device, self.dtype,
                                    self.task.clip_actions, self._autoreset.any())
 

@@ -202,7 +202,7 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     divergence check, tracking errors, the ``tracking`` / ``proximity`` / ``ctrl`` reward terms
     and the observation on the device). Arguments: those of ``TensegrityShape-v0`` plus
     ``device``, ``dtype``, ``max_episode_steps``, ``compile`` (``torch.compile`` of
-    :func:`tensegrity_gym.torch_backend.step_once`)."""
+    :func:`tensegrity_gym.backends.torch.driver.step_once`)."""
 
     ENV_ID = "TensegrityShape-v0"
     _NO_DEVICE_RESET = ("its targets are stable static equilibria found by Newton's method with rejection, "

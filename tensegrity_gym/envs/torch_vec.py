@@ -34,9 +34,9 @@ equilibria with rejection, solved on the host), and so does ``TensegrityNavigate
 courses are planned on the host).
 
 The step loop runs on the device: the cable motor / control update
-(:func:`tensegrity_gym.torch_backend.motor` / :func:`~tensegrity_gym.torch_backend.advance`),
+(:func:`tensegrity_gym.backends.torch.actuation.update_motor` / :func:`~tensegrity_gym.backends.torch.actuation.update_rate`),
 the physics inputs, ``frame_skip`` physics steps with ground contact
-(:func:`tensegrity_gym.torch_backend.contact_step`: per-copy ``Params`` and contact
+(:func:`tensegrity_gym.backends.torch.contact.contact_step`: per-copy ``Params`` and contact
 parameters), the divergence check and restore, the observation, the reward terms and the time
 limit. Per ``step`` the host reads ONE small tensor (3 bools: an action entry non-finite, one
 out of the box with ``clip_actions=False``, an env to autoreset) to raise a clear error and to
@@ -80,8 +80,8 @@ stream (:func:`tensegrity_gym.tasks.terrain.drawn_values`, the host's draw; the 
 with boxes).
 
 ``compile=True`` wraps the physics step (roll: with contact,
-:func:`tensegrity_gym.torch_backend.contact_substep`; shape:
-:func:`tensegrity_gym.torch_backend.step_once`) in ``torch.compile``: the first steps
+:func:`tensegrity_gym.backends.torch.contact.contact_substep`; shape:
+:func:`tensegrity_gym.backends.torch.driver.step_once`) in ``torch.compile``: the first steps
 compile (10-35 s on a 2-core CPU, 7-17 s on an H100), then a control step ran 2-8x faster than
 eager on CPU, and 4.5-6.1x on an H100 at N = 65,536 (roll: 74-123M physics env-steps/s), in
 ``scripts/bench_gpu.py --env --env-compile`` (``docs/bench_gpu.md``). With ``compile=True`` on a

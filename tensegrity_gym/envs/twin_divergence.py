@@ -25,7 +25,7 @@ def twin_diverged(mujoco, data, task) -> bool:
     """True if the MuJoCo twin's last control step diverged, by the native env's rule and more:
     a MuJoCo divergence warning since :func:`clear_mujoco_warnings`, a non-finite ``qpos`` /
     ``qvel``, or the task's state (``task.q``, ``task.qd``, synced from MuJoCo) out of the task's
-    ``divergence_limit`` (m) as :func:`tensegrity_gym.pipeline.diverged` measures it for the native env."""
+    ``divergence_limit`` (m) as :func:`tensegrity_gym.physics.pipeline.diverged` measures it for the native env."""
     if any(data.warning[getattr(mujoco.mjtWarning, n)].number > 0 for n in MUJOCO_DIVERGENCE_WARNINGS):
         return True
     if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):

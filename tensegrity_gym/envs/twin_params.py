@@ -27,7 +27,7 @@ name (SI unit)              MuJoCo field
                             Hunt-Crossley damping ratio at a given penetration is proportional
                             to it, MuJoCo's has no penetration dependence, so only the
                             relative change is carried (refused if the nominal value is 0)
-``max_cable_speed`` (m/s),  the cable motor model (:class:`~tensegrity_gym.actuation.Actuation`,
+``max_cable_speed`` (m/s),  the cable motor model (:class:`~tensegrity_gym.physics.actuation.Actuation`,
 ``max_cable_acceleration``  shared with ``TensegrityRoll-v0``), not MuJoCo
 ==========================  ===============================================================
 
@@ -72,7 +72,7 @@ class TwinParams:
     """The nominal ``MjModel`` fields of the rod bodies ``body`` and of the tendons, and the writer
     of one episode's values into the model (module doc: the mapping).
 
-    ``contact``: the task's :class:`~tensegrity_gym.contact.GroundContact` (nominal friction, ground
+    ``contact``: the task's :class:`~tensegrity_gym.physics.contact.GroundContact` (nominal friction, ground
     stiffness and damping); ``dampratio``: the twin's nominal contact damping ratio;
     ``carries_ground_damping``: whether ``params`` / ``randomize`` set ``ground_damping`` (refused
     when the nominal ground damping is 0: only its relative change is carried)."""

@@ -1,4 +1,4 @@
-"""Export a :class:`~tensegrity_gym.structure.Structure` to a MuJoCo model (MJCF XML).
+"""Export a :class:`~tensegrity_gym.core.structure.Structure` to a MuJoCo model (MJCF XML).
 
 SI units throughout (m, kg, s, N). The model is built from the structure alone; MuJoCo is
 needed only to *load* the result (``mujoco.MjModel.from_xml_string(to_mjcf(s))``), not to write it.

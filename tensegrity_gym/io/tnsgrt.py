@@ -36,7 +36,7 @@ cvxpy. To build structures with it under NumPy 2, add the alias before importing
     if not hasattr(np, "float_"):
         np.float_ = np.float64          # NumPy-2 shim for tnsgrt 0.6
     from tnsgrt.prism import Prism
-    s = tensegrity_gym.tnsgrt.from_tnsgrt(Prism(3, calculate_equilibrium=True))
+    s = tensegrity_gym.io.tnsgrt.from_tnsgrt(Prism(3, calculate_equilibrium=True))
 
 There is no ``Tower`` class in tnsgrt 0.6: towers are built from prisms (``Structure.merge``,
 ``add_members``); any such structure converts like a prism.

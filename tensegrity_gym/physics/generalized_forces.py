@@ -77,7 +77,7 @@ def _tile(x, reps: int, B: int):
 
 def _jacobian(model, rc, q, T, rest_length, force_density, eps, R0=None):
     """Forward-difference dR/dx (B, nx, nx) in the local coordinates x (step ``eps``, m) around
-    ``q``, all nx perturbations in one batched evaluation (:func:`tensegrity_gym.jacobian.fd_jacobian`)."""
+    ``q``, all nx perturbations in one batched evaluation (:func:`tensegrity_gym.physics.jacobian.fd_jacobian`)."""
     B, nx = q.shape[0], rc.nx
     if R0 is None:
         R0 = generalized_residual(model, q, rest_length, force_density, T)

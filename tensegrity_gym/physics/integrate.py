@@ -18,7 +18,7 @@ name                     order  notes
 ``implicit_euler``       1      backward Euler, Newton with a finite-difference Jacobian
                                 (usually one linear solve per step): stable at any dt
                                 for stiff strings; dissipates energy
-                                (:mod:`tensegrity_gym.implicit`).
+                                (:mod:`tensegrity_gym.physics.implicit`).
 =======================  =====  ========================================================
 
 Stability checks
@@ -42,7 +42,7 @@ along ``b`` and putting constrained nodes back on their point/line/plane
 (:func:`tensegrity_gym.physics.project`); semi-implicit Euler then also moves ``b`` along
 its great circle (geodesic on the unit sphere, ``r`` keeps the plain Euler update), so the
 projection only removes round-off. With ``project=False`` nothing is changed (plain
-``q += dt q'``) and the drift is left to be measured (``dynamics.constraint_violation``). The adaptive methods never
+``q += dt q'``) and the drift is left to be measured (``physics.geometry.constraint_violation``). The adaptive methods never
 project inside ``solve_ivp``; their drift is set by their tolerances.
 
 Backends

@@ -24,7 +24,7 @@ __all__ = ["stable_step_estimate", "stability_limit", "check_stability", "diverg
 def _jacobians_fd(model: Model, q, qd, rest_length=None, with_velocity=True):
     """Central-difference Jacobians ``K = da/dq`` (1/s^2) and ``D = da/dq'`` (1/s) of the
     accelerations of ONE state ``q``, ``qd`` (1, k, 6), in one batched call (24 k states):
-    :func:`tensegrity_gym.jacobian.acceleration_jacobians`, step ``1e-6 max(1, |q|_inf)``.
+    :func:`tensegrity_gym.physics.jacobian.acceleration_jacobians`, step ``1e-6 max(1, |q|_inf)``.
     ``D`` is None when ``with_velocity`` is False."""
     _, K, D = acceleration_jacobians(model, q, qd, rest_length, with_velocity=with_velocity, central=True,
                                      rel_step=1e-6)
@@ -200,7 +200,7 @@ def _perron_bound(A, iters: int = 100) -> float:
 def _stable_step_sparse(model: Model, q0, qd0, rest_length, with_v: bool) -> dict:
     """:func:`stable_step_estimate` for large structures, linear in their size (no dense matrix).
 
-    1. ``K``, ``D`` as sparse matrices (:func:`tensegrity_gym.jacobian.acceleration_jacobians_sparse`:
+    1. ``K``, ``D`` as sparse matrices (:func:`tensegrity_gym.physics.jacobian.acceleration_jacobians_sparse`:
        the same central differences as the dense path, with column grouping).
     2. Arnoldi (:func:`_top_eigenvalues`) for the :data:`_ARNOLDI_NEV` largest-magnitude eigenvalues
        of ``K`` (``omega_max``; without ``D`` the system's eigenvalues are ``lam = +-sqrt(mu)``, ``mu``

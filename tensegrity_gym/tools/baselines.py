@@ -57,7 +57,7 @@ class NNLSShapeController:
 
     The generalized forces of a class-1 tensegrity are linear in the string force densities
     (Skelton & de Oliveira ch. 5): at the target shape ``R = A(q*) gamma + w(q*)`` with ``w``
-    the gravity load (:func:`tensegrity_gym.statics.equilibrium_matrix`). The controller
+    the gravity load (:func:`tensegrity_gym.physics.statics.equilibrium_matrix`). The controller
 
     1. solves the NNLS problem ``min |A_act g + (A_pass gamma_pass + w)|, g >= 0`` for the
        actuated strings' force densities ``g*`` that make the target an equilibrium (the

@@ -26,7 +26,7 @@ from .rendering import RendererUnavailable, view_trajectory
 
 
 def _stable_step_bytes(k: int, m: int = 0) -> float:
-    """Memory of dynamics.stable_step_estimate: up to DENSE_STABILITY_MAX_RODS rods finite-difference
+    """Memory of physics.stability.stable_step_estimate: up to DENSE_STABILITY_MAX_RODS rods finite-difference
     Jacobians on 24 k states and the eigenvalues of the (12 k x 12 k) first-order matrix (about six
     such matrices); above, the sparse path (linear in k and the m strings: sizing.stability_bytes)."""
     if k > DENSE_STABILITY_MAX_RODS:

@@ -195,7 +195,7 @@ def _outputs_and_model(args, second, flag: str):
 
 
 def load_schedule(path, name: str, n_strings: int) -> Schedule:
-    """A command schedule (:class:`tensegrity_gym.integrators.Schedule`) from ``.npz`` (arrays
+    """A command schedule (:class:`tensegrity_gym.physics.rollout.Schedule`) from ``.npz`` (arrays
     ``t`` (C,) s and ``name`` (C, m)) or ``.csv`` (a header row, then one row per command: the
     time in s, then the m strings' values). ValueError naming the file, the row and the value."""
     p = str(path)
@@ -252,7 +252,7 @@ def cmd_simulate(args) -> int:
                     f"recording {n_steps // args.record_every + 1} states of {s.n_nodes} nodes")
     progress = (not args.no_progress) and n_steps >= PROGRESS_MIN_STEPS
     t0 = time.perf_counter()
-    if args.backend == "torch":   # optional torch backend (tensegrity_gym.torch_backend) on --device
+    if args.backend == "torch":   # optional torch backend (tensegrity_gym.backends.torch) on --device
         try:
             from ..backends.torch import driver     # optional: needs torch
             t, q, qd = driver.simulate(model, state, args.dt, n_steps, args.integrator, device=args.device,

@@ -1,6 +1,6 @@
 """System identification: fit physical parameters so that simulated motion matches a recorded one.
 
-:func:`identify` fits named :class:`~tensegrity_gym.params.Params` fields of a structure (string
+:func:`identify` fits named :class:`~tensegrity_gym.core.params.Params` fields of a structure (string
 ``stiffness`` N/m, string ``damping`` N s/m, rod ``mass`` kg, ``node_damping`` N s/m) to a
 recorded trajectory: times ``t`` (S,) in s and node positions ``nodes`` (S, n, 3) in m, with
 the strings' rest lengths ``rest_length`` (S, m) in m when the cables were actuated, and a
@@ -32,8 +32,8 @@ window's state is fitted by a batched Levenberg-Marquardt (all windows in one ca
 :func:`scipy.optimize.least_squares` minimises the remaining residual over ``theta`` alone with
 the Jacobian ``(I - J_x J_x^+) J_theta`` per window (Kaufman's projection; ``J_x``: window
 state, ``J_theta``: parameters). Every Jacobian is a forward finite difference, and all its
-columns, for every window, are ONE batched :func:`~tensegrity_gym.integrators.step` call: copy
-``c`` carries its own physical values through per-copy :class:`~tensegrity_gym.params.Params`
+columns, for every window, are ONE batched :func:`~tensegrity_gym.physics.integrate.step` call: copy
+``c`` carries its own physical values through per-copy :class:`~tensegrity_gym.core.params.Params`
 (W x (1 + p + n_state) copies). Positive quantities are fitted in log space:
 ``theta = log(value / initial)``, so a step of 0.01 is a 1 % change, the fit cannot make a
 value negative, and ``mode="scale"`` fits one ``log`` factor per field.

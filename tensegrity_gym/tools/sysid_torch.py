@@ -11,7 +11,7 @@ from ..physics.reduced_coordinates import tangent_basis
 def torch_jacobian(pb, theta, q0, qd0):
     """(W, R, p + ns) masked residual Jacobian of every window with respect to the
     parameters ``theta`` and the window state coordinates (at ``x = 0``), by autograd through
-    the torch backend's float64 rollout (:func:`tensegrity_gym.torch_backend.step`: the same
+    the torch backend's float64 rollout (:func:`tensegrity_gym.backends.torch.driver.step`: the same
     equations as the NumPy/numba path). As the finite differences, all columns of all
     windows come from ONE batched rollout of W x (n_u + ns) copies, copy ``c`` carrying the
     tangent of one column (its own per-copy parameters): Jacobian-vector products by the

@@ -249,7 +249,7 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
         if terrain is not None and t_bx:
             box_load(t_anchor, t_active, BAN, BAC, BP, t_geom, t_prm, c0, ne, k, t_f0, E)
         for step in range(n_steps):
-            if contact is not None:                 # held over the step, as contact.step does
+            if contact is not None:                 # held over the step, as contact_step does
                 _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, cext, c0, ne, k, n, E)
             if terrain is not None:
                 if t_f0 > 0:

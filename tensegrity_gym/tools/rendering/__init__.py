@@ -4,7 +4,7 @@ Structure-agnostic: both renderers draw whatever node positions, rods and string
 given, through the same ``render(nodes, rods, strings, tensions, ...)`` call. Used by every
 env's ``render()`` (through :func:`make_renderer`); usable on its own::
 
-    from tensegrity_gym.rendering import make_renderer   # = tensegrity_gym.tools.rendering
+    from tensegrity_gym.tools.rendering import make_renderer   # = tensegrity_gym.tools.rendering
     r = make_renderer(width=480, height=480, title="prism")   # MuJoCo if it works, else matplotlib
     frame = r.render(nodes, rods, strings, tensions=T, targets=target_nodes)  # (480, 480, 3) uint8
 
