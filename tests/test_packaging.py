@@ -139,6 +139,28 @@ def test_checkout_loads_a_model_trained_from_a_checkout_with_its_schedule():
     assert p.stdout.split()[-2:] == ["LinearSchedule", "0.00056"], p.stdout
 
 
+def test_checkout_loads_a_committed_model_with_its_normalisation():
+    """A committed model whose pickles name a module of this package
+    (``tensegrity_gym.integrations.sb3``'s schedule) and its VecNormalize statistics load through
+    the project's loaders, warnings as errors, and the policy acts on a normalised observation."""
+    runs = [ROOT / "results" / "climb_randomized" / "seed_0"] + sorted(ROOT.glob("results/*/seed_0"))
+    run = next((r for r in runs if (r / "model.zip").exists() and (r / "vecnormalize.pkl").exists()), None)
+    if run is None:
+        pytest.skip("no committed model with its normalisation")
+    algo = next(line.split(":", 1)[1].strip() for line in (run / "config.yaml").read_text().splitlines()
+                if line.startswith("algo:"))
+    code = ("import warnings; warnings.simplefilter('error'); import numpy as np; "
+            f"import stable_baselines3 as sb3; from agents import common; Algo = getattr(sb3, {algo.upper()!r}); "
+            f"m = common.load_model_file(Algo, {str(run / 'model.zip')!r}, device='cpu'); "
+            f"vn = common.load_vecnormalize_file({str(run / 'vecnormalize.pkl')!r}); "
+            "obs = np.zeros((1,) + m.observation_space.shape, np.float32); "
+            "a, _ = m.predict(vn.normalize_obs(obs), deterministic=True); "
+            "print(type(vn).__name__, a.shape == (1,) + m.action_space.shape, bool(np.isfinite(a).all()))")
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert p.stdout.split()[-3:] == ["VecNormalize", "True", "True"], p.stdout
+
+
 @pytest.mark.slow
 def test_installed_zoo_reads_the_packaged_hyperparameters(installed):
     pytest.importorskip("rl_zoo3")
