@@ -162,7 +162,7 @@ def test_build_every_name(name):
     from tensegrity_gym.core.model import compile_model, initial_state
     model = compile_model(s)
     st = initial_state(model)
-    assert np.all(np.isfinite(tg.integrators.accelerations(model, st.q, st.qd)))
+    assert np.all(np.isfinite(tg.physics.accelerations(model, st.q, st.qd)))
 
 
 def test_build_patterns_and_unknown_name():

@@ -134,12 +134,12 @@ def test_string_of_zero_length_everything_finite(l0):
         warnings.simplefilter("error")
         S, L, Ld = string_state(m, st.q, st.qd)
         gamma, _, _ = evaluate.force_densities(m, st.q, st.qd)
-        a = tg.integrators.accelerations(m, st.q, st.qd)
+        a = tg.physics.accelerations(m, st.q, st.qd)
         E = energy(m, st.q, st.qd)
         a0, K, D = implicit.jacobians(m, st.q, st.qd)
         est = stable_step_estimate(m, st)
         md = compile_model(_crossing(l0).replace(damping=3.0))   # damped: d|s|/dt at |s| = 0
-        ad = tg.integrators.accelerations(md, st.q, st.qd)
+        ad = tg.physics.accelerations(md, st.q, st.qd)
     for x in (S, L, Ld, gamma, a, E, a0, K, D, ad):
         assert np.all(np.isfinite(x))
     assert np.isfinite(est["omega_max"])
@@ -189,7 +189,7 @@ def test_rest_length_bounds():
     # very large rest lengths: no force at all (exactly zero accelerations at rest)
     big = compile_model(s.replace(rest_length=np.full(s.n_strings, 1e9)))
     st = initial_state(big)
-    np.testing.assert_array_equal(tg.integrators.accelerations(big, st.q, st.qd), 0.0)
+    np.testing.assert_array_equal(tg.physics.accelerations(big, st.q, st.qd), 0.0)
     assert energy(big, st.q, st.qd)[0] == 0.0
 
 

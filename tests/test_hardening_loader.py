@@ -187,7 +187,7 @@ def test_python_constructor_rejects_the_same():
             s.replace(**change)
 
 
-@pytest.mark.parametrize("name", sorted(tg.builders.BUILDERS))
+@pytest.mark.parametrize("name", sorted(tg.core.builders.BUILDERS))
 def test_valid_structures_load_unchanged(tmp_path, name):
     """Nothing valid changes: every built-in structure passes the schema and round-trips exactly."""
     s = tg.build(name)
@@ -219,7 +219,7 @@ def test_schema_is_valid_json_schema_and_agrees_with_jsonschema():
         ours = _schema_ok(contents)
         theirs = v.is_valid(contents)
         assert ours == theirs, case_id
-    for name in tg.builders.BUILDERS:
+    for name in tg.core.builders.BUILDERS:
         assert v.is_valid(json.loads(json.dumps(tg.build(name).to_dict())))
 
 
@@ -271,7 +271,7 @@ def _assert_clear_or_finite(d):
     from tensegrity_gym.core.model import compile_model, initial_state
     m = compile_model(s)
     st0 = initial_state(m)
-    assert np.all(np.isfinite(tg.integrators.accelerations(m, st0.q, st0.qd)))
+    assert np.all(np.isfinite(tg.physics.accelerations(m, st0.q, st0.qd)))
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])

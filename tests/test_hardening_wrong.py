@@ -115,7 +115,7 @@ def test_mjcf_control_characters_in_the_name_give_parsable_xml(tmp_path, capsys)
     root = ET.fromstring(to_mjcf(s))
     assert root.get("model") == "robot\\x01\\x1b[31m\\x00\ttab"
     path = tmp_path / "s.json"
-    tg.structure.save_json(s, path)
+    tg.save_json(s, path)
     assert main(["export", str(path), "--format", "mjcf", "--out", str(tmp_path / "m.xml")]) == 0
     ET.parse(tmp_path / "m.xml")
 

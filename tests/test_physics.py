@@ -214,7 +214,7 @@ def test_node_accelerations_agree_with_reference(name):
     for _ in range(4):
         nodes, vel = rigid_perturbation(s, rng, pos=0.05, rot=0.2, vel=1.0, omega=3.0)
         st = initial_state(model, nodes=nodes, velocities=vel)
-        a = tg.integrators.accelerations(model, st.q, st.qd)
+        a = tg.physics.accelerations(model, st.q, st.qd)
         acc = node_velocities(model, a)[0]          # linear map: node accelerations
         acc_ref = ref.node_accelerations(nodes, vel)
         scale = np.abs(acc_ref).max()
@@ -240,8 +240,8 @@ def test_controls_and_batch_agree_with_reference(name):
     rest = s.rest_length * rng.uniform(0.9, 1.05, (B, m))
     u = rng.uniform(-20.0, 20.0, (B, m))
     ext = rng.normal(0.0, 5.0, (B, n, 3))
-    acc = node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd, rest_length=rest,
-                                                       force_density=u, external=ext))
+    acc = node_velocities(model, tg.physics.accelerations(model, st.q, st.qd, rest_length=rest,
+                                                    force_density=u, external=ext))
     for i in range(B):
         ref = NodeReference(s, rest_length=rest[i], force_density=u[i], external=ext[i])
         acc_ref = ref.node_accelerations(nodes[i], vels[i])
@@ -445,14 +445,14 @@ def test_prestressed_prism_has_zero_acceleration(p):
     s = tg.prism(p)
     model = compile_model(s)
     st = initial_state(model)
-    acc = node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd))[0]
+    acc = node_velocities(model, tg.physics.accelerations(model, st.q, st.qd))[0]
     scale = s.initial_tensions().max() / s.bar_mass.min()     # m/s^2
     assert np.abs(acc).max() < 1e-9 * scale, f"prism{p}: |a| = {np.abs(acc).max():.3g} m/s^2"
     np.testing.assert_allclose(twist_angles(s.nodes, p), np.pi / 2 - np.pi / p, atol=1e-12)
     # a wrong rest length breaks the equilibrium: the check can fail
     rl = s.rest_length.copy()
     rl[-1] *= 0.99
-    acc2 = node_velocities(model, tg.integrators.accelerations(model, st.q, st.qd, rest_length=rl))[0]
+    acc2 = node_velocities(model, tg.physics.accelerations(model, st.q, st.qd, rest_length=rl))[0]
     assert np.abs(acc2).max() > 1e-3 * scale
 
 
@@ -672,9 +672,9 @@ def test_node_damping_in_model_equals_external_drag(name):
     assert np.abs(out.q - ref.q).max() < 1e-13 and np.abs(out.qd - ref.qd).max() < 1e-12 * scale
     # the accelerations themselves, and node drag combined with an external force
     ext = np.random.default_rng(0).normal(size=(B, s.n_nodes, 3))
-    np.testing.assert_allclose(tg.integrators.accelerations(damped, st.q, st.qd, external=ext),
-                               tg.integrators.accelerations(plain, st.q, st.qd, external=ext + drag(st.q, st.qd)),
-                               rtol=0, atol=1e-12 * np.abs(tg.integrators.accelerations(plain, st.q, st.qd)).max())
+    np.testing.assert_allclose(tg.physics.accelerations(damped, st.q, st.qd, external=ext),
+                               tg.physics.accelerations(plain, st.q, st.qd, external=ext + drag(st.q, st.qd)),
+                               rtol=0, atol=1e-12 * np.abs(tg.physics.accelerations(plain, st.q, st.qd)).max())
 
 
 @pytest.mark.parametrize("integrator", ["semi_implicit_euler", "rk4"])

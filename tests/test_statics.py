@@ -21,7 +21,7 @@ def eq(prism):
 def test_equilibrium_has_zero_accelerations_and_is_stable(prism, eq):
     model = compile_model(prism)
     st = initial_state(model, 1, nodes=eq.nodes)
-    acc = tg.integrators.accelerations(model, st.q, np.zeros_like(st.qd))
+    acc = tg.physics.accelerations(model, st.q, np.zeros_like(st.qd))
     assert np.abs(acc).max() < 1e-8                       # m/s^2, from ~10 m/s^2 of gravity
     assert eq.residual < 1e-9
     assert eq.min_stiffness > 10.0                        # N/m: stable

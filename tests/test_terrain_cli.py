@@ -23,7 +23,7 @@ RAMP = {"friction": 0.8, "plane": {"slope_deg": 10.0, "uphill_deg": 0.0}}
 
 def _prism_file(tmp_path):
     """A squat prism robot (0.2 kg rods) with gravity and damped strings, standing on z = 0."""
-    s = tg.builders.prism(3, radius=0.15, height=0.25, bar_mass=0.2, stiffness=1000.0, prestress=20.0,
+    s = tg.prism(3, radius=0.15, height=0.25, bar_mass=0.2, stiffness=1000.0, prestress=20.0,
                           damping=2.0, gravity=(0.0, 0.0, -9.81))
     path = tmp_path / "prism_g.json"
     tg.save_json(s, path)

@@ -48,7 +48,7 @@ def test_dict_fixture_prism(with_stiffness):
     # still the prestressed equilibrium
     m = tg.compile_model(s)
     st = tg.initial_state(m)
-    acc = tg.integrators.accelerations(m, st.q, st.qd)
+    acc = tg.physics.accelerations(m, st.q, st.qd)
     assert np.abs(acc).max() < 1e-9
 
 
@@ -119,7 +119,7 @@ def test_real_tnsgrt_prism_and_tower():
     assert (s.n_bars, s.n_strings, s.n_nodes) == (3, 9, 6)
     m = tg.compile_model(s)
     st = tg.initial_state(m)
-    assert np.abs(tg.integrators.accelerations(m, st.q, st.qd)).max() < 1e-6   # tnsgrt's equilibrium
+    assert np.abs(tg.physics.accelerations(m, st.q, st.qd)).max() < 1e-6   # tnsgrt's equilibrium
     # a two-stage tower: a second prism on top, tied by saddle strings
     t = Prism(3)
     top = Prism(3)
