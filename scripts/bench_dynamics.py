@@ -51,12 +51,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from tensegrity_gym.core import builders  # noqa: E402
 from tensegrity_gym import physics  # noqa: E402
-from tensegrity_gym.core.model import initial_state, State, compile_model  # noqa: E402
+from tensegrity_gym.core.model import State, compile_model, initial_state  # noqa: E402
 from tensegrity_gym.physics.evaluate import project  # noqa: E402
 from tensegrity_gym.physics.integrate import step  # noqa: E402
 from tensegrity_gym.physics.rollout import simulate  # noqa: E402
 from tensegrity_gym.core.errors import StabilityWarning  # noqa: E402
-from tensegrity_gym.physics.geometry import node_positions, energy, string_state, rod_length_drift  # noqa: E402
+from tensegrity_gym.physics.geometry import energy, node_positions, rod_length_drift, string_state  # noqa: E402
 from tensegrity_gym.backends.numba import api as numba_api  # noqa: E402
 from _bench import mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers, a sibling module)
 

@@ -71,7 +71,7 @@ from gymnasium import spaces  # noqa: E402
 import tensegrity_gym  # noqa: E402,F401  (registers the env ids)
 from tensegrity_gym.core import builders  # noqa: E402
 from tensegrity_gym.backends.numba.api import step_inplace  # noqa: E402
-from tensegrity_gym.core.model import compile_model, State  # noqa: E402
+from tensegrity_gym.core.model import State, compile_model  # noqa: E402
 from tensegrity_gym.core.errors import StabilityWarning  # noqa: E402
 from _bench import mjcf  # noqa: E402  (MJCF of the free prism, shared with bench_dynamics)
 from tensegrity_gym.integrations.sb3 import make_sb3_vec_env  # noqa: E402

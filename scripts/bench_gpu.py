@@ -65,14 +65,14 @@ import torch
 
 import _bench  # noqa: E402  (shared helpers, a sibling module)
 from tensegrity_gym.core import builders
-from tensegrity_gym.core.model import initial_state, compile_model, State
+from tensegrity_gym.core.model import State, compile_model, initial_state
 from tensegrity_gym.physics.evaluate import project
 from tensegrity_gym.physics.integrate import step
 from tensegrity_gym.physics.geometry import node_positions
 from tensegrity_gym.backends.numba.api import step_inplace
 from tensegrity_gym.physics.contact import GroundContact, init_contact_state
 from tensegrity_gym.physics.contact import forces_inplace as contact_forces_inplace
-from tensegrity_gym.backends.torch.model import resolve_device, torch_model, torch_params, resolve_dtype
+from tensegrity_gym.backends.torch.model import resolve_device, resolve_dtype, torch_model, torch_params
 from tensegrity_gym.backends.torch import contact as torch_contact
 from tensegrity_gym.backends.torch.driver import step_once
 from tensegrity_gym.envs import roll

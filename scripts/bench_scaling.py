@@ -34,7 +34,7 @@ import warnings
 import numpy as np
 
 from tensegrity_gym.core import builders
-from tensegrity_gym.core.model import initial_state, compile_model
+from tensegrity_gym.core.model import compile_model, initial_state
 from tensegrity_gym.physics.integrate import step
 from tensegrity_gym.physics.stability import stable_step_estimate
 from tensegrity_gym.tools.cli import structure_summary

@@ -34,9 +34,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from tensegrity_gym.core import builders  # noqa: E402
 from tensegrity_gym.core.model import compile_model, initial_state  # noqa: E402
-from tensegrity_gym.physics.contact import init_contact_state, GroundContact, stable_step, contact_energy  # noqa: E402
+from tensegrity_gym.physics.contact import GroundContact, contact_energy, init_contact_state, stable_step  # noqa: E402
 from tensegrity_gym.physics.pipeline import contact_step  # noqa: E402
-from tensegrity_gym.physics.geometry import node_positions, center_of_mass, energy, linear_momentum  # noqa: E402
+from tensegrity_gym.physics.geometry import center_of_mass, energy, linear_momentum, node_positions  # noqa: E402
 from tensegrity_gym.core.structure import Structure  # noqa: E402
 
 G = 9.81

@@ -41,12 +41,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 import tensegrity_gym as tg  # noqa: E402
-from tensegrity_gym.core.model import initial_state, State, compile_model  # noqa: E402
+from tensegrity_gym.core.model import State, compile_model, initial_state  # noqa: E402
 from tensegrity_gym.physics.evaluate import project  # noqa: E402
 from tensegrity_gym.physics.integrate import step  # noqa: E402
 from tensegrity_gym.physics.rollout import simulate  # noqa: E402
-from tensegrity_gym.core.errors import StabilityWarning, SimulationDiverged  # noqa: E402
-from tensegrity_gym.physics.geometry import node_positions, energy, rod_length_drift  # noqa: E402
+from tensegrity_gym.core.errors import SimulationDiverged, StabilityWarning  # noqa: E402
+from tensegrity_gym.physics.geometry import energy, node_positions, rod_length_drift  # noqa: E402
 from tensegrity_gym.physics.stability import stability_limit  # noqa: E402
 from _bench import timed as _timed  # noqa: E402  (shared helpers, a sibling module)
 from tensegrity_gym.io.mjcf import to_mjcf  # noqa: E402
@@ -95,7 +95,7 @@ def rolling_scene(T):
 
 def _contact_run(sc, dt, integrator, backend, n_rec):
     """Records (S+1 of them) of (q, qd, contact energy) stepping with contact_step."""
-    from tensegrity_gym.physics.contact import init_contact_state, contact_energy
+    from tensegrity_gym.physics.contact import contact_energy, init_contact_state
     from tensegrity_gym.physics.pipeline import contact_step
     m, st, T, c = sc["model"], sc["state"], sc["T"], sc["contact"]
     n = int(round(T / dt))

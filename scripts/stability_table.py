@@ -33,11 +33,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 import tensegrity_gym as tg  # noqa: E402
 from tensegrity_gym import Structure  # noqa: E402
-from tensegrity_gym.core.model import compile_model, initial_state, State  # noqa: E402
+from tensegrity_gym.core.model import State, compile_model, initial_state  # noqa: E402
 from tensegrity_gym.physics.integrate import step  # noqa: E402
 from tensegrity_gym.physics import evaluate  # noqa: E402
-from tensegrity_gym.physics.geometry import energy, node_positions, string_state, rod_length_drift, center_of_mass  # noqa: E402
-from tensegrity_gym.core.errors import StabilityWarning, SimulationDiverged  # noqa: E402
+from tensegrity_gym.physics.geometry import center_of_mass, energy, node_positions, rod_length_drift, string_state  # noqa: E402
+from tensegrity_gym.core.errors import SimulationDiverged, StabilityWarning  # noqa: E402
 from tensegrity_gym.physics.stability import stability_limit, stable_step_estimate  # noqa: E402
 from tensegrity_gym.physics.rollout import simulate  # noqa: E402
 

@@ -31,7 +31,7 @@ import torch
 
 from tensegrity_gym.core import builders
 from tensegrity_gym.core.model import compile_model, initial_state
-from tensegrity_gym.physics import integrate, geometry
+from tensegrity_gym.physics import geometry, integrate
 from tensegrity_gym.backends.torch.model import resolve_device, torch_model, torch_params
 from tensegrity_gym.backends.torch import driver, equations
 

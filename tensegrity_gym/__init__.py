@@ -11,8 +11,8 @@ and baselines: :mod:`~tensegrity_gym.tools`; Stable-Baselines3 and rl_zoo3:
 ``--gym-packages``).
 All quantities in SI units.
 """
-from .core.structure import Structure, StructureError, load_json, save_json, from_dict
-from .core.builders import prism, pinned_rod, constrained_prism, icosahedron, tower, build, load_structure
+from .core.structure import Structure, StructureError, from_dict, load_json, save_json
+from .core.builders import build, constrained_prism, icosahedron, load_structure, pinned_rod, prism, tower
 from .core.model import Model, State, compile_model, initial_state
 from .physics.integrate import step
 from .physics.rollout import simulate

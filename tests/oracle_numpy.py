@@ -30,7 +30,7 @@ import contextlib
 
 import numpy as np
 
-from tensegrity_gym.physics.geometry import string_state, node_velocities
+from tensegrity_gym.physics.geometry import node_velocities, string_state
 from tensegrity_gym.core.integrators import resolve
 from tensegrity_gym.physics.integrate import rk4_update
 from tensegrity_gym.physics.contact import ContactState

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from tensegrity_gym.core import builders
-from tensegrity_gym.core.model import compile_model, initial_state, State
-from tensegrity_gym.physics.contact import (GroundContact, init_contact_state, contact_forces, ContactState,
-                                            stable_step, contact_energy)
+from tensegrity_gym.core.model import State, compile_model, initial_state
+from tensegrity_gym.physics.contact import (ContactState, GroundContact, contact_energy, contact_forces,
+                                            init_contact_state, stable_step)
 from tensegrity_gym.physics.pipeline import contact_step
-from tensegrity_gym.physics.geometry import node_positions, center_of_mass, linear_momentum, energy
+from tensegrity_gym.physics.geometry import center_of_mass, energy, linear_momentum, node_positions
 from tensegrity_gym.core.structure import Structure
 
 import oracle_numpy as oracle

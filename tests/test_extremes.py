@@ -12,14 +12,14 @@ import pytest
 
 import tensegrity_gym as tg
 from tensegrity_gym import Structure, StructureError
-from tensegrity_gym.physics import implicit, evaluate
-from tensegrity_gym.physics.stability import stable_step_estimate, stability_limit
-from tensegrity_gym.core.model import initial_state, State, compile_model
+from tensegrity_gym.physics import evaluate, implicit
+from tensegrity_gym.physics.stability import stability_limit, stable_step_estimate
+from tensegrity_gym.core.model import State, compile_model, initial_state
 from tensegrity_gym.physics.integrate import step
-from tensegrity_gym.physics.geometry import (string_state, energy, node_positions, linear_momentum, center_of_mass,
-                                             rod_length_drift)
+from tensegrity_gym.physics.geometry import (center_of_mass, energy, linear_momentum, node_positions, rod_length_drift,
+                                             string_state)
 from tensegrity_gym.physics.rollout import simulate
-from tensegrity_gym.core.errors import StabilityWarning, SimulationDiverged
+from tensegrity_gym.core.errors import SimulationDiverged, StabilityWarning
 from tensegrity_gym.physics import stability
 
 FIXED = ("semi_implicit_euler", "rk4", "implicit_euler")

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym.core.model import compile_model, initial_state, State
+from tensegrity_gym.core.model import State, compile_model, initial_state
 from tensegrity_gym.tools.cli import main
 
 SHAPE, ROLL = "TensegrityShape-v0", "TensegrityRoll-v0"

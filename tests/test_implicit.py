@@ -7,14 +7,14 @@ import pytest
 import tensegrity_gym as tg
 from tensegrity_gym import Structure
 from tensegrity_gym.physics import implicit
-from tensegrity_gym.core.model import initial_state, State, compile_model
+from tensegrity_gym.core.model import State, compile_model, initial_state
 from tensegrity_gym.physics.evaluate import project
 from tensegrity_gym.core.integrators import INTEGRATORS
 from tensegrity_gym.physics.integrate import step
-from tensegrity_gym.physics.geometry import node_positions, energy, linear_momentum, constraint_violation
+from tensegrity_gym.physics.geometry import constraint_violation, energy, linear_momentum, node_positions
 from tensegrity_gym.physics.stability import stability_limit
 from tensegrity_gym.physics.rollout import simulate
-from tensegrity_gym.core.errors import StabilityWarning, SimulationDiverged
+from tensegrity_gym.core.errors import SimulationDiverged, StabilityWarning
 
 
 def _kicked(model, scale, seed=0, B=1):

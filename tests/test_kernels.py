@@ -14,11 +14,11 @@ import pytest
 
 import tensegrity_gym as tg
 from tensegrity_gym.core import builders
-from tensegrity_gym.core.model import initial_state, State, compile_model
+from tensegrity_gym.core.model import State, compile_model, initial_state
 from tensegrity_gym.physics import evaluate
 from tensegrity_gym.physics.integrate import step
 from tensegrity_gym.physics.stability import stability_limit
-from tensegrity_gym.physics.geometry import string_state, node_velocities
+from tensegrity_gym.physics.geometry import node_velocities, string_state
 
 import oracle_numpy as oracle
 

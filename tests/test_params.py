@@ -91,7 +91,7 @@ def test_shared_params_are_bit_identical_to_no_params(backend, integrator):
 
 
 def test_parallel_per_copy_kernel_matches_serial():
-    from tensegrity_gym.backends.numba import api as _kernels, compile as _compile
+    from tensegrity_gym.backends.numba import compile as _compile
     model = tg.compile_model(tg.prism(3, prestress=100.0))
     rng = np.random.default_rng(3)
     n = 64
@@ -106,13 +106,13 @@ def test_parallel_per_copy_kernel_matches_serial():
 
 
 def test_step_inplace_per_copy_and_diagnostics():
-    from tensegrity_gym.backends.numba import api as _kernels
+    from tensegrity_gym.backends.numba import api
     model = tg.compile_model(tg.prism(3, prestress=100.0).replace(gravity=np.array([0, 0, -9.81])))
     rng = np.random.default_rng(4)
     params = _random_params(model, rng)
     st = _moving_state(model, rng)
     q, qd = st.q.copy(), st.qd.copy()
-    backends.numba.api.step_inplace(model, q, qd, 1e-3, "rk4", n_steps=10, params=params)
+    api.step_inplace(model, q, qd, 1e-3, "rk4", n_steps=10, params=params)
     ref = tg.step(model, st, 1e-3, "rk4", n_steps=10, params=params)
     assert np.array_equal(q, ref.q)
     # diagnostics read the copy's values: energy of copy b equals its own model's

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym.core.model import compile_model, initial_state, State
-from tensegrity_gym.physics.geometry import (node_velocities, node_positions, configuration_matrix, energy,
-                                             center_of_mass, linear_momentum, angular_momentum, constraint_violation,
-                                             rod_length_drift)
+from tensegrity_gym.core.model import State, compile_model, initial_state
+from tensegrity_gym.physics.geometry import (angular_momentum, center_of_mass, configuration_matrix,
+                                             constraint_violation, energy, linear_momentum, node_positions,
+                                             node_velocities, rod_length_drift)
 from tensegrity_gym.physics.evaluate import nodal_forces
 from tensegrity_gym.physics.stability import stable_step_estimate
 from tensegrity_gym.physics.rollout import simulate

@@ -10,7 +10,7 @@ import pytest
 
 import tensegrity_gym as tg
 from tensegrity_gym.physics.evaluate import force_densities, nodal_forces
-from tensegrity_gym.core.model import initial_state, compile_model
+from tensegrity_gym.core.model import compile_model, initial_state
 from tensegrity_gym.physics.geometry import connectivity
 from tensegrity_gym.physics.stability import stable_step_estimate
 from tensegrity_gym.physics import jacobian as jac

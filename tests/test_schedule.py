@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import tensegrity_gym as tg
-from tensegrity_gym.core.model import compile_model, initial_state, State
+from tensegrity_gym.core.model import State, compile_model, initial_state
 from tensegrity_gym.physics.rollout import simulate
 from tensegrity_gym.physics.integrate import step
 from tensegrity_gym.core.errors import SimulationDiverged

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import tensegrity_gym  # noqa: F401
-from tensegrity_gym.core.model import compile_model, State, initial_state
+from tensegrity_gym.core.model import State, compile_model, initial_state
 from tensegrity_gym.physics.geometry import node_positions, node_velocities
 from tensegrity_gym.tools.baselines import NNLSShapeController
 from tensegrity_gym.envs.shape import TensegrityShapeEnv, TensegrityShapeVectorEnv
@@ -283,7 +283,7 @@ def test_baseline_reaches_targets(mode):
 def test_node_drag_is_in_the_model_one_integrator_call_per_step(mode, monkeypatch):
     """The node drag lives in the model: one integrator call of frame_skip steps per control
     step, with the same physics as the drag applied as an external force every substep."""
-    from tensegrity_gym.physics import integrate as integrators   # where pipeline.step looks the step up
+    from tensegrity_gym.physics import integrate   # where pipeline.step looks the step up
     env = TensegrityShapeEnv(action_mode=mode, node_damping=3.0)
     task = env.task
     assert task.model.has_node_damping and np.all(task.model.node_damping == 3.0)
@@ -295,11 +295,11 @@ def test_node_drag_is_in_the_model_one_integrator_call_per_step(mode, monkeypatc
     plain = compile_model(task.structure, task.actuated if mode == "force_density" else None)
     st = State(q0, qd0, 0.0)
     for _ in range(task.frame_skip):                 # the old formulation: drag as an external force
-        st = physics.step(plain, st, task.dt, task.integrator, backend=task.backend,
-                              external=-3.0 * node_velocities(plain, st.qd), **inputs)
+        st = integrate.step(plain, st, task.dt, task.integrator, backend=task.backend,
+                            external=-3.0 * node_velocities(plain, st.qd), **inputs)
     calls = []
-    real = physics.step
-    monkeypatch.setattr(integrators, "step", lambda *x, **k: calls.append(k.get("n_steps")) or real(*x, **k))
+    real = integrate.step
+    monkeypatch.setattr(integrate, "step", lambda *x, **k: calls.append(k.get("n_steps")) or real(*x, **k))
     fused = []
     ctrl0 = task.ctrl.copy()
     assert task._fused

@@ -4,7 +4,7 @@ import pytest
 
 import tensegrity_gym as tg
 from tensegrity_gym.core.model import compile_model, initial_state
-from tensegrity_gym.physics.evaluate import project, force_densities
+from tensegrity_gym.physics.evaluate import force_densities, project
 from tensegrity_gym.physics import statics
 
 

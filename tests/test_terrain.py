@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tensegrity_gym.core import builders
-from tensegrity_gym.core.model import compile_model, initial_state, State
+from tensegrity_gym.core.model import State, compile_model, initial_state
 from tensegrity_gym.physics.pipeline import contact_step
 from tensegrity_gym.physics.contact import GroundContact, init_contact_state, stable_step
 from tensegrity_gym.physics import geometry

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tensegrity_gym.core import builders
-from tensegrity_gym.core.model import compile_model, initial_state, default_params
+from tensegrity_gym.core.model import compile_model, default_params, initial_state
 from tensegrity_gym.core.terrain import Box, Plane, Terrain
 from tensegrity_gym.physics import terrain as T
 

@@ -18,11 +18,11 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from tensegrity_gym.core import builders  # noqa: E402
-from tensegrity_gym.core.model import initial_state, State, compile_model  # noqa: E402
-from tensegrity_gym.physics import evaluate, integrate, contact as physics_contact, pipeline, geometry  # noqa: E402
-from tensegrity_gym.backends.torch import driver, contact as torch_contact, divergence, equations  # noqa: E402
-from tensegrity_gym.backends.torch.model import torch_model, torch_params, resolve_dtype  # noqa: E402
-from tensegrity_gym.backends.torch.actuation import update_motor, physics_inputs  # noqa: E402
+from tensegrity_gym.core.model import State, compile_model, initial_state  # noqa: E402
+from tensegrity_gym.physics import contact as physics_contact, evaluate, geometry, integrate, pipeline  # noqa: E402
+from tensegrity_gym.backends.torch import contact as torch_contact, divergence, driver, equations  # noqa: E402
+from tensegrity_gym.backends.torch.model import resolve_dtype, torch_model, torch_params  # noqa: E402
+from tensegrity_gym.backends.torch.actuation import physics_inputs, update_motor  # noqa: E402
 from tensegrity_gym.envs import roll  # noqa: E402
 from tensegrity_gym.envs.common import Actuation  # noqa: E402
 from tensegrity_gym.core.params import default_params  # noqa: E402

@@ -11,7 +11,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from tensegrity_gym.backends.torch.contact import contact_step, contact_substep  # noqa: E402
-from tensegrity_gym.backends.torch.driver import step_once, step  # noqa: E402
+from tensegrity_gym.backends.torch.driver import step, step_once  # noqa: E402
 from tensegrity_gym.backends.torch.graphs import SYNC_OPS, CapturedCall  # noqa: E402
 from tensegrity_gym.backends.torch.terrain import terrain_step  # noqa: E402
 

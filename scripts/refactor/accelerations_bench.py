@@ -13,8 +13,8 @@ import time
 import numpy as np
 
 import tensegrity_gym as tg
-from tensegrity_gym.core.model import initial_state, State
-from tensegrity_gym.physics.evaluate import project, accelerations
+from tensegrity_gym.core.model import State, initial_state
+from tensegrity_gym.physics.evaluate import accelerations, project
 from tensegrity_gym.physics.jacobian import acceleration_jacobians
 
 

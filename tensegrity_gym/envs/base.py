@@ -7,8 +7,8 @@ from typing import Sequence
 
 import numpy as np
 
-from ..core.model import Model, initial_state, State
-from ..core.integrators import resolve, INTEGRATORS, numba_backend
+from ..core.model import Model, State, initial_state
+from ..core.integrators import INTEGRATORS, numba_backend, resolve
 from ..physics import pipeline
 from ..core.params import default_params
 from ..physics import terrain

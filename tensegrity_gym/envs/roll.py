@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 
-from ..physics.contact import init_contact_state, GroundContact, stable_step, set_copy_values, PRM_FIELDS
+from ..physics.contact import PRM_FIELDS, GroundContact, init_contact_state, set_copy_values, stable_step
 from ..core.model import compile_model
 from ..physics.evaluate import force_densities, project
 from ..physics import geometry

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.model import compile_model
-from ..physics.evaluate import project, force_densities
-from ..physics.geometry import node_velocities, node_positions
+from ..physics.evaluate import force_densities, project
+from ..physics.geometry import node_positions, node_velocities
 from ..physics import statics
 from ..physics.stability import stability_limit
 from ..physics.actuation import Actuation

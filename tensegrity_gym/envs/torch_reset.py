@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backends.torch.model import torch_module, mass_moments
+from ..backends.torch.model import mass_moments, torch_module
 from ..core.param_table import contact_columns
 from ..physics.terrain import PRM_FIELDS as TERRAIN_PRM_FIELDS
 from ..tasks.randomization import draw_count, draw_range, values_from_draws

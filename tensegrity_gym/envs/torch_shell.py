@@ -11,7 +11,7 @@ import gymnasium as gym
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from ..backends.torch.model import torch_module, resolve_device, resolve_dtype, torch_model, torch_params
+from ..backends.torch.model import resolve_device, resolve_dtype, torch_model, torch_module, torch_params
 from ..backends.torch.driver import integrator_name, step_once
 from ..backends.torch.actuation import physics_inputs
 from ..backends.torch.contact import contact_substep

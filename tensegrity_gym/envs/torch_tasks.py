@@ -8,8 +8,8 @@ import gymnasium as gym
 import numpy as np
 
 from ..backends.torch.model import torch_module
-from ..backends.torch.equations import project, node_positions, node_velocities
-from ..backends.torch.actuation import update_rate, update_motor
+from ..backends.torch.equations import node_positions, node_velocities, project
+from ..backends.torch.actuation import update_motor, update_rate
 from ..backends.torch.driver import step
 from ..backends.torch import divergence
 from ..backends.torch.contact import contact_step

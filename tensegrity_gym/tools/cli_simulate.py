@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.model import compile_model, initial_state, State
+from ..core.model import State, compile_model, initial_state
 from ..physics.geometry import energy, node_positions, rod_length_drift
 from ..physics.evaluate import force_densities
 from ..core.builders import prism

@@ -23,7 +23,7 @@ def torch_jacobian(pb, theta, q0, qd0):
     (d log value / d theta)."""
     import torch
     from ..backends.torch.model import torch_model, torch_params
-    from ..backends.torch.equations import project, node_positions
+    from ..backends.torch.equations import node_positions, project
     from ..backends.torch.driver import step
     W, ns, p, K = pb.W, pb.ns, pb.p, pb.K
     T = torch.float64

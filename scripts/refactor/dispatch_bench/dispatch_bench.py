@@ -5,8 +5,8 @@ first on PYTHONPATH and NUMBA_NUM_THREADS=1."""
 import sys, timeit, numpy as np
 import tensegrity_gym as tg
 from tensegrity_gym.core import builders
-from tensegrity_gym.core.model import compile_model, initial_state, State
-from tensegrity_gym.physics.evaluate import project, accelerations
+from tensegrity_gym.core.model import State, compile_model, initial_state
+from tensegrity_gym.physics.evaluate import accelerations, project
 from tensegrity_gym.physics.integrate import step
 print(tg.__file__, file=sys.stderr)
 rows = []

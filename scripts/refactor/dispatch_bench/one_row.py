@@ -1,6 +1,6 @@
 import timeit, numpy as np
 from tensegrity_gym.core import builders
-from tensegrity_gym.core.model import compile_model, initial_state, State
+from tensegrity_gym.core.model import State, compile_model, initial_state
 from tensegrity_gym.physics.evaluate import project
 from tensegrity_gym.physics.integrate import step
 model = compile_model(builders.prism(3))
