@@ -40,7 +40,7 @@ Usage::
     .venv/bin/python scripts/bench_envs.py                     # shape env, ~3-4 min, writes results/bench_envs.*
     .venv/bin/python scripts/bench_envs.py --env all           # both envs (~7 min)
     .venv/bin/python scripts/bench_envs.py --quick             # CI-size smoke run (N = 1, 16; short windows; no files)
-    .venv/bin/python scripts/bench_envs.py --n-envs 1 256 --seconds 1 --out /tmp/b
+    .venv/bin/python scripts/bench_envs.py --n-envs 1 256 --seconds 1 --out runs/b
 
 Targets: batched vector env >= 10x the best of the others at N = 4096; single-env
 step() <= 2x its physics.

@@ -25,9 +25,9 @@ OUT=${OUT:-runs/device}; mkdir -p "$OUT"
 PY=${PY:-python3}; DEV=${DEV:-cuda}; BUDGET=${BUDGET:-70}; SCALE=${SCALE:-1}
 export PYTHONUNBUFFERED=1 TENSEGRITY_GYM_QUIET=1
 if [ -d .whl ]; then
-  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-  mkdir -p /tmp/pp && ln -sfn "$PWD/agents" /tmp/pp/tensegrity_gym_agents
-  export PYTHONPATH=/tmp/site:$PWD:/tmp/pp
+  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target .site .whl/*.whl || exit 1
+  mkdir -p .pp && ln -sfn "$PWD/agents" .pp/tensegrity_gym_agents
+  export PYTHONPATH=$PWD/.site:$PWD:$PWD/.pp
 fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$OUT/versions.txt" 2>&1
 $PY -c "import torch, numba, numpy, gymnasium, rsl_rl, tensordict, tensegrity_gym, tensegrity_gym_agents.common as c; \
