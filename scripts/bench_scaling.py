@@ -4,7 +4,7 @@
 For each prism tower (``builders.tower(q)``: 3 q rods, 6 q nodes, ~15 q strings) it measures
 
 * ``info``: wall time of ``python -m tensegrity_gym info towerQ`` as a fresh process (imports
-  included; the issue's target: under 2 s for tower300) and of the in-process summary
+  included; target: under 2 s for tower300) and of the in-process summary
   (:func:`tensegrity_gym.cli.structure_summary`: compile, accelerations, stable-step estimate);
 * us per step of ``integrators.step`` (semi-implicit Euler, dt = 1 ms, B = 1, ``n_steps`` steps
   in one call so per-call overhead is amortised), the numba kernels (the NumPy formulation is the test oracle, not a backend), best of 3;

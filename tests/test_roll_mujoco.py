@@ -1,4 +1,4 @@
-"""TensegrityRollMuJoCo-v0: the MuJoCo twin of TensegrityRoll-v0 (issue 13 item 4). SI units."""
+"""TensegrityRollMuJoCo-v0: the MuJoCo twin of TensegrityRoll-v0. SI units."""
 from __future__ import annotations
 
 import gymnasium as gym
