@@ -7,11 +7,11 @@ What it measures (wall clock, best of a few repeats, everything timed in the sam
   integrators (``semi_implicit_euler``, ``rk4``), the numba kernels (the NumPy equations are the test oracle, not timed), on the free
   3-bar prism, the 6-bar icosahedron and a 30-stage prism tower (``tower(30)``), for
   B = 1, 64, 1024, 4096 copies, dt = 1 ms;
-* the same scenes in MuJoCo (PyPI ``mujoco``): each rod a free body with thin-rod inertia
-  (``inertial`` mass and diaginertia [m l^2/12, m l^2/12, tiny]), each string a spatial tendon
+* the same scenes in MuJoCo (PyPI ``mujoco``), written by the package's MJCF writer
+  (:func:`tensegrity_gym.io.mjcf.to_mjcf`): each rod a free body, each string a spatial tendon
   between sites at the rod ends with ``stiffness`` and ``springlength="0 l0"`` (a dead band:
   no force while shorter than l0), no gravity, no contact, integrator Euler (semi-implicit)
-  or RK4, timestep 1 ms. B = 1 is one ``mj_step`` call per step; batched MuJoCo is
+  or RK4, timestep 1 ms; our states enter MuJoCo through the same module's mapping. B = 1 is one ``mj_step`` call per step; batched MuJoCo is
   ``mujoco.rollout`` over B states with one MjData per core (its fastest batched path), and
   a Python loop of ``mj_step`` over B MjData where that is affordable;
 * ratios ours / MuJoCo in steps per second (> 1: tensegrity_gym is faster);
@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from tensegrity_gym import builders, dynamics, integrators, physics  # noqa: E402
 from tensegrity_gym.backends.numba import api as numba_api  # noqa: E402
-from _bench import mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers, a sibling module)
+from _bench import mj_node_positions, mj_set_state, mjcf, mujoco_rollout_time, timeit  # noqa: E402  (shared helpers, a sibling module)
 
 DT = 1e-3
 
@@ -73,15 +73,6 @@ def perturbed_state(model, B, scale, seed=0):
 
 
 # ---------------------------------------------------------------------------- MuJoCo
-def mj_nodes(mm, d, model):
-    """(n, 3) node positions of MuJoCo's model (sites are named by node)."""
-    import mujoco
-    out = np.empty((model.n_nodes, 3))
-    for i in range(model.n_nodes):
-        out[i] = d.site_xpos[mujoco.mj_name2id(mm, mujoco.mjtObj.mjOBJ_SITE, f"n{i}")]
-    return out
-
-
 def mujoco_slack_check(mujoco):
     """A point body tied to the world by one tendon (k = 1000 N/m, springlength [0, l0 = 1 m]):
     the passive force must be k (L - l0) towards the anchor when L > l0 and zero when L < l0."""
@@ -225,7 +216,7 @@ def mujoco_same_scene(mujoco, quick):
     mujoco.mj_step(mm, d, nstep=n)
     mujoco.mj_kinematics(mm, d)
     ours = integrators.step(model, st, 1e-4, "rk4", n_steps=n)
-    diff = float(np.abs(mj_nodes(mm, d, model) - dynamics.node_positions(model, ours.q)[0]).max())
+    diff = float(np.abs(mj_node_positions(mujoco, mm, d, model.n_nodes) - dynamics.node_positions(model, ours.q)[0]).max())
     moved = float(np.abs(dynamics.node_positions(model, ours.q) - dynamics.node_positions(model, st.q)).max())
     return dict(mujoco_max_qacc_at_equilibrium=qacc_eq, duration_s=T, max_node_difference_m=diff,
                 max_node_displacement_m=moved)
