@@ -1,9 +1,14 @@
-"""Helpers shared by the benchmark and analysis scripts (``scripts/*.py``, which import it as a
-sibling module: ``from _bench import timeit``): timing, MuJoCo state and rollout timing, and rod
+"""Helpers shared by the benchmark and analysis scripts (``scripts/<group>/*.py``, run from the
+repository root as ``python -m scripts.<group>.<name>``, which import ``from scripts._bench import
+timeit``): the one benchmark harness (timing, torch device sync), MuJoCo state and rollout timing, and rod
 rotation vectors. Not part of the installed package.
 
 * :func:`timeit` -- best wall time (s) of one call, calls batched to about ``target`` s;
 * :func:`timed` -- wall time of one run (best of 3 when the run is short);
+* :func:`best_of` -- least wall time of ``repeats`` runs of a call (optional untimed setup);
+* :func:`interleaved_reps`, :func:`interleaved_windows` -- best time per call of several callables
+  timed in turn, round by round (fixed call counts, or time windows), so that a load change on a
+  shared machine hits them alike;
 * :func:`sync` -- wait for the work queued on a torch device (CUDA), before a host clock is read;
 * :func:`mjcf` -- the MJCF of a structure (:func:`tensegrity_gym.io.mjcf.to_mjcf`);
 * :func:`mj_set_state`, :func:`mj_node_positions`, :func:`mujoco_rollout_time` -- our state into
@@ -20,7 +25,7 @@ import numpy as np
 from tensegrity_gym.io.mjcf import initial_qpos_qvel, to_mjcf
 from tensegrity_gym.physics.geometry import node_positions, node_velocities
 
-__all__ = ["timeit", "timed", "sync", "mjcf", "mj_set_state", "mj_node_positions", "mujoco_rollout_time",
+__all__ = ["timeit", "timed", "best_of", "interleaved_reps", "interleaved_windows", "sync", "mjcf", "mj_set_state", "mj_node_positions", "mujoco_rollout_time",
            "rotation_vectors"]
 
 
@@ -64,6 +69,55 @@ def timed(fn, wall_min=0.2):
             fn()
             wall = min(wall, time.perf_counter() - t0)
     return out, wall
+
+
+def best_of(fn, repeats, setup=None, calls=1, warmup=True):
+    """Least wall time (s) per call of ``fn`` over ``repeats`` runs of ``calls`` calls each (after one
+    untimed warm-up call). With ``setup``, each run first calls ``setup()`` (untimed) and passes its
+    result to every call of ``fn``."""
+    if warmup:
+        fn(setup()) if setup is not None else fn()
+    best = float("inf")
+    for _ in range(repeats):
+        args = () if setup is None else (setup(),)
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            fn(*args)
+        best = min(best, (time.perf_counter() - t0) / calls)
+    return best
+
+
+def interleaved_reps(fns: dict, rounds: int) -> dict:
+    """Best seconds per call of each zero-argument function (``{name: (fn, calls per round)}``),
+    the functions timed in turn, round by round."""
+    best = {k: float("inf") for k in fns}
+    for _ in range(rounds):
+        for k, (fn, reps) in fns.items():
+            t0 = time.perf_counter()
+            for _ in range(reps):
+                fn()
+            best[k] = min(best[k], (time.perf_counter() - t0) / reps)
+    return best
+
+
+def interleaved_windows(fns: dict, seconds: float, rounds: int = 5) -> dict:
+    """Mean time (s) per call of each callable: ``rounds`` rounds, each giving every callable a
+    window of ``seconds / rounds`` in turn; the best round of each is kept. A callable may return
+    the duration of its own timed part (s); otherwise the wall time of the call counts."""
+    for fn in fns.values():
+        fn()
+    best = {k: float("inf") for k in fns}
+    win = seconds / rounds
+    for _ in range(rounds):
+        for k, fn in fns.items():
+            tot, n = 0.0, 0
+            while tot < win:
+                t0 = time.perf_counter()
+                r = fn()
+                tot += (time.perf_counter() - t0) if r is None else r
+                n += 1
+            best[k] = min(best[k], tot / n)
+    return best
 
 
 # ---------------------------------------------------------------------------- MuJoCo

@@ -186,12 +186,9 @@ def test_no_sys_path_edits_in_scripts_agents_or_package():
 
 
 def _script_helpers():
-    """scripts/_bench.py, which the scripts import as a sibling module (it is not installed)."""
-    import importlib.util
-    spec = importlib.util.spec_from_file_location("_bench", ROOT / "scripts" / "_bench.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    """scripts/_bench.py, which the scripts import as ``scripts._bench`` (it is not installed)."""
+    import importlib
+    return importlib.import_module("scripts._bench")
 
 
 def test_benchmark_helpers_are_not_in_the_package():
@@ -240,9 +237,9 @@ def test_script_mjcf_is_the_package_writer_and_takes_our_state():
 
 
 def test_scripts_import_the_agents_package_by_its_installed_name():
-    """``python scripts/x.py`` puts scripts/ (not the checkout) on sys.path: after an install the
-    agents package is importable only as tensegrity_gym_agents, so a script importing 'agents'
-    stops with ModuleNotFoundError."""
+    """After an install the agents package is importable only as tensegrity_gym_agents (the
+    checkout's ``agents/`` is on sys.path only when a script runs from the repository root), so a
+    script importing 'agents' would stop with ModuleNotFoundError."""
     import re
     bad = [f"{p.name}:{i}" for p in sorted((ROOT / "scripts").rglob("*.py"))
            for i, line in enumerate(p.read_text().splitlines(), 1)
