@@ -60,7 +60,9 @@ def cold(env_id: str) -> dict:
         r = subprocess.run([sys.executable, "-c", CHILD, env_id], capture_output=True, text=True, env=env, cwd=cache)
     if r.returncode:
         raise SystemExit(f"{env_id}: the measurement failed:\n{r.stderr[-2000:]}")
-    return json.loads(r.stdout.strip().splitlines()[-1])
+    row = json.loads(r.stdout.strip().splitlines()[-1])
+    row["package"] = os.path.relpath(row["package"])      # recorded relative to where the script runs
+    return row
 
 
 def main(argv=None) -> int:
@@ -74,7 +76,7 @@ def main(argv=None) -> int:
     if args.json and os.path.exists(args.json):
         ap.error(f"--json {args.json}: exists; give a new file")
     import tensegrity_gym
-    out = {"package": os.path.dirname(tensegrity_gym.__file__), "cpu": platform.processor() or platform.machine(),
+    out = {"package": os.path.relpath(os.path.dirname(tensegrity_gym.__file__)), "cpu": platform.processor() or platform.machine(),
            "load_avg": os.getloadavg(), "runs": {}}
     print(f"cold compile of {out['package']} (load average {out['load_avg'][0]:.2f})")
     print("| env | make + reset (s) | first step (s) | total (s) | kernels compiled (s, top level) |")
