@@ -1,14 +1,19 @@
-"""Helpers shared by the benchmark and analysis scripts (``scripts/*.py``, which import it as a
-sibling module: ``from _bench import timeit``): timing, MuJoCo state and rollout timing, and rod
+"""Helpers shared by the benchmark and analysis scripts (``scripts/<group>/*.py``, run from the
+repository root as ``python -m scripts.<group>.<name>``, which import ``from scripts._bench import
+timeit``): the one benchmark harness (timing, torch device sync), MuJoCo state and rollout timing, and rod
 rotation vectors. Not part of the installed package.
 
 * :func:`timeit` -- best wall time (s) of one call, calls batched to about ``target`` s;
 * :func:`timed` -- wall time of one run (best of 3 when the run is short);
+* :func:`best_of` -- least wall time of ``repeats`` runs of a call (optional untimed setup);
+* :func:`interleaved_reps`, :func:`interleaved_windows` -- best time per call of several callables
+  timed in turn, round by round (fixed call counts, or time windows), so that a load change on a
+  shared machine hits them alike;
 * :func:`sync` -- wait for the work queued on a torch device (CUDA), before a host clock is read;
-* :func:`quat_z_to` -- the quaternion of a rod body; :func:`mjcf` -- the MJCF of a structure
-  (:func:`tensegrity_gym.io.mjcf.to_mjcf`);
-* :func:`mj_set_state`, :func:`mujoco_rollout_time` -- our state into MjData, and the
-  per-env-step time of ``mujoco.rollout`` on all cores;
+* :func:`mjcf` -- the MJCF of a structure (:func:`tensegrity_gym.io.mjcf.to_mjcf`);
+* :func:`mj_set_state`, :func:`mj_node_positions`, :func:`mujoco_rollout_time` -- our state into
+  MjData (the package's mapping), MuJoCo's node positions, and the per-env-step time of
+  ``mujoco.rollout`` on all cores;
 * :func:`rotation_vectors` -- best-fit rigid rotation between two node sets (Kabsch).
 """
 from __future__ import annotations
@@ -17,9 +22,11 @@ import time
 
 import numpy as np
 
-from tensegrity_gym.io.mjcf import to_mjcf
+from tensegrity_gym.io.mjcf import initial_qpos_qvel, to_mjcf
+from tensegrity_gym.physics.geometry import node_positions, node_velocities
 
-__all__ = ["timeit", "timed", "sync", "quat_z_to", "mjcf", "mj_set_state", "mujoco_rollout_time", "rotation_vectors"]
+__all__ = ["timeit", "timed", "best_of", "interleaved_reps", "interleaved_windows", "sync", "mjcf", "mj_set_state", "mj_node_positions", "mujoco_rollout_time",
+           "rotation_vectors"]
 
 
 # ---------------------------------------------------------------------------- timing
@@ -64,6 +71,55 @@ def timed(fn, wall_min=0.2):
     return out, wall
 
 
+def best_of(fn, repeats, setup=None, calls=1, warmup=True):
+    """Least wall time (s) per call of ``fn`` over ``repeats`` runs of ``calls`` calls each (after one
+    untimed warm-up call). With ``setup``, each run first calls ``setup()`` (untimed) and passes its
+    result to every call of ``fn``."""
+    if warmup:
+        fn(setup()) if setup is not None else fn()
+    best = float("inf")
+    for _ in range(repeats):
+        args = () if setup is None else (setup(),)
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            fn(*args)
+        best = min(best, (time.perf_counter() - t0) / calls)
+    return best
+
+
+def interleaved_reps(fns: dict, rounds: int) -> dict:
+    """Best seconds per call of each zero-argument function (``{name: (fn, calls per round)}``),
+    the functions timed in turn, round by round."""
+    best = {k: float("inf") for k in fns}
+    for _ in range(rounds):
+        for k, (fn, reps) in fns.items():
+            t0 = time.perf_counter()
+            for _ in range(reps):
+                fn()
+            best[k] = min(best[k], (time.perf_counter() - t0) / reps)
+    return best
+
+
+def interleaved_windows(fns: dict, seconds: float, rounds: int = 5) -> dict:
+    """Mean time (s) per call of each callable: ``rounds`` rounds, each giving every callable a
+    window of ``seconds / rounds`` in turn; the best round of each is kept. A callable may return
+    the duration of its own timed part (s); otherwise the wall time of the call counts."""
+    for fn in fns.values():
+        fn()
+    best = {k: float("inf") for k in fns}
+    win = seconds / rounds
+    for _ in range(rounds):
+        for k, fn in fns.items():
+            tot, n = 0.0, 0
+            while tot < win:
+                t0 = time.perf_counter()
+                r = fn()
+                tot += (time.perf_counter() - t0) if r is None else r
+                n += 1
+            best[k] = min(best[k], tot / n)
+    return best
+
+
 # ---------------------------------------------------------------------------- MuJoCo
 def sync(device) -> None:
     """Wait for the work queued on the torch ``device`` (a CUDA device; a CPU runs its work as it
@@ -74,17 +130,6 @@ def sync(device) -> None:
         torch.cuda.synchronize(d)
 
 
-def quat_z_to(z):
-    """Unit quaternion (w, x, y, z) rotating the z axis onto the unit vector ``z``."""
-    zz = np.array([0.0, 0.0, 1.0])
-    c = float(zz @ np.asarray(z, float))
-    if c < -1 + 1e-12:
-        return np.array([0.0, 1.0, 0.0, 0.0])
-    v = np.cross(zz, z)
-    q = np.array([1.0 + c, *v])
-    return q / np.linalg.norm(q)
-
-
 def mjcf(model, integrator="Euler", dt=1e-3) -> str:
     """MJCF of the structure of ``model`` in its built configuration: the package's one MJCF
     writer (:func:`tensegrity_gym.io.mjcf.to_mjcf`: a free rod is a body at its centre of mass
@@ -93,25 +138,18 @@ def mjcf(model, integrator="Euler", dt=1e-3) -> str:
 
 
 def mj_set_state(mujoco, mm, d, model, q, qd):
-    """Put our configuration q, qd (k, 6) of one copy into MjData (free joints)."""
-    for j in range(model.n_bars):
-        adr, vadr = mm.jnt_qposadr[j], mm.jnt_dofadr[j]
-        r, b = q[j, :3], q[j, 3:]
-        rd, bd = qd[j, :3], qd[j, 3:]
-        d.qpos[adr:adr + 3] = r
-        d.qpos[adr + 3:adr + 7] = quat_z_to(b / np.linalg.norm(b))
-        R = _quat_to_mat(d.qpos[adr + 3:adr + 7])
-        omega_world = np.cross(b, bd)                   # b' = omega x b with omega . b = 0
-        d.qvel[vadr:vadr + 3] = rd
-        d.qvel[vadr + 3:vadr + 6] = R.T @ omega_world   # free joint: angular velocity in body frame
+    """Put our configuration q, qd (k, 6) of one copy into MjData of :func:`mjcf`'s model: the
+    package's mapping (:func:`tensegrity_gym.io.mjcf.initial_qpos_qvel` at our node positions and
+    velocities)."""
+    N = node_positions(model, np.asarray(q)[None])[0]
+    V = node_velocities(model, np.asarray(qd)[None])[0]
+    d.qpos[:], d.qvel[:] = initial_qpos_qvel(model.structure.replace(nodes=N, velocities=V))
     mujoco.mj_forward(mm, d)
 
 
-def _quat_to_mat(qt):
-    w, x, y, z = qt
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+def mj_node_positions(mujoco, mm, d, n_nodes):
+    """(n, 3) node positions, m, of :func:`mjcf`'s model in ``d`` (its sites ``node<i>``)."""
+    return np.array([d.site(f"node{i}").xpos for i in range(n_nodes)])
 
 
 def mujoco_rollout_time(mujoco, rollout, mm, d, B, target=0.15, repeats=3, nthread=None, nstep=4):

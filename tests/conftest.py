@@ -1,11 +1,15 @@
 """Shared pytest configuration. tests/ is put on sys.path so that test files can
-``import reference`` (the independent node-coordinate simulation) whatever the import mode."""
+``import reference`` (the independent node-coordinate simulation) whatever the import mode, and
+the repository root so that they can import the scripts as ``scripts.<group>.<name>`` (as
+``python -m scripts.<group>.<name>`` run from the root does)."""
 import sys
 from pathlib import Path
 
 _TESTS = str(Path(__file__).resolve().parent)
-if _TESTS not in sys.path:
-    sys.path.insert(0, _TESTS)
+_ROOT = str(Path(__file__).resolve().parents[1])
+for _p in (_ROOT, _TESTS):
+    if _p not in sys.path:
+        sys.path.insert(0, _p)
 
 import os  # noqa: E402
 import shutil  # noqa: E402

@@ -1,7 +1,6 @@
 """The NumPy reference of the physics equations: the test oracle of the numba kernels.
 
-Issue 12 ("each equation written once per backend; the NumPy path becomes a test oracle under
-tests/"): the package computes every step, projection, rod acceleration and contact force with
+Each equation is written once per backend and the NumPy path is a test oracle: the package computes every step, projection, rod acceleration and contact force with
 the numba kernels (:mod:`tensegrity_gym.backends.numba`, :mod:`tensegrity_gym.physics.pipeline`; torch in
 :mod:`tensegrity_gym.backends.torch`). This module keeps the vectorised NumPy formulation they
 were written from, so the tests can check the kernels against a second, independent transcription

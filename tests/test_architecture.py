@@ -1,4 +1,4 @@
-"""The architecture doc's module map lists every module of the package (scripts/module_map.py)."""
+"""The architecture doc's module map lists every module of the package (scripts/tools/module_map.py)."""
 import subprocess
 import sys
 from pathlib import Path
@@ -7,8 +7,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_module_map_is_current():
-    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "module_map.py"), "--check"], capture_output=True,
-                       text=True)
+    r = subprocess.run([sys.executable, "-m", "scripts.tools.module_map", "--check"], capture_output=True,
+                       text=True, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr
 
 

@@ -1,5 +1,5 @@
 """TensegrityClimbMuJoCo-v0: the MuJoCo twin of TensegrityClimb-v0 (the slope as MuJoCo's gravity in
-the plane frame); scripts/eval_transfer_terrain.py --slopes. SI units, angles in degrees."""
+the plane frame); scripts/eval/eval_transfer_terrain.py --slopes. SI units, angles in degrees."""
 from __future__ import annotations
 
 import json
@@ -134,8 +134,8 @@ def test_bad_arguments_are_named(kw, match):
 
 
 def _transfer_main():
-    """``main`` of scripts/eval_transfer_terrain.py."""
-    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer_terrain.py"
+    """``main`` of scripts/eval/eval_transfer_terrain.py."""
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval" / "eval_transfer_terrain.py"
     return runpy.run_path(str(script), run_name="eval_transfer_terrain")["main"]
 
 

@@ -1,6 +1,6 @@
 """Ground contact (tensegrity_gym.physics.contact): friction with a stick phase, slopes, penetration,
 energy, and the NumPy / numba kernels agreeing. SI units. The figures and the 10 s creep
-measurement are in scripts/contact_figures.py (docs/contact.md)."""
+measurement are in scripts/figures/contact_figures.py (docs/contact.md)."""
 import math
 
 import numpy as np
@@ -92,7 +92,7 @@ def test_slope_steeper_than_atan_mu_slides_shallower_stays(along):
 
 def test_resting_prism_does_not_creep():
     """A prestressed prism on the ground under gravity: after settling (1 s), its caps move less
-    than 1 mm over the next 3 s (scripts/contact_figures.py measures 10 s)."""
+    than 1 mm over the next 3 s (scripts/figures/contact_figures.py measures 10 s)."""
     m = resting_prism()
     c = GroundContact()
     st = initial_state(m, 1)

@@ -1,10 +1,9 @@
-"""scripts/device_time_to_policy.py: a few iterations of rsl_rl's PPO on the torch device env (CPU),
+"""scripts/eval/device_time_to_policy.py: a few iterations of rsl_rl's PPO on the torch device env (CPU),
 and the fields of the JSON result."""
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import json
-from pathlib import Path
 
 import pytest
 
@@ -12,20 +11,9 @@ pytest.importorskip("torch")
 pytest.importorskip("rsl_rl")
 pytest.importorskip("tensordict")
 
-SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "device_time_to_policy.py"
-
-
-@pytest.fixture(autouse=True)
-def _scripts_on_path(monkeypatch):
-    """scripts/ importable, as it is when the script runs (it imports its sibling ``_bench``)."""
-    monkeypatch.syspath_prepend(str(SCRIPT.parent))
-
 
 def _script():
-    spec = importlib.util.spec_from_file_location("device_time_to_policy", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return importlib.import_module("scripts.eval.device_time_to_policy")
 
 
 @pytest.mark.parametrize("target, reached", [(0.345, False), (-1.0, True)])

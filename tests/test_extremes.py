@@ -1,4 +1,4 @@
-"""Stability at the extremes (fast versions of scripts/stability_table.py).
+"""Stability at the extremes (fast versions of scripts/figures/stability_table.py).
 
 Stiffness 1..1e7 N/m x rod mass 1e-3..1e2 kg (stable or warned), ballistic flight with all
 strings slack (exact), a string through zero length (no NaN, no numpy warning), rest lengths

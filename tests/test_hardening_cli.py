@@ -1,4 +1,4 @@
-"""Command line hardening (issue 16, items 1 and 5): every case ends in a documented exit code and,
+"""Command line hardening: every case ends in a documented exit code and,
 when it fails, exactly one ``error: ...`` line on stderr (warnings, if any, one line each before
 it), never a traceback.
 

@@ -1,4 +1,4 @@
-"""Env constructor arguments and actions (issue 16, item 1): a clear ValueError naming the
+"""Env constructor arguments and actions: a clear ValueError naming the
 argument and the value, or a finite result, nothing else.
 
 CASES lists constructor arguments with the message each must give; a ``dt`` above the estimated
@@ -49,7 +49,7 @@ CASES = [
     ("roll-dt-nan", ROLL, dict(dt=math.nan), r"dt: must be positive and finite \(s\), got nan"),
     ("shape-frame-skip-0", SHAPE, dict(frame_skip=0), r"frame_skip: must be an integer >= 1 \(physics steps per action\), got 0"),
     ("shape-frame-skip-float", SHAPE, dict(frame_skip=1.5), r"frame_skip: must be an integer >= 1 .*, got 1.5"),
-    # named, not NumPy's/Python's anonymous conversion errors (session 20)
+    # named, not NumPy's/Python's anonymous conversion errors
     ("roll-frame-skip-text", ROLL, dict(frame_skip="abc"), r"frame_skip: must be an integer >= 1 .*, got 'abc'"),
     ("shape-frame-skip-nan", SHAPE, dict(frame_skip=math.nan), r"frame_skip: must be an integer >= 1 .*, got nan"),
     ("roll-delay-text", ROLL, dict(action_delay="abc"), r"action_delay: must be an integer >= 0 \(control steps\), got 'abc'"),

@@ -1,4 +1,4 @@
-"""Malformed structure files (issue 16, item 1): every case ends in a StructureError whose message
+"""Malformed structure files: every case ends in a StructureError whose message
 names the key, the index and the value; valid files load exactly as before.
 
 CASES lists the hand-written cases (a change to the valid 3-prism's JSON, or raw file text/bytes)

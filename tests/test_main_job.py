@@ -1,4 +1,4 @@
-"""scripts/main_job.py end to end on a tiny budget: a new folder, a verdict against the reference,
+"""scripts/eval/main_job.py end to end on a tiny budget: a new folder, a verdict against the reference,
 a cut-short run said as such, and an existing folder refused."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ ENV = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg", "TENSEGRITY_G
 
 
 def _main_job(*args, cwd):
-    return subprocess.run([sys.executable, str(ROOT / "scripts" / "main_job.py"), *args], cwd=cwd, env=ENV,
+    return subprocess.run([sys.executable, "-m", "scripts.eval.main_job", *args], cwd=cwd, env=ENV,
                           capture_output=True, text=True, timeout=1200)
 
 
@@ -36,10 +36,8 @@ def test_main_job_tiny_budget_writes_a_new_folder_and_says_it_fell_short(tmp_pat
 
 
 def test_verdict_of_a_complete_run_quotes_the_reference():
-    import importlib.util
-    spec = importlib.util.spec_from_file_location("main_job", ROOT / "scripts" / "main_job.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    import importlib
+    mod = importlib.import_module("scripts.eval.main_job")
     ref = {"n_seeds": 5, "success_rate": {"iqm": 0.97, "ci": [0.95, 0.99], "min": 0.9, "max": 1.0}}
     text = mod.verdict(0.96, 1_200_128, 1_200_000, "finished", ref)
     assert "96 %" in text and "97 %" in text and "CUT SHORT" not in text

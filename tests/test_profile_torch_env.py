@@ -1,23 +1,17 @@
-"""scripts/profile_torch_env.py: a control step of the torch device env profiled on the CPU (its
+"""scripts/bench/profile_torch_env.py: a control step of the torch device env profiled on the CPU (its
 rows and the JSON it writes)."""
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import json
-from pathlib import Path
 
 import pytest
 
 pytest.importorskip("torch")
 
-SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "profile_torch_env.py"
 
-
-def test_profile_rows(tmp_path, capsys, monkeypatch):
-    monkeypatch.syspath_prepend(str(SCRIPT.parent))     # as when the script runs: it imports _bench
-    spec = importlib.util.spec_from_file_location("profile_torch_env", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+def test_profile_rows(tmp_path, capsys):
+    mod = importlib.import_module("scripts.bench.profile_torch_env")
     out = tmp_path / "p.json"
     assert mod.main(["--device", "cpu", "--num-envs", "3", "--steps", "2", "--warmup", "1", "--threads", "1",
                      "--json", str(out)]) == 0

@@ -1,22 +1,16 @@
-"""scripts/replay_terrain_kernel.py: the terrain kernel calls of an env run recorded and replayed
+"""scripts/bench/replay_terrain_kernel.py: the terrain kernel calls of an env run recorded and replayed
 (the replay leaves the recorded inputs as they were, and the env's kernels are put back)."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
+import importlib
 
 import numpy as np
 
 from tensegrity_gym.backends.numba import terrain_steps as TS
 
-SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "replay_terrain_kernel.py"
-
 
 def _load():
-    spec = importlib.util.spec_from_file_location("replay_terrain_kernel", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return importlib.import_module("scripts.bench.replay_terrain_kernel")
 
 
 def test_record_and_replay(capsys):

@@ -1,4 +1,4 @@
-"""TensegrityRollMuJoCo-v0: the MuJoCo twin of TensegrityRoll-v0 (issue 13 item 4). SI units."""
+"""TensegrityRollMuJoCo-v0: the MuJoCo twin of TensegrityRoll-v0. SI units."""
 from __future__ import annotations
 
 import gymnasium as gym
@@ -247,7 +247,7 @@ def test_eval_transfer_script(tmp_path, capsys):
     import json
     import runpy
     from pathlib import Path
-    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer.py"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval" / "eval_transfer.py"
     main = runpy.run_path(str(script), run_name="eval_transfer")["main"]
     out = tmp_path / "t.json"
     assert main(["--policy", "gait", "--robots", "2", "--time", "0.2", "--out", str(out)]) == 0
@@ -294,7 +294,7 @@ def test_eval_transfer_uses_the_runs_observation_and_writes_a_table(tmp_path):
     import runpy
     from pathlib import Path
     yaml = pytest.importorskip("yaml")
-    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer.py"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval" / "eval_transfer.py"
     ns = runpy.run_path(str(script), run_name="eval_transfer")
     run = tmp_path / "run"
     run.mkdir()

@@ -31,7 +31,7 @@ def _dense_connectivity(model):
 
 
 def _dense_nodal_forces(model, q, qd, rest_length=None, force_density=None, external=None, params=None):
-    """The pre-issue-12 formula W - N C_S^T Gamma C_S with the dense C (oracle)."""
+    """The explicit formula W - N C_S^T Gamma C_S with the dense C (oracle)."""
     gamma, S, _ = force_densities(model, q, qd, rest_length, force_density, params)
     F = -np.einsum("mn,bmi->bni", _dense_connectivity(model), gamma[..., None] * S)
     return oracle.add_loads(model, F, qd, external, params), gamma

@@ -251,13 +251,13 @@ def test_actuated_rest_lengths_are_followed():
 
 
 def test_sysid_results_actuated_experiment_is_consistent():
-    """scripts/sysid_results.py's actuated record: the commanded rest lengths are held between
+    """scripts/figures/sysid_results.py's actuated record: the commanded rest lengths are held between
     100 Hz motor commands, stay within +-2 cm, the record is the same robot as the free release,
     and a noise-free 1 s record fitted as the script fits it (1 s window, the recorded rest
     lengths) recovers every parameter within 1 %."""
     import runpy
     from pathlib import Path
-    mod = runpy.run_path(str(Path(__file__).resolve().parents[1] / "scripts" / "sysid_results.py"), run_name="sysid")
+    mod = runpy.run_path(str(Path(__file__).resolve().parents[1] / "scripts" / "figures" / "sysid_results.py"), run_name="sysid")
     model, true, t, nodes, rl = mod["record"](1.0)
     nh = int(round(mod["HOLD"] / mod["SAMPLE_DT"]))
     assert rl.shape == (t.size, model.n_strings)

@@ -3,7 +3,7 @@
 Agreement: float64 torch on CPU equals the numba path to round-off (1e-10 m) on the prism,
 the icosahedron and constrained structures, RK4 and semi-implicit Euler at dt = 1e-4. The
 tests run 0.1 s (1000 steps) to stay within seconds on a 2-core CI machine; the full 1 s
-comparison is printed by ``scripts/bench_gpu.py --agreement`` (docs/bench_gpu.md).
+comparison is printed by ``python -m scripts.bench.bench_gpu --agreement`` (docs/bench_gpu.md).
 Contact: the rolling robot against ``physics.pipeline.contact_step``. Gradients: autograd directional
 derivatives against central finite differences of the NumPy path (not of torch), so a
 wrong torch gradient fails.

@@ -1,6 +1,6 @@
 """The MuJoCo twins on terrain: TensegrityRollMuJoCo-v0 with ``terrain=`` (fixed and drawn per
 episode, written into the MjModel in place) and TensegrityNavigateMuJoCo-v0 (the navigation task's
-courses, guidance, goals and rewards on MuJoCo's state); scripts/eval_transfer_terrain.py. SI units."""
+courses, guidance, goals and rewards on MuJoCo's state); scripts/eval/eval_transfer_terrain.py. SI units."""
 from __future__ import annotations
 
 import json
@@ -222,7 +222,7 @@ def test_navigation_twin_goal_bonus_and_success():
 
 
 def test_eval_transfer_terrain_script(tmp_path, capsys):
-    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer_terrain.py"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval" / "eval_transfer_terrain.py"
     main = runpy.run_path(str(script), run_name="eval_transfer_terrain")["main"]
     out = tmp_path / "nav.json"
     assert main(["gait", "--courses", "2", "--steps", "20", "--out", str(out)]) == 0
@@ -251,7 +251,7 @@ def test_eval_transfer_terrain_with_a_trained_run(tmp_path):
     train.train(["--algo", "ppo", "--env", "TensegrityNavigate-v0", "--log-dir", str(run), "--n-timesteps", "64",
                  "--n-envs", "2", "--eval-freq", "-1", "--save-freq", "-1", "--no-progress-bar",
                  "--hyperparams", "n_steps=32", "batch_size=64", "n_epochs=1", "policy_kwargs=dict(net_arch=[16])"])
-    script = Path(__file__).resolve().parents[1] / "scripts" / "eval_transfer_terrain.py"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "eval" / "eval_transfer_terrain.py"
     main = runpy.run_path(str(script), run_name="eval_transfer_terrain")["main"]
     out = tmp_path / "t.json"
     assert main([str(run), "--courses", "1", "--steps", "10", "--out", str(out)]) == 0

@@ -7,7 +7,7 @@
 #       b: 4096 envs x 32 steps, 2 epochs x 8 minibatches);
 #   ttp_c: 1024 envs x 32 steps, 2 epochs x 8 minibatches, entropy bonus 0.005 (the setting that left
 #       the 0.03 m/s plateau in every CPU run, results/device_time_to_policy/README.md);
-#   profile: where a control step of the torch env goes (scripts/profile_torch_env.py);
+#   profile: where a control step of the torch env goes (scripts/bench/profile_torch_env.py);
 #   pytest: the CUDA tests (torch backend, envs, device resets, terrain);
 #   terrain: the torch terrain envs' throughput against flat ground, eager and compiled (float32);
 #   With cuda_graph=True (each control step's physics replayed as one CUDA graph):
@@ -25,9 +25,9 @@ OUT=${OUT:-runs/device}; mkdir -p "$OUT"
 PY=${PY:-python3}; DEV=${DEV:-cuda}; BUDGET=${BUDGET:-70}; SCALE=${SCALE:-1}
 export PYTHONUNBUFFERED=1 TENSEGRITY_GYM_QUIET=1
 if [ -d .whl ]; then
-  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-  mkdir -p /tmp/pp && ln -sfn "$PWD/agents" /tmp/pp/tensegrity_gym_agents
-  export PYTHONPATH=/tmp/site:$PWD:/tmp/pp
+  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target .site .whl/*.whl || exit 1
+  mkdir -p .pp && ln -sfn "$PWD/agents" .pp/tensegrity_gym_agents
+  export PYTHONPATH=$PWD/.site:$PWD:$PWD/.pp
 fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$OUT/versions.txt" 2>&1
 $PY -c "import torch, numba, numpy, gymnasium, rsl_rl, tensordict, tensegrity_gym, tensegrity_gym_agents.common as c; \
@@ -35,7 +35,7 @@ print('torch', torch.__version__, 'numba', numba.__version__, 'numpy', numpy.__v
 gymnasium.__version__, 'tensordict', tensordict.__version__, 'cpu', c.cpu_model(), 'cpus', c.cpus_available())" \
   >> "$OUT/versions.txt" 2>&1 || { cat "$OUT/versions.txt"; exit 1; }
 cat "$OUT/versions.txt"
-T="$PY scripts/device_time_to_policy.py --device $DEV --compile --reset-sampling device --budget-s $BUDGET \
+T="$PY -m scripts.eval.device_time_to_policy --device $DEV --compile --reset-sampling device --budget-s $BUDGET \
    --eval-every-s 10 --eval-envs 64 --label lent_device_machine"
 ttp() {  # name envs steps epochs minibatches seed [more arguments]
   name=$1 envs=$2 steps=$3 epochs=$4 mb=$5 seed=$6; shift 6
@@ -53,22 +53,22 @@ for part in "$@"; do
     ttp_g) ttp 4096x32_ent005_graph_s0 4096 32 2 8 0 --entropy-coef 0.005 --cuda-graph ;;
     ttp_g1) ttp 1024x32_ent005_graph_s0 1024 32 2 8 0 --entropy-coef 0.005 --cuda-graph ;;
     ttp_g8) ttp 8192x32_ent005_graph_s0 8192 32 2 8 0 --entropy-coef 0.005 --cuda-graph ;;
-    gprofile) timeout 120 $PY scripts/profile_torch_env.py --device $DEV --num-envs $((1024 / SCALE)) $((8192 / SCALE)) \
+    gprofile) timeout 120 $PY -m scripts.bench.profile_torch_env --device $DEV --num-envs $((1024 / SCALE)) $((8192 / SCALE)) \
                 --compile --cuda-graph --no-eager --json "$OUT/profile_graph.json" > "$OUT/profile_graph.log" 2>&1
               tail -n 6 "$OUT/profile_graph.log" ;;
     gpytest) timeout ${PYTEST_TIMEOUT:-100} $PY -m pytest -q -p no:cacheprovider tests/test_torch_graphs.py ${PYTEST_K:-} > "$OUT/pytest_graph.log" 2>&1
              tail -n 3 "$OUT/pytest_graph.log" ;;
-    gterrain) timeout ${TERRAIN_TIMEOUT:-150} $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 10 \
+    gterrain) timeout ${TERRAIN_TIMEOUT:-150} $PY -m scripts.bench.bench_terrain --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 10 \
                 --torch-no-eager --torch-compile --torch-cuda-graph --torch-device $DEV --torch-dtype float32 \
                 --torch-scenes flat "slope 20 deg" "rough 2 cm (heightfield)" "steps (4 boxes)" \
                 --json "$OUT/bench_terrain_graph.json" > "$OUT/bench_terrain_graph.log" 2>&1
               tail -n 12 "$OUT/bench_terrain_graph.log" ;;
-    profile) timeout 200 $PY scripts/profile_torch_env.py --device $DEV --num-envs 64 $((8192 / SCALE)) --compile \
+    profile) timeout 200 $PY -m scripts.bench.profile_torch_env --device $DEV --num-envs 64 $((8192 / SCALE)) --compile \
                --json "$OUT/profile_torch_env.json" > "$OUT/profile.log" 2>&1; tail -n 6 "$OUT/profile.log" ;;
     pytest) timeout 170 $PY -m pytest -q -p no:cacheprovider tests/test_torch_backend.py tests/test_torch_env.py \
               tests/test_torch_reset.py tests/test_torch_terrain.py -k cuda > "$OUT/pytest_cuda.log" 2>&1
             tail -n 3 "$OUT/pytest_cuda.log" ;;
-    terrain) timeout 240 $PY scripts/bench_terrain.py --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 10 \
+    terrain) timeout 240 $PY -m scripts.bench.bench_terrain --batch --torch-envs $((16384 / SCALE)) --torch-env-steps 10 \
                --torch-compile --torch-device $DEV --torch-dtype float32 --torch-scenes flat "slope 20 deg" \
                "rough 2 cm (heightfield)" "steps (4 boxes)" --json "$OUT/bench_terrain_torch_env.json" \
                > "$OUT/bench_terrain.log" 2>&1

@@ -175,14 +175,14 @@ ROLL_DOC = r"""
     :class:`tensegrity_gym.tools.baselines.RollingGait` (no learning): a periodic contraction wave of
     rest lengths around the prism's axis (period 1.71 s, open loop in time) that rolls the prism
     face over face, steered by one fed-back scalar (the top/bottom rest-length bias, from the
-    heading of the observed centre-of-mass velocity). ``python scripts/eval_roll_baseline.py``
+    heading of the observed centre-of-mass velocity). ``python -m scripts.eval.eval_roll_baseline``
     (100 s on flat ground, 8 reset seeds, default env; ``results/roll_baseline.json``): goal +x
     0.196 m/s along the goal (min 0.191) = 0.51 body lengths/s (body length = rod length
     0.383 m), 0.250 m/s = 0.65 body lengths/s after the first 20 s; random goals 0.232 m/s. From
     the reset pose the wave rolls the prism toward -x first and the feedback turns it round in
     its first 15-20 s, so in one registered 20 s episode it gains little (about 0 m). It
     rolls: +18.9 net turns about the axis across the goal in 100 s
-    (``scripts/gait_stats.py gait --steps 5000``). The same wave without the feedback
+    (``scripts/eval/gait_stats.py gait --steps 5000``). The same wave without the feedback
     (``steer=0``, purely open loop) rolls as fast over the ground (0.244 m/s) but in circles:
     -0.085 m/s along +x.
 

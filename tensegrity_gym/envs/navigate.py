@@ -218,7 +218,7 @@ _DOC = r"""
 
     ## Baseline
     :class:`tensegrity_gym.tools.baselines.RollingGait` steered by the guidance (it reads the goal
-    direction from the observation): ``python scripts/eval_navigate.py --baseline``.
+    direction from the observation): ``python -m scripts.eval.eval_navigate --baseline``.
 """
 
 TensegrityNavigateEnv = TaskEnv.for_task(NavigateTask, ENV_ID, _DOC, __name__)

@@ -84,17 +84,17 @@ with boxes).
 :func:`tensegrity_gym.backends.torch.driver.step_once`) in ``torch.compile``: the first steps
 compile (10-35 s on a 2-core CPU, 7-17 s on an H100), then a control step ran 2-8x faster than
 eager on CPU, and 4.5-6.1x on an H100 at N = 65,536 (roll: 74-123M physics env-steps/s), in
-``scripts/bench_gpu.py --env --env-compile`` (``docs/bench_gpu.md``). With ``compile=True`` on a
+``scripts/bench/bench_gpu.py --env --env-compile`` (``docs/bench_gpu.md``). With ``compile=True`` on a
 CUDA device, ``cuda_graph=True`` captures a control step's physics (``frame_skip`` compiled
 sub-steps, hundreds of kernels) once as a CUDA graph and replays it at each step
 (:mod:`tensegrity_gym.backends.torch.graphs`): one launch instead of hundreds, where launches,
 not the device, set the pace (on an H200, a control step of 1,024 / 8,192 envs took 4.6 / 3.4 ms
-against 17.2 / 24.7 ms compiled, ``scripts/profile_torch_env.py --cuda-graph``). The graph
+against 17.2 / 24.7 ms compiled, ``scripts/bench/profile_torch_env.py --cuda-graph``). The graph
 holds its own compile of the physics: float32 results can differ from ``compile=True``'s alone
 in the last bits. Reset sampling on the host
 costs a Python loop over the reset envs (14-35 us per env on a 2-core CPU, the same as the
 NumPy env's reset), paid when envs finish; ``reset_sampling="device"`` took 1.7-1.9 us per env
-on the same CPU at B = 1,024-16,384 (``scripts/bench_gpu.py --env-reset``, ``docs/bench_gpu.md``).
+on the same CPU at B = 1,024-16,384 (``scripts/bench/bench_gpu.py --env-reset``, ``docs/bench_gpu.md``).
 
 Autoreset and seeding are those of :class:`~tensegrity_gym.envs.common.TaskVectorEnv`:
 ``autoreset_mode`` ``"next_step"`` (default), ``"same_step"`` or ``"disabled"``; ``reset(seed=s)`` seeds env i with ``s + i`` (with device resets:

@@ -196,7 +196,7 @@ def wave_targets(t, nominal, low, high, amplitude, phase, period, direction, sha
     times ``t`` (B,) s. ``nominal``, ``low``, ``high`` (9,) m. The wave's parameters are one
     pattern for all B rows (``amplitude``, ``phase`` (3,); ``period`` s, ``direction``,
     ``sharpness`` scalars) or one pattern per row (``(B, 3)`` and ``(B,)``: a batched search
-    over patterns, ``scripts/gait_search.py``). ``bias`` (scalar or (B,)) lengthens the bottom
+    over patterns, ``scripts/eval/gait_search.py``). ``bias`` (scalar or (B,)) lengthens the bottom
     strings' nominal rest lengths by the factor ``1 + bias`` and shortens the top strings' by
     ``1 - bias`` (a cone-shaped prism: the steering input of :class:`RollingGait`)."""
     t = np.atleast_1d(np.asarray(t, float))
@@ -226,7 +226,7 @@ class RollingGait:
     with ``c_s`` = +1 for the bottom strings, -1 for the top strings, 0 for the vertical ones.
     The strings on the side that is about to touch the ground shorten in turn, which pulls the
     centre of mass past the edge of the support face: the prism rolls face over face
-    (``scripts/gait_stats.py gait``: net rotation about the horizontal axis across the goal
+    (``scripts/eval/gait_stats.py gait``: net rotation about the horizontal axis across the goal
     with ``omega x z`` along the motion, see ``docs/contact.md``).
 
     **Steering (heading feedback).** The twisted prism is chiral: rolled by the wave alone
@@ -249,14 +249,14 @@ class RollingGait:
     current rest lengths are read from the observation's ``control`` block). With the env's
     cable motor model (on by default) the cable speed follows that command with a lag.
 
-    Figures (``python scripts/eval_roll_baseline.py``, 100 s on flat ground, 8 reset seeds,
+    Figures (``python -m scripts.eval.eval_roll_baseline``, 100 s on flat ground, 8 reset seeds,
     ``results/roll_baseline.json``) are in the env's docstring and the README. How the default
     parameters were found: the wave is the pattern of a batched random search
-    (``scripts/gait_search.py 1 4096``) that rotated most about a horizontal axis in 10 s; the
+    (``scripts/eval/gait_search.py 1 4096``) that rotated most about a horizontal axis in 10 s; the
     steering constants ``(bias0, steer, steer_angle, heading_time_constant)`` come from a grid
     of 81 settings (3 x 3 x 3 x 3), each run for 100 s on 4 reset seeds with the goal +x and on
     4 with random goals, keeping the setting with the best worse-of-the-two mean progress along
-    the goal (``scripts/gait_search.py --steer-grid``).
+    the goal (``scripts/eval/gait_search.py --steer-grid``).
 
     ``predict(obs, state=None, episode_start=None, deterministic=True) -> (action, state)`` as a
     Stable-Baselines3 model. ``state`` is a (B, 3) float array: column 0 the control steps since
@@ -340,7 +340,7 @@ class RollingGait:
         """Heading feedback: observations (B, obs_dim) and filtered centre-of-mass velocities
         (B, 2) m/s -> (bias (B,), updated filtered velocities (B, 2)). The four steering
         constants may also be set to (B,) arrays after construction (one setting per row: the
-        grid of ``scripts/gait_search.py --steer-grid``)."""
+        grid of ``scripts/eval/gait_search.py --steer-grid``)."""
         vel = obs[:, self._vel].reshape(obs.shape[0], -1, 3)[:, :, :2].mean(axis=1)
         a = np.minimum(1.0, self.control_dt / np.asarray(self.heading_time_constant, float))
         v = v + np.reshape(a, (-1, 1)) * (vel - v)

@@ -63,7 +63,7 @@ def _compile(which: str) -> None:
 #: cost the prism robot more than its whole flat-ground step; a terrain that is one plane counts
 #: none, as the ground contact): with this weight the prism on such a terrain goes threaded from 53
 #: copies, where the threaded terrain loop ran faster than the serial one on 2 cores
-#: (``scripts/bench_terrain.py``)
+#: (``scripts/bench/bench_terrain.py``)
 TERRAIN_SLOT_WORK = 20
 
 

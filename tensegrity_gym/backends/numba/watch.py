@@ -46,7 +46,7 @@ class _Watch(event.Listener):
         self.current = ""           # the outermost function being compiled
         self.session_t0 = None      # start of the current compile session (None: idle)
         self.last_end = 0.0
-        self.kernels = 0            # functions compiled in this session
+        self.kernels = 0            # functions compiled in this compile session
         self.sessions = 0
         self.thread = None
 

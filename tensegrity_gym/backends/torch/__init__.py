@@ -75,7 +75,7 @@ derivative of the branch that the forward pass took (``torch.where`` / ``clamp``
 Finite differences across a switch therefore disagree with autograd by design; the tests
 compare the two on smooth stretches only (``tests/test_torch_backend.py``).
 
-Numbers (``scripts/bench_gpu.py --agreement``, ``docs/bench_gpu.md``): over 1 s of RK4 at
+Numbers (``scripts/bench/bench_gpu.py --agreement``, ``docs/bench_gpu.md``): over 1 s of RK4 at
 dt = 1e-4 (10,000 steps) float64 on CPU agrees with the numba path to round-off (largest node
 error 9e-15 m on the prism, 1e-15 m on the icosahedron, 4e-15 m on the constrained prism);
 float32 stays within 1.4e-6 .. 3.7e-6 m of it on the same runs.

@@ -13,7 +13,7 @@ Backends
 * :class:`MujocoRenderer` (``backend="mujoco"``): a real 3-D renderer (MuJoCo's offscreen
   OpenGL renderer: shaded capsules for rods, strings as thin capsules coloured by tension, a
   checkered ground, lighting and shadows, title, caption and a colour-bar legend drawn by
-  MuJoCo's own text overlay); much faster than matplotlib (frame rates: ``scripts/bench_render.py``).
+  MuJoCo's own text overlay); much faster than matplotlib (frame rates: ``scripts/bench/bench_render.py``).
   Needs ``mujoco`` (``pip install tensegrity_gym[mujoco]``) and an
   OpenGL backend; without a display it uses EGL (Debian: ``libegl1 libegl-mesa0``, Mesa's
   software rasteriser is enough) or OSMesa (``libosmesa6``). The backend comes from

@@ -1,0 +1,105 @@
+#!/usr/bin/env python
+"""Cold compile: ``gym.make`` + ``reset`` + first ``step()`` of each env in a fresh process with an
+empty numba cache (a fresh install's first run), and which kernels it compiled.
+
+    python -m scripts.bench.bench_compile [--envs TensegrityShape-v0 TensegrityRoll-v0] [--repeats 1] [--json OUT]
+    PYTHONPATH=<other checkout> python -m scripts.bench.bench_compile ...   # the same for another version
+
+Each measurement runs in its own process with ``NUMBA_CACHE_DIR`` set to a new empty folder, so
+nothing is loaded from the cache of this checkout; the time includes importing the package. The
+kernels are those numba compiled at the top level (the time of each includes the functions it
+compiled inside it); ``--own N`` also prints the N functions that took longest to compile by
+themselves (without the functions they compiled inside them). Run it on an otherwise idle
+machine: the compile is CPU-bound and a loaded core stretches it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+
+CHILD = r"""
+import json, sys, time
+from numba.core import event as ev
+top, own, stack = {}, {}, []
+class L(ev.Listener):
+    def on_start(self, e):
+        d = e.data.get("dispatcher") if e.data else None
+        stack.append([getattr(getattr(d, "py_func", None), "__qualname__", "?"), time.perf_counter(), 0.0])
+    def on_end(self, e):
+        name, t0, inner = stack.pop()
+        dt = time.perf_counter() - t0
+        own[name] = own.get(name, 0.0) + dt - inner      # without the functions it compiled inside it
+        if stack:
+            stack[-1][2] += dt
+        else:
+            top[name] = top.get(name, 0.0) + dt
+ev.register("numba:compile", L())
+t0 = time.perf_counter()
+import gymnasium as gym
+import tensegrity_gym  # noqa: F401
+env = gym.make(sys.argv[1])
+env.reset(seed=0)
+t1 = time.perf_counter()
+env.step(env.action_space.sample())
+t2 = time.perf_counter()
+print(json.dumps({"make_reset_s": t1 - t0, "first_step_s": t2 - t1, "total_s": t2 - t0, "kernels_s": top,
+                  "own_s": own, "package": tensegrity_gym.__file__}))
+"""
+
+
+def cold(env_id: str) -> dict:
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache, TENSEGRITY_GYM_QUIET="1")
+        # cwd: the empty folder, so that the child imports the package PYTHONPATH names, not the one
+        # in the current directory
+        r = subprocess.run([sys.executable, "-c", CHILD, env_id], capture_output=True, text=True, env=env, cwd=cache)
+    if r.returncode:
+        raise SystemExit(f"{env_id}: the measurement failed:\n{r.stderr[-2000:]}")
+    row = json.loads(r.stdout.strip().splitlines()[-1])
+    row["package"] = os.path.relpath(row["package"])      # recorded relative to where the script runs
+    return row
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--envs", nargs="+", default=["TensegrityShape-v0", "TensegrityRoll-v0"])
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--own", type=int, default=0, metavar="N",
+                    help="also print the N functions with the longest compile time of their own")
+    ap.add_argument("--json", default=None, help="write the measurements here")
+    args = ap.parse_args(argv)
+    if args.json and os.path.exists(args.json):
+        ap.error(f"--json {args.json}: exists; give a new file")
+    import tensegrity_gym
+    out = {"package": os.path.relpath(os.path.dirname(tensegrity_gym.__file__)), "cpu": platform.processor() or platform.machine(),
+           "load_avg": os.getloadavg(), "runs": {}}
+    print(f"cold compile of {out['package']} (load average {out['load_avg'][0]:.2f})")
+    print("| env | make + reset (s) | first step (s) | total (s) | kernels compiled (s, top level) |")
+    print("|---|---:|---:|---:|---|")
+    for env_id in args.envs:
+        runs = [cold(env_id) for _ in range(args.repeats)]
+        out["runs"][env_id] = runs
+        for r in runs:
+            ks = ", ".join(f"{k} {v:.1f}" for k, v in sorted(r["kernels_s"].items(), key=lambda kv: -kv[1]) if v >= 0.5)
+            assert r["package"].startswith(out["package"]), (r["package"], out["package"])
+            print(f"| {env_id} | {r['make_reset_s']:.1f} | {r['first_step_s']:.1f} | {r['total_s']:.1f} | {ks} |",
+                  flush=True)
+    if args.own > 0:
+        print(f"\n| env | the {args.own} longest compiles of their own (s) |\n|---|---|")
+        for env_id, runs in out["runs"].items():
+            for r in runs:
+                longest = sorted(r["own_s"].items(), key=lambda kv: -kv[1])[:args.own]
+                print(f"| {env_id} | " + ", ".join(f"{k} {v:.1f}" for k, v in longest) + " |")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,137 @@
+#!/usr/bin/env python
+"""Outputs of two versions of the package on the committed scenes (a refactor keeps
+every output equal to 1e-12 relative).
+
+    PYTHONPATH=/path/to/old/checkout python -m scripts.tools.compare_outputs dump old.npz
+    PYTHONPATH=/path/to/new/checkout python -m scripts.tools.compare_outputs dump new.npz
+    python -m scripts.tools.compare_outputs compare old.npz new.npz      # table; exit 1 above 1e-12
+
+``dump`` runs, with whatever ``tensegrity_gym`` is importable: every built-in structure
+(released off equilibrium by a fixed, seeded velocity perturbation) for 200 steps of semi-implicit
+Euler and RK4 with the numba kernels and 20 steps with the NumPy path, dop853 and implicit Euler
+(B = 3 copies); and 100 control steps of TensegrityShape-v0 (both action modes) and
+TensegrityRoll-v0 (single env and a vector env of 4) under a fixed seeded action sequence
+(observations, rewards); vector envs of 20 and 64 copies, nominal and randomised, and of 900
+(the roll env's contact loop on all threads). Only public API is used, so any version can be dumped.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+SCENES = ("prism3", "prism4", "pinned_rod", "constrained_prism", "icosahedron", "tower3")
+RUNS = (("semi_implicit_euler", "numba", 200), ("rk4", "numba", 200), ("dop853", "auto", 20),
+        ("implicit_euler", "auto", 20))
+
+
+def _rollout(env, rng, steps: int = 100):
+    """(observations (steps + 1, ...), rewards (steps, ...)) under seeded random actions."""
+    o, _ = env.reset(seed=3)
+    obs, rew = [o], []
+    for _ in range(steps):
+        o, r, *_ = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+        obs.append(o)
+        rew.append(r)
+    return np.array(obs), np.array(rew)
+
+
+def _released(model, B: int, seed: int):
+    """B copies of the model's initial state released by a seeded velocity perturbation (projected)."""
+    from tensegrity_gym.physics.evaluate import project
+    from tensegrity_gym.core.model import State
+    import tensegrity_gym as tg
+    st = tg.initial_state(model, B)
+    rng = np.random.default_rng(seed)
+    q, qd = project(model, st.q, st.qd + 0.05 * rng.standard_normal(st.qd.shape))
+    return State(q=q, qd=qd), rng
+
+
+def dump(path: str) -> None:
+    import gymnasium as gym
+    import tensegrity_gym as tg
+    out = {}
+    for name in SCENES:
+        model = tg.compile_model(tg.build(name))
+        st, _ = _released(model, 3, 0)
+        for integ, backend, n in RUNS:
+            r = tg.step(model, st, 1e-3, integ, n_steps=n, backend=backend)
+            out[f"{name}/{integ}/{backend}/q"] = r.q
+            out[f"{name}/{integ}/{backend}/qd"] = r.qd
+    # the kernels' batch paths: one copy at a time (B < 16), SIMD blocks (B = 19, 40, pad lanes),
+    # the parallel kernel (B = 600), each with shared and per-copy Params
+    from tensegrity_gym.core.params import default_params
+    for name in ("prism3", "constrained_prism", "icosahedron", "tower3"):
+        model = tg.compile_model(tg.build(name))
+        for B in (1, 3, 19, 40, 600):
+            st, rng = _released(model, B, B)
+            p0 = default_params(model, batch_size=B)
+            per_copy = p0.replace(stiffness=p0.stiffness * rng.uniform(0.8, 1.2, p0.stiffness.shape),
+                                  mass=p0.mass * rng.uniform(0.8, 1.2, p0.mass.shape))
+            for integ in ("semi_implicit_euler", "rk4"):
+                for tag, params in (("shared", None), ("per_copy", per_copy)):
+                    r = tg.step(model, st, 1e-3, integ, n_steps=50, backend="numba", params=params)
+                    out[f"batch/{name}/B={B}/{integ}/{tag}/q"] = r.q
+                    out[f"batch/{name}/B={B}/{integ}/{tag}/qd"] = r.qd
+    envs = (("TensegrityShape-v0", {}), ("TensegrityShape-v0", {"action_mode": "force_density"}),
+            ("TensegrityRoll-v0", {}))
+    for env_id, kw in envs:
+        tag = env_id + "/" + "/".join(f"{k}={v}" for k, v in kw.items())
+        rng = np.random.default_rng(1)
+        for kind, env in (("single", gym.make(env_id, **kw)),
+                          ("vector", gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", **kw))):
+            out[f"{tag}/{kind}/obs"], out[f"{tag}/{kind}/rew"] = _rollout(env, rng)
+    # the roll env's contact sub-steps on all threads (enough work for the parallel kernel)
+    env = gym.make_vec("TensegrityRoll-v0", num_envs=900, vectorization_mode="vector_entry_point")
+    out["TensegrityRoll-v0/vector/N=900/obs"], out["TensegrityRoll-v0/vector/N=900/rew"] = _rollout(
+        env, np.random.default_rng(4), steps=30)
+    for env_id, N, rnd in (("TensegrityRoll-v0", 20, {"rod_mass": 0.1, "friction": 0.2, "stiffness": 0.1}),
+                           ("TensegrityRoll-v0", 64, {"rod_mass": 0.1, "friction": 0.2, "stiffness": 0.1}),
+                           ("TensegrityShape-v0", 20,
+                            {"rod_mass": 0.1, "stiffness": 0.1, "rest_length_offset": 0.002})):
+        env = gym.make_vec(env_id, num_envs=N, vectorization_mode="vector_entry_point", randomize=rnd)
+        out[f"{env_id}/randomized/N={N}/obs"], out[f"{env_id}/randomized/N={N}/rew"] = _rollout(
+            env, np.random.default_rng(2), steps=30)
+    # the robot observation (sensors, noise from each env's generator, history) and the MuJoCo twin
+    robot = {"observation_mode": "robot", "history": 2,
+             "sensor_noise": {"imu_accel": 0.05, "imu_gyro": 0.01, "cable_length": 1e-3}}
+    for env_id, kw in (("TensegrityRoll-v0", dict(robot, sensor_noise=dict(robot["sensor_noise"], contact=0.1))),
+                       ("TensegrityShape-v0", robot)):
+        for kind, env in (("single", gym.make(env_id, **kw)),
+                          ("vector", gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", **kw))):
+            out[f"{env_id}/robot/{kind}/obs"], out[f"{env_id}/robot/{kind}/rew"] = _rollout(
+                env, np.random.default_rng(5), steps=30)
+    for kw in ({}, robot):
+        env = gym.make("TensegrityRollMuJoCo-v0", **kw)
+        tag = "robot" if kw else "state"
+        out[f"TensegrityRoll-v0/mujoco/{tag}/obs"], out[f"TensegrityRoll-v0/mujoco/{tag}/rew"] = _rollout(
+            env, np.random.default_rng(6), steps=30)
+    np.savez(path, **out)
+
+
+def compare(a: str, b: str) -> int:
+    A, B = np.load(a), np.load(b)
+    worst = 0.0
+    print("| output | max abs difference | max relative difference |\n|---|---:|---:|")
+    for k in sorted(set(A.files) | set(B.files)):
+        if k not in A.files or k not in B.files:
+            print(f"| {k} | missing in {'the first' if k not in A.files else 'the second'} | |")
+            worst = np.inf
+            continue
+        x, y = A[k].astype(float), B[k].astype(float)
+        d = np.abs(x - y)
+        rel = float((d / np.maximum(np.abs(x), 1.0)).max()) if d.size else 0.0
+        worst = max(worst, rel)
+        print(f"| {k} | {float(d.max()) if d.size else 0.0:.3g} | {rel:.3g} |")
+    print(f"\nlargest relative difference: {worst:.3g} ({'within' if worst <= 1e-12 else 'ABOVE'} 1e-12)")
+    return 0 if worst <= 1e-12 else 1
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 3 and sys.argv[1] == "dump":
+        dump(sys.argv[2])
+        raise SystemExit(0)
+    if len(sys.argv) == 4 and sys.argv[1] == "compare":
+        raise SystemExit(compare(sys.argv[2], sys.argv[3]))
+    print(__doc__, file=sys.stderr)
+    raise SystemExit(2)
