@@ -9,6 +9,8 @@ and baselines: :mod:`~tensegrity_gym.tools`; Stable-Baselines3 and rl_zoo3:
 ``--gym-packages``).
 All quantities in SI units.
 """
+# first: the numba cache guard goes in before any module that compiles (backends/numba/cache_guard.py)
+from .backends.numba import cache_guard as _cache_guard  # noqa: F401
 from .structure import Structure, StructureError, load_json, save_json, from_dict
 from .builders import prism, pinned_rod, constrained_prism, icosahedron, tower, build, load_structure
 from .dynamics import Model, State, compile_model, initial_state
