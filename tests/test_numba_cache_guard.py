@@ -117,9 +117,11 @@ def test_an_edit_changes_the_digests_of_exactly_the_modules_that_import_it(tmp_p
 
 
 _DRIVER = """
-import sys
+import importlib.util, sys
 from pathlib import Path
-from tensegrity_gym.backends.numba import cache_guard as G
+spec = importlib.util.spec_from_file_location("cache_guard", sys.argv[2])     # the guard alone, not the package
+G = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(G)
 class Locator(G.ClosureLocator):
     package = Path(sys.argv[1]).resolve()
 G.install(Locator)
@@ -135,10 +137,10 @@ def test_an_edited_dependency_recompiles_its_dependents_and_only_them(tmp_path):
                            "top.py": "from numba import njit\nfrom .leaf import f\n@njit(cache=True)\n"
                                      "def g():\n    return f() + 10\n",
                            "other.py": "from numba import njit\n@njit(cache=True)\ndef h():\n    return 5\n"})
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), PYTHONPATH=str(PACKAGE.parent))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
 
     def run():
-        r = subprocess.run([sys.executable, "-c", _DRIVER, str(pkg)], capture_output=True, text=True, env=env,
+        r = subprocess.run([sys.executable, "-c", _DRIVER, str(pkg), G.__file__], capture_output=True, text=True, env=env,
                            cwd=tmp_path)
         assert r.returncode == 0, r.stderr[-2000:]
         g, h, g_hits, h_hits = map(int, r.stdout.split())

@@ -44,8 +44,9 @@ PACKAGE = Path(__file__).resolve().parents[2]
 # an import statement at the start of a line (a docstring line that reads like one only adds an
 # edge): group 1 the dots and module of ``from M import ...``, group 2 its names (parenthesised
 # over several lines, or up to the end of the line), group 3 the modules of ``import a.b, c``
-_IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+(\.*[\w.]*)[ \t]+import[ \t]+(\([^)]*\)|(?:[^\n\\]|\\\n)*)"
-                     r"|import[ \t]+((?:[^\n\\]|\\\n)*))", re.M)
+_LINE = r"[^\n\\]*(?:\\\n[^\n\\]*)*"        # to the end of the line, over backslash continuations
+_IMPORT = re.compile(rf"^[ \t]*(?:from[ \t]+(\.*[\w.]*)[ \t]+import[ \t]+(\([^)]*\)|{_LINE})|import[ \t]+({_LINE}))",
+                     re.M)
 _NAME = re.compile(r"[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*")
 
 
@@ -60,16 +61,29 @@ def module_name(path, package: Path = PACKAGE) -> str | None:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+@functools.lru_cache(maxsize=None)
 def _module_file(name: str, package: Path) -> Path | None:
-    """The source file of the dotted module ``name`` inside ``package``, None if it has none."""
+    """The source file of the dotted module ``name`` inside ``package`` (a resolved directory),
+    None if it has none."""
     parts = name.split(".")
     if parts[0] != package.name:
         return None
-    base = package.joinpath(*parts[1:])
-    for f in (base.with_suffix(".py"), base / "__init__.py"):
-        if f.is_file():
-            return f
+    folder = package.joinpath(*parts[1:-1])
+    if len(parts) == 1:
+        return package / "__init__.py" if "__init__.py" in _entries(package) else None
+    if parts[-1] + ".py" in _entries(folder):
+        return folder / (parts[-1] + ".py")
+    if "__init__.py" in _entries(folder / parts[-1]):
+        return folder / parts[-1] / "__init__.py"
     return None
+
+
+@functools.lru_cache(maxsize=None)
+def _entries(folder: Path) -> frozenset:
+    try:
+        return frozenset(os.listdir(folder))
+    except OSError:
+        return frozenset()
 
 
 def imports_of(path, text: str, package: Path = PACKAGE) -> set:
@@ -85,7 +99,7 @@ def imports_of(path, text: str, package: Path = PACKAGE) -> set:
     def add(mod: str) -> bool:
         f = _module_file(mod, package)
         if f is not None:
-            out.add(f.resolve())
+            out.add(f)
         return f is not None
 
     for m in _IMPORT.finditer(text):
@@ -141,6 +155,14 @@ def closure_digest(path, package: Path = PACKAGE) -> str:
     return h.hexdigest()
 
 
+@functools.lru_cache(maxsize=None)
+def _module_digest(py_file: str, package: Path) -> str:
+    """:func:`closure_digest` once per module and process (its functions are decorated at its
+    import, from the sources just imported; a digest kept from then can only be older than the
+    files, which makes a later process compile again, never load stale code)."""
+    return closure_digest(py_file, package)
+
+
 def _caching():
     from numba.core import caching
     return caching
@@ -187,7 +209,7 @@ class ClosureLocator:
     def __init__(self, inner, py_file):
         self._inner = inner
         self._py_file = py_file
-        self._stamp = (inner.get_source_stamp(), closure_digest(py_file, self.package))
+        self._stamp = (inner.get_source_stamp(), _module_digest(str(py_file), self.package))
 
     @classmethod
     def from_function(cls, py_func, py_file):
