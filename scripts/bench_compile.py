@@ -13,7 +13,8 @@ compiled inside it); ``--own N`` also prints the N functions that took longest t
 themselves (without the functions they compiled inside them). ``--num-envs N`` measures the
 NumPy/numba vector env of N copies (``gym.make_vec(..., vectorization_mode="vector_entry_point")``)
 instead of the single env: its batched kernels (SIMD lanes from 16 copies, the multi-threaded
-ones for a large batch). The peak memory is the child's peak resident set size. Run it on an
+ones for a large batch). The peak memory is the child's peak resident set size; its CPU time (user + system, all
+threads) is steadier than the wall clock on a busy machine. Run it on an
 otherwise idle machine (the load average is printed): the compile is CPU-bound and a loaded core
 stretches it; ``NUMBA_NUM_THREADS`` is passed on (the threaded kernels compile the same either way).
 """
@@ -56,8 +57,10 @@ env.reset(seed=0)
 t1 = time.perf_counter()
 env.step(env.action_space.sample())
 t2 = time.perf_counter()
-rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20      # kB -> GiB (Linux)
+ru = resource.getrusage(resource.RUSAGE_SELF)
+rss = ru.ru_maxrss / 2**20      # kB -> GiB (Linux)
 print(json.dumps({"make_reset_s": t1 - t0, "first_step_s": t2 - t1, "total_s": t2 - t0, "peak_rss_gib": rss,
+                  "cpu_s": ru.ru_utime + ru.ru_stime,
                   "kernels_s": top, "own_s": own, "package": tensegrity_gym.__file__}))
 """
 
@@ -89,9 +92,9 @@ def main(argv=None) -> int:
     out = {"package": os.path.dirname(tensegrity_gym.__file__), "cpu": platform.processor() or platform.machine(),
            "load_avg": os.getloadavg(), "runs": {}}
     print(f"cold compile of {out['package']} (NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', '-')})")
-    print("| env | copies | make + reset (s) | first step (s) | total (s) | peak RSS (GiB) | load avg (1 min, before) "
-          "| kernels compiled (s, top level) |")
-    print("|---|---:|---:|---:|---:|---:|---:|---|")
+    print("| env | copies | make + reset (s) | first step (s) | total (s) | CPU (s) | peak RSS (GiB) "
+          "| load avg (1 min, before) | kernels compiled (s, top level) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---|")
     for env_id in args.envs:
         for n in args.num_envs:
             key = env_id if n == 0 else f"{env_id} x{n}"
@@ -105,7 +108,7 @@ def main(argv=None) -> int:
                                if v >= 0.5)
                 assert r["package"].startswith(out["package"]), (r["package"], out["package"])
                 print(f"| {env_id} | {n or 'single'} | {r['make_reset_s']:.1f} | {r['first_step_s']:.1f} | "
-                      f"{r['total_s']:.1f} | {r['peak_rss_gib']:.2f} | {load:.2f} | {ks} |", flush=True)
+                      f"{r['total_s']:.1f} | {r['cpu_s']:.1f} | {r['peak_rss_gib']:.2f} | {load:.2f} | {ks} |", flush=True)
             out["runs"][key] = runs
     if args.own > 0:
         print(f"\n| env | the {args.own} longest compiles of their own (s) |\n|---|---|")
