@@ -3,7 +3,7 @@
 numba keys a cached kernel on the content of its own source file only, while the cached machine
 code of a kernel holds the code of every kernel it inlines or calls, and every global constant
 it reads, from any module, as they were when it was compiled. After an edit of ``terrain.py``
-the cached kernels of ``terrain_steps.py`` would go on running the old contact forces without
+the cached kernels of ``terrain_loops.py`` would go on running the old contact forces without
 a word (a checkout of another version does the same).
 
 So every cached function of this package gets the *closure digest* of its module in its
