@@ -9,7 +9,6 @@ import sys
 import textwrap
 from pathlib import Path
 
-import pytest
 from numba.core.dispatcher import Dispatcher
 
 import tensegrity_gym
