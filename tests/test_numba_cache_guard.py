@@ -155,3 +155,13 @@ def test_an_edited_dependency_recompiles_its_dependents_and_only_them(tmp_path):
 def test_an_unknown_file_is_left_to_numba(tmp_path):
     assert G.module_name(tmp_path / "x.py") is None
     assert G.ClosureLocator.from_function(None, str(tmp_path / "x.py")) is None
+
+
+def test_a_users_list_of_locators_keeps_the_guard_first(monkeypatch):
+    from numba.core import caching, config
+    monkeypatch.setattr(config, "CACHE_LOCATOR_CLASSES", "InTreeCacheLocator", raising=False)
+    G.install()
+    assert config.CACHE_LOCATOR_CLASSES == "tensegrity_gym.backends.numba.cache_guard.ClosureLocator,InTreeCacheLocator"
+    assert G._other_locators() == [caching.InTreeCacheLocator]
+    G.install()                             # once
+    assert config.CACHE_LOCATOR_CLASSES.count("ClosureLocator") == 1
