@@ -11,6 +11,8 @@ and baselines: :mod:`~tensegrity_gym.tools`; Stable-Baselines3 and rl_zoo3:
 ``--gym-packages``).
 All quantities in SI units.
 """
+# first: the numba cache guard goes in before any module that compiles (backends/numba/cache_guard.py)
+from .backends.numba import cache_guard as _cache_guard  # noqa: F401
 from .core.structure import Structure, StructureError, from_dict, load_json, save_json
 from .core.builders import build, constrained_prism, icosahedron, load_structure, pinned_rod, prism, tower
 from .core.model import Model, State, compile_model, initial_state

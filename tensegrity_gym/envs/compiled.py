@@ -12,11 +12,14 @@ so no reassociation or fused multiply-adds): results are bit-identical, which
 sequential (fewer than 8 terms); longer ones are left to NumPy by the callers.
 
 :func:`shape_step` fuses one control step of the shape task: the control update
-(:func:`tensegrity_gym.backends.numba.actuation.apply_controls`), the physics (:func:`tensegrity_gym.backends.numba.entries.run_plan`:
-the serial kernel ``physics.step`` runs, from compiled code, so no ``State`` wrappers), the
-divergence check (:func:`tensegrity_gym.backends.numba.divergence.state_ok`), the observation, the errors and
+(:func:`tensegrity_gym.backends.numba.actuation.apply_controls`), the physics
+(:func:`tensegrity_gym.backends.numba.entries.run_plan`: the serial kernel ``physics.step``
+runs, from compiled code, so no ``State`` wrappers), the divergence check
+(:func:`tensegrity_gym.backends.numba.divergence.state_ok`), the observation, the errors and
 the tracking term in ONE compiled call per ``step()``. Everything physical is a call into the
-pipeline; nothing here knows the kernels' flags or buffer layout.
+numba backend's compiled entry points (imported from their own modules, so that this module's
+cached kernels depend on those modules only); nothing here knows the kernels' flags or buffer
+layout.
 
 numba is a required dependency: these helpers always run where they apply; the NumPy paths of the
 envs remain for what they do not cover (a tracked node that is an anchor, robot observations).
@@ -27,9 +30,9 @@ import numba
 import numpy as np
 from numba import njit
 
-from ..backends.numba.actuation import apply_controls
-from ..backends.numba.entries import run_plan, run_plan_simd
-from ..backends.numba.divergence import state_ok
+from ..backends.numba.actuation import apply_controls as _apply_controls
+from ..backends.numba.divergence import state_ok as _state_ok
+from ..backends.numba.entries import run_plan as _run_plan, run_plan_simd as _run_plan_simd
 
 __all__ = ["shape_observe", "mean_max", "roll_observe", "shape_step", "shape_step_simd", "SHAPE_STEP_SIG",
            "node_sources"]
@@ -51,11 +54,6 @@ def node_sources(model, nodes: np.ndarray):
         return None, None
     return (np.ascontiguousarray(src_rod[nodes], dtype=np.int64),
             np.ascontiguousarray(src_eta[nodes], dtype=np.float64))
-
-
-# the pipeline's compiled entry points, called from shape_step (numba binds globals at compile time)
-_apply_controls, _run_plan, _run_plan_simd, _state_ok = (apply_controls, run_plan,
-                                                         run_plan_simd, state_ok)
 
 
 @njit(cache=True, nogil=True)
@@ -152,9 +150,9 @@ def roll_observe(q, qd, rod, eta, com, ctrl, active, goal, speed, obs):
 def _shape_step_py(q, qd, ctrl, action, target, plan, offset, fcon, icon, qo, qdo, ctrl_out, obs, dist, stats, success,
                    elapsed, simd):
     """One control step of the shape task in ONE compiled call (``ShapeTask.step``'s fast
-    path): the control update (``pipeline.apply_controls``), the physics of a
+    path): the control update (``apply_controls``), the physics of a
     :class:`tensegrity_gym.backends.numba.plans.Plan` (``buf``, ``dt``, ``n_steps``, ``flags``:
-    ``pipeline.run_plan``), the divergence check (``pipeline.state_ok``), the observation and
+    ``run_plan``), the divergence check (``state_ok``), the observation and
     node errors (:func:`shape_observe`) and the error statistics (:func:`mean_max`; ``stats``
     (4, B): mean error, max error, the proximity term's exponent ``-0.5 t^2`` of
     ``rewards.tolerance`` (NaN inside the tolerance; the exp itself is left to NumPy, whose

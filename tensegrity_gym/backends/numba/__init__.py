@@ -9,12 +9,14 @@ points ``step``, ``step_inplace``, ``accelerations``, ``string_forces``, ``proje
 ``contact_steps``), ``plans`` (``Plan``, ``make_plan``, ``lean_plan``, ``packed``: a fixed-step
 call prepared once and repeated), ``actuation`` (compiled control updates) and ``divergence``.
 numba's on-disk cache notices an edit of a kernel's own module only, not of the kernels it
-inlines or calls from others: ``cache_guard`` drops the package's caches when any of its
-compiled sources changed, at this import, before any kernel is loaded. ``watch`` prints
-progress on stderr while numba compiles this package's functions.
+inlines or calls from others: ``cache_guard`` adds to each cached function's stamp the digest
+of its module and of every module of the package that one imports, so a kernel compiles again
+exactly when one of those changed; it is installed at this import, which ``tensegrity_gym``
+runs before any module that compiles. ``watch`` prints progress on stderr while numba compiles
+this package's functions.
 """
-from .cache_guard import drop_stale_caches as _drop_stale_caches
+from .cache_guard import install as _install_cache_guard
 from .watch import install as _install_watch
 
-_drop_stale_caches()
+_install_cache_guard()
 _install_watch()
