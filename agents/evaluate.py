@@ -37,10 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common
-from tensegrity_gym.checks import check_count
+from . import common, envs, hyperparameters, parsing
+from tensegrity_gym.core.checks import check_count
+from tensegrity_gym.integrations.torch_threads import passive_openmp_wait, set_torch_threads
 
-common.passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
+passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
 
 HELD_OUT_SEED = 1_000_000
 
@@ -112,7 +113,7 @@ def load_trained(run_dir: Path, which: str, device: str = "cpu"):
     if cfg["hyperparams_resolved"].get("normalize") is not None and vn_path is None:
         raise FileNotFoundError(f"{run_dir}: trained with VecNormalize but its statistics beside {model_path.name} "
                                 "are missing")
-    Algo = common.get_algo(cfg["algo"])
+    Algo = hyperparameters.get_algo(cfg["algo"])
     model = common.load_model_file(Algo, model_path, device=device)
     vn = load_vecnormalize(vn_path) if vn_path is not None else None
     return cfg, TrainedPolicy(model, vn), model_path, model
@@ -138,7 +139,7 @@ def run_episodes(env_id: str, env_kwargs: dict, policy_factory, seeds: list[int]
     """
     import gymnasium as gym
     if batched is None:
-        batched = common.has_vector_entry_point(env_id)
+        batched = envs.has_vector_entry_point(env_id)
     n = len(seeds)
     if batched:
         env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **env_kwargs)
@@ -430,7 +431,7 @@ def write_gif(env_id: str, env_kwargs: dict, policy, seed: int, out: Path, max_f
     import gymnasium as gym
     import imageio.v2 as imageio
     env = gym.make(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs) \
-        if common.has_vector_entry_point(env_id) else gym.make(env_id, render_mode="rgb_array", **env_kwargs)
+        if envs.has_vector_entry_point(env_id) else gym.make(env_id, render_mode="rgb_array", **env_kwargs)
     T = env.spec.max_episode_steps or 1000
     every = max(1, int(np.ceil(T / max_frames)))
     obs, _ = env.reset(seed=seed)
@@ -458,7 +459,7 @@ def build_parser():
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", help="run directory written by agents.train")
     p.add_argument("--model", default="best", help="best (default), final, or a path to a model zip")
-    p.add_argument("--n-episodes", type=common.arg_type(lambda v: check_count(v, "--n-episodes", 1)), default=100)
+    p.add_argument("--n-episodes", type=parsing.arg_type(lambda v: check_count(v, "--n-episodes", 1)), default=100)
     p.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default 1000000)")
     p.add_argument("--out", default=None, help="output directory (default RUN_DIR/evaluation)")
     p.add_argument("--no-baselines", action="store_true", help="skip the non-learning baselines")
@@ -480,9 +481,8 @@ def build_parser():
 
 def evaluate(argv=None) -> dict:
     args = build_parser().parse_args(argv)
-    import torch
-    torch.set_num_threads(max(1, args.num_threads))
-    common.import_env_packages(["tensegrity_gym"])
+    set_torch_threads(args.num_threads)
+    envs.import_env_packages(["tensegrity_gym"])
     run_dir = Path(args.run_dir)
     if not (run_dir / "config.yaml").exists():
         raise FileNotFoundError(f"{run_dir}: no config.yaml (not a run directory of agents.train)")
@@ -492,9 +492,9 @@ def evaluate(argv=None) -> dict:
         raise ValueError(f"--gif-size: must be in [16, 2048] pixels, got {args.gif_size}")
     cfg, trained, model_path, model = load_trained(run_dir, args.model)
     env_id = cfg["env"]
-    env_kwargs = {**cfg["env_kwargs"], **common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs")}
-    common.check_seed(args.seed)
-    common.make_env(env_id, env_kwargs).close()     # an unknown --env-kwargs key: named, no traceback
+    env_kwargs = {**cfg["env_kwargs"], **parsing.parse_kv_list(args.env_kwargs, ":", "--env-kwargs")}
+    envs.check_seed(args.seed)
+    envs.make_env(env_id, env_kwargs).close()     # an unknown --env-kwargs key: named, no traceback
     out = Path(args.out) if args.out else run_dir / "evaluation"
     out.mkdir(parents=True, exist_ok=True)
     seeds = list(range(args.seed, args.seed + args.n_episodes))

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common
+from . import common, parsing
 
 #: per-seed metrics aggregated over seeds: (summary key, key in agents.evaluate's results, unit)
 METRICS = (("success_rate", "success_rate", "fraction"),
@@ -197,7 +197,7 @@ def run(argv: list[str] | None = None) -> dict:
     for r in runs:
         m = _evaluate_seed(r, out / "seeds" / r.name, args)
         res = m["results"][next(k for k in m["results"] if k.endswith("(trained)"))]
-        cfg = common.read_yaml(r / "config.yaml")
+        cfg = parsing.read_yaml(r / "config.yaml")
         env_ids.add(m["env"])
         st = json.loads((r / "state.json").read_text()) if (r / "state.json").exists() else {}
         row = {"run": str(r), "seed": cfg.get("seed"), "model": m["model"],
@@ -213,7 +213,7 @@ def run(argv: list[str] | None = None) -> dict:
     title = args.title or f"{', '.join(sorted(env_ids))}: {len(runs)} training seeds"
     summary = {"title": title, "n_seeds": len(runs), "held_out_episodes_per_seed": args.n_episodes,
                "held_out_seeds": [HELD_OUT_SEED, HELD_OUT_SEED + args.n_episodes - 1],
-               "model": args.model, "eval_env_kwargs": common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs"),
+               "model": args.model, "eval_env_kwargs": parsing.parse_kv_list(args.env_kwargs, ":", "--env-kwargs"),
                "per_seed": per_seed, "aggregate": agg,
                "learning_curve_runs": [str(r) for r, c in zip(runs, curves) if c is not None],
                "interval": "IQM (25 % trimmed mean) over training seeds, 95 % percentile bootstrap "

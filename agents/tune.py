@@ -46,7 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common
+from . import common, envs, hyperparameters, parsing
+from .run_dir import evaluation_metrics
 
 SEARCH_KINDS = ("uniform", "loguniform", "randint", "choice", "quniform")
 METRIC_MEANING = {"eval_return": "mean return of the last evaluation",
@@ -63,7 +64,7 @@ def load_config(path: str | Path) -> dict:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"sweep config {path} does not exist")
-    cfg = common.read_yaml(path) or {}
+    cfg = parsing.read_yaml(path) or {}
     if not isinstance(cfg, dict):
         raise ValueError(f"{path}: expected a mapping")
     unknown = set(cfg) - {"name", "train", "variants", "search", "seeds", "metric", "mode", "max_concurrent",
@@ -148,7 +149,7 @@ def train_argv(opts: dict, seed: int, log_dir: str | Path) -> list[str]:
     for k, v in opts.items():
         if k in ("env_kwargs", "hyperparams"):
             if v:
-                argv += [f"--{k.replace('_', '-')}", json.dumps(common.to_yaml_safe(v))] if k == "env_kwargs" else \
+                argv += [f"--{k.replace('_', '-')}", json.dumps(parsing.to_yaml_safe(v))] if k == "env_kwargs" else \
                     ["--hyperparams"] + [f"{hk}={_hp_text(hv)}" for hk, hv in v.items()]
         elif k == "gym_packages":
             argv += ["--gym-packages", *v]
@@ -164,7 +165,7 @@ def _hp_text(v) -> str:
     """A hyperparameter value as ``--hyperparams`` parses it (JSON / Python literal / zoo string)."""
     if isinstance(v, str):
         return v
-    return json.dumps(common.to_yaml_safe(v))
+    return json.dumps(parsing.to_yaml_safe(v))
 
 
 def trial_list(cfg: dict) -> list[dict]:
@@ -228,7 +229,6 @@ def run_trial(config: dict) -> None:
 
 
 def _final_metrics(run_dir: Path, config: dict) -> dict:
-    from .train import evaluation_metrics
     out = {"variant": config.get("variant") or run_dir.name.rsplit("_s", 1)[0], "seed": int(config["seed"]),
            "run_dir": str(run_dir), "done_training": True}
     ev = run_dir / "eval" / "evaluations.npz"
@@ -279,7 +279,7 @@ def summarize(exp_dir: Path, metric: str = "eval_return", sweep: dict | None = N
             z = np.load(ev)
             m["curve_steps"] = z["timesteps"].tolist()
             m["curve_return"] = z["results"].mean(axis=1).tolist()
-        rc = common.read_yaml(d / "config.yaml") or {}
+        rc = parsing.read_yaml(d / "config.yaml") or {}
         m["params"] = {**{f"hyperparams.{k}": v for k, v in (rc.get("hyperparams_raw") or {}).items()
                           if k != "env_kwargs"},
                        **{f"env_kwargs.{k}": v for k, v in (rc.get("env_kwargs") or {}).items()},
@@ -396,13 +396,13 @@ def tune_main(argv: list[str] | None = None) -> dict:
         raise ValueError("agents.tune needs Ray Tune: pip install 'tensegrity_gym[tune]' (or 'ray[tune]')") from None
     for v in ([cfg["train"]] + [dict(x) for x in cfg.get("variants", [])]):
         if "algo" in v:
-            common.get_algo(v["algo"])
-    common.import_env_packages(["tensegrity_gym"])
+            hyperparameters.get_algo(v["algo"])
+    envs.import_env_packages(["tensegrity_gym"])
     env_ids = {v.get("env", cfg["train"].get("env")) for v in cfg.get("variants", [cfg["train"]])}
     for e in env_ids:
         if e is None:
             raise ValueError(f"{args.config}: train.env (or each variant's env) is required")
-        common.check_env_id(e)
+        envs.check_env_id(e)
 
     if not ray.is_initialized():
         if args.address:

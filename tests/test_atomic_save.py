@@ -340,7 +340,7 @@ def test_a_run_that_failed_before_its_first_step_restarts_in_the_same_folder(tmp
 
 def test_resume_keeps_the_checkpoint_and_evaluation_schedule(tmp_path):
     run = tmp_path / "run"
-    InterruptAt = train._callbacks()[3]
+    from agents.callbacks import InterruptAt
     args = ["--log-dir", str(run), "--n-timesteps", "512", "--save-freq", "128", "--eval-freq", "128",
             "--eval-episodes", "1", *PPO_TINY]
     train.train(args, extra_callbacks=[InterruptAt(200)])

@@ -32,14 +32,14 @@ def test_sweep_configs_keep_the_former_run_lists(name, n_runs):
     cfg = tune.load_config(SWEEPS / f"{name}.yml")
     runs = tune.trial_list(cfg)
     assert len(runs) == n_runs
-    from agents import common
+    from agents import hyperparameters, parsing
     for r in runs:
         argv = tune.train_argv(r["opts"], r["seed"], "x")
         a = train.build_parser().parse_args(argv)
         assert a.max_wall_time > 0 and a.save_freq == -1
-        hp = common.parse_kv_list(a.hyperparams, "=", "--hyperparams")
-        common.resolve_hyperparams(a.algo, {**common.hyperparams_for(a.algo, a.env)[0], **hp})
-        common.parse_kv_list(a.env_kwargs, ":", "--env-kwargs")
+        hp = parsing.parse_kv_list(a.hyperparams, "=", "--hyperparams")
+        hyperparameters.resolve_hyperparams(a.algo, {**hyperparameters.hyperparams_for(a.algo, a.env)[0], **hp})
+        parsing.parse_kv_list(a.env_kwargs, ":", "--env-kwargs")
 
 
 def test_sweep_configs_all_load():
