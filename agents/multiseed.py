@@ -18,7 +18,7 @@ Aggregates (``OUT/summary.json``, ``OUT/summary.md``, ``OUT/learning_curves.png`
   time and steps (``state.json``);
 * over seeds: the IQM (25 % trimmed mean, rliable's ``aggregate_iqm``) and its 95 % percentile
   bootstrap interval (``scipy.stats.bootstrap``, 2000 resamples, seeded:
-  :func:`agents.tune.iqm_interval`; rliable itself does not import with pandas 3), plus min,
+  :func:`agents.summary.iqm_interval`; rliable itself does not import with pandas 3), plus min,
   max and the number of seeds that reached ``--goal`` (if given);
 * learning curves: each seed's evaluation during training (``eval/evaluations.npz``: mean return
   and success rate) against env steps and against wall-clock seconds, IQM over seeds with the
@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from . import common, parsing
+from .summary import iqm_interval
 
 #: per-seed metrics aggregated over seeds: (summary key, key in agents.evaluate's results, unit)
 METRICS = (("success_rate", "success_rate", "fraction"),
@@ -111,7 +112,6 @@ def _curves(run: Path) -> dict | None:
 
 
 def _band(curves: list[dict], xkey: str, ykey: str, n: int = 40):
-    from .tune import iqm_interval
     from scipy import stats
     cs = [c for c in curves if c is not None and xkey in c and ykey in c and len(c[xkey])]
     if not cs:
@@ -162,7 +162,6 @@ def _plot(path: Path, curves: list[dict], title: str) -> bool:
 def aggregate(per_seed: list[dict], goals: list[tuple[str, float]]) -> dict:
     """IQM, 95 % bootstrap interval, min and max over training seeds of every metric in
     :data:`METRICS` present for all seeds; per goal, how many seeds reach it."""
-    from .tune import iqm_interval
     agg = {}
     for key, _, unit in METRICS:
         vals = [s[key] for s in per_seed if s.get(key) is not None]
