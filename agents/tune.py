@@ -2,10 +2,13 @@
 
 Usage::
 
-    python -m agents.tune agents/sweeps/smoke.yml                     # embedded local Ray
-    python -m agents.tune agents/sweeps/sweep1.yml --storage runs_tune --max-concurrent 16
+    python -m agents.tune smoke.yml                     # embedded local Ray
+    python -m agents.tune sweep1.yml --storage runs_tune --max-concurrent 16
     python -m agents.tune CONFIG.yml --address auto                   # an existing Ray cluster
     python -m agents.tune CONFIG.yml --summary-only                   # table + plot of a finished sweep
+
+A shipped sweep (``agents/sweeps/``) is named by its file name, installed or in a checkout; any
+other argument is the path of a config of your own.
 
 A config (YAML) has a ``name``, the ``train`` arguments shared by every trial, and either
 
@@ -47,6 +50,8 @@ from pathlib import Path
 from . import common, envs, hyperparameters, parsing
 from .summary import METRIC_MEANING, final_metrics, summarize
 
+#: the sweep configs shipped with the package: the config argument names one relative to this folder
+SWEEPS_DIR = Path(__file__).resolve().parent / "sweeps"
 SEARCH_KINDS = ("uniform", "loguniform", "randint", "choice", "quniform")
 TRAIN_KEYS = {"algo", "env", "n_timesteps", "n_envs", "eval_freq", "eval_episodes", "n_eval_envs", "save_freq",
               "save_replay_buffer", "max_wall_time", "vec_env", "env_kwargs", "hyperparams", "device", "conf_file",
@@ -55,10 +60,14 @@ TRAIN_KEYS = {"algo", "env", "n_timesteps", "n_envs", "eval_freq", "eval_episode
 
 # ---------------------------------------------------------------------- config
 def load_config(path: str | Path) -> dict:
-    """Read and validate a sweep config (errors name the field and the value)."""
+    """Read and validate a sweep config (errors name the field and the value): a file of the
+    user's own (a path), else a shipped one named relative to :data:`SWEEPS_DIR` (``smoke.yml``)."""
     path = Path(path)
+    if not path.is_file() and not path.is_absolute() and (SWEEPS_DIR / path).is_file():
+        path = SWEEPS_DIR / path
     if not path.exists():
-        raise FileNotFoundError(f"sweep config {path} does not exist")
+        shipped = ", ".join(sorted(f.name for f in SWEEPS_DIR.glob("*.yml")))
+        raise FileNotFoundError(f"sweep config {path} does not exist (nor in {SWEEPS_DIR}; the shipped ones: {shipped})")
     cfg = parsing.read_yaml(path) or {}
     if not isinstance(cfg, dict):
         raise ValueError(f"{path}: expected a mapping")
@@ -227,7 +236,7 @@ def run_trial(config: dict) -> None:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"python -m {common.PACKAGE}.tune", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("config", help="sweep config (YAML), e.g. agents/sweeps/smoke.yml")
+    p.add_argument("config", help="sweep config (YAML): a shipped one by its name in agents/sweeps/ (smoke.yml), or a path")
     p.add_argument("--storage", default="runs_tune", help="folder of experiments (default runs_tune/)")
     p.add_argument("--address", default=None,
                    help="address of an existing Ray cluster ('auto' or host:port); default: start an embedded "
