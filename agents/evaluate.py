@@ -37,10 +37,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common
+from . import common, envs, hyperparameters, parsing
+from .episode_metrics import format_table, scene_scales, summarize
+from .figures import plot_episodes, plot_learning_curve, write_gif
 from tensegrity_gym.core.checks import check_count
+from tensegrity_gym.integrations.torch_threads import passive_openmp_wait, set_torch_threads
 
-common.passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
+passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
 
 HELD_OUT_SEED = 1_000_000
 
@@ -112,7 +115,7 @@ def load_trained(run_dir: Path, which: str, device: str = "cpu"):
     if cfg["hyperparams_resolved"].get("normalize") is not None and vn_path is None:
         raise FileNotFoundError(f"{run_dir}: trained with VecNormalize but its statistics beside {model_path.name} "
                                 "are missing")
-    Algo = common.get_algo(cfg["algo"])
+    Algo = hyperparameters.get_algo(cfg["algo"])
     model = common.load_model_file(Algo, model_path, device=device)
     vn = load_vecnormalize(vn_path) if vn_path is not None else None
     return cfg, TrainedPolicy(model, vn), model_path, model
@@ -138,7 +141,7 @@ def run_episodes(env_id: str, env_kwargs: dict, policy_factory, seeds: list[int]
     """
     import gymnasium as gym
     if batched is None:
-        batched = common.has_vector_entry_point(env_id)
+        batched = envs.has_vector_entry_point(env_id)
     n = len(seeds)
     if batched:
         env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **env_kwargs)
@@ -198,267 +201,13 @@ def run_episodes(env_id: str, env_kwargs: dict, policy_factory, seeds: list[int]
     return out
 
 
-# ---------------------------------------------------------------------- metrics
-def scene_scales(env_id: str, env_kwargs: dict) -> dict:
-    """Structure height (m) and body length (m) of the env's scene, where it has them."""
-    import gymnasium as gym
-    env = gym.make(env_id, **env_kwargs)
-    try:
-        task = getattr(env.unwrapped, "task", None)
-        out = {}
-        if task is None:
-            return out
-        for name in ("height", "body_length", "success_tolerance"):
-            if hasattr(task, name):
-                out[name] = float(getattr(task, name))
-        if "body_length" not in out and hasattr(task, "structure"):
-            # body length: the largest distance between two nodes of the structure at rest, m
-            nodes = task.structure.nodes
-            out["body_length"] = float(np.max(np.linalg.norm(nodes[:, None] - nodes[None], axis=-1)))
-            out["body_length_definition"] = "largest node-to-node distance of the structure at rest"
-        return out
-    finally:
-        env.close()
-
-
-def summarize(episodes: list[dict], scales: dict) -> dict:
-    R = np.array([e["return"] for e in episodes])
-    L = np.array([e["length"] for e in episodes])
-    m = {"n_episodes": len(episodes), "return_mean": float(R.mean()), "return_std": float(R.std()),
-         "length_mean": float(L.mean())}
-    fin = [e["final"] for e in episodes]
-    if all("is_success" in f for f in fin):
-        m["success_rate"] = float(np.mean([f["is_success"] for f in fin]))
-    if all("diverged" in f for f in fin):
-        m["diverged_rate"] = float(np.mean([f["diverged"] for f in fin]))
-    if all("tracking_error" in f for f in fin):
-        te = np.array([f["tracking_error"] for f in fin])
-        m["final_tracking_error_mean_m"] = float(te.mean())
-        m["final_tracking_error_median_m"] = float(np.median(te))
-    if all("max_node_error" in f for f in fin):
-        me = np.array([f["max_node_error"] for f in fin])
-        m["final_max_node_error_mean_m"] = float(me.mean())
-        m["final_max_node_error_median_m"] = float(np.median(me))
-        m["final_max_node_error_p90_m"] = float(np.percentile(me, 90))
-        if "height" in scales:
-            m["final_max_node_error_median_frac_height"] = float(np.median(me) / scales["height"])
-    dist_key = next((k for k in ("distance_rolled", "distance") if all(k in f for f in fin)), None)
-    if dist_key:
-        d = np.array([f[dist_key] for f in fin])
-        dur = L * np.array([e["dt"] for e in episodes])
-        v = d / dur
-        m["distance_mean_m"] = float(d.mean())
-        m["speed_mean_m_s"] = float(v.mean())
-        m["speed_std_m_s"] = float(v.std())
-        m["speed_min_m_s"] = float(v.min())
-        if "body_length" in scales:
-            m["speed_mean_body_lengths_s"] = float(v.mean() / scales["body_length"])
-    return m
-
-
-def format_table(results: dict) -> str:
-    cols = [("return", lambda m: f"{m['return_mean']:.2f} +- {m['return_std']:.2f}"),
-            ("success", lambda m: f"{100 * m['success_rate']:.0f}%" if "success_rate" in m else "-"),
-            ("final err mean (m)", lambda m: f"{m['final_tracking_error_mean_m']:.2e}"
-             if "final_tracking_error_mean_m" in m else None),
-            ("max err median (m)", lambda m: f"{m['final_max_node_error_median_m']:.2e}"
-             if "final_max_node_error_median_m" in m else None),
-            ("median / height", lambda m: f"{100 * m['final_max_node_error_median_frac_height']:.2f}%"
-             if "final_max_node_error_median_frac_height" in m else None),
-            ("speed (m/s)", lambda m: f"{m['speed_mean_m_s']:.3f} +- {m['speed_std_m_s']:.3f}"
-             if "speed_mean_m_s" in m else None),
-            ("body len/s", lambda m: f"{m['speed_mean_body_lengths_s']:.2f}"
-             if "speed_mean_body_lengths_s" in m else None),
-            ("ep. length", lambda m: f"{m['length_mean']:.0f}")]
-    used = [(name, fn) for name, fn in cols if any(fn(m) is not None for m in results.values())]
-    rows = [["policy"] + [n for n, _ in used]]
-    for pol, m in results.items():
-        rows.append([pol] + [fn(m) or "-" for _, fn in used])
-    w = [max(len(r[j]) for r in rows) for j in range(len(rows[0]))]
-    lines = [" | ".join(c.ljust(w[j]) for j, c in enumerate(r)) for r in rows]
-    lines.insert(1, "-+-".join("-" * x for x in w))
-    return "\n".join(lines)
-
-
-# ---------------------------------------------------------------------- plots
-def load_monitor(files) -> dict:
-    """Episodes of SB3 monitor csv files (several resume segments), ordered in time:
-    dict column -> float array (``r`` return, ``l`` length, ``t`` s, info keywords)."""
-    import csv
-    rows = []
-    for f in files:
-        with open(f) as fh:
-            header = json.loads(fh.readline().lstrip("#"))
-            for row in csv.DictReader(fh):
-                row = {k: (float(v) if v not in ("", "True", "False") else float(v == "True"))
-                       for k, v in row.items()}
-                row["t"] += float(header.get("t_start", 0.0))
-                rows.append(row)
-    rows.sort(key=lambda r: r["t"])
-    keys = set.intersection(*(set(r) for r in rows)) if rows else {"r", "l", "t"}
-    return {k: np.array([r[k] for r in rows]) for k in keys}
-
-
-def plot_learning_curve(run_dir: Path, out: Path, title: str, tol: float | None = None) -> bool:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    ev = run_dir / "eval" / "evaluations.npz"
-    mon = sorted((run_dir / "monitor").glob("*.monitor.csv")) if (run_dir / "monitor").exists() else []
-    if not ev.exists() and not mon:
-        return False
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    ax = axes[0]
-    df = load_monitor(mon) if mon else None
-    if df is not None and len(df["r"]):
-        steps = np.cumsum(df["l"])
-        r = df["r"]
-        k = max(1, len(r) // 25)
-        smooth = np.convolve(r, np.ones(k) / k, mode="valid")
-        ax.plot(steps, r, ".", ms=2, alpha=0.25, color="C0", label="training episodes")
-        ax.plot(steps[k - 1:], smooth, color="C0", label=f"training (mean of {k})")
-    else:
-        df = None
-    if ev.exists():
-        d = np.load(ev)
-        res = d["results"]
-        ax.errorbar(d["timesteps"], res.mean(1), yerr=res.std(1), color="C1", marker="o", ms=3, capsize=2,
-                    label="evaluation (deterministic)")
-    ax.set_xlabel("env steps")
-    ax.set_ylabel("episode return")
-    ax.set_title(title)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    ax = axes[1]
-    shown = False
-    if ev.exists():
-        d = np.load(ev)
-        if "successes" in d.files and np.size(d["successes"]):
-            ax.plot(d["timesteps"], 100 * d["successes"].mean(1), "o-", color="C2", ms=3,
-                    label="evaluation success rate")
-            shown = True
-    if df is not None and "is_success" in df:
-        s = df["is_success"]
-        k = max(1, len(s) // 25)
-        ax.plot(steps[k - 1:], 100 * np.convolve(s, np.ones(k) / k, mode="valid"), color="C0",
-                label="training success rate")
-        shown = True
-    if df is not None and "max_node_error" in df:
-        e = df["max_node_error"]
-        k = max(1, len(e) // 25)
-        ax2 = ax.twinx()
-        ax2.plot(steps[k - 1:], np.convolve(e, np.ones(k) / k, mode="valid"), color="C3",
-                 label="training final max node error (m)")
-        ax2.set_yscale("log")
-        ax2.set_ylabel("final max node error (m)", color="C3")
-        if tol is not None:
-            ax2.axhline(tol, color="C3", ls="--", lw=1, label="success tolerance")
-        ax2.legend(fontsize=8, loc="lower left")
-        shown = True
-    if df is not None and "distance_rolled" in df:
-        ax.plot(steps, df["distance_rolled"], ".", ms=2, color="C3", label="training distance rolled (m)")
-        ax.set_ylabel("distance rolled per episode (m)")
-        shown = True
-    else:
-        ax.set_ylabel("success rate (%)")
-    if not shown:
-        ax.axis("off")
-    ax.set_xlabel("env steps")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    for a in axes:
-        a.ticklabel_format(axis="x", style="sci", scilimits=(0, 3))
-    fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return True
-
-
-def plot_episodes(all_eps: dict, scales: dict, out: Path, title: str) -> bool:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    any_eps = next(iter(all_eps.values()))
-    if any_eps and any_eps[0]["trace"].get("max_node_error"):
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-        for j, (pol, eps) in enumerate(all_eps.items()):
-            E = np.array([e["trace"]["max_node_error"] for e in eps if len(e["trace"]["max_node_error"]) ==
-                          len(eps[0]["trace"]["max_node_error"])])
-            t = np.arange(1, E.shape[1] + 1) * eps[0]["dt"]
-            axes[0].plot(t, np.median(E, 0), color=f"C{j}", label=f"{pol} (median)")
-            axes[0].fill_between(t, np.percentile(E, 10, 0), np.percentile(E, 90, 0), color=f"C{j}", alpha=0.2)
-            fin = np.sort([e["final"]["max_node_error"] for e in eps])
-            axes[1].plot(np.arange(1, fin.size + 1) / fin.size * 100, fin, color=f"C{j}", label=pol)
-        for ax in axes:
-            ax.set_yscale("log")
-            if "success_tolerance" in scales:
-                ax.axhline(scales["success_tolerance"], color="k", ls="--", lw=1, label="success tolerance")
-            ax.grid(alpha=0.3, which="both")
-            ax.legend(fontsize=8)
-        axes[0].set_xlabel("time (s)")
-        axes[0].set_ylabel("max node error (m); band: 10-90%")
-        axes[0].set_title(title)
-        axes[1].set_xlabel("episodes (%), sorted")
-        axes[1].set_ylabel("final max node error (m)")
-        fig.tight_layout()
-        fig.savefig(out, dpi=110)
-        plt.close(fig)
-        return True
-    if any_eps and any_eps[0]["trace"].get("com"):
-        fig, ax = plt.subplots(figsize=(6, 5))
-        for j, (pol, eps) in enumerate(all_eps.items()):
-            for i, e in enumerate(eps[:10]):
-                c = np.array(e["trace"]["com"])
-                if c.size:
-                    ax.plot(c[:, 0], c[:, 1], color=f"C{j}", lw=1, alpha=0.8, label=pol if i == 0 else None)
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.set_title(f"{title}: centre-of-mass paths (10 episodes each)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(out, dpi=110)
-        plt.close(fig)
-        return True
-    return False
-
-
-def write_gif(env_id: str, env_kwargs: dict, policy, seed: int, out: Path, max_frames: int = 50,
-              fps: int | None = None, size: int = 256) -> int:
-    """GIF of one episode (every k-th control step so that at most ``max_frames`` frames)."""
-    import gymnasium as gym
-    import imageio.v2 as imageio
-    env = gym.make(env_id, render_mode="rgb_array", width=size, height=size, **env_kwargs) \
-        if common.has_vector_entry_point(env_id) else gym.make(env_id, render_mode="rgb_array", **env_kwargs)
-    T = env.spec.max_episode_steps or 1000
-    every = max(1, int(np.ceil(T / max_frames)))
-    obs, _ = env.reset(seed=seed)
-    frames = [env.render()]
-    done, t = False, 0
-    pstate, start = None, np.ones(1, bool)
-    while not done:
-        a, pstate = policy.predict(obs, state=pstate, episode_start=start, deterministic=True)
-        start = np.zeros(1, bool)
-        obs, _, term, trunc, _ = env.step(a)
-        t += 1
-        done = term or trunc
-        if t % every == 0 or done:
-            frames.append(env.render())
-    env_fps = env.metadata.get("render_fps", 30)
-    env.close()
-    imageio.mimsave(out, frames, duration=1000.0 * every / env_fps / (1.0 if fps is None else fps / env_fps),
-                    loop=0)
-    return len(frames)
-
-
 # ---------------------------------------------------------------------- main
 def build_parser():
     p = argparse.ArgumentParser(prog=f"python -m {common.PACKAGE}.evaluate", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", help="run directory written by agents.train")
     p.add_argument("--model", default="best", help="best (default), final, or a path to a model zip")
-    p.add_argument("--n-episodes", type=common.arg_type(lambda v: check_count(v, "--n-episodes", 1)), default=100)
+    p.add_argument("--n-episodes", type=parsing.arg_type(lambda v: check_count(v, "--n-episodes", 1)), default=100)
     p.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default 1000000)")
     p.add_argument("--out", default=None, help="output directory (default RUN_DIR/evaluation)")
     p.add_argument("--no-baselines", action="store_true", help="skip the non-learning baselines")
@@ -480,9 +229,8 @@ def build_parser():
 
 def evaluate(argv=None) -> dict:
     args = build_parser().parse_args(argv)
-    import torch
-    torch.set_num_threads(max(1, args.num_threads))
-    common.import_env_packages(["tensegrity_gym"])
+    set_torch_threads(args.num_threads)
+    envs.import_env_packages(["tensegrity_gym"])
     run_dir = Path(args.run_dir)
     if not (run_dir / "config.yaml").exists():
         raise FileNotFoundError(f"{run_dir}: no config.yaml (not a run directory of agents.train)")
@@ -492,9 +240,9 @@ def evaluate(argv=None) -> dict:
         raise ValueError(f"--gif-size: must be in [16, 2048] pixels, got {args.gif_size}")
     cfg, trained, model_path, model = load_trained(run_dir, args.model)
     env_id = cfg["env"]
-    env_kwargs = {**cfg["env_kwargs"], **common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs")}
-    common.check_seed(args.seed)
-    common.make_env(env_id, env_kwargs).close()     # an unknown --env-kwargs key: named, no traceback
+    env_kwargs = {**cfg["env_kwargs"], **parsing.parse_kv_list(args.env_kwargs, ":", "--env-kwargs")}
+    envs.check_seed(args.seed)
+    envs.make_env(env_id, env_kwargs).close()     # an unknown --env-kwargs key: named, no traceback
     out = Path(args.out) if args.out else run_dir / "evaluation"
     out.mkdir(parents=True, exist_ok=True)
     seeds = list(range(args.seed, args.seed + args.n_episodes))

@@ -18,7 +18,7 @@ Aggregates (``OUT/summary.json``, ``OUT/summary.md``, ``OUT/learning_curves.png`
   time and steps (``state.json``);
 * over seeds: the IQM (25 % trimmed mean, rliable's ``aggregate_iqm``) and its 95 % percentile
   bootstrap interval (``scipy.stats.bootstrap``, 2000 resamples, seeded:
-  :func:`agents.tune.iqm_interval`; rliable itself does not import with pandas 3), plus min,
+  :func:`agents.summary.iqm_interval`; rliable itself does not import with pandas 3), plus min,
   max and the number of seeds that reached ``--goal`` (if given);
 * learning curves: each seed's evaluation during training (``eval/evaluations.npz``: mean return
   and success rate) against env steps and against wall-clock seconds, IQM over seeds with the
@@ -36,7 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common
+from . import common, parsing
+from .summary import iqm_interval
 
 #: per-seed metrics aggregated over seeds: (summary key, key in agents.evaluate's results, unit)
 METRICS = (("success_rate", "success_rate", "fraction"),
@@ -111,7 +112,6 @@ def _curves(run: Path) -> dict | None:
 
 
 def _band(curves: list[dict], xkey: str, ykey: str, n: int = 40):
-    from .tune import iqm_interval
     from scipy import stats
     cs = [c for c in curves if c is not None and xkey in c and ykey in c and len(c[xkey])]
     if not cs:
@@ -162,7 +162,6 @@ def _plot(path: Path, curves: list[dict], title: str) -> bool:
 def aggregate(per_seed: list[dict], goals: list[tuple[str, float]]) -> dict:
     """IQM, 95 % bootstrap interval, min and max over training seeds of every metric in
     :data:`METRICS` present for all seeds; per goal, how many seeds reach it."""
-    from .tune import iqm_interval
     agg = {}
     for key, _, unit in METRICS:
         vals = [s[key] for s in per_seed if s.get(key) is not None]
@@ -197,7 +196,7 @@ def run(argv: list[str] | None = None) -> dict:
     for r in runs:
         m = _evaluate_seed(r, out / "seeds" / r.name, args)
         res = m["results"][next(k for k in m["results"] if k.endswith("(trained)"))]
-        cfg = common.read_yaml(r / "config.yaml")
+        cfg = parsing.read_yaml(r / "config.yaml")
         env_ids.add(m["env"])
         st = json.loads((r / "state.json").read_text()) if (r / "state.json").exists() else {}
         row = {"run": str(r), "seed": cfg.get("seed"), "model": m["model"],
@@ -213,7 +212,7 @@ def run(argv: list[str] | None = None) -> dict:
     title = args.title or f"{', '.join(sorted(env_ids))}: {len(runs)} training seeds"
     summary = {"title": title, "n_seeds": len(runs), "held_out_episodes_per_seed": args.n_episodes,
                "held_out_seeds": [HELD_OUT_SEED, HELD_OUT_SEED + args.n_episodes - 1],
-               "model": args.model, "eval_env_kwargs": common.parse_kv_list(args.env_kwargs, ":", "--env-kwargs"),
+               "model": args.model, "eval_env_kwargs": parsing.parse_kv_list(args.env_kwargs, ":", "--env-kwargs"),
                "per_seed": per_seed, "aggregate": agg,
                "learning_curve_runs": [str(r) for r, c in zip(runs, curves) if c is not None],
                "interval": "IQM (25 % trimmed mean) over training seeds, 95 % percentile bootstrap "

@@ -2,10 +2,13 @@
 
 Usage::
 
-    python -m agents.tune agents/sweeps/smoke.yml                     # embedded local Ray
-    python -m agents.tune agents/sweeps/sweep1.yml --storage runs_tune --max-concurrent 16
+    python -m agents.tune smoke.yml                     # embedded local Ray
+    python -m agents.tune sweep1.yml --storage runs_tune --max-concurrent 16
     python -m agents.tune CONFIG.yml --address auto                   # an existing Ray cluster
     python -m agents.tune CONFIG.yml --summary-only                   # table + plot of a finished sweep
+
+A shipped sweep (``agents/sweeps/``) is named by its file name, installed or in a checkout; any
+other argument is the path of a config of your own.
 
 A config (YAML) has a ``name``, the ``train`` arguments shared by every trial, and either
 
@@ -44,14 +47,12 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
+from . import common, envs, hyperparameters, parsing
+from .summary import METRIC_MEANING, final_metrics, summarize
 
-from . import common
-
+#: the sweep configs shipped with the package: the config argument names one relative to this folder
+SWEEPS_DIR = Path(__file__).resolve().parent / "sweeps"
 SEARCH_KINDS = ("uniform", "loguniform", "randint", "choice", "quniform")
-METRIC_MEANING = {"eval_return": "mean return of the last evaluation",
-                  "eval_success": "success rate of the last evaluation",
-                  "timesteps": "env steps trained"}
 TRAIN_KEYS = {"algo", "env", "n_timesteps", "n_envs", "eval_freq", "eval_episodes", "n_eval_envs", "save_freq",
               "save_replay_buffer", "max_wall_time", "vec_env", "env_kwargs", "hyperparams", "device", "conf_file",
               "gym_packages"}
@@ -59,11 +60,15 @@ TRAIN_KEYS = {"algo", "env", "n_timesteps", "n_envs", "eval_freq", "eval_episode
 
 # ---------------------------------------------------------------------- config
 def load_config(path: str | Path) -> dict:
-    """Read and validate a sweep config (errors name the field and the value)."""
+    """Read and validate a sweep config (errors name the field and the value): a file of the
+    user's own (a path), else a shipped one named relative to :data:`SWEEPS_DIR` (``smoke.yml``)."""
     path = Path(path)
+    if not path.is_file() and not path.is_absolute() and (SWEEPS_DIR / path).is_file():
+        path = SWEEPS_DIR / path
     if not path.exists():
-        raise FileNotFoundError(f"sweep config {path} does not exist")
-    cfg = common.read_yaml(path) or {}
+        shipped = ", ".join(sorted(f.name for f in SWEEPS_DIR.glob("*.yml")))
+        raise FileNotFoundError(f"sweep config {path} does not exist (nor in {SWEEPS_DIR}; the shipped ones: {shipped})")
+    cfg = parsing.read_yaml(path) or {}
     if not isinstance(cfg, dict):
         raise ValueError(f"{path}: expected a mapping")
     unknown = set(cfg) - {"name", "train", "variants", "search", "seeds", "metric", "mode", "max_concurrent",
@@ -148,7 +153,7 @@ def train_argv(opts: dict, seed: int, log_dir: str | Path) -> list[str]:
     for k, v in opts.items():
         if k in ("env_kwargs", "hyperparams"):
             if v:
-                argv += [f"--{k.replace('_', '-')}", json.dumps(common.to_yaml_safe(v))] if k == "env_kwargs" else \
+                argv += [f"--{k.replace('_', '-')}", json.dumps(parsing.to_yaml_safe(v))] if k == "env_kwargs" else \
                     ["--hyperparams"] + [f"{hk}={_hp_text(hv)}" for hk, hv in v.items()]
         elif k == "gym_packages":
             argv += ["--gym-packages", *v]
@@ -164,7 +169,7 @@ def _hp_text(v) -> str:
     """A hyperparameter value as ``--hyperparams`` parses it (JSON / Python literal / zoo string)."""
     if isinstance(v, str):
         return v
-    return json.dumps(common.to_yaml_safe(v))
+    return json.dumps(parsing.to_yaml_safe(v))
 
 
 def trial_list(cfg: dict) -> list[dict]:
@@ -212,7 +217,7 @@ def run_trial(config: dict) -> None:
         if opts.get("max_wall_time") is not None:  # the wall-time budget counts the earlier segments
             left = float(opts["max_wall_time"]) - float(state.get("wall_time_s", 0.0))
         if state.get("status") == "finished" or (state.get("status") == "time_limit" and (left or 0) <= 1.0):
-            tune.report(_final_metrics(run_dir, config))
+            tune.report(final_metrics(run_dir, config))
             return
         argv = ["--resume", str(run_dir), "--no-progress-bar", "--num-threads", "1"]
         if left is not None:
@@ -224,149 +229,14 @@ def run_trial(config: dict) -> None:
         tune.report({**metrics, "variant": name, "seed": int(config["seed"])})
 
     train_mod.train(argv, report=report)
-    tune.report(_final_metrics(run_dir, {**config, "variant": name}))
-
-
-def _final_metrics(run_dir: Path, config: dict) -> dict:
-    from .train import evaluation_metrics
-    out = {"variant": config.get("variant") or run_dir.name.rsplit("_s", 1)[0], "seed": int(config["seed"]),
-           "run_dir": str(run_dir), "done_training": True}
-    ev = run_dir / "eval" / "evaluations.npz"
-    if ev.exists():
-        d = np.load(ev)
-        out.update(evaluation_metrics(d["timesteps"].tolist(), d["results"].tolist(),
-                                      d["successes"].tolist() if "successes" in d.files else None))
-    st = run_dir / "state.json"
-    if st.exists():
-        s = json.loads(st.read_text())
-        out["timesteps"] = int(s.get("num_timesteps", out.get("timesteps", 0)))
-        out["wall_time_s"] = float(s.get("wall_time_s", 0.0))
-        out["status"] = s.get("status")
-    return out
-
-
-# ---------------------------------------------------------------------- summary
-def iqm_interval(x, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
-    """IQM (25 % trimmed mean, rliable's ``aggregate_iqm``) of ``x`` and its percentile-bootstrap
-    ``confidence`` interval (``scipy.stats.bootstrap``; seeded). Fewer than 2 values: (x, nan, nan)."""
-    from scipy import stats
-    x = np.asarray(x, float)
-    x = x[np.isfinite(x)]
-    if x.size == 0:
-        return float("nan"), float("nan"), float("nan")
-    iqm = float(stats.trim_mean(x, 0.25))
-    if x.size < 2 or np.ptp(x) == 0:
-        return iqm, (iqm if x.size >= 2 else float("nan")), (iqm if x.size >= 2 else float("nan"))
-    res = stats.bootstrap((x,), lambda s, axis: stats.trim_mean(s, 0.25, axis=axis), confidence_level=confidence,
-                          n_resamples=n_resamples, method="percentile", rng=np.random.default_rng(seed))
-    return iqm, float(res.confidence_interval.low), float(res.confidence_interval.high)
-
-
-def summarize(exp_dir: Path, metric: str = "eval_return", sweep: dict | None = None) -> dict:
-    """Per-variant table from the trial run directories under ``exp_dir/runs``; writes
-    ``summary.json``, ``summary.md`` and ``summary.png`` in ``exp_dir``. ``sweep``: what only the
-    sweep itself knows (``sweep_wall_time_s``, ``max_concurrent``, ``errors``); without it
-    (``--summary-only``) those of an earlier ``summary.json`` are kept."""
-    runs_dir = exp_dir / "runs"
-    per: dict[str, list[dict]] = {}
-    for d in sorted(p for p in runs_dir.iterdir() if p.is_dir()) if runs_dir.exists() else []:
-        if not (d / "config.yaml").exists():
-            continue
-        name, _, seed = d.name.rpartition("_s")
-        m = _final_metrics(d, {"variant": name, "seed": int(seed) if seed.isdigit() else -1})
-        ev = d / "eval" / "evaluations.npz"
-        if ev.exists():
-            z = np.load(ev)
-            m["curve_steps"] = z["timesteps"].tolist()
-            m["curve_return"] = z["results"].mean(axis=1).tolist()
-        rc = common.read_yaml(d / "config.yaml") or {}
-        m["params"] = {**{f"hyperparams.{k}": v for k, v in (rc.get("hyperparams_raw") or {}).items()
-                          if k != "env_kwargs"},
-                       **{f"env_kwargs.{k}": v for k, v in (rc.get("env_kwargs") or {}).items()},
-                       "algo": rc.get("algo"), "env": rc.get("env")}
-        per.setdefault(name, []).append(m)
-    # the settings that differ between variants (e.g. the sampled values of a search)
-    allp = [r["params"] for runs in per.values() for r in runs[:1]]
-    keys = sorted({k for p in allp for k in p})
-    differ = [k for k in keys if len({json.dumps(p.get(k), sort_keys=True, default=str) for p in allp}) > 1]
-    rows = []
-    for name, runs in per.items():
-        vals = [r.get(metric, np.nan) for r in runs]
-        iqm, lo, hi = iqm_interval(vals)
-        succ = [r["eval_success"] for r in runs if "eval_success" in r]
-        s_iqm, s_lo, s_hi = iqm_interval(succ) if succ else (np.nan, np.nan, np.nan)
-        rows.append({"variant": name, "n_seeds": len(runs), "seeds": [r["seed"] for r in runs],
-                     "settings": {k: runs[0]["params"].get(k) for k in differ},
-                     f"{metric}_per_seed": [float(v) for v in vals], f"{metric}_iqm": iqm,
-                     f"{metric}_ci95": [lo, hi], "eval_success_iqm": s_iqm, "eval_success_ci95": [s_lo, s_hi],
-                     "timesteps": [r.get("timesteps") for r in runs],
-                     "status": [r.get("status") for r in runs],
-                     "wall_time_s": [round(r.get("wall_time_s", 0.0), 1) for r in runs]})
-    out = {"experiment": str(exp_dir), "metric": metric,
-           "interval": "95 % percentile bootstrap of the IQM over seeds (scipy.stats.bootstrap, 2000 resamples, "
-                       "seed 0)", "variants": rows}
-    old = exp_dir / "summary.json"
-    if sweep is None and old.exists():
-        try:
-            prev = json.loads(old.read_text())
-        except (OSError, ValueError):
-            prev = {}
-        sweep = {k: prev[k] for k in ("sweep_wall_time_s", "max_concurrent", "errors") if k in prev}
-    out.update(sweep or {})
-    common.write_json(exp_dir / "summary.json", out)
-    lines = [f"# {exp_dir.name}: final evaluation per variant", "",
-             f"IQM over training seeds with a 95 % percentile-bootstrap interval (scipy.stats.bootstrap). "
-             f"Metric: `{metric}` = {METRIC_MEANING.get(metric, metric)}.", "",
-             f"| variant | settings | seeds | {metric} per seed | IQM [95 % CI] | success IQM [95 % CI] | steps | status |",
-             "|---|---|---|---|---|---|---|---|"]
-
-    def f(x):
-        return "nan" if x is None or not np.isfinite(x) else f"{x:.3g}"
-    for r in sorted(rows, key=lambda r: -np.nan_to_num(r[f"{metric}_iqm"], nan=-np.inf)):
-        lo, hi = r[f"{metric}_ci95"]
-        slo, shi = r["eval_success_ci95"]
-        sets = ", ".join(f"{k.split('.', 1)[-1]}={v:.3g}" if isinstance(v, float) else f"{k.split('.', 1)[-1]}={v}"
-                         for k, v in r["settings"].items())
-        lines.append(f"| {r['variant']} | {sets} | {r['n_seeds']} | {', '.join(f(v) for v in r[f'{metric}_per_seed'])} | "
-                     f"{f(r[f'{metric}_iqm'])} [{f(lo)}, {f(hi)}] | {f(r['eval_success_iqm'])} [{f(slo)}, {f(shi)}] | "
-                     f"{', '.join(str(t) for t in r['timesteps'])} | {', '.join(str(s) for s in set(r['status']))} |")
-    common.write_text(exp_dir / "summary.md", "\n".join(lines) + "\n")
-    _plot(exp_dir / "summary.png", per)
-    return out
-
-
-def _plot(path: Path, per: dict) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from scipy import stats
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    styles = ("-", "--", ":", "-.")   # the colour cycle has 10 colours: more variants change the line style
-    for i, (name, runs) in enumerate(sorted(per.items())):
-        curves = [(np.asarray(r["curve_steps"]), np.asarray(r["curve_return"])) for r in runs if r.get("curve_steps")]
-        if not curves:
-            continue
-        grid = np.unique(np.concatenate([c[0] for c in curves]))
-        Y = np.array([np.interp(grid, s, y, left=np.nan, right=np.nan) for s, y in curves])
-        iqm = np.array([stats.trim_mean(c[np.isfinite(c)], 0.25) if np.isfinite(c).any() else np.nan for c in Y.T])
-        line, = ax.plot(grid, iqm, styles[(i // 10) % len(styles)], label=f"{name} ({len(curves)} seeds)")
-        if len(curves) >= 2:
-            band = np.array([iqm_interval(c)[1:] for c in Y.T])
-            ax.fill_between(grid, band[:, 0], band[:, 1], color=line.get_color(), alpha=0.2)
-    ax.set_xlabel("env steps")
-    ax.set_ylabel("evaluation return (IQM over seeds, 95 % CI band)")
-    if ax.lines:
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    common.atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
-    plt.close(fig)
+    tune.report(final_metrics(run_dir, {**config, "variant": name}))
 
 
 # ---------------------------------------------------------------------- driver
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"python -m {common.PACKAGE}.tune", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("config", help="sweep config (YAML), e.g. agents/sweeps/smoke.yml")
+    p.add_argument("config", help="sweep config (YAML): a shipped one by its name in agents/sweeps/ (smoke.yml), or a path")
     p.add_argument("--storage", default="runs_tune", help="folder of experiments (default runs_tune/)")
     p.add_argument("--address", default=None,
                    help="address of an existing Ray cluster ('auto' or host:port); default: start an embedded "
@@ -396,13 +266,13 @@ def tune_main(argv: list[str] | None = None) -> dict:
         raise ValueError("agents.tune needs Ray Tune: pip install 'tensegrity_gym[tune]' (or 'ray[tune]')") from None
     for v in ([cfg["train"]] + [dict(x) for x in cfg.get("variants", [])]):
         if "algo" in v:
-            common.get_algo(v["algo"])
-    common.import_env_packages(["tensegrity_gym"])
+            hyperparameters.get_algo(v["algo"])
+    envs.import_env_packages(["tensegrity_gym"])
     env_ids = {v.get("env", cfg["train"].get("env")) for v in cfg.get("variants", [cfg["train"]])}
     for e in env_ids:
         if e is None:
             raise ValueError(f"{args.config}: train.env (or each variant's env) is required")
-        common.check_env_id(e)
+        envs.check_env_id(e)
 
     if not ray.is_initialized():
         if args.address:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common
+from . import common, envs
 from .evaluate import resolve_model
 
 __all__ = ["check_source", "observation_map", "warm_start"]
@@ -48,7 +48,7 @@ def check_source(run_dir: str | Path, algo: str) -> dict:
 
 
 def _layout(env_id: str, env_kwargs: dict):
-    env = common.make_registered_env(env_id, **env_kwargs)
+    env = envs.make_registered_env(env_id, **env_kwargs)
     try:
         size = int(np.prod(env.observation_space.shape))
         task = getattr(env.unwrapped, "task", None)
@@ -149,7 +149,7 @@ def warm_start(model, env, source: dict, env_id: str, env_kwargs: dict, seed: in
         mean, var = np.zeros(n_dst), np.ones(n_dst)
         mean[col_map], var[col_map] = src_vn.obs_rms.mean, src_vn.obs_rms.var
         if new.size:           # the blocks the source never saw: measured on resets of this env
-            probe, _ = common.make_vec(env_id, PROBE_RESETS, seed + PROBE_SEED_OFFSET, env_kwargs, "batched")
+            probe, _ = envs.make_vec(env_id, PROBE_RESETS, seed + PROBE_SEED_OFFSET, env_kwargs, "batched")
             try:
                 obs = np.asarray(probe.reset(), dtype=float)
             finally:

@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 import gymnasium as gym  # noqa: E402
 import tensegrity_gym  # noqa: E402,F401  (registers the envs)
-from agents import common, evaluate, train  # noqa: E402
+from agents import envs, evaluate, hyperparameters, parsing, train  # noqa: E402
 
 ENV_IDS = [e for e in ("TensegrityShape-v0", "TensegrityRoll-v0")
            if e in gym.envs.registry]
@@ -48,29 +48,29 @@ def _tiny_hp(algo):
 # ---------------------------------------------------------------------- parsing (no eval)
 def test_safe_literal_parses_zoo_strings_and_rejects_code():
     import torch
-    d = common.safe_literal("dict(log_std_init=-1.0, net_arch=dict(pi=[64, 64], vf=[64]), activation_fn=nn.Tanh)")
+    d = parsing.safe_literal("dict(log_std_init=-1.0, net_arch=dict(pi=[64, 64], vf=[64]), activation_fn=nn.Tanh)")
     assert d == {"log_std_init": -1.0, "net_arch": {"pi": [64, 64], "vf": [64]}, "activation_fn": torch.nn.Tanh}
-    assert common.safe_literal("th.nn.ReLU") is torch.nn.ReLU
+    assert parsing.safe_literal("th.nn.ReLU") is torch.nn.ReLU
     for bad in ("__import__('os').system('true')", "os.system", "dict(a=open('x'))", "[x for x in ()]",
                 "nn.functional"):
         with pytest.raises(ValueError):
-            common.safe_literal(bad)
+            parsing.safe_literal(bad)
 
 
 def test_kv_parsing():
-    assert common.parse_kv_list(["action_mode:force_density", "frame_skip:10", "actuated:[0, 1]",
+    assert parsing.parse_kv_list(["action_mode:force_density", "frame_skip:10", "actuated:[0, 1]",
                                  "target_range:0.05", "clip_actions:false"], ":", "x") == {
         "action_mode": "force_density", "frame_skip": 10, "actuated": [0, 1], "target_range": 0.05,
         "clip_actions": False}
-    assert common.parse_kv_list(['{"a": 1, "b": "c"}'], ":", "x") == {"a": 1, "b": "c"}
-    assert common.parse_kv_list(["learning_rate=3e-4", "lr=lin_1e-3"], "=", "x") == {
+    assert parsing.parse_kv_list(['{"a": 1, "b": "c"}'], ":", "x") == {"a": 1, "b": "c"}
+    assert parsing.parse_kv_list(["learning_rate=3e-4", "lr=lin_1e-3"], "=", "x") == {
         "learning_rate": 3e-4, "lr": "lin_1e-3"}
     with pytest.raises(ValueError, match="key:value"):
-        common.parse_kv_list(["oops"], ":", "--env-kwargs")
+        parsing.parse_kv_list(["oops"], ":", "--env-kwargs")
 
 
 def test_resolve_hyperparams_schedules_and_unsupported_keys():
-    hp = common.resolve_hyperparams("ppo", {"n_timesteps": 1e4, "n_envs": 2, "learning_rate": "lin_1e-3",
+    hp = hyperparameters.resolve_hyperparams("ppo", {"n_timesteps": 1e4, "n_envs": 2, "learning_rate": "lin_1e-3",
                                             "normalize": True, "gamma": 0.9,
                                             "policy_kwargs": "dict(net_arch=[8])"})
     assert hp["n_timesteps"] == 10000 and hp["n_envs"] == 2
@@ -78,7 +78,7 @@ def test_resolve_hyperparams_schedules_and_unsupported_keys():
     assert hp["model_kwargs"]["learning_rate"](0.5) == pytest.approx(5e-4)
     assert hp["model_kwargs"]["policy_kwargs"] == {"net_arch": [8]}
     with pytest.raises(ValueError, match="env_wrapper"):
-        common.resolve_hyperparams("ppo", {"env_wrapper": "x.Y"})
+        hyperparameters.resolve_hyperparams("ppo", {"env_wrapper": "x.Y"})
 
 
 # ---------------------------------------------------------------------- hyperparameter files
@@ -87,13 +87,13 @@ def _check_entries(path, algo: str) -> dict:
     entry resolves for ``algo`` (strings parse safely) and its model arguments are the
     algorithm's."""
     import inspect
-    data = common.load_hyperparams_file(path)
+    data = hyperparameters.load_hyperparams_file(path)
     assert data, f"{path} is empty"
-    Algo = common.get_algo(algo)
+    Algo = hyperparameters.get_algo(algo)
     params = inspect.signature(Algo.__init__).parameters
     for env_id, hp in data.items():
         assert env_id in gym.envs.registry, f"{path}: {env_id} is not a registered env id"
-        r = common.resolve_hyperparams(algo, hp)
+        r = hyperparameters.resolve_hyperparams(algo, hp)
         assert r["n_timesteps"] > 0 and r["n_envs"] >= 1
         for k in r["model_kwargs"]:
             assert k in params, f"{path}:{env_id}: {k!r} is not a {Algo.__name__} argument"
@@ -126,15 +126,15 @@ def test_time_to_policy_entries_are_the_ones_the_results_trained():
     results/ppo_roll_5min/lin_lr_std1/."""
     folder = ROOT / "agents" / "hyperparams" / "time_to_policy"
     assert [f.name for f in folder.glob("*.yml")] == ["ppo.yml"]
-    hp, source = common.hyperparams_for("ppo", "TensegrityShape-v0", folder / "ppo.yml")
-    r = common.resolve_hyperparams("ppo", hp)
+    hp, source = hyperparameters.hyperparams_for("ppo", "TensegrityShape-v0", folder / "ppo.yml")
+    r = hyperparameters.resolve_hyperparams("ppo", hp)
     assert source.endswith("time_to_policy/ppo.yml:TensegrityShape-v0")
     assert r["n_envs"] == 256
     mk = r["model_kwargs"]
     assert (mk["n_steps"], mk["batch_size"], mk["n_epochs"], mk["gamma"], mk["gae_lambda"]) == (16, 128, 2, 0.8, 0.8)
     assert mk["policy_kwargs"]["net_arch"] == {"pi": [64, 64], "vf": [64, 64]}
-    hp, _ = common.hyperparams_for("ppo", "TensegrityRoll-v0", folder / "ppo.yml")
-    r = common.resolve_hyperparams("ppo", hp)
+    hp, _ = hyperparameters.hyperparams_for("ppo", "TensegrityRoll-v0", folder / "ppo.yml")
+    r = hyperparameters.resolve_hyperparams("ppo", hp)
     assert (r["n_envs"], r["n_timesteps"]) == (128, 9_000_000)
     mk = r["model_kwargs"]
     assert (mk["n_steps"], mk["batch_size"], mk["n_epochs"], mk["gamma"], mk["gae_lambda"]) == (128, 2048, 2, 0.995, 0.98)
@@ -249,7 +249,7 @@ def test_evaluate_numbers_match_a_manual_rollout(tmp_path):
 def test_interrupt_saves_and_resume_continues_step_count(tmp_path):
     env_id = ENV_IDS[0] if ENV_IDS and _env_ok(ENV_IDS[0]) else "Pendulum-v1"
     run = tmp_path / "run"
-    InterruptAt = train._callbacks()[3]
+    from agents.callbacks import InterruptAt
     args = ["--algo", "ppo", "--env", env_id, "--log-dir", str(run), "--n-timesteps", "512", "--n-envs", "4",
             "--eval-freq", "128", "--eval-episodes", "2", "--save-freq", "128", "--no-progress-bar",
             "--hyperparams", "n_steps=32", "batch_size=64", "n_epochs=1", "normalize=true"]
@@ -322,8 +322,7 @@ def test_bad_arguments_give_clear_errors(tmp_path):
         with pytest.raises(ValueError, match=pattern):
             train.train(base + [hp, "--log-dir", str(tmp_path / f"hp{i}")])
         assert not (tmp_path / f"hp{i}" / "model.zip").exists()
-    from agents import common
-    assert common.resolve_hyperparams("sac", {"buffer_size": 1e6})["model_kwargs"]["buffer_size"] == 1000000
+    assert hyperparameters.resolve_hyperparams("sac", {"buffer_size": 1e6})["model_kwargs"]["buffer_size"] == 1000000
     # a malformed YAML file (hyperparameters, sweep config): file, line and problem (was PyYAML's traceback)
     bad = tmp_path / "bad.yml"
     bad.write_text("foo: [\n")
@@ -335,18 +334,17 @@ def test_bad_arguments_give_clear_errors(tmp_path):
 
 
 def test_env_kwargs_checked_for_every_registered_env():
-    """common.make_env names an unknown key for the roll env (its task's arguments) and the MuJoCo
+    """envs.make_env names an unknown key for the roll env (its task's arguments) and the MuJoCo
     twin (its own and the task's), and passes known ones through."""
-    from agents import common
-    names = common.env_argument_names("TensegrityRoll-v0")
+    names = envs.env_argument_names("TensegrityRoll-v0")
     assert {"frame_skip", "ground_stiffness", "observation_mode", "width"} <= set(names)
     assert "num_envs" not in names and "kwargs" not in names
     with pytest.raises(ValueError, match=r"TensegrityRoll-v0 takes no argument 'ground_stifness' "
                                          r"\(did you mean ground_stiffness"):
-        common.make_env("TensegrityRoll-v0", {"ground_stifness": 1e4})
+        envs.make_env("TensegrityRoll-v0", {"ground_stifness": 1e4})
     if importlib.util.find_spec("mujoco"):
-        assert {"mj_integrator", "friction"} <= set(common.env_argument_names("TensegrityRollMuJoCo-v0"))
-    env = common.make_env("TensegrityShape-v0", {"frame_skip": 10})
+        assert {"mj_integrator", "friction"} <= set(envs.env_argument_names("TensegrityRollMuJoCo-v0"))
+    env = envs.make_env("TensegrityShape-v0", {"frame_skip": 10})
     assert env.unwrapped.task.frame_skip == 10
     env.close()
 

@@ -321,7 +321,7 @@ def test_crash_is_recorded_and_keeps_the_last_good_model(tmp_path):
 
 def test_a_run_that_failed_before_its_first_step_restarts_in_the_same_folder(tmp_path):
     run = tmp_path / "run"
-    # PPO's constructor rejects it (agents.common's own checks do not know it): fails before the first step
+    # PPO's constructor rejects it (agents.hyperparameters' own checks do not know it): fails before the first step
     bad = PPO_TINY[:-1] + ["policy_kwargs=dict(no_such_option=1)"]
     with pytest.raises(ValueError, match="PPO refused them"):
         train.train(["--log-dir", str(run), "--n-timesteps", "64", "--save-freq", "-1", "--eval-freq", "-1",
@@ -340,7 +340,7 @@ def test_a_run_that_failed_before_its_first_step_restarts_in_the_same_folder(tmp
 
 def test_resume_keeps_the_checkpoint_and_evaluation_schedule(tmp_path):
     run = tmp_path / "run"
-    InterruptAt = train._callbacks()[3]
+    from agents.callbacks import InterruptAt
     args = ["--log-dir", str(run), "--n-timesteps", "512", "--save-freq", "128", "--eval-freq", "128",
             "--eval-episodes", "1", *PPO_TINY]
     train.train(args, extra_callbacks=[InterruptAt(200)])

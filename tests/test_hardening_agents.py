@@ -13,7 +13,7 @@ pytest.importorskip("stable_baselines3")
 yaml = pytest.importorskip("yaml")
 
 import tensegrity_gym  # noqa: E402,F401  (registers the envs)
-from agents import common, evaluate, train  # noqa: E402
+from agents import envs, evaluate, hyperparameters, interrupts, train  # noqa: E402
 
 
 # ---------------------------------------------------------------- hyperparameters
@@ -33,11 +33,11 @@ from agents import common, evaluate, train  # noqa: E402
 ])
 def test_bad_hyperparameters_named(hp, pattern):
     with pytest.raises(ValueError, match=pattern):
-        common.resolve_hyperparams("ppo", hp)
+        hyperparameters.resolve_hyperparams("ppo", hp)
 
 
 def test_good_hyperparameters_unchanged():
-    r = common.resolve_hyperparams("ppo", {"n_timesteps": "1e4", "normalize": "dict(clip_obs=10.0, norm_reward=False)",
+    r = hyperparameters.resolve_hyperparams("ppo", {"n_timesteps": "1e4", "normalize": "dict(clip_obs=10.0, norm_reward=False)",
                                            "clip_range": "lin_0.2", "policy_kwargs": "dict(net_arch=[8, 8])",
                                            "env_kwargs": None})
     assert r["n_timesteps"] == 10000 and r["env_kwargs"] == {}
@@ -154,18 +154,18 @@ def test_train_damaged_state_json_named(tmp_path, capsys):
 
 
 def test_sigterm_exit_code_is_143():
-    train._SIGNALS_RECEIVED.clear()
-    assert train.interrupted_exit_code() == 130       # Ctrl-C
-    train._SIGNALS_RECEIVED.append(signal.SIGTERM)
+    interrupts.SIGNALS_RECEIVED.clear()
+    assert interrupts.interrupted_exit_code() == 130       # Ctrl-C
+    interrupts.SIGNALS_RECEIVED.append(signal.SIGTERM)
     try:
-        assert train.interrupted_exit_code() == 143
+        assert interrupts.interrupted_exit_code() == 143
     finally:
-        train._SIGNALS_RECEIVED.clear()
+        interrupts.SIGNALS_RECEIVED.clear()
 
 
 # ---------------------------------------------------------------- --vec-env subproc
 def test_subproc_vec_env_builds_the_package_envs():
-    venv, mode = common.make_vec("TensegrityShape-v0", 2, 0, {}, vec_env="subproc")
+    venv, mode = envs.make_vec("TensegrityShape-v0", 2, 0, {}, vec_env="subproc")
     try:
         assert mode == "subproc"
         obs = venv.reset()

@@ -104,7 +104,7 @@ def test_skrl_ppo_with_wrap_env_auto_detection(backend, tmp_path):
     assert isinstance(wrap_env(mod.make_env(SHAPE, 2, backend, "next_step", 0), verbose=False), GymnasiumWrapper)
     out = mod.main(["--env-id", SHAPE, "--num-envs", "4", "--timesteps", "64", "--rollouts", "16",
                     "--max-episode-steps", "20", "--backend", backend, "--directory", str(tmp_path), "--eval-steps", "5"])
-    assert out["env_steps"] == 256
+    assert out["env_steps"] == 256 and "random_reward_per_step" in out
     _finite(out)
 
 

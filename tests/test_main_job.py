@@ -27,7 +27,8 @@ def test_main_job_tiny_budget_writes_a_new_folder_and_says_it_fell_short(tmp_pat
     assert mj["budget_steps"] == 4096 and not mj["training_complete"]
     assert "CUT SHORT" in mj["verdict"] and "CUT SHORT" in r.stdout
     ref = json.loads((ROOT / "results" / "main_job" / "reference.json").read_text())
-    assert mj["reference"] == ref and "IQM over" in mj["verdict"]
+    assert mj["reference"] == ref and not mj["reference_applies"]     # another budget: no comparison
+    assert "does not apply to a budget of 4,096" in mj["verdict"] and "IQM over" not in mj["verdict"]
     for f in ("README.md", "table.md", "rollout.gif", "run/config.yaml", "run/model.zip"):
         assert (out / f).exists(), f
     assert "[train]" in r.stdout or "steps" in r.stdout
@@ -38,9 +39,12 @@ def test_main_job_tiny_budget_writes_a_new_folder_and_says_it_fell_short(tmp_pat
 def test_verdict_of_a_complete_run_quotes_the_reference():
     import importlib
     mod = importlib.import_module("scripts.eval.main_job")
-    ref = {"n_seeds": 5, "success_rate": {"iqm": 0.97, "ci": [0.95, 0.99], "min": 0.9, "max": 1.0}}
+    ref = {"n_seeds": 5, "budget_steps": 1_200_000,
+           "success_rate": {"iqm": 0.97, "ci": [0.95, 0.99], "min": 0.9, "max": 1.0}}
     text = mod.verdict(0.96, 1_200_128, 1_200_000, "finished", ref)
     assert "96 %" in text and "97 %" in text and "CUT SHORT" not in text
+    other = mod.verdict(0.96, 2_400_128, 2_400_000, "finished", ref)   # the reference holds for its budget only
+    assert "97 %" not in other and "does not apply to a budget of 2,400,000" in other
     short = mod.verdict(0.1, 300_000, 1_200_000, "interrupted", ref)
     assert "CUT SHORT" in short and "300,000 of 1,200,000" in short
 

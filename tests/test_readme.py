@@ -40,6 +40,14 @@ def test_readme_has_what_a_newcomer_needs():
             assert (ROOT / link).exists(), f"README links to {link}, which does not exist"
 
 
+def test_environment_table_lists_every_registered_id():
+    import gymnasium
+    import tensegrity_gym  # noqa: F401  (registers the envs)
+    table = {m for m in re.findall(r"^\| `(Tensegrity[\w-]+)` \|", _section("## Environments"), flags=re.M)}
+    registered = {k for k in gymnasium.registry if k.startswith("Tensegrity")}
+    assert table == registered, f"README's table lacks {sorted(registered - table)}, lists unknown {sorted(table - registered)}"
+
+
 @pytest.mark.parametrize("i", range(len(_blocks("python"))))
 def test_python_snippet_runs_alone(i, tmp_path):
     code = _blocks("python")[i]

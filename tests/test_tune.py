@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("stable_baselines3")
 pytest.importorskip("yaml")
 
-from agents import train, tune  # noqa: E402
+from agents import summary, train, tune  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 SWEEPS = ROOT / "agents" / "sweeps"
@@ -32,14 +32,14 @@ def test_sweep_configs_keep_the_former_run_lists(name, n_runs):
     cfg = tune.load_config(SWEEPS / f"{name}.yml")
     runs = tune.trial_list(cfg)
     assert len(runs) == n_runs
-    from agents import common
+    from agents import hyperparameters, parsing
     for r in runs:
         argv = tune.train_argv(r["opts"], r["seed"], "x")
         a = train.build_parser().parse_args(argv)
         assert a.max_wall_time > 0 and a.save_freq == -1
-        hp = common.parse_kv_list(a.hyperparams, "=", "--hyperparams")
-        common.resolve_hyperparams(a.algo, {**common.hyperparams_for(a.algo, a.env)[0], **hp})
-        common.parse_kv_list(a.env_kwargs, ":", "--env-kwargs")
+        hp = parsing.parse_kv_list(a.hyperparams, "=", "--hyperparams")
+        hyperparameters.resolve_hyperparams(a.algo, {**hyperparameters.hyperparams_for(a.algo, a.env)[0], **hp})
+        parsing.parse_kv_list(a.env_kwargs, ":", "--env-kwargs")
 
 
 def test_sweep_configs_all_load():
@@ -73,12 +73,12 @@ def test_bad_configs_name_the_field(tmp_path):
 def test_iqm_interval():
     from scipy import stats
     x = np.array([0.1, 0.5, 0.55, 0.6, 0.62, 0.7, 0.9, 3.0])
-    iqm, lo, hi = tune.iqm_interval(x)
+    iqm, lo, hi = summary.iqm_interval(x)
     assert iqm == pytest.approx(np.mean(np.sort(x)[2:6]))       # mean of the middle half
     assert iqm == pytest.approx(stats.trim_mean(x, 0.25))
     assert x.min() <= lo < iqm < hi <= x.max()
-    assert tune.iqm_interval(x) == (iqm, lo, hi)                    # seeded: reproducible
-    one = tune.iqm_interval([2.0])
+    assert summary.iqm_interval(x) == (iqm, lo, hi)                    # seeded: reproducible
+    one = summary.iqm_interval([2.0])
     assert one[0] == 2.0 and np.isnan(one[1]) and np.isnan(one[2])  # one seed: no interval
 
 
@@ -185,6 +185,6 @@ def test_summary_only_keeps_what_the_sweep_recorded(tmp_path):
     exp = tmp_path / "exp"
     (exp / "runs").mkdir(parents=True)
     (exp / "summary.json").write_text(json.dumps({"sweep_wall_time_s": 12.5, "max_concurrent": 2, "errors": []}))
-    out = tune.summarize(exp)
+    out = summary.summarize(exp)
     assert (out["sweep_wall_time_s"], out["max_concurrent"], out["errors"]) == (12.5, 2, [])
     assert json.loads((exp / "summary.json").read_text())["sweep_wall_time_s"] == 12.5

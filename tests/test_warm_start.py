@@ -53,9 +53,9 @@ def test_climb_starts_as_the_rolling_policy_acts(roll_run):
     the shared blocks and measured on resets for the new one."""
     from stable_baselines3 import SAC
     from stable_baselines3.common.vec_env import VecNormalize
-    from agents import common
+    from agents import envs
     env_kwargs = {"slope_range": [0.0, 30.0]}
-    venv, _ = common.make_vec("TensegrityClimb-v0", 2, 0, env_kwargs, "batched")
+    venv, _ = envs.make_vec("TensegrityClimb-v0", 2, 0, env_kwargs, "batched")
     venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
     model = SAC("MlpPolicy", venv, policy_kwargs=dict(net_arch=[32, 32]), seed=0)
     src_info = warm_start.check_source(roll_run, "sac")

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 
 from tensegrity_gym_agents.evaluate import load_trained
-from tensegrity_gym_agents.tune import iqm_interval
+from tensegrity_gym_agents.summary import iqm_interval
 
 
 def table_parser(doc: str, env_kwargs_help: str = "JSON object of extra env arguments") -> argparse.ArgumentParser:

@@ -42,7 +42,8 @@ import time
 from pathlib import Path
 
 from tensegrity_gym.io.atomic import check_writable, write_atomic
-from tensegrity_gym_agents.common import cpu_model, cpus_available, passive_openmp_wait
+from tensegrity_gym.integrations.torch_threads import passive_openmp_wait
+from tensegrity_gym_agents.common import cpu_model, cpus_available
 
 from scripts._bench import sync
 

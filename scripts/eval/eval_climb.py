@@ -9,7 +9,7 @@ Per slope: each run's mean uphill speed over ``--episodes`` episodes of 20 s (th
 limit) from reset seeds 10000, 10001, ... (never used in training: training seeds its envs with
 ``seed + i`` for i < n_envs and its evaluations from 1000); the speed of an episode is its
 distance climbed along the slope divided by its duration (m/s, and body lengths/s with the
-robot's longest rod). Across runs: IQM with a 95 % bootstrap interval (``agents.tune.iqm_interval``),
+robot's longest rod). Across runs: IQM with a 95 % bootstrap interval (``agents.summary.iqm_interval``),
 min and max. Writes ``climb.json``, ``climb.csv`` and ``climb.png`` into ``--out``.
 """
 from __future__ import annotations

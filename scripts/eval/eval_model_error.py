@@ -27,6 +27,7 @@ import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym.tools.baselines import NNLSShapeController
 from tensegrity_gym_agents import evaluate as ev
 from tensegrity_gym_agents.common import write_json
+from tensegrity_gym_agents.episode_metrics import scene_scales
 
 ENV = "TensegrityShape-v0"
 RANDOM = {"stiffness": 0.2, "rod_mass": 0.2, "rest_length_offset": 0.01}
@@ -52,7 +53,7 @@ def main(argv=None) -> int:
     cfg, policy, model_path, _ = ev.load_trained(args.run, args.which)
     base_kwargs = {k: v for k, v in (cfg.get("env_kwargs") or {}).items() if k != "randomize"}
     seeds = [SEED0 + i for i in range(args.n)]
-    scales = ev.scene_scales(ENV, base_kwargs)
+    scales = scene_scales(ENV, base_kwargs)
     height = float(scales.get("height", 1.0))
     controllers = {
         "NNLS (nominal model, feedforward)": lambda env: NNLSShapeController(env),

@@ -11,7 +11,7 @@ its evaluations from 1000; the course is drawn from the reset seed): 3 goal poin
 and 2 rough patches, 60 s (the registered time limit), deterministic actions. Success: all goals
 reached. The baseline is :class:`tensegrity_gym.tools.baselines.RollingGait` steered by the same
 planner guidance the policies observe. Across runs: IQM of the success rate with a 95 % bootstrap
-interval (``agents.tune.iqm_interval``), min and max. Writes ``navigate.json`` and ``navigate.csv``
+interval (``agents.summary.iqm_interval``), min and max. Writes ``navigate.json`` and ``navigate.csv``
 into ``--out``.
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ import sys
 import numpy as np
 
 from tensegrity_gym_agents.evaluate import run_episodes
-from tensegrity_gym_agents.tune import iqm_interval
+from tensegrity_gym_agents.summary import iqm_interval
 from tensegrity_gym.io.atomic import write_atomic
 from tensegrity_gym.tools.baselines import RollingGait
 

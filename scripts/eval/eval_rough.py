@@ -9,7 +9,7 @@ Per amplitude a (m): each run's mean speed along the goal over ``--episodes`` ep
 (the registered time limit) from reset seeds 30000, 30001, ... (never used in training), on a
 ``rough`` terrain of bumps in [0, a] m (``wavelength`` m, a new field per episode from the reset
 seed; the robot starts on its level pad and rolls onto the bumps); a = 0 is the level ground
-itself (``terrain=None``). Across runs: IQM with a 95 % bootstrap interval (``agents.tune.iqm_interval``)
+itself (``terrain=None``). Across runs: IQM with a 95 % bootstrap interval (``agents.summary.iqm_interval``)
 and each amplitude's IQM as a fraction of the flat-ground IQM. Writes ``rough.json`` and
 ``rough.csv`` into ``--out``.
 """

@@ -100,7 +100,7 @@ def main(argv=None) -> int:
                    "max_cable_acceleration:None for a policy trained before the motor model)")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
-    from tensegrity_gym_agents.common import parse_kv_list
+    from tensegrity_gym_agents.parsing import parse_kv_list
     extra = parse_kv_list(args.env_kwargs, ":", "--env-kwargs")
     if args.run == "gait":
         env_kwargs = extra

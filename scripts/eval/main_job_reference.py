@@ -38,7 +38,7 @@ def main(argv=None) -> int:
             print(f"[reference] training seed {s} -> {run}", flush=True)
             train.train(train_argv(s, run, args.n_timesteps) + (["--resume", str(run)] if state.exists() else []))
         runs.append(str(run))
-    title = (f"{ENV_ID}: the main job (PPO, {CONF.relative_to(ROOT)}, {args.n_timesteps:,} env steps), "
+    title = (f"{ENV_ID}: the main job (PPO, agents/hyperparams/{CONF}, {args.n_timesteps:,} env steps), "
              f"{len(runs)} training seeds, final models")
     rc = multiseed.main(runs + ["--out", args.out, "--model", "final", "--goal", "success_rate>=0.95", "--title", title])
     if rc:

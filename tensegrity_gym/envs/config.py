@@ -299,7 +299,7 @@ def with_flat(config, kwargs: dict, owner: str, config_type=None):
 
 def flat_signature(config, config_type) -> inspect.Signature:
     """The signature ``(num_envs=1, config=None, *, <every flat argument with its default>)`` of a
-    task built from ``config`` (what introspection, e.g. ``agents.common.env_argument_names``,
+    task built from ``config`` (what introspection, e.g. ``agents.envs.env_argument_names``,
     lists as the task's arguments)."""
     P = inspect.Parameter
     params = [P("num_envs", P.POSITIONAL_OR_KEYWORD, default=1, annotation=int),

@@ -354,7 +354,7 @@ class RollTask(RollObservation, BatchedTask):
                 "caption": f"t = {self.elapsed[i] * self.control_dt:.2f} s, rolled {dist:.2f} m", **extra}
 
 
-#: the flat arguments (introspection: agents.common.env_argument_names, the shells' manuals)
+#: the flat arguments (introspection: agents.envs.env_argument_names, the shells' manuals)
 RollTask.__signature__ = flat_signature(roll_config(), RollConfig)
 
 TensegrityRollEnv = TaskEnv.for_task(RollTask, ENV_ID, _DOC, __name__)

@@ -326,7 +326,7 @@ class ShapeTask(FusedShapeStep, BatchedTask):
         return out
 
 
-#: the flat arguments (introspection: agents.common.env_argument_names, the shells' manuals)
+#: the flat arguments (introspection: agents.envs.env_argument_names, the shells' manuals)
 ShapeTask.__signature__ = flat_signature(shape_config(), ShapeConfig)
 
 TensegrityShapeEnv = TaskEnv.for_task(ShapeTask, ENV_ID, _DOC, __name__)

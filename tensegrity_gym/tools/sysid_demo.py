@@ -1,8 +1,7 @@
-#!/usr/bin/env python
-"""Files for the system-identification recipe of docs/sysid.md (SI units).
+"""Files for the system-identification recipe of docs/sysid.md (SI units), from any folder::
 
-    python examples/sysid_recipe.py files DIR        # DIR/robot.json, DIR/robot_true.json, DIR/commands.csv
-    python examples/sysid_recipe.py noise IN.npz OUT.npz [--sigma 0.001] [--seed 0]
+    python -m tensegrity_gym.tools.sysid_demo files DIR     # DIR/robot.json, DIR/robot_true.json, DIR/commands.csv
+    python -m tensegrity_gym.tools.sysid_demo noise IN.npz OUT.npz [--sigma 0.001] [--seed 0]
 
 ``files`` writes your model of the robot (``robot.json``: the nominal 3-bar prism, no string
 damping), a stand-in for the real robot (``robot_true.json``: strings 20 % stiffer, 0.5 N s/m of
@@ -19,14 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-import tensegrity_gym as tg
+from tensegrity_gym.core.builders import prism
+from tensegrity_gym.core.structure import save_json
 
 
 def write_files(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    s = tg.prism(3).replace(damping=0.0)
-    tg.save_json(s, out / "robot.json")
-    tg.save_json(s.replace(stiffness=1.2 * s.stiffness, damping=np.full(s.n_strings, 0.5)), out / "robot_true.json")
+    s = prism(3).replace(damping=0.0)
+    save_json(s, out / "robot.json")
+    save_json(s.replace(stiffness=1.2 * s.stiffness, damping=np.full(s.n_strings, 0.5)), out / "robot_true.json")
     t = np.arange(0.0, 2.0, 0.02)
     phase = 2 * np.pi * np.arange(s.n_strings) / s.n_strings
     L = s.rest_length * (1.0 - 0.02 * (1.0 - np.cos(2 * np.pi * 1.5 * t[:, None] + phase)))
@@ -45,7 +45,7 @@ def add_noise(src: Path, dst: Path, sigma: float, seed: int) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m tensegrity_gym.tools.sysid_demo", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     f = sub.add_parser("files")
     f.add_argument("out", type=Path)
