@@ -17,12 +17,17 @@ from .compile import NCHUNK as _NCHUNK, TERRAIN_SLOT_WORK, _parallel
 from .driver import _drive_lanes_plane, _drive_lanes_terrain, _drive_one_plane, _drive_one_terrain
 from .entries import _chunk, _chunks, _contact_check, _serial_setup, _simd_check
 from .layout import _CHUNK_SHIFT, _SOA_MIN_BATCH, _soa_width
-from .terrain import plane_only
+from .terrain import codes_known
+from .terrain_kinds import check_codes
+from .terrain_plane import plane_only
 
 @njit(inline="always", cache=True)
 def _terrain_tuples(err, plane, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, ext):
     """(error code, the general driver's terrain tuple, the plane instance's tuple) of an entry
-    call: error 10 where ``plane`` is given and a row of ``geom`` is not one plane."""
+    call: error 11 where a feature code of ``geom`` is no kind's (:func:`.terrain.codes_known`),
+    error 10 where ``plane`` is given and a row of ``geom`` is not one plane."""
+    if err == 0 and not codes_known(geom):
+        err = 11
     if err == 0 and plane is not None and not plane_only(geom):
         err = 10
     return (err, (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, np.empty((0, 0, 6)), ext),
@@ -131,6 +136,8 @@ def terrain_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
             err = kernel(*args, None)
     except TypeError:      # an array of another type or layout: the Python loop converts it
         return False
+    if err == 11:          # a feature code of no kind: the host's check names it
+        check_codes(arrays[0])
     if err:
         _raise(err, model, q, qd, rest_length, force_density, forces if external is None else external)
     return True
