@@ -84,7 +84,7 @@ class TerrainContact:
 
     Arrays of the kernels (read-only): ``geom`` (1, F, 10) and ``prm`` (1, F, 8) per feature in
     :meth:`Terrain.parts` order, ``hf`` (1, ny, nx) the heightfield's heights m (a (1, 1, 1)
-    zero array without one); layouts in :mod:`tensegrity_gym.backends.numba.terrain`.
+    zero array without one); layouts in :mod:`tensegrity_gym.backends.numba.terrain_kinds`.
     ``plane_only``: True when the terrain is one plane and nothing else."""
 
     terrain: Terrain
