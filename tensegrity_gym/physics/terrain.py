@@ -29,7 +29,7 @@ tangential spring ``k_t`` with damper ``c_t`` from the contact's surface point t
 ``mu`` times the normal force (the anchor then follows: slip). The interior slot's penetration
 is measured from the deeper touching node, ``min(radius, d_a, d_c) - d``, with the reaction
 along that node's measure gradient at the node (a continuous contact energy; details in
-:mod:`tensegrity_gym.backends.numba.terrain`).
+:mod:`tensegrity_gym.backends.numba.terrain_law`).
 
 Generalized force: a force F at the rod point ``v(eta) = r + eta b`` enters the equations as
 ``[F, eta F]`` (the seed's (5.9), (5.21)); the kernels pass it as the nodal forces

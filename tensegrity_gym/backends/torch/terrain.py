@@ -1,9 +1,11 @@
 """Terrain contact on tensors: the rod capsules against a sloped plane, boxes and a
 heightfield, batched over copies (:func:`terrain_forces`), and steps with it
 (:func:`terrain_step`). The same equations, slots and arithmetic as the numba kernel
-:mod:`tensegrity_gym.backends.numba.terrain` (see there for the array layouts ``geom``
-(G, F, 10), ``prm`` (P, F, 8), ``hf`` (H, ny, nx) and the slot order; the heightfield's
-measure and search: :mod:`tensegrity_gym.backends.torch.heightfield`); the arrays come from
+:mod:`tensegrity_gym.backends.numba.terrain` (the array layouts ``geom`` (G, F, 10), ``prm``
+(P, F, 8), ``hf`` (H, ny, nx): :mod:`tensegrity_gym.backends.numba.terrain_kinds`; the slot order:
+:mod:`tensegrity_gym.backends.numba.terrain_law`; each kind's measure and top:
+:mod:`tensegrity_gym.backends.torch.terrain_kinds`, the heightfield's search:
+:mod:`tensegrity_gym.backends.torch.heightfield`); the arrays come from
 :class:`tensegrity_gym.physics.terrain.TerrainContact`
 (``.geom``, ``.prm``, ``.hf``, ``.per_copy``). SI units.
 
@@ -35,7 +37,7 @@ __all__ = ["TerrainLayout", "terrain_layout", "init_terrain_state", "terrain_for
 class TerrainLayout(NamedTuple):
     """What a terrain's contact steps branch on, read from the host once (:func:`terrain_layout`)."""
 
-    #: each feature column's kind (``PLANE``, ``BOX``, ``HFIELD`` of :mod:`tensegrity_gym.backends.numba.terrain`)
+    #: each feature column's kind (``PLANE``, ``BOX``, ``HFIELD`` of :mod:`tensegrity_gym.backends.numba.terrain_kinds`)
     kinds: tuple
     #: every part's contact exponent is 1 (the penetration taken as it is, not raised to a power)
     unit_exponent: bool
