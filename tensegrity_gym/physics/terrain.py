@@ -261,8 +261,9 @@ def contact_forces(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState
 def forces_inplace(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState, W, slip, prm=None,
                    geom=None, hf=None) -> None:
     """Allocation-free :func:`contact_forces`: forces into ``W`` (B, n, 3), slip flags into
-    ``slip`` (B, S) and ``tstate`` updated in place; C-contiguous float64 inputs, shapes are the
-    caller's duty."""
+    ``slip`` (B, S) and ``tstate`` updated in place; C-contiguous float64 inputs, shapes and the
+    kind codes of ``geom`` are the caller's duty (:func:`contact_forces`, :func:`step` and
+    :func:`advance` check them)."""
     terrain_forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, tc.geom if geom is None else geom,
                           tc.prm if prm is None else prm, tc.hf if hf is None else hf, tstate.anchor,
                           tstate.eta0, tstate.active, slip, W, np.empty((0, 0, 6)))
