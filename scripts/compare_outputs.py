@@ -18,7 +18,8 @@ TensegrityRoll-v0 (single env and a vector env of 4) under a fixed seeded action
 and per-slot info) of a level plane, a slope, a slope with boxes, a heightfield and per-copy
 terrains; the torch backend's terrain step on them; 60 control steps of TensegrityRoll-v0 on each
 terrain generator and TensegrityNavigate-v0 (single env and a vector env of 16, the loop driver's
-lanes); the MuJoCo twin on steps; and the MJCF text of each terrain.
+lanes); the MuJoCo twin on steps; and the MJCF text of each terrain. ``dump-terrain-single`` leaves
+out what compiles the batched (SIMD) terrain kernel: the kernel at B = 19 and the vector envs.
 """
 from __future__ import annotations
 
@@ -114,7 +115,7 @@ def dump(path: str) -> None:
     np.savez(path, **out)
 
 
-def dump_terrain(path: str) -> None:
+def dump_terrain(path: str, batched: bool = True) -> None:
     import gymnasium as gym
     import tensegrity_gym as tg
     from tensegrity_gym.core.terrain import Box, Heightfield, Plane, Terrain
@@ -132,7 +133,7 @@ def dump_terrain(path: str) -> None:
     model = tg.compile_model(structure)
     for name, ter in terrains.items():
         out[f"mjcf/{name}"] = np.frombuffer(to_mjcf(structure, terrain=ter).encode(), np.uint8)
-        for B in (1, 3, 19):
+        for B in ((1, 3, 19) if batched else (1, 3)):
             st, _ = _released(model, B, B)
             st = type(st)(q=st.q - np.array([0, 0, 0.03, 0, 0, 0]) * (np.arange(B)[:, None, None] % 3),
                           qd=st.qd)
@@ -177,9 +178,10 @@ def dump_terrain(path: str) -> None:
               "rough": ("TensegrityRoll-v0", {"terrain": {"generator": "rough", "amplitude": 0.02, "pad": 0.0}}),
               "navigate": ("TensegrityNavigate-v0", {})}
     for tag, (env_id, kw) in scenes.items():
-        for kind, env in (("single", gym.make(env_id, **kw)),
-                          ("vector", gym.make_vec(env_id, num_envs=16, vectorization_mode="vector_entry_point",
-                                                  **kw))):
+        envs = [("single", gym.make(env_id, **kw))]
+        if batched:
+            envs.append(("vector", gym.make_vec(env_id, num_envs=16, vectorization_mode="vector_entry_point", **kw)))
+        for kind, env in envs:
             out[f"env/{tag}/{kind}/obs"], out[f"env/{tag}/{kind}/rew"] = _rollout(env, np.random.default_rng(8),
                                                                                 steps=60)
     env = gym.make("TensegrityRollMuJoCo-v0", terrain={"generator": "steps"})
@@ -197,7 +199,9 @@ def compare(a: str, b: str) -> int:
             worst = np.inf
             continue
         x, y = A[k].astype(float), B[k].astype(float)
-        d = np.abs(x - y)
+        # equal values (infinities and NaNs included) differ by 0; a NaN against a number by inf
+        same = (x == y) | (np.isnan(x) & np.isnan(y))
+        d = np.where(same, 0.0, np.nan_to_num(np.abs(x - y), nan=np.inf))
         rel = float((d / np.maximum(np.abs(x), 1.0)).max()) if d.size else 0.0
         worst = max(worst, rel)
         print(f"| {k} | {float(d.max()) if d.size else 0.0:.3g} | {rel:.3g} |")
@@ -209,8 +213,8 @@ if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "dump":
         dump(sys.argv[2])
         raise SystemExit(0)
-    if len(sys.argv) == 3 and sys.argv[1] == "dump-terrain":
-        dump_terrain(sys.argv[2])
+    if len(sys.argv) == 3 and sys.argv[1] in ("dump-terrain", "dump-terrain-single"):
+        dump_terrain(sys.argv[2], batched=sys.argv[1] == "dump-terrain")
         raise SystemExit(0)
     if len(sys.argv) == 4 and sys.argv[1] == "compare":
         raise SystemExit(compare(sys.argv[2], sys.argv[3]))
