@@ -201,7 +201,8 @@ def compare(a: str, b: str) -> int:
         x, y = A[k].astype(float), B[k].astype(float)
         # equal values (infinities and NaNs included) differ by 0; a NaN against a number by inf
         same = (x == y) | (np.isnan(x) & np.isnan(y))
-        d = np.where(same, 0.0, np.nan_to_num(np.abs(x - y), nan=np.inf))
+        with np.errstate(invalid="ignore"):
+            d = np.where(same, 0.0, np.nan_to_num(np.abs(x - y), nan=np.inf))
         rel = float((d / np.maximum(np.abs(x), 1.0)).max()) if d.size else 0.0
         worst = max(worst, rel)
         print(f"| {k} | {float(d.max()) if d.size else 0.0:.3g} | {rel:.3g} |")
