@@ -186,5 +186,5 @@ def test_torch_backend_refuses_an_unknown_kind_code():
     x = torch.zeros((1, 2), dtype=torch.float64)
     with pytest.raises(ValueError, match="unknown terrain kind code 7.0"):
         top_height(torch.as_tensor(geom), None, x, x)
-    assert top_height(torch.as_tensor(tc.geom), None, x, x).tolist() == [[0.5, 0.5]]
-    assert top_height(torch.as_tensor(tc.geom), None, x + 3, x).tolist() == [[0.0, 0.0]]
+    assert top_height(torch.as_tensor(tc.geom.copy()), None, x, x).tolist() == [[0.5, 0.5]]
+    assert top_height(torch.as_tensor(tc.geom.copy()), None, x + 3, x).tolist() == [[0.0, 0.0]]
