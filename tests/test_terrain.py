@@ -664,7 +664,7 @@ def numba_box_bound(g, r, b, radius, ea, ec):
     """The numba kernel's box bound of the rod ``r + eta b``, eta in [ea, ec], at the box ``g``:
     (the ends' distances m and slopes along the rod, the level m, the bound m)."""
     from tensegrity_gym.backends.numba.heightfield import LEVEL_TOL
-    from tensegrity_gym.backends.numba.terrain import BOUND_SLACK, _box_closest, _box_dip_bound
+    from tensegrity_gym.backends.numba.terrain_box import BOUND_SLACK, _box_closest, _box_dip_bound
     (fa, *na), (fc, *nc) = (_box_closest(*(r + e * b), g) for e in (ea, ec))
     sa, sc = float(np.dot(na, b)), float(np.dot(nc, b))
     level = min(radius, min(fa, fc) - LEVEL_TOL) + BOUND_SLACK
@@ -681,7 +681,7 @@ def test_box_bound_passes_over_only_rods_without_an_interior_contact():
     searches every rod near a box). The far test's bound (``_box_face_bound``: over the faces,
     the ends' lesser distance beyond the face's plane) is below the distance all along the rod,
     and equal to it at an end where the end's nearest box point is on a face."""
-    from tensegrity_gym.backends.numba.terrain import _box_closest, _box_face_bound, _interior
+    from tensegrity_gym.backends.numba.terrain_box import _box_closest, _box_face_bound, _interior
     rng = np.random.default_rng(11)
     radius, H = 0.02, np.zeros((1, 1))
     ea, ec = -0.2, 0.2
@@ -729,7 +729,7 @@ def test_torch_box_bound_is_the_numba_bound():
     over the same rods as the numba kernel's ``_box_dip_bound``: 2000 random rods, each at its
     own yawed box (per-copy geometry rows)."""
     torch = pytest.importorskip("torch")
-    from tensegrity_gym.backends.torch.terrain import BOX, _Part, _passed_over
+    from tensegrity_gym.backends.torch.terrain_kinds import BOX, _Part, _passed_over
     rng = np.random.default_rng(13)
     n, radius, ea, ec = 2000, 0.02, -0.2, 0.2
     geom, r, b = random_rods_at_boxes(rng, n)

@@ -13,6 +13,13 @@ Euler and RK4 with the numba kernels and 20 steps with the NumPy path, dop853 an
 TensegrityRoll-v0 (single env and a vector env of 4) under a fixed seeded action sequence
 (observations, rewards); vector envs of 20 and 64 copies, nominal and randomised, and of 900
 (the roll env's contact loop on all threads). Only public API is used, so any version can be dumped.
+
+``dump-terrain`` runs the terrain scenes instead: the terrain contact kernel (forces, contact state
+and per-slot info) of a level plane, a slope, a slope with boxes, a heightfield and per-copy
+terrains; the torch backend's terrain step on them; 60 control steps of TensegrityRoll-v0 on each
+terrain generator and TensegrityNavigate-v0 (single env and a vector env of 16, the loop driver's
+lanes); the MuJoCo twin on steps; and the MJCF text of each terrain. ``dump-terrain-single`` leaves
+out what compiles the batched (SIMD) terrain kernel: the kernel at B = 19 and the vector envs.
 """
 from __future__ import annotations
 
@@ -109,6 +116,80 @@ def dump(path: str) -> None:
     np.savez(path, **out)
 
 
+def dump_terrain(path: str, batched: bool = True) -> None:
+    import gymnasium as gym
+    import tensegrity_gym as tg
+    from tensegrity_gym.core.terrain import Box, Heightfield, Plane, Terrain
+    from tensegrity_gym.io.mjcf import to_mjcf
+    from tensegrity_gym.physics import terrain as T
+    out = {}
+    rng = np.random.default_rng(7)
+    hf = Heightfield(0.03 * rng.standard_normal((12, 14)), 0.1, (-0.7, -0.6))
+    boxes = [Box([0.2, 0.0, 0.04], [0.2, 1.0, 0.1]), Box([-0.25, 0.15, 0.08], [0.2, 0.2, 0.2], 30.0, friction=0.5)]
+    terrains = {"level": Terrain(), "slope": Terrain(plane=Plane(15.0, 30.0)),
+                "slope_boxes": Terrain(plane=Plane(5.0), boxes=boxes),
+                "hfield": Terrain(plane=None, heightfield=hf, damping=5.0),
+                "all": Terrain(plane=Plane(-3.0), boxes=boxes[:1], heightfield=hf)}
+    structure = tg.build("prism3")
+    model = tg.compile_model(structure)
+    for name, ter in terrains.items():
+        out[f"mjcf/{name}"] = np.frombuffer(to_mjcf(structure, terrain=ter).encode(), np.uint8)
+        for B in ((1, 3, 19) if batched else (1, 3)):
+            st, _ = _released(model, B, B)
+            st = type(st)(q=st.q - np.array([0, 0, 0.03, 0, 0, 0]) * (np.arange(B)[:, None, None] % 3),
+                          qd=st.qd)
+            tc = T.TerrainContact(ter)
+            ts = T.init_terrain_state(tc, model, B)
+            r, ts = T.step(model, st, 1e-3, tc, ts, n_steps=150)
+            out[f"kernel/{name}/B={B}/q"], out[f"kernel/{name}/B={B}/qd"] = r.q, r.qd
+            for k in ("anchor", "eta0", "active"):
+                out[f"kernel/{name}/B={B}/{k}"] = getattr(ts, k)
+            res = T.contact_forces(tc, model, r.q, r.qd, ts, info=True)
+            for i, x in enumerate(res if isinstance(res, tuple) else (res,)):
+                for k, v in (vars(x).items() if hasattr(x, "__dict__") else (("", x),)):
+                    if isinstance(v, np.ndarray):
+                        out[f"kernel/{name}/B={B}/forces/{i}{k}"] = v
+    # per-copy terrains (one geometry and heights per copy)
+    B = 3
+    st, _ = _released(model, B, 5)
+    tc = T.TerrainContact(terrains["all"])
+    geom = np.repeat(tc.geom, B, axis=0)
+    geom[1, 0, 1:5] = T.TerrainContact(terrains["slope"]).geom.reshape(-1, 10)[0, 1:5]
+    ts = T.init_terrain_state(tc, model, B)
+    r, ts = T.step(model, st, 1e-3, tc, ts, n_steps=100, geom=geom, prm=tc.per_copy(B) * [1, 1, 1, 1, 0.5, 1, 1, 1])
+    out["kernel/per_copy/q"], out["kernel/per_copy/qd"], out["kernel/per_copy/anchor"] = r.q, r.qd, ts.anchor
+    try:
+        import torch
+        from tensegrity_gym import torch_backend as TB
+        from tensegrity_gym.backends.torch import terrain as TT
+        for name, ter in terrains.items():
+            st, _ = _released(model, 3, 11)
+            q, qd = torch.as_tensor(np.array(st.q)), torch.as_tensor(np.array(st.qd))
+            tc = T.TerrainContact(ter)
+            ts = TT.init_terrain_state(model, tc.n_features, 3, dtype=torch.float64)
+            res = TT.terrain_step(model, tc.geom, tc.prm, q, qd, *ts, 1e-3, n_steps=60, hf=tc.hf)
+            for i, x in enumerate(res if isinstance(res, tuple) else (res,)):
+                if hasattr(x, "numpy"):
+                    out[f"torch/{name}/{i}"] = x.detach().numpy()
+    except ImportError:
+        pass
+    scenes = {"slope": ("TensegrityRoll-v0", {"terrain": {"plane": {"slope_deg": 20.0}}}),
+              "steps": ("TensegrityRoll-v0", {"terrain": {"generator": "steps"}}),
+              "steps_under": ("TensegrityRoll-v0", {"terrain": {"generator": "steps", "pad": 0.05, "tread": 0.2}}),
+              "rough": ("TensegrityRoll-v0", {"terrain": {"generator": "rough", "amplitude": 0.02, "pad": 0.0}}),
+              "navigate": ("TensegrityNavigate-v0", {})}
+    for tag, (env_id, kw) in scenes.items():
+        envs = [("single", gym.make(env_id, **kw))]
+        if batched:
+            envs.append(("vector", gym.make_vec(env_id, num_envs=16, vectorization_mode="vector_entry_point", **kw)))
+        for kind, env in envs:
+            out[f"env/{tag}/{kind}/obs"], out[f"env/{tag}/{kind}/rew"] = _rollout(env, np.random.default_rng(8),
+                                                                                steps=60)
+    env = gym.make("TensegrityRollMuJoCo-v0", terrain={"generator": "steps"})
+    out["env/steps/mujoco/obs"], out["env/steps/mujoco/rew"] = _rollout(env, np.random.default_rng(9), steps=30)
+    np.savez(path, **out)
+
+
 def compare(a: str, b: str) -> int:
     A, B = np.load(a), np.load(b)
     worst = 0.0
@@ -119,7 +200,10 @@ def compare(a: str, b: str) -> int:
             worst = np.inf
             continue
         x, y = A[k].astype(float), B[k].astype(float)
-        d = np.abs(x - y)
+        # equal values (infinities and NaNs included) differ by 0; a NaN against a number by inf
+        same = (x == y) | (np.isnan(x) & np.isnan(y))
+        with np.errstate(invalid="ignore"):
+            d = np.where(same, 0.0, np.nan_to_num(np.abs(x - y), nan=np.inf))
         rel = float((d / np.maximum(np.abs(x), 1.0)).max()) if d.size else 0.0
         worst = max(worst, rel)
         print(f"| {k} | {float(d.max()) if d.size else 0.0:.3g} | {rel:.3g} |")
@@ -130,6 +214,9 @@ def compare(a: str, b: str) -> int:
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "dump":
         dump(sys.argv[2])
+        raise SystemExit(0)
+    if len(sys.argv) == 3 and sys.argv[1] in ("dump-terrain", "dump-terrain-single"):
+        dump_terrain(sys.argv[2], batched=sys.argv[1] == "dump-terrain")
         raise SystemExit(0)
     if len(sys.argv) == 4 and sys.argv[1] == "compare":
         raise SystemExit(compare(sys.argv[2], sys.argv[3]))

@@ -41,60 +41,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .terrain_kinds import (KINDS, SURFACE_KEYS, SurfaceContact, TerrainKind, _number, _surface, _vector, kind_of,
+                            load_part, register)
+
 __all__ = ["Terrain", "Plane", "Box", "Heightfield", "SCHEMA_PATH", "SURFACE_KEYS"]
 
 #: the JSON Schema (draft 2020-12) of the terrain file format, shipped with the package
 SCHEMA_PATH = Path(__file__).parent.parent / "terrain.schema.json"
-#: contact parameters a terrain gives and each part may override
-SURFACE_KEYS = ("friction", "stiffness", "damping")
-
-
-# ---------------------------------------------------------------------- checks
-def _number(v, name: str, lo=None, hi=None, lo_open=False, hi_open=False) -> float:
-    """``float(v)`` if a finite real number within the bounds, else ValueError naming ``name``."""
-    if isinstance(v, (str, bytes, bool, np.bool_)) or v is None:
-        raise ValueError(f"{name}: expected a number, got {v!r}")
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a number, got {v!r}") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{name}: must be finite, got {v!r}")
-    if lo is not None and (x <= lo if lo_open else x < lo):
-        raise ValueError(f"{name}: must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
-    if hi is not None and (x >= hi if hi_open else x > hi):
-        raise ValueError(f"{name}: must be {'<' if hi_open else '<='} {hi:g}, got {v!r}")
-    return x
-
-
-def _vector(v, n: int, name: str, positive=False) -> np.ndarray:
-    """(n,) read-only float array of finite numbers (> 0 with ``positive``), ValueError naming
-    ``name[i]`` and the value otherwise."""
-    if isinstance(v, (str, bytes)) or np.ndim(v) != 1 or len(v) != n:
-        raise ValueError(f"{name}: expected a list of {n} numbers, got {v!r}")
-    out = np.array([_number(x, f"{name}[{i}]", lo=0.0 if positive else None, lo_open=positive)
-                    for i, x in enumerate(v)], float)
-    out.setflags(write=False)
-    return out
-
-
-def _surface(obj, prefix: str = "") -> None:
-    """Checks the optional contact overrides (None = the terrain's value) of a part."""
-    s = object.__setattr__
-    for key in SURFACE_KEYS:
-        v = getattr(obj, key)
-        if v is not None:
-            s(obj, key, _number(v, prefix + key, lo=0.0, lo_open=(key == "stiffness")))
-
-
-@dataclass(frozen=True, kw_only=True)
-class SurfaceContact:
-    """Contact overrides of one terrain part (None: the terrain's own): ``friction`` (1),
-    ``stiffness`` (N/m), ``damping`` (s/m)."""
-
-    friction: float | None = None
-    stiffness: float | None = None
-    damping: float | None = None
 
 
 @dataclass(frozen=True)
@@ -115,6 +68,16 @@ class Plane(SurfaceContact):
         """(3,) outward unit normal (pointing out of the solid, up the z axis)."""
         a, p = math.radians(self.slope_deg), math.radians(self.uphill_deg)
         return np.array([-math.sin(a) * math.cos(p), -math.sin(a) * math.sin(p), math.cos(a)])
+
+    def closest(self, p):
+        """Signed distance (m) of ``p`` (..., 3) m and the outward normal there (..., 3)."""
+        n = self.normal
+        return p @ n, np.broadcast_to(n, p.shape).copy()
+
+    def top(self, x, y):
+        """Height (m) of the plane at (x, y) m."""
+        n = self.normal
+        return -(n[0] * x + n[1] * y) / n[2]
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,6 +100,32 @@ class Box(SurfaceContact):
         """(3, 3) box axes in world coordinates (columns)."""
         c, s = math.cos(math.radians(self.yaw_deg)), math.sin(math.radians(self.yaw_deg))
         return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    def closest(self, p):
+        """Signed distance (m; < 0 inside) of ``p`` (..., 3) m and the outward normal (..., 3): the
+        nearest face's inside, the direction to the nearest surface point outside."""
+        R, h = self.rotation, self.size / 2
+        loc = (p - self.center) @ R                 # box coordinates
+        q = np.abs(loc) - h
+        outside = np.maximum(q, 0.0)
+        dout = np.linalg.norm(outside, axis=-1)
+        inside = np.max(q, axis=-1) < 0
+        ax = np.argmax(q, axis=-1)
+        sgn = np.where(loc >= 0, 1.0, -1.0)
+        face = sgn * (np.arange(3) == ax[..., None])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nout = sgn * outside / dout[..., None]
+        nloc = np.where(inside[..., None] | (dout[..., None] == 0), face, nout)
+        d = np.where(inside, np.max(q, axis=-1), dout)
+        return d, nloc @ R.T
+
+    def top(self, x, y):
+        """Height (m) of the box's top at (x, y) m, -inf beside it."""
+        R = self.rotation
+        dx, dy = x - self.center[0], y - self.center[1]
+        u, v = R[0, 0] * dx + R[1, 0] * dy, R[0, 1] * dx + R[1, 1] * dy
+        inside = (np.abs(u) <= self.size[0] / 2) & (np.abs(v) <= self.size[1] / 2)
+        return np.where(inside, self.center[2] + self.size[2] / 2, -np.inf)
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,6 +159,18 @@ class Heightfield(SurfaceContact):
         """Bilinear height (m) at (x, y) (arrays of the same shape, m)."""
         return self._interp(np.asarray(x, float), np.asarray(y, float))[0]
 
+    def top(self, x, y):
+        """Height (m) at (x, y) m (:meth:`height_at`)."""
+        return self.height_at(x, y)
+
+    def closest(self, p):
+        """The vertical gap times the cosine of the local slope (m) of ``p`` (..., 3) m and the
+        normal of the bilinear patch under it (..., 3): exact on a locally planar patch (the
+        contact measures the vertical gap itself, :meth:`gap`)."""
+        h, gx, gy = self._interp(p[..., 0], p[..., 1])
+        c = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
+        return (p[..., 2] - h) * c, np.stack([-gx * c, -gy * c, c], axis=-1)
+
     def gap(self, points):
         """The contact measure of ``points`` (..., 3) m: the vertical gap ``z - h(x, y)`` m and its
         gradient, the unnormalised outward normal ``(-h_x, -h_y, 1)`` (..., 3) of the bilinear patch
@@ -198,25 +199,6 @@ class Heightfield(SurfaceContact):
         return h, gx, gy
 
 
-def _part(cls, d, path: str, keys: tuple, required: tuple = (), base_dir=None):
-    """A part from its dict ``d`` at ``path`` (errors prefixed with ``path.``)."""
-    if not isinstance(d, dict):
-        raise ValueError(f"{path}: expected an object, got {d!r}")
-    for key in required:
-        if key not in d:
-            raise ValueError(f"{path}: missing required key {key!r}")
-    unknown = sorted(set(d) - set(keys) - set(SURFACE_KEYS))
-    if unknown:
-        raise ValueError(f"{path}: unknown key {unknown[0]!r} (expected some of {list(keys) + list(SURFACE_KEYS)})")
-    kw = dict(d)
-    if cls is Heightfield:
-        kw = _heightfield_kwargs(kw, path, base_dir)
-    try:
-        return cls(**kw)
-    except ValueError as e:
-        raise ValueError(f"{path}.{e}") from None
-
-
 def _heightfield_kwargs(kw, path, base_dir):
     """``file`` (a .npy 2-D array, relative to ``base_dir``) or inline ``heights`` -> ``heights``."""
     if ("file" in kw) == ("heights" in kw):
@@ -242,8 +224,10 @@ def _heightfield_kwargs(kw, path, base_dir):
 @dataclass(frozen=True)
 class Terrain:
     """A terrain: ``plane`` (default a level plane at z = 0; None: no plane), ``boxes`` (a
-    sequence of :class:`Box`), ``heightfield`` (optional), and the contact parameters shared by
-    the parts: ``friction`` (>= 0), ``stiffness`` (N/m, > 0), ``damping`` (s/m, >= 0)."""
+    sequence of :class:`Box`), ``heightfield`` (optional), ``extra`` (parts of the other kinds of
+    :data:`~tensegrity_gym.core.terrain_kinds.KINDS`, after those in feature order), and the
+    contact parameters shared by the parts: ``friction`` (>= 0), ``stiffness`` (N/m, > 0),
+    ``damping`` (s/m, >= 0). :meth:`parts` is the list every consumer iterates."""
 
     plane: Plane | None = field(default_factory=Plane)
     boxes: tuple = ()
@@ -251,6 +235,7 @@ class Terrain:
     friction: float = 1.0
     stiffness: float = 1e4
     damping: float = 10.0
+    extra: tuple = ()
 
     def __post_init__(self):
         s = object.__setattr__
@@ -263,34 +248,63 @@ class Terrain:
         s(self, "boxes", boxes)
         if self.heightfield is not None and not isinstance(self.heightfield, Heightfield):
             raise ValueError(f"heightfield: expected a Heightfield or None, got {self.heightfield!r}")
+        extra = tuple(self.extra)
+        for i, part in enumerate(extra):
+            kind = kind_of(part)
+            if kind.key in _FIELDS:
+                raise ValueError(f"extra[{i}]: a part of kind {kind.name!r} goes in the field {kind.key!r}")
+        s(self, "extra", extra)
         s(self, "friction", _number(self.friction, "friction", lo=0.0))
         s(self, "stiffness", _number(self.stiffness, "stiffness", lo=0.0, lo_open=True))
         s(self, "damping", _number(self.damping, "damping", lo=0.0))
 
+    @classmethod
+    def from_parts(cls, parts, **contact) -> "Terrain":
+        """A terrain of ``parts`` (any kinds of the table, in feature order within each field: a
+        kind whose file key is a field of Terrain goes there, any other in ``extra``) and the
+        ``contact`` keywords (friction, stiffness, damping)."""
+        kw, extra = {"plane": None}, []
+        for part in parts:
+            kind = kind_of(part)
+            if kind.key not in _FIELDS:
+                extra.append(part)
+            elif kind.many:
+                kw[kind.key] = kw.get(kind.key, ()) + (part,)
+            elif kw.get(kind.key) is not None:
+                raise ValueError(f"terrain: more than one part of kind {kind.name!r}")
+            else:
+                kw[kind.key] = part
+        return cls(**kw, extra=tuple(extra), **contact)
+
     # ------------------------------------------------------------------ files
     @classmethod
     def from_dict(cls, d, base_dir=None) -> "Terrain":
-        """A terrain from the file format's dict (see the module doc); ``base_dir``: where a
-        heightfield ``file`` is looked up (default: the working directory)."""
+        """A terrain from the file format's dict (see the module doc), each kind of the table read
+        from its key; ``base_dir``: where a heightfield ``file`` is looked up (default: the working
+        directory)."""
         if not isinstance(d, dict):
             raise ValueError(f"terrain: expected an object, got {d!r}")
-        keys = ("plane", "boxes", "heightfield") + SURFACE_KEYS
+        keys = tuple(k.key for k in KINDS.values()) + SURFACE_KEYS
         unknown = sorted(set(d) - set(keys))
         if unknown:
             raise ValueError(f"terrain: unknown key {unknown[0]!r} (expected some of {list(keys)})")
         kw = {k: d[k] for k in SURFACE_KEYS if k in d}
-        if "plane" in d:
-            kw["plane"] = None if d["plane"] is None else _part(Plane, d["plane"], "plane",
-                                                                ("slope_deg", "uphill_deg"))
-        boxes = d.get("boxes", [])
-        if not isinstance(boxes, list):
-            raise ValueError(f"boxes: expected a list of boxes, got {boxes!r}")
-        kw["boxes"] = tuple(_part(Box, b, f"boxes[{i}]", ("center", "size", "yaw_deg"),
-                                     ("center", "size")) for i, b in enumerate(boxes))
-        if d.get("heightfield") is not None:
-            kw["heightfield"] = _part(Heightfield, d["heightfield"], "heightfield",
-                                      ("file", "heights", "cell", "origin"), ("cell",), base_dir)
-        return cls(**kw)
+        extra = []
+        for kind in KINDS.values():
+            if kind.key not in d:
+                continue
+            v = d[kind.key]
+            if kind.many:
+                if not isinstance(v, list):
+                    raise ValueError(f"{kind.key}: expected a list of {kind.key}, got {v!r}")
+                got = tuple(load_part(kind, x, f"{kind.key}[{i}]", base_dir) for i, x in enumerate(v))
+            else:
+                got = None if v is None else load_part(kind, v, kind.key, base_dir)
+            if kind.key in _FIELDS:
+                kw[kind.key] = got
+            else:
+                extra.extend(got if kind.many else [got] if got is not None else [])
+        return cls(**kw, extra=tuple(extra))
 
     @classmethod
     def from_file(cls, path, defaults: dict | None = None) -> "Terrain":
@@ -314,38 +328,29 @@ class Terrain:
     # ------------------------------------------------------------------ geometry
     def height_at(self, x, y) -> np.ndarray:
         """Height of the terrain's top surface (m) at (x, y) m (arrays of one shape): the highest of
-        the plane, the tops of the boxes over (x, y) and the heightfield; -inf where none is."""
+        its parts' tops over (x, y) (each kind's ``top``); -inf where none is."""
         x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
         h = np.full(x.shape, -np.inf)
-        if self.plane is not None:
-            n = self.plane.normal
-            h = np.maximum(h, -(n[0] * x + n[1] * y) / n[2])
-        for b in self.boxes:
-            R = b.rotation
-            dx, dy = x - b.center[0], y - b.center[1]
-            u, v = R[0, 0] * dx + R[1, 0] * dy, R[0, 1] * dx + R[1, 1] * dy
-            inside = (np.abs(u) <= b.size[0] / 2) & (np.abs(v) <= b.size[1] / 2)
-            h = np.where(inside, np.maximum(h, b.center[2] + b.size[2] / 2), h)
-        if self.heightfield is not None:
-            h = np.maximum(h, self.heightfield.height_at(x, y))
+        for part in self.parts():
+            h = np.maximum(h, part.top(x, y))
         return h
 
     def parts(self) -> list:
-        """The solids in the physics' feature order: the plane (if any), then the boxes, then the heightfield."""
+        """The solids in the physics' feature order: the plane (if any), then the boxes, then the
+        heightfield, then ``extra``."""
         return ([] if self.plane is None else [self.plane]) + list(self.boxes) + \
-            ([] if self.heightfield is None else [self.heightfield])
+            ([] if self.heightfield is None else [self.heightfield]) + list(self.extra)
 
     def closest(self, points, per_part: bool = False):
         """Signed distance (m; < 0 inside a solid) of ``points`` (..., 3) m to the terrain and the
         outward unit normal there (..., 3): the nearest of the parts (``per_part=True``: each
-        part's, with a leading axis in :meth:`parts` order). Exact for the plane and the boxes;
-        for the heightfield the vertical gap times the cosine of the local slope, with the
-        normal of the bilinear patch under the point (exact on a locally planar patch; the
-        contact measures the vertical gap itself, :meth:`Heightfield.gap`)."""
+        part's, with a leading axis in :meth:`parts` order), each kind's ``closest``. Exact for the
+        plane and the boxes; for the heightfield the vertical gap times the cosine of the local
+        slope (:meth:`Heightfield.closest`)."""
         p = np.asarray(points, float)
         ds, ns = [], []
         for part in self.parts():
-            d, n = _closest_part(part, p)
+            d, n = part.closest(p)
             ds.append(d)
             ns.append(n)
         if not ds:
@@ -357,26 +362,10 @@ class Terrain:
         return np.take_along_axis(D, i[None], 0)[0], np.take_along_axis(N, i[None, ..., None], 0)[0]
 
 
-def _closest_part(part, p):
-    """Signed distance and outward normal of ``p`` (..., 3) to one part."""
-    if isinstance(part, Plane):
-        n = part.normal
-        return p @ n, np.broadcast_to(n, p.shape).copy()
-    if isinstance(part, Box):
-        R, h = part.rotation, part.size / 2
-        loc = (p - part.center) @ R                 # box coordinates
-        q = np.abs(loc) - h
-        outside = np.maximum(q, 0.0)
-        dout = np.linalg.norm(outside, axis=-1)
-        inside = np.max(q, axis=-1) < 0
-        ax = np.argmax(q, axis=-1)
-        sgn = np.where(loc >= 0, 1.0, -1.0)
-        face = sgn * (np.arange(3) == ax[..., None])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            nout = sgn * outside / dout[..., None]
-        nloc = np.where(inside[..., None] | (dout[..., None] == 0), face, nout)
-        d = np.where(inside, np.max(q, axis=-1), dout)
-        return d, nloc @ R.T
-    h, gx, gy = part._interp(p[..., 0], p[..., 1])
-    c = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
-    return (p[..., 2] - h) * c, np.stack([-gx * c, -gy * c, c], axis=-1)
+#: the fields of :class:`Terrain` that hold parts of the built-in kinds (their file keys)
+_FIELDS = ("plane", "boxes", "heightfield")
+
+register(TerrainKind("plane", Plane, "plane", False, ("slope_deg", "uphill_deg")))
+register(TerrainKind("box", Box, "boxes", True, ("center", "size", "yaw_deg"), ("center", "size")))
+register(TerrainKind("heightfield", Heightfield, "heightfield", False, ("file", "heights", "cell", "origin"),
+                     ("cell",), _heightfield_kwargs))

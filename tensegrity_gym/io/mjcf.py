@@ -75,6 +75,7 @@ from ..core.checks import xml_text
 from ..core.rod_mass import mass_moments
 from ..core.terrain import Terrain
 from ..core.structure import Structure
+from ..core.terrain_kinds import require
 
 __all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel", "default_rod_radius", "terrain_xml"]
 
@@ -165,44 +166,59 @@ def default_rod_radius(structure: Structure) -> float:
     return 0.01 * float(structure.bar_lengths.max())
 
 
+def _plane_xml(part, i, attrs):
+    return [], [f'    <geom name="terrain_plane" type="plane" size="0 0 1" pos="0 0 0" '
+                f'quat="{_fmt(_quat_z_to(part.normal))}" material="grid" {attrs}/>']
+
+
+def _box_xml(b, i, attrs):
+    yaw = math.radians(b.yaw_deg)
+    return [], [f'    <geom name="terrain_box{i}" type="box" size="{_fmt(b.size / 2)}" pos="{_fmt(b.center)}" '
+                f'quat="{_fmt([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])}" rgba=".62 .56 .48 1" {attrs}/>']
+
+
+def _hfield_xml(hf, i, attrs):
+    H = hf.heights
+    ny, nx = H.shape
+    lo, hi = float(H.min()), float(H.max())
+    rng = hi - lo
+    # MuJoCo keeps elevations in [0, 1] scaled by size[2] (> 0): a flat grid is zeros under any scale
+    elev = (H - lo) / rng if rng > 0 else np.zeros_like(H)
+    rx, ry = 0.5 * (nx - 1) * hf.cell, 0.5 * (ny - 1) * hf.cell
+    base = max(_HFIELD_BASE * 2 * max(rx, ry), 0.01)
+    # the attribute's first row is MuJoCo's highest y: our rows reversed
+    return ([f'    <hfield name="terrain_hfield" nrow="{ny}" ncol="{nx}" '
+             f'size="{_fmt([rx, ry, rng if rng > 0 else 1e-6, base])}" elevation="{_fmt(elev[::-1])}"/>'],
+            [f'    <geom name="terrain_hfield" type="hfield" hfield="terrain_hfield" '
+             f'pos="{_fmt([hf.origin[0] + rx, hf.origin[1] + ry, lo])}" rgba=".55 .62 .5 1" {attrs}/>'])
+
+
+#: terrain kind name (:mod:`tensegrity_gym.core.terrain_kinds`) -> ``xml(part, i, attrs)``: the
+#: ``(assets, geoms)`` MJCF lines of the kind's i-th part, ``attrs`` its contact and friction attributes
+TERRAIN_GEOMS = {"plane": _plane_xml, "box": _box_xml, "heightfield": _hfield_xml}
+
+
 def terrain_xml(terrain, floor_height: float | None = None) -> tuple[list, list]:
     """``(assets, geoms)``: the MJCF lines of ``terrain``'s heightfield asset and of its geoms
-    (world body; they collide with the rods only). See the module docstring for the mapping.
-    ``floor_height``: also a level floor plane ``terrain_floor`` at this height (m), with the
-    heightfield's friction (else the terrain's), after the terrain's geoms."""
+    (world body; they collide with the rods only), each part by its kind's row of
+    :data:`TERRAIN_GEOMS` (ValueError naming a kind without one). See the module docstring for
+    the mapping. ``floor_height``: also a level floor plane ``terrain_floor`` at this height (m),
+    with the heightfield's friction (else the terrain's), after the terrain's geoms."""
     if not isinstance(terrain, Terrain):
         raise ValueError(f"terrain: expected a Terrain, got {type(terrain).__name__}")
     if floor_height is not None and not math.isfinite(float(floor_height)):
         raise ValueError(f"floor_height: must be finite (m), got {floor_height!r}")
     contact = 'contype="0" conaffinity="1"'
     fr = lambda part: f'friction="{float(terrain.surface(part)[0])!r} 0.005 0.0001"'
-    assets, geoms = [], []
-    if terrain.plane is not None:
-        geoms.append(f'    <geom name="terrain_plane" type="plane" size="0 0 1" pos="0 0 0" '
-                     f'quat="{_fmt(_quat_z_to(terrain.plane.normal))}" material="grid" {contact} '
-                     f'{fr(terrain.plane)}/>')
-    for i, b in enumerate(terrain.boxes):
-        yaw = math.radians(b.yaw_deg)
-        geoms.append(f'    <geom name="terrain_box{i}" type="box" size="{_fmt(b.size / 2)}" pos="{_fmt(b.center)}" '
-                     f'quat="{_fmt([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])}" rgba=".62 .56 .48 1" '
-                     f'{contact} {fr(b)}/>')
-    hf = terrain.heightfield
-    if hf is not None:
-        H = hf.heights
-        ny, nx = H.shape
-        lo, hi = float(H.min()), float(H.max())
-        rng = hi - lo
-        # MuJoCo keeps elevations in [0, 1] scaled by size[2] (> 0): a flat grid is zeros under any scale
-        elev = (H - lo) / rng if rng > 0 else np.zeros_like(H)
-        rx, ry = 0.5 * (nx - 1) * hf.cell, 0.5 * (ny - 1) * hf.cell
-        base = max(_HFIELD_BASE * 2 * max(rx, ry), 0.01)
-        # the attribute's first row is MuJoCo's highest y: our rows reversed
-        assets.append(f'    <hfield name="terrain_hfield" nrow="{ny}" ncol="{nx}" '
-                      f'size="{_fmt([rx, ry, rng if rng > 0 else 1e-6, base])}" elevation="{_fmt(elev[::-1])}"/>')
-        geoms.append(f'    <geom name="terrain_hfield" type="hfield" hfield="terrain_hfield" '
-                     f'pos="{_fmt([hf.origin[0] + rx, hf.origin[1] + ry, lo])}" rgba=".55 .62 .5 1" {contact} '
-                     f'{fr(hf)}/>')
+    assets, geoms, count = [], [], {}
+    for part in terrain.parts():
+        xml = require(TERRAIN_GEOMS, part, "the MJCF writer (tensegrity_gym.io.mjcf.TERRAIN_GEOMS)")
+        i = count[xml] = count.get(xml, -1) + 1
+        a, g = xml(part, i, f"{contact} {fr(part)}")
+        assets += a
+        geoms += g
     if floor_height is not None:
+        hf = terrain.heightfield
         geoms.append(f'    <geom name="terrain_floor" type="plane" size="0 0 1" pos="0 0 {float(floor_height)!r}" '
                      f'material="grid" {contact} {fr(hf if hf is not None else terrain)}/>')
     return assets, geoms

@@ -29,7 +29,7 @@ tangential spring ``k_t`` with damper ``c_t`` from the contact's surface point t
 ``mu`` times the normal force (the anchor then follows: slip). The interior slot's penetration
 is measured from the deeper touching node, ``min(radius, d_a, d_c) - d``, with the reaction
 along that node's measure gradient at the node (a continuous contact energy; details in
-:mod:`tensegrity_gym.backends.numba.terrain`).
+:mod:`tensegrity_gym.backends.numba.terrain_law`).
 
 Generalized force: a force F at the rod point ``v(eta) = r + eta b`` enters the equations as
 ``[F, eta F]`` (the seed's (5.9), (5.21)); the kernels pass it as the nodal forces
@@ -50,13 +50,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..backends.numba.api import _frozen as read_only   # the kernels take read-only arrays
-from ..backends.numba.heightfield import hf_lipschitz
-from ..backends.numba.terrain import BOX, HFIELD, PLANE, terrain_forces_kernel
+from ..backends.numba.terrain import terrain_forces_kernel
+from ..backends.numba.terrain_kinds import HFIELD, PLANE, check_codes, geom_row, hf_bound
 from ..backends.numba.terrain_steps import terrain_steps
 from ..core.checks import check_positive
 from ..core.integrators import resolve
 from ..core.model import Model, State
-from ..core.terrain import Box, Heightfield, Plane, Terrain
+from ..core.terrain import Terrain
 from .contact import GroundContact, stable_step as ground_stable_step
 from .pipeline import compiled_physics, run_steps as _run_steps
 from .stability import check_stability
@@ -84,7 +84,7 @@ class TerrainContact:
 
     Arrays of the kernels (read-only): ``geom`` (1, F, 10) and ``prm`` (1, F, 8) per feature in
     :meth:`Terrain.parts` order, ``hf`` (1, ny, nx) the heightfield's heights m (a (1, 1, 1)
-    zero array without one); layouts in :mod:`tensegrity_gym.backends.numba.terrain`.
+    zero array without one); layouts in :mod:`tensegrity_gym.backends.numba.terrain_kinds`.
     ``plane_only``: True when the terrain is one plane and nothing else."""
 
     terrain: Terrain
@@ -120,23 +120,9 @@ class TerrainContact:
         geom, prm = [], []
         hf = np.zeros((1, 1, 1))
         for part in self.terrain.parts():
-            row = np.zeros(10)
-            if isinstance(part, Plane):
-                row[0] = PLANE
-                row[1:4] = part.normal
-            elif isinstance(part, Box):
-                yaw = math.radians(part.yaw_deg)
-                row[0] = BOX
-                row[1:4] = part.center
-                row[4:7] = part.size / 2
-                row[7:9] = math.cos(yaw), math.sin(yaw)
-            elif isinstance(part, Heightfield):
-                row[0] = HFIELD
-                row[1:3] = part.origin
-                row[3] = part.cell
-                row[4:6] = part.heights.shape
-                row[6] = hf_bound(part.heights, part.cell)
-                hf = part.heights[None]             # read-only, as the Heightfield's own
+            row, heights = geom_row(part)       # the numba backend's table of kinds
+            if heights is not None:
+                hf = heights
             geom.append(row)
             mu, k, d = self.terrain.surface(part)
             kt = k if self.tangential_stiffness is None else self.tangential_stiffness
@@ -210,6 +196,8 @@ def _geom_rows(geom, hf, tc: TerrainContact, B: int):
     the heights it is given. A caller passing both gives each row the bound of its own heights
     (:func:`hf_bound`)."""
     g = _rows(geom, tc.geom, B, 10, "geom")
+    if geom is not None:
+        check_codes(g)
     if hf is not None and geom is None and tc.terrain.heightfield is not None:
         g = g.copy()
         g[..., 6] = np.where(g[..., 0] == HFIELD, 0.0, g[..., 6])
@@ -273,8 +261,9 @@ def contact_forces(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState
 def forces_inplace(tc: TerrainContact, model: Model, q, qd, tstate: TerrainState, W, slip, prm=None,
                    geom=None, hf=None) -> None:
     """Allocation-free :func:`contact_forces`: forces into ``W`` (B, n, 3), slip flags into
-    ``slip`` (B, S) and ``tstate`` updated in place; C-contiguous float64 inputs, shapes are the
-    caller's duty."""
+    ``slip`` (B, S) and ``tstate`` updated in place; C-contiguous float64 inputs, shapes and the
+    kind codes of ``geom`` are the caller's duty (:func:`contact_forces`, :func:`step` and
+    :func:`advance` check them)."""
     terrain_forces_kernel(q, qd, model.eta, model.rod_a, model.rod_c, tc.geom if geom is None else geom,
                           tc.prm if prm is None else prm, tc.hf if hf is None else hf, tstate.anchor,
                           tstate.eta0, tstate.active, slip, W, np.empty((0, 0, 6)))
@@ -336,23 +325,13 @@ def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str,
                                   inputs.get("force_density"), external, inputs.get("params"),
                                   inputs.get("project", True), arrays, W, tc.plane_only):
         return
+    check_codes(geom)       # the compiled call refuses an unknown kind code itself
     for _ in range(int(n_steps)):
         forces_inplace(tc, model, q, qd, tstate, W, sl, prm, geom, hf)
         if external is not None:
             W += external
         _run_steps(model, q, qd, dt, integrator, n_steps=1, external=W, backend=backend, compiled=compiled,
                    **inputs)
-
-
-def hf_bound(heights: np.ndarray, cell: float) -> float:
-    """``sqrt(1 + L^2)``, L bounding the slope of the bilinear heightfield ``heights`` (ny, nx) m on
-    a grid of ``cell`` m (largest step along x and along y over the cell): column 6 of its geom row,
-    the bound of the kernel's "too far to touch" test (the kernel's own ``hf_lipschitz``, one
-    pass over the heights)."""
-    h = np.ascontiguousarray(heights, dtype=np.float64)
-    row = np.zeros(10)
-    row[0], row[3], row[4], row[5] = HFIELD, cell, h.shape[0], h.shape[1]
-    return float(hf_lipschitz(row, h))
 
 
 def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: TerrainState,

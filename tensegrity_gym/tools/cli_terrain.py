@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from ..core.terrain import Terrain
+from ..core.terrain import SURFACE_KEYS, Terrain
 from ..physics.terrain import TerrainContact
 from .cli_common import EXIT_STRUCTURE, EXIT_USAGE, CLIError, _non_negative, _one_line, _positive
 
@@ -51,9 +51,8 @@ def with_contact(terrain: Terrain, friction=None, stiffness=None, damping=None) 
     if not changes:
         return terrain
     clear = dict.fromkeys(changes)
-    part = lambda x: None if x is None else dataclasses.replace(x, **clear)
-    return dataclasses.replace(terrain, plane=part(terrain.plane), boxes=tuple(part(b) for b in terrain.boxes),
-                               heightfield=part(terrain.heightfield), **changes)
+    contact = {k: getattr(terrain, k) for k in SURFACE_KEYS}
+    return Terrain.from_parts([dataclasses.replace(p, **clear) for p in terrain.parts()], **{**contact, **changes})
 
 
 def terrain_from_args(args) -> Terrain | None:

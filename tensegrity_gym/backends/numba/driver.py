@@ -20,9 +20,11 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
-from .terrain import (BOX_END_ROWS, BOX_LANE_ROWS, HF_LANE_ROWS, add_ext, box_load, box_store, boxes_between, has_box,
-                      hf_bound_of, hf_lam_load, hf_last, lanes_forces, plane_first,
-                      plane_forces, plane_load, plane_store, slots_load, slots_store)
+from .terrain import has_box, lanes_forces
+from .terrain_box import BOX_END_ROWS, BOX_LANE_ROWS, box_load, box_store, boxes_between
+from .terrain_hfield import HF_LANE_ROWS, hf_bound_of, hf_lam_load, hf_last
+from .terrain_law import add_ext, slots_load, slots_store
+from .terrain_plane import plane_first, plane_forces, plane_load, plane_store
 from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
                      _opts, _soa_width_nb)
 

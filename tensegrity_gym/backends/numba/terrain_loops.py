@@ -12,14 +12,18 @@ from numba import njit, prange
 
 from .driver import _drive_lanes_plane, _drive_lanes_terrain, _drive_one_plane, _drive_one_terrain
 from .entries import _chunk, _chunks, _contact_check, _serial_setup, _simd_check
-from .terrain import plane_only
+from .terrain import codes_known
+from .terrain_plane import plane_only
 
 __all__ = ["terrain_loop", "terrain_loop_simd", "terrain_parallel"]
 
 @njit(inline="always", cache=True)
 def _terrain_tuples(err, plane, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, ext):
     """(error code, the general driver's terrain tuple, the plane instance's tuple) of an entry
-    call: error 10 where ``plane`` is given and a row of ``geom`` is not one plane."""
+    call: error 11 where a feature code of ``geom`` is no kind's (:func:`.terrain.codes_known`),
+    error 10 where ``plane`` is given and a row of ``geom`` is not one plane."""
+    if err == 0 and not codes_known(geom):
+        err = 11
     if err == 0 and plane is not None and not plane_only(geom):
         err = 10
     return (err, (eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip, np.empty((0, 0, 6)), ext),

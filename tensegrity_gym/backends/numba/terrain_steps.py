@@ -13,6 +13,7 @@ from __future__ import annotations
 from .api import _frozen, _raise, loop_setup
 from .compile import NCHUNK as _NCHUNK, TERRAIN_SLOT_WORK, _parallel
 from .layout import _CHUNK_SHIFT, _SOA_MIN_BATCH, _soa_width
+from .terrain_kinds import check_codes
 from .terrain_loops import terrain_loop, terrain_loop_simd, terrain_parallel
 
 __all__ = ["terrain_steps", "terrain_loop", "terrain_loop_simd", "terrain_parallel"]
@@ -49,6 +50,8 @@ def terrain_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
             err = kernel(*args, None)
     except TypeError:      # an array of another type or layout: the Python loop converts it
         return False
+    if err == 11:          # a feature code of no kind: the host's check names it
+        check_codes(arrays[0])
     if err:
         _raise(err, model, q, qd, rest_length, force_density, forces if external is None else external)
     return True

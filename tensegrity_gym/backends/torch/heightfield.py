@@ -16,7 +16,7 @@ def hf_at(p0, p1, r0, r1, part):
     """Bilinear height (m) at points (p0, p1) of the cells holding the reference points (r0, r1)
     (leading axis the copies), the gradient (dh/dx, dh/dy) and the twist (1/m), 0 across a held
     edge: the numba ``hf_at``. ``part`` the heightfield part
-    (:class:`tensegrity_gym.backends.torch.terrain._Part`: geom rows ``g`` (G, 10), heights ``H``
+    (:class:`tensegrity_gym.backends.torch.terrain_kinds._Part`: geom rows ``g`` (G, 10), heights ``H``
     (1 or B, ny, nx), its columns shaped by ``col``)."""
     torch = _torch()
     H = part.H

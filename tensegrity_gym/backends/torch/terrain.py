@@ -1,9 +1,11 @@
 """Terrain contact on tensors: the rod capsules against a sloped plane, boxes and a
 heightfield, batched over copies (:func:`terrain_forces`), and steps with it
 (:func:`terrain_step`). The same equations, slots and arithmetic as the numba kernel
-:mod:`tensegrity_gym.backends.numba.terrain` (see there for the array layouts ``geom``
-(G, F, 10), ``prm`` (P, F, 8), ``hf`` (H, ny, nx) and the slot order; the heightfield's
-measure and search: :mod:`tensegrity_gym.backends.torch.heightfield`); the arrays come from
+:mod:`tensegrity_gym.backends.numba.terrain` (the array layouts ``geom`` (G, F, 10), ``prm``
+(P, F, 8), ``hf`` (H, ny, nx): :mod:`tensegrity_gym.backends.numba.terrain_kinds`; the slot order:
+:mod:`tensegrity_gym.backends.numba.terrain_law`; each kind's measure and top:
+:mod:`tensegrity_gym.backends.torch.terrain_kinds`, the heightfield's search:
+:mod:`tensegrity_gym.backends.torch.heightfield`); the arrays come from
 :class:`tensegrity_gym.physics.terrain.TerrainContact`
 (``.geom``, ``.prm``, ``.hf``, ``.per_copy``). SI units.
 
@@ -23,21 +25,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..numba.terrain import BOUND_CUTS, BOUND_SLACK, BOX, GOLDEN_ITERS, HFIELD, LEVEL_TOL, PLANE
+from ..numba.terrain_kinds import BOX, HFIELD, PLANE
 from .driver import prepare_steps, step_once
 from .heightfield import hf_lipschitz, hf_lowest, hf_patch
 from .model import TorchModel, _torch, torch_model
+from .terrain_kinds import _Part, _closest, _hf_normal, _host, _interior, _passed_over, check_kinds, top_height
 
 __all__ = ["TerrainLayout", "terrain_layout", "init_terrain_state", "terrain_forces", "terrain_step", "terrain_substep",
            "compile_options", "top_height"]
 
-_GR = 0.6180339887498949
-
-
 class TerrainLayout(NamedTuple):
     """What a terrain's contact steps branch on, read from the host once (:func:`terrain_layout`)."""
 
-    #: each feature column's kind (``PLANE``, ``BOX``, ``HFIELD`` of :mod:`tensegrity_gym.backends.numba.terrain`)
+    #: each feature column's kind (``PLANE``, ``BOX``, ``HFIELD`` of :mod:`tensegrity_gym.backends.numba.terrain_kinds`)
     kinds: tuple
     #: every part's contact exponent is 1 (the penetration taken as it is, not raised to a power)
     unit_exponent: bool
@@ -45,12 +45,6 @@ class TerrainLayout(NamedTuple):
     hf_shape: tuple
     #: per feature, the most grid lines a rod crosses along x and along y ((0, 0) off a heightfield)
     crossings: tuple
-
-
-def _host(x):
-    """``x`` (an array or a tensor) as a NumPy array on the host."""
-    torch = _torch()
-    return np.asarray(x.detach().cpu()) if isinstance(x, torch.Tensor) else np.asarray(x, dtype=float)
 
 
 def terrain_layout(geom, prm, model) -> TerrainLayout:
@@ -70,6 +64,7 @@ def terrain_layout(geom, prm, model) -> TerrainLayout:
     m = model.model if isinstance(model, TorchModel) else model
     length = float(np.abs(m.eta[:, 1] - m.eta[:, 0]).max())
     kinds = tuple(float(v) for v in g[0, :, 0])
+    check_kinds(kinds)
     hf_shape, crossings = (1, 1), []
     for f, kind in enumerate(kinds):
         if kind != HFIELD:
@@ -98,131 +93,6 @@ def init_terrain_state(tm_or_model, n_features: int, batch_size: int, device=Non
     z = dict(dtype=tm.dtype, device=tm.device)
     return (torch.zeros((batch_size, S, 3), **z), torch.zeros((batch_size, S), **z),
             torch.zeros((batch_size, S), dtype=torch.bool, device=tm.device))
-
-
-class _Part:
-    """Terrain parts of one kind: their geom rows ``g`` (G, f, 10) (f feature columns, every row
-    of one column of the part's kind), the heightfield heights ``H``, the ``kind`` and grid
-    ``crossings`` (of the :class:`TerrainLayout`); the columns shaped once per rank of the
-    points they meet (the box search evaluates the distance ~90 times a step; the heightfield's
-    functions in :mod:`tensegrity_gym.backends.torch.heightfield` take the part too). With f > 1
-    (boxes searched together) the points have the axes (copies, rods, features, ...)."""
-
-    def __init__(self, g, H, kind: float, crossings=(0, 0)):
-        self.g, self.H, self.kind, self.crossings = g, H, kind, crossings
-        self._cols: dict = {}
-
-    def col(self, i: int, like):
-        """Column i, shaped to broadcast against the points ``like`` (leading axis: the copies;
-        with f > 1 features, the third their features)."""
-        key = (i, like.ndim)
-        c = self._cols.get(key)
-        if c is None:
-            f = self.g.shape[1]
-            shape = (-1,) + (1,) * (like.ndim - 1) if f == 1 else (-1, 1, f) + (1,) * (like.ndim - 3)
-            c = self._cols[key] = self.g[:, :, i].reshape(shape)
-        return c
-
-
-def _box(p0, p1, p2, cols, normal: bool = True):
-    """Signed distance and outward normal of points (p0, p1, p2) to the boxes of the geom columns
-    1-8 ``cols`` (centre, half sizes, yaw cosine and sine; rows broadcast against the points'
-    leading axis) (as the numba ``_box_closest``); the distance alone with ``normal=False`` (the
-    same number)."""
-    torch = _torch()
-    cx, cy, cz, hx, hy, hz, c, s = cols
-    dx, dy, dz = p0 - cx, p1 - cy, p2 - cz
-    l0 = c * dx + s * dy
-    l1 = (-s) * dx + c * dy
-    l2 = dz
-    q0, q1, q2 = l0.abs() - hx, l1.abs() - hy, l2.abs() - hz
-    o0, o1, o2 = q0.clamp(min=0.0), q1.clamp(min=0.0), q2.clamp(min=0.0)
-    dout = torch.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
-    out = dout > 0.0
-    # inside: the nearest face, the first of the largest q (numba's sequential comparisons)
-    a1 = q1 > q0
-    d = torch.where(a1, q1, q0)
-    a2 = q2 > d
-    d = torch.where(a2, q2, d)
-    if not normal:
-        return torch.where(out, dout, d)
-    one = torch.ones_like(l0)
-    s0, s1, s2 = (torch.where(x >= 0.0, one, -one) for x in (l0, l1, l2))
-    safe = torch.where(out, dout, one)
-    zero = torch.zeros_like(l0)
-    n0 = torch.where(out, s0 * o0 / safe, torch.where(a1 | a2, zero, s0))
-    n1 = torch.where(out, s1 * o1 / safe, torch.where(a1 & ~a2, s1, zero))
-    n2 = torch.where(out, s2 * o2 / safe, torch.where(a2, s2, zero))
-    d = torch.where(out, dout, d)
-    return d, c * n0 - s * n1, s * n0 + c * n1, n2
-
-
-def _hf_normal(gx, gy):
-    """The unit normal of a surface of height gradient (gx, gy) and the length of its
-    unnormalised normal ``|(-gx, -gy, 1)|``, the gradient of the vertical gap (the numba
-    ``_hf_normal``)."""
-    w = _torch().sqrt(1.0 + gx * gx + gy * gy)
-    return -gx / w, -gy / w, 1.0 / w, w
-
-
-def _closest(p0, p1, p2, part, normal: bool = True):
-    """Contact measure of points against the terrain part ``part`` (:class:`_Part`): (signed
-    distance or a heightfield's vertical gap, outward unit normal, w), the measure's gradient
-    ``w n`` (the numba ``_closest``); the measure alone with ``normal=False`` (the same number)."""
-    torch = _torch()
-    kind = part.kind
-    if kind == PLANE:
-        nx, ny, nz, off = (part.col(i, p0) for i in range(1, 5))
-        d = nx * p0 + ny * p1 + nz * p2 - off
-        return (d, nx.expand_as(p0), ny.expand_as(p0), nz.expand_as(p0), torch.ones_like(p0)) if normal else d
-    if kind == HFIELD:
-        h, gx, gy = hf_patch(p0, p1, part)
-        if not normal:
-            return p2 - h
-        return (p2 - h,) + _hf_normal(gx, gy)
-    cols = tuple(part.col(i, p0) for i in range(1, 9))
-    if not normal:
-        return _box(p0, p1, p2, cols, False)
-    return _box(p0, p1, p2, cols) + (torch.ones_like(p0),)
-
-
-def _interior(ea, ec, r, b, part):
-    """The interior contact point of every rod against the boxes ``part``, (eta, deeper) (B, k,
-    f): the numba ``_interior`` on tensors (golden section, then the middle of the level set, its
-    two ends bisected together). ``ea``, ``ec`` (B, k, f), ``r``, ``b`` (B, k, 1, 3)."""
-    torch = _torch()
-
-    rb = [r[..., i] for i in range(3)] + [b[..., i] for i in range(3)]     # (B, k, 1), taken once
-
-    def sd(e):
-        x = rb if e.ndim == 3 else [v[..., None] for v in rb]
-        return _closest(x[0] + e * x[3], x[1] + e * x[4], x[2] + e * x[5], part, normal=False)
-    fa, fc = sd(ea), sd(ec)
-    lo, hi = ea, ec
-    x1 = hi - _GR * (hi - lo)
-    x2 = lo + _GR * (hi - lo)
-    f1, f2 = sd(x1), sd(x2)
-    for _ in range(GOLDEN_ITERS):
-        c = f1 <= f2
-        hi_n = torch.where(c, x2, hi)
-        lo_n = torch.where(c, lo, x1)
-        x1_n = torch.where(c, hi_n - _GR * (hi_n - lo_n), x2)
-        x2_n = torch.where(c, x1, lo_n + _GR * (hi_n - lo_n))
-        fe = sd(torch.where(c, x1_n, x2_n))
-        f1, f2 = torch.where(c, fe, f2), torch.where(c, f1, fe)
-        lo, hi, x1, x2 = lo_n, hi_n, x1_n, x2_n
-    em = 0.5 * (lo + hi)
-    fm = sd(em)
-    deeper = fm < torch.minimum(fa, fc) - LEVEL_TOL
-    level = (fm + LEVEL_TOL)[..., None]
-    # the level set's ends: [ea, em] where the distance falls to the level, [em, ec] where it rises
-    a, bb = torch.stack([ea, em], dim=-1), torch.stack([em, ec], dim=-1)
-    rising = torch.tensor([False, True], device=ea.device)
-    for _ in range(GOLDEN_ITERS):
-        mid = 0.5 * (a + bb)
-        right = (sd(mid) > level) ^ rising
-        a, bb = torch.where(right, mid, a), torch.where(right, bb, mid)
-    return torch.where(deeper, 0.5 * (bb[..., 0] + a[..., 1]), em), deeper
 
 
 def _as(x, q, name, width):
@@ -281,40 +151,6 @@ def _prepare(geom, prm, hf, q, tm, layout=None):
     H = _as_hf(hf, layout, q)
     lips = tuple(hf_lipschitz(geom[:, f], H) if kind == HFIELD else None for f, kind in enumerate(layout.kinds))
     return geom, prm, H, lips, layout
-
-
-def _passed_over(ea, ec, r, b, part, radius):
-    """Where no interior point of a rod can touch the boxes ``part`` (B, k, f): the numba
-    ``_box_dip_bound`` on tensors (the ends' tangent lines of the convex distance and
-    ``BOUND_CUTS`` cutting-plane steps give a lower bound of the distance along the rod, above
-    ``min(radius, sd_a - LEVEL_TOL, sd_c - LEVEL_TOL)``: the search would find no point that
-    touches). ``ea``, ``ec`` (B, k, f), ``r``, ``b`` (B, k, 1, 3), ``radius`` (P, 1, f) m."""
-    torch = _torch()
-    r0, r1, r2, b0, b1, b2 = (x[..., i] for x in (r, b) for i in range(3))
-
-    def at(e):                                   # distance and slope along the rod at eta e
-        d, n0, n1, n2, _ = _closest(r0 + e * b0, r1 + e * b1, r2 + e * b2, part)
-        return d, n0 * b0 + n1 * b1 + n2 * b2
-    fa, sa = at(ea)
-    fc, sc = at(ec)
-    level = torch.minimum(radius, torch.minimum(fa, fc) - LEVEL_TOL) + BOUND_SLACK
-    at_end = (sa >= 0.0) | (sc <= 0.0)
-    ul, fl, sl, ur, fr, sr = torch.zeros_like(fa), fa, sa, ec - ea, fc, sc
-    best = torch.full_like(fa, -math.inf)
-    found = torch.zeros_like(at_end)
-    for it in range(BOUND_CUTS + 1):
-        den = torch.where(at_end, torch.ones_like(sr), sr - sl)
-        u = torch.minimum(torch.maximum((fl - fr + sr * ur - sl * ul) / den, ul), ur)
-        best = torch.maximum(best, torch.maximum(fl + sl * (u - ul), fr + sr * (u - ur)))
-        if it == BOUND_CUTS:
-            break
-        fm, sm = at(ea + u)
-        found = found | (fm <= level)
-        right = sm >= 0.0
-        ur, fr, sr = torch.where(right, u, ur), torch.where(right, fm, fr), torch.where(right, sm, sr)
-        ul, fl, sl = torch.where(right, ul, u), torch.where(right, fl, fm), torch.where(right, sl, sm)
-    bound = torch.where(sa >= 0.0, fa, torch.where(sc <= 0.0, fc, best))
-    return (bound > level) & (at_end | ~found)
 
 
 def _slot_law(P, V, M, sd, n, w, level, was, an, pr, unit_exponent: bool):
@@ -530,28 +366,3 @@ def terrain_substep(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0, active,
         W = W + ext
     q, qd = step_once(tm, q, qd, dt, name, p, rl, fd, W, project_)
     return q, qd, anchor, eta0, active
-
-
-def top_height(geom, H, x, y, kinds=None):
-    """Height (m) of the terrain's top surface at (x, y) m (tensors (r, ...), leading axis the
-    copies): the highest of the plane, the tops of the boxes over (x, y) and the heightfield's
-    bilinear height; -inf where none is (:meth:`tensegrity_gym.core.terrain.Terrain.height_at` on
-    the kernels' rows). ``geom`` (1 or r, F, 10), ``H`` (1 or r, ny, nx) m or None, ``kinds``
-    each feature's kind (a :class:`TerrainLayout`'s; None: read from ``geom``)."""
-    torch = _torch()
-    h = torch.full_like(x, -math.inf)
-    if kinds is None:
-        kinds = tuple(float(v) for v in _host(geom[0, :, 0]))
-    for f, kind in enumerate(kinds):
-        part = _Part(geom[:, f:f + 1], H, kind)
-        if part.kind == PLANE:          # the solid n.p <= offset
-            n0, n1, n2, off = (part.col(i, x) for i in range(1, 5))
-            h = torch.maximum(h, (off - (n0 * x + n1 * y)) / n2)
-        elif part.kind == BOX:
-            cx, cy, cz, hx, hy, hz, c, s = (part.col(i, x) for i in range(1, 9))
-            dx, dy = x - cx, y - cy
-            inside = ((c * dx + s * dy).abs() <= hx) & (((-s) * dx + c * dy).abs() <= hy)
-            h = torch.where(inside, torch.maximum(h, cz + hz), h)
-        else:
-            h = torch.maximum(h, hf_patch(x, y, part)[0])
-    return h

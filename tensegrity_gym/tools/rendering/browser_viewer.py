@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...core.terrain_kinds import require
 from .scene import RendererUnavailable, _check_terrain, _heightfield_mesh, _plane_height, _tension_rgb
 
 
@@ -67,20 +68,14 @@ class BrowserViewer:
         self._thread.start()
 
     def _add_terrain(self, sc, terrain, ext: float) -> None:
-        """The terrain's plane (a grid tilted onto it around the structure), boxes and heightfield (a mesh)."""
-        from ...io.mjcf import _quat_z_to
+        """The terrain's parts, each by its kind's row of :data:`TERRAIN_ADD` (ValueError naming a
+        kind without a row)."""
         c = self.nodes[0].mean(axis=0)
-        if terrain.plane is not None:
-            z = float(_plane_height(terrain.plane, c[0], c[1]))
-            sc.add_grid("/terrain/plane", width=20 * ext, height=20 * ext, cell_size=ext / 4,
-                        wxyz=tuple(_quat_z_to(terrain.plane.normal)), position=(float(c[0]), float(c[1]), z))
-        for i, b in enumerate(terrain.boxes):
-            yaw = np.radians(b.yaw_deg)
-            sc.add_box(f"/terrain/box{i}", color=(158, 143, 122), dimensions=tuple(b.size),
-                       wxyz=(float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))), position=tuple(b.center))
-        if terrain.heightfield is not None:
-            v, f = _heightfield_mesh(terrain.heightfield)
-            sc.add_mesh_simple("/terrain/heightfield", v, f, color=(140, 160, 120), side="double")
+        count = {}
+        for part in terrain.parts():
+            add = require(TERRAIN_ADD, part, "the browser viewer (TERRAIN_ADD)")
+            count[add] = count.get(add, -1) + 1
+            add(sc, part, count[add], c, ext)
 
     def _segments(self, i, pairs):
         N = self.nodes[i]
@@ -140,3 +135,28 @@ class BrowserViewer:
     def close(self) -> None:
         self._stop.set()
         self.server.stop()
+
+
+def _add_plane(sc, plane, i, c, ext):
+    """A grid tilted onto the plane around the structure's centre ``c`` (m), ``ext`` its size (m)."""
+    from ...io.mjcf import _quat_z_to
+    z = float(_plane_height(plane, c[0], c[1]))
+    sc.add_grid("/terrain/plane", width=20 * ext, height=20 * ext, cell_size=ext / 4,
+                wxyz=tuple(_quat_z_to(plane.normal)), position=(float(c[0]), float(c[1]), z))
+
+
+def _add_box(sc, b, i, c, ext):
+    """The i-th box."""
+    yaw = np.radians(b.yaw_deg)
+    sc.add_box(f"/terrain/box{i}", color=(158, 143, 122), dimensions=tuple(b.size),
+               wxyz=(float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))), position=tuple(b.center))
+
+
+def _add_heightfield(sc, hf, i, c, ext):
+    """The heightfield as a mesh."""
+    v, f = _heightfield_mesh(hf)
+    sc.add_mesh_simple("/terrain/heightfield", v, f, color=(140, 160, 120), side="double")
+
+
+#: terrain kind name (:mod:`tensegrity_gym.core.terrain_kinds`) -> ``add(scene, part, i, centre, ext)``
+TERRAIN_ADD = {"plane": _add_plane, "box": _add_box, "heightfield": _add_heightfield}

@@ -5,6 +5,7 @@ import warnings
 
 import numpy as np
 
+from ...core.terrain_kinds import require
 from .scene import _box_faces, _check_terrain, _heightfield_grid, _plane_height, _scene_arrays
 
 
@@ -50,25 +51,33 @@ class Renderer:
             self.limits = np.stack([c - half, c + half], axis=1)
 
     def _draw_terrain(self, terrain) -> None:
-        """The terrain's plane (a patch over the view), boxes (shaded solids) and heightfield (a surface)."""
+        """The terrain's parts, each by its kind's row of :data:`TERRAIN_DRAW` (in its layers:
+        planes, then heightfields, then boxes); ValueError naming a kind without a row."""
+        rows = [(require(TERRAIN_DRAW, p, "the matplotlib renderer (TERRAIN_DRAW)"), p) for p in terrain.parts()]
+        for (_, draw), part in sorted(rows, key=lambda r: r[0][0]):
+            draw(self, part)
+
+    def _draw_plane(self, plane) -> None:
+        """A patch of the plane over the view."""
+        X, Y = np.meshgrid(self.limits[0], self.limits[1])
+        self.ax.plot_surface(X, Y, _plane_height(plane, X, Y), color="0.85", alpha=0.5, zorder=0)
+
+    def _draw_heightfield(self, hf) -> None:
+        """The heightfield's surface over the view."""
+        X, Y, Z = _heightfield_grid(hf, 40)
+        # the part over the view (matplotlib's 3-D axes do not clip what lies beyond their limits)
+        (x0, x1), (y0, y1) = self.limits[0], self.limits[1]
+        c = (X[0] >= x0 - hf.cell) & (X[0] <= x1 + hf.cell)
+        r = (Y[:, 0] >= y0 - hf.cell) & (Y[:, 0] <= y1 + hf.cell)
+        if c.sum() >= 2 and r.sum() >= 2:
+            X, Y, Z = (A[np.ix_(r, c)] for A in (X, Y, Z))
+            self.ax.plot_surface(X, Y, Z, cmap="summer", alpha=0.75, linewidth=0.2, edgecolor="0.45", zorder=0)
+
+    def _draw_box(self, b) -> None:
+        """A shaded solid box."""
         from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-        ax = self.ax
-        if terrain.plane is not None:
-            X, Y = np.meshgrid(self.limits[0], self.limits[1])
-            ax.plot_surface(X, Y, _plane_height(terrain.plane, X, Y), color="0.85", alpha=0.5, zorder=0)
-        hf = terrain.heightfield
-        if hf is not None:
-            X, Y, Z = _heightfield_grid(hf, 40)
-            # the part over the view (matplotlib's 3-D axes do not clip what lies beyond their limits)
-            (x0, x1), (y0, y1) = self.limits[0], self.limits[1]
-            c = (X[0] >= x0 - hf.cell) & (X[0] <= x1 + hf.cell)
-            r = (Y[:, 0] >= y0 - hf.cell) & (Y[:, 0] <= y1 + hf.cell)
-            if c.sum() >= 2 and r.sum() >= 2:
-                X, Y, Z = (A[np.ix_(r, c)] for A in (X, Y, Z))
-                ax.plot_surface(X, Y, Z, cmap="summer", alpha=0.75, linewidth=0.2, edgecolor="0.45", zorder=0)
-        for b in terrain.boxes:
-            ax.add_collection3d(Poly3DCollection(list(_box_faces(b)), facecolor=(.62, .56, .48, .85),
-                                                 edgecolor="0.3", linewidths=0.6))
+        self.ax.add_collection3d(Poly3DCollection(list(_box_faces(b)), facecolor=(.62, .56, .48, .85),
+                                                  edgecolor="0.3", linewidths=0.6))
 
     def render(self, nodes, rods, strings, tensions=None, *, slack=None, targets=None, ground_z=None,
                path=None, goal=None, tension_max=None, caption: str | None = None, terrain=None) -> np.ndarray:
@@ -170,3 +179,9 @@ def render_frame(nodes, rods, strings, tensions=None, *, width: int = 480, heigh
     Keyword arguments as :meth:`Renderer.render` plus ``elev``, ``azim``, ``limits``, ``title``."""
     init = {k: kw.pop(k) for k in ("elev", "azim", "limits", "title") if k in kw}
     return Renderer(width, height, **init).render(nodes, rods, strings, tensions, **kw)
+
+
+#: terrain kind name (:mod:`tensegrity_gym.core.terrain_kinds`) -> (layer, ``draw(renderer, part)``):
+#: the lower layers drawn first
+TERRAIN_DRAW = {"plane": (0, Renderer._draw_plane), "heightfield": (1, Renderer._draw_heightfield),
+                "box": (2, Renderer._draw_box)}
