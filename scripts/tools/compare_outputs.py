@@ -160,7 +160,6 @@ def dump_terrain(path: str, batched: bool = True) -> None:
     out["kernel/per_copy/q"], out["kernel/per_copy/qd"], out["kernel/per_copy/anchor"] = r.q, r.qd, ts.anchor
     try:
         import torch
-        from tensegrity_gym import torch_backend as TB
         from tensegrity_gym.backends.torch import terrain as TT
         for name, ter in terrains.items():
             st, _ = _released(model, 3, 11)
