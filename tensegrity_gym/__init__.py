@@ -21,7 +21,7 @@ from .physics.rollout import simulate
 from .core.integrators import INTEGRATORS
 from .core.errors import SimulationDiverged
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = ["Structure", "StructureError", "load_json", "save_json", "from_dict", "prism", "pinned_rod",
            "constrained_prism", "icosahedron", "tower", "build", "Model", "State", "compile_model",
