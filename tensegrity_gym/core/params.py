@@ -40,10 +40,10 @@ import weakref
 
 import numpy as np
 
-from .param_table import nominal_default, params_fields, physics_rows, skipped_fields
+from .param_table import nominal_default, params_fields, skipped_fields
 from .rod_mass import mass_moments
 
-__all__ = ["Params", "default_params", "nominal_params", "PARAM_FIELDS"]
+__all__ = ["Params", "default_params", "nominal_params", "nominal_values", "PARAM_FIELDS"]
 
 #: field -> (what its second axis counts, unit, constraint) for validation and messages
 #: (a view of the parameter table, tensegrity_gym.core.param_table)
@@ -276,37 +276,21 @@ def default_params(model, batch_size: int = 1) -> Params:
     return _frozen(model, **{k: np.repeat(getattr(nom, k), B, axis=0) for k in tuple(PARAM_FIELDS) + ("W0",)})
 
 
-def nominal_params(model, computed: dict) -> Params:
-    """The one-row :class:`Params` of a model's nominal values: the fields ``computed`` (field ->
-    per-item array, plus ``W0``) as given, every other physics field its table row's ``nominal``
-    value for every item (:func:`~tensegrity_gym.core.param_table.nominal_default`). Its ``model``
-    is None (the model holds it: no reference cycle); :func:`default_params` gives the model's."""
+def nominal_values(model, computed: dict, table=None) -> dict:
+    """Physics field -> its nominal per-item array: the fields ``computed`` (field -> per-item
+    array) as given, every other physics row of ``table`` (default the parameter table) its row's
+    ``nominal`` value for every item (:func:`~tensegrity_gym.core.param_table.nominal_default`)."""
     counts = _counts(model)
-    values = {}
-    for r in physics_rows():
-        v = computed.get(r.field)
-        if v is None:
-            v = np.full(counts[PARAM_FIELDS[r.field][0]], nominal_default(r.field))
-        values[r.field] = np.asarray(v, dtype=float)[None]
+    out = {}
+    for fld, (what, _, _) in params_fields(table).items():
+        v = computed.get(fld)
+        out[fld] = np.full(counts[what], nominal_default(fld, table)) if v is None else np.asarray(v, dtype=float)
+    return out
+
+
+def nominal_params(model, computed: dict) -> Params:
+    """The one-row :class:`Params` of a model's nominal values (:func:`nominal_values`; ``computed``
+    holds ``W0`` too). Its ``model`` is None (the model holds it: no reference cycle);
+    :func:`default_params` gives the model's."""
+    values = {k: v[None] for k, v in nominal_values(model, computed).items()}
     return _frozen(None, W0=np.asarray(computed["W0"], dtype=float)[None], **values)
-
-
-def check_params(model, params: Params, batch_size: int) -> Params:
-    """``params`` checked against ``model`` and a state of ``batch_size`` copies (P = 1 or B)."""
-    if not isinstance(params, Params):
-        raise TypeError(f"params: expected a tensegrity_gym.core.params.Params (from default_params(model)), "
-                        f"got {type(params).__name__}")
-    if params.model is not model:
-        c = _counts(model)
-        for k in PARAM_FIELDS:
-            a = getattr(params, k)
-            if a.shape[1:] != c[PARAM_FIELDS[k][0]]:
-                raise ValueError(f"params.{k}: shape {a.shape} does not fit this model (expected (P,) + "
-                                 f"{c[PARAM_FIELDS[k][0]]})")
-    if params.batch_size not in (1, batch_size):
-        raise ValueError(f"params: {params.batch_size} copies for a state of {batch_size} copies; "
-                         "give 1 (shared) or one per copy")
-    return params
-
-
-_moments = rod_moments   # the name the per-copy code of this module calls

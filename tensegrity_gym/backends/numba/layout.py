@@ -100,7 +100,7 @@ _GRAV = PACKED["bits"]["gravity"]
 _NDAMP = PACKED["bits"]["node_damping"]
 
 
-def _layout(k, m, n):
+def _layout(k, m, n, rod=_ROD, string=_STR, node_rows=_NODE_ROWS):
     """Offsets into the packed model buffer (float64, 1-D; integer fields hold int64 bit patterns
     read through an int64 view of the same memory):
 
@@ -121,17 +121,20 @@ def _layout(k, m, n):
                       each value repeated for x, y, z
     o_x       2 m+3n  one copy's rest lengths, force densities, external forces (scratch)
     ========  ======  ==============================================================
+
+    ``rod``, ``string``, ``node_rows``: the block sizes (default :data:`PACKED`'s; another
+    table's from its :func:`packed_layout`).
     """
     o_rod = 3
-    o_str = o_rod + _ROD * k
-    o_l0 = o_str + _STR * m
+    o_str = o_rod + rod * k
+    o_l0 = o_str + string * m
     o_W0 = o_l0 + m
     o_ws = o_W0 + 3 * n
     o_N = o_ws + 60 * k
     o_V = o_N + 3 * n
     o_F = o_V + 3 * n
     o_cn = o_F + 3 * n
-    end = o_cn + 3 * n * _NODE_ROWS + 2 * m + 3 * n
+    end = o_cn + 3 * n * node_rows + 2 * m + 3 * n
     return (o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end)
 
 

@@ -30,15 +30,17 @@ class _Packed:
     __slots__ = ("buf", "bufs", "lanes", "l0", "fd", "ext", "flags", "cost", "__weakref__")
 
 
-def _fill_physics(buf, model, p, b):
+def _fill_physics(buf, model, p, b, packed=PACKED):
     """Write the physical values of row ``b`` of ``p`` (a :class:`~tensegrity_gym.core.params.Params`)
     into the packed buffer ``buf`` (see ``_layout``): the backend's own packings
-    (:data:`.layout.OWN_PACKING`), then every table row at its slot (:data:`.layout.PACKED`)."""
+    (:data:`.layout.OWN_PACKING`), then every table row at its slot (``packed``: default
+    :data:`.layout.PACKED`, the parameter table's)."""
     k, n, m = model.n_bars, model.n_nodes, model.n_strings
-    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = _layout(k, m, n)
+    rod, string = packed["rod_stride"], packed["string_stride"]
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = _layout(k, m, n, rod, string, packed["node_rows"])
     mass_, f_, J_ = p.mass[b], p.f[b], p.J[b]
     for j in range(k):
-        rj = o_rod + _ROD * j
+        rj = o_rod + rod * j
         mass, f, J = float(mass_[j]), float(f_[j]), float(J_[j])
         alpha = mass - f * f / J
         buf[rj + 5:rj + 12] = (1.0 / mass, 1.0 / J, f / J, f * f / J, alpha, 1.0 / alpha, f)
@@ -46,20 +48,36 @@ def _fill_physics(buf, model, p, b):
     buf[o_W0:o_W0 + 3 * n] = p.W0[b].reshape(-1)
     for a, pos in zip(model.anchor_idx, p.anchor_pos[b]):   # anchor rows of the node scratch
         buf[o_N + 3 * a:o_N + 3 * a + 3] = pos
-    for fld, slot in PACKED["rod"].items():
-        buf[o_rod + _ROD * np.arange(k) + slot] = getattr(p, fld)[b]
-    for fld, slot in PACKED["string"].items():
-        buf[o_str + _STR * np.arange(m) + slot] = getattr(p, fld)[b]
-    for fld, row in PACKED["node"].items():
+    for fld, slot in packed["rod"].items():
+        buf[o_rod + rod * np.arange(k) + slot] = getattr(p, fld)[b]
+    for fld, slot in packed["string"].items():
+        buf[o_str + string * np.arange(m) + slot] = getattr(p, fld)[b]
+    for fld, row in packed["node"].items():
         o = o_cn + 3 * n * row
         buf[o:o + 3 * n] = np.repeat(getattr(p, fld)[b], 3)
 
 
-def _physics_flags(model, p):
+def read_packed(buf, model, field, packed=PACKED):
+    """The per-item values of the table row ``field`` in the packed buffer ``buf`` (one copy's):
+    where the kernels read them (the unpacker the layout test checks against the kernels)."""
+    k, n, m = model.n_bars, model.n_nodes, model.n_strings
+    rod, string = packed["rod_stride"], packed["string_stride"]
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = _layout(k, m, n, rod, string, packed["node_rows"])
+    if field in packed["rod"]:
+        return buf[o_rod + rod * np.arange(k) + packed["rod"][field]]
+    if field in packed["string"]:
+        return buf[o_str + string * np.arange(m) + packed["string"][field]]
+    if field in packed["node"]:
+        o = o_cn + 3 * n * packed["node"][field]
+        return buf[o:o + 3 * n:3]
+    raise KeyError(f"{field!r} is not a table row of the packed layout (packed in the backend's own form, or unknown)")
+
+
+def _physics_flags(model, p, packed=PACKED):
     """The flag bits of ``p`` (a Params): a skipped field's bit where it may be non-zero, and
     whether a rod is constrained."""
     flags = _CONS if bool(np.any(model.constrained)) else 0
-    for fld, bit in PACKED["bits"].items():
+    for fld, bit in packed["bits"].items():
         if p.may_be_nonzero(fld):
             flags |= bit
     return flags
