@@ -294,3 +294,24 @@ def nominal_params(model, computed: dict) -> Params:
     :func:`default_params` gives the model's."""
     values = {k: v[None] for k, v in nominal_values(model, computed).items()}
     return _frozen(None, W0=np.asarray(computed["W0"], dtype=float)[None], **values)
+
+
+def check_params(model, params: Params, batch_size: int) -> Params:
+    """``params`` checked against ``model`` and a state of ``batch_size`` copies (P = 1 or B)."""
+    if not isinstance(params, Params):
+        raise TypeError(f"params: expected a tensegrity_gym.core.params.Params (from default_params(model)), "
+                        f"got {type(params).__name__}")
+    if params.model is not model:
+        c = _counts(model)
+        for k in PARAM_FIELDS:
+            a = getattr(params, k)
+            if a.shape[1:] != c[PARAM_FIELDS[k][0]]:
+                raise ValueError(f"params.{k}: shape {a.shape} does not fit this model (expected (P,) + "
+                                 f"{c[PARAM_FIELDS[k][0]]})")
+    if params.batch_size not in (1, batch_size):
+        raise ValueError(f"params: {params.batch_size} copies for a state of {batch_size} copies; "
+                         "give 1 (shared) or one per copy")
+    return params
+
+
+_moments = rod_moments   # the name the per-copy code of this module calls
