@@ -31,7 +31,7 @@ import contextlib
 import numpy as np
 
 from tensegrity_gym import dynamics as dyn, integrators
-from tensegrity_gym.contact import ContactState
+from tensegrity_gym.contact import PRM_FIELDS, ContactState
 from tensegrity_gym.dynamics import State
 from tensegrity_gym.params import check_params
 from tensegrity_gym.physics.integrate import _as_batch
@@ -189,7 +189,9 @@ def contact_forces(c, model, q, qd, anchor, active, prm=None):
     B = q.shape[0]
     # parameters: (1, 1) or (B, 1) columns of the per-copy array (the contact's own values by default)
     P = c._prm if prm is None else prm
-    height, radius, kn, dn, _, mu, kt, ct, cmax = (P[:, i:i + 1] for i in range(9))
+    col = {f: P[:, i:i + 1] for i, f in enumerate(PRM_FIELDS)}
+    height, radius, kn, dn, friction = col["height"], col["radius"], col["stiffness"], col["damping"], col["friction"]
+    kt, ct, cmax = col["tangential_stiffness"], col["tangential_damping"], col["max_damping"]
     k = model.n_bars
     r, b = q[..., :3], q[..., 3:]
     rd, bd = qd[..., :3], qd[..., 3:]
@@ -209,7 +211,7 @@ def contact_forces(c, model, q, qd, anchor, active, prm=None):
     xi = pt - anchor
     Ft = -kt[..., None] * xi - ct[..., None] * V[..., :2]
     norm = np.sqrt(np.einsum("bci,bci->bc", Ft, Ft))
-    lim = mu * Fn
+    lim = friction * Fn
     slip = touch & (norm > lim)
     scale = np.where(slip, lim / np.where(slip, norm, 1.0), 1.0)
     Ft = Ft * scale[..., None]

@@ -27,8 +27,10 @@ def test_views_equal_the_tables_they_replace():
         "rest_length": ("string", "m", "nonnegative"), "node_damping": ("node", "N s/m", "nonnegative"),
         "gravity": ("component", "m/s^2", "finite"), "anchor_pos": ("anchor", "m", "finite")}
     assert torch_backend.PARAM_FIELDS == tuple(params.PARAM_FIELDS)
-    assert contact.PRM_FIELDS == ("height", "radius", "stiffness", "damping", "exponent", "friction",
-                                  "tangential_stiffness", "tangential_damping", "max_damping")
+    assert contact.PRM_FIELDS == ("radius", "stiffness", "damping", "exponent", "friction",
+                                  "tangential_stiffness", "tangential_damping", "max_damping", "height")
+    from tensegrity_gym.physics import terrain
+    assert terrain.PRM_FIELDS == contact.PRM_FIELDS[:-1]     # a terrain part's columns: the same, no height
     assert {k: (s.per, s.unit, s.absolute) for k, s in domain.SPECS.items()} == {
         "rod_mass": ("rod", "kg", False), "stiffness": ("string", "N/m", False),
         "damping": ("string", "N s/m", False), "node_damping": ("node", "N s/m", False),

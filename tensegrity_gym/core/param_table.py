@@ -12,6 +12,8 @@ view (where it is used)                function
 ``torch_backend.PARAM_FIELDS``         :func:`physics_fields`: the ``Params`` fields in order
 ``contact.PRM_FIELDS``                 :func:`contact_columns`: the columns of the (P, 9)
                                        contact parameter array
+``terrain.PRM_FIELDS``                 :func:`part_columns`: the same without ``height``,
+                                       the columns of a terrain part's (P, F, 8) array
 ``envs.domain.SPECS``                  :func:`domain_specs`: the names ``params=`` /
                                        ``randomize=`` take
 ``envs.base._PHYSICS_FIELDS``          :func:`env_fields` (``"physics"``)
@@ -68,7 +70,7 @@ from dataclasses import dataclass
 
 __all__ = ["ParamSpec", "DomainSpec", "PARAMS", "GROUPS", "AXES", "spec", "env_params", "params_fields",
            "physics_fields", "contact_columns", "contact_arguments", "env_fields", "domain_specs",
-           "twin_params", "twin_refusals", "physics_rows", "skipped_fields", "nominal_default", "ITEM_AXES"]
+           "twin_params", "twin_refusals", "part_columns", "physics_rows", "skipped_fields", "nominal_default", "ITEM_AXES"]
 
 GROUPS = ("physics", "contact", "actuation")
 AXES = ("rod", "string", "node", "anchor", "vector", "motor", "scalar")
@@ -122,7 +124,8 @@ class ParamSpec:
 
 
 #: the parameters: the physics rows in the order of the Params fields, the contact rows in the
-#: order of the contact parameter columns, then the actuation limits
+#: order of the contact parameter columns (a terrain part's columns are the same without the
+#: last, the ground height), then the actuation limits
 PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("rod_mass", "physics", "mass", "rod", "kg", "positive",
               "rod mass (the rod's mass distribution keeps its shape)", spread="relative",
@@ -149,7 +152,6 @@ PARAMS: tuple[ParamSpec, ...] = (
               one_factor=True, mujoco="opt.gravity", skip_zero=True),
     ParamSpec("anchor_pos", "physics", "anchor_pos", "anchor", "m", "finite",
               "positions of the fixed anchor nodes"),
-    ParamSpec("height", "contact", "height", "scalar", "m", "finite", "ground height"),
     ParamSpec("cap_radius", "contact", "radius", "scalar", "m", "nonnegative",
               "radius of the rod end caps touching the ground", argument="cap_radius"),
     ParamSpec("ground_stiffness", "contact", "stiffness", "scalar", "N/m", "positive",
@@ -169,6 +171,7 @@ PARAMS: tuple[ParamSpec, ...] = (
               "damping of the stick spring", argument="tangential_damping"),
     ParamSpec("ground_max_damping", "contact", "max_damping", "scalar", "N s/m", "positive",
               "cap on the normal contact damping coefficient", argument="ground_max_damping"),
+    ParamSpec("height", "contact", "height", "scalar", "m", "finite", "ground height"),
     ParamSpec("max_cable_speed", "actuation", "max_rate", "motor", "m/s", "positive",
               "rate limit of each actuated cable (N/(m s) in force-density mode)", spread="relative",
               argument="max_cable_speed", mujoco="the cable motor model (Actuation), not MuJoCo"),
@@ -213,8 +216,18 @@ def physics_fields(table=None) -> tuple[str, ...]:
 
 
 def contact_columns(table=None) -> tuple[str, ...]:
-    """The columns of the (P, 9) contact parameter array, in order."""
+    """The columns of the (P, 9) ground contact parameter array, in order; a terrain part's
+    (P, F, 8) columns are the same without the last, ``height`` (:func:`part_columns`)."""
     return tuple(r.field for r in _table(table) if r.group == "contact")
+
+
+def part_columns(table=None) -> tuple[str, ...]:
+    """The columns of the (P, F, 8) per-part terrain contact parameters: the contact columns
+    without the ground height (a part's geometry places it)."""
+    cols = contact_columns(table)
+    if cols[-1] != "height":
+        raise ValueError(f"parameter table: the contact rows must end with the ground height, got {cols}")
+    return cols[:-1]
 
 
 def contact_arguments(table=None) -> dict[str, str]:

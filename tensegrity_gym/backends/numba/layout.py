@@ -14,7 +14,7 @@ from llvmlite import ir as _ir
 from numba import njit, types
 from numba.core import cgutils
 
-from ...core.param_table import ITEM_AXES, physics_rows, skipped_fields
+from ...core.param_table import ITEM_AXES, contact_columns, physics_rows, skipped_fields
 
 # flag bits passed to the kernel (the physics fields' bits come from the parameter table: packed_layout)
 _RK4 = 1
@@ -143,9 +143,11 @@ def _soa_width(k):
     return 16 if k <= 24 else 8
 
 
-#: a digest of PACKED: the kernels freeze the layout's constants at compile time, and numba's disk
-#: cache does not notice an edit of the parameter table (only of a kernel's own source file)
-_LAYOUT_KEY = int(hashlib.sha256(repr(sorted(PACKED.items())).encode()).hexdigest()[:15], 16)
+#: the columns of the ground contact parameter rows, as the contact kernels index them
+CONTACT_COLUMNS = contact_columns()
+#: a digest of PACKED and CONTACT_COLUMNS: the kernels freeze these constants at compile time, and
+#: numba's disk cache does not notice an edit of the parameter table (only of a kernel's own source file)
+_LAYOUT_KEY = int(hashlib.sha256(repr((sorted(PACKED.items()), CONTACT_COLUMNS)).encode()).hexdigest()[:15], 16)
 
 
 @njit(cache=True)
