@@ -1,7 +1,8 @@
 """The one parameter table (tensegrity_gym.core.param_table) and the steps of
 docs/adding_a_parameter.md: every name table is a view of it, every row reaches its per-copy
-container, and a row added to the table reaches domain randomisation, the NumPy writer, the
-torch device reset and the MuJoCo twin's refusal without another edit."""
+container, and a row made an env parameter reaches domain randomisation, the NumPy writer, the
+torch device reset and the MuJoCo twin's refusal without another edit (the packed layout, flags
+and nominal values: tests/test_param_layout.py)."""
 import ast
 import dataclasses
 import importlib.util
@@ -103,8 +104,8 @@ def test_bad_rows_are_refused():
 
 @pytest.fixture
 def radius_row(monkeypatch):
-    """The worked example of docs/adding_a_parameter.md: the cap radius made an env parameter
-    by its table row alone."""
+    """Step 4 of docs/adding_a_parameter.md: the cap radius (a contact column the kernels already
+    read per copy) made an env parameter by its table row alone."""
     rows = tuple(dataclasses.replace(r, spread="relative", no_mujoco="the twin's capsule radius is fixed in "
                                                                      "its MJCF") if r.name == "cap_radius" else r
                  for r in pt.PARAMS)
