@@ -155,3 +155,12 @@ def test_a_new_row_regenerates_layout_flags_and_nominal():
     # the module's table and layout are untouched
     assert row.field not in layout.PACKED["rod"] and row not in pt.PARAMS
     assert dataclasses.replace(row, skip_zero=False).field not in pt.skipped_fields()
+
+
+def test_cached_kernels_of_another_layout_are_dropped(monkeypatch):
+    """The kernels freeze the layout's constants; numba's disk cache keys on a kernel's own source
+    only, so a table edit is caught by comparing the compiled layout key with the table's."""
+    calls = []
+    assert layout.check_compiled_layout(lambda: calls.append(1)) and not calls
+    monkeypatch.setattr(layout, "_LAYOUT_KEY", layout._LAYOUT_KEY + 1)   # as after a table edit
+    assert not layout.check_compiled_layout(lambda: calls.append(1)) and calls == [1]
