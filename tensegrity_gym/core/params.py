@@ -50,6 +50,8 @@ __all__ = ["Params", "default_params", "nominal_params", "nominal_values", "PARA
 PARAM_FIELDS: dict[str, tuple[str, str, str]] = params_fields()
 #: the fields with a ``has_<field>`` flag (the equations skip their term where it is 0)
 _SKIPPED = frozenset(skipped_fields())
+#: the arrays a Params holds: its fields and the derived nodal loads W0
+_ARRAYS = frozenset(PARAM_FIELDS) | {"W0"}
 
 
 class Params:
@@ -63,9 +65,8 @@ class Params:
     does not validate (``replace`` and ``default_params`` do)."""
 
     def __init__(self, model=None, parent=None, changed_rows=None, **arrays):
-        want = set(PARAM_FIELDS) | {"W0"}
-        if set(arrays) != want:
-            raise TypeError(f"Params: expected the fields {sorted(want)}, got {sorted(arrays)}")
+        if arrays.keys() != _ARRAYS:
+            raise TypeError(f"Params: expected the fields {sorted(_ARRAYS)}, got {sorted(arrays)}")
         d = self.__dict__
         d.update(arrays)
         d["model"] = model   # the Model these values belong to (topology: rod nodes, com fractions)

@@ -48,10 +48,14 @@ def _fill_physics(buf, model, p, b, packed=PACKED):
     buf[o_W0:o_W0 + 3 * n] = p.W0[b].reshape(-1)
     for a, pos in zip(model.anchor_idx, p.anchor_pos[b]):   # anchor rows of the node scratch
         buf[o_N + 3 * a:o_N + 3 * a + 3] = pos
-    for fld, slot in packed["rod"].items():
-        buf[o_rod + rod * np.arange(k) + slot] = getattr(p, fld)[b]
-    for fld, slot in packed["string"].items():
-        buf[o_str + string * np.arange(m) + slot] = getattr(p, fld)[b]
+    if packed["rod"]:
+        pr = o_rod + rod * np.arange(k)
+        for fld, slot in packed["rod"].items():
+            buf[pr + slot] = getattr(p, fld)[b]
+    if packed["string"]:
+        ps = o_str + string * np.arange(m)
+        for fld, slot in packed["string"].items():
+            buf[ps + slot] = getattr(p, fld)[b]
     for fld, row in packed["node"].items():
         o = o_cn + 3 * n * row
         buf[o:o + 3 * n] = np.repeat(getattr(p, fld)[b], 3)
