@@ -22,10 +22,10 @@ ENVS = pathlib.Path(roll.__file__).parent
 
 
 def _holds(view, rows):
-    """``view`` (a dict or a tuple) holds ``rows`` (the same type), in the same order: a row added to
-    the table adds to a view and leaves these as they are (no edit here for a new row)."""
+    """``view`` (a dict or a tuple) holds ``rows`` (the same type; a tuple in the same order): a row
+    added to the table adds to a view and leaves these as they are (no edit here for a new row)."""
     if isinstance(rows, dict):
-        return {k: view[k] for k in rows if k in view} == rows and [k for k in view if k in rows] == list(rows)
+        return {k: view[k] for k in rows if k in view} == rows
     return tuple(f for f in view if f in rows) == rows
 
 
