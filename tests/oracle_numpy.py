@@ -32,7 +32,7 @@ import numpy as np
 from tensegrity_gym.physics.geometry import node_velocities, string_state
 from tensegrity_gym.core.integrators import resolve
 from tensegrity_gym.physics.integrate import rk4_update
-from tensegrity_gym.physics.contact import ContactState
+from tensegrity_gym.physics.contact import PRM_FIELDS, ContactState
 from tensegrity_gym.core.model import State
 from tensegrity_gym.core.params import check_params
 from tensegrity_gym.physics.integrate import _as_batch
@@ -190,7 +190,9 @@ def contact_forces(c, model, q, qd, anchor, active, prm=None):
     B = q.shape[0]
     # parameters: (1, 1) or (B, 1) columns of the per-copy array (the contact's own values by default)
     P = c._prm if prm is None else prm
-    height, radius, kn, dn, _, mu, kt, ct, cmax = (P[:, i:i + 1] for i in range(9))
+    col = {f: P[:, i:i + 1] for i, f in enumerate(PRM_FIELDS)}
+    height, radius, kn, dn, friction = col["height"], col["radius"], col["stiffness"], col["damping"], col["friction"]
+    kt, ct, cmax = col["tangential_stiffness"], col["tangential_damping"], col["max_damping"]
     k = model.n_bars
     r, b = q[..., :3], q[..., 3:]
     rd, bd = qd[..., :3], qd[..., 3:]
@@ -210,7 +212,7 @@ def contact_forces(c, model, q, qd, anchor, active, prm=None):
     xi = pt - anchor
     Ft = -kt[..., None] * xi - ct[..., None] * V[..., :2]
     norm = np.sqrt(np.einsum("bci,bci->bc", Ft, Ft))
-    lim = mu * Fn
+    lim = friction * Fn
     slip = touch & (norm > lim)
     scale = np.where(slip, lim / np.where(slip, norm, 1.0), 1.0)
     Ft = Ft * scale[..., None]

@@ -8,7 +8,7 @@ import pytest
 
 from tensegrity_gym.core import builders
 from tensegrity_gym.core.model import State, compile_model, initial_state
-from tensegrity_gym.physics.contact import (ContactState, GroundContact, contact_energy, contact_forces,
+from tensegrity_gym.physics.contact import (PRM_FIELDS, ContactState, GroundContact, contact_energy, contact_forces,
                                             init_contact_state, stable_step)
 from tensegrity_gym.physics.pipeline import contact_step
 from tensegrity_gym.physics.geometry import center_of_mass, energy, linear_momentum, node_positions
@@ -165,7 +165,7 @@ def test_numba_kernel_agrees_with_numpy_oracle():
     np.testing.assert_array_equal(sl1, sl2)
     # per-copy parameters
     prm = a.per_copy(8)
-    prm[:, 5] = np.linspace(0.1, 1.0, 8)            # friction per copy
+    prm[:, PRM_FIELDS.index("friction")] = np.linspace(0.1, 1.0, 8)            # friction per copy
     W1, _, _, _ = oracle.contact_forces(a, m, q, qd, cs.anchor, cs.active, prm)
     W2, _, _ = contact_forces(a, m, q, qd, cs, prm=prm)
     np.testing.assert_allclose(W1, W2, rtol=1e-12, atol=1e-12)
@@ -186,7 +186,7 @@ def test_contact_steps_agree_with_numpy_oracle(integrator):
     st = State(st.q + rng.normal(0, 0.005, st.q.shape), rng.normal(0, 0.2, st.q.shape), 0.0)
     g = GroundContact(friction=0.4)
     prm = g.per_copy(B)
-    prm[:, 2] *= rng.uniform(0.8, 1.2, B)           # stiffness per copy
+    prm[:, PRM_FIELDS.index("stiffness")] *= rng.uniform(0.8, 1.2, B)           # stiffness per copy
     l0 = m.rest_length * rng.uniform(0.97, 1.02, (B, m.n_strings))
     cs = init_contact_state(m, B)
     s1, c1 = step(m, st, DT, integrator, n_steps=300, contact=g, cstate=cs, contact_params=prm,

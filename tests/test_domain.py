@@ -63,7 +63,8 @@ def test_randomized_values_follow_the_documented_distribution_and_seed():
     np.testing.assert_array_equal(task.params.stiffness, np.where(task.model.active, 0.0, info["params"]["stiffness"]))
     mu = info["params"]["friction"]
     assert 0.5 <= mu.min() and mu.max() <= 1.5
-    assert np.array_equal(task._contact_prm[:, 5], mu)   # the contact kernel's friction column
+    from tensegrity_gym.physics.contact import PRM_FIELDS
+    assert np.array_equal(task._contact_prm[:, PRM_FIELDS.index("friction")], mu)   # the contact rows' friction column
     # same seed, same values; another seed, other values; a new episode draws anew
     _, info2 = venv.reset(seed=3)
     assert np.array_equal(info2["params"]["stiffness"], info["params"]["stiffness"])

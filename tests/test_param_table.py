@@ -1,7 +1,8 @@
 """The one parameter table (tensegrity_gym.core.param_table) and the steps of
 docs/adding_a_parameter.md: every name table is a view of it, every row reaches its per-copy
-container, and a row added to the table reaches domain randomisation, the NumPy writer, the
-torch device reset and the MuJoCo twin's refusal without another edit."""
+container, and a row made an env parameter reaches domain randomisation, the NumPy writer, the
+torch device reset and the MuJoCo twin's refusal without another edit (the packed layout, flags
+and nominal values: tests/test_param_layout.py)."""
 import ast
 import dataclasses
 import importlib.util
@@ -16,6 +17,7 @@ import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym.physics import actuation
 from tensegrity_gym.core import params
 from tensegrity_gym.backends.torch.model import PARAM_FIELDS
+from tensegrity_gym.physics import contact, terrain
 from tensegrity_gym.physics.contact import PRM_FIELDS, GroundContact
 from tensegrity_gym.core import param_table as pt
 from tensegrity_gym.envs import base, domain, roll, twin_params
@@ -23,53 +25,65 @@ from tensegrity_gym.envs import base, domain, roll, twin_params
 ENVS = pathlib.Path(roll.__file__).parent
 
 
-def test_views_equal_the_tables_they_replace():
-    assert params.PARAM_FIELDS == {
+def _holds(view, rows):
+    """``view`` (a dict or a tuple) holds ``rows`` (the same type; a tuple in the same order): a row
+    added to the table adds to a view and leaves these as they are (no edit here for a new row)."""
+    if isinstance(rows, dict):
+        return {k: view[k] for k in rows if k in view} == rows
+    return tuple(f for f in view if f in rows) == rows
+
+
+def test_views_hold_the_tables_they_replaced():
+    """Each view is computed from the table (the module's name table is the function's value) and
+    still holds the rows of the table it replaced, with the same values and order."""
+    assert params.PARAM_FIELDS == pt.params_fields() and PARAM_FIELDS == pt.physics_fields()
+    assert contact.PRM_FIELDS == pt.contact_columns() and terrain.PRM_FIELDS == pt.part_columns()
+    assert _holds(params.PARAM_FIELDS, {
         "mass": ("rod", "kg", "positive"), "f": ("rod", "kg m", "finite"), "J": ("rod", "kg m^2", "positive"),
         "stiffness": ("string", "N/m", "nonnegative"), "damping": ("string", "N s/m", "nonnegative"),
         "rest_length": ("string", "m", "nonnegative"), "node_damping": ("node", "N s/m", "nonnegative"),
-        "gravity": ("component", "m/s^2", "finite"), "anchor_pos": ("anchor", "m", "finite")}
+        "gravity": ("component", "m/s^2", "finite"), "anchor_pos": ("anchor", "m", "finite")})
     assert PARAM_FIELDS == tuple(params.PARAM_FIELDS)
-    assert PRM_FIELDS == ("height", "radius", "stiffness", "damping", "exponent", "friction",
-                          "tangential_stiffness", "tangential_damping", "max_damping")
-    assert {k: (s.per, s.unit, s.absolute) for k, s in domain.SPECS.items()} == {
+    assert _holds(contact.PRM_FIELDS, ("radius", "stiffness", "damping", "exponent", "friction",
+                                       "tangential_stiffness", "tangential_damping", "max_damping"))
+    assert contact.PRM_FIELDS[-1] == "height" and terrain.PRM_FIELDS == contact.PRM_FIELDS[:-1]   # one layout
+    assert _holds({k: (s.per, s.unit, s.absolute) for k, s in domain.SPECS.items()}, {
         "rod_mass": ("rod", "kg", False), "stiffness": ("string", "N/m", False),
         "damping": ("string", "N s/m", False), "node_damping": ("node", "N s/m", False),
         "gravity": ("vector", "m/s^2", False), "rest_length_offset": ("string", "m", True),
         "friction": ("copy", "", False), "ground_stiffness": ("copy", "N/m", False),
         "ground_damping": ("copy", "s/m", False), "max_cable_speed": ("actuated", "m/s", False),
-        "max_cable_acceleration": ("copy", "m/s^2", False)}
-    assert base._PHYSICS_FIELDS == {"rod_mass": "mass", "stiffness": "stiffness", "damping": "damping",
-                                    "node_damping": "node_damping", "gravity": "gravity",
-                                    "rest_length_offset": "rest_length"}
-    assert roll.CONTACT_DOMAIN == {"friction": "friction", "ground_stiffness": "stiffness",
-                                   "ground_damping": "damping"}
-    assert roll._CONTACT_ARGS == {"stiffness": "ground_stiffness", "damping": "ground_damping",
-                                  "radius": "cap_radius", "max_damping": "ground_max_damping"}
-    assert twin_params.TWIN_PARAMS == ("damping", "friction", "gravity", "ground_damping", "ground_stiffness",
-                                       "max_cable_acceleration", "max_cable_speed", "rest_length_offset",
-                                       "rod_mass", "stiffness")
-    assert set(twin_params.NOT_REPRESENTABLE) == {"node_damping"}
+        "max_cable_acceleration": ("copy", "m/s^2", False)})
+    assert _holds(base._PHYSICS_FIELDS, {"rod_mass": "mass", "stiffness": "stiffness", "damping": "damping",
+                                         "node_damping": "node_damping", "gravity": "gravity",
+                                         "rest_length_offset": "rest_length"})
+    assert _holds(roll.CONTACT_DOMAIN, {"friction": "friction", "ground_stiffness": "stiffness",
+                                        "ground_damping": "damping"})
+    assert _holds(roll._CONTACT_ARGS, {"stiffness": "ground_stiffness", "damping": "ground_damping",
+                                       "radius": "cap_radius", "max_damping": "ground_max_damping"})
+    assert _holds(twin_params.TWIN_PARAMS, ("damping", "friction", "gravity", "ground_damping", "ground_stiffness",
+                                            "max_cable_acceleration", "max_cable_speed", "rest_length_offset",
+                                            "rod_mass", "stiffness"))
+    assert {"node_damping"} <= set(twin_params.NOT_REPRESENTABLE)
 
 
 def test_every_row_reaches_its_container():
     """Step 1 of the doc: a row names a field its container has."""
     names = [r.name for r in pt.PARAMS]
     assert len(names) == len(set(names))
-    param_fields = [f.name for f in dataclasses.fields(params.Params)]
+    from tensegrity_gym.core import builders, model as core_model
+    nominal = core_model.compile_model(builders.prism(3)).nominal
     set_limits = inspect.signature(actuation.Actuation.set_copy_limits).parameters
     ground = {f.name for f in dataclasses.fields(GroundContact)}
     for r in pt.PARAMS:
-        if r.group == "physics":
-            assert r.field in param_fields, r
+        if r.group == "physics":       # a Params field, with one nominal row
+            assert getattr(nominal, r.field).shape[0] == 1, r
         elif r.group == "contact":
             assert r.field in PRM_FIELDS and r.field in ground, r
             assert r.argument is None or r.argument in roll.RollTask.__signature__.parameters, r
         else:
             assert r.field in set_limits, r
             assert r.argument in roll.RollTask.__signature__.parameters, r
-    # the physics rows in the order of the Params fields (W0 is derived, not a parameter)
-    assert list(params.PARAM_FIELDS) == [f for f in param_fields if f in params.PARAM_FIELDS]
 
 
 def test_every_env_parameter_has_a_twin_mapping_or_a_refusal():
@@ -93,8 +107,8 @@ def test_bad_rows_are_refused():
 
 @pytest.fixture
 def radius_row(monkeypatch):
-    """The worked example of docs/adding_a_parameter.md: the cap radius made an env parameter
-    by its table row alone."""
+    """Step 4 of docs/adding_a_parameter.md: the cap radius (a contact column the kernels already
+    read per copy) made an env parameter by its table row alone."""
     rows = tuple(dataclasses.replace(r, spread="relative", no_mujoco="the twin's capsule radius is fixed in "
                                                                      "its MJCF") if r.name == "cap_radius" else r
                  for r in pt.PARAMS)

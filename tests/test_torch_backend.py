@@ -8,7 +8,6 @@ Contact: the rolling robot against ``physics.pipeline.contact_step``. Gradients:
 derivatives against central finite differences of the NumPy path (not of torch), so a
 wrong torch gradient fails.
 """
-from dataclasses import replace
 
 import re
 
@@ -92,7 +91,7 @@ def test_accelerations_match_numpy_with_slack_and_params():
     stiff = np.tile(model.stiffness, (4, 1))
     stiff[2] *= 2.0
     a_p = driver.accelerations(model, q, qd, params={"stiffness": stiff})
-    m2 = replace(model, stiffness=model.stiffness * 2.0)
+    m2 = model.replace(stiffness=model.stiffness * 2.0)
     assert np.allclose(a_p[2].numpy(), evaluate.accelerations(m2, st.q[2:3], st.qd[2:3])[0], rtol=0, atol=1e-10)
     assert np.allclose(a_p[0].numpy(), evaluate.accelerations(model, st.q[:1], st.qd[:1])[0], rtol=0, atol=1e-10)
 
@@ -266,15 +265,15 @@ def test_wrong_gradient_is_caught():
     """The check used above fails for a gradient that is slightly wrong: the autograd gradient of a model
     whose stiffness is off by 0.1 % does not pass against the NumPy finite difference of the right model."""
     model, st = _grad_scene()
-    wrong = replace(model, stiffness=model.stiffness * 1.001)
+    wrong = model.replace(stiffness=model.stiffness * 1.001)
     d = np.random.default_rng(2).standard_normal(model.n_strings)
     p = torch.tensor(wrong.stiffness[None], requires_grad=True)
     loss = _loss_torch(wrong, torch.tensor(st.q), torch.tensor(st.qd), params={"stiffness": p})
     (g,) = torch.autograd.grad(loss, p)
     ad = float((g[0].numpy() * d).sum())
     h = 1e-3
-    fd = (_loss_numpy(replace(model, stiffness=model.stiffness + h * d), st)
-          - _loss_numpy(replace(model, stiffness=model.stiffness - h * d), st)) / (2 * h)
+    fd = (_loss_numpy(model.replace(stiffness=model.stiffness + h * d), st)
+          - _loss_numpy(model.replace(stiffness=model.stiffness - h * d), st)) / (2 * h)
     assert not _agree(ad, fd)
 
 

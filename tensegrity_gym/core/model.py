@@ -58,7 +58,7 @@ from typing import Iterable
 import numpy as np
 
 from .checks import check_finite, is_integer
-from .params import Params, default_params
+from .params import PARAM_FIELDS, Params, default_params, nominal_params
 from .rod_mass import mass_moments
 from .sizing import check_size
 from .structure import Structure
@@ -68,9 +68,16 @@ __all__ = ["Model", "State", "compile_model", "Params", "default_params", "initi
 
 @dataclass(frozen=True, eq=False)
 class Model:
-    """Compiled, immutable arrays of one structure topology (SI units).
+    """Compiled, immutable arrays of one structure topology (SI units), and its nominal physical
+    values.
 
-    Shapes: k rods, n nodes, m strings, na anchors.
+    Shapes: k rods, n nodes, m strings, na anchors. The nominal physical values live in ONE
+    place, ``nominal`` (a one-row :class:`~tensegrity_gym.core.params.Params`); each of its
+    fields reads as a model attribute without the copy axis (``model.mass`` (k,) kg,
+    ``model.stiffness`` (m,) N/m, ``model.rest_length`` (m,) m, ``model.node_damping`` (n,) N s/m,
+    ``model.anchor_pos`` (na, 3) m, ``model.W0`` (n, 3) N, ...: the physics rows of
+    :mod:`tensegrity_gym.core.param_table`), and ``model.has_<field>`` for the fields whose term
+    the equations skip where it is 0 (``has_damping``, ``has_gravity``, ``has_node_damping``).
     """
 
     structure: Structure
@@ -81,33 +88,48 @@ class Model:
     rod_c: np.ndarray          # (k,) node c of each rod
     length: np.ndarray         # (k,) rod length, m
     sigma: np.ndarray          # (k,) reference point as fraction from node a
-    mass: np.ndarray           # (k,) kg
-    f: np.ndarray              # (k,) first mass moment about the reference point, kg m
-    J: np.ndarray              # (k,) second mass moment about the reference point, kg m^2
     eta: np.ndarray            # (k, 2) signed distance of nodes a, c from the reference point, m
     proj: np.ndarray           # (k, 3, 3) projector Pi = E E^T onto allowed reference-point motion
     offset: np.ndarray         # (k, 3) fixed part (I - Pi) n0 of the reference point, m
     constrained: np.ndarray    # (k,) bool: rod has a constrained node
     anchor_idx: np.ndarray     # (na,) anchor node indices
-    anchor_pos: np.ndarray     # (na, 3) anchor positions, m
     str_i: np.ndarray          # (m,) first node of each string
     str_j: np.ndarray          # (m,) second node (s = n_j - n_i); C_S = :func:`connectivity`
-    stiffness: np.ndarray      # (m,) N/m (0 for active strings)
-    damping: np.ndarray        # (m,) N s/m (0 for active strings)
-    rest_length: np.ndarray    # (m,) default rest lengths, m
     active: np.ndarray         # (m,) bool: force-density-controlled strings
-    W0: np.ndarray             # (n, 3) constant external nodal loads (gravity), N
-    gravity: np.ndarray | None  # (3,) gravitational acceleration, m/s^2, or None without gravity
-    has_gravity: bool          # W0 is not all zero (the kernels skip the loads otherwise)
-    has_damping: bool          # some string is damped (the kernels skip string length rates otherwise)
+    nominal: Params            # the nominal physical values (one row; see the class doc)
     com_eta: np.ndarray = field(default=None)  # (k,) signed distance of centre of mass from ref. point, m
-    node_damping: np.ndarray = field(default=None)  # (n,) viscous drag coefficient per node, N s/m
-    has_node_damping: bool = False
+
+    def __getattr__(self, name):
+        if name.startswith("__") or name == "nominal":
+            raise AttributeError(name)
+        nom = self.nominal
+        if name in PARAM_FIELDS or name == "W0":
+            return getattr(nom, name)[0]
+        if name.startswith("has_"):
+            return getattr(nom, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    @property
+    def gravity(self) -> np.ndarray | None:
+        """(3,) gravitational acceleration, m/s^2, or None for a structure without gravity."""
+        if self.structure.gravity is None and not self.nominal.may_be_nonzero("gravity"):
+            return None
+        return self.nominal.gravity[0]
 
     @property
     def node_velocity_free(self) -> bool:
         """True if no string is damped and no node has drag (forces then need no node velocities)."""
         return not (self.has_damping or self.has_node_damping)
+
+    def replace(self, W0=None, **values) -> "Model":
+        """The same topology with the nominal physical values ``values`` (Params fields, validated
+        and completed as :meth:`Params.replace`: ``mass`` alone recomputes ``f``, ``J``; ``W0``,
+        (n, 3) N, keeps those nodal loads instead of the ones of the new masses and gravity)."""
+        p = default_params(self).replace(**values)
+        new = {k: getattr(p, k)[0] for k in tuple(PARAM_FIELDS) + ("W0",)}
+        if W0 is not None:
+            new["W0"] = W0
+        return replace(self, nominal=nominal_params(self, new))
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,16 +217,18 @@ def compile_model(structure: Structure, active_strings: Iterable[int] | None = N
             i = int(np.flatnonzero(bad)[0])
             raise ValueError(f"node_damping: must be finite and >= 0 N s/m, got {cn[i]} at node {i}")
     anchor_idx = s.anchors
-    arrays = dict(rod_a=rod_a, rod_c=rod_c, length=length, sigma=sigma, mass=s.bar_mass.copy(), f=f, J=J,
-                  eta=eta, proj=proj, offset=offset, constrained=constrained, anchor_idx=anchor_idx,
-                  anchor_pos=s.nodes[anchor_idx].copy(), str_i=s.strings[:, 0].copy(),
-                  str_j=s.strings[:, 1].copy(), stiffness=stiffness, damping=damping,
-                  rest_length=s.rest_length.copy(), active=active, W0=W0, com_eta=com_eta, node_damping=cn)
+    arrays = dict(rod_a=rod_a, rod_c=rod_c, length=length, sigma=sigma, eta=eta, proj=proj, offset=offset,
+                  constrained=constrained, anchor_idx=anchor_idx, str_i=s.strings[:, 0].copy(),
+                  str_j=s.strings[:, 1].copy(), active=active, com_eta=com_eta)
     for a in arrays.values():
         a.setflags(write=False)
-    return Model(structure=s, n_nodes=n, n_bars=k, n_strings=m, gravity=s.gravity,
-                 has_gravity=s.gravity is not None and bool(np.any(s.gravity != 0)),
-                 has_damping=bool(np.any(damping > 0)), has_node_damping=bool(np.any(cn > 0)), **arrays)
+    model = Model(structure=s, n_nodes=n, n_bars=k, n_strings=m, nominal=None, **arrays)
+    # the nominal values the structure gives; a physics row not listed here takes its table nominal
+    computed = dict(mass=s.bar_mass, f=f, J=J, stiffness=stiffness, damping=damping, rest_length=s.rest_length,
+                    node_damping=cn, gravity=np.zeros(3) if s.gravity is None else s.gravity,
+                    anchor_pos=s.nodes[anchor_idx], W0=W0)
+    object.__setattr__(model, "nominal", nominal_params(model, computed))
+    return model
 
 
 def initial_state(model: Model, batch_size: int = 1, nodes: np.ndarray | None = None,

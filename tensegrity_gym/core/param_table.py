@@ -12,6 +12,8 @@ view (where it is used)                function
 ``backends.torch.model.PARAM_FIELDS``  :func:`physics_fields`: the ``Params`` fields in order
 ``contact.PRM_FIELDS``                 :func:`contact_columns`: the columns of the (P, 9)
                                        contact parameter array
+``terrain.PRM_FIELDS``                 :func:`part_columns`: the same without ``height``,
+                                       the columns of a terrain part's (P, F, 8) array
 ``envs.domain.SPECS``                  :func:`domain_specs`: the names ``params=`` /
                                        ``randomize=`` take
 ``envs.base._PHYSICS_FIELDS``          :func:`env_fields` (``"physics"``)
@@ -19,6 +21,11 @@ view (where it is used)                function
 ``envs.roll._CONTACT_ARGS``            :func:`contact_arguments`
 ``envs.twin_params.TWIN_PARAMS`` /     :func:`twin_params` / :func:`twin_refusals`
 ``NOT_REPRESENTABLE``
+``Params.has_<field>``, the kernels'   :func:`skipped_fields`: the fields whose term the
+flag bits                              kernels skip where every value is 0
+``compile_model`` nominal values       :func:`nominal_default`: the nominal value of a
+                                       physics row the structure does not give
+the numba packed layout                :func:`tensegrity_gym.backends.numba.layout.packed_layout`
 =====================================  ===========================================================
 
 Columns of a row:
@@ -49,6 +56,10 @@ Columns of a row:
 * ``argument``: the task constructor argument that sets the nominal value, where one does.
 * ``mujoco``: the MuJoCo field the twin (``TensegrityRollMuJoCo-v0``) writes it to, or
   ``no_mujoco``: why the twin refuses it.
+* ``skip_zero``: the equations skip the row's term where every value of a copy set is 0
+  (``Params.has_<field>``; one flag bit of the numba kernels, one flag of the torch backend).
+* ``nominal``: the nominal value of every item of a physics row that ``compile_model`` does
+  not compute from the structure (the model's value until a ``Params`` replaces it).
 * ``doc``: what the number is.
 
 This module imports nothing from ``tensegrity_gym``: every layer may read it.
@@ -59,7 +70,7 @@ from dataclasses import dataclass
 
 __all__ = ["ParamSpec", "DomainSpec", "PARAMS", "GROUPS", "AXES", "spec", "env_params", "params_fields",
            "physics_fields", "contact_columns", "contact_arguments", "env_fields", "domain_specs",
-           "twin_params", "twin_refusals"]
+           "twin_params", "twin_refusals", "part_columns", "physics_rows", "skipped_fields", "nominal_default", "ITEM_AXES"]
 
 GROUPS = ("physics", "contact", "actuation")
 AXES = ("rod", "string", "node", "anchor", "vector", "motor", "scalar")
@@ -86,6 +97,8 @@ class ParamSpec:
     argument: str | None = None
     mujoco: str | None = None
     no_mujoco: str | None = None
+    skip_zero: bool = False
+    nominal: float | None = None
 
     def __post_init__(self):
         for col, value, allowed in (("group", self.group, GROUPS), ("axis", self.axis, AXES),
@@ -96,6 +109,9 @@ class ParamSpec:
         if self.randomizable and (self.mujoco is None) == (self.no_mujoco is None):
             raise ValueError(f"ParamSpec {self.name!r}: an env parameter needs exactly one of mujoco (the MuJoCo "
                              "field the twin writes) and no_mujoco (why the twin refuses it)")
+        if (self.skip_zero or self.nominal is not None) and self.group != "physics":
+            raise ValueError(f"ParamSpec {self.name!r}: skip_zero and nominal are columns of physics rows "
+                             f"(Params fields), not of group {self.group!r}")
 
     @property
     def randomizable(self) -> bool:
@@ -108,7 +124,8 @@ class ParamSpec:
 
 
 #: the parameters: the physics rows in the order of the Params fields, the contact rows in the
-#: order of the contact parameter columns, then the actuation limits
+#: order of the contact parameter columns (a terrain part's columns are the same without the
+#: last, the ground height), then the actuation limits
 PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("rod_mass", "physics", "mass", "rod", "kg", "positive",
               "rod mass (the rod's mass distribution keeps its shape)", spread="relative",
@@ -122,20 +139,19 @@ PARAMS: tuple[ParamSpec, ...] = (
               mujoco="tendon_stiffness"),
     ParamSpec("damping", "physics", "damping", "string", "N s/m", "nonnegative",
               "string damping (acts only while the string is taut)", spread="relative", write="elastic",
-              argument="string_damping", mujoco="tendon_damping"),
+              argument="string_damping", mujoco="tendon_damping", skip_zero=True),
     ParamSpec("rest_length_offset", "physics", "rest_length", "string", "m", "finite",
               "a cable's true rest length minus the commanded (or nominal) one", spread="absolute",
               write="offset", field_valid="nonnegative", mujoco="added to tendon_lengthspring[:, 1]"),
     ParamSpec("node_damping", "physics", "node_damping", "node", "N s/m", "nonnegative",
               "viscous drag -c v on each node", spread="relative", argument="node_damping",
               no_mujoco="MuJoCo damps a rod's free-joint DOFs (centre-of-mass translation, "
-                        "body-frame rotation), not its end nodes"),
+                        "body-frame rotation), not its end nodes", skip_zero=True),
     ParamSpec("gravity", "physics", "gravity", "vector", "m/s^2", "finite",
               "gravitational acceleration (one draw scales its magnitude)", spread="relative",
-              one_factor=True, mujoco="opt.gravity"),
+              one_factor=True, mujoco="opt.gravity", skip_zero=True),
     ParamSpec("anchor_pos", "physics", "anchor_pos", "anchor", "m", "finite",
               "positions of the fixed anchor nodes"),
-    ParamSpec("height", "contact", "height", "scalar", "m", "finite", "ground height"),
     ParamSpec("cap_radius", "contact", "radius", "scalar", "m", "nonnegative",
               "radius of the rod end caps touching the ground", argument="cap_radius"),
     ParamSpec("ground_stiffness", "contact", "stiffness", "scalar", "N/m", "positive",
@@ -155,6 +171,7 @@ PARAMS: tuple[ParamSpec, ...] = (
               "damping of the stick spring", argument="tangential_damping"),
     ParamSpec("ground_max_damping", "contact", "max_damping", "scalar", "N s/m", "positive",
               "cap on the normal contact damping coefficient", argument="ground_max_damping"),
+    ParamSpec("height", "contact", "height", "scalar", "m", "finite", "ground height"),
     ParamSpec("max_cable_speed", "actuation", "max_rate", "motor", "m/s", "positive",
               "rate limit of each actuated cable (N/(m s) in force-density mode)", spread="relative",
               argument="max_cable_speed", mujoco="the cable motor model (Actuation), not MuJoCo"),
@@ -199,8 +216,18 @@ def physics_fields(table=None) -> tuple[str, ...]:
 
 
 def contact_columns(table=None) -> tuple[str, ...]:
-    """The columns of the (P, 9) contact parameter array, in order."""
+    """The columns of the (P, 9) ground contact parameter array, in order; a terrain part's
+    (P, F, 8) columns are the same without the last, ``height`` (:func:`part_columns`)."""
     return tuple(r.field for r in _table(table) if r.group == "contact")
+
+
+def part_columns(table=None) -> tuple[str, ...]:
+    """The columns of the (P, F, 8) per-part terrain contact parameters: the contact columns
+    without the ground height (a part's geometry places it)."""
+    cols = contact_columns(table)
+    if cols[-1] != "height":
+        raise ValueError(f"parameter table: the contact rows must end with the ground height, got {cols}")
+    return cols[:-1]
 
 
 def contact_arguments(table=None) -> dict[str, str]:
@@ -243,3 +270,30 @@ def twin_params(table=None) -> tuple[str, ...]:
 def twin_refusals(table=None) -> dict[str, str]:
     """Env parameter name -> why the MuJoCo twin cannot represent it."""
     return {r.name: r.no_mujoco for r in _table(table) if r.randomizable and r.no_mujoco is not None}
+
+
+#: physics axis -> the model's item count it repeats over (the per-item axes of a Params field)
+ITEM_AXES = ("rod", "string", "node")
+
+
+def physics_rows(table=None) -> tuple[ParamSpec, ...]:
+    """The rows of the ``Params`` fields, in field order."""
+    return tuple(r for r in _table(table) if r.group == "physics")
+
+
+def skipped_fields(table=None) -> tuple[str, ...]:
+    """The ``Params`` fields whose term the equations skip where every value is 0 (``skip_zero``),
+    in field order: ``Params.has_<field>``, the numba flag bits and the torch flags are these."""
+    return tuple(r.field for r in physics_rows(table) if r.skip_zero)
+
+
+def nominal_default(field: str, table=None) -> float:
+    """The nominal value of the physics field ``field`` where the structure gives none (the row's
+    ``nominal``); ValueError naming the row when it has none."""
+    for r in physics_rows(table):
+        if r.field == field:
+            if r.nominal is None:
+                raise ValueError(f"ParamSpec {r.name!r}: compile_model does not compute field {field!r} from the "
+                                 "structure, so the row needs a nominal value (nominal=...)")
+            return float(r.nominal)
+    raise KeyError(f"no physics field {field!r}; known: {list(physics_fields(table))}")

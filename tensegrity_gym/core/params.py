@@ -37,59 +37,64 @@ When all copies share their values (``P = 1``) the compiled kernels run exactly 
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from .param_table import params_fields
+from .param_table import nominal_default, params_fields, skipped_fields
 from .rod_mass import mass_moments
 
-__all__ = ["Params", "default_params", "PARAM_FIELDS"]
+__all__ = ["Params", "default_params", "nominal_params", "nominal_values", "PARAM_FIELDS"]
 
 #: field -> (what its second axis counts, unit, constraint) for validation and messages
 #: (a view of the parameter table, tensegrity_gym.core.param_table)
 PARAM_FIELDS: dict[str, tuple[str, str, str]] = params_fields()
+#: the fields with a ``has_<field>`` flag (the equations skip their term where it is 0)
+_SKIPPED = frozenset(skipped_fields())
+#: the arrays a Params holds: its fields and the derived nodal loads W0
+_ARRAYS = frozenset(PARAM_FIELDS) | {"W0"}
 
 
-@dataclass(frozen=True, eq=False)
 class Params:
-    """Per-copy physical parameters (see the module doc for the fields, shapes and units).
+    """Per-copy physical parameters (see the module doc for the fields, shapes and units): one
+    read-only array attribute per physics row of the parameter table
+    (:func:`tensegrity_gym.core.param_table.physics_fields`) plus ``W0``, and ``has_<field>``
+    for each field whose term the equations skip where it is 0
+    (:func:`~tensegrity_gym.core.param_table.skipped_fields`).
 
     Build one with :func:`default_params` and change it with :meth:`replace`; the constructor
     does not validate (``replace`` and ``default_params`` do)."""
 
-    mass: np.ndarray
-    f: np.ndarray
-    J: np.ndarray
-    stiffness: np.ndarray
-    damping: np.ndarray
-    rest_length: np.ndarray
-    node_damping: np.ndarray
-    gravity: np.ndarray
-    anchor_pos: np.ndarray
-    W0: np.ndarray
-    model: object = None   # the Model these values belong to (topology: rod nodes, com fractions)
-    # set by set_rows: the Params this one was made from (weak) and the rows that differ from it,
-    # so that compiled backends can update their packed copy of the parent instead of repacking
-    parent: object = field(default=None, repr=False)
-    changed_rows: object = field(default=None, repr=False)
+    def __init__(self, model=None, parent=None, changed_rows=None, **arrays):
+        if arrays.keys() != _ARRAYS:
+            raise TypeError(f"Params: expected the fields {sorted(_ARRAYS)}, got {sorted(arrays)}")
+        d = self.__dict__
+        d.update(arrays)
+        d["model"] = model   # the Model these values belong to (topology: rod nodes, com fractions)
+        # set by set_rows: the Params this one was made from (weak) and the rows that differ from it,
+        # so that compiled backends can update their packed copy of the parent instead of repacking
+        d["parent"] = parent
+        d["changed_rows"] = changed_rows
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"Params is read-only: use replace({name}=...) for a new one")
+
+    def __getattr__(self, name):
+        if name.startswith("has_") and name[4:] in _SKIPPED:
+            return self.may_be_nonzero(name[4:])
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def __repr__(self):
+        return f"Params(batch_size={self.batch_size}, fields={list(PARAM_FIELDS)})"
 
     @property
     def batch_size(self) -> int:
         """P: 1 (shared by every copy) or the number of copies."""
         return self.mass.shape[0]
 
-    @property
-    def has_gravity(self) -> bool:
-        return bool(np.any(self.gravity != 0))
-
-    @property
-    def has_damping(self) -> bool:
-        return bool(np.any(self.damping > 0))
-
-    @property
-    def has_node_damping(self) -> bool:
-        return bool(np.any(self.node_damping > 0))
+    def may_be_nonzero(self, name: str) -> bool:
+        """Whether some value of field ``name`` is not 0 (the equations skip a term of a
+        :func:`~tensegrity_gym.core.param_table.skipped_fields` field otherwise)."""
+        return bool(np.any(getattr(self, name) != 0))
 
     def take(self, idx) -> "Params":
         """The copies ``idx`` (int array or slice) as a new Params (P = len(idx))."""
@@ -262,17 +267,34 @@ def _frozen(model, parent=None, changed_rows=None, **arrays) -> Params:
 
 
 def default_params(model, batch_size: int = 1) -> Params:
-    """The structure's own values (those :func:`~tensegrity_gym.core.model.compile_model` stored
-    in ``model``), repeated to ``batch_size`` rows (default 1: shared by every copy)."""
+    """The structure's own values (the model's nominal values, ``model.nominal``, set by
+    :func:`~tensegrity_gym.core.model.compile_model`), repeated to ``batch_size`` rows (default 1:
+    shared by every copy)."""
     if int(batch_size) != batch_size or batch_size < 1:
         raise ValueError(f"batch_size: must be a positive integer, got {batch_size!r}")
     B = int(batch_size)
-    g = np.zeros(3) if model.gravity is None else np.asarray(model.gravity, dtype=float)
-    rep = lambda a: np.repeat(np.asarray(a, dtype=float)[None], B, axis=0)   # noqa: E731
-    return _frozen(model, mass=rep(model.mass), f=rep(model.f), J=rep(model.J), stiffness=rep(model.stiffness),
-                   damping=rep(model.damping), rest_length=rep(model.rest_length),
-                   node_damping=rep(model.node_damping), gravity=rep(g), anchor_pos=rep(model.anchor_pos),
-                   W0=rep(model.W0))
+    nom = model.nominal
+    return _frozen(model, **{k: np.repeat(getattr(nom, k), B, axis=0) for k in tuple(PARAM_FIELDS) + ("W0",)})
+
+
+def nominal_values(model, computed: dict, table=None) -> dict:
+    """Physics field -> its nominal per-item array: the fields ``computed`` (field -> per-item
+    array) as given, every other physics row of ``table`` (default the parameter table) its row's
+    ``nominal`` value for every item (:func:`~tensegrity_gym.core.param_table.nominal_default`)."""
+    counts = _counts(model)
+    out = {}
+    for fld, (what, _, _) in params_fields(table).items():
+        v = computed.get(fld)
+        out[fld] = np.full(counts[what], nominal_default(fld, table)) if v is None else np.asarray(v, dtype=float)
+    return out
+
+
+def nominal_params(model, computed: dict) -> Params:
+    """The one-row :class:`Params` of a model's nominal values (:func:`nominal_values`; ``computed``
+    holds ``W0`` too). Its ``model`` is None (the model holds it: no reference cycle);
+    :func:`default_params` gives the model's."""
+    values = {k: v[None] for k, v in nominal_values(model, computed).items()}
+    return _frozen(None, W0=np.asarray(computed["W0"], dtype=float)[None], **values)
 
 
 def check_params(model, params: Params, batch_size: int) -> Params:

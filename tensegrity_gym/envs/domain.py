@@ -38,7 +38,6 @@ import numpy as np
 
 from ..core.param_table import DomainSpec, domain_specs, env_params
 from ..tasks.randomization import draw_count, draw_range, values_from_draws
-from ..core.params import default_params
 
 __all__ = ["SPECS", "Domain", "physics_nominal", "container_nominal", "write_copies"]
 
@@ -141,7 +140,6 @@ def physics_nominal(model) -> dict[str, np.ndarray]:
     """Env parameter name -> nominal value of the ``"physics"`` rows of the parameter table, read
     from the compiled ``model``: an ``"elastic"`` row the structure's own value (also on the
     force-density-actuated strings), an ``"offset"`` row zeros, any other its ``Params`` field."""
-    from_params = None
     out = {}
     for name, row in env_params().items():
         if row.group != "physics":
@@ -151,9 +149,7 @@ def physics_nominal(model) -> dict[str, np.ndarray]:
         elif row.write == "offset":
             out[name] = np.zeros(np.shape(getattr(model, row.field)))
         else:
-            if from_params is None:
-                from_params = default_params(model)
-            out[name] = getattr(from_params, row.field)[0]
+            out[name] = getattr(model.nominal, row.field)[0]
     return out
 
 

@@ -64,13 +64,10 @@ def _worst_model(model, dom, names):
         if name in names:
             kw[name] = np.where(model.active, 0.0, worst_case_values(dom, name))
     if "node_damping" in names:
-        nd = worst_case_values(dom, "node_damping")
-        kw.update(node_damping=nd, has_node_damping=bool(np.any(nd > 0)))
-    if "damping" in names:
-        kw["has_damping"] = bool(np.any(kw["damping"] > 0))
+        kw["node_damping"] = worst_case_values(dom, "node_damping")
     if "gravity" in names:
         kw["gravity"] = worst_case_values(dom, "gravity")
-    return dataclasses.replace(model, **kw) if kw else model
+    return model.replace(W0=model.W0, **kw) if kw else model   # the nominal weights: the estimate's loads
 
 
 def _worst_contact(contact, dom, names):

@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 
-from ..physics.contact import PRM_FIELDS, GroundContact, init_contact_state, set_copy_values, stable_step
+from ..physics.contact import GroundContact, init_contact_state, set_copy_values, stable_step
 from ..core.model import compile_model
 from ..physics.evaluate import force_densities, project
 from ..physics import geometry
@@ -257,14 +257,16 @@ class RollTask(RollObservation, BatchedTask):
         return s
 
     def write_contact(self, rows, columns: dict) -> None:
-        """Rows ``rows`` of the per-copy contact parameters take ``columns`` (field -> values)."""
-        if self._contact_prm is None:
-            self._contact_prm = self.contact.per_copy(self.num_envs)
+        """Rows ``rows`` of the per-copy contact parameters the physics steps take ``columns``
+        (field -> values): the terrain's (every part of a row), or without a terrain the ground's."""
+        if self.terrain_contact is not None:
+            prm = self.terrain_prm
+        else:
+            if self._contact_prm is None:
+                self._contact_prm = self.contact.per_copy(self.num_envs)
+            prm = self._contact_prm
         for fld, values in columns.items():
-            set_copy_values(self._contact_prm, rows, fld, values)
-            if self.terrain_contact is not None and fld in terrain.PRM_FIELDS:   # every part of the terrain
-                col = self._contact_prm[:, PRM_FIELDS.index(fld)]
-                self.terrain_prm[rows, :, terrain.PRM_FIELDS.index(fld)] = col[rows, None]
+            set_copy_values(prm, rows, fld, values)
 
     def write_actuation(self, rows, fields: dict) -> None:
         """Copies ``rows`` take their own motor limits ``fields`` (``max_rate``, ``max_accel``)."""

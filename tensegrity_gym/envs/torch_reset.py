@@ -37,7 +37,6 @@ import numpy as np
 
 from ..backends.torch.model import mass_moments, torch_module
 from ..core.param_table import contact_columns
-from ..physics.terrain import PRM_FIELDS as TERRAIN_PRM_FIELDS
 from ..tasks.randomization import draw_count, draw_range, values_from_draws
 from .domain import write_copies
 from .shells import per_env_seeds
@@ -243,12 +242,13 @@ class TorchDomain:
             env._rest_offset[it] = offsets["rest_length"].to(env.dtype)
 
     def write_contact(self, it, columns: dict) -> None:
+        """As the host's: the terrain's rows (every part) where the env has a terrain, else the ground's."""
         cols = contact_columns()
         terrain_prm = getattr(self.env, "_terrain_prm", None)
+        prm = self.env._contact_prm if terrain_prm is None else terrain_prm
         for fld, v in columns.items():
-            self.env._contact_prm[it, cols.index(fld)] = v.to(self.env.dtype)
-            if terrain_prm is not None and fld in TERRAIN_PRM_FIELDS:    # every part of the terrain, as the host's
-                terrain_prm[it, :, TERRAIN_PRM_FIELDS.index(fld)] = self.env._contact_prm[it, cols.index(fld)][:, None]
+            v = v.to(self.env.dtype)
+            prm[it, ..., cols.index(fld)] = v if terrain_prm is None else v[:, None]
 
     def write_actuation(self, it, fields: dict) -> None:
         env = self.env

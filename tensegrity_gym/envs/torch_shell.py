@@ -168,10 +168,10 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             self._params = None
         else:
             self._params = getattr(self, "_params", None) or {}
-            # the Params fields the env parameters write (and those derived from them); the node
-            # drag only where the model has one
+            # the Params fields the env parameters write (and those derived from them); a field whose
+            # term the equations skip where it is 0 only where it may be non-zero
             fields = [r.field for r in PARAMS if r.group == "physics" and (r.randomizable or r.write == "derived")
-                      and (r.field != "node_damping" or prm.has_node_damping)]
+                      and (not r.skip_zero or prm.may_be_nonzero(r.field) or task.model.nominal.may_be_nonzero(r.field))]
             for f in fields:
                 self._params[f] = rows(self._params.get(f), np.asarray(getattr(prm, f), float))
         put("_rest_offset", None if task.rest_offset is None else np.asarray(task.rest_offset, float))

@@ -172,8 +172,7 @@ class GroundContact:
         if not cmax > 0:   # NaN or <= 0
             raise ValueError(f"max_damping: must be positive (N s/m; inf = no cap), got {self.max_damping!r}")
         s(self, "max_damping", cmax)
-        prm = np.array([[self.height, self.radius, self.stiffness, self.damping, self.exponent, self.friction,
-                         self.tangential_stiffness, self.tangential_damping, cmax]], float)   # (1, 9): see PRM_FIELDS
+        prm = np.array([[getattr(self, f) for f in PRM_FIELDS]], float)   # (1, 9): see PRM_FIELDS
         prm.setflags(write=False)
         s(self, "_prm", prm)
 
@@ -200,9 +199,11 @@ PER_COPY_FIELDS = tuple(f for f in PRM_FIELDS if f != "exponent")
 
 
 def set_copy_values(prm: np.ndarray, idx, name: str, values) -> None:
-    """In place: rows ``idx`` of a per-copy parameter array (from :meth:`GroundContact.per_copy`)
-    get ``values`` (a number or one per row) for field ``name`` (one of :data:`PER_COPY_FIELDS`),
-    checked as the constructor checks it (ValueError naming the field, the copy and the value)."""
+    """In place: rows ``idx`` of a per-copy parameter array get ``values`` (a number or one per
+    row) for field ``name`` (one of :data:`PER_COPY_FIELDS`), checked as the constructor checks it
+    (ValueError naming the field, the copy and the value). ``prm``: the ground's (B, 9) (from
+    :meth:`GroundContact.per_copy`) or a terrain's (B, F, 8) (every part of a row gets its value;
+    the same columns without ``height``)."""
     if name not in PER_COPY_FIELDS:
         raise ValueError(f"contact parameter: unknown or not per copy {name!r}; choose one of {PER_COPY_FIELDS}")
     idx = np.asarray(idx, dtype=int).reshape(-1)
@@ -217,7 +218,11 @@ def set_copy_values(prm: np.ndarray, idx, name: str, values) -> None:
         j = int(np.flatnonzero(bad)[0])
         raise ValueError(f"contact {name}: copy {int(idx[j])}: must be {'>= 0' if nonneg else '> 0'}, "
                          f"got {float(v[j])!r}")
-    prm[idx, PRM_FIELDS.index(name)] = v
+    col = PRM_FIELDS.index(name)
+    if prm.shape[-1] != len(PRM_FIELDS) and col >= prm.shape[-1]:
+        raise ValueError(f"contact parameter {name!r}: not a column of a terrain part's parameters "
+                         f"{PRM_FIELDS[:prm.shape[-1]]}")
+    prm[idx, ..., col] = v.reshape(v.shape + (1,) * (prm.ndim - 2))
 
 
 @dataclass(frozen=True, eq=False)
@@ -277,7 +282,7 @@ def check_prm_rows(contact, prm, B):
     prm = np.ascontiguousarray(prm, dtype=np.float64)
     if prm.ndim != 2 or prm.shape[1] != len(PRM_FIELDS) or prm.shape[0] not in (1, B):
         raise ValueError(f"contact prm: expected shape (1, 9) or ({B}, 9) (GroundContact.per_copy), got {prm.shape}")
-    if np.any(prm[:, 4] != contact.exponent):
+    if np.any(prm[:, PRM_FIELDS.index("exponent")] != contact.exponent):
         raise ValueError("contact prm: the exponent column must equal the contact's exponent "
                          f"{contact.exponent} (one exponent per contact model)")
     return prm

@@ -56,6 +56,7 @@ from ..backends.numba.terrain_steps import terrain_steps
 from ..core.checks import check_positive
 from ..core.integrators import resolve
 from ..core.model import Model, State
+from ..core.param_table import part_columns
 from ..core.terrain import Terrain
 from .contact import GroundContact, stable_step as ground_stable_step
 from .pipeline import compiled_physics, run_steps as _run_steps
@@ -64,9 +65,9 @@ from .stability import check_stability
 __all__ = ["TerrainContact", "TerrainState", "init_terrain_state", "contact_forces", "forces_inplace",
            "contact_energy", "stable_step", "step", "advance", "PRM_FIELDS", "SLOTS"]
 
-#: columns of the (P, F, 8) per-feature contact parameters ``prm`` (SI units)
-PRM_FIELDS = ("radius", "stiffness", "damping", "exponent", "friction", "tangential_stiffness",
-              "tangential_damping", "max_damping")
+#: columns of the (P, F, 8) per-feature contact parameters ``prm`` (SI units): the ground contact's
+#: columns without the ground height (a view of tensegrity_gym.core.param_table)
+PRM_FIELDS = part_columns()
 #: contact slots per rod per feature: node a, node c, the interior point nearest a box or the heightfield
 SLOTS = 3
 
@@ -124,9 +125,11 @@ class TerrainContact:
             if heights is not None:
                 hf = heights
             geom.append(row)
-            mu, k, d = self.terrain.surface(part)
+            friction, k, d = self.terrain.surface(part)
             kt = k if self.tangential_stiffness is None else self.tangential_stiffness
-            prm.append([self.radius, k, d, e, mu, kt, self.tangential_damping, cmax])
+            cols = dict(radius=self.radius, stiffness=k, damping=d, exponent=e, friction=friction,
+                        tangential_stiffness=kt, tangential_damping=self.tangential_damping, max_damping=cmax)
+            prm.append([cols[f] for f in PRM_FIELDS])
         geom = np.array(geom, float).reshape(1, -1, 10)
         prm = np.array(prm, float).reshape(1, -1, 8)
         geom.setflags(write=False)
@@ -288,11 +291,13 @@ def stable_step(tc: TerrainContact, model: Model) -> dict:
     6). Returns that feature's dict with ``"feature"`` (its index)."""
     best = None
     for f in range(tc.n_features):
-        radius, k, d, e, mu, kt, ct, cmax = tc.prm[0, f]
+        radius, k, d, e, friction, kt, ct, cmax = (tc.prm[0, f, PRM_FIELDS.index(c)] for c in (
+            "radius", "stiffness", "damping", "exponent", "friction", "tangential_stiffness", "tangential_damping",
+            "max_damping"))
         if tc.geom[0, f, 0] == HFIELD:
             w = max(float(tc.geom[0, f, 6]), 1.0)
             k, d = k * w ** (1.0 + e), d * w
-        est = ground_stable_step(GroundContact(stiffness=k, damping=d, exponent=e, friction=mu,
+        est = ground_stable_step(GroundContact(stiffness=k, damping=d, exponent=e, friction=friction,
                                                tangential_stiffness=kt, tangential_damping=ct, radius=radius,
                                                max_damping=cmax), model)
         if best is None or est["semi_implicit_euler"] < best["semi_implicit_euler"]:

@@ -11,7 +11,8 @@ call prepared once and repeated), ``actuation`` (compiled control updates) and `
 numba's on-disk cache notices an edit of a kernel's own module only, not of the kernels it
 inlines or calls from others: ``cache_guard`` adds to each cached function's stamp the digest
 of its module and of every module of the package that one imports, so a kernel compiles again
-exactly when one of those changed; it is installed at this import, which ``tensegrity_gym``
+exactly when one of those changed (the parameter table, whose packed layout the kernels freeze,
+is in the closure of ``layout``); it is installed at this import, which ``tensegrity_gym``
 runs before any module that compiles. ``watch`` prints progress on stderr while numba compiles
 this package's functions.
 """

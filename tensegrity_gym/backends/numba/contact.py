@@ -10,17 +10,22 @@ import math
 import numpy as np
 from numba import njit
 
-from .layout import _opts
+from .layout import CONTACT_COLUMNS, _opts
+
+# the columns of the contact parameter rows (tensegrity_gym.core.param_table.contact_columns)
+_HEIGHT, _RADIUS, _KN, _DN, _EX, _FRICTION, _KT, _CT, _CMAX = (
+    CONTACT_COLUMNS.index(f) for f in ("height", "radius", "stiffness", "damping", "exponent", "friction",
+                                       "tangential_stiffness", "tangential_damping", "max_damping"))
 
 @njit(inline="always", **_opts)
-def _point_force(px, py, pz, vx, vy, vz, ax, ay, was_active, height, radius, kn, dn, ex, mu, kt, ct, cmax):
+def _point_force(px, py, pz, vx, vy, vz, ax, ay, was_active, height, radius, kn, dn, ex, friction, kt, ct, cmax):
     """The ground-contact force on one rod-end point (the one implementation of the contact
     equation; NumPy reference ``tests/oracle_numpy.contact_forces``): cap of radius ``radius``
     m at (px, py, pz) m moving at (vx, vy, vz) m/s over the plane z = ``height`` m.
     Hunt-Crossley normal force ``fn = k d^e - min(k d^e dn, cmax) vz`` >= 0 N (d the
     penetration, m); stick-slip Coulomb friction: a tangential spring ``kt`` N/m to the anchor
     (ax, ay) m (set at touch-down, ``was_active`` False) with damping ``ct`` N s/m, capped at
-    ``mu fn`` (the anchor then follows the point: slip). Returns (touching, fx, fy, fn, ax, ay,
+    ``friction fn`` (the anchor then follows the point: slip). Returns (touching, fx, fy, fn, ax, ay,
     slip); no force and the anchor unchanged when the cap is clear of the ground."""
     delta = height + radius - pz
     if not (delta > 0.0):
@@ -39,7 +44,7 @@ def _point_force(px, py, pz, vx, vy, vz, ax, ay, was_active, height, radius, kn,
     fx = -kt * (px - ax) - ct * vx
     fy = -kt * (py - ay) - ct * vy
     nrm = math.sqrt(fx * fx + fy * fy)
-    lim = mu * fn
+    lim = friction * fn
     if nrm > lim:
         s = lim / nrm
         fx *= s
@@ -54,7 +59,7 @@ def _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, ext, c0, ne, k
     ``rod_a[j]`` at ``eta[j, 0]``, ``rod_c[j]`` at ``eta[j, 1]``; contact 2j + end) through
     :func:`_point_force`, its anchor AN (2k, 2, E) m and active / slip flags AC, SL (2k, E)
     updated in place; then ``ext`` (0, 1 or B rows of (n, 3)) N added. ``prm`` (1 or B, 9)
-    (``contact.PRM_FIELDS``: height, radius, kn, dn, exponent, mu, kt, ct, cmax) one row shared
+    (columns ``contact.PRM_FIELDS``, read by name) one row shared
     or one per copy. The one loop over contact points: the driver runs it on its lanes at every
     step (:func:`.driver._drive_py` with ``contact``), :func:`forces_kernel` one copy at a time."""
     per_prm = prm.shape[0] > 1
@@ -63,8 +68,8 @@ def _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, ext, c0, ne, k
     for e in range(E):
         src = c0 + e if e < ne else c0
         pe = src if per_prm else 0
-        height, radius, kn, dn, ex, mu = prm[pe, 0], prm[pe, 1], prm[pe, 2], prm[pe, 3], prm[pe, 4], prm[pe, 5]
-        kt, ct, cmax = prm[pe, 6], prm[pe, 7], prm[pe, 8]
+        height, radius, kn, dn, ex = prm[pe, _HEIGHT], prm[pe, _RADIUS], prm[pe, _KN], prm[pe, _DN], prm[pe, _EX]
+        friction, kt, ct, cmax = prm[pe, _FRICTION], prm[pe, _KT], prm[pe, _CT], prm[pe, _CMAX]
         for p in range(n):
             EX[p, 0, e] = 0.0
             EX[p, 1, e] = 0.0
@@ -77,7 +82,7 @@ def _contact_lanes(Q, QD, EX, AN, AC, SL, eta, rod_a, rod_c, prm, ext, c0, ne, k
                 touch, fx, fy, fn, AN[ci, 0, e], AN[ci, 1, e], SL[ci, e] = _point_force(
                     Q[j, 0, e] + h * Q[j, 3, e], Q[j, 1, e] + h * Q[j, 4, e], Q[j, 2, e] + h * Q[j, 5, e],
                     QD[j, 0, e] + h * QD[j, 3, e], QD[j, 1, e] + h * QD[j, 4, e], QD[j, 2, e] + h * QD[j, 5, e],
-                    AN[ci, 0, e], AN[ci, 1, e], AC[ci, e], height, radius, kn, dn, ex, mu, kt, ct, cmax)
+                    AN[ci, 0, e], AN[ci, 1, e], AC[ci, e], height, radius, kn, dn, ex, friction, kt, ct, cmax)
                 AC[ci, e] = touch
                 if touch:
                     EX[node, 0, e] += fx

@@ -25,27 +25,31 @@ from .terrain_box import BOX_END_ROWS, BOX_LANE_ROWS, box_load, box_store, boxes
 from .terrain_hfield import HF_LANE_ROWS, hf_bound_of, hf_lam_load, hf_last
 from .terrain_law import add_ext, slots_load, slots_store
 from .terrain_plane import plane_first, plane_forces, plane_load, plane_store
-from .layout import (_CONS, _EXT, _FD, _L0DEF, _PROJ, _RK4, _ROD, _STR,
+from .layout import (_CONS, _EXT, _FD, _L0DEF, _NODE_ROWS, _PROJ, _RK4, _ROD, _STR, ROD_FIXED, STR_FIXED,
                      _opts, _soa_width_nb)
 
 @njit(inline="always", **_opts)
 def _lane_physics(PC, N, src, L, k, m, n, e):
-    """Lane e of the SoA scratch takes the physical constants of the packed buffer ``src``:
-    rod constants (slots 5..11), string stiffness and damping, default rest lengths, gravity
-    loads, node drag (into ``PC[slot, e]``) and the anchor positions (rows of ``N``)."""
+    """Lane e of the SoA scratch takes the physical constants of the packed buffer ``src``
+    (into ``PC[slot, e]``): each rod's inertia constants (slots 5..11) and table rows (slots
+    ROD_FIXED..), each string's table rows (slots STR_FIXED..), the default rest lengths, gravity
+    loads and node table rows; and the anchor positions (rows of ``N``)."""
     o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
     for j in range(k):
         rj = o_rod + _ROD * j
         for x in range(rj + 5, rj + 12):
             PC[x, e] = src[x]
+        for x in range(rj + ROD_FIXED, rj + _ROD):
+            PC[x, e] = src[x]
     for s in range(m):
         ps = o_str + _STR * s
-        PC[ps + 2, e] = src[ps + 2]
-        PC[ps + 3, e] = src[ps + 3]
+        for x in range(ps + STR_FIXED, ps + _STR):
+            PC[x, e] = src[x]
         PC[o_l0 + s, e] = src[o_l0 + s]
     for p in range(3 * n):
         PC[o_W0 + p, e] = src[o_W0 + p]
-        PC[o_cn + p, e] = src[o_cn + p]
+    for p in range(o_cn, o_cn + 3 * n * _NODE_ROWS):
+        PC[p, e] = src[p]
     _lane_physics_anchors(N, src, L, n, e)
 
 @njit(inline="always", **_opts)
@@ -93,7 +97,7 @@ def _scratch(w, L, k, m, n, E, per_copy):
     and E (V's anchor rows, FD and EX stay 0 where unused)."""
     if E == 1:        # one copy (serial calls, GIL held): the packed buffer's own scratch
         o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = L
-        o_x = o_cn + 3 * n
+        o_x = o_cn + 3 * n * _NODE_ROWS
         PC = _view(w, 0, (0 if per_copy else w.shape[0], 1))
         return (_view(w, o_ws, (10, k, 6, 1)), _view(w, o_N, (n, 3, 1)), _view(w, o_V, (n, 3, 1)),
                 _view(w, o_F, (n, 3, 1)), _view(w, o_x, (m, 1)), _view(w, o_x + m, (m, 1)),

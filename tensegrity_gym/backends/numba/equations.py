@@ -16,7 +16,7 @@ import math
 
 from numba import njit
 
-from .layout import _DAMP, _EXT, _FD, _GRAV, _NDAMP, _ROD, _SINC_SMALL, _STR, _opts
+from .layout import _DAMP, _EXT, _FD, _GRAV, _N_NODE_DAMPING, _NDAMP, _ROD, _S_DAMPING, _S_STIFFNESS, _SINC_SMALL, _STR, _opts
 
 @njit(inline="always", **_opts)
 def _rod_acc(b0, b1, b2, bd0, bd1, bd2, Fa0, Fa1, Fa2, Fc0, Fc1, Fc2, ea, ec, free, im, iJ, fJ, beta, alpha,
@@ -137,8 +137,8 @@ def _forces(w, ib, L, k, m, n, Qi, Vi, N, V, F, L0, FD, EX, E, flags, PC, G, LS,
         si = ib[ps]
         sj = ib[ps + 1]
         for e in range(E):
-            kk = PC[ps + 2, e]
-            cc = PC[ps + 3, e]
+            kk = PC[ps + _S_STIFFNESS, e]
+            cc = PC[ps + _S_DAMPING, e]
             s0 = N[sj, 0, e] - N[si, 0, e]
             s1 = N[sj, 1, e] - N[si, 1, e]
             s2 = N[sj, 2, e] - N[si, 2, e]
@@ -172,10 +172,11 @@ def _forces(w, ib, L, k, m, n, Qi, Vi, N, V, F, L0, FD, EX, E, flags, PC, G, LS,
                 for e in range(E):
                     F[p, i, e] = F[p, i, e] + PC[o_W0 + 3 * p + i, e]
     if (flags & _NDAMP) != 0:
+        o_nd = o_cn + 3 * n * _N_NODE_DAMPING
         for p in range(n):
             for i in range(3):
                 for e in range(E):
-                    F[p, i, e] = F[p, i, e] - PC[o_cn + 3 * p + i, e] * V[p, i, e]
+                    F[p, i, e] = F[p, i, e] - PC[o_nd + 3 * p + i, e] * V[p, i, e]
     if (flags & _EXT) != 0:
         for p in range(n):
             for i in range(3):

@@ -12,7 +12,7 @@ import weakref
 import numpy as np
 
 from ...core.integrators import fixed_step_name
-from .layout import _CONS, _DAMP, _GRAV, _NDAMP, _PROJ, _RK4, _ROD, _STR, _layout, _soa_width
+from .layout import _CONS, _PROJ, _RK4, _ROD, _STR, PACKED, _layout, _soa_width
 
 _CACHE: dict = {}
 #: the kernels' flag bits of each fixed-step method (the names of core.integrators.EXPLICIT)
@@ -30,31 +30,61 @@ class _Packed:
     __slots__ = ("buf", "bufs", "lanes", "l0", "fd", "ext", "flags", "cost", "__weakref__")
 
 
-def _fill_physics(buf, model, p, b):
-    """Write the physical values of row ``b`` of ``p`` (the model itself, b = None, or a
-    :class:`~tensegrity_gym.core.params.Params`) into the packed buffer ``buf`` (see ``_layout``)."""
+def _fill_physics(buf, model, p, b, packed=PACKED):
+    """Write the physical values of row ``b`` of ``p`` (a :class:`~tensegrity_gym.core.params.Params`)
+    into the packed buffer ``buf`` (see ``_layout``): the backend's own packings
+    (:data:`.layout.OWN_PACKING`), then every table row at its slot (``packed``: default
+    :data:`.layout.PACKED`, the parameter table's)."""
     k, n, m = model.n_bars, model.n_nodes, model.n_strings
-    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = _layout(k, m, n)
-    row = (lambda a: a) if b is None else (lambda a: a[b])   # noqa: E731
-    mass_, f_, J_ = row(p.mass), row(p.f), row(p.J)
+    rod, string = packed["rod_stride"], packed["string_stride"]
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = _layout(k, m, n, rod, string, packed["node_rows"])
+    mass_, f_, J_ = p.mass[b], p.f[b], p.J[b]
     for j in range(k):
-        rj = o_rod + _ROD * j
+        rj = o_rod + rod * j
         mass, f, J = float(mass_[j]), float(f_[j]), float(J_[j])
         alpha = mass - f * f / J
         buf[rj + 5:rj + 12] = (1.0 / mass, 1.0 / J, f / J, f * f / J, alpha, 1.0 / alpha, f)
-    ps = o_str + _STR * np.arange(m)
-    buf[ps + 2] = row(p.stiffness)
-    buf[ps + 3] = row(p.damping)
-    buf[o_l0:o_l0 + m] = row(p.rest_length)
-    buf[o_W0:o_W0 + 3 * n] = row(p.W0).reshape(-1)
-    buf[o_cn:o_cn + 3 * n] = np.repeat(row(p.node_damping), 3)
-    for a, pos in zip(model.anchor_idx, row(p.anchor_pos)):   # anchor rows of the node scratch
+    buf[o_l0:o_l0 + m] = p.rest_length[b]
+    buf[o_W0:o_W0 + 3 * n] = p.W0[b].reshape(-1)
+    for a, pos in zip(model.anchor_idx, p.anchor_pos[b]):   # anchor rows of the node scratch
         buf[o_N + 3 * a:o_N + 3 * a + 3] = pos
+    if packed["rod"]:
+        pr = o_rod + rod * np.arange(k)
+        for fld, slot in packed["rod"].items():
+            buf[pr + slot] = getattr(p, fld)[b]
+    if packed["string"]:
+        ps = o_str + string * np.arange(m)
+        for fld, slot in packed["string"].items():
+            buf[ps + slot] = getattr(p, fld)[b]
+    for fld, row in packed["node"].items():
+        o = o_cn + 3 * n * row
+        buf[o:o + 3 * n] = np.repeat(getattr(p, fld)[b], 3)
 
 
-def _physics_flags(model, p):
-    return ((_DAMP if p.has_damping else 0) | (_GRAV if p.has_gravity else 0)
-            | (_CONS if bool(np.any(model.constrained)) else 0) | (_NDAMP if p.has_node_damping else 0))
+def read_packed(buf, model, field, packed=PACKED):
+    """The per-item values of the table row ``field`` in the packed buffer ``buf`` (one copy's):
+    where the kernels read them (the unpacker the layout test checks against the kernels)."""
+    k, n, m = model.n_bars, model.n_nodes, model.n_strings
+    rod, string = packed["rod_stride"], packed["string_stride"]
+    o_rod, o_str, o_l0, o_W0, o_ws, o_N, o_V, o_F, o_cn, end = _layout(k, m, n, rod, string, packed["node_rows"])
+    if field in packed["rod"]:
+        return buf[o_rod + rod * np.arange(k) + packed["rod"][field]]
+    if field in packed["string"]:
+        return buf[o_str + string * np.arange(m) + packed["string"][field]]
+    if field in packed["node"]:
+        o = o_cn + 3 * n * packed["node"][field]
+        return buf[o:o + 3 * n:3]
+    raise KeyError(f"{field!r} is not a table row of the packed layout (packed in the backend's own form, or unknown)")
+
+
+def _physics_flags(model, p, packed=PACKED):
+    """The flag bits of ``p`` (a Params): a skipped field's bit where it may be non-zero, and
+    whether a rod is constrained."""
+    flags = _CONS if bool(np.any(model.constrained)) else 0
+    for fld, bit in packed["bits"].items():
+        if p.may_be_nonzero(fld):
+            flags |= bit
+    return flags
 
 
 def _pack(model):
@@ -74,7 +104,7 @@ def _pack(model):
     for s in range(m):
         ps = o_str + _STR * s
         ib[ps:ps + 2] = (model.str_i[s], model.str_j[s])
-    _fill_physics(buf, model, model, None)
+    _fill_physics(buf, model, model.nominal, 0)
     p = _Packed()
     p.buf = buf
     p.bufs = None
@@ -83,7 +113,7 @@ def _pack(model):
     p.fd = np.zeros((1, m))
     p.ext = np.zeros((1, n, 3))
     p.cost = m + k
-    p.flags = _physics_flags(model, model)
+    p.flags = _physics_flags(model, model.nominal)
     key = id(model)
     _CACHE[key] = p
     weakref.finalize(model, _CACHE.pop, key, None)

@@ -4,11 +4,15 @@
 """
 from __future__ import annotations
 
+from ...core.param_table import contact_columns
 from .driver import prepare_steps, step_once
 from .model import TorchModel, _torch, torch_model
 
 __all__ = ["init_contact_state", "contact_forces", "contact_step", "contact_substep"]
 
+
+#: the columns of the contact parameter rows (tensegrity_gym.core.param_table.contact_columns)
+PRM_FIELDS = contact_columns()
 
 def init_contact_state(tm_or_model, batch_size: int, device=None, dtype=None):
     """``(anchor (B, 2k, 2) m, active (B, 2k) bool)``: no contact active."""
@@ -31,7 +35,7 @@ def contact_forces(contact, model, q, qd, anchor, active, prm=None):
     B, k = q.shape[0], tm.k
     if prm is None:
         height, radius, kn, dn = contact.height, contact.radius, contact.stiffness, contact.damping
-        mu, kt, ct, cmax = contact.friction, contact.tangential_stiffness, contact.tangential_damping, \
+        friction, kt, ct, cmax = contact.friction, contact.tangential_stiffness, contact.tangential_damping, \
             contact.max_damping
     else:
         if not isinstance(prm, torch.Tensor) or prm.device != q.device:
@@ -39,7 +43,10 @@ def contact_forces(contact, model, q, qd, anchor, active, prm=None):
         if prm.ndim != 2 or prm.shape[1] != 9 or prm.shape[0] not in (1, B):
             raise ValueError(f"prm: expected shape (1, 9) or ({B}, 9), got {tuple(prm.shape)}")
         prm = prm.to(q.dtype)
-        height, radius, kn, dn, _, mu, kt, ct, cmax = (prm[:, i:i + 1] for i in range(9))
+        col = {f: prm[:, i:i + 1] for i, f in enumerate(PRM_FIELDS)}
+        height, radius, kn, dn = col["height"], col["radius"], col["stiffness"], col["damping"]
+        friction, kt, ct, cmax = col["friction"], col["tangential_stiffness"], col["tangential_damping"], \
+            col["max_damping"]
     r, b = q[..., :3], q[..., 3:]
     rd, bd = qd[..., :3], qd[..., 3:]
     # (B, k, 2, 3) -> (B, 2k, 3): rod j end a, rod j end c
@@ -61,7 +68,7 @@ def contact_forces(contact, model, q, qd, anchor, active, prm=None):
     nn = Ft[..., 0] * Ft[..., 0] + Ft[..., 1] * Ft[..., 1]
     pos = nn > 0
     norm = torch.where(pos, torch.sqrt(torch.where(pos, nn, torch.ones_like(nn))), zero)
-    lim = mu * Fn
+    lim = friction * Fn
     slip = touch & (norm > lim)
     scale = torch.where(slip, lim / torch.where(slip, norm, torch.ones_like(norm)), torch.ones_like(norm))
     Ft = Ft * scale[..., None]

@@ -8,13 +8,15 @@ import weakref
 
 import numpy as np
 
-from ...core.param_table import physics_fields
+from ...core.param_table import physics_fields, skipped_fields
 
 __all__ = ["torch_module", "resolve_device", "resolve_dtype", "TorchModel", "torch_model", "torch_params",
            "mass_moments", "PARAM_FIELDS"]
 
 #: the Params fields, in order (a view of tensegrity_gym.core.param_table)
 PARAM_FIELDS = physics_fields()
+#: the fields whose term the equations skip where it is 0: ``torch_params`` sets ``has_<field>``
+SKIPPED = skipped_fields()
 
 
 def torch_module():
@@ -124,13 +126,8 @@ class TorchModel:
         com = np.asarray(model.structure.com_fraction, dtype=float)
         self.com_a = T(1.0 - com)[None, :, None]              # share of a rod's weight at node a
         self.com_c = T(com)[None, :, None]
-        self.has_damping = bool(model.has_damping)
-        self.has_node_damping = bool(model.has_node_damping)
-        self.has_gravity = bool(model.has_gravity)
-        self.defaults = {}
-        for name in PARAM_FIELDS:
-            val = _model_field(model, name)
-            self.defaults[name] = None if val is None else T(val)[None]
+        self.flags = {f: model.nominal.may_be_nonzero(f) for f in SKIPPED}   # the model's "may be non-zero"
+        self.defaults = {name: T(getattr(model.nominal, name)) for name in PARAM_FIELDS}   # (1, ...) nominal
 
     def gather_nodes(self, Xa, Xc, anchors=None):
         """(B, n, 3) from per-rod end values ``Xa``, ``Xc`` (B, k, 3) and anchor values (P|B, na, 3)."""
@@ -142,16 +139,6 @@ class TorchModel:
                          else Xa.new_zeros((B, self.na, 3)))
         parts.append(Xa.new_zeros((B, 1, 3)))
         return torch.cat(parts, dim=1).index_select(1, self.perm)
-
-
-def _model_field(model, name):
-    if name == "gravity":
-        g = model.gravity
-        return np.zeros(3) if g is None else np.asarray(g, float)
-    if name == "node_damping":
-        nd = model.node_damping
-        return np.zeros(model.n_nodes) if nd is None else nd
-    return getattr(model, name)
 
 
 _MODELS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -176,8 +163,6 @@ def torch_params(tm: TorchModel, params=None, batch_size: int | None = None) -> 
     torch = _torch()
     out = {}
     given = {}
-    shapes = {"mass": (tm.k,), "f": (tm.k,), "J": (tm.k,), "stiffness": (tm.m,), "damping": (tm.m,),
-              "rest_length": (tm.m,), "node_damping": (tm.n,), "gravity": (3,), "anchor_pos": (tm.na, 3)}
     for name in PARAM_FIELDS:
         val = None
         if params is not None:
@@ -197,7 +182,7 @@ def torch_params(tm: TorchModel, params=None, batch_size: int | None = None) -> 
                 val = val.to(tm.dtype)
         else:
             val = torch.as_tensor(np.array(val, dtype=float), dtype=tm.dtype, device=tm.device)
-        want = shapes[name]
+        want = tuple(tm.defaults[name].shape[1:])
         if tuple(val.shape) == want:
             val = val[None]
         if tuple(val.shape[1:]) != want:
@@ -209,10 +194,8 @@ def torch_params(tm: TorchModel, params=None, batch_size: int | None = None) -> 
         out[name] = val
     if "mass" in given and "f" not in given and "J" not in given:
         out["f"], out["J"] = mass_moments(tm, out["mass"])
-    # ("given" maps a provided field to "may be non-zero")
-    out["has_damping"] = tm.has_damping or given.get("damping", False)
-    out["has_gravity"] = tm.has_gravity or given.get("gravity", False)
-    out["has_node_damping"] = tm.has_node_damping or given.get("node_damping", False)
+    for f in SKIPPED:   # ("given" maps a provided field to "may be non-zero")
+        out["has_" + f] = tm.flags[f] or given.get(f, False)
     g = out["gravity"][:, None, :]                                   # (P, 1, 3)
     mass = out["mass"][..., None]                                     # (P, k, 1)
     Wa, Wc = tm.com_a * mass * g, tm.com_c * mass * g                 # (P, k, 3)
