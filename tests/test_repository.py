@@ -11,8 +11,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "tensegrity_gym"
 
-# CHANGELOG.md holds the version history; it is exempt until it is rewritten as one line per change.
-EXEMPT = {"CHANGELOG.md", "tests/test_repository.py"}
+EXEMPT = {"tests/test_repository.py"}
 
 FORBIDDEN = {
     # an absolute path on a developer's or a build machine (``/dev/null``, ``/proc``, ``/usr/bin``
