@@ -14,7 +14,8 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 
 import tensegrity_gym  # noqa: E402,F401
-from tensegrity_gym.envs.roll_mujoco import TensegrityNavigateMuJoCoEnv, TensegrityRollMuJoCoEnv  # noqa: E402
+from tensegrity_gym.envs.navigate_mujoco import TensegrityNavigateMuJoCoEnv  # noqa: E402
+from tensegrity_gym.envs.roll_mujoco import TensegrityRollMuJoCoEnv  # noqa: E402
 from tensegrity_gym.envs.twin_terrain import BVH_FIELDS, FLOOR_GAP, GEOM_FIELDS, world_geoms  # noqa: E402
 
 BLOCK = {"boxes": [{"center": [0.0, 0.0, 0.05], "size": [2.0, 2.0, 0.1]}]}

@@ -52,6 +52,7 @@ density is the control input ``u`` alone (clipped at 0: a cable cannot push).
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field, replace
 from typing import Iterable
 
@@ -63,7 +64,7 @@ from .rod_mass import mass_moments
 from .sizing import check_size
 from .structure import Structure
 
-__all__ = ["Model", "State", "compile_model", "Params", "default_params", "initial_state"]
+__all__ = ["Model", "State", "compile_model", "Params", "default_params", "initial_state", "new_state"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -146,6 +147,28 @@ class State:
 
     def replace(self, **kw) -> "State":
         return replace(self, **kw)
+
+
+def _fast_state_ok() -> bool:
+    """Whether :class:`State` is still the plain frozen dataclass (q, qd, t) that :func:`new_state` fills directly."""
+    return (dataclasses.is_dataclass(State) and [f.name for f in dataclasses.fields(State)] == ["q", "qd", "t"]
+            and not hasattr(State, "__post_init__") and not hasattr(State, "__slots__"))
+
+
+if _fast_state_ok():
+    _object_new = object.__new__
+
+    def new_state(q, qd, t):
+        """State(q=q, qd=qd, t=t) without the frozen dataclass __init__ (3x faster; same object)."""
+        s = _object_new(State)
+        d = s.__dict__
+        d["q"] = q
+        d["qd"] = qd
+        d["t"] = t
+        return s
+else:  # pragma: no cover - State changed shape: use its constructor
+    def new_state(q, qd, t):
+        return State(q=q, qd=qd, t=t)
 
 
 def compile_model(structure: Structure, active_strings: Iterable[int] | None = None,

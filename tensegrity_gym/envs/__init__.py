@@ -19,7 +19,7 @@ _REGISTRY = (
     ("TensegrityNavigate-v0", "navigate:TensegrityNavigateEnv", "torch_vec:navigate_vector_env", 3000),   # 60 s
     # MuJoCo twins of TensegrityRoll-v0, TensegrityNavigate-v0 and TensegrityClimb-v0 (need the mujoco extra)
     ("TensegrityRollMuJoCo-v0", "roll_mujoco:TensegrityRollMuJoCoEnv", None, 1000),
-    ("TensegrityNavigateMuJoCo-v0", "roll_mujoco:TensegrityNavigateMuJoCoEnv", None, 3000),
+    ("TensegrityNavigateMuJoCo-v0", "navigate_mujoco:TensegrityNavigateMuJoCoEnv", None, 3000),
     ("TensegrityClimbMuJoCo-v0", "climb_mujoco:TensegrityClimbMuJoCoEnv", None, 1000),
 )
 

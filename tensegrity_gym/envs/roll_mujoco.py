@@ -88,13 +88,8 @@ bilinear (within a few mm on gentle bumps) and ends at its grid, where ours hold
 a heightfield without a plane (the navigation courses, the ``"rough"`` generator) gets a level
 floor 1 mm under its lowest point in the scene (:func:`~tensegrity_gym.envs.twin_terrain.floor_height`).
 
-Navigation: ``TensegrityNavigateMuJoCo-v0``
--------------------------------------------
-:class:`TensegrityNavigateMuJoCoEnv` holds a one-copy :class:`~tensegrity_gym.envs.navigate.NavigateTask`
-(the arguments of ``TensegrityNavigate-v0``): the course (walls, rough patches, goals) is drawn at
-reset as ``TensegrityNavigate-v0`` draws it and becomes the scene's terrain; the planner's guidance,
-goals reached, goal bonus (``reward_goal``), success (terminates), observation and info keys are
-the task's own, computed from MuJoCo's state. Registered with ``max_episode_steps`` = 3000 (60 s).
+Navigation (``TensegrityNavigateMuJoCo-v0``) and climbing (``TensegrityClimbMuJoCo-v0``): this
+twin on those tasks, :mod:`tensegrity_gym.envs.navigate_mujoco` and :mod:`tensegrity_gym.envs.climb_mujoco`.
 
 Robot parameters: ``params=`` and ``randomize=``
 -------------------------------------------------
@@ -125,16 +120,14 @@ from ..core.checks import check_frame_size
 from .pickling import picklable_state, restore_state
 from .twin_divergence import clear_mujoco_warnings, twin_diverged
 from .common import check_action, check_positive
-from .config import NavigateConfig, RollConfig, flatten, with_flat
-from .navigate import NavigateTask
+from .config import RollConfig, flatten, with_flat
 from .roll import MAX_PATH, SETTLE_TIME, RollTask
 from .twin_params import TwinParams, check_twin_kwargs, contact_timeconst
 from .twin_terrain import copy_terrain, floor_height
 
-__all__ = ["TensegrityRollMuJoCoEnv", "TensegrityNavigateMuJoCoEnv", "ENV_ID", "NAVIGATE_ENV_ID"]
+__all__ = ["TensegrityRollMuJoCoEnv", "ENV_ID"]
 
 ENV_ID = "TensegrityRollMuJoCo-v0"
-NAVIGATE_ENV_ID = "TensegrityNavigateMuJoCo-v0"
 _UNSUPPORTED = ("start_rest_length_offset",)
 #: classical RK4's stability bound on the negative real axis: a damping rate c / I integrates
 #: stably for dt c / I up to this
@@ -444,34 +437,3 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
-
-
-class TensegrityNavigateMuJoCoEnv(TensegrityRollMuJoCoEnv):
-    """MuJoCo twin of ``TensegrityNavigate-v0``: the rolling twin (see the module doc) on the
-    navigation task's courses.
-
-    The env holds a one-copy :class:`~tensegrity_gym.envs.navigate.NavigateTask` (arguments: those
-    of ``TensegrityNavigate-v0``, plus the twin's own, as :class:`TensegrityRollMuJoCoEnv`), whose
-    reset draws the course from the env's ``np_random`` as ``TensegrityNavigate-v0`` does (the same
-    reset seed gives the same course, goals and start on both); the course's walls and rough patches
-    become the MuJoCo scene's terrain (changed in place per episode, :mod:`~tensegrity_gym.envs.twin_terrain`).
-    The planner's guidance, the goals reached, the goal bonus, success (it terminates the
-    episode), the observation (guidance, ``path_distance``, ``goals_left``, ``height_scan``) and
-    the info keys are the task's own (:meth:`NavigateTask.track_goals`, :meth:`NavigateTask.guide`),
-    computed from MuJoCo's state synced into the task. Registered as ``TensegrityNavigateMuJoCo-v0``
-    with ``max_episode_steps`` = 3000 (60 s), as ``TensegrityNavigate-v0``.
-    """
-
-    env_id = NAVIGATE_ENV_ID
-    task_class = NavigateTask
-    config_class = NavigateConfig
-
-    def _reset_task_state(self, info: dict) -> dict:
-        t = self.task
-        t.guide([0])     # the guidance from MuJoCo's start state
-        return {"goal_position": t.courses[0].goals[0].copy(), "path_distance": float(t.path[0])}
-
-    def _step_task_terms(self, info: dict) -> tuple[dict, bool, dict]:
-        terms, success, infos = self.task.track_goals()
-        return ({name: float(v[0]) for name, v in terms.items()}, bool(success[0]),
-                {k: v.item(0) for k, v in infos.items()})

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..core.model import Model
 
-__all__ = ["node_positions", "node_velocities", "string_state", "kinetic_energy", "potential_energy", "energy",
+__all__ = ["kabsch", "node_positions", "node_velocities", "string_state", "kinetic_energy", "potential_energy", "energy",
            "linear_momentum", "angular_momentum", "center_of_mass", "rod_length_drift", "constraint_violation",
            "configuration_matrix", "connectivity"]
 
@@ -158,3 +158,13 @@ def connectivity(model: Model):
     vals = np.concatenate([np.ones(m), -np.ones(m)])
     return sp.csr_matrix((vals, (rows, cols)), shape=(m, model.n_nodes))
 
+
+def kabsch(src, dst):
+    """The rigid fit of point set ``src`` (P, 3) to ``dst`` (P, 3), m (Kabsch): the rotation R, the
+    centroid of ``dst`` and the centroid of ``src``, with dst ~ (src - c_src) R^T + c_dst in the
+    least-squares sense."""
+    cs, cd = src.mean(0), dst.mean(0)
+    H = (src - cs).T @ (dst - cd)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    return Vt.T @ D @ U.T, cd, cs

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from ..physics.evaluate import project
-from ..physics.geometry import node_positions
+from ..physics.geometry import kabsch, node_positions
 from ..core.model import initial_state
 from ..physics.stability import stable_step_estimate
 from ..core.model import State
@@ -281,11 +281,11 @@ class _Problem:
                 continue
             trk = np.flatnonzero(Mw[w, 0])
             if trk.size >= 3:
-                R0, c0, cr = _kabsch(ref[trk], Nw[w, 0, trk])
+                R0, c0, cr = kabsch(ref[trk], Nw[w, 0, trk])
                 pos[w, miss] = (ref[miss] - cr) @ R0.T + c0
                 trk1 = np.flatnonzero(Mw[w, 1])
                 if trk1.size >= 3:
-                    R1, c1, cr1 = _kabsch(ref[trk1], Nw[w, 1, trk1])
+                    R1, c1, cr1 = kabsch(ref[trk1], Nw[w, 1, trk1])
                     vel[w, miss] = (((ref[miss] - cr1) @ R1.T + c1) - pos[w, miss]) / self.h
             else:
                 pos[w, miss] = ref[miss]
@@ -391,12 +391,3 @@ class _Problem:
         (:func:`tensegrity_gym.tools.sysid_torch.torch_jacobian`)."""
         from .sysid_torch import torch_jacobian
         return torch_jacobian(self, theta, q0, qd0)
-
-
-def _kabsch(src, dst):
-    """Rotation R, centroid of dst and centroid of src with dst ~ (src - c_src) R^T + c_dst."""
-    cs, cd = src.mean(0), dst.mean(0)
-    H = (src - cs).T @ (dst - cd)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return Vt.T @ D @ U.T, cd, cs

@@ -89,11 +89,9 @@ Implementation notes
 """
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
-from ...core.model import State
+from ...core.model import new_state
 from . import compile as _cm
 from .compile import NCHUNK as _NCHUNK, PARALLEL_MIN_WORK, _compile, _parallel, _READY
 from .entries import (_contact_loop, _contact_loop_simd, _contact_parallel, _run_acc, _run_copies_serial, _run_forces,
@@ -103,7 +101,7 @@ from .pack import _CACHE, _array, _flags, _pack, _pack_params, clear_cache
 from .plans import Plan, lean_plan, make_plan, packed
 
 __all__ = ["step", "step_inplace", "accelerations", "string_forces", "project", "contact_steps", "Plan",
-           "make_plan", "packed", "lean_plan", "new_state", "PARALLEL_MIN_WORK", "clear_cache"]
+           "make_plan", "packed", "lean_plan", "PARALLEL_MIN_WORK", "clear_cache"]
 
 
 def _check_inplace(q, qd):
@@ -387,24 +385,3 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 
 _NO_EXTERNAL = _frozen(np.empty((0, 1, 3)))   # no external force added to the contact or terrain forces
-
-
-def _fast_state_ok() -> bool:
-    return (dataclasses.is_dataclass(State) and [f.name for f in dataclasses.fields(State)] == ["q", "qd", "t"]
-            and not hasattr(State, "__post_init__") and not hasattr(State, "__slots__"))
-
-
-if _fast_state_ok():
-    _object_new = object.__new__
-
-    def new_state(q, qd, t):
-        """State(q=q, qd=qd, t=t) without the frozen dataclass __init__ (3x faster; same object)."""
-        s = _object_new(State)
-        d = s.__dict__
-        d["q"] = q
-        d["qd"] = qd
-        d["t"] = t
-        return s
-else:  # pragma: no cover - State changed shape: use its constructor
-    def new_state(q, qd, t):
-        return State(q=q, qd=qd, t=t)
