@@ -18,7 +18,7 @@ from typing import Any
 from tensegrity_gym.core.checks import check_count
 from tensegrity_gym.integrations.sb3 import LinearSchedule
 
-from .parsing import did_you_mean, read_yaml, safe_literal
+from .parsing import did_you_mean, find_file, read_yaml, safe_literal, shipped_files
 
 #: the hyperparameter files shipped with the package
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
@@ -52,22 +52,13 @@ def get_algo(name: str):
 def shipped_hyperparams_files() -> list[str]:
     """The names of the shipped hyperparameter files, relative to :data:`HYPERPARAMS_DIR`
     (``ppo.yml``, ``time_to_policy/ppo.yml``, ...): the names ``--conf-file`` takes."""
-    return sorted(p.relative_to(HYPERPARAMS_DIR).as_posix() for p in HYPERPARAMS_DIR.rglob("*.yml"))
+    return shipped_files(HYPERPARAMS_DIR)
 
 
 def find_hyperparams_file(conf_file: str | Path) -> Path:
-    """The file ``--conf-file`` names: a file of the user's own if ``conf_file`` is one (absolute,
-    or relative to the working directory), else the shipped file of that name relative to
-    :data:`HYPERPARAMS_DIR` (``time_to_policy/ppo.yml``). FileNotFoundError naming both places
-    looked at and the shipped names."""
-    path = Path(conf_file)
-    if path.is_file():
-        return path
-    shipped = HYPERPARAMS_DIR / path
-    if not path.is_absolute() and shipped.is_file():
-        return shipped
-    raise FileNotFoundError(f"--conf-file {conf_file}: no such file (looked for {path.absolute()} and {shipped}); "
-                            f"the shipped files: {', '.join(shipped_hyperparams_files())}")
+    """The file ``--conf-file`` names: a file of the user's own, else the shipped file of that
+    name relative to :data:`HYPERPARAMS_DIR` (``time_to_policy/ppo.yml``); see :func:`.parsing.find_file`."""
+    return find_file(conf_file, HYPERPARAMS_DIR, "--conf-file")
 
 
 def load_hyperparams_file(path: str | Path) -> dict:

@@ -175,3 +175,21 @@ def did_you_mean(key: str, names) -> str:
     return f" (did you mean {', '.join(close)}?)" if close else ""
 
 
+def shipped_files(folder: Path) -> list[str]:
+    """The names of the ``.yml`` files shipped under ``folder``, relative to it (``ppo.yml``,
+    ``time_to_policy/ppo.yml``)."""
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*.yml"))
+
+
+def find_file(name: str | Path, folder: Path, label: str) -> Path:
+    """The file a command-line argument names: the user's own if ``name`` is one (absolute, or
+    relative to the working directory), else the shipped file of that name relative to
+    ``folder``. FileNotFoundError naming ``label``, both places looked at and the shipped names."""
+    path = Path(name)
+    if path.is_file():
+        return path
+    shipped = folder / path
+    if not path.is_absolute() and shipped.is_file():
+        return shipped
+    raise FileNotFoundError(f"{label} {name} does not exist (looked for {path.absolute()} and {shipped}); "
+                            f"the shipped files: {', '.join(shipped_files(folder))}")

@@ -62,12 +62,7 @@ TRAIN_KEYS = {"algo", "env", "n_timesteps", "n_envs", "eval_freq", "eval_episode
 def load_config(path: str | Path) -> dict:
     """Read and validate a sweep config (errors name the field and the value): a file of the
     user's own (a path), else a shipped one named relative to :data:`SWEEPS_DIR` (``smoke.yml``)."""
-    path = Path(path)
-    if not path.is_file() and not path.is_absolute() and (SWEEPS_DIR / path).is_file():
-        path = SWEEPS_DIR / path
-    if not path.exists():
-        shipped = ", ".join(sorted(f.name for f in SWEEPS_DIR.glob("*.yml")))
-        raise FileNotFoundError(f"sweep config {path} does not exist (nor in {SWEEPS_DIR}; the shipped ones: {shipped})")
+    path = parsing.find_file(path, SWEEPS_DIR, "sweep config")
     cfg = parsing.read_yaml(path) or {}
     if not isinstance(cfg, dict):
         raise ValueError(f"{path}: expected a mapping")
