@@ -138,7 +138,7 @@ def test_heightfield_slope_bound_is_the_kernels_own(prism):
     """The slope bound a heightfield row carries (computed once per terrain) is the kernel's own
     scan of the heights: forces with the row's bound equal forces with it cleared (computed per call)."""
     from tensegrity_gym.core.terrain import Heightfield
-    from tensegrity_gym.physics.terrain import hf_bound
+    from tensegrity_gym.backends.numba.terrain_kinds import hf_bound
     rng = np.random.default_rng(0)
     h = 0.03 * rng.random((30, 30))
     tc = T.TerrainContact(Terrain(plane=None, heightfield=Heightfield(heights=h, cell=0.05, origin=[-0.75, -0.75])))

@@ -20,7 +20,8 @@ import platform
 
 import numpy as np
 
-from tensegrity_gym.physics.terrain import TerrainContact, hf_bound
+from tensegrity_gym.backends.numba.terrain_kinds import hf_bound
+from tensegrity_gym.physics.terrain import TerrainContact
 from tensegrity_gym.tasks.terrain import TerrainGenerator, drawn_values, generate, terrain_draws
 
 from scripts._bench import best_of

@@ -51,7 +51,7 @@ import numpy as np
 
 from ..backends.numba.api import _frozen as read_only   # the kernels take read-only arrays
 from ..backends.numba.terrain import terrain_forces_kernel
-from ..backends.numba.terrain_kinds import HFIELD, PLANE, check_codes, geom_row, hf_bound
+from ..backends.numba.terrain_kinds import HFIELD, PLANE, check_codes, geom_row
 from ..backends.numba.terrain_steps import terrain_steps
 from ..core.checks import check_positive
 from ..core.integrators import resolve
@@ -197,7 +197,7 @@ def _geom_rows(geom, hf, tc: TerrainContact, B: int):
     """:func:`_rows` of ``geom``; with the caller's heights ``hf`` and the contact's own geometry,
     the heightfield row's slope bound (column 6) is cleared: the kernel then bounds the slope of
     the heights it is given. A caller passing both gives each row the bound of its own heights
-    (:func:`hf_bound`)."""
+    (:func:`tensegrity_gym.backends.numba.terrain_kinds.hf_bound`)."""
     g = _rows(geom, tc.geom, B, 10, "geom")
     if geom is not None:
         check_codes(g)
