@@ -64,7 +64,7 @@ def test_navigate_matches_numpy_vector_env(case):
     assert np.abs(task.q - ten.q.numpy()).max() <= 1e-9
     np.testing.assert_array_equal(ten.goal_index.numpy(), task.goal_index)
     np.testing.assert_allclose(ten.goal.numpy(), task.goal, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(ten.goals.numpy(), task._goals)
+    np.testing.assert_array_equal(ten.goals.numpy(), task.goals)
     assert reached >= 3 and success >= 1 and truncated >= 1, (reached, success, truncated)
 
 

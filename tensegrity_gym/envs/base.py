@@ -74,6 +74,14 @@ class BatchedTask:
     RESET_OPTIONS: tuple = ()
     #: True when the env shell renders (set by the shells): a task may then record what it draws
     record_path: bool = False
+    #: the task's record (:mod:`tensegrity_gym.tasks.state`): its per-copy state arrays and the
+    #: arrays its record functions read; ``StateField`` rows
+    STATE: tuple = ()
+    CONSTANTS: tuple = ()
+    #: the torch env can draw and apply this task's resets on the device (``reset_sampling="device"``);
+    #: where not, why (for the error message)
+    DEVICE_RESET = False
+    NO_DEVICE_RESET = ""
 
     def _init_physics(self, model: Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
                       backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):
@@ -202,6 +210,12 @@ class BatchedTask:
 
     def write_actuation(self, rows, fields: dict) -> None:
         raise ValueError(f"params / randomize: {sorted(fields)}: this task has no motor limits to set per copy")
+
+    def write_params(self, rows, values: dict) -> None:
+        """Copies ``rows`` take the env parameter values ``values`` (name -> (r, ...) values;
+        :func:`~tensegrity_gym.envs.domain.write_copies`): the record's writer of per-copy
+        parameters (:mod:`tensegrity_gym.tasks.state`)."""
+        write_copies(self, rows, values)
 
     def _apply_task_domain(self, idx: np.ndarray) -> None:
         """Task-specific values derived from the parameters of copies ``idx``; see RollTask."""

@@ -13,8 +13,9 @@ import numpy as np
 from ..core.checks import check_array
 from ..core.params import default_params
 from ..tasks.climb import gravity_direction, plane_gravity
+from ..tasks.state import StateField
+from ..tasks.xp import namespace
 from .config import ClimbConfig, climb_config, flat_signature, with_flat
-from .domain import write_copies
 from .roll import RollTask
 from .shells import TaskEnv, TaskVectorEnv
 
@@ -55,7 +56,10 @@ class ClimbTask(RollTask):
     """The rolling task on a slope (arguments: see :class:`TensegrityClimbEnv`).
 
     State: the rolling task's, in the plane frame (x uphill, z along the plane's normal), and
-    ``slope`` (B,) degrees, each copy's slope this episode."""
+    ``slope`` (B,) degrees, each copy's slope this episode, and ``gdir`` (B, 3) its gravity
+    direction (observed; float32 values)."""
+
+    STATE = RollTask.STATE + (StateField("slope"), StateField("gdir"))
 
     def __init__(self, num_envs: int = 1, config: ClimbConfig | None = None, **kwargs):
         c = with_flat(config, kwargs, "ClimbTask.__init__", ClimbConfig)
@@ -83,7 +87,7 @@ class ClimbTask(RollTask):
             elif self.params.batch_size != B:
                 self.params = self.params.take(np.zeros(B, int))
             self._physics_per_copy = True
-        self._gdir = np.tile(gravity_direction(plane_gravity(lo, self._g)), (B, 1)).astype(np.float32)
+        self.gdir = np.tile(gravity_direction(plane_gravity(lo, self._g)), (B, 1)).astype(np.float32)
         if self.sensors is None:     # the state observation: the rolling task's plus the slope
             self.observation_size = self._state_size + 3
 
@@ -95,39 +99,46 @@ class ClimbTask(RollTask):
     def draws_physics(self) -> bool:
         return super().draws_physics or self._draws_slope
 
-    def reset_idx(self, idx, rngs, options=None) -> dict:
-        idx = np.asarray(idx, dtype=int)
-        if self._draws_slope:     # each copy's slope: the first draw of its generator this reset
-            lo, hi = self.slope_range
-            a = np.array([rngs[j].uniform(lo, hi) for j in range(idx.size)])
-            self.slope[idx] = a
-            g = plane_gravity(a, self._g)
-            write_copies(self, idx, {"gravity": g})
-            self._gdir[idx] = gravity_direction(g)
-        info = super().reset_idx(idx, rngs, options)
-        info["slope_deg"] = self.slope[idx].copy()
-        return info
+    @property
+    def first_draws(self) -> int:
+        """The slope, with a ``slope_range``: the first draw of each copy's generator at reset."""
+        return int(self._draws_slope)
+
+    def reset_first(self, rec, rows, u) -> None:
+        """Copies ``rows`` of the record ``rec`` take the slope U(lo, hi) degrees of their uniforms
+        ``u[:, 0]`` in [0, 1) (``lo + (hi - lo) u``: NumPy's ``uniform(lo, hi)`` of the same draw),
+        its gravity in the plane frame (:func:`~tensegrity_gym.tasks.climb.plane_gravity`) and its
+        gravity direction (float32 values)."""
+        lo, hi = self.slope_range
+        a = lo + (hi - lo) * u[:, 0]
+        g = plane_gravity(a, self._g)
+        rec.write_params(rows, {"gravity": g})
+        rec.slope[rows] = a
+        xp = namespace(g)
+        rec.gdir[rows] = xp.to_float(xp.float32(gravity_direction(g)), rec.gdir)
+
+    def reset_info(self, rec, rows) -> dict:
+        return {"slope_deg": namespace(rec.slope).copy(rec.slope[rows])}
 
     def slope_gravity(self) -> np.ndarray:
         """(B, 3) each copy's gravity this episode in its plane frame, m/s^2 (from its slope; what
         another simulator of this task, such as the MuJoCo twin, sets as its gravity)."""
         return plane_gravity(self.slope, self._g)
 
-    def climb_info(self, forward_velocity) -> dict:
-        """The info keys of this task beyond the rolling task's, from the velocity along the goal
-        ``forward_velocity`` (B,) m/s: ``slope_deg`` (B,) degrees and ``uphill_velocity`` (B,) m/s."""
-        return {"slope_deg": self.slope.copy(), "uphill_velocity": forward_velocity}     # the goal is uphill (+x)
+    def climb_info(self, rec, forward_velocity) -> dict:
+        """The info keys of this task beyond the rolling task's on the record ``rec``, from the
+        velocity along the goal ``forward_velocity`` (B,) m/s: ``slope_deg`` (B,) degrees and
+        ``uphill_velocity`` (B,) m/s."""
+        return {"slope_deg": namespace(rec.slope).copy(rec.slope), "uphill_velocity": forward_velocity}
 
-    def step(self, action):
-        terms, terminated, infos = super().step(action)
-        infos.update(self.climb_info(infos["forward_velocity"]))
+    def task_step(self, rec, com0, com, action):
+        terms, terminated, infos = super().task_step(rec, com0, com, action)
+        infos.update(self.climb_info(rec, infos["forward_velocity"]))     # the goal is uphill (+x)
         return terms, terminated, infos
 
-    def observe(self) -> np.ndarray:
-        obs = super().observe()
-        if self.sensors is not None:
-            return obs
-        return np.concatenate([obs, self._gdir], axis=1)
+    def observe_task(self, rec, obs):
+        """The rolling task's observation and the gravity direction (B, 3)."""
+        return namespace(obs).concat([obs, rec.gdir], axis=1)
 
     def observation_layout(self) -> list[tuple[str, slice, str]]:
         out = super().observation_layout()

@@ -69,5 +69,5 @@ class TensegrityClimbMuJoCoEnv(TensegrityRollMuJoCoEnv):
         return {"slope_deg": float(info["slope_deg"][0])}
 
     def _step_task_terms(self, info: dict) -> tuple[dict, bool, dict]:
-        extra = self.task.climb_info(np.array([info["forward_velocity"]]))
+        extra = self.task.climb_info(self.task, np.array([info["forward_velocity"]]))
         return {}, False, {name: np.asarray(v).item(0) for name, v in extra.items()}

@@ -13,6 +13,8 @@ import numpy as np
 from ..core.checks import check_array
 from ..tasks.navigate import (CourseSpec, current_goal, draw_course, guidance_batch, height_scan,
                               navigate_observation, track_goals)
+from ..tasks.state import StateField
+from ..tasks.xp import namespace
 from .config import NavigateConfig, flat_signature, navigate_config, with_flat
 from .roll import RollTask
 from .shells import TaskEnv, TaskVectorEnv
@@ -56,6 +58,12 @@ class NavigateTask(RollTask):
     ``goal_index`` (B,) the current goal (``n_goals``: all reached), ``path`` (B,) the planner's
     path distance to it, m."""
 
+    STATE = RollTask.STATE + (StateField("goal_index", "int"), StateField("path"),
+                              StateField("fields", nan=np.inf), StateField("goals", nan=0.0))
+    CONSTANTS = (StateField("origin"), StateField("scan"))
+    DEVICE_RESET = False
+    NO_DEVICE_RESET = "its courses are drawn and planned per reset on the host"
+
     def __init__(self, num_envs: int = 1, config: NavigateConfig | None = None, **kwargs):
         c = with_flat(config, kwargs, "NavigateTask.__init__", NavigateConfig)
         if c.terrain.terrain not in (None, {}):
@@ -94,20 +102,31 @@ class NavigateTask(RollTask):
         course = draw_course(self.spec, rng, self._surface)
         if i == 0 and self.courses[0] is None:    # the first draw: the per-copy arrays of every course
             B = len(self.courses)
-            self._fields = np.empty((B,) + course.field.shape)
-            self._goals = np.empty((B,) + course.goals.shape)
+            self.fields = np.empty((B,) + course.field.shape)
+            self.goals = np.empty((B,) + course.goals.shape)
         self.courses[i] = course
-        self._fields[i], self._goals[i] = course.field, course.goals
+        self.fields[i], self.goals[i] = course.field, course.goals
         return course.terrain
+
+    @property
+    def origin(self) -> np.ndarray:
+        """(2,) the planner grid's origin, m (the same for every course)."""
+        return self.courses[0].origin
 
     def guide(self, idx) -> None:
         """Guidance (``goal``) and path distance (``path``, m) of copies ``idx`` toward their current
         goal from their current state (the MuJoCo twin calls it on its start state)."""
         idx = np.asarray(idx, dtype=int)
-        g, goal = current_goal(self._goals, self.goal_index[idx], idx)
-        c = self.courses[0]
-        self.goal[idx], self.path[idx] = guidance_batch(self._fields, c.origin, c.cell, goal,
-                                                        self._com(self.q[idx])[:, :2], self.spec.lookahead, g, idx)
+        self.guide_rows(self, self._com(self.q[idx]), idx)
+
+    def guide_rows(self, rec, com, rows=None) -> None:
+        """On the record ``rec``: guidance (``goal``) and path distance (``path``, m) of copies
+        ``rows`` (r,) int (None: all) toward their current goal from their centres of mass ``com``
+        (r, 3) m."""
+        ii = namespace(com).arange(com.shape[0], com) if rows is None else rows
+        g, goal = current_goal(rec.goals, rec.goal_index[ii], ii)
+        rec.goal[ii], rec.path[ii] = guidance_batch(rec.fields, rec.origin, self.courses[0].cell, goal,
+                                                    com[:, :2], self.spec.lookahead, g, rows)
 
     # ------------------------------------------------------------------ task API
     def reset_idx(self, idx, rngs, options=None) -> dict:
@@ -116,41 +135,44 @@ class NavigateTask(RollTask):
         self.goal_index[idx] = 0
         self.guide(idx)
         info["goal_direction"] = self.goal[idx].copy()
-        info["goal_position"] = self._goals[idx, 0].copy()
+        info["goal_position"] = self.goals[idx, 0].copy()
         info["path_distance"] = self.path[idx].copy()
         return info
 
-    def step(self, action):
-        terms, terminated, infos = super().step(action)
-        goal_terms, success, goal_infos = self.track_goals()
+    def task_step(self, rec, com0, com, action):
+        terms, _, infos = super().task_step(rec, com0, com, action)
+        goal_terms, success, goal_infos = self.goal_step(rec, com)
         terms.update(goal_terms)
         infos.update(goal_infos)
-        return terms, terminated | success, infos
+        return terms, success, infos
+
+    def goal_step(self, rec, com) -> tuple[dict, object, dict]:
+        """After a step, on the record ``rec`` from the centres of mass ``com`` (B, 3) m: the goals
+        reached (centre of mass within ``goal_radius`` m of the current goal), the guidance
+        toward the next goal, and their reward term ``{"goal": (B,)}``, success flags (B,) (all
+        goals reached) and info (``goals_reached``, ``goal_reached``, ``success``,
+        ``distance_to_goal`` m, ``path_distance`` m)."""
+        xp = namespace(com)
+        rec.goal_index, reached, success, dist = track_goals(rec.goals, rec.goal_index, com[:, :2],
+                                                             self.spec.goal_radius)
+        self.guide_rows(rec, com)
+        infos = dict(goals_reached=xp.copy(rec.goal_index), goal_reached=reached, success=success,
+                     distance_to_goal=dist, path_distance=xp.where(success, 0.0, rec.path))
+        return {"goal": self.goal_bonus * xp.to_float(reached, com)}, success, infos
 
     def track_goals(self) -> tuple[dict, np.ndarray, dict]:
-        """After a step, from the current state (``q``; the MuJoCo twin syncs its own into it):
-        the goals reached (centre of mass within ``goal_radius`` m of the current goal), the
-        guidance toward the next goal, and their reward term ``{"goal": (B,)}``, success flags
-        (B,) (all goals reached) and info (``goals_reached``, ``goal_reached``, ``success``,
-        ``distance_to_goal`` m, ``path_distance`` m)."""
-        self.goal_index, reached, success, dist = track_goals(self._goals, self.goal_index, self._com(self.q)[:, :2],
-                                                              self.spec.goal_radius)
-        self.guide(np.arange(self.num_envs))
-        infos = dict(goals_reached=self.goal_index.copy(), goal_reached=reached, success=success,
-                     distance_to_goal=dist, path_distance=np.where(success, 0.0, self.path))
-        return {"goal": self.goal_bonus * reached}, success, infos
+        """:meth:`goal_step` of this task from its current state ``q`` (the MuJoCo twin syncs its
+        own into it)."""
+        return self.goal_step(self, self._com(self.q))
 
-    def observe(self) -> np.ndarray:
-        obs = super().observe()
-        if self.sensors is not None:
-            return obs
-        # node positions and velocities in the guidance frame; the goal direction there is (1, 0)
+    def observe_task(self, rec, obs):
+        """Node positions and velocities in the guidance frame (the goal direction there is
+        (1, 0)), the path distance, the goals left and the optional height scan, from the rolling
+        task's ``obs`` on the record ``rec``."""
         scan = None
-        if self.scan is not None:
-            terrains = self.terrains
-            scan = height_scan(lambda x, y: np.stack([t.height_at(x[i], y[i]) for i, t in enumerate(terrains)]),
-                               self._com(self.q), self.scan)
-        return navigate_observation(obs, self._blocks, self.goal, self.path, self.goal_index, self.spec.n_goals, scan)
+        if rec.scan is not None:
+            scan = height_scan(rec.terrain_height, rec.com(rec.q), rec.scan)
+        return navigate_observation(obs, self._blocks, rec.goal, rec.path, rec.goal_index, self.spec.n_goals, scan)
 
     def observation_layout(self) -> list[tuple[str, slice, str]]:
         out = super().observation_layout()
@@ -164,7 +186,7 @@ class NavigateTask(RollTask):
     def render_data(self, i: int) -> dict:
         d = super().render_data(i)
         g = min(self.goal_index[i], self.spec.n_goals - 1)
-        d["goal"] = np.array([*self._goals[i, g], 0.0])
+        d["goal"] = np.array([*self.goals[i, g], 0.0])
         d["caption"] = f"goal {min(self.goal_index[i] + 1, self.spec.n_goals)}/{self.spec.n_goals}, " + d["caption"]
         return d
 

@@ -25,7 +25,8 @@ from .domain import container_nominal
 from .docs import ROLL_DOC as _DOC
 from .roll_obs import RollObservation
 from ..physics import terrain
-from ..tasks.roll import center_of_mass, perturbed_start, roll_step_terms
+from ..tasks.roll import perturbed_start, roll_step_terms
+from ..tasks.state import StateField
 from ..core.terrain import Terrain
 from ..tasks.terrain import generate, resolve_terrain, start_lift
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
@@ -58,7 +59,15 @@ class RollTask(RollObservation, BatchedTask):
     ``speed`` (B, na) cable speeds (m/s; rest-length mode with ``max_cable_acceleration``,
     else (B, 0));
     ``goal`` (B, 2) unit goal direction in the ground plane; ``start`` (B, 3) centre of mass at reset, m.
+    These are its record (:data:`STATE`, :mod:`tensegrity_gym.tasks.state`); :meth:`task_step`
+    and :meth:`observe_task` are written once over a record, for this task and the torch env.
     """
+
+    #: the per-copy state every shell holds (:mod:`tensegrity_gym.tasks.state`)
+    STATE = (StateField("q"), StateField("qd"), StateField("anchor", host="cstate.anchor"),
+             StateField("active", "bool", host="cstate.active"), StateField("ctrl"), StateField("speed"),
+             StateField("goal"), StateField("start"))
+    DEVICE_RESET = True
 
     def __init__(self, num_envs: int = 1, config: RollConfig | None = None, **kwargs):
         self.config = c = with_flat(config, kwargs, "RollTask.__init__", RollConfig)
@@ -251,6 +260,14 @@ class RollTask(RollObservation, BatchedTask):
         self.tstate.eta0[idx] = 0.0
         self.tstate.active[idx] = False
 
+    def terrain_height(self, x, y) -> np.ndarray:
+        """(B, m) the height of each copy's ground under the points ``x``, ``y`` (B, m) m: its
+        terrain's top (:meth:`~tensegrity_gym.core.terrain.Terrain.height_at`), or the level
+        ground's plane (the record's ``terrain_height``, :mod:`tensegrity_gym.tasks.state`)."""
+        if self.terrains is None:
+            return np.full(np.shape(x), self.contact.height)
+        return np.stack([t.height_at(x[i], y[i]) for i, t in enumerate(self.terrains)])
+
     def _scene_structure(self, s):
         """The placed, settled robot ``s`` as the task's physics runs it (here: as it is; a task
         on another scene, e.g. a slope, changes what the scene changes, such as gravity)."""
@@ -280,9 +297,26 @@ class RollTask(RollObservation, BatchedTask):
 
     # ------------------------------------------------------------------ scene
     # ------------------------------------------------------------------ task API
+    @property
+    def first_draws(self) -> int:
+        """Uniforms per copy a task built on this one draws first at each reset
+        (:meth:`reset_first`; here none)."""
+        return 0
+
+    def reset_first(self, rec, rows, u) -> None:
+        """The first step of a reset of copies ``rows`` on the record ``rec``, from their uniforms
+        ``u`` (r, :attr:`first_draws`) in [0, 1): for a task built on this one (a slope)."""
+
+    def reset_info(self, rec, rows) -> dict:
+        """Reset infos of copies ``rows`` beyond the rolling task's, from the record ``rec``."""
+        return {}
+
     def reset_idx(self, idx, rngs, options=None) -> dict:
         idx = np.asarray(idx, dtype=int)
         r = idx.size
+        n0 = self.first_draws
+        if n0:     # a task's own first draws (uniforms, as the device reset reads them)
+            self.reset_first(self, idx, np.array([rngs[j].random(n0) for j in range(r)]).reshape(r, n0))
         s = self.reset_noise_scale
         k = self.model.n_bars
         goal = np.tile(self.goal_direction, (r, 1))
@@ -320,15 +354,32 @@ class RollTask(RollObservation, BatchedTask):
         if self.record_path:
             for j, i in enumerate(idx):
                 self.paths[int(i)] = [com[j].copy()]
-        return {"com_position": com, "com_velocity": np.zeros((r, 3)), "distance_rolled": np.zeros(r),
+        info = {"com_position": com, "com_velocity": np.zeros((r, 3)), "distance_rolled": np.zeros(r),
                 "goal_direction": goal.copy()}
+        info.update(self.reset_info(self, idx))
+        return info
+
+    def task_step(self, rec, com0, com, action) -> tuple[dict, object, dict]:
+        """The task's part of one control step on the record ``rec`` (this task, or the torch
+        env's tensors) after the physics: centres of mass ``com0`` / ``com`` (B, 3) m before /
+        after, ``action`` (B, na). Returns ``(terms, terminated (B,) bool or None (no episode
+        ends), infos)``; may update the record's state."""
+        terms, infos = roll_step_terms(com0, com, rec.start, rec.goal, action, self.control_dt,
+                                       self.forward_reward_weight, self.ctrl_cost_weight)
+        return terms, None, infos
+
+    def observe_task(self, rec, obs):
+        """The state observation (B, size) from the rolling task's ``obs`` (B, state size) on the
+        record ``rec`` (this task's: as it is)."""
+        return obs
 
     def step(self, action):
         com0 = self._com(self.q)
         diverged = self.simulate(action)
         com = self._com(self.q)
-        terms, infos = roll_step_terms(com0, com, self.start, self.goal, action, self.control_dt,
-                                       self.forward_reward_weight, self.ctrl_cost_weight)
+        if self.sensors is not None:
+            self.sensors.record(self, self.goal, self.speed, self.cstate.active)
+        terms, terminated, infos = self.task_step(self, com0, com, action)
         if self.record_path:   # centre-of-mass path for render(), last MAX_PATH points per env
             for i in range(self.num_envs):
                 p = self.paths.setdefault(i, [])
@@ -336,9 +387,7 @@ class RollTask(RollObservation, BatchedTask):
                 if len(p) > MAX_PATH:
                     del p[: len(p) - MAX_PATH]
         infos["diverged"] = diverged
-        if self.sensors is not None:
-            self.sensors.record(self, self.goal, self.speed, self.cstate.active)
-        return terms, np.zeros(self.num_envs, bool), infos
+        return terms, np.zeros(self.num_envs, bool) if terminated is None else terminated, infos
 
     def render_data(self, i: int) -> dict:
         q, qd = self.q[i:i + 1], self.qd[i:i + 1]

@@ -30,11 +30,14 @@ class RollObservation:
         self._com_at_r = bool(np.all(model.com_eta == 0.0))
         self._mass_frac = model.mass / model.mass.sum()
 
-    def _com(self, q) -> np.ndarray:
-        """(B, 3) centre of mass, m (= physics.geometry.center_of_mass, one matrix product)."""
+    def com(self, q) -> np.ndarray:
+        """(B, 3) centre of mass of the robots ``q`` (B, k, 6), m (= physics.geometry.center_of_mass,
+        one matrix product; the record's ``com``, :mod:`tensegrity_gym.tasks.state`)."""
         if self._com_at_r:
             return center_of_mass(q, self._mass_frac)
         return geometry.center_of_mass(self.model, q, self.params)
+
+    _com = com
 
     def observe(self) -> np.ndarray:
         B = self.num_envs
@@ -43,7 +46,7 @@ class RollObservation:
         obs = np.empty((B, self._state_size), np.float32)
         compiled.roll_observe(self.q, self.qd, self._node_rod_i64, self._node_eta_1d, self._com(self.q), self.ctrl,
                               self.cstate.active, self.goal, self.speed, obs)
-        return obs
+        return self.observe_task(self, obs)
 
     def observation_layout(self) -> list[tuple[str, slice, str]]:
         """(name, slice, unit) of each block of the observation vector (robot mode: of the newest

@@ -16,6 +16,7 @@ from ..physics.stability import stability_limit
 from ..physics.actuation import Actuation
 from ..core.checks import check_flag
 from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
+from ..tasks.state import StateField
 from ..tasks.xp import NUMPY
 from . import compiled
 from .base import BatchedTask, fixed_step
@@ -42,8 +43,13 @@ class ShapeTask(FusedShapeStep, BatchedTask):
     """Batched shape-tracking task on ``num_envs`` copies (arguments: see :class:`TensegrityShapeEnv`).
 
     State: ``q``, ``qd`` (B, k, 6); ``ctrl`` (B, na) current rest lengths (m) or force densities
-    (N/m) of the actuated strings; ``target`` (B, nt, 3) target positions of the tracked nodes, m.
+    (N/m) of the actuated strings; ``target`` (B, nt, 3) target positions of the tracked nodes, m
+    (its record, :mod:`tensegrity_gym.tasks.state`).
     """
+
+    STATE = (StateField("q"), StateField("qd"), StateField("ctrl"), StateField("target"))
+    NO_DEVICE_RESET = ("its targets are stable static equilibria found by Newton's method with rejection, "
+                       "statics.solve_equilibria, on the host")
 
     def __init__(self, num_envs: int = 1, config: ShapeConfig | None = None, **kwargs):
         self.config = c = with_flat(config, kwargs, "ShapeTask.__init__", ShapeConfig)

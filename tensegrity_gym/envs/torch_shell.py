@@ -17,7 +17,7 @@ from ..backends.torch.actuation import physics_inputs
 from ..backends.torch.contact import contact_substep
 from ..backends.torch.graphs import CapturedCall
 from ..core.checks import check_action_tensor
-from ..core.param_table import PARAMS
+from ..core.param_table import PARAMS, env_params
 from .vector_rules import check_reset_called
 from .shells import VectorSeeding, episode_limit, reseed
 from .torch_reset import RESET_SAMPLING, CounterStreams, TorchDomain
@@ -25,14 +25,22 @@ from .torch_sensors import TorchSensors
 
 __all__ = ["TorchTaskVectorEnv"]
 
+#: env parameter name -> its row of the parameter table (write_params)
+ENV_PARAMS = env_params()
+
 
 class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
     """A batched task (:class:`~tensegrity_gym.envs.common.BatchedTask`) stepped on a torch
     device: seeding, resets on the host, Gymnasium vector infos, action checks, autoreset as
     the NumPy vector env's ``autoreset_mode`` (``"next_step"`` default, ``"same_step"``: then
     ``info["final_obs"]`` is an (N, obs_size) tensor, valid where ``info["_final_obs"]``, and
-    ``info["final_info"]`` a vector info dict of tensors; ``"disabled"``). Subclasses set ``ENV_ID`` and implement ``_make_task``, ``_init_state``,
-    ``_upload_rows``, ``_act`` and ``_observe`` (and ``_terminated`` for a task that ends episodes).
+    ``info["final_info"]`` a vector info dict of tensors; ``"disabled"``).
+
+    The env is the task's record on the device (:mod:`tensegrity_gym.tasks.state`): one tensor
+    attribute per field of the task's ``STATE`` and ``CONSTANTS``, built here from the host task
+    and copied row by row after each host reset. Subclasses set ``ENV_ID`` and ``TASK`` (the
+    task class) and implement ``_init_device`` (the physics' own device arrays), ``_act``
+    (``-> (terms, terminated or None, infos)``) and ``_observe``.
 
     Arguments: those of the id's env plus ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``; ValueError when it does not exist),
     ``dtype`` (``"float64"`` default or ``"float32"``; anything else is a ValueError) and
@@ -72,7 +80,7 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
                              f"NumPy env: gymnasium.make({self.ENV_ID!r}, render_mode='rgb_array'))")
         self.device = resolve_device(device)
         self.dtype = resolve_dtype(dtype)
-        task = self._make_task(num_envs, kwargs)
+        task = self.TASK(num_envs=num_envs, **kwargs)
         integrator_name(task.integrator)          # ValueError for an implicit method
         self.task = task
         self.num_envs = N = task.num_envs
@@ -136,15 +144,45 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
             call = self._graphs[fn] = CapturedCall(fn)
         return call
 
-    def _terminated(self, infos: dict):
-        """(N,) bool: the envs whose episode the task ended in this step (here: none; the time
-        limit and divergence truncate)."""
-        return torch_module().zeros_like(infos["diverged"])
-
     # ------------------------------------------------------------------ host <-> device
     def _T(self, x):
         torch = torch_module()
         return torch.as_tensor(np.array(x, dtype=float), dtype=self.dtype, device=self.device)
+
+    def _device_array(self, field, x):
+        """The device copy of the host array ``x`` of the record field ``field`` (None stays None)."""
+        if x is None:
+            return None
+        torch = torch_module()
+        if field.kind == "bool":
+            return torch.as_tensor(np.asarray(x, dtype=bool), device=self.device)
+        if field.kind == "int":
+            return torch.as_tensor(np.asarray(x, dtype=np.int64), device=self.device)
+        return self._T(x if field.nan is None else np.nan_to_num(x, nan=field.nan))
+
+    def _init_state(self) -> None:
+        """The record: a device tensor per field of the task's ``STATE`` and ``CONSTANTS``; then
+        the physics' own arrays (``_init_device``)."""
+        for f in self.task.STATE + self.task.CONSTANTS:
+            setattr(self, f.name, self._device_array(f, f.read(self.task)))
+        self._init_device()
+
+    def _init_device(self) -> None:
+        """The device arrays the env's physics and device resets need beyond the record."""
+
+    def _upload_rows(self, it, idx) -> None:
+        """Rows ``idx`` (host) of the task's state into rows ``it`` (device) of the record."""
+        for f in self.task.STATE:
+            getattr(self, f.name)[it] = self._device_array(f, f.read(self.task)[idx])
+
+    def write_params(self, rows, values: dict) -> None:
+        """The record's writer of per-copy physics parameters: copies ``rows`` take ``values``
+        (env parameter name -> (r, ...) tensor) in their ``Params`` field."""
+        for name, v in values.items():
+            row = ENV_PARAMS.get(name)
+            if row is None or row.group != "physics" or self._params is None or row.field not in self._params:
+                raise ValueError(f"write_params: {name!r} is not a per-copy physics parameter of this env")
+            self._params[row.field][rows] = v.to(self.dtype)
 
     def _upload_domain(self, idx) -> None:
         """Copy the host task's parameter rows to the device: all (``idx`` None) or rows ``idx``
@@ -324,12 +362,12 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         reset_now = self._autoreset.clone()
         if any_reset:
             a = torch.where(reset_now[:, None], torch.zeros_like(a), a)
-        terms, infos = self._act(a)
+        terms, terminated, infos = self._act(a)
         reward = None
         for v in terms.values():                      # rewards.combine: the terms in order
             reward = v if reward is None else reward + v
         diverged = infos["diverged"]
-        terminated = self._terminated(infos)
+        terminated = torch.zeros_like(diverged) if terminated is None else terminated.clone()
         truncated = diverged.clone()
         if self.max_episode_steps is not None:
             truncated = truncated | (self.elapsed >= self.max_episode_steps)

@@ -1,7 +1,10 @@
 """The device-resident task envs on :class:`~tensegrity_gym.envs.torch_shell.TorchTaskVectorEnv`:
-the rolling robot (``TensegrityRoll-v0``), climbing (``TensegrityClimb-v0``), navigation
-(``TensegrityNavigate-v0``) and shape tracking (``TensegrityShape-v0``) with ``backend="torch"``
-(see :mod:`tensegrity_gym.envs.torch_vec` for what runs where)."""
+the rolling robot's physics (ground or terrain contact) for ``TensegrityRoll-v0`` and every task
+built on :class:`~tensegrity_gym.envs.roll.RollTask` (``TensegrityClimb-v0``,
+``TensegrityNavigate-v0``), and the shape task's (``TensegrityShape-v0``), with
+``backend="torch"`` (see :mod:`tensegrity_gym.envs.torch_vec` for what runs where). The task's
+own step, observation and reset rows are its record functions (:mod:`tensegrity_gym.tasks.state`),
+the ones the NumPy task runs; :func:`torch_env_class` gives a task class its device env."""
 from __future__ import annotations
 
 import gymnasium as gym
@@ -14,12 +17,11 @@ from ..backends.torch.driver import step
 from ..backends.torch import divergence
 from ..backends.torch.contact import contact_step
 from ..backends.torch.terrain import compile_options, terrain_substep, top_height
+from .base import BatchedTask
 from .climb import ClimbTask
 from .navigate import NavigateTask
 from .roll import RollTask
-from ..tasks.climb import gravity_direction, plane_gravity
-from ..tasks.navigate import current_goal, guidance_batch, height_scan, navigate_observation, track_goals
-from ..tasks.roll import center_of_mass, perturbed_start, roll_state_observation, roll_step_terms
+from ..tasks.roll import center_of_mass, perturbed_start, roll_state_observation
 from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
 from ..tasks.terrain import terrain_draws
 from ..tasks.xp import namespace
@@ -27,20 +29,20 @@ from .shape import ShapeTask
 from .torch_shell import TorchTaskVectorEnv
 from .torch_terrain import TorchTerrain
 
-__all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "TorchClimbVectorEnv", "TorchNavigateVectorEnv"]
+__all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "TorchClimbVectorEnv", "TorchNavigateVectorEnv",
+           "torch_env_class"]
 
 # gymnasium.vector.VectorEnv is listed as a direct base of each env class: libraries that pick their
 # wrapper from the class's __bases__ (skrl's wrap_env) then recognise a Gymnasium vector env
 
 
 class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
-    """``TensegrityRoll-v0`` on N copies stepped on a torch device (see the module doc)."""
+    """A :class:`~tensegrity_gym.envs.roll.RollTask` (``TensegrityRoll-v0``, or a task built on
+    it: ``TASK``) on N copies stepped on a torch device (see the module doc)."""
 
     ENV_ID = "TensegrityRoll-v0"
-    DEVICE_RESET = True
-
-    def _make_task(self, num_envs, kwargs):
-        return RollTask(num_envs=num_envs, **kwargs)
+    TASK = RollTask
+    DEVICE_RESET = RollTask.DEVICE_RESET
 
     def _physics_substep(self):
         """With a terrain, :func:`~tensegrity_gym.backends.torch.terrain.terrain_substep` and its
@@ -49,18 +51,9 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
             return super()._physics_substep()
         return terrain_substep, compile_options(self._terrain.layout)
 
-    def _init_state(self):
-        torch = torch_module()
-        task, dev = self.task, self.device
+    def _init_device(self):
+        task = self.task
         self._com_eta = self._T(task.model.com_eta)[None, :, None]
-        self.q = self._T(task.q)
-        self.qd = self._T(task.qd)
-        self.anchor = self._T(task.cstate.anchor)
-        self.active = torch.as_tensor(task.cstate.active, device=dev)
-        self.ctrl = self._T(task.ctrl)
-        self.speed = self._T(task.speed)
-        self.goal = self._T(task.goal)
-        self.start = self._T(task.start)
         # device resets (reset_sampling="device"): the resting robot, rod lengths, lowest node height
         self._q_nominal = self._T(task.q_nominal)
         self._length = self._T(task.model.length)[None, :, None]
@@ -71,45 +64,50 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         self._terrain = None if task.terrain_contact is None else TorchTerrain(self)
 
     def _upload_rows(self, it, idx):
-        torch = torch_module()
-        task = self.task
-        self.q[it] = self._T(task.q[idx])
-        self.qd[it] = self._T(task.qd[idx])
-        self.anchor[it] = self._T(task.cstate.anchor[idx])
-        self.active[it] = torch.as_tensor(task.cstate.active[idx], device=self.device)
-        self.ctrl[it] = self._T(task.ctrl[idx])
-        self.speed[it] = self._T(task.speed[idx])
-        self.goal[it] = self._T(task.goal[idx])
-        self.start[it] = self._T(task.start[idx])
+        super()._upload_rows(it, idx)
         if self._terrain is not None:
             self._terrain.upload_rows(self, it, idx)
 
-    def _com(self, q, it=None):
-        """(N, 3) centre of mass, m (as ``RollTask._com``); of envs ``it`` when ``q`` holds only them."""
+    def com(self, q, it=None):
+        """(N, 3) centre of mass, m (as ``RollTask.com``); of envs ``it`` when ``q`` holds only them."""
         mf = self._mass_frac
         if it is not None and mf.shape[0] > 1:
             mf = mf[it]
         return center_of_mass(q, mf.expand(q.shape[0], -1), None if self.task._com_at_r else self._com_eta)
 
+    def terrain_height(self, x, y):
+        """(N, m) each env's ground height under ``x``, ``y`` (N, m) m (the record's)."""
+        torch = torch_module()
+        tt = self._terrain
+        if tt is None:
+            return torch.full_like(x, self.task.contact.height)
+        return top_height(tt.geom, tt.hf, x, y, tt.layout.kinds)
+
     def _reset_draws(self) -> int:
-        """Uniforms a device reset of one env reads for the task: the initial-state noise (4 x k x 3:
-        rod centres, axes, their rates), then the goal angle with ``randomize_goal``, then a
-        terrain generator's draws."""
+        """Uniforms a device reset of one env reads for the task: the task's first draws
+        (``RollTask.first_draws``, a slope), the initial-state noise (4 x k x 3: rod centres,
+        axes, their rates), then the goal angle with ``randomize_goal``, then a terrain
+        generator's draws."""
         task = self.task
         gen = task.terrain_generator
-        return ((12 * task.model.n_bars if task.reset_noise_scale > 0 else 0) + (1 if task.randomize_goal else 0)
-                + (0 if gen is None else terrain_draws(gen)))
+        return (task.first_draws + (12 * task.model.n_bars if task.reset_noise_scale > 0 else 0)
+                + (1 if task.randomize_goal else 0) + (0 if gen is None else terrain_draws(gen)))
 
     def _device_reset_rows(self, it, u) -> dict:
         """``RollTask.reset_idx`` on the device for envs ``it`` from their uniforms ``u`` (r, n)
-        float64: the resting robot plus U(-s, s) noise on the rod centres (m) and velocities (m/s)
-        and, divided by the rod length, on the axes and their rates, projected (unit axes), lifted
-        so that no node is below the resting robot's lowest; no contact anchors; the start
-        control; the goal (angle U(0, 2 pi) with ``randomize_goal``); on a terrain, a generator's
-        new terrain (:meth:`TorchTerrain.draw`), the start lifted clear of it and its contact
-        state released."""
+        float64: the task's first draws (``RollTask.reset_first``), the resting robot plus
+        U(-s, s) noise on the rod centres (m) and velocities (m/s) and, divided by the rod
+        length, on the axes and their rates, projected (unit axes), lifted so that no node is
+        below the resting robot's lowest; no contact anchors; the start control; the goal (angle
+        U(0, 2 pi) with ``randomize_goal``); on a terrain, a generator's new terrain
+        (:meth:`TorchTerrain.draw`), the start lifted clear of it and its contact state
+        released; the task's reset infos (``RollTask.reset_info``)."""
         torch = torch_module()
         task = self.task
+        n0 = task.first_draws
+        if n0:
+            task.reset_first(self, it, u[:, :n0])
+            u = u[:, n0:]
         r, k, s = it.shape[0], task.model.n_bars, task.reset_noise_scale
         used = 0
         if s > 0:
@@ -140,22 +138,27 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         self.ctrl[it] = ctrl
         self.speed[it] = 0.0
         self.goal[it] = goal
-        com = self._com(q, it)
+        com = self.com(q, it)
         self.start[it] = com
         if self._sens is not None:
             self._sens.reset_rows(it, q, qd, ctrl, self.speed[it], self.active[it], goal)
-        return {"com_position": com, "com_velocity": torch.zeros_like(com),
+        info = {"com_position": com, "com_velocity": torch.zeros_like(com),
                 "distance_rolled": com.new_zeros(r), "goal_direction": goal.clone()}
+        info.update(task.reset_info(self, it))
+        return info
 
     def _observe(self):
         if self._sens is not None:
             return self._sens.observation()
         q, qd = self.q, self.qd
-        return roll_state_observation(node_positions(self.tm, q, self._node_prm), node_velocities(self.tm, qd),
-                                      self._com(q), self.ctrl, self.active, self.goal, self.speed)
+        obs = roll_state_observation(node_positions(self.tm, q, self._node_prm), node_velocities(self.tm, qd),
+                                     self.com(q), self.ctrl, self.active, self.goal, self.speed)
+        return self.task.observe_task(self, obs)
 
     def _act(self, action):
-        """One control step of the task for the whole batch: ``(terms, infos)`` as (N,) tensors."""
+        """One control step for the whole batch: the control update, the physics with contact, the
+        divergence restore, then the task's step on this record (``RollTask.task_step``):
+        ``(terms, terminated or None, infos)`` as (N,) tensors."""
         torch = torch_module()
         task = self.task
         action = self._delayed(action)
@@ -166,7 +169,7 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
             self.ctrl = update_rate(act, self.ctrl, action, self._max_rate)
         inputs = self._physics_inputs()
         q0, qd0, anchor0, active0 = self.q, self.qd, self.anchor, self.active
-        com0 = self._com(q0)
+        com0 = self.com(q0)
         if self._terrain is not None:       # terrain contact; diverged copies restored there
             self.q, self.qd, qd_prev, diverged = self._terrain.advance(self, q0, qd0, inputs)
             d3 = diverged[:, None, None]
@@ -187,12 +190,9 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         if qd_prev is not None:
             self._sens.record(self.q, self.qd, torch.where(d3, qd0, qd_prev), self.ctrl, self.speed, self.active,
                               self.goal)
-        com = self._com(self.q)
-        terms, infos = roll_step_terms(com0, com, self.start, self.goal, action, task.control_dt,
-                                       task.forward_reward_weight, task.ctrl_cost_weight)
+        terms, terminated, infos = task.task_step(self, com0, self.com(self.q), action)
         infos["diverged"] = diverged
-        return terms, infos
-
+        return terms, terminated, infos
 
 
 class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
@@ -205,28 +205,13 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     :func:`tensegrity_gym.backends.torch.driver.step_once`)."""
 
     ENV_ID = "TensegrityShape-v0"
-    _NO_DEVICE_RESET = ("its targets are stable static equilibria found by Newton's method with rejection, "
-                        "statics.solve_equilibria, on the host")
+    TASK = ShapeTask
+    _NO_DEVICE_RESET = ShapeTask.NO_DEVICE_RESET
 
-    def _make_task(self, num_envs, kwargs):
-        return ShapeTask(num_envs=num_envs, **kwargs)
-
-    def _init_state(self):
-        task = self.task
+    def _init_device(self):
         torch = torch_module()
-        self.q = self._T(task.q)
-        self.qd = self._T(task.qd)
-        self.ctrl = self._T(task.ctrl)
-        self.target = self._T(task.target)
-        self._tracked = torch.as_tensor(np.asarray(task.tracked, dtype=np.int64), device=self.device)
-        self._center0 = self._T(task.center0)
-
-    def _upload_rows(self, it, idx):
-        task = self.task
-        self.q[it] = self._T(task.q[idx])
-        self.qd[it] = self._T(task.qd[idx])
-        self.ctrl[it] = self._T(task.ctrl[idx])
-        self.target[it] = self._T(task.target[idx])
+        self._tracked = torch.as_tensor(np.asarray(self.task.tracked, dtype=np.int64), device=self.device)
+        self._center0 = self._T(self.task.center0)
 
     def _tracked_nodes(self, q):
         return node_positions(self.tm, q, self._node_prm).index_select(1, self._tracked)
@@ -254,7 +239,7 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         terms, infos = shape_step_terms(err, emax, action, task.success_tolerance, task.tracking_weight,
                                         task.proximity_weight, task.ctrl_cost_weight)
         infos["diverged"] = diverged
-        return terms, infos
+        return terms, None, infos
 
     def _observe(self):
         if self._sens is not None:
@@ -263,132 +248,30 @@ class TorchShapeVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         return shape_state_observation(self._tracked_nodes(self.q), V, self.ctrl, self.target)
 
 
-class TorchClimbVectorEnv(TorchRollVectorEnv):
-    """``TensegrityClimb-v0`` on N copies stepped on a torch device: :class:`TorchRollVectorEnv`
-    on :class:`~tensegrity_gym.envs.climb.ClimbTask` (the slope as tilted gravity in the plane
-    frame, drawn per reset; with ``reset_sampling="device"`` on the device, the first draw of
-    the reset as on the host)."""
-
-    ENV_ID = "TensegrityClimb-v0"
-
-    def _reset_draws(self) -> int:
-        """The slope (with a ``slope_range``), then the rolling task's draws."""
-        return int(self.task._draws_slope) + super()._reset_draws()
-
-    def _device_reset_rows(self, it, u) -> dict:
-        """``ClimbTask.reset_idx`` on the device: each reset env's slope U(lo, hi) degrees from
-        its first uniform, its gravity in the plane frame (:func:`~tensegrity_gym.tasks.climb.plane_gravity`)
-        and gravity direction (held in float32 as the host's), then the rolling task's rows."""
-        task = self.task
-        if task._draws_slope:
-            torch = torch_module()
-            lo, hi = task.slope_range
-            a = lo + (hi - lo) * u[:, 0]             # U(lo, hi) as NumPy's
-            g = plane_gravity(a, task._g)
-            self._params["gravity"][it] = g.to(self.dtype)
-            self.slope[it] = a.to(self.slope.dtype)
-            self.gdir[it] = gravity_direction(g).to(torch.float32).to(self.gdir.dtype)
-            u = u[:, 1:]
-        info = super()._device_reset_rows(it, u)
-        info["slope_deg"] = self.slope[it].clone()
-        return info
-
-    def _make_task(self, num_envs, kwargs):
-        return ClimbTask(num_envs=num_envs, **kwargs)
-
-    def _init_state(self):
-        super()._init_state()
-        self.gdir = self._T(self.task._gdir)
-        self.slope = self._T(self.task.slope)
-
-    def _upload_rows(self, it, idx):
-        super()._upload_rows(it, idx)
-        self.gdir[it] = self._T(self.task._gdir[idx])
-        self.slope[it] = self._T(self.task.slope[idx])
-
-    def _observe(self):
-        obs = super()._observe()
-        if self._sens is not None:
-            return obs
-        return namespace(obs).concat([obs, self.gdir], axis=1)
-
-    def _act(self, action):
-        terms, infos = super()._act(action)
-        infos["slope_deg"] = self.slope.clone()
-        infos["uphill_velocity"] = infos["forward_velocity"]
-        return terms, infos
+#: task class -> the device env that runs its physics (the first row the task is a subclass of);
+#: a task class with no row has no device env (a ValueError, never a fallback)
+DEVICE_ENVS = ((RollTask, TorchRollVectorEnv), (ShapeTask, TorchShapeVectorEnv))
 
 
-class TorchNavigateVectorEnv(TorchRollVectorEnv):
-    """``TensegrityNavigate-v0`` on N copies stepped on a torch device: :class:`TorchRollVectorEnv`
-    on :class:`~tensegrity_gym.envs.navigate.NavigateTask`. Each reset env's course (goals,
-    walls, rough patches and the planner's path-distance fields) is drawn and planned on the host
-    (``reset_sampling="host"`` only) and its rows copied to the device: the fields (N, n_goals,
-    ny, nx) m, about 120 kB per env on the default course. Each step then runs on the device: the
-    terrain contact, the rolling task's terms along the planner's guidance, the goals reached
-    and the guidance toward the next (:func:`~tensegrity_gym.tasks.navigate.track_goals`,
-    :func:`~tensegrity_gym.tasks.navigate.guidance_batch`), the ``goal`` reward term, the end of
-    the episode when every goal is reached, and the observation in the guidance frame with the
-    optional height scan (:func:`~tensegrity_gym.tasks.navigate.navigate_observation`): the
-    NumPy env's functions, on tensors."""
+def torch_env_class(task_class: type, env_id: str) -> type:
+    """The device vector env class of the task class ``task_class`` (registered as ``env_id``):
+    a subclass of the device env of the physics it runs (:data:`DEVICE_ENVS`) with ``TASK`` and
+    ``ENV_ID`` set; the task's record and record functions do the rest."""
+    if not (isinstance(task_class, type) and issubclass(task_class, BatchedTask)):
+        raise ValueError(f"task_class: expected a BatchedTask subclass, got {task_class!r}")
+    for task_base, env in DEVICE_ENVS:
+        if issubclass(task_class, task_base):
+            if task_class is env.TASK and env_id == env.ENV_ID:
+                return env
+            name = "Torch" + task_class.__name__.removesuffix("Task") + "VectorEnv"
+            return type(name, (env,), {"TASK": task_class, "ENV_ID": env_id, "__module__": __name__,
+                                       "DEVICE_RESET": env.DEVICE_RESET and task_class.DEVICE_RESET,
+                                       "_NO_DEVICE_RESET": task_class.NO_DEVICE_RESET,
+                                       "__doc__": f"``{env_id}`` on N copies stepped on a torch device: "
+                                                  f":class:`{env.__name__}` on ``{task_class.__name__}``."})
+    raise ValueError(f"task_class: {task_class.__name__} has no device env (backend='torch'): it is not built "
+                     f"on {' or '.join(t.__name__ for t, _ in DEVICE_ENVS)}")
 
-    ENV_ID = "TensegrityNavigate-v0"
-    DEVICE_RESET = False
-    _NO_DEVICE_RESET = "its courses are drawn and planned per reset on the host"
 
-    def _make_task(self, num_envs, kwargs):
-        return NavigateTask(num_envs=num_envs, **kwargs)
-
-    def _init_state(self):
-        super()._init_state()
-        torch = torch_module()
-        task = self.task
-        self.fields = self._T(np.nan_to_num(task._fields, nan=np.inf))   # rows drawn at reset
-        self.goals = self._T(np.nan_to_num(task._goals))
-        self.goal_index = torch.as_tensor(task.goal_index, dtype=torch.int64, device=self.device)
-        self.path = self._T(task.path)
-        self._origin = self._T(task.courses[0].origin)
-        self._scan = None if task.scan is None else self._T(task.scan)
-
-    def _upload_rows(self, it, idx):
-        torch = torch_module()
-        super()._upload_rows(it, idx)
-        task = self.task
-        self.fields[it] = self._T(task._fields[idx])
-        self.goals[it] = self._T(task._goals[idx])
-        self.goal_index[it] = torch.as_tensor(task.goal_index[idx], dtype=torch.int64, device=self.device)
-        self.path[it] = self._T(task.path[idx])
-
-    def _guide(self):
-        """``goal`` (the planner's unit guidance) and ``path`` (m) of every env toward its current goal."""
-        torch = torch_module()
-        task = self.task
-        g, goal = current_goal(self.goals, self.goal_index, torch.arange(self.num_envs, device=self.device))
-        self.goal, self.path = guidance_batch(self.fields, self._origin, task.courses[0].cell, goal,
-                                              self._com(self.q)[:, :2], task.spec.lookahead, g)
-
-    def _act(self, action):
-        terms, infos = super()._act(action)
-        task = self.task
-        self.goal_index, reached, success, dist = track_goals(self.goals, self.goal_index, self._com(self.q)[:, :2],
-                                                              task.spec.goal_radius)
-        self._guide()
-        terms["goal"] = task.goal_bonus * reached.to(self.dtype)
-        infos.update(goals_reached=self.goal_index.clone(), goal_reached=reached, success=success,
-                     distance_to_goal=dist, path_distance=namespace(dist).where(success, 0.0, self.path))
-        return terms, infos
-
-    def _terminated(self, infos: dict):
-        return infos["success"].clone()
-
-    def _observe(self):
-        obs = super()._observe()
-        if self._sens is not None:
-            return obs
-        task = self.task
-        scan = None
-        if self._scan is not None:
-            tt = self._terrain
-            scan = height_scan(lambda x, y: top_height(tt.geom, tt.hf, x, y, tt.layout.kinds), self._com(self.q),
-                               self._scan)
-        return navigate_observation(obs, task._blocks, self.goal, self.path, self.goal_index, task.spec.n_goals, scan)
+TorchClimbVectorEnv = torch_env_class(ClimbTask, "TensegrityClimb-v0")
+TorchNavigateVectorEnv = torch_env_class(NavigateTask, "TensegrityNavigate-v0")

@@ -108,17 +108,19 @@ normalisation wrappers that accept its tensors;
 """
 from __future__ import annotations
 
-from .climb import TensegrityClimbVectorEnv
-from .navigate import TensegrityNavigateVectorEnv
-from .roll import TensegrityRollVectorEnv
-from .shape import TensegrityShapeVectorEnv
+from gymnasium.envs.registration import load_env_creator
+
 from .torch_shell import TorchTaskVectorEnv
-from .torch_tasks import TorchClimbVectorEnv, TorchNavigateVectorEnv, TorchRollVectorEnv, TorchShapeVectorEnv
+from .torch_tasks import (TorchClimbVectorEnv, TorchNavigateVectorEnv, TorchRollVectorEnv, TorchShapeVectorEnv,
+                          torch_env_class)
 
 _TorchTaskVectorEnv = TorchTaskVectorEnv   # the shell's former name (class paths in saved objects)
 
 __all__ = ["TorchRollVectorEnv", "TorchShapeVectorEnv", "TorchClimbVectorEnv", "TorchNavigateVectorEnv",
-           "roll_vector_env", "shape_vector_env", "climb_vector_env", "navigate_vector_env"]
+           "vector_env", "device_env"]
+
+#: (task class, env id) -> its device env class, built once
+_DEVICE_ENVS: dict = {}
 
 
 def _no_torch_kwargs(kwargs):
@@ -127,34 +129,22 @@ def _no_torch_kwargs(kwargs):
             raise ValueError(f"{name}: only with backend='torch' (got backend={kwargs.get('backend', 'auto')!r})")
 
 
-def _vector_env(torch_env, numpy_env, num_envs: int, kwargs: dict):
-    """``torch_env`` when ``backend="torch"``, else ``numpy_env`` with the arguments passed
-    through untouched (the default path is unchanged)."""
+def device_env(numpy_env: type) -> type:
+    """The torch device env of the NumPy vector env class ``numpy_env`` (a
+    :class:`~tensegrity_gym.envs.shells.TaskVectorEnv` of a task): the same task
+    (``numpy_env.task_class``) on :func:`~tensegrity_gym.envs.torch_tasks.torch_env_class`."""
+    key = (numpy_env.task_class, numpy_env.env_id)
+    if key not in _DEVICE_ENVS:
+        _DEVICE_ENVS[key] = torch_env_class(*key)
+    return _DEVICE_ENVS[key]
+
+
+def vector_env(numpy_env: str, num_envs: int, kwargs: dict):
+    """The vector env of a registered task (``vector_entry_point``: :class:`tensegrity_gym.envs.VectorEntry`):
+    its device env (:func:`device_env`) when ``backend="torch"``, else its NumPy vector env
+    ``numpy_env`` (``"package.module:Class"``) with the arguments passed through untouched."""
+    cls = load_env_creator(numpy_env)
     if kwargs.get("backend") == "torch":
-        return torch_env(num_envs=num_envs, **kwargs)
+        return device_env(cls)(num_envs=num_envs, **kwargs)
     _no_torch_kwargs(kwargs)
-    return numpy_env(num_envs=num_envs, **kwargs)
-
-
-def roll_vector_env(num_envs: int = 1, **kwargs):
-    """``vector_entry_point`` of ``TensegrityRoll-v0``: :class:`TorchRollVectorEnv` when
-    ``backend="torch"``, else :class:`~tensegrity_gym.envs.roll.TensegrityRollVectorEnv`."""
-    return _vector_env(TorchRollVectorEnv, TensegrityRollVectorEnv, num_envs, kwargs)
-
-
-def shape_vector_env(num_envs: int = 1, **kwargs):
-    """``vector_entry_point`` of ``TensegrityShape-v0``: :class:`TorchShapeVectorEnv` when
-    ``backend="torch"``, else :class:`~tensegrity_gym.envs.shape.TensegrityShapeVectorEnv`."""
-    return _vector_env(TorchShapeVectorEnv, TensegrityShapeVectorEnv, num_envs, kwargs)
-
-
-def climb_vector_env(num_envs: int = 1, **kwargs):
-    """``vector_entry_point`` of ``TensegrityClimb-v0``: :class:`TorchClimbVectorEnv` when
-    ``backend="torch"``, else :class:`~tensegrity_gym.envs.climb.TensegrityClimbVectorEnv`."""
-    return _vector_env(TorchClimbVectorEnv, TensegrityClimbVectorEnv, num_envs, kwargs)
-
-
-def navigate_vector_env(num_envs: int = 1, **kwargs):
-    """``vector_entry_point`` of ``TensegrityNavigate-v0``: :class:`TorchNavigateVectorEnv` when
-    ``backend="torch"``, else :class:`~tensegrity_gym.envs.navigate.TensegrityNavigateVectorEnv`."""
-    return _vector_env(TorchNavigateVectorEnv, TensegrityNavigateVectorEnv, num_envs, kwargs)
+    return cls(num_envs=num_envs, **kwargs)

@@ -36,6 +36,9 @@ name                               NumPy                                torch
 ``amin``, ``amax(x, axis)``        ``x.min``, ``x.max``                 ``x.amin``, ``x.amax`` (axis: int or tuple)
 ``maximum(a, b)``                  ``np.maximum``                       ``torch.maximum`` (scalars as tensors)
 ``multiply(a, b, out)``            ``np.multiply(a, b, out=out)``       ``torch.mul(a, b, out=out)``
+``copy(x)``                        ``x.copy()``                         ``x.clone()``
+``float32(x)``                     ``x.astype(np.float32)``             ``x.to(torch.float32)``
+``arctan2(y, x)``                  ``np.arctan2``                       ``torch.atan2``
 =================================  ===================================  ======================================
 
 Reductions and products run along the last axis unless an ``axis`` is named. torch is imported
@@ -134,6 +137,16 @@ class _NumPyOps:
     @staticmethod
     def multiply(a, b, out):
         return np.multiply(a, b, out=out)
+
+    @staticmethod
+    def copy(x):
+        return x.copy()
+
+    @staticmethod
+    def float32(x):
+        return x.astype(np.float32)
+
+    arctan2 = staticmethod(np.arctan2)
 
 
 class _TorchOps:
@@ -239,6 +252,16 @@ class _TorchOps:
 
     def multiply(self, a, b, out):
         return self.torch.mul(a, b, out=out)
+
+    @staticmethod
+    def copy(x):
+        return x.clone()
+
+    def float32(self, x):
+        return x.to(self.torch.float32)
+
+    def arctan2(self, y, x):
+        return self.torch.atan2(y, x)
 
 
 NUMPY = _NumPyOps()
