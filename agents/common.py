@@ -239,6 +239,18 @@ def run_cli(fn, argv: list[str] | None = None, errors=(ValueError, FileNotFoundE
 PACKAGE = __package__ or "agents"
 
 
+def repo_cwd() -> str | None:
+    """The working directory relative to the repository root (``.`` at the root, ``/`` between
+    parts), or None outside the checkout or in an installed copy (no repository): what a run's
+    ``command.txt`` records, so that it names no machine path."""
+    if not (REPO_ROOT / "pyproject.toml").is_file():
+        return None
+    try:
+        return Path.cwd().resolve().relative_to(REPO_ROOT).as_posix()
+    except (OSError, ValueError):   # the working directory removed, or outside the checkout
+        return None
+
+
 def command_line(argv: list[str] | None = None, module: str = f"{PACKAGE}.train") -> str:
     """The command that reproduces this run: ``python -m <module> <argv>`` (``argv`` default sys.argv[1:])."""
     if argv is not None:

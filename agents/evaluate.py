@@ -41,7 +41,7 @@ from . import common, envs, hyperparameters, parsing
 from .episode_metrics import format_table, scene_scales, summarize
 from .figures import plot_episodes, plot_learning_curve, write_gif
 from tensegrity_gym.core.checks import check_count
-from tensegrity_gym.integrations.torch_threads import passive_openmp_wait, set_torch_threads
+from tensegrity_gym.integrations.torch_threads import num_threads_arg, passive_openmp_wait, set_torch_threads
 
 passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
 
@@ -223,7 +223,7 @@ def build_parser():
                         "during training (eval/evaluations.npz: agents.multiseed draws learning curves from it) "
                         "and the evaluated model (+ VecNormalize statistics, if under 5 MB) into --out (for "
                         "committed results)")
-    p.add_argument("--num-threads", type=int, default=1)
+    p.add_argument("--num-threads", type=num_threads_arg, default=1)
     return p
 
 

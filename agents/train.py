@@ -53,7 +53,7 @@ from . import common, hyperparameters, trainer
 from .interrupts import exit_with, interrupted_exit_code
 from .parsing import arg_type
 from tensegrity_gym.core.checks import check_count, check_positive
-from tensegrity_gym.integrations.torch_threads import passive_openmp_wait
+from tensegrity_gym.integrations.torch_threads import num_threads_arg, passive_openmp_wait
 from tensegrity_gym.io.atomic import OutputError
 
 passive_openmp_wait()     # before torch loads its OpenMP runtime (see the function)
@@ -100,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="checkpoint every this many env steps (default n_timesteps/10; <= 0 disables)")
     p.add_argument("--save-replay-buffer", action="store_true",
                    help="also checkpoint the replay buffer of off-policy algorithms (large)")
-    p.add_argument("--num-threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--num-threads", type=num_threads_arg, default=1, help="torch threads (default 1)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu; MLP policies gain nothing on GPU)")
     p.add_argument("--no-progress-bar", action="store_true",
                    help="no progress lines (by default one every 10 s: steps, speed, ETA, last evaluation)")

@@ -169,8 +169,10 @@ def run(args, argv: list[str] | None, extra_callbacks, report, claims: list) -> 
             old = read_yaml(run_dir / "config.yaml")
             old["n_timesteps"] = n_timesteps
             common.write_text(run_dir / "config.yaml", yaml.safe_dump(old, sort_keys=False))
+        # the time, and the working directory relative to the repository (omitted outside it): no machine path
+        head, where = f"# {time.strftime('%Y-%m-%d %H:%M:%S %Z')}", common.repo_cwd()
         with open(run_dir / "command.txt", "a") as f:
-            f.write(f"# {time.strftime('%Y-%m-%d %H:%M:%S %Z')} cwd={os.getcwd()}\n{common.command_line(argv)}\n")
+            f.write(f"{head}{'' if where is None else ' cwd=' + where}\n{common.command_line(argv)}\n")
         common.write_json(run_dir / "versions.json", common.package_versions())
 
         # ------------------------------------------------------------ model

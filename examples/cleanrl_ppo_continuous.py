@@ -30,7 +30,7 @@ from torch import nn
 from torch.distributions.normal import Normal
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym.integrations.torch_threads import set_torch_threads
+from tensegrity_gym.integrations.torch_threads import num_threads_arg, set_torch_threads
 
 
 def parse_args(argv=None):
@@ -53,7 +53,8 @@ def parse_args(argv=None):
     p.add_argument("--vf-coef", type=float, default=0.5)
     p.add_argument("--max-grad-norm", type=float, default=0.5)
     p.add_argument("--eval-steps", type=int, default=200, help="vector steps of the trained policy's mean action")
-    p.add_argument("--num-threads", type=int, default=1, help="torch CPU threads (default 1, as agents.train)")
+    p.add_argument("--num-threads", type=num_threads_arg, default=1,
+                   help="torch CPU threads (default 1, as agents.train)")
     return p.parse_args(argv)
 
 

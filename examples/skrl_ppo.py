@@ -24,7 +24,7 @@ import gymnasium as gym
 import torch
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym.integrations.torch_threads import set_torch_threads
+from tensegrity_gym.integrations.torch_threads import num_threads_arg, set_torch_threads
 
 
 def make_env(env_id: str, num_envs: int, backend: str, autoreset_mode: str, seed: int, max_episode_steps=None):
@@ -64,7 +64,8 @@ def main(argv=None) -> dict:
     p.add_argument("--eval-steps", type=int, default=None, help="vector steps of each evaluation from a reset "
                    "(default: one episode, the env's registered length or --max-episode-steps)")
     p.add_argument("--directory", default="runs/skrl", help="skrl's experiment folder (TensorBoard, checkpoints)")
-    p.add_argument("--num-threads", type=int, default=1, help="torch CPU threads (default 1, as agents.train)")
+    p.add_argument("--num-threads", type=num_threads_arg, default=1,
+                   help="torch CPU threads (default 1, as agents.train)")
     a = p.parse_args(argv)
     set_torch_threads(a.num_threads)
 

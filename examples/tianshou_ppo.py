@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
-from tensegrity_gym.integrations.torch_threads import set_torch_threads
+from tensegrity_gym.integrations.torch_threads import num_threads_arg, set_torch_threads
 
 
 def main(argv=None) -> dict:
@@ -31,7 +31,8 @@ def main(argv=None) -> dict:
                    "(default: the registered 1000)")
     p.add_argument("--eval-steps", type=int, default=200, help="vector steps of the trained policy's mean action")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--num-threads", type=int, default=1, help="torch CPU threads (default 1, as agents.train)")
+    p.add_argument("--num-threads", type=num_threads_arg, default=1,
+                   help="torch CPU threads (default 1, as agents.train)")
     a = p.parse_args(argv)
     set_torch_threads(a.num_threads)
 

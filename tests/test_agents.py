@@ -159,7 +159,8 @@ def test_train_save_reload_evaluate(tmp_path, env_id, algo):
     for k in ("python", "numpy", "torch", "stable_baselines3", "gymnasium", "tensegrity_gym", "cpus_available"):
         assert versions[k], k
     assert "cpu_model" in versions          # None only where neither lscpu nor /proc/cpuinfo says
-    assert "agents.train" in (run / "command.txt").read_text()
+    stamp, command = (run / "command.txt").read_text().splitlines()[:2]
+    assert "agents.train" in command and str(Path.cwd()) not in stamp   # the working directory: repository-relative
     state = json.loads((run / "state.json").read_text())
     assert state["status"] == "finished" and state["num_timesteps"] >= 256
     assert {"cpu_model", "cpus_available", "torch_num_threads"} <= set(state["machine"])   # where the wall time ran
@@ -282,6 +283,16 @@ def test_interrupt_saves_and_resume_continues_step_count(tmp_path):
     # resuming again with a larger target extends the run
     train.train(["--resume", str(run), "--n-timesteps", "640", "--no-progress-bar"])
     assert PPO.load(run / "model.zip").num_timesteps >= 640
+
+
+def test_recorded_working_directory_is_relative_to_the_repository(tmp_path, monkeypatch):
+    from agents import common
+    monkeypatch.chdir(common.REPO_ROOT)
+    assert common.repo_cwd() == "."
+    monkeypatch.chdir(common.REPO_ROOT / "agents")
+    assert common.repo_cwd() == "agents"
+    monkeypatch.chdir(tmp_path)
+    assert common.repo_cwd() is None     # outside the checkout: not recorded
 
 
 def test_existing_run_dir_is_not_overwritten(tmp_path):

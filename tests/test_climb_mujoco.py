@@ -16,7 +16,7 @@ import tensegrity_gym  # noqa: E402,F401
 from tensegrity_gym.tools.baselines import RollingGait  # noqa: E402
 from tensegrity_gym.envs.climb import TensegrityClimbEnv  # noqa: E402
 from tensegrity_gym.envs.climb_mujoco import TensegrityClimbMuJoCoEnv  # noqa: E402
-from tensegrity_gym.envs import roll_mujoco  # noqa: E402
+from tensegrity_gym.envs import twin_model  # noqa: E402
 from tensegrity_gym.envs.roll_mujoco import TensegrityRollMuJoCoEnv  # noqa: E402
 from tensegrity_gym.tasks.climb import plane_gravity  # noqa: E402
 from twin_check import assert_same_interface  # noqa: E402
@@ -180,7 +180,7 @@ def test_eval_transfer_terrain_names_diverged_episodes(tmp_path, monkeypatch, ca
     monkeypatch.chdir(tmp_path)     # MuJoCo writes its warning log into the working directory
     main = _transfer_main()
     # RK4's spin damping let past its explicit bound: MuJoCo's own instability, which the twin flags
-    monkeypatch.setattr(roll_mujoco, "RK4_DAMPING_BOUND", 100.0)
+    monkeypatch.setattr(twin_model, "RK4_DAMPING_BOUND", 100.0)
     args = ["gait", "--slopes", "20", "--episodes", "2", "--steps", "5", "--out", str(tmp_path / "d.json")]
     assert main(args + ["--twin-kwargs", '{"mj_integrator": "RK4"}']) == 0
     out = capsys.readouterr().out

@@ -117,6 +117,7 @@ from ..physics.geometry import node_positions, node_velocities
 from ..io.mjcf import check_mj_integrator, initial_qpos_qvel, to_mjcf
 from ..tasks.roll import roll_step_terms
 from ..core.checks import check_frame_size
+from . import twin_model
 from .pickling import picklable_state, restore_state
 from .twin_divergence import clear_mujoco_warnings, twin_diverged
 from .common import check_action, check_positive
@@ -129,9 +130,6 @@ __all__ = ["TensegrityRollMuJoCoEnv", "ENV_ID"]
 
 ENV_ID = "TensegrityRollMuJoCo-v0"
 _UNSUPPORTED = ("start_rest_length_offset",)
-#: classical RK4's stability bound on the negative real axis: a damping rate c / I integrates
-#: stably for dt c / I up to this
-RK4_DAMPING_BOUND = 2.785
 
 
 class TensegrityRollMuJoCoEnv(gym.Env):
@@ -193,7 +191,8 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         k = s.n_bars
         self._body = np.array([m.body(f"rod{j}").id for j in range(k)])
         self._dof = m.jnt_dofadr[m.body_jntadr[self._body]]
-        self.spin_damping = self._spin_damping(spin_damping, mj_integrator)
+        self.spin_damping = twin_model.spin_damping_for(spin_damping, mj_integrator, self.rk4_spin_damping_max(),
+                                                        task.dt)
         self._settle()
         if task.terrains is not None:
             self.model = m = self._compile(self._terrain_xml(task.terrains[0]))
@@ -217,12 +216,9 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         self._needs_reset = True
 
     def _compile(self, xml: str):
-        """The ``MjModel`` of ``xml`` with the twin's contact: elliptic friction cone, ``solref`` of
-        every geom (``contact_timeconst``, ``contact_dampratio``)."""
-        m = self._mj.MjModel.from_xml_string(xml)
-        m.opt.cone = self._mj.mjtCone.mjCONE_ELLIPTIC
-        m.geom_solref[:] = (self.contact_timeconst, self.contact_dampratio)
-        return m
+        """The ``MjModel`` of ``xml`` with the twin's contact
+        (:func:`~tensegrity_gym.envs.twin_model.compile_scene`)."""
+        return twin_model.compile_scene(self._mj, xml, self.contact_timeconst, self.contact_dampratio)
 
     def _terrain_xml(self, terrain) -> str:
         """MJCF of the settled robot on ``terrain`` (its geoms: :func:`tensegrity_gym.io.mjcf.terrain_xml`;
@@ -232,44 +228,18 @@ class TensegrityRollMuJoCoEnv(gym.Env):
                        **self._mjcf)
 
     def rk4_spin_damping_max(self) -> float:
-        """The largest ``spin_damping`` (N m s) the twin takes with MuJoCo's ``RK4``: half of the
-        explicit bound ``RK4_DAMPING_BOUND * I / dt`` (I the smallest axial inertia of the rods,
-        kg m^2; the half leaves room for randomised rod masses)."""
-        axial = float(self.model.body_inertia[self._body, 2].min())
-        return 0.5 * RK4_DAMPING_BOUND * axial / self.task.dt
-
-    def _spin_damping(self, value, integrator: str) -> float:
-        """``spin_damping`` (N m s) for ``integrator``: ``value`` (checked against RK4's bound), or
-        the default (None: 1.0, with RK4 :meth:`rk4_spin_damping_max`)."""
-        if integrator != "RK4":
-            return 1.0 if value is None else float(value)
-        top = self.rk4_spin_damping_max()
-        if value is None:
-            return top
-        if value > top:
-            raise ValueError(f"spin_damping: {value!r} N m s is beyond what mj_integrator='RK4' integrates "
-                             f"stably at dt = {self.task.dt} s (RK4 integrates joint damping explicitly; at most "
-                             f"{top:.4g} N m s for the rods' axial inertia); pass spin_damping <= {top:.4g} or use "
-                             f"mj_integrator 'implicitfast', 'implicit' or 'Euler'")
-        return float(value)
+        """The largest ``spin_damping`` (N m s) the twin takes with MuJoCo's ``RK4``
+        (:func:`~tensegrity_gym.envs.twin_model.rk4_spin_damping_max`)."""
+        return twin_model.rk4_spin_damping_max(self.model, self._body, self.task.dt)
 
     def _settle(self) -> None:
-        """Let the robot settle on MuJoCo's ground (SETTLE_TIME s with viscous drag on the rods,
-        as RollTask settles it on its own ground) and make that the task's nominal start pose, so
-        that resets start at MuJoCo's rest (its contact rests at another depth than ours)."""
-        mj, m, d, t = self._mj, self.model, self.data, self.task
-        mj.mj_resetData(m, d)
-        d.qpos[:] = initial_qpos_qvel(t.structure.replace(nodes=t.nodes_nominal))[0]
-        drag = 4.0 * float(t.structure.bar_mass.max())
-        m.dof_damping[:] = drag   # N s/m (N m s on the rotations)
-        if m.opt.integrator == mj.mjtIntegrator.mjINT_RK4:      # explicit damping: the spin's held stable
-            m.dof_damping[self._dof + 5] = min(drag, self.spin_damping)
-        for _ in range(int(round(SETTLE_TIME / t.dt))):
-            mj.mj_step(m, d)
-        m.dof_damping[:] = 0.0
-        m.dof_damping[self._dof + 5] = self.spin_damping   # free joint dof 5: rotation about the body z = rod axis
-        d.qvel[:] = 0.0
-        mj.mj_forward(m, d)
+        """Let the robot settle on MuJoCo's ground (:func:`~tensegrity_gym.envs.twin_model.settle`: SETTLE_TIME s
+        with viscous drag on the rods, as RollTask settles it on its own ground) and make that the task's
+        nominal start pose, so that resets start at MuJoCo's rest (its contact rests at another depth than ours)."""
+        t = self.task
+        qpos = initial_qpos_qvel(t.structure.replace(nodes=t.nodes_nominal))[0]
+        twin_model.settle(self._mj, self.model, self.data, qpos, float(t.structure.bar_mass.max()), self._dof,
+                          self.spin_damping, SETTLE_TIME, t.dt)
         q, _ = self.rod_state()
         if not np.all(np.isfinite(q)):
             raise ValueError(f"{self.env_id}: settling on MuJoCo's ground diverged at dt = {t.dt} s; reduce dt")
@@ -283,33 +253,14 @@ class TensegrityRollMuJoCoEnv(gym.Env):
 
     # ------------------------------------------------------------------ state conversion
     def rod_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """MuJoCo's state as the project's rod coordinates: ``q`` (1, k, 6) = [r (m), b (unit)],
-        ``qd`` (1, k, 6) = [r' (m/s), b' (1/s)] (r: the rod body's origin = its centre of mass)."""
-        d = self.data
-        R = d.xmat[self._body].reshape(-1, 3, 3)
-        b = R[:, :, 2]
-        idx = self._dof[:, None] + np.arange(6)
-        v = d.qvel[idx]
-        omega = np.einsum("kij,kj->ki", R, v[:, 3:])        # body-frame angular velocity -> world
-        q = np.concatenate([d.xpos[self._body], b], axis=1)[None]
-        qd = np.concatenate([v[:, :3], np.cross(omega, b)], axis=1)[None]
-        return q, qd
+        """MuJoCo's state as the project's rod coordinates ``q``, ``qd`` (1, k, 6)
+        (:func:`~tensegrity_gym.envs.twin_model.rod_state`)."""
+        return twin_model.rod_state(self.data, self._body, self._dof)
 
     def contact_flags(self) -> np.ndarray:
-        """(2k,) bool: end cap touching the ground in MuJoCo's current contacts (rod 0 end a,
-        rod 0 end c, ...); a contact belongs to the end of its rod nearest to its point."""
-        d, q = self.data, self.task.q[0]
-        out = np.zeros(2 * len(self._body), bool)
-        n = d.ncon
-        if n:
-            geom = d.contact.geom[:n]
-            rod = np.maximum(self._rod_of_geom[geom[:, 0]], self._rod_of_geom[geom[:, 1]])
-            ok = (rod >= 0) & (d.contact.dist[:n] <= 0.0)
-            pos, rod = d.contact.pos[:n][ok], rod[ok]
-            along = np.einsum("ci,ci->c", pos - q[rod, :3], q[rod, 3:])
-            end = (np.abs(along - self._eta[rod, 1]) < np.abs(along - self._eta[rod, 0])).astype(int)
-            out[2 * rod + end] = True
-        return out
+        """(2k,) bool: end cap touching the ground in MuJoCo's current contacts
+        (:func:`~tensegrity_gym.envs.twin_model.contact_flags`)."""
+        return twin_model.contact_flags(self.data, self.task.q[0], self._rod_of_geom, self._eta)
 
     def _sync(self) -> None:
         """Project MuJoCo's current state into the task (q, qd, contact flags) for its observation."""
@@ -323,12 +274,9 @@ class TensegrityRollMuJoCoEnv(gym.Env):
         return self.data.subtree_com[0].copy()
 
     def tendon_tension(self) -> np.ndarray:
-        """(m,) force each tendon applies as MuJoCo computes it, N (positive: pulling):
-        ``k (L - l0)`` above the rest length, 0 below it (dead band), plus ``c L'`` at any length."""
-        m, d = self.model, self.data
-        L, Ld = d.ten_length, d.ten_velocity
-        stretch = np.maximum(L - m.tendon_lengthspring[:, 1], 0.0) - np.maximum(m.tendon_lengthspring[:, 0] - L, 0.0)
-        return m.tendon_stiffness * stretch + m.tendon_damping * Ld
+        """(m,) force each tendon applies as MuJoCo computes it, N (positive: pulling; dead band
+        while slack, damping at any length: :func:`~tensegrity_gym.envs.twin_model.tendon_tension`)."""
+        return twin_model.tendon_tension(self.model, self.data)
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from ..backends.torch.model import resolve_device
-from .torch_threads import set_torch_threads
+from .torch_threads import num_threads_arg, set_torch_threads
 
 __all__ = ["RslRlVecEnv", "make_rsl_rl_env", "train_config"]
 
@@ -225,7 +225,8 @@ def main(argv=None) -> None:
     p.add_argument("--eval-steps", type=int, default=200, help="vector steps of the trained policy's mean action")
     p.add_argument("--log-dir", default="runs/rsl_rl", help="TensorBoard logs and checkpoints; rsl_rl prints a "
                    "progress table per iteration when it is set ('' for neither)")
-    p.add_argument("--num-threads", type=int, default=1, help="torch CPU threads (default 1, as agents.train)")
+    p.add_argument("--num-threads", type=num_threads_arg, default=1,
+                   help="torch CPU threads (default 1, as agents.train)")
     a = p.parse_args(argv)
     set_torch_threads(a.num_threads)
     out = train(a.env_id, a.num_envs, a.iterations, a.backend, a.device, a.seed, a.log_dir or None, a.eval_steps)

@@ -9,8 +9,11 @@ for more, and lets idle OpenMP threads sleep instead of spin (:func:`passive_ope
 """
 from __future__ import annotations
 
+import argparse
 import os
 import sys
+
+from ..core.checks import check_count
 
 
 def passive_openmp_wait() -> bool:
@@ -30,10 +33,21 @@ def passive_openmp_wait() -> bool:
 
 
 def set_torch_threads(n: int = 1) -> int:
-    """Use ``n`` torch CPU threads (at least 1; default 1), after :func:`passive_openmp_wait`
-    (effective only if torch is not imported yet). Returns the thread count set."""
+    """Use ``n`` torch CPU threads (an integer >= 1, or an integral float such as ``2.0``; default
+    1), after :func:`passive_openmp_wait` (effective only if torch is not imported yet). Returns the
+    thread count set. ValueError naming ``n`` and the value for anything else (0, a negative
+    number, a bool, ``2.5``, a string), before torch is touched."""
+    n = check_count(n, "n", 1, "torch CPU threads")
     passive_openmp_wait()
     import torch   # optional dependency of the package: imported only by training code
-    n = max(1, int(n))
     torch.set_num_threads(n)
     return n
+
+
+def num_threads_arg(text: str) -> int:
+    """argparse ``type=`` of the command lines' ``--num-threads``: ``text`` as a thread count (an
+    integer >= 1); otherwise argparse's one-line usage error (exit code 2), not a traceback."""
+    try:
+        return check_count(int(text), "--num-threads", 1)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1 (torch CPU threads), got {text!r}") from None
