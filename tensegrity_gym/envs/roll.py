@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 
-from ..physics.contact import GroundContact, init_contact_state, set_copy_values, stable_step
+from ..physics.contact import GroundContact, impact_damping_cap, init_contact_state, set_copy_values, stable_step
 from ..core.model import compile_model
 from ..physics.evaluate import force_densities, project
 from ..physics import geometry
@@ -101,7 +101,7 @@ class RollTask(RollObservation, BatchedTask):
         integ = fixed_step(integrator)     # the integrator's name, decoded once
         dt = check_positive(dt, "dt", "s")
         if ground_max_damping is None:   # keep c dt / m_eff <= 1 in fast impacts (m_eff = m/4 of the lightest rod)
-            ground_max_damping = float(s.bar_mass.min()) / 4.0 / dt
+            ground_max_damping = impact_damping_cap(s.bar_mass, dt)
         try:
             self.contact = GroundContact(stiffness=ground_stiffness, damping=ground_damping, friction=friction,
                                             tangential_stiffness=tangential_stiffness,

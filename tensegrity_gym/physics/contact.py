@@ -313,6 +313,19 @@ def contact_energy(contact: GroundContact, model: Model, q: np.ndarray, cstate: 
     return (En + np.where(delta > 0, Et, 0.0)).sum(axis=1)
 
 
+def impact_damping_cap(rod_mass, dt: float) -> float:
+    """The normal damping cap (N s/m) that keeps impacts passive with an explicit step of ``dt``
+    s: ``m_min / 4 / dt``, ``m_min`` the lightest of ``rod_mass`` (kg; a rod end's effective
+    mass is m/4). Hunt-Crossley damping ``k delta^e d`` grows with the penetration, so a fast
+    impact drives ``c dt / m_eff`` above 1, where the held damping force reverses the approach
+    speed within one step and the explicit update injects energy (a prism dropped 5 m onto
+    the default terrain came back 46 m up); at or below the cap the damping force can at most
+    stop the approach in a step. Resting and rolling contact stay far below it (the damping at
+    rest is ``d`` times the weight on the contact), so they are unchanged. What the envs and
+    the command line use unless ``ground_max_damping`` is given (docs/contact.md)."""
+    return float(np.min(rod_mass)) / 4.0 / float(dt)
+
+
 def stable_step(contact: GroundContact, model: Model) -> dict:
     """Stability estimate (s) of semi-implicit Euler with ground contact.
 

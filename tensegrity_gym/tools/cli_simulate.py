@@ -21,6 +21,7 @@ from ..core.integrators import resolve
 from ..io.claim import Transaction
 from ..io.trajectory import save_simulate_output
 from ..physics import terrain as terrain_physics
+from ..physics.contact import impact_damping_cap
 from ..core.structure import StructureError
 from .rendering import RendererUnavailable, render_video
 from .cli_common import (ADAPTIVE_EVALUATIONS_PER_STEP, CHUNK_STEPS, ENERGY_BLOWUP, EXIT_DIVERGED, EXIT_OUTPUT,
@@ -104,12 +105,13 @@ def _check_terrain_options(args) -> None:
 def _terrain_setup(args, terrain, s):
     """``(structure, model, contact, lift)`` of ``simulate --terrain/--ground``: the structure lifted
     onto the terrain (:func:`tensegrity_gym.core.placement.place_on_terrain`, lift in m), its model
-    and the :class:`~tensegrity_gym.physics.terrain.TerrainContact`. CLIError (exit 3) when the
+    and the :class:`~tensegrity_gym.physics.terrain.TerrainContact` (its normal damping capped by
+    :func:`~tensegrity_gym.physics.contact.impact_damping_cap` at ``--dt``). CLIError (exit 3) when the
     contact refuses the terrain or the structure cannot be placed on it; a StabilityWarning (one
     line) when ``--dt`` is above the contact's estimated stable step."""
     radius = DEFAULT_CAP_RADIUS if args.cap_radius is None else args.cap_radius
-    try:
-        tc = terrain_physics.TerrainContact(terrain, radius=radius)
+    try:    # the envs' damping cap: impacts stay passive at --dt (physics.contact.impact_damping_cap)
+        tc = terrain_physics.TerrainContact(terrain, radius=radius, max_damping=impact_damping_cap(s.bar_mass, args.dt))
         s, lift = place_on_terrain(s, terrain, radius)
     except ValueError as e:
         raise CLIError(EXIT_STRUCTURE, f"{terrain_label(args)}: {_one_line(e)}") from None
