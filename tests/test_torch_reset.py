@@ -154,7 +154,7 @@ def test_device_reset_is_the_host_reset_fed_the_same_numbers(case):
     for i_d in infos:
         assert ("params" in i_d) == bool(kw.get("randomize") or kw.get("params"))
     # the draws moved the robots: a test of robots left at rest would prove little
-    assert float((dev.q - dev._q_nominal).abs().max()) > 1e-4
+    assert float((dev.q - dev.q_nominal).abs().max()) > 1e-4
 
 
 @pytest.mark.parametrize("kw", [dict(slope_range=(5.0, 28.0), randomize={"rod_mass": 0.2, "friction": 0.3}),

@@ -6,7 +6,6 @@ and :class:`TensegrityRollVectorEnv` with B = ``num_envs`` (see
 """
 from __future__ import annotations
 
-import math
 import warnings
 
 import numpy as np
@@ -27,6 +26,7 @@ from .roll_obs import RollObservation
 from ..physics import terrain
 from ..tasks.roll import perturbed_start, roll_step_terms
 from ..tasks.state import StateField
+from ..tasks.xp import namespace
 from ..core.terrain import Terrain
 from ..tasks.terrain import generate, resolve_terrain, start_lift
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
@@ -64,9 +64,10 @@ class RollTask(RollObservation, BatchedTask):
     """
 
     #: the per-copy state every shell holds (:mod:`tensegrity_gym.tasks.state`)
-    STATE = (StateField("q"), StateField("qd"), StateField("anchor", host="cstate.anchor"),
-             StateField("active", "bool", host="cstate.active"), StateField("ctrl"), StateField("speed"),
-             StateField("goal"), StateField("start"))
+    STATE = (StateField("q"), StateField("qd"), StateField("anchor"), StateField("active", "bool"),
+             StateField("ctrl"), StateField("speed"), StateField("goal"), StateField("start"))
+    CONSTANTS = (StateField("q_nominal"), StateField("rod_length"), StateField("start_control"),
+                 StateField("goal_direction"))
     DEVICE_RESET = True
 
     def __init__(self, num_envs: int = 1, config: RollConfig | None = None, **kwargs):
@@ -138,6 +139,7 @@ class RollTask(RollObservation, BatchedTask):
         key = (structure, string_damping, self.contact, integ, float(dt)) if isinstance(structure, str) else None
         self.q_nominal, self.qd_nominal = settle(elastic, self.contact, integ, dt, key)
         self.nodes_nominal = geometry.node_positions(elastic, self.q_nominal)[0]
+        self.z_floor = float(self.nodes_nominal[:, 2].min())     # m: no node of a reset start below it
         gamma0, _, _ = force_densities(elastic, self.q_nominal, self.qd_nominal)
         self.gamma_nominal = gamma0[0]
         if np.any(self.gamma_nominal[act] <= 0):
@@ -297,15 +299,88 @@ class RollTask(RollObservation, BatchedTask):
 
     # ------------------------------------------------------------------ scene
     # ------------------------------------------------------------------ task API
+    # ------------------------------------------------------------------ the record (tasks/state.py)
+    @property
+    def anchor(self) -> np.ndarray:
+        """(B, 2k, 2) contact anchors, m (the contact state's)."""
+        return self.cstate.anchor
+
+    @property
+    def active(self) -> np.ndarray:
+        """(B, 2k) bool contact flags (the contact state's)."""
+        return self.cstate.active
+
+    @property
+    def rod_length(self) -> np.ndarray:
+        """(k,) rod lengths, m."""
+        return self.model.length
+
+    def project_state(self, q, qd):
+        """``(q, qd)`` projected onto the rod constraints (unit axes)."""
+        return project(self.model, q, qd)
+
+    def node_positions(self, q):
+        """(B, n, 3) node positions of the robots ``q`` (B, k, 6), m."""
+        return geometry.node_positions(self.model, q)
+
     @property
     def first_draws(self) -> int:
         """Uniforms per copy a task built on this one draws first at each reset
         (:meth:`reset_first`; here none)."""
         return 0
 
+    @property
+    def reset_draws(self) -> int:
+        """Uniforms per copy :meth:`reset_start` reads: the task's first draws, the initial-state
+        noise (4 x k x 3 with ``reset_noise_scale`` > 0), the goal angle (``randomize_goal``)."""
+        return (self.first_draws + (12 * self.model.n_bars if self.reset_noise_scale > 0 else 0)
+                + (1 if self.randomize_goal else 0))
+
     def reset_first(self, rec, rows, u) -> None:
         """The first step of a reset of copies ``rows`` on the record ``rec``, from their uniforms
         ``u`` (r, :attr:`first_draws`) in [0, 1): for a task built on this one (a slope)."""
+
+    def reset_start(self, rec, rows, u) -> tuple:
+        """The start of copies ``rows`` on the record ``rec`` from their uniforms ``u`` (r,
+        :attr:`reset_draws`) in [0, 1), as NumPy's ``uniform`` maps the same draws: the task's
+        first draws (:meth:`reset_first`), then the resting robot plus U(-s, s) noise on the rod
+        centres (m) and velocities (m/s) and, divided by the rod lengths, on the axes and their
+        rates, projected (unit axes) and lifted so that no node is below the resting robot's
+        lowest; the goal, an angle U(0, 2 pi) with ``randomize_goal``. Returns ``(q, qd, goal)``
+        (r, k, 6), (r, k, 6), (r, 2) in the record's dtype (not yet written)."""
+        xp = namespace(u)
+        n0 = self.first_draws
+        if n0:
+            self.reset_first(rec, rows, u[:, :n0])
+            u = u[:, n0:]
+        r, k, s = u.shape[0], self.model.n_bars, self.reset_noise_scale
+        used = 0
+        if s > 0:
+            x = xp.to_float(-s + (s - -s) * u[:, :12 * k], rec.q).reshape(r, 4, k, 3)
+            used = 12 * k
+        else:
+            x = xp.zeros((r, 4, k, 3), rec.q)
+        q, qd = perturbed_start(rec.q_nominal, rec.rod_length[:, None], x)
+        if self.randomize_goal:
+            th = 0.0 + (2.0 * np.pi - 0.0) * u[:, used]
+            goal = xp.to_float(xp.stack([xp.cos(th), xp.sin(th)], axis=1), rec.q)
+        else:
+            goal = xp.repeat_rows(rec.goal_direction, r)
+        q, qd = rec.project_state(q, qd)
+        # no node below the ground plus cap: lift the copy if the noise pushed one in
+        zmin = xp.amin(rec.node_positions(q)[..., 2], 1)
+        q[..., 2] += xp.maximum(self.z_floor - zmin, 0.0)[:, None]
+        return q, qd, goal
+
+    def reset_write(self, rec, rows, q, qd, goal) -> None:
+        """Copies ``rows`` of the record ``rec`` start from ``q``, ``qd`` with the goal ``goal``: no
+        contact anchors, the start control, cable speeds 0."""
+        rec.q[rows], rec.qd[rows] = q, qd
+        rec.anchor[rows] = 0.0
+        rec.active[rows] = False
+        rec.ctrl[rows] = rec.start_control
+        rec.speed[rows] = 0.0
+        rec.goal[rows] = goal
 
     def reset_info(self, rec, rows) -> dict:
         """Reset infos of copies ``rows`` beyond the rolling task's, from the record ``rec``."""
@@ -314,37 +389,14 @@ class RollTask(RollObservation, BatchedTask):
     def reset_idx(self, idx, rngs, options=None) -> dict:
         idx = np.asarray(idx, dtype=int)
         r = idx.size
-        n0 = self.first_draws
-        if n0:     # a task's own first draws (uniforms, as the device reset reads them)
-            self.reset_first(self, idx, np.array([rngs[j].random(n0) for j in range(r)]).reshape(r, n0))
-        s = self.reset_noise_scale
-        k = self.model.n_bars
-        goal = np.tile(self.goal_direction, (r, 1))
-        x = np.zeros((r, 4, k, 3))
-        for j in range(r):    # each copy's generator: its noise (4 k 3 uniforms), then its goal angle
-            rng = rngs[j]
-            if s > 0:
-                x[j] = rng.uniform(-s, s, (4, k, 3))
-            if self.randomize_goal:
-                th = rng.uniform(0.0, 2.0 * np.pi)
-                goal[j] = (math.cos(th), math.sin(th))
-        q, qd = perturbed_start(self.q_nominal, self.model.length[:, None], x)
-        q, qd = project(self.model, q, qd)
-        # no node below the ground plus cap: lift the copy if the noise pushed one in
-        zmin = geometry.node_positions(self.model, q)[..., 2].min(axis=1)
-        lift = np.maximum(self.nodes_nominal[:, 2].min() - zmin, 0.0)
-        q[..., 2] += lift[:, None]
+        n = self.reset_draws     # each copy's generator: its uniforms, then a terrain generator's draws
+        q, qd, goal = self.reset_start(self, idx, np.array([rngs[j].random(n) for j in range(r)]).reshape(r, n))
         if self.terrain_contact is not None:     # on a terrain: its own draws, then clear of it
             self._reset_terrain(idx, rngs, goal)
             nodes = geometry.node_positions(self.model, q)
             for j, i in enumerate(idx):
                 q[j, :, 2] += start_lift(self.terrains[i], nodes[j:j + 1], self.contact.radius)[0]
-        self.q[idx], self.qd[idx] = q, qd
-        self.cstate.anchor[idx] = 0.0
-        self.cstate.active[idx] = False
-        self.ctrl[idx] = self.start_control
-        self.speed[idx] = 0.0
-        self.goal[idx] = goal
+        self.reset_write(self, idx, q, qd, goal)
         self.elapsed[idx] = 0
         com = geometry.center_of_mass(self.model, q, None if self.params is None else self.params.take(
             idx if self.params.batch_size > 1 else np.zeros(len(idx), int)))

@@ -21,7 +21,7 @@ from .base import BatchedTask
 from .climb import ClimbTask
 from .navigate import NavigateTask
 from .roll import RollTask
-from ..tasks.roll import center_of_mass, perturbed_start, roll_state_observation
+from ..tasks.roll import center_of_mass, roll_state_observation
 from ..tasks.shape import node_errors, shape_state_observation, shape_step_terms
 from ..tasks.terrain import terrain_draws
 from ..tasks.xp import namespace
@@ -54,12 +54,6 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     def _init_device(self):
         task = self.task
         self._com_eta = self._T(task.model.com_eta)[None, :, None]
-        # device resets (reset_sampling="device"): the resting robot, rod lengths, lowest node height
-        self._q_nominal = self._T(task.q_nominal)
-        self._length = self._T(task.model.length)[None, :, None]
-        self._z_floor = float(task.nodes_nominal[:, 2].min())
-        self._start_control = self._T(task.start_control)[None]
-        self._goal_default = self._T(task.goal_direction)[None]
         # terrain=: its rows and contact state on the device (None: the level ground's contact)
         self._terrain = None if task.terrain_contact is None else TorchTerrain(self)
 
@@ -68,12 +62,21 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         if self._terrain is not None:
             self._terrain.upload_rows(self, it, idx)
 
+    # the record's functions (tasks/state.py)
     def com(self, q, it=None):
         """(N, 3) centre of mass, m (as ``RollTask.com``); of envs ``it`` when ``q`` holds only them."""
         mf = self._mass_frac
         if it is not None and mf.shape[0] > 1:
             mf = mf[it]
         return center_of_mass(q, mf.expand(q.shape[0], -1), None if self.task._com_at_r else self._com_eta)
+
+    def project_state(self, q, qd):
+        """``(q, qd)`` projected onto the rod constraints (unit axes)."""
+        return project(self.tm, q, qd)
+
+    def node_positions(self, q):
+        """(r, n, 3) node positions of the robots ``q`` (r, k, 6), m."""
+        return node_positions(self.tm, q, self._node_prm)
 
     def terrain_height(self, x, y):
         """(N, m) each env's ground height under ``x``, ``y`` (N, m) m (the record's)."""
@@ -84,66 +87,34 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
         return top_height(tt.geom, tt.hf, x, y, tt.layout.kinds)
 
     def _reset_draws(self) -> int:
-        """Uniforms a device reset of one env reads for the task: the task's first draws
-        (``RollTask.first_draws``, a slope), the initial-state noise (4 x k x 3: rod centres,
-        axes, their rates), then the goal angle with ``randomize_goal``, then a terrain
-        generator's draws."""
+        """Uniforms a device reset of one env reads for the task: ``RollTask.reset_draws`` (its
+        first draws, the initial-state noise, the goal angle), then a terrain generator's draws."""
         task = self.task
         gen = task.terrain_generator
-        return (task.first_draws + (12 * task.model.n_bars if task.reset_noise_scale > 0 else 0)
-                + (1 if task.randomize_goal else 0) + (0 if gen is None else terrain_draws(gen)))
+        return task.reset_draws + (0 if gen is None else terrain_draws(gen))
 
     def _device_reset_rows(self, it, u) -> dict:
         """``RollTask.reset_idx`` on the device for envs ``it`` from their uniforms ``u`` (r, n)
-        float64: the task's first draws (``RollTask.reset_first``), the resting robot plus
-        U(-s, s) noise on the rod centres (m) and velocities (m/s) and, divided by the rod
-        length, on the axes and their rates, projected (unit axes), lifted so that no node is
-        below the resting robot's lowest; no contact anchors; the start control; the goal (angle
-        U(0, 2 pi) with ``randomize_goal``); on a terrain, a generator's new terrain
-        (:meth:`TorchTerrain.draw`), the start lifted clear of it and its contact state
-        released; the task's reset infos (``RollTask.reset_info``)."""
+        float64: the task's start (``RollTask.reset_start``: the same function the host reset
+        runs); on a terrain, a generator's new terrain (:meth:`TorchTerrain.draw`), the start
+        lifted clear of it and its contact state released; the start written
+        (``RollTask.reset_write``); the task's reset infos (``RollTask.reset_info``)."""
         torch = torch_module()
         task = self.task
-        n0 = task.first_draws
-        if n0:
-            task.reset_first(self, it, u[:, :n0])
-            u = u[:, n0:]
-        r, k, s = it.shape[0], task.model.n_bars, task.reset_noise_scale
-        used = 0
-        if s > 0:
-            x = (-s + (s - -s) * u[:, :12 * k]).to(self.dtype).reshape(r, 4, k, 3)   # U(-s, s) as NumPy's
-            used = 12 * k
-        else:
-            x = torch.zeros((r, 4, k, 3), dtype=self.dtype, device=self.device)
-        q, qd = perturbed_start(self._q_nominal, self._length, x)
-        if task.randomize_goal:
-            th = 0.0 + (2.0 * np.pi - 0.0) * u[:, used]     # U(0, 2 pi) as NumPy's
-            goal = torch.stack([torch.cos(th), torch.sin(th)], dim=1).to(self.dtype)
-            used += 1
-        else:
-            goal = self._goal_default.expand(r, -1)
-        q, qd = project(self.tm, q, qd)
-        zmin = node_positions(self.tm, q, self._node_prm)[..., 2].amin(dim=1)
-        q[..., 2] += torch.clamp(self._z_floor - zmin, min=0.0)[:, None]
+        n = task.reset_draws
+        q, qd, goal = task.reset_start(self, it, u[:, :n])
         if self._terrain is not None:       # a generator's new terrain; clear of it, its contact let go
             if task.terrain_generator is not None:
-                self._terrain.draw(self, it, u[:, used:], goal)
-            nodes = node_positions(self.tm, q, self._node_prm)
-            q[..., 2] += self._terrain.start_lift(nodes, task.contact.radius, it)[:, None]
+                self._terrain.draw(self, it, u[:, n:], goal)
+            q[..., 2] += self._terrain.start_lift(self.node_positions(q), task.contact.radius, it)[:, None]
             self._terrain.release(it)
-        ctrl = self._start_control.expand(r, -1)
-        self.q[it], self.qd[it] = q, qd
-        self.anchor[it] = 0.0
-        self.active[it] = False
-        self.ctrl[it] = ctrl
-        self.speed[it] = 0.0
-        self.goal[it] = goal
+        task.reset_write(self, it, q, qd, goal)
         com = self.com(q, it)
         self.start[it] = com
         if self._sens is not None:
-            self._sens.reset_rows(it, q, qd, ctrl, self.speed[it], self.active[it], goal)
+            self._sens.reset_rows(it, q, qd, self.ctrl[it], self.speed[it], self.active[it], goal)
         info = {"com_position": com, "com_velocity": torch.zeros_like(com),
-                "distance_rolled": com.new_zeros(r), "goal_direction": goal.clone()}
+                "distance_rolled": com.new_zeros(com.shape[0]), "goal_direction": goal.clone()}
         info.update(task.reset_info(self, it))
         return info
 

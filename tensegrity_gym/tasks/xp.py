@@ -39,6 +39,8 @@ name                               NumPy                                torch
 ``copy(x)``                        ``x.copy()``                         ``x.clone()``
 ``float32(x)``                     ``x.astype(np.float32)``             ``x.to(torch.float32)``
 ``arctan2(y, x)``                  ``np.arctan2``                       ``torch.atan2``
+``repeat_rows(v, r)``              ``np.tile(v, (r, 1))``               ``v.expand(r, -1)`` (a view)
+``zeros(shape, like)``             ``np.zeros(shape, like.dtype)``      ``torch.zeros`` on ``like``'s device
 =================================  ===================================  ======================================
 
 Reductions and products run along the last axis unless an ``axis`` is named. torch is imported
@@ -147,6 +149,14 @@ class _NumPyOps:
         return x.astype(np.float32)
 
     arctan2 = staticmethod(np.arctan2)
+
+    @staticmethod
+    def repeat_rows(v, r: int):
+        return np.tile(v, (r, 1))
+
+    @staticmethod
+    def zeros(shape, like):
+        return np.zeros(shape, like.dtype)
 
 
 class _TorchOps:
@@ -262,6 +272,13 @@ class _TorchOps:
 
     def arctan2(self, y, x):
         return self.torch.atan2(y, x)
+
+    @staticmethod
+    def repeat_rows(v, r: int):
+        return v.reshape(1, -1).expand(r, -1)
+
+    def zeros(self, shape, like):
+        return self.torch.zeros(shape, dtype=like.dtype, device=like.device)
 
 
 NUMPY = _NumPyOps()

@@ -17,6 +17,7 @@ from ..core.terrain import Box, Heightfield, Terrain
 from ..physics import geometry
 from ..physics import terrain as terrain_physics
 from ..physics.contact import impact_damping_cap
+from ..physics.loads import member_loads
 
 __all__ = ["DropResult", "drop", "drop_terrains"]
 
@@ -50,6 +51,11 @@ class DropResult:
     lowest: np.ndarray
     height: float
     impact_speed: float
+    #: with ``loads=True``, per record: the largest rod compression, string tension and nodal
+    #: contact force, N (:func:`tensegrity_gym.physics.loads.member_loads`); else None
+    rod_compression: np.ndarray | None = None
+    string_tension: np.ndarray | None = None
+    contact_force: np.ndarray | None = None
 
     @property
     def energy_ratio(self) -> float:
@@ -58,12 +64,14 @@ class DropResult:
 
 def drop(structure, terrain: Terrain, height: float, integrator: str = "semi_implicit_euler", dt: float = 1e-3,
          after: float = 1.0, radius: float = 0.02, record_every: int = 10, max_damping: float | None = None,
-         backend: str = "auto") -> DropResult:
+         backend: str = "auto", loads: bool = False) -> DropResult:
     """Drop ``structure`` (with gravity) from ``height`` m above where it rests on ``terrain``
     (its rods' capsules of ``radius`` m), at rest, and run ``after`` s past the free fall's
     time to impact with ``integrator`` at ``dt`` s. ``max_damping`` (N s/m): the contact's
     damping cap; None: :func:`~tensegrity_gym.physics.contact.impact_damping_cap` at ``dt``
-    (what the envs and the command line use; ``math.inf``: no cap)."""
+    (what the envs and the command line use; ``math.inf``: no cap). ``loads``: also record the
+    members' largest loads (the contact forces and strings at each record's state; use
+    ``record_every=1`` to catch an impact's peak)."""
     s, _ = place_on_terrain(structure, terrain, radius)
     s = s.replace(nodes=s.nodes + np.array([0.0, 0.0, float(height)]))
     model = compile_model(s)
@@ -75,14 +83,21 @@ def drop(structure, terrain: Terrain, height: float, integrator: str = "semi_imp
     fall = math.sqrt(2.0 * height / g)
     n_rec = int(math.ceil((fall + after) / (dt * record_every)))
     t, E, low = np.empty(n_rec + 1), np.empty(n_rec + 1), np.empty(n_rec + 1)
+    peaks = np.zeros((3, n_rec + 1)) if loads else None
 
     def record(i, st):
         t[i] = st.t
         E[i] = float(geometry.energy(model, st.q, st.qd)[0])
         low[i] = float(geometry.node_positions(model, st.q)[0, :, 2].min())
+        if loads:
+            W = terrain_physics.contact_forces(tc, model, st.q, st.qd, tstate)[0]
+            ld = member_loads(model, st.q, st.qd, external=W)
+            peaks[:, i] = (ld["rod_compression"].max(), ld["string_tension"].max(),
+                           np.linalg.norm(W, axis=-1).max())
     record(0, state)
     for i in range(1, n_rec + 1):
         state, tstate = terrain_physics.step(model, state, dt, tc, tstate, integrator, n_steps=record_every,
                                              backend=backend)
         record(i, state)
-    return DropResult(t=t, energy=E, lowest=low, height=float(height), impact_speed=g * fall)
+    extra = {} if peaks is None else dict(rod_compression=peaks[0], string_tension=peaks[1], contact_force=peaks[2])
+    return DropResult(t=t, energy=E, lowest=low, height=float(height), impact_speed=g * fall, **extra)
