@@ -97,3 +97,23 @@ def test_drop_records_peak_loads():
     i = int(np.argmax(r.contact_force))
     assert r.contact_force[i] > 20 * r.contact_force[0] + 1.0      # the impact
     assert r.rod_compression.max() > r.rod_compression[0]
+
+
+def test_cli_simulate_loads(tmp_path):
+    import subprocess
+    import sys
+    out = tmp_path / "l.npz"
+    p = subprocess.run([sys.executable, "-m", "tensegrity_gym", "simulate", "prism_robot", "--ground", "--loads",
+                        "--duration", "0.2", "--integrator", "semi_implicit_euler", "--record-every", "10",
+                        "--no-progress", "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert "peak string tension" in p.stdout and "peak rod compression" in p.stdout
+    z = np.load(out)
+    S = z["t"].shape[0]
+    assert z["string_tension"].shape == (S, 9) and z["rod_compression"].shape == (S, 3)
+    assert np.all(z["rod_compression"] > 0)      # the prestressed robot's rods are in compression
+    # without --loads the output is as before
+    p = subprocess.run([sys.executable, "-m", "tensegrity_gym", "simulate", "prism_robot", "--ground", "--duration",
+                        "0.05", "--no-progress", "--out", str(tmp_path / "n.npz")], capture_output=True, text=True,
+                       timeout=600)
+    assert p.returncode == 0 and "string_tension" not in np.load(tmp_path / "n.npz")

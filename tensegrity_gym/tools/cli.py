@@ -200,6 +200,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     dp.set_defaults(func=cmd_demo)
     for sp_ in (sp, dp):
         sp_.add_argument("--video", default=None, help="also write a video of the run (.mp4 or .gif)")
+    sp.add_argument("--loads", action="store_true",
+                    help="also record each string's tension and each rod's compression at its centre per record "
+                         "(string_tension, rod_compression, N; with the terrain's contact forces) and print the peaks")
     ep = sub.add_parser("export", help="write a structure as a MuJoCo model (MJCF) or JSON", formatter_class=fmt)
     ep.add_argument("structure", help=f"JSON file or built-in name ({names}); tnsgrt dict JSON with --from tnsgrt")
     ep.add_argument("--format", default="mjcf", choices=["mjcf", "json"], help="output format")

@@ -22,6 +22,7 @@ from ..io.claim import Transaction
 from ..io.trajectory import save_simulate_output
 from ..physics import terrain as terrain_physics
 from ..physics.contact import impact_damping_cap
+from ..physics.loads import member_loads
 from ..core.structure import StructureError
 from .rendering import RendererUnavailable, render_video
 from .cli_common import (ADAPTIVE_EVALUATIONS_PER_STEP, CHUNK_STEPS, ENERGY_BLOWUP, EXIT_DIVERGED, EXIT_OUTPUT,
@@ -132,10 +133,12 @@ def _terrain_setup(args, terrain, s):
     return s, model, tc, lift
 
 
-def _run_terrain(model, state, args, n_steps: int, progress: bool, tc):
+def _run_terrain(model, state, args, n_steps: int, progress: bool, tc, contact=None):
     """``simulate`` with terrain contact (:func:`tensegrity_gym.physics.terrain.step`): the
     records of every ``--record-every`` steps, the command schedules' rows in force over each
-    step. Returns ``(t, q, qd, message)`` as :func:`_run` (records up to a divergence)."""
+    step. Returns ``(t, q, qd, message)`` as :func:`_run` (records up to a divergence).
+    ``contact``: None, or an array (records, 1, n, 3) that takes the contact forces (N) at each
+    record's state (``--loads``)."""
     info = resolve(args.integrator)
     every, dt = args.record_every, args.dt
     n_rec = n_steps // every
@@ -159,6 +162,8 @@ def _run_terrain(model, state, args, n_steps: int, progress: bool, tc):
         bar = tqdm(total=n_steps, unit="step", desc=f"{info.name}, terrain")
     tstate = terrain_physics.init_terrain_state(tc, model)
     st, done, message = state, 0, None
+    if contact is not None:
+        contact[0] = terrain_physics.contact_forces(tc, model, st.q, st.qd, tstate)[0]
     try:
         for a, b in zip(cuts[:-1], cuts[1:]):
             inputs = {name: np.ascontiguousarray(getattr(args, name).value(int(r[a]), 1, model.n_strings),
@@ -178,6 +183,8 @@ def _run_terrain(model, state, args, n_steps: int, progress: bool, tc):
             if b % every == 0:
                 done = b // every
                 qs[done], qds[done] = st.q, st.qd
+                if contact is not None:
+                    contact[done] = terrain_physics.contact_forces(tc, model, st.q, st.qd, tstate)[0]
             if bar is not None:
                 bar.update(int(b - a))
     finally:
@@ -264,7 +271,8 @@ def cmd_simulate(args) -> int:
         diverged = None if (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))) else \
             "the torch backend's state became non-finite"
     elif tc is not None:
-        t, q, qd, diverged = _run_terrain(model, state, args, n_steps, progress, tc)
+        W = np.zeros((n_steps // args.record_every + 1, 1, model.n_nodes, 3)) if args.loads else None
+        t, q, qd, diverged = _run_terrain(model, state, args, n_steps, progress, tc, W)
     else:
         t, q, qd, diverged = _run(model, state, args, n_steps, progress)
     wall = time.perf_counter() - t0
@@ -284,6 +292,9 @@ def cmd_simulate(args) -> int:
         sched = getattr(args, name)
         if sched is not None and S:   # the row in force over the step from each record on
             arrays[name] = sched.values[sched.rows(t, args.dt)]
+    if args.loads and S:    # the members' loads at each record (physics.loads)
+        ext = W[:S, 0] if tc is not None else None
+        arrays.update(member_loads(model, qf, qdf, arrays.get("rest_length"), arrays.get("force_density"), ext))
     if diverged is not None:
         arrays.update(diverged=np.array(True), message=np.array(_one_line(diverged)))
     _stage(tx, out, lambda f: save_simulate_output(f, **arrays))
@@ -303,6 +314,12 @@ def cmd_simulate(args) -> int:
               f"the structure was lifted {lift:.4g} m to rest on it")
     print(f"max relative energy change {drift:.3e}; final rod-length drift "
           f"{float(rod_length_drift(model, qf[-1:])[0]):.3e}")
+    if args.loads and S:
+        T, C = arrays["string_tension"], arrays["rod_compression"]
+        i, j = np.unravel_index(np.argmax(T), T.shape) if T.size else (0, -1)
+        a, b = np.unravel_index(np.argmax(C), C.shape)
+        print((f"peak string tension {T[i, j]:.4g} N (string {j}, t = {t[i]:.6g} s); " if T.size else "")
+              + f"peak rod compression {C[a, b]:.4g} N (rod {b}, t = {t[a]:.6g} s)")
     _print_video(args, frames)
     return 0
 
