@@ -37,6 +37,7 @@ import importlib.util
 import io
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -239,13 +240,12 @@ def serialize(fmt: str, program: dict, arrays: dict) -> bytes:
     module = torch_module(program, arrays)
     example = torch.zeros((2, program["obs_size"]), dtype=torch.float32)
     if fmt == "torchscript":
-        with torch.no_grad():
-            traced = torch.jit.trace(module, example)
-        torch.jit.save(traced, buf)
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)   # torch's note that TorchScript is deprecated
+            torch.jit.save(torch.jit.trace(module, example), buf)
         return buf.getvalue()
     check_writer(fmt)
     import tempfile
-    import warnings
     # torch's current exporter when onnxscript is installed, else the TorchScript-based one (onnx alone)
     dynamo = importlib.util.find_spec("onnxscript") is not None
     with tempfile.TemporaryDirectory() as tmp, torch.no_grad(), warnings.catch_warnings():

@@ -154,8 +154,11 @@ class _TorchScriptPolicy:
         except ImportError:
             raise ImportError(f"{path}: running a TorchScript policy needs torch (pip install torch); "
                               "or export with --format npz, which runs on NumPy alone") from None
+        import warnings
         self.torch = torch
-        self.module = torch.jit.load(str(path), map_location="cpu").eval()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)   # torch's note that TorchScript is deprecated
+            self.module = torch.jit.load(str(path), map_location="cpu").eval()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         with self.torch.no_grad():
@@ -216,7 +219,7 @@ class PolicyRunner:
         bad = ~np.isfinite(x)
         if bad.any():
             idx = np.argwhere(bad)[0]
-            raise ValueError(f"obs: non-finite entry {np.asarray(obs)[tuple(idx)]!r} at index {tuple(int(i) for i in idx)}")
+            raise ValueError(f"obs: non-finite entry {float(x[tuple(idx)])!r} at index {tuple(int(i) for i in idx)}")
         a = np.asarray(self._policy(x[None] if single else x), dtype=np.float32)
         return a[0] if single else a
 
