@@ -10,9 +10,11 @@ Usage (from the repository root)::
 its kwargs; ``best_model.zip`` + ``best_vecnormalize.pkl`` or ``model.zip`` +
 ``vecnormalize.pkl`` the policy and its observation normalisation).
 
-Episodes run on **held-out seeds** ``--seed`` (default 1_000_000) + i, i < ``--n-episodes``: far
-from the training seeds (``seed + i``) and the training-time evaluation seeds
-(``seed + 10_000 + i``). Every policy sees the same seeds, hence the same targets / starts.
+Episodes run on **held-out seeds** ``--seed`` (default 1_000_000) + i, i < ``--n-episodes``,
+checked disjoint from every reset seed the run used (training envs ``seed + i``, its evaluation
+env during training ``seed + 10_000 + i``; the rule: :mod:`agents.heldout`): an overlap is refused
+(exit status 2) naming the run and the seeds. Every policy sees the same seeds, hence the same
+targets / starts.
 When the env has a batched vector env, the episodes of one policy run as one batch (env i
 reset with seed ``--seed + i``, which equals a single env reset with that seed); otherwise one
 single env after another. Actions are deterministic for the trained policy.
@@ -37,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common, envs, hyperparameters, parsing
+from . import common, envs, heldout, hyperparameters, parsing
 from .episode_metrics import format_table, scene_scales, summarize
 from .figures import plot_episodes, plot_learning_curve, write_gif
 from tensegrity_gym.core.checks import check_count
@@ -208,7 +210,8 @@ def build_parser():
     p.add_argument("run_dir", help="run directory written by agents.train")
     p.add_argument("--model", default="best", help="best (default), final, or a path to a model zip")
     p.add_argument("--n-episodes", type=parsing.arg_type(lambda v: check_count(v, "--n-episodes", 1)), default=100)
-    p.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default 1000000)")
+    p.add_argument("--seed", type=int, default=HELD_OUT_SEED,
+                   help="first held-out reset seed (default 1000000); must be clear of the run's own seeds")
     p.add_argument("--out", default=None, help="output directory (default RUN_DIR/evaluation)")
     p.add_argument("--no-baselines", action="store_true", help="skip the non-learning baselines")
     p.add_argument("--no-random", action="store_true", help="skip the random policy")
@@ -238,15 +241,16 @@ def evaluate(argv=None) -> dict:
         raise ValueError(f"--n-episodes: must be >= 1, got {args.n_episodes}")
     if not 16 <= args.gif_size <= 2048:
         raise ValueError(f"--gif-size: must be in [16, 2048] pixels, got {args.gif_size}")
+    seeds = list(heldout.heldout_seeds(args.seed, args.n_episodes))
+    # refused when the run (or the run of a --model file) trained or selected on one of them
+    heldout.check_heldout(seeds, [run_dir] + ([] if args.model in ("best", "final") else [args.model]))
     cfg, trained, model_path, model = load_trained(run_dir, args.model)
     env_id = cfg["env"]
     env_kwargs = {**cfg["env_kwargs"], **parsing.parse_kv_list(args.env_kwargs, ":", "--env-kwargs")}
-    envs.check_seed(args.seed)
+    nb = args.baseline_episodes or args.n_episodes
     envs.make_env(env_id, env_kwargs).close()     # an unknown --env-kwargs key: named, no traceback
     out = Path(args.out) if args.out else run_dir / "evaluation"
     out.mkdir(parents=True, exist_ok=True)
-    seeds = list(range(args.seed, args.seed + args.n_episodes))
-    nb = args.baseline_episodes or args.n_episodes
     record = ("tracking_error", "max_node_error", "distance_rolled")
     scales = scene_scales(env_id, env_kwargs)
 

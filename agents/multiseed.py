@@ -8,7 +8,8 @@ Usage::
 
 For each run directory (one training seed, written by :mod:`agents.train`), the policy (``--model``:
 ``best`` by default, as :mod:`agents.evaluate`) runs ``--n-episodes`` episodes on the held-out
-seeds 1,000,000 ... (the same for every training seed), deterministic actions. The per-seed
+seeds ``--seed`` (default 1,000,000) ... (the same for every training seed; each run's own seeds
+must be clear of them, :mod:`agents.heldout`), deterministic actions. The per-seed
 evaluation lands in ``OUT/seeds/<run name>/`` (``metrics.json``, ``table.md``, ``episodes.json``).
 
 Aggregates (``OUT/summary.json``, ``OUT/summary.md``, ``OUT/learning_curves.png``):
@@ -36,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common, parsing
+from . import common, heldout, parsing
 from .summary import iqm_interval
 
 #: per-seed metrics aggregated over seeds: (summary key, key in agents.evaluate's results, unit)
@@ -55,6 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory (summary.json/.md, learning_curves.png, seeds/)")
     p.add_argument("--model", default="best", help="best (default) or final")
     p.add_argument("--n-episodes", type=int, default=100, help="held-out episodes per training seed (default 100)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="first held-out reset seed (default agents.evaluate's, 1000000)")
     p.add_argument("--env-kwargs", nargs="*", metavar="KEY:VALUE", default=[],
                    help="env kwargs for evaluation on top of each run's own (e.g. a randomised robot)")
     p.add_argument("--goal", nargs="*", metavar="METRIC>=VALUE", default=[],
@@ -87,10 +90,11 @@ def _evaluate_seed(run: Path, out: Path, args) -> dict:
     if args.reuse and m_path.exists():
         m = json.loads(m_path.read_text())
         model_path = evaluate.resolve_model(run, args.model)[0]
-        if m.get("model") == str(model_path) and m["results"][next(iter(m["results"]))]["n_episodes"] == args.n_episodes:
+        if (m.get("model") == str(model_path) and m["results"][next(iter(m["results"]))]["n_episodes"] == args.n_episodes
+                and (m.get("held_out_seeds") or [None])[0] == args.seed):
             return m
     argv = [str(run), "--model", args.model, "--n-episodes", str(args.n_episodes), "--out", str(out),
-            "--no-baselines", "--no-random"]
+            "--no-baselines", "--no-random", "--seed", str(args.seed)]
     if args.env_kwargs:
         argv += ["--env-kwargs", *args.env_kwargs]
     return evaluate.evaluate(argv)
@@ -189,9 +193,13 @@ def run(argv: list[str] | None = None) -> dict:
     names = [r.name for r in runs]
     if len(set(names)) != len(names):
         raise ValueError(f"runs: two run directories share a name ({names}); each seed needs its own")
+    from .evaluate import HELD_OUT_SEED
+    if args.seed is None:
+        args.seed = HELD_OUT_SEED
+    # every run checked before any is evaluated (agents.evaluate checks each again)
+    heldout.check_heldout(heldout.heldout_seeds(args.seed, args.n_episodes), runs)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from .evaluate import HELD_OUT_SEED
     per_seed, curves, env_ids = [], [], set()
     for r in runs:
         m = _evaluate_seed(r, out / "seeds" / r.name, args)
@@ -211,7 +219,7 @@ def run(argv: list[str] | None = None) -> dict:
     agg = aggregate(per_seed, goals)
     title = args.title or f"{', '.join(sorted(env_ids))}: {len(runs)} training seeds"
     summary = {"title": title, "n_seeds": len(runs), "held_out_episodes_per_seed": args.n_episodes,
-               "held_out_seeds": [HELD_OUT_SEED, HELD_OUT_SEED + args.n_episodes - 1],
+               "held_out_seeds": [args.seed, args.seed + args.n_episodes - 1],
                "model": args.model, "eval_env_kwargs": parsing.parse_kv_list(args.env_kwargs, ":", "--env-kwargs"),
                "per_seed": per_seed, "aggregate": agg,
                "learning_curve_runs": [str(r) for r, c in zip(runs, curves) if c is not None],

@@ -1,5 +1,7 @@
 """Summaries over training seeds: the IQM of a metric with its bootstrap interval
-(:func:`iqm_interval`), and the per-variant summary of an :mod:`agents.tune` sweep
+(:func:`iqm_interval`); within one training seed, the mean over its episodes with its bootstrap
+interval (:func:`mean_interval`) or a success rate with its Wilson interval (:func:`rate_interval`);
+and the per-variant summary of an :mod:`agents.tune` sweep
 (``summary.json``, ``summary.md``, ``summary.png``).
 """
 from __future__ import annotations
@@ -50,6 +52,39 @@ def iqm_interval(x, confidence: float = 0.95, n_resamples: int = 2000, seed: int
     res = stats.bootstrap((x,), lambda s, axis: stats.trim_mean(s, 0.25, axis=axis), confidence_level=confidence,
                           n_resamples=n_resamples, method="percentile", rng=np.random.default_rng(seed))
     return iqm, float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def mean_interval(x, confidence: float = 0.95, n_resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """Mean of ``x`` (one training seed's episodes) and its percentile-bootstrap ``confidence``
+    interval over the episodes (``scipy.stats.bootstrap``, seeded). Non-finite values are dropped;
+    fewer than 2 values: (mean, nan, nan); all equal: (mean, mean, mean)."""
+    from scipy import stats
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return float("nan"), float("nan"), float("nan")
+    mean = float(x.mean())
+    if x.size < 2:
+        return mean, float("nan"), float("nan")
+    if np.ptp(x) == 0:
+        return mean, mean, mean
+    res = stats.bootstrap((x,), np.mean, confidence_level=confidence, n_resamples=n_resamples,
+                          method="percentile", rng=np.random.default_rng(seed))
+    return mean, float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def rate_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float, float]:
+    """Success rate ``successes / n`` and its Wilson score ``confidence`` interval. For a rate the
+    Wilson interval, not the bootstrap: a bootstrap of 100 % successes is [1, 1], whatever n;
+    Wilson's of 100 / 100 is [0.963, 1]. ValueError unless 0 <= successes <= n, n >= 1."""
+    from scipy import stats
+    if not (n >= 1 and 0 <= successes <= n):
+        raise ValueError(f"successes, n: need 0 <= successes <= n and n >= 1, got {successes}, {n}")
+    p = successes / n
+    z = float(stats.norm.ppf(0.5 + confidence / 2))
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return float(p), float(max(0.0, centre - half)), float(min(1.0, centre + half))
 
 
 def summarize(exp_dir: Path, metric: str = "eval_return", sweep: dict | None = None) -> dict:

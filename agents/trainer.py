@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import common, envs, hyperparameters, warm_start
+from . import common, envs, heldout, hyperparameters, warm_start
 from .interrupts import DeferInterrupts, install_interrupt_handlers
 from .parsing import parse_kv_list, read_yaml, to_yaml_safe
 from .progress import progress_callback
@@ -20,8 +20,9 @@ from .run_dir import RunState, clear_failed_start, has_saved_model, read_state, 
 from tensegrity_gym.integrations.torch_threads import set_torch_threads
 from tensegrity_gym.io.claim import Claim
 
-#: the evaluation env's seeds during training: ``seed + EVAL_SEED_OFFSET + i``
-EVAL_SEED_OFFSET = 10_000
+#: the evaluation env's seeds during training: ``seed + EVAL_SEED_OFFSET + i`` (the held-out rule
+#: of :mod:`agents.heldout` counts them)
+EVAL_SEED_OFFSET = heldout.EVAL_SEED_OFFSET
 
 
 def _claim_run_dir(run_dir: Path, args, flag: str, resume: bool):

@@ -3,15 +3,18 @@
 training seed) and of the rolling gait against the bump height of the ``rough`` terrain generator.
 
     python -m scripts.eval.eval_rough runs/ppo_roll_s0 [runs/ppo_roll_s1 ...] --out results/rough \
-        [--amplitudes 0 0.01 0.02 0.03 0.04] [--episodes 8] [--model final] [--wavelength 0.4]
+        [--amplitudes 0 0.01 0.02 0.03 0.04] [--episodes 8] [--seed 30000] [--model final] [--wavelength 0.4]
 
 Per amplitude a (m): each run's mean speed along the goal over ``--episodes`` episodes of 20 s
-(the registered time limit) from reset seeds 30000, 30001, ... (never used in training), on a
+(the registered time limit) from reset seeds ``--seed``, ``--seed`` + 1, ... (default 30000), on a
 ``rough`` terrain of bumps in [0, a] m (``wavelength`` m, a new field per episode from the reset
 seed; the robot starts on its level pad and rolls onto the bumps); a = 0 is the level ground
-itself (``terrain=None``). Across runs: IQM with a 95 % bootstrap interval (``agents.summary.iqm_interval``)
-and each amplitude's IQM as a fraction of the flat-ground IQM. Writes ``rough.json`` and
-``rough.csv`` into ``--out``.
+itself (``terrain=None``). The seeds must be clear of every seed a run used (its training envs
+``seed + i``, its evaluation env during training ``seed + 10000 + i``): an overlap is refused,
+exit status 2 (:mod:`agents.heldout`). Per training seed: the mean with a 95 % bootstrap interval
+over its episodes (``agents.summary.mean_interval``). Across runs: IQM with a 95 % bootstrap
+interval (``agents.summary.iqm_interval``) and each amplitude's IQM as a fraction of the
+flat-ground IQM. Writes ``rough.json`` and ``rough.csv`` into ``--out``.
 """
 from __future__ import annotations
 
@@ -25,36 +28,44 @@ from tensegrity_gym_agents.evaluate import run_episodes
 from tensegrity_gym.io.atomic import write_atomic
 from tensegrity_gym.tools.baselines import RollingGait
 
-from scripts.eval._policy_table import iqm_row, parse_table_args, table_parser, trained_policies
+from scripts.eval._policy_table import held_out, iqm_row, parse_table_args, seed_row, table_parser, trained_policies
 
 ENV_ID = "TensegrityRoll-v0"
+#: default first held-out reset seed
 SEED0 = 30000
 
 
-def speeds(policy_factory, amplitude: float, episodes: int, wavelength: float, env_kwargs: dict) -> np.ndarray:
-    """(episodes,) mean speed along the goal, m/s, on bumps up to ``amplitude`` m (0: level ground)."""
+def speeds(policy_factory, amplitude: float, seeds: list[int], wavelength: float, env_kwargs: dict) -> np.ndarray:
+    """(episodes,) mean speed along the goal, m/s, of the episodes from reset seeds ``seeds`` on
+    bumps up to ``amplitude`` m (0: level ground)."""
     kw = dict(env_kwargs)
     if amplitude > 0:
         kw["terrain"] = {"generator": "rough", "amplitude": float(amplitude), "wavelength": float(wavelength)}
-    eps = run_episodes(ENV_ID, kw, policy_factory, list(range(SEED0, SEED0 + episodes)))
+    eps = run_episodes(ENV_ID, kw, policy_factory, seeds)
     return np.array([e["final"]["distance_rolled"] / (e["length"] * e["dt"]) for e in eps])
 
 
 def main(argv=None) -> int:
-    ap = table_parser(__doc__)
+    ap = table_parser(__doc__, SEED0)
     ap.add_argument("--amplitudes", type=float, nargs="+", default=[0.0, 0.01, 0.02, 0.03, 0.04])
     ap.add_argument("--episodes", type=int, default=8)
     ap.add_argument("--wavelength", type=float, default=0.4)
     args, env_kwargs = parse_table_args(ap, argv)
+    if args.episodes < 1:
+        print(f"error: --episodes: must be >= 1, got {args.episodes}", file=sys.stderr)
+        return 2
+    seeds = held_out(args, args.episodes)
     amps = args.amplitudes
     per_run = {}
     for run, policy, model_path in trained_policies(args.runs, args.model):
-        v = [float(speeds(lambda env: policy, a, args.episodes, args.wavelength, env_kwargs).mean()) for a in amps]
-        per_run[str(run)] = {"model": str(model_path), "speed_m_s": v}
-        print(f"{run}: " + " ".join(f"{a * 100:g}cm:{x:.3f}" for a, x in zip(amps, v)), flush=True)
+        stats = [seed_row(speeds(lambda env: policy, a, seeds, args.wavelength, env_kwargs)) for a in amps]
+        v = [r["mean"] for r in stats]
+        per_run[str(run)] = {"model": str(model_path), "speed_m_s": v, "ci95_m_s": [r["ci95"] for r in stats]}
+        print(f"{run}: " + " ".join(f"{a * 100:g}cm:{r['mean']:.3f} [{r['ci95'][0]:.3f}, {r['ci95'][1]:.3f}]"
+                                    for a, r in zip(amps, stats)), flush=True)
     gait = None
     if not args.no_baseline and env_kwargs.get("structure", "prism") == "prism":
-        gait = [float(speeds(lambda env: RollingGait(env), a, args.episodes, args.wavelength, env_kwargs).mean())
+        gait = [float(speeds(lambda env: RollingGait(env), a, seeds, args.wavelength, env_kwargs).mean())
                 for a in amps]
         print("rolling gait: " + " ".join(f"{a * 100:g}cm:{x:.3f}" for a, x in zip(amps, gait)), flush=True)
     table, flat = [], None
@@ -70,7 +81,9 @@ def main(argv=None) -> int:
             row["gait_m_s"] = gait[j]
         table.append(row)
     out = {"env_id": ENV_ID, "env_kwargs": env_kwargs, "model": args.model, "episodes": args.episodes,
-           "wavelength_m": args.wavelength, "reset_seeds": [SEED0, SEED0 + args.episodes - 1], "runs": per_run,
+           "wavelength_m": args.wavelength, "reset_seeds": [seeds[0], seeds[-1]],
+           "per_seed_interval": "mean over the episodes, 95 % percentile bootstrap (scipy.stats.bootstrap, "
+                                "2000 resamples, seed 0)", "runs": per_run,
            "table": table, "command": " ".join(["python", "-m", "scripts.eval.eval_rough"] + (argv or sys.argv[1:]))}
     payload = json.dumps(out, indent=1).encode()
     write_atomic(args.out / "rough.json", lambda f: f.write(payload))

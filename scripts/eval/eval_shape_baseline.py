@@ -1,17 +1,18 @@
 """Evaluate the NNLS shape controller on TensegrityShape-v0 over held-out targets, both action modes.
 
 Runs the batched vector env (one physics call per step for all targets) with the controller's
-batched predict. Held-out targets: seeds 10_000 .. 10_000 + n - 1 (the gains were tuned on
-seeds 0-2). Reports, per mode: success rate at the end of the episode (every tracked node within
+batched predict. Held-out targets: reset seeds ``--seed`` .. ``--seed`` + n - 1 (default 10_000;
+the gains were tuned on seeds 0-2, which are refused). Reports, per mode: success rate at the end of the episode (every tracked node within
 the success tolerance, 1 cm for the default prism), final max/mean node error (m) and the time
 to first success. Writes results/shape_baseline.json.
 
-Usage: python -m scripts.eval.eval_shape_baseline [--n 100] [--steps 200] [--out results/shape_baseline.json]
+Usage: python -m scripts.eval.eval_shape_baseline [--n 100] [--steps 200] [--seed 10000] [--out results/shape_baseline.json]
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -21,8 +22,13 @@ import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym.tools.baselines import NNLSShapeController
 from tensegrity_gym.envs.shape import TensegrityShapeVectorEnv
 
+#: default first held-out reset seed
+SEED0 = 10_000
+#: the reset seeds the controller's gains were tuned on
+TUNING_SEEDS = range(0, 3)
 
-def evaluate(mode: str, n: int, steps: int, seed0: int = 10_000, **env_kwargs) -> dict:
+
+def evaluate(mode: str, n: int, steps: int, seed0: int = SEED0, **env_kwargs) -> dict:
     env = TensegrityShapeVectorEnv(num_envs=n, max_episode_steps=None, action_mode=mode, **env_kwargs)
     pol = NNLSShapeController(env)
     obs, _ = env.reset(seed=seed0)
@@ -68,15 +74,24 @@ def settle_time(n: int = 20, noise: float = 0.02, threshold: float = 1e-3, secon
             "settle_time_s_max": float(last_out.max()), "env_kwargs": {k: str(v) for k, v in env_kwargs.items()}}
 
 
-def main(argv=None):
+def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--n", type=int, default=100)
     p.add_argument("--steps", type=int, default=200, help="control steps (200 = the registered time limit)")
+    p.add_argument("--seed", type=int, default=SEED0, help=f"first held-out reset seed (default {SEED0})")
     p.add_argument("--out", default="results/shape_baseline.json")
     args = p.parse_args(argv)
+    if args.n < 1 or args.seed < 0 or args.seed + args.n - 1 > 2**32 - 1:
+        print(f"error: --n, --seed: need n >= 1 and seeds in 0..2**32-1, got {args.n}, {args.seed}", file=sys.stderr)
+        return 2
+    tuned = sorted(set(TUNING_SEEDS) & set(range(args.seed, args.seed + args.n)))
+    if tuned:
+        print(f"error: --seed: the held-out seeds {args.seed}..{args.seed + args.n - 1} include the seeds the "
+              f"controller's gains were tuned on ({tuned})", file=sys.stderr)
+        return 2
     results = {}
     for mode in ("rest_length", "force_density"):
-        r = evaluate(mode, args.n, args.steps)
+        r = evaluate(mode, args.n, args.steps, args.seed)
         results[mode] = r
         print(f"{mode:14s} success {r['success_rate'] * 100:5.1f}%  final max error mean "
               f"{r['final_max_error_m']['mean'] * 1e3:.2f} mm, p95 {r['final_max_error_m']['p95'] * 1e3:.2f} mm, "
@@ -91,11 +106,14 @@ def main(argv=None):
     results["settling_no_node_damping"] = st0
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    meta = {"command": "python -m scripts.eval.eval_shape_baseline --n %d --steps %d" % (args.n, args.steps),
-            "env": "TensegrityShape-v0 defaults (constrained_prism, 50 Hz control)", "held_out_seeds": "10000 + i"}
+    meta = {"command": "python -m scripts.eval.eval_shape_baseline --n %d --steps %d --seed %d" % (args.n, args.steps,
+                                                                                               args.seed),
+            "env": "TensegrityShape-v0 defaults (constrained_prism, 50 Hz control)",
+            "held_out_seeds": f"{args.seed} + i", "reset_seeds": [args.seed, args.seed + args.n - 1]}
     out.write_text(json.dumps({"meta": meta, **results}, indent=1))
     print(f"wrote {out}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

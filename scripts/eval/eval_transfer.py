@@ -5,9 +5,9 @@ the rolling gait (:class:`tensegrity_gym.tools.baselines.RollingGait`, ``--polic
 run folder of ``agents.train`` (``--policy results/sac_roll_motor``: model + VecNormalize
 statistics) or a Stable-Baselines3 model zip (``--policy PATH.zip --algo SAC``) -- unchanged, on
 
-(a) ``TensegrityRoll-v0``, the nominal robot (N reset seeds),
+(a) ``TensegrityRoll-v0``, the nominal robot (N reset seeds from ``--seed``, default 1,000,000),
 (b) N held-out randomised robots of ``TensegrityRoll-v0`` (``randomize``: every listed
-    parameter drawn per robot, relative U(1 - s, 1 + s) x nominal; seeds from 1,000,000), and
+    parameter drawn per robot, relative U(1 - s, 1 + s) x nominal; the same seeds), and
 (c) the MuJoCo twin ``TensegrityRollMuJoCo-v0`` (N reset seeds, the same reset noise as (a)),
 (d) with ``--twin-randomised``, also N randomised MuJoCo twins (row ``mujoco_twin_randomised``:
     the twin with the same ``randomize`` and seeds as (b), so twin i is robot i of (b), with the
@@ -15,7 +15,10 @@ statistics) or a Stable-Baselines3 model zip (``--policy PATH.zip --algo SAC``) 
 
 each for ``--time`` s (no time limit), and prints a table of the speed of the centre of mass
 along the goal (``info["distance_rolled"] / T``: m/s and body lengths/s, body length = the
-longest rod). Writes the numbers as JSON (``--out``, atomically).
+longest rod). Writes the numbers as JSON (``--out``, atomically). The seeds must be clear of every
+seed the policy's training run used (its training envs ``seed + i``, its evaluation env during
+training ``seed + 10000 + i``; a model zip: the run folder it lies in): an overlap is refused,
+exit status 2, naming the run and the seeds (:mod:`agents.heldout`).
 
 Run (with the package importable, e.g. ``PYTHONPATH=.``):
 ``python -m scripts.eval.eval_transfer --policy gait --robots 20 --time 20 --out results/transfer/gait.json``
@@ -34,10 +37,12 @@ import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym_agents import common
+from tensegrity_gym_agents.heldout import script_heldout_seeds
 from tensegrity_gym.tools.baselines import RollingGait
 from tensegrity_gym.envs.roll import TensegrityRollVectorEnv
 from tensegrity_gym.envs.roll_mujoco import TensegrityRollMuJoCoEnv
 
+#: default first held-out reset seed
 SEED0 = 1_000_000
 RANDOMIZE = {"rod_mass": 0.2, "stiffness": 0.2, "damping": 0.2, "friction": 0.2, "ground_stiffness": 0.2,
              "ground_damping": 0.2, "max_cable_speed": 0.2, "max_cable_acceleration": 0.2}
@@ -85,11 +90,11 @@ def run_env_kwargs(policy_spec: str) -> dict:
     return {k: v for k, v in (cfg.get("env_kwargs") or {}).items() if k not in ROBOT_KEYS}
 
 
-def run_vector(policy_spec, algo, n, T, **env_kwargs):
-    """Speeds (n,) m/s along the goal on n copies of TensegrityRoll-v0 (seeds SEED0 + i)."""
+def run_vector(policy_spec, algo, n, T, seed0: int = SEED0, **env_kwargs):
+    """Speeds (n,) m/s along the goal on n copies of TensegrityRoll-v0 (reset seeds seed0 + i)."""
     venv = TensegrityRollVectorEnv(num_envs=n, max_episode_steps=None, **env_kwargs)
     policy = make_policy(policy_spec, algo, venv)
-    obs, info = venv.reset(seed=SEED0)
+    obs, info = venv.reset(seed=seed0)
     state, start = None, np.ones(n, bool)
     steps = int(round(T / venv.task.control_dt))
     for _ in range(steps):
@@ -102,22 +107,22 @@ def run_vector(policy_spec, algo, n, T, **env_kwargs):
     return inf["distance_rolled"] / T, venv.task.body_length, params
 
 
-def run_twin(policy_spec, algo, n, T, **env_kwargs):
-    """Speeds (n,) m/s along the goal on the MuJoCo twin, reset seeds SEED0 + i; with
+def run_twin(policy_spec, algo, n, T, seed0: int = SEED0, **env_kwargs):
+    """Speeds (n,) m/s along the goal on the MuJoCo twin, reset seeds seed0 + i; with
     ``randomize`` in ``env_kwargs`` also the parameters each twin drew (name -> (n, ...))."""
     env = TensegrityRollMuJoCoEnv(**env_kwargs)
     policy = make_policy(policy_spec, algo, env)
     out, drawn = [], []
     steps = int(round(T / env.dt))
     for i in range(n):
-        obs, info = env.reset(seed=SEED0 + i)
+        obs, info = env.reset(seed=seed0 + i)
         drawn.append(info.get("params", {}))
         state = None
         for k in range(steps):
             a, state = policy.predict(obs, state, episode_start=np.array([k == 0]), deterministic=True)
             obs, _, _, trunc, inf = env.step(a)
             if trunc:
-                raise RuntimeError(f"twin diverged (seed {SEED0 + i}, step {k})")
+                raise RuntimeError(f"twin diverged (seed {seed0 + i}, step {k})")
         out.append(inf["distance_rolled"] / T)
     params = {k: np.array([p[k] for p in drawn]) for k in drawn[0]}
     return np.array(out), env.task.body_length, params
@@ -176,6 +181,8 @@ def main(argv=None) -> int:
     ap.add_argument("--policy", default="gait", help="'gait' (RollingGait), a training run folder or an SB3 model .zip")
     ap.add_argument("--algo", default=None, help="SB3 algorithm of the zip (PPO, SAC, ...)")
     ap.add_argument("--robots", type=int, default=20, help="N: reset seeds / randomised robots / twin episodes")
+    ap.add_argument("--seed", type=int, default=SEED0,
+                    help=f"first held-out reset seed (default {SEED0}); must be clear of the policy run's own seeds")
     ap.add_argument("--twin-robots", type=int, default=None,
                     help="episodes on the MuJoCo twin (default --robots; the twin steps one robot at a time)")
     ap.add_argument("--time", type=float, default=20.0, help="simulated seconds per episode")
@@ -201,17 +208,18 @@ def main(argv=None) -> int:
     if not (np.all(np.isfinite(a.goal)) and np.hypot(*a.goal) > 0):
         print(f"error: --goal must be a non-zero finite vector, got {a.goal}", file=sys.stderr)
         return 2
-    rows, t0, kw = {}, time.time(), {"goal_direction": tuple(a.goal), **run_env_kwargs(a.policy)}
-    v, L, _ = run_vector(a.policy, a.algo, a.robots, a.time, **kw)
-    rows["nominal"] = summary(v, L)
-    v, L, params = run_vector(a.policy, a.algo, a.robots, a.time, randomize=RANDOMIZE, **kw)
-    rows["randomised"] = summary(v, L)
     nt = a.robots if a.twin_robots is None else a.twin_robots
-    v, L, _ = run_twin(a.policy, a.algo, nt, a.time, **kw)
+    seeds = script_heldout_seeds(a.seed, max(a.robots, nt), [] if a.policy == "gait" else [a.policy])
+    rows, t0, kw = {}, time.time(), {"goal_direction": tuple(a.goal), **run_env_kwargs(a.policy)}
+    v, L, _ = run_vector(a.policy, a.algo, a.robots, a.time, a.seed, **kw)
+    rows["nominal"] = summary(v, L)
+    v, L, params = run_vector(a.policy, a.algo, a.robots, a.time, a.seed, randomize=RANDOMIZE, **kw)
+    rows["randomised"] = summary(v, L)
+    v, L, _ = run_twin(a.policy, a.algo, nt, a.time, a.seed, **kw)
     rows["mujoco_twin"] = summary(v, L)
     twin_params = None
     if a.twin_randomised:
-        v, L, twin_params = run_twin(a.policy, a.algo, nt, a.time, randomize=RANDOMIZE, **kw)
+        v, L, twin_params = run_twin(a.policy, a.algo, nt, a.time, a.seed, randomize=RANDOMIZE, **kw)
         rows["mujoco_twin_randomised"] = summary(v, L)
     nominal = rows["nominal"]["mean_m_s"]
     print(f"policy {a.policy}, goal {tuple(a.goal)}, {a.robots} robots x {a.time:g} s, body length {L:.3f} m")
@@ -224,7 +232,8 @@ def main(argv=None) -> int:
     data = {"command": "python -m scripts.eval.eval_transfer " + " ".join(sys.argv[1:] if argv is None else argv),
             "policy": a.policy, "algo": a.algo, "policy_env_kwargs": {k: v for k, v in kw.items() if k != "goal_direction"},
             "goal_direction": list(a.goal), "robots": a.robots, "twin_robots": nt, "simulated_time_s": a.time,
-            "seeds": f"{SEED0} .. {SEED0 + a.robots - 1}", "randomize": RANDOMIZE,
+            "seeds": f"{a.seed} .. {a.seed + a.robots - 1}", "reset_seeds": [seeds[0], seeds[-1]],
+            "randomize": RANDOMIZE,
             "randomised_params_drawn": {k: np.asarray(p).tolist() for k, p in (params or {}).items()},
             **({"twin_randomised_params_drawn": {k: p.tolist() for k, p in twin_params.items()}}
                if twin_params is not None else {}),

@@ -3,7 +3,7 @@
 twin, with the same terrain or course and the same reset seeds.
 
     python -m scripts.eval.eval_transfer_terrain runs/ppo_navigate_s0 [runs/... | gait] --out results/transfer_terrain/navigate.json \
-        [--courses 20] [--model final] [--env-kwargs '{}']
+        [--courses 20] [--seed 20000] [--model final] [--env-kwargs '{}']
     python -m scripts.eval.eval_transfer_terrain runs/ppo_rough_s0 gait --terrain '{"generator": "rough"}' \
         --out results/transfer_terrain/rough.json [--episodes 8] [--steps 1000]
     python -m scripts.eval.eval_transfer_terrain results/climb/seed_0 [...] gait --slopes 0 10 20 26 \
@@ -21,15 +21,20 @@ actions, on
   Metric: the success rate (all goals reached).
 * a terrain (``--terrain``: a terrain JSON file, or a JSON object: a terrain or a generator, see
   ``docs/terrain.md``): ``TensegrityRoll-v0`` and its twin ``TensegrityRollMuJoCo-v0`` with that
-  terrain, ``--episodes`` episodes from reset seeds 10000, 10001, ... (a generator draws the same
-  terrain for a seed on both), ``--steps`` control steps each (default the registered 1000, 20 s).
+  terrain, ``--episodes`` episodes from reset seeds 30000, 30001, ... (those of
+  ``scripts/eval/eval_rough.py``; a generator draws the same terrain for a seed on both),
+  ``--steps`` control steps each (default the registered 1000, 20 s).
   Metric: the mean speed along the goal, m/s (an episode's ``distance_rolled`` over its duration).
 * climbing (``--slopes``: slopes in degrees): ``TensegrityClimb-v0`` and its twin
   ``TensegrityClimbMuJoCo-v0`` on each slope (``slope_deg``; a run's ``slope_range`` is dropped),
-  ``--episodes`` episodes from reset seeds 10000, 10001, ... (those of ``scripts/eval/eval_climb.py``),
+  ``--episodes`` episodes from reset seeds 40000, 40001, ... (those of ``scripts/eval/eval_climb.py``),
   ``--steps`` control steps each (default 1000, 20 s). Metric, per slope: the mean uphill speed,
   m/s (the distance climbed along the slope over the episode's duration); per policy, the mean
   over the slopes of the ratio twin / project, and the ratio of the speeds averaged over the slopes.
+
+``--seed`` sets the first reset seed of any mode. The seeds must be clear of every seed a policy's
+run used (its training envs ``seed + i``, its evaluation env during training ``seed + 10000 + i``):
+an overlap is refused, exit status 2, naming the run and the seeds (:mod:`agents.heldout`).
 
 The env arguments are a run's own (its ``config.yaml``: observation, actuation, course settings)
 without the robot it was trained on (``randomize``, ``params``: both simulators run the nominal
@@ -54,6 +59,7 @@ import numpy as np
 import tensegrity_gym  # noqa: F401  (registers the envs)
 from tensegrity_gym_agents import common
 from tensegrity_gym_agents.evaluate import load_trained, run_episodes
+from tensegrity_gym_agents.heldout import script_heldout_seeds
 from tensegrity_gym.envs.climb import MAX_SLOPE_DEG
 from tensegrity_gym.tools.baselines import RollingGait
 
@@ -61,8 +67,8 @@ from tensegrity_gym.tools.baselines import RollingGait
 ENVS = {"navigate": ("TensegrityNavigate-v0", "TensegrityNavigateMuJoCo-v0"),
         "terrain": ("TensegrityRoll-v0", "TensegrityRollMuJoCo-v0"),
         "climb": ("TensegrityClimb-v0", "TensegrityClimbMuJoCo-v0")}
-#: first reset seed of each mode (held out: training seeds its envs from its seed, evaluations from 1000)
-SEED0 = {"navigate": 20000, "terrain": 10000, "climb": 10000}
+#: default first reset seed of each mode (those of eval_navigate.py, eval_rough.py, eval_climb.py)
+SEED0 = {"navigate": 20000, "terrain": 30000, "climb": 40000}
 #: the metric of each mode, as the JSON names it
 METRIC = {"navigate": "success_rate", "terrain": "mean_speed_m_s", "climb": "mean_uphill_speed_m_s"}
 #: a run's env arguments that describe the robot it was trained on, not what it senses
@@ -176,7 +182,11 @@ def main(argv=None) -> int:
     ap.add_argument("--slopes", type=float, nargs="+", default=None,
                     help="evaluate climbing on these slopes (degrees) instead of navigation")
     ap.add_argument("--courses", type=int, default=20, help="navigation: held-out courses (reset seeds 20000+)")
-    ap.add_argument("--episodes", type=int, default=8, help="terrain, climbing: episodes (reset seeds 10000+)")
+    ap.add_argument("--episodes", type=int, default=8,
+                    help="terrain, climbing: episodes (reset seeds 30000+, 40000+)")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="first held-out reset seed (default per mode: navigation 20000, terrain 30000, climbing "
+                         "40000); must be clear of every run's own seeds")
     ap.add_argument("--steps", type=int, default=None,
                     help="control steps per episode (default: the registered time limit)")
     ap.add_argument("--model", default="final", help="best, final or a model .zip of each run")
@@ -199,7 +209,8 @@ def main(argv=None) -> int:
         return 2
     terrain = parse_terrain(a.terrain)
     envs = ENVS[mode]
-    seeds = list(range(SEED0[mode], SEED0[mode] + n))
+    seeds = list(script_heldout_seeds(SEED0[mode] if a.seed is None else a.seed, n,
+                                      [p for p in a.policies if p != "gait"]))
     unit = {"navigate": "success", "terrain": "m/s along the goal", "climb": "m/s uphill"}[mode]
     results, t0 = {}, time.time()
     # the evaluation's scenes: one terrain (or flat ground, or the courses), or each slope, fixed

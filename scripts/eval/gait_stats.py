@@ -6,7 +6,9 @@
     python -m scripts.eval.gait_stats gait --steps 5000                   # the RollingGait baseline, 100 s
     python -m scripts.eval.gait_stats runs/sac_roll --out results/sac_roll/gait_stats.json
 
-For each episode (held-out seeds from 1,000,000, deterministic actions, the run's env kwargs):
+For each episode (held-out reset seeds from ``--seed``, default 1,000,000, clear of the run's own
+seeds, else refused with exit status 2 (:mod:`agents.heldout`); deterministic actions, the run's
+env kwargs):
 
 * ``speed_m_s``: centre-of-mass progress along the goal per second (m/s);
 * ``body_rotations``: net rotation of the body, in turns, about the horizontal axis
@@ -43,6 +45,8 @@ from tensegrity_gym.tools.baselines import RollingGait  # noqa: E402
 from scripts._bench import rotation_vectors  # noqa: E402,F401  (shared with gait_search)
 
 ENV_ID = "TensegrityRoll-v0"
+#: default first held-out reset seed
+HELD_OUT = 1_000_000
 
 
 def episode_stats(env, policy, seed: int, steps: int) -> dict:
@@ -94,12 +98,19 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("run", help="run directory of agents.train, or 'gait' for the RollingGait baseline")
     p.add_argument("--model", default="best")
-    p.add_argument("--seeds", type=int, default=2)
+    p.add_argument("--seeds", type=int, default=2, help="episodes (reset seeds)")
+    p.add_argument("--seed", type=int, default=HELD_OUT,
+                   help=f"first held-out reset seed (default {HELD_OUT}); must be clear of the run's own seeds")
     p.add_argument("--steps", type=int, default=1000, help="control steps per episode (1000 = 20 s)")
     p.add_argument("--env-kwargs", nargs="*", metavar="KEY:VALUE", help="override env kwargs (e.g. "
                    "max_cable_acceleration:None for a policy trained before the motor model)")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
+    if args.seeds < 1:
+        print(f"error: --seeds: must be >= 1, got {args.seeds}", file=sys.stderr)
+        return 2
+    from tensegrity_gym_agents.heldout import script_heldout_seeds
+    seeds = script_heldout_seeds(args.seed, args.seeds, [] if args.run == "gait" else [args.run])
     from tensegrity_gym_agents.parsing import parse_kv_list
     extra = parse_kv_list(args.env_kwargs, ":", "--env-kwargs")
     if args.run == "gait":
@@ -113,7 +124,7 @@ def main(argv=None) -> int:
             raise SystemExit(f"error: {args.run} is a run on {cfg['env']}, not {ENV_ID}")
         env_kwargs = {**cfg["env_kwargs"], **extra}
         env = gym.make(ENV_ID, max_episode_steps=args.steps, **env_kwargs)
-    rows = [episode_stats(env, policy, 1_000_000 + i, args.steps) for i in range(args.seeds)]
+    rows = [episode_stats(env, policy, s, args.steps) for s in seeds]
     env.close()
     for r in rows:
         h = r["com_height_m"]
@@ -124,7 +135,8 @@ def main(argv=None) -> int:
               f"changes/s, centre of mass {h[0]:.3f}..{h[2]:.3f} m high")
     if args.out:
         Path(args.out).write_text(json.dumps({"run": args.run, "model": args.model, "env_kwargs": env_kwargs,
-                                              "episodes": rows}, indent=1) + "\n")
+                                              "reset_seeds": [seeds[0], seeds[-1]], "episodes": rows},
+                                             indent=1) + "\n")
         print(f"wrote {args.out}")
     return 0
 

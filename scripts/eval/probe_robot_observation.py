@@ -2,7 +2,8 @@
 """Which sensors does a robot-observation rolling policy rely on? (the transfer gap)
 
 Runs a trained ``TensegrityRoll-v0`` policy with ``observation_mode="robot"`` on N robots of its
-own training distribution (the run's ``env_kwargs``, reset seeds 1,000,000 ... + N - 1, 20 s) and
+own training distribution (the run's ``env_kwargs``, reset seeds ``--seed`` (default 1,000,000) ...
++ N - 1, clear of the run's own seeds (:mod:`agents.heldout`, else exit status 2), 20 s) and
 corrupts one sensor block per row before the policy sees it:
 
 * ``unchanged``;
@@ -30,13 +31,15 @@ import numpy as np
 
 import tensegrity_gym  # noqa: F401  (registers the ids)
 from tensegrity_gym_agents import common, evaluate
+from tensegrity_gym_agents.heldout import script_heldout_seeds
 
+#: default first held-out reset seed
 HELD_OUT = 1_000_000
 ROWS = ("unchanged", "imu_accel_noise_5", "imu_gyro_noise_0.33", "contact_zero", "contact_flip_0.1",
         "contact_flip_0.3")
 
 
-def run_row(policy, env_kwargs: dict, row: str, n: int, seconds: float) -> np.ndarray:
+def run_row(policy, env_kwargs: dict, row: str, n: int, seconds: float, seed0: int = HELD_OUT) -> np.ndarray:
     """Speeds (n,) m/s along each robot's goal over ``seconds`` with the corruption of ``row``."""
     kw = dict(env_kwargs)
     if row.startswith("imu_"):
@@ -52,7 +55,7 @@ def run_row(policy, env_kwargs: dict, row: str, n: int, seconds: float) -> np.nd
     F, H = sens.frame_size, sens.history
     cols = np.concatenate([np.arange(h * F + cs.start, h * F + cs.stop) for h in range(H)])
     rng = np.random.default_rng(0)
-    obs, _ = env.reset(seed=list(range(HELD_OUT, HELD_OUT + n)))
+    obs, _ = env.reset(seed=list(range(seed0, seed0 + n)))
     start = task._com(task.q).copy()
     for _ in range(int(round(seconds / task.control_dt))):
         o = obs.copy()
@@ -71,15 +74,22 @@ def main(argv=None) -> int:
     ap.add_argument("run", help="training run folder of a robot-observation roll policy (agents.train)")
     ap.add_argument("--model", default="final", help="best or final (default final)")
     ap.add_argument("--robots", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=HELD_OUT,
+                    help=f"first held-out reset seed (default {HELD_OUT}); must be clear of the run's own seeds")
     ap.add_argument("--time", type=float, default=20.0, help="simulated seconds")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
+    if args.robots < 1:
+        print(f"error: --robots: must be >= 1, got {args.robots}", file=sys.stderr)
+        return 2
+    seeds = script_heldout_seeds(args.seed, args.robots, [args.run])
     cfg, policy, model_path, _ = evaluate.load_trained(Path(args.run), args.model)
     out = {"run": args.run, "model": str(model_path), "robots": args.robots, "seconds": args.time,
+           "reset_seeds": [seeds[0], seeds[-1]],
            "env_kwargs": cfg["env_kwargs"], "rows": {}, "command": " ".join(["python", *sys.argv])}
     t0 = time.perf_counter()
     for row in ROWS:
-        v = run_row(policy, cfg["env_kwargs"], row, args.robots, args.time)
+        v = run_row(policy, cfg["env_kwargs"], row, args.robots, args.time, args.seed)
         base = out["rows"].get("unchanged", {}).get("speed_mean_m_s", float(v.mean()))
         out["rows"][row] = {"speed_mean_m_s": float(v.mean()), "speed_std_m_s": float(v.std()),
                             "share_of_unchanged": float(v.mean() / base)}
