@@ -12,7 +12,7 @@ import numpy as np
 
 from ..physics.contact import GroundContact, impact_damping_cap, init_contact_state, set_copy_values, stable_step
 from ..core.model import compile_model
-from ..physics.evaluate import force_densities, project
+from ..physics.evaluate import force_densities
 from ..physics import geometry
 from ..core.errors import StabilityWarning
 from ..physics.actuation import Actuation
@@ -23,12 +23,10 @@ from .config import RollConfig, flat_signature, roll_config, with_flat
 from .domain import container_nominal
 from .docs import ROLL_DOC as _DOC
 from .roll_obs import RollObservation
-from ..physics import terrain
-from ..tasks.roll import perturbed_start, roll_step_terms
+from .roll_reset import RollReset
+from .roll_terrain import RollTerrain
+from ..tasks.roll import roll_step_terms
 from ..tasks.state import StateField
-from ..tasks.xp import namespace
-from ..core.terrain import Terrain
-from ..tasks.terrain import generate, resolve_terrain, start_lift
 from .roll_scene import (GRAVITY, MAX_CABLE_ACCELERATION, MAX_PATH, ROD_MASS, SETTLE_TIME,  # noqa: F401
                          STRING_DAMPING, load_robot, place_on_ground, put_on_ground, robot_icosahedron,
                          robot_prism, settle)
@@ -51,7 +49,7 @@ _CONTACT_ARGS = contact_arguments()
 CONTACT_DOMAIN = env_fields("contact")
 
 
-class RollTask(RollObservation, BatchedTask):
+class RollTask(RollObservation, RollReset, RollTerrain, BatchedTask):
     """Batched rolling task on ``num_envs`` copies (arguments: see :class:`TensegrityRollEnv`).
 
     State: ``q``, ``qd`` (B, k, 6); ``cstate`` (contact anchors (B, 2k, 2), flags (B, 2k));
@@ -192,84 +190,6 @@ class RollTask(RollObservation, BatchedTask):
                 f"{ENV_ID}: dt = {self.dt:.4g} s is above the estimated stability limit {limit:.4g} s of "
                 "semi-implicit Euler with this robot's strings and ground contact"), stacklevel=3)
 
-    def _init_terrain(self, tcfg, allow_unstable_dt, friction, stiffness, damping, tangential_stiffness, tangential_damping,
-                      max_damping) -> None:
-        """The terrain (``tcfg``: :class:`~tensegrity_gym.envs.config.TerrainConfig`): None keeps the
-        level ground (its fast path, no terrain code); a terrain or a generator replaces it with
-        terrain contact of the same contact law (the rods' capsules of ``cap_radius``)."""
-        self.set_terrain_difficulty(tcfg.terrain_difficulty)
-        self._surface = surface = dict(friction=friction, stiffness=stiffness, damping=damping)
-        spec = self._terrain_source(tcfg, surface)
-        self.terrain_generator = None if spec is None or isinstance(spec, Terrain) else spec
-        if spec is None:
-            self.terrains = None
-            return
-        B = self.num_envs
-        first = spec if self.terrain_generator is None else \
-            self._draw_terrain(0, np.random.default_rng(0), self.goal_direction)
-        self.terrains = [first] * B
-        self._terrain_kw = dict(radius=self.contact.radius, tangential_stiffness=tangential_stiffness,
-                                tangential_damping=tangential_damping, max_damping=max_damping)
-        tc = self.terrain_contact = self._contact_of(self.terrains[0])
-        self.tstate = terrain.init_terrain_state(tc, self.model, B)
-        self._terrain_slip = np.zeros(self.tstate.active.shape, bool)
-        # per-copy rows (one terrain per copy: a generator's differ in numbers, not in shape)
-        self.terrain_geom = np.repeat(tc.geom, B, axis=0)
-        self.terrain_prm = np.repeat(tc.prm, B, axis=0)
-        self.terrain_hf = np.repeat(tc.hf, B, axis=0) if self.terrains[0].heightfield is not None else None
-        limit = terrain.stable_step(tc, self.model)["semi_implicit_euler"]
-        if self.integrator in ("semi_implicit_euler", "rk4"):
-            check_stable_dt(self.model, limit, self.dt, self.integrator, allow_unstable_dt,
-                            "this robot's strings and terrain contact")
-
-    def _terrain_source(self, tcfg, surface: dict):
-        """None (level ground), a fixed ``Terrain``, or a source of terrains drawn per episode by
-        :meth:`_draw_terrain` (here a ``TerrainGenerator``) from the ``terrain`` argument."""
-        return resolve_terrain(tcfg.terrain, surface)
-
-    def _draw_terrain(self, i: int, rng: np.random.Generator, goal) -> Terrain:
-        """Copy ``i``'s terrain this episode, drawn from ``rng`` (goal: its unit goal direction)."""
-        return generate(self.terrain_generator, rng, goal, self.terrain_difficulty)
-
-    def set_terrain_difficulty(self, difficulty: float) -> None:
-        """The curriculum hook: terrains drawn from the next resets on are scaled by
-        ``difficulty`` in [0, 1] (a generator's slope, step height or bump amplitude)."""
-        d = check_positive(difficulty, "terrain_difficulty", allow_zero=True)
-        if d > 1:
-            raise ValueError(f"terrain_difficulty: must be in [0, 1], got {difficulty!r}")
-        self.terrain_difficulty = d
-
-    def _contact_of(self, t) -> "terrain.TerrainContact":
-        try:
-            return terrain.TerrainContact(t, **self._terrain_kw)
-        except ValueError as e:
-            raise ValueError(f"terrain: {e}") from None
-
-    def _reset_terrain(self, idx, rngs, goal) -> None:
-        """Copies ``idx`` on their terrain: a generator draws each copy's from its generator (after
-        the start's noise and goal); stick/slip state released."""
-        if self.terrain_generator is not None:
-            for j, i in enumerate(idx):
-                t = self._draw_terrain(int(i), rngs[j], goal[j])
-                tc = self._contact_of(t)
-                if tc.geom.shape[1:] != self.terrain_geom.shape[1:] or tc.hf.shape[1:] != self.terrain_contact.hf.shape[1:]:
-                    raise RuntimeError("terrain generator: a drawn terrain changed its number of parts")
-                self.terrains[i] = t
-                self.terrain_geom[i] = tc.geom[0]
-                if self.terrain_hf is not None:
-                    self.terrain_hf[i] = tc.hf[0]
-        self.tstate.anchor[idx] = 0.0
-        self.tstate.eta0[idx] = 0.0
-        self.tstate.active[idx] = False
-
-    def terrain_height(self, x, y) -> np.ndarray:
-        """(B, m) the height of each copy's ground under the points ``x``, ``y`` (B, m) m: its
-        terrain's top (:meth:`~tensegrity_gym.core.terrain.Terrain.height_at`), or the level
-        ground's plane (the record's ``terrain_height``, :mod:`tensegrity_gym.tasks.state`)."""
-        if self.terrains is None:
-            return np.full(np.shape(x), self.contact.height)
-        return np.stack([t.height_at(x[i], y[i]) for i, t in enumerate(self.terrains)])
-
     def _scene_structure(self, s):
         """The placed, settled robot ``s`` as the task's physics runs it (here: as it is; a task
         on another scene, e.g. a slope, changes what the scene changes, such as gravity)."""
@@ -296,120 +216,6 @@ class RollTask(RollObservation, BatchedTask):
         if "rod_mass" in self.domain.values:
             mass = np.broadcast_to(self.params.mass, (self.num_envs, self.model.n_bars))
             self._mass_frac = mass / mass.sum(axis=1, keepdims=True)
-
-    # ------------------------------------------------------------------ scene
-    # ------------------------------------------------------------------ task API
-    # ------------------------------------------------------------------ the record (tasks/state.py)
-    @property
-    def anchor(self) -> np.ndarray:
-        """(B, 2k, 2) contact anchors, m (the contact state's)."""
-        return self.cstate.anchor
-
-    @property
-    def active(self) -> np.ndarray:
-        """(B, 2k) bool contact flags (the contact state's)."""
-        return self.cstate.active
-
-    @property
-    def rod_length(self) -> np.ndarray:
-        """(k,) rod lengths, m."""
-        return self.model.length
-
-    def project_state(self, q, qd):
-        """``(q, qd)`` projected onto the rod constraints (unit axes)."""
-        return project(self.model, q, qd)
-
-    def node_positions(self, q):
-        """(B, n, 3) node positions of the robots ``q`` (B, k, 6), m."""
-        return geometry.node_positions(self.model, q)
-
-    @property
-    def first_draws(self) -> int:
-        """Uniforms per copy a task built on this one draws first at each reset
-        (:meth:`reset_first`; here none)."""
-        return 0
-
-    @property
-    def reset_draws(self) -> int:
-        """Uniforms per copy :meth:`reset_start` reads: the task's first draws, the initial-state
-        noise (4 x k x 3 with ``reset_noise_scale`` > 0), the goal angle (``randomize_goal``)."""
-        return (self.first_draws + (12 * self.model.n_bars if self.reset_noise_scale > 0 else 0)
-                + (1 if self.randomize_goal else 0))
-
-    def reset_first(self, rec, rows, u) -> None:
-        """The first step of a reset of copies ``rows`` on the record ``rec``, from their uniforms
-        ``u`` (r, :attr:`first_draws`) in [0, 1): for a task built on this one (a slope)."""
-
-    def reset_start(self, rec, rows, u) -> tuple:
-        """The start of copies ``rows`` on the record ``rec`` from their uniforms ``u`` (r,
-        :attr:`reset_draws`) in [0, 1), as NumPy's ``uniform`` maps the same draws: the task's
-        first draws (:meth:`reset_first`), then the resting robot plus U(-s, s) noise on the rod
-        centres (m) and velocities (m/s) and, divided by the rod lengths, on the axes and their
-        rates, projected (unit axes) and lifted so that no node is below the resting robot's
-        lowest; the goal, an angle U(0, 2 pi) with ``randomize_goal``. Returns ``(q, qd, goal)``
-        (r, k, 6), (r, k, 6), (r, 2) in the record's dtype (not yet written)."""
-        xp = namespace(u)
-        n0 = self.first_draws
-        if n0:
-            self.reset_first(rec, rows, u[:, :n0])
-            u = u[:, n0:]
-        r, k, s = u.shape[0], self.model.n_bars, self.reset_noise_scale
-        used = 0
-        if s > 0:
-            x = xp.to_float(-s + (s - -s) * u[:, :12 * k], rec.q).reshape(r, 4, k, 3)
-            used = 12 * k
-        else:
-            x = xp.zeros((r, 4, k, 3), rec.q)
-        q, qd = perturbed_start(rec.q_nominal, rec.rod_length[:, None], x)
-        if self.randomize_goal:
-            th = 0.0 + (2.0 * np.pi - 0.0) * u[:, used]
-            goal = xp.to_float(xp.stack([xp.cos(th), xp.sin(th)], axis=1), rec.q)
-        else:
-            goal = xp.repeat_rows(rec.goal_direction, r)
-        q, qd = rec.project_state(q, qd)
-        # no node below the ground plus cap: lift the copy if the noise pushed one in
-        zmin = xp.amin(rec.node_positions(q)[..., 2], 1)
-        q[..., 2] += xp.maximum(self.z_floor - zmin, 0.0)[:, None]
-        return q, qd, goal
-
-    def reset_write(self, rec, rows, q, qd, goal) -> None:
-        """Copies ``rows`` of the record ``rec`` start from ``q``, ``qd`` with the goal ``goal``: no
-        contact anchors, the start control, cable speeds 0."""
-        rec.q[rows], rec.qd[rows] = q, qd
-        rec.anchor[rows] = 0.0
-        rec.active[rows] = False
-        rec.ctrl[rows] = rec.start_control
-        rec.speed[rows] = 0.0
-        rec.goal[rows] = goal
-
-    def reset_info(self, rec, rows) -> dict:
-        """Reset infos of copies ``rows`` beyond the rolling task's, from the record ``rec``."""
-        return {}
-
-    def reset_idx(self, idx, rngs, options=None) -> dict:
-        idx = np.asarray(idx, dtype=int)
-        r = idx.size
-        n = self.reset_draws     # each copy's generator: its uniforms, then a terrain generator's draws
-        q, qd, goal = self.reset_start(self, idx, np.array([rngs[j].random(n) for j in range(r)]).reshape(r, n))
-        if self.terrain_contact is not None:     # on a terrain: its own draws, then clear of it
-            self._reset_terrain(idx, rngs, goal)
-            nodes = geometry.node_positions(self.model, q)
-            for j, i in enumerate(idx):
-                q[j, :, 2] += start_lift(self.terrains[i], nodes[j:j + 1], self.contact.radius)[0]
-        self.reset_write(self, idx, q, qd, goal)
-        self.elapsed[idx] = 0
-        com = geometry.center_of_mass(self.model, q, None if self.params is None else self.params.take(
-            idx if self.params.batch_size > 1 else np.zeros(len(idx), int)))
-        self.start[idx] = com
-        if self.sensors is not None:
-            self.sensors.reset_reading(self, idx, rngs, goal, self.speed[idx], self.cstate.active[idx])
-        if self.record_path:
-            for j, i in enumerate(idx):
-                self.paths[int(i)] = [com[j].copy()]
-        info = {"com_position": com, "com_velocity": np.zeros((r, 3)), "distance_rolled": np.zeros(r),
-                "goal_direction": goal.copy()}
-        info.update(self.reset_info(self, idx))
-        return info
 
     def task_step(self, rec, com0, com, action) -> tuple[dict, object, dict]:
         """The task's part of one control step on the record ``rec`` (this task, or the torch
