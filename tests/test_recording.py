@@ -156,8 +156,10 @@ def test_gaps_and_missing_points_are_reported_not_interpolated(tmp_path):
     assert any("gap" in w for w in rep["warnings"]) and any("missing" in w for w in rep["warnings"])
     assert 0.53 > GAP_FACTOR * rep["median_interval_s"]
     save_recording(tmp_path / "gap.npz", gap)
-    with pytest.warns(RecordingWarning, match="gap"):
+    with pytest.warns(RecordingWarning) as caught:
         back = load_recording(tmp_path / "gap.npz")
+    said = " ".join(str(w.message) for w in caught)
+    assert "gap" in said and "missing point" in said
     assert np.isnan(back.points[5]).all()                    # nothing filled in
     ep = back.end_points()
     assert np.isnan(ep[5]).all() and np.isnan(ep[9, 1]).all() and np.isfinite(ep[8, 1]).all()
@@ -410,3 +412,43 @@ def test_rutgers_bad_files(tmp_path, capsys):
     assert main(["import-recording", str(src), "--out", str(tmp_path / "q.npz"), "--force",
                  "--rod-length", "0.25"]) == 3
     assert "frame 0, field 'points'" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------- identify from a recording
+def test_identify_takes_a_recording_at_a_fixed_rate(tmp_path, capsys):
+    """A prism recorded as a lab would: end caps and a marker per rod, a dropped frame and frames
+    left out (gap): identify places the frames on their sample grid (skipped ones untracked) and
+    recovers the stiffness as from the node trajectory itself; irregular stamps are refused."""
+    import tensegrity_gym as tg
+    from tensegrity_gym.io.trajectory import load_trajectory
+    from tests.test_sysid import _record
+    s = tg.prism(3, damping=2.0)
+    model = tg.compile_model(s)
+    _, t, nodes = _record(s, {"stiffness": model.stiffness * 1.1}, T=0.42, seed=6)
+    keep = np.setdiff1d(np.arange(t.size), np.arange(300, 340))          # 20 ms the tracker missed
+    a, b = nodes[:, s.bars[:, 0]], nodes[:, s.bars[:, 1]]
+    pts = np.concatenate([a, b, a + 0.3 * (b - a)], axis=1)[keep]      # (F, 9, 3)
+    pts[100] = np.nan                                                  # a dropped frame
+    rec = Recording(t=t[keep], points=pts, point_rod=np.tile(np.arange(3), 3),
+                    point_along=np.repeat([0.0, 1.0, 0.3], 3), rod_lengths=s.bar_lengths,
+                    metadata={"robot": "prism3, simulated"})
+    save_recording(tmp_path / "rec.npz", rec)
+    with pytest.warns(RecordingWarning) as caught:
+        tt, nn, _, mask = load_trajectory(tmp_path / "rec.npz", model.n_nodes, bars=s.bars)
+    said = " ".join(str(w.message) for w in caught)
+    assert "gap" in said and "1 frame(s) with no point at all" in said
+    np.testing.assert_allclose(tt, t, atol=1e-12)
+    assert not mask[100].any() and not mask[300:340].any() and mask.sum() == (t.size - 41) * 6
+    np.testing.assert_allclose(nn[mask], nodes[mask], atol=1e-12)
+    st, out = tmp_path / "prism.json", tmp_path / "fit.json"
+    tg.save_json(s, st)
+    assert main(["identify", str(st), str(tmp_path / "rec.npz"), "--fit", "stiffness", "--scale", "--stride", "4",
+                 "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["scale"]["stiffness"] == pytest.approx(1.1, rel=1e-3)
+    jitter = rec.t + np.where(np.arange(rec.t.size) == 50, 1e-4, 0.0)
+    save_recording(tmp_path / "irr.npz", Recording(t=jitter, points=rec.points, point_rod=rec.point_rod,
+                                                   point_along=rec.point_along, rod_lengths=rec.rod_lengths))
+    capsys.readouterr()
+    assert main(["identify", str(st), str(tmp_path / "irr.npz"), "--fit", "stiffness", "--out", str(out),
+                 "--force"]) == 3
+    assert "not on a fixed grid" in capsys.readouterr().err

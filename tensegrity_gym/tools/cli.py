@@ -161,8 +161,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     yp = sub.add_parser("identify", help="fit stiffness/damping/mass to a recorded trajectory (.npz or .csv)",
                         formatter_class=fmt)
     yp.add_argument("structure", help=f"JSON file or built-in name ({names}): the starting values")
-    yp.add_argument("trajectory", help="TRAJ.npz (t (S,) s, nodes (S, n, 3) m, optional rest_length (S, m)) "
-                    "or TRAJ.csv (long format: header t,node,x,y,z; one row per tracked node per sample)")
+    yp.add_argument("trajectory", help="TRAJ.npz (t (S,) s, nodes (S, n, 3) m, optional rest_length (S, m)), "
+                    "TRAJ.csv (long format: header t,node,x,y,z; one row per tracked node per sample) or a "
+                    "recording .npz (docs/recordings.md) sampled at a fixed rate: its rods' end points are the nodes")
     yp.add_argument("--fit", nargs="+", default=["stiffness", "damping"],
                     help="parameters to fit: stiffness damping mass (alias rod_mass) node_damping; with --ground "
                          "also friction ground_stiffness ground_damping")

@@ -238,7 +238,7 @@ def cmd_identify(args) -> int:
     out, tx, s, model = _outputs_and_model(args, args.plot, "--plot")
     initial = parse_initial(args.initial, model, sysid.FITTABLE, sysid._ALIASES, sysid.CONTACT_FIELDS)
     try:
-        t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes)
+        t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes, bars=model.structure.bars)
     except FileNotFoundError:
         raise CLIError(EXIT_STRUCTURE, f"trajectory file {args.trajectory!r} not found") from None
     except (ValueError, OSError, KeyError) as e:
