@@ -1,14 +1,15 @@
 """Trajectories on disk: the output of ``simulate`` (:func:`save_simulate_output`,
 :func:`load_simulate_output`) and recorded motions for system identification: motion-capture CSV
-files and ``.npz`` records (times s, node positions m, optional rest lengths m and tracked-node
-mask; :func:`load_trajectory`)."""
+files, ``.npz`` records (times s, node positions m, optional rest lengths m and tracked-node
+mask) and lab recordings (:mod:`.recording`) sampled at a fixed rate (:func:`load_trajectory`)."""
 from __future__ import annotations
 
 import numpy as np
 
 from ..core.checks import check_trajectory_arrays, load_npz, read_bounded
+from .recording import FORMAT as RECORDING_FORMAT, load_recording
 
-__all__ = ["load_csv", "load_trajectory", "save_simulate_output", "load_simulate_output", "MAX_CSV_BYTES"]
+__all__ = ["load_csv", "load_trajectory", "recording_trajectory", "save_simulate_output", "load_simulate_output", "MAX_CSV_BYTES"]
 
 #: largest trajectory CSV read, bytes (counted while reading: a device or FIFO reports no size)
 MAX_CSV_BYTES = 1 << 30
@@ -83,16 +84,23 @@ def load_csv(path, n_nodes: int):
     return t, nodes, mask
 
 
-def load_trajectory(path, n_nodes: int):
+def load_trajectory(path, n_nodes: int, bars=None):
     """``(t, nodes, rest_length, mask)`` from a ``.npz`` as written by ``simulate`` (``t``,
-    ``nodes``, optional ``rest_length``, optional bool ``node_mask`` (n,) or (S, n)) or a
-    long-format CSV (:func:`load_csv`; NaN / missing rows = untracked)."""
+    ``nodes``, optional ``rest_length``, optional bool ``node_mask`` (n,) or (S, n)), a
+    long-format CSV (:func:`load_csv`; NaN / missing rows = untracked) or a lab recording
+    (:func:`recording_trajectory`, which needs the structure's ``bars``)."""
     p = str(path)
     if p.lower().endswith(".csv"):
         t, nodes, mask = load_csv(p, n_nodes)
         return t, nodes, None, mask
     z = load_npz(p, "t (S,) s and nodes (S, n, 3) m as written by `python -m tensegrity_gym simulate`, "
                     "or a long-format .csv")
+    if "metadata" in z and RECORDING_FORMAT in str(z["metadata"]):
+        if bars is None:
+            raise ValueError(f"{p}: a recording (tracked points on rods); its node trajectory needs the structure's "
+                             "bars")
+        t, nodes, mask = recording_trajectory(load_recording(p), bars, n_nodes)
+        return t, nodes, None, mask
     for k in ("t", "nodes"):
         if k not in z:
             raise ValueError(f"{p}: no array {k!r} (found {sorted(z)}); expected t (S,) s and nodes "
@@ -104,3 +112,32 @@ def load_trajectory(path, n_nodes: int):
         if not fin.all() and (fin | ~fin.any(axis=0)).all():
             mask = fin        # whole nodes NaN: untracked nodes (other NaN samples are reported as errors)
     return t, nodes, rl, mask
+
+
+def recording_trajectory(rec, bars, n_nodes: int, rtol: float = 1e-6):
+    """``(t, nodes, mask)`` of a :class:`~tensegrity_gym.io.recording.Recording` for a structure whose
+    rod ``r`` joins nodes ``bars[r]``, on the fixed sample spacing system identification fits:
+    the rods' end points (:meth:`~tensegrity_gym.io.recording.Recording.node_trajectory`; frames
+    sharing a time stamp averaged) placed at their own sample times, and the sample times the
+    recording skipped (dropped frames, gaps) added as untracked samples. Every frame must lie on
+    the grid ``t0 + i h`` (``h`` the smallest interval, within ``rtol h``); ValueError naming the
+    first frame off it otherwise (nothing is resampled or interpolated)."""
+    t, nodes, mask = rec.node_trajectory(bars, n_nodes)
+    if t.size < 2:
+        return t, nodes, mask
+    h = float(np.min(np.diff(t)))
+    k = np.round((t - t[0]) / h)
+    off = np.abs(t - t[0] - k * h)
+    bad = np.flatnonzero(off > rtol * h)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"t: frame times are not on a fixed grid (the shortest interval is {h:.6g} s, but the "
+                         f"frame at t = {t[i]:.6g} s lies {off[i]:.3g} s off it); system identification fits "
+                         f"evenly spaced samples, and this recording is not resampled (that would invent data)")
+    S = int(k[-1]) + 1
+    grid_t = t[0] + h * np.arange(S)
+    grid_nodes = np.full((S, nodes.shape[1], 3), np.nan)
+    grid_mask = np.zeros((S, nodes.shape[1]), bool)
+    idx = k.astype(int)
+    grid_nodes[idx], grid_mask[idx] = nodes, mask
+    return grid_t, grid_nodes, grid_mask

@@ -1,4 +1,5 @@
-"""Command line: ``python -m tensegrity_gym {simulate,info,demo,export,view} ...`` (SI units throughout).
+"""Command line: ``python -m tensegrity_gym {simulate,info,demo,export,view,identify,import-recording} ...``
+(SI units throughout).
 
 * ``simulate STRUCTURE --duration T --dt DT --integrator rk4 --out traj.npz`` writes
   ``t`` (S,) in s, ``nodes`` (S, n, 3) in m and ``energy`` (S,) in J (kinetic + string
@@ -22,6 +23,10 @@
   and heightfield as MuJoCo geoms; ``--format json`` writes this package's JSON;
   ``--from tnsgrt`` reads STRUCTURE as a tnsgrt structure dict (:mod:`tensegrity_gym.io.tnsgrt`).
 * ``simulate ... --video out.mp4`` / ``demo --video out.mp4`` also render the run to a video.
+* ``import-recording FILE --format rutgers --out rec.npz`` converts a lab's recording (the
+  Rutgers/Yale processed JSON: rod end points, times, gait commands) to this package's recording
+  format (:mod:`tensegrity_gym.io.recording`, docs/recordings.md) in SI units, refusing a malformed
+  one with the frame and field named and reporting gaps and repeated time stamps.
 * ``view traj.npz [--structure S] [--terrain FILE.json]`` opens an interactive view of a ``simulate`` output (time
   slider, play/pause): a window where there is a display, else a browser view (viser).
 
@@ -49,7 +54,8 @@ Exit codes (every error is one line on stderr, never a traceback):
 2      bad arguments (unknown option, a value that is not a positive number, ...)
 3      bad input: structure file not found or unreadable, not JSON, or invalid
        (``StructureError``); a terrain file that cannot be read or is invalid (``--terrain``);
-       ``view``: not a ``simulate`` output or a structure that does not match
+       ``view``: not a ``simulate`` output or a structure that does not match; ``import-recording``:
+       a recording that cannot be read or is malformed (the frame and field are named)
 4      output problem: the output is a directory, its folder is not writable, it exists and
        ``--force`` was not given, writing failed (disk full), or no renderer / viewer is available
 5      request too large: more steps or memory than the limits above (the estimate is printed)
@@ -60,7 +66,7 @@ Exit codes (every error is one line on stderr, never a traceback):
 =====  =====================================================================================
 
 The verbs live in :mod:`.cli_simulate` (simulate, demo) and :mod:`.cli_commands` (info, export,
-view, identify); exit codes, limits and the outputs' claim in :mod:`.cli_common`.
+view, identify, import-recording); exit codes, limits and the outputs' claim in :mod:`.cli_common`.
 """
 from __future__ import annotations
 
@@ -76,7 +82,7 @@ from ..core.integrators import INTEGRATORS
 from ..core.errors import SimulationDiverged
 from ..core.sizing import StructureTooLarge
 from ..core.structure import StructureError
-from .cli_commands import cmd_export, cmd_identify, cmd_info, cmd_view, structure_summary
+from .cli_commands import cmd_export, cmd_identify, cmd_import_recording, cmd_info, cmd_view, structure_summary
 from .cli_common import (DEFAULT_MAX_STEPS, EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_STRUCTURE,
                          EXIT_TERMINATED, EXIT_TOO_LARGE, EXIT_USAGE, CLIError, _default_max_memory_gib,
                          _non_negative, _one_line, _port, _positive, _seed, TERMINATED, _Terminated)
@@ -84,7 +90,7 @@ from .cli_simulate import cmd_demo, cmd_simulate, load_schedule
 from .cli_terrain import add_terrain_args
 
 __all__ = ["main", "entry", "build_parser", "CLIError", "structure_summary", "load_schedule", "cmd_simulate",
-           "cmd_info", "cmd_demo", "cmd_export", "cmd_view", "cmd_identify"]
+           "cmd_info", "cmd_demo", "cmd_export", "cmd_view", "cmd_identify", "cmd_import_recording"]
 
 
 # --------------------------------------------------------------------------- parser and main
@@ -155,8 +161,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     yp = sub.add_parser("identify", help="fit stiffness/damping/mass to a recorded trajectory (.npz or .csv)",
                         formatter_class=fmt)
     yp.add_argument("structure", help=f"JSON file or built-in name ({names}): the starting values")
-    yp.add_argument("trajectory", help="TRAJ.npz (t (S,) s, nodes (S, n, 3) m, optional rest_length (S, m)) "
-                    "or TRAJ.csv (long format: header t,node,x,y,z; one row per tracked node per sample)")
+    yp.add_argument("trajectory", help="TRAJ.npz (t (S,) s, nodes (S, n, 3) m, optional rest_length (S, m)), "
+                    "TRAJ.csv (long format: header t,node,x,y,z; one row per tracked node per sample) or a "
+                    "recording .npz (docs/recordings.md) sampled at a fixed rate: its rods' end points are the nodes")
     yp.add_argument("--fit", nargs="+", default=["stiffness", "damping"],
                     help="parameters to fit: stiffness damping mass (alias rod_mass) node_damping; with --ground "
                          "also friction ground_stiffness ground_damping")
@@ -217,6 +224,20 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                     help="take over an output's lock left by a run that no longer runs (or runs on another host)")
     limits(ep)
     ep.set_defaults(func=cmd_export)
+    rp = sub.add_parser("import-recording", help="convert a lab's recording (Rutgers/Yale JSON) to a recording .npz",
+                        formatter_class=fmt)
+    rp.add_argument("file", help="the recording to import (--format rutgers: the processed JSON, a list of frames)")
+    rp.add_argument("--format", default="rutgers", choices=["rutgers"], help="input format (docs/recordings.md)")
+    rp.add_argument("--out", default="rec.npz", help="output recording (.npz, docs/recordings.md)")
+    rp.add_argument("--scale", type=_positive(float), default=None,
+                    help="the input's lengths divided by this are m (rutgers default 10: its data are upscaled x10)")
+    rp.add_argument("--rod-length", type=_positive(float), default=None,
+                    help="the rods' end-cap-centre length, m (default: each rod's median measured length)")
+    rp.add_argument("--json", action="store_true", help="print the recording's report as JSON")
+    rp.add_argument("--force", action="store_true", help="overwrite an existing output")
+    rp.add_argument("--steal-lock", action="store_true",
+                    help="take over an output's lock left by a run that no longer runs (or runs on another host)")
+    rp.set_defaults(func=cmd_import_recording)
     vp = sub.add_parser("view", help="interactive view of a simulate output (time slider, play/pause)",
                         formatter_class=fmt)
     vp.add_argument("trajectory", help="a .npz written by simulate")

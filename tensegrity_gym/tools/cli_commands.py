@@ -1,4 +1,5 @@
-"""``info``, ``export``, ``view`` and ``identify``: the command-line verbs that do not integrate a run of their own."""
+"""``info``, ``export``, ``view``, ``identify`` and ``import-recording``: the command-line verbs that do not
+integrate a run of their own."""
 from __future__ import annotations
 
 import json
@@ -15,6 +16,7 @@ from ..core.placement import place_on_terrain
 from ..core.terrain import Terrain
 from ..io.mjcf import default_rod_radius, to_mjcf
 from ..io.tnsgrt import from_tnsgrt
+from ..io.recording import RUTGERS_SCALE, import_rutgers, save_recording
 from ..io.trajectory import load_simulate_output
 from ..core.sizing import stability_bytes
 from ..core.structure import StructureError
@@ -236,7 +238,7 @@ def cmd_identify(args) -> int:
     out, tx, s, model = _outputs_and_model(args, args.plot, "--plot")
     initial = parse_initial(args.initial, model, sysid.FITTABLE, sysid._ALIASES, sysid.CONTACT_FIELDS)
     try:
-        t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes)
+        t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes, bars=model.structure.bars)
     except FileNotFoundError:
         raise CLIError(EXIT_STRUCTURE, f"trajectory file {args.trajectory!r} not found") from None
     except (ValueError, OSError, KeyError) as e:
@@ -281,3 +283,39 @@ def cmd_identify(args) -> int:
     for w in res.warnings:
         print(f"warning: {w}", file=sys.stderr)
     return 0 if res.ok else 3
+
+
+def cmd_import_recording(args) -> int:
+    """``import-recording FILE --format rutgers --out rec.npz``: exit 0, 3 (the input cannot be read
+    or is malformed: the frame and field are named) or 4 (output). Prints what the recording holds,
+    the unit conversion and its report (gaps, repeated time stamps, missing points)."""
+    out = Path(args.out)
+    tx = _claim(args, [(out, "import-recording: --out")], create_folders=False)
+    scale = RUTGERS_SCALE if args.scale is None else args.scale
+    try:
+        rec = import_rutgers(args.file, rod_lengths=args.rod_length, scale=scale)
+    except FileNotFoundError:
+        raise CLIError(EXIT_STRUCTURE, f"import-recording: {args.file!r} not found") from None
+    except IsADirectoryError:
+        raise CLIError(EXIT_STRUCTURE, f"import-recording: {args.file!r} is a directory") from None
+    except PermissionError as e:
+        raise CLIError(EXIT_STRUCTURE, f"import-recording: {args.file!r} cannot be read ({e.strerror})") from None
+    except (ValueError, OSError) as e:
+        raise CLIError(EXIT_STRUCTURE, f"import-recording: {e}") from None
+    _stage(tx, out, lambda f: save_recording(f, rec))
+    _commit(tx)
+    rep = rec.report
+    if args.json:
+        print(json.dumps(dict(rep), indent=1))
+    else:
+        lengths = ", ".join(f"{x:.4g}" for x in rec.rod_lengths)
+        print(f"{args.file}: {rep['frames']} frames over {rep['duration_s']:.4g} s (median interval "
+              f"{rep['median_interval_s']:.4g} s), {rep['rods']} rods ({lengths} m), {rep['points']} tracked points, "
+              f"{len(rec.actuators)} actuated cables, commands {', '.join(rec.commands) or 'none'}")
+        print(f"units: lengths divided by {scale:g} to m; times from the first frame (Unix "
+              f"{rec.metadata['time_origin_unix_s']:.3f} s)")
+        print(f"gaps {len(rep['gaps'])}, repeated time stamps {len(rep['duplicate_times'])}, missing points "
+              f"{rep['missing_points']} -> {out}")
+    for w in rep["warnings"]:
+        print(f"warning: {w}", file=sys.stderr)
+    return 0
