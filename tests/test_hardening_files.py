@@ -1,0 +1,140 @@
+"""Files a hostile user names: outputs that are devices, FIFOs, links or folders that cannot be
+made; input files that are FIFOs, devices or empty; temporary files left by a killed run; and the
+memory of export's terrain path. Each is one line and an exit code, before the work starts.
+
+A case that hung or read without end before it was fixed runs in a subprocess with a time and
+memory limit, so that a regression fails instead of stalling the suite."""
+from __future__ import annotations
+
+import json
+import os
+import socket
+import stat
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from tensegrity_gym.io import claim
+from tensegrity_gym.tools.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+SIM = ["simulate", "prism3", "--duration", "0.002", "--dt", "1e-3", "--no-progress"]
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert "Traceback" not in err and lines and lines[-1].startswith("error: "), err
+    assert sum(x.startswith("error: ") for x in lines) == 1, err
+    return lines[-1]
+
+
+def _limit_memory():       # a subprocess that reads /dev/zero fails with MemoryError, not the machine
+    import resource
+    resource.setrlimit(resource.RLIMIT_AS, (6 << 30, 6 << 30))
+
+
+def _run(code: str, cwd, timeout: float = 120) -> subprocess.CompletedProcess:
+    """``code`` run by a fresh Python in ``cwd``; a run that blocks (a FIFO opened) times out."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    try:
+        return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=cwd, env=env, capture_output=True,
+                              text=True, timeout=timeout, preexec_fn=_limit_memory)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"blocked for {timeout} s (an input FIFO was opened): {code}")
+
+
+def _cli(args, cwd) -> tuple[int, str]:
+    """``python -m tensegrity_gym ARGS`` in a subprocess: (exit code, the last stderr line)."""
+    r = _run(f"import sys\nfrom tensegrity_gym.tools.cli import main\nsys.exit(main({list(map(str, args))!r}))", cwd)
+    lines = [x for x in r.stderr.splitlines() if x.strip()]
+    assert "Traceback" not in r.stderr and lines and lines[-1].startswith("error: "), r.stderr
+    return r.returncode, lines[-1]
+
+
+def _dead_pid() -> int:
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+# ---------------------------------------------------------------- outputs that are not files
+def test_force_never_replaces_a_character_device(tmp_path, capsys):
+    dev = tmp_path / "null"
+    try:
+        os.mknod(dev, stat.S_IFCHR | 0o600, os.makedev(1, 3))
+    except PermissionError:
+        pytest.skip("creating a device node needs root")
+    assert main(SIM + ["--out", str(dev), "--force"]) == 4
+    assert f"--out '{dev}' is a character device, not a regular file" in _one_error_line(capsys)
+    assert stat.S_ISCHR(os.lstat(dev).st_mode)
+
+
+def test_force_never_replaces_a_fifo_or_a_link(tmp_path, capsys):
+    fifo = tmp_path / "pipe.npz"
+    os.mkfifo(fifo)
+    assert main(SIM + ["--out", str(fifo), "--force"]) == 4
+    assert "is a FIFO, not a regular file" in _one_error_line(capsys)
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    # the writer itself refuses it too (an output made a FIFO after its claim)
+    from tensegrity_gym.io.atomic import OutputError, write_atomic
+    with pytest.raises(OutputError, match="is a FIFO"):
+        write_atomic(fifo, lambda f: f.write(b"x"))
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode) and [p.name for p in tmp_path.iterdir()] == ["pipe.npz"]
+    target = tmp_path / "real.npz"
+    target.write_bytes(b"keep")
+    link = tmp_path / "link.npz"
+    link.symlink_to(target)
+    assert main(SIM + ["--out", str(link), "--force"]) == 4
+    assert "is a symbolic link (to " in _one_error_line(capsys)
+    assert link.is_symlink() and target.read_bytes() == b"keep"
+
+
+def test_dangling_symlink_out_is_refused_before_the_run(tmp_path, capsys):
+    link = tmp_path / "traj.npz"
+    link.symlink_to(tmp_path / "nowhere" / "t.npz")
+    # a structure that does not exist: exit 4 naming the link shows that the output was checked first
+    assert main(["simulate", str(tmp_path / "missing.json"), "--out", str(link)]) == 4
+    line = _one_error_line(capsys)
+    assert f"--out '{link}' is a symbolic link" in line and "which does not exist" in line, line
+    assert "someone else" not in line and link.is_symlink()
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs /proc")
+@pytest.mark.parametrize("args, flag", [
+    (SIM + ["--out", "/proc/nope/x.npz"], "--out '/proc/nope/x.npz'"),
+    (SIM + ["--out", "/sys/nope/x.npz"], "--out '/sys/nope/x.npz'"),
+    (["demo", "--out", "/proc/nope/demo", "--duration", "0.01"], "--out '/proc/nope/demo/"),
+    # the recording does not exist: the plot is refused before anything is read or fitted
+    (["identify", "prism3", "no_such_recording.npz", "--fit", "stiffness", "--out", "{tmp}/fit.json",
+      "--plot", "/proc/nope/x.png"], "--plot '/proc/nope/x.png'"),
+])
+def test_outputs_under_proc_and_sys_are_one_line(tmp_path, capsys, args, flag):
+    if "/sys/" in " ".join(args) and not os.path.isdir("/sys"):
+        pytest.skip("needs /sys")
+    assert main([a.replace("{tmp}", str(tmp_path)) for a in args]) == 4
+    line = _one_error_line(capsys)
+    assert flag in line and "cannot create the folder" in line, line
+    assert not list(tmp_path.iterdir())      # nothing claimed or written
+
+
+# ---------------------------------------------------------------- temporary files of a killed run
+def test_claim_after_a_kill_removes_the_dead_runs_temporary_files(tmp_path, capsys):
+    out = tmp_path / "v.npz"
+    dead = _dead_pid()
+    stale = [tmp_path / f".v.npz.tmp-{dead}-2.npz", tmp_path / f"..v.npz.lock.tmp-{dead}-0.lock"]
+    live = tmp_path / ".v.npz.tmp-1-3.npz"          # pid 1 runs: its file is kept
+    other = tmp_path / f".w.npz.tmp-{dead}-4.npz"    # not this output's: kept
+    for p in stale + [live, other]:
+        p.write_bytes(b"partial")
+    (tmp_path / ".v.npz.lock").write_text(json.dumps({**claim.holder_record(), "pid": dead, "process_start": None,
+                                                      "host": socket.gethostname()}))
+    assert main(SIM + ["--out", str(out)]) == 4          # the stale lock: refused until --steal-lock
+    assert "--steal-lock" in _one_error_line(capsys)
+    assert main(SIM + ["--out", str(out), "--steal-lock"]) == 0
+    assert not any(p.exists() for p in stale)
+    assert live.exists() and other.exists() and out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, other.name, "v.npz"])
