@@ -138,3 +138,51 @@ def test_claim_after_a_kill_removes_the_dead_runs_temporary_files(tmp_path, caps
     assert not any(p.exists() for p in stale)
     assert live.exists() and other.exists() and out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, other.name, "v.npz"])
+
+
+# ---------------------------------------------------------------- inputs: FIFOs, devices, empty files
+def test_terrain_fifo_device_and_link_to_a_device_are_refused_unread(tmp_path):
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    link = tmp_path / "zero.json"
+    link.symlink_to("/dev/zero")
+    out = tmp_path / "o.npz"
+    for path, kind in ((fifo, "a FIFO"), ("/dev/zero", "a character device"), (link, "a character device")):
+        code, line = _cli(SIM + ["--terrain", path, "--out", out], tmp_path)
+        assert code == 3 and f"--terrain '{path}'" in line and f"is {kind}, not a regular file" in line, line
+    hf = tmp_path / "hf.json"
+    hf.write_text(json.dumps({"heightfield": {"file": "fifo.json", "cell": 0.1}}))
+    code, line = _cli(SIM + ["--terrain", hf, "--out", out], tmp_path)
+    assert code == 3 and "heightfield.file" in line and "is a FIFO" in line, line
+    assert not out.exists()
+
+
+def test_env_terrain_fifo_is_refused_unread(tmp_path):
+    os.mkfifo(tmp_path / "fifo.json")
+    r = _run("""
+        from tensegrity_gym.tasks.terrain import resolve_terrain
+        try:
+            resolve_terrain("fifo.json", {})
+        except ValueError as e:
+            print("refused:", e)
+        """, tmp_path)
+    assert r.returncode == 0 and "refused: terrain file: fifo.json is a FIFO, not a regular file" in r.stdout, r
+
+
+def test_identify_recording_and_schedule_fifos_are_refused_unread(tmp_path):
+    os.mkfifo(tmp_path / "rec.npz")
+    os.mkfifo(tmp_path / "cmd.csv")
+    code, line = _cli(["identify", "prism3", "rec.npz", "--fit", "stiffness", "--out", "fit.json"], tmp_path)
+    assert code == 3 and "trajectory 'rec.npz'" in line and "is a FIFO" in line, line
+    code, line = _cli(SIM + ["--rest-length", "cmd.csv", "--out", "o.npz"], tmp_path)
+    assert code == 3 and "--rest-length 'cmd.csv'" in line and "is a FIFO" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cmd.csv", "rec.npz"]
+
+
+def test_empty_heightfield_npy_is_one_line(tmp_path, capsys):
+    (tmp_path / "h.npy").write_bytes(b"")
+    terrain = tmp_path / "hf.json"
+    terrain.write_text(json.dumps({"heightfield": {"file": "h.npy", "cell": 0.1}}))
+    assert main(SIM + ["--terrain", str(terrain), "--out", str(tmp_path / "o.npz")]) == 3
+    line = _one_error_line(capsys)
+    assert "heightfield.file" in line and "h.npy: not a NumPy .npy array" in line and "empty" in line, line
