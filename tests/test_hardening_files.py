@@ -13,8 +13,10 @@ import stat
 import subprocess
 import sys
 import textwrap
+import tracemalloc
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tensegrity_gym.io import claim
@@ -186,3 +188,35 @@ def test_empty_heightfield_npy_is_one_line(tmp_path, capsys):
     assert main(SIM + ["--terrain", str(terrain), "--out", str(tmp_path / "o.npz")]) == 3
     line = _one_error_line(capsys)
     assert "heightfield.file" in line and "h.npy: not a NumPy .npy array" in line and "empty" in line, line
+
+
+# ---------------------------------------------------------------- memory of export --terrain
+def test_nearest_terrain_part_needs_memory_of_the_points_only():
+    from tensegrity_gym.core.terrain import Box, Terrain
+    rng = np.random.default_rng(0)
+    boxes = [Box(center=(float(x), float(y), 0.01), size=(0.02, 0.02, 0.02))
+             for x, y in rng.uniform(-5, 5, (2000, 2))]
+    t = Terrain(boxes=boxes)
+    pts = rng.uniform(-5, 5, (1000, 3))
+    tracemalloc.start()
+    try:
+        d, n = t.closest(pts)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 * 2**20, f"{peak / 2**20:.0f} MiB for 2001 parts x 1000 points"   # stacked: 128 MiB
+    D, N = t.closest(pts, per_part=True)        # the same nearest part as argmin over every part
+    i = np.argmin(D, axis=0)
+    assert np.array_equal(d, D[i, np.arange(len(pts))]) and np.array_equal(n, N[i, np.arange(len(pts))])
+
+
+def test_export_terrain_applies_max_memory_before_claiming(tmp_path, capsys):
+    terrain = tmp_path / "hf.json"
+    terrain.write_text(json.dumps({"heightfield": {"heights": np.zeros((200, 200)).tolist(), "cell": 0.05,
+                                                   "origin": [-5, -5]}}))
+    out = tmp_path / "p.xml"
+    args = ["export", "prism3", "--format", "mjcf", "--terrain", str(terrain), "--out", str(out)]
+    assert main(args + ["--max-memory", "0.001"]) == 5
+    line = _one_error_line(capsys)
+    assert f"--terrain '{terrain}'" in line and "--max-memory" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["hf.json"]     # no output, no lock

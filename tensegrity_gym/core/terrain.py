@@ -361,18 +361,26 @@ class Terrain:
         plane and the boxes; for the heightfield the vertical gap times the cosine of the local
         slope (:meth:`Heightfield.closest`)."""
         p = np.asarray(points, float)
-        ds, ns = [], []
-        for part in self.parts():
-            d, n = part.closest(p)
-            ds.append(d)
-            ns.append(n)
-        if not ds:
+        parts = self.parts()
+        if not parts:
             return np.full(p.shape[:-1], np.inf), np.zeros(p.shape)
-        D, N = np.stack(ds), np.stack(ns)
         if per_part:
-            return D, N
-        i = np.argmin(D, axis=0)
-        return np.take_along_axis(D, i[None], 0)[0], np.take_along_axis(N, i[None, ..., None], 0)[0]
+            ds, ns = zip(*(part.closest(p) for part in parts))
+            return np.stack(ds), np.stack(ns)
+        # the nearest part kept as the parts are visited: memory of a few arrays of the points'
+        # size, not (parts x points) (10^5 boxes and 10^3 points would need gigabytes); the
+        # first of equal distances wins and NaN counts as the smallest, as np.argmin picks them
+        best_d = best_n = None
+        for part in parts:
+            d, n = part.closest(p)
+            d, n = np.asarray(d, float), np.asarray(n, float)
+            if best_d is None:
+                best_d, best_n = d.copy(), n.copy()
+                continue
+            take = (d < best_d) | (np.isnan(d) & ~np.isnan(best_d))
+            best_d = np.where(take, d, best_d)
+            best_n = np.where(take[..., None], n, best_n)
+        return best_d, best_n
 
 
 #: the fields of :class:`Terrain` that hold parts of the built-in kinds (their file keys)
