@@ -18,6 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from tensegrity_gym.core.checks import read_bounded
+
+#: largest YAML file (a configuration) read, bytes
+MAX_YAML_BYTES = 16 * 2**20
+
 
 def _torch_name(dotted: str):
     """Whitelisted names allowed in zoo strings: torch activation / optimizer classes."""
@@ -122,7 +127,8 @@ def read_yaml(path: str | Path):
     import yaml
     path = Path(path)
     try:
-        return yaml.safe_load(path.read_text(encoding="utf-8"))
+        text = read_bounded(path, MAX_YAML_BYTES, "YAML file", binary=True)    # FIFOs and devices refused
+        return yaml.safe_load(text.decode("utf-8"))
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text (UTF-8) file") from None
     except yaml.YAMLError as e:

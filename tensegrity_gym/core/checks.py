@@ -2,6 +2,7 @@
 ``ValueError`` naming the argument and the value."""
 from __future__ import annotations
 
+import errno
 import math
 import re
 import os
@@ -13,7 +14,7 @@ from numba import njit
 __all__ = ["ACTION_TOL", "check_positive", "check_array", "check_finite", "is_integer", "check_count",
            "check_flag", "check_options", "check_action",
            "check_action_tensor", "load_npz", "check_frame_size", "MAX_FRAME_SIZE", "check_unit_axes",
-           "read_bounded", "check_real", "xml_text", "check_trajectory_arrays"]
+           "read_bounded", "open_regular", "load_npy", "check_real", "xml_text", "check_trajectory_arrays"]
 
 #: an action may lie this far outside [-1, 1] (round-off of a float32 policy) before it is an error
 ACTION_TOL = 1e-6
@@ -88,21 +89,22 @@ def load_npz(path, expected: str) -> dict:
     IsADirectoryError pass unchanged (the callers word them)."""
     import zipfile
     p = str(path)
-    try:
-        z = np.load(p, allow_pickle=False)
-    except (FileNotFoundError, IsADirectoryError):
-        raise
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile):
-        raise ValueError(f"{p}: not a NumPy .npz archive (expected {expected})") from None
-    if not isinstance(z, np.lib.npyio.NpzFile):
-        raise ValueError(f"{p}: a single NumPy array (.npy), not an .npz archive of named arrays "
-                         f"(expected {expected})")
-    with z:
+    with open_regular(p, ".npz archive") as fh:   # a FIFO or a device is refused, not read
         try:
-            return {k: z[k] for k in z.files}
-        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
-            raise ValueError(f"{p}: a damaged .npz archive or one holding pickled objects (expected {expected}): "
-                             f"{' '.join(str(e).split())[:200]}") from None
+            z = np.load(fh, allow_pickle=False)
+        except (FileNotFoundError, IsADirectoryError):
+            raise
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile):
+            raise ValueError(f"{p}: not a NumPy .npz archive (expected {expected})") from None
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise ValueError(f"{p}: a single NumPy array (.npy), not an .npz archive of named arrays "
+                             f"(expected {expected})")
+        with z:
+            try:
+                return {k: z[k] for k in z.files}
+            except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+                raise ValueError(f"{p}: a damaged .npz archive or one holding pickled objects (expected {expected}): "
+                                 f"{' '.join(str(e).split())[:200]}") from None
 
 
 def check_array(value, shape: tuple, name: str) -> np.ndarray:
@@ -266,17 +268,54 @@ def check_unit_axes(q, name: str = "state.q", tol: float = 1e-6) -> None:
         raise ValueError(f"{name}: rod axis b of rod {idx[-1]}{' (copy ' + str(idx[0]) + ')' if len(idx) > 1 else ''} "
                          f"has length {float(norm[idx]):.6g}; the axis must be a unit vector (|b| = 1 within {tol:g})")
 
-def read_bounded(path, cap: int, what: str = "file", binary: bool = False):
-    """The contents of ``path`` read in chunks, ValueError naming the file as soon as more than
-    ``cap`` bytes were read (a device such as /dev/zero or a FIFO reports size 0, so the bytes
-    read, not ``st_size``, bound the read). A FIFO or another non-regular file is refused before
-    reading (a FIFO with no writer would block). Text is decoded as UTF-8 (a BOM is dropped)."""
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def _refuse_irregular(p: str, mode: int, what: str) -> None:
+    if stat.S_ISDIR(mode):
+        raise IsADirectoryError(errno.EISDIR, f"is a directory, not a {what}", p)
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"{p} is {_kind(mode)}, not a regular file (expected a {what}; devices, FIFOs and sockets "
+                         "are not read)")
+
+
+def open_regular(path, what: str = "file", cap: int | None = None):
+    """The regular file at ``path`` opened for binary reading: the one way user input files are
+    opened. A FIFO (its open would block until a writer comes), a device (``/dev/zero`` never
+    ends), a socket, or a link to one of these is refused with ValueError naming the file before
+    it is opened; the type is checked again on the open file. ``cap`` (bytes): a larger file is
+    refused from its size. FileNotFoundError, PermissionError and IsADirectoryError pass (the
+    callers word them)."""
     p = os.fspath(path)
-    st = os.stat(p)
-    if stat.S_ISFIFO(st.st_mode) or stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) or stat.S_ISSOCK(st.st_mode):
-        raise ValueError(f"{p}: not a regular file (a device, FIFO or socket); the {what} must be a file")
+    _refuse_irregular(p, os.stat(p).st_mode, what)
+    fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        st = os.fstat(fd)
+        _refuse_irregular(p, st.st_mode, what)      # replaced between the check and the open
+        if cap is not None and st.st_size > cap:
+            raise ValueError(f"{p}: {st.st_size / 2**20:.4g} MiB, larger than the {cap / 2**20:.4g} MiB a {what} "
+                             "may have")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_bounded(path, cap: int, what: str = "file", binary: bool = False):
+    """The contents of the regular file ``path`` (:func:`open_regular`: FIFOs and devices refused
+    before reading), read in chunks, ValueError naming the file as soon as more than ``cap``
+    bytes were read (a file of ``/proc`` reports size 0, so the bytes read, not ``st_size``,
+    bound the read). Text is decoded as UTF-8 (a BOM is dropped)."""
+    p = os.fspath(path)
     chunks, total = [], 0
-    with open(p, "rb") as fh:
+    with open_regular(p, what) as fh:
         while True:
             chunk = fh.read(min(1 << 20, cap + 1 - total))
             if not chunk:
@@ -292,6 +331,25 @@ def read_bounded(path, cap: int, what: str = "file", binary: bool = False):
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as e:
         raise ValueError(f"{p}: not UTF-8 text (byte {e.start}); the {what} must be UTF-8") from None
+
+
+def load_npy(path, expected: str, what: str = "file", cap: int | None = None) -> np.ndarray:
+    """The array of the NumPy ``.npy`` file at ``path`` (:func:`open_regular`; pickled objects
+    refused). ValueError naming the file for anything else (an empty or truncated file, an
+    ``.npz`` archive, text), with ``expected`` saying what the file should hold."""
+    import zipfile
+    p = os.fspath(path)
+    with open_regular(p, what, cap) as fh:
+        try:
+            arr = np.load(fh, allow_pickle=False)
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+            why = "empty" if isinstance(e, EOFError) and fh.tell() == 0 else " ".join(str(e).split())[:200]
+            raise ValueError(f"{p}: not a NumPy .npy array (expected {expected}): {why or type(e).__name__}") \
+                from None
+        if not isinstance(arr, np.ndarray):
+            arr.close()
+            raise ValueError(f"{p}: an .npz archive, not a single .npy array (expected {expected})")
+    return arr
 
 
 def check_real(value, name: str, what: str = "") -> None:

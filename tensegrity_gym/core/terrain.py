@@ -41,10 +41,17 @@ from pathlib import Path
 
 import numpy as np
 
+from .checks import load_npy, read_bounded
 from .terrain_kinds import (KINDS, SURFACE_KEYS, SurfaceContact, TerrainKind, _number, _surface, _vector, kind_of,
                             load_part, register)
 
-__all__ = ["Terrain", "Plane", "Box", "Heightfield", "SCHEMA_PATH", "SURFACE_KEYS"]
+__all__ = ["Terrain", "Plane", "Box", "Heightfield", "SCHEMA_PATH", "SURFACE_KEYS", "MAX_TERRAIN_BYTES",
+           "MAX_HEIGHTFIELD_BYTES"]
+
+#: largest terrain JSON file read, bytes (counted while reading; a large grid belongs in a .npy file)
+MAX_TERRAIN_BYTES = 64 * 2**20
+#: largest heightfield .npy file read, bytes (a 11585 x 11585 grid of float64 heights)
+MAX_HEIGHTFIELD_BYTES = 2**30
 
 #: the JSON Schema (draft 2020-12) of the terrain file format, shipped with the package
 SCHEMA_PATH = Path(__file__).parent.parent / "terrain.schema.json"
@@ -208,12 +215,14 @@ def _heightfield_kwargs(kw, path, base_dir):
         if not isinstance(name, str) or not name:
             raise ValueError(f"{path}.file: expected a file name, got {name!r}")
         p = Path(name) if base_dir is None else Path(base_dir) / name
-        if not p.is_file():
+        if not p.exists():
             raise ValueError(f"{path}.file: no such file {str(p)!r}")
-        try:
-            arr = np.load(p, allow_pickle=False)
-        except (OSError, ValueError) as e:
-            raise ValueError(f"{path}.file: not a NumPy .npy array ({str(p)!r}: {e})") from None
+        try:        # a FIFO, a device, an empty or truncated file: refused naming the file
+            arr = load_npy(p, "a 2-D array of heights", "heightfield file", MAX_HEIGHTFIELD_BYTES)
+        except OSError as e:
+            raise ValueError(f"{path}.file: cannot read {str(p)!r}: {e.strerror or e}") from None
+        except ValueError as e:
+            raise ValueError(f"{path}.file: {e}") from None
         if not isinstance(arr, np.ndarray) or arr.ndim != 2:
             raise ValueError(f"{path}.file: expected a 2-D array of heights, got shape {np.shape(arr)} "
                              f"in {str(p)!r}")
@@ -311,10 +320,14 @@ class Terrain:
         """A terrain from a JSON file (a heightfield ``file`` relative to the JSON file's folder);
         ``defaults``: top-level keys (e.g. contact values) taken where the file has none."""
         p = Path(path)
-        try:
-            d = json.loads(p.read_text(encoding="utf-8"))
+        try:        # bounded; a FIFO or a device is refused before it is opened
+            text = read_bounded(p, MAX_TERRAIN_BYTES, "terrain file")
         except OSError as e:
             raise ValueError(f"terrain file: cannot read {str(p)!r}: {e.strerror or e}") from None
+        except ValueError as e:
+            raise ValueError(f"terrain file: {e}") from None
+        try:
+            d = json.loads(text)
         except json.JSONDecodeError as e:
             raise ValueError(f"terrain file: not valid JSON ({str(p)!r}, line {e.lineno}: {e.msg})") from None
         if defaults and isinstance(d, dict):
@@ -348,18 +361,26 @@ class Terrain:
         plane and the boxes; for the heightfield the vertical gap times the cosine of the local
         slope (:meth:`Heightfield.closest`)."""
         p = np.asarray(points, float)
-        ds, ns = [], []
-        for part in self.parts():
-            d, n = part.closest(p)
-            ds.append(d)
-            ns.append(n)
-        if not ds:
+        parts = self.parts()
+        if not parts:
             return np.full(p.shape[:-1], np.inf), np.zeros(p.shape)
-        D, N = np.stack(ds), np.stack(ns)
         if per_part:
-            return D, N
-        i = np.argmin(D, axis=0)
-        return np.take_along_axis(D, i[None], 0)[0], np.take_along_axis(N, i[None, ..., None], 0)[0]
+            ds, ns = zip(*(part.closest(p) for part in parts))
+            return np.stack(ds), np.stack(ns)
+        # the nearest part kept as the parts are visited: memory of a few arrays of the points'
+        # size, not (parts x points) (10^5 boxes and 10^3 points would need gigabytes); the
+        # first of equal distances wins and NaN counts as the smallest, as np.argmin picks them
+        best_d = best_n = None
+        for part in parts:
+            d, n = part.closest(p)
+            d, n = np.asarray(d, float), np.asarray(n, float)
+            if best_d is None:
+                best_d, best_n = d.copy(), n.copy()
+                continue
+            take = (d < best_d) | (np.isnan(d) & ~np.isnan(best_d))
+            best_d = np.where(take, d, best_d)
+            best_n = np.where(take[..., None], n, best_n)
+        return best_d, best_n
 
 
 #: the fields of :class:`Terrain` that hold parts of the built-in kinds (their file keys)

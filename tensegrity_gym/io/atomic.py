@@ -5,7 +5,9 @@ replacing a file).
 (``.<name>.tmp-<pid>-<n><suffix>``, :func:`stage`), which is fsynced, given the user's umask and
 moved onto ``path`` (:func:`publish`); the folder is fsynced. An interrupt, crash or kill at any
 moment leaves the old file or the new one, never a partial one. ``exclusive=True`` publishes
-with a hard link, so an existing file is never replaced (:class:`OutputChanged`). A run folder's
+with a hard link, so an existing file is never replaced (:class:`OutputChanged`). Only a regular
+file is ever replaced: a device, a FIFO, a socket, a folder or a symbolic link at the path is
+refused (:func:`check_output_kind`), even with ``force``. A run folder's
 own files (checkpoints, ``state.json``) are written this way by the run that claimed the folder.
 
 Claims and multi-file transactions (claim an output before the work, publish several outputs
@@ -16,14 +18,16 @@ from __future__ import annotations
 import errno
 import os
 import re
+import stat
 from pathlib import Path
 
 TMP_TAG = ".tmp-"
 _TMP_PID = re.compile(re.escape(TMP_TAG) + r"(\d+)")
 _COUNTER = iter(range(1 << 62))
 
-__all__ = ["close_after_error", "write_atomic", "stage", "publish", "link_exclusive", "tmp_path", "remove_stale_tmp", "check_writable", "pid_alive",
-           "OutputError", "OutputExists", "OutputChanged", "TMP_TAG"]
+__all__ = ["close_after_error", "write_atomic", "stage", "publish", "link_exclusive", "tmp_path", "remove_stale_tmp",
+           "remove_stale_tmp_of", "check_writable", "check_output_kind", "pid_alive", "OutputError", "OutputExists",
+           "OutputChanged", "TMP_TAG"]
 
 
 # ---------------------------------------------------------------------- errors
@@ -145,6 +149,7 @@ def publish(tmp: Path, path: str | Path, *, exclusive: bool = False, label: str 
                                     "not replaced (pass --force to overwrite it)") from None
             _unlink(tmp)
         else:
+            check_output_kind(path, label)      # never replace a device, FIFO, socket, link or folder
             os.replace(tmp, path)
     except BaseException:
         _unlink(tmp)
@@ -177,14 +182,72 @@ def remove_stale_tmp(folder: str | Path) -> list[Path]:
     return removed
 
 
+_KINDS = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
+          (stat.S_ISSOCK, "a socket"))
+
+
+def check_output_kind(path: str | Path, label: str = "--out") -> None:
+    """Fail (:class:`OutputError`) unless ``path`` is absent or a regular file: an output never
+    replaces a directory, a device (``--force`` on ``/dev/null`` would replace the device node), a
+    FIFO, a socket or a symbolic link. Links are not followed either (a dangling one would be
+    refused only at the end of the run): the message names the link's target to give instead."""
+    path = Path(path)
+    try:
+        st = os.lstat(path)
+    except (FileNotFoundError, NotADirectoryError):     # a new name (a folder that is a file: check_writable)
+        return
+    except OSError as e:
+        raise OutputError(f"{label} {str(path)!r} cannot be checked ({e.strerror or e})") from None
+    mode = st.st_mode
+    if stat.S_ISREG(mode):
+        return
+    if stat.S_ISLNK(mode):
+        try:
+            target = os.readlink(path)
+        except OSError:
+            target = "?"
+        dangling = "" if path.exists() else ", which does not exist"
+        raise OutputError(f"{label} {str(path)!r} is a symbolic link (to {target!r}{dangling}); outputs are not "
+                          "written through links nor replace them: give the target's path or remove the link")
+    if stat.S_ISDIR(mode):
+        raise OutputError(f"{label} {str(path)!r} is a directory; give a file name")
+    kind = next((name for test, name in _KINDS if test(mode)), "not a regular file")
+    raise OutputError(f"{label} {str(path)!r} is {kind}, not a regular file; an output replaces only a regular file "
+                      "(even with --force)")
+
+
+def remove_stale_tmp_of(path: str | Path) -> list[Path]:
+    """Remove the temporary files of :func:`stage` for ``path`` (``.<name>.tmp-<pid>-<n><suffix>``
+    beside it) left by processes that no longer run (a run killed with SIGKILL cannot remove
+    them); only regular files are removed. Returns the removed paths."""
+    path = Path(path)
+    name = re.compile(re.escape(f".{path.name}{TMP_TAG}") + r"(\d+)-\d+" + re.escape(path.suffix))
+    removed = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    for e in entries:
+        m = name.fullmatch(e.name)
+        if m is None or int(m.group(1)) == os.getpid() or pid_alive(int(m.group(1))):
+            continue
+        try:
+            if e.is_file(follow_symlinks=False):
+                os.unlink(e.path)
+                removed.append(Path(e.path))
+        except OSError:
+            pass
+    return removed
+
+
 def check_writable(path: str | Path, label: str = "--out", *, create_folders: bool = True) -> Path:
-    """Fail (:class:`OutputError`) if ``path`` cannot be a file written here: a directory, a
-    folder that is a file or is not writable, or (``create_folders`` False) a missing folder."""
+    """Fail (:class:`OutputError`) if ``path`` cannot be a file written here: anything but a
+    regular file or a new name (:func:`check_output_kind`), a folder that is a file or is not
+    writable, or (``create_folders`` False) a missing folder."""
     path = Path(path)
     if not create_folders and not path.parent.is_dir():
         raise OutputError(f"{label} {str(path)!r}: folder {str(path.parent)!r} does not exist")
-    if path.is_dir():
-        raise OutputError(f"{label} {str(path)!r} is a directory; give a file name")
+    check_output_kind(path, label)
     folder = path.parent
     while not folder.exists():
         folder = folder.parent

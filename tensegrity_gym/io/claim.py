@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from .atomic import (OutputChanged, OutputError, OutputExists, _unlink, check_writable, link_exclusive, pid_alive,
-                     publish, stage)
+                     publish, remove_stale_tmp_of, stage)
 
 LOCK_SUFFIX = ".lock"
 
@@ -112,7 +112,9 @@ class Claim:
     :class:`OutputExists` if the file exists and not ``force``; :class:`OutputBusy` naming the
     holder if another live process holds it (or one on another host: ``steal`` overrides that);
     :class:`StaleClaim` if its holder no longer runs, unless ``steal`` or ``take_over_dead`` (which
-    takes over only a holder known dead on this host: what resuming a killed run does).
+    takes over only a holder known dead on this host: what resuming a killed run does). A file
+    claim removes the temporary files that writers of the path which no longer run left beside
+    it (:func:`~tensegrity_gym.io.atomic.remove_stale_tmp_of`; listed in :attr:`removed_tmp`).
     :meth:`release` (or leaving the ``with`` block) removes the lock if it is still this claim's,
     and a claimed folder that it created if the folder is still empty.
     """
@@ -126,6 +128,7 @@ class Claim:
         self.lock = (self.path / LOCK_SUFFIX) if folder else self.path.with_name(f".{self.path.name}{LOCK_SUFFIX}")
         self.record = holder_record()
         self.took_over: dict | None = None    # the stale holder's record, when one was taken over
+        self.removed_tmp: list[Path] = []     # temporary files of dead writers removed when claimed
         self.held = False
         if not folder:
             check_writable(self.path, label, create_folders=create_folders)
@@ -149,8 +152,18 @@ class Claim:
                 top = top.parent
             self.created = not top.exists()
             self._top = top
-            self.lock.parent.mkdir(parents=True, exist_ok=True)
-        tmp = stage(self.lock, lambda f: f.write(json.dumps(self.record).encode()))
+            try:
+                self.lock.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                self.release()
+                raise OutputError(f"{self.label} {str(self.path)!r}: cannot create the folder "
+                                  f"{str(e.filename or self.path.parent)!r} ({e.strerror or e})") from None
+        try:
+            tmp = stage(self.lock, lambda f: f.write(json.dumps(self.record).encode()))
+        except OSError as e:
+            self.release()
+            raise OutputError(f"{self.label} {str(self.path)!r}: cannot write in the folder "
+                              f"{str(self.lock.parent)!r} ({e.strerror or e})") from None
         try:
             for _ in range(3):
                 try:
@@ -164,6 +177,8 @@ class Claim:
             _unlink(tmp)
         self.held = True
         self.identity = None if self.folder else _identity(self.path)
+        if not self.folder:     # the claim is ours: temporary files of killed writers of this path go
+            self.removed_tmp = remove_stale_tmp_of(self.path) + remove_stale_tmp_of(self.lock)
 
     def _refuse_or_take_over(self) -> None:
         holder = read_lock(self.lock)

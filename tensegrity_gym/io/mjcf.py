@@ -77,7 +77,8 @@ from ..core.terrain import Terrain
 from ..core.structure import Structure
 from ..core.terrain_kinds import require
 
-__all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel", "default_rod_radius", "terrain_xml"]
+__all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel", "default_rod_radius", "terrain_xml",
+           "terrain_xml_bytes"]
 
 #: thickness (m) of the solid under a heightfield's lowest point (MuJoCo's ``size[3]``), as a
 #: fraction of the grid's larger side and at least 1 cm
@@ -196,6 +197,21 @@ def _hfield_xml(hf, i, attrs):
 #: terrain kind name (:mod:`tensegrity_gym.core.terrain_kinds`) -> ``xml(part, i, attrs)``: the
 #: ``(assets, geoms)`` MJCF lines of the kind's i-th part, ``attrs`` its contact and friction attributes
 TERRAIN_GEOMS = {"plane": _plane_xml, "box": _box_xml, "heightfield": _hfield_xml}
+
+
+#: memory (bytes) :func:`to_mjcf` holds per terrain part (its geom line and the strings it is
+#: built from; about 660 measured for a box) and per heightfield cell (each elevation's text, the
+#: list of them and the document's copies; about 140 measured), with a margin
+MJCF_BYTES_PER_PART = 1024
+MJCF_BYTES_PER_CELL = 192
+
+
+def terrain_xml_bytes(terrain) -> float:
+    """Estimated peak memory (bytes) of writing ``terrain`` as MJCF (:func:`to_mjcf`): linear in
+    its parts and its heightfield cells; what a caller compares with a memory limit before the work."""
+    parts = terrain.parts()
+    cells = sum(int(np.size(p.heights)) for p in parts if hasattr(p, "heights"))
+    return float(MJCF_BYTES_PER_PART * len(parts) + MJCF_BYTES_PER_CELL * cells)
 
 
 def terrain_xml(terrain, floor_height: float | None = None) -> tuple[list, list]:

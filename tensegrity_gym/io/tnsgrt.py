@@ -51,7 +51,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..core.structure import Structure, StructureError
+from ..core.checks import read_bounded
+from ..core.structure import MAX_FILE_BYTES, Structure, StructureError
 
 __all__ = ["from_tnsgrt", "to_tnsgrt_dict"]
 
@@ -155,11 +156,11 @@ def from_tnsgrt(obj_or_path: Any, *, stiffness=None, bar_mass=None, damping=0.0,
     if isinstance(obj, (str, os.PathLike)):
         path = Path(obj)
         try:
-            obj = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError) as exc:
-            raise StructureError(f"{path}: cannot read ({exc})") from None
+            obj = json.loads(read_bounded(path, MAX_FILE_BYTES, "tnsgrt structure file"))
         except json.JSONDecodeError as exc:
             raise StructureError(f"{path}: not valid JSON ({exc})") from None
+        except (OSError, ValueError) as exc:      # not found, unreadable, a FIFO or device, too large, not UTF-8
+            raise StructureError(f"{path}: cannot read ({exc})") from None
         if not isinstance(obj, dict):
             raise StructureError(f"{path}: top level must be a JSON object (tnsgrt structure dict)")
     raw_nodes = _get(obj, "nodes")

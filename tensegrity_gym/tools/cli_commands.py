@@ -14,7 +14,7 @@ from ..core.model import compile_model, initial_state
 from ..physics.evaluate import accelerations
 from ..core.placement import place_on_terrain
 from ..core.terrain import Terrain
-from ..io.mjcf import default_rod_radius, to_mjcf
+from ..io.mjcf import default_rod_radius, terrain_xml_bytes, to_mjcf
 from ..io.tnsgrt import from_tnsgrt
 from ..io.recording import RUTGERS_SCALE, import_rutgers, save_recording
 from ..io.trajectory import load_simulate_output
@@ -112,6 +112,10 @@ def cmd_export(args) -> int:
     if (terrain is not None or args.friction is not None) and args.format != "mjcf":
         raise CLIError(EXIT_USAGE, f"export: {'--friction' if terrain is None else terrain_label(args)} "
                                    "applies to --format mjcf")
+    if terrain is not None:     # before the output is claimed: a refusal leaves no lock behind
+        n_parts = len(terrain.parts())
+        _require_memory(terrain_xml_bytes(terrain), args, f"export: {terrain_label(args)} ({n_parts} terrain "
+                        f"part{'' if n_parts == 1 else 's'} written as MJCF)")
     out = Path(args.out)
     tx = _claim(args, [(out, "export: --out")], create_folders=False)
     if args.source == "tnsgrt":

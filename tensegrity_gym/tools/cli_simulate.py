@@ -1,6 +1,7 @@
 """``simulate`` and ``demo``: integrate a structure, write the trajectory, a plot, a summary and a video."""
 from __future__ import annotations
 
+import io
 import json
 import time
 import warnings
@@ -12,14 +13,14 @@ from ..core.model import State, compile_model, initial_state
 from ..physics.geometry import energy, node_positions, rod_length_drift
 from ..physics.evaluate import force_densities
 from ..core.builders import prism
-from ..core.checks import load_npz
+from ..core.checks import load_npz, read_bounded
 from ..core.errors import StabilityWarning
 from ..core.placement import place_on_terrain
 from ..core.errors import EvaluationBudgetExceeded, SimulationDiverged
 from ..physics.rollout import Schedule, simulate
 from ..core.integrators import resolve
 from ..io.claim import Transaction
-from ..io.trajectory import save_simulate_output
+from ..io.trajectory import MAX_CSV_BYTES, save_simulate_output
 from ..physics import terrain as terrain_physics
 from ..physics.contact import impact_damping_cap
 from ..physics.loads import member_loads
@@ -210,8 +211,9 @@ def load_schedule(path, name: str, n_strings: int) -> Schedule:
     p = str(path)
     unit = "m" if name == "rest_length" else "N/m"
     if p.lower().endswith(".csv"):
+        text = read_bounded(p, MAX_CSV_BYTES, "command schedule CSV")    # FIFOs and devices refused
         try:
-            a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+            a = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2)
         except ValueError as e:
             raise ValueError(f"{p}: not a CSV of numbers after its header row ({_one_line(e)})") from None
         if a.shape[1] != n_strings + 1:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from tensegrity_gym.core.builders import prism
+from tensegrity_gym.core.checks import load_npz
 from tensegrity_gym.core.structure import save_json
 
 
@@ -37,7 +38,7 @@ def write_files(out: Path) -> None:
 
 
 def add_noise(src: Path, dst: Path, sigma: float, seed: int) -> None:
-    d = dict(np.load(src))
+    d = load_npz(src, "a simulate output with t and nodes")
     rng = np.random.default_rng(seed)
     d["nodes"] = d["nodes"] + rng.normal(0.0, sigma, d["nodes"].shape)
     np.savez(dst, **d)
