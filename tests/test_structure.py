@@ -360,7 +360,7 @@ def test_load_structure_accepts_names_paths_and_objects(tmp_path):
     assert load_structure("icosahedron").n_strings == 24
     with pytest.raises(StructureError, match=r"unknown structure 'no_such_thing'"):
         load_structure("no_such_thing")
-    with pytest.raises(ValueError, match=r"structure: expected a Structure, a builder name or a JSON path"):
+    with pytest.raises(ValueError, match=r"structure: expected a Structure, a builder name, a JSON path or an MJCF"):
         load_structure(42)
     with pytest.raises((FileNotFoundError, StructureError)):
         load_structure(str(tmp_path / "missing.json"))

@@ -311,12 +311,19 @@ def build(name: str) -> Structure:
 
 
 def load_structure(spec) -> Structure:
-    """A :class:`Structure` from a Structure, a built-in name (``"prism3"``) or a JSON path."""
+    """A :class:`Structure` from a Structure, a built-in name (``"prism3"``), a JSON path or a
+    MuJoCo model path (``.xml``: :func:`tensegrity_gym.io.mjcf_import.from_mjcf`, whose report is
+    not returned here; ``python -m tensegrity_gym import`` prints it)."""
     if isinstance(spec, Structure):
         return spec
     if isinstance(spec, (str, os.PathLike)):
         s = str(spec)
+        if s.lower().endswith(".xml"):
+            # the MJCF reader lives with the other file formats (io/, which imports only core)
+            from ..io.mjcf_import import from_mjcf
+            return from_mjcf(s)[0]
         if s.endswith(".json") or os.path.exists(s):
             return load_json(s)
         return build(s)
-    raise StructureError(f"structure: expected a Structure, a builder name or a JSON path, got {spec!r}")
+    raise StructureError(f"structure: expected a Structure, a builder name, a JSON path or an MJCF (.xml) path, "
+                         f"got {spec!r}")

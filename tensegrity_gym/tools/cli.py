@@ -1,4 +1,4 @@
-"""Command line: ``python -m tensegrity_gym {simulate,info,demo,export,view,identify,import-recording} ...``
+"""Command line: ``python -m tensegrity_gym {simulate,info,demo,export,import,view,identify,import-recording} ...``
 (SI units throughout).
 
 * ``simulate STRUCTURE --duration T --dt DT --integrator rk4 --out traj.npz`` writes
@@ -22,6 +22,10 @@
   MuJoCo model of the structure (:mod:`tensegrity_gym.io.mjcf`), with the terrain's plane, boxes
   and heightfield as MuJoCo geoms; ``--format json`` writes this package's JSON;
   ``--from tnsgrt`` reads STRUCTURE as a tnsgrt structure dict (:mod:`tensegrity_gym.io.tnsgrt`).
+* ``import robot.xml --out robot.json [--report report.json]`` reads a MuJoCo model of a class-1
+  tensegrity (:mod:`tensegrity_gym.io.mjcf_import`, docs/mjcf.md), writes the structure and prints
+  what was mapped, approximated and dropped; a joint, an equality constraint, a tendon through
+  more than two sites or a pulley is refused (exit 3) naming the element, its name and its line.
 * ``simulate ... --video out.mp4`` / ``demo --video out.mp4`` also render the run to a video.
 * ``import-recording FILE --format rutgers --out rec.npz`` converts a lab's recording (the
   Rutgers/Yale processed JSON: rod end points, times, gait commands) to this package's recording
@@ -30,7 +34,8 @@
 * ``view traj.npz [--structure S] [--terrain FILE.json]`` opens an interactive view of a ``simulate`` output (time
   slider, play/pause): a window where there is a display, else a browser view (viser).
 
-``STRUCTURE`` is a JSON file or a built-in name (``prism3``, ``icosahedron``, ...).
+``STRUCTURE`` is a JSON file, a MuJoCo model (``.xml``, read as ``import`` reads it) or a built-in
+name (``prism3``, ``icosahedron``, ...).
 Outputs are written by :mod:`tensegrity_gym.io.claim` and :mod:`tensegrity_gym.io.atomic`: every
 output of a command is claimed before anything is simulated (a lock file ``.<name>.lock`` beside
 it names the run; a second run to the same output is refused at once naming the first one's pid,
@@ -82,7 +87,8 @@ from ..core.integrators import INTEGRATORS
 from ..core.errors import SimulationDiverged
 from ..core.sizing import StructureTooLarge
 from ..core.structure import StructureError
-from .cli_commands import cmd_export, cmd_identify, cmd_import_recording, cmd_info, cmd_view, structure_summary
+from .cli_commands import (cmd_export, cmd_identify, cmd_import, cmd_import_recording, cmd_info, cmd_view,
+                           structure_summary)
 from .cli_common import (DEFAULT_MAX_STEPS, EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_STRUCTURE,
                          EXIT_TERMINATED, EXIT_TOO_LARGE, EXIT_USAGE, CLIError, _default_max_memory_gib,
                          _non_negative, _one_line, _port, _positive, _seed, TERMINATED, _Terminated)
@@ -90,7 +96,7 @@ from .cli_simulate import cmd_demo, cmd_simulate, load_schedule
 from .cli_terrain import add_terrain_args
 
 __all__ = ["main", "entry", "build_parser", "CLIError", "structure_summary", "load_schedule", "cmd_simulate",
-           "cmd_info", "cmd_demo", "cmd_export", "cmd_view", "cmd_identify", "cmd_import_recording"]
+           "cmd_info", "cmd_demo", "cmd_export", "cmd_import", "cmd_view", "cmd_identify", "cmd_import_recording"]
 
 
 # --------------------------------------------------------------------------- parser and main
@@ -238,6 +244,15 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     rp.add_argument("--steal-lock", action="store_true",
                     help="take over an output's lock left by a run that no longer runs (or runs on another host)")
     rp.set_defaults(func=cmd_import_recording)
+    mp = sub.add_parser("import", help="read a MuJoCo model (MJCF) of a class-1 tensegrity as a structure (JSON)",
+                        formatter_class=fmt)
+    mp.add_argument("model", help="MJCF file (robot.xml)")
+    mp.add_argument("--out", required=True, help="output structure file (robot.json)")
+    mp.add_argument("--report", default=None, help="also write the import report (JSON)")
+    mp.add_argument("--force", action="store_true", help="overwrite existing output files")
+    mp.add_argument("--steal-lock", action="store_true",
+                    help="take over an output's lock left by a run that no longer runs (or runs on another host)")
+    mp.set_defaults(func=cmd_import)
     vp = sub.add_parser("view", help="interactive view of a simulate output (time slider, play/pause)",
                         formatter_class=fmt)
     vp.add_argument("trajectory", help="a .npz written by simulate")

@@ -1,5 +1,5 @@
-"""``info``, ``export``, ``view``, ``identify`` and ``import-recording``: the command-line verbs that do not
-integrate a run of their own."""
+"""``info``, ``export``, ``import``, ``view``, ``identify`` and ``import-recording``: the command-line verbs
+that do not integrate a run of their own."""
 from __future__ import annotations
 
 import json
@@ -14,7 +14,7 @@ from ..core.model import compile_model, initial_state
 from ..physics.evaluate import accelerations
 from ..core.placement import place_on_terrain
 from ..core.terrain import Terrain
-from ..io.mjcf import default_rod_radius, terrain_xml_bytes, to_mjcf
+from ..io.mjcf import default_rod_radius, from_mjcf, terrain_xml_bytes, to_mjcf
 from ..io.tnsgrt import from_tnsgrt
 from ..io.recording import RUTGERS_SCALE, import_rutgers, save_recording
 from ..io.trajectory import load_simulate_output
@@ -146,6 +146,31 @@ def cmd_export(args) -> int:
     print(f"{s.name}: {s.n_bars} rods, {s.n_strings} strings -> {out} ({args.format})"
           + (f"; on the terrain ({terrain_label(args)}, lifted {lift:.4g} m)" if terrain is not None and not args.ground
              else ""))
+    return 0
+
+
+def cmd_import(args) -> int:
+    """``import MODEL.xml --out robot.json [--report report.json]``: reads a MuJoCo model as a
+    structure (:func:`tensegrity_gym.io.mjcf.from_mjcf`), writes its JSON and prints the import
+    report; exit 0, 3 (not found, not MJCF, or not a class-1 tensegrity: the element, its name
+    and its line) or 4 (output)."""
+    out = Path(args.out)
+    outputs = [(out, "import: --out")] + ([(Path(args.report), "import: --report")] if args.report else [])
+    tx = _claim(args, outputs, create_folders=False)
+    try:
+        s, report = from_mjcf(Path(args.model))
+    except FileNotFoundError:
+        raise CLIError(EXIT_STRUCTURE, f"import: MJCF file {args.model!r} not found") from None
+    except PermissionError as e:
+        raise CLIError(EXIT_STRUCTURE, f"import: MJCF file {args.model!r} cannot be read ({e.strerror})") from None
+    except (StructureError, OSError) as e:
+        raise CLIError(EXIT_STRUCTURE, f"import: {e}") from None
+    _stage(tx, out, lambda f: f.write(json.dumps(s.to_dict(), indent=1).encode("utf-8")))
+    if args.report:
+        _stage(tx, Path(args.report), lambda f: f.write(json.dumps(report.to_dict(), indent=1).encode("utf-8")))
+    _commit(tx)
+    print(f"{s.name}: {s.n_bars} rods, {s.n_strings} strings -> {out}")
+    print(report.summary())
     return 0
 
 
