@@ -18,6 +18,7 @@ import os
 
 import numpy as np
 
+from .mjcf_import import from_mjcf
 from .structure import Structure, StructureError, load_json
 
 __all__ = ["load_structure", "prism", "pinned_rod", "constrained_prism", "icosahedron", "tower", "build", "BUILDERS",
@@ -312,15 +313,13 @@ def build(name: str) -> Structure:
 
 def load_structure(spec) -> Structure:
     """A :class:`Structure` from a Structure, a built-in name (``"prism3"``), a JSON path or a
-    MuJoCo model path (``.xml``: :func:`tensegrity_gym.io.mjcf_import.from_mjcf`, whose report is
+    MuJoCo model path (``.xml``: :func:`tensegrity_gym.core.mjcf_import.from_mjcf`, whose report is
     not returned here; ``python -m tensegrity_gym import`` prints it)."""
     if isinstance(spec, Structure):
         return spec
     if isinstance(spec, (str, os.PathLike)):
         s = str(spec)
         if s.lower().endswith(".xml"):
-            # the MJCF reader lives with the other file formats (io/, which imports only core)
-            from ..io.mjcf_import import from_mjcf
             return from_mjcf(s)[0]
         if s.endswith(".json") or os.path.exists(s):
             return load_json(s)

@@ -1,7 +1,7 @@
 """Export a :class:`~tensegrity_gym.core.structure.Structure` to a MuJoCo model (MJCF XML).
 
 The reverse, :func:`from_mjcf` (a structure and an :class:`ImportReport` from an MJCF file), is
-:mod:`tensegrity_gym.io.mjcf_import`, re-exported here.
+:mod:`tensegrity_gym.core.mjcf_import`, re-exported here.
 
 SI units throughout (m, kg, s, N). The model is built from the structure alone; MuJoCo is
 needed only to *load* the result (``mujoco.MjModel.from_xml_string(to_mjcf(s))``), not to write it.
@@ -79,7 +79,7 @@ from ..core.rod_mass import mass_moments
 from ..core.terrain import Terrain
 from ..core.structure import Structure
 from ..core.terrain_kinds import require
-from .mjcf_import import ImportReport, from_mjcf
+from ..core.mjcf_import import ImportReport, from_mjcf
 
 __all__ = ["to_mjcf", "export", "rod_frame", "initial_qpos_qvel", "default_rod_radius", "terrain_xml",
            "terrain_xml_bytes", "from_mjcf", "ImportReport"]

@@ -23,7 +23,7 @@
   and heightfield as MuJoCo geoms; ``--format json`` writes this package's JSON;
   ``--from tnsgrt`` reads STRUCTURE as a tnsgrt structure dict (:mod:`tensegrity_gym.io.tnsgrt`).
 * ``import robot.xml --out robot.json [--report report.json]`` reads a MuJoCo model of a class-1
-  tensegrity (:mod:`tensegrity_gym.io.mjcf_import`, docs/mjcf.md), writes the structure and prints
+  tensegrity (:mod:`tensegrity_gym.core.mjcf_import`, docs/mjcf.md), writes the structure and prints
   what was mapped, approximated and dropped; a joint, an equality constraint, a tendon through
   more than two sites or a pulley is refused (exit 3) naming the element, its name and its line.
 * ``simulate ... --video out.mp4`` / ``demo --video out.mp4`` also render the run to a video.

@@ -4,7 +4,7 @@
 SI units (m, s). Both sides run without gravity and without contact, with RK4 at the same step
 ``dt``, from the file's initial pose at rest (MuJoCo's actuators at zero control). MuJoCo's node
 points are the imported nodes carried by its bodies (:attr:`ImportReport.node_frames
-<tensegrity_gym.io.mjcf_report.ImportReport>`), so the difference measures what the import
+<tensegrity_gym.core.mjcf_report.ImportReport>`), so the difference measures what the import
 changes (sites mapped onto the rod axes, springs made tension-only, parallel tendons merged),
 not the integrators. Needs the ``mujoco`` package.
 """
@@ -16,7 +16,7 @@ import os
 import numpy as np
 
 from ..core.model import compile_model, initial_state
-from ..io.mjcf_import import from_mjcf
+from ..core.mjcf_import import from_mjcf
 from ..physics.geometry import node_positions
 from ..physics.rollout import simulate
 

@@ -1,7 +1,7 @@
 """Import a class-1 tensegrity from a MuJoCo model (MJCF XML): :func:`from_mjcf`.
 
 SI units throughout (m, kg, s, N). The file is read as the field writes tensegrities in MJCF
-(:mod:`tensegrity_gym.io.mjcf_read` reads the XML, its defaults and its masses; MuJoCo is not
+(:mod:`tensegrity_gym.core.mjcf_read` reads the XML, its defaults and its masses; MuJoCo is not
 needed). The mapping, the approximations and what is refused are in ``docs/mjcf.md``; in short:
 
 * **Rods**: each top-level body with a ``freejoint`` is a rod. Its axis is that of its longest
@@ -38,9 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.checks import read_bounded
-from ..core.errors import StructureError
-from ..core.structure import MAX_FILE_BYTES, Structure
+from .checks import read_bounded
+from .errors import StructureError
+from .structure import MAX_FILE_BYTES, Structure
 from .mjcf_read import ACTUATOR_TAGS, read_document
 from .mjcf_report import ActuatedString, ImportReport
 from .mjcf_springs import finish_string, merge_parallel, string_of_tendon

@@ -1,6 +1,6 @@
 """Reading an MJCF (MuJoCo XML) document the way MuJoCo's compiler reads it, for the importer.
 
-The pieces :mod:`tensegrity_gym.io.mjcf_import` needs: the element tree with the file and line of
+The pieces :mod:`tensegrity_gym.core.mjcf_import` needs: the element tree with the file and line of
 every element (``<include>`` files inlined), the ``<compiler>`` settings, the ``<default>``
 classes (nested classes, ``class`` and ``childclass``), the actuator shortcuts (``motor``,
 ``position``, ``velocity``, ``intvelocity``) written as ``general`` parameters, frame
@@ -21,7 +21,7 @@ from xml.parsers import expat
 
 import numpy as np
 
-from ..core.errors import StructureError
+from .errors import StructureError
 
 __all__ = ["Document", "read_document", "ACTUATOR_TAGS", "quat_z_to", "quat_matrix"]
 

@@ -1,4 +1,4 @@
-"""The report of an MJCF import (:func:`tensegrity_gym.io.mjcf_import.from_mjcf`): what was read,
+"""The report of an MJCF import (:func:`tensegrity_gym.core.mjcf_import.from_mjcf`): what was read,
 how it was mapped, what was dropped, and the strings an actuator sets. SI units (m, kg, s, N)."""
 from __future__ import annotations
 
