@@ -4,6 +4,7 @@ every output equal to 1e-12 relative).
 
     PYTHONPATH=/path/to/old/checkout python -m scripts.tools.compare_outputs dump old.npz
     PYTHONPATH=/path/to/new/checkout python -m scripts.tools.compare_outputs dump new.npz
+    (dump-terrain / dump-tasks: the terrain scenes / every task's envs, below)
     python -m scripts.tools.compare_outputs compare old.npz new.npz      # table; exit 1 above 1e-12
 
 ``dump`` runs, with whatever ``tensegrity_gym`` is importable: every built-in structure
@@ -18,7 +19,12 @@ TensegrityRoll-v0 (single env and a vector env of 4) under a fixed seeded action
 and per-slot info) of a level plane, a slope, a slope with boxes, a heightfield and per-copy
 terrains; the torch backend's terrain step on them; 60 control steps of TensegrityRoll-v0 on each
 terrain generator and TensegrityNavigate-v0 (single env and a vector env of 16, the loop driver's
-lanes); the MuJoCo twin on steps; and the MJCF text of each terrain. ``dump-terrain-single`` leaves
+lanes); the MuJoCo twin on steps; and the MJCF text of each terrain. ``dump-tasks`` runs 40 control
+steps of every task (TensegrityRoll-v0 with and without a drawn goal and robot sensors and on the
+steps and slope generators, TensegrityClimb-v0 with drawn slopes and robot sensors,
+TensegrityNavigate-v0 with a height scan, TensegrityShape-v0) as a single env, a NumPy vector env of
+3 and the torch device env of 3 with host resets (and device resets where the task has them):
+observations, rewards and every numeric info. ``dump-terrain-single`` leaves
 out what compiles the batched (SIMD) terrain kernel: the kernel at B = 19 and the vector envs.
 """
 from __future__ import annotations
@@ -210,12 +216,65 @@ def compare(a: str, b: str) -> int:
     return 0 if worst <= 1e-12 else 1
 
 
+TASK_CASES = (("TensegrityRoll-v0", {}), ("TensegrityClimb-v0", {"slope_range": (5.0, 25.0)}),
+              ("TensegrityClimb-v0", {"slope_range": (5.0, 25.0), "observation_mode": "robot"}),
+              ("TensegrityNavigate-v0", {"height_scan": (3, 0.2)}), ("TensegrityShape-v0", {}),
+              ("TensegrityRoll-v0", {"observation_mode": "robot", "randomize_goal": True}),
+              ("TensegrityRoll-v0", {"terrain": {"generator": "steps"}, "randomize_goal": True}),
+              ("TensegrityRoll-v0", {"terrain": {"generator": "slope"}}))
+
+
+def _task_rollout(out: dict, name: str, env, steps: int = 40, as_tensor=None) -> None:
+    """Observations, rewards and numeric infos of ``steps`` seeded random-action steps into ``out``."""
+    rng = np.random.default_rng(1)
+    o, _ = env.reset(seed=5)
+    obs, rew, infos = [np.asarray(o, float)], [], {}
+    for _ in range(steps):
+        a = rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
+        o, r, _, _, info = env.step(a if as_tensor is None else as_tensor(a))
+        obs.append(np.asarray(o, float))
+        rew.append(np.asarray(r, float))
+        for k, v in info.items():
+            if not isinstance(v, dict):
+                try:
+                    infos.setdefault(k, []).append(np.asarray(v, dtype=float))
+                except (TypeError, ValueError):
+                    pass
+    out[name + "/obs"], out[name + "/rew"] = np.array(obs), np.array(rew)
+    for k, v in infos.items():
+        try:
+            out[name + "/info/" + k] = np.array(v)
+        except ValueError:       # ragged: not compared
+            pass
+
+
+def dump_tasks(path: str) -> None:
+    import gymnasium as gym
+    import tensegrity_gym  # noqa: F401  (registers the ids)
+    import torch
+    out = {}
+    f64 = (lambda a: torch.as_tensor(a, dtype=torch.float64))
+    vec = dict(num_envs=3, vectorization_mode="vector_entry_point")
+    for i, (eid, kw) in enumerate(TASK_CASES):
+        _task_rollout(out, f"{i}/single", gym.make(eid, **kw))
+        _task_rollout(out, f"{i}/vector", gym.make_vec(eid, **vec, **kw))
+        _task_rollout(out, f"{i}/torch", gym.make_vec(eid, **vec, backend="torch", **kw), as_tensor=f64)
+        if eid in ("TensegrityRoll-v0", "TensegrityClimb-v0"):
+            _task_rollout(out, f"{i}/torch_device_reset",
+                          gym.make_vec(eid, **vec, backend="torch", reset_sampling="device", **kw), as_tensor=f64)
+    np.savez(path, **out)
+    print(f"{len(out)} arrays -> {path}")
+
+
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "dump":
         dump(sys.argv[2])
         raise SystemExit(0)
     if len(sys.argv) == 3 and sys.argv[1] in ("dump-terrain", "dump-terrain-single"):
         dump_terrain(sys.argv[2], batched=sys.argv[1] == "dump-terrain")
+        raise SystemExit(0)
+    if len(sys.argv) == 3 and sys.argv[1] == "dump-tasks":
+        dump_tasks(sys.argv[2])
         raise SystemExit(0)
     if len(sys.argv) == 4 and sys.argv[1] == "compare":
         raise SystemExit(compare(sys.argv[2], sys.argv[3]))
