@@ -81,6 +81,10 @@ class TorchTaskVectorEnv(VectorSeeding, gym.vector.VectorEnv):
         self.device = resolve_device(device)
         self.dtype = resolve_dtype(dtype)
         task = self.TASK(num_envs=num_envs, **kwargs)
+        if getattr(task, "rod_contact", None) is not None:
+            raise ValueError(f"rod_contact: not supported by backend='torch' (the device env has no rod-rod contact "
+                             f"yet; the torch backend's forces are tensegrity_gym.backends.torch.rod_contact), got "
+                             f"{kwargs.get('rod_contact')!r:.80}; use the NumPy env")
         integrator_name(task.integrator)          # ValueError for an implicit method
         self.task = task
         self.num_envs = N = task.num_envs

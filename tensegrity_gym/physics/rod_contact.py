@@ -59,7 +59,7 @@ from ..core.checks import check_positive
 from ..core.model import Model
 
 __all__ = ["RodContact", "rod_contact_forces", "add_rod_forces", "pair_distances", "rod_contact_energy",
-           "stable_step", "pair_damping_cap", "ROD_COLUMNS"]
+           "stable_step", "pair_damping_cap", "resolve_option", "ROD_COLUMNS"]
 
 
 @dataclass(frozen=True)
@@ -176,3 +176,28 @@ def stable_step(rc: RodContact, model: Model) -> float:
     om = math.sqrt(rc.stiffness / m_eff)
     zeta = min(rc.damping, rc.max_damping) / (2.0 * math.sqrt(rc.stiffness * m_eff))
     return 2.0 * (math.sqrt(1.0 + zeta * zeta) - zeta) / om
+
+
+def resolve_option(value, radius: float, max_damping: float, name: str = "rod_contact") -> RodContact | None:
+    """An env's ``rod_contact`` argument as a :class:`RodContact` or None: None or False (off),
+    True (the defaults with ``radius`` m and ``max_damping`` N s/m), a ``RodContact`` (as it is) or
+    a dict of its fields (the others as True's). ValueError naming ``name`` (and the field) otherwise."""
+    if value is None or value is False:
+        return None
+    if isinstance(value, RodContact):
+        return value
+    base = {"radius": radius, "max_damping": max_damping}
+    if value is True:
+        fields = base
+    elif isinstance(value, dict):
+        unknown = [f for f in value if f not in ROD_COLUMNS]
+        if unknown:
+            raise ValueError(f"{name}: unknown field {unknown[0]!r}; choose from {list(ROD_COLUMNS)}")
+        fields = {**base, **value}
+    else:
+        raise ValueError(f"{name}: expected None, True, False, a RodContact or a dict of its fields "
+                         f"{list(ROD_COLUMNS)}, got {value!r:.80}")
+    try:
+        return RodContact(**fields)
+    except ValueError as e:
+        raise ValueError(f"{name}: {e}") from None
