@@ -113,7 +113,7 @@ class RollTask(RollObservation, BatchedTask):
             field, _, rest = str(e).partition(":")
             raise ValueError(f"{_CONTACT_ARGS.get(field, field)}:{rest}") from None
         # rod-rod contact (None: off, no rod-rod code runs); its damping capped for two rod ends (m/8)
-        self.rod_contact = rods.resolve_option(g.rod_contact, self.contact.radius, rods.pair_damping_cap(s.bar_mass, dt))
+        self.rod_contact = rods.resolve_option(g.rod_contact, rods.pair_damping_cap(s.bar_mass, dt))
         self.forward_reward_weight = check_positive(forward_reward_weight, "forward_reward_weight", "s/m",
                                                     allow_zero=True)
         self.ctrl_cost_weight = check_positive(ctrl_cost_weight, "ctrl_cost_weight", allow_zero=True)
