@@ -282,11 +282,28 @@ def test_prism_rolls_with_rod_contact_and_no_rods_cross():
     assert dmin > 0.0
 
 
-def test_torch_env_refuses_rod_contact():
-    pytest.importorskip("torch")
-    from tensegrity_gym.envs.torch_tasks import TorchRollVectorEnv
-    with pytest.raises(ValueError, match="rod_contact: not supported by backend='torch'"):
-        TorchRollVectorEnv(num_envs=2, rod_contact=True)
+@pytest.mark.parametrize("kw", [dict(), dict(terrain={"plane": {"slope_deg": 10.0}})])
+def test_torch_device_env_matches_the_numpy_env(kw):
+    """The torch device vector env (float64, CPU) with ``rod_contact`` follows the NumPy vector env
+    to round-off on level ground and on a terrain, with capsules thick enough (3 cm) to touch at
+    rest, so that rod-rod forces act at every step."""
+    torch = pytest.importorskip("torch")
+    import gymnasium as gym
+    rc = {"radius": 0.03}
+    N = 2
+    ref = gym.make_vec("TensegrityRoll-v0", num_envs=N, vectorization_mode="vector_entry_point", rod_contact=rc, **kw)
+    ten = gym.make_vec("TensegrityRoll-v0", num_envs=N, vectorization_mode="vector_entry_point", backend="torch",
+                       device="cpu", dtype="float64", rod_contact=rc, **kw)
+    task = ref.unwrapped.task
+    assert np.abs(rod_contact_forces(task.rod_contact, task.model, task.q_nominal, 0 * task.q_nominal)).max() > 1.0
+    o1, _ = ref.reset(seed=1)
+    o2, _ = ten.reset(seed=1)
+    rng = np.random.default_rng(0)
+    for _ in range(15):
+        a = rng.uniform(-1, 1, (N, ref.single_action_space.shape[0]))
+        o1, *_ = ref.step(a)
+        o2, *_ = ten.step(torch.as_tensor(a))
+    assert np.abs(task.q - ten.q.numpy()).max() <= 1e-9
 
 
 @pytest.mark.parametrize("rod_contact", [False, True])

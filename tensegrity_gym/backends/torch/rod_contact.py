@@ -5,9 +5,12 @@ the ground contact's). SI units.
 """
 from __future__ import annotations
 
+from .contact import contact_forces
+from .driver import step_once
 from .model import TorchModel, _torch, torch_model
+from .terrain import _forces as terrain_forces_prepared
 
-__all__ = ["rod_contact_forces", "segment_closest"]
+__all__ = ["rod_contact_forces", "segment_closest", "rod_contact_substep", "rod_terrain_substep"]
 
 #: segments whose sin^2 of the angle between them is below this are treated as parallel (the numba backend's)
 PARALLEL_SIN2 = 1e-12
@@ -94,3 +97,32 @@ def rod_contact_forces(rc, model, q, qd):
     Fa = zero.index_add(1, I, (1.0 - s)[..., None] * F).index_add(1, J, -(1.0 - t)[..., None] * F)
     Fc = zero.index_add(1, I, s[..., None] * F).index_add(1, J, -t[..., None] * F)
     return tm.gather_nodes(Fa, Fc)
+
+
+def rod_contact_substep(rc):
+    """A replacement for :func:`tensegrity_gym.backends.torch.contact.contact_substep` (same
+    signature) that adds the rod-rod contact forces of ``rc`` (a
+    :class:`~tensegrity_gym.physics.rod_contact.RodContact`) after the ground's and the external
+    force, as the numba loop driver does: what the device env runs with ``rod_contact``."""
+    def substep(tm, contact, q, qd, anchor, active, dt, name, prm, rl, fd, ext, contact_prm, project_):
+        W, anchor, active, _ = contact_forces(contact, tm, q, qd, anchor, active, contact_prm)
+        if ext is not None:
+            W = W + ext
+        W = W + rod_contact_forces(rc, tm, q, qd)
+        q, qd = step_once(tm, q, qd, dt, name, prm, rl, fd, W, project_)
+        return q, qd, anchor, active
+    return substep
+
+
+def rod_terrain_substep(rc):
+    """:func:`rod_contact_substep` for terrain contact: a replacement for
+    :func:`tensegrity_gym.backends.torch.terrain.terrain_substep` (same signature)."""
+    def substep(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0, active, dt, name, p, rl, fd, ext, project_):
+        W, anchor, eta0, active, _ = terrain_forces_prepared(tm, layout, geom, prm, H, lips, q, qd, anchor, eta0,
+                                                             active)
+        if ext is not None:
+            W = W + ext
+        W = W + rod_contact_forces(rc, tm, q, qd)
+        q, qd = step_once(tm, q, qd, dt, name, p, rl, fd, W, project_)
+        return q, qd, anchor, eta0, active
+    return substep
