@@ -17,6 +17,7 @@ formulation itself):
   projecting) and RK4, a callable ``external`` evaluated at every stage;
 * :func:`contact_forces` and :func:`contact_step` -- the ground contact (Hunt-Crossley normal
   force, stick/slip Coulomb friction) and its sub-step loop;
+* :func:`rod_contact_forces` (with :func:`segment_closest`) -- rod-rod contact between capsules;
 * the bookkeeping of a control step that the package compiles: :func:`actuation_apply` and
   :func:`actuation_apply_motor` (rate limits, the cable motor), :func:`diverged`,
   :func:`roll_observation`.
@@ -223,6 +224,82 @@ def contact_forces(c, model, q, qd, anchor, active, prm=None):
     W[:, model.rod_a] = Fc[:, 0::2]
     W[:, model.rod_c] = Fc[:, 1::2]
     return W, anchor, touch, slip
+
+
+def segment_closest(d1, d2, r):
+    """``(s, t)`` (...,) in [0, 1]: the parameters of the closest points ``P1 + s d1``, ``P2 + t d2``
+    of two segments (``r = P1 - P2``; (..., 3) arrays): the lines' closest points clamped and
+    corrected once each way; parallel segments (sin^2 of the angle below 1e-12): the middle of
+    the overlap of the second's projection on the first, or the first's end nearest to it."""
+    a = np.einsum("...i,...i->...", d1, d1)
+    e = np.einsum("...i,...i->...", d2, d2)
+    b = np.einsum("...i,...i->...", d1, d2)
+    c = np.einsum("...i,...i->...", d1, r)
+    f = np.einsum("...i,...i->...", d2, r)
+    denom = a * e - b * b
+    general = denom > 1e-12 * a * e
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_gen = np.clip((b * f - c * e) / np.where(general, denom, 1.0), 0.0, 1.0)
+    s0 = -c / a
+    s1 = s0 + b / a
+    lo = np.maximum(np.minimum(s0, s1), 0.0)
+    hi = np.minimum(np.maximum(s0, s1), 1.0)
+    s_par = np.where(lo <= hi, 0.5 * (lo + hi), np.where(hi < 0.0, 0.0, 1.0))
+    s = np.where(general, s_gen, s_par)
+    t = (b * s + f) / e
+    s = np.where(t < 0.0, np.clip(-c / a, 0.0, 1.0), np.where(t > 1.0, np.clip((b - c) / a, 0.0, 1.0), s))
+    t = np.clip(t, 0.0, 1.0)
+    return s, t
+
+
+def rod_contact_forces(rc, model, q, qd):
+    """(B, n, 3) N: the rod-rod contact forces (``tensegrity_gym.physics.rod_contact``) of every
+    pair i < j: capsules of ``rc.radius``, the normal spring-damper on the overlap of the closest
+    points, regularised Coulomb friction, both damping coefficients capped, each force split
+    between a rod's nodes by its closest-point parameter."""
+    B, k = q.shape[0], model.n_bars
+    eta = model.eta
+    r, b, rd, bd = q[..., :3], q[..., 3:], qd[..., :3], qd[..., 3:]
+    A = r + eta[None, :, 0, None] * b          # (B, k, 3) node a
+    C = r + eta[None, :, 1, None] * b          # node c
+    VA = rd + eta[None, :, 0, None] * bd
+    VC = rd + eta[None, :, 1, None] * bd
+    R, kn, cn, mu, cmax, veps = (rc.radius, rc.stiffness, min(rc.damping, rc.max_damping), rc.friction,
+                                 rc.max_damping, rc.friction_speed)
+    W = np.zeros((B, model.n_nodes, 3))
+    for i in range(k - 1):
+        for j in range(i + 1, k):
+            d1, d2 = C[:, i] - A[:, i], C[:, j] - A[:, j]
+            s, t = segment_closest(d1, d2, A[:, i] - A[:, j])
+            nv = (A[:, i] + s[:, None] * d1) - (A[:, j] + t[:, None] * d2)
+            dist = np.linalg.norm(nv, axis=1)
+            delta = 2.0 * R - dist
+            # the axes meet: the normal of their plane (a perpendicular of rod i if parallel),
+            # pointing from rod j's centre to rod i's
+            x = np.cross(d1, d2)
+            nx = np.linalg.norm(x, axis=1)
+            perp = np.stack([d1[:, 1], -d1[:, 0], np.zeros(B)], axis=1)
+            vert = perp[:, 0] ** 2 + perp[:, 1] ** 2 < 1e-6 * np.einsum("bi,bi->b", d1, d1)
+            perp = np.where(vert[:, None], np.stack([np.zeros(B), d1[:, 2], -d1[:, 1]], axis=1), perp)
+            x = np.where((nx > 1e-12 * np.linalg.norm(d1, axis=1) * np.linalg.norm(d2, axis=1))[:, None], x, perp)
+            x = x / np.linalg.norm(x, axis=1, keepdims=True)
+            g = r[:, i] - r[:, j]
+            x = np.where((np.einsum("bi,bi->b", x, g) < 0.0)[:, None], -x, x)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                n = np.where((dist > 1e-12)[:, None], nv / dist[:, None], x)
+            v = (VA[:, i] + s[:, None] * (VC[:, i] - VA[:, i])) - (VA[:, j] + t[:, None] * (VC[:, j] - VA[:, j]))
+            vn = np.einsum("bi,bi->b", v, n)
+            fn = np.maximum(kn * delta - cn * vn, 0.0)
+            vt = v - vn[:, None] * n
+            speed = np.linalg.norm(vt, axis=1)
+            ct = np.minimum(mu * fn / np.maximum(speed, veps), cmax) if mu > 0 else np.zeros(B)
+            F = fn[:, None] * n - ct[:, None] * vt
+            F = np.where((delta > 0.0)[:, None], F, 0.0)
+            W[:, model.rod_a[i]] += (1.0 - s)[:, None] * F
+            W[:, model.rod_c[i]] += s[:, None] * F
+            W[:, model.rod_a[j]] -= (1.0 - t)[:, None] * F
+            W[:, model.rod_c[j]] -= t[:, None] * F
+    return W
 
 
 def step(model, state, dt, integrator="semi_implicit_euler", *, rest_length=None, force_density=None,

@@ -47,3 +47,10 @@ def test_bench_rough_reset_runs(tmp_path):
     assert out.exists()
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path, env=ENV)
     assert r.returncode == 2 and "exists" in r.stderr           # a result is not overwritten
+
+
+def test_bench_rod_contact_runs(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "scripts.bench.bench_rod_contact", "--envs", "1", "--seconds", "0.05"],
+                       capture_output=True, text=True, timeout=1200, cwd=tmp_path, env=ENV)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "| TensegrityRoll-v0 | 1 |" in r.stdout

@@ -64,6 +64,9 @@ class BatchedTask:
     #: None; with it ``tstate`` (its stick/slip state), ``terrain_geom`` / ``terrain_prm`` /
     #: ``terrain_hf`` (per-copy feature rows) and ``cstate.active`` the rod ends' contact flags
     terrain_contact = None
+    #: rod-rod contact (tensegrity_gym.physics.rod_contact.RodContact) of the task, or None: rods pass
+    #: through each other and no rod-rod code runs
+    rod_contact = None
     #: divergence measured from each copy's own centre (a robot that travels), not from the start's
     travels = False
     #: keep the velocities before the last physics step of a control step (``_qd_prev``; IMUs)
@@ -323,12 +326,12 @@ class BatchedTask:
         if tc is None:
             kw = dict(backend=self.backend, params=self.params, contact=self.contact, cstate=cs,
                       contact_params=self._contact_prm, forces=self._W, slip=self._slip,
-                      compiled=self._kernels_run, **inputs)
+                      compiled=self._kernels_run, rods=self.rod_contact, **inputs)
             run, args = pipeline.run_steps, (model, q, qd, dt, name)
         else:
             prm, geom, hf = self._terrain_views()
             kw = dict(backend=self.backend, params=self.params, prm=prm, geom=geom, hf=hf, forces=self._W,
-                      slip=self._terrain_slip, compiled=self._kernels_run, **inputs)
+                      slip=self._terrain_slip, compiled=self._kernels_run, rods=self.rod_contact, **inputs)
             run, args = terrain.advance, (tc, model, q, qd, dt, name, cs)
         with np.errstate(all="ignore"):
             if self.track_last_velocity:

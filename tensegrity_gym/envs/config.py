@@ -103,7 +103,8 @@ class RollActuationConfig(CableConfig):
 @dataclass(frozen=True)
 class ContactConfig:
     """Ground contact (:class:`tensegrity_gym.physics.contact.GroundContact`; the names its rows carry in
-    :mod:`tensegrity_gym.core.param_table`)."""
+    :mod:`tensegrity_gym.core.param_table`) and the optional rod-rod contact ``rod_contact``
+    (:class:`tensegrity_gym.physics.rod_contact.RodContact`)."""
 
     friction: float = GroundContact.friction
     ground_stiffness: float = GroundContact.stiffness
@@ -112,6 +113,7 @@ class ContactConfig:
     tangential_damping: float = GroundContact.tangential_damping
     cap_radius: float = GroundContact.radius
     ground_max_damping: float | None = None     # None: the task's cap (m_eff / dt)
+    rod_contact: object = None     # None: rods pass through each other; True or a dict of RodContact fields
 
 
 @dataclass(frozen=True)

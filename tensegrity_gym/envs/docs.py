@@ -149,6 +149,7 @@ ROLL_DOC = r"""
     | ``tangential_stiffness``, ``tangential_damping`` | ``None`` (= ground_stiffness), ``10`` | N/m, N s/m (stick spring) |
     | ``cap_radius`` | ``0.02`` | m |
     | ``ground_max_damping`` | ``None`` (= m/(4 dt), 50 N s/m) | N s/m, cap on the Hunt-Crossley damping coefficient (explicit stability in fast impacts) |
+    | ``rod_contact`` | ``None`` | rod-rod contact (capsules that push each other apart; ``docs/contact.md`` "Rod-rod contact"): ``None`` or ``False`` off (rods pass through each other; no rod-rod code runs, outputs unchanged); ``True``, a ``RodContact`` or a dict of its fields (``radius`` m, 0.005; ``stiffness`` N/m, 5e4; ``damping`` N s/m, 10; ``friction``, 0.5; ``max_damping`` N s/m, default m/(8 dt); ``friction_speed`` m/s, 0.01). the NumPy envs and the torch device env (refused by the MuJoCo twin) |
     | ``backend`` | ``"auto"`` | ``"auto"`` / ``"numba"`` (the same: the numba kernels; ``"numpy"`` is no longer a backend) |
     | ``divergence_limit`` | ``None`` | m (default 100 x the robot's size) |
     | ``clip_actions`` | ``True`` | clip out-of-box actions (``False``: raise) |
@@ -202,6 +203,7 @@ ROLL_DOC = r"""
     * v0 (one backend): ``backend="numpy"`` is refused (the NumPy step path became the test oracle);
       reset states are projected by the numba kernels, which differ from the old NumPy projection
       by round-off only (1e-16 m).
+    * v0 (rod-rod contact): ``rod_contact`` (default ``None``: off, outputs bit-identical).
 """
 
 
@@ -365,4 +367,5 @@ SHAPE_DOC = r"""
     * v0 (one backend): ``backend="numpy"`` is refused (the NumPy step path became the test oracle);
       reset states are projected by the numba kernels, which differ from the old NumPy projection
       by round-off only (1e-16 m).
+    * v0 (rod-rod contact): ``rod_contact`` (default ``None``: off, outputs bit-identical).
 """

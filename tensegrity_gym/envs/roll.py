@@ -11,6 +11,7 @@ import warnings
 import numpy as np
 
 from ..physics.contact import GroundContact, impact_damping_cap, init_contact_state, set_copy_values, stable_step
+from ..physics import rod_contact as rods
 from ..core.model import compile_model
 from ..physics.evaluate import force_densities
 from ..physics import geometry
@@ -109,6 +110,8 @@ class RollTask(RollObservation, RollReset, RollTerrain, BatchedTask):
         except ValueError as e:   # name this task's argument, not GroundContact's field
             field, _, rest = str(e).partition(":")
             raise ValueError(f"{_CONTACT_ARGS.get(field, field)}:{rest}") from None
+        # rod-rod contact (None: off, no rod-rod code runs); its damping capped for two rod ends (m/8)
+        self.rod_contact = rods.resolve_option(g.rod_contact, rods.pair_damping_cap(s.bar_mass, dt))
         self.forward_reward_weight = check_positive(forward_reward_weight, "forward_reward_weight", "s/m",
                                                     allow_zero=True)
         self.ctrl_cost_weight = check_positive(ctrl_cost_weight, "ctrl_cost_weight", allow_zero=True)
@@ -185,6 +188,9 @@ class RollTask(RollObservation, RollReset, RollTerrain, BatchedTask):
         if self.integrator in ("semi_implicit_euler", "rk4"):
             check_stable_dt(model, limit, self.dt, self.integrator, allow_unstable_dt,
                             "this robot's strings and ground contact")
+        if self.rod_contact is not None and self.integrator in ("semi_implicit_euler", "rk4"):
+            check_stable_dt(model, rods.stable_step(self.rod_contact, model), self.dt, self.integrator,
+                            allow_unstable_dt, "this robot's rod-rod contact")
         if self.integrator in ("semi_implicit_euler", "rk4") and self.dt > limit:
             warnings.warn(StabilityWarning(
                 f"{ENV_ID}: dt = {self.dt:.4g} s is above the estimated stability limit {limit:.4g} s of "

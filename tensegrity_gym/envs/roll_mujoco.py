@@ -167,6 +167,9 @@ class TensegrityRollMuJoCoEnv(gym.Env):
             if kwargs.get(name) is not None:
                 raise ValueError(f"{name}: not supported by {env_id}")
         check_twin_kwargs(kwargs, env_id)
+        if kwargs.get("rod_contact") not in (None, False):
+            raise ValueError(f"rod_contact: not supported by {env_id} (its rods collide with the ground only), "
+                             f"got {kwargs['rod_contact']!r:.80}")
         if kwargs.get("action_delay", 0):
             raise ValueError(f"action_delay: not supported by {env_id}, got {kwargs['action_delay']!r}")
         if kwargs.get("action_mode", "rest_length") != "rest_length":

@@ -15,6 +15,7 @@ from ..backends.torch.model import resolve_device, resolve_dtype, torch_model, t
 from ..backends.torch.driver import integrator_name, step_once
 from ..backends.torch.actuation import physics_inputs
 from ..backends.torch.contact import contact_substep
+from ..backends.torch.rod_contact import rod_contact_substep
 from ..backends.torch.graphs import CapturedCall
 from ..core.checks import check_action_tensor
 from .vector_rules import check_reset_called
@@ -106,7 +107,9 @@ class TorchTaskVectorEnv(TorchRecord, VectorSeeding, gym.vector.VectorEnv):
             raise ValueError(f"compile: expected True or False, got {compile!r}")
         # compile: the one physics step each task repeats (with contact: contact forces + integrator step)
         one, options = self._physics_substep()
-        self._substep = torch.compile(one, dynamic=False, options=options) if compile else None
+        # with rod-rod contact the substep adds its forces (backends.torch.rod_contact), compiled or not
+        self._substep = torch.compile(one, dynamic=False, options=options) if compile else \
+            (one if getattr(task, "rod_contact", None) is not None else None)
         if not isinstance(cuda_graph, (bool, np.bool_)):
             raise ValueError(f"cuda_graph: expected True or False, got {cuda_graph!r}")
         if cuda_graph and self.device.type != "cuda":
@@ -127,7 +130,10 @@ class TorchTaskVectorEnv(TorchRecord, VectorSeeding, gym.vector.VectorEnv):
         """``(the one physics step the task repeats, inductor options or None)``: what
         ``compile=True`` wraps and how. With ground contact
         :func:`~tensegrity_gym.backends.torch.contact.contact_substep`, without
-        :func:`~tensegrity_gym.backends.torch.driver.step_once`; default options."""
+        :func:`~tensegrity_gym.backends.torch.driver.step_once`; default options. With ground and
+        rod-rod contact :func:`~tensegrity_gym.backends.torch.rod_contact.rod_contact_substep`."""
+        if getattr(self.task, "rod_contact", None) is not None and getattr(self.task, "contact", None) is not None:
+            return rod_contact_substep(self.task.rod_contact), None
         return (contact_substep if getattr(self.task, "contact", None) is not None
                 else step_once), None
 

@@ -16,6 +16,7 @@ from ..backends.torch.actuation import update_motor, update_rate
 from ..backends.torch.driver import step
 from ..backends.torch import divergence
 from ..backends.torch.contact import contact_step
+from ..backends.torch.rod_contact import rod_terrain_substep
 from ..backends.torch.terrain import compile_options, terrain_substep, top_height
 from .base import BatchedTask
 from .climb import ClimbTask
@@ -45,11 +46,13 @@ class TorchRollVectorEnv(TorchTaskVectorEnv, gym.vector.VectorEnv):
     DEVICE_RESET = RollTask.DEVICE_RESET
 
     def _physics_substep(self):
-        """With a terrain, :func:`~tensegrity_gym.backends.torch.terrain.terrain_substep` and its
-        :func:`~tensegrity_gym.backends.torch.terrain.compile_options`."""
+        """With a terrain, :func:`~tensegrity_gym.backends.torch.terrain.terrain_substep` (with
+        ``rod_contact``: :func:`~tensegrity_gym.backends.torch.rod_contact.rod_terrain_substep`)
+        and its :func:`~tensegrity_gym.backends.torch.terrain.compile_options`."""
         if self._terrain is None:
             return super()._physics_substep()
-        return terrain_substep, compile_options(self._terrain.layout)
+        rc = self.task.rod_contact
+        return (terrain_substep if rc is None else rod_terrain_substep(rc)), compile_options(self._terrain.layout)
 
     def _init_device(self):
         task = self.task

@@ -42,7 +42,8 @@ Mapping
   reproduced.
 * **Gravity** is ``<option gravity>`` (zero if the structure has none).
 * **Ground** (``ground=True``): a plane at ``ground_height``; rods are capsules of radius
-  ``rod_radius`` that collide with the ground only (never with each other, like ours). MuJoCo's
+  ``rod_radius`` that collide with the ground only (``rod_contact=True``: with each other too, as
+  this package's optional rod-rod contact, :mod:`tensegrity_gym.physics.rod_contact`). MuJoCo's
   soft-constraint contact is not our Hunt-Crossley + stick/slip model: trajectories with
   contact agree qualitatively, not to round-off. Without ground, contact is disabled.
 * **Terrain** (``terrain=``, a :class:`~tensegrity_gym.core.terrain.Terrain`; instead of
@@ -74,7 +75,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .atomic import write_atomic
-from ..core.checks import xml_text
+from ..core.checks import check_flag, xml_text
 from ..core.rod_mass import mass_moments
 from ..core.terrain import Terrain
 from ..core.structure import Structure
@@ -258,7 +259,7 @@ def check_mj_integrator(name, field: str = "integrator") -> str:
 def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-3, integrator: str = "RK4",
             rod_radius: float | None = None, string_width: float | None = None, ground_height: float = 0.0,
             friction: float = 1.0, model_name: str | None = None, terrain=None,
-            floor_height: float | None = None) -> str:
+            floor_height: float | None = None, rod_contact: bool = False) -> str:
     """The MJCF XML text of ``structure`` (see the module docstring for the mapping).
 
     Parameters
@@ -273,6 +274,9 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
     rod_radius : rod capsule radius, m (drawing, contact and the axial inertia ``m r^2 / 2``);
         default 1 % of the longest rod.
     string_width : tendon drawing radius, m; default ``rod_radius / 3``.
+    rod_contact : the rods' capsules also collide with each other (``conaffinity="1"``; MuJoCo's
+        own soft contact, as with the ground, not this package's rod-rod law), with or without
+        ground; default False: the rods collide with the ground only.
     """
     s = structure
     if not isinstance(s, Structure):
@@ -285,7 +289,8 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
     if floor_height is not None and terrain is None:
         raise ValueError("floor_height: needs terrain (the floor lies under a terrain)")
     t_assets, t_geoms = ([], []) if terrain is None else terrain_xml(terrain, floor_height)
-    contact = ground or terrain is not None
+    rod_contact = check_flag(rod_contact, "rod_contact")
+    contact = ground or terrain is not None or rod_contact
     r = default_rod_radius(s) if rod_radius is None else float(rod_radius)
     if not (math.isfinite(r) and r > 0):
         raise ValueError(f"rod_radius: must be positive and finite (m), got {rod_radius!r}")
@@ -336,7 +341,7 @@ def to_mjcf(structure: Structure, ground: bool = False, *, timestep: float = 1e-
                    f'diaginertia="{f["J"]!r} {f["J"]!r} {Ia!r}"/>')
         za, zc = -sig * L, (1.0 - sig) * L
         out.append(f'      <geom name="rod{j}" type="capsule" fromto="0 0 {za!r} 0 0 {zc!r}" size="{r!r}" '
-                   'contype="1" conaffinity="0" rgba=".25 .27 .3 1"/>')
+                   f'contype="1" conaffinity="{1 if rod_contact else 0}" rgba=".25 .27 .3 1"/>')
         out.append(f'      <site name="node{f["a"]}" pos="0 0 {za!r}" size="{1.2 * r!r}"/>')
         out.append(f'      <site name="node{f["c"]}" pos="0 0 {zc!r}" size="{1.2 * r!r}"/>')
         out.append("    </body>")

@@ -41,13 +41,14 @@ from typing import NamedTuple
 import numpy as np
 
 from ..backends.numba import api as numba_api
-from ..backends.numba.api import contact_steps as _contact_compiled
+from ..backends.numba.api import contact_steps as _contact_compiled, rods_tuple
 from ..backends.numba.divergence import diverged
 from ..backends.numba.plans import make_plan
 from ..core.checks import check_action, check_array
 from ..core.integrators import EXPLICIT, resolve, uses_numba
 from ..core.model import Model, State
 from .contact import ContactState, GroundContact, check_prm_rows, forces_inplace
+from .rod_contact import RodContact, add_rod_forces
 from .stability import check_stability
 from . import integrate   # integrate.step looked up at call time: a caller may wrap it
 from .integrate import _as_batch
@@ -74,7 +75,7 @@ def run_steps(model: Model, q: np.ndarray, qd: np.ndarray, dt: float, integrator
               n_steps: int = 1, rest_length=None, force_density=None, external=None, params=None,
               project: bool = True, backend: str = "auto", contact: GroundContact | None = None,
               cstate: ContactState | None = None, contact_params=None, forces=None, slip=None,
-              compiled: bool | None = None) -> None:
+              compiled: bool | None = None, rods: RodContact | None = None) -> None:
     """In place: ``n_steps`` steps of ``dt`` s of ``q``, ``qd`` (B, k, 6), writable C-contiguous
     float64 (m, 1, m/s, 1/s). Inputs as :func:`tensegrity_gym.physics.step` takes them (``integrator`` a
     resolved name; shapes are checked by the kernels, values are the caller's duty).
@@ -83,27 +84,40 @@ def run_steps(model: Model, q: np.ndarray, qd: np.ndarray, dt: float, integrator
     state at the step's start into ``forces`` (B, n, 3) N (plus ``external`` if given), slip
     flags into ``slip`` (B, n_c) bool, then one integrator step with ``external=forces``.
     ``contact_params``: (B, 9) per-copy contact parameters or None (the contact's own).
-    ``compiled``: whether the numba kernels run (default: :func:`compiled_physics`)."""
+    ``compiled``: whether the numba kernels run (default: :func:`compiled_physics`).
+    ``rods``: a :class:`~tensegrity_gym.physics.rod_contact.RodContact`, or None (no rod-rod
+    contact, no rod-rod code runs): its forces at each step's start are added to the step's
+    external forces after the ground's (with ``contact``: inside the compiled loop; without: a
+    Python loop of one integrator call per step)."""
     if compiled is None:
         compiled = compiled_physics(integrator, backend)
-    if contact is None:
+    if contact is None and rods is None:
         _physics(model, q, qd, dt, integrator, n_steps, rest_length, force_density, external, params, project,
                  backend, compiled)
         return
     B = q.shape[0]
     if forces is None:
         forces = np.empty((B, model.n_nodes, 3))
+    if contact is None:
+        for _ in range(int(n_steps)):
+            forces[...] = 0.0 if external is None else external
+            add_rod_forces(rods, model, q, qd, forces)
+            _physics(model, q, qd, dt, integrator, 1, rest_length, force_density, forces, params, project, backend,
+                     compiled)
+        return
     if slip is None:
         slip = np.empty((B, 2 * model.n_bars), bool)
     if compiled and _contact_compiled(
             model, q, qd, dt, integrator, n_steps, rest_length, force_density, external, params, project, contact,
-            cstate, contact_params, forces, slip):
+            cstate, contact_params, forces, slip, None if rods is None else rods_tuple(model, rods.prm)):
         return
     contact_forces = forces_inplace
     for _ in range(int(n_steps)):
         contact_forces(contact, model, q, qd, cstate, forces, slip, contact_params)
         if external is not None:
             forces += external
+        if rods is not None:
+            add_rod_forces(rods, model, q, qd, forces)
         _physics(model, q, qd, dt, integrator, 1, rest_length, force_density, forces, params, project, backend,
                  compiled)
 
@@ -123,19 +137,26 @@ def _physics(model, q, qd, dt, name, n_steps, rest_length, force_density, extern
 
 def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit_euler", *, n_steps: int = 1,
          contact: GroundContact | None = None, cstate: ContactState | None = None, contact_params=None,
-         external=None, backend: str = "auto", **inputs):
+         external=None, backend: str = "auto", rods: RodContact | None = None, **inputs):
     """``n_steps`` physics steps of ``dt`` s for the whole batch (see the module doc).
 
     Without ``contact``: :func:`tensegrity_gym.physics.step` (returns a ``State``). With ``contact``:
     returns ``(State, ContactState)``, new objects (the inputs are not modified); ``external``
     (B, n, 3) N is added to the contact forces of every step. ``inputs``: ``rest_length``,
-    ``force_density``, ``params``, ``project`` as :func:`tensegrity_gym.physics.step` takes them."""
-    if contact is None:
+    ``force_density``, ``params``, ``project`` as :func:`tensegrity_gym.physics.step` takes them.
+    ``rods``: a :class:`~tensegrity_gym.physics.rod_contact.RodContact` (rod-rod contact forces
+    added at each step, :func:`run_steps`) or None; with ``rods`` and no ``contact`` it returns a
+    ``State``."""
+    if contact is None and rods is None:
         return integrate.step(model, state, dt, integrator, n_steps=n_steps, external=external, backend=backend,
                               **inputs)
     info = resolve(integrator)
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
+    if rods is not None and not isinstance(rods, RodContact):
+        raise ValueError(f"rods: expected a RodContact or None, got {rods!r:.80}")
+    if contact is None:
+        return _rods_step(model, state, dt, info, n_steps, external, backend, rods, inputs)
     if cstate is None:
         raise ValueError("cstate: a ContactState is needed with contact (contact.init_contact_state)")
     B, m = state.batch_size, model.n_strings
@@ -154,11 +175,28 @@ def step(model: Model, state: State, dt: float, integrator: str = "semi_implicit
     cs = cstate.copy()
     ext = None if external is None else np.asarray(external, dtype=np.float64)
     run_steps(model, q, qd, dt, info.name, n_steps=n_steps, external=ext, backend=backend, contact=contact,
-            cstate=cs, contact_params=contact_params, **inputs)
+            cstate=cs, contact_params=contact_params, rods=rods, **inputs)
     t = state.t
     for _ in range(int(n_steps)):
         t = t + dt
     return State(q=q, qd=qd, t=t), cs
+
+
+def _rods_step(model, state, dt, info, n_steps, external, backend, rods, inputs):
+    """:func:`step` with rod-rod contact and no ground: a new ``State``."""
+    B, m = state.batch_size, model.n_strings
+    for name in ("rest_length", "force_density"):
+        inputs[name] = _as_batch(inputs.get(name), B, m, name)
+    if inputs.get("params") is None:
+        check_stability(model, info, dt)
+    q = np.array(state.q, dtype=np.float64, order="C")
+    qd = np.array(state.qd, dtype=np.float64, order="C")
+    ext = None if external is None else np.asarray(external, dtype=np.float64)
+    run_steps(model, q, qd, dt, info.name, n_steps=n_steps, external=ext, backend=backend, rods=rods, **inputs)
+    t = state.t
+    for _ in range(int(n_steps)):
+        t = t + dt
+    return State(q=q, qd=qd, t=t)
 
 
 class ControlStep(NamedTuple):
@@ -177,7 +215,7 @@ def control_step(model: Model, state: State, actuation, controls, action, dt: fl
                  integrator: str = "semi_implicit_euler", *, n_steps: int = 1, speed=None, rest_offset=None,
                  contact: GroundContact | None = None, cstate: ContactState | None = None,
                  contact_params=None, external=None, params=None, project: bool = True,
-                 backend: str = "auto") -> ControlStep:
+                 backend: str = "auto", rods: RodContact | None = None) -> ControlStep:
     """One control step of the whole batch from actions: actuation, then ``n_steps`` physics
     steps of ``dt`` s (contact inside each when ``contact`` is given). What every env does per
     control step, as one pure call (brax's ``pipeline.step(sys, state, act)``).
@@ -190,7 +228,8 @@ def control_step(model: Model, state: State, actuation, controls, action, dt: fl
     motor's current cable speeds (unit/s), needed when the actuation has a motor model (``max_accel``). ``rest_offset``
     (P, m) m, P = 1 or B: true minus commanded rest lengths of the robots. The actuation update
     is :meth:`Actuation.update <tensegrity_gym.physics.actuation.Actuation.update>`; the physics is
-    :func:`step` with its ``rest_length`` / ``force_density`` (the other arguments as there).
+    :func:`step` with its ``rest_length`` / ``force_density`` (the other arguments as there;
+    ``rods``: rod-rod contact, a :class:`~tensegrity_gym.physics.rod_contact.RodContact`, or None).
     Returns a :class:`ControlStep`. ValueError naming the argument, the index and the value for
     a wrong shape, a non-finite entry or an action outside [-1, 1]."""
     B, na = state.batch_size, actuation.size
@@ -205,7 +244,8 @@ def control_step(model: Model, state: State, actuation, controls, action, dt: fl
         rest_offset = check_array(ro, (rows, model.n_strings), "rest_offset")
     ctrl, speed, inputs = actuation.update(np.ascontiguousarray(controls), np.ascontiguousarray(action),
                                            None if speed is None else np.ascontiguousarray(speed), rest_offset)
-    kw = dict(n_steps=n_steps, external=external, backend=backend, params=params, project=project, **inputs)
+    kw = dict(n_steps=n_steps, external=external, backend=backend, params=params, project=project, rods=rods,
+              **inputs)
     if contact is None:
         return ControlStep(step(model, state, dt, integrator, **kw), ctrl, speed, None)
     st, cs = step(model, state, dt, integrator, contact=contact, cstate=cstate, contact_params=contact_params, **kw)
@@ -215,15 +255,16 @@ def control_step(model: Model, state: State, actuation, controls, action, dt: fl
 
 
 def contact_step(model: Model, contact: GroundContact, state: State, cstate: ContactState, dt: float,
-                 integrator: str = "semi_implicit_euler", n_steps: int = 1, external=None, **inputs):
+                 integrator: str = "semi_implicit_euler", n_steps: int = 1, external=None, rods=None, **inputs):
     """``n_steps`` physics steps with ground contact: :func:`step` with ``contact`` and ``cstate``
     (per step, contact forces from the state at its start (batched) then ONE integrator step with
     ``external=W + external`` for the whole batch). ``external``: optional (B, n, 3) extra nodal
     forces, N, held over every step. ``inputs``: ``rest_length`` / ``force_density`` /
-    ``backend`` / ``project`` / ``params`` as :func:`tensegrity_gym.physics.step` takes them.
+    ``backend`` / ``project`` / ``params`` as :func:`tensegrity_gym.physics.step` takes them;
+    ``rods``: a :class:`~tensegrity_gym.physics.rod_contact.RodContact` (rod-rod contact) or None.
     Returns ``(state, cstate)`` (new objects; the inputs are not modified)."""
     return step(model, state, dt, integrator, n_steps=n_steps, contact=contact, cstate=cstate,
-                external=external, **inputs)
+                external=external, rods=rods, **inputs)
 
 
 def compiled_plan(model: Model, integrator: str, dt: float, n_steps: int, batch_size: int,

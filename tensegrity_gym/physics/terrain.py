@@ -49,7 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..backends.numba.api import _frozen as read_only   # the kernels take read-only arrays
+from ..backends.numba.api import _frozen as read_only, rods_tuple   # the kernels take read-only arrays
 from ..backends.numba.terrain import terrain_forces_kernel
 from ..backends.numba.terrain_kinds import HFIELD, PLANE, check_codes, geom_row
 from ..backends.numba.terrain_steps import terrain_steps
@@ -60,6 +60,7 @@ from ..core.param_table import part_columns
 from ..core.terrain import Terrain
 from .contact import GroundContact, stable_step as ground_stable_step
 from .pipeline import compiled_physics, run_steps as _run_steps
+from .rod_contact import add_rod_forces
 from .stability import check_stability
 
 __all__ = ["TerrainContact", "TerrainState", "init_terrain_state", "contact_forces", "forces_inplace",
@@ -308,7 +309,7 @@ def stable_step(tc: TerrainContact, model: Model) -> dict:
 def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str, tstate: TerrainState, *,
             n_steps: int = 1, external=None, prm=None, geom=None, hf=None, forces=None, slip=None,
             backend: str = "auto",
-            compiled: bool | None = None, **inputs) -> None:
+            compiled: bool | None = None, rods=None, **inputs) -> None:
     """In place: ``n_steps`` steps of ``dt`` s of ``q``, ``qd`` (B, k, 6), writable C-contiguous
     float64, and of ``tstate``: per step the terrain forces of the batch from the state at its
     start (plus ``external`` (B, n, 3) N) held over ONE step of ``integrator`` (a resolved
@@ -316,7 +317,9 @@ def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str,
     (checked by the caller); ``forces`` (B, n, 3) and ``slip`` (B, S) optional scratch; ``inputs``:
     ``rest_length``, ``force_density``, ``params``, ``project``. With the numba kernels every
     sub-step runs inside one compiled call (:mod:`tensegrity_gym.backends.numba.terrain_steps`),
-    the same kernels in the same order as the Python loop here (bit-identical)."""
+    the same kernels in the same order as the Python loop here (bit-identical). ``rods``: a
+    :class:`~tensegrity_gym.physics.rod_contact.RodContact` (its forces added after the terrain's
+    and ``external`` at every step) or None (no rod-rod code runs)."""
     B = q.shape[0]
     prm = tc.prm if prm is None else read_only(prm)
     geom = _geom_rows(None, hf, tc, B) if geom is None else read_only(geom)
@@ -328,26 +331,30 @@ def advance(tc: TerrainContact, model: Model, q, qd, dt: float, integrator: str,
     arrays = (geom, prm, hf, tstate.anchor, tstate.eta0, tstate.active, sl)
     if compiled and terrain_steps(model, q, qd, dt, integrator, n_steps, inputs.get("rest_length"),
                                   inputs.get("force_density"), external, inputs.get("params"),
-                                  inputs.get("project", True), arrays, W, tc.plane_only):
+                                  inputs.get("project", True), arrays, W, tc.plane_only,
+                                  None if rods is None else rods_tuple(model, rods.prm)):
         return
     check_codes(geom)       # the compiled call refuses an unknown kind code itself
     for _ in range(int(n_steps)):
         forces_inplace(tc, model, q, qd, tstate, W, sl, prm, geom, hf)
         if external is not None:
             W += external
+        if rods is not None:
+            add_rod_forces(rods, model, q, qd, W)
         _run_steps(model, q, qd, dt, integrator, n_steps=1, external=W, backend=backend, compiled=compiled,
                    **inputs)
 
 
 def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: TerrainState,
          integrator: str = "semi_implicit_euler", *, n_steps: int = 1, external=None, prm=None, geom=None,
-         hf=None, backend: str = "auto", **inputs):
+         hf=None, backend: str = "auto", rods=None, **inputs):
     """``n_steps`` physics steps of ``dt`` s with terrain contact: per step, the contact forces of
     the batch from the state at its start (plus ``external`` (B, n, 3) N), held over ONE
     integrator step. ``prm``, ``geom``, ``hf``: per-copy arrays as :func:`contact_forces` takes
     them. ``inputs``: ``rest_length``, ``force_density``, ``params``, ``project`` as
-    :func:`tensegrity_gym.physics.step` takes them. Returns ``(State, TerrainState)``, new
-    objects (the inputs are not modified)."""
+    :func:`tensegrity_gym.physics.step` takes them; ``rods``: rod-rod contact
+    (:class:`~tensegrity_gym.physics.rod_contact.RodContact`) or None. Returns ``(State,
+    TerrainState)``, new objects (the inputs are not modified)."""
     info = resolve(integrator)
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: must be a positive finite time step in seconds, got {dt}")
@@ -362,7 +369,7 @@ def step(model: Model, state: State, dt: float, tc: TerrainContact, tstate: Terr
     prm, geom, hf = _rows(prm, tc.prm, B, 8, "prm"), _geom_rows(geom, hf, tc, B), _hf_rows(hf, tc, B)
     ext = None if external is None else np.ascontiguousarray(external, dtype=np.float64)
     advance(tc, model, q, qd, dt, info.name, ts, n_steps=n_steps, external=ext, prm=prm, geom=geom, hf=hf,
-            backend=backend, **inputs)
+            backend=backend, rods=rods, **inputs)
     t = state.t
     for _ in range(int(n_steps)):
         t = t + dt

@@ -101,7 +101,7 @@ from .pack import _CACHE, _array, _flags, _pack, _pack_params, clear_cache
 from .plans import Plan, lean_plan, make_plan, packed
 
 __all__ = ["step", "step_inplace", "accelerations", "string_forces", "project", "contact_steps", "Plan",
-           "make_plan", "packed", "lean_plan", "PARALLEL_MIN_WORK", "clear_cache"]
+           "make_plan", "packed", "lean_plan", "PARALLEL_MIN_WORK", "clear_cache", "rods_tuple"]
 
 
 def _check_inplace(q, qd):
@@ -344,11 +344,12 @@ def loop_setup(model, q, qd, name, rest_length, force_density, external, params,
 
 
 def contact_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, external, params, project,
-                  contact, cstate, contact_params, forces, slip) -> bool:
+                  contact, cstate, contact_params, forces, slip, rods=None) -> bool:
     """The contact sub-steps of :func:`tensegrity_gym.physics.pipeline.run_steps` in ONE compiled call: :func:`_contact_loop` (this
     thread) or, for a batch with enough work for the parallel kernel (``_parallel``),
     :func:`_contact_parallel` (chunks of the batch on all threads, every sub-step inside). False
-    (nothing done) for arrays the kernels do not take as they are: the Python loop converts them."""
+    (nothing done) for arrays the kernels do not take as they are: the Python loop converts them.
+    ``rods``: None or the loop driver's rod-rod contact tuple (:func:`rods_tuple`)."""
     setup = loop_setup(model, q, qd, name, rest_length, force_density, external, params, project, forces)
     if setup is None:
         return False
@@ -364,12 +365,19 @@ def contact_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
         kernel = _contact_loop if B < _SOA_MIN_BATCH else _contact_loop_simd
     try:
         err = kernel(q, qd, bufs, p.lanes, l0, fd, forces, ext, float(dt), int(n_steps), flags, _frozen(model.eta),
-                     _frozen(model.rod_a), _frozen(model.rod_c), cstate.anchor, cstate.active, slip, prm)
+                     _frozen(model.rod_a), _frozen(model.rod_c), cstate.anchor, cstate.active, slip, prm, rods)
     except TypeError:      # an array of another type or layout: the Python loop converts it
         return False
     if err:
         _raise(err, model, q, qd, rest_length, force_density, forces if external is None else external)
     return True
+
+
+def rods_tuple(model, prm) -> tuple:
+    """The loop driver's rod-rod contact tuple ``(eta, rod_a, rod_c, prm)`` of ``model`` with the
+    (1, 6) parameter row ``prm`` (:attr:`tensegrity_gym.physics.rod_contact.RodContact.prm`),
+    read-only as the compiled loops take them."""
+    return (_frozen(model.eta), _frozen(model.rod_a), _frozen(model.rod_c), _frozen(prm))
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ from numba import njit
 
 from .contact import _contact_lanes, _contact_load, _contact_store
 from .equations import _acc, _drift_rod, _project
+from .rod_contact import rods_lanes
 from .terrain import has_box, lanes_forces
 from .terrain_box import BOX_END_ROWS, BOX_LANE_ROWS, box_load, box_store, boxes_between
 from .terrain_hfield import HF_LANE_ROWS, hf_bound_of, hf_lam_load, hf_last
@@ -140,7 +141,7 @@ def _load(q, qd, l0, fd, ext, c0, ne, Q, QD, L0, FD, EX, PC, o_l0, k, m, n, E, f
 
 
 def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, E, contact,
-              terrain, plane):
+              terrain, plane, rods):
     """``n_steps`` fixed steps of copies lo..hi-1 from (q[e], qd[e]) into (qo[e], qdo[e]) (which
     may be the same arrays): the one loop driver of the numba backend. E copies at a time in
     structure-of-arrays scratch (k, 6, E), so that every inner loop runs over copies and
@@ -169,8 +170,13 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
     copy, rough ground or a course's ground, runs in the lanes after the others
     (:func:`.terrain.hf_lanes_forces`, its node slots' state in lane scratch too)). ``plane``: None or the tuple of
     :func:`.terrain.plane_forces` (a terrain that is one plane, as ``terrain`` but for that one
-    kind: the instance then carries no code for the other kinds)."""
+    kind: the instance then carries no code for the other kinds). ``rods``: None (no rod-rod
+    contact: the compiler prunes its branches) or the tuple (eta, rod_a, rod_c, prm) of
+    :func:`.rod_contact.rods_lanes`: at every step, after the ground or terrain forces (and
+    their external force), the rod-rod contact forces of the step's start are added to EX."""
     S, N, V, F, L0, FD, EX, PC = _scratch(w, L, k, m, n, E, lanes.shape[0] > 0)
+    if rods is not None:
+        r_eta, r_rod_a, r_rod_c, r_prm = rods
     if contact is not None:
         eta, rod_a, rod_c, prm, anchor, active, slip, cext = contact
         AN = np.empty((2 * k, 2, E))
@@ -266,6 +272,8 @@ def _drive_py(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_step
             if plane is not None:
                 plane_forces(Q, QD, EX, PAN, PAC, PSL, PP, p_eta, p_rod_a, p_rod_c, k, n, E)
                 add_ext(EX, p_ext, c0, ne, n, E)
+            if rods is not None:
+                rods_lanes(Q, QD, EX, r_eta, r_rod_a, r_rod_c, r_prm, k, E)
             Qi = Q
             Vi = QD
             A = A1
@@ -337,45 +345,46 @@ _drive_inline = njit(inline="always", **_opts)(_drive_py)
 def _drive_lanes(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_drive_py in SIMD blocks of E = :func:`_soa_width` copies (fresh scratch arrays)."""
     _drive_inline(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes,
-                    _soa_width_nb(k), None, None, None)
+                    _soa_width_nb(k), None, None, None, None)
 
 @njit(**_opts)
 def _drive_one(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes):
     """_drive_lanes one copy at a time (E = 1, a compile-time constant), in the scratch of ``w``."""
-    _drive(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1, None, None, None)
+    _drive(w, ib, L, k, m, n, q, qd, qo, qdo, lo, hi, l0, fd, ext, dt, n_steps, flags, lanes, 1, None, None, None, None)
 
 @njit(**_opts)
-def _drive_lanes_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
+def _drive_lanes_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact, rods):
     """_drive_lanes with ground contact (``contact`` the tuple of :func:`_drive_py`), in place on
-    q, qd; ``W`` (B, n, 3) receives each copy's forces of its last step."""
+    q, qd; ``W`` (B, n, 3) receives each copy's forces of its last step. ``rods``: None or the
+    rod-rod contact tuple of :func:`_drive_py` (here and in the terrain and plane instances)."""
     _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
-                    _soa_width_nb(k), contact, None, None)
+                    _soa_width_nb(k), contact, None, None, rods)
 
 @njit(**_opts)
-def _drive_one_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact):
+def _drive_one_contact(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact, rods):
     """_drive_one with ground contact (see :func:`_drive_lanes_contact`)."""
-    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, contact, None, None)
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, contact, None, None, rods)
 
 @njit(**_opts)
-def _drive_lanes_terrain(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, terrain):
+def _drive_lanes_terrain(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, terrain, rods):
     """_drive_lanes with terrain contact (``terrain`` the tuple of :func:`.terrain.lanes_forces`),
     in place on q, qd; ``W`` (B, n, 3) receives each copy's forces of its last step."""
     _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
-                  _soa_width_nb(k), None, terrain, None)
+                  _soa_width_nb(k), None, terrain, None, rods)
 
 @njit(**_opts)
-def _drive_one_terrain(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, terrain):
+def _drive_one_terrain(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, terrain, rods):
     """_drive_one with terrain contact (see :func:`_drive_lanes_terrain`)."""
-    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, None, terrain, None)
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, None, terrain, None, rods)
 
 
 @njit(**_opts)
-def _drive_lanes_plane(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, plane):
+def _drive_lanes_plane(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, plane, rods):
     """_drive_lanes on a terrain that is one plane (``plane`` the tuple of :func:`.terrain.plane_forces`)."""
     _drive_inline(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
-                  _soa_width_nb(k), None, None, plane)
+                  _soa_width_nb(k), None, None, plane, rods)
 
 @njit(**_opts)
-def _drive_one_plane(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, plane):
+def _drive_one_plane(w, ib, L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, plane, rods):
     """_drive_one on a terrain that is one plane (see :func:`_drive_lanes_plane`)."""
-    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, None, None, plane)
+    _drive(w, ib, L, k, m, n, q, qd, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, 1, None, None, plane, rods)

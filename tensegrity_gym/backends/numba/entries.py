@@ -312,27 +312,28 @@ def _simd_check(q, qd, bufs, lanes, l0, fd, W, ext, flags):
 
 @njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
 def _contact_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active,
-                  slip, prm):
+                  slip, prm, rods):
     """The contact sub-steps of :func:`tensegrity_gym.physics.pipeline.run_steps` on the batch, one
     copy at a time, on this thread, in place: the loop driver's one-copy instance with contact, ``n_steps`` steps, each with the contact forces of its start plus
     ``ext`` (0, 1 or B rows of (n, 3) N); ``W`` (B, n, 3) gets the last step's forces,
     ``anchor``, ``active``, ``slip`` the contact state. ``bufs`` (1, len) the shared packed
     buffer or (B, len) one per copy (``lanes``: their SIMD lane blocks, unused here). Returns
     the kernel's error code (0: done). From ``_SOA_MIN_BATCH`` copies :func:`_contact_loop_simd`
-    computes the same numbers faster."""
+    computes the same numbers faster. ``rods``: None, or the rod-rod contact tuple of the loop
+    driver (its forces added at every step; the instances with None carry no rod-rod code)."""
     err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
     if err:
         return err
     lanes1 = _serial_setup(bufs, q.shape[0])[5]
     contact = (eta, rod_a, rod_c, prm, anchor, active, slip, ext)
     _drive_one_contact(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
-                       contact)
+                       contact, rods)
     return 0
 
 
 @njit(cache=True)   # holds the GIL, as _contact_loop
 def _contact_loop_simd(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor, active,
-                       slip, prm):
+                       slip, prm, rods):
     """:func:`_contact_loop` for a batch of ``_SOA_MIN_BATCH`` copies or more: the SIMD
     instance with contact, on this thread (per-copy constants read from the lane blocks
     ``lanes``, shared ones from ``bufs[0]``); error 9 for a smaller batch."""
@@ -341,13 +342,13 @@ def _contact_loop_simd(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, e
         return err
     contact = (eta, rod_a, rod_c, prm, anchor, active, slip, ext)
     _drive_lanes_contact(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
-                         contact)
+                         contact, rods)
     return 0
 
 
 @njit(parallel=True, cache=True)   # holds the GIL, as _run_parallel does
 def _contact_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, anchor,
-                      active, slip, prm):
+                      active, slip, prm, rods):
     """:func:`_contact_loop` on chunks of whole SIMD blocks on all threads (``prange``; the
     chunk count in ``flags >> _CHUNK_SHIFT``): each chunk runs all ``n_steps`` sub-steps of
     its copies (contact forces, then the SIMD driver with its own scratch), so the threads
@@ -362,7 +363,8 @@ def _contact_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, et
     for c in prange(nch):
         # the driver only reads the buffers; each chunk has its own scratch and copies
         lo, hi = _chunk(c, E, nb, nch, B)
-        _drive_lanes_contact(bufs[0], ibs[0], L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact)
+        _drive_lanes_contact(bufs[0], ibs[0], L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes, contact,
+                             rods)
     return 0
 
 @njit(cache=True)   # holds the GIL: the physics kernel uses the scratch inside buf

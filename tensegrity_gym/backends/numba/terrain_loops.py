@@ -32,14 +32,15 @@ def _terrain_tuples(err, plane, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, 
 
 @njit(cache=True)   # holds the GIL: the one-copy driver uses the scratch inside the buffers
 def terrain_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, geom, prm, hf,
-                 anchor, eta0, active, slip, plane):
+                 anchor, eta0, active, slip, plane, rods):
     """``n_steps`` terrain sub-steps of the batch in place, one copy at a time, on this thread:
     the loop driver's one-copy instance with terrain contact. ``bufs`` (1, len) the shared
     packed buffer or (B, len) one per copy (``lanes``: their SIMD lane blocks, unused here);
     ``W`` (B, n, 3) gets each copy's forces of its last step; ``ext`` (0, 1 or B rows of
     (n, 3)) N added to the terrain forces. ``plane``: None (the general driver instance) or True
     (the plane instance, :func:`.terrain.plane_forces`: error 10 unless every row of ``geom`` is
-    one plane). Returns the kernel's error code (0: done)."""
+    one plane). ``rods``: None, or the rod-rod contact tuple of the loop driver (its forces added
+    at every step after the terrain's). Returns the kernel's error code (0: done)."""
     err, ibs, L, k, m, n = _contact_check(q, qd, bufs, l0, fd, W, ext, flags)
     err, terrain, planes = _terrain_tuples(err, plane, eta, rod_a, rod_c, geom, prm, hf, anchor, eta0, active, slip,
                                            ext)
@@ -48,16 +49,16 @@ def terrain_loop(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, ro
     lanes1 = _serial_setup(bufs, q.shape[0])[5]
     if plane is None:
         _drive_one_terrain(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
-                           terrain)
+                           terrain, rods)
     else:
         _drive_one_plane(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
-                         planes)
+                         planes, rods)
     return 0
 
 
 @njit(cache=True)   # holds the GIL, as terrain_loop
 def terrain_loop_simd(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, geom, prm, hf,
-                      anchor, eta0, active, slip, plane):
+                      anchor, eta0, active, slip, plane, rods):
     """:func:`terrain_loop` for ``_SOA_MIN_BATCH`` copies or more: the SIMD instance, on this
     thread; error 9 for a smaller batch."""
     err, ibs, L, k, m, n, lanes1 = _simd_check(q, qd, bufs, lanes, l0, fd, W, ext, flags)
@@ -67,16 +68,16 @@ def terrain_loop_simd(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, et
         return err
     if plane is None:
         _drive_lanes_terrain(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
-                             terrain)
+                             terrain, rods)
     else:
         _drive_lanes_plane(bufs[0], ibs[0], L, k, m, n, q, qd, 0, q.shape[0], l0, fd, W, dt, n_steps, flags, lanes1,
-                           planes)
+                           planes, rods)
     return 0
 
 
 @njit(parallel=True, cache=True)
 def terrain_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta, rod_a, rod_c, geom, prm, hf,
-                     anchor, eta0, active, slip, plane):
+                     anchor, eta0, active, slip, plane, rods):
     """:func:`terrain_loop` on chunks of whole SIMD blocks on all threads (``prange``; the chunk
     count in ``flags >> _CHUNK_SHIFT``): each chunk runs all ``n_steps`` sub-steps of its
     copies, whose contact state is their own rows, so the threads meet once per call. Same
@@ -92,10 +93,10 @@ def terrain_parallel(q, qd, bufs, lanes, l0, fd, W, ext, dt, n_steps, flags, eta
         for c in prange(nch):
             lo, hi = _chunk(c, E, nb, nch, B)
             _drive_lanes_terrain(bufs[0], ibs[0], L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
-                                 terrain)
+                                 terrain, rods)
     else:
         for c in prange(nch):
             lo, hi = _chunk(c, E, nb, nch, B)
             _drive_lanes_plane(bufs[0], ibs[0], L, k, m, n, q, qd, lo, hi, l0, fd, W, dt, n_steps, flags, lanes,
-                               planes)
+                               planes, rods)
     return 0

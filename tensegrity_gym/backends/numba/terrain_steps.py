@@ -20,7 +20,7 @@ __all__ = ["terrain_steps", "terrain_loop", "terrain_loop_simd", "terrain_parall
 
 
 def terrain_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, external, params, project, arrays,
-                  forces, plane: bool = False) -> bool:
+                  forces, plane: bool = False, rods=None) -> bool:
     """The terrain sub-steps of :func:`tensegrity_gym.physics.terrain.advance` in one compiled
     call, in place on ``q``, ``qd`` (B, k, 6) and the contact state. ``arrays``: ``(geom, prm,
     hf, anchor, eta0, active, slip)`` as the forces kernel takes them; ``forces`` (B, n, 3) gets
@@ -28,7 +28,8 @@ def terrain_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
     parallel kernel's work in one sub-step, else :func:`terrain_loop` (SIMD from
     ``_SOA_MIN_BATCH`` copies). ``plane``: the terrain is one plane (the driver's plane
     instance; rows that are not, error 10 of the kernels, run the general one). False (nothing
-    done) for arrays of another type or layout: the Python loop converts them."""
+    done) for arrays of another type or layout: the Python loop converts them. ``rods``: None or
+    the loop driver's rod-rod contact tuple (:func:`.api.rods_tuple`)."""
     setup = loop_setup(model, q, qd, name, rest_length, force_density, external, params, project, forces)
     if setup is None:
         return False
@@ -45,9 +46,9 @@ def terrain_steps(model, q, qd, dt, name, n_steps, rest_length, force_density, e
     args = (q, qd, bufs, p.lanes, l0, fd, forces, ext, float(dt), int(n_steps), flags, _frozen(model.eta),
             _frozen(model.rod_a), _frozen(model.rod_c), *arrays)
     try:
-        err = kernel(*args, True if plane else None)
+        err = kernel(*args, True if plane else None, rods)
         if err == 10:      # rows that are not one plane each: the general instance
-            err = kernel(*args, None)
+            err = kernel(*args, None, rods)
     except TypeError:      # an array of another type or layout: the Python loop converts it
         return False
     if err == 11:          # a feature code of no kind: the host's check names it

@@ -18,6 +18,8 @@ Entry points
 * :func:`contact_forces`, :func:`contact_step`, :func:`contact_substep`: ground contact with
   Coulomb friction and a stick phase (as :mod:`tensegrity_gym.physics.contact`, the anchors and contact
   flags as tensors; per-copy contact parameters as a (P, 9) tensor ``prm`` / ``contact_prm``);
+* ``rod_contact.rod_contact_forces``: rod-rod contact (as :mod:`tensegrity_gym.physics.rod_contact`),
+  and the sub-steps that add it (``rod_contact_substep``, ``rod_terrain_substep``);
 * :func:`update_motor`: the cable motor (``Actuation.update_motor``), :func:`update_rate`: the
   control update without a motor (``Actuation.update_rate``), both with optional per-copy
   limits, and :func:`physics_inputs`;
