@@ -9,8 +9,8 @@ import warnings
 import numpy as np
 import pytest
 
-from tensegrity_gym.io.recording import (GAP_FACTOR, RUTGERS_SCALE, Recording, RecordingWarning, import_rutgers,
-                                         load_recording, save_recording)
+from tensegrity_gym.io.recording import GAP_FACTOR, Recording, RecordingWarning, load_recording, save_recording
+from tensegrity_gym.io.recording_rutgers import RUTGERS_SCALE, import_rutgers
 from tensegrity_gym.tools.cli import main
 
 L_ROD = 0.325           # m, end-cap centre to end-cap centre

@@ -1,7 +1,7 @@
 """Recordings of a real robot: what a lab measures (tracked points on rods, the commands sent,
 IMU and cable-encoder readings) as a :class:`Recording`, written and read as ``.npz``
 (:func:`save_recording`, :func:`load_recording`) and imported from the Rutgers/Yale processed
-JSON (:func:`import_rutgers`).
+JSON (:func:`tensegrity_gym.io.recording_rutgers.import_rutgers`).
 
 Every :class:`Recording` is checked when it is made: a malformed one (a point on a rod that does
 not exist, an infinite coordinate, time going backwards, two points of one rod farther apart or
@@ -24,11 +24,13 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..core.checks import load_npz, read_bounded
+from ..core.checks import load_npz
 from .atomic import write_atomic
+from .recording_checks import check_readings, check_rows, check_times, float_array, frozen
+from .recording_geometry import RecordingGeometry
 
-__all__ = ["Recording", "RecordingWarning", "save_recording", "load_recording", "import_rutgers",
-           "FORMAT", "FORMAT_VERSION", "LENGTH_TOLERANCE", "GAP_FACTOR", "COMMAND_UNITS", "RUTGERS_SCALE"]
+__all__ = ["Recording", "RecordingWarning", "save_recording", "load_recording",
+           "FORMAT", "FORMAT_VERSION", "LENGTH_TOLERANCE", "GAP_FACTOR", "COMMAND_UNITS"]
 
 #: the ``format`` entry of a recording's metadata
 FORMAT = "tensegrity_gym.recording"
@@ -46,10 +48,6 @@ COMMAND_UNITS = {
     "motor": "1 (motor speed as a fraction of its top speed, -1..1)",
     "target_gait": "1 (target position as a fraction of the PID range: length = min_length + range * gait)",
 }
-#: the Rutgers/Yale 3-bar data are ten times the robot's size: their lengths divided by this are m
-RUTGERS_SCALE = 10.0
-#: largest Rutgers JSON read, bytes
-MAX_JSON_BYTES = 256 << 20
 
 _UNITS = {"t": "s", "points": "m", "point_along": "fraction of the rod length from node a, or m from node a",
           "rod_lengths": "m", "command_t": "s", "imu_t": "s", "imu_accel": "m/s^2", "imu_gyro": "rad/s",
@@ -62,76 +60,8 @@ class RecordingWarning(UserWarning):
     stamps, missing points); the details are in :attr:`Recording.report`."""
 
 
-def _frozen(a: np.ndarray) -> np.ndarray:
-    a = np.array(a)          # a copy the caller cannot change under the recording
-    a.setflags(write=False)
-    return a
-
-
-def _float_array(value, name: str, ndim: int, what: str) -> np.ndarray:
-    try:
-        if np.iscomplexobj(value):
-            raise TypeError
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"field {name!r}: expected {what} (real numbers)") from None
-    if a.ndim != ndim:
-        raise ValueError(f"field {name!r}: expected {what}, got an array of shape {a.shape}")
-    return a
-
-
-def _check_times(t, name: str) -> np.ndarray:
-    t = _float_array(t, name, 1, "a 1-D array of time stamps, s")
-    bad = np.flatnonzero(~np.isfinite(t))
-    if bad.size:
-        raise ValueError(f"frame {bad[0]}, field {name!r}: time stamp {float(t[bad[0]])!r}; time stamps must be finite (s)")
-    back = np.flatnonzero(np.diff(t) < 0)
-    if back.size:
-        i = int(back[0]) + 1
-        raise ValueError(f"frame {i}, field {name!r}: time goes backwards ({float(t[i])!r} s after {float(t[i - 1])!r} s at frame "
-                         f"{i - 1}); frames must be in time order")
-    return t
-
-
-def _check_readings(a, t, name: str, width: tuple, what: str) -> np.ndarray:
-    """A (T, *width) array of readings at times ``t``: NaN marks a missing reading, inf is refused."""
-    a = _float_array(a, name, 1 + len(width), f"an array of shape (frames, {', '.join(map(str, width))}), {what}")
-    if a.shape != (t.size,) + tuple(width):
-        raise ValueError(f"field {name!r}: shape {a.shape}, expected {(t.size,) + tuple(width)} ({what})")
-    bad = np.argwhere(np.isinf(a))
-    if bad.size:
-        i = tuple(int(x) for x in bad[0])
-        raise ValueError(f"frame {i[0]}, field {name!r}: entry {i[1:]} is {float(a[i])!r}; NaN marks a missing reading, "
-                         "inf is an error")
-    return a
-
-
-def _check_rows(rows, n_rows: int, width: int, name: str, what: str) -> np.ndarray:
-    """``rows`` (one per command frame, each ``width`` values) as an (n_rows, width) array; a row
-    of another length or a non-finite value raises ValueError naming the frame."""
-    if isinstance(rows, np.ndarray) and rows.ndim == 2:
-        if rows.shape[1] != width:
-            raise ValueError(f"frame 0, field {name!r}: {rows.shape[1]} values, expected {width} ({what})")
-        seq = rows
-    else:
-        seq = list(rows)
-        for i, row in enumerate(seq):
-            n = np.size(row) if np.ndim(row) == 1 else None
-            if n != width:
-                got = f"{n} values" if n is not None else f"{np.ndim(row)}-D value"
-                raise ValueError(f"frame {i}, field {name!r}: {got}, expected {width} ({what})")
-    a = _float_array(seq, name, 2, f"(frames, {width}) numbers") if len(seq) else np.zeros((0, width))
-    if a.shape[0] != n_rows:
-        raise ValueError(f"field {name!r}: {a.shape[0]} frames, but command_t has {n_rows} time stamps")
-    bad = np.argwhere(~np.isfinite(a))
-    if bad.size:
-        i, j = (int(x) for x in bad[0])
-        raise ValueError(f"frame {i}, field {name!r}: value {j} is {float(a[i, j])!r}; commands must be finite")
-    return a
-
-
 @dataclass(frozen=True, eq=False)
-class Recording:
+class Recording(RecordingGeometry):
     """A robot's motion as a lab records it. Arrays are read-only copies; the constructor checks
     everything (ValueError naming the frame and the field) and fills :attr:`report`.
 
@@ -183,10 +113,10 @@ class Recording:
         tol = self.length_tolerance
         if not (isinstance(tol, (int, float)) and math.isfinite(tol) and 0 < tol < 1):
             raise ValueError(f"field 'length_tolerance': {tol!r}; expected a fraction of the rod length in (0, 1)")
-        t = _check_times(self.t, "t")
+        t = check_times(self.t, "t")
         if t.size < 1:
             raise ValueError("field 't': no frames")
-        L = _float_array(self.rod_lengths, "rod_lengths", 1, "(k,) rod lengths, m")
+        L = float_array(self.rod_lengths, "rod_lengths", 1, "(k,) rod lengths, m")
         bad = np.flatnonzero(~(np.isfinite(L) & (L > 0)))
         if L.size == 0 or bad.size:
             raise ValueError(f"field 'rod_lengths': {'no rods' if L.size == 0 else f'rod {bad[0]} has length {float(L[bad[0]])!r}'}"
@@ -206,7 +136,7 @@ class Recording:
         if untracked.size:
             raise ValueError(f"field 'point_rod': rod {untracked[0]} has no tracked point (every rod of the robot "
                              "needs at least one)")
-        s = _float_array(self.point_along, "point_along", 1, "(P,) positions along the rods")
+        s = float_array(self.point_along, "point_along", 1, "(P,) positions along the rods")
         if s.size != P:
             raise ValueError(f"field 'point_along': {s.size} entries, but point_rod has {P}")
         bad = np.flatnonzero(~np.isfinite(s))
@@ -219,7 +149,7 @@ class Recording:
             if (count > 1).any():
                 same = idx[frac[idx] == frac[idx][first[count > 1][0]]]
                 raise ValueError(f"field 'point_along': points {same[0]} and {same[1]} are the same point of rod {r}")
-        pts = _float_array(self.points, "points", 3, "an (F, P, 3) array of point positions, m")
+        pts = float_array(self.points, "points", 3, "an (F, P, 3) array of point positions, m")
         if pts.shape != (t.size, P, 3):
             raise ValueError(f"field 'points': shape {pts.shape}, expected {(t.size, P, 3)} (frames, points, xyz)")
         bad = np.argwhere(np.isinf(pts))
@@ -234,11 +164,11 @@ class Recording:
             raise ValueError(f"frame {i}, field 'points': point {p} (rod {pr[p]}) has NaN in some coordinates only "
                              f"({pts[i, p].tolist()}); a missing point is NaN in all three")
         self._check_lengths(pts, pr, frac, L, tol)
-        put("t", _frozen(t))
-        put("points", _frozen(pts))
-        put("point_rod", _frozen(pr))
-        put("point_along", _frozen(s))
-        put("rod_lengths", _frozen(L))
+        put("t", frozen(t))
+        put("points", frozen(pts))
+        put("point_rod", frozen(pr))
+        put("point_along", frozen(s))
+        put("rod_lengths", frozen(L))
         put("length_tolerance", float(tol))
         self._check_commands()
         self._check_sensors(k)
@@ -278,12 +208,12 @@ class Recording:
         put("actuators", acts)
         cmds = dict(self.commands or {})
         if self.command_t is None and not cmds:
-            put("command_t", _frozen(np.zeros(0)))
+            put("command_t", frozen(np.zeros(0)))
             put("commands", MappingProxyType({}))
             return
         if self.command_t is None:
             raise ValueError("field 'command_t': commands given without their time stamps")
-        ct = _check_times(self.command_t, "command_t")
+        ct = check_times(self.command_t, "command_t")
         if cmds and not acts:
             raise ValueError("field 'actuators': commands given but no actuators named (one name per column)")
         given = self.metadata.get("command_units", {})
@@ -296,9 +226,9 @@ class Recording:
                 raise ValueError(f"field 'commands': channel name {name!r}; use letters, digits and _")
             if name not in units:
                 raise ValueError(f"field 'commands.{name}': no unit; give it in metadata['command_units'][{name!r}]")
-            out[name] = _frozen(_check_rows(rows, ct.size, len(acts), f"commands.{name}",
+            out[name] = frozen(check_rows(rows, ct.size, len(acts), f"commands.{name}",
                                             f"one per actuator: {', '.join(acts)}"))
-        put("command_t", _frozen(ct))
+        put("command_t", frozen(ct))
         put("commands", MappingProxyType(out))
 
     def _check_sensors(self, k):
@@ -307,25 +237,25 @@ class Recording:
             if self.imu_accel is not None or self.imu_gyro is not None:
                 raise ValueError("field 'imu_t': IMU readings given without their time stamps")
         else:
-            it = _check_times(self.imu_t, "imu_t")
-            put("imu_t", _frozen(it))
+            it = check_times(self.imu_t, "imu_t")
+            put("imu_t", frozen(it))
             if self.imu_accel is None and self.imu_gyro is None:
                 raise ValueError("field 'imu_t': time stamps given without imu_accel or imu_gyro")
             for name, what in (("imu_accel", "accelerations per rod, m/s^2"), ("imu_gyro", "angular rates per rod, rad/s")):
                 v = getattr(self, name)
                 if v is not None:
-                    put(name, _frozen(_check_readings(v, it, name, (k, 3), what)))
+                    put(name, frozen(check_readings(v, it, name, (k, 3), what)))
         if self.encoder_t is None:
             if self.encoder is not None:
                 raise ValueError("field 'encoder_t': encoder readings given without their time stamps")
         else:
-            et = _check_times(self.encoder_t, "encoder_t")
+            et = check_times(self.encoder_t, "encoder_t")
             if self.encoder is None:
                 raise ValueError("field 'encoder_t': time stamps given without encoder readings")
             if not self.actuators:
                 raise ValueError("field 'actuators': encoder readings given but no actuators named")
-            put("encoder_t", _frozen(et))
-            put("encoder", _frozen(_check_readings(self.encoder, et, "encoder", (len(self.actuators),),
+            put("encoder_t", frozen(et))
+            put("encoder", frozen(check_readings(self.encoder, et, "encoder", (len(self.actuators),),
                                                    "cable lengths per actuator, m")))
 
     def _check_metadata(self):
@@ -377,71 +307,6 @@ class Recording:
             w.append(f"{rep['missing_points']} missing point(s) in {rep['frames_with_missing_points']} frame(s)"
                      + (f", {len(dropped)} frame(s) with no point at all" if dropped else ""))
         return rep
-
-    # ------------------------------------------------------------------ derived
-    @property
-    def n_rods(self) -> int:
-        return int(self.rod_lengths.size)
-
-    def fractions(self) -> np.ndarray:
-        """(P,) each point's position along its rod as a fraction (0 at node a, 1 at node b)."""
-        if self.along == "fraction":
-            return np.array(self.point_along)
-        return self.point_along / self.rod_lengths[self.point_rod]
-
-    def rod_unposed(self) -> np.ndarray:
-        """(F, k) True where a rod has fewer than two distinct points in a frame (its end points
-        cannot be told from the tracked points)."""
-        seen = ~np.isnan(self.points[..., 0])
-        return np.stack([seen[:, self.point_rod == r].sum(axis=1) < 2 for r in range(self.n_rods)], axis=1)
-
-    def end_points(self) -> np.ndarray:
-        """(F, k, 2, 3) each rod's node a and node b, m, fitted by least squares to its points in
-        each frame (exact for two points); NaN where :meth:`rod_unposed`. The fitted end points
-        keep the tracked points' spacing, so they are not forced to the rod's length."""
-        F, k = self.t.size, self.n_rods
-        out = np.full((F, k, 2, 3), np.nan)
-        s = self.fractions()
-        for r in range(k):
-            idx = np.flatnonzero(self.point_rod == r)
-            x = self.points[:, idx]                              # (F, p, 3)
-            v = ~np.isnan(x[..., 0])
-            w0, w1 = np.where(v, 1.0 - s[idx], 0.0), np.where(v, s[idx], 0.0)
-            a00, a01, a11 = (w0 * w0).sum(1), (w0 * w1).sum(1), (w1 * w1).sum(1)
-            xz = np.where(v[..., None], x, 0.0)
-            r0, r1 = (w0[..., None] * xz).sum(1), (w1[..., None] * xz).sum(1)
-            det = a00 * a11 - a01 * a01
-            ok = v.sum(1) >= 2
-            with np.errstate(divide="ignore", invalid="ignore"):
-                a = (a11[:, None] * r0 - a01[:, None] * r1) / det[:, None]
-                b = (a00[:, None] * r1 - a01[:, None] * r0) / det[:, None]
-            out[ok, r, 0], out[ok, r, 1] = a[ok], b[ok]
-        return out
-
-    def node_trajectory(self, bars, n_nodes: int | None = None):
-        """``(t, nodes, mask)`` for a structure whose rod ``r`` joins nodes ``bars[r]`` (a, b):
-        ``t`` (S,) the distinct time stamps, s; ``nodes`` (S, n, 3) the rods' end points, m
-        (:meth:`end_points`), frames sharing a time stamp averaged over the rods seen in them;
-        ``mask`` (S, n) True where a node is known. NaN where unknown; nothing is interpolated."""
-        bars = np.asarray(bars, dtype=np.int64)
-        if bars.shape != (self.n_rods, 2):
-            raise ValueError(f"bars: shape {bars.shape}; the recording has {self.n_rods} rods, expected "
-                             f"({self.n_rods}, 2) node indices")
-        n = int(bars.max()) + 1 if n_nodes is None else int(n_nodes)
-        if bars.min() < 0 or bars.max() >= n:
-            raise ValueError(f"bars: node indices must be in 0..{n - 1}")
-        ep = self.end_points()
-        t, inv = np.unique(self.t, return_inverse=True)
-        per = np.full((self.t.size, n, 3), np.nan)
-        per[:, bars[:, 0]], per[:, bars[:, 1]] = ep[:, :, 0], ep[:, :, 1]
-        known = ~np.isnan(per[..., 0])
-        total = np.zeros((t.size, n, 3))
-        count = np.zeros((t.size, n))
-        np.add.at(total, inv, np.where(known[..., None], per, 0.0))
-        np.add.at(count, inv, known)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            nodes = total / count[..., None]
-        return t, nodes, count > 0
 
     # ------------------------------------------------------------------ disk
     def arrays(self) -> dict:
@@ -504,153 +369,3 @@ def load_recording(path, *, warn: bool = True) -> Recording:
         for w in rec.report["warnings"]:
             warnings.warn(f"{p}: {w}", RecordingWarning, stacklevel=2)
     return rec
-
-
-# ---------------------------------------------------------------------- Rutgers / Yale
-_RUTGERS_KEY = re.compile(r"rod_(\w+?)_end_pt([12])\Z")
-
-
-def _rutgers_point(frame: dict, i: int, key: str, scale: float) -> list:
-    if key not in frame:
-        raise ValueError(f"frame {i}, field {key!r}: missing (the rod's end point; null marks a point not tracked)")
-    v = frame[key]
-    if v is None:
-        return [math.nan] * 3
-    if not isinstance(v, list) or len(v) != 3:
-        raise ValueError(f"frame {i}, field {key!r}: {v!r}; expected [x, y, z]")
-    try:
-        xyz = [float(c) for c in v]
-    except (TypeError, ValueError):
-        raise ValueError(f"frame {i}, field {key!r}: {v!r}; expected three numbers") from None
-    if any(math.isinf(c) for c in xyz):
-        raise ValueError(f"frame {i}, field {key!r}: {v!r}; NaN or null marks a missing point, inf is an error")
-    return [c / scale for c in xyz]
-
-
-def _rutgers_row(frame: dict, i: int, key: str, width: int) -> list:
-    if key not in frame:
-        raise ValueError(f"frame {i}, field {key!r}: missing (one value per actuated cable)")
-    v = frame[key]
-    if not isinstance(v, list) or len(v) != width:
-        n = f"{len(v)} values" if isinstance(v, list) else repr(v)
-        raise ValueError(f"frame {i}, field {key!r}: {n}, expected {width} (one per actuated cable)")
-    try:
-        row = [float(c) for c in v]
-    except (TypeError, ValueError):
-        raise ValueError(f"frame {i}, field {key!r}: {v!r}; expected numbers") from None
-    bad = [j for j, c in enumerate(row) if not math.isfinite(c)]
-    if bad:
-        raise ValueError(f"frame {i}, field {key!r}: value {bad[0]} is {row[bad[0]]!r}; commands must be finite")
-    return row
-
-
-def import_rutgers(path, *, rod_lengths=None, scale: float = RUTGERS_SCALE,
-                   length_tolerance: float = LENGTH_TOLERANCE) -> Recording:
-    """A :class:`Recording` from the Rutgers/Yale processed JSON (a list of frames, each with
-    ``time`` (Unix s), ``rod_<name>_end_pt1`` / ``_end_pt2`` (end-cap centres, x ``scale``),
-    ``target_gaits`` and ``controls`` (one per actuated cable) and, on the first frame, ``pid`` and
-    ``init_act_lengths``; docs/recordings.md).
-
-    Lengths are divided by ``scale`` (the data are ten times the robot's size); times start at 0
-    (the first frame's Unix time is ``metadata["time_origin_unix_s"]``). Rods are numbered in the
-    order their names first appear; the tracked points are their end-cap centres (fractions 0 and
-    1). ``rod_lengths`` (m) defaults to each rod's median measured end-point distance. Commands:
-    ``target_gait`` and ``motor`` (``controls``) per frame, and ``target_length`` (m, the PID's
-    target cable length ``min_length + range * gait``) when ``pid`` gives them. ValueError naming
-    the frame and the field for a malformed file."""
-    p = str(path)
-    try:
-        data = json.loads(read_bounded(p, MAX_JSON_BYTES, "Rutgers JSON recording"))
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{p}: not JSON ({e})") from None
-    if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale: {scale!r}; expected a positive number")
-    try:
-        return _rutgers(data, p, rod_lengths, float(scale), length_tolerance)
-    except ValueError as e:
-        raise ValueError(f"{p}: {e}") from None
-
-
-def _rutgers(data, p: str, rod_lengths, scale: float, tol: float) -> Recording:
-    if not isinstance(data, list) or not data:
-        raise ValueError("expected a JSON list of frames (objects with time, rod_*_end_pt1/2, target_gaits, controls)")
-    for i, fr in enumerate(data):
-        if not isinstance(fr, dict):
-            raise ValueError(f"frame {i}: {type(fr).__name__}, expected an object")
-    names = []
-    for key in data[0]:
-        m = _RUTGERS_KEY.match(key)
-        if m and m.group(1) not in names:
-            names.append(m.group(1))
-    if not names:
-        raise ValueError("frame 0: no rod_<name>_end_pt1 / rod_<name>_end_pt2 fields")
-    keys = [f"rod_{n}_end_pt{e}" for n in names for e in (1, 2)]
-    for i, fr in enumerate(data):
-        extra = sorted({m.group(1) for m in map(_RUTGERS_KEY.match, fr) if m} - set(names))
-        if extra:
-            raise ValueError(f"frame {i}, field 'rod_{extra[0]}_end_pt1': rod {extra[0]!r} is not in frame 0 "
-                             f"(rods {names})")
-    t = []
-    for i, fr in enumerate(data):
-        v = fr.get("time")
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"frame {i}, field 'time': {v!r}; expected a time stamp (s)")
-        t.append(float(v))
-    t = np.array(t)
-    t0 = t[0]
-    t = _check_times(t - t0 if np.isfinite(t0) else t, "time")
-    pts = np.array([[_rutgers_point(fr, i, k, scale) for k in keys] for i, fr in enumerate(data)], dtype=float)
-    rod = np.repeat(np.arange(len(names)), 2)
-    along = np.tile([0.0, 1.0], len(names))
-    if rod_lengths is None:
-        d = np.linalg.norm(pts[:, 1::2] - pts[:, 0::2], axis=2)
-        L = np.array([np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else math.nan for c in d.T])
-        bad = np.flatnonzero(~np.isfinite(L))
-        if bad.size:
-            raise ValueError(f"field 'rod_{names[bad[0]]}_end_pt1': rod {names[bad[0]]!r} is never seen with both "
-                             "end points; give rod_lengths")
-        length_source = "median end-point distance of the data"
-    else:
-        L = np.broadcast_to(np.asarray(rod_lengths, dtype=float), (len(names),)).copy()
-        length_source = "given"
-    width = None
-    for key in ("controls", "target_gaits"):
-        if isinstance(data[0].get(key), list):
-            width = len(data[0][key])
-            break
-    if width is None:
-        raise ValueError("frame 0, field 'controls': missing (one value per actuated cable)")
-    gait = [_rutgers_row(fr, i, "target_gaits", width) for i, fr in enumerate(data)]
-    ctrl = [_rutgers_row(fr, i, "controls", width) for i, fr in enumerate(data)]
-    cmds = {"target_gait": gait, "motor": ctrl}
-    md = {"source": "Rutgers/Yale processed JSON", "file": p.replace("\\", "/").rsplit("/", 1)[-1],
-          "robot": f"{len(names)}-bar tensegrity", "rod_names": names, "time_origin_unix_s": float(t0),
-          "length_scale": {"divided_by": scale, "note": "the file's lengths are the robot's x this factor"},
-          "tracked_points": "end-cap sphere centres (fractions 0 and 1 of each rod)",
-          "rod_lengths_from": length_source,
-          "world_frame": "z up; as processed by the authors, x, y centred on the first frame's end caps and the "
-                         "lowest end cap of the first frame resting on z = 0",
-          "commands_timing": "target_gaits and controls logged with each frame (command_t = t)"}
-    pid = data[0].get("pid")
-    if isinstance(pid, dict):
-        try:
-            mn, rg = float(pid["min_length"]), float(pid["RANGE"])
-        except (KeyError, TypeError, ValueError):
-            raise ValueError(f"frame 0, field 'pid': {pid!r}; expected min_length and RANGE numbers") from None
-        md["pid"] = {"min_length_m": mn / scale, "range_m": rg / scale,
-                     **{k: v for k, v in pid.items() if k not in ("min_length", "RANGE")},
-                     "units": "min_length_m, range_m in m; tol a fraction of the range; motor_speed a fraction "
-                              "of the motor's top speed"}
-        cmds["target_length"] = [[(mn + rg * g) / scale for g in row] for row in gait]
-    init = data[0].get("init_act_lengths")
-    if init is not None:
-        md["initial_actuation_length_m"] = [x / scale for x in _rutgers_row(data[0], 0, "init_act_lengths", width)]
-    try:
-        return Recording(t=t, points=pts, point_rod=rod, point_along=along, rod_lengths=L, along="fraction",
-                         actuators=tuple(f"spring_{j}" for j in range(width)), command_t=t, commands=cmds,
-                         metadata=md, length_tolerance=tol)
-    except ValueError as e:        # name the file's fields beside the recording's point numbers
-        m = re.match(r"frame \d+, field 'points': points (\d+) and (\d+) ", str(e))
-        if m is None:
-            raise
-        raise ValueError(f"{e} (fields {keys[int(m.group(1))]!r} and {keys[int(m.group(2))]!r})") from None

@@ -16,7 +16,8 @@ from ..core.placement import place_on_terrain
 from ..core.terrain import Terrain
 from ..io.mjcf import default_rod_radius, from_mjcf, terrain_xml_bytes, to_mjcf
 from ..io.tnsgrt import from_tnsgrt
-from ..io.recording import RUTGERS_SCALE, import_rutgers, save_recording
+from ..io.recording import save_recording
+from ..io.recording_rutgers import RUTGERS_SCALE, import_rutgers
 from ..io.trajectory import load_simulate_output
 from ..core.sizing import stability_bytes
 from ..core.structure import StructureError

@@ -11,7 +11,6 @@ import numpy as np
 
 from ..core.model import State, compile_model, initial_state
 from ..physics.geometry import energy, node_positions, rod_length_drift
-from ..physics.evaluate import force_densities
 from ..core.builders import prism
 from ..core.checks import load_npz, read_bounded
 from ..core.errors import StabilityWarning
@@ -19,17 +18,16 @@ from ..core.placement import place_on_terrain
 from ..core.errors import EvaluationBudgetExceeded, SimulationDiverged
 from ..physics.rollout import Schedule, simulate
 from ..core.integrators import resolve
-from ..io.claim import Transaction
 from ..io.trajectory import MAX_CSV_BYTES, save_simulate_output
 from ..physics import terrain as terrain_physics
 from ..physics.contact import impact_damping_cap
 from ..physics.loads import member_loads
 from ..core.structure import StructureError
-from .rendering import RendererUnavailable, render_video
 from .cli_common import (ADAPTIVE_EVALUATIONS_PER_STEP, CHUNK_STEPS, ENERGY_BLOWUP, EXIT_DIVERGED, EXIT_OUTPUT,
                          EXIT_STRUCTURE, EXIT_TOO_LARGE, EXIT_USAGE, PROGRESS_MIN_STEPS, CLIError, _claim, _commit, _load, _n_steps, _one_line,
                          _require_memory, _stage, _trajectory_bytes)
 from .cli_terrain import DEFAULT_CAP_RADIUS, terrain_from_args, terrain_label
+from .cli_video import print_video, stage_video
 
 
 def _run(model, state, args, n_steps: int, progress: bool):
@@ -305,7 +303,7 @@ def cmd_simulate(args) -> int:
         raise CLIError(EXIT_DIVERGED, f"simulation diverged: {_one_line(diverged)}; wrote {S} records "
                                       f"(up to the divergence) to {out}, flagged diverged=True"
                        + (f"; no video written to {args.video}" if args.video else ""))
-    frames = _stage_video(tx, args, s, model, t, qf, qdf, terrain)
+    frames = stage_video(tx, args, s, model, t, qf, qdf, terrain)
     _commit(tx)
     drift = float(np.max(np.abs(E - E[0])) / max(abs(E[0]), 1e-300))
     print(f"{s.name}: {n_steps} steps of {args.dt:g} s with {args.integrator} in {wall:.3g} s wall "
@@ -322,7 +320,7 @@ def cmd_simulate(args) -> int:
         a, b = np.unravel_index(np.argmax(C), C.shape)
         print((f"peak string tension {T[i, j]:.4g} N (string {j}, t = {t[i]:.6g} s); " if T.size else "")
               + f"peak rod compression {C[a, b]:.4g} N (rod {b}, t = {t[a]:.6g} s)")
-    _print_video(args, frames)
+    print_video(args, frames)
     return 0
 
 
@@ -380,32 +378,9 @@ def cmd_demo(args) -> int:
                "expected_twist_deg": 90 - 180 / 3,
                "final_rod_length_drift": float(rod_length_drift(model, q1[-1:])[0])}
     _stage(tx, summary_path, lambda f: f.write(json.dumps(summary, indent=1).encode()))
-    frames = _stage_video(tx, args, s, model, t, q1, qd1)
+    frames = stage_video(tx, args, s, model, t, q1, qd1)
     _commit(tx)
     print(json.dumps(summary, indent=1))
     print(f"wrote {png} and {summary_path}")
-    _print_video(args, frames)
+    print_video(args, frames)
     return 0
-
-
-def _stage_video(tx: Transaction, args, s, model, t, q, qd, terrain=None) -> int:
-    """``--video PATH``: render the recorded trajectory (q, qd: (S, 1, k, 6)) in real time at
-    30 frames/s into the transaction (published with the other outputs), on ``terrain`` if one is
-    given; returns the frame count."""
-    if not getattr(args, "video", None):
-        return 0
-    q, qd = q.reshape((len(t),) + q.shape[-2:]), qd.reshape((len(t),) + qd.shape[-2:])
-    gamma, _, L = force_densities(model, q, qd)
-    frames = []
-    try:
-        tx.stage_file(args.video, lambda tmp: frames.append(
-            render_video(tmp, s, node_positions(model, q), gamma * L, t,
-                         **({} if terrain is None else {"terrain": terrain}))))
-    except (RendererUnavailable, ValueError, OSError) as e:
-        raise CLIError(EXIT_OUTPUT, f"--video {args.video}: {e}; no output file was changed") from None
-    return frames[0]
-
-
-def _print_video(args, frames: int) -> None:
-    if getattr(args, "video", None):
-        print(f"wrote {frames} frames -> {args.video}")
