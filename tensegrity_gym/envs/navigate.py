@@ -63,6 +63,8 @@ class NavigateTask(RollTask):
     CONSTANTS = (StateField("origin"), StateField("scan"))
     DEVICE_RESET = False
     NO_DEVICE_RESET = "its courses are drawn and planned per reset on the host"
+    #: no curriculum hook: a course is not scaled by a terrain difficulty
+    CURRICULUM_HOOKS = {}
 
     def __init__(self, num_envs: int = 1, config: NavigateConfig | None = None, **kwargs):
         c = with_flat(config, kwargs, "NavigateTask.__init__", NavigateConfig)

@@ -67,6 +67,7 @@ class RollTask(RollObservation, BatchedTask):
     STATE = (StateField("q"), StateField("qd"), StateField("anchor", host="cstate.anchor"),
              StateField("active", "bool", host="cstate.active"), StateField("ctrl"), StateField("speed"),
              StateField("goal"), StateField("start"))
+    CURRICULUM_HOOKS = {"terrain_difficulty": "set_terrain_difficulty"}
     DEVICE_RESET = True
 
     def __init__(self, num_envs: int = 1, config: RollConfig | None = None, **kwargs):
