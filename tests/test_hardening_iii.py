@@ -28,6 +28,7 @@ def climb_vec():
     ((float("nan"), float("nan")), r"slope_range\[0\]: must be in \[0, 60\] degrees, got nan"),
     ("ab", r"slope_range: expected \(low, high\) degrees, got 'ab'"),
     ((1e400, 1e400), r"slope_range\[0\]: must be in"),
+    ((10**400, 5.0), r"slope_range\[0\]: must be in \[0, 60\] degrees, got an integer of 1329 bits"),
     ((30.0, 10.0), r"slope_range: low 30 is above high 10"),
 ])
 def test_slope_range_is_validated_when_set(climb_vec, value, match):
@@ -106,3 +107,92 @@ def test_env_idx_refuses_negative_indices_as_out_of_range(idx):
         reset_mask_option({"env_idx": idx}, 3)
     mask, _ = reset_mask_option({"env_idx": [2, 0]}, 3)
     np.testing.assert_array_equal(mask, [True, False, True])
+
+
+# ---------------------------------------------------------------- terrain numbers
+BIG = 10 ** 400          # a JSON integer of 400 digits: too large for a float
+
+
+@pytest.mark.parametrize("d, match", [
+    ({"friction": BIG}, r"^friction: must be finite, got an integer of 1329 bits"),
+    ({"boxes": [{"center": [0, 0, BIG], "size": [1, 1, 1]}]}, r"^boxes\[0\]\.center\[2\]: must be finite, got an integer"),
+    ({"plane": {"slope_deg": BIG}}, r"^plane\.slope_deg: must be finite"),
+    ({"heightfield": {"heights": [[0, BIG], [0, 0]], "cell": 0.1}}, r"^heightfield\.heights\[0, 1\]: must be finite, got an integer"),
+    ({"heightfield": {"heights": [[0, 1], [0, 0]], "cell": BIG}}, r"^heightfield\.cell: must be finite"),
+    ({"generator": "steps", "n_steps": BIG}, r"^terrain\.n_steps: must be an integer in \[1, 1000\], got an integer of 1329 bits"),
+    ({"generator": "steps", "tread": BIG}, r"^terrain\.tread: must be a positive number of at most 1e\+06 m"),
+    ({"generator": "slope", "slope_range": [0, BIG]}, r"^terrain\.slope_range: expected \(low, high\) degrees"),
+])
+def test_a_huge_integer_in_a_terrain_is_a_named_error(d, match):
+    from tensegrity_gym.tasks.terrain import resolve_terrain
+    with pytest.raises(ValueError, match=match):
+        resolve_terrain(d, {})
+
+
+def test_a_huge_integer_in_a_terrain_file_is_one_cli_line(tmp_path, capsys):
+    from tensegrity_gym.tools.cli import main
+    path = tmp_path / "t.json"
+    path.write_text('{"boxes": [{"center": [0, 0, ' + "9" * 400 + '], "size": [1, 1, 1]}]}')
+    huge = tmp_path / "u.json"
+    huge.write_text('{"friction": ' + "9" * 5000 + '}')         # beyond Python's 4300-digit int parsing
+    for p, pattern in ((path, r"boxes\[0\]\.center\[2\]: must be finite, got an integer of 1329 bits"),
+                       (huge, r"terrain file: not valid JSON \(.*u\.json.*Exceeds the limit")):
+        assert main(["simulate", "prism3", "--terrain", str(p), "--out", str(tmp_path / "x.npz"), "--no-progress"]) == 3
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("error: ") and "Traceback" not in err, err
+        assert __import__("re").search(pattern, err), err
+
+
+# ---------------------------------------------------------------- navigation grid and scan sizes
+@pytest.mark.parametrize("kw, match", [
+    (dict(cell=1e-6), r"^cell, arena: a cell of 1e-06 m over the arena \+-3 m .* about 7\.6e\+06 x 7\.6e\+06 cells; at most 2000"),
+    (dict(arena=1e6), r"^cell, arena: a cell of 0\.1 m over the arena \+-1e\+06 m"),
+    (dict(arena=1e300), r"^cell, arena: "),
+    (dict(lookahead=10 ** 9), r"^lookahead: 1000000000 cells reaches beyond the planner grid of 77 x 77 cells; at most 77"),
+    (dict(height_scan=(100000, 0.1)), r"^height_scan: n = 100000 makes a scan of 100000 x 100000 points; at most 2000"),
+    (dict(n_goals=10 ** 9), r"^num_envs, cell, arena, n_goals, height_scan: 1 copies' courses need about .* GiB"),
+])
+def test_navigate_grid_and_scan_too_large_are_refused_before_allocation(kw, match):
+    from tensegrity_gym.envs.navigate import NavigateTask
+    with pytest.raises(ValueError, match=match):
+        NavigateTask(**kw)
+
+
+# ---------------------------------------------------------------- terrain values out of any physical range
+@pytest.mark.parametrize("d, match", [
+    ({"boxes": [{"center": [0, 0, 0], "size": [1e300, 1, 1]}]},
+     r"^boxes\[0\]\.size\[0\]: must be within \+-1e\+06 m \(a terrain's physical extent\), got 1e\+300"),
+    ({"boxes": [{"center": [0, -2e6, 0], "size": [1, 1, 1]}]}, r"^boxes\[0\]\.center\[1\]: must be within \+-1e\+06 m"),
+    ({"heightfield": {"heights": [[1e308, -1e308], [0, 0]], "cell": 0.1}},
+     r"^heightfield\.heights\[0, 0\]: must be within \+-1e\+06 m \(a terrain's physical extent\), got 1e\+308"),
+    ({"heightfield": {"heights": [[0, 0], [0, 0]], "cell": 0.1, "origin": [0, 1e7]}},
+     r"^heightfield\.origin\[1\]: must be within \+-1e\+06 m"),
+    ({"heightfield": {"heights": [[0, 0], [0, 0]], "cell": 2e6}}, r"^heightfield\.cell: must be within \+-1e\+06 m"),
+    ({"heightfield": {"heights": [[True, False], [0, 0]], "cell": 0.1}},
+     r"^heightfield\.heights\[0, 0\]: expected a real number, got True"),
+    ({"heightfield": {"heights": [[0.0, 1 + 2j], [0, 0]], "cell": 0.1}},
+     r"^heightfield\.heights\[0, 1\]: expected a real number, got \(1\+2j\)"),
+    ({"heightfield": {"heights": np.array([[0, 1 + 2j], [0, 0]]), "cell": 0.1}},
+     r"^heightfield\.heights: expected an array of real numbers \(m\), got dtype complex128"),
+    ({"heightfield": {"heights": np.ones((2, 2), bool), "cell": 0.1}},
+     r"^heightfield\.heights: expected an array of real numbers \(m\), got dtype bool"),
+    ({"generator": "steps", "step_height": 1e308}, r"^terrain\.step_height: must be a non-negative number of at most 1e\+06 m"),
+    ({"generator": "steps", "step_height": 4e5}, r"^terrain\.step_height: 400000 m x 4 steps rises above 1e\+06 m"),
+    ({"generator": "rough", "amplitude": 1e300}, r"^terrain\.amplitude: must be a non-negative number of at most 1e\+06 m"),
+])
+def test_terrain_values_beyond_physical_bounds_are_named(d, match):
+    from tensegrity_gym.tasks.terrain import resolve_terrain
+    with pytest.raises(ValueError, match=match):
+        resolve_terrain(d, {})
+
+
+def test_bool_and_complex_heightfield_files_are_refused(tmp_path):
+    from tensegrity_gym.core.terrain import Terrain
+    for name, arr in (("b.npy", np.ones((3, 3), bool)), ("c.npy", np.ones((3, 3), complex))):
+        np.save(tmp_path / name, arr)
+        with pytest.raises(ValueError, match=rf"^heightfield\.heights: expected an array of real numbers \(m\), got dtype {arr.dtype}"):
+            Terrain.from_dict({"heightfield": {"file": name, "cell": 0.1}}, base_dir=tmp_path)
+    np.save(tmp_path / "i.npy", np.arange(9, dtype=np.int32).reshape(3, 3))      # integers stay heights (m)
+    t = Terrain.from_dict({"heightfield": {"file": "i.npy", "cell": 0.1}}, base_dir=tmp_path)
+    assert t.heightfield.heights.dtype == float and t.heightfield.heights[2, 2] == 8.0
+

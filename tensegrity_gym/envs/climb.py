@@ -34,6 +34,9 @@ def check_slope(slope_deg, slope_range) -> tuple[float, float]:
             raise ValueError(f"{name}: expected a number of degrees, got {v!r}")
         try:
             x = float(v)
+        except OverflowError:      # an integer too large for a float
+            raise ValueError(f"{name}: must be in [0, {MAX_SLOPE_DEG:g}] degrees, got an integer of "
+                             f"{int(v).bit_length()} bits") from None
         except (TypeError, ValueError):
             raise ValueError(f"{name}: expected a number of degrees, got {v!r:.80}") from None
         if not (math.isfinite(x) and 0.0 <= x <= MAX_SLOPE_DEG):
