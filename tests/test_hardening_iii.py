@@ -196,3 +196,83 @@ def test_bool_and_complex_heightfield_files_are_refused(tmp_path):
     t = Terrain.from_dict({"heightfield": {"file": "i.npy", "cell": 0.1}}, base_dir=tmp_path)
     assert t.heightfield.heights.dtype == float and t.heightfield.heights[2, 2] == 8.0
 
+
+# ---------------------------------------------------------------- system identification
+def _free_record(structure, T=0.21, amp=0.03, seed=0, sub=4):
+    """(t, nodes) of ``structure`` released off equilibrium: samples 2 ms apart (rk4 at 2 ms / sub)."""
+    import tensegrity_gym as tg
+    from tensegrity_gym.core.model import State
+    from tensegrity_gym.physics.evaluate import project
+    from tensegrity_gym.physics.geometry import node_positions
+    model = tg.compile_model(structure)
+    rng = np.random.default_rng(seed)
+    st = tg.initial_state(model, nodes=structure.nodes + amp * rng.standard_normal(structure.nodes.shape))
+    st = State(*project(model, st.q, st.qd))
+    t, q, _ = tg.simulate(model, st, 2e-3 / sub, int(round(T / 2e-3)) * sub, "rk4")
+    return t[::sub], node_positions(model, q[::sub, 0])
+
+
+def test_identify_value_at_the_search_bound_is_not_ok():
+    """A record without damping, the fit started at 2 N s/m: the damping runs to the search bound
+    (e^-5 of the start), where the residual no longer depends on it; it was reported ok with a
+    standard error of 0."""
+    import tensegrity_gym as tg
+    from tensegrity_gym.tools.sysid import SysIdWarning, identify
+    s = tg.prism(3)
+    t, nodes = _free_record(s)
+    with pytest.warns(SysIdWarning, match=r"at the search bound \(a factor of 148 .*: damping string 0"):
+        r = identify(tg.compile_model(s), t, nodes, fit=("damping",), mode="scale", initial={"damping": 2.0})
+    assert r.values["damping"][0] == pytest.approx(2.0 * np.exp(-5.0))
+    assert r.at_bound["damping"].all() and not r.identifiable["damping"].any()
+    assert np.isinf(r.std_errors["damping"]).all() and not r.ok
+    d = r.to_dict()
+    assert d["ok"] is False and d["at_bound"]["damping"][0] is True and d["std_errors"]["damping"][0] is None
+
+
+def test_identify_record_of_another_structure_is_a_misfit_not_ok():
+    """A record of another prism (same 6 nodes: wider, lower, under gravity) fitted as prism3's
+    stiffness: the fit converges, but its error is far above the record's noise and a large part
+    of its motion: not ok, and the warning says why."""
+    import tensegrity_gym as tg
+    from tensegrity_gym.tools.sysid import SysIdWarning, identify
+    t, nodes = _free_record(tg.prism(3, radius=0.7, height=0.6, gravity=(0, 0, -9.81)))
+    with pytest.warns(SysIdWarning, match=r"the fitted model misses the record: RMS error .* mm is above 10 x the "
+                                          r"record's noise .* and 0.1 x its motion"):
+        r = identify(tg.compile_model(tg.prism(3)), t, nodes, fit=("stiffness",), mode="scale")
+    assert r.misfit and not r.ok
+    assert r.rms_m > 10 * r.noise_m and r.rms_m > 0.1 * r.motion_rms_m
+    assert r.to_dict()["misfit"] is True
+    # the same structure's own record: no misfit, ok
+    t, nodes = _free_record(tg.prism(3))
+    r = identify(tg.compile_model(tg.prism(3)), t, nodes, fit=("stiffness",), mode="scale")
+    assert r.ok and not r.misfit and r.scale["stiffness"] == pytest.approx(1.0, rel=1e-3)
+
+
+def test_identify_initial_value_that_blows_up_is_the_divergence_error(tmp_path, capsys):
+    import tensegrity_gym as tg
+    from tensegrity_gym.core.errors import SimulationDiverged
+    from tensegrity_gym.tools.cli import main
+    from tensegrity_gym.tools.sysid import identify
+    t, nodes = _free_record(tg.prism(3))
+    with pytest.raises(SimulationDiverged, match=r"the starting values stiffness=1e\+300 N/m blow the simulation up"):
+        identify(tg.compile_model(tg.prism(3)), t, nodes, fit=("stiffness",), initial={"stiffness": 1e300})
+    np.savez(tmp_path / "rec.npz", t=t, nodes=nodes)
+    code = main(["identify", "prism3", str(tmp_path / "rec.npz"), "--fit", "stiffness", "--initial", "stiffness=1e300",
+                 "--out", str(tmp_path / "fit.json")])
+    err = capsys.readouterr().err
+    assert code == 6 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert "the simulation diverged during the fit (the starting values stiffness=1e+300 N/m" in err, err
+    assert "state.q" not in err
+
+
+def test_identify_help_names_no_terrain_file(capsys):
+    from tensegrity_gym.tools.cli import main
+    assert main(["identify", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "terrain file" not in out
+    assert "Coulomb friction coefficient of the ground (default 1)" in out
+    assert "normal contact stiffness of the ground, N/m (default 10000)" in out
+    assert "Hunt-Crossley contact damping of the ground, s/m (default 10)" in out
+    assert main(["simulate", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "(default: the terrain file's; 1 with --ground)" in out
