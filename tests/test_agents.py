@@ -423,8 +423,10 @@ def test_adapter_per_sub_env_methods_on_the_batched_env():
     assert venv.env_is_wrapped(gym.Wrapper, indices=[0, 1]) == [False, False]
     frames = venv.env_method("render", indices=[0, 1, 2])
     assert len(frames) == 3 and frames[0].shape == (32, 32, 3)
-    venv.set_attr("foo", 3)                                             # all copies: allowed
-    assert venv.get_attr("foo") == [3, 3, 3]
+    venv.set_attr("max_episode_steps", 3)                               # all copies: allowed
+    assert venv.get_attr("max_episode_steps") == [3, 3, 3]
+    with pytest.raises(ValueError, match="not an attribute"):            # validated: no new attribute
+        venv.set_attr("foo", 3)
     with pytest.raises(ValueError, match="share this attribute"):
         venv.set_attr("foo", 4, indices=[1])
     with pytest.raises(ValueError, match="one object"):

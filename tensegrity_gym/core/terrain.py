@@ -42,10 +42,10 @@ from pathlib import Path
 import numpy as np
 
 from .checks import load_npy, read_bounded
-from .terrain_kinds import (KINDS, SURFACE_KEYS, SurfaceContact, TerrainKind, _number, _surface, _vector, kind_of,
-                            load_part, register)
+from .terrain_kinds import (KINDS, MAX_EXTENT, SURFACE_KEYS, SurfaceContact, TerrainKind, _as_float, _number, _surface,
+                            _vector, kind_of, load_part, register)
 
-__all__ = ["Terrain", "Plane", "Box", "Heightfield", "SCHEMA_PATH", "SURFACE_KEYS", "MAX_TERRAIN_BYTES",
+__all__ = ["Terrain", "Plane", "Box", "Heightfield", "SCHEMA_PATH", "SURFACE_KEYS", "MAX_EXTENT", "MAX_TERRAIN_BYTES",
            "MAX_HEIGHTFIELD_BYTES"]
 
 #: largest terrain JSON file read, bytes (counted while reading; a large grid belongs in a .npy file)
@@ -97,8 +97,8 @@ class Box(SurfaceContact):
     yaw_deg: float = 0.0
     def __post_init__(self):
         s = object.__setattr__
-        s(self, "center", _vector(self.center, 3, "center"))
-        s(self, "size", _vector(self.size, 3, "size", positive=True))
+        s(self, "center", _vector(self.center, 3, "center", limit=MAX_EXTENT, unit="m"))
+        s(self, "size", _vector(self.size, 3, "size", positive=True, limit=MAX_EXTENT, unit="m"))
         s(self, "yaw_deg", _number(self.yaw_deg, "yaw_deg"))
         _surface(self)
 
@@ -145,21 +145,20 @@ class Heightfield(SurfaceContact):
     origin: np.ndarray = field(default_factory=lambda: np.zeros(2))
     def __post_init__(self):
         s = object.__setattr__
-        try:
-            h = np.array(self.heights, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(f"heights: expected a 2-D array of numbers (m), got {type(self.heights).__name__}") \
-                from None
-        if h.ndim != 2 or min(h.shape) < 2:
-            raise ValueError(f"heights: expected a 2-D array of at least 2 x 2 heights (m), got shape {h.shape}")
+        h = _heights(self.heights)
         bad = ~np.isfinite(h)
         if bad.any():
             j, i = np.argwhere(bad)[0]
             raise ValueError(f"heights[{j}, {i}]: must be finite (m), got {float(h[j, i])!r}")
+        bad = np.abs(h) > MAX_EXTENT
+        if bad.any():
+            j, i = np.argwhere(bad)[0]
+            raise ValueError(f"heights[{j}, {i}]: must be within +-{MAX_EXTENT:g} m (a terrain's physical "
+                             f"extent), got {float(h[j, i])!r}")
         h.setflags(write=False)
         s(self, "heights", h)
-        s(self, "cell", _number(self.cell, "cell", lo=0.0, lo_open=True))
-        s(self, "origin", _vector(self.origin, 2, "origin"))
+        s(self, "cell", _number(self.cell, "cell", lo=0.0, lo_open=True, limit=MAX_EXTENT, unit="m"))
+        s(self, "origin", _vector(self.origin, 2, "origin", limit=MAX_EXTENT, unit="m"))
         _surface(self)
 
     def height_at(self, x, y) -> np.ndarray:
@@ -204,6 +203,30 @@ class Heightfield(SurfaceContact):
         gx = np.where(out_u, 0.0, ((1 - fv) * (h10 - h00) + fv * (h11 - h01)) / self.cell)
         gy = np.where(out_v, 0.0, ((1 - fu) * (h01 - h00) + fu * (h11 - h10)) / self.cell)
         return h, gx, gy
+
+
+def _heights(v) -> np.ndarray:
+    """``v`` as a new 2-D float array of at least 2 x 2 heights (m): an array of integers or
+    floats, or rows of real numbers; ValueError naming ``heights`` (the entry where one is a bool,
+    a complex number, a string or an integer too large for a float) otherwise."""
+    if isinstance(v, np.ndarray) and v.dtype.kind in "iuf":
+        h = v.astype(float)
+    elif isinstance(v, np.ndarray) and v.dtype.kind != "O":
+        raise ValueError(f"heights: expected an array of real numbers (m), got dtype {v.dtype}")
+    else:
+        try:
+            obj = np.array(v, dtype=object)
+        except (TypeError, ValueError):
+            obj = None
+        if obj is None or obj.ndim != 2:
+            raise ValueError(f"heights: expected a 2-D array of numbers (m), got "
+                             f"{type(v).__name__}{'' if obj is None else f' of shape {obj.shape}'}")
+        h = np.empty(obj.shape)
+        for (j, i), x in np.ndenumerate(obj):
+            h[j, i] = _as_float(x, f"heights[{j}, {i}]")
+    if h.ndim != 2 or min(h.shape) < 2:
+        raise ValueError(f"heights: expected a 2-D array of at least 2 x 2 heights (m), got shape {h.shape}")
+    return h
 
 
 def _heightfield_kwargs(kw, path, base_dir):
@@ -330,6 +353,8 @@ class Terrain:
             d = json.loads(text)
         except json.JSONDecodeError as e:
             raise ValueError(f"terrain file: not valid JSON ({str(p)!r}, line {e.lineno}: {e.msg})") from None
+        except ValueError as e:       # not UTF-8, or an integer of more than 4300 digits
+            raise ValueError(f"terrain file: not valid JSON ({str(p)!r}: {e})") from None
         if defaults and isinstance(d, dict):
             d = {**defaults, **d}
         return cls.from_dict(d, base_dir=p.parent)

@@ -24,32 +24,48 @@ __all__ = ["SurfaceContact", "TerrainKind", "KINDS", "SURFACE_KEYS", "register",
 
 #: contact parameters a terrain gives and each part may override
 SURFACE_KEYS = ("friction", "stiffness", "damping")
+#: the largest coordinate, length or height a terrain takes, m (|x| <= 1000 km: beyond any
+#: robot's world, and far enough inside a float's range that the contact's arithmetic stays finite)
+MAX_EXTENT = 1e6
 
 
 # ------------------------------------------------------------ what every kind's part shares
-def _number(v, name: str, lo=None, hi=None, lo_open=False, hi_open=False) -> float:
-    """``float(v)`` if a finite real number within the bounds, else ValueError naming ``name``."""
-    if isinstance(v, (str, bytes, bool, np.bool_)) or v is None:
-        raise ValueError(f"{name}: expected a number, got {v!r}")
+def _as_float(v, name: str) -> float:
+    """``float(v)`` of a real number (not a bool, string, complex or None), ValueError naming
+    ``name`` otherwise (an integer too large for a float included)."""
+    if isinstance(v, (str, bytes, bool, np.bool_, complex, np.complexfloating)) or v is None:
+        raise ValueError(f"{name}: expected a real number, got {v!r:.80}")
     try:
-        x = float(v)
+        return float(v)
+    except OverflowError:
+        raise ValueError(f"{name}: must be finite, got an integer of {int(v).bit_length()} bits "
+                         "(too large for a float)") from None
     except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a number, got {v!r}") from None
+        raise ValueError(f"{name}: expected a number, got {v!r:.80}") from None
+
+
+def _number(v, name: str, lo=None, hi=None, lo_open=False, hi_open=False, limit=None, unit: str = "") -> float:
+    """``float(v)`` if a finite real number within the bounds (and ``|v| <= limit`` where given),
+    else ValueError naming ``name``, the bound and the value (``unit``: of the limit)."""
+    x = _as_float(v, name)
     if not math.isfinite(x):
         raise ValueError(f"{name}: must be finite, got {v!r}")
+    u = f" {unit}" if unit else ""
     if lo is not None and (x <= lo if lo_open else x < lo):
         raise ValueError(f"{name}: must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
     if hi is not None and (x >= hi if hi_open else x > hi):
         raise ValueError(f"{name}: must be {'<' if hi_open else '<='} {hi:g}, got {v!r}")
+    if limit is not None and abs(x) > limit:
+        raise ValueError(f"{name}: must be within +-{limit:g}{u} (a terrain's physical extent), got {v!r}")
     return x
 
 
-def _vector(v, n: int, name: str, positive=False) -> np.ndarray:
-    """(n,) read-only float array of finite numbers (> 0 with ``positive``), ValueError naming
-    ``name[i]`` and the value otherwise."""
+def _vector(v, n: int, name: str, positive=False, limit=None, unit: str = "") -> np.ndarray:
+    """(n,) read-only float array of finite numbers (> 0 with ``positive``, ``|x| <= limit``
+    where given), ValueError naming ``name[i]`` and the value otherwise."""
     if isinstance(v, (str, bytes)) or np.ndim(v) != 1 or len(v) != n:
-        raise ValueError(f"{name}: expected a list of {n} numbers, got {v!r}")
-    out = np.array([_number(x, f"{name}[{i}]", lo=0.0 if positive else None, lo_open=positive)
+        raise ValueError(f"{name}: expected a list of {n} numbers, got {v!r:.80}")
+    out = np.array([_number(x, f"{name}[{i}]", lo=0.0 if positive else None, lo_open=positive, limit=limit, unit=unit)
                     for i, x in enumerate(v)], float)
     out.setflags(write=False)
     return out

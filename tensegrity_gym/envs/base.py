@@ -85,6 +85,9 @@ class BatchedTask:
     #: where not, why (for the error message)
     DEVICE_RESET = False
     NO_DEVICE_RESET = ""
+    #: the curriculum hooks a vector env's ``set_attr(name, value)`` forwards to the task: name ->
+    #: the task's method that validates and sets it (acting from the next resets)
+    CURRICULUM_HOOKS: dict = {}
 
     def _init_physics(self, model: Model, num_envs: int, integrator: str, dt: float, frame_skip: int,
                       backend: str = "auto", divergence_limit: float | None = None, clip_actions: bool = True):

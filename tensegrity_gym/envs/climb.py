@@ -34,6 +34,9 @@ def check_slope(slope_deg, slope_range) -> tuple[float, float]:
             raise ValueError(f"{name}: expected a number of degrees, got {v!r}")
         try:
             x = float(v)
+        except OverflowError:      # an integer too large for a float
+            raise ValueError(f"{name}: must be in [0, {MAX_SLOPE_DEG:g}] degrees, got an integer of "
+                             f"{int(v).bit_length()} bits") from None
         except (TypeError, ValueError):
             raise ValueError(f"{name}: expected a number of degrees, got {v!r:.80}") from None
         if not (math.isfinite(x) and 0.0 <= x <= MAX_SLOPE_DEG):
@@ -43,6 +46,8 @@ def check_slope(slope_deg, slope_range) -> tuple[float, float]:
         a = angle(slope_deg, "slope_deg")
         return a, a
     try:
+        if isinstance(slope_range, (str, bytes, dict)):
+            raise TypeError
         lo, hi = slope_range
     except (TypeError, ValueError):
         raise ValueError(f"slope_range: expected (low, high) degrees, got {slope_range!r:.80}") from None
@@ -60,10 +65,12 @@ class ClimbTask(RollTask):
     direction (observed; float32 values)."""
 
     STATE = RollTask.STATE + (StateField("slope"), StateField("gdir"))
+    #: the vector env's ``set_attr`` sets the slope range (a terrain difficulty has no terrain here)
+    CURRICULUM_HOOKS = {"slope_range": "set_slope_range"}
 
     def __init__(self, num_envs: int = 1, config: ClimbConfig | None = None, **kwargs):
         c = with_flat(config, kwargs, "ClimbTask.__init__", ClimbConfig)
-        self.slope_range = check_slope(c.slope.slope_deg, c.slope.slope_range)
+        self._slope_range = check_slope(c.slope.slope_deg, c.slope.slope_range)
         if c.goal.randomize_goal:
             raise ValueError("randomize_goal: the goal of TensegrityClimb-v0 is uphill (+x of the plane frame)")
         if tuple(check_array(c.goal.goal_direction, (2,), "goal_direction")) != (1.0, 0.0):
@@ -90,6 +97,30 @@ class ClimbTask(RollTask):
         self.gdir = np.tile(gravity_direction(plane_gravity(lo, self._g)), (B, 1)).astype(np.float32)
         if self.sensors is None:     # the state observation: the rolling task's plus the slope
             self.observation_size = self._state_size + 3
+
+    @property
+    def slope_range(self) -> tuple[float, float]:
+        """(low, high) degrees: the range the next resets draw each copy's slope from (low = high:
+        a fixed slope). Set it between episodes (a curriculum) to a new (low, high) in
+        [0, MAX_SLOPE_DEG] degrees (:meth:`set_slope_range`)."""
+        return self._slope_range
+
+    @slope_range.setter
+    def slope_range(self, value) -> None:
+        self.set_slope_range(value)
+
+    def set_slope_range(self, value) -> None:
+        """The curriculum hook: the slopes drawn from the next resets on are U(low, high) degrees
+        for ``value`` = (low, high), finite numbers in [0, MAX_SLOPE_DEG] with low <= high
+        (ValueError naming ``slope_range`` otherwise). An env built with one fixed ``slope_deg``
+        has a single gravity for all copies and draws no slope: its range cannot change (build it
+        with ``slope_range`` to change the slope between episodes)."""
+        lo, hi = check_slope(None, value)
+        if not self._draws_slope and (lo, hi) != self._slope_range:
+            raise ValueError(f"slope_range: this env was built with the fixed slope_deg={self._slope_range[0]:g} "
+                             f"degrees and draws no slope; build it with slope_range=(low, high) to change "
+                             f"the slope between episodes, got {value!r:.80}")
+        self._slope_range = (lo, hi)
 
     def _scene_structure(self, s):
         self._g = float(np.linalg.norm(s.gravity))
@@ -166,7 +197,7 @@ _DOC = r"""
     | argument | default | meaning |
     |---|---|---|
     | ``slope_deg`` | 20.0 | slope, degrees in [0, 60] |
-    | ``slope_range`` | None | (low, high) degrees: a slope drawn uniformly per reset from the env's ``np_random`` (curricula: change it between episodes with ``env.unwrapped.task.slope_range = (lo, hi)``) |
+    | ``slope_range`` | None | (low, high) degrees: a slope drawn uniformly per reset from the env's ``np_random`` (curricula: change it between episodes with ``env.unwrapped.task.slope_range = (lo, hi)`` or a vector env's ``set_attr("slope_range", (lo, hi))``, validated; an env built with a fixed ``slope_deg`` refuses a new range) |
 
     ``goal_direction`` must be (1, 0) and ``randomize_goal`` False (the goal is uphill).
 

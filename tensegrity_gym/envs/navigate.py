@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.checks import check_array
-from ..tasks.navigate import (CourseSpec, current_goal, draw_course, guidance_batch, height_scan,
+from ..tasks.navigate import (CourseSpec, check_course_size, current_goal, draw_course, guidance_batch, height_scan,
                               navigate_observation, track_goals)
 from ..tasks.state import StateField
 from ..tasks.xp import namespace
@@ -63,6 +63,8 @@ class NavigateTask(RollTask):
     CONSTANTS = (StateField("origin"), StateField("scan"))
     DEVICE_RESET = False
     NO_DEVICE_RESET = "its courses are drawn and planned per reset on the host"
+    #: no curriculum hook: a course is not scaled by a terrain difficulty
+    CURRICULUM_HOOKS = {}
 
     def __init__(self, num_envs: int = 1, config: NavigateConfig | None = None, **kwargs):
         c = with_flat(config, kwargs, "NavigateTask.__init__", NavigateConfig)
@@ -74,14 +76,18 @@ class NavigateTask(RollTask):
         self.spec = _course_spec(c.course)
         self.goal_bonus = check_positive(c.course.goal_bonus, "goal_bonus", allow_zero=True)
         self.scan = None
+        n = 0
         if c.course.height_scan is not None:
             try:
                 n, spacing = c.course.height_scan
             except (TypeError, ValueError):
                 raise ValueError(f"height_scan: expected (n, spacing m), got {c.course.height_scan!r:.80}") from None
             if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-                raise ValueError(f"height_scan: n must be a positive integer, got {n!r}")
+                raise ValueError(f"height_scan: n must be a positive integer, got {n!r:.80}")
             spacing = check_positive(spacing, "height_scan spacing", "m")
+        # the planner's grid, its guidance window and the scan: refused before they are allocated
+        check_course_size(self.spec, max(int(num_envs), 1) if isinstance(num_envs, (int, np.integer)) else 1, int(n))
+        if c.course.height_scan is not None:
             u = (np.arange(n) - (n - 1) / 2) * spacing
             self.scan = np.stack(np.meshgrid(u, u), -1).reshape(-1, 2)      # (n^2, 2) offsets, m
         self.courses = [None] * max(int(num_envs), 1)

@@ -67,6 +67,7 @@ class RollTask(RollObservation, RollReset, RollTerrain, BatchedTask):
              StateField("ctrl"), StateField("speed"), StateField("goal"), StateField("start"))
     CONSTANTS = (StateField("q_nominal"), StateField("rod_length"), StateField("start_control"),
                  StateField("goal_direction"))
+    CURRICULUM_HOOKS = {"terrain_difficulty": "set_terrain_difficulty"}
     DEVICE_RESET = True
 
     def __init__(self, num_envs: int = 1, config: RollConfig | None = None, **kwargs):

@@ -205,6 +205,12 @@ class VectorSeeding(VectorApi):
         """Per-env random generators (the host's; used at reset)."""
         return self._rngs
 
+    def _attr_setters(self) -> dict:
+        out = super()._attr_setters()
+        env_id = getattr(self, "env_id", "") or getattr(self, "ENV_ID", "")
+        out["max_episode_steps"] = lambda v: setattr(self, "max_episode_steps", episode_limit(v, env_id))
+        return out
+
     def _reset_mask(self, options: dict | None) -> tuple[np.ndarray, dict]:
         """(mask (N,) bool of the envs to reset, the other options) from ``options['reset_mask']``
         or ``options['env_idx']`` (default: all; a torch tensor is brought to the host)."""

@@ -85,7 +85,7 @@ def reset_mask_option(options, num_envs: int) -> tuple[np.ndarray, dict]:
         if idx.ndim > 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
             raise ValueError(f"options['env_idx']: expected a 1-D array of env indices, got {idx.dtype} {idx.shape}")
         idx = idx.reshape(-1).astype(np.int64)
-        if idx.size and (idx.min() < -N or idx.max() >= N):
+        if idx.size and (idx.min() < 0 or idx.max() >= N):
             raise ValueError(f"options['env_idx']: indices must lie in [0, {N}), got {idx.tolist()}")
         mask = np.zeros(N, bool)
         mask[idx] = True
@@ -106,14 +106,21 @@ class VectorApi:
       a result that is a tuple or list with one entry per copy (``render()``'s frames) is
       returned as that tuple, any other result repeated N times (Gymnasium returns one result
       per sub-env);
-    * ``get_attr(name)``: ``call(name)``; ``"np_random"`` gives each copy's own generator;
+    * ``get_attr(name)``: ``call(name)``; ``"np_random"`` gives each copy's own generator, a
+      task's curriculum hook (``terrain_difficulty``, ``slope_range``) the task's value;
     * ``set_attr(name, values)``: one value (or a list / tuple of N equal values) set on the
-      shared object; ``"np_random"`` takes one generator per copy. Different values for
-      different copies of a shared attribute are a ValueError (use a ``SyncVectorEnv`` of
-      single envs for that).
+      shared object, validated: ``max_episode_steps``, ``autoreset_mode`` and the task's
+      curriculum hooks (forwarded to the task: ``terrain_difficulty`` to
+      ``task.set_terrain_difficulty``, ``slope_range`` to ``task.set_slope_range``);
+      ``"np_random"`` takes one generator per copy. Different values for different copies of a
+      shared attribute are a ValueError (use a ``SyncVectorEnv`` of single envs for that), and
+      so is any other name (read-only, such as ``num_envs``, or unknown).
     Sets ``autoreset_mode`` (attribute and ``metadata["autoreset_mode"]``, as ``SyncVectorEnv``).
     """
 
+    #: attributes whose one value is itself a sequence (``slope_range = (low, high)``): a list /
+    #: tuple of numbers is that one value, N values are a list of N sequences
+    SEQUENCE_VALUED = ("slope_range",)
     #: how ``step`` autoresets (:func:`check_autoreset_mode`)
     autoreset_mode: AutoresetMode = AutoresetMode.NEXT_STEP
 
@@ -127,11 +134,27 @@ class VectorApi:
             return tuple(result)
         return tuple(result for _ in range(self.num_envs))
 
+    def _attr_setters(self) -> dict:
+        """The names ``set_attr`` writes (besides ``"np_random"``): name -> a function that
+        validates and sets one value. Here ``autoreset_mode`` and the task's curriculum hooks
+        (``task.CURRICULUM_HOOKS``: e.g. ``terrain_difficulty``, ``slope_range``)."""
+        out = {"autoreset_mode": self._init_autoreset}
+        task = getattr(self, "task", None)
+        for name, method in getattr(task, "CURRICULUM_HOOKS", {}).items():
+            out[name] = getattr(task, method)
+        return out
+
+    def _task_hook(self, name: str) -> bool:
+        """Whether ``name`` is one of the task's curriculum hooks (read and set on the task)."""
+        return name in getattr(getattr(self, "task", None), "CURRICULUM_HOOKS", {})
+
     def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
-        """The method ``name`` called with ``args`` / ``kwargs`` (an attribute: its value), as a
-        tuple of N per-copy results."""
+        """The method ``name`` called with ``args`` / ``kwargs`` (an attribute: its value; a task's
+        curriculum hook: the task's value), as a tuple of N per-copy results."""
         if name == "np_random":
             return tuple(self._rngs)
+        if self._task_hook(name) and not hasattr(type(self), name):
+            return self._per_copy(getattr(self.task, name))
         fn = getattr(self, name)
         return self._per_copy(fn(*args, **kwargs) if callable(fn) else fn)
 
@@ -141,12 +164,27 @@ class VectorApi:
 
     def set_attr(self, name: str, values: list[Any] | tuple[Any, ...] | Any) -> None:
         """Set the attribute ``name``: one value for every copy, or a list / tuple of N values
-        (equal ones for a shared attribute; one generator per copy for ``"np_random"``)."""
+        (equal ones for a shared attribute; one ``numpy.random.Generator`` per copy for
+        ``"np_random"``). Only the names of :meth:`_attr_setters` are set, each validated; the
+        task's curriculum hooks (``terrain_difficulty``, ``slope_range``) act on the task from
+        the next resets. Any other name is a ValueError (a read-only attribute such as
+        ``num_envs``, or an unknown one: setting it would change nothing)."""
         N = self.num_envs
-        per = list(values) if isinstance(values, (list, tuple)) else [values] * N
+        setters = self._attr_setters()
+        if name != "np_random" and name not in setters:
+            what = "is read-only on" if isinstance(name, str) and hasattr(self, name) else "is not an attribute of"
+            raise ValueError(f"set_attr({name!r}): {what} {type(self).__name__}; settable: "
+                             f"{sorted(['np_random', *setters])}")
+        one = not isinstance(values, (list, tuple)) or (
+            name in self.SEQUENCE_VALUED and not all(isinstance(v, (list, tuple, np.ndarray)) for v in values))
+        per = [values] * N if one else list(values)
         if len(per) != N:
             raise ValueError(f"set_attr({name!r}): expected one value or {N} values, got {len(per)}")
         if name == "np_random":
+            for i, g in enumerate(per):
+                if not isinstance(g, np.random.Generator):
+                    raise ValueError(f"set_attr('np_random'): env {i}: expected a numpy.random.Generator, "
+                                     f"got {g!r:.80}")
             self._rngs[:] = per
             return
         first = per[0]
@@ -160,4 +198,4 @@ class VectorApi:
             if not same:
                 raise ValueError(f"set_attr({name!r}): the {N} copies of this batched env share the attribute; "
                                  "give one value (or N equal ones), or use a SyncVectorEnv of single envs")
-        setattr(self, name, first)
+        setters[name](first)

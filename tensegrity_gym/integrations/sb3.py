@@ -14,7 +14,9 @@ Per-sub-env methods (SB3's ``VecEnv`` contract, ``indices`` = which sub-envs):
   ``env_is_wrapped`` checks each sub-env's wrapper chain;
 * the batched vector env has no sub-env objects: its copies share one object, so
   ``get_attr`` returns the shared value for each selected index (``np_random``: each copy's own
-  generator), ``set_attr`` and ``env_method`` act once on the shared object when ``indices``
+  generator), ``set_attr`` (the vector env's own ``set_attr``: validated, curriculum hooks
+  such as ``terrain_difficulty`` set on the task, other names refused) and ``env_method`` act
+  once on the shared object when ``indices``
   selects every copy (``env_method`` then splits a result with one entry per copy, e.g.
   ``render``) and raise ``ValueError`` naming the attribute when it selects only some (setting
   a shared attribute for one copy cannot be honoured; use separate envs for that);
@@ -126,8 +128,19 @@ def _build_class():
             if attr_name == "np_random" and hasattr(self.venv, "np_random_list"):
                 rngs = self.venv.np_random_list
                 return [rngs[i] for i in idx]
+            batched = self._batched_api()
+            if batched is not None and attr_name in getattr(batched.task, "CURRICULUM_HOOKS", {}):
+                vals = batched.get_attr(attr_name)
+                return [vals[i] for i in idx]
             val = getattr(self.venv, attr_name)
             return [val for _ in idx]
+
+        def _batched_api(self):
+            """The batched vector env under the wrappers when it validates ``set_attr`` (the
+            tensegrity envs' :class:`~tensegrity_gym.envs.vector_rules.VectorApi`), else None."""
+            from ..envs.vector_rules import VectorApi
+            env = getattr(self.venv, "unwrapped", self.venv)
+            return env if isinstance(env, VectorApi) and hasattr(env, "task") else None
 
         def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
             idx = list(self._get_indices(indices))
@@ -140,6 +153,10 @@ def _build_class():
                 raise ValueError(f"set_attr({attr_name!r}, indices={idx}): the {self.num_envs} copies of the "
                                  "batched vector env share this attribute; set it for all copies "
                                  "(indices=None) or use a vector env of separate envs")
+            batched = self._batched_api()
+            if batched is not None:       # validated; a curriculum hook reaches the task
+                batched.set_attr(attr_name, value)
+                return
             setattr(self.venv, attr_name, value)
 
         def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:

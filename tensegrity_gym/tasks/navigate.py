@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,10 +33,12 @@ from ..core.terrain import Box, Heightfield, Terrain
 from .xp import NUMPY, namespace
 
 __all__ = ["CourseSpec", "Course", "draw_course", "guidance", "guidance_batch", "guidance_frame", "current_goal",
-           "track_goals", "navigate_observation", "height_scan", "MAX_TRIES"]
+           "track_goals", "navigate_observation", "height_scan", "MAX_TRIES", "MAX_GRID", "check_course_size"]
 
 #: courses drawn before a spec is declared unsolvable
 MAX_TRIES = 200
+#: the most cells along a side of the planner's grid or of a height scan (as a rough terrain's grid)
+MAX_GRID = 2000
 
 
 @dataclass(frozen=True)
@@ -70,6 +73,57 @@ class Course:
     field: np.ndarray
     origin: np.ndarray
     cell: float
+
+
+def _memory_limit() -> float:
+    """Half the machine's physical memory, bytes (4 GiB where it cannot be read): what a task's
+    courses may take (the CLI's default ``--max-memory``)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
+        return 4.0 * 2**30
+
+
+def grid_side(spec: CourseSpec) -> float:
+    """Cells along a side of the planner's grid (:func:`_grid`), as a float (inf where it overflows)."""
+    side = 2.0 * (spec.arena + spec.inflate + 0.5) / spec.cell
+    return float(math.ceil(side) + 1) if math.isfinite(side) else math.inf
+
+
+def course_bytes(spec: CourseSpec, num_envs: int, scan_n: int = 0) -> float:
+    """About the memory (bytes) of the planner and of ``num_envs`` copies' courses: the grid's
+    coordinates, obstacles, rough heights and 8-connected graph (about 50 doubles a cell while it is
+    built), each course's path distances (``n_goals`` doubles a cell, kept per copy), and per copy
+    and step the guidance window of ``(2 lookahead + 1)^2`` cells and the ``scan_n^2`` points of a
+    height scan (a dozen doubles each)."""
+    cells = grid_side(spec) ** 2
+    per_copy = cells * spec.n_goals + 4.0 * (2.0 * spec.lookahead + 1) ** 2 + 12.0 * scan_n ** 2
+    return 8.0 * (cells * (50 + spec.n_goals) + num_envs * per_copy)
+
+
+def check_course_size(spec: CourseSpec, num_envs: int = 1, scan_n: int = 0) -> None:
+    """ValueError naming the argument unless the planner's grid has at most :data:`MAX_GRID`
+    cells a side (``arena``, ``inflate``, ``cell``), ``lookahead`` reaches no farther than that
+    grid, a height scan has at most :data:`MAX_GRID` points a side (``height_scan``) and all of it
+    for ``num_envs`` copies (:func:`course_bytes`) fits in half the machine's memory; checked
+    before anything is allocated (as a rough terrain's grid is)."""
+    side = grid_side(spec)
+    if not side <= MAX_GRID:
+        raise ValueError(f"cell, arena: a cell of {spec.cell:g} m over the arena +-{spec.arena:g} m (and a margin of "
+                         f"inflate + 0.5 m) makes a planner grid of about {side:.3g} x {side:.3g} cells; at most "
+                         f"{MAX_GRID} x {MAX_GRID}: use a larger cell or a smaller arena")
+    n = int(math.ceil(side))
+    if spec.lookahead > n:
+        raise ValueError(f"lookahead: {spec.lookahead} cells reaches beyond the planner grid of {n} x {n} cells; "
+                         f"at most {n}")
+    if scan_n > MAX_GRID:
+        raise ValueError(f"height_scan: n = {scan_n} makes a scan of {scan_n} x {scan_n} points; at most "
+                         f"{MAX_GRID} x {MAX_GRID}")
+    need, limit = course_bytes(spec, num_envs, scan_n), _memory_limit()
+    if not need <= limit:
+        raise ValueError(f"num_envs, cell, arena, n_goals, height_scan: {num_envs} copies' courses need about "
+                         f"{need / 2**30:.3g} GiB of memory (planner grid {n} x {n} cells, {spec.n_goals} goals, "
+                         f"scan {scan_n} x {scan_n}), above half this machine's memory ({limit / 2**30:.3g} GiB)")
 
 
 def _grid(spec: CourseSpec):

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.terrain import Box, Heightfield, Plane, Terrain
+from ..core.terrain import MAX_EXTENT, Box, Heightfield, Plane, Terrain
 from .xp import namespace
 
 __all__ = ["TerrainGenerator", "generate", "terrain_from", "terrain_draws", "drawn_values", "step_extents",
@@ -48,6 +48,19 @@ __all__ = ["TerrainGenerator", "generate", "terrain_from", "terrain_draws", "dra
 KINDS = ("slope", "steps", "rough")
 #: length of the step boxes across the goal direction and of the last step, m
 STEP_SPAN = 20.0
+#: the most steps or waves a generator takes (a terrain of that many parts or cosines per draw)
+MAX_COUNT = 1000
+
+
+def _show(v) -> str:
+    """``v`` for an error message: its repr cut to 80 characters, or the size of an integer too
+    long to print (Python refuses the digits of one beyond 4300)."""
+    if isinstance(v, (int, np.integer)) and not isinstance(v, bool) and int(v).bit_length() > 64:
+        return f"an integer of {int(v).bit_length()} bits"
+    try:
+        return f"{v!r:.80}"
+    except ValueError:
+        return f"a {type(v).__name__} too long to print"
 
 
 @dataclass(frozen=True)
@@ -75,9 +88,12 @@ class TerrainGenerator:
         if self.kind not in KINDS:
             raise ValueError(f"terrain.generator: unknown kind {self.kind!r}; choose one of {list(KINDS)}")
         try:
+            if isinstance(self.slope_range, (str, bytes)) or any(isinstance(v, (bool, complex, np.bool_, str))
+                                                                 for v in self.slope_range):
+                raise TypeError
             lo, hi = (float(v) for v in self.slope_range)
-        except (TypeError, ValueError):
-            raise ValueError(f"terrain.slope_range: expected (low, high) degrees, got {self.slope_range!r:.80}") \
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"terrain.slope_range: expected (low, high) degrees, got {_show(self.slope_range)}") \
                 from None
         if not (math.isfinite(lo) and math.isfinite(hi) and -60.0 <= lo <= hi <= 60.0):
             raise ValueError(f"terrain.slope_range: expected -60 <= low <= high <= 60 degrees, got {self.slope_range!r}")
@@ -85,16 +101,24 @@ class TerrainGenerator:
         for name, lo_open in (("step_height", False), ("tread", True), ("amplitude", False), ("wavelength", True),
                               ("size", True), ("cell", True), ("pad", False)):
             v = getattr(self, name)
-            ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+            ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and \
+                -MAX_EXTENT <= v <= MAX_EXTENT         # False for nan and inf, no float of a huge int
             if not ok or v < 0 or (lo_open and v == 0):
                 raise ValueError(f"terrain.{name}: must be a {'positive' if lo_open else 'non-negative'} "
-                                 f"number (m), got {v!r}")
+                                 f"number of at most {MAX_EXTENT:g} m, got {_show(v)}")
             s(self, name, float(v))
         for name in ("n_steps", "waves"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"terrain.{name}: must be a positive integer, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_COUNT:
+                raise ValueError(f"terrain.{name}: must be an integer in [1, {MAX_COUNT}], got {_show(v)}")
             s(self, name, int(v))
+        # the steps' top and far end within the terrain's extent (each part's bound, named here)
+        if self.n_steps * self.step_height > MAX_EXTENT:
+            raise ValueError(f"terrain.step_height: {self.step_height:g} m x {self.n_steps} steps rises above "
+                             f"{MAX_EXTENT:g} m (a terrain's physical extent)")
+        if self.pad + self.n_steps * self.tread + STEP_SPAN > MAX_EXTENT:
+            raise ValueError(f"terrain.tread: {self.tread:g} m x {self.n_steps} steps reaches beyond "
+                             f"{MAX_EXTENT:g} m (a terrain's physical extent)")
         if self.size / self.cell > 2000:
             raise ValueError(f"terrain.cell: {self.cell:g} m makes a grid of more than 2000 x 2000 cells over "
                              f"size {self.size:g} m; use a larger cell or a smaller size")

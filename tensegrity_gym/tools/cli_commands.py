@@ -304,11 +304,13 @@ def cmd_identify(args) -> int:
         _stage(tx, Path(args.plot), lambda f: res.plot().savefig(f, dpi=100, format="png"))
     _commit(tx)
     for g in res.fields:
-        for i, v, e, ok in zip(res.items[g], res.values[g], res.std_errors[g], res.identifiable[g]):
-            err = f"+- {e:.3g}" if np.isfinite(e) else "(not identifiable)"
+        pinned = res.at_bound.get(g, np.zeros(len(res.items[g]), bool))
+        for i, v, e, b in zip(res.items[g], res.values[g], res.std_errors[g], pinned):
+            err = "(at the search bound)" if b else f"+- {e:.3g}" if np.isfinite(e) else "(not identifiable)"
             print(f"{g:12s} {sysid.FITTABLE[g]} {i:3d}  {v:.6g} {err} {sysid._UNITS[g]}")
-    print(f"RMS node error {res.rms_m * 1e3:.4g} mm (initial values {res.rms_initial_m * 1e3:.4g} mm); "
-          f"{res.n_windows} windows of {res.window_s:g} s; converged: {res.converged}; wrote {out}"
+    print(f"RMS node error {res.rms_m * 1e3:.4g} mm (initial values {res.rms_initial_m * 1e3:.4g} mm; record noise "
+          f"{res.noise_m * 1e3:.3g} mm, motion {res.motion_rms_m * 1e3:.3g} mm RMS); {res.n_windows} windows of "
+          f"{res.window_s:g} s; converged: {res.converged}; ok: {res.ok}; wrote {out}"
           + (f" and {args.plot}" if args.plot else ""))
     for w in res.warnings:
         print(f"warning: {w}", file=sys.stderr)

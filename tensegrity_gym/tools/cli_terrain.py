@@ -30,14 +30,20 @@ def add_terrain_args(p, *, contact: bool = True, ground_help: str | None = None,
                        help="a terrain file (docs/terrain.md: a sloped plane, boxes, a heightfield)")
     g.add_argument("--ground", action="store_true",
                    help=ground_help or "a level plane at z = 0 (the same as --terrain with a file holding {})")
+    level = Terrain()      # --ground's values: a file holding {}
+
+    def default(field: str) -> str:
+        v = f"{getattr(level, field):g}"
+        return f"default: the terrain file's; {v} with --ground" if terrain_file else f"default {v}"
+    where = "every terrain part" if terrain_file else "the ground"
     p.add_argument("--friction", type=_non_negative, default=None,
-                   help="Coulomb friction coefficient of every terrain part (default: the terrain file's)")
+                   help=f"Coulomb friction coefficient of {where} ({default('friction')})")
     if not contact:
         return
     p.add_argument("--ground-stiffness", type=_positive(float), default=None,
-                   help="normal contact stiffness of every terrain part, N/m (default: the terrain file's)")
+                   help=f"normal contact stiffness of {where}, N/m ({default('stiffness')})")
     p.add_argument("--ground-damping", type=_non_negative, default=None,
-                   help="Hunt-Crossley contact damping of every terrain part, s/m (default: the terrain file's)")
+                   help=f"Hunt-Crossley contact damping of {where}, s/m ({default('damping')})")
     p.add_argument("--cap-radius", type=_positive(float), default=None,
                    help=f"radius of the rods' end caps and capsules touching the terrain, m "
                         f"(default {DEFAULT_CAP_RADIUS:g})")

@@ -86,12 +86,14 @@ from ..core.model import compile_model
 from ..core.checks import check_real
 from ..core.builders import load_structure
 from ..core.model import Model
+from ..core.errors import SimulationDiverged
 from ..core.integrators import resolve
 from ..physics.contact import PRM_FIELDS
 from ..io.trajectory import load_csv, load_trajectory
 from .sysid_inputs import StartValueError, _check_above_ground, _check_record, _parse_contact, _parse_fit
-from .sysid_problem import _Problem
-from .sysid_result import CONTACT_FIELDS, FITTABLE, SysIdResult, SysIdWarning
+from .sysid_problem import _THETA_MAX, _Problem
+from .sysid_result import (CONTACT_FIELDS, FITTABLE, MISFIT_FLOOR, MISFIT_MOTION, MISFIT_NOISE, SysIdResult,
+                           SysIdWarning)
 from .sysid_result import _ALIASES, _UNITS  # noqa: F401  (the command line reads them here)
 
 __all__ = ["identify", "SysIdResult", "SysIdWarning", "StartValueError", "FITTABLE", "CONTACT_FIELDS", "load_csv",
@@ -238,6 +240,14 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
 
     theta0 = np.zeros(pb.p)
     r0 = fun(theta0)[:-pb.p]
+    if not np.isfinite(cache["res"].reshape(pb.W, -1)).all(axis=1).any():
+        # every window blows up with the starting values: no fit can start from there
+        def span(v):
+            lo, hi = float(np.min(v)), float(np.max(v))
+            return f"{lo:.3g}" if lo == hi else f"{lo:.3g}..{hi:.3g}"
+        start = ", ".join(f"{g}={span(init[g])} {_UNITS[g]}" for g in names)
+        raise SimulationDiverged(f"the starting values {start} blow the simulation up in every window of "
+                                 f"{(pb.K - 1) * pb.h:g} s (dt {pb.dt:g} s)")
     rms0 = float(np.sqrt(np.sum(r0 ** 2) / max(pb.n_obs, 1)))
     # a weak pull towards the starting values (rows lam * theta, lam = rank_rtol x the largest
     # column norm): it keeps a flat (unidentifiable) direction where it started instead of letting
@@ -266,7 +276,8 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
         solve(theta)
         jac(theta)
         Jp = cache["Jp"].reshape(-1, pb.p)
-        G = Jp.T @ Jp
+        Jf = np.where(np.isfinite(Jp), Jp, 0.0)        # a diverged copy's column: no information (not converged)
+        G = Jf.T @ Jf
         colnorm = np.sqrt(np.diag(G))
         scale = np.where(colnorm > 0, colnorm, 1.0)
         ev, V = np.linalg.eigh(G / np.outer(scale, scale))     # singular values^2 of the column-scaled Jacobian
@@ -306,29 +317,44 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
     sigma2 = ssr / pb.dof
     cov = np.full((pb.p, pb.p), np.inf)
     if ident.any():
-        Ji = Jp[:, ident]
+        Ji = np.where(np.isfinite(Jp), Jp, 0.0)[:, ident]
         cov_i = sigma2 * np.linalg.pinv(Ji.T @ Ji, rcond=rank_rtol ** 2, hermitian=True)
         ii = np.flatnonzero(ident)
         cov[np.ix_(ii, ii)] = cov_i
     vals = pb.values(theta)
     LJ = pb.log_jacobian(theta)
     covf = np.where(np.isfinite(cov), cov, 0.0)
+    # a value at the search bound: the residual no longer depends on it there (its derivative is
+    # 0, not "determined"): the record does not fix it within the range searched
+    bound = pb.at_bound(theta)
     values, std, rel, idf, scl, scl_se = {}, {}, {}, {}, {}, {}
     for g in names:
         values[g] = vals[g]
         Gg = LJ[g]                                  # (n_items, p): d log value / d theta
         dep = np.abs(Gg) > 1e-9
-        idf[g] = ~np.any(dep & ~ident[None], axis=1)
+        idf[g] = ~np.any(dep & ~ident[None], axis=1) & ~bound[g]
         var = np.einsum("ip,pq,iq->i", Gg, covf, Gg)
         rel[g] = np.where(idf[g], np.sqrt(np.abs(var)), np.inf)
         std[g] = values[g] * rel[g]
         if mode == "scale":
             scl[g] = float(values[g][0] / init[g][0])
             scl_se[g] = float(scl[g] * rel[g][0])
-    bad = [f"{g} {FITTABLE[g]} {i}" for g in names for i, ok in zip(items[g], idf[g]) if not ok]
+    pinned = [f"{g} {FITTABLE[g]} {i}" for g in names for i, b in zip(items[g], bound[g]) if b]
+    if pinned:
+        warn_list.append(f"at the search bound (a factor of {np.exp(_THETA_MAX):.0f} from its starting value; not "
+                         "identifiable, infinite standard error): the record does not fix it in that range; check "
+                         "that it was recorded from this structure, and the starting values: " + ", ".join(pinned))
+    bad = [f"{g} {FITTABLE[g]} {i}" for g in names for i, ok, b in zip(items[g], idf[g], bound[g]) if not ok and not b]
     if bad:
         warn_list.append("not identifiable from this record (flat or degenerate directions of the residual; "
                          "infinite standard error): " + ", ".join(bad))
+    noise, motion = pb.record_scales()
+    misfit = bool(rms > max(MISFIT_NOISE * noise, MISFIT_MOTION * motion, MISFIT_FLOOR))
+    if misfit:
+        warn_list.append(f"the fitted model misses the record: RMS error {rms * 1e3:.3g} mm is above {MISFIT_NOISE:g} x "
+                         f"the record's noise ({noise * 1e3:.3g} mm) and {MISFIT_MOTION:g} x its motion "
+                         f"({motion * 1e3:.3g} mm RMS); was it recorded from this structure, with the same gravity, "
+                         "ground and actuation?")
     if not converged:
         warn_list.append(f"the fit did not converge: {message}")
     for w_ in warn_list:
@@ -349,4 +375,5 @@ def identify(structure_or_model, t, nodes, fit=("stiffness", "damping", "mass"),
         window_s=(pb.K - 1) * pb.h, sample_dt_s=pb.h, dt_s=pb.dt, n_substeps=pb.n_sub, integrator=pb.integrator,
         n_observations=pb.n_obs, n_state_unknowns=pb.W * pb.ns, nfev=pb.nfev, njev=pb.njev,
         wall_s=time.perf_counter() - t0, params=fitted[0], contact=fitted_contact,
-        _plot={"t": pb.t, "recorded": pb.rec, "fitted": sim, "mask": pb.mask})
+        _plot={"t": pb.t, "recorded": pb.rec, "fitted": sim, "mask": pb.mask},
+        at_bound=bound, noise_m=noise, motion_rms_m=motion, misfit=misfit)

@@ -217,23 +217,62 @@ class _Problem:
                 xi, act = self.carried
                 cs.anchor[...] = out[:, 0, contact_mod.contact_nodes(self.model), :2] - xi[win]
                 cs.active[...] = act[win]
+        dead = np.zeros(C, bool)     # copies whose state stopped being finite: NaN from then on
         with np.errstate(all="ignore"):
             for k in range(1, self.K + bool(extra)):
                 rl = None if self.rl is None else self.rl[win, k - 1]
                 try:
                     if cs is None:
-                        st = step(self.model, st, self.dt, self.integrator, n_steps=self.n_sub, params=params,
-                                  rest_length=rl)
+                        new = step(self.model, st, self.dt, self.integrator, n_steps=self.n_sub, params=params,
+                                   rest_length=rl)
                     else:
-                        st, cs = pipeline.step(self.model, st, self.dt, self.integrator, n_steps=self.n_sub,
-                                               contact=self.contact, cstate=cs, contact_params=prm, params=params,
-                                               rest_length=rl)
+                        new, cs = pipeline.step(self.model, st, self.dt, self.integrator, n_steps=self.n_sub,
+                                                contact=self.contact, cstate=cs, contact_params=prm, params=params,
+                                                rest_length=rl)
                 except (ZeroDivisionError, OverflowError, FloatingPointError):
                     out[:, k:] = np.nan
                     break
+                # a copy that blew up carries its last finite state on (the next step takes only
+                # finite states), its positions NaN: the other copies of the batch go on
+                bad = ~(np.isfinite(new.q).all(axis=(1, 2)) & np.isfinite(new.qd).all(axis=(1, 2)))
+                if bad.any():
+                    dead |= bad
+                    new = State(q=np.where(bad[:, None, None], st.q, new.q),
+                                qd=np.where(bad[:, None, None], st.qd, new.qd))
+                st = new
                 if k < self.K:
                     out[:, k] = node_positions(self.model, st.q)
+                    out[dead, k] = np.nan
         return (out, st, cs) if extra else out
+
+    def at_bound(self, theta) -> dict:
+        """{field: (n_items,) bool} the items whose value ``theta`` pins at the search bound
+        (``|log(value / initial)|`` at :data:`_THETA_MAX`, where the residual no longer depends on it)."""
+        out = {}
+        for g in self.names:
+            th = np.abs(np.asarray(theta)[self.slices[g]]) >= _THETA_MAX * (1 - 1e-9)
+            n_ = len(self.items[g])
+            if g == "mass" and self.total_mass is not None:      # every rod's share depends on every entry
+                out[g] = np.full(n_, bool(th.any()))
+            else:
+                out[g] = np.broadcast_to(th, (n_,)).copy()
+        return out
+
+    def record_scales(self) -> tuple[float, float]:
+        """``(noise, motion)`` m of the fitted samples: the position noise the record shows (RMS
+        second difference of consecutive tracked samples over sqrt(6), white noise's; an upper
+        bound, smooth motion adds ``a h^2``) and the RMS motion of the tracked nodes about their
+        mean in each window (what a model predicting no motion would miss)."""
+        m = self.mask[..., None] & np.ones(3, bool)
+        x = np.where(m, self.rec, 0.0)
+        cnt = m.sum(1)
+        mean = x.sum(1) / np.maximum(cnt, 1)
+        motion = math.sqrt(float(np.sum(np.where(m, x - mean[:, None], 0.0) ** 2)) / max(int(m.sum()), 1))
+        ok = m[:, 2:] & m[:, 1:-1] & m[:, :-2]
+        if not ok.any():
+            return 0.0, motion
+        d2 = np.where(ok, x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2], 0.0)
+        return math.sqrt(float(np.sum(d2 ** 2)) / (6.0 * int(ok.sum()))), motion
 
     def carry(self, theta, q, qd):
         """With contact: every window but the first starts from the stick/slip state the previous

@@ -18,6 +18,12 @@ _UNITS = {"stiffness": "N/m", "damping": "N s/m", "mass": "kg", "node_damping": 
 #: the ground contact's fittable fields -> the GroundContact field each one is (one value each:
 #: Coulomb coefficient, normal stiffness N/m, Hunt-Crossley damping s/m)
 CONTACT_FIELDS = {"friction": "friction", "ground_stiffness": "stiffness", "ground_damping": "damping"}
+#: a fit misses the record when its RMS error is above MISFIT_NOISE x the record's noise AND above
+#: MISFIT_MOTION x the record's motion (it explains less than 99 % of the motion's variance) AND
+#: above MISFIT_FLOOR m (1 um, below any tracker's noise: round-off of a record without motion)
+MISFIT_NOISE = 10.0
+MISFIT_MOTION = 0.1
+MISFIT_FLOOR = 1e-6
 
 
 class SysIdWarning(UserWarning):
@@ -34,8 +40,17 @@ class SysIdResult:
     ``scale_std_errors[f]``: the fitted factor of field ``f`` (``mode="scale"`` only).
     ``rms_m``: RMS node error over every observed coordinate after the fit (``rms_initial_m``:
     with the initial values, window states fitted). ``converged``: the optimiser met its
-    tolerances and every window's state fit converged. ``ok``: converged and every fitted
-    parameter identifiable. ``params``: the fitted :class:`Params` (one row). ``contact``: the
+    tolerances and every window's state fit converged. ``at_bound[f]``: the items whose value
+    ran to the search bound (a factor of e^5 = 148 from its starting value): the record does not
+    fix them within that range, so they are also not identifiable (infinite standard error).
+    ``noise_m``: the position noise the record shows (RMS second difference of consecutive
+    samples over sqrt(6); an upper bound), ``motion_rms_m``: the RMS motion of the tracked
+    nodes about their mean in each window. ``misfit``: ``rms_m`` is above
+    :data:`MISFIT_NOISE` x ``noise_m``, above :data:`MISFIT_MOTION` x ``motion_rms_m`` and above
+    :data:`MISFIT_FLOOR` (1 um): the
+    model does not explain the record (another structure, ground, gravity or actuation than
+    the recording's). ``ok``: converged, every fitted parameter identifiable and none at the
+    search bound, and no misfit. ``params``: the fitted :class:`Params` (one row). ``contact``: the
     fitted :class:`~tensegrity_gym.physics.contact.GroundContact` of a fit with ground contact
     (None without); its fitted values are also in ``values`` under ``friction``,
     ``ground_stiffness`` and ``ground_damping`` (item 0)."""
@@ -71,10 +86,15 @@ class SysIdResult:
     params: Params = field(repr=False, default=None)
     contact: object = field(repr=False, default=None)
     _plot: dict = field(repr=False, default=None)
+    at_bound: dict = field(default_factory=dict)
+    noise_m: float = 0.0
+    motion_rms_m: float = 0.0
+    misfit: bool = False
 
     @property
     def ok(self) -> bool:
-        return bool(self.converged and all(np.all(v) for v in self.identifiable.values()))
+        return bool(self.converged and all(np.all(v) for v in self.identifiable.values())
+                    and not any(np.any(v) for v in self.at_bound.values()) and not self.misfit)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (infinite standard errors as None)."""
@@ -88,7 +108,9 @@ class SysIdResult:
                "std_errors": {f: arr(v) for f, v in self.std_errors.items()},
                "rel_std_errors": {f: arr(v) for f, v in self.rel_std_errors.items()},
                "identifiable": {f: [bool(x) for x in v] for f, v in self.identifiable.items()},
+               "at_bound": {f: [bool(x) for x in v] for f, v in self.at_bound.items()},
                "rms_m": self.rms_m, "rms_initial_m": self.rms_initial_m, "max_error_m": self.max_error_m,
+               "noise_m": self.noise_m, "motion_rms_m": self.motion_rms_m, "misfit": self.misfit,
                "n_windows": self.n_windows, "samples_per_window": self.samples_per_window,
                "window_s": self.window_s, "sample_dt_s": self.sample_dt_s, "dt_s": self.dt_s,
                "n_substeps": self.n_substeps, "integrator": self.integrator,
