@@ -196,7 +196,8 @@ def test_grouped_config_equals_the_flat_arguments():
     with pytest.raises(TypeError, match=r"ShapeTask.__init__\(\) got an unexpected keyword argument 'fricton'"):
         ShapeTask(fricton=0.7)
     flat = set(inspect.signature(roll.RollTask).parameters) - {"num_envs", "config"}
-    assert len(flat) == 37 and {"cap_radius", "history", "reset_noise_scale", "terrain", "terrain_difficulty"} <= flat
+    assert len(flat) == 38 and {"cap_radius", "history", "reset_noise_scale", "rod_contact", "terrain",
+                                 "terrain_difficulty"} <= flat
     assert len(set(inspect.signature(ShapeTask).parameters) - {"num_envs", "config"}) == 29
     assert shape_config().randomization.reset_noise_scale == 5e-3
 

@@ -22,6 +22,8 @@ START = {"friction": 0.84, "stiffness": 3.25e3, "damping": 7.5}     # +40 %, -35
 FIT = ("friction", "ground_stiffness", "ground_damping")
 NAMES = {"friction": "friction", "ground_stiffness": "stiffness", "ground_damping": "damping"}
 DT, EVERY, T = 1e-3, 10, 0.4      # physics step s, steps per sample (10 ms), record length s
+#: the damping cap of the command line and the envs at DT (physics.contact.impact_damping_cap, 0.2 kg rods)
+CAP = C.impact_damping_cap([0.2], DT)
 
 
 def _robot():
@@ -44,7 +46,7 @@ def record():
     model = tg.compile_model(s)
     st = tg.initial_state(model)
     st = State(*project(model, st.q, st.qd))
-    gc, cs = C.GroundContact(radius=0.02, **TRUE), C.init_contact_state(model, 1)
+    gc, cs = C.GroundContact(radius=0.02, max_damping=CAP, **TRUE), C.init_contact_state(model, 1)
     out = [node_positions(model, st.q)[0]]
     for _ in range(int(round(T / (DT * EVERY)))):
         st, cs = pipeline.step(model, st, DT, "semi_implicit_euler", n_steps=EVERY, contact=gc, cstate=cs)
@@ -60,7 +62,7 @@ def test_recovers_friction_stiffness_and_damping(record):
     assert nodes[..., 2].min() < 0.02 < nodes[0, :, 2].min()      # it lands
     with warnings.catch_warnings():
         warnings.simplefilter("error", SysIdWarning)
-        r = identify(model, t, nodes, fit=FIT, dt=DT, contact=C.GroundContact(radius=0.02, **START))
+        r = identify(model, t, nodes, fit=FIT, dt=DT, contact=C.GroundContact(radius=0.02, max_damping=CAP, **START))
     assert r.ok, r.message
     assert r.integrator == "semi_implicit_euler" and r.window_s == pytest.approx(0.05)
     err = {g: float(r.values[g][0] / TRUE[NAMES[g]] - 1) for g in FIT}
@@ -77,7 +79,7 @@ def test_recovers_contact_with_noise(record):
     """0.5 mm of position noise: each value within 3 standard errors of the truth, friction to 3 %."""
     _, model, t, nodes = record
     noisy = nodes + 5e-4 * np.random.default_rng(0).standard_normal(nodes.shape)
-    r = identify(model, t, noisy, fit=FIT, dt=DT, contact={"radius": 0.02, **START})
+    r = identify(model, t, noisy, fit=FIT, dt=DT, contact={"radius": 0.02, "max_damping": CAP, **START})
     assert r.ok, r.message
     for g in FIT:
         v, se = r.values[g][0], r.std_errors[g][0]

@@ -110,4 +110,4 @@ def test_cli_view_and_simulate_video_pass_the_terrain(tmp_path, monkeypatch, cap
     tf.write_text('{"plane": {"slope_deg": "steep"}}')
     assert cli.main(["view", str(out), "--terrain", str(tf)]) == 3
     err = capsys.readouterr().err
-    assert "plane.slope_deg: expected a number, got 'steep'" in err and "Traceback" not in err
+    assert "plane.slope_deg: expected a real number, got 'steep'" in err and "Traceback" not in err

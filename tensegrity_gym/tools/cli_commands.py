@@ -3,6 +3,7 @@ that do not integrate a run of their own."""
 from __future__ import annotations
 
 import json
+import math
 import sys
 import warnings
 from pathlib import Path
@@ -261,11 +262,14 @@ def cmd_identify(args) -> int:
                        "parameter; add --ground (and give a recording made on the ground)")
     terrain = terrain_from_args(args)      # contact options without --ground: exit 2
     contact = None
-    if terrain is not None:               # --ground: a level plane at z = 0, as simulate --ground runs it
-        from ..physics.contact import GroundContact
-        contact = GroundContact(friction=terrain.friction, stiffness=terrain.stiffness, damping=terrain.damping,
-                                radius=DEFAULT_CAP_RADIUS if args.cap_radius is None else args.cap_radius)
     out, tx, s, model = _outputs_and_model(args, args.plot, "--plot")
+    if terrain is not None:               # --ground: a level plane at z = 0, as simulate --ground runs it
+        from ..physics.contact import GroundContact, impact_damping_cap
+        # with --dt, the damping cap simulate --ground applies at that step (impact_damping_cap)
+        cap = math.inf if args.dt is None else impact_damping_cap(s.bar_mass, args.dt)
+        contact = GroundContact(friction=terrain.friction, stiffness=terrain.stiffness, damping=terrain.damping,
+                                radius=DEFAULT_CAP_RADIUS if args.cap_radius is None else args.cap_radius,
+                                max_damping=cap)
     initial = parse_initial(args.initial, model, sysid.FITTABLE, sysid._ALIASES, sysid.CONTACT_FIELDS)
     try:
         t, nodes, rl, mask = sysid.load_trajectory(args.trajectory, model.n_nodes, bars=model.structure.bars)
